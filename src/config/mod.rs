@@ -1,0 +1,1 @@
+//! The one config file: raw serde tables, then validated types.

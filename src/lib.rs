@@ -1,0 +1,21 @@
+//! # snakectl
+//!
+//! Controller and simulator for planar hyper-redundant "snake arms" and free flexible objects
+//! (ropes, chains, hair), after Banerjee, Menon, Ananthasuresh and Ghosal, "Simulation of
+//! Length-Preserving Motions of Flexible One Dimensional Objects using Optimization" (2011).
+//!
+//! Layout, lowest layer first (a layer uses only those above it in this list):
+//! - [`chain`]: links, base pose, relative angles, limits; forward kinematics, Jacobian,
+//!   workspace ring. Pure math.
+//! - [`metrics`]: the paper's five motion metrics between two configurations. Pure math.
+//! - [`resolve`]: the two redundancy-resolution strategies (sequential tractrix, overall
+//!   minimization of metric 3) behind one [`resolve::Resolver`] trait. Pure math.
+//! - [`config`]: the one TOML file that describes an arm and how to reach it, parsed raw and then
+//!   validated, errors naming the file and the field.
+//! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
+
+pub mod chain;
+pub mod config;
+pub mod metrics;
+pub mod problem;
+pub mod resolve;

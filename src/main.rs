@@ -1,0 +1,2 @@
+//! The `snakectl` command line.
+fn main() {}

@@ -1,0 +1,1 @@
+//! The JSON problem format of `snakectl solve`.
