@@ -1,1 +1,2 @@
+//! Sequential-strategy benchmarks.
 fn main() {}

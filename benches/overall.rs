@@ -1,0 +1,2 @@
+//! Overall-strategy benchmarks.
+fn main() {}
