@@ -1,1 +1,523 @@
-//! The sequential strategy.
+//! The sequential strategy: the tip moves in a straight line, each link's tail follows its head
+//! (tractrix or distance step), propagated from the tip to the base.
+//!
+//! - **Free tail** ([`sweep`], [`pull_free`]): a rope or a snake; the base end moves.
+//! - **Fixed base** ([`Sequential`]): one sweep leaves the base displaced by `delta`; a correction
+//!   restores it. Two schemes are offered ([`Correction`]):
+//!   - [`Correction::Translate`], the published one: translate the chain by `-delta` (the tip then
+//!     misses by `delta`) and sweep again, until both ends are within tolerance. Linear
+//!     convergence, hundreds of rounds near the workspace boundary.
+//!   - [`Correction::Newton`] (default): sweep once from the start pose toward a *virtual* tip
+//!     goal `w`, then translate rigidly so the base is back on `b`. The tip lands at
+//!     `w - p_0(w) + b`, a 2-D function of `w` whose derivative the sweep carries along
+//!     (a product of 2x2 link derivatives), so a damped Newton iteration on `w` puts the tip on
+//!     target in a few sweeps. The result is one tractrix motion of the whole chain plus a rigid
+//!     shift, like one round of the published scheme, but with the shift accounted for in advance.
+//!
+//! Joint limits do not enter the propagation; [`Resolver::resolve`] refuses a pose beyond them.
+
+use nalgebra::Matrix2;
+
+use super::tractrix::Propagation;
+use super::{verdict, Outcome, ResolveError, Resolver, Strategy};
+use crate::chain::{Chain, Reachability, Vec2, Workspace};
+
+/// How the fixed-base sweep puts the base back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Correction {
+    /// Damped Newton on a virtual tip goal: a few sweeps per solve (see the module doc).
+    #[default]
+    Newton,
+    /// The published scheme: translate by the base error and sweep again (linear convergence).
+    Translate,
+}
+
+impl Correction {
+    /// The name used in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Correction::Newton => "newton",
+            Correction::Translate => "translate",
+        }
+    }
+}
+
+/// Sweeps one Newton phase may spend before a published round restarts it.
+const NEWTON_BUDGET: usize = 8;
+
+/// Tuning of the sequential strategy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SequentialOptions {
+    /// Tractrix or distance-minimization step.
+    pub propagation: Propagation,
+    /// Fixed-base correction scheme.
+    pub correction: Correction,
+    /// Cap on sweeps per solve (each correction round is one sweep).
+    pub max_rounds: usize,
+    /// Tip and base tolerance, m. The effective tolerance is never below the round-off of the
+    /// coordinates involved.
+    pub tolerance_m: f64,
+}
+
+impl Default for SequentialOptions {
+    fn default() -> Self {
+        Self {
+            propagation: Propagation::Tractrix,
+            correction: Correction::Newton,
+            max_rounds: 200,
+            tolerance_m: 1e-11,
+        }
+    }
+}
+
+/// Free-tail sweep: the tip of the polyline `old` (n + 1 points, tip last) moves in a straight
+/// line to `tip`; each link's head moves along the chord its leader's tail moved. The new points
+/// are written to `out`, each tail renormalized to its link length.
+pub fn sweep(old: &[Vec2], links: &[f64], tip: Vec2, propagation: Propagation, out: &mut [Vec2]) {
+    let n = links.len();
+    out[n] = tip;
+    for i in (1..=n).rev() {
+        let t = propagation.step(old[i], old[i - 1], links[i - 1], out[i]);
+        out[i - 1] = renormalize(out[i], t, links[i - 1]);
+    }
+}
+
+/// [`sweep`] that also returns `d p_0 / d tip`, the derivative of the free end with respect to
+/// the tip goal.
+pub fn sweep_with_jacobian(
+    old: &[Vec2],
+    links: &[f64],
+    tip: Vec2,
+    propagation: Propagation,
+    out: &mut [Vec2],
+) -> Matrix2<f64> {
+    let n = links.len();
+    out[n] = tip;
+    let mut jac = Matrix2::identity();
+    for i in (1..=n).rev() {
+        let (t, d) = propagation.step_with_derivative(old[i], old[i - 1], links[i - 1], out[i]);
+        out[i - 1] = renormalize(out[i], t, links[i - 1]);
+        jac = d * jac;
+    }
+    jac
+}
+
+/// Puts `tail` at exactly `len` from `head` along the same direction (round-off only).
+fn renormalize(head: Vec2, tail: Vec2, len: f64) -> Vec2 {
+    let r = tail - head;
+    let n = r.norm();
+    if n > 0.0 {
+        head + r * (len / n)
+    } else {
+        tail
+    }
+}
+
+/// Pulls the tip of a free rope to `target` in `steps` equal straight moves; `points` (n + 1,
+/// the free end first, the tip last) are updated in place. `scratch` is resized as needed.
+pub fn pull_free(
+    points: &mut [Vec2],
+    links: &[f64],
+    target: Vec2,
+    steps: usize,
+    propagation: Propagation,
+    scratch: &mut Vec<Vec2>,
+) {
+    let n = links.len();
+    scratch.resize(n + 1, Vec2::zeros());
+    let start = points[n];
+    for k in 1..=steps.max(1) {
+        let sub = start + (target - start) * (k as f64 / steps.max(1) as f64);
+        sweep(points, links, sub, propagation, scratch);
+        points.copy_from_slice(scratch);
+    }
+}
+
+/// The fixed-base sequential resolver. Owns its scratch buffers: no allocation per solve once
+/// sized for a chain.
+#[derive(Debug, Clone, Default)]
+pub struct Sequential {
+    options: SequentialOptions,
+    start: Vec<Vec2>,
+    swept: Vec<Vec2>,
+    trial: Vec<Vec2>,
+    best: Vec<f64>,
+}
+
+impl Sequential {
+    /// A resolver with the given options.
+    pub fn new(options: SequentialOptions) -> Self {
+        Self {
+            options,
+            ..Self::default()
+        }
+    }
+
+    /// The options in use.
+    pub fn options(&self) -> &SequentialOptions {
+        &self.options
+    }
+
+    fn size(&mut self, n: usize) {
+        for v in [&mut self.start, &mut self.swept, &mut self.trial] {
+            v.resize(n + 1, Vec2::zeros());
+        }
+        self.best.resize(n, 0.0);
+    }
+
+    /// Tolerance scaled to the round-off of the coordinates at hand.
+    fn tolerance(&self, chain: &Chain, target: Vec2) -> f64 {
+        let scale = chain.base().norm() + chain.reach() + target.norm();
+        self.options.tolerance_m.max(16.0 * f64::EPSILON * scale)
+    }
+
+    /// Damped Newton on the virtual tip goal, sweeping from `self.start`. On return `self.swept`
+    /// holds the best sweep found translated onto the base. Returns (sweeps, tip residual).
+    fn newton_phase(
+        &mut self,
+        chain: &Chain,
+        target: Vec2,
+        tol: f64,
+        budget: usize,
+    ) -> (usize, f64) {
+        let links = chain.links();
+        let prop = self.options.propagation;
+        let b = chain.base();
+        let mut w = target;
+        let mut jac = sweep_with_jacobian(&self.start, links, w, prop, &mut self.swept);
+        let mut rounds = 1;
+        let mut g = w - self.swept[0] + b - target;
+        let mut lambda = 0.0;
+        while g.norm() > tol && rounds < budget {
+            // Jacobian of the residual: I - d p_0 / d w. Levenberg-Marquardt damping keeps the
+            // step finite where it is singular (the arm stretched straight).
+            let jg = Matrix2::identity() - jac;
+            let jtj = jg.transpose() * jg;
+            let rhs = -(jg.transpose() * g);
+            let damped = jtj + Matrix2::identity() * (lambda * (1.0 + jtj.trace()));
+            let step = match damped.try_inverse() {
+                Some(inv) => inv * rhs,
+                None => -g,
+            };
+            let trial_w = w + step;
+            let trial_jac = sweep_with_jacobian(&self.start, links, trial_w, prop, &mut self.trial);
+            rounds += 1;
+            let trial_g = trial_w - self.trial[0] + b - target;
+            if trial_g.norm() < g.norm() && trial_g.x.is_finite() && trial_g.y.is_finite() {
+                w = trial_w;
+                g = trial_g;
+                jac = trial_jac;
+                std::mem::swap(&mut self.swept, &mut self.trial);
+                lambda = if lambda > 1e-9 { lambda * 0.1 } else { 0.0 };
+            } else {
+                lambda = if lambda == 0.0 { 1e-4 } else { lambda * 10.0 };
+            }
+        }
+        let delta = self.swept[0] - b;
+        for p in self.swept.iter_mut() {
+            *p -= delta;
+        }
+        (rounds, g.norm())
+    }
+
+    /// The hybrid correction: Newton from the start pose; when it stalls (large moves fold the
+    /// residual map), one published round moves the start closer and Newton resumes from there.
+    fn correct_newton(&mut self, chain: &Chain, target: Vec2, tol: f64) -> (usize, f64) {
+        let links = chain.links();
+        let prop = self.options.propagation;
+        let b = chain.base();
+        let max = self.options.max_rounds;
+        let mut rounds = 0;
+        loop {
+            let budget = NEWTON_BUDGET.min(max - rounds);
+            let (r, residual) = self.newton_phase(chain, target, tol, budget);
+            rounds += r;
+            if residual <= tol || rounds + 2 > max {
+                return (rounds, residual);
+            }
+            // One published round from the current start: sweep to the target, shift back.
+            sweep(&self.start, links, target, prop, &mut self.swept);
+            rounds += 1;
+            let delta = self.swept[0] - b;
+            for (s, p) in self.start.iter_mut().zip(&self.swept) {
+                *s = p - delta;
+            }
+        }
+    }
+
+    /// Beyond the outer radius: the tip pulled without bound toward the target straightens the
+    /// arm along the pull (every `k` underflows), then the shift puts the base back. The tip
+    /// stops `|t - b| - R` short: the closest any pose gets.
+    fn correct_beyond_reach(&mut self, chain: &Chain, target: Vec2) -> (usize, f64) {
+        let b = chain.base();
+        let dir = (target - b) / (target - b).norm();
+        let far = b + dir * (chain.reach() * 1e4 + (target - b).norm());
+        sweep(
+            &self.start,
+            chain.links(),
+            far,
+            self.options.propagation,
+            &mut self.swept,
+        );
+        let delta = self.swept[0] - b;
+        for p in self.swept.iter_mut() {
+            *p -= delta;
+        }
+        (1, (self.swept[chain.len()] - target).norm())
+    }
+
+    /// The published correction. On return `self.swept` holds the last chain translated onto the
+    /// base (its tip off by the last base error). Returns (rounds, tip residual).
+    fn correct_translate(&mut self, chain: &Chain, target: Vec2, tol: f64) -> (usize, f64) {
+        let links = chain.links();
+        let prop = self.options.propagation;
+        let b = chain.base();
+        let mut rounds = 0;
+        let mut residual = f64::INFINITY;
+        self.trial.copy_from_slice(&self.start);
+        while rounds < self.options.max_rounds {
+            sweep(&self.trial, links, target, prop, &mut self.swept);
+            rounds += 1;
+            let delta = self.swept[0] - b;
+            for p in self.swept.iter_mut() {
+                *p -= delta;
+            }
+            residual = delta.norm();
+            if residual <= tol {
+                break;
+            }
+            self.trial.copy_from_slice(&self.swept);
+        }
+        (rounds, residual)
+    }
+}
+
+impl Resolver for Sequential {
+    fn strategy(&self) -> Strategy {
+        Strategy::Sequential
+    }
+
+    fn solve(&mut self, chain: &Chain, theta0: &[f64], target: Vec2, out: &mut [f64]) -> Outcome {
+        self.size(chain.len());
+        chain.points_into(theta0, &mut self.start);
+        let tol = self.tolerance(chain, target);
+        let beyond = (target - chain.base()).norm() > chain.reach();
+        let (rounds, _) = match self.options.correction {
+            _ if beyond => self.correct_beyond_reach(chain, target),
+            Correction::Newton => self.correct_newton(chain, target, tol),
+            Correction::Translate => self.correct_translate(chain, target, tol),
+        };
+        Chain::angles_from_points(chain.heading(), &self.swept, theta0, out);
+        let tip_error = (chain.tip(out) - target).norm();
+        // The propagation ignores limits: reachability is that of the unlimited chain.
+        let ring = Workspace {
+            exact: true,
+            ..chain.workspace()
+        };
+        let reachable = ring.classify((target - chain.base()).norm()) == Reachability::Inside;
+        Outcome {
+            tip_error,
+            base_error: 0.0,
+            reachable,
+            converged: reachable && tip_error <= 2.0 * tol,
+            iterations: rounds,
+        }
+    }
+
+    fn resolve(
+        &mut self,
+        chain: &Chain,
+        theta: &mut [f64],
+        target: Vec2,
+    ) -> Result<Outcome, ResolveError> {
+        super::check_input(chain, theta, target)?;
+        let mut best = std::mem::take(&mut self.best);
+        best.resize(chain.len(), 0.0);
+        let outcome = self.solve(chain, theta, target, &mut best);
+        let result = verdict(chain, &best, outcome);
+        if result.is_ok() {
+            theta.copy_from_slice(&best);
+        }
+        self.best = best;
+        result
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::chain::JointLimit;
+    use proptest::prelude::*;
+    use std::f64::consts::PI;
+
+    fn arm(n: usize) -> Chain {
+        let links = (0..n).map(|i| 0.5 + 0.1 * (i % 3) as f64).collect();
+        Chain::unlimited(links, Vec2::new(0.2, -0.1), 0.3).unwrap()
+    }
+
+    fn pose(n: usize, seed: u64) -> Vec<f64> {
+        (0..n)
+            .map(|i| ((seed as f64 + 1.3 * i as f64).sin()) * 0.6)
+            .collect()
+    }
+
+    fn check_lengths(chain: &Chain, pts: &[Vec2]) {
+        for (i, l) in chain.links().iter().enumerate() {
+            assert!(((pts[i + 1] - pts[i]).norm() - l).abs() < 1e-12);
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+
+        /// Any target within 95% of the ring is reached to 1e-9 m, base fixed, by both schemes
+        /// and both propagations.
+        #[test]
+        fn fixed_base_reaches_every_target_in_the_ring(
+            n in 2usize..24, seed in 0u64..1000, radius in 0.0f64..0.95, angle in -PI..PI,
+            translate in proptest::bool::ANY, distance in proptest::bool::ANY,
+        ) {
+            let chain = arm(n);
+            let ws = chain.workspace();
+            let r = ws.r_min + (ws.r_max - ws.r_min) * radius;
+            prop_assume!(r > ws.r_min * 1.05 + 1e-3);
+            let target = chain.base() + Vec2::new(r * angle.cos(), r * angle.sin());
+            let theta0 = pose(n, seed);
+            let mut opts = SequentialOptions::default();
+            if translate {
+                opts.correction = Correction::Translate;
+                opts.max_rounds = 100_000;
+            }
+            if distance {
+                opts.propagation = Propagation::Distance;
+            }
+            let mut s = Sequential::new(opts);
+            let mut out = vec![0.0; n];
+            let o = s.solve(&chain, &theta0, target, &mut out);
+            prop_assert!(o.reachable);
+            prop_assert!(o.converged, "{o:?}");
+            let pts = chain.points(&out);
+            prop_assert!((pts[0] - chain.base()).norm() < 1e-9);
+            prop_assert!((pts[n] - target).norm() < 1e-9, "{o:?}");
+            check_lengths(&chain, &pts);
+            for (a, b) in out.iter().zip(&theta0) {
+                prop_assert!((a - b).abs() <= PI + 1e-12);
+            }
+        }
+
+        /// Targets beyond the reach: honest flags, finite pose, the tip as close as a straight arm.
+        #[test]
+        fn unreachable_targets_are_flagged(n in 2usize..16, excess in 1.01f64..3.0, angle in -PI..PI) {
+            let chain = arm(n);
+            let r = chain.reach() * excess;
+            let target = chain.base() + Vec2::new(r * angle.cos(), r * angle.sin());
+            let mut s = Sequential::default();
+            let mut out = vec![0.0; n];
+            let o = s.solve(&chain, &pose(n, 3), target, &mut out);
+            prop_assert!(!o.reachable && !o.converged);
+            prop_assert!(out.iter().all(|t| t.is_finite()));
+            prop_assert!(o.tip_error >= r - chain.reach() - 1e-9);
+            prop_assert!(o.tip_error <= (r - chain.reach()) * 1.01 + 1e-3, "{o:?}");
+            prop_assert!(o.iterations <= s.options().max_rounds);
+        }
+    }
+
+    #[test]
+    fn newton_needs_few_rounds() {
+        let chain = arm(10);
+        let mut s = Sequential::default();
+        let mut out = vec![0.0; 10];
+        let mut rounds = Vec::new();
+        for seed in 0..200u64 {
+            let theta0 = pose(10, seed);
+            let a = seed as f64 * 0.7;
+            let r = chain.reach() * (0.2 + 0.7 * ((seed * 37 % 100) as f64 / 100.0));
+            let target = chain.base() + Vec2::new(r * a.cos(), r * a.sin());
+            let o = s.solve(&chain, &theta0, target, &mut out);
+            assert!(o.converged, "seed {seed}: {o:?}");
+            rounds.push(o.iterations);
+        }
+        // Whole-workspace moves (up to 90% of the reach in one sweep): measured median 4.
+        rounds.sort_unstable();
+        assert!(rounds[100] <= 6, "median {} rounds", rounds[100]);
+        assert!(rounds[199] <= 40, "worst {} rounds", rounds[199]);
+    }
+
+    #[test]
+    fn resolve_leaves_the_pose_untouched_on_failure() {
+        let lim = Some(JointLimit { lo: -0.2, hi: 0.2 });
+        let chain = Chain::new(vec![1.0; 4], Vec2::zeros(), 0.0, vec![lim; 4]).unwrap();
+        let mut theta = vec![0.1; 4];
+        let before = theta.clone();
+        let mut s = Sequential::default();
+        // Reachable for the unlimited chain, but the tractrix bends joints beyond 0.2 rad.
+        let err = s
+            .resolve(&chain, &mut theta, Vec2::new(1.0, 2.0))
+            .unwrap_err();
+        assert!(matches!(err, ResolveError::Limit(_)), "{err}");
+        assert_eq!(theta, before);
+        let err = s
+            .resolve(&chain, &mut theta, Vec2::new(9.0, 0.0))
+            .unwrap_err();
+        assert!(matches!(err, ResolveError::Unreachable { .. }), "{err}");
+        assert_eq!(theta, before);
+        let err = s
+            .resolve(&chain, &mut theta, Vec2::new(f64::NAN, 0.0))
+            .unwrap_err();
+        assert!(matches!(err, ResolveError::BadInput(_)), "{err}");
+        assert_eq!(theta, before);
+    }
+
+    #[test]
+    fn resolve_moves_the_pose_on_success() {
+        let chain = arm(6);
+        let mut theta = pose(6, 1);
+        let target = chain.tip(&theta) + Vec2::new(0.01, -0.02);
+        let o = Sequential::default()
+            .resolve(&chain, &mut theta, target)
+            .unwrap();
+        assert!(o.converged);
+        assert!((chain.tip(&theta) - target).norm() < 1e-9);
+    }
+
+    #[test]
+    fn straight_rope_pulled_sideways_traces_the_tractrix() {
+        // A straight rope on the +x axis, tip at the origin, pulled along +y in many steps. The
+        // tail of the pulled link must trace the classical tractrix with the y axis as asymptote:
+        // y = L ln((L + sqrt(L^2 - x^2)) / x) - sqrt(L^2 - x^2).
+        let n = 20;
+        let len = 0.1;
+        let links = vec![len; n];
+        let mut pts: Vec<Vec2> = (0..=n)
+            .map(|i| Vec2::new((n - i) as f64 * len, 0.0))
+            .collect();
+        let mut scratch = Vec::new();
+        let steps = 50;
+        for k in 1..=steps {
+            let tip = Vec2::new(0.0, 5.0 * len * k as f64 / steps as f64);
+            pull_free(
+                &mut pts,
+                &links,
+                tip,
+                1,
+                Propagation::Tractrix,
+                &mut scratch,
+            );
+            let (x, y) = (pts[n - 1].x, pts[n - 1].y);
+            let w = (len * len - x * x).sqrt();
+            let analytic = len * ((len + w) / x).ln() - w;
+            assert!(
+                (y - analytic).abs() < 1e-9,
+                "step {k}: y {y} analytic {analytic}"
+            );
+            check_lengths_free(&links, &pts);
+        }
+    }
+
+    fn check_lengths_free(links: &[f64], pts: &[Vec2]) {
+        for (i, l) in links.iter().enumerate() {
+            assert!(((pts[i + 1] - pts[i]).norm() - l).abs() < 1e-12);
+        }
+    }
+}
