@@ -1,0 +1,189 @@
+//! Why a config file was refused: always the file, then the line or the field, then the value.
+
+use std::path::PathBuf;
+
+use crate::chain::{ChainError, MAX_MAGNITUDE};
+
+/// A config file that could not be read, parsed or accepted.
+///
+/// Displays as `FILE: FIELD: PROBLEM` (for example
+/// `config/arm.toml: joint[3].link_m: -0.1 must be finite and positive, at most 1000000`) or, for
+/// TOML syntax and type errors, `FILE:LINE:COLUMN: MESSAGE`. Joints are counted from 1, base to
+/// tip, as everywhere in snakectl: `joint[1]` is the first `[[joint]]` table.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("{}: cannot read: {source}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// Not valid TOML, or a key or value of the wrong shape (unknown key, missing key, wrong
+    /// type, unknown enumeration value).
+    #[error("{}:{line}:{column}: {message}", path.display())]
+    Syntax {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line of the offending text (0 when the parser gave no position).
+        line: usize,
+        /// 1-based column, in characters.
+        column: usize,
+        /// The parser's message, which names the key where it applies.
+        message: String,
+    },
+    /// Well-formed, but a value is not acceptable.
+    #[error("{}: {field}: {problem}", path.display())]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// Dotted path of the field, e.g. `joint[3].link_m` or `arm.home_rad[2]`.
+        field: String,
+        /// What is wrong, with the value.
+        problem: Problem,
+    },
+    /// The chain model refused the geometry (a check the config module missed).
+    #[error("{}: {source}", path.display())]
+    Chain {
+        /// The file.
+        path: PathBuf,
+        /// The chain's reason.
+        source: ChainError,
+    },
+}
+
+/// What is wrong with one field. Each variant carries the offending value.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum Problem {
+    /// No `[[joint]]` table at all.
+    #[error("no [[joint]] tables: an arm needs at least one joint")]
+    NoJoints,
+    /// A length or rate that must be finite and positive.
+    #[error("{value} must be finite and positive, at most {MAX_MAGNITUDE}")]
+    NotPositive {
+        /// The value given.
+        value: f64,
+    },
+    /// A value that must be finite and not negative.
+    #[error("{value} must be finite and not negative, at most {MAX_MAGNITUDE}")]
+    Negative {
+        /// The value given.
+        value: f64,
+    },
+    /// A coordinate or angle that must be finite and of sane magnitude.
+    #[error("{value} must be finite and at most {MAX_MAGNITUDE} in magnitude")]
+    NotFinite {
+        /// The value given.
+        value: f64,
+    },
+    /// A joint's limits are not an interval.
+    #[error("limits [{min_rad}, {max_rad}] rad must be finite with min_rad < max_rad")]
+    EmptyRange {
+        /// Lower limit given, rad.
+        min_rad: f64,
+        /// Upper limit given, rad.
+        max_rad: f64,
+    },
+    /// A list with the wrong number of entries.
+    #[error("{got} entries for {expected} joints: give one per [[joint]]")]
+    Count {
+        /// Entries given.
+        got: usize,
+        /// Entries expected.
+        expected: usize,
+    },
+    /// A home angle outside its joint's limits.
+    #[error("{value} rad lies outside joint {joint}'s limits [{min_rad}, {max_rad}]")]
+    OutsideLimits {
+        /// 1-based joint.
+        joint: usize,
+        /// The angle, rad.
+        value: f64,
+        /// Lower limit, rad.
+        min_rad: f64,
+        /// Upper limit, rad.
+        max_rad: f64,
+    },
+    /// No home pose given, and zero is outside a joint's limits.
+    #[error(
+        "absent, so joint {joint} would start at 0 rad, outside its limits [{min_rad}, {max_rad}]: \
+         give a home_rad inside the limits"
+    )]
+    ZeroOutsideLimits {
+        /// 1-based joint.
+        joint: usize,
+        /// Lower limit, rad.
+        min_rad: f64,
+        /// Upper limit, rad.
+        max_rad: f64,
+    },
+    /// A servo id outside 1..=252.
+    #[error("{value} must be a servo id in 1..=252")]
+    BadId {
+        /// The id given.
+        value: i64,
+    },
+    /// Two joints with one servo id.
+    #[error("{id} is already the id of joint[{other}]")]
+    DuplicateId {
+        /// The id.
+        id: u8,
+        /// 1-based joint that has it first.
+        other: usize,
+    },
+    /// A servo id that no joint has.
+    #[error("{id} is not the id of any [[joint]]")]
+    UnknownId {
+        /// The id.
+        id: u8,
+    },
+    /// A servo model this program does not know.
+    #[error("\"{value}\" is not a supported model (XL430-W250, XM430-W350, XL330-M288)")]
+    UnknownModel {
+        /// The name given.
+        value: String,
+    },
+    /// A key that must be present for the rest of the file to make sense.
+    #[error("missing: {why}")]
+    Missing {
+        /// Why it is needed.
+        why: &'static str,
+    },
+    /// An integer outside its allowed set.
+    #[error("{value} {expected}")]
+    OutOfRange {
+        /// The value given.
+        value: i64,
+        /// What is allowed, phrased to follow the value (e.g. "must be even, at most 508").
+        expected: &'static str,
+    },
+    /// A number outside a closed interval.
+    #[error("{value} must lie in [{lo}, {hi}]")]
+    Outside {
+        /// The value given.
+        value: f64,
+        /// Lower bound.
+        lo: f64,
+        /// Upper bound.
+        hi: f64,
+    },
+    /// A time window that ends before it starts.
+    #[error("{until_s} s must be later than at_s = {at_s} s")]
+    EndsBeforeStart {
+        /// Start, s.
+        at_s: f64,
+        /// End, s.
+        until_s: f64,
+    },
+    /// A listen address that is not `host:port`.
+    #[error("\"{value}\" is not an address such as 127.0.0.1:7878 ({reason})")]
+    BadAddress {
+        /// The text given.
+        value: String,
+        /// The parser's reason.
+        reason: String,
+    },
+}

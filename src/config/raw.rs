@@ -1,0 +1,360 @@
+//! The file as written: one serde struct per TOML table, before any checking.
+//!
+//! Every table refuses keys it does not know (`deny_unknown_fields`), so a misspelt key is an
+//! error rather than a silently ignored setting. Field names carry their units (`_m`, `_rad`,
+//! `_hz`, `_ms`, `_us`, `_s`, `_rad_s`, ...). Enumerations (bus kind, exit policy, strategy,
+//! fault kind) are checked by serde itself; numbers that serde cannot judge (signs, ranges,
+//! uniqueness) are checked afterwards by [`super::Config`]. Integers a user may plausibly get
+//! wrong (servo ids) are read wide here so that the validated error can quote the bad value.
+//!
+//! Defaults live in the `default_*` functions below, one place for the README table to cite.
+
+use std::path::PathBuf;
+
+use serde::Deserialize;
+
+/// The whole file.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawConfig {
+    /// `[arm]`: base pose and home pose.
+    pub arm: RawArm,
+    /// `[[joint]]`: one table per joint, base to tip.
+    #[serde(default, rename = "joint")]
+    pub joints: Vec<RawJoint>,
+    /// `[bus]`: how the servos are reached; absent for a geometry-only file.
+    #[serde(default)]
+    pub bus: Option<RawBus>,
+    /// `[sim]`: the simulated servo chain, used when `bus.kind = "sim"`.
+    #[serde(default)]
+    pub sim: Option<RawSim>,
+    /// `[control]`: the control loop; defaults apply when absent.
+    #[serde(default)]
+    pub control: Option<RawControl>,
+    /// `[server]`: the command/telemetry socket; defaults apply when absent.
+    #[serde(default)]
+    pub server: Option<RawServer>,
+}
+
+/// `[arm]`: where the chain is mounted and where it starts.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawArm {
+    /// Base point x, metres.
+    #[serde(default)]
+    pub base_x_m: f64,
+    /// Base point y, metres.
+    #[serde(default)]
+    pub base_y_m: f64,
+    /// Base heading, radians: the direction of link 1 when joint 1 is at 0.
+    #[serde(default)]
+    pub base_heading_rad: f64,
+    /// Start pose, radians, one entry per joint; all zeros when absent.
+    #[serde(default)]
+    pub home_rad: Option<Vec<f64>>,
+}
+
+/// `[[joint]]`: one revolute joint and the link it turns.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawJoint {
+    /// Length of the link this joint turns, metres.
+    pub link_m: f64,
+    /// Lower limit of the relative angle, radians.
+    pub min_rad: f64,
+    /// Upper limit of the relative angle, radians.
+    pub max_rad: f64,
+    /// Servo id on the bus (1..=252); read wide so a bad value can be quoted.
+    #[serde(default)]
+    pub id: Option<i64>,
+    /// Servo model name, e.g. `"XL430-W250"`.
+    #[serde(default)]
+    pub model: Option<String>,
+    /// Servo ticks read at 0 rad, added to the nominal centre (2048).
+    #[serde(default)]
+    pub offset_ticks: i64,
+    /// True when a positive angle turns the servo the negative way.
+    #[serde(default)]
+    pub reverse: bool,
+}
+
+/// Which kind of bus carries the servos.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BusKind {
+    /// Simulated servos behind a pseudo-terminal, speaking the real protocol.
+    Sim,
+    /// Real Dynamixel servos on a serial port.
+    Dynamixel,
+}
+
+/// What the servos do when the daemon exits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OnExit {
+    /// Switch torque off: the arm goes limp (and may sag).
+    TorqueOff,
+    /// Keep torque on at the last goal (the bus watchdog still stops motion).
+    Hold,
+}
+
+/// `[bus]`: the serial bus and the settings written to every servo at bring-up.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawBus {
+    /// `"sim"` or `"dynamixel"`.
+    pub kind: BusKind,
+    /// Serial device; required for `"dynamixel"`, ignored for `"sim"` (it makes its own pty).
+    #[serde(default)]
+    pub port: Option<String>,
+    /// Baud rate, bits/s.
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// Return Delay Time written to each servo, microseconds (even, 0..=508).
+    #[serde(default)]
+    pub return_delay_us: u32,
+    /// Profile Velocity written to each servo, rad/s; 0 = no profile (fastest).
+    #[serde(default)]
+    pub profile_velocity_rad_s: f64,
+    /// Profile Acceleration written to each servo, rad/s²; 0 = no profile.
+    #[serde(default)]
+    pub profile_acceleration_rad_s2: f64,
+    /// What the servos do when the daemon exits.
+    #[serde(default = "default_on_exit")]
+    pub on_exit: OnExit,
+    /// Bus Watchdog: servos stop if the bus is silent this long, milliseconds (multiple of 20,
+    /// 20..=2540); 0 disables it.
+    #[serde(default = "default_watchdog_ms")]
+    pub watchdog_ms: u32,
+    /// How long to wait for one status reply before counting it missing, milliseconds.
+    #[serde(default = "default_reply_timeout_ms")]
+    pub reply_timeout_ms: u32,
+}
+
+/// `[sim]`: the simulated servo chain.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSim {
+    /// Sleep for the wire time of every packet, as a real bus would take.
+    #[serde(default)]
+    pub wire_timing: bool,
+    /// Seed of the simulator's random faults.
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// `[[sim.fault]]`: faults to inject.
+    #[serde(default, rename = "fault")]
+    pub faults: Vec<Fault>,
+}
+
+/// A hardware error a simulated servo can raise (bits of Hardware Error Status, address 70).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HardwareError {
+    /// Input voltage out of range (bit 0).
+    InputVoltage,
+    /// Internal temperature too high (bit 2).
+    Overheating,
+    /// Encoder malfunction (bit 3).
+    Encoder,
+    /// Electrical shock or insufficient power (bit 4).
+    ElectricalShock,
+    /// Persistent load beyond the maximum (bit 5).
+    Overload,
+}
+
+/// `[[sim.fault]]`: one injected fault, tagged by `kind`. Times are seconds since the simulator
+/// started; an absent `until_s` means "until the end". An absent `id` means every servo.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Fault {
+    /// Drop a fraction of status replies.
+    Drop {
+        /// Fraction of replies lost, 0..=1.
+        fraction: f64,
+        /// Servo affected; all when absent.
+        #[serde(default)]
+        id: Option<u8>,
+        /// Start, seconds.
+        #[serde(default)]
+        at_s: f64,
+        /// End, seconds.
+        #[serde(default)]
+        until_s: Option<f64>,
+    },
+    /// Flip a bit in a fraction of status replies (a CRC failure for the reader).
+    Corrupt {
+        /// Fraction of replies corrupted, 0..=1.
+        fraction: f64,
+        /// Servo affected; all when absent.
+        #[serde(default)]
+        id: Option<u8>,
+        /// Start, seconds.
+        #[serde(default)]
+        at_s: f64,
+        /// End, seconds.
+        #[serde(default)]
+        until_s: Option<f64>,
+    },
+    /// Delay every status reply by an extra amount.
+    Latency {
+        /// Extra delay per reply, microseconds.
+        extra_us: u32,
+        /// Servo affected; all when absent.
+        #[serde(default)]
+        id: Option<u8>,
+        /// Start, seconds.
+        #[serde(default)]
+        at_s: f64,
+        /// End, seconds.
+        #[serde(default)]
+        until_s: Option<f64>,
+    },
+    /// One servo stops answering (unplugged, or its id changed).
+    Silent {
+        /// Servo affected.
+        id: u8,
+        /// Start, seconds.
+        at_s: f64,
+        /// End, seconds.
+        #[serde(default)]
+        until_s: Option<f64>,
+    },
+    /// One servo raises a hardware error and, like a real one, drops torque until rebooted.
+    HardwareError {
+        /// Servo affected.
+        id: u8,
+        /// When, seconds.
+        at_s: f64,
+        /// Which error.
+        error: HardwareError,
+    },
+}
+
+/// How the redundancy is resolved, as written in the file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StrategyName {
+    /// Tractrix propagation from tip to base.
+    Sequential,
+    /// Minimum sum of squared joint rotations over the whole arm.
+    Overall,
+}
+
+/// `[control]`: the control loop.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawControl {
+    /// Loop rate, Hz.
+    #[serde(default = "default_rate_hz")]
+    pub rate_hz: f64,
+    /// `"sequential"` or `"overall"`.
+    #[serde(default = "default_strategy")]
+    pub strategy: StrategyName,
+    /// Fastest commanded tip speed, m/s.
+    #[serde(default = "default_max_tip_speed_m_s")]
+    pub max_tip_speed_m_s: f64,
+    /// Fastest joint speed, rad/s; faster resolved steps are scaled down.
+    #[serde(default = "default_max_joint_speed_rad_s")]
+    pub max_joint_speed_rad_s: f64,
+    /// Straight sub-steps per tick (the paper's multi-step `K`).
+    #[serde(default = "default_substeps")]
+    pub substeps: u32,
+}
+
+/// `[server]`: the command/telemetry socket.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawServer {
+    /// Address to listen on, `host:port`.
+    #[serde(default = "default_listen")]
+    pub listen: String,
+    /// File holding the client token; relative to the config file's directory. No token
+    /// (open access) when absent.
+    #[serde(default)]
+    pub token_file: Option<PathBuf>,
+    /// Most clients connected at once.
+    #[serde(default = "default_max_clients")]
+    pub max_clients: u32,
+}
+
+/// Factory baud rate of X-series servos.
+pub fn default_baud() -> u32 {
+    57_600
+}
+
+/// Torque off on exit: the safe choice when nothing watches the arm.
+pub fn default_on_exit() -> OnExit {
+    OnExit::TorqueOff
+}
+
+/// Bus watchdog, ms.
+pub fn default_watchdog_ms() -> u32 {
+    100
+}
+
+/// Reply timeout, ms.
+pub fn default_reply_timeout_ms() -> u32 {
+    5
+}
+
+/// Simulator seed.
+pub fn default_seed() -> u64 {
+    1
+}
+
+/// Control rate, Hz.
+pub fn default_rate_hz() -> f64 {
+    100.0
+}
+
+/// Strategy.
+pub fn default_strategy() -> StrategyName {
+    StrategyName::Overall
+}
+
+/// Tip speed, m/s.
+pub fn default_max_tip_speed_m_s() -> f64 {
+    0.1
+}
+
+/// Joint speed, rad/s.
+pub fn default_max_joint_speed_rad_s() -> f64 {
+    2.0
+}
+
+/// Sub-steps per tick.
+pub fn default_substeps() -> u32 {
+    1
+}
+
+/// Listen address: local only.
+pub fn default_listen() -> String {
+    "127.0.0.1:7878".to_owned()
+}
+
+/// Clients at once.
+pub fn default_max_clients() -> u32 {
+    8
+}
+
+impl Default for RawControl {
+    fn default() -> Self {
+        Self {
+            rate_hz: default_rate_hz(),
+            strategy: default_strategy(),
+            max_tip_speed_m_s: default_max_tip_speed_m_s(),
+            max_joint_speed_rad_s: default_max_joint_speed_rad_s(),
+            substeps: default_substeps(),
+        }
+    }
+}
+
+impl Default for RawServer {
+    fn default() -> Self {
+        Self {
+            listen: default_listen(),
+            token_file: None,
+            max_clients: default_max_clients(),
+        }
+    }
+}

@@ -1,0 +1,593 @@
+//! Every refusal the checker can give, each asserting the file, the field and the value appear
+//! in the message.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use super::*;
+
+const FILE: &str = "config/test.toml";
+
+/// A small valid file: three joints with servos, every table present.
+fn base_text() -> String {
+    r#"
+[arm]
+base_x_m = 0.0
+base_y_m = 0.0
+base_heading_rad = 0.0
+home_rad = [0.1, -0.2, 0.3]
+
+[[joint]]
+link_m = 0.1
+min_rad = -2.0
+max_rad = 2.0
+id = 1
+model = "XL430-W250"
+
+[[joint]]
+link_m = 0.1
+min_rad = -2.0
+max_rad = 2.0
+id = 2
+model = "XM430-W350"
+
+[[joint]]
+link_m = 0.1
+min_rad = -2.0
+max_rad = 2.0
+id = 3
+model = "XL330-M288"
+offset_ticks = -12
+reverse = true
+
+[bus]
+kind = "sim"
+baud = 1000000
+return_delay_us = 0
+watchdog_ms = 100
+
+[sim]
+seed = 7
+
+[control]
+rate_hz = 100.0
+strategy = "overall"
+
+[server]
+listen = "127.0.0.1:7878"
+token_file = "token.txt"
+max_clients = 4
+"#
+    .to_owned()
+}
+
+/// `base_text` with the first occurrence of `from` replaced by `to` (which must exist).
+fn with(from: &str, to: &str) -> String {
+    let text = base_text();
+    assert!(
+        text.contains(from),
+        "test setup: {from:?} not in the base text"
+    );
+    text.replacen(from, to, 1)
+}
+
+fn load(text: &str) -> Result<Config, ConfigError> {
+    Config::from_str(text, FILE)
+}
+
+/// Loads `text`, expects a refusal, checks the message mentions each of `parts` and the file,
+/// and returns the message.
+fn refused(text: &str, parts: &[&str]) -> String {
+    let err = load(text).expect_err("the text should be refused");
+    let msg = err.to_string();
+    assert!(msg.starts_with(FILE), "no file name in: {msg}");
+    for part in parts {
+        assert!(msg.contains(part), "{part:?} missing from: {msg}");
+    }
+    msg
+}
+
+#[test]
+fn base_text_loads() {
+    let c = load(&base_text()).unwrap();
+    assert_eq!(c.chain().len(), 3);
+    assert_eq!(c.home(), &[0.1, -0.2, 0.3]);
+    assert_eq!(c.joints()[2].model, Some(ServoModel::Xl330M288));
+    assert_eq!(c.joints()[2].offset_ticks, -12);
+    assert!(c.joints()[2].reverse);
+    assert_eq!(c.bus().unwrap().kind, BusKind::Sim);
+    assert_eq!(c.bus().unwrap().on_exit, OnExit::TorqueOff);
+    assert_eq!(c.sim().unwrap().seed, 7);
+    assert_eq!(c.control().strategy, Strategy::Overall);
+    assert_eq!(c.server().max_clients, 4);
+    assert_eq!(
+        c.server().token_file.as_deref(),
+        Some(Path::new("config/token.txt"))
+    );
+    assert_eq!(c.path(), Path::new(FILE));
+}
+
+#[test]
+fn defaults_fill_absent_tables() {
+    let text = "[arm]\n[[joint]]\nlink_m = 0.5\nmin_rad = -1\nmax_rad = 1\n";
+    let c = load(text).unwrap();
+    assert_eq!(c.home(), &[0.0]);
+    assert_eq!(c.chain().base(), Vec2::zeros());
+    assert!(c.bus().is_none());
+    assert!(c.sim().is_none());
+    assert_eq!(c.control().rate_hz, 100.0);
+    assert_eq!(c.control().substeps, 1);
+    assert_eq!(c.server().listen.to_string(), "127.0.0.1:7878");
+    assert!(c.server().token_file.is_none());
+}
+
+#[test]
+fn chain_matches_the_joints() {
+    let c = load(&with("base_x_m = 0.0", "base_x_m = 1.5")).unwrap();
+    let chain = c.chain();
+    assert_eq!(chain.links(), &[0.1, 0.1, 0.1]);
+    assert_eq!(chain.base(), Vec2::new(1.5, 0.0));
+    assert_eq!(chain.limits()[1], Some(JointLimit { lo: -2.0, hi: 2.0 }));
+}
+
+#[test]
+fn no_joints() {
+    let text = "[arm]\n";
+    refused(text, &["joint", "at least one joint"]);
+}
+
+#[test]
+fn negative_link() {
+    let msg = refused(
+        &with(
+            "link_m = 0.1\nmin_rad = -2.0\nmax_rad = 2.0\nid = 3",
+            "link_m = -0.1\nmin_rad = -2.0\nmax_rad = 2.0\nid = 3",
+        ),
+        &["joint[3].link_m", "-0.1", "positive"],
+    );
+    assert_eq!(
+        msg,
+        "config/test.toml: joint[3].link_m: -0.1 must be finite and positive, at most 1000000"
+    );
+}
+
+#[test]
+fn zero_link() {
+    refused(
+        &with("link_m = 0.1", "link_m = 0.0"),
+        &["joint[1].link_m", "0"],
+    );
+}
+
+#[test]
+fn non_finite_link() {
+    refused(
+        &with("link_m = 0.1", "link_m = nan"),
+        &["joint[1].link_m", "NaN"],
+    );
+    refused(
+        &with("link_m = 0.1", "link_m = inf"),
+        &["joint[1].link_m", "inf"],
+    );
+}
+
+#[test]
+fn huge_link() {
+    refused(
+        &with("link_m = 0.1", "link_m = 2e6"),
+        &["joint[1].link_m", "2000000"],
+    );
+}
+
+#[test]
+fn non_finite_limit() {
+    refused(
+        &with("min_rad = -2.0", "min_rad = -inf"),
+        &["joint[1].min_rad", "-inf"],
+    );
+    refused(
+        &with("max_rad = 2.0", "max_rad = nan"),
+        &["joint[1].max_rad", "NaN"],
+    );
+}
+
+#[test]
+fn empty_limits() {
+    refused(
+        &with(
+            "min_rad = -2.0\nmax_rad = 2.0",
+            "min_rad = 1.0\nmax_rad = 1.0",
+        ),
+        &["joint[1].max_rad", "[1, 1]", "min_rad < max_rad"],
+    );
+    refused(
+        &with(
+            "min_rad = -2.0\nmax_rad = 2.0",
+            "min_rad = 1.0\nmax_rad = -1.0",
+        ),
+        &["joint[1].max_rad", "[1, -1]"],
+    );
+}
+
+#[test]
+fn base_not_finite() {
+    refused(
+        &with("base_x_m = 0.0", "base_x_m = nan"),
+        &["arm.base_x_m", "NaN"],
+    );
+    refused(
+        &with("base_y_m = 0.0", "base_y_m = 1e9"),
+        &["arm.base_y_m", "1000000000"],
+    );
+    refused(
+        &with("base_heading_rad = 0.0", "base_heading_rad = inf"),
+        &["arm.base_heading_rad", "inf"],
+    );
+}
+
+#[test]
+fn home_wrong_length() {
+    refused(
+        &with("home_rad = [0.1, -0.2, 0.3]", "home_rad = [0.1, -0.2]"),
+        &["arm.home_rad", "2 entries for 3 joints"],
+    );
+}
+
+#[test]
+fn home_outside_limits() {
+    refused(
+        &with("home_rad = [0.1, -0.2, 0.3]", "home_rad = [0.1, -2.5, 0.3]"),
+        &["arm.home_rad[2]", "-2.5", "joint 2", "[-2, 2]"],
+    );
+    refused(
+        &with("home_rad = [0.1, -0.2, 0.3]", "home_rad = [0.1, nan, 0.3]"),
+        &["arm.home_rad[2]", "NaN"],
+    );
+}
+
+#[test]
+fn absent_home_must_have_zero_inside() {
+    let text = with("home_rad = [0.1, -0.2, 0.3]", "")
+        .replacen("min_rad = -2.0", "min_rad = 0.5", 2)
+        .replacen("min_rad = 0.5", "min_rad = -2.0", 1);
+    refused(
+        &text,
+        &["arm.home_rad", "absent", "joint 2", "0 rad", "[0.5, 2]"],
+    );
+}
+
+#[test]
+fn absent_home_is_zeros() {
+    let c = load(&with("home_rad = [0.1, -0.2, 0.3]", "")).unwrap();
+    assert_eq!(c.home(), &[0.0, 0.0, 0.0]);
+}
+
+#[test]
+fn bad_ids() {
+    refused(&with("id = 2", "id = 0"), &["joint[2].id", "0", "1..=252"]);
+    refused(&with("id = 2", "id = 253"), &["joint[2].id", "253"]);
+    refused(&with("id = 2", "id = -4"), &["joint[2].id", "-4"]);
+    refused(
+        &with("id = 2", "id = 99999999999"),
+        &["joint[2].id", "99999999999"],
+    );
+}
+
+#[test]
+fn duplicate_ids() {
+    refused(&with("id = 3", "id = 1"), &["joint[3].id", "1", "joint[1]"]);
+}
+
+#[test]
+fn unknown_model() {
+    refused(
+        &with("model = \"XM430-W350\"", "model = \"XM430-W999\""),
+        &["joint[2].model", "XM430-W999"],
+    );
+    // The spelling must be exact.
+    refused(
+        &with("model = \"XM430-W350\"", "model = \"xm430-w350\""),
+        &["joint[2].model", "xm430-w350"],
+    );
+}
+
+#[test]
+fn offset_beyond_one_turn() {
+    refused(
+        &with("offset_ticks = -12", "offset_ticks = 5000"),
+        &["joint[3].offset_ticks", "5000"],
+    );
+}
+
+#[test]
+fn servo_fields_optional_without_bus() {
+    let text = base_text();
+    let cut = text.find("[bus]").unwrap();
+    let text = text[..cut]
+        .replace("id = 1\n", "")
+        .replace("model = \"XM430-W350\"\n", "");
+    let c = load(&text).unwrap();
+    assert_eq!(c.joints()[0].id, None);
+    assert_eq!(c.joints()[1].model, None);
+    assert!(c.bus().is_none());
+}
+
+#[test]
+fn bus_needs_ids_and_models() {
+    refused(&with("id = 1\n", ""), &["joint[1].id", "missing"]);
+    refused(
+        &with("model = \"XM430-W350\"\n", ""),
+        &["joint[2].model", "missing"],
+    );
+}
+
+#[test]
+fn dynamixel_needs_a_port() {
+    refused(
+        &with("kind = \"sim\"", "kind = \"dynamixel\""),
+        &["bus.port", "missing"],
+    );
+    let c = load(&with(
+        "kind = \"sim\"",
+        "kind = \"dynamixel\"\nport = \"/dev/ttyUSB0\"",
+    ))
+    .unwrap();
+    assert_eq!(c.bus().unwrap().port.as_deref(), Some("/dev/ttyUSB0"));
+}
+
+#[test]
+fn bus_numbers() {
+    refused(
+        &with("baud = 1000000", "baud = 100000"),
+        &["bus.baud", "100000"],
+    );
+    refused(
+        &with("return_delay_us = 0", "return_delay_us = 3"),
+        &["bus.return_delay_us", "3"],
+    );
+    refused(
+        &with("return_delay_us = 0", "return_delay_us = 510"),
+        &["bus.return_delay_us", "510"],
+    );
+    refused(
+        &with("watchdog_ms = 100", "watchdog_ms = 30"),
+        &["bus.watchdog_ms", "30"],
+    );
+    refused(
+        &with("watchdog_ms = 100", "watchdog_ms = 2560"),
+        &["bus.watchdog_ms", "2560"],
+    );
+    refused(
+        &with("watchdog_ms = 100", "reply_timeout_ms = 0"),
+        &["bus.reply_timeout_ms", "0"],
+    );
+    refused(
+        &with("watchdog_ms = 100", "profile_velocity_rad_s = -1.0"),
+        &["bus.profile_velocity_rad_s", "-1"],
+    );
+    refused(
+        &with("watchdog_ms = 100", "profile_acceleration_rad_s2 = nan"),
+        &["bus.profile_acceleration_rad_s2", "NaN"],
+    );
+}
+
+#[test]
+fn unknown_enum_values_are_syntax_errors() {
+    refused(
+        &with("kind = \"sim\"", "kind = \"usb\""),
+        &[":", "usb", "dynamixel"],
+    );
+    refused(
+        &with("watchdog_ms = 100", "on_exit = \"explode\""),
+        &["explode", "torque_off"],
+    );
+    refused(
+        &with("strategy = \"overall\"", "strategy = \"greedy\""),
+        &["greedy", "sequential"],
+    );
+}
+
+#[test]
+fn faults_parse() {
+    let text = with(
+        "seed = 7",
+        r#"seed = 7
+[[sim.fault]]
+kind = "drop"
+fraction = 0.1
+[[sim.fault]]
+kind = "corrupt"
+fraction = 0.05
+id = 2
+at_s = 1.0
+until_s = 2.0
+[[sim.fault]]
+kind = "latency"
+extra_us = 300
+[[sim.fault]]
+kind = "silent"
+id = 3
+at_s = 2.0
+[[sim.fault]]
+kind = "hardware_error"
+id = 1
+at_s = 4.5
+error = "overload""#,
+    );
+    let c = load(&text).unwrap();
+    let faults = &c.sim().unwrap().faults;
+    assert_eq!(faults.len(), 5);
+    assert_eq!(
+        faults[3],
+        Fault::Silent {
+            id: 3,
+            at_s: 2.0,
+            until_s: None
+        }
+    );
+    assert_eq!(
+        faults[4],
+        Fault::HardwareError {
+            id: 1,
+            at_s: 4.5,
+            error: HardwareError::Overload
+        }
+    );
+}
+
+fn with_fault(fault: &str) -> String {
+    with("seed = 7", &format!("seed = 7\n[[sim.fault]]\n{fault}"))
+}
+
+#[test]
+fn fault_checks() {
+    refused(
+        &with_fault("kind = \"drop\"\nfraction = 1.5"),
+        &["sim.fault[1].fraction", "1.5"],
+    );
+    refused(
+        &with_fault("kind = \"silent\"\nid = 9\nat_s = 1.0"),
+        &["sim.fault[1].id", "9"],
+    );
+    refused(
+        &with_fault("kind = \"silent\"\nid = 2\nat_s = -1.0"),
+        &["sim.fault[1].at_s", "-1"],
+    );
+    refused(
+        &with_fault("kind = \"latency\"\nextra_us = 5\nat_s = 3.0\nuntil_s = 2.0"),
+        &["sim.fault[1].until_s", "2", "3"],
+    );
+    refused(
+        &with_fault("kind = \"hardware_error\"\nid = 2\nat_s = 1.0\nerror = \"tired\""),
+        &["tired", "overheating"],
+    );
+    refused(&with_fault("kind = \"meteor\""), &["meteor", "silent"]);
+}
+
+#[test]
+fn control_checks() {
+    refused(
+        &with("rate_hz = 100.0", "rate_hz = 0.0"),
+        &["control.rate_hz", "0"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "rate_hz = -5.0"),
+        &["control.rate_hz", "-5"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "max_tip_speed_m_s = inf"),
+        &["control.max_tip_speed_m_s", "inf"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "max_joint_speed_rad_s = 0"),
+        &["control.max_joint_speed_rad_s", "0"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "substeps = 0"),
+        &["control.substeps", "0"],
+    );
+}
+
+#[test]
+fn server_checks() {
+    refused(
+        &with("listen = \"127.0.0.1:7878\"", "listen = \"localhost\""),
+        &["server.listen", "localhost"],
+    );
+    refused(
+        &with("max_clients = 4", "max_clients = 0"),
+        &["server.max_clients", "0"],
+    );
+    let c = load(&with(
+        "token_file = \"token.txt\"",
+        "token_file = \"/etc/snake\"",
+    ))
+    .unwrap();
+    assert_eq!(
+        c.server().token_file.as_deref(),
+        Some(Path::new("/etc/snake"))
+    );
+}
+
+/// A key that no table knows is refused with its name and its line, in every table.
+#[test]
+fn unknown_keys_refused_everywhere() {
+    let cases = [
+        ("[arm]\n", "[arm]\nbase_z_m = 1.0\n", "base_z_m"),
+        ("id = 1\n", "id = 1\nspeed = 3\n", "speed"),
+        ("kind = \"sim\"\n", "kind = \"sim\"\nparity = 1\n", "parity"),
+        ("seed = 7\n", "seed = 7\nnoise = 1\n", "noise"),
+        (
+            "rate_hz = 100.0\n",
+            "rate_hz = 100.0\nrate_ms = 1\n",
+            "rate_ms",
+        ),
+        (
+            "max_clients = 4\n",
+            "max_clients = 4\npassword = \"x\"\n",
+            "password",
+        ),
+    ];
+    for (from, to, key) in cases {
+        let text = with(from, to);
+        let line = text[..text.find(key).unwrap()].matches('\n').count() + 1;
+        let msg = refused(&text, &[key, "unknown field"]);
+        assert!(
+            msg.starts_with(&format!("{FILE}:{line}:")),
+            "wrong line for {key}: {msg}"
+        );
+    }
+    // A top-level table nobody knows.
+    refused(
+        &format!("{}\n[joystick]\ndeadman = 1\n", base_text()),
+        &["joystick"],
+    );
+    // A key inside a fault, whatever its kind.
+    refused(
+        &with_fault("kind = \"silent\"\nid = 2\nat_s = 1.0\nfor_s = 1.0"),
+        &["for_s"],
+    );
+}
+
+#[test]
+fn syntax_error_has_line_and_column() {
+    let text = "[arm]\n\n[[joint]]\nlink_m = = 0.1\n";
+    let err = load(text).unwrap_err();
+    match &err {
+        ConfigError::Syntax { line, column, .. } => {
+            assert_eq!(*line, 4);
+            assert!(*column >= 8, "column {column}");
+        }
+        other => panic!("expected a syntax error, got {other:?}"),
+    }
+    assert!(err.to_string().starts_with("config/test.toml:4:"));
+}
+
+#[test]
+fn wrong_type_is_a_syntax_error() {
+    refused(
+        &with("link_m = 0.1", "link_m = \"long\""),
+        &["config/test.toml:9:"],
+    );
+}
+
+#[test]
+fn missing_required_key() {
+    refused(&with("link_m = 0.1\n", ""), &["link_m", "missing"]);
+}
+
+#[test]
+fn load_reports_unreadable_file() {
+    let err = Config::load("/nonexistent/snake.toml").unwrap_err();
+    assert!(matches!(err, ConfigError::Read { .. }));
+    assert!(err
+        .to_string()
+        .starts_with("/nonexistent/snake.toml: cannot read"));
+}
+
+#[test]
+fn model_names_round_trip() {
+    for m in ServoModel::ALL {
+        assert_eq!(ServoModel::from_name(m.name()), Some(m));
+    }
+    assert_eq!(ServoModel::Xl430W250.model_number(), 1060);
+}

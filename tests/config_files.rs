@@ -1,0 +1,112 @@
+//! Every file shipped in `config/` loads, and its chain matches its `[[joint]]` tables.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::PathBuf;
+
+use snakectl::config::{Config, ConfigError};
+
+/// The `.toml` files under `config/`, found at test time so a new file is tested too.
+fn shipped_files() -> Vec<PathBuf> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no .toml files in {}", dir.display());
+    files
+}
+
+fn joint_tables(text: &str) -> usize {
+    text.lines().filter(|l| l.trim() == "[[joint]]").count()
+}
+
+#[test]
+fn every_shipped_file_loads() {
+    for path in shipped_files() {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let config = Config::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        let joints = joint_tables(&text);
+        assert!(joints > 0, "{}: no [[joint]] tables", path.display());
+        assert_eq!(config.chain().len(), joints, "{}", path.display());
+        assert_eq!(config.joints().len(), joints, "{}", path.display());
+        assert_eq!(config.home().len(), joints, "{}", path.display());
+        config.chain().check_limits(config.home()).unwrap();
+    }
+}
+
+#[test]
+fn shipped_examples_are_what_the_docs_say() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config");
+    let arm = Config::load(dir.join("arm.toml")).unwrap();
+    assert_eq!(arm.chain().len(), 8);
+    assert!(arm.home().iter().any(|&a| a != 0.0), "home should be bent");
+
+    let sim = Config::load(dir.join("sim.toml")).unwrap();
+    assert_eq!(sim.chain().len(), 12);
+    let bus = sim.bus().unwrap();
+    assert_eq!(bus.kind, snakectl::config::BusKind::Sim);
+    assert_eq!(bus.baud, 1_000_000);
+    assert_eq!(bus.return_delay_us, 0);
+    let ids: Vec<Option<u8>> = sim.joints().iter().map(|j| j.id).collect();
+    assert_eq!(ids, (1..=12).map(Some).collect::<Vec<_>>());
+    assert!(sim.sim().unwrap().faults.is_empty());
+}
+
+/// The commented fault examples in `sim.toml` are valid when uncommented.
+#[test]
+fn commented_sim_faults_parse() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/sim.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let start = text.find("# [[sim.fault]]").unwrap();
+    let end = text[start..].find("\n\n").map_or(text.len(), |n| start + n);
+    let uncommented: String = text[start..end]
+        .lines()
+        .map(|l| l.strip_prefix("# ").unwrap_or(l.trim_start_matches('#')))
+        .collect::<Vec<_>>()
+        .join("\n");
+    // Put the faults right after [sim], before [control].
+    let at = text.find("\n[control]").unwrap();
+    let edited = format!("{}\n{}\n{}", &text[..at], uncommented, &text[at..]);
+    let config = Config::from_str(&edited, &path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(config.sim().unwrap().faults.len(), 5);
+}
+
+/// A key no table knows is refused, naming the key and the line, in every table of every
+/// shipped file.
+#[test]
+fn unknown_key_in_any_table_is_refused() {
+    const KEY: &str = "surplus_key";
+    for path in shipped_files() {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        let headers = lines
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| l.starts_with('['))
+            .map(|(i, _)| i);
+        let mut tried = 0;
+        for header in headers {
+            let mut edited = lines.clone();
+            let extra = format!("{KEY} = 1");
+            edited.insert(header + 1, &extra);
+            let err = Config::from_str(&edited.join("\n"), &path).unwrap_err();
+            let msg = err.to_string();
+            assert!(matches!(err, ConfigError::Syntax { .. }), "{msg}");
+            assert!(msg.contains(KEY), "{msg}");
+            assert!(msg.starts_with(&path.display().to_string()), "{msg}");
+            // The table's header or the key itself is the line named.
+            let named = format!(":{}:", header + 1);
+            let named_key = format!(":{}:", header + 2);
+            assert!(
+                msg.contains(&named) || msg.contains(&named_key),
+                "line {} expected in: {msg}",
+                header + 2
+            );
+            tried += 1;
+        }
+        assert!(tried >= 2, "{}: too few tables", path.display());
+    }
+}
