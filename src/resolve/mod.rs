@@ -10,6 +10,7 @@
 //! Both implement [`Resolver`], which a control loop calls every tick with the current pose and
 //! the next tip target. [`solve_steps`] splits a long move into straight sub-moves for either.
 
+pub mod overall;
 pub mod sequential;
 pub mod tractrix;
 
@@ -112,7 +113,10 @@ pub fn check_input(chain: &Chain, theta: &[f64], target: Vec2) -> Result<(), Res
         )));
     }
     if let Some(i) = theta.iter().position(|t| !t.is_finite()) {
-        return Err(ResolveError::BadInput(format!("joint {} angle is not finite", i + 1)));
+        return Err(ResolveError::BadInput(format!(
+            "joint {} angle is not finite",
+            i + 1
+        )));
     }
     if !(target.x.is_finite() && target.y.is_finite()) {
         return Err(ResolveError::BadInput("target is not finite".into()));

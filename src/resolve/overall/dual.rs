@@ -1,0 +1,151 @@
+//! The linearized subproblem of one SQP iteration, solved through its two-variable dual.
+//!
+//! Primal: minimize `1/2 |x - z|^2` over the box `lo <= x <= hi` subject to the linearized tip
+//! constraint `J (x - theta) = c`, or, in elastic form, with the constraint replaced by the
+//! penalty `1/(2 rho_inv) |J (x - theta) - c|^2`. For a multiplier `mu` in the plane the
+//! minimizing `x` is the clipped point `x(mu) = clip(z + J^T mu, lo, hi)`, and the dual
+//! function `q(mu)` is concave and piecewise quadratic with gradient `-F(mu)`,
+//!
+//! ```text
+//! F(mu) = J (x(mu) - theta) - c + rho_inv mu.
+//! ```
+//!
+//! Semismooth Newton uses the generalized Jacobian `J_F J_F^T + rho_inv I` over the joints not
+//! clipped at `mu`, with a backtracking line search on `q` that makes every step an ascent step.
+//! Each evaluation is one pass over the joints, so the whole solve is O(n).
+
+use crate::chain::Vec2;
+
+/// The data of one linearized subproblem (all slices have one entry per joint).
+pub(crate) struct Dual<'a> {
+    /// First row of the tip Jacobian.
+    pub jx: &'a [f64],
+    /// Second row of the tip Jacobian.
+    pub jy: &'a [f64],
+    /// Centre of the proximity term (theta0 for the SQP step, theta for a Gauss-Newton step).
+    pub z: &'a [f64],
+    /// Linearization point.
+    pub theta: &'a [f64],
+    /// Lower bounds (`-inf` when unlimited).
+    pub lo: &'a [f64],
+    /// Upper bounds (`+inf` when unlimited).
+    pub hi: &'a [f64],
+    /// Tip correction wanted, `target - tip(theta)`.
+    pub c: Vec2,
+    /// Inverse penalty weight of the elastic form, m^2; 0 for the exact constraint.
+    pub rho_inv: f64,
+}
+
+/// One evaluation of the dual at a multiplier.
+struct Eval {
+    f: Vec2,
+    m: [f64; 3],
+    q: f64,
+    changed: bool,
+}
+
+impl Dual<'_> {
+    /// Writes `x(mu)` and the clipping state, returns `F`, the generalized Jacobian, `q`, and
+    /// whether any joint changed its clipping state.
+    fn eval(&self, mu: [f64; 2], x: &mut [f64], state: &mut [i8]) -> Eval {
+        let mut f = Vec2::zeros();
+        let mut m = [0.0; 3];
+        let mut q = 0.0;
+        let mut changed = false;
+        for a in 0..x.len() {
+            let (jx, jy) = (self.jx[a], self.jy[a]);
+            let jmu = jx * mu[0] + jy * mu[1];
+            let u = self.z[a] + jmu;
+            let (v, st) = if u <= self.lo[a] {
+                (self.lo[a], -1)
+            } else if u >= self.hi[a] {
+                (self.hi[a], 1)
+            } else {
+                (u, 0)
+            };
+            if state[a] != st {
+                changed = true;
+                state[a] = st;
+            }
+            x[a] = v;
+            let dx = v - self.theta[a];
+            f.x += jx * dx;
+            f.y += jy * dx;
+            if st == 0 {
+                m[0] += jx * jx;
+                m[1] += jx * jy;
+                m[2] += jy * jy;
+            }
+            let dz = v - self.z[a];
+            q += 0.5 * dz * dz - jmu * dx;
+        }
+        f -= self.c;
+        f.x += self.rho_inv * mu[0];
+        f.y += self.rho_inv * mu[1];
+        m[0] += self.rho_inv;
+        m[2] += self.rho_inv;
+        q += mu[0] * self.c.x + mu[1] * self.c.y
+            - 0.5 * self.rho_inv * (mu[0] * mu[0] + mu[1] * mu[1]);
+        Eval { f, m, q, changed }
+    }
+
+    /// Solves the dual from the multiplier `mu` (updated in place); on success `x` holds the
+    /// primal answer. Fails when the dual does not settle (an infeasible exact subproblem has an
+    /// unbounded dual) or the multiplier grows beyond `mu_cap`.
+    pub fn solve(
+        &self,
+        mu: &mut [f64; 2],
+        x: &mut [f64],
+        state: &mut [i8],
+        tol: f64,
+        mu_cap: f64,
+    ) -> bool {
+        state.iter_mut().for_each(|s| *s = 2);
+        let mut e = self.eval(*mu, x, state);
+        for _ in 0..60 {
+            if e.f.norm() <= tol {
+                return true;
+            }
+            let tr = e.m[0] + e.m[2];
+            if !(tr > 0.0) {
+                return false;
+            }
+            // A tiny shift keeps the direction defined when the free columns are parallel; the
+            // line search keeps it an ascent step either way.
+            let reg = 1e-14 * tr;
+            let (m0, m1, m2) = (e.m[0] + reg, e.m[1], e.m[2] + reg);
+            let det = m0 * m2 - m1 * m1;
+            if !(det > 0.0) {
+                return false;
+            }
+            let d = [
+                -(m2 * e.f.x - m1 * e.f.y) / det,
+                -(m0 * e.f.y - m1 * e.f.x) / det,
+            ];
+            let slope = -(e.f.x * d[0] + e.f.y * d[1]);
+            let mut alpha = 1.0;
+            let mut accepted = false;
+            for _ in 0..40 {
+                let trial = [mu[0] + alpha * d[0], mu[1] + alpha * d[1]];
+                let t = self.eval(trial, x, state);
+                if t.q >= e.q + 1e-4 * alpha * slope || (alpha == 1.0 && !t.changed) {
+                    let full_same = alpha == 1.0 && !t.changed;
+                    *mu = trial;
+                    e = t;
+                    accepted = true;
+                    if full_same {
+                        // Same clipping pattern before and after a full step: the dual is a
+                        // quadratic there and the step solved it exactly (up to round-off).
+                        return mu[0].is_finite() && mu[1].is_finite();
+                    }
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !accepted || !(mu[0].abs() <= mu_cap && mu[1].abs() <= mu_cap) {
+                return false;
+            }
+        }
+        e.f.norm() <= tol
+    }
+}
