@@ -1,1 +1,482 @@
-//! The JSON problem format of `snakectl solve`.
+//! The JSON problem format of `snakectl solve`: parsing, validation and the answer.
+//!
+//! A problem is a chain (links, base pose, limits), a start pose, a tip target and how to
+//! resolve it. Parsing is strict: unknown keys, wrong lengths, non-finite numbers, magnitudes
+//! above [`MAX_MAGNITUDE`] and inconsistent limits are refused with a [`ProblemError`] naming the
+//! field. Solving never fails: imperfect answers carry their flags and errors.
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::chain::{Chain, ChainError, JointLimit, Vec2, MAX_MAGNITUDE};
+use crate::metrics::{self, Metrics};
+use crate::resolve::sequential::{pull_free, Sequential, SequentialOptions};
+use crate::resolve::tractrix::Propagation;
+use crate::resolve::{solve_steps, Resolver, Strategy};
+
+/// A refused problem: the field at fault and what is wrong with it. Displays on one line.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{field}: {message}")]
+pub struct ProblemError {
+    /// The field, as written in the input (`links[3]`, `target`, ...), or `input` for the whole.
+    pub field: String,
+    /// What is wrong, with the value.
+    pub message: String,
+}
+
+impl ProblemError {
+    fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Whether the base end of the chain is held (an arm) or free (a rope).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BaseMode {
+    /// The base stays put: an arm.
+    Fixed,
+    /// The base end follows: a rope, a chain, a snake.
+    Free,
+}
+
+/// The problem file as written. Every key is optional only where the format says so.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawProblem {
+    links: Vec<f64>,
+    base: Vec<f64>,
+    theta0: Vec<f64>,
+    #[serde(default)]
+    limits: Option<Vec<Option<Vec<f64>>>>,
+    target: Vec<f64>,
+    #[serde(default)]
+    strategy: Option<String>,
+    #[serde(default)]
+    base_mode: Option<String>,
+    #[serde(default)]
+    propagation: Option<String>,
+    #[serde(default)]
+    steps: Option<u64>,
+}
+
+/// A validated problem, ready to solve.
+#[derive(Debug, Clone)]
+pub struct Problem {
+    /// The chain, with its limits.
+    pub chain: Chain,
+    /// Start pose, relative angles, rad.
+    pub theta0: Vec<f64>,
+    /// Tip target, m.
+    pub target: Vec2,
+    /// Which strategy resolves the motion.
+    pub strategy: Strategy,
+    /// Fixed arm or free rope.
+    pub base_mode: BaseMode,
+    /// Elemental step of the sequential strategy.
+    pub propagation: Propagation,
+    /// Number of equal straight sub-moves of the tip.
+    pub steps: usize,
+}
+
+/// Checks one number: finite and within [`MAX_MAGNITUDE`].
+fn number(field: &str, value: f64) -> Result<f64, ProblemError> {
+    if !value.is_finite() {
+        return Err(ProblemError::new(
+            field,
+            format!("{value} is not a finite number"),
+        ));
+    }
+    if value.abs() > MAX_MAGNITUDE {
+        return Err(ProblemError::new(
+            field,
+            format!("{value} exceeds the largest accepted magnitude {MAX_MAGNITUDE:e}"),
+        ));
+    }
+    Ok(value)
+}
+
+fn numbers(field: &str, values: &[f64]) -> Result<(), ProblemError> {
+    for (i, &v) in values.iter().enumerate() {
+        number(&format!("{field}[{i}]"), v)?;
+    }
+    Ok(())
+}
+
+fn exact_len(field: &str, values: &[f64], want: usize, what: &str) -> Result<(), ProblemError> {
+    if values.len() != want {
+        return Err(ProblemError::new(
+            field,
+            format!("expected {want} {what}, got {}", values.len()),
+        ));
+    }
+    Ok(())
+}
+
+/// Parses a strategy name.
+pub fn parse_strategy(name: &str) -> Result<Strategy, ProblemError> {
+    match name {
+        "sequential" => Ok(Strategy::Sequential),
+        other => Err(ProblemError::new(
+            "strategy",
+            format!("unknown strategy {other:?} (expected \"sequential\")"),
+        )),
+    }
+}
+
+/// Parses a propagation name.
+pub fn parse_propagation(name: &str) -> Result<Propagation, ProblemError> {
+    match name {
+        "tractrix" => Ok(Propagation::Tractrix),
+        "distance" => Ok(Propagation::Distance),
+        other => Err(ProblemError::new(
+            "propagation",
+            format!("unknown propagation {other:?} (expected \"tractrix\" or \"distance\")"),
+        )),
+    }
+}
+
+/// Parses a base mode name.
+pub fn parse_base_mode(name: &str) -> Result<BaseMode, ProblemError> {
+    match name {
+        "fixed" => Ok(BaseMode::Fixed),
+        "free" => Ok(BaseMode::Free),
+        other => Err(ProblemError::new(
+            "base_mode",
+            format!("unknown base mode {other:?} (expected \"fixed\" or \"free\")"),
+        )),
+    }
+}
+
+/// Checks a step count: at least one.
+pub fn parse_steps(steps: u64) -> Result<usize, ProblemError> {
+    if steps == 0 {
+        return Err(ProblemError::new("steps", "must be at least 1"));
+    }
+    usize::try_from(steps)
+        .ok()
+        .filter(|&s| s <= 1_000_000)
+        .ok_or_else(|| ProblemError::new("steps", format!("{steps} exceeds 1000000")))
+}
+
+/// Maps a chain construction error onto the problem's field names.
+fn chain_error(e: ChainError) -> ProblemError {
+    match e {
+        ChainError::Empty => ProblemError::new("links", "the chain has no links"),
+        ChainError::BadLink { link, value } => ProblemError::new(
+            format!("links[{}]", link - 1),
+            format!("{value} must be a positive length"),
+        ),
+        ChainError::BadBase { value } => {
+            ProblemError::new("base", format!("{value} is not an accepted coordinate"))
+        }
+        ChainError::LimitCount { got, joints } => ProblemError::new(
+            "limits",
+            format!("expected {joints} entries (one per joint), got {got}"),
+        ),
+        ChainError::BadLimit { joint, lo, hi } => ProblemError::new(
+            format!("limits[{}]", joint - 1),
+            format!("[{lo}, {hi}] must satisfy lo < hi"),
+        ),
+    }
+}
+
+/// Checks that a start pose has one angle per joint, each finite and inside its limits.
+pub fn check_pose(chain: &Chain, field: &str, theta: &[f64]) -> Result<(), ProblemError> {
+    exact_len(field, theta, chain.len(), "angles (one per link)")?;
+    numbers(field, theta)?;
+    chain.check_limits(theta).map_err(|v| {
+        ProblemError::new(
+            format!("{field}[{}]", v.joint - 1),
+            format!(
+                "{} rad is outside the joint's limits [{}, {}]",
+                v.value, v.lo, v.hi
+            ),
+        )
+    })
+}
+
+impl Problem {
+    /// Parses and validates a problem from JSON text.
+    pub fn from_json(text: &str) -> Result<Self, ProblemError> {
+        let raw: RawProblem =
+            serde_json::from_str(text).map_err(|e| ProblemError::new("input", format!("{e}")))?;
+        Self::from_raw(raw)
+    }
+
+    fn from_raw(raw: RawProblem) -> Result<Self, ProblemError> {
+        if raw.links.is_empty() {
+            return Err(ProblemError::new("links", "the chain has no links"));
+        }
+        numbers("links", &raw.links)?;
+        exact_len("base", &raw.base, 3, "numbers [x, y, heading]")?;
+        numbers("base", &raw.base)?;
+        exact_len("target", &raw.target, 2, "numbers [x, y]")?;
+        numbers("target", &raw.target)?;
+        let n = raw.links.len();
+        let mut limits = Vec::new();
+        if let Some(raw_limits) = &raw.limits {
+            if raw_limits.len() != n {
+                return Err(ProblemError::new(
+                    "limits",
+                    format!(
+                        "expected {n} entries (one per joint), got {}",
+                        raw_limits.len()
+                    ),
+                ));
+            }
+            for (i, l) in raw_limits.iter().enumerate() {
+                let field = format!("limits[{i}]");
+                limits.push(match l {
+                    None => None,
+                    Some(pair) => {
+                        exact_len(&field, pair, 2, "numbers [lo, hi] or null")?;
+                        numbers(&field, pair)?;
+                        Some(JointLimit {
+                            lo: pair[0],
+                            hi: pair[1],
+                        })
+                    }
+                });
+            }
+        }
+        let base = Vec2::new(raw.base[0], raw.base[1]);
+        let chain = Chain::new(raw.links, base, raw.base[2], limits).map_err(chain_error)?;
+        check_pose(&chain, "theta0", &raw.theta0)?;
+        let strategy = parse_strategy(raw.strategy.as_deref().unwrap_or("sequential"))?;
+        let base_mode = parse_base_mode(raw.base_mode.as_deref().unwrap_or("fixed"))?;
+        let propagation = parse_propagation(raw.propagation.as_deref().unwrap_or("tractrix"))?;
+        let steps = parse_steps(raw.steps.unwrap_or(1))?;
+        Ok(Self {
+            chain,
+            theta0: raw.theta0,
+            target: Vec2::new(raw.target[0], raw.target[1]),
+            strategy,
+            base_mode,
+            propagation,
+            steps,
+        })
+    }
+
+    /// Solves the problem. Never fails: an unreachable or unconverged answer says so in its
+    /// flags, with the best pose found.
+    pub fn solve(&self) -> Answer {
+        match self.base_mode {
+            BaseMode::Fixed => self.solve_fixed(),
+            BaseMode::Free => self.solve_free(),
+        }
+    }
+
+    fn solve_fixed(&self) -> Answer {
+        let chain = &self.chain;
+        let mut resolver: Box<dyn Resolver> = match self.strategy {
+            Strategy::Sequential | Strategy::Overall => {
+                Box::new(Sequential::new(SequentialOptions {
+                    propagation: self.propagation,
+                    ..SequentialOptions::default()
+                }))
+            }
+        };
+        let mut theta = vec![0.0; chain.len()];
+        let clock = Instant::now();
+        let outcome = solve_steps(
+            resolver.as_mut(),
+            chain,
+            &self.theta0,
+            self.target,
+            self.steps,
+            &mut theta,
+        );
+        let solve_us = clock.elapsed().as_secs_f64() * 1e6;
+        let points = chain.points(&theta);
+        Answer {
+            strategy: self.strategy.name(),
+            tip: xy(points[chain.len()]),
+            points: points.iter().copied().map(xy).collect(),
+            tip_error: outcome.tip_error,
+            base_error: Some((points[0] - chain.base()).norm()),
+            base_displacement: None,
+            reachable: outcome.reachable,
+            converged: outcome.converged,
+            within_limits: chain.check_limits(&theta).is_ok(),
+            iterations: outcome.iterations,
+            metrics: MetricsOut::from(metrics::arm(chain, &self.theta0, &theta)),
+            solve_us,
+            theta,
+        }
+    }
+
+    fn solve_free(&self) -> Answer {
+        let chain = &self.chain;
+        let old = chain.points(&self.theta0);
+        let mut points = old.clone();
+        let mut scratch = Vec::with_capacity(points.len());
+        let clock = Instant::now();
+        pull_free(
+            &mut points,
+            chain.links(),
+            self.target,
+            self.steps,
+            self.propagation,
+            &mut scratch,
+        );
+        let solve_us = clock.elapsed().as_secs_f64() * 1e6;
+        let mut theta = vec![0.0; chain.len()];
+        Chain::angles_from_points(chain.heading(), &points, &self.theta0, &mut theta);
+        let n = chain.len();
+        Answer {
+            strategy: self.strategy.name(),
+            tip: xy(points[n]),
+            tip_error: (points[n] - self.target).norm(),
+            base_error: None,
+            base_displacement: Some((points[0] - old[0]).norm()),
+            reachable: true,
+            converged: true,
+            within_limits: chain.check_limits(&theta).is_ok(),
+            iterations: 0,
+            metrics: MetricsOut::from(metrics::rope(&old, &points)),
+            solve_us,
+            points: points.iter().copied().map(xy).collect(),
+            theta,
+        }
+    }
+}
+
+fn xy(p: Vec2) -> [f64; 2] {
+    [p.x, p.y]
+}
+
+/// The metrics as they appear in the answer.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct MetricsOut {
+    /// Sum of squared point displacements, m^2.
+    pub m1: f64,
+    /// Displacements weighted by segment length, m^2.
+    pub m2: f64,
+    /// Sum of squared joint rotations, rad^2.
+    pub m3: f64,
+    /// Squared displacements weighted by arc length to the tip, m^3.
+    pub m4: f64,
+    /// Squared rotations weighted by arc length to the tip, m rad^2.
+    pub m5: f64,
+}
+
+impl From<Metrics> for MetricsOut {
+    fn from(m: Metrics) -> Self {
+        Self {
+            m1: m.m1,
+            m2: m.m2,
+            m3: m.m3,
+            m4: m.m4,
+            m5: m.m5,
+        }
+    }
+}
+
+/// The answer `snakectl solve` prints: one JSON object.
+#[derive(Debug, Clone, Serialize)]
+pub struct Answer {
+    /// The strategy that produced it.
+    pub strategy: &'static str,
+    /// Relative joint angles, each the representative nearest its start value, rad.
+    pub theta: Vec<f64>,
+    /// `p_0..p_n`, base (or free end) first, m.
+    pub points: Vec<[f64; 2]>,
+    /// The tip `p_n`, m.
+    pub tip: [f64; 2],
+    /// Distance from the tip to the target, m.
+    pub tip_error: f64,
+    /// Fixed base: distance from `p_0` to the base, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub base_error: Option<f64>,
+    /// Free base: how far `p_0` moved, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub base_displacement: Option<f64>,
+    /// Whether the target is reachable.
+    pub reachable: bool,
+    /// Whether the resolver met its tolerance.
+    pub converged: bool,
+    /// Whether every joint lies inside its limits.
+    pub within_limits: bool,
+    /// Correction rounds (sequential) or solver iterations (overall), summed over the steps.
+    pub iterations: usize,
+    /// The five metrics between the start and the answer.
+    pub metrics: MetricsOut,
+    /// The solver's own time, µs.
+    pub solve_us: f64,
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"{"links":[1,1,1],"base":[0,0,0],"theta0":[0.1,0.2,0.3],
+        "target":[1.5,1.0]}"#;
+
+    fn err(text: &str) -> ProblemError {
+        Problem::from_json(text).unwrap_err()
+    }
+
+    fn with(key_value: &str) -> String {
+        GOOD.replacen('{', &format!("{{{key_value},"), 1)
+    }
+
+    #[test]
+    fn a_good_problem_solves() {
+        let p = Problem::from_json(GOOD).unwrap();
+        assert_eq!(p.steps, 1);
+        assert_eq!(p.strategy, Strategy::Sequential);
+        let a = p.solve();
+        assert!(a.converged && a.reachable && a.within_limits);
+        assert!(a.tip_error < 1e-9);
+        assert_eq!(a.points.len(), 4);
+    }
+
+    #[test]
+    fn every_bad_input_names_its_field() {
+        let cases: Vec<(String, &str)> = vec![
+            ("{".into(), "input"),
+            ("[1,2]".into(), "input"),
+            (with(r#""colour":1"#), "input"),
+            (GOOD.replace("[1,1,1]", "[]"), "links"),
+            (GOOD.replace("[1,1,1]", "[1,-1,1]"), "links[1]"),
+            (GOOD.replace("[1,1,1]", "[1,0,1]"), "links[1]"),
+            (GOOD.replace("[1,1,1]", "[1,1,2e6]"), "links[2]"),
+            (GOOD.replace("[0,0,0]", "[0,0]"), "base"),
+            (GOOD.replace("[0,0,0]", "[0,0,1e7]"), "base[2]"),
+            (GOOD.replace("[0.1,0.2,0.3]", "[0.1,0.2]"), "theta0"),
+            (GOOD.replace("[1.5,1.0]", "[1.5]"), "target"),
+            (GOOD.replace("[1.5,1.0]", "[1.5,-3e6]"), "target[1]"),
+            (with(r#""limits":[[1,-1],null,null]"#), "limits[0]"),
+            (with(r#""limits":[null,null]"#), "limits"),
+            (with(r#""limits":[[0,1,2],null,null]"#), "limits[0]"),
+            (with(r#""limits":[null,null,[-0.1,0.1]]"#), "theta0[2]"),
+            (with(r#""strategy":"fastest""#), "strategy"),
+            (with(r#""base_mode":"floating""#), "base_mode"),
+            (with(r#""propagation":"magic""#), "propagation"),
+            (with(r#""steps":0"#), "steps"),
+            (with(r#""steps":-1"#), "input"),
+            (GOOD.replace("[1.5,1.0]", "[1.5,1e999]"), "input"),
+        ];
+        for (text, field) in cases {
+            let e = err(&text);
+            assert_eq!(e.field, field, "{text} -> {e}");
+            assert!(!e.to_string().contains('\n'), "one line: {e}");
+        }
+        assert!(err(&with(r#""colour":1"#)).to_string().contains("colour"));
+    }
+
+    #[test]
+    fn free_mode_moves_the_base_end_and_keeps_the_tip_exact() {
+        let p = Problem::from_json(&with(r#""base_mode":"free","steps":4"#)).unwrap();
+        let a = p.solve();
+        assert!(a.base_error.is_none());
+        assert!(a.base_displacement.unwrap() > 0.0);
+        assert_eq!(a.tip, [1.5, 1.0]);
+        assert!(a.converged && a.reachable);
+    }
+}

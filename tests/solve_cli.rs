@@ -1,0 +1,180 @@
+//! `snakectl solve` as a user runs it: exit codes, one JSON object on stdout, one-line errors
+//! naming the field on stderr.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::io::Write;
+use std::process::{Command, Output, Stdio};
+
+fn snakectl(args: &[&str], stdin: &str) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(stdin.as_bytes())
+        .unwrap();
+    child.wait_with_output().unwrap()
+}
+
+fn json(out: &Output) -> serde_json::Value {
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+const ARM: &str = r#"{"links":[0.3,0.3,0.2,0.2],"base":[0,0,0],"theta0":[0.2,0.2,0.2,0.2],
+    "target":[0.5,0.4]}"#;
+
+#[test]
+fn a_reachable_target_is_solved_from_stdin() {
+    let out = snakectl(&["solve", "-"], ARM);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let a = json(&out);
+    for key in [
+        "strategy",
+        "theta",
+        "points",
+        "tip",
+        "tip_error",
+        "base_error",
+        "reachable",
+        "converged",
+        "iterations",
+        "metrics",
+        "solve_us",
+    ] {
+        assert!(a.get(key).is_some(), "missing {key}");
+    }
+    assert_eq!(a["points"].as_array().unwrap().len(), 5);
+    assert!(a["tip_error"].as_f64().unwrap() < 1e-9);
+    assert_eq!(a["converged"], true);
+    for m in ["m1", "m2", "m3", "m4", "m5"] {
+        assert!(a["metrics"][m].as_f64().unwrap() > 0.0);
+    }
+}
+
+#[test]
+fn an_unreachable_target_exits_zero_with_honest_flags() {
+    let text = ARM.replace("[0.5,0.4]", "[3.0,0.0]");
+    let out = snakectl(&["solve", "-"], &text);
+    assert_eq!(out.status.code(), Some(0));
+    let a = json(&out);
+    assert_eq!(a["reachable"], false);
+    assert_eq!(a["converged"], false);
+    let err = a["tip_error"].as_f64().unwrap();
+    assert!(
+        (err - 2.0).abs() < 1e-6,
+        "a straight arm stops 2 m short: {err}"
+    );
+}
+
+#[test]
+fn free_mode_reports_the_base_displacement() {
+    let text = ARM.replacen('{', r#"{"base_mode":"free","steps":3,"#, 1);
+    let a = json(&snakectl(&["solve", "-"], &text));
+    assert!(a.get("base_error").is_none());
+    assert!(a["base_displacement"].as_f64().unwrap() > 0.0);
+    assert_eq!(a["tip"], serde_json::json!([0.5, 0.4]));
+}
+
+#[test]
+fn bad_input_exits_two_with_one_line_naming_the_field() {
+    let cases = [
+        ("not json", "input"),
+        (&*ARM.replacen('{', r#"{"speed":1,"#, 1), "speed"),
+        (
+            &*ARM.replace("[0.3,0.3,0.2,0.2]", "[0.3,0.3,0.2]"),
+            "theta0",
+        ),
+        (
+            &*ARM.replace("[0.3,0.3,0.2,0.2]", "[0.3,0,0.2,0.2]"),
+            "links[1]",
+        ),
+        (&*ARM.replace("[0.3,0.3,0.2,0.2]", "[]"), "links"),
+        (&*ARM.replace("[0.5,0.4]", "[0.5,2e6]"), "target[1]"),
+        (
+            &*ARM.replace("[0.5,0.4]", "[0.5,1e400]"),
+            "number out of range",
+        ),
+        (
+            &*ARM.replacen('{', r#"{"limits":[[1,0],null,null,null],"#, 1),
+            "limits[0]",
+        ),
+        (
+            &*ARM.replacen('{', r#"{"limits":[null,null,null,[-0.1,0.1]],"#, 1),
+            "theta0[3]",
+        ),
+        (
+            &*ARM.replacen('{', r#"{"strategy":"greedy","#, 1),
+            "strategy",
+        ),
+        (&*ARM.replacen('{', r#"{"steps":0,"#, 1), "steps"),
+    ];
+    for (text, needle) in cases {
+        let out = snakectl(&["solve", "-"], text);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{text}: {err}");
+        assert!(out.stdout.is_empty());
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains(needle), "{text}: {err}");
+        assert!(!err.contains("panicked"));
+    }
+}
+
+#[test]
+fn a_config_file_and_a_target_work_too() {
+    let out = snakectl(
+        &[
+            "solve",
+            "--config",
+            "config/arm.toml",
+            "--target",
+            "0.5,0.3",
+        ],
+        "",
+    );
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let a = json(&out);
+    assert_eq!(a["theta"].as_array().unwrap().len(), 8);
+    let out = snakectl(
+        &[
+            "solve",
+            "--config",
+            "config/arm.toml",
+            "--target",
+            "0.5,0.3",
+            "--from",
+            "0,0",
+        ],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--from"));
+    let out = snakectl(
+        &[
+            "solve",
+            "--config",
+            "config/missing.toml",
+            "--target",
+            "0,0",
+        ],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("config/missing.toml"));
+}
