@@ -1,0 +1,715 @@
+//! The bus: N servos behind one line. Parses incoming bytes, dispatches each instruction to the
+//! servos it addresses, orders and times the replies, and injects the configured faults.
+//!
+//! [`Simulator::handle_bytes`] is the whole core: bytes in, timed replies out, no I/O. The pty
+//! layer only moves bytes and waits for each reply's deadline.
+
+use std::time::{Duration, Instant};
+
+use crate::clock::SharedClock;
+use crate::protocol::{self, error, instruction as ins, Frame, Packet, Parser, BROADCAST_ID};
+use crate::rng::SplitMix64;
+use crate::servo::{Servo, ServoSpec};
+use crate::table::hw;
+use crate::SimError;
+
+/// Baud rates selectable in the Baud Rate register (index = register value).
+pub const BAUD_RATES: [u32; 8] = [
+    9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000,
+];
+
+/// A hardware error a fault can raise (bits of Hardware Error Status).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum HardwareErrorKind {
+    /// Overload (bit 5): in the default Shutdown of every model.
+    Overload,
+    /// Overheating (bit 2): in the default Shutdown; Present Temperature jumps above the limit.
+    Overheating,
+    /// Input voltage (bit 0): in the XL330's default Shutdown only; Present Input Voltage drops
+    /// below the limit.
+    InputVoltage,
+    /// Electrical shock (bit 4): in the default Shutdown.
+    ElectricalShock,
+    /// Motor encoder (bit 3): not in the default Shutdown.
+    Encoder,
+}
+
+impl HardwareErrorKind {
+    /// The Hardware Error Status bit.
+    pub fn bit(self) -> u8 {
+        match self {
+            Self::Overload => hw::OVERLOAD,
+            Self::Overheating => hw::OVERHEATING,
+            Self::InputVoltage => hw::INPUT_VOLTAGE,
+            Self::ElectricalShock => hw::ELECTRICAL_SHOCK,
+            Self::Encoder => hw::ENCODER,
+        }
+    }
+}
+
+/// A fault to inject. Random faults draw from the simulator's seeded generator, so a run with
+/// the same seed and the same traffic fails the same way.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum Fault {
+    /// Each reply (of servo `id`, or of every servo) is lost with probability `fraction`.
+    DropReplies {
+        /// Only this servo, or all.
+        id: Option<u8>,
+        /// Probability in [0, 1].
+        fraction: f64,
+    },
+    /// Each reply has one byte flipped (after the header, so the client sees a CRC error) with
+    /// probability `fraction`.
+    CorruptReplies {
+        /// Only this servo, or all.
+        id: Option<u8>,
+        /// Probability in [0, 1].
+        fraction: f64,
+    },
+    /// Every reply leaves `latency` later than it would.
+    ExtraLatency {
+        /// Only this servo, or all.
+        id: Option<u8>,
+        /// Added delay.
+        latency: Duration,
+    },
+    /// From `at` after start, servo `id` neither hears nor answers (a broken cable).
+    Silent {
+        /// The servo.
+        id: u8,
+        /// Time after the simulator's start.
+        at: Duration,
+    },
+    /// At `at` after start, servo `id` latches a hardware error.
+    HardwareError {
+        /// The servo.
+        id: u8,
+        /// Time after the simulator's start.
+        at: Duration,
+        /// Which error.
+        kind: HardwareErrorKind,
+    },
+}
+
+/// Everything the simulator needs: plain data, no dependency on the controller.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimConfig {
+    /// The servos on the bus.
+    pub servos: Vec<ServoSpec>,
+    /// Bus baud rate; must be one of [`BAUD_RATES`]. Written into every servo's Baud Rate.
+    pub baud: u32,
+    /// Return Delay Time written into every servo at start (µs, even, at most 508).
+    pub return_delay_us: u32,
+    /// Delay each reply by its wire time at `baud` plus the Return Delay Time.
+    pub wire_timing: bool,
+    /// Seed of the fault generator.
+    pub seed: u64,
+    /// Faults to inject.
+    pub faults: Vec<Fault>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            servos: Vec::new(),
+            baud: 1_000_000,
+            return_delay_us: 0,
+            wire_timing: false,
+            seed: 1,
+            faults: Vec::new(),
+        }
+    }
+}
+
+impl SimConfig {
+    /// Check the configuration; returns the Baud Rate register index of `baud`.
+    pub fn validate(&self) -> Result<u8, SimError> {
+        let baud_index = BAUD_RATES
+            .iter()
+            .position(|&b| b == self.baud)
+            .ok_or(SimError::Baud(self.baud))?;
+        if self.return_delay_us > 508 || self.return_delay_us % 2 != 0 {
+            return Err(SimError::ReturnDelay(self.return_delay_us));
+        }
+        let mut seen = [false; 256];
+        for spec in &self.servos {
+            if spec.id > 252 {
+                return Err(SimError::BadId(spec.id));
+            }
+            if std::mem::replace(&mut seen[usize::from(spec.id)], true) {
+                return Err(SimError::DuplicateId(spec.id));
+            }
+            let min = spec.min_position_ticks.unwrap_or(0);
+            let max = spec.max_position_ticks.unwrap_or(4095);
+            if min > max || max > 4095 {
+                return Err(SimError::PositionLimits {
+                    id: spec.id,
+                    min,
+                    max,
+                });
+            }
+        }
+        for fault in &self.faults {
+            let (id, fraction) = match fault {
+                Fault::DropReplies { id, fraction } | Fault::CorruptReplies { id, fraction } => {
+                    (*id, Some(*fraction))
+                }
+                Fault::ExtraLatency { id, .. } => (*id, None),
+                Fault::Silent { id, .. } | Fault::HardwareError { id, .. } => (Some(*id), None),
+            };
+            if let Some(id) = id {
+                if !seen[usize::from(id)] {
+                    return Err(SimError::FaultId(id));
+                }
+            }
+            if let Some(f) = fraction {
+                if !(0.0..=1.0).contains(&f) {
+                    return Err(SimError::Fraction(f));
+                }
+            }
+        }
+        Ok(baud_index as u8)
+    }
+}
+
+/// A reply to put on the wire no earlier than `at`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Reply {
+    /// When the last byte would have left the servo (wire timing), or when the instruction was
+    /// handled (no wire timing), plus any injected latency.
+    pub at: Instant,
+    /// The id of the servo that answers.
+    pub id: u8,
+    /// The status packet as transmitted (possibly corrupted by a fault).
+    pub bytes: Vec<u8>,
+}
+
+/// Counters, for logs and tests.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Stats {
+    /// Packets with a good CRC.
+    pub packets: u64,
+    /// Frames with a bad CRC.
+    pub crc_errors: u64,
+    /// Replies produced.
+    pub replies: u64,
+    /// Replies dropped by a fault.
+    pub dropped: u64,
+    /// Replies corrupted by a fault.
+    pub corrupted: u64,
+}
+
+#[derive(Debug, Clone)]
+struct Timed {
+    at: Instant,
+    fault: Fault,
+    done: bool,
+}
+
+/// A chain of virtual servos behind one serial line.
+#[derive(Debug)]
+pub struct Simulator {
+    servos: Vec<Servo>,
+    config: SimConfig,
+    baud_index: u8,
+    clock: SharedClock,
+    start: Instant,
+    last: Instant,
+    parser: Parser,
+    rng: SplitMix64,
+    line_free: Instant,
+    timed: Vec<Timed>,
+    stats: Stats,
+}
+
+/// A reply a servo wants to send, before faults and timing.
+struct Outgoing {
+    index: usize,
+    bytes: Vec<u8>,
+}
+
+impl Simulator {
+    /// Power on the servos of `config` at the clock's current time.
+    pub fn new(config: SimConfig, clock: SharedClock) -> Result<Self, SimError> {
+        let baud_index = config.validate()?;
+        let now = clock.now();
+        let rdt = (config.return_delay_us / 2) as u8;
+        let servos = config
+            .servos
+            .iter()
+            .map(|spec| Servo::new(spec, baud_index, rdt, now))
+            .collect();
+        let timed = config
+            .faults
+            .iter()
+            .filter_map(|f| match f {
+                Fault::Silent { at, .. } | Fault::HardwareError { at, .. } => Some(Timed {
+                    at: now + *at,
+                    fault: f.clone(),
+                    done: false,
+                }),
+                _ => None,
+            })
+            .collect();
+        let mut sim = Self {
+            servos,
+            rng: SplitMix64::new(config.seed),
+            config,
+            baud_index,
+            clock,
+            start: now,
+            last: now,
+            parser: Parser::default(),
+            line_free: now,
+            timed,
+            stats: Stats::default(),
+        };
+        sim.fire_due(now);
+        Ok(sim)
+    }
+
+    /// The configuration it was built from.
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    /// The clock it runs on.
+    pub fn clock(&self) -> &SharedClock {
+        &self.clock
+    }
+
+    /// When it started.
+    pub fn start(&self) -> Instant {
+        self.start
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    /// All servos, in configuration order.
+    pub fn servos(&self) -> &[Servo] {
+        &self.servos
+    }
+
+    /// The servo whose current id is `id`.
+    pub fn servo(&self, id: u8) -> Option<&Servo> {
+        self.servos.iter().find(|s| s.id() == id)
+    }
+
+    /// The servo whose current id is `id`, mutably.
+    pub fn servo_mut(&mut self, id: u8) -> Option<&mut Servo> {
+        self.servos.iter_mut().find(|s| s.id() == id)
+    }
+
+    /// Time one byte takes on the wire (start bit, 8 data bits, stop bit).
+    pub fn byte_time(&self) -> Duration {
+        Duration::from_nanos(10_000_000_000 / u64::from(self.config.baud))
+    }
+
+    /// Advance motor models, watchdogs and timed faults to the clock's now.
+    pub fn advance(&mut self) {
+        let now = self.clock.now();
+        self.advance_to(now);
+    }
+
+    fn advance_to(&mut self, now: Instant) {
+        if now <= self.last {
+            return;
+        }
+        self.fire_due(now);
+        for servo in &mut self.servos {
+            servo.update(now);
+        }
+        self.last = now;
+    }
+
+    /// Apply timed faults due by `now`, in time order, each at its own instant.
+    fn fire_due(&mut self, now: Instant) {
+        loop {
+            let next = self
+                .timed
+                .iter()
+                .enumerate()
+                .filter(|(_, t)| !t.done && t.at <= now)
+                .min_by_key(|(_, t)| t.at)
+                .map(|(i, _)| i);
+            let Some(i) = next else { break };
+            let at = self.timed[i].at;
+            self.timed[i].done = true;
+            for servo in &mut self.servos {
+                servo.update(at);
+            }
+            match self.timed[i].fault.clone() {
+                Fault::Silent { id, .. } => {
+                    if let Some(s) = self.servo_mut(id) {
+                        tracing::debug!(id, "fault: servo goes silent");
+                        s.set_silent(true);
+                    }
+                }
+                Fault::HardwareError { id, kind, .. } => {
+                    if let Some(s) = self.servo_mut(id) {
+                        tracing::debug!(id, ?kind, "fault: hardware error");
+                        s.raise_hardware_error(kind.bit(), at);
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Feed bytes received now; return the replies, each with the instant it is due.
+    pub fn handle_bytes(&mut self, bytes: &[u8]) -> Vec<Reply> {
+        let now = self.clock.now();
+        self.advance_to(now);
+        let bt = self.byte_time();
+        let wire = self.config.wire_timing;
+        let chunk_start = if wire { now.max(self.line_free) } else { now };
+        let parsed = self.parser.feed(bytes, now);
+        let mut replies = Vec::new();
+        for p in parsed {
+            let done = if wire {
+                chunk_start + bt * (p.end_in_chunk as u32 + 1)
+            } else {
+                now
+            };
+            if wire {
+                self.line_free = self.line_free.max(done);
+            }
+            let outgoing = match p.frame {
+                Frame::Packet(packet) => {
+                    self.stats.packets += 1;
+                    self.dispatch(&packet, now)
+                }
+                Frame::BadCrc {
+                    id, instruction, ..
+                } => {
+                    self.stats.crc_errors += 1;
+                    self.crc_error(id, instruction)
+                }
+            };
+            for out in outgoing {
+                if let Some(reply) = self.schedule(out, done) {
+                    replies.push(reply);
+                }
+            }
+        }
+        if wire {
+            self.line_free = self.line_free.max(chunk_start + bt * bytes.len() as u32);
+        }
+        replies
+    }
+
+    /// Apply reply faults and wire timing to one outgoing status packet.
+    fn schedule(&mut self, out: Outgoing, done: Instant) -> Option<Reply> {
+        let servo = self.servos.get(out.index)?;
+        let id = servo.id();
+        let config_id = self.config.servos.get(out.index).map(|s| s.id);
+        let applies = |fid: &Option<u8>| fid.is_none() || *fid == config_id;
+        let mut latency = Duration::ZERO;
+        let mut drop = false;
+        let mut corrupt = false;
+        for fault in &self.config.faults {
+            match fault {
+                Fault::DropReplies { id, fraction } if applies(id) => {
+                    drop |= self.rng.chance(*fraction);
+                }
+                Fault::CorruptReplies { id, fraction } if applies(id) => {
+                    corrupt |= self.rng.chance(*fraction);
+                }
+                Fault::ExtraLatency { id, latency: l } if applies(id) => latency += *l,
+                _ => {}
+            }
+        }
+        let mut bytes = out.bytes;
+        let rdt = servo.return_delay();
+        let at = if self.config.wire_timing {
+            let start = (done + rdt).max(self.line_free) + latency;
+            let end = start + self.byte_time() * bytes.len() as u32;
+            self.line_free = end;
+            end
+        } else {
+            done + latency
+        };
+        if drop {
+            self.stats.dropped += 1;
+            tracing::debug!(id, "fault: reply dropped");
+            return None;
+        }
+        if corrupt && bytes.len() > 7 {
+            // Flip a byte after the length field, so the frame keeps its length and fails its CRC.
+            let k = 7 + self.rng.below(bytes.len() - 7);
+            let flip = 1u8 << self.rng.below(8);
+            bytes[k] ^= flip;
+            self.stats.corrupted += 1;
+            tracing::debug!(id, byte = k, "fault: reply corrupted");
+        }
+        self.stats.replies += 1;
+        Some(Reply { at, id, bytes })
+    }
+
+    /// Indices of the servos on the bus that hear a packet for `id` (broadcast: all).
+    fn listeners(&self, id: u8) -> Vec<usize> {
+        (0..self.servos.len())
+            .filter(|&i| self.hears(i) && (id == BROADCAST_ID || self.servos[i].id() == id))
+            .collect()
+    }
+
+    /// A servo hears the bus unless it went silent or runs at another baud rate.
+    fn hears(&self, index: usize) -> bool {
+        self.servos
+            .get(index)
+            .is_some_and(|s| !s.is_silent() && s.baud_index() == self.baud_index)
+    }
+
+    fn find(&self, id: u8) -> Option<usize> {
+        self.servos
+            .iter()
+            .position(|s| s.id() == id)
+            .filter(|&i| self.hears(i))
+    }
+
+    /// Whether a servo answers `instruction` at its Status Return Level.
+    fn answers(servo: &Servo, instruction: u8) -> bool {
+        match instruction {
+            ins::PING => true,
+            ins::READ | ins::SYNC_READ | ins::BULK_READ => servo.status_return_level() >= 1,
+            _ => servo.status_return_level() >= 2,
+        }
+    }
+
+    fn status(&self, index: usize, code: u8, params: &[u8]) -> Outgoing {
+        let servo = &self.servos[index];
+        Outgoing {
+            index,
+            bytes: protocol::encode_status(servo.id(), servo.status_error(code), params),
+        }
+    }
+
+    fn crc_error(&mut self, id: u8, instruction: u8) -> Vec<Outgoing> {
+        if id == BROADCAST_ID {
+            return Vec::new();
+        }
+        match self.find(id) {
+            Some(i) if Self::answers(&self.servos[i], instruction) => {
+                vec![self.status(i, error::CRC, &[])]
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// Execute one instruction; return the replies in bus order.
+    fn dispatch(&mut self, p: &Packet, now: Instant) -> Vec<Outgoing> {
+        match p.instruction {
+            protocol::STATUS => Vec::new(),
+            ins::SYNC_READ => self.sync_read(p, now),
+            ins::SYNC_WRITE => self.sync_write(p, now),
+            ins::BULK_READ => self.bulk_read(p, now),
+            ins::BULK_WRITE => self.bulk_write(p, now),
+            _ => {
+                let broadcast = p.id == BROADCAST_ID;
+                let mut targets = self.listeners(p.id);
+                // Broadcast ping replies come in id order.
+                targets.sort_by_key(|&i| self.servos[i].id());
+                let mut out = Vec::new();
+                for i in targets {
+                    self.servos[i].touch(now);
+                    if let Some((code, data, after)) = self.unicast(i, p, broadcast, now) {
+                        let reply = self.status(i, code, &data);
+                        let wants = !broadcast || p.instruction == ins::PING;
+                        if wants && Self::answers(&self.servos[i], p.instruction) {
+                            out.push(reply);
+                        }
+                        after(&mut self.servos[i], now);
+                    }
+                }
+                out
+            }
+        }
+    }
+
+    /// One single-servo instruction. Returns the status (error code, data) and what to do
+    /// after the reply is built (reboot and factory reset answer first, then restart); `None`
+    /// when the instruction is ignored.
+    #[allow(clippy::type_complexity)]
+    fn unicast(
+        &mut self,
+        i: usize,
+        p: &Packet,
+        broadcast: bool,
+        now: Instant,
+    ) -> Option<(u8, Vec<u8>, Box<dyn FnOnce(&mut Servo, Instant)>)> {
+        let nothing: Box<dyn FnOnce(&mut Servo, Instant)> = Box::new(|_, _| {});
+        let servo = &mut self.servos[i];
+        let params = &p.params;
+        let ok_or = |r: Result<(), u8>| r.err().unwrap_or(error::NONE);
+        Some(match p.instruction {
+            ins::PING => {
+                let t = servo.table();
+                let [lo, hi] = t.model_number.to_le_bytes();
+                (error::NONE, vec![lo, hi, t.firmware_version], nothing)
+            }
+            ins::READ => {
+                if params.len() != 4 {
+                    return Some((error::DATA_LENGTH, Vec::new(), nothing));
+                }
+                let address = u16::from_le_bytes([params[0], params[1]]);
+                let len = u16::from_le_bytes([params[2], params[3]]);
+                match servo.read(address, len) {
+                    Ok(data) => (error::NONE, data, nothing),
+                    Err(code) => (code, Vec::new(), nothing),
+                }
+            }
+            ins::WRITE | ins::REG_WRITE => {
+                if params.len() < 3 {
+                    return Some((error::DATA_LENGTH, Vec::new(), nothing));
+                }
+                let address = u16::from_le_bytes([params[0], params[1]]);
+                let data = &params[2..];
+                let r = if p.instruction == ins::WRITE {
+                    servo.write(address, data, now)
+                } else {
+                    servo.reg_write(address, data)
+                };
+                (ok_or(r), Vec::new(), nothing)
+            }
+            ins::ACTION => {
+                if !params.is_empty() {
+                    return Some((error::DATA_LENGTH, Vec::new(), nothing));
+                }
+                (ok_or(servo.action(now)), Vec::new(), nothing)
+            }
+            ins::REBOOT => (
+                error::NONE,
+                Vec::new(),
+                Box::new(|s: &mut Servo, t| s.reboot(t)),
+            ),
+            ins::FACTORY_RESET => {
+                let option = match params.as_slice() {
+                    [o @ (0x01 | 0x02 | 0xFF)] => *o,
+                    [_] => return Some((error::DATA_RANGE, Vec::new(), nothing)),
+                    _ => return Some((error::DATA_LENGTH, Vec::new(), nothing)),
+                };
+                if broadcast && option == 0xFF {
+                    // The e-manual: a broadcast reset-all is not carried out.
+                    return None;
+                }
+                (
+                    error::NONE,
+                    Vec::new(),
+                    Box::new(move |s: &mut Servo, t| s.factory_reset(option, t)),
+                )
+            }
+            ins::CLEAR if servo.table().has_clear => {
+                if params.as_slice() != [0x01, 0x44, 0x58, 0x4C, 0x22] {
+                    return Some((error::DATA_RANGE, Vec::new(), nothing));
+                }
+                (ok_or(servo.clear_multi_turn(now)), Vec::new(), nothing)
+            }
+            _ => (error::INSTRUCTION, Vec::new(), nothing),
+        })
+    }
+
+    fn sync_read(&mut self, p: &Packet, now: Instant) -> Vec<Outgoing> {
+        if p.id != BROADCAST_ID || p.params.len() < 5 {
+            return Vec::new();
+        }
+        let address = u16::from_le_bytes([p.params[0], p.params[1]]);
+        let len = u16::from_le_bytes([p.params[2], p.params[3]]);
+        let reads: Vec<(u8, u16, u16)> =
+            p.params[4..].iter().map(|&id| (id, address, len)).collect();
+        self.reads(&reads, p.instruction, now)
+    }
+
+    fn bulk_read(&mut self, p: &Packet, now: Instant) -> Vec<Outgoing> {
+        if p.id != BROADCAST_ID || p.params.is_empty() || p.params.len() % 5 != 0 {
+            return Vec::new();
+        }
+        let reads: Vec<(u8, u16, u16)> = p
+            .params
+            .chunks_exact(5)
+            .map(|c| {
+                (
+                    c[0],
+                    u16::from_le_bytes([c[1], c[2]]),
+                    u16::from_le_bytes([c[3], c[4]]),
+                )
+            })
+            .collect();
+        let mut ids: Vec<u8> = reads.iter().map(|r| r.0).collect();
+        ids.sort_unstable();
+        if ids.windows(2).any(|w| w[0] == w[1]) {
+            return Vec::new();
+        }
+        self.reads(&reads, p.instruction, now)
+    }
+
+    /// Replies of a sync/bulk read, in the order the ids appear in the packet.
+    fn reads(&mut self, reads: &[(u8, u16, u16)], instruction: u8, now: Instant) -> Vec<Outgoing> {
+        let mut out = Vec::new();
+        for &(id, address, len) in reads {
+            let Some(i) = self.find(id) else { continue };
+            self.servos[i].touch(now);
+            if !Self::answers(&self.servos[i], instruction) {
+                continue;
+            }
+            out.push(match self.servos[i].read(address, len) {
+                Ok(data) => self.status(i, error::NONE, &data),
+                Err(code) => self.status(i, code, &[]),
+            });
+        }
+        out
+    }
+
+    fn sync_write(&mut self, p: &Packet, now: Instant) -> Vec<Outgoing> {
+        if p.id != BROADCAST_ID || p.params.len() < 4 {
+            return Vec::new();
+        }
+        let address = u16::from_le_bytes([p.params[0], p.params[1]]);
+        let len = usize::from(u16::from_le_bytes([p.params[2], p.params[3]]));
+        let body = &p.params[4..];
+        if len == 0 || body.len() % (len + 1) != 0 {
+            return Vec::new();
+        }
+        for chunk in body.chunks_exact(len + 1) {
+            if let Some(i) = self.find(chunk[0]) {
+                self.servos[i].touch(now);
+                if let Err(code) = self.servos[i].write(address, &chunk[1..], now) {
+                    tracing::debug!(id = chunk[0], code, "sync write refused");
+                }
+            }
+        }
+        Vec::new()
+    }
+
+    fn bulk_write(&mut self, p: &Packet, now: Instant) -> Vec<Outgoing> {
+        if p.id != BROADCAST_ID {
+            return Vec::new();
+        }
+        let mut writes = Vec::new();
+        let mut rest = p.params.as_slice();
+        while !rest.is_empty() {
+            let [id, a0, a1, l0, l1, tail @ ..] = rest else {
+                return Vec::new();
+            };
+            let len = usize::from(u16::from_le_bytes([*l0, *l1]));
+            if len == 0 || tail.len() < len {
+                return Vec::new();
+            }
+            writes.push((*id, u16::from_le_bytes([*a0, *a1]), &tail[..len]));
+            rest = &tail[len..];
+        }
+        for (id, address, data) in writes {
+            if let Some(i) = self.find(id) {
+                self.servos[i].touch(now);
+                if let Err(code) = self.servos[i].write(address, data, now) {
+                    tracing::debug!(id, code, "bulk write refused");
+                }
+            }
+        }
+        Vec::new()
+    }
+}
