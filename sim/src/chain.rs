@@ -517,11 +517,13 @@ impl Simulator {
                 let mut out = Vec::new();
                 for i in targets {
                     self.servos[i].touch(now);
+                    // Decided before executing: the write that changes the Status Return
+                    // Level is answered under the old level.
+                    let answers = (!broadcast || p.instruction == ins::PING)
+                        && Self::answers(&self.servos[i], p.instruction);
                     if let Some((code, data, after)) = self.unicast(i, p, broadcast, now) {
-                        let reply = self.status(i, code, &data);
-                        let wants = !broadcast || p.instruction == ins::PING;
-                        if wants && Self::answers(&self.servos[i], p.instruction) {
-                            out.push(reply);
+                        if answers {
+                            out.push(self.status(i, code, &data));
                         }
                         after(&mut self.servos[i], now);
                     }

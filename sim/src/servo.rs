@@ -688,6 +688,18 @@ impl Servo {
         self.put(addr::REALTIME_TICK, tick as i64);
     }
 
+    /// Set the supply voltage the servo measures (0.1 V units), e.g. a sagging supply.
+    pub fn set_input_voltage(&mut self, decivolts: f64) {
+        self.voltage_dv = decivolts;
+        self.refresh(self.last_update);
+    }
+
+    /// Set the internal temperature the servo measures (°C).
+    pub fn set_temperature(&mut self, celsius: f64) {
+        self.temperature_c = celsius;
+        self.refresh(self.last_update);
+    }
+
     /// Physical shaft position in ticks (unrounded), for tests.
     pub fn shaft_position(&self) -> f64 {
         self.pos

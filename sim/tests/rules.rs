@@ -1,0 +1,452 @@
+//! The servo rules and the motor model, checked on the core with a manual clock: the error code a
+//! client sees for each refused write, shutdown errors, the bus watchdog, Status Return Level,
+//! REG WRITE/ACTION, reboot and factory reset, motion under the profile.
+
+mod common;
+
+use std::time::Duration;
+
+use common::*;
+use snakectl_sim::protocol::{error, instruction as ins, BROADCAST_ID};
+use snakectl_sim::table::addr;
+use snakectl_sim::{Fault, HardwareErrorKind, Model, ServoSpec, SimConfig};
+
+const ACCESS: u8 = error::ACCESS;
+
+#[test]
+fn eeprom_is_writable_only_with_torque_off() {
+    let (mut s, _) = sim(xl430(&[1]));
+    assert_eq!(
+        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3000u32.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3500u32.to_le_bytes()),
+        ACCESS
+    );
+    assert_eq!(write(&mut s, 1, addr::ID, &[9]), ACCESS);
+    assert_eq!(read(&mut s, 1, addr::MAX_POSITION_LIMIT, 4), (0, 3000));
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3500u32.to_le_bytes()),
+        0
+    );
+    // A new id takes effect at once, the status of that write already carries it.
+    assert_eq!(
+        one(&mut s, 1, ins::WRITE, &write_params(addr::ID, &[9])).id,
+        9
+    );
+    assert!(send(&mut s, 1, ins::PING, &[]).is_empty());
+    assert_eq!(one(&mut s, 9, ins::PING, &[]).error, 0);
+}
+
+#[test]
+fn out_of_range_values_are_data_range_errors() {
+    let (mut s, _) = sim(vec![
+        ServoSpec::new(1, Model::Xl430W250),
+        ServoSpec::new(2, Model::Xl330M288),
+    ]);
+    assert_eq!(write(&mut s, 1, addr::LED, &[2]), error::DATA_RANGE);
+    assert_eq!(
+        write(&mut s, 1, addr::STATUS_RETURN_LEVEL, &[3]),
+        error::DATA_RANGE
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::RETURN_DELAY_TIME, &[255]),
+        error::DATA_RANGE
+    );
+    // XL430 has no current-based modes; the XL330 has.
+    assert_eq!(
+        write(&mut s, 1, addr::OPERATING_MODE, &[5]),
+        error::DATA_RANGE
+    );
+    assert_eq!(write(&mut s, 2, addr::OPERATING_MODE, &[5]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::PROFILE_VELOCITY, &40000u32.to_le_bytes()),
+        error::DATA_RANGE
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::BUS_WATCHDOG, &[128]),
+        error::DATA_RANGE
+    );
+    assert_eq!(
+        write(&mut s, 2, addr::MAX_VOLTAGE_LIMIT, &80u16.to_le_bytes()),
+        error::DATA_RANGE
+    );
+    // Nothing was written.
+    assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 0));
+}
+
+#[test]
+fn goals_beyond_limit_items_are_data_limit_errors() {
+    let mut spec = ServoSpec::new(1, Model::Xm430W350);
+    spec.min_position_ticks = Some(1000);
+    spec.max_position_ticks = Some(3000);
+    let (mut s, _) = sim(vec![spec]);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &3001i32.to_le_bytes()),
+        error::DATA_LIMIT
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &999i32.to_le_bytes()),
+        error::DATA_LIMIT
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes()),
+        0
+    );
+    // Goal velocity beyond Velocity Limit (200 on the XM430), goal current beyond Current Limit.
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_VELOCITY, &201i32.to_le_bytes()),
+        error::DATA_LIMIT
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_VELOCITY, &(-200i32).to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_CURRENT, &(-1194i16).to_le_bytes()),
+        error::DATA_LIMIT
+    );
+    // Extended position mode: the multi-turn range applies instead of the limits.
+    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &2_000_000i32.to_le_bytes()),
+        error::DATA_RANGE
+    );
+}
+
+#[test]
+fn read_only_undefined_and_short_writes() {
+    let (mut s, _) = sim(xl430(&[1]));
+    assert_eq!(
+        write(&mut s, 1, addr::PRESENT_POSITION, &[0, 0, 0, 0]),
+        ACCESS
+    );
+    assert_eq!(write(&mut s, 1, addr::MODEL_NUMBER, &[0, 0]), ACCESS);
+    assert_eq!(write(&mut s, 1, addr::HARDWARE_ERROR_STATUS, &[0]), ACCESS);
+    assert_eq!(write(&mut s, 1, 66, &[0]), ACCESS); // reserved
+    assert_eq!(write(&mut s, 1, 118, &[0, 0]), ACCESS); // middle of Goal Position
+    assert_eq!(write(&mut s, 1, addr::CURRENT_LIMIT, &[0, 0]), ACCESS); // not on the XL430
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &[0, 8]),
+        error::DATA_LENGTH
+    );
+    assert_eq!(write(&mut s, 1, 700, &[0]), ACCESS); // past the table
+    let r = one(&mut s, 1, ins::READ, &read_params(600, 100));
+    assert_eq!((r.error, r.data.len()), (ACCESS, 0));
+    // Reading across items and reserved bytes is fine.
+    let r = one(&mut s, 1, ins::READ, &read_params(64, 8));
+    assert_eq!((r.error, r.data.len()), (0, 8));
+    // One write may span several items: Profile Velocity then Goal Position.
+    let mut block = 100u32.to_le_bytes().to_vec();
+    block.extend_from_slice(&1500i32.to_le_bytes());
+    assert_eq!(write(&mut s, 1, addr::PROFILE_VELOCITY, &block), 0);
+    assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4), (0, 1500));
+    // Malformed instructions.
+    assert_eq!(
+        one(&mut s, 1, ins::READ, &[0x84, 0x00]).error,
+        error::DATA_LENGTH
+    );
+    assert_eq!(one(&mut s, 1, 0x42, &[]).error, error::INSTRUCTION);
+    assert_eq!(
+        one(&mut s, 1, ins::CLEAR, &[1, 2, 3]).error,
+        error::DATA_RANGE
+    );
+}
+
+#[test]
+fn shutdown_error_switches_torque_off_until_reboot() {
+    let (mut s, clock) = sim_with(SimConfig {
+        servos: xl430(&[1, 2]),
+        faults: vec![Fault::HardwareError {
+            id: 1,
+            at: Duration::from_millis(300),
+            kind: HardwareErrorKind::Overload,
+        }],
+        ..SimConfig::default()
+    });
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &4095i32.to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_millis(500));
+    // The alert bit flags every reply; the error itself is in Hardware Error Status.
+    let (e, hw) = read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1);
+    assert_eq!((e, hw as u8), (error::ALERT, 0x20));
+    assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 0));
+    assert_eq!(read(&mut s, 2, addr::HARDWARE_ERROR_STATUS, 1), (0, 0));
+    // It stopped where the error caught it.
+    let stopped = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    assert!(stopped > 2048 && stopped < 4095, "{stopped}");
+    clock.advance(Duration::from_secs(1));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, stopped);
+    // Torque cannot come back before a reboot.
+    assert_eq!(
+        write(&mut s, 1, addr::TORQUE_ENABLE, &[1]),
+        error::RESULT_FAIL | error::ALERT
+    );
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, error::ALERT);
+    assert_eq!(read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1), (0, 0));
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+}
+
+#[test]
+fn errors_outside_shutdown_only_raise_the_alert() {
+    let (mut s, clock) = sim_with(SimConfig {
+        servos: xl430(&[1]),
+        faults: vec![Fault::HardwareError {
+            id: 1,
+            at: Duration::from_millis(100),
+            kind: HardwareErrorKind::InputVoltage,
+        }],
+        ..SimConfig::default()
+    });
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    clock.advance(Duration::from_millis(200));
+    // Input voltage is not in the XL430's default Shutdown (52): torque stays on.
+    assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 1));
+    let (_, volts) = read(&mut s, 1, addr::PRESENT_INPUT_VOLTAGE, 2);
+    assert!(volts < 60, "{volts}");
+}
+
+#[test]
+fn overheating_shows_in_the_temperature() {
+    let (mut s, clock) = sim_with(SimConfig {
+        servos: vec![ServoSpec::new(3, Model::Xl330M288)],
+        faults: vec![Fault::HardwareError {
+            id: 3,
+            at: Duration::from_millis(10),
+            kind: HardwareErrorKind::Overheating,
+        }],
+        ..SimConfig::default()
+    });
+    assert_eq!(read(&mut s, 3, addr::PRESENT_TEMPERATURE, 1), (0, 30));
+    clock.advance(Duration::from_millis(20));
+    let (e, t) = read(&mut s, 3, addr::PRESENT_TEMPERATURE, 1);
+    assert_eq!(e, error::ALERT);
+    assert!(t > 70);
+}
+
+#[test]
+fn bus_watchdog_fires_refuses_goals_and_clears() {
+    let (mut s, clock) = sim(xl430(&[1]));
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0); // 100 ms
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &4000i32.to_le_bytes()),
+        0
+    );
+    // Traffic every 80 ms keeps it quiet.
+    for _ in 0..5 {
+        clock.advance(Duration::from_millis(80));
+        assert_eq!(read(&mut s, 1, addr::BUS_WATCHDOG, 1), (0, 5));
+    }
+    // Silence for longer than 100 ms: it fires, reads -1, and the servo stops.
+    clock.advance(Duration::from_millis(150));
+    assert_eq!(read(&mut s, 1, addr::BUS_WATCHDOG, 1), (0, -1));
+    let stopped = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    assert!(stopped < 4000);
+    assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4).1, stopped);
+    clock.advance(Duration::from_millis(500));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, stopped);
+    assert_eq!(read(&mut s, 1, addr::MOVING, 1).1, 0);
+    // Goals are refused until 0 is written.
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &1000i32.to_le_bytes()),
+        error::DATA_RANGE
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_VELOCITY, &0i32.to_le_bytes()),
+        error::DATA_RANGE
+    );
+    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[0]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &1000i32.to_le_bytes()),
+        0
+    );
+    // Disarmed: no more firing.
+    clock.advance(Duration::from_secs(5));
+    assert_eq!(read(&mut s, 1, addr::BUS_WATCHDOG, 1), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 1000);
+}
+
+#[test]
+fn motion_follows_the_profile() {
+    let (mut s, clock) = sim(vec![ServoSpec::new(1, Model::Xm430W350)]);
+    // 100 units = 22.9 rev/min = 1563 ticks/s; acceleration 50 units = 12207 ticks/s^2.
+    assert_eq!(
+        write(&mut s, 1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::PROFILE_ACCELERATION, &50u32.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &3048i32.to_le_bytes()),
+        0
+    );
+    // Torque off: nothing moves.
+    clock.advance(Duration::from_millis(200));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 2048);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    clock.advance(Duration::from_millis(300));
+    let (_, v) = read(&mut s, 1, addr::PRESENT_VELOCITY, 4);
+    assert_eq!(v, 100, "cruising at the profile velocity");
+    assert_eq!(read(&mut s, 1, addr::MOVING, 1).1, 1);
+    let p = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    // Ramp of 0.128 s (100 ticks), then 0.172 s at 1563 ticks/s (269 ticks): about 2417.
+    assert!((p - 2417).abs() <= 3, "{p}");
+    let (_, current) = read(&mut s, 1, addr::PRESENT_LOAD_OR_CURRENT, 2);
+    assert!(current > 0 && current < 1193, "{current}");
+    clock.advance(Duration::from_secs(1));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 3048);
+    assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4).1, 0);
+    assert_eq!(read(&mut s, 1, addr::MOVING, 1).1, 0);
+    // Holding: steady readings.
+    let volts = read(&mut s, 1, addr::PRESENT_INPUT_VOLTAGE, 2).1;
+    let temp = read(&mut s, 1, addr::PRESENT_TEMPERATURE, 1).1;
+    let cur = read(&mut s, 1, addr::PRESENT_LOAD_OR_CURRENT, 2).1;
+    clock.advance(Duration::from_secs(3));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_INPUT_VOLTAGE, 2).1, volts);
+    assert_eq!(read(&mut s, 1, addr::PRESENT_TEMPERATURE, 1).1, temp);
+    assert_eq!(read(&mut s, 1, addr::PRESENT_LOAD_OR_CURRENT, 2).1, cur);
+    assert_eq!((volts, temp), (120, 30));
+}
+
+#[test]
+fn velocity_limit_caps_an_unprofiled_move() {
+    let (mut s, clock) = sim(xl430(&[1]));
+    // Velocity Limit 265 units (60.7 rev/min) is above the XL430's 57 rev/min no-load speed:
+    // lower it to 50 units, profile velocity 0 (= as fast as allowed).
+    assert_eq!(
+        write(&mut s, 1, addr::VELOCITY_LIMIT, &50u32.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &0i32.to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_millis(500));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4).1, -50);
+}
+
+#[test]
+fn status_return_level_selects_the_replies() {
+    let (mut s, _) = sim(xl430(&[1]));
+    // The write that changes the level is still answered under the old one.
+    assert_eq!(write(&mut s, 1, addr::STATUS_RETURN_LEVEL, &[1]), 0);
+    assert!(send(&mut s, 1, ins::WRITE, &write_params(addr::LED, &[1])).is_empty());
+    assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 1));
+    assert!(send(
+        &mut s,
+        1,
+        ins::WRITE,
+        &write_params(addr::STATUS_RETURN_LEVEL, &[0])
+    )
+    .is_empty());
+    assert_eq!(s.servo(1).map(|x| x.status_return_level()), Some(0));
+    assert!(send(&mut s, 1, ins::READ, &read_params(addr::LED, 1)).is_empty());
+    assert!(send(&mut s, BROADCAST_ID, ins::SYNC_READ, &[65, 0, 1, 0, 1]).is_empty());
+    assert_eq!(one(&mut s, 1, ins::PING, &[]).error, 0);
+    // Errors are not reported either.
+    assert!(send(&mut s, 1, ins::WRITE, &write_params(addr::LED, &[7])).is_empty());
+    // Reboot restores the RAM default (2).
+    assert!(send(&mut s, 1, ins::REBOOT, &[]).is_empty());
+    assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 0));
+}
+
+#[test]
+fn reg_write_waits_for_action() {
+    let (mut s, _) = sim(xl430(&[1, 2]));
+    let params = write_params(addr::LED, &[1]);
+    assert_eq!(one(&mut s, 1, ins::REG_WRITE, &params).error, 0);
+    assert_eq!(one(&mut s, 2, ins::REG_WRITE, &params).error, 0);
+    assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::REGISTERED_INSTRUCTION, 1), (0, 1));
+    assert!(send(&mut s, BROADCAST_ID, ins::ACTION, &[]).is_empty());
+    assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 1));
+    assert_eq!(read(&mut s, 2, addr::LED, 1), (0, 1));
+    assert_eq!(read(&mut s, 1, addr::REGISTERED_INSTRUCTION, 1), (0, 0));
+    assert_eq!(one(&mut s, 1, ins::ACTION, &[]).error, error::INSTRUCTION);
+    // A registered write is checked when registered.
+    assert_eq!(
+        one(&mut s, 1, ins::REG_WRITE, &write_params(addr::LED, &[9])).error,
+        error::DATA_RANGE
+    );
+}
+
+#[test]
+fn reboot_and_factory_reset() {
+    let mut spec = ServoSpec::new(4, Model::Xl430W250);
+    spec.max_position_ticks = Some(3000);
+    let (mut s, _) = sim(vec![spec]);
+    assert_eq!(write(&mut s, 4, addr::LED, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 4, addr::POSITION_P_GAIN, &900u16.to_le_bytes()),
+        0
+    );
+    assert_eq!(one(&mut s, 4, ins::REBOOT, &[]).error, 0);
+    assert_eq!(read(&mut s, 4, addr::LED, 1), (0, 0));
+    assert_eq!(read(&mut s, 4, addr::POSITION_P_GAIN, 2), (0, 640));
+    assert_eq!(read(&mut s, 4, addr::MAX_POSITION_LIMIT, 4), (0, 3000));
+    // Reset all but id and baud: EEPROM back to factory values, still reachable.
+    assert_eq!(one(&mut s, 4, ins::FACTORY_RESET, &[0x02]).error, 0);
+    assert_eq!(read(&mut s, 4, addr::MAX_POSITION_LIMIT, 4), (0, 4095));
+    assert_eq!(read(&mut s, 4, addr::RETURN_DELAY_TIME, 1), (0, 250));
+    assert_eq!(
+        one(&mut s, 4, ins::FACTORY_RESET, &[0x07]).error,
+        error::DATA_RANGE
+    );
+    // Broadcast reset-all is not carried out.
+    assert!(send(&mut s, BROADCAST_ID, ins::FACTORY_RESET, &[0xFF]).is_empty());
+    assert_eq!(one(&mut s, 4, ins::PING, &[]).error, 0);
+    // Reset all: id back to 1, factory baud (57600): gone from a 1 Mbps bus.
+    assert_eq!(one(&mut s, 4, ins::FACTORY_RESET, &[0xFF]).id, 4);
+    assert!(send(&mut s, BROADCAST_ID, ins::PING, &[]).is_empty());
+    assert_eq!(s.servo(1).map(|x| x.baud_index()), Some(1));
+}
+
+#[test]
+fn clear_multi_turn() {
+    let (mut s, clock) = sim(xl430(&[1]));
+    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_millis(100));
+    let clear = [0x01, 0x44, 0x58, 0x4C, 0x22];
+    assert_eq!(one(&mut s, 1, ins::CLEAR, &clear).error, error::RESULT_FAIL);
+    clock.advance(Duration::from_secs(10));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000);
+    assert_eq!(one(&mut s, 1, ins::CLEAR, &clear).error, 0);
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000 % 4096);
+}
+
+#[test]
+fn indirect_data_follows_indirect_address() {
+    let (mut s, _) = sim(xl430(&[1]));
+    // Map Indirect Data 1..4 (224..227) onto Goal Position (116..119), Data 5 onto LED.
+    for (k, target) in [116u16, 117, 118, 119, 65].iter().enumerate() {
+        let slot = addr::INDIRECT_ADDRESS_1 + 2 * k as u16;
+        assert_eq!(write(&mut s, 1, slot, &target.to_le_bytes()), 0);
+    }
+    let mut block = 1234i32.to_le_bytes().to_vec();
+    block.push(1);
+    assert_eq!(write(&mut s, 1, 224, &block), 0);
+    assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4), (0, 1234));
+    assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 1));
+    assert_eq!(read(&mut s, 1, 224, 4), (0, 1234));
+    // The target's rules apply through the indirection.
+    assert_eq!(write(&mut s, 1, 228, &[5]), error::DATA_RANGE);
+}
