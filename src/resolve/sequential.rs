@@ -199,19 +199,33 @@ impl Sequential {
                 Some(inv) => inv * rhs,
                 None => -g,
             };
-            let trial_w = w + step;
-            let trial_jac = sweep_with_jacobian(&self.start, links, trial_w, prop, &mut self.trial);
-            rounds += 1;
-            let trial_g = trial_w - self.trial[0] + b - target;
-            if trial_g.norm() < g.norm() && trial_g.x.is_finite() && trial_g.y.is_finite() {
-                w = trial_w;
-                g = trial_g;
-                jac = trial_jac;
-                std::mem::swap(&mut self.swept, &mut self.trial);
-                lambda = if lambda > 1e-9 { lambda * 0.1 } else { 0.0 };
-            } else {
-                lambda = if lambda == 0.0 { 1e-4 } else { lambda * 10.0 };
+            // Backtracking along the step: the residual map is exponential in the pull near a
+            // straight arm, where a full step overshoots.
+            let mut alpha = 1.0;
+            let mut accepted = false;
+            while rounds < budget && alpha >= 0.25 {
+                let trial_w = w + step * alpha;
+                let trial_jac =
+                    sweep_with_jacobian(&self.start, links, trial_w, prop, &mut self.trial);
+                rounds += 1;
+                let trial_g = trial_w - self.trial[0] + b - target;
+                if trial_g.norm() < g.norm() && trial_g.x.is_finite() && trial_g.y.is_finite() {
+                    w = trial_w;
+                    g = trial_g;
+                    jac = trial_jac;
+                    std::mem::swap(&mut self.swept, &mut self.trial);
+                    accepted = true;
+                    break;
+                }
+                alpha *= 0.5;
             }
+            lambda = match (accepted, alpha == 1.0) {
+                (true, true) if lambda > 1e-9 => lambda * 0.1,
+                (true, true) => 0.0,
+                (true, false) => lambda,
+                (false, _) if lambda == 0.0 => 1e-4,
+                (false, _) => lambda * 10.0,
+            };
         }
         let delta = self.swept[0] - b;
         for p in self.swept.iter_mut() {
