@@ -1,0 +1,264 @@
+//! Round trips over a real pseudo-terminal through the `dynamixel2` 0.9.1 client, for every
+//! instruction, and the rules and faults as a client sees them. Time is a manual clock the tests
+//! advance; only the pty I/O itself blocks.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use dynamixel2::instructions::{BulkReadData, BulkWriteData, FactoryResetKind, SyncWriteData};
+use dynamixel2::{Bus, ReadError, TransferError};
+use snakectl_sim::table::addr;
+use snakectl_sim::{
+    spawn_pty, Fault, HardwareErrorKind, ManualClock, Model, ServoSpec, SimConfig, SimHandle,
+    Simulator,
+};
+
+type Client = Bus<Vec<u8>, Vec<u8>>;
+
+fn serve(config: SimConfig) -> (SimHandle, ManualClock) {
+    let clock = ManualClock::new();
+    let sim = Simulator::new(config, Arc::new(clock.clone())).expect("config");
+    (spawn_pty(sim).expect("pty"), clock)
+}
+
+fn chain(ids: &[u8]) -> SimConfig {
+    SimConfig {
+        servos: ids
+            .iter()
+            .map(|&id| ServoSpec::new(id, Model::Xl430W250))
+            .collect(),
+        ..SimConfig::default()
+    }
+}
+
+fn open(handle: &SimHandle) -> Client {
+    Bus::open_with_buffers(handle.path(), 1_000_000, vec![0; 1024], vec![0; 1024]).expect("open")
+}
+
+/// The error number a client sees, or 0 on success.
+fn code<T: std::fmt::Debug>(r: Result<T, TransferError>) -> u8 {
+    match r {
+        Ok(_) => 0,
+        Err(TransferError::ReadError(ReadError::MotorError(e))) => e.raw,
+        Err(e) => panic!("unexpected transfer error {e:?}"),
+    }
+}
+
+/// Advance time and let the simulator catch up before the next exchange.
+fn advance(handle: &SimHandle, clock: &ManualClock, dt: Duration) {
+    clock.advance(dt);
+    handle.with_sim(|s| s.advance());
+}
+
+/// Sync read sent by hand, replies matched by packet id (DESIGN 4: `sync_read_u32` hides a
+/// missing servo).
+fn sync_read_u32(bus: &mut Client, ids: &[u8], address: u16) -> Vec<(u8, u32)> {
+    bus.write_instruction(0xFE, 0x82, 4 + ids.len(), |buf| {
+        buf[..2].copy_from_slice(&address.to_le_bytes());
+        buf[2..4].copy_from_slice(&4u16.to_le_bytes());
+        buf[4..].copy_from_slice(ids);
+    })
+    .expect("send sync read");
+    let mut out = Vec::new();
+    for _ in ids {
+        match bus.read_status_response_deadline(Instant::now() + Duration::from_millis(30)) {
+            Ok(p) => {
+                let d = p.parameters();
+                out.push((p.packet_id(), u32::from_le_bytes([d[0], d[1], d[2], d[3]])));
+            }
+            Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
+            Err(e) => panic!("sync read: {e:?}"),
+        }
+    }
+    out
+}
+
+#[test]
+fn every_instruction_round_trips() {
+    let (handle, _clock) = serve(chain(&[1, 2, 3]));
+    let mut bus = open(&handle);
+
+    let ping = bus.ping(2).expect("ping");
+    assert_eq!(
+        (ping.motor_id, ping.data.model, ping.data.firmware),
+        (2, 1060, 48)
+    );
+    let scan = bus.scan().expect("scan");
+    let ids: Vec<u8> = scan
+        .iter()
+        .filter_map(|r| r.as_ref().ok())
+        .map(|r| r.motor_id)
+        .collect();
+    assert_eq!(ids, [1, 2, 3]);
+
+    bus.write_u32(1, addr::GOAL_POSITION, 1000).expect("write");
+    assert_eq!(
+        bus.read_u32(1, addr::GOAL_POSITION).expect("read").data,
+        1000
+    );
+    assert_eq!(
+        bus.read_u16(1, addr::MODEL_NUMBER).expect("read").data,
+        1060
+    );
+    assert_eq!(
+        bus.read(1, addr::PRESENT_POSITION, 4).expect("read").data,
+        2048u32.to_le_bytes()
+    );
+
+    bus.reg_write_u8(1, addr::LED, 1).expect("reg write");
+    bus.reg_write_u8(2, addr::LED, 1).expect("reg write");
+    assert_eq!(bus.read_u8(1, addr::LED).expect("read").data, 0);
+    bus.broadcast_action().expect("action");
+    assert_eq!(bus.read_u8(2, addr::LED).expect("read").data, 1);
+    bus.reg_write_u8(3, addr::LED, 1).expect("reg write");
+    bus.action(3).expect("unicast action");
+    assert_eq!(bus.read_u8(3, addr::LED).expect("read").data, 1);
+
+    bus.sync_write_u32(
+        addr::GOAL_POSITION,
+        [1u8, 2, 3].map(|id| SyncWriteData {
+            motor_id: id,
+            data: 100 * u32::from(id),
+        }),
+    )
+    .expect("sync write");
+    assert_eq!(
+        sync_read_u32(&mut bus, &[3, 1, 2], addr::GOAL_POSITION),
+        [(3, 300), (1, 100), (2, 200)]
+    );
+    let all = bus
+        .sync_read_u32(&[1, 2], addr::GOAL_POSITION)
+        .expect("sync read");
+    assert_eq!(all.iter().map(|r| r.data).collect::<Vec<_>>(), [100, 200]);
+
+    let writes = [
+        BulkWriteData {
+            motor_id: 1,
+            address: addr::LED,
+            data: vec![0u8],
+        },
+        BulkWriteData {
+            motor_id: 2,
+            address: addr::GOAL_POSITION,
+            data: 777u32.to_le_bytes().to_vec(),
+        },
+    ];
+    bus.bulk_write(&writes).expect("bulk write");
+    // dynamixel2 0.9.1 encodes a bulk read correctly for one servo only.
+    let r = bus
+        .bulk_read(&[BulkReadData {
+            motor_id: 2,
+            address: addr::GOAL_POSITION,
+            count: 4,
+        }])
+        .expect("bulk read");
+    assert_eq!(r[0].data, 777u32.to_le_bytes());
+    assert_eq!(bus.read_u8(1, addr::LED).expect("read").data, 0);
+
+    bus.clear_revolution_counter(1).expect("clear");
+    bus.write_u8(1, addr::LED, 1).expect("write");
+    bus.reboot(1).expect("reboot");
+    assert_eq!(bus.read_u8(1, addr::LED).expect("read").data, 0);
+    bus.write_u8(3, addr::RETURN_DELAY_TIME, 0).expect("write");
+    bus.factory_reset(3, FactoryResetKind::KeepIdAndBaudRate)
+        .expect("factory reset");
+    assert_eq!(
+        bus.read_u8(3, addr::RETURN_DELAY_TIME).expect("read").data,
+        250
+    );
+    handle.stop().expect("clean stop");
+}
+
+#[test]
+fn client_sees_the_error_codes() {
+    let mut config = chain(&[1]);
+    config.servos[0].max_position_ticks = Some(3000);
+    let (handle, _clock) = serve(config);
+    let mut bus = open(&handle);
+    assert_eq!(code(bus.write_u32(1, addr::GOAL_POSITION, 3500)), 6); // data limit
+    assert_eq!(code(bus.write_u8(1, addr::LED, 3)), 4); // data range
+    assert_eq!(code(bus.write_u16(1, addr::GOAL_POSITION, 5)), 5); // data length
+    assert_eq!(code(bus.write_u32(1, addr::PRESENT_POSITION, 5)), 7); // read-only
+    assert_eq!(code(bus.write_u8(1, 66, 0)), 7); // undefined
+    assert_eq!(code(bus.action(1)), 2); // nothing registered
+    bus.write_u8(1, addr::TORQUE_ENABLE, 1).expect("torque on");
+    assert_eq!(code(bus.write_u32(1, addr::MAX_POSITION_LIMIT, 4000)), 7); // EEPROM, torque on
+    bus.write_u8(1, addr::TORQUE_ENABLE, 0).expect("torque off");
+    assert_eq!(code(bus.write_u32(1, addr::MAX_POSITION_LIMIT, 4000)), 0);
+}
+
+#[test]
+fn shutdown_error_until_reboot() {
+    let mut config = chain(&[1, 2]);
+    config.faults.push(Fault::HardwareError {
+        id: 2,
+        at: Duration::from_secs(2),
+        kind: HardwareErrorKind::Overheating,
+    });
+    let (handle, clock) = serve(config);
+    let mut bus = open(&handle);
+    bus.write_u8(2, addr::TORQUE_ENABLE, 1).expect("torque on");
+    advance(&handle, &clock, Duration::from_secs(3));
+    let hw = bus.read_u8(2, addr::HARDWARE_ERROR_STATUS).expect("read");
+    assert!(hw.alert, "the alert bit is a flag, not an error");
+    assert_eq!(hw.data, 0x04);
+    assert_eq!(bus.read_u8(2, addr::TORQUE_ENABLE).expect("read").data, 0);
+    assert!(
+        bus.read_u8(2, addr::PRESENT_TEMPERATURE)
+            .expect("read")
+            .data
+            > 72
+    );
+    assert_eq!(code(bus.write_u8(2, addr::TORQUE_ENABLE, 1)), 0x81);
+    assert!(!bus.ping(1).expect("ping").alert);
+    bus.reboot(2).expect("reboot");
+    let hw = bus.read_u8(2, addr::HARDWARE_ERROR_STATUS).expect("read");
+    assert_eq!((hw.alert, hw.data), (false, 0));
+    bus.write_u8(2, addr::TORQUE_ENABLE, 1)
+        .expect("torque on again");
+}
+
+#[test]
+fn watchdog_expiry_and_clearing() {
+    let (handle, clock) = serve(chain(&[1]));
+    let mut bus = open(&handle);
+    bus.write_u8(1, addr::TORQUE_ENABLE, 1).expect("torque");
+    bus.write_u8(1, addr::BUS_WATCHDOG, 10).expect("arm 200 ms");
+    bus.write_u32(1, addr::GOAL_POSITION, 3000).expect("goal");
+    advance(&handle, &clock, Duration::from_millis(150));
+    assert_eq!(bus.read_u8(1, addr::BUS_WATCHDOG).expect("read").data, 10);
+    advance(&handle, &clock, Duration::from_millis(250));
+    assert_eq!(bus.read_u8(1, addr::BUS_WATCHDOG).expect("read").data, 0xFF); // -1
+    assert_eq!(code(bus.write_u32(1, addr::GOAL_POSITION, 1000)), 4);
+    bus.write_u8(1, addr::BUS_WATCHDOG, 0).expect("clear");
+    bus.write_u32(1, addr::GOAL_POSITION, 1000)
+        .expect("goal accepted again");
+}
+
+#[test]
+fn silent_servo_mid_sync_read() {
+    let mut config = chain(&[1, 2, 3]);
+    config.faults.push(Fault::Silent {
+        id: 2,
+        at: Duration::from_secs(1),
+    });
+    let (handle, clock) = serve(config);
+    let mut bus = open(&handle);
+    let before = sync_read_u32(&mut bus, &[1, 2, 3], addr::PRESENT_POSITION);
+    assert_eq!(before.iter().map(|r| r.0).collect::<Vec<_>>(), [1, 2, 3]);
+    advance(&handle, &clock, Duration::from_secs(2));
+    let after = sync_read_u32(&mut bus, &[1, 2, 3], addr::PRESENT_POSITION);
+    assert_eq!(after, [(1, 2048), (3, 2048)]);
+    assert!(bus.ping(2).is_err());
+}
+
+#[test]
+fn port_can_be_closed_and_reopened() {
+    let (handle, _clock) = serve(chain(&[1]));
+    for _ in 0..3 {
+        let mut bus = open(&handle);
+        assert_eq!(bus.ping(1).expect("ping").data.model, 1060);
+        drop(bus);
+    }
+    assert!(handle.is_running());
+}
