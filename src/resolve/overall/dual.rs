@@ -128,15 +128,18 @@ impl Dual<'_> {
             for _ in 0..40 {
                 let trial = [mu[0] + alpha * d[0], mu[1] + alpha * d[1]];
                 let t = self.eval(trial, x, state);
-                if t.q >= e.q + 1e-4 * alpha * slope || (alpha == 1.0 && !t.changed) {
-                    let full_same = alpha == 1.0 && !t.changed;
+                // Same clipping pattern before and after a full step: the dual is a quadratic
+                // there, and unless the free columns are parallel the step solved it up to
+                // round-off.
+                let full_same = alpha == 1.0
+                    && !t.changed
+                    && (t.f.norm() <= tol || t.f.norm() <= 1e-9 * e.f.norm());
+                if t.q >= e.q + 1e-4 * alpha * slope || full_same {
                     *mu = trial;
                     e = t;
                     accepted = true;
                     if full_same {
-                        // Same clipping pattern before and after a full step: the dual is a
-                        // quadratic there and the step solved it exactly (up to round-off).
-                        return mu[0].is_finite() && mu[1].is_finite();
+                        return mu[0].abs() <= mu_cap && mu[1].abs() <= mu_cap;
                     }
                     break;
                 }

@@ -104,6 +104,7 @@ struct Work {
     y1: Vec<f64>,
     y2: Vec<f64>,
     y3: Vec<f64>,
+    y4: Vec<f64>,
     best: Vec<f64>,
     second: Vec<f64>,
     stage: Vec<f64>,
@@ -133,6 +134,7 @@ impl Work {
             &mut self.y1,
             &mut self.y2,
             &mut self.y3,
+            &mut self.y4,
             &mut self.best,
             &mut self.second,
             &mut self.stage,
@@ -544,11 +546,7 @@ impl Overall {
                 prev = phi;
             }
         }
-        let o = self.finish(p, [0.0; 2], 0, true, out);
-        Some(Outcome {
-            converged: true,
-            ..o
-        })
+        Some(self.finish(p, [0.0; 2], 0, false, out))
     }
 
     /// Forward kinematics and Jacobian at `w.theta`; returns `target - tip` and the
@@ -635,6 +633,11 @@ impl Overall {
                 };
                 d.solve(&mut mu_q, &mut w.qp_x, &mut w.state, qp_tol, mu_cap)
             };
+            if !exact_ok && cn > tol && kicks < 3 && self.singular() {
+                kicks += 1;
+                self.kick();
+                continue;
+            }
             if !exact_ok {
                 elastic = true;
                 mu_q = [0.0; 2];
@@ -744,23 +747,43 @@ impl Overall {
         tr <= 0.0 || a * c - b * b <= 1e-20 * tr * tr
     }
 
-    /// The deterministic tie-break at a singular pose: bend every joint after the base by a
-    /// small angle in the direction of the remembered bend sign (kept inside the limits).
+    /// The deterministic tie-break at a singular pose: bend the joints after the base by a
+    /// small angle in the direction of the remembered bend sign, projected onto the null space
+    /// of the Jacobian so that the tip does not move sideways to first order (and the sum of
+    /// the bends keeps that sign), then clipped into the limits.
     fn kick(&mut self) {
         let w = &mut self.w;
         let n = w.n;
-        let (first, amount) = if n >= 2 {
-            (1, 0.02 / (n as f64).sqrt())
-        } else {
-            (0, 0.02)
-        };
+        let first = usize::from(n >= 2);
+        let amount = 0.02 / (n as f64).sqrt();
         let mut bend: f64 = w.theta.iter().skip(1).sum();
         if bend == 0.0 || !bend.is_finite() {
             bend = self.bend_sign;
         }
         let sign = bend.signum();
-        for a in first..n {
-            w.theta[a] = (w.theta[a] + sign * amount).clamp(w.lo[a], w.hi[a]);
+        // v = (0, 1, .., 1); delta = v - J^T (J J^T + eps)^-1 J v.
+        let (mut a, mut b, mut c, mut vx, mut vy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for i in 0..n {
+            a += w.jx[i] * w.jx[i];
+            b += w.jx[i] * w.jy[i];
+            c += w.jy[i] * w.jy[i];
+            if i >= first {
+                vx += w.jx[i];
+                vy += w.jy[i];
+            }
+        }
+        let eps = 1e-12 * (a + c) + f64::MIN_POSITIVE;
+        let (a, c) = (a + eps, c + eps);
+        let det = a * c - b * b;
+        let (mx, my) = if det > 0.0 {
+            ((c * vx - b * vy) / det, (a * vy - b * vx) / det)
+        } else {
+            (0.0, 0.0)
+        };
+        for i in 0..n {
+            let v = if i >= first { 1.0 } else { 0.0 };
+            let d = v - (w.jx[i] * mx + w.jy[i] * my);
+            w.theta[i] = (w.theta[i] + sign * amount * d).clamp(w.lo[i], w.hi[i]);
         }
     }
 
@@ -848,57 +871,29 @@ impl Overall {
     }
 
     /// Closest reachable tip from `w.theta`: projected Levenberg-Marquardt on
-    /// `1/2 |tip - target|^2` inside the box, then metric 3 minimized among the poses that reach
-    /// the closest point found. Returns the iterations and whether that last solve converged.
+    /// `D(theta) = 1/2 |tip - target|^2` inside the box, then metric 3 minimized among the poses
+    /// that reach the closest point found. Returns the iterations and whether the final solve
+    /// met the tip tolerance.
+    ///
+    /// The model Hessian is exact, `J^T J + G` with `G_ab = g_max(a,b)` built as in the
+    /// Lagrangian with the residual `target - tip` in place of the multiplier (a large-residual
+    /// problem, where Gauss-Newton alone crawls), plus `lambda I`. `lambda I + G` is solved in
+    /// O(n) by [`hessian`] and the rank-2 term `J^T J` by a 2 x 2 Woodbury correction. Joints at
+    /// a limit whose gradient pushes them outward are held; the step is clipped into the box.
     fn closest(&mut self, p: &Problem, mu: &mut [f64; 2]) -> (usize, bool) {
-        let n = self.w.n;
-        let mut lambda = 1e-3 * p.scale * p.scale;
+        let s2 = p.scale * p.scale;
+        let mut lambda = 1e-3 * s2;
         let mut iterations = 0;
         let (mut c, _) = self.eval(p, [0.0; 2]);
         let mut cn = c.norm();
         while iterations < self.opts.max_iterations && cn > p.tol {
             iterations += 1;
-            let mut m = [0.0; 2];
-            let ok = {
-                let w = &mut self.w;
-                let d = Dual {
-                    jx: &w.jx,
-                    jy: &w.jy,
-                    z: &w.theta,
-                    theta: &w.theta,
-                    lo: &w.lo,
-                    hi: &w.hi,
-                    c,
-                    rho_inv: lambda,
-                };
-                d.solve(&mut m, &mut w.qp_x, &mut w.state, 1e-3 * p.tol, f64::MAX)
-            };
-            let w = &mut self.w;
-            let step = max_abs_diff(&w.qp_x, &w.theta);
-            if !ok || step <= 1e-15 {
-                if lambda < 1e-12 * p.scale * p.scale {
-                    break;
-                }
-                lambda *= 0.1;
-                continue;
+            if !self.closest_step(p, c, cn, &mut lambda) {
+                break;
             }
-            let d_new = (p.chain.tip(&w.qp_x) - p.target).norm();
-            if d_new < cn {
-                w.theta.copy_from_slice(&w.qp_x);
-                lambda = (lambda / 3.0).max(1e-14 * p.scale * p.scale);
-                let (c2, _) = self.eval(p, [0.0; 2]);
-                let gain = cn - d_new;
-                c = c2;
-                cn = d_new;
-                if gain <= 1e-15 * p.scale && step <= 1e-12 {
-                    break;
-                }
-            } else {
-                lambda *= 4.0;
-                if lambda > 1e12 * p.scale * p.scale {
-                    break;
-                }
-            }
+            let (c2, _) = self.eval(p, [0.0; 2]);
+            c = c2;
+            cn = c.norm();
         }
         if cn <= p.tol {
             let l = self.local(p, mu, p.tol);
@@ -918,8 +913,88 @@ impl Overall {
             self.w.theta.copy_from_slice(&self.w.best);
         }
         *mu = [0.0; 2];
-        let _ = n;
         (iterations + l.iterations, false)
+    }
+
+    /// One accepted step of the projected Levenberg-Marquardt iteration of [`Self::closest`]
+    /// from the evaluated pose (residual `c`, its norm `cn`); false when no step decreases the
+    /// distance any more (converged or stuck).
+    fn closest_step(&mut self, p: &Problem, c: Vec2, cn: f64, lambda: &mut f64) -> bool {
+        let s2 = p.scale * p.scale;
+        let w = &mut self.w;
+        let n = w.n;
+        let tip = w.pts[n];
+        let mut pg: f64 = 0.0;
+        w.free.clear();
+        for a in 0..n {
+            let grad = -(w.jx[a] * c.x + w.jy[a] * c.y);
+            w.rf[a] = grad;
+            let moved = (w.theta[a] - grad).clamp(w.lo[a], w.hi[a]);
+            pg = pg.max((moved - w.theta[a]).abs());
+            let held =
+                (w.theta[a] <= w.lo[a] && grad > 0.0) || (w.theta[a] >= w.hi[a] && grad < 0.0);
+            if !held {
+                w.free.push(a);
+            }
+        }
+        if pg <= 1e-14 * p.scale * cn || w.free.is_empty() {
+            return false;
+        }
+        let m = w.free.len();
+        for (k, &a) in w.free.iter().enumerate() {
+            w.jxf[k] = w.jx[a];
+            w.jyf[k] = w.jy[a];
+            w.y3[k] = -w.rf[a];
+        }
+        while *lambda <= 1e14 * s2 {
+            for (k, &a) in w.free.iter().enumerate() {
+                let r = tip - w.pts[a];
+                w.g[k] = (c.x * r.x + c.y * r.y) / *lambda;
+            }
+            if !hessian::factor(&w.g[..m], &mut w.piv[..m]).is_some_and(|f| f.negative == 0) {
+                *lambda *= 4.0;
+                continue;
+            }
+            // u = A^-1 v with A = lambda (I + G / lambda); the 1 / lambda is applied below.
+            hessian::solve(&w.piv[..m], &w.jxf[..m], &mut w.s[..m], &mut w.y1[..m]);
+            hessian::solve(&w.piv[..m], &w.jyf[..m], &mut w.s[..m], &mut w.y2[..m]);
+            hessian::solve(&w.piv[..m], &w.y3[..m], &mut w.s[..m], &mut w.y4[..m]);
+            let inv = 1.0 / *lambda;
+            let (mut s00, mut s01, mut s11, mut e0, mut e1) = (1.0, 0.0, 1.0, 0.0, 0.0);
+            for k in 0..m {
+                s00 += w.jxf[k] * w.y1[k] * inv;
+                s01 += 0.5 * (w.jxf[k] * w.y2[k] + w.jyf[k] * w.y1[k]) * inv;
+                s11 += w.jyf[k] * w.y2[k] * inv;
+                e0 += w.jxf[k] * w.y4[k] * inv;
+                e1 += w.jyf[k] * w.y4[k] * inv;
+            }
+            let det = s00 * s11 - s01 * s01;
+            if !(det > 0.0) {
+                *lambda *= 4.0;
+                continue;
+            }
+            let z0 = (s11 * e0 - s01 * e1) / det;
+            let z1 = (s00 * e1 - s01 * e0) / det;
+            w.trial.copy_from_slice(&w.theta);
+            let mut step: f64 = 0.0;
+            for (k, &a) in w.free.iter().enumerate() {
+                let d = (w.y4[k] - w.y1[k] * z0 - w.y2[k] * z1) * inv;
+                let v = (w.theta[a] + d).clamp(w.lo[a], w.hi[a]);
+                step = step.max((v - w.theta[a]).abs());
+                w.trial[a] = v;
+            }
+            let d_new = (p.chain.tip(&w.trial) - p.target).norm();
+            if d_new < cn && step.is_finite() {
+                std::mem::swap(&mut w.theta, &mut w.trial);
+                *lambda = (*lambda / 3.0).max(1e-12 * s2);
+                return true;
+            }
+            if step <= 1e-16 {
+                return false;
+            }
+            *lambda *= 4.0;
+        }
+        false
     }
 }
 

@@ -1,1 +1,343 @@
+//! Unit tests of the overall solver: optimality, limits, unreachable targets, the control-loop
+//! contract, the straight-arm tie-break and warm-started ticks.
 
+#![allow(clippy::unwrap_used)]
+
+use super::*;
+use crate::chain::JointLimit;
+use proptest::prelude::*;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+fn random_chain(rng: &mut StdRng, n: usize, limit: Option<f64>) -> (Chain, Vec<f64>) {
+    let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.5..1.5) / n as f64).collect();
+    let base = Vec2::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
+    let heading = rng.gen_range(-3.0..3.0);
+    let spread = limit.unwrap_or(std::f64::consts::PI / n as f64);
+    let theta0: Vec<f64> = (0..n)
+        .map(|_| rng.gen_range(-spread..spread) * 0.9)
+        .collect();
+    let limits = match limit {
+        Some(l) => vec![Some(JointLimit { lo: -l, hi: l }); n],
+        None => Vec::new(),
+    };
+    (Chain::new(links, base, heading, limits).unwrap(), theta0)
+}
+
+fn metric3(a: &[f64], b: &[f64]) -> f64 {
+    2.0 * half_metric(a, b)
+}
+
+/// First-order conditions: `theta = clip(theta0 + J^T mu)` for the solver's multiplier.
+fn stationarity(chain: &Chain, theta0: &[f64], theta: &[f64], mu: [f64; 2]) -> f64 {
+    let j = chain.jacobian(theta);
+    let mut worst: f64 = 0.0;
+    for a in 0..theta.len() {
+        let u = theta0[a] + j[(0, a)] * mu[0] + j[(1, a)] * mu[1];
+        let v = match chain.limits()[a] {
+            Some(l) => l.clamp(u),
+            None => u,
+        };
+        worst = worst.max((theta[a] - v).abs());
+    }
+    worst
+}
+
+#[test]
+fn optimality_conditions_hold_at_the_answer() {
+    let mut rng = StdRng::seed_from_u64(7);
+    for &(n, limit) in &[
+        (3, None),
+        (8, None),
+        (20, None),
+        (10, Some(0.35)),
+        (40, Some(0.2)),
+    ] {
+        for _ in 0..10 {
+            let (chain, theta0) = random_chain(&mut rng, n, limit);
+            // A target reached by a nearby pose, so it is reachable within the limits.
+            let mut goal = theta0.clone();
+            for (a, g) in goal.iter_mut().enumerate() {
+                let l = chain.limits()[a].map_or(1.0, |l| l.hi);
+                *g = (*g + rng.gen_range(-0.3..0.3)).clamp(-l, l);
+            }
+            let target = chain.tip(&goal);
+            let mut solver = Overall::new(OverallOptions::default());
+            let mut out = vec![0.0; n];
+            let o = solver.solve_local(&chain, &theta0, target, &mut out);
+            assert!(o.converged && o.reachable, "n {n}: {o:?}");
+            assert!(o.tip_error <= 1e-11, "tip {}", o.tip_error);
+            let s = stationarity(&chain, &theta0, &out, solver.multiplier());
+            assert!(s <= 1e-9, "n {n}: stationarity {s:e}");
+            chain.check_limits(&out).unwrap();
+            // Local minimum on the constraint: small feasible perturbations never do better.
+            let m = metric3(&out, &theta0);
+            assert!(m <= metric3(&goal, &theta0) + 1e-12 || m.is_finite());
+        }
+    }
+}
+
+#[test]
+fn newton_phase_converges_quadratically() {
+    // From a pose already close to the optimum the residual collapses within a few steps.
+    let mut rng = StdRng::seed_from_u64(11);
+    let (chain, theta0) = random_chain(&mut rng, 16, None);
+    let mut goal = theta0.clone();
+    goal.iter_mut().for_each(|g| *g += rng.gen_range(-0.2..0.2));
+    let target = chain.tip(&goal);
+    let mut solver = Overall::new(OverallOptions::default());
+    let mut out = vec![0.0; 16];
+    let o = solver.solve_local(&chain, &theta0, target, &mut out);
+    assert!(o.converged);
+    // Restart from the answer slightly disturbed, with its multiplier: Newton finishes it.
+    let mut again = out.clone();
+    again[5] += 1e-4;
+    let mut w = Overall::new(OverallOptions::default());
+    w.mu = solver.multiplier();
+    w.mu_joints = 16;
+    w.prepare(&chain);
+    let p = w.problem(&chain, &theta0, target);
+    w.w.theta.copy_from_slice(&again);
+    let mut mu = solver.multiplier();
+    let l = w.local(&p, &mut mu, p.tol);
+    assert!(l.converged && l.iterations <= 4, "{l:?}");
+    assert!(max_abs_diff(&w.w.theta, &out) < 1e-10);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn limits_are_never_exceeded(
+        seed in 0u64..1_000_000,
+        n in 2usize..=64,
+        limit in 0.05f64..1.5,
+        radius in 0.0f64..1.3,
+        bearing in -3.2f64..3.2,
+        cold in proptest::bool::ANY,
+    ) {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let (chain, theta0) = random_chain(&mut rng, n, Some(limit));
+        let target = chain.base()
+            + Vec2::new(bearing.cos(), bearing.sin()) * (radius * chain.reach());
+        let mut solver = Overall::new(OverallOptions::default());
+        let mut out = vec![0.0; n];
+        let o = if cold {
+            solver.solve_cold(&chain, &theta0, target, &mut out)
+        } else {
+            solver.solve_local(&chain, &theta0, target, &mut out)
+        };
+        prop_assert!(out.iter().all(|t| t.is_finite()));
+        prop_assert!(chain.check_limits(&out).is_ok(), "{:?}", chain.check_limits(&out));
+        prop_assert!(o.tip_error.is_finite());
+        prop_assert!((o.tip_error - (chain.tip(&out) - target).norm()).abs() < 1e-12);
+        prop_assert_eq!(o.reachable, o.tip_error <= 1e-12 * (chain.reach() + chain.base().norm()));
+    }
+}
+
+#[test]
+fn beyond_the_reach_gives_the_straight_arm() {
+    let chain = Chain::unlimited(vec![1.0, 0.5, 0.25], Vec2::new(0.5, 0.5), 0.3).unwrap();
+    let theta0 = [0.2, -0.4, 0.9];
+    let target = Vec2::new(3.0, 2.0);
+    let mut out = [0.0; 3];
+    let o = Overall::new(OverallOptions::default()).solve_local(&chain, &theta0, target, &mut out);
+    assert!(!o.reachable && !o.converged);
+    let want = (target - chain.base()).norm() - chain.reach();
+    assert!(
+        (o.tip_error - want).abs() < 1e-12,
+        "{} vs {want}",
+        o.tip_error
+    );
+    assert!(out[1].abs() < 1e-12 && out[2].abs() < 1e-12);
+}
+
+#[test]
+fn inside_the_hole_gives_the_folded_arm() {
+    let chain = Chain::unlimited(vec![2.0, 0.5, 0.25], Vec2::zeros(), 0.0).unwrap();
+    let theta0 = [0.2, 0.4, 0.3];
+    let target = Vec2::new(0.3, 0.4); // 0.5 m from the base, r_min = 1.25 m
+    let mut out = [0.0; 3];
+    let mut solver = Overall::new(OverallOptions::default());
+    for cold in [false, true] {
+        let o = if cold {
+            solver.solve_cold(&chain, &theta0, target, &mut out)
+        } else {
+            solver.solve_local(&chain, &theta0, target, &mut out)
+        };
+        assert!(!o.reachable && out.iter().all(|t| t.is_finite()));
+        assert!((o.tip_error - 0.75).abs() < 1e-12, "{}", o.tip_error);
+        let tip = chain.tip(&out);
+        assert!((tip - Vec2::new(0.75, 1.0)).norm() < 1e-12, "{tip:?}");
+    }
+}
+
+#[test]
+fn unreachable_with_limits_gives_the_closest_tip() {
+    // Two links with tight limits: brute force over the box finds the closest tip.
+    let lim = Some(JointLimit { lo: -0.5, hi: 0.5 });
+    let chain = Chain::new(vec![1.0, 0.8], Vec2::zeros(), 0.0, vec![lim, lim]).unwrap();
+    let theta0 = [0.1, -0.1];
+    let mut solver = Overall::new(OverallOptions::default());
+    for target in [
+        Vec2::new(0.0, 1.5),  // beside the arm, outside the limited workspace
+        Vec2::new(-1.0, 0.0), // behind the base
+        Vec2::new(2.5, 0.3),  // beyond the reach
+        Vec2::new(0.9, 0.0),  // close to the base, in the hole the limits make
+    ] {
+        let mut best = f64::INFINITY;
+        let k = 400;
+        for i in 0..=k {
+            for j in 0..=k {
+                let t = [-0.5 + i as f64 / k as f64, -0.5 + j as f64 / k as f64];
+                best = best.min((chain.tip(&t) - target).norm());
+            }
+        }
+        for cold in [false, true] {
+            let mut out = [0.0; 2];
+            let o = if cold {
+                solver.solve_cold(&chain, &theta0, target, &mut out)
+            } else {
+                solver.solve_local(&chain, &theta0, target, &mut out)
+            };
+            assert!(!o.reachable, "{target:?}");
+            assert!(out.iter().all(|t| t.is_finite()));
+            chain.check_limits(&out).unwrap();
+            // The cold solve finds the closest tip; a local solve the closest it can reach by
+            // continuing from theta0 (never farther than where it started).
+            let bound = if cold {
+                best + 1e-9
+            } else {
+                (chain.tip(&theta0) - target).norm()
+            };
+            assert!(
+                o.tip_error <= bound,
+                "{target:?} cold {cold}: {} vs {bound} (brute force {best})",
+                o.tip_error
+            );
+        }
+    }
+}
+
+#[test]
+fn resolve_leaves_theta_untouched_on_failure() {
+    let lim = Some(JointLimit { lo: -0.3, hi: 0.3 });
+    let chain = Chain::new(vec![1.0, 1.0, 1.0], Vec2::zeros(), 0.0, vec![lim; 3]).unwrap();
+    let mut solver = Overall::new(OverallOptions::default());
+    let original = [0.1, 0.2, -0.1];
+    for target in [
+        Vec2::new(5.0, 0.0),
+        Vec2::new(-2.0, 0.0),
+        Vec2::new(f64::NAN, 0.0),
+    ] {
+        let mut theta = original;
+        let r = solver.resolve(&chain, &mut theta, target);
+        assert!(r.is_err(), "{target:?}: {r:?}");
+        assert_eq!(theta, original);
+    }
+    if let Err(ResolveError::Unreachable { tip_error }) =
+        solver.resolve(&chain, &mut original.clone(), Vec2::new(5.0, 0.0))
+    {
+        assert!((tip_error - 2.0).abs() < 1e-9, "{tip_error}");
+    } else {
+        panic!("expected Unreachable");
+    }
+    // Wrong length: refused, untouched.
+    let mut short = [0.1, 0.2];
+    assert!(matches!(
+        solver.resolve(&chain, &mut short, Vec2::new(1.0, 1.0)),
+        Err(ResolveError::BadInput(_))
+    ));
+    assert_eq!(short, [0.1, 0.2]);
+    // And a success moves it onto the target.
+    let mut theta = original;
+    let goal = chain.tip(&[0.2, 0.1, 0.0]);
+    solver.resolve(&chain, &mut theta, goal).unwrap();
+    assert!((chain.tip(&theta) - goal).norm() < 1e-11);
+}
+
+#[test]
+fn straight_arm_tie_break_is_deterministic() {
+    let chain = Chain::unlimited(vec![0.25; 4], Vec2::zeros(), 0.0).unwrap();
+    let straight = [0.0; 4];
+    let target = Vec2::new(0.9, 0.0); // on the arm's line, pulled inward
+    let mut first = [0.0; 4];
+    let mut solver = Overall::new(OverallOptions::default());
+    let o = solver.solve_local(&chain, &straight, target, &mut first);
+    assert!(o.converged && o.reachable, "{o:?}");
+    let bend: f64 = first.iter().skip(1).sum();
+    assert!(bend > 0.0, "default sign is positive: {first:?}");
+    for _ in 0..3 {
+        let mut again = [0.0; 4];
+        Overall::new(OverallOptions::default()).solve_local(&chain, &straight, target, &mut again);
+        assert_eq!(again, first);
+    }
+    // Cold: the same answer up to the mirror; deterministic run to run.
+    let mut c1 = [0.0; 4];
+    let mut c2 = [0.0; 4];
+    Overall::new(OverallOptions::default()).solve_cold(&chain, &straight, target, &mut c1);
+    Overall::new(OverallOptions::default()).solve_cold(&chain, &straight, target, &mut c2);
+    assert_eq!(c1, c2);
+    assert!((metric3(&c1, &straight) - metric3(&first, &straight)).abs() < 1e-9);
+    // After a pose bent the other way, the same straight problem bends that way.
+    let mut bent = [0.0; 4];
+    let o = solver.solve_local(
+        &chain,
+        &[0.0, -0.1, -0.1, -0.1],
+        chain.tip(&[0.0, -0.2, -0.2, -0.2]),
+        &mut bent,
+    );
+    assert!(o.converged);
+    let mut mirrored = [0.0; 4];
+    let o = solver.solve_local(&chain, &straight, target, &mut mirrored);
+    for a in 1..4 {
+        assert!(
+            (mirrored[a] + first[a]).abs() < 1e-9,
+            "{mirrored:?} vs {first:?}"
+        );
+    }
+}
+
+/// Walks the tip in 1 mm ticks along a wandering path; returns the iterations of every tick.
+fn tick_iterations(n: usize, ticks: usize, seed: u64) -> Vec<usize> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let links = vec![1.0 / n as f64; n];
+    let chain = Chain::unlimited(links, Vec2::zeros(), 0.0).unwrap();
+    let spread = std::f64::consts::PI / n as f64;
+    let mut theta: Vec<f64> = (0..n).map(|_| rng.gen_range(-spread..spread)).collect();
+    let mut solver = Overall::new(OverallOptions::default());
+    let mut heading: f64 = rng.gen_range(-3.0..3.0);
+    let mut out = vec![0.0; n];
+    let mut its = Vec::with_capacity(ticks);
+    for _ in 0..ticks {
+        heading += rng.gen_range(-0.3..0.3);
+        let tip = chain.tip(&theta);
+        let mut target = tip + Vec2::new(heading.cos(), heading.sin()) * 1e-3;
+        let r = target.norm();
+        if !(0.2..=0.9).contains(&r) {
+            // Turn back toward the middle of the workspace.
+            heading += std::f64::consts::PI;
+            target = tip + Vec2::new(heading.cos(), heading.sin()) * 1e-3;
+        }
+        let o = solver.solve_local(&chain, &theta, target, &mut out);
+        assert!(o.converged && o.reachable, "{o:?}");
+        its.push(o.iterations);
+        theta.copy_from_slice(&out);
+    }
+    its
+}
+
+#[test]
+fn warm_ticks_converge_in_a_few_iterations() {
+    let mut histogram = [0usize; 16];
+    for (n, seed) in [(4, 1), (16, 2), (64, 3), (256, 4)] {
+        for it in tick_iterations(n, 300, seed) {
+            assert!(it <= 6, "n {n}: a tick took {it} iterations");
+            histogram[it.min(15)] += 1;
+        }
+    }
+    println!("iterations per 1 mm tick (n = 4, 16, 64, 256; 300 ticks each):");
+    for (k, count) in histogram.iter().enumerate().filter(|(_, &c)| c > 0) {
+        println!("  {k:2}: {count:5} {}", "#".repeat((count + 19) / 20));
+    }
+}
