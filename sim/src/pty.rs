@@ -39,8 +39,10 @@ fn lock(sim: &Mutex<Simulator>) -> MutexGuard<'_, Simulator> {
 
 /// Serve `sim` on a new pseudo-terminal; clients open [`SimHandle::path`] as a serial port.
 pub fn spawn_pty(sim: Simulator) -> Result<SimHandle, SimError> {
-    let (master, mut slave) = TTYPort::pair()?;
-    slave.set_exclusive(false)?;
+    // The slave end stays as `pair()` leaves it: no TIOCEXCL and no flock, so any client may
+    // open it (serialport's `set_exclusive(false)` would take a shared flock that blocks
+    // clients asking for an exclusive one).
+    let (master, slave) = TTYPort::pair()?;
     let path = slave
         .name()
         .map(PathBuf::from)
