@@ -427,7 +427,9 @@ impl Simulator {
         let mut bytes = out.bytes;
         let rdt = servo.return_delay();
         let at = if self.config.wire_timing {
-            let start = (done + rdt).max(self.line_free) + latency;
+            // Each servo waits its Return Delay Time once the line is quiet (after the
+            // instruction, or after the previous servo's reply in a sync/bulk read).
+            let start = done.max(self.line_free) + rdt + latency;
             let end = start + self.byte_time() * bytes.len() as u32;
             self.line_free = end;
             end

@@ -15,7 +15,10 @@ use snakectl_sim::{spawn_pty, ManualClock, Model, ServoSpec, SimConfig, SimHandl
 fn serve(ids: &[u8]) -> (SimHandle, ManualClock) {
     let clock = ManualClock::new();
     let config = SimConfig {
-        servos: ids.iter().map(|&id| ServoSpec::new(id, Model::Xm430W350)).collect(),
+        servos: ids
+            .iter()
+            .map(|&id| ServoSpec::new(id, Model::Xm430W350))
+            .collect(),
         ..SimConfig::default()
     };
     let sim = Simulator::new(config, Arc::new(clock.clone())).expect("config");
@@ -115,16 +118,23 @@ fn malformed_packets() {
     assert_eq!(r.len(), 1);
 
     // An absurd length field, an unknown instruction, a sync read not sent to broadcast.
-    port.write_all(&hex("FF FF FD 00 01 FF FF 02")).expect("send");
+    port.write_all(&hex("FF FF FD 00 01 FF FF 02"))
+        .expect("send");
     port.write_all(&ping).expect("send");
     assert_eq!(collect(&mut port, Duration::from_millis(60)).len(), 1);
-    port.write_all(&protocol::encode_instruction(2, 0x77, &[1, 2])).expect("send");
+    port.write_all(&protocol::encode_instruction(2, 0x77, &[1, 2]))
+        .expect("send");
     let r = collect(&mut port, Duration::from_millis(60));
     assert_eq!(r[0].params, [error::INSTRUCTION]);
-    port.write_all(&protocol::encode_instruction(1, ins::SYNC_READ, &[132, 0, 4, 0, 1]))
-        .expect("send");
+    port.write_all(&protocol::encode_instruction(
+        1,
+        ins::SYNC_READ,
+        &[132, 0, 4, 0, 1],
+    ))
+    .expect("send");
     assert!(collect(&mut port, Duration::from_millis(40)).is_empty());
     // Status packets on the bus (another device's replies) are ignored.
-    port.write_all(&protocol::encode_status(1, 0, &[])).expect("send");
+    port.write_all(&protocol::encode_status(1, 0, &[]))
+        .expect("send");
     assert!(collect(&mut port, Duration::from_millis(40)).is_empty());
 }

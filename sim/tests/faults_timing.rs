@@ -1,0 +1,244 @@
+//! Fault injection (seeded, reproducible) and wire timing, on the core with a manual clock.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::*;
+use snakectl_sim::protocol::{self, instruction as ins, Frame, Parser, BROADCAST_ID};
+use snakectl_sim::table::addr;
+use snakectl_sim::{Fault, Model, ServoSpec, SimConfig, SimError};
+
+fn sync_read_params(ids: &[u8]) -> Vec<u8> {
+    let mut p = read_params(addr::PRESENT_POSITION, 4);
+    p.extend_from_slice(ids);
+    p
+}
+
+fn config(ids: &[u8], faults: Vec<Fault>) -> SimConfig {
+    SimConfig {
+        servos: xl430(ids),
+        faults,
+        ..SimConfig::default()
+    }
+}
+
+#[test]
+fn dropped_replies_leave_the_others() {
+    let (mut s, _) = sim_with(config(
+        &[1, 2, 3],
+        vec![Fault::DropReplies {
+            id: Some(2),
+            fraction: 1.0,
+        }],
+    ));
+    let r = send(
+        &mut s,
+        BROADCAST_ID,
+        ins::SYNC_READ,
+        &sync_read_params(&[1, 2, 3]),
+    );
+    assert_eq!(r.iter().map(|r| r.id).collect::<Vec<_>>(), [1, 3]);
+    // The write itself still happened: only the reply is lost.
+    assert!(send(&mut s, 2, ins::WRITE, &write_params(addr::LED, &[1])).is_empty());
+    assert_eq!(s.servo(2).and_then(|x| x.value(addr::LED)), Some(1));
+    assert_eq!(s.stats().dropped, 2);
+}
+
+fn drop_pattern(seed: u64) -> Vec<bool> {
+    let mut cfg = config(
+        &[1],
+        vec![Fault::DropReplies {
+            id: None,
+            fraction: 0.5,
+        }],
+    );
+    cfg.seed = seed;
+    let (mut s, _) = sim_with(cfg);
+    (0..400)
+        .map(|_| send(&mut s, 1, ins::PING, &[]).is_empty())
+        .collect()
+}
+
+#[test]
+fn random_faults_are_reproducible_from_the_seed() {
+    let a = drop_pattern(42);
+    assert_eq!(a, drop_pattern(42));
+    assert_ne!(a, drop_pattern(43));
+    let dropped = a.iter().filter(|&&d| d).count();
+    assert!((150..250).contains(&dropped), "{dropped} of 400");
+}
+
+#[test]
+fn corrupted_replies_fail_their_crc() {
+    let (mut s, _) = sim_with(config(
+        &[1],
+        vec![Fault::CorruptReplies {
+            id: None,
+            fraction: 1.0,
+        }],
+    ));
+    let clean = protocol::encode_status(1, 0, &[0x24, 0x04, 48]);
+    for _ in 0..20 {
+        let r = send(&mut s, 1, ins::PING, &[]);
+        assert_eq!(r[0].bytes.len(), clean.len());
+        assert_ne!(r[0].bytes, clean);
+        let frames = Parser::default().feed(&r[0].bytes, Instant::now());
+        assert!(
+            frames.is_empty() || matches!(frames[0].frame, Frame::BadCrc { .. }),
+            "{frames:?}"
+        );
+    }
+}
+
+#[test]
+fn extra_latency_delays_the_reply() {
+    let (mut s, clock) = sim_with(config(
+        &[1, 2],
+        vec![Fault::ExtraLatency {
+            id: Some(2),
+            latency: Duration::from_millis(7),
+        }],
+    ));
+    let now = snakectl_sim::Clock::now(&clock);
+    assert_eq!(send(&mut s, 1, ins::PING, &[])[0].at, now);
+    assert_eq!(
+        send(&mut s, 2, ins::PING, &[])[0].at,
+        now + Duration::from_millis(7)
+    );
+}
+
+#[test]
+fn a_servo_goes_silent_at_its_time() {
+    let (mut s, clock) = sim_with(config(
+        &[1, 2, 3],
+        vec![Fault::Silent {
+            id: 3,
+            at: Duration::from_millis(500),
+        }],
+    ));
+    let ids = |s: &mut snakectl_sim::Simulator| {
+        send(
+            s,
+            BROADCAST_ID,
+            ins::SYNC_READ,
+            &sync_read_params(&[3, 2, 1]),
+        )
+        .iter()
+        .map(|r| r.id)
+        .collect::<Vec<_>>()
+    };
+    assert_eq!(ids(&mut s), [3, 2, 1]);
+    clock.advance(Duration::from_millis(499));
+    assert_eq!(ids(&mut s), [3, 2, 1]);
+    clock.advance(Duration::from_millis(1));
+    assert_eq!(ids(&mut s), [2, 1]);
+    // Silent means deaf too: a write to it is not carried out.
+    send(
+        &mut s,
+        BROADCAST_ID,
+        ins::WRITE,
+        &write_params(addr::LED, &[1]),
+    );
+    assert_eq!(s.servos()[2].value(addr::LED), Some(0));
+    assert_eq!(s.servos()[0].value(addr::LED), Some(1));
+}
+
+#[test]
+fn wire_timing_of_one_reply() {
+    let (mut s, clock) = sim_with(SimConfig {
+        servos: xl430(&[1]),
+        baud: 57_600,
+        return_delay_us: 500,
+        wire_timing: true,
+        ..SimConfig::default()
+    });
+    let t0 = snakectl_sim::Clock::now(&clock);
+    let bt = Duration::from_nanos(10_000_000_000 / 57_600);
+    let r = send(&mut s, 1, ins::PING, &[]);
+    // 10 bytes in, 500 µs return delay, 14 bytes out.
+    assert_eq!(r[0].at, t0 + bt * 10 + Duration::from_micros(500) + bt * 14);
+}
+
+#[test]
+fn wire_timing_of_a_sync_cycle_matches_the_formula() {
+    for n in [1u8, 4, 12] {
+        let ids: Vec<u8> = (1..=n).collect();
+        let rdt_us = 20;
+        let (mut s, clock) = sim_with(SimConfig {
+            servos: xl430(&ids),
+            baud: 1_000_000,
+            return_delay_us: rdt_us,
+            wire_timing: true,
+            ..SimConfig::default()
+        });
+        let t0 = snakectl_sim::Clock::now(&clock);
+        // Sync write of 4-byte goals and sync read of 4-byte positions, sent back to back.
+        let mut sw = read_params(addr::GOAL_POSITION, 4);
+        for &id in &ids {
+            sw.push(id);
+            sw.extend_from_slice(&2000i32.to_le_bytes());
+        }
+        let mut bytes = protocol::encode_instruction(BROADCAST_ID, ins::SYNC_WRITE, &sw);
+        bytes.extend(protocol::encode_instruction(
+            BROADCAST_ID,
+            ins::SYNC_READ,
+            &sync_read_params(&ids),
+        ));
+        let r = s.handle_bytes(&bytes);
+        assert_eq!(r.len(), usize::from(n));
+        let n = u32::from(n);
+        let expected = Duration::from_micros(u64::from((28 + 21 * n) * 10))
+            + Duration::from_micros(u64::from(rdt_us * n));
+        let last = r.last().map(|r| r.at).unwrap_or(t0);
+        assert_eq!(last - t0, expected, "n = {n}");
+        // Replies are spaced by return delay plus their own 15 bytes.
+        for w in r.windows(2) {
+            assert_eq!(
+                w[1].at - w[0].at,
+                Duration::from_micros(u64::from(rdt_us) + 150)
+            );
+        }
+    }
+}
+
+#[test]
+fn configuration_is_validated() {
+    let bad = |cfg: SimConfig| {
+        snakectl_sim::Simulator::new(cfg, std::sync::Arc::new(snakectl_sim::RealClock))
+            .err()
+            .map(|e| e.to_string())
+    };
+    let mut c = config(&[1, 1], vec![]);
+    assert!(matches!(
+        snakectl_sim::Simulator::new(c.clone(), std::sync::Arc::new(snakectl_sim::RealClock)),
+        Err(SimError::DuplicateId(1))
+    ));
+    c = config(&[1], vec![]);
+    c.baud = 12345;
+    assert!(bad(c).is_some_and(|e| e.contains("12345")));
+    let mut c = config(
+        &[1],
+        vec![Fault::Silent {
+            id: 9,
+            at: Duration::ZERO,
+        }],
+    );
+    assert!(bad(c.clone()).is_some_and(|e| e.contains("servo 9")));
+    c.faults = vec![Fault::DropReplies {
+        id: None,
+        fraction: 1.5,
+    }];
+    assert!(bad(c.clone()).is_some());
+    c.faults.clear();
+    c.return_delay_us = 601;
+    assert!(bad(c.clone()).is_some());
+    let mut spec = ServoSpec::new(1, Model::Xl330M288);
+    spec.min_position_ticks = Some(3000);
+    spec.max_position_ticks = Some(1000);
+    c = SimConfig {
+        servos: vec![spec],
+        ..SimConfig::default()
+    };
+    assert!(bad(c).is_some_and(|e| e.contains("position limits")));
+}
