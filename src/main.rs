@@ -39,12 +39,12 @@ struct SolveArgs {
     /// Start pose `t1,t2,..` in radians (with `--config`; default: the config's home pose).
     #[arg(long, value_name = "T1,..", allow_hyphen_values = true)]
     from: Option<String>,
-    /// Strategy (with `--config`).
-    #[arg(long, default_value = "sequential")]
+    /// Strategy (with `--config`): overall or sequential.
+    #[arg(long, default_value = "overall")]
     strategy: String,
     /// Elemental step of the sequential strategy (with `--config`): tractrix or distance.
-    #[arg(long, default_value = "tractrix")]
-    propagation: String,
+    #[arg(long)]
+    propagation: Option<String>,
     /// Equal straight sub-moves of the tip (with `--config`).
     #[arg(long, default_value_t = 1)]
     steps: u64,
@@ -155,13 +155,18 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
             None => config.home().to_vec(),
         };
         problem::check_pose(&chain, "--from", &theta0)?;
+        let strategy = problem::parse_strategy(&args.strategy)?;
+        let base_mode = problem::BaseMode::Fixed;
+        problem::check_combination(strategy, base_mode, args.propagation.is_some())?;
         Ok(Problem {
             chain,
             theta0,
             target: Vec2::new(target[0], target[1]),
-            strategy: problem::parse_strategy(&args.strategy)?,
-            base_mode: problem::BaseMode::Fixed,
-            propagation: problem::parse_propagation(&args.propagation)?,
+            strategy,
+            base_mode,
+            propagation: problem::parse_propagation(
+                args.propagation.as_deref().unwrap_or("tractrix"),
+            )?,
             steps: problem::parse_steps(args.steps)?,
         })
     };

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::chain::{Chain, ChainError, JointLimit, Vec2, MAX_MAGNITUDE};
 use crate::metrics::{self, Metrics};
+use crate::resolve::overall::{Overall, OverallMode, OverallOptions};
 use crate::resolve::sequential::{pull_free, Sequential, SequentialOptions};
 use crate::resolve::tractrix::Propagation;
 use crate::resolve::{solve_steps, Resolver, Strategy};
@@ -120,9 +121,10 @@ fn exact_len(field: &str, values: &[f64], want: usize, what: &str) -> Result<(),
 pub fn parse_strategy(name: &str) -> Result<Strategy, ProblemError> {
     match name {
         "sequential" => Ok(Strategy::Sequential),
+        "overall" => Ok(Strategy::Overall),
         other => Err(ProblemError::new(
             "strategy",
-            format!("unknown strategy {other:?} (expected \"sequential\")"),
+            format!("unknown strategy {other:?} (expected \"overall\" or \"sequential\")"),
         )),
     }
 }
@@ -160,6 +162,27 @@ pub fn parse_steps(steps: u64) -> Result<usize, ProblemError> {
         .ok()
         .filter(|&s| s <= 1_000_000)
         .ok_or_else(|| ProblemError::new("steps", format!("{steps} exceeds 1000000")))
+}
+
+/// Refuses combinations the strategies do not offer.
+pub fn check_combination(
+    strategy: Strategy,
+    base_mode: BaseMode,
+    propagation_given: bool,
+) -> Result<(), ProblemError> {
+    if strategy == Strategy::Overall && base_mode == BaseMode::Free {
+        return Err(ProblemError::new(
+            "strategy",
+            "\"overall\" needs base_mode \"fixed\"; a free base is resolved by \"sequential\"",
+        ));
+    }
+    if strategy == Strategy::Overall && propagation_given {
+        return Err(ProblemError::new(
+            "propagation",
+            "applies to the sequential strategy only",
+        ));
+    }
+    Ok(())
 }
 
 /// Maps a chain construction error onto the problem's field names.
@@ -246,9 +269,14 @@ impl Problem {
         let base = Vec2::new(raw.base[0], raw.base[1]);
         let chain = Chain::new(raw.links, base, raw.base[2], limits).map_err(chain_error)?;
         check_pose(&chain, "theta0", &raw.theta0)?;
-        let strategy = parse_strategy(raw.strategy.as_deref().unwrap_or("sequential"))?;
         let base_mode = parse_base_mode(raw.base_mode.as_deref().unwrap_or("fixed"))?;
+        let default_strategy = match base_mode {
+            BaseMode::Fixed => "overall",
+            BaseMode::Free => "sequential",
+        };
+        let strategy = parse_strategy(raw.strategy.as_deref().unwrap_or(default_strategy))?;
         let propagation = parse_propagation(raw.propagation.as_deref().unwrap_or("tractrix"))?;
+        check_combination(strategy, base_mode, raw.propagation.is_some())?;
         let steps = parse_steps(raw.steps.unwrap_or(1))?;
         Ok(Self {
             chain,
@@ -272,13 +300,16 @@ impl Problem {
 
     fn solve_fixed(&self) -> Answer {
         let chain = &self.chain;
+        // A one-off solve: the overall strategy runs its cold starts for every step.
         let mut resolver: Box<dyn Resolver> = match self.strategy {
-            Strategy::Sequential | Strategy::Overall => {
-                Box::new(Sequential::new(SequentialOptions {
-                    propagation: self.propagation,
-                    ..SequentialOptions::default()
-                }))
-            }
+            Strategy::Sequential => Box::new(Sequential::new(SequentialOptions {
+                propagation: self.propagation,
+                ..SequentialOptions::default()
+            })),
+            Strategy::Overall => Box::new(Overall::new(OverallOptions {
+                mode: OverallMode::Cold,
+                ..OverallOptions::default()
+            })),
         };
         let mut theta = vec![0.0; chain.len()];
         let clock = Instant::now();
@@ -429,7 +460,7 @@ mod tests {
     fn a_good_problem_solves() {
         let p = Problem::from_json(GOOD).unwrap();
         assert_eq!(p.steps, 1);
-        assert_eq!(p.strategy, Strategy::Sequential);
+        assert_eq!(p.strategy, Strategy::Overall);
         let a = p.solve();
         assert!(a.converged && a.reachable && a.within_limits);
         assert!(a.tip_error < 1e-9);
@@ -459,6 +490,14 @@ mod tests {
             (with(r#""base_mode":"floating""#), "base_mode"),
             (with(r#""propagation":"magic""#), "propagation"),
             (with(r#""steps":0"#), "steps"),
+            (
+                with(r#""strategy":"overall","base_mode":"free""#),
+                "strategy",
+            ),
+            (
+                with(r#""strategy":"overall","propagation":"distance""#),
+                "propagation",
+            ),
             (with(r#""steps":-1"#), "input"),
             (GOOD.replace("[1.5,1.0]", "[1.5,1e999]"), "input"),
         ];
