@@ -374,6 +374,7 @@ pub fn nearest_representative(a: f64, reference: f64) -> f64 {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

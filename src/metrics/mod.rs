@@ -106,12 +106,12 @@ pub fn rope(old: &[Vec2], new: &[Vec2]) -> Metrics {
         d.y.atan2(d.x)
     };
     let (mut m3, mut m5) = (0.0, 0.0);
-    for i in 1..n {
+    for (i, weight) in sigma.iter().enumerate().take(n).skip(1) {
         let before = heading(old, i) - heading(old, i - 1);
         let after = heading(new, i) - heading(new, i - 1);
         let r = wrap_angle(after - before);
         m3 += r * r;
-        m5 += sigma[i] * r * r;
+        m5 += weight * r * r;
     }
     Metrics { m1, m2, m3, m4, m5 }
 }
