@@ -1,4 +1,5 @@
 //! Measures fixed-base correction rounds per solve on random poses and targets, for both
+#![allow(clippy::unwrap_used)]
 //! correction schemes: `cargo run --release --example correction_rounds`.
 use rand::{Rng, SeedableRng};
 use snakectl::chain::{Chain, Vec2};
