@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use serialport::{SerialPort, TTYPort};
 
@@ -23,6 +23,9 @@ use crate::SimError;
 /// Longest the serving thread sleeps when no reply is pending: bounds how late it notices a stop
 /// request and how often the motor model advances without traffic.
 const IDLE_WAIT: Duration = Duration::from_millis(2);
+/// How close to a reply's deadline the thread stops sleeping and spins. Only wire timing makes
+/// replies due in the future, so only it spins.
+const SPIN_WINDOW: Duration = Duration::from_micros(80);
 
 /// A running simulator on a pseudo-terminal. Dropping it stops the serving thread.
 #[derive(Debug)]
@@ -133,9 +136,22 @@ fn serve(mut port: TTYPort, sim: &Mutex<Simulator>, stop: &AtomicBool) -> Result
                 send(&mut port, &reply);
             }
         }
-        let wait = pending.front().map_or(IDLE_WAIT, |r| {
-            r.at.saturating_duration_since(now).min(IDLE_WAIT)
-        });
+        let wait = match pending
+            .front()
+            .map(|r| (r.at, r.at.saturating_duration_since(now)))
+        {
+            None => IDLE_WAIT,
+            Some((at, left)) if left <= SPIN_WINDOW => {
+                // A timed wait wakes tens of µs late (timer slack): spin the last stretch so
+                // replies leave on time. Bounded in real time, in case the clock is manual.
+                let give_up = Instant::now() + 2 * SPIN_WINDOW;
+                while clock.now() < at && Instant::now() < give_up {
+                    std::hint::spin_loop();
+                }
+                continue;
+            }
+            Some((_, left)) => (left - SPIN_WINDOW).min(IDLE_WAIT),
+        };
         port.set_timeout(wait)?;
         match port.read(&mut buf) {
             Ok(0) => {}

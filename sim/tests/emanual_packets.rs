@@ -2,6 +2,8 @@
 //! the encoder reproduces them, and the simulator answers the example instructions with the
 //! example status packets wherever the servo state can be made the same.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 
 use common::*;
@@ -308,8 +310,8 @@ fn simulator_executes_sync_and_bulk_write_examples() {
     assert_eq!(s.servo(2).and_then(|x| x.value(31)), Some(80));
 
     // Bulk read: 11.9 V on id 1, 36 °C on id 2, replies in instruction order.
-    s.servo_mut(1).map(|x| x.set_input_voltage(119.0));
-    s.servo_mut(2).map(|x| x.set_temperature(36.0));
+    s.servo_mut(1).expect("id 1").set_input_voltage(119.0);
+    s.servo_mut(2).expect("id 2").set_temperature(36.0);
     let r = s.handle_bytes(&wire_of("bulk read voltage of 1, temperature of 2"));
     assert_eq!(r.len(), 2);
     assert_eq!(r[0].bytes, status_of("bulk read reply of id 1: 11.9 V"));

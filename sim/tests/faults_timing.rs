@@ -1,5 +1,7 @@
 //! Fault injection (seeded, reproducible) and wire timing, on the core with a manual clock.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 
 use std::time::{Duration, Instant};

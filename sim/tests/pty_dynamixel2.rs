@@ -2,6 +2,8 @@
 //! instruction, and the rules and faults as a client sees them. Time is a manual clock the tests
 //! advance; only the pty I/O itself blocks.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 

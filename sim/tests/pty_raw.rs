@@ -1,6 +1,8 @@
 //! A raw serial port on the pseudo-terminal: a multi-servo bulk read (which dynamixel2 0.9.1
 //! encodes wrongly), malformed packets, garbage and bad CRCs.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 
 use std::io::{Read, Write};

@@ -2,6 +2,8 @@
 //! client sees for each refused write, shutdown errors, the bus watchdog, Status Return Level,
 //! REG WRITE/ACTION, reboot and factory reset, motion under the profile.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 
 use std::time::Duration;
