@@ -35,6 +35,29 @@ pub enum HardwareErrorKind {
     Encoder,
 }
 
+/// A hardware error name that is not one of [`HardwareErrorKind`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "unknown hardware error {0:?} (known: overload, overheating, voltage, electrical_shock, encoder)"
+)]
+pub struct UnknownHardwareError(pub String);
+
+impl std::str::FromStr for HardwareErrorKind {
+    type Err = UnknownHardwareError;
+
+    /// `overload`, `overheating`, `voltage` (or `input_voltage`), `electrical_shock`, `encoder`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "overload" => Ok(Self::Overload),
+            "overheating" => Ok(Self::Overheating),
+            "voltage" | "input_voltage" => Ok(Self::InputVoltage),
+            "electrical_shock" => Ok(Self::ElectricalShock),
+            "encoder" => Ok(Self::Encoder),
+            _ => Err(UnknownHardwareError(s.to_string())),
+        }
+    }
+}
+
 impl HardwareErrorKind {
     /// The Hardware Error Status bit.
     pub fn bit(self) -> u8 {

@@ -38,7 +38,9 @@ pub mod rng;
 pub mod servo;
 pub mod table;
 
-pub use chain::{Fault, HardwareErrorKind, Reply, SimConfig, Simulator, Stats, BAUD_RATES};
+pub use chain::{
+    Fault, HardwareErrorKind, Reply, SimConfig, Simulator, Stats, UnknownHardwareError, BAUD_RATES,
+};
 pub use clock::{Clock, ManualClock, RealClock, SharedClock};
 pub use pty::{spawn_pty, SimHandle};
 pub use servo::{Servo, ServoSpec};

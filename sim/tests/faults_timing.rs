@@ -244,3 +244,12 @@ fn configuration_is_validated() {
     };
     assert!(bad(c).is_some_and(|e| e.contains("position limits")));
 }
+
+#[test]
+fn fault_names_parse() {
+    use snakectl_sim::HardwareErrorKind as K;
+    assert_eq!("overload".parse::<K>(), Ok(K::Overload));
+    assert_eq!("Input-Voltage".parse::<K>(), Ok(K::InputVoltage));
+    assert_eq!("voltage".parse::<K>(), Ok(K::InputVoltage));
+    assert!("melted".parse::<K>().is_err());
+}

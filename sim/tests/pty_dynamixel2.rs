@@ -264,3 +264,56 @@ fn port_can_be_closed_and_reopened() {
     }
     assert!(handle.is_running());
 }
+
+#[test]
+fn faulty_replies_as_the_client_sees_them() {
+    let mut config = chain(&[1, 2]);
+    config.faults.push(Fault::CorruptReplies {
+        id: Some(1),
+        fraction: 1.0,
+    });
+    config.faults.push(Fault::DropReplies {
+        id: Some(2),
+        fraction: 1.0,
+    });
+    let (handle, _clock) = serve(config);
+    let mut bus = open(&handle);
+    match bus.ping(1) {
+        Err(TransferError::ReadError(ReadError::InvalidMessage(_))) => {}
+        other => panic!("a corrupted reply must fail its checksum: {other:?}"),
+    }
+    match bus.ping(2) {
+        Err(TransferError::ReadError(ReadError::Io(e))) => {
+            assert_eq!(e.kind(), std::io::ErrorKind::TimedOut)
+        }
+        other => panic!("a dropped reply must time out: {other:?}"),
+    }
+    // The instructions were still carried out.
+    bus.write_u8(2, addr::LED, 1).ok();
+    assert_eq!(handle.with_servo(2, |s| s.value(addr::LED)), Some(Some(1)));
+}
+
+#[test]
+fn wire_timing_in_real_time() {
+    // 57600 baud, factory Return Delay Time (500 µs): a ping takes 10 bytes in, 500 µs, 14 bytes
+    // out = 4.67 ms; a reply must never arrive earlier than that.
+    let config = SimConfig {
+        baud: 57_600,
+        return_delay_us: 500,
+        wire_timing: true,
+        ..chain(&[1])
+    };
+    let sim = Simulator::new(config, Arc::new(snakectl_sim::RealClock)).expect("config");
+    let handle = spawn_pty(sim).expect("pty");
+    let mut bus: Client =
+        Bus::open_with_buffers(handle.path(), 57_600, vec![0; 256], vec![0; 256]).expect("open");
+    let expected = Duration::from_secs_f64(24.0 * 10.0 / 57_600.0) + Duration::from_micros(500);
+    for _ in 0..5 {
+        let t0 = Instant::now();
+        bus.ping(1).expect("ping");
+        let took = t0.elapsed();
+        assert!(took >= expected, "{took:?} < {expected:?}");
+        // Generous upper bound: the machine is shared.
+        assert!(took < expected + Duration::from_millis(20), "{took:?}");
+    }
+}
