@@ -18,6 +18,9 @@ pub const BAUD_RATES: [u32; 8] = [
     9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000,
 ];
 
+/// Largest extra latency a fault may add to a reply.
+pub const MAX_LATENCY: Duration = Duration::from_secs(60);
+
 /// A hardware error a fault can raise (bits of Hardware Error Status).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
@@ -179,7 +182,12 @@ impl SimConfig {
                 Fault::DropReplies { id, fraction } | Fault::CorruptReplies { id, fraction } => {
                     (*id, Some(*fraction))
                 }
-                Fault::ExtraLatency { id, .. } => (*id, None),
+                Fault::ExtraLatency { id, latency } => {
+                    if *latency > MAX_LATENCY {
+                        return Err(SimError::Latency(*latency));
+                    }
+                    (*id, None)
+                }
                 Fault::Silent { id, .. } | Fault::HardwareError { id, .. } => (Some(*id), None),
             };
             if let Some(id) = id {
@@ -268,11 +276,14 @@ impl Simulator {
             .faults
             .iter()
             .filter_map(|f| match f {
-                Fault::Silent { at, .. } | Fault::HardwareError { at, .. } => Some(Timed {
-                    at: now + *at,
-                    fault: f.clone(),
-                    done: false,
-                }),
+                // A time too far to represent never comes.
+                Fault::Silent { at, .. } | Fault::HardwareError { at, .. } => {
+                    now.checked_add(*at).map(|at| Timed {
+                        at,
+                        fault: f.clone(),
+                        done: false,
+                    })
+                }
                 _ => None,
             })
             .collect();

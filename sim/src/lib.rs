@@ -75,6 +75,9 @@ pub enum SimError {
     /// A fault names a servo that is not configured.
     #[error("fault names servo {0}, which is not on the bus")]
     FaultId(u8),
+    /// An extra latency beyond [`chain::MAX_LATENCY`].
+    #[error("fault latency {0:?} exceeds 60 s")]
+    Latency(std::time::Duration),
     /// A fault probability outside [0, 1].
     #[error("fault fraction {0} is outside [0, 1]")]
     Fraction(f64),
