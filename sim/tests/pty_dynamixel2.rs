@@ -63,7 +63,7 @@ fn sync_read_u32(bus: &mut Client, ids: &[u8], address: u16) -> Vec<(u8, u32)> {
     .expect("send sync read");
     let mut out = Vec::new();
     for _ in ids {
-        match bus.read_status_response_deadline(Instant::now() + Duration::from_millis(30)) {
+        match bus.read_status_response_deadline(Instant::now() + Duration::from_millis(200)) {
             Ok(p) => {
                 let d = p.parameters();
                 out.push((p.packet_id(), u32::from_le_bytes([d[0], d[1], d[2], d[3]])));

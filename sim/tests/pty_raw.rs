@@ -35,15 +35,16 @@ fn open(handle: &SimHandle) -> TTYPort {
         .expect("open raw port")
 }
 
-/// Everything that arrives within `window`, parsed into status packets.
-fn collect(port: &mut TTYPort, window: Duration) -> Vec<Packet> {
+/// Status packets arriving until `n` have come or `window` has passed (`n = 0`: the whole
+/// window, to check that nothing comes).
+fn collect_n(port: &mut TTYPort, n: usize, window: Duration) -> Vec<Packet> {
     let deadline = Instant::now() + window;
     let mut parser = Parser::default();
     let mut out = Vec::new();
     let mut buf = [0u8; 512];
-    while Instant::now() < deadline {
-        if let Ok(n) = port.read(&mut buf) {
-            for p in parser.feed(&buf[..n], Instant::now()) {
+    while Instant::now() < deadline && (n == 0 || out.len() < n) {
+        if let Ok(k) = port.read(&mut buf) {
+            for p in parser.feed(&buf[..k], Instant::now()) {
                 match p.frame {
                     Frame::Packet(packet) => out.push(packet),
                     other => panic!("bad frame from the simulator: {other:?}"),
@@ -54,6 +55,18 @@ fn collect(port: &mut TTYPort, window: Duration) -> Vec<Packet> {
     out
 }
 
+/// Wait (generously: the machine may be busy) for exactly `n` replies.
+fn expect(port: &mut TTYPort, n: usize) -> Vec<Packet> {
+    let r = collect_n(port, n, Duration::from_secs(1));
+    assert_eq!(r.len(), n, "{r:?}");
+    r
+}
+
+/// Check that nothing comes within a short window.
+fn nothing(port: &mut TTYPort) -> bool {
+    collect_n(port, 0, Duration::from_millis(40)).is_empty()
+}
+
 #[test]
 fn bulk_read_of_several_servos_in_instruction_order() {
     let (handle, _clock) = serve(&[1, 2, 3]);
@@ -62,7 +75,7 @@ fn bulk_read_of_several_servos_in_instruction_order() {
     let params = [3, 132, 0, 4, 0, 1, 0, 0, 2, 0, 2, 146, 0, 1, 0];
     port.write_all(&protocol::encode_instruction(0xFE, ins::BULK_READ, &params))
         .expect("send");
-    let replies = collect(&mut port, Duration::from_millis(100));
+    let replies = expect(&mut port, 3);
     let got: Vec<(u8, Vec<u8>)> = replies.iter().map(|p| (p.id, p.params.clone())).collect();
     assert_eq!(
         got,
@@ -84,8 +97,7 @@ fn malformed_packets() {
     let mut bytes = hex("00 13 FF FF 42 FF FD");
     bytes.extend_from_slice(&ping);
     port.write_all(&bytes).expect("send");
-    let r = collect(&mut port, Duration::from_millis(60));
-    assert_eq!(r.len(), 1);
+    let r = expect(&mut port, 1);
     assert_eq!(r[0].params[0], error::NONE);
 
     // A bad CRC is never acted on: the addressed servo answers with the CRC error.
@@ -93,40 +105,39 @@ fn malformed_packets() {
     let n = bad.len();
     bad[n - 1] ^= 0x55;
     port.write_all(&bad).expect("send");
-    let r = collect(&mut port, Duration::from_millis(60));
-    assert_eq!(r.len(), 1);
+    let r = expect(&mut port, 1);
     assert_eq!((r[0].id, r[0].params.as_slice()), (1, &[error::CRC][..]));
     assert_eq!(handle.with_servo(1, |s| s.value(65)), Some(Some(0)));
     // Broadcast with a bad CRC: nobody answers.
     let mut bad = protocol::encode_instruction(0xFE, ins::PING, &[]);
     bad[8] ^= 1;
     port.write_all(&bad).expect("send");
-    assert!(collect(&mut port, Duration::from_millis(40)).is_empty());
+    assert!(nothing(&mut port));
 
     // A packet cut short and immediately followed by another: the second one is recovered.
     let read = protocol::encode_instruction(2, ins::READ, &[132, 0, 4, 0]);
     let mut bytes = read[..9].to_vec();
     bytes.extend_from_slice(&ping);
     port.write_all(&bytes).expect("send");
-    let r = collect(&mut port, Duration::from_millis(60));
-    assert_eq!(r.iter().map(|p| p.id).collect::<Vec<_>>(), [1]);
+    let r = expect(&mut port, 1);
+    assert_eq!(r[0].id, 1);
+    assert!(nothing(&mut port));
 
     // A packet cut short, then silence longer than the inter-byte timeout: it is dropped.
     port.write_all(&read[..6]).expect("send");
-    assert!(collect(&mut port, Duration::from_millis(30)).is_empty());
+    assert!(nothing(&mut port));
     clock.advance(Duration::from_millis(100));
     port.write_all(&ping).expect("send");
-    let r = collect(&mut port, Duration::from_millis(60));
-    assert_eq!(r.len(), 1);
+    let r = expect(&mut port, 1);
 
     // An absurd length field, an unknown instruction, a sync read not sent to broadcast.
     port.write_all(&hex("FF FF FD 00 01 FF FF 02"))
         .expect("send");
     port.write_all(&ping).expect("send");
-    assert_eq!(collect(&mut port, Duration::from_millis(60)).len(), 1);
+    expect(&mut port, 1);
     port.write_all(&protocol::encode_instruction(2, 0x77, &[1, 2]))
         .expect("send");
-    let r = collect(&mut port, Duration::from_millis(60));
+    let r = expect(&mut port, 1);
     assert_eq!(r[0].params, [error::INSTRUCTION]);
     port.write_all(&protocol::encode_instruction(
         1,
@@ -134,9 +145,9 @@ fn malformed_packets() {
         &[132, 0, 4, 0, 1],
     ))
     .expect("send");
-    assert!(collect(&mut port, Duration::from_millis(40)).is_empty());
+    assert!(nothing(&mut port));
     // Status packets on the bus (another device's replies) are ignored.
     port.write_all(&protocol::encode_status(1, 0, &[]))
         .expect("send");
-    assert!(collect(&mut port, Duration::from_millis(40)).is_empty());
+    assert!(nothing(&mut port));
 }
