@@ -13,9 +13,13 @@
 //! - [`config`]: the one TOML file that describes an arm and how to reach it, parsed raw and then
 //!   validated, errors naming the file and the field.
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
+//! - [`servo`]: rad <-> ticks with per-joint calibration.
+//! - [`simbus`]: the config's servo chain as the plain data the simulator (`snakectl-sim`) takes.
 
 pub mod chain;
 pub mod config;
 pub mod metrics;
 pub mod problem;
 pub mod resolve;
+pub mod servo;
+pub mod simbus;

@@ -23,6 +23,21 @@ struct Cli {
 enum Command {
     /// Resolve one tip move: joint angles, points, flags and metrics as one JSON object.
     Solve(SolveArgs),
+    /// Serve the config's servo chain, simulated, on a pseudo-terminal until Ctrl-C or SIGTERM.
+    Sim(SimArgs),
+}
+
+#[derive(Debug, Args)]
+struct SimArgs {
+    /// Config file: the servos (ids, models, limits), `[bus]` baud and delay, `[sim]` faults.
+    #[arg(long)]
+    config: PathBuf,
+    /// Also make this path a symlink to the pseudo-terminal (replacing an old symlink).
+    #[arg(long)]
+    link: Option<PathBuf>,
+    /// Log every packet (debug level); `RUST_LOG` overrides.
+    #[arg(short, long)]
+    verbose: bool,
 }
 
 #[derive(Debug, Args)]
@@ -72,6 +87,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Solve(args) => solve(args),
+        Command::Sim(args) => sim(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -104,6 +120,52 @@ fn solve(args: SolveArgs) -> Result<(), Failure> {
     })?;
     println!("{text}");
     Ok(())
+}
+
+fn sim(args: SimArgs) -> Result<(), Failure> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+
+    let default = if args.verbose { "debug" } else { "info" };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+    let other = |e: anyhow::Error| Failure { code: 1, error: e };
+    let config = Config::load(&args.config).map_err(Failure::bad_input)?;
+    let sim_config = snakectl::simbus::sim_config(&config)
+        .map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", args.config.display())))?;
+    let simulator = snakectl_sim::Simulator::new(sim_config, Arc::new(snakectl_sim::RealClock))
+        .map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", args.config.display())))?;
+    let handle = snakectl_sim::spawn_pty(simulator).map_err(|e| other(e.into()))?;
+    if let Some(link) = &args.link {
+        if link
+            .symlink_metadata()
+            .is_ok_and(|m| m.file_type().is_symlink())
+        {
+            std::fs::remove_file(link)
+                .map_err(|e| other(anyhow::anyhow!("{}: {e}", link.display())))?;
+        }
+        std::os::unix::fs::symlink(handle.path(), link)
+            .map_err(|e| other(anyhow::anyhow!("{}: {e}", link.display())))?;
+    }
+    // Printed once the link exists: a script reading this line may use either at once.
+    println!("{}", handle.path().display());
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .map_err(|e| other(anyhow::anyhow!("installing the signal handler: {e}")))?;
+    }
+    while !stop.load(Ordering::Relaxed) && handle.is_running() {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    if let Some(link) = &args.link {
+        let _ = std::fs::remove_file(link);
+    }
+    tracing::info!("stopping");
+    handle.stop().map_err(|e| other(e.into()))
 }
 
 fn problem_from_file(path: &PathBuf) -> Result<Problem, Failure> {
