@@ -128,7 +128,10 @@ fn malformed_packets() {
     assert!(nothing(&mut port));
     clock.advance(Duration::from_millis(100));
     port.write_all(&ping).expect("send");
-    let r = expect(&mut port, 1);
+    assert_eq!(
+        expect(&mut port, 1)[0].params,
+        [error::NONE, 0xFC, 0x03, 48]
+    );
 
     // An absurd length field, an unknown instruction, a sync read not sent to broadcast.
     port.write_all(&hex("FF FF FD 00 01 FF FF 02"))
