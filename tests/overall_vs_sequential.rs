@@ -1,0 +1,76 @@
+//! The overall strategy against the sequential one on small moves.
+//!
+//! For a tip move of up to 5% of the reach, the overall solve in local mode (started from
+//! theta0) minimizes metric 3 over every pose with the tip on target and the joints within
+//! limits. The sequential answer is one such pose whenever it is on target and within the
+//! limits, so the overall metric 3 must never exceed it.
+#![allow(clippy::unwrap_used)]
+
+use proptest::prelude::*;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use snakectl::chain::{Chain, JointLimit, Vec2};
+use snakectl::resolve::overall::{Overall, OverallOptions};
+use snakectl::resolve::sequential::{Sequential, SequentialOptions};
+use snakectl::resolve::Resolver;
+
+fn metric3(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn overall_metric3_never_above_sequential(
+        seed in 0u64..1_000_000_000,
+        n in 2usize..=64,
+        limited in proptest::bool::ANY,
+        fraction in 0.0f64..=0.05,
+        bearing in -3.2f64..3.2,
+    ) {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.5..1.5)).collect();
+        let base = Vec2::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
+        let heading = rng.gen_range(-3.0..3.0);
+        let spread = 2.0 * std::f64::consts::PI / n as f64;
+        let limits: Vec<Option<JointLimit>> = if limited {
+            (0..n)
+                .map(|_| {
+                    let w = rng.gen_range(spread..(2.0 * spread).max(0.6));
+                    Some(JointLimit { lo: -w, hi: w })
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let chain = Chain::new(links, base, heading, limits).unwrap();
+        let theta0: Vec<f64> = (0..n)
+            .map(|a| {
+                let t = rng.gen_range(-spread..spread);
+                chain.limits()[a].map_or(t, |l| 0.9 * l.clamp(t))
+            })
+            .collect();
+        let tip = chain.tip(&theta0);
+        let target = tip + Vec2::new(bearing.cos(), bearing.sin()) * (fraction * chain.reach());
+
+        let mut sequential = Sequential::new(SequentialOptions::default());
+        let mut seq = vec![0.0; n];
+        let s = sequential.solve(&chain, &theta0, target, &mut seq);
+        let mut overall = Overall::new(OverallOptions::default());
+        let mut ovr = vec![0.0; n];
+        let o = overall.solve_local(&chain, &theta0, target, &mut ovr);
+
+        prop_assert!(chain.check_limits(&ovr).is_ok());
+        let seq_valid = s.converged && s.tip_error <= 1e-9 && chain.check_limits(&seq).is_ok();
+        if seq_valid {
+            prop_assert!(o.converged && o.reachable, "overall missed a reachable target: {:?}", o);
+            let m_seq = metric3(&seq, &theta0);
+            let m_ovr = metric3(&ovr, &theta0);
+            prop_assert!(
+                m_ovr <= m_seq * (1.0 + 1e-9) + 1e-15,
+                "overall {} above sequential {}", m_ovr, m_seq
+            );
+        }
+    }
+}
