@@ -107,7 +107,7 @@ impl Dual<'_> {
                 return true;
             }
             let tr = e.m[0] + e.m[2];
-            if !(tr > 0.0) {
+            if tr.is_nan() || tr <= 0.0 {
                 return false;
             }
             // A tiny shift keeps the direction defined when the free columns are parallel; the
@@ -115,7 +115,7 @@ impl Dual<'_> {
             let reg = 1e-14 * tr;
             let (m0, m1, m2) = (e.m[0] + reg, e.m[1], e.m[2] + reg);
             let det = m0 * m2 - m1 * m1;
-            if !(det > 0.0) {
+            if det.is_nan() || det <= 0.0 {
                 return false;
             }
             let d = [
@@ -145,7 +145,8 @@ impl Dual<'_> {
                 }
                 alpha *= 0.5;
             }
-            if !accepted || !(mu[0].abs() <= mu_cap && mu[1].abs() <= mu_cap) {
+            let bounded = mu[0].abs() <= mu_cap && mu[1].abs() <= mu_cap;
+            if !accepted || !bounded {
                 return false;
             }
         }

@@ -44,7 +44,7 @@ pub(crate) fn factor(g: &[f64], piv: &mut [f64]) -> Option<Factor> {
         };
         let p = if a == 0 { diag } else { diag - 1.0 / prev };
         let scale = 2.0 + g[a].abs() + if a + 1 < m { g[a + 1].abs() } else { 0.0 };
-        if !(p.abs() > 1e-13 * scale) || !p.is_finite() {
+        if !p.is_finite() || p.abs() <= 1e-13 * scale {
             return None;
         }
         if p < 0.0 {
@@ -92,6 +92,8 @@ pub(crate) fn solve(piv: &[f64], y: &[f64], s: &mut [f64], x: &mut [f64]) {
 
 #[cfg(test)]
 mod tests {
+    #![allow(clippy::unwrap_used)]
+
     use super::*;
     use nalgebra::{DMatrix, DVector};
 

@@ -835,7 +835,7 @@ impl Overall {
         let det = s00 * s11 - s01 * s01;
         let tr = s00 + s11;
         let scale = s00.abs() + s11.abs() + s01.abs();
-        if !(det.abs() > 1e-14 * scale * scale) {
+        if det.is_nan() || det.abs() <= 1e-14 * scale * scale {
             return None;
         }
         let neg_s = if det < 0.0 {
@@ -864,7 +864,7 @@ impl Overall {
             }
             w.trial[a] = v;
         }
-        if !(big <= 0.5) {
+        if big.is_nan() || big > 0.5 {
             return None;
         }
         Some([mu[0] + dmu[0], mu[1] + dmu[1]])
@@ -951,7 +951,9 @@ impl Overall {
                 let r = tip - w.pts[a];
                 w.g[k] = (c.x * r.x + c.y * r.y) / *lambda;
             }
-            if !hessian::factor(&w.g[..m], &mut w.piv[..m]).is_some_and(|f| f.negative == 0) {
+            let positive =
+                hessian::factor(&w.g[..m], &mut w.piv[..m]).is_some_and(|f| f.negative == 0);
+            if !positive {
                 *lambda *= 4.0;
                 continue;
             }
@@ -969,7 +971,7 @@ impl Overall {
                 e1 += w.jyf[k] * w.y4[k] * inv;
             }
             let det = s00 * s11 - s01 * s01;
-            if !(det > 0.0) {
+            if det.is_nan() || det <= 0.0 {
                 *lambda *= 4.0;
                 continue;
             }

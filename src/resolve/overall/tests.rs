@@ -289,7 +289,7 @@ fn straight_arm_tie_break_is_deterministic() {
     );
     assert!(o.converged);
     let mut mirrored = [0.0; 4];
-    let o = solver.solve_local(&chain, &straight, target, &mut mirrored);
+    solver.solve_local(&chain, &straight, target, &mut mirrored);
     for a in 1..4 {
         assert!(
             (mirrored[a] + first[a]).abs() < 1e-9,
@@ -338,6 +338,6 @@ fn warm_ticks_converge_in_a_few_iterations() {
     }
     println!("iterations per 1 mm tick (n = 4, 16, 64, 256; 300 ticks each):");
     for (k, count) in histogram.iter().enumerate().filter(|(_, &c)| c > 0) {
-        println!("  {k:2}: {count:5} {}", "#".repeat((count + 19) / 20));
+        println!("  {k:2}: {count:5} {}", "#".repeat(count.div_ceil(20)));
     }
 }
