@@ -1,0 +1,129 @@
+//! `snakectl solve`: one tip move from a JSON problem or a config file, answered as JSON.
+
+use std::io::Read;
+use std::path::PathBuf;
+
+use clap::Args;
+
+use snakectl::chain::Vec2;
+use snakectl::config::Config;
+use snakectl::problem::{self, Problem, ProblemError};
+
+use super::Failure;
+
+#[derive(Debug, Args)]
+pub struct SolveArgs {
+    /// Problem file in the JSON format of the README; `-` reads stdin.
+    #[arg(conflicts_with_all = ["config", "from"], required_unless_present = "config")]
+    problem: Option<PathBuf>,
+    /// Take the arm from this config file instead of a problem file.
+    #[arg(long, requires = "target")]
+    config: Option<PathBuf>,
+    /// Tip target `X,Y` in metres (with `--config`).
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    target: Option<String>,
+    /// Start pose `t1,t2,..` in radians (with `--config`; default: the config's home pose).
+    #[arg(long, value_name = "T1,..", allow_hyphen_values = true)]
+    from: Option<String>,
+    /// Strategy (with `--config`): overall or sequential.
+    #[arg(long, default_value = "overall")]
+    strategy: String,
+    /// Elemental step of the sequential strategy (with `--config`): tractrix or distance.
+    #[arg(long)]
+    propagation: Option<String>,
+    /// Equal straight sub-moves of the tip (with `--config`).
+    #[arg(long, default_value_t = 1)]
+    steps: u64,
+    /// Indent the JSON answer.
+    #[arg(long)]
+    pretty: bool,
+}
+
+/// Runs `snakectl solve`.
+pub fn run(args: SolveArgs) -> Result<(), Failure> {
+    let problem = match (&args.problem, &args.config) {
+        (Some(path), _) => problem_from_file(path)?,
+        (None, Some(config)) => problem_from_config(config, &args)?,
+        (None, None) => {
+            return Err(Failure::bad_input(anyhow::anyhow!(
+                "give a problem file or --config"
+            )))
+        }
+    };
+    let answer = problem.solve();
+    let text = if args.pretty {
+        serde_json::to_string_pretty(&answer)
+    } else {
+        serde_json::to_string(&answer)
+    }
+    .map_err(Failure::other)?;
+    println!("{text}");
+    Ok(())
+}
+
+fn problem_from_file(path: &PathBuf) -> Result<Problem, Failure> {
+    let text = if path.as_os_str() == "-" {
+        let mut s = String::new();
+        std::io::stdin()
+            .read_to_string(&mut s)
+            .map_err(|e| Failure::bad_input(anyhow::anyhow!("stdin: {e}")))?;
+        s
+    } else {
+        std::fs::read_to_string(path)
+            .map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", path.display())))?
+    };
+    Problem::from_json(&text).map_err(|e| {
+        let name = if path.as_os_str() == "-" {
+            "stdin".to_string()
+        } else {
+            path.display().to_string()
+        };
+        Failure::bad_input(anyhow::anyhow!("{name}: {e}"))
+    })
+}
+
+/// Parses `a,b,c` into numbers, naming the flag on error.
+fn list(flag: &str, text: &str) -> Result<Vec<f64>, ProblemError> {
+    text.split(',')
+        .map(|s| {
+            s.trim().parse::<f64>().map_err(|_| ProblemError {
+                field: flag.into(),
+                message: format!("{s:?} is not a number"),
+            })
+        })
+        .collect()
+}
+
+fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Failure> {
+    let config = Config::load(path).map_err(Failure::bad_input)?;
+    let build = || -> Result<Problem, ProblemError> {
+        let target = list("--target", args.target.as_deref().unwrap_or_default())?;
+        if target.len() != 2 || target.iter().any(|v| !v.is_finite()) {
+            return Err(ProblemError {
+                field: "--target".into(),
+                message: "expected two finite numbers X,Y".into(),
+            });
+        }
+        let chain = config.chain().clone();
+        let theta0 = match &args.from {
+            Some(text) => list("--from", text)?,
+            None => config.home().to_vec(),
+        };
+        problem::check_pose(&chain, "--from", &theta0)?;
+        let strategy = problem::parse_strategy(&args.strategy)?;
+        let base_mode = problem::BaseMode::Fixed;
+        problem::check_combination(strategy, base_mode, args.propagation.is_some())?;
+        Ok(Problem {
+            chain,
+            theta0,
+            target: Vec2::new(target[0], target[1]),
+            strategy,
+            base_mode,
+            propagation: problem::parse_propagation(
+                args.propagation.as_deref().unwrap_or("tractrix"),
+            )?,
+            steps: problem::parse_steps(args.steps)?,
+        })
+    };
+    build().map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", path.display())))
+}
