@@ -66,6 +66,12 @@ pub struct OverallOptions {
     pub continuation_stages: usize,
     /// Cold solves: how many of the distinct optima found are mirrored and solved again.
     pub mirror_starts: usize,
+    /// Cold solves: seeded pseudo-random starts tried when the chain has limits (limits split
+    /// the feasible set into pieces the other starts may not reach), and once more when no
+    /// start so far has reached the target.
+    pub random_starts: usize,
+    /// Seed of those starts: the same seed gives the same answer.
+    pub seed: u64,
 }
 
 impl Default for OverallOptions {
@@ -77,6 +83,8 @@ impl Default for OverallOptions {
             mode: OverallMode::Local,
             continuation_stages: 4,
             mirror_starts: 2,
+            random_starts: 8,
+            seed: 0x0005_eed0_fa11,
         }
     }
 }
@@ -176,6 +184,21 @@ pub struct Overall {
     mu: [f64; 2],
     mu_joints: usize,
     bend_sign: f64,
+}
+
+/// splitmix64: a tiny deterministic generator for the seeded cold starts.
+struct SplitMix(u64);
+
+impl SplitMix {
+    /// Uniform in [0, 1).
+    fn unit(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
 }
 
 /// Half of metric 3.
@@ -297,6 +320,11 @@ impl Overall {
     ///    mirror image across the line from the base to the target (same tip; angles taken as
     ///    the representatives nearest `theta0`, clipped into the limits).
     ///
+    /// 6. when the chain has limits, [`OverallOptions::random_starts`] pseudo-random poses
+    ///    drawn uniformly inside the limits (an unlimited joint: `theta0` +- pi/2), from a
+    ///    splitmix64 generator seeded with [`OverallOptions::seed`] at every call; the same
+    ///    number again, limited or not, when no start so far has reached the target.
+    ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
     /// `iterations` in the outcome is the sum over all starts.
@@ -322,8 +350,22 @@ impl Overall {
         let mut second: Option<(f64, f64, bool, [f64; 2])> = None;
 
         let mut starts = 0usize;
-        let kinds = 4 + self.opts.mirror_starts;
-        while starts < kinds {
+        let fixed = 4 + self.opts.mirror_starts;
+        let mut kinds = fixed;
+        if chain.is_limited() {
+            kinds += self.opts.random_starts;
+        }
+        let mut second_round = false;
+        let mut rng = SplitMix(self.opts.seed);
+        loop {
+            if starts >= kinds {
+                let reached = best.is_some_and(|b| b.2);
+                if reached || second_round || self.opts.random_starts == 0 {
+                    break;
+                }
+                second_round = true;
+                kinds += self.opts.random_starts;
+            }
             let kind = starts;
             starts += 1;
             let mut mu = [0.0; 2];
@@ -365,6 +407,18 @@ impl Overall {
                         };
                         let l = self.local(&sub, &mut mu, sub.tol);
                         total += l.iterations;
+                    }
+                }
+                k if k >= fixed => {
+                    for a in 0..n {
+                        let u = rng.unit();
+                        let (lo, hi) = (self.w.lo[a], self.w.hi[a]);
+                        self.w.theta[a] = if lo.is_finite() && hi.is_finite() {
+                            lo + (hi - lo) * u
+                        } else {
+                            let half = std::f64::consts::FRAC_PI_2;
+                            (p.theta0[a] + half * (2.0 * u - 1.0)).clamp(lo, hi)
+                        };
                     }
                 }
                 _ => {
@@ -639,20 +693,29 @@ impl Overall {
                 continue;
             }
             if !exact_ok {
+                // Elastic form with an adaptive weight: the stiffest penalty whose dual settles
+                // (a very stiff one can leave semismooth Newton crawling over clipped joints).
                 elastic = true;
-                mu_q = [0.0; 2];
-                let w = &mut self.w;
-                let d = Dual {
-                    jx: &w.jx,
-                    jy: &w.jy,
-                    z: p.theta0,
-                    theta: &w.theta,
-                    lo: &w.lo,
-                    hi: &w.hi,
-                    c,
-                    rho_inv: 1e-10 * p.scale * p.scale,
-                };
-                if !d.solve(&mut mu_q, &mut w.qp_x, &mut w.state, qp_tol, f64::MAX) {
+                let mut solved = false;
+                for weight in [1e-10, 1e-6, 1e-3, 1.0] {
+                    mu_q = [0.0; 2];
+                    let w = &mut self.w;
+                    let d = Dual {
+                        jx: &w.jx,
+                        jy: &w.jy,
+                        z: p.theta0,
+                        theta: &w.theta,
+                        lo: &w.lo,
+                        hi: &w.hi,
+                        c,
+                        rho_inv: weight * p.scale * p.scale,
+                    };
+                    if d.solve(&mut mu_q, &mut w.qp_x, &mut w.state, qp_tol, f64::MAX) {
+                        solved = true;
+                        break;
+                    }
+                }
+                if !solved {
                     return Local {
                         converged: false,
                         tip_error: cn,
