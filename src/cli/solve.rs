@@ -123,6 +123,7 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
                 args.propagation.as_deref().unwrap_or("tractrix"),
             )?,
             steps: problem::parse_steps(args.steps)?,
+            objective: problem::parse_objective(None, None, strategy, base_mode)?,
         })
     };
     build().map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", path.display())))

@@ -1,7 +1,10 @@
 //! The JSON problem format of `snakectl solve`: parsing, validation and the answer.
 //!
 //! A problem is a chain (links, base pose, limits), a start pose, a tip target and how to
-//! resolve it. Parsing is strict: unknown keys, wrong lengths, non-finite numbers, magnitudes
+//! resolve it. A free base (a rope) is resolved by default by the overall optimization of
+//! [`crate::resolve::rope`] under an objective (`"m1"`..`"m5"`, default `"m2"`, the paper's);
+//! `"m3"` and `"m5"` need a `companion_weight` (the weight of M1 added to them), which the
+//! others refuse. Parsing is strict: unknown keys, wrong lengths, non-finite numbers, magnitudes
 //! above [`MAX_MAGNITUDE`] and inconsistent limits are refused with a [`ProblemError`] naming the
 //! field. Solving never fails: imperfect answers carry their flags and errors.
 
@@ -12,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use crate::chain::{Chain, ChainError, JointLimit, Vec2, MAX_MAGNITUDE};
 use crate::metrics::{self, Metrics};
 use crate::resolve::overall::{Overall, OverallMode, OverallOptions};
+use crate::resolve::rope::{Objective, RopeOptimizer, RopeReport};
 use crate::resolve::sequential::{pull_free, Sequential, SequentialOptions};
 use crate::resolve::tractrix::Propagation;
 use crate::resolve::{solve_steps, Resolver, Strategy};
@@ -62,6 +66,10 @@ struct RawProblem {
     propagation: Option<String>,
     #[serde(default)]
     steps: Option<u64>,
+    #[serde(default)]
+    objective: Option<String>,
+    #[serde(default)]
+    companion_weight: Option<f64>,
 }
 
 /// A validated problem, ready to solve.
@@ -81,6 +89,8 @@ pub struct Problem {
     pub propagation: Propagation,
     /// Number of equal straight sub-moves of the tip.
     pub steps: usize,
+    /// Objective of the overall strategy on a free base (ignored otherwise).
+    pub objective: Objective,
 }
 
 /// Checks one number: finite and within [`MAX_MAGNITUDE`].
@@ -164,18 +174,12 @@ pub fn parse_steps(steps: u64) -> Result<usize, ProblemError> {
         .ok_or_else(|| ProblemError::new("steps", format!("{steps} exceeds 1000000")))
 }
 
-/// Refuses combinations the strategies do not offer.
+/// Refuses combinations the strategies do not offer: a propagation with the overall strategy.
 pub fn check_combination(
     strategy: Strategy,
-    base_mode: BaseMode,
+    _base_mode: BaseMode,
     propagation_given: bool,
 ) -> Result<(), ProblemError> {
-    if strategy == Strategy::Overall && base_mode == BaseMode::Free {
-        return Err(ProblemError::new(
-            "strategy",
-            "\"overall\" needs base_mode \"fixed\"; a free base is resolved by \"sequential\"",
-        ));
-    }
     if strategy == Strategy::Overall && propagation_given {
         return Err(ProblemError::new(
             "propagation",
@@ -183,6 +187,46 @@ pub fn check_combination(
         ));
     }
     Ok(())
+}
+
+/// Parses the objective and its companion weight. Only the overall strategy on a free base
+/// takes them (the fixed-base overall strategy minimizes metric 3); the default is M2, the
+/// paper's. M3 and M5 require `companion_weight`; the others refuse it.
+pub fn parse_objective(
+    name: Option<&str>,
+    companion_weight: Option<f64>,
+    strategy: Strategy,
+    base_mode: BaseMode,
+) -> Result<Objective, ProblemError> {
+    let free_overall = strategy == Strategy::Overall && base_mode == BaseMode::Free;
+    if !free_overall {
+        if name.is_some() {
+            return Err(ProblemError::new(
+                "objective",
+                "applies to the overall strategy with base_mode \"free\" only (the fixed-base \
+                 overall strategy minimizes m3)",
+            ));
+        }
+        if companion_weight.is_some() {
+            return Err(ProblemError::new(
+                "companion_weight",
+                "applies to the objectives \"m3\" and \"m5\" of a free base only",
+            ));
+        }
+        return Ok(Objective::M2);
+    }
+    if let Some(w) = companion_weight {
+        number("companion_weight", w)?;
+    }
+    let name = name.unwrap_or("m2");
+    Objective::from_name(name, companion_weight).map_err(|e| {
+        use crate::resolve::rope::ObjectiveError as E;
+        let field = match e {
+            E::Unknown { .. } => "objective",
+            _ => "companion_weight",
+        };
+        ProblemError::new(field, e.to_string())
+    })
 }
 
 /// Maps a chain construction error onto the problem's field names.
@@ -270,14 +314,16 @@ impl Problem {
         let chain = Chain::new(raw.links, base, raw.base[2], limits).map_err(chain_error)?;
         check_pose(&chain, "theta0", &raw.theta0)?;
         let base_mode = parse_base_mode(raw.base_mode.as_deref().unwrap_or("fixed"))?;
-        let default_strategy = match base_mode {
-            BaseMode::Fixed => "overall",
-            BaseMode::Free => "sequential",
-        };
-        let strategy = parse_strategy(raw.strategy.as_deref().unwrap_or(default_strategy))?;
+        let strategy = parse_strategy(raw.strategy.as_deref().unwrap_or("overall"))?;
         let propagation = parse_propagation(raw.propagation.as_deref().unwrap_or("tractrix"))?;
         check_combination(strategy, base_mode, raw.propagation.is_some())?;
         let steps = parse_steps(raw.steps.unwrap_or(1))?;
+        let objective = parse_objective(
+            raw.objective.as_deref(),
+            raw.companion_weight,
+            strategy,
+            base_mode,
+        )?;
         Ok(Self {
             chain,
             theta0: raw.theta0,
@@ -286,6 +332,7 @@ impl Problem {
             base_mode,
             propagation,
             steps,
+            objective,
         })
     }
 
@@ -334,6 +381,9 @@ impl Problem {
             converged: outcome.converged,
             within_limits: chain.check_limits(&theta).is_ok(),
             iterations: outcome.iterations,
+            objective: None,
+            companion_weight: None,
+            optimizer: None,
             metrics: MetricsOut::from(metrics::arm(chain, &self.theta0, &theta)),
             solve_us,
             theta,
@@ -346,14 +396,32 @@ impl Problem {
         let mut points = old.clone();
         let mut scratch = Vec::with_capacity(points.len());
         let clock = Instant::now();
-        pull_free(
-            &mut points,
-            chain.links(),
-            self.target,
-            self.steps,
-            self.propagation,
-            &mut scratch,
-        );
+        let mut report = None;
+        let mut refused = false;
+        match self.strategy {
+            Strategy::Sequential => pull_free(
+                &mut points,
+                chain.links(),
+                self.target,
+                self.steps,
+                self.propagation,
+                &mut scratch,
+            ),
+            Strategy::Overall => {
+                // Bad input cannot reach here (the chain is validated); if the optimizer still
+                // refuses, the start is returned flagged as not converged.
+                match RopeOptimizer::default().pull(
+                    &mut points,
+                    chain.links(),
+                    self.target,
+                    self.steps,
+                    self.objective,
+                ) {
+                    Ok(r) => report = Some(r),
+                    Err(_) => refused = true,
+                }
+            }
+        }
         let solve_us = clock.elapsed().as_secs_f64() * 1e6;
         let mut theta = vec![0.0; chain.len()];
         Chain::angles_from_points(chain.heading(), &points, &self.theta0, &mut theta);
@@ -365,9 +433,12 @@ impl Problem {
             base_error: None,
             base_displacement: Some((points[0] - old[0]).norm()),
             reachable: true,
-            converged: true,
+            converged: !refused && report.is_none_or(|r| r.converged),
             within_limits: chain.check_limits(&theta).is_ok(),
-            iterations: 0,
+            iterations: report.map_or(0, |r| r.iterations),
+            objective: report.map(|_| self.objective.name()),
+            companion_weight: report.and_then(|_| self.objective.companion_weight()),
+            optimizer: report.map(OptimizerOut::from),
             metrics: MetricsOut::from(metrics::rope(&old, &points)),
             solve_us,
             points: points.iter().copied().map(xy).collect(),
@@ -407,6 +478,39 @@ impl From<Metrics> for MetricsOut {
     }
 }
 
+/// The free-rope optimizer's residuals as they appear in the answer (the last step's).
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct OptimizerOut {
+    /// The objective of the answer (exact, M2 unsmoothed).
+    pub objective_value: f64,
+    /// The objective of the sequential seed.
+    pub seed_value: f64,
+    /// Largest gradient component at the optimum.
+    pub gradient: f64,
+    /// Newton decrement at the optimum.
+    pub decrement: f64,
+    /// Last smoothing parameter of M2, m (0 otherwise).
+    pub smoothing_m: f64,
+    /// Bound on the M2 smoothing gap, m^2.
+    pub smoothing_gap: f64,
+    /// Largest link length error, m.
+    pub length_residual: f64,
+}
+
+impl From<RopeReport> for OptimizerOut {
+    fn from(r: RopeReport) -> Self {
+        Self {
+            objective_value: r.objective,
+            seed_value: r.seed_objective,
+            gradient: r.gradient,
+            decrement: r.decrement,
+            smoothing_m: r.smoothing,
+            smoothing_gap: r.smoothing_gap,
+            length_residual: r.length_residual,
+        }
+    }
+}
+
 /// The answer `snakectl solve` prints: one JSON object.
 #[derive(Debug, Clone, Serialize)]
 pub struct Answer {
@@ -434,6 +538,15 @@ pub struct Answer {
     pub within_limits: bool,
     /// Correction rounds (sequential) or solver iterations (overall), summed over the steps.
     pub iterations: usize,
+    /// Free base, overall strategy: the objective minimized (`m1`..`m5`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub objective: Option<&'static str>,
+    /// Free base, overall strategy with `m3`/`m5`: the weight of M1 added.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub companion_weight: Option<f64>,
+    /// Free base, overall strategy: the optimizer's residuals for the last step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub optimizer: Option<OptimizerOut>,
     /// The five metrics between the start and the answer.
     pub metrics: MetricsOut,
     /// The solver's own time, µs.
@@ -491,8 +604,31 @@ mod tests {
             (with(r#""propagation":"magic""#), "propagation"),
             (with(r#""steps":0"#), "steps"),
             (
-                with(r#""strategy":"overall","base_mode":"free""#),
-                "strategy",
+                with(r#""base_mode":"free","objective":"m7""#),
+                "objective",
+            ),
+            (with(r#""base_mode":"free","objective":"m3""#), "companion_weight"),
+            (
+                with(r#""base_mode":"free","objective":"m5","companion_weight":0"#),
+                "companion_weight",
+            ),
+            (
+                with(r#""base_mode":"free","objective":"m1","companion_weight":1"#),
+                "companion_weight",
+            ),
+            (
+                with(r#""base_mode":"free","companion_weight":1"#),
+                "companion_weight",
+            ),
+            (with(r#""objective":"m2""#), "objective"),
+            (
+                with(r#""base_mode":"free","strategy":"sequential","objective":"m1""#),
+                "objective",
+            ),
+            (with(r#""companion_weight":2"#), "companion_weight"),
+            (
+                with(r#""base_mode":"free","objective":"m3","companion_weight":1e7"#),
+                "companion_weight",
             ),
             (
                 with(r#""strategy":"overall","propagation":"distance""#),
@@ -511,11 +647,44 @@ mod tests {
 
     #[test]
     fn free_mode_moves_the_base_end_and_keeps_the_tip_exact() {
-        let p = Problem::from_json(&with(r#""base_mode":"free","steps":4"#)).unwrap();
+        for extra in [
+            r#""base_mode":"free","steps":4,"strategy":"sequential""#,
+            r#""base_mode":"free","steps":4"#,
+            r#""base_mode":"free","objective":"m5","companion_weight":0.5"#,
+        ] {
+            let p = Problem::from_json(&with(extra)).unwrap();
+            let a = p.solve();
+            assert!(a.base_error.is_none());
+            assert!(a.base_displacement.unwrap() > 0.0, "{extra}");
+            assert_eq!(a.tip, [1.5, 1.0]);
+            assert!(a.converged && a.reachable, "{extra}");
+        }
+    }
+
+    #[test]
+    fn free_base_defaults_to_overall_m2_and_beats_the_sequential_answer() {
+        let p = Problem::from_json(&with(r#""base_mode":"free""#)).unwrap();
+        assert_eq!(p.strategy, Strategy::Overall);
+        assert_eq!(p.objective, Objective::M2);
         let a = p.solve();
-        assert!(a.base_error.is_none());
-        assert!(a.base_displacement.unwrap() > 0.0);
-        assert_eq!(a.tip, [1.5, 1.0]);
-        assert!(a.converged && a.reachable);
+        assert_eq!(a.objective, Some("m2"));
+        let o = a.optimizer.unwrap();
+        assert!(o.length_residual <= 1e-12 && a.tip_error <= 1e-12);
+        assert!(o.objective_value <= o.seed_value);
+        assert!((a.metrics.m2 - o.objective_value).abs() < 1e-15);
+        let seq = Problem::from_json(&with(r#""base_mode":"free","strategy":"sequential""#))
+            .unwrap()
+            .solve();
+        assert!(a.metrics.m2 <= seq.metrics.m2);
+        let weighted =
+            Problem::from_json(&with(r#""base_mode":"free","objective":"m3","companion_weight":2"#))
+                .unwrap();
+        assert_eq!(
+            weighted.objective,
+            Objective::M3 {
+                companion_weight: 2.0
+            }
+        );
+        assert_eq!(weighted.solve().companion_weight, Some(2.0));
     }
 }
