@@ -1,3 +1,546 @@
-//! The servo layer: units and calibration now; the bus trait and the Dynamixel driver later.
+//! The servo layer: one blocking [`ServoBus`] trait for a chain of Dynamixel X-series servos,
+//! and what is built on it.
+//!
+//! - [`ServoBus`]: ping, scan, register read/write, sync read/write, reboot, each call with its
+//!   own timeout; provided on top: [`ServoBus::read_states`] (present position and, when asked,
+//!   velocity, current/load, voltage, temperature), [`ServoBus::write_goals`] (one Sync Write),
+//!   torque, Hardware Error Status.
+//! - [`dynamixel`]: the implementation over a serial port (`dynamixel2`; the only file that
+//!   imports it), real hardware or the simulator's pseudo-terminal alike.
+//! - [`limits`]: a wrapper implementing the same trait that clamps or refuses goals outside
+//!   the joint limits.
+//! - [`units`]: radians <-> ticks with per-joint offset and direction; raw units of velocity,
+//!   current, voltage.
+//! - [`arm`]: the configured joints on a bus: bring-up, pose read/write in radians, shut-down.
+//! - [`sysfs`]: the FTDI latency timer and the list of serial ports, read from sysfs.
+//! - [`error`]: the typed errors.
 
+pub mod arm;
+pub mod dynamixel;
+pub mod error;
+pub mod limits;
+pub mod sysfs;
 pub mod units;
+
+use std::time::Duration;
+
+pub use error::{status_meaning, HardwareErrors, ServoError};
+
+/// Broadcast id: every servo hears it.
+pub const BROADCAST_ID: u8 = 0xFE;
+/// Highest id a servo can have.
+pub const MAX_ID: u8 = 252;
+/// Baud rates an X-series servo can be set to, indexed by the Baud Rate register value.
+pub const BAUD_RATES: [u32; 8] = [
+    9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000,
+];
+
+/// The Baud Rate register value (0..=7) of a baud rate.
+pub fn baud_index(baud: u32) -> Option<u8> {
+    BAUD_RATES
+        .iter()
+        .position(|&b| b == baud)
+        .and_then(|i| u8::try_from(i).ok())
+}
+
+/// Control table items of the X series this program uses (address and size).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum Register {
+    /// Model Number (0, 2 bytes).
+    ModelNumber,
+    /// Firmware Version (6, 1).
+    FirmwareVersion,
+    /// ID (7, 1; EEPROM).
+    Id,
+    /// Baud Rate (8, 1; EEPROM): index into [`BAUD_RATES`].
+    BaudRate,
+    /// Return Delay Time (9, 1; EEPROM): units of 2 µs.
+    ReturnDelayTime,
+    /// Drive Mode (10, 1; EEPROM).
+    DriveMode,
+    /// Operating Mode (11, 1; EEPROM): 3 = position.
+    OperatingMode,
+    /// Homing Offset (20, 4; EEPROM).
+    HomingOffset,
+    /// Velocity Limit (44, 4; EEPROM).
+    VelocityLimit,
+    /// Max Position Limit (48, 4; EEPROM).
+    MaxPositionLimit,
+    /// Min Position Limit (52, 4; EEPROM).
+    MinPositionLimit,
+    /// Shutdown (63, 1; EEPROM): which hardware errors switch torque off.
+    Shutdown,
+    /// Torque Enable (64, 1).
+    TorqueEnable,
+    /// LED (65, 1).
+    Led,
+    /// Status Return Level (68, 1).
+    StatusReturnLevel,
+    /// Hardware Error Status (70, 1; read-only).
+    HardwareErrorStatus,
+    /// Bus Watchdog (98, 1, signed): units of 20 ms; -1 once it fired.
+    BusWatchdog,
+    /// Profile Acceleration (108, 4).
+    ProfileAcceleration,
+    /// Profile Velocity (112, 4).
+    ProfileVelocity,
+    /// Goal Position (116, 4, signed).
+    GoalPosition,
+    /// Moving (122, 1).
+    Moving,
+    /// Present Current (XM430, XL330) or Present Load (XL430) (126, 2, signed).
+    PresentCurrent,
+    /// Present Velocity (128, 4, signed).
+    PresentVelocity,
+    /// Present Position (132, 4, signed).
+    PresentPosition,
+    /// Present Input Voltage (144, 2): units of 0.1 V.
+    PresentInputVoltage,
+    /// Present Temperature (146, 1): °C.
+    PresentTemperature,
+}
+
+impl Register {
+    /// Address in the control table.
+    pub fn address(self) -> u16 {
+        match self {
+            Self::ModelNumber => 0,
+            Self::FirmwareVersion => 6,
+            Self::Id => 7,
+            Self::BaudRate => 8,
+            Self::ReturnDelayTime => 9,
+            Self::DriveMode => 10,
+            Self::OperatingMode => 11,
+            Self::HomingOffset => 20,
+            Self::VelocityLimit => 44,
+            Self::MaxPositionLimit => 48,
+            Self::MinPositionLimit => 52,
+            Self::Shutdown => 63,
+            Self::TorqueEnable => 64,
+            Self::Led => 65,
+            Self::StatusReturnLevel => 68,
+            Self::HardwareErrorStatus => 70,
+            Self::BusWatchdog => 98,
+            Self::ProfileAcceleration => 108,
+            Self::ProfileVelocity => 112,
+            Self::GoalPosition => 116,
+            Self::Moving => 122,
+            Self::PresentCurrent => 126,
+            Self::PresentVelocity => 128,
+            Self::PresentPosition => 132,
+            Self::PresentInputVoltage => 144,
+            Self::PresentTemperature => 146,
+        }
+    }
+
+    /// Size in bytes (1, 2 or 4).
+    pub fn size(self) -> u16 {
+        match self {
+            Self::ModelNumber | Self::PresentCurrent | Self::PresentInputVoltage => 2,
+            Self::HomingOffset
+            | Self::VelocityLimit
+            | Self::MaxPositionLimit
+            | Self::MinPositionLimit
+            | Self::ProfileAcceleration
+            | Self::ProfileVelocity
+            | Self::GoalPosition
+            | Self::PresentVelocity
+            | Self::PresentPosition => 4,
+            _ => 1,
+        }
+    }
+
+    /// Whether the value is signed (two's complement).
+    pub fn signed(self) -> bool {
+        matches!(
+            self,
+            Self::HomingOffset
+                | Self::BusWatchdog
+                | Self::GoalPosition
+                | Self::PresentCurrent
+                | Self::PresentVelocity
+                | Self::PresentPosition
+        )
+    }
+
+    /// Whether `value` fits the register's size and signedness.
+    pub fn fits(self, value: i64) -> bool {
+        let bits = u32::from(self.size()) * 8;
+        if self.signed() {
+            let half = 1i64 << (bits - 1);
+            (-half..half).contains(&value)
+        } else {
+            (0..(1i64 << bits)).contains(&value)
+        }
+    }
+
+    /// Little-endian bytes of `value` (which must fit).
+    pub fn encode(self, value: i64) -> Vec<u8> {
+        value.to_le_bytes()[..usize::from(self.size())].to_vec()
+    }
+
+    /// The value of little-endian `bytes` (the register's size), sign-extended when signed.
+    pub fn decode(self, bytes: &[u8]) -> Option<i64> {
+        let n = usize::from(self.size());
+        let b = bytes.get(..n)?;
+        let mut raw = [0u8; 8];
+        raw[..n].copy_from_slice(b);
+        let unsigned = i64::from_le_bytes(raw);
+        Some(if self.signed() {
+            let shift = 64 - 8 * n as u32;
+            (unsigned << shift) >> shift
+        } else {
+            unsigned
+        })
+    }
+}
+
+/// A servo's answer to a ping.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PingInfo {
+    /// Its id.
+    pub id: u8,
+    /// Model Number.
+    pub model: u16,
+    /// Firmware version.
+    pub firmware: u8,
+    /// The alert flag: a hardware error is latched.
+    pub alert: bool,
+}
+
+/// A successful reply without data (write, reboot).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Ack {
+    /// The servo.
+    pub id: u8,
+    /// The alert flag: a hardware error is latched (the instruction was carried out).
+    pub alert: bool,
+}
+
+/// A register's value as read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Value {
+    /// The value, sign-extended for signed registers.
+    pub value: i64,
+    /// The alert flag.
+    pub alert: bool,
+}
+
+/// The bytes one servo returned in a sync read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Block {
+    /// The servo.
+    pub id: u8,
+    /// The bytes read, starting at the requested address.
+    pub data: Vec<u8>,
+    /// The alert flag.
+    pub alert: bool,
+}
+
+/// One goal of a sync write: servo and position in ticks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Goal {
+    /// The servo.
+    pub id: u8,
+    /// Goal Position, ticks.
+    pub ticks: i32,
+}
+
+/// Which present values to read besides the position.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Fields {
+    /// Present Velocity.
+    pub velocity: bool,
+    /// Present Current (or Load, on an XL430).
+    pub current: bool,
+    /// Present Input Voltage.
+    pub voltage: bool,
+    /// Present Temperature.
+    pub temperature: bool,
+}
+
+impl Fields {
+    /// Position only.
+    pub const POSITION: Fields = Fields {
+        velocity: false,
+        current: false,
+        voltage: false,
+        temperature: false,
+    };
+    /// Everything.
+    pub const ALL: Fields = Fields {
+        velocity: true,
+        current: true,
+        voltage: true,
+        temperature: true,
+    };
+
+    fn registers(self) -> Vec<Register> {
+        let mut regs = vec![Register::PresentPosition];
+        for (on, r) in [
+            (self.velocity, Register::PresentVelocity),
+            (self.current, Register::PresentCurrent),
+            (self.voltage, Register::PresentInputVoltage),
+            (self.temperature, Register::PresentTemperature),
+        ] {
+            if on {
+                regs.push(r);
+            }
+        }
+        regs
+    }
+
+    /// The contiguous block (address, length) a sync read of these fields covers.
+    pub fn span(self) -> (u16, u16) {
+        let regs = self.registers();
+        let start = regs.iter().map(|r| r.address()).min().unwrap_or(132);
+        let end = regs
+            .iter()
+            .map(|r| r.address() + r.size())
+            .max()
+            .unwrap_or(136);
+        (start, end - start)
+    }
+}
+
+/// Present values of one servo, in the servo's raw units (see [`units`] for conversions).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ServoState {
+    /// The servo.
+    pub id: u8,
+    /// Present Position, ticks.
+    pub position_ticks: i32,
+    /// Present Velocity, units of 0.229 rev/min.
+    pub velocity: Option<i32>,
+    /// Present Current (XM430 2.69 mA, XL330 1 mA units) or Load (XL430, 0.1 %).
+    pub current: Option<i16>,
+    /// Present Input Voltage, units of 0.1 V.
+    pub voltage_dv: Option<u16>,
+    /// Present Temperature, °C.
+    pub temperature_c: Option<u8>,
+    /// The alert flag: a hardware error is latched.
+    pub alert: bool,
+}
+
+impl ServoState {
+    /// Decode a sync-read block of `fields` (as laid out by [`Fields::span`]).
+    pub fn from_block(block: &Block, fields: Fields) -> Result<Self, ServoError> {
+        let (start, len) = fields.span();
+        if block.data.len() != usize::from(len) {
+            return Err(ServoError::Malformed {
+                id: block.id,
+                what: format!("{} data bytes, expected {len}", block.data.len()),
+            });
+        }
+        let get = |r: Register| -> Option<i64> {
+            let off = usize::from(r.address().checked_sub(start)?);
+            r.decode(block.data.get(off..)?)
+        };
+        let want = |on: bool, r: Register| if on { get(r) } else { None };
+        Ok(Self {
+            id: block.id,
+            position_ticks: get(Register::PresentPosition)
+                .and_then(|v| i32::try_from(v).ok())
+                .unwrap_or_default(),
+            velocity: want(fields.velocity, Register::PresentVelocity)
+                .and_then(|v| i32::try_from(v).ok()),
+            current: want(fields.current, Register::PresentCurrent)
+                .and_then(|v| i16::try_from(v).ok()),
+            voltage_dv: want(fields.voltage, Register::PresentInputVoltage)
+                .and_then(|v| u16::try_from(v).ok()),
+            temperature_c: want(fields.temperature, Register::PresentTemperature)
+                .and_then(|v| u8::try_from(v).ok()),
+            alert: block.alert,
+        })
+    }
+}
+
+/// The result of reading one servo in a sync read: its values, or what went wrong with it.
+pub type Reading = Result<ServoState, ServoError>;
+
+/// A blocking bus of Dynamixel Protocol 2.0 servos.
+///
+/// Every call that waits for a reply takes a `timeout`: how long to wait for each reply beyond
+/// its wire time (a servo that stays silent costs exactly that). Errors name the servo.
+/// Implementations: [`dynamixel::DynamixelBus`] (a serial port: hardware or the simulator),
+/// [`limits::Limited`] (a safety wrapper around another bus).
+pub trait ServoBus {
+    /// The bus baud rate.
+    fn baud(&self) -> u32;
+
+    /// Change the port's baud rate (after the servos were told to change theirs, or to scan).
+    fn set_baud(&mut self, baud: u32) -> Result<(), ServoError>;
+
+    /// Ping one servo: model number and firmware.
+    fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError>;
+
+    /// Broadcast ping: every servo that answers, in id order. Waits for the wire time of every
+    /// possible reply plus `timeout`.
+    fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError>;
+
+    /// Read one register.
+    fn read(&mut self, id: u8, register: Register, timeout: Duration) -> Result<Value, ServoError>;
+
+    /// Write one register and wait for the servo's acknowledgement.
+    fn write(
+        &mut self,
+        id: u8,
+        register: Register,
+        value: i64,
+        timeout: Duration,
+    ) -> Result<Ack, ServoError>;
+
+    /// One Sync Read of `len` bytes at `address` from every servo in `ids` (no repeats). The
+    /// outer error is the bus's (the instruction could not be sent); the inner ones are each
+    /// servo's, in the order of `ids`: a silent servo costs its `timeout`, the others' data
+    /// still arrive.
+    fn sync_read(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+    ) -> Result<Vec<Result<Block, ServoError>>, ServoError>;
+
+    /// One Sync Write of `register` to every servo in `values` (id, value); servos do not reply.
+    fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError>;
+
+    /// Reboot one servo (clears a latched hardware error; torque comes back off).
+    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError>;
+
+    /// Present position (and the asked `fields`) of every servo in `ids`, in one Sync Read.
+    fn read_states(
+        &mut self,
+        ids: &[u8],
+        fields: Fields,
+        timeout: Duration,
+    ) -> Result<Vec<Reading>, ServoError> {
+        let (address, len) = fields.span();
+        let blocks = self.sync_read(ids, address, len, timeout)?;
+        Ok(blocks
+            .into_iter()
+            .map(|b| b.and_then(|b| ServoState::from_block(&b, fields)))
+            .collect())
+    }
+
+    /// Goal positions for every servo in `goals`, in one Sync Write.
+    fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError> {
+        let values: Vec<(u8, i64)> = goals.iter().map(|g| (g.id, i64::from(g.ticks))).collect();
+        self.sync_write(Register::GoalPosition, &values)
+    }
+
+    /// Torque on or off for one servo.
+    fn set_torque(&mut self, id: u8, on: bool, timeout: Duration) -> Result<Ack, ServoError> {
+        self.write(id, Register::TorqueEnable, i64::from(on), timeout)
+    }
+
+    /// Hardware Error Status of one servo.
+    fn hardware_errors(&mut self, id: u8, timeout: Duration) -> Result<HardwareErrors, ServoError> {
+        let v = self.read(id, Register::HardwareErrorStatus, timeout)?;
+        Ok(HardwareErrors(u8::try_from(v.value).unwrap_or(u8::MAX)))
+    }
+}
+
+impl<B: ServoBus + ?Sized> ServoBus for &mut B {
+    fn baud(&self) -> u32 {
+        (**self).baud()
+    }
+    fn set_baud(&mut self, baud: u32) -> Result<(), ServoError> {
+        (**self).set_baud(baud)
+    }
+    fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError> {
+        (**self).ping(id, timeout)
+    }
+    fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
+        (**self).scan(timeout)
+    }
+    fn read(&mut self, id: u8, register: Register, timeout: Duration) -> Result<Value, ServoError> {
+        (**self).read(id, register, timeout)
+    }
+    fn write(
+        &mut self,
+        id: u8,
+        register: Register,
+        value: i64,
+        timeout: Duration,
+    ) -> Result<Ack, ServoError> {
+        (**self).write(id, register, value, timeout)
+    }
+    fn sync_read(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+    ) -> Result<Vec<Result<Block, ServoError>>, ServoError> {
+        (**self).sync_read(ids, address, len, timeout)
+    }
+    fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
+        (**self).sync_write(register, values)
+    }
+    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
+        (**self).reboot(id, timeout)
+    }
+}
+
+/// The name of an X-series model number, if known.
+pub fn model_name(model: u16) -> Option<&'static str> {
+    Some(match model {
+        1000 => "XH430-W210",
+        1010 => "XH430-W350",
+        1020 => "XM430-W350",
+        1030 => "XM430-W210",
+        1060 => "XL430-W250",
+        1070 => "XC430-W150",
+        1080 => "XC430-W240",
+        1090 => "2XL430-W250",
+        1120 => "XM540-W270",
+        1130 => "XM540-W150",
+        1190 => "XL330-M077",
+        1200 => "XL330-M288",
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn registers_encode_decode_and_fit() {
+        assert_eq!(
+            Register::GoalPosition.decode(&(-5i32).to_le_bytes()),
+            Some(-5)
+        );
+        assert_eq!(Register::BusWatchdog.decode(&[0xFF]), Some(-1));
+        assert_eq!(Register::ModelNumber.decode(&[0x24, 0x04]), Some(1060));
+        assert_eq!(
+            Register::GoalPosition.encode(-2),
+            vec![0xFE, 0xFF, 0xFF, 0xFF]
+        );
+        assert!(Register::ReturnDelayTime.fits(254) && !Register::ReturnDelayTime.fits(256));
+        assert!(Register::BusWatchdog.fits(-1) && !Register::BusWatchdog.fits(128));
+        assert!(!Register::TorqueEnable.fits(-1));
+    }
+
+    #[test]
+    fn field_spans_are_contiguous() {
+        assert_eq!(Fields::POSITION.span(), (132, 4));
+        let with_velocity = Fields {
+            velocity: true,
+            ..Fields::POSITION
+        };
+        assert_eq!(with_velocity.span(), (128, 8));
+        assert_eq!(Fields::ALL.span(), (126, 21));
+        let block = Block {
+            id: 3,
+            data: (0..21).collect(),
+            alert: true,
+        };
+        let s = ServoState::from_block(&block, Fields::ALL).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(s.position_ticks, i32::from_le_bytes([6, 7, 8, 9]));
+        assert_eq!(s.temperature_c, Some(20));
+        assert!(s.alert);
+    }
+}

@@ -3,6 +3,10 @@
 //! An X-series servo counts 4096 ticks per turn, 2048 at its mechanical centre. A joint's zero
 //! sits `offset_ticks` from that centre (a software zero, calibrated per joint), and `reverse`
 //! flips the direction: `ticks = 2048 + offset_ticks + sign * theta * 4096 / (2 pi)`.
+//!
+//! Also the servo's raw units of velocity, profile acceleration, current/load and voltage. A
+//! goal that is not a finite number has no tick value ([`Calibration::goal_ticks`]): it is
+//! never written.
 
 use std::f64::consts::TAU;
 
@@ -10,6 +14,67 @@ use std::f64::consts::TAU;
 pub const TICKS_PER_TURN: f64 = 4096.0;
 /// Ticks at the mechanical centre.
 pub const CENTRE_TICKS: i32 = 2048;
+
+/// Present/Profile Velocity unit: 0.229 rev/min, in rad/s.
+pub const VELOCITY_UNIT_RAD_S: f64 = 0.229 * TAU / 60.0;
+/// Profile Acceleration unit: 214.577 rev/min², in rad/s².
+pub const ACCELERATION_UNIT_RAD_S2: f64 = 214.577 * TAU / 3600.0;
+/// Largest Profile Velocity / Profile Acceleration value the X series accepts.
+pub const PROFILE_MAX: i64 = 32_767;
+
+/// A velocity in raw units (Present Velocity) as rad/s.
+pub fn velocity_rad_s(raw: i32) -> f64 {
+    f64::from(raw) * VELOCITY_UNIT_RAD_S
+}
+
+/// Profile Velocity register value for `rad_s` (0 = no profile; a positive speed is at least
+/// 1 unit; capped at [`PROFILE_MAX`]).
+pub fn profile_velocity(rad_s: f64) -> i64 {
+    profile_units(rad_s / VELOCITY_UNIT_RAD_S)
+}
+
+/// Profile Acceleration register value for `rad_s2` (same rules as [`profile_velocity`]).
+pub fn profile_acceleration(rad_s2: f64) -> i64 {
+    profile_units(rad_s2 / ACCELERATION_UNIT_RAD_S2)
+}
+
+fn profile_units(units: f64) -> i64 {
+    if units.is_finite() && units > 0.0 {
+        (units.round() as i64).clamp(1, PROFILE_MAX)
+    } else {
+        0
+    }
+}
+
+/// Return Delay Time register value (2 µs units) for `us` microseconds (rounded down, at most
+/// 254).
+pub fn return_delay(us: u32) -> i64 {
+    i64::from((us / 2).min(254))
+}
+
+/// What one unit of Present Current / Present Load means, per model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CurrentUnit {
+    /// Present Load in 0.1 % of the maximum torque (XL430).
+    LoadPermille,
+    /// Present Current in this many milliamperes a unit.
+    MilliAmps(f64),
+}
+
+/// The current/load unit of a model number, if known.
+pub fn current_unit(model: u16) -> Option<CurrentUnit> {
+    match model {
+        1060 | 1090 => Some(CurrentUnit::LoadPermille),
+        1000 | 1010 | 1020 | 1030 | 1120 | 1130 => Some(CurrentUnit::MilliAmps(2.69)),
+        1190 | 1200 => Some(CurrentUnit::MilliAmps(1.0)),
+        _ => None,
+    }
+}
+
+/// Present Input Voltage (0.1 V units) in volts.
+pub fn volts(raw_dv: u16) -> f64 {
+    f64::from(raw_dv) / 10.0
+}
 
 /// Per-joint calibration: software zero and direction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -37,6 +102,13 @@ impl Calibration {
     /// Joint angle for a position in ticks.
     pub fn radians(self, ticks: f64) -> f64 {
         (ticks - f64::from(CENTRE_TICKS + self.offset_ticks)) * self.sign() * TAU / TICKS_PER_TURN
+    }
+
+    /// The Goal Position for a joint angle, rounded to the nearest tick; `None` for an angle
+    /// that is not finite or beyond the register's range.
+    pub fn goal_ticks(self, theta_rad: f64) -> Option<i32> {
+        let t = self.ticks(theta_rad).round();
+        (t.is_finite() && t >= f64::from(i32::MIN) && t <= f64::from(i32::MAX)).then_some(t as i32)
     }
 
     /// The tick interval `[min, max]` covering the joint interval `[lo, hi]` (rounded inward,
@@ -75,5 +147,39 @@ mod tests {
         assert!(rev.ticks(0.5) < rev.ticks(0.0));
         let (lo, hi) = rev.tick_range(-1.0, 1.0);
         assert!(lo <= hi && rev.radians(lo) <= 1.0 && rev.radians(hi) >= -1.0);
+    }
+
+    #[test]
+    fn goals_are_finite_ticks_or_nothing() {
+        let cal = Calibration {
+            offset_ticks: 12,
+            reverse: false,
+        };
+        assert_eq!(cal.goal_ticks(0.0), Some(2060));
+        assert_eq!(cal.goal_ticks(-std::f64::consts::FRAC_PI_2), Some(1036));
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e12] {
+            assert_eq!(cal.goal_ticks(bad), None, "{bad}");
+        }
+        for raw in [-2000, -1, 0, 1, 2047] {
+            let theta = cal.radians(f64::from(raw) + 2060.0);
+            assert_eq!(cal.goal_ticks(theta), Some(raw + 2060));
+        }
+    }
+
+    #[test]
+    fn raw_units() {
+        assert!((velocity_rad_s(100) - 100.0 * 0.229 * TAU / 60.0).abs() < 1e-12);
+        assert_eq!(profile_velocity(0.0), 0);
+        assert_eq!(profile_velocity(f64::NAN), 0);
+        assert_eq!(profile_velocity(1e-6), 1);
+        assert_eq!(
+            profile_velocity(3.0),
+            (3.0 / VELOCITY_UNIT_RAD_S).round() as i64
+        );
+        assert_eq!(profile_acceleration(1e9), PROFILE_MAX);
+        assert_eq!(return_delay(500), 250);
+        assert_eq!(return_delay(3), 1);
+        assert_eq!(current_unit(1200), Some(CurrentUnit::MilliAmps(1.0)));
+        assert_eq!(volts(111), 11.1);
     }
 }

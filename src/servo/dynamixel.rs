@@ -1,0 +1,435 @@
+//! [`ServoBus`] over a serial port with `dynamixel2` 0.9.1 (the only module that imports it).
+//!
+//! Works the same on a U2D2 and on the simulator's pseudo-terminal. Around the crate's known
+//! pitfalls: no `bulk_read` (it corrupts packets for more than one servo); sync reads are sent
+//! with `write_instruction` and each reply is read with its own deadline and matched by packet
+//! id, so a silent servo costs its timeout and the others' data still arrive (the crate's
+//! `sync_read_*` hide a missing servo or mislabel the replies after it); the buffers hold a
+//! packet for 64 servos (the default 128 bytes cap a sync write at 22); every reply is waited
+//! for with the caller's timeout, never the crate's flat 34 ms; the alert bit is a flag
+//! reported beside the data, not an error.
+//!
+//! A status packet with an error code, or a damaged one, does not reveal its id through the
+//! crate: in a sync read it is attributed to the first servo not yet heard from, which is
+//! exact unless an earlier servo is silent.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use dynamixel2::instructions::instruction_id as ins;
+use dynamixel2::{Bus, InvalidMessage, ReadError, StatusPacket, WriteError};
+
+use super::sysfs::{Latency, Sysfs};
+use super::{
+    baud_index, Ack, Block, PingInfo, Register, ServoBus, ServoError, Value, BROADCAST_ID, MAX_ID,
+};
+
+/// Servos one instruction may address: the buffers are sized for this many.
+pub const MAX_SERVOS: usize = 64;
+/// Read buffer: 64 full-state replies (11 + 21 bytes, stuffed) or a whole scan, with room.
+const READ_BUFFER: usize = 4096;
+/// Write buffer: a sync write of 4 bytes to 64 servos is 334 bytes before stuffing.
+const WRITE_BUFFER: usize = 1024;
+/// Bytes of a status packet without parameters: header 4, id, length 2, instruction, error,
+/// CRC 2.
+const STATUS_OVERHEAD: usize = 11;
+/// Bytes of an instruction packet without parameters: header 4, id, length 2, instruction,
+/// CRC 2.
+const INSTRUCTION_OVERHEAD: usize = 10;
+
+/// A Dynamixel Protocol 2.0 bus on a serial port.
+#[derive(Debug)]
+pub struct DynamixelBus {
+    bus: Bus<Vec<u8>, Vec<u8>>,
+    port: PathBuf,
+    latency: Latency,
+}
+
+/// Time `bytes` take on the wire at `baud` (10 bits a byte).
+pub fn wire_time(bytes: usize, baud: u32) -> Duration {
+    let bits = bytes as u64 * 10;
+    Duration::from_nanos(bits.saturating_mul(1_000_000_000) / u64::from(baud.max(1)))
+}
+
+fn write_error(e: WriteError) -> ServoError {
+    match e {
+        WriteError::BufferTooSmall(b) => ServoError::BufferTooSmall {
+            needed: b.required_size,
+            have: b.total_size,
+        },
+        WriteError::DiscardBuffer(e) | WriteError::Write(e) => ServoError::Io(e),
+    }
+}
+
+/// The error a failed read means for servo `id`, waited for `waited`.
+fn read_error(id: u8, waited: Duration, e: ReadError) -> ServoError {
+    match e {
+        ReadError::Io(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+            ServoError::Timeout { id, waited }
+        }
+        ReadError::Io(e) => ServoError::Io(e),
+        ReadError::BufferFull(b) => ServoError::BufferTooSmall {
+            needed: b.required_size,
+            have: b.total_size,
+        },
+        ReadError::MotorError(m) => ServoError::Status {
+            id,
+            code: m.error_number(),
+            alert: m.alert(),
+        },
+        ReadError::InvalidMessage(InvalidMessage::InvalidChecksum(c)) => ServoError::Checksum {
+            id,
+            received: c.message,
+            computed: c.computed,
+        },
+        ReadError::InvalidMessage(m) => ServoError::Malformed {
+            id,
+            what: format!("{m:?}"),
+        },
+    }
+}
+
+fn check_id(id: u8) -> Result<(), ServoError> {
+    if id > MAX_ID {
+        return Err(ServoError::BadId {
+            id,
+            what: "ids run from 0 to 252",
+        });
+    }
+    Ok(())
+}
+
+fn expect_params(p: &StatusPacket<'_>, id: u8, n: usize) -> Result<(), ServoError> {
+    if p.packet_id() != id {
+        return Err(ServoError::Malformed {
+            id,
+            what: format!("reply from servo {}", p.packet_id()),
+        });
+    }
+    if p.parameters().len() != n {
+        return Err(ServoError::Malformed {
+            id,
+            what: format!("{} data bytes, expected {n}", p.parameters().len()),
+        });
+    }
+    Ok(())
+}
+
+impl DynamixelBus {
+    /// Open `port` at `baud` (one of [`super::BAUD_RATES`]; other rates are refused because no
+    /// servo could answer). On an FTDI `ttyUSB` port, the latency timer is set to 1 ms when
+    /// writable; otherwise a warning gives the command that does it.
+    pub fn open(port: impl AsRef<Path>, baud: u32) -> Result<Self, ServoError> {
+        Self::open_with_sysfs(port, baud, &Sysfs::system())
+    }
+
+    /// [`DynamixelBus::open`] with the latency timer looked up in `sysfs`.
+    pub fn open_with_sysfs(
+        port: impl AsRef<Path>,
+        baud: u32,
+        sysfs: &Sysfs,
+    ) -> Result<Self, ServoError> {
+        let port = port.as_ref().to_path_buf();
+        if baud_index(baud).is_none() {
+            return Err(ServoError::Baud(baud));
+        }
+        let bus = Bus::open_with_buffers(&port, baud, vec![0; READ_BUFFER], vec![0; WRITE_BUFFER])
+            .map_err(|source| ServoError::Open {
+                port: port.clone(),
+                source,
+            })?;
+        let latency = sysfs.ensure_low_latency(&port);
+        match &latency {
+            Latency::Lowered { from_ms } => {
+                tracing::info!(port = %port.display(), from_ms, "FTDI latency timer set to 1 ms")
+            }
+            Latency::TooHigh { ms, command, error } => tracing::warn!(
+                port = %port.display(),
+                "FTDI latency timer is {ms} ms and could not be set ({error}): every reply \
+                 may wait {ms} ms in the adapter; run: {command}"
+            ),
+            Latency::Unreadable { path, error } => {
+                tracing::warn!(path = %path.display(), %error, "cannot read the latency timer")
+            }
+            Latency::NotApplicable | Latency::Low => {}
+        }
+        Ok(Self { bus, port, latency })
+    }
+
+    /// What was found (and done) about the port's FTDI latency timer when it was opened.
+    pub fn latency(&self) -> &Latency {
+        &self.latency
+    }
+
+    /// The serial port's path.
+    pub fn port(&self) -> &Path {
+        &self.port
+    }
+
+    /// How long to wait for a reply of `params` parameters: its wire time plus `timeout`.
+    fn reply_wait(&self, params: usize, timeout: Duration) -> Duration {
+        wire_time(STATUS_OVERHEAD + params, self.bus.baud_rate()) + timeout
+    }
+
+    /// Send one instruction to `id` and wait for its reply (of `params` parameters) with the
+    /// caller's timeout. The instruction's own wire time is added to the wait.
+    fn exchange(
+        &mut self,
+        id: u8,
+        instruction: u8,
+        params: &[u8],
+        reply_params: usize,
+        timeout: Duration,
+    ) -> Result<StatusPacket<'_>, ServoError> {
+        check_id(id)?;
+        self.bus
+            .write_instruction(id, instruction, params.len(), |buf| {
+                buf.copy_from_slice(params)
+            })
+            .map_err(write_error)?;
+        let waited = wire_time(INSTRUCTION_OVERHEAD + params.len(), self.bus.baud_rate())
+            + self.reply_wait(reply_params, timeout);
+        let p = self
+            .bus
+            .read_status_response_deadline(Instant::now() + waited)
+            .map_err(|e| read_error(id, waited, e))?;
+        expect_params(&p, id, reply_params)?;
+        Ok(p)
+    }
+}
+
+impl ServoBus for DynamixelBus {
+    fn baud(&self) -> u32 {
+        self.bus.baud_rate()
+    }
+
+    fn set_baud(&mut self, baud: u32) -> Result<(), ServoError> {
+        if baud_index(baud).is_none() {
+            return Err(ServoError::Baud(baud));
+        }
+        self.bus.set_baud_rate(baud)?;
+        Ok(())
+    }
+
+    fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError> {
+        let p = self.exchange(id, ins::PING, &[], 3, timeout)?;
+        let d = p.parameters();
+        Ok(PingInfo {
+            id,
+            model: u16::from_le_bytes([d[0], d[1]]),
+            firmware: d[2],
+            alert: p.alert(),
+        })
+    }
+
+    fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
+        self.bus
+            .write_instruction(BROADCAST_ID, ins::PING, 0, |_| {})
+            .map_err(write_error)?;
+        let baud = self.bus.baud_rate();
+        // Every id may answer, one after the other.
+        let window = wire_time(INSTRUCTION_OVERHEAD, baud)
+            + wire_time((STATUS_OVERHEAD + 3) * (usize::from(MAX_ID) + 1), baud)
+            + timeout;
+        let deadline = Instant::now() + window;
+        let mut found: Vec<PingInfo> = Vec::new();
+        loop {
+            match self.bus.read_status_response_deadline(deadline) {
+                Ok(p) => {
+                    let d = p.parameters();
+                    if d.len() == 3 && !found.iter().any(|f| f.id == p.packet_id()) {
+                        found.push(PingInfo {
+                            id: p.packet_id(),
+                            model: u16::from_le_bytes([d[0], d[1]]),
+                            firmware: d[2],
+                            alert: p.alert(),
+                        });
+                    }
+                }
+                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
+                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
+                // A damaged or refused reply: that servo is not listed; keep listening.
+                Err(e) => tracing::debug!(error = ?e, "scan: unusable reply"),
+            }
+        }
+        found.sort_by_key(|f| f.id);
+        Ok(found)
+    }
+
+    fn read(&mut self, id: u8, register: Register, timeout: Duration) -> Result<Value, ServoError> {
+        let size = register.size();
+        let mut params = register.address().to_le_bytes().to_vec();
+        params.extend_from_slice(&size.to_le_bytes());
+        let p = self.exchange(id, ins::READ, &params, usize::from(size), timeout)?;
+        let value = register
+            .decode(p.parameters())
+            .ok_or_else(|| ServoError::Malformed {
+                id,
+                what: "short data".into(),
+            })?;
+        Ok(Value {
+            value,
+            alert: p.alert(),
+        })
+    }
+
+    fn write(
+        &mut self,
+        id: u8,
+        register: Register,
+        value: i64,
+        timeout: Duration,
+    ) -> Result<Ack, ServoError> {
+        if !register.fits(value) {
+            return Err(ServoError::ValueRange {
+                id,
+                register,
+                value,
+            });
+        }
+        let mut params = register.address().to_le_bytes().to_vec();
+        params.extend_from_slice(&register.encode(value));
+        let p = self.exchange(id, ins::WRITE, &params, 0, timeout)?;
+        Ok(Ack {
+            id,
+            alert: p.alert(),
+        })
+    }
+
+    fn sync_read(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+    ) -> Result<Vec<Result<Block, ServoError>>, ServoError> {
+        if ids.is_empty() {
+            return Ok(Vec::new());
+        }
+        for (i, &id) in ids.iter().enumerate() {
+            check_id(id)?;
+            if ids[..i].contains(&id) {
+                return Err(ServoError::BadId {
+                    id,
+                    what: "listed twice in one sync read",
+                });
+            }
+        }
+        let n = ids.len();
+        self.bus
+            .write_instruction(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
+                buf[..2].copy_from_slice(&address.to_le_bytes());
+                buf[2..4].copy_from_slice(&len.to_le_bytes());
+                buf[4..].copy_from_slice(ids);
+            })
+            .map_err(write_error)?;
+        let data_len = usize::from(len);
+        let per_reply = self.reply_wait(data_len, timeout);
+        let mut out: Vec<Option<Result<Block, ServoError>>> = (0..n).map(|_| None).collect();
+        // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
+        let mut next = 0;
+        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.bus.baud_rate()) + per_reply;
+        // Bounds the loop if stray packets keep arriving.
+        let mut budget = 2 * n + 8;
+        while next < n && budget > 0 {
+            budget -= 1;
+            let deadline = Instant::now() + wait;
+            match self.bus.read_status_response_deadline(deadline) {
+                Ok(p) => {
+                    let id = p.packet_id();
+                    let Some(k) = ids[next..].iter().position(|&x| x == id) else {
+                        tracing::debug!(id, "sync read: reply from a servo not expected now");
+                        continue;
+                    };
+                    for (slot, &missing) in out[next..next + k].iter_mut().zip(&ids[next..]) {
+                        *slot = Some(Err(ServoError::Timeout {
+                            id: missing,
+                            waited: wait,
+                        }));
+                    }
+                    let result = if p.parameters().len() == data_len {
+                        Ok(Block {
+                            id,
+                            data: p.parameters().to_vec(),
+                            alert: p.alert(),
+                        })
+                    } else {
+                        Err(ServoError::Malformed {
+                            id,
+                            what: format!(
+                                "{} data bytes, expected {data_len}",
+                                p.parameters().len()
+                            ),
+                        })
+                    };
+                    out[next + k] = Some(result);
+                    next += k + 1;
+                }
+                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
+                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
+                Err(e) => {
+                    out[next] = Some(Err(read_error(ids[next], wait, e)));
+                    next += 1;
+                }
+            }
+            wait = per_reply;
+        }
+        Ok(out
+            .into_iter()
+            .zip(ids)
+            .map(|(r, &id)| {
+                r.unwrap_or(Err(ServoError::Timeout {
+                    id,
+                    waited: per_reply,
+                }))
+            })
+            .collect())
+    }
+
+    fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
+        if values.is_empty() {
+            return Ok(());
+        }
+        if values.len() > MAX_SERVOS {
+            return Err(ServoError::BufferTooSmall {
+                needed: values.len(),
+                have: MAX_SERVOS,
+            });
+        }
+        let size = usize::from(register.size());
+        let mut params = Vec::with_capacity(4 + values.len() * (1 + size));
+        params.extend_from_slice(&register.address().to_le_bytes());
+        params.extend_from_slice(&register.size().to_le_bytes());
+        for (i, &(id, value)) in values.iter().enumerate() {
+            check_id(id)?;
+            if values[..i].iter().any(|&(other, _)| other == id) {
+                return Err(ServoError::BadId {
+                    id,
+                    what: "listed twice in one sync write",
+                });
+            }
+            if !register.fits(value) {
+                return Err(ServoError::ValueRange {
+                    id,
+                    register,
+                    value,
+                });
+            }
+            params.push(id);
+            params.extend_from_slice(&register.encode(value));
+        }
+        self.bus
+            .write_instruction(BROADCAST_ID, ins::SYNC_WRITE, params.len(), |buf| {
+                buf.copy_from_slice(&params)
+            })
+            .map_err(write_error)
+    }
+
+    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
+        let p = self.exchange(id, ins::REBOOT, &[], 0, timeout)?;
+        Ok(Ack {
+            id,
+            alert: p.alert(),
+        })
+    }
+}
