@@ -9,9 +9,10 @@
 //! 3. Status Return Level 2 (every instruction acknowledged); then, only where they differ,
 //!    Operating Mode 3 (position), Return Delay Time and Min/Max Position Limit from the config
 //!    (EEPROM: torque off first if it was on); Profile Velocity and Acceleration;
-//! 4. Goal Position = present position;
-//! 5. clear the Bus Watchdog (0: a watchdog that fired refuses goals until then) and arm it;
-//! 6. torque on.
+//! 4. clear the Bus Watchdog (0: a watchdog that fired refuses goals until then);
+//! 5. Goal Position = present position;
+//! 6. arm the Bus Watchdog (`[bus] watchdog_ms`);
+//! 7. torque on.
 //!
 //! Shut-down ([`Arm::shut_down`]) follows `[bus] on_exit`: torque off (default; one Sync Write
 //! reaches every servo at once, then each is checked) or hold (torque stays on at the last
@@ -352,14 +353,17 @@ impl Arm {
             self.prepare(bus, j)
                 .map_err(step("writing the servo settings"))?;
         }
+        // A watchdog that fired refuses Goal Position writes until 0 is written to it.
+        for j in &self.joints {
+            bus.write(j.id, Register::BusWatchdog, 0, t)
+                .map_err(step("clearing the bus watchdog"))?;
+        }
         for (j, &ticks) in self.joints.iter().zip(&present) {
             bus.write(j.id, Register::GoalPosition, i64::from(ticks), t)
                 .map_err(step("holding the present pose"))?;
         }
         let watchdog = i64::from(self.settings.watchdog_ms / 20).min(127);
         for j in &self.joints {
-            bus.write(j.id, Register::BusWatchdog, 0, t)
-                .map_err(step("clearing the bus watchdog"))?;
             if watchdog > 0 {
                 bus.write(j.id, Register::BusWatchdog, watchdog, t)
                     .map_err(step("arming the bus watchdog"))?;
