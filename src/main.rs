@@ -21,6 +21,12 @@ enum Command {
     Solve(cli::solve::SolveArgs),
     /// Serve the config's servo chain, simulated, on a pseudo-terminal until Ctrl-C or SIGTERM.
     Sim(cli::sim::SimArgs),
+    /// List the servos on a port: id, model, firmware (tries the common baud rates).
+    Scan(cli::servo::ScanArgs),
+    /// List serial ports with their USB vendor:product (a U2D2 is named as such).
+    Ports(cli::servo::PortsArgs),
+    /// One servo's one-time settings: id, baud rate, Return Delay Time; reboot, torque off.
+    Servo(cli::servo::ServoArgs),
 }
 
 fn main() -> ExitCode {
@@ -28,6 +34,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Solve(args) => cli::solve::run(args),
         Command::Sim(args) => cli::sim::run(args),
+        Command::Scan(args) => cli::servo::scan(args),
+        Command::Ports(args) => cli::servo::ports(args),
+        Command::Servo(args) => cli::servo::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

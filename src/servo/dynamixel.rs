@@ -101,9 +101,9 @@ fn check_id(id: u8) -> Result<(), ServoError> {
 
 fn expect_params(p: &StatusPacket<'_>, id: u8, n: usize) -> Result<(), ServoError> {
     if p.packet_id() != id {
-        return Err(ServoError::Malformed {
+        return Err(ServoError::WrongId {
             id,
-            what: format!("reply from servo {}", p.packet_id()),
+            from: p.packet_id(),
         });
     }
     if p.parameters().len() != n {

@@ -128,6 +128,14 @@ pub enum ServoError {
         /// What was wrong.
         what: String,
     },
+    /// A reply from another servo than the one addressed.
+    #[error("servo {id}: the reply came from servo {from}")]
+    WrongId {
+        /// The servo addressed.
+        id: u8,
+        /// The id in the reply.
+        from: u8,
+    },
     /// A value that does not fit the register.
     #[error("servo {id}: {value} does not fit {register:?} ({} bytes)", register.size())]
     ValueRange {
@@ -214,6 +222,7 @@ impl ServoError {
             | Self::Checksum { id, .. }
             | Self::Status { id, .. }
             | Self::Malformed { id, .. }
+            | Self::WrongId { id, .. }
             | Self::ValueRange { id, .. }
             | Self::OutsideLimits { id, .. }
             | Self::UnknownServo { id }
