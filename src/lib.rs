@@ -14,12 +14,17 @@
 //!   validated, errors naming the file and the field.
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
 //! - [`servo`]: rad <-> ticks with per-joint calibration.
+//! - [`scenario`]: flexible-object scenarios (TOML): initial curve, pull, strategies; runs them
+//!   and tabulates the metrics.
+//! - [`plot`]: the scenario figures as SVG and PNG.
 //! - [`simbus`]: the config's servo chain as the plain data the simulator (`snakectl-sim`) takes.
 
 pub mod chain;
 pub mod config;
 pub mod metrics;
+pub mod plot;
 pub mod problem;
 pub mod resolve;
+pub mod scenario;
 pub mod servo;
 pub mod simbus;

@@ -21,6 +21,8 @@ enum Command {
     Solve(cli::solve::SolveArgs),
     /// Serve the config's servo chain, simulated, on a pseudo-terminal until Ctrl-C or SIGTERM.
     Sim(cli::sim::SimArgs),
+    /// Run a flexible-object scenario: figures (SVG, PNG) and the metrics table.
+    Simulate(cli::simulate::SimulateArgs),
     /// List the servos on a port: id, model, firmware (tries the common baud rates).
     Scan(cli::servo::ScanArgs),
     /// List serial ports with their USB vendor:product (a U2D2 is named as such).
@@ -34,6 +36,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Solve(args) => cli::solve::run(args),
         Command::Sim(args) => cli::sim::run(args),
+        Command::Simulate(args) => cli::simulate::run(args),
         Command::Scan(args) => cli::servo::scan(args),
         Command::Ports(args) => cli::servo::ports(args),
         Command::Servo(args) => cli::servo::run(args),

@@ -1,6 +1,7 @@
 //! The subcommands, one module each, and the error type they share.
 
 pub mod sim;
+pub mod simulate;
 pub mod servo;
 pub mod solve;
 
