@@ -339,7 +339,11 @@ impl Scenario {
         let raw: RawScenario = toml::from_str(text).map_err(|e| {
             let message = e.message().to_string();
             let table = e.span().map(|s| table_at(text, s.start)).unwrap_or_default();
-            let field = match (unknown_field(&message), table.is_empty()) {
+            let key = e
+                .span()
+                .and_then(|s| key_at(text, s.start))
+                .filter(|_| unknown_field(&message).is_none());
+            let field = match (unknown_field(&message).or(key), table.is_empty()) {
                 (Some(f), true) => f,
                 (Some(f), false) => format!("{table}.{f}"),
                 (None, false) => table,
@@ -468,6 +472,15 @@ fn unknown_field(message: &str) -> Option<String> {
         .nth(1)
         .or_else(|| message.split("missing field `").nth(1))?;
     Some(rest.split('`').next()?.to_string())
+}
+
+/// The key of the `key = value` line holding byte `offset` of `text`, if any.
+fn key_at(text: &str, offset: usize) -> Option<String> {
+    let start = text[..offset.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    (!key.is_empty() && !key.starts_with('[')).then(|| key.to_string())
 }
 
 /// The table (`curve`, `strategy[1]`) whose body holds byte `offset` of `text`; empty at the top

@@ -1,0 +1,77 @@
+//! `snakectl simulate` as a user runs it: the files it writes, exit codes and one-line errors
+//! naming the file and the field.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::process::{Command, Output};
+
+fn snakectl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn a_scenario_writes_figures_and_tables() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("straight");
+    let o = snakectl(&[
+        "simulate",
+        "--scenario",
+        "scenarios/straight_sideways.toml",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    for name in [
+        "motion.svg",
+        "motion.png",
+        "rotations.svg",
+        "rotations.png",
+        "metrics.csv",
+        "metrics.md",
+        "metrics.json",
+    ] {
+        let bytes = std::fs::read(out.join(name)).unwrap();
+        assert!(bytes.len() > 100, "{name}");
+        if name.ends_with(".png") {
+            assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{name}");
+        }
+        if name.ends_with(".svg") {
+            assert!(String::from_utf8(bytes).unwrap().contains("<svg"), "{name}");
+        }
+    }
+    let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+    let header = csv.lines().next().unwrap();
+    assert!(header.starts_with("metric,unit,\"sequential tractrix, K=1\""), "{header}");
+    assert_eq!(csv.lines().count(), 6);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("overall m2, K=20"), "{stdout}");
+}
+
+#[test]
+fn bad_scenarios_exit_two_naming_file_and_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.toml");
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/sine.toml"),
+    )
+    .unwrap()
+    .replace("amplitude_m = 0.1", "amplitude_m = \"big\"");
+    std::fs::write(&file, text).unwrap();
+    let o = snakectl(&[
+        "simulate",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--out",
+        dir.path().join("o").to_str().unwrap(),
+        "--no-png",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("bad.toml") && err.contains("curve"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    let o = snakectl(&["simulate", "--scenario", "nowhere.toml", "--out", "x"]);
+    assert_eq!(o.status.code(), Some(2));
+}
