@@ -113,7 +113,11 @@ fn calibration_round_trips() {
             JointServo::new(i + 1, id, ServoModel::Xl430W250, calibration, limit)
         })
         .collect();
-    let arm = Arm::new(joints, Settings::default());
+    let settings = Settings {
+        reply_timeout: TIMEOUT,
+        ..Settings::default()
+    };
+    let arm = Arm::new(joints, settings);
     let bus = &mut rig.bus;
     let present: Vec<f64> = arm
         .read_pose(bus)
@@ -298,10 +302,12 @@ fn a_silent_servo_mid_sync_read_leaves_the_other_eleven() {
         at: Duration::ZERO,
     }];
     let mut rig = sim_rig(config);
+    // A long deadline: the read must end well before it (all answers are in by then).
+    let deadline = Duration::from_millis(300);
     let t0 = Instant::now();
-    let states = rig.bus.read_states(&ids, Fields::ALL, TIMEOUT).unwrap();
+    let states = rig.bus.read_states(&ids, Fields::ALL, deadline).unwrap();
     let elapsed = t0.elapsed();
-    assert!(elapsed < TIMEOUT, "took {elapsed:?}");
+    assert!(elapsed < deadline / 3, "took {elapsed:?}");
     let ok: Vec<u8> = states
         .iter()
         .filter_map(|s| s.as_ref().ok())
@@ -330,7 +336,7 @@ fn a_silent_last_servo_costs_one_reply_timeout() {
         .unwrap();
     let elapsed = t0.elapsed();
     assert!(
-        elapsed >= TIMEOUT && elapsed < TIMEOUT + Duration::from_millis(15),
+        elapsed >= TIMEOUT && elapsed < TIMEOUT + Duration::from_millis(30),
         "{elapsed:?}"
     );
     assert_eq!(states.iter().filter(|s| s.is_ok()).count(), 11);

@@ -15,8 +15,8 @@ use snakectl_sim::{
     spawn_pty, Clock, ManualClock, Model, RealClock, ServoSpec, SimConfig, SimHandle, Simulator,
 };
 
-/// Reply timeout used by the tests.
-pub const TIMEOUT: Duration = Duration::from_millis(20);
+/// Reply timeout used by the tests: generous, so a loaded machine does not fail them.
+pub const TIMEOUT: Duration = Duration::from_millis(50);
 
 /// A bus and, on the simulator, its handle and clock.
 pub struct Rig {
