@@ -45,7 +45,9 @@ fn one_link_optimum_is_the_closest_point_of_the_circle() {
     let mut opt = RopeOptimizer::default();
     for objective in [Objective::M1, Objective::M2, Objective::M4] {
         let mut out = [Vec2::zeros(); 2];
-        let r = opt.solve(&old, &[1.0], target, objective, &mut out).unwrap();
+        let r = opt
+            .solve(&old, &[1.0], target, objective, &mut out)
+            .unwrap();
         assert!(r.converged, "{objective:?} {r:?}");
         assert!(
             (out[0] - expected).norm() < 1e-9,
@@ -70,7 +72,9 @@ fn straight_rope_pulled_along_itself_translates() {
     let mut opt = RopeOptimizer::default();
     for objective in all_objectives() {
         let mut out = vec![Vec2::zeros(); n + 1];
-        let r = opt.solve(&old, &links, target, objective, &mut out).unwrap();
+        let r = opt
+            .solve(&old, &links, target, objective, &mut out)
+            .unwrap();
         assert!(r.converged, "{objective:?} {r:?}");
         for (p, q) in out.iter().zip(&old) {
             assert!((p - q - Vec2::new(d, 0.0)).norm() < 1e-9, "{objective:?}");
@@ -99,11 +103,16 @@ fn overall_is_no_worse_than_sequential_and_exact() {
             let target = old[n] + Vec2::new(a.cos(), a.sin()) * *dist;
             for objective in all_objectives() {
                 let mut out = vec![Vec2::zeros(); n + 1];
-                let r = opt.solve(&old, &links, target, objective, &mut out).unwrap();
+                let r = opt
+                    .solve(&old, &links, target, objective, &mut out)
+                    .unwrap();
                 assert!(r.converged, "{objective:?} seed {seed}: {r:?}");
                 r.check().unwrap();
                 let (len_err, tip_err) = residuals(&out, &links, target);
-                assert!(len_err <= 1e-12, "{objective:?}: length residual {len_err:e}");
+                assert!(
+                    len_err <= 1e-12,
+                    "{objective:?}: length residual {len_err:e}"
+                );
                 assert!(tip_err <= 1e-12, "{objective:?}: tip residual {tip_err:e}");
                 assert_eq!(r.length_residual, len_err);
                 let value = objective.value(&metrics::rope(&old, &out));
@@ -136,7 +145,9 @@ fn iterations_are_few() {
     let mut opt = RopeOptimizer::default();
     for objective in all_objectives() {
         let mut out = vec![Vec2::zeros(); n + 1];
-        let r = opt.solve(&old, &links, target, objective, &mut out).unwrap();
+        let r = opt
+            .solve(&old, &links, target, objective, &mut out)
+            .unwrap();
         assert!(r.converged, "{objective:?}: {r:?}");
         let per_stage = r.iterations as f64 / r.stages as f64;
         assert!(per_stage <= 25.0, "{objective:?}: {r:?}");
@@ -175,8 +186,14 @@ fn no_length_drift_after_ten_thousand_moves() {
     let t = path(10_000);
     let (a, ta) = residuals(&overall, &links, t);
     let (b, tb) = residuals(&seq, &links, t);
-    assert!(a <= 1e-12 && ta == 0.0, "overall: lengths {a:e}, tip {ta:e}");
-    assert!(b <= 1e-12 && tb == 0.0, "sequential: lengths {b:e}, tip {tb:e}");
+    assert!(
+        a <= 1e-12 && ta == 0.0,
+        "overall: lengths {a:e}, tip {ta:e}"
+    );
+    assert!(
+        b <= 1e-12 && tb == 0.0,
+        "sequential: lengths {b:e}, tip {tb:e}"
+    );
 }
 
 /// Multi-step pulls: the answer after K moves keeps the lengths and reports summed iterations.

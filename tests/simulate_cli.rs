@@ -23,7 +23,12 @@ fn a_scenario_writes_figures_and_tables() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     for name in [
         "motion.svg",
         "motion.png",
@@ -44,7 +49,10 @@ fn a_scenario_writes_figures_and_tables() {
     }
     let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
     let header = csv.lines().next().unwrap();
-    assert!(header.starts_with("metric,unit,\"sequential tractrix, K=1\""), "{header}");
+    assert!(
+        header.starts_with("metric,unit,\"sequential tractrix, K=1\""),
+        "{header}"
+    );
     assert_eq!(csv.lines().count(), 6);
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("overall m2, K=20"), "{stdout}");

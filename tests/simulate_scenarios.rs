@@ -135,11 +135,7 @@ fn shipped_scenarios_run_exactly_and_concentrate_near_the_pulled_end() {
 fn each_objective_wins_under_itself() {
     let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/objectives.toml");
     let s = Scenario::load(&file).unwrap();
-    let runs: Vec<Run> = s
-        .strategies
-        .iter()
-        .map(|&st| s.run_one(st, 1))
-        .collect();
+    let runs: Vec<Run> = s.strategies.iter().map(|&st| s.run_one(st, 1)).collect();
     for r in &runs {
         let StrategySpec::Overall(objective) = r.strategy else {
             panic!("overall only");
@@ -184,38 +180,68 @@ fn scenario_errors_name_the_file_and_the_field() {
     assert!(Scenario::from_toml(GOOD, "good.toml", Path::new(".")).is_ok());
     let cases: Vec<(String, &str)> = vec![
         (GOOD.replace("links = 10", "links = 0"), "links"),
-        (GOOD.replace("links = 10", "links = 10\ncolour = 1"), "colour"),
-        (GOOD.replace("amplitude_m = 0.1", "amplitude = 0.1"), "curve.amplitude"),
+        (
+            GOOD.replace("links = 10", "links = 10\ncolour = 1"),
+            "colour",
+        ),
+        (
+            GOOD.replace("amplitude_m = 0.1", "amplitude = 0.1"),
+            "curve.amplitude",
+        ),
         (GOOD.replace("amplitude_m = 0.1\n", ""), "curve.amplitude_m"),
-        (GOOD.replace("wavelength_m = 0.5", "wavelength_m = -0.5"), "curve.wavelength_m"),
-        (GOOD.replace("kind = \"sine\"", "kind = \"spiral\""), "curve.kind"),
+        (
+            GOOD.replace("wavelength_m = 0.5", "wavelength_m = -0.5"),
+            "curve.wavelength_m",
+        ),
+        (
+            GOOD.replace("kind = \"sine\"", "kind = \"spiral\""),
+            "curve.kind",
+        ),
         (
             GOOD.replace("wavelength_m = 0.5", "wavelength_m = 0.5\nradius_m = 1.0"),
             "curve.radius_m",
         ),
         (GOOD.replace("[0.0, 1.0]", "[1.0, 1.0]"), "curve.x_range_m"),
         (GOOD.replace("[0.0, 0.3]", "[0.0]"), "pull.displacement_m"),
-        (GOOD.replace("steps = [1, 5]", "steps = [1, 0]"), "pull.steps[1]"),
+        (
+            GOOD.replace("steps = [1, 5]", "steps = [1, 0]"),
+            "pull.steps[1]",
+        ),
         (GOOD.replace("steps = [1, 5]", "steps = []"), "pull.steps"),
-        (GOOD.replace("kind = \"straight\"", "kind = \"zigzag\""), "pull.kind"),
+        (
+            GOOD.replace("kind = \"straight\"", "kind = \"zigzag\""),
+            "pull.kind",
+        ),
         (
             GOOD.replace("kind = \"straight\"", "kind = \"sine\""),
             "pull.amplitude_m",
         ),
-        (GOOD.replace("objective = \"m2\"", "objective = \"m9\""), "strategy[1].objective"),
+        (
+            GOOD.replace("objective = \"m2\"", "objective = \"m9\""),
+            "strategy[1].objective",
+        ),
         (
             GOOD.replace("objective = \"m2\"", "objective = \"m3\""),
             "strategy[1].companion_weight",
         ),
         (
-            GOOD.replace("objective = \"m2\"", "objective = \"m1\"\ncompanion_weight = 1.0"),
+            GOOD.replace(
+                "objective = \"m2\"",
+                "objective = \"m1\"\ncompanion_weight = 1.0",
+            ),
             "strategy[1].companion_weight",
         ),
         (
-            GOOD.replace("kind = \"tractrix\"", "kind = \"tractrix\"\nobjective = \"m1\""),
+            GOOD.replace(
+                "kind = \"tractrix\"",
+                "kind = \"tractrix\"\nobjective = \"m1\"",
+            ),
             "strategy[0].objective",
         ),
-        (GOOD.replace("kind = \"tractrix\"", "kind = \"fabrik\""), "strategy[0].kind"),
+        (
+            GOOD.replace("kind = \"tractrix\"", "kind = \"fabrik\""),
+            "strategy[0].kind",
+        ),
         (
             GOOD.replace("kind = \"tractrix\"", "kind = \"tractrix\"\nspeed = 2"),
             "strategy[0].speed",

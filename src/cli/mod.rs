@@ -1,8 +1,8 @@
 //! The subcommands, one module each, and the error type they share.
 
+pub mod servo;
 pub mod sim;
 pub mod simulate;
-pub mod servo;
 pub mod solve;
 
 /// An error and the exit code it maps to: 2 for bad input (a file, a flag, a config), 1 for

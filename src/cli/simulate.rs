@@ -92,7 +92,12 @@ fn one(file: &Path, out: &Path, png: bool) -> Result<(), Failure> {
     if png && !fonts {
         eprintln!("snakectl: no system font found: the PNG figures have no text");
     }
-    println!("{}: {} -> {}", file.display(), scenario.title, out.display());
+    println!(
+        "{}: {} -> {}",
+        file.display(),
+        scenario.title,
+        out.display()
+    );
     for r in &runs {
         println!(
             "  {:<34} M1 {:.4e}  M2 {:.4e}  M3 {:.4e}  M4 {:.4e}  M5 {:.4e}  iterations {}{}",

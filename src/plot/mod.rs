@@ -74,7 +74,12 @@ fn bounds(scenario: &Scenario, runs: &[Run]) -> (f64, f64, f64, f64) {
 
 /// Splits a polyline into the pieces of a chain line (long dash, gap, dot, gap).
 fn chain_line(path: &[Vec2], unit: f64) -> Vec<Vec<(f64, f64)>> {
-    let pattern = [(true, 6.0 * unit), (false, 2.0 * unit), (true, unit), (false, 2.0 * unit)];
+    let pattern = [
+        (true, 6.0 * unit),
+        (false, 2.0 * unit),
+        (true, unit),
+        (false, 2.0 * unit),
+    ];
     let mut pieces = Vec::new();
     let mut current: Vec<(f64, f64)> = Vec::new();
     let (mut k, mut left) = (0, pattern[0].1);
@@ -238,30 +243,33 @@ fn draw_panel(
         ))
         .map_err(draw_err)?;
     if legend {
-        series.label("initial").legend(|(x, y)| {
-            PathElement::new(vec![(x, y), (x + 18, y)], INITIAL.stroke_width(2))
-        });
+        series
+            .label("initial")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], INITIAL.stroke_width(2)));
     }
     chart
-        .draw_series(initial.iter().map(|p| Circle::new(xy(p), 2, INITIAL.filled())))
+        .draw_series(
+            initial
+                .iter()
+                .map(|p| Circle::new(xy(p), 2, INITIAL.filled())),
+        )
         .map_err(draw_err)?;
     for (k, piece) in chain_line(path, unit).into_iter().enumerate() {
         let s = chart
             .draw_series(LineSeries::new(piece, PULL.stroke_width(2)))
             .map_err(draw_err)?;
         if legend && k == 0 {
-            s.label("pull").legend(|(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], PULL.stroke_width(2))
-            });
+            s.label("pull")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], PULL.stroke_width(2)));
         }
     }
     let series = chart
         .draw_series(LineSeries::new(last.iter().map(xy), FINAL.stroke_width(2)))
         .map_err(draw_err)?;
     if legend {
-        series.label("final").legend(|(x, y)| {
-            PathElement::new(vec![(x, y), (x + 18, y)], FINAL.stroke_width(2))
-        });
+        series
+            .label("final")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], FINAL.stroke_width(2)));
     }
     chart
         .draw_series(last.iter().map(|p| Circle::new(xy(p), 2, FINAL.filled())))
@@ -393,8 +401,7 @@ fn font_options() -> (resvg::usvg::Options<'static>, bool) {
 /// (without one the PNG has no text).
 pub fn png(svg: &str) -> Result<(Vec<u8>, bool), PlotError> {
     let (opt, fonts) = font_options();
-    let tree =
-        resvg::usvg::Tree::from_str(svg, &opt).map_err(|e| PlotError::Svg(e.to_string()))?;
+    let tree = resvg::usvg::Tree::from_str(svg, &opt).map_err(|e| PlotError::Svg(e.to_string()))?;
     let size = tree.size().to_int_size();
     let mut pixmap = resvg::tiny_skia::Pixmap::new(size.width(), size.height())
         .ok_or_else(|| PlotError::Png(format!("bad size {}x{}", size.width(), size.height())))?;
@@ -419,10 +426,7 @@ mod tests {
         let path = [Vec2::zeros(), Vec2::new(22.0, 0.0)];
         let pieces = chain_line(&path, 1.0);
         // 6 on, 2 off, 1 on, 2 off, 6 on, 2 off, 1 on, 2 off: four pieces in 22 units.
-        let lengths: Vec<f64> = pieces
-            .iter()
-            .map(|p| p[p.len() - 1].0 - p[0].0)
-            .collect();
+        let lengths: Vec<f64> = pieces.iter().map(|p| p[p.len() - 1].0 - p[0].0).collect();
         assert_eq!(lengths, vec![6.0, 1.0, 6.0, 1.0]);
     }
 

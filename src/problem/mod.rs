@@ -603,11 +603,11 @@ mod tests {
             (with(r#""base_mode":"floating""#), "base_mode"),
             (with(r#""propagation":"magic""#), "propagation"),
             (with(r#""steps":0"#), "steps"),
+            (with(r#""base_mode":"free","objective":"m7""#), "objective"),
             (
-                with(r#""base_mode":"free","objective":"m7""#),
-                "objective",
+                with(r#""base_mode":"free","objective":"m3""#),
+                "companion_weight",
             ),
-            (with(r#""base_mode":"free","objective":"m3""#), "companion_weight"),
             (
                 with(r#""base_mode":"free","objective":"m5","companion_weight":0"#),
                 "companion_weight",
@@ -676,9 +676,10 @@ mod tests {
             .unwrap()
             .solve();
         assert!(a.metrics.m2 <= seq.metrics.m2);
-        let weighted =
-            Problem::from_json(&with(r#""base_mode":"free","objective":"m3","companion_weight":2"#))
-                .unwrap();
+        let weighted = Problem::from_json(&with(
+            r#""base_mode":"free","objective":"m3","companion_weight":2"#,
+        ))
+        .unwrap();
         assert_eq!(
             weighted.objective,
             Objective::M3 {

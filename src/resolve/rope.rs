@@ -97,7 +97,11 @@ impl Objective {
     pub fn from_name(name: &str, companion_weight: Option<f64>) -> Result<Self, ObjectiveError> {
         let needs = matches!(name, "m3" | "m5");
         let weight = match (needs, companion_weight) {
-            (true, None) => return Err(ObjectiveError::MissingWeight { objective: name.into() }),
+            (true, None) => {
+                return Err(ObjectiveError::MissingWeight {
+                    objective: name.into(),
+                })
+            }
             (false, Some(w)) => {
                 return Err(ObjectiveError::UnexpectedWeight {
                     objective: name.into(),
@@ -487,7 +491,8 @@ impl Work {
             m[3][2] -= 2.0 * rho;
             lin[3] += self.grad[k];
             let a = m[3][3];
-            if !(a > floor) {
+            // A NaN pivot fails too.
+            if a.is_nan() || a <= floor {
                 return false;
             }
             self.gain[k] = [-m[3][0] / a, -m[3][1] / a, -m[3][2] / a];
@@ -583,12 +588,12 @@ impl RopeOptimizer {
             let d = old[j + 1] - old[j];
             w.phi0[j] = d.y.atan2(d.x);
         }
-        for j in 0..=n {
+        for (j, &sig) in sigma.iter().enumerate() {
             let (pos, rot) = match objective {
                 Objective::M1 | Objective::M2 => (1.0, 0.0),
-                Objective::M4 => (sigma[j], 0.0),
+                Objective::M4 => (sig, 0.0),
                 Objective::M3 { companion_weight } => (companion_weight, 1.0),
-                Objective::M5 { companion_weight } => (companion_weight, sigma[j]),
+                Objective::M5 { companion_weight } => (companion_weight, sig),
             };
             w.pos[j] = pos;
             w.rot[j] = if j == 0 || j == n { 0.0 } else { rot };
@@ -786,7 +791,10 @@ fn check(old: &[Vec2], links: &[f64], target: Vec2) -> Result<(), RopeError> {
             links: links.len(),
         });
     }
-    if let Some(i) = old.iter().position(|p| !(p.x.is_finite() && p.y.is_finite())) {
+    if let Some(i) = old
+        .iter()
+        .position(|p| !(p.x.is_finite() && p.y.is_finite()))
+    {
         return Err(RopeError::NotFinite { index: i });
     }
     if !(target.x.is_finite() && target.y.is_finite()) {
@@ -844,7 +852,8 @@ mod tests {
             let mut opt = RopeOptimizer::default();
             let mut out = vec![Vec2::zeros(); n + 1];
             // Size and fill the work area through a solve, then perturb the angles.
-            opt.solve(&old, &links, target, objective, &mut out).unwrap();
+            opt.solve(&old, &links, target, objective, &mut out)
+                .unwrap();
             let w = &mut opt.w;
             w.eps = if w.m2 { 0.01 } else { 0.0 };
             for k in 0..n {
@@ -947,7 +956,13 @@ mod tests {
             Err(RopeError::Shape { .. })
         ));
         assert!(matches!(
-            opt.solve(&old, &links, Vec2::new(f64::NAN, 0.0), Objective::M1, &mut out),
+            opt.solve(
+                &old,
+                &links,
+                Vec2::new(f64::NAN, 0.0),
+                Objective::M1,
+                &mut out
+            ),
             Err(RopeError::NotFinite { index: 5 })
         ));
         let mut bad = links.clone();

@@ -140,7 +140,10 @@ impl Curve {
                 (0..=m).map(|i| self.at(i as f64 / m as f64)).collect()
             }
         };
-        if let Some(i) = pts.iter().position(|p| !(p.x.is_finite() && p.y.is_finite())) {
+        if let Some(i) = pts
+            .iter()
+            .position(|p| !(p.x.is_finite() && p.y.is_finite()))
+        {
             return Err(CurveError::NotFinite {
                 parameter: i as f64 / (pts.len() - 1).max(1) as f64,
             });
@@ -202,7 +205,7 @@ pub fn discretize(curve: &Curve, n: usize) -> Result<Vec<Vec2>, CurveError> {
         cum[i] = cum[i - 1] + (poly[i] - poly[i - 1]).norm();
     }
     let total = cum[poly.len() - 1];
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return Err(CurveError::ZeroLength);
     }
     let end = poly[poly.len() - 1];
@@ -222,7 +225,7 @@ pub fn discretize(curve: &Curve, n: usize) -> Result<Vec<Vec2>, CurveError> {
         Some(_) => (out[n] - end).norm(),
         None => f64::INFINITY,
     };
-    if !(gap <= 1e-9 * total) {
+    if gap.is_nan() || gap > 1e-9 * total {
         return Err(CurveError::Chords { links: n, gap });
     }
     out[n] = end;

@@ -338,7 +338,10 @@ impl Scenario {
         let cx = Ctx { file };
         let raw: RawScenario = toml::from_str(text).map_err(|e| {
             let message = e.message().to_string();
-            let table = e.span().map(|s| table_at(text, s.start)).unwrap_or_default();
+            let table = e
+                .span()
+                .map(|s| table_at(text, s.start))
+                .unwrap_or_default();
             let key = e
                 .span()
                 .and_then(|s| key_at(text, s.start))
@@ -356,7 +359,8 @@ impl Scenario {
             .filter(|&n| (1..=100_000).contains(&n))
             .ok_or_else(|| cx.err("links", format!("{} must be 1..=100000", raw.links)))?;
         let (curve, reverse) = curve_of(&cx, &raw.curve, dir)?;
-        let mut points = curve::discretize(&curve, n).map_err(|e| cx.err("curve", e.to_string()))?;
+        let mut points =
+            curve::discretize(&curve, n).map_err(|e| cx.err("curve", e.to_string()))?;
         if reverse {
             points.reverse();
         }
@@ -370,7 +374,12 @@ impl Scenario {
             let k = usize::try_from(k)
                 .ok()
                 .filter(|&k| (1..=100_000).contains(&k))
-                .ok_or_else(|| cx.err(format!("pull.steps[{i}]"), format!("{k} must be 1..=100000")))?;
+                .ok_or_else(|| {
+                    cx.err(
+                        format!("pull.steps[{i}]"),
+                        format!("{k} must be 1..=100000"),
+                    )
+                })?;
             steps.push(k);
         }
         if raw.strategy.is_empty() {
@@ -476,7 +485,9 @@ fn unknown_field(message: &str) -> Option<String> {
 
 /// The key of the `key = value` line holding byte `offset` of `text`, if any.
 fn key_at(text: &str, offset: usize) -> Option<String> {
-    let start = text[..offset.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
+    let start = text[..offset.min(text.len())]
+        .rfind('\n')
+        .map_or(0, |i| i + 1);
     let line = text[start..].lines().next()?;
     let (key, _) = line.split_once('=')?;
     let key = key.trim();
@@ -581,8 +592,14 @@ fn curve_of(cx: &Ctx, c: &RawCurve, dir: &Path) -> Result<(Curve, bool), Scenari
             }
         }
         "sine" => Curve::Sine {
-            x_range: cx.range(&f("x_range_m"), &cx.required(&f("x_range_m"), &c.x_range_m)?)?,
-            amplitude: cx.number(&f("amplitude_m"), cx.required(&f("amplitude_m"), &c.amplitude_m)?)?,
+            x_range: cx.range(
+                &f("x_range_m"),
+                &cx.required(&f("x_range_m"), &c.x_range_m)?,
+            )?,
+            amplitude: cx.number(
+                &f("amplitude_m"),
+                cx.required(&f("amplitude_m"), &c.amplitude_m)?,
+            )?,
             wavelength: cx.positive(
                 &f("wavelength_m"),
                 cx.required(&f("wavelength_m"), &c.wavelength_m)?,
@@ -590,7 +607,10 @@ fn curve_of(cx: &Ctx, c: &RawCurve, dir: &Path) -> Result<(Curve, bool), Scenari
             phase: cx.number(&f("phase_rad"), c.phase_rad.unwrap_or(0.0))?,
         },
         "parabola" => Curve::Parabola {
-            x_range: cx.range(&f("x_range_m"), &cx.required(&f("x_range_m"), &c.x_range_m)?)?,
+            x_range: cx.range(
+                &f("x_range_m"),
+                &cx.required(&f("x_range_m"), &c.x_range_m)?,
+            )?,
             coefficient: cx.number(
                 &f("coefficient_per_m"),
                 cx.required(&f("coefficient_per_m"), &c.coefficient_per_m)?,
@@ -665,7 +685,12 @@ pub fn read_polyline(path: &PathBuf) -> Result<Vec<Vec2>, ScenarioError> {
                     pts.push(p);
                 }
             }
-            _ => return Err(err(field, format!("expected two finite numbers x,y: {line:?}"))),
+            _ => {
+                return Err(err(
+                    field,
+                    format!("expected two finite numbers x,y: {line:?}"),
+                ))
+            }
         }
     }
     if pts.len() < 2 {
@@ -687,10 +712,7 @@ fn pull_of(cx: &Ctx, p: &RawPull) -> Result<Pull, ScenarioError> {
                 ("periods", p.periods.is_some()),
             ] {
                 if given {
-                    return Err(cx.err(
-                        format!("pull.{name}"),
-                        "does not apply to a straight pull",
-                    ));
+                    return Err(cx.err(format!("pull.{name}"), "does not apply to a straight pull"));
                 }
             }
             Ok(Pull::Straight { displacement })
