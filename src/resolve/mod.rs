@@ -95,13 +95,28 @@ pub trait Resolver {
     fn solve(&mut self, chain: &Chain, theta0: &[f64], target: Vec2, out: &mut [f64]) -> Outcome;
 
     /// Control-loop form: moves `theta` to a pose whose tip is on `target`, or returns an error
-    /// and leaves `theta` untouched (unreachable, not converged, limits violated).
+    /// and leaves `theta` untouched (bad input, unreachable, not converged, limits violated).
     fn resolve(
         &mut self,
         chain: &Chain,
         theta: &mut [f64],
         target: Vec2,
-    ) -> Result<Outcome, ResolveError>;
+    ) -> Result<Outcome, ResolveError> {
+        check_input(chain, theta, target)?;
+        let mut candidate = std::mem::take(self.scratch_pose());
+        candidate.resize(chain.len(), 0.0);
+        let outcome = self.solve(chain, theta, target, &mut candidate);
+        let result = verdict(chain, &candidate, outcome);
+        if result.is_ok() {
+            theta.copy_from_slice(&candidate);
+        }
+        *self.scratch_pose() = candidate;
+        result
+    }
+
+    /// Where [`Resolver::resolve`] keeps the candidate pose between ticks, so a control loop
+    /// allocates nothing once warmed up.
+    fn scratch_pose(&mut self) -> &mut Vec<f64>;
 }
 
 /// Checks the arguments every resolver receives: one finite angle per joint, a finite target.

@@ -19,7 +19,7 @@
 use nalgebra::Matrix2;
 
 use super::tractrix::Propagation;
-use super::{verdict, Outcome, ResolveError, Resolver, Strategy};
+use super::{Outcome, Resolver, Strategy};
 use crate::chain::{Chain, Reachability, Vec2, Workspace};
 
 /// How the fixed-base sweep puts the base back.
@@ -378,22 +378,8 @@ impl Resolver for Sequential {
         }
     }
 
-    fn resolve(
-        &mut self,
-        chain: &Chain,
-        theta: &mut [f64],
-        target: Vec2,
-    ) -> Result<Outcome, ResolveError> {
-        super::check_input(chain, theta, target)?;
-        let mut best = std::mem::take(&mut self.best);
-        best.resize(chain.len(), 0.0);
-        let outcome = self.solve(chain, theta, target, &mut best);
-        let result = verdict(chain, &best, outcome);
-        if result.is_ok() {
-            theta.copy_from_slice(&best);
-        }
-        self.best = best;
-        result
+    fn scratch_pose(&mut self) -> &mut Vec<f64> {
+        &mut self.best
     }
 }
 
@@ -402,6 +388,7 @@ impl Resolver for Sequential {
 mod tests {
     use super::*;
     use crate::chain::JointLimit;
+    use crate::resolve::ResolveError;
     use proptest::prelude::*;
     use std::f64::consts::PI;
 

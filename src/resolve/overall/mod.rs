@@ -35,7 +35,7 @@ mod dual;
 mod hessian;
 
 use crate::chain::{nearest_representative, Chain, Reachability, Vec2};
-use crate::resolve::{check_input, verdict, Outcome, ResolveError, Resolver, Strategy};
+use crate::resolve::{check_input, Outcome, Resolver, Strategy};
 
 use dual::Dual;
 
@@ -1075,24 +1075,8 @@ impl Resolver for Overall {
         }
     }
 
-    fn resolve(
-        &mut self,
-        chain: &Chain,
-        theta: &mut [f64],
-        target: Vec2,
-    ) -> Result<Outcome, ResolveError> {
-        check_input(chain, theta, target)?;
-        let mut out = std::mem::take(&mut self.w.stage);
-        if out.len() != theta.len() {
-            out = vec![0.0; theta.len()];
-        }
-        let o = self.solve(chain, theta, target, &mut out);
-        let v = verdict(chain, &out, o);
-        if v.is_ok() {
-            theta.copy_from_slice(&out);
-        }
-        self.w.stage = out;
-        v
+    fn scratch_pose(&mut self) -> &mut Vec<f64> {
+        &mut self.w.stage
     }
 }
 

@@ -5,6 +5,7 @@
 
 use super::*;
 use crate::chain::JointLimit;
+use crate::resolve::ResolveError;
 use proptest::prelude::*;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
