@@ -41,7 +41,7 @@ fn config(on_exit: &str) -> Config {
         );
     }
     text += &format!(
-        "[bus]\nkind = \"sim\"\nbaud = 1000000\nreturn_delay_us = 0\nprofile_velocity_rad_s = 3.0\nprofile_acceleration_rad_s2 = 20.0\non_exit = \"{on_exit}\"\nwatchdog_ms = 100\nreply_timeout_ms = 20\n"
+        "[bus]\nkind = \"sim\"\nbaud = 1000000\nreturn_delay_us = 0\nprofile_velocity_rad_s = 3.0\nprofile_acceleration_rad_s2 = 20.0\non_exit = \"{on_exit}\"\nwatchdog_ms = 100\nreply_timeout_ms = 200\n"
     );
     Config::from_str(&text, "arm.toml").unwrap()
 }

@@ -285,8 +285,26 @@ fn extra_latency_within_the_timeout_is_waited_for_and_beyond_it_times_out() {
     assert!(matches!(err, ServoError::Timeout { id: 2, .. }), "{err}");
     // The late reply of the previous exchange is discarded before the next one.
     std::thread::sleep(Duration::from_millis(40));
-    assert_eq!(rig.bus.ping(2, Duration::from_millis(80)).unwrap().id, 2);
-    assert_eq!(rig.bus.ping(1, Duration::from_millis(10)).unwrap().id, 1);
+    assert_eq!(rig.bus.ping(2, Duration::from_millis(300)).unwrap().id, 2);
+    assert_eq!(rig.bus.ping(1, TIMEOUT).unwrap().id, 1);
+}
+
+/// Regression: a reply that missed its deadline arrived during the next exchange and was taken
+/// for the next servo's ("reply came from servo 1" on a loaded machine).
+#[test]
+#[cfg_attr(feature = "hardware", ignore = "simulator only")]
+fn a_late_reply_of_another_servo_is_skipped() {
+    let mut config = xl430(&[1, 2]);
+    config.faults = vec![Fault::ExtraLatency {
+        id: None,
+        latency: Duration::from_millis(30),
+    }];
+    let mut rig = realtime_rig(config);
+    let err = rig.bus.ping(2, Duration::from_millis(5)).unwrap_err();
+    assert!(matches!(err, ServoError::Timeout { id: 2, .. }), "{err}");
+    // Servo 2's reply comes in first, then servo 1's.
+    let p = rig.bus.ping(1, Duration::from_millis(300)).unwrap();
+    assert_eq!(p.id, 1);
 }
 
 /// A servo that goes silent mid-chain costs nothing beyond the others' replies: the 11 other
@@ -303,7 +321,7 @@ fn a_silent_servo_mid_sync_read_leaves_the_other_eleven() {
     }];
     let mut rig = sim_rig(config);
     // A long deadline: the read must end well before it (all answers are in by then).
-    let deadline = Duration::from_millis(300);
+    let deadline = Duration::from_millis(900);
     let t0 = Instant::now();
     let states = rig.bus.read_states(&ids, Fields::ALL, deadline).unwrap();
     let elapsed = t0.elapsed();
@@ -336,7 +354,7 @@ fn a_silent_last_servo_costs_one_reply_timeout() {
         .unwrap();
     let elapsed = t0.elapsed();
     assert!(
-        elapsed >= TIMEOUT && elapsed < TIMEOUT + Duration::from_millis(30),
+        elapsed >= TIMEOUT && elapsed < TIMEOUT + Duration::from_millis(100),
         "{elapsed:?}"
     );
     assert_eq!(states.iter().filter(|s| s.is_ok()).count(), 11);

@@ -17,6 +17,7 @@ fn serve(faults: Vec<Fault>) -> SimHandle {
     let mut servos: Vec<ServoSpec> = (1..=4)
         .map(|id| ServoSpec::new(id, Model::Xl430W250))
         .collect();
+    servos[3].initial_position_ticks = Some(2100);
     servos.push(ServoSpec::new(7, Model::Xl330M288));
     let config = SimConfig {
         servos,
@@ -44,7 +45,15 @@ fn text(o: &Output) -> (String, String) {
 fn scan_lists_id_model_and_firmware() {
     let sim = serve(vec![]);
     let port = sim.path().to_str().unwrap().to_string();
-    let out = snakectl(&["scan", "--port", &port, "--baud", "1000000"]);
+    let out = snakectl(&[
+        "scan",
+        "--port",
+        &port,
+        "--baud",
+        "1000000",
+        "--timeout-ms",
+        "300",
+    ]);
     let (stdout, stderr) = text(&out);
     assert!(out.status.success(), "{stderr}");
     let lines: Vec<&str> = stdout.lines().collect();
@@ -68,7 +77,15 @@ fn scan_of_a_dead_port_fails_with_a_hint() {
 fn servo_set_id_and_return_delay_then_refuse_a_taken_id() {
     let sim = serve(vec![]);
     let port = sim.path().to_str().unwrap().to_string();
-    let base = ["servo", "--port", &port, "--baud", "1000000"];
+    let base = [
+        "servo",
+        "--port",
+        &port,
+        "--baud",
+        "1000000",
+        "--timeout-ms",
+        "300",
+    ];
     let run = |extra: &[&str]| snakectl(&[&base[..], extra].concat());
 
     let out = run(&["--id", "3", "set-id", "20"]);
@@ -82,6 +99,19 @@ fn servo_set_id_and_return_delay_then_refuse_a_taken_id() {
         sim.with_servo(20, |s| s.value(addr::RETURN_DELAY_TIME))
             .flatten(),
         Some(50)
+    );
+
+    let out = run(&["--id", "4", "info"]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stdout.contains("model XL430-W250 (1060), firmware 48\n"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("baud rate 1000000\n"), "{stdout}");
+    assert!(
+        stdout.contains("present position 2100 ticks (offset_ticks = 52 makes it 0 rad)"),
+        "{stdout}"
     );
 
     let out = run(&["--id", "1", "set-id", "2"]);
@@ -109,7 +139,16 @@ fn servo_reboot_clears_a_hardware_error_and_torque_off_works() {
     let port = sim.path().to_str().unwrap().to_string();
     sim.with_servo(4, |s| s.poke(addr::TORQUE_ENABLE, 1));
     // Without --baud: the servo is found by trying the common rates.
-    let out = snakectl(&["servo", "--port", &port, "--id", "2", "reboot"]);
+    let out = snakectl(&[
+        "servo",
+        "--port",
+        &port,
+        "--timeout-ms",
+        "300",
+        "--id",
+        "2",
+        "reboot",
+    ]);
     let (stdout, stderr) = text(&out);
     assert!(out.status.success(), "{stderr}");
     assert_eq!(stdout.trim(), "servo 2: rebooted; hardware errors: none");

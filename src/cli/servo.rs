@@ -30,7 +30,7 @@ pub struct ScanArgs {
     #[arg(long)]
     baud: Option<u32>,
     /// Wait for replies beyond their wire time, ms.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 50)]
     timeout_ms: u64,
 }
 
@@ -49,7 +49,7 @@ pub struct ServoArgs {
     #[arg(long)]
     id: u8,
     /// Wait for a reply beyond its wire time, ms.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 50)]
     timeout_ms: u64,
     #[command(subcommand)]
     action: ServoAction,
@@ -72,6 +72,9 @@ enum ServoAction {
         /// Microseconds.
         us: u32,
     },
+    /// Print the servo's settings and present position (with the `offset_ticks` that would
+    /// make this position 0 rad).
+    Info,
     /// Reboot (clears a latched hardware error; torque comes back off).
     Reboot,
     /// Switch torque off.
@@ -301,7 +304,9 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
             // The acknowledgement may already carry the new id.
             match bus.write(id, Register::Id, i64::from(new_id), timeout) {
                 Ok(_) => {}
+                // A reply already carrying the new id is skipped as another servo's.
                 Err(ServoError::WrongId { from, .. }) if from == new_id => {}
+                Err(ServoError::Timeout { .. }) => {}
                 Err(e) => return Err(Failure::other(e)),
             }
             bus.ping(new_id, timeout)
@@ -335,6 +340,46 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
                 .map_err(Failure::other)?
                 .value;
             println!("servo {id}: Return Delay Time {} µs", back * 2);
+        }
+        ServoAction::Info => {
+            let mut read = |r: Register| {
+                bus.read(id, r, timeout)
+                    .map(|v| v.value)
+                    .map_err(Failure::other)
+            };
+            let position = read(Register::PresentPosition)?;
+            let baud_reg = read(Register::BaudRate)?;
+            let rdt = read(Register::ReturnDelayTime)?;
+            let mode = read(Register::OperatingMode)?;
+            let (min, max) = (
+                read(Register::MinPositionLimit)?,
+                read(Register::MaxPositionLimit)?,
+            );
+            let torque = read(Register::TorqueEnable)?;
+            let watchdog = read(Register::BusWatchdog)?;
+            let errors = bus.hardware_errors(id, timeout).map_err(Failure::other)?;
+            let baud_text = usize::try_from(baud_reg)
+                .ok()
+                .and_then(|i| BAUD_RATES.get(i))
+                .map_or_else(|| format!("register {baud_reg}"), u32::to_string);
+            println!("id {id}");
+            println!(
+                "model {} ({}), firmware {}",
+                model_name(info.model).unwrap_or("unknown"),
+                info.model,
+                info.firmware
+            );
+            println!("baud rate {baud_text}");
+            println!("return delay {} us", rdt * 2);
+            println!("operating mode {mode}");
+            println!("position limits {min}..={max} ticks");
+            println!("torque {}", if torque != 0 { "on" } else { "off" });
+            println!("bus watchdog {watchdog}");
+            println!("hardware errors {errors}");
+            println!(
+                "present position {position} ticks (offset_ticks = {} makes it 0 rad)",
+                position - 2048
+            );
         }
         ServoAction::Reboot => {
             reboot_and_wait(&mut bus, id, timeout).map_err(Failure::other)?;

@@ -11,13 +11,15 @@
 //!
 //! A status packet with an error code, or a damaged one, does not reveal its id through the
 //! crate: in a sync read it is attributed to the first servo not yet heard from, which is
-//! exact unless an earlier servo is silent.
+//! exact unless an earlier servo is silent. A reply that arrives after its deadline may still
+//! be in flight when the next instruction goes out: a single exchange skips replies from other
+//! servos; a sync read counts the servos listed before a reply's id as missing.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use dynamixel2::instructions::instruction_id as ins;
-use dynamixel2::{Bus, InvalidMessage, ReadError, StatusPacket, WriteError};
+use dynamixel2::{Bus, InvalidMessage, ReadError, WriteError};
 
 use super::sysfs::{Latency, Sysfs};
 use super::{
@@ -99,22 +101,6 @@ fn check_id(id: u8) -> Result<(), ServoError> {
     Ok(())
 }
 
-fn expect_params(p: &StatusPacket<'_>, id: u8, n: usize) -> Result<(), ServoError> {
-    if p.packet_id() != id {
-        return Err(ServoError::WrongId {
-            id,
-            from: p.packet_id(),
-        });
-    }
-    if p.parameters().len() != n {
-        return Err(ServoError::Malformed {
-            id,
-            what: format!("{} data bytes, expected {n}", p.parameters().len()),
-        });
-    }
-    Ok(())
-}
-
 impl DynamixelBus {
     /// Open `port` at `baud` (one of [`super::BAUD_RATES`]; other rates are refused because no
     /// servo could answer). On an FTDI `ttyUSB` port, the latency timer is set to 1 ms when
@@ -172,7 +158,8 @@ impl DynamixelBus {
     }
 
     /// Send one instruction to `id` and wait for its reply (of `params` parameters) with the
-    /// caller's timeout. The instruction's own wire time is added to the wait.
+    /// caller's timeout. The instruction's own wire time is added to the wait. A late reply of
+    /// another servo (to an earlier instruction that timed out) is skipped.
     fn exchange(
         &mut self,
         id: u8,
@@ -180,7 +167,7 @@ impl DynamixelBus {
         params: &[u8],
         reply_params: usize,
         timeout: Duration,
-    ) -> Result<StatusPacket<'_>, ServoError> {
+    ) -> Result<Reply, ServoError> {
         check_id(id)?;
         self.bus
             .write_instruction(id, instruction, params.len(), |buf| {
@@ -189,13 +176,50 @@ impl DynamixelBus {
             .map_err(write_error)?;
         let waited = wire_time(INSTRUCTION_OVERHEAD + params.len(), self.bus.baud_rate())
             + self.reply_wait(reply_params, timeout);
-        let p = self
-            .bus
-            .read_status_response_deadline(Instant::now() + waited)
-            .map_err(|e| read_error(id, waited, e))?;
-        expect_params(&p, id, reply_params)?;
-        Ok(p)
+        let deadline = Instant::now() + waited;
+        let mut skipped = None;
+        loop {
+            match self.bus.read_status_response_deadline(deadline) {
+                Ok(p) if p.packet_id() != id => {
+                    tracing::debug!(
+                        id,
+                        from = p.packet_id(),
+                        "skipping a reply of another servo"
+                    );
+                    skipped = Some(p.packet_id());
+                }
+                Ok(p) => {
+                    let reply = Reply {
+                        params: p.parameters().to_vec(),
+                        alert: p.alert(),
+                    };
+                    if reply.params.len() != reply_params {
+                        return Err(ServoError::Malformed {
+                            id,
+                            what: format!(
+                                "{} data bytes, expected {reply_params}",
+                                reply.params.len()
+                            ),
+                        });
+                    }
+                    return Ok(reply);
+                }
+                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => {
+                    return Err(match skipped {
+                        Some(from) => ServoError::WrongId { id, from },
+                        None => ServoError::Timeout { id, waited },
+                    })
+                }
+                Err(e) => return Err(read_error(id, waited, e)),
+            }
+        }
     }
+}
+
+/// A status reply's data, owned.
+struct Reply {
+    params: Vec<u8>,
+    alert: bool,
 }
 
 impl ServoBus for DynamixelBus {
@@ -212,13 +236,13 @@ impl ServoBus for DynamixelBus {
     }
 
     fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError> {
-        let p = self.exchange(id, ins::PING, &[], 3, timeout)?;
-        let d = p.parameters();
+        let r = self.exchange(id, ins::PING, &[], 3, timeout)?;
+        let d = &r.params;
         Ok(PingInfo {
             id,
             model: u16::from_le_bytes([d[0], d[1]]),
             firmware: d[2],
-            alert: p.alert(),
+            alert: r.alert,
         })
     }
 
@@ -260,16 +284,16 @@ impl ServoBus for DynamixelBus {
         let size = register.size();
         let mut params = register.address().to_le_bytes().to_vec();
         params.extend_from_slice(&size.to_le_bytes());
-        let p = self.exchange(id, ins::READ, &params, usize::from(size), timeout)?;
+        let r = self.exchange(id, ins::READ, &params, usize::from(size), timeout)?;
         let value = register
-            .decode(p.parameters())
+            .decode(&r.params)
             .ok_or_else(|| ServoError::Malformed {
                 id,
                 what: "short data".into(),
             })?;
         Ok(Value {
             value,
-            alert: p.alert(),
+            alert: r.alert,
         })
     }
 
@@ -289,11 +313,8 @@ impl ServoBus for DynamixelBus {
         }
         let mut params = register.address().to_le_bytes().to_vec();
         params.extend_from_slice(&register.encode(value));
-        let p = self.exchange(id, ins::WRITE, &params, 0, timeout)?;
-        Ok(Ack {
-            id,
-            alert: p.alert(),
-        })
+        let r = self.exchange(id, ins::WRITE, &params, 0, timeout)?;
+        Ok(Ack { id, alert: r.alert })
     }
 
     fn sync_read(
@@ -426,10 +447,7 @@ impl ServoBus for DynamixelBus {
     }
 
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
-        let p = self.exchange(id, ins::REBOOT, &[], 0, timeout)?;
-        Ok(Ack {
-            id,
-            alert: p.alert(),
-        })
+        let r = self.exchange(id, ins::REBOOT, &[], 0, timeout)?;
+        Ok(Ack { id, alert: r.alert })
     }
 }

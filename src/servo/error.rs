@@ -91,7 +91,7 @@ fn alert_note(alert: bool) -> &'static str {
 #[non_exhaustive]
 pub enum ServoError {
     /// No (complete) reply before the deadline.
-    #[error("servo {id}: no reply within {} ms", waited.as_secs_f64() * 1e3)]
+    #[error("servo {id}: no reply within {:.1} ms", waited.as_secs_f64() * 1e3)]
     Timeout {
         /// The servo.
         id: u8,

@@ -16,7 +16,7 @@ use snakectl_sim::{
 };
 
 /// Reply timeout used by the tests: generous, so a loaded machine does not fail them.
-pub const TIMEOUT: Duration = Duration::from_millis(50);
+pub const TIMEOUT: Duration = Duration::from_millis(200);
 
 /// A bus and, on the simulator, its handle and clock.
 pub struct Rig {
