@@ -441,3 +441,32 @@ fn an_expired_watchdog_stops_the_servo_and_refuses_goals_until_cleared() {
     bus.write(1, Register::BusWatchdog, 0, TIMEOUT).unwrap();
     bus.write(1, Register::GoalPosition, 2500, TIMEOUT).unwrap();
 }
+
+/// The buffers hold one instruction for 64 servos (dynamixel2's default 128 bytes stop at 22).
+#[test]
+#[cfg_attr(feature = "hardware", ignore = "simulator only")]
+fn sixty_four_servos_fit_one_sync_write_and_one_sync_read() {
+    let ids: Vec<u8> = (1..=64).collect();
+    let mut rig = sim_rig(xl430(&ids));
+    let goals: Vec<Goal> = ids
+        .iter()
+        .map(|&id| Goal {
+            id,
+            ticks: 1000 + i32::from(id),
+        })
+        .collect();
+    rig.bus.write_goals(&goals).unwrap();
+    let states = rig.bus.read_states(&ids, Fields::ALL, TIMEOUT).unwrap();
+    assert_eq!(states.iter().filter(|s| s.is_ok()).count(), 64);
+    let blocks = rig
+        .bus
+        .sync_read(&ids, Register::GoalPosition.address(), 4, TIMEOUT)
+        .unwrap();
+    for (b, g) in blocks.iter().zip(&goals) {
+        let b = b.as_ref().unwrap();
+        assert_eq!(
+            Register::GoalPosition.decode(&b.data),
+            Some(i64::from(g.ticks))
+        );
+    }
+}
