@@ -27,7 +27,7 @@ enum Command {
     Scan(cli::servo::ScanArgs),
     /// List serial ports with their USB vendor:product (a U2D2 is named as such).
     Ports(cli::servo::PortsArgs),
-    /// One servo's one-time settings: id, baud rate, Return Delay Time; reboot, torque off.
+    /// One servo: set id, baud rate, Return Delay Time; info (calibration), reboot, torque off.
     Servo(cli::servo::ServoArgs),
 }
 
