@@ -13,7 +13,8 @@
 //! - [`config`]: the one TOML file that describes an arm and how to reach it, parsed raw and then
 //!   validated, errors naming the file and the field.
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
-//! - [`servo`]: rad <-> ticks with per-joint calibration.
+//! - [`servo`]: the `ServoBus` trait, its Dynamixel implementation, units and calibration,
+//!   the joint-limit wrapper, bring-up and shut-down, serial-port discovery in sysfs.
 //! - [`scenario`]: flexible-object scenarios (TOML): initial curve, pull, strategies; runs them
 //!   and tabulates the metrics.
 //! - [`plot`]: the scenario figures as SVG and PNG.

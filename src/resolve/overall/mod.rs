@@ -274,6 +274,26 @@ impl Overall {
         }
     }
 
+    /// What every solve does first: refuse bad input, size the scratch, and answer an unlimited
+    /// chain's target outside its ring in closed form. `Err` holds the finished outcome.
+    fn begin<'a>(
+        &mut self,
+        chain: &'a Chain,
+        theta0: &'a [f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Result<Problem<'a>, Outcome> {
+        if let Some(o) = self.refuse(chain, theta0, target, out) {
+            return Err(o);
+        }
+        self.prepare(chain);
+        let p = self.problem(chain, theta0, target);
+        match self.closed_form_outside(&p, out) {
+            Some(o) => Err(o),
+            None => Ok(p),
+        }
+    }
+
     /// Best effort from the current pose `theta0` and the stored multiplier (one control tick).
     pub fn solve_local(
         &mut self,
@@ -282,14 +302,10 @@ impl Overall {
         target: Vec2,
         out: &mut [f64],
     ) -> Outcome {
-        if let Some(o) = self.refuse(chain, theta0, target, out) {
-            return o;
-        }
-        self.prepare(chain);
-        let p = self.problem(chain, theta0, target);
-        if let Some(o) = self.closed_form_outside(&p, out) {
-            return o;
-        }
+        let p = match self.begin(chain, theta0, target, out) {
+            Ok(p) => p,
+            Err(o) => return o,
+        };
         for a in 0..p.theta0.len() {
             self.w.theta[a] = p.theta0[a].clamp(self.w.lo[a], self.w.hi[a]);
         }
@@ -335,14 +351,10 @@ impl Overall {
         target: Vec2,
         out: &mut [f64],
     ) -> Outcome {
-        if let Some(o) = self.refuse(chain, theta0, target, out) {
-            return o;
-        }
-        self.prepare(chain);
-        let p = self.problem(chain, theta0, target);
-        if let Some(o) = self.closed_form_outside(&p, out) {
-            return o;
-        }
+        let p = match self.begin(chain, theta0, target, out) {
+            Ok(p) => p,
+            Err(o) => return o,
+        };
         let n = chain.len();
         let mut total = 0;
         // Best and second-best optimum: (half metric, tip error, converged, mu).
