@@ -44,7 +44,9 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
-            eprintln!("snakectl: {:#}", f.error);
+            if f.code != 0 {
+                eprintln!("snakectl: {:#}", f.error);
+            }
             ExitCode::from(f.code)
         }
     }

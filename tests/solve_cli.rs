@@ -163,3 +163,29 @@ fn a_config_file_and_a_target_work_too() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("config/missing.toml"));
 }
+
+#[test]
+fn a_reader_that_closes_the_pipe_early_ends_the_command_quietly() {
+    // An answer far larger than a pipe buffer, read one byte of.
+    let n = 3000;
+    let problem = format!(
+        r#"{{"links":{:?},"base":[0,0,0],"theta0":{:?},"target":[0.5,0.5],"strategy":"sequential"}}"#,
+        vec![1.0 / n as f64; n],
+        vec![0.0; n]
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("big.json");
+    std::fs::write(&file, problem).unwrap();
+    let out = std::process::Command::new("bash")
+        .arg("-c")
+        .arg(format!(
+            "set -o pipefail; '{}' solve --pretty '{}' | head -c 1 >/dev/null",
+            env!("CARGO_BIN_EXE_snakectl"),
+            file.display()
+        ))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(out.status.code(), Some(0), "{err}");
+}

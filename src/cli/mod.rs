@@ -5,8 +5,32 @@ pub mod sim;
 pub mod simulate;
 pub mod solve;
 
+/// `println!` for the subcommands: a closed pipe (`snakectl ... | head`) ends the command quietly
+/// instead of panicking.
+macro_rules! outln {
+    ($($arg:tt)*) => {
+        $crate::cli::write_line(format_args!($($arg)*))
+    };
+}
+pub(crate) use outln;
+
+/// Writes one line to stdout; a closed pipe becomes a quiet [`Failure`] with exit code 0.
+pub fn write_line(args: std::fmt::Arguments<'_>) -> Result<(), Failure> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_fmt(args).and_then(|()| out.write_all(b"\n")) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(Failure {
+            code: 0,
+            error: e.into(),
+        }),
+        Err(e) => Err(Failure::other(e)),
+    }
+}
+
 /// An error and the exit code it maps to: 2 for bad input (a file, a flag, a config), 1 for
-/// anything else (I/O, the operating system).
+/// anything else (I/O, the operating system), 0 for a reader that closed the pipe (nothing is
+/// printed then).
 pub struct Failure {
     /// Process exit code.
     pub code: u8,

@@ -15,7 +15,7 @@ use snakectl::servo::{
     baud_index, model_name, units, PingInfo, Register, ServoBus, ServoError, BAUD_RATES, MAX_ID,
 };
 
-use super::Failure;
+use super::{outln, Failure};
 
 /// Baud rates tried, in this order, when none is given: the factory rate first, then the ones
 /// chains are usually set to (9600 and 4.5M only on request: a scan at 9600 takes 4 s).
@@ -143,13 +143,13 @@ pub fn scan(args: ScanArgs) -> Result<(), Failure> {
             .map_err(Failure::other)?;
         if found.is_empty() {
             if args.baud.is_some() {
-                println!("{baud} baud: no servo");
+                outln!("{baud} baud: no servo")?;
             }
             continue;
         }
-        println!("{baud} baud: {} servo(s)", found.len());
+        outln!("{baud} baud: {} servo(s)", found.len())?;
         for p in &found {
-            println!("{}", describe(p));
+            outln!("{}", describe(p))?;
         }
         total += found.len();
     }
@@ -175,7 +175,7 @@ pub fn ports(_args: PortsArgs) -> Result<(), Failure> {
         .context("listing /sys/class/tty")
         .map_err(Failure::other)?;
     if ports.is_empty() {
-        println!("no serial port found");
+        outln!("no serial port found")?;
         return Ok(());
     }
     for p in ports {
@@ -208,7 +208,7 @@ pub fn ports(_args: PortsArgs) -> Result<(), Failure> {
                 }
             }
         }
-        println!("{line}");
+        outln!("{line}")?;
     }
     Ok(())
 }
@@ -288,7 +288,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
     match args.action {
         ServoAction::SetId { new_id } => {
             if new_id == id {
-                println!("servo {id}: already id {id}");
+                outln!("servo {id}: already id {id}")?;
                 return Ok(());
             }
             match bus.ping(new_id, timeout) {
@@ -312,7 +312,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
             bus.ping(new_id, timeout)
                 .with_context(|| format!("servo {id} does not answer as {new_id}"))
                 .map_err(Failure::other)?;
-            println!("servo {id}: now id {new_id}");
+            outln!("servo {id}: now id {new_id}")?;
         }
         ServoAction::SetBaud { new_baud } => {
             let index = baud_index(new_baud)
@@ -328,7 +328,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
             bus.ping(id, timeout)
                 .with_context(|| format!("servo {id} does not answer at {new_baud} baud"))
                 .map_err(Failure::other)?;
-            println!("servo {id}: now at {new_baud} baud (set [bus] baud = {new_baud})");
+            outln!("servo {id}: now at {new_baud} baud (set [bus] baud = {new_baud})")?;
         }
         ServoAction::SetReturnDelay { us } => {
             torque_off(&mut bus, id, timeout)?;
@@ -339,7 +339,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
                 .read(id, Register::ReturnDelayTime, timeout)
                 .map_err(Failure::other)?
                 .value;
-            println!("servo {id}: Return Delay Time {} µs", back * 2);
+            outln!("servo {id}: Return Delay Time {} µs", back * 2)?;
         }
         ServoAction::Info => {
             let mut read = |r: Register| {
@@ -362,33 +362,33 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
                 .ok()
                 .and_then(|i| BAUD_RATES.get(i))
                 .map_or_else(|| format!("register {baud_reg}"), u32::to_string);
-            println!("id {id}");
-            println!(
+            outln!("id {id}")?;
+            outln!(
                 "model {} ({}), firmware {}",
                 model_name(info.model).unwrap_or("unknown"),
                 info.model,
                 info.firmware
-            );
-            println!("baud rate {baud_text}");
-            println!("return delay {} us", rdt * 2);
-            println!("operating mode {mode}");
-            println!("position limits {min}..={max} ticks");
-            println!("torque {}", if torque != 0 { "on" } else { "off" });
-            println!("bus watchdog {watchdog}");
-            println!("hardware errors {errors}");
-            println!(
+            )?;
+            outln!("baud rate {baud_text}")?;
+            outln!("return delay {} us", rdt * 2)?;
+            outln!("operating mode {mode}")?;
+            outln!("position limits {min}..={max} ticks")?;
+            outln!("torque {}", if torque != 0 { "on" } else { "off" })?;
+            outln!("bus watchdog {watchdog}")?;
+            outln!("hardware errors {errors}")?;
+            outln!(
                 "present position {position} ticks (offset_ticks = {} makes it 0 rad)",
                 position - 2048
-            );
+            )?;
         }
         ServoAction::Reboot => {
             reboot_and_wait(&mut bus, id, timeout).map_err(Failure::other)?;
             let errors = bus.hardware_errors(id, timeout).map_err(Failure::other)?;
-            println!("servo {id}: rebooted; hardware errors: {errors}");
+            outln!("servo {id}: rebooted; hardware errors: {errors}")?;
         }
         ServoAction::TorqueOff => {
             bus.set_torque(id, false, timeout).map_err(Failure::other)?;
-            println!("servo {id}: torque off");
+            outln!("servo {id}: torque off")?;
         }
     }
     Ok(())

@@ -8,7 +8,7 @@ use clap::Args;
 
 use snakectl::config::Config;
 
-use super::Failure;
+use super::{outln, Failure};
 
 #[derive(Debug, Args)]
 pub struct SimArgs {
@@ -51,7 +51,7 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
             .map_err(|e| other(anyhow::anyhow!("{}: {e}", link.display())))?;
     }
     // Printed once the link exists: a script reading this line may use either at once.
-    println!("{}", handle.path().display());
+    outln!("{}", handle.path().display())?;
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))

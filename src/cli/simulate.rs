@@ -10,7 +10,7 @@ use snakectl::plot;
 use snakectl::scenario::table::Table;
 use snakectl::scenario::Scenario;
 
-use super::Failure;
+use super::{outln, Failure};
 
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
@@ -92,14 +92,14 @@ fn one(file: &Path, out: &Path, png: bool) -> Result<(), Failure> {
     if png && !fonts {
         eprintln!("snakectl: no system font found: the PNG figures have no text");
     }
-    println!(
+    outln!(
         "{}: {} -> {}",
         file.display(),
         scenario.title,
         out.display()
-    );
+    )?;
     for r in &runs {
-        println!(
+        outln!(
             "  {:<34} M1 {:.4e}  M2 {:.4e}  M3 {:.4e}  M4 {:.4e}  M5 {:.4e}  iterations {}{}",
             r.label(),
             r.metrics.m1,
@@ -109,7 +109,7 @@ fn one(file: &Path, out: &Path, png: bool) -> Result<(), Failure> {
             r.metrics.m5,
             r.iterations,
             if r.converged { "" } else { "  NOT CONVERGED" }
-        );
+        )?;
     }
     Ok(())
 }

@@ -9,7 +9,7 @@ use snakectl::chain::Vec2;
 use snakectl::config::Config;
 use snakectl::problem::{self, Problem, ProblemError};
 
-use super::Failure;
+use super::{outln, Failure};
 
 #[derive(Debug, Args)]
 pub struct SolveArgs {
@@ -57,7 +57,7 @@ pub fn run(args: SolveArgs) -> Result<(), Failure> {
         serde_json::to_string(&answer)
     }
     .map_err(Failure::other)?;
-    println!("{text}");
+    outln!("{text}")?;
     Ok(())
 }
 
