@@ -5,7 +5,6 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use snakectl::chain::Vec2;
 use snakectl::config::Config;
 use snakectl::problem::{self, Problem, ProblemError};
 
@@ -98,12 +97,7 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
     let config = Config::load(path).map_err(Failure::bad_input)?;
     let build = || -> Result<Problem, ProblemError> {
         let target = list("--target", args.target.as_deref().unwrap_or_default())?;
-        if target.len() != 2 || target.iter().any(|v| !v.is_finite()) {
-            return Err(ProblemError {
-                field: "--target".into(),
-                message: "expected two finite numbers X,Y".into(),
-            });
-        }
+        let target = problem::check_target("--target", &target)?;
         let chain = config.chain().clone();
         let theta0 = match &args.from {
             Some(text) => list("--from", text)?,
@@ -116,7 +110,7 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
         Ok(Problem {
             chain,
             theta0,
-            target: Vec2::new(target[0], target[1]),
+            target,
             strategy,
             base_mode,
             propagation: problem::parse_propagation(

@@ -127,6 +127,13 @@ fn exact_len(field: &str, values: &[f64], want: usize, what: &str) -> Result<(),
     Ok(())
 }
 
+/// Checks a tip target: two finite numbers within [`MAX_MAGNITUDE`].
+pub fn check_target(field: &str, values: &[f64]) -> Result<Vec2, ProblemError> {
+    exact_len(field, values, 2, "numbers [x, y]")?;
+    numbers(field, values)?;
+    Ok(Vec2::new(values[0], values[1]))
+}
+
 /// Parses a strategy name.
 pub fn parse_strategy(name: &str) -> Result<Strategy, ProblemError> {
     match name {
@@ -281,8 +288,7 @@ impl Problem {
         numbers("links", &raw.links)?;
         exact_len("base", &raw.base, 3, "numbers [x, y, heading]")?;
         numbers("base", &raw.base)?;
-        exact_len("target", &raw.target, 2, "numbers [x, y]")?;
-        numbers("target", &raw.target)?;
+        let target = check_target("target", &raw.target)?;
         let n = raw.links.len();
         let mut limits = Vec::new();
         if let Some(raw_limits) = &raw.limits {
@@ -327,7 +333,7 @@ impl Problem {
         Ok(Self {
             chain,
             theta0: raw.theta0,
-            target: Vec2::new(raw.target[0], raw.target[1]),
+            target,
             strategy,
             base_mode,
             propagation,
