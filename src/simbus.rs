@@ -47,67 +47,77 @@ fn hardware(e: raw::HardwareError) -> HardwareErrorKind {
     }
 }
 
-/// Refuses a time window the simulator cannot apply to a standing fault.
-fn whole_run(index: usize, at_s: f64, until_s: Option<f64>) -> Result<(), SimBusError> {
-    if at_s != 0.0 || until_s.is_some() {
-        return Err(SimBusError::Unsupported {
-            index,
-            reason: "drop, corrupt and latency faults apply for the whole run: remove at_s/until_s",
-        });
+/// Seconds after the start as a duration; refuses what a duration cannot hold.
+fn secs(index: usize, s: f64) -> Result<Duration, SimBusError> {
+    Duration::try_from_secs_f64(s.max(0.0)).map_err(|_| SimBusError::Unsupported {
+        index,
+        reason: "a fault time is beyond what the simulator's clock can represent",
+    })
+}
+
+/// `fault` limited to `at_s..until_s`; left standing when the window is the whole run.
+fn windowed(
+    index: usize,
+    fault: SimFault,
+    at_s: f64,
+    until_s: Option<f64>,
+) -> Result<SimFault, SimBusError> {
+    if at_s <= 0.0 && until_s.is_none() {
+        return Ok(fault);
     }
-    Ok(())
+    let end = until_s.map(|u| secs(index, u)).transpose()?;
+    Ok(fault.during(secs(index, at_s)?, end))
 }
 
 fn fault(index: usize, f: &Fault) -> Result<SimFault, SimBusError> {
-    Ok(match *f {
+    match *f {
         Fault::Drop {
             fraction,
             id,
             at_s,
             until_s,
-        } => {
-            whole_run(index, at_s, until_s)?;
-            SimFault::DropReplies { id, fraction }
-        }
+        } => windowed(index, SimFault::DropReplies { id, fraction }, at_s, until_s),
         Fault::Corrupt {
             fraction,
             id,
             at_s,
             until_s,
-        } => {
-            whole_run(index, at_s, until_s)?;
-            SimFault::CorruptReplies { id, fraction }
-        }
+        } => windowed(
+            index,
+            SimFault::CorruptReplies { id, fraction },
+            at_s,
+            until_s,
+        ),
         Fault::Latency {
             extra_us,
             id,
             at_s,
             until_s,
-        } => {
-            whole_run(index, at_s, until_s)?;
+        } => windowed(
+            index,
             SimFault::ExtraLatency {
                 id,
                 latency: Duration::from_micros(u64::from(extra_us)),
-            }
-        }
-        Fault::Silent { id, at_s, until_s } => {
-            if until_s.is_some() {
-                return Err(SimBusError::Unsupported {
-                    index,
-                    reason: "a silent servo stays silent: remove until_s",
-                });
-            }
+            },
+            at_s,
+            until_s,
+        ),
+        // Silent from `at_s`; a window closing at `until_s` brings the servo back.
+        Fault::Silent { id, at_s, until_s } => windowed(
+            index,
             SimFault::Silent {
                 id,
-                at: Duration::from_secs_f64(at_s.max(0.0)),
-            }
-        }
-        Fault::HardwareError { id, at_s, error } => SimFault::HardwareError {
+                at: secs(index, at_s)?,
+            },
+            0.0,
+            until_s,
+        ),
+        Fault::HardwareError { id, at_s, error } => Ok(SimFault::HardwareError {
             id,
-            at: Duration::from_secs_f64(at_s.max(0.0)),
+            at: secs(index, at_s)?,
             kind: hardware(error),
-        },
-    })
+        }),
+    }
 }
 
 /// The simulator's configuration for the arm of `config`: one servo per joint with the joint's
@@ -174,12 +184,47 @@ mod tests {
     }
 
     #[test]
-    fn windows_the_simulator_cannot_apply_are_refused() {
+    fn fault_windows_map_onto_the_simulator() {
         let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"))
             .unwrap()
-            + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.1\nat_s = 2.0\n";
+            + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.1\nat_s = 2.0\n"
+            + "\n[[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.2\nid = 3\nuntil_s = 1.5\n"
+            + "\n[[sim.fault]]\nkind = \"latency\"\nextra_us = 700\nat_s = 1.0\nuntil_s = 4.0\n"
+            + "\n[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 2.5\nuntil_s = 3.0\n"
+            + "\n[[sim.fault]]\nkind = \"silent\"\nid = 6\nat_s = 1.0\n"
+            + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.3\n";
         let config = Config::from_str(&text, "sim.toml").unwrap();
-        let err = sim_config(&config).unwrap_err();
-        assert!(err.to_string().starts_with("sim.fault["), "{err}");
+        let sim = sim_config(&config).unwrap();
+        let s = Duration::from_secs_f64;
+        let base = sim.faults.len() - 6;
+        assert_eq!(
+            sim.faults[base..],
+            [
+                SimFault::DropReplies {
+                    id: None,
+                    fraction: 0.1
+                }
+                .during(s(2.0), None),
+                SimFault::CorruptReplies {
+                    id: Some(3),
+                    fraction: 0.2
+                }
+                .during(Duration::ZERO, Some(s(1.5))),
+                SimFault::ExtraLatency {
+                    id: None,
+                    latency: Duration::from_micros(700)
+                }
+                .during(s(1.0), Some(s(4.0))),
+                SimFault::Silent { id: 5, at: s(2.5) }.during(Duration::ZERO, Some(s(3.0))),
+                SimFault::Silent { id: 6, at: s(1.0) },
+                SimFault::DropReplies {
+                    id: None,
+                    fraction: 0.3
+                },
+            ]
+        );
+        // And the simulator accepts them.
+        let clock = std::sync::Arc::new(snakectl_sim::ManualClock::new());
+        snakectl_sim::Simulator::new(sim, clock).unwrap();
     }
 }

@@ -75,7 +75,10 @@ impl HardwareErrorKind {
 }
 
 /// A fault to inject. Random faults draw from the simulator's seeded generator, so a run with
-/// the same seed and the same traffic fails the same way.
+/// the same seed and the same traffic (at the same clock times) fails the same way.
+///
+/// Drop, corrupt, latency and silent faults stand for the whole run unless wrapped in
+/// [`Fault::During`] (see [`Fault::during`]), which limits them to a time window.
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
 pub enum Fault {
@@ -117,6 +120,73 @@ pub enum Fault {
         /// Which error.
         kind: HardwareErrorKind,
     },
+    /// `fault` is active only from `start` after the simulator's start until `end` (exclusive;
+    /// `None`: to the end of the run). A reply fault applies to the replies of instructions
+    /// received inside the window; a silent servo hears and answers again from `end` on.
+    /// Windows nest (the fault is active where all of them are open); a hardware error latches
+    /// at one instant and cannot be windowed.
+    During {
+        /// Opening of the window, after the simulator's start.
+        start: Duration,
+        /// Closing of the window, after the simulator's start; later than `start`.
+        end: Option<Duration>,
+        /// The fault the window applies to.
+        fault: Box<Fault>,
+    },
+}
+
+impl Fault {
+    /// This fault, active only from `start` until `end` (`None`: to the end of the run).
+    pub fn during(self, start: Duration, end: Option<Duration>) -> Self {
+        Self::During {
+            start,
+            end,
+            fault: Box::new(self),
+        }
+    }
+
+    /// The window in which this fault is active (all windows it is wrapped in, intersected)
+    /// and the fault itself.
+    pub fn window(&self) -> (Window, &Fault) {
+        let mut window = Window::ALWAYS;
+        let mut fault = self;
+        while let Self::During {
+            start,
+            end,
+            fault: inner,
+        } = fault
+        {
+            window.start = window.start.max(*start);
+            window.end = match (window.end, *end) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            };
+            fault = inner;
+        }
+        (window, fault)
+    }
+}
+
+/// A span of time after the simulator's start: `start` inclusive, `end` exclusive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    /// Opening.
+    pub start: Duration,
+    /// Closing; `None`: never.
+    pub end: Option<Duration>,
+}
+
+impl Window {
+    /// The whole run.
+    pub const ALWAYS: Self = Self {
+        start: Duration::ZERO,
+        end: None,
+    };
+
+    /// Whether `elapsed` (time after the simulator's start) falls inside.
+    pub fn contains(&self, elapsed: Duration) -> bool {
+        elapsed >= self.start && self.end.is_none_or(|end| elapsed < end)
+    }
 }
 
 /// Everything the simulator needs: plain data, no dependency on the controller.
@@ -178,7 +248,27 @@ impl SimConfig {
             }
         }
         for fault in &self.faults {
-            let (id, fraction) = match fault {
+            // Every window (they may nest) must close after it opens.
+            let mut f = fault;
+            while let Fault::During {
+                start,
+                end,
+                fault: inner,
+            } = f
+            {
+                if let Some(end) = *end {
+                    if end <= *start {
+                        return Err(SimError::Window { start: *start, end });
+                    }
+                }
+                f = inner;
+            }
+            let (_, inner) = fault.window();
+            if matches!(fault, Fault::During { .. }) && matches!(inner, Fault::HardwareError { .. })
+            {
+                return Err(SimError::WindowedHardwareError);
+            }
+            let (id, fraction) = match inner {
                 Fault::DropReplies { id, fraction } | Fault::CorruptReplies { id, fraction } => {
                     (*id, Some(*fraction))
                 }
@@ -189,6 +279,7 @@ impl SimConfig {
                     (*id, None)
                 }
                 Fault::Silent { id, .. } | Fault::HardwareError { id, .. } => (Some(*id), None),
+                Fault::During { .. } => (None, None),
             };
             if let Some(id) = id {
                 if !seen[usize::from(id)] {
@@ -232,10 +323,20 @@ pub struct Stats {
     pub corrupted: u64,
 }
 
+/// What happens at a timed fault's instant.
+#[derive(Debug, Clone, Copy)]
+enum Event {
+    /// A silent window of this servo (configured id) opens or closes: its silence is
+    /// recomputed from all its silent faults.
+    Silence(u8),
+    /// The servo (configured id) latches a hardware error.
+    Hardware(u8, HardwareErrorKind),
+}
+
 #[derive(Debug, Clone)]
 struct Timed {
     at: Instant,
-    fault: Fault,
+    event: Event,
     done: bool,
 }
 
@@ -244,7 +345,7 @@ struct Timed {
 pub struct Simulator {
     servos: Vec<Servo>,
     config: SimConfig,
-    baud_index: u8,
+    line_baud: u32,
     clock: SharedClock,
     start: Instant,
     last: Instant,
@@ -272,26 +373,39 @@ impl Simulator {
             .iter()
             .map(|spec| Servo::new(spec, baud_index, rdt, now))
             .collect();
-        let timed = config
-            .faults
-            .iter()
-            .filter_map(|f| match f {
-                // A time too far to represent never comes.
-                Fault::Silent { at, .. } | Fault::HardwareError { at, .. } => {
-                    now.checked_add(*at).map(|at| Timed {
-                        at,
-                        fault: f.clone(),
-                        done: false,
-                    })
+        let mut timed = Vec::new();
+        // A time too far to represent never comes.
+        let mut at = |after: Duration, event: Event| {
+            if let Some(at) = now.checked_add(after) {
+                timed.push(Timed {
+                    at,
+                    event,
+                    done: false,
+                });
+            }
+        };
+        for fault in &config.faults {
+            match fault.window() {
+                (window, &Fault::Silent { id, at: from }) => {
+                    let on = window.start.max(from);
+                    if window.end.is_none_or(|end| on < end) {
+                        at(on, Event::Silence(id));
+                        if let Some(end) = window.end {
+                            at(end, Event::Silence(id));
+                        }
+                    }
                 }
-                _ => None,
-            })
-            .collect();
+                (_, &Fault::HardwareError { id, at: when, kind }) => {
+                    at(when, Event::Hardware(id, kind));
+                }
+                _ => {}
+            }
+        }
         let mut sim = Self {
             servos,
             rng: SplitMix64::new(config.seed),
+            line_baud: config.baud,
             config,
-            baud_index,
             clock,
             start: now,
             last: now,
@@ -339,9 +453,37 @@ impl Simulator {
         self.servos.iter_mut().find(|s| s.id() == id)
     }
 
-    /// Time one byte takes on the wire (start bit, 8 data bits, stop bit).
+    /// Time one byte takes on the wire at the line's rate (start bit, 8 data bits, stop bit).
     pub fn byte_time(&self) -> Duration {
-        Duration::from_nanos(10_000_000_000 / u64::from(self.config.baud))
+        Duration::from_nanos(10_000_000_000 / u64::from(self.line_baud.max(1)))
+    }
+
+    /// The rate the client's end of the line runs at: what [`Simulator::set_line_baud`] set
+    /// last, or the configured `baud`.
+    pub fn line_baud(&self) -> u32 {
+        self.line_baud
+    }
+
+    /// Set the rate the client sends and listens at (as read from the terminal). A servo hears
+    /// and answers only while its Baud Rate register selects exactly this rate, as on hardware.
+    /// `None` (the client's rate is unknown) or 0 (hang-up) assumes the configured `baud`.
+    pub fn set_line_baud(&mut self, baud: Option<u32>) {
+        self.line_baud = baud.filter(|&b| b > 0).unwrap_or(self.config.baud);
+    }
+
+    /// Time after the simulator's start.
+    fn elapsed(&self, now: Instant) -> Duration {
+        now.saturating_duration_since(self.start)
+    }
+
+    /// Whether a silent fault keeps servo `id` (configured id) off the bus `elapsed` after start.
+    fn silent_at(&self, id: u8, elapsed: Duration) -> bool {
+        self.config.faults.iter().any(|f| match f.window() {
+            (window, &Fault::Silent { id: fid, at }) => {
+                fid == id && elapsed >= at && window.contains(elapsed)
+            }
+            _ => false,
+        })
     }
 
     /// Advance motor models, watchdogs and timed faults to the clock's now.
@@ -377,20 +519,22 @@ impl Simulator {
             for servo in &mut self.servos {
                 servo.update(at);
             }
-            match self.timed[i].fault.clone() {
-                Fault::Silent { id, .. } => {
+            match self.timed[i].event {
+                Event::Silence(id) => {
+                    let silent = self.silent_at(id, self.elapsed(at));
                     if let Some(s) = self.servo_mut(id) {
-                        tracing::debug!(id, "fault: servo goes silent");
-                        s.set_silent(true);
+                        if s.is_silent() != silent {
+                            tracing::debug!(id, silent, "fault: servo silence changes");
+                            s.set_silent(silent);
+                        }
                     }
                 }
-                Fault::HardwareError { id, kind, .. } => {
+                Event::Hardware(id, kind) => {
                     if let Some(s) = self.servo_mut(id) {
                         tracing::debug!(id, ?kind, "fault: hardware error");
                         s.raise_hardware_error(kind.bit(), at);
                     }
                 }
-                _ => {}
             }
         }
     }
@@ -426,7 +570,7 @@ impl Simulator {
                 }
             };
             for out in outgoing {
-                if let Some(reply) = self.schedule(out, done) {
+                if let Some(reply) = self.schedule(out, now, done) {
                     replies.push(reply);
                 }
             }
@@ -437,8 +581,10 @@ impl Simulator {
         replies
     }
 
-    /// Apply reply faults and wire timing to one outgoing status packet.
-    fn schedule(&mut self, out: Outgoing, done: Instant) -> Option<Reply> {
+    /// Apply reply faults (those whose window holds `now`, when the instruction came in) and
+    /// wire timing to one outgoing status packet.
+    fn schedule(&mut self, out: Outgoing, now: Instant, done: Instant) -> Option<Reply> {
+        let elapsed = self.elapsed(now);
         let servo = self.servos.get(out.index)?;
         let id = servo.id();
         let config_id = self.config.servos.get(out.index).map(|s| s.id);
@@ -447,6 +593,12 @@ impl Simulator {
         let mut drop = false;
         let mut corrupt = false;
         for fault in &self.config.faults {
+            let (window, fault) = fault.window();
+            // Outside its window a fault draws nothing: the generator's sequence only depends
+            // on the replies the fault could touch.
+            if !window.contains(elapsed) {
+                continue;
+            }
             match fault {
                 Fault::DropReplies { id, fraction } if applies(id) => {
                     drop |= self.rng.chance(*fraction);
@@ -494,11 +646,11 @@ impl Simulator {
             .collect()
     }
 
-    /// A servo hears the bus unless it went silent or runs at another baud rate.
+    /// A servo hears the bus unless it went silent or runs at another rate than the line.
     fn hears(&self, index: usize) -> bool {
-        self.servos
-            .get(index)
-            .is_some_and(|s| !s.is_silent() && s.baud_index() == self.baud_index)
+        self.servos.get(index).is_some_and(|s| {
+            !s.is_silent() && BAUD_RATES.get(usize::from(s.baud_index())) == Some(&self.line_baud)
+        })
     }
 
     fn find(&self, id: u8) -> Option<usize> {

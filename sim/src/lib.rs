@@ -39,7 +39,8 @@ pub mod servo;
 pub mod table;
 
 pub use chain::{
-    Fault, HardwareErrorKind, Reply, SimConfig, Simulator, Stats, UnknownHardwareError, BAUD_RATES,
+    Fault, HardwareErrorKind, Reply, SimConfig, Simulator, Stats, UnknownHardwareError, Window,
+    BAUD_RATES,
 };
 pub use clock::{Clock, ManualClock, RealClock, SharedClock};
 pub use pty::{spawn_pty, SimHandle};
@@ -78,6 +79,17 @@ pub enum SimError {
     /// An extra latency beyond [`chain::MAX_LATENCY`].
     #[error("fault latency {0:?} exceeds 60 s")]
     Latency(std::time::Duration),
+    /// A fault window that closes before (or when) it opens.
+    #[error("fault window {start:?}..{end:?}: the end must come after the start")]
+    Window {
+        /// Opening.
+        start: std::time::Duration,
+        /// Closing.
+        end: std::time::Duration,
+    },
+    /// A hardware error inside a window: it latches at one instant.
+    #[error("a hardware error fault latches at its `at` and cannot have a window")]
+    WindowedHardwareError,
     /// A fault probability outside [0, 1].
     #[error("fault fraction {0} is outside [0, 1]")]
     Fraction(f64),

@@ -253,3 +253,218 @@ fn fault_names_parse() {
     assert_eq!("voltage".parse::<K>(), Ok(K::InputVoltage));
     assert!("melted".parse::<K>().is_err());
 }
+
+fn ms(n: u64) -> Duration {
+    Duration::from_millis(n)
+}
+
+#[test]
+fn a_drop_fault_acts_only_inside_its_window() {
+    let (mut s, clock) = sim_with(config(
+        &[1, 2],
+        vec![Fault::DropReplies {
+            id: Some(2),
+            fraction: 1.0,
+        }
+        .during(ms(100), Some(ms(300)))],
+    ));
+    let pings = |s: &mut snakectl_sim::Simulator| {
+        [1u8, 2]
+            .iter()
+            .flat_map(|&id| send(s, id, ins::PING, &[]))
+            .map(|r| r.id)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(pings(&mut s), [1, 2]);
+    clock.advance(ms(99));
+    assert_eq!(pings(&mut s), [1, 2]);
+    // The window opens at 100 ms (inclusive) ...
+    clock.advance(ms(1));
+    assert_eq!(pings(&mut s), [1]);
+    clock.advance(ms(199));
+    assert_eq!(pings(&mut s), [1]);
+    // ... and closes at 300 ms (exclusive).
+    clock.advance(ms(1));
+    assert_eq!(pings(&mut s), [1, 2]);
+    clock.advance(Duration::from_secs(10));
+    assert_eq!(pings(&mut s), [1, 2]);
+    assert_eq!(s.stats().dropped, 2);
+}
+
+#[test]
+fn a_windowed_fault_draws_nothing_outside_its_window() {
+    // Same seed, same traffic inside the window: the same losses, whatever came before it.
+    let pattern = |pings_before: usize| {
+        let mut cfg = config(
+            &[1],
+            vec![Fault::DropReplies {
+                id: None,
+                fraction: 0.5,
+            }
+            .during(ms(10), None)],
+        );
+        cfg.seed = 42;
+        let (mut s, clock) = sim_with(cfg);
+        for _ in 0..pings_before {
+            assert_eq!(send(&mut s, 1, ins::PING, &[]).len(), 1);
+        }
+        clock.advance(ms(10));
+        (0..200)
+            .map(|_| send(&mut s, 1, ins::PING, &[]).is_empty())
+            .collect::<Vec<_>>()
+    };
+    let a = pattern(0);
+    assert_eq!(a, pattern(37));
+    assert!(a.iter().any(|&d| d) && a.iter().any(|&d| !d));
+}
+
+#[test]
+fn corrupt_and_latency_faults_follow_their_windows() {
+    let (mut s, clock) = sim_with(config(
+        &[1],
+        vec![
+            Fault::CorruptReplies {
+                id: Some(1),
+                fraction: 1.0,
+            }
+            .during(Duration::ZERO, Some(ms(50))),
+            Fault::ExtraLatency {
+                id: None,
+                latency: ms(7),
+            }
+            .during(ms(50), None),
+        ],
+    ));
+    let good = protocol::encode_status(1, 0, &[0x24, 0x04, 48]);
+    let r = send(&mut s, 1, ins::PING, &[]);
+    let t0 = snakectl_sim::Clock::now(&clock);
+    assert_ne!(r[0].bytes, good);
+    assert_eq!(r[0].at, t0);
+    clock.advance(ms(50));
+    let r = send(&mut s, 1, ins::PING, &[]);
+    assert_eq!(r[0].bytes, good);
+    assert_eq!(r[0].at, t0 + ms(57));
+}
+
+#[test]
+fn a_silent_servo_answers_again_after_its_window() {
+    let (mut s, clock) = sim_with(config(
+        &[1, 2, 3],
+        vec![Fault::Silent { id: 3, at: ms(200) }.during(Duration::ZERO, Some(ms(700)))],
+    ));
+    let ids = |s: &mut snakectl_sim::Simulator| {
+        send(
+            s,
+            BROADCAST_ID,
+            ins::SYNC_READ,
+            &sync_read_params(&[3, 2, 1]),
+        )
+        .iter()
+        .map(|r| r.id)
+        .collect::<Vec<_>>()
+    };
+    assert_eq!(ids(&mut s), [3, 2, 1]);
+    clock.advance(ms(200));
+    assert_eq!(ids(&mut s), [2, 1]);
+    assert_eq!(s.servo(3).map(|x| x.is_silent()), Some(true));
+    // Deaf while silent: the broadcast write does not reach it.
+    send(
+        &mut s,
+        BROADCAST_ID,
+        ins::WRITE,
+        &write_params(addr::LED, &[1]),
+    );
+    clock.advance(ms(499));
+    assert_eq!(ids(&mut s), [2, 1]);
+    clock.advance(ms(1));
+    assert_eq!(ids(&mut s), [3, 2, 1]);
+    assert_eq!(s.servo(3).and_then(|x| x.value(addr::LED)), Some(0));
+    assert_eq!(s.servo(2).and_then(|x| x.value(addr::LED)), Some(1));
+    // Back for good, and it hears writes again.
+    send(
+        &mut s,
+        BROADCAST_ID,
+        ins::WRITE,
+        &write_params(addr::LED, &[1]),
+    );
+    assert_eq!(s.servo(3).and_then(|x| x.value(addr::LED)), Some(1));
+    clock.advance(Duration::from_secs(60));
+    assert_eq!(ids(&mut s), [3, 2, 1]);
+}
+
+#[test]
+fn overlapping_silent_windows_keep_the_servo_silent_until_the_last_closes() {
+    let silent = |from, to| Fault::Silent { id: 1, at: ms(0) }.during(ms(from), Some(ms(to)));
+    let (mut s, clock) = sim_with(config(&[1], vec![silent(100, 300), silent(200, 400)]));
+    let answers = |s: &mut snakectl_sim::Simulator| !send(s, 1, ins::PING, &[]).is_empty();
+    let mut seen = Vec::new();
+    for _ in 0..6 {
+        seen.push(answers(&mut s));
+        clock.advance(ms(100));
+    }
+    assert_eq!(seen, [true, false, false, false, true, true]);
+}
+
+#[test]
+fn a_silent_fault_whose_window_closes_before_it_starts_never_fires() {
+    let (mut s, clock) = sim_with(config(
+        &[1],
+        vec![Fault::Silent { id: 1, at: ms(500) }.during(Duration::ZERO, Some(ms(100)))],
+    ));
+    for _ in 0..10 {
+        assert_eq!(send(&mut s, 1, ins::PING, &[]).len(), 1);
+        clock.advance(ms(100));
+    }
+}
+
+#[test]
+fn fault_windows_are_validated() {
+    let bad = |faults: Vec<Fault>| {
+        snakectl_sim::Simulator::new(
+            config(&[1], faults),
+            std::sync::Arc::new(snakectl_sim::RealClock),
+        )
+        .err()
+    };
+    let drop = Fault::DropReplies {
+        id: None,
+        fraction: 0.5,
+    };
+    assert!(matches!(
+        bad(vec![drop.clone().during(ms(5), Some(ms(5)))]),
+        Some(SimError::Window { .. })
+    ));
+    // Nested windows are checked one by one, and the inner fault too.
+    assert!(matches!(
+        bad(vec![drop
+            .clone()
+            .during(ms(5), Some(ms(2)))
+            .during(ms(0), None)]),
+        Some(SimError::Window { .. })
+    ));
+    assert!(matches!(
+        bad(vec![Fault::Silent { id: 9, at: ms(0) }.during(ms(0), None)]),
+        Some(SimError::FaultId(9))
+    ));
+    assert!(matches!(
+        bad(vec![Fault::HardwareError {
+            id: 1,
+            at: ms(0),
+            kind: snakectl_sim::HardwareErrorKind::Overload,
+        }
+        .during(ms(0), Some(ms(10)))]),
+        Some(SimError::WindowedHardwareError)
+    ));
+    assert!(bad(vec![drop.clone().during(ms(5), None)]).is_none());
+    // Nested windows intersect.
+    let nested = drop
+        .during(ms(5), Some(ms(20)))
+        .during(ms(10), Some(ms(30)));
+    assert_eq!(
+        nested.window().0,
+        snakectl_sim::Window {
+            start: ms(10),
+            end: Some(ms(20))
+        }
+    );
+}
