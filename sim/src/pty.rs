@@ -5,6 +5,11 @@
 //! what the client wrote, feed the simulator, write each reply when its deadline has come. With
 //! wire timing the thread waits for every deadline (a pty itself stores the baud rate but does no
 //! timing). Traffic is logged with `tracing` at debug level.
+//!
+//! The rate the client set on its end (termios, read through the slave end the thread holds) is
+//! handed to the simulator with every chunk it wrote, so only servos whose Baud Rate register
+//! selects that rate hear and answer, as on a real bus. Where the rate cannot be read, the line
+//! is assumed to run at the configured `baud` (logged once at debug level).
 
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Read, Write};
@@ -58,9 +63,9 @@ pub fn spawn_pty(sim: Simulator) -> Result<SimHandle, SimError> {
         std::thread::Builder::new()
             .name("snakectl-sim".into())
             .spawn(move || {
-                // Held until the thread ends: the slave must stay open while serving.
-                let _slave = slave;
-                serve(master, &sim, &stop)
+                // Held until the thread ends: the slave must stay open while serving; its
+                // termios tell the rate the client set.
+                serve(master, &slave, &sim, &stop)
             })?
     };
     tracing::info!(path = %path.display(), "simulated servo chain listening");
@@ -122,13 +127,35 @@ impl Drop for SimHandle {
     }
 }
 
+/// The rate the client set on the terminal, or `None` (logged once) when it cannot be read.
+fn client_baud(slave: &TTYPort, logged: &mut bool) -> Option<u32> {
+    match slave.baud_rate() {
+        Ok(baud) => Some(baud),
+        Err(e) => {
+            if !std::mem::replace(logged, true) {
+                tracing::debug!(
+                    error = %e,
+                    "cannot read the client's baud rate: assuming the configured one, whatever the client sets"
+                );
+            }
+            None
+        }
+    }
+}
+
 /// The serving loop: until `stop`, read, feed, and write replies at their deadlines.
-fn serve(mut port: TTYPort, sim: &Mutex<Simulator>, stop: &AtomicBool) -> Result<(), SimError> {
+fn serve(
+    mut port: TTYPort,
+    slave: &TTYPort,
+    sim: &Mutex<Simulator>,
+    stop: &AtomicBool,
+) -> Result<(), SimError> {
     let clock = Arc::clone(lock(sim).clock());
     // Replies waiting for their deadline, earliest first. Bounded by what one instruction can
     // ask for (one reply per servo); a client that stops reading only makes writes time out.
     let mut pending: VecDeque<Reply> = VecDeque::new();
     let mut buf = [0u8; 4096];
+    let mut baud_unreadable_logged = false;
     while !stop.load(Ordering::Relaxed) {
         let now = clock.now();
         while pending.front().is_some_and(|r| r.at <= now) {
@@ -158,7 +185,12 @@ fn serve(mut port: TTYPort, sim: &Mutex<Simulator>, stop: &AtomicBool) -> Result
             Ok(n) => {
                 let bytes = &buf[..n];
                 tracing::debug!("rx {:02X?}", bytes);
-                let replies = lock(sim).handle_bytes(bytes);
+                // Read after the bytes arrived: the rate they were sent at.
+                let baud = client_baud(slave, &mut baud_unreadable_logged);
+                let mut sim = lock(sim);
+                sim.set_line_baud(baud);
+                let replies = sim.handle_bytes(bytes);
+                drop(sim);
                 for reply in replies {
                     let at = pending.partition_point(|r| r.at <= reply.at);
                     pending.insert(at, reply);
