@@ -3,7 +3,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::process::{Command, Output};
+mod cli_support;
+
+use std::process::Output;
 use std::sync::Arc;
 
 use snakectl_sim::{spawn_pty, Model, RealClock, ServoSpec, SimConfig, SimHandle, Simulator};
@@ -19,11 +21,9 @@ fn serve(baud: u32) -> SimHandle {
     spawn_pty(Simulator::new(config, Arc::new(RealClock)).unwrap()).unwrap()
 }
 
+/// Runs the binary with nothing on stdin.
 fn snakectl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_snakectl"))
-        .args(args)
-        .output()
-        .unwrap()
+    cli_support::snakectl(args, "")
 }
 
 fn stdout(o: &Output) -> String {

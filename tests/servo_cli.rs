@@ -3,7 +3,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::process::{Command, Output};
+mod cli_support;
+
+use std::process::Output;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -27,11 +29,9 @@ fn serve(faults: Vec<Fault>) -> SimHandle {
     spawn_pty(Simulator::new(config, Arc::new(RealClock)).unwrap()).unwrap()
 }
 
+/// Runs the binary with nothing on stdin.
 fn snakectl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_snakectl"))
-        .args(args)
-        .output()
-        .unwrap()
+    cli_support::snakectl(args, "")
 }
 
 fn text(o: &Output) -> (String, String) {
