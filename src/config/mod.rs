@@ -29,13 +29,11 @@ use raw::{RawArm, RawBus, RawConfig, RawControl, RawJoint, RawServer, RawSim, St
 /// Lowest servo id a joint may use (0 is reserved by convention).
 pub const MIN_SERVO_ID: u8 = 1;
 /// Highest servo id a joint may use (253..=255 are reserved; 254 is broadcast).
-pub const MAX_SERVO_ID: u8 = 252;
+pub const MAX_SERVO_ID: u8 = crate::servo::MAX_ID;
 /// Largest software offset, ticks: one full turn of an X-series servo.
 pub const MAX_OFFSET_TICKS: i32 = 4095;
-/// Baud rates an X-series servo can be set to.
-pub const BAUD_RATES: [u32; 8] = [
-    9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000,
-];
+/// Baud rates an X-series servo can be set to (the servo layer's list).
+pub use crate::servo::BAUD_RATES;
 
 /// A servo model this program knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
