@@ -162,7 +162,6 @@ impl Sequential {
         for v in [&mut self.start, &mut self.swept, &mut self.trial] {
             v.resize(n + 1, Vec2::zeros());
         }
-        self.best.resize(n, 0.0);
     }
 
     /// Tolerance scaled to the round-off of the coordinates at hand.
