@@ -8,9 +8,13 @@
 //! The state of an arm is its angles, so link lengths are exact by construction. Everything here
 //! is pure and allocation-free on the `_into` paths, so a control loop can call it every tick.
 
+mod workspace;
+
 use std::f64::consts::PI;
 
 use nalgebra::{Matrix2xX, Vector2};
+
+pub use workspace::{Reachability, Workspace};
 
 /// A point or vector in the plane, in metres.
 pub type Vec2 = Vector2<f64>;
@@ -96,43 +100,6 @@ impl JointLimit {
     }
 }
 
-/// The reachable set of the tip, as far as a quick test can tell without solving.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Workspace {
-    /// Inner radius around the base: no pose puts the tip closer.
-    pub r_min: f64,
-    /// Outer radius: no pose puts the tip farther.
-    pub r_max: f64,
-    /// True when the ring is exactly the reachable set (every joint unlimited). With limits the
-    /// radii are still valid bounds, but points inside the ring may be out of reach.
-    pub exact: bool,
-}
-
-/// What a quick workspace test says about a target.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Reachability {
-    /// Certainly reachable.
-    Inside,
-    /// Certainly unreachable.
-    Outside,
-    /// Within the bounding ring of a limited chain: only a solver can tell.
-    Unknown,
-}
-
-impl Workspace {
-    /// Classifies a target given its distance from the base. Conservative: `Outside` and `Inside`
-    /// are certain; a limited chain answers `Unknown` inside its bounding ring.
-    pub fn classify(&self, distance: f64) -> Reachability {
-        if distance > self.r_max || distance < self.r_min {
-            Reachability::Outside
-        } else if self.exact {
-            Reachability::Inside
-        } else {
-            Reachability::Unknown
-        }
-    }
-}
-
 /// A planar serial chain with a fixed base pose.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Chain {
@@ -141,6 +108,7 @@ pub struct Chain {
     heading: f64,
     limits: Vec<Option<JointLimit>>,
     reach: f64,
+    workspace: Workspace,
 }
 
 fn finite_within(value: f64) -> bool {
@@ -196,12 +164,14 @@ impl Chain {
             }
         }
         let reach = links.iter().sum();
+        let workspace = workspace::bound(&links, &limits, heading);
         Ok(Self {
             links,
             base,
             heading,
             limits,
             reach,
+            workspace,
         })
     }
 
@@ -325,23 +295,31 @@ impl Chain {
         j
     }
 
-    /// The ring that bounds the tip around the base.
+    /// Where the tip can be, computed once when the chain is built (see [`Workspace`]).
     ///
-    /// Unlimited: exactly `r_min = max(0, 2 max L - R) <= |t - b| <= R`. With limits the same
-    /// ring is returned as a bound (`exact = false`): limits can only shrink the workspace, so a
-    /// target outside it is certainly unreachable, and one inside must be left to a solver.
+    /// Unlimited: exactly the ring `max(0, 2 max L - R) <= |t - b| <= R` (`exact = true`). With
+    /// limits a conservative bound (`exact = false`): radii and, when the limits confine them,
+    /// bearings that no pose within the limits leaves; a target inside them may still be out of
+    /// reach, which only a solver can tell.
     pub fn workspace(&self) -> Workspace {
+        self.workspace
+    }
+
+    /// The ring of the same links with every joint unlimited (what a strategy that ignores
+    /// limits can reach).
+    pub fn ring(&self) -> Workspace {
         let longest = self.links.iter().cloned().fold(0.0, f64::max);
         Workspace {
             r_min: (2.0 * longest - self.reach).max(0.0),
             r_max: self.reach,
-            exact: !self.is_limited(),
+            bearing: None,
+            exact: true,
         }
     }
 
     /// Quick reachability test of a tip target (see [`Chain::workspace`]).
     pub fn classify(&self, target: Vec2) -> Reachability {
-        self.workspace().classify((target - self.base).norm())
+        self.workspace.classify(target - self.base)
     }
 
     /// Relative angles of the polyline `points` (n + 1 points, `p_0` first), joint 1 measured
@@ -434,8 +412,11 @@ mod tests {
     fn limited_chain_is_not_claimed_reachable() {
         let lim = Some(JointLimit { lo: -0.1, hi: 0.1 });
         let c = Chain::new(vec![1.0, 1.0], Vec2::zeros(), 0.0, vec![lim, lim]).unwrap();
-        assert_eq!(c.classify(Vec2::new(0.0, 1.5)), Reachability::Unknown);
+        assert_eq!(c.classify(c.tip(&[0.05, -0.07])), Reachability::Unknown);
+        assert_eq!(c.classify(Vec2::new(1.99, 0.05)), Reachability::Outside); // too folded
+        assert_eq!(c.classify(Vec2::new(0.0, 1.5)), Reachability::Outside);
         assert_eq!(c.classify(Vec2::new(0.0, 2.5)), Reachability::Outside);
+        assert!(c.ring().exact && c.ring().r_max == 2.0 && c.ring().r_min == 0.0);
         assert_eq!(
             c.check_limits(&[0.0, 0.2]),
             Err(LimitViolation {

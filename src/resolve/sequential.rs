@@ -20,7 +20,7 @@ use nalgebra::Matrix2;
 
 use super::tractrix::Propagation;
 use super::{Outcome, Resolver, Strategy};
-use crate::chain::{Chain, Reachability, Vec2, Workspace};
+use crate::chain::{Chain, Reachability, Vec2};
 
 /// How the fixed-base sweep puts the base back.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -363,11 +363,7 @@ impl Resolver for Sequential {
         Chain::angles_from_points(chain.heading(), &self.swept, theta0, out);
         let tip_error = (chain.tip(out) - target).norm();
         // The propagation ignores limits: reachability is that of the unlimited chain.
-        let ring = Workspace {
-            exact: true,
-            ..chain.workspace()
-        };
-        let reachable = ring.classify((target - chain.base()).norm()) == Reachability::Inside;
+        let reachable = chain.ring().classify(target - chain.base()) == Reachability::Inside;
         Outcome {
             tip_error,
             base_error: 0.0,
