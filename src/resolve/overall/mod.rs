@@ -8,14 +8,14 @@
 //! Method (every iteration is O(n); nothing is allocated once the scratch is sized for n):
 //! - **SQP step.** The linearized subproblem, with the identity as Hessian, is solved through
 //!   its two-variable dual `theta(mu) = clip(theta0 + J^T mu, lo, hi)` by semismooth Newton
-//!   ([`dual`]); without limits that is the minimum-norm step with the 2 x 2 Schur complement
+//!   (module `dual`); without limits that is the minimum-norm step with the 2 x 2 Schur complement
 //!   `J J^T`. When the linearized constraint cannot be met inside the box (or `J` loses rank)
 //!   the elastic form with a penalized constraint is solved instead. The step is globalized by
 //!   an Armijo line search on the merit `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu`
 //!   raised above the multiplier norm whenever needed.
 //! - **Newton step.** Near the solution, exact Newton on the optimality conditions over the free
 //!   joints, with the Lagrangian Hessian `I + G`, `G_ab = g_max(a,b)`, solved in O(n) through
-//!   prefix sums ([`hessian`]). It is taken only when the Hessian's inertia says the point is a
+//!   prefix sums (module `hessian`). It is taken only when the Hessian's inertia says the point is a
 //!   local minimum on the constraint's tangent, no free joint leaves the box, and the residual
 //!   of the optimality conditions at least halves; otherwise the SQP step is used.
 //! - **Limits** are met exactly: every iterate is clipped into the box by construction.
