@@ -53,6 +53,14 @@ fn rig(config: &Config, edit: impl FnOnce(&mut SimConfig)) -> Rig {
     sim_rig(sim)
 }
 
+/// Every joint's servo reads Torque Enable = `expected`.
+fn assert_torque(rig: &mut Rig, arm: &Arm, expected: i64) {
+    for id in arm.ids() {
+        let torque = rig.bus.read(id, Register::TorqueEnable, TIMEOUT).unwrap();
+        assert_eq!(torque.value, expected, "servo {id}");
+    }
+}
+
 fn refusals(err: BringUpError) -> Vec<Refusal> {
     match err {
         BringUpError::Refused(r) => r,
@@ -119,15 +127,7 @@ fn bring_up_holds_the_present_pose_then_arms_the_watchdog_and_torques_on() {
         assert!((got - want).abs() < 1e-12);
     }
     arm.shut_down(&mut rig.bus).unwrap();
-    for id in arm.ids() {
-        assert_eq!(
-            rig.bus
-                .read(id, Register::TorqueEnable, TIMEOUT)
-                .unwrap()
-                .value,
-            0
-        );
-    }
+    assert_torque(&mut rig, &arm, 0);
 }
 
 #[test]
@@ -274,15 +274,7 @@ fn hold_on_exit_keeps_torque_on() {
     arm.bring_up(&mut rig.bus, BringUpOptions::default())
         .unwrap();
     arm.shut_down(&mut rig.bus).unwrap();
-    for id in arm.ids() {
-        assert_eq!(
-            rig.bus
-                .read(id, Register::TorqueEnable, TIMEOUT)
-                .unwrap()
-                .value,
-            1
-        );
-    }
+    assert_torque(&mut rig, &arm, 1);
 }
 
 #[test]

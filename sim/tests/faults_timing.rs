@@ -25,6 +25,19 @@ fn config(ids: &[u8], faults: Vec<Fault>) -> SimConfig {
     }
 }
 
+/// Ids of the servos that answer a sync read addressed to 3, 2, 1, in reply order.
+fn answering(s: &mut snakectl_sim::Simulator) -> Vec<u8> {
+    send(
+        s,
+        BROADCAST_ID,
+        ins::SYNC_READ,
+        &sync_read_params(&[3, 2, 1]),
+    )
+    .iter()
+    .map(|r| r.id)
+    .collect()
+}
+
 #[test]
 fn dropped_replies_leave_the_others() {
     let (mut s, _) = sim_with(config(
@@ -119,22 +132,11 @@ fn a_servo_goes_silent_at_its_time() {
             at: Duration::from_millis(500),
         }],
     ));
-    let ids = |s: &mut snakectl_sim::Simulator| {
-        send(
-            s,
-            BROADCAST_ID,
-            ins::SYNC_READ,
-            &sync_read_params(&[3, 2, 1]),
-        )
-        .iter()
-        .map(|r| r.id)
-        .collect::<Vec<_>>()
-    };
-    assert_eq!(ids(&mut s), [3, 2, 1]);
+    assert_eq!(answering(&mut s), [3, 2, 1]);
     clock.advance(Duration::from_millis(499));
-    assert_eq!(ids(&mut s), [3, 2, 1]);
+    assert_eq!(answering(&mut s), [3, 2, 1]);
     clock.advance(Duration::from_millis(1));
-    assert_eq!(ids(&mut s), [2, 1]);
+    assert_eq!(answering(&mut s), [2, 1]);
     // Silent means deaf too: a write to it is not carried out.
     send(
         &mut s,
@@ -352,20 +354,9 @@ fn a_silent_servo_answers_again_after_its_window() {
         &[1, 2, 3],
         vec![Fault::Silent { id: 3, at: ms(200) }.during(Duration::ZERO, Some(ms(700)))],
     ));
-    let ids = |s: &mut snakectl_sim::Simulator| {
-        send(
-            s,
-            BROADCAST_ID,
-            ins::SYNC_READ,
-            &sync_read_params(&[3, 2, 1]),
-        )
-        .iter()
-        .map(|r| r.id)
-        .collect::<Vec<_>>()
-    };
-    assert_eq!(ids(&mut s), [3, 2, 1]);
+    assert_eq!(answering(&mut s), [3, 2, 1]);
     clock.advance(ms(200));
-    assert_eq!(ids(&mut s), [2, 1]);
+    assert_eq!(answering(&mut s), [2, 1]);
     assert_eq!(s.servo(3).map(|x| x.is_silent()), Some(true));
     // Deaf while silent: the broadcast write does not reach it.
     send(
@@ -375,9 +366,9 @@ fn a_silent_servo_answers_again_after_its_window() {
         &write_params(addr::LED, &[1]),
     );
     clock.advance(ms(499));
-    assert_eq!(ids(&mut s), [2, 1]);
+    assert_eq!(answering(&mut s), [2, 1]);
     clock.advance(ms(1));
-    assert_eq!(ids(&mut s), [3, 2, 1]);
+    assert_eq!(answering(&mut s), [3, 2, 1]);
     assert_eq!(s.servo(3).and_then(|x| x.value(addr::LED)), Some(0));
     assert_eq!(s.servo(2).and_then(|x| x.value(addr::LED)), Some(1));
     // Back for good, and it hears writes again.
@@ -389,7 +380,7 @@ fn a_silent_servo_answers_again_after_its_window() {
     );
     assert_eq!(s.servo(3).and_then(|x| x.value(addr::LED)), Some(1));
     clock.advance(Duration::from_secs(60));
-    assert_eq!(ids(&mut s), [3, 2, 1]);
+    assert_eq!(answering(&mut s), [3, 2, 1]);
 }
 
 #[test]

@@ -109,6 +109,7 @@ pub struct Chain {
     limits: Vec<Option<JointLimit>>,
     reach: f64,
     workspace: Workspace,
+    ring: Workspace,
 }
 
 fn finite_within(value: f64) -> bool {
@@ -163,8 +164,15 @@ impl Chain {
                 }
             }
         }
-        let reach = links.iter().sum();
+        let reach: f64 = links.iter().sum();
         let workspace = workspace::bound(&links, &limits, heading);
+        let longest = links.iter().cloned().fold(0.0, f64::max);
+        let ring = Workspace {
+            r_min: (2.0 * longest - reach).max(0.0),
+            r_max: reach,
+            bearing: None,
+            exact: true,
+        };
         Ok(Self {
             links,
             base,
@@ -172,6 +180,7 @@ impl Chain {
             limits,
             reach,
             workspace,
+            ring,
         })
     }
 
@@ -308,13 +317,7 @@ impl Chain {
     /// The ring of the same links with every joint unlimited (what a strategy that ignores
     /// limits can reach).
     pub fn ring(&self) -> Workspace {
-        let longest = self.links.iter().cloned().fold(0.0, f64::max);
-        Workspace {
-            r_min: (2.0 * longest - self.reach).max(0.0),
-            r_max: self.reach,
-            bearing: None,
-            exact: true,
-        }
+        self.ring
     }
 
     /// Quick reachability test of a tip target (see [`Chain::workspace`]).
