@@ -13,19 +13,21 @@
 //! - [`config`]: the one TOML file that describes an arm and how to reach it, parsed raw and then
 //!   validated, errors naming the file and the field.
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
-//! - [`servo`]: the `ServoBus` trait, its Dynamixel implementation, units and calibration,
-//!   the joint-limit wrapper, bring-up and shut-down, serial-port discovery in sysfs.
+//! - [`servo`]: the `ServoBus` trait, its Dynamixel implementation, the model table, units and
+//!   calibration, the joint-limit wrapper, bring-up and shut-down, the one-time servo settings,
+//!   a recording bus, serial-port discovery in sysfs.
 //! - [`scenario`]: flexible-object scenarios (TOML): initial curve, pull, strategies; runs them
 //!   and tabulates the metrics.
 //! - [`plot`]: the scenario figures as SVG and PNG.
-//! - [`simbus`]: the config's servo chain as the plain data the simulator (`snakectl-sim`) takes.
+//! - [`connect`]: the one way from a config to a running bus: the simulator spawned on a
+//!   pseudo-terminal, or a serial port, opened, limited, with the arm it drives.
 
 pub mod chain;
 pub mod config;
+pub mod connect;
 pub mod metrics;
 pub mod plot;
 pub mod problem;
 pub mod resolve;
 pub mod scenario;
 pub mod servo;
-pub mod simbus;

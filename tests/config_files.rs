@@ -49,7 +49,7 @@ fn shipped_examples_are_what_the_docs_say() {
     let bus = sim.bus().unwrap();
     assert_eq!(bus.kind, snakectl::config::BusKind::Sim);
     assert_eq!(bus.baud, 1_000_000);
-    assert_eq!(bus.return_delay_us, 0);
+    assert_eq!(sim.arm().unwrap().settings().return_delay_us, 0);
     let ids: Vec<Option<u8>> = sim.joints().iter().map(|j| j.id).collect();
     assert_eq!(ids, (1..=12).map(Some).collect::<Vec<_>>());
     assert!(sim.sim().unwrap().faults.is_empty());

@@ -11,10 +11,9 @@ use std::time::{Duration, Instant};
 
 use servo_support::{realtime_rig, rig, sim_rig, xl430, TIMEOUT};
 use snakectl::chain::JointLimit;
-use snakectl::config::ServoModel;
 use snakectl::servo::arm::{Arm, JointServo, Settings};
 use snakectl::servo::units::{Calibration, TICKS_PER_TURN};
-use snakectl::servo::{Fields, Goal, HardwareErrors, Register, ServoBus, ServoError};
+use snakectl::servo::{Fields, Goal, HardwareErrors, Register, ServoBus, ServoError, ServoModel};
 use snakectl_sim::{Fault, HardwareErrorKind};
 
 #[test]
@@ -92,7 +91,14 @@ fn every_trait_call_round_trips() {
     }
     let ack = bus.reboot(id, TIMEOUT).unwrap();
     assert_eq!(ack.id, id);
-    snakectl::servo::arm::reboot_and_wait(bus, id, TIMEOUT).unwrap();
+    snakectl::servo::arm::reboot_and_wait(
+        bus,
+        id,
+        TIMEOUT,
+        &snakectl::servo::clock::WallClock::new(),
+        &mut snakectl::servo::arm::Retry::default(),
+    )
+    .unwrap();
 }
 
 /// Each joint with its own offset and direction: a pose written in radians reads back within a
@@ -110,7 +116,13 @@ fn calibration_round_trips() {
                 reverse: i % 3 == 1,
             };
             let limit = JointLimit { lo: -1.5, hi: 1.5 };
-            JointServo::new(i + 1, id, ServoModel::Xl430W250, calibration, limit)
+            JointServo::new(
+                i + 1,
+                id,
+                ServoModel::from_name("XL430-W250").unwrap(),
+                calibration,
+                limit,
+            )
         })
         .collect();
     let settings = Settings {
@@ -404,7 +416,16 @@ fn a_hardware_error_sets_the_alert_flag_until_a_reboot() {
         "{err}"
     );
     assert!(err.to_string().contains("alert flag set"), "{err}");
-    snakectl::servo::arm::reboot_and_wait(bus, 2, TIMEOUT).unwrap();
+    snakectl::servo::arm::reboot_and_wait(
+        bus,
+        2,
+        TIMEOUT,
+        &snakectl::servo::clock::WallClock::new(),
+        &mut snakectl::servo::arm::Retry::default(),
+    )
+    .unwrap();
+    // The class a caller matches on: a refusal with the alert flag is a hardware fault.
+    assert_eq!(err.class(), snakectl::servo::ErrorClass::Hardware);
     assert!(bus.hardware_errors(2, TIMEOUT).unwrap().is_empty());
     assert!(!bus.set_torque(2, true, TIMEOUT).unwrap().alert);
 }

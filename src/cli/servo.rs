@@ -8,12 +8,13 @@ use std::time::Duration;
 use anyhow::{anyhow, Context};
 use clap::{Args, Subcommand};
 
-use snakectl::servo::arm::reboot_and_wait;
+use snakectl::connect::{self, ConnectError};
+use snakectl::servo::admin::{self, AdminError};
+use snakectl::servo::arm::{reboot_and_wait, Retry};
+use snakectl::servo::clock::WallClock;
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
-use snakectl::servo::{
-    baud_index, model_name, units, PingInfo, Register, ServoBus, ServoError, BAUD_RATES, MAX_ID,
-};
+use snakectl::servo::{baud_index, model_name, PingInfo, ServoBus, BAUD_RATES, MAX_ID};
 
 use super::{outln, Failure};
 
@@ -75,6 +76,9 @@ enum ServoAction {
     /// Print the servo's settings and present position (with the `offset_ticks` that would
     /// make this position 0 rad).
     Info,
+    /// Zero Homing Offset and clear Drive Mode's reverse bit (offsets and direction belong in
+    /// the config's `offset_ticks` and `reverse`, which bring-up requires).
+    ClearCalibration,
     /// Reboot (clears a latched hardware error; torque comes back off).
     Reboot,
     /// Switch torque off.
@@ -100,13 +104,17 @@ fn check_baud(baud: u32) -> Result<(), Failure> {
 }
 
 fn open(port: &Path, baud: u32) -> Result<DynamixelBus, Failure> {
-    DynamixelBus::open(port, baud).map_err(|e| match e {
-        ServoError::Open { .. } => Failure::other(
-            anyhow!(e)
-                .context("is the adapter plugged in? `snakectl ports` lists the serial ports"),
-        ),
+    connect::open_port(port, baud).map_err(|e: ConnectError| Failure::other(e))
+}
+
+/// A procedure's error: bad arguments are the user's, the rest the bus's.
+fn admin_failure(e: AdminError) -> Failure {
+    match e {
+        AdminError::BadId(_) | AdminError::BadReturnDelay(_) | AdminError::IdTaken { .. } => {
+            Failure::bad_input(e)
+        }
         other => Failure::other(other),
-    })
+    }
 }
 
 fn describe(p: &PingInfo) -> String {
@@ -216,10 +224,7 @@ pub fn ports(_args: PortsArgs) -> Result<(), Failure> {
 /// Opens the port at the servo's baud rate (given, or found by pinging it at each common one).
 fn find(args: &ServoArgs, timeout: Duration) -> Result<(DynamixelBus, PingInfo), Failure> {
     if args.id > MAX_ID {
-        return Err(Failure::bad_input(anyhow!(
-            "servo id {} is out of range 0..=252",
-            args.id
-        )));
+        return Err(Failure::bad_input(AdminError::BadId(args.id)));
     }
     let bauds: Vec<u32> = match args.baud {
         Some(b) => {
@@ -229,33 +234,15 @@ fn find(args: &ServoArgs, timeout: Duration) -> Result<(DynamixelBus, PingInfo),
         None => COMMON_BAUDS.to_vec(),
     };
     let mut bus = open(&args.port, bauds[0])?;
-    for &baud in &bauds {
-        bus.set_baud(baud).map_err(Failure::other)?;
-        match bus.ping(args.id, timeout) {
-            Ok(info) => return Ok((bus, info)),
-            Err(e) if e.is_timeout() || matches!(e, ServoError::Checksum { .. }) => {}
-            Err(e) => return Err(Failure::other(e)),
-        }
+    match admin::find(&mut bus, args.id, &bauds, timeout) {
+        Ok(info) => Ok((bus, info)),
+        Err(e @ AdminError::NotFound { .. }) => Err(Failure::other(anyhow!(
+            "{e} on {} (`snakectl scan --port {}` lists what does)",
+            args.port.display(),
+            args.port.display()
+        ))),
+        Err(e) => Err(admin_failure(e)),
     }
-    Err(Failure::other(anyhow!(
-        "servo {} does not answer on {} at {} baud (`snakectl scan --port {}` lists what does)",
-        args.id,
-        args.port.display(),
-        bauds
-            .iter()
-            .map(u32::to_string)
-            .collect::<Vec<_>>()
-            .join(", "),
-        args.port.display()
-    )))
-}
-
-/// Torque off, so EEPROM items can be written.
-fn torque_off(bus: &mut DynamixelBus, id: u8, timeout: Duration) -> Result<(), Failure> {
-    bus.set_torque(id, false, timeout)
-        .with_context(|| format!("torque off before writing EEPROM on servo {id}"))
-        .map_err(Failure::other)?;
-    Ok(())
 }
 
 /// Runs `snakectl servo`.
@@ -271,9 +258,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
         }
         ServoAction::SetBaud { new_baud } => check_baud(new_baud)?,
         ServoAction::SetReturnDelay { us } if us > 508 || us % 2 != 0 => {
-            return Err(Failure::bad_input(anyhow!(
-                "return delay {us} µs: must be even and at most 508"
-            )))
+            return Err(Failure::bad_input(AdminError::BadReturnDelay(us)))
         }
         _ => {}
     }
@@ -287,81 +272,35 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
     );
     match args.action {
         ServoAction::SetId { new_id } => {
-            if new_id == id {
+            if admin::set_id(&mut bus, id, new_id, timeout).map_err(admin_failure)? {
+                outln!("servo {id}: now id {new_id}")?;
+            } else {
                 outln!("servo {id}: already id {id}")?;
-                return Ok(());
             }
-            match bus.ping(new_id, timeout) {
-                Err(e) if e.is_timeout() => {}
-                Ok(_) => {
-                    return Err(Failure::bad_input(anyhow!(
-                        "id {new_id} is already taken on {port} at {baud} baud"
-                    )))
-                }
-                Err(e) => return Err(Failure::other(e)),
-            }
-            torque_off(&mut bus, id, timeout)?;
-            // The acknowledgement may already carry the new id.
-            match bus.write(id, Register::Id, i64::from(new_id), timeout) {
-                Ok(_) => {}
-                // A reply already carrying the new id is skipped as another servo's.
-                Err(ServoError::WrongId { from, .. }) if from == new_id => {}
-                Err(ServoError::Timeout { .. }) => {}
-                Err(e) => return Err(Failure::other(e)),
-            }
-            bus.ping(new_id, timeout)
-                .with_context(|| format!("servo {id} does not answer as {new_id}"))
-                .map_err(Failure::other)?;
-            outln!("servo {id}: now id {new_id}")?;
         }
         ServoAction::SetBaud { new_baud } => {
-            let index = baud_index(new_baud)
-                .ok_or_else(|| Failure::bad_input(ServoError::Baud(new_baud)))?;
-            torque_off(&mut bus, id, timeout)?;
-            // The servo may answer at either rate, or not at all, as it switches.
-            match bus.write(id, Register::BaudRate, i64::from(index), timeout) {
-                Ok(_) | Err(ServoError::Timeout { .. }) | Err(ServoError::Checksum { .. }) => {}
-                Err(e) => return Err(Failure::other(e)),
-            }
-            bus.set_baud(new_baud).map_err(Failure::other)?;
-            std::thread::sleep(Duration::from_millis(50));
-            bus.ping(id, timeout)
-                .with_context(|| format!("servo {id} does not answer at {new_baud} baud"))
-                .map_err(Failure::other)?;
+            admin::set_baud(&mut bus, id, new_baud, timeout, &WallClock::new())
+                .map_err(admin_failure)?;
             outln!("servo {id}: now at {new_baud} baud (set [bus] baud = {new_baud})")?;
         }
         ServoAction::SetReturnDelay { us } => {
-            torque_off(&mut bus, id, timeout)?;
-            let value = units::return_delay(us);
-            bus.write(id, Register::ReturnDelayTime, value, timeout)
-                .map_err(Failure::other)?;
-            let back = bus
-                .read(id, Register::ReturnDelayTime, timeout)
-                .map_err(Failure::other)?
-                .value;
-            outln!("servo {id}: Return Delay Time {} µs", back * 2)?;
+            let back = admin::set_return_delay(&mut bus, id, us, timeout).map_err(admin_failure)?;
+            outln!("servo {id}: Return Delay Time {back} µs")?;
+        }
+        ServoAction::ClearCalibration => {
+            let (offset, drive) =
+                admin::clear_calibration(&mut bus, id, timeout).map_err(admin_failure)?;
+            outln!(
+                "servo {id}: Homing Offset {offset} -> 0, Drive Mode {drive} -> {}",
+                drive & !1
+            )?;
         }
         ServoAction::Info => {
-            let mut read = |r: Register| {
-                bus.read(id, r, timeout)
-                    .map(|v| v.value)
-                    .map_err(Failure::other)
-            };
-            let position = read(Register::PresentPosition)?;
-            let baud_reg = read(Register::BaudRate)?;
-            let rdt = read(Register::ReturnDelayTime)?;
-            let mode = read(Register::OperatingMode)?;
-            let (min, max) = (
-                read(Register::MinPositionLimit)?,
-                read(Register::MaxPositionLimit)?,
-            );
-            let torque = read(Register::TorqueEnable)?;
-            let watchdog = read(Register::BusWatchdog)?;
-            let errors = bus.hardware_errors(id, timeout).map_err(Failure::other)?;
-            let baud_text = usize::try_from(baud_reg)
+            let i = admin::info(&mut bus, id, timeout).map_err(admin_failure)?;
+            let baud_text = usize::try_from(i.baud_register)
                 .ok()
-                .and_then(|i| BAUD_RATES.get(i))
-                .map_or_else(|| format!("register {baud_reg}"), u32::to_string);
+                .and_then(|r| BAUD_RATES.get(r))
+                .map_or_else(|| format!("register {}", i.baud_register), u32::to_string);
             outln!("id {id}")?;
             outln!(
                 "model {} ({}), firmware {}",
@@ -370,19 +309,29 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
                 info.firmware
             )?;
             outln!("baud rate {baud_text}")?;
-            outln!("return delay {} us", rdt * 2)?;
-            outln!("operating mode {mode}")?;
-            outln!("position limits {min}..={max} ticks")?;
-            outln!("torque {}", if torque != 0 { "on" } else { "off" })?;
-            outln!("bus watchdog {watchdog}")?;
-            outln!("hardware errors {errors}")?;
+            outln!("return delay {} us", i.return_delay_us)?;
+            outln!("operating mode {}", i.operating_mode)?;
+            outln!("position limits {}..={} ticks", i.limits.0, i.limits.1)?;
+            outln!("homing offset {} ticks", i.homing_offset)?;
+            outln!("drive mode {}", i.drive_mode)?;
+            outln!("torque {}", if i.torque { "on" } else { "off" })?;
+            outln!("bus watchdog {}", i.watchdog)?;
+            outln!("hardware errors {}", i.errors)?;
             outln!(
-                "present position {position} ticks (offset_ticks = {} makes it 0 rad)",
-                position - 2048
+                "present position {} ticks (offset_ticks = {} makes it 0 rad)",
+                i.position,
+                i.position - 2048
             )?;
         }
         ServoAction::Reboot => {
-            reboot_and_wait(&mut bus, id, timeout).map_err(Failure::other)?;
+            reboot_and_wait(
+                &mut bus,
+                id,
+                timeout,
+                &WallClock::new(),
+                &mut Retry::default(),
+            )
+            .map_err(Failure::other)?;
             let errors = bus.hardware_errors(id, timeout).map_err(Failure::other)?;
             outln!("servo {id}: rebooted; hardware errors: {errors}")?;
         }

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use clap::Args;
 
 use snakectl::config::Config;
+use snakectl::connect::{self, ConnectError};
 
 use super::{outln, Failure};
 
@@ -35,11 +36,14 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
         .init();
     let other = Failure::other;
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
-    let sim_config = snakectl::simbus::sim_config(&config)
-        .map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", args.config.display())))?;
-    let simulator = snakectl_sim::Simulator::new(sim_config, Arc::new(snakectl_sim::RealClock))
-        .map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", args.config.display())))?;
-    let handle = snakectl_sim::spawn_pty(simulator).map_err(|e| other(e.into()))?;
+    let handle =
+        connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock)).map_err(|e| match e {
+            ConnectError::Sim {
+                source: snakectl_sim::SimError::Pty(_) | snakectl_sim::SimError::Io(_),
+                ..
+            } => other(e.into()),
+            _ => Failure::bad_input(e),
+        })?;
     if let Some(link) = &args.link {
         if link
             .symlink_metadata()

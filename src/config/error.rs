@@ -141,10 +141,12 @@ pub enum Problem {
         id: u8,
     },
     /// A servo model this program does not know.
-    #[error("\"{value}\" is not a supported model (XL430-W250, XM430-W350, XL330-M288)")]
+    #[error("\"{value}\" is not a known model ({known})")]
     UnknownModel {
         /// The name given.
         value: String,
+        /// The known ones.
+        known: String,
     },
     /// A key that must be present for the rest of the file to make sense.
     #[error("missing: {why}")]

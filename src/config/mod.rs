@@ -20,63 +20,21 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 pub use error::{ConfigError, Problem};
-pub use raw::{BusKind, Fault, HardwareError, OnExit};
+pub use raw::{BusKind, HardwareError};
+
+use std::time::Duration;
 
 use crate::chain::{Chain, JointLimit, Vec2, MAX_MAGNITUDE};
 use crate::resolve::Strategy;
+use crate::servo::arm::{Arm, JointServo, OnExit, Settings};
+use crate::servo::units::Calibration;
+use crate::servo::{model::model_names, ServoModel, BAUD_RATES, MAX_ID};
 use raw::{RawArm, RawBus, RawConfig, RawControl, RawJoint, RawServer, RawSim, StrategyName};
 
 /// Lowest servo id a joint may use (0 is reserved by convention).
 pub const MIN_SERVO_ID: u8 = 1;
-/// Highest servo id a joint may use (253..=255 are reserved; 254 is broadcast).
-pub const MAX_SERVO_ID: u8 = crate::servo::MAX_ID;
 /// Largest software offset, ticks: one full turn of an X-series servo.
 pub const MAX_OFFSET_TICKS: i32 = 4095;
-/// Baud rates an X-series servo can be set to (the servo layer's list).
-pub use crate::servo::BAUD_RATES;
-
-/// A servo model this program knows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum ServoModel {
-    /// ROBOTIS XL430-W250.
-    Xl430W250,
-    /// ROBOTIS XM430-W350.
-    Xm430W350,
-    /// ROBOTIS XL330-M288.
-    Xl330M288,
-}
-
-impl ServoModel {
-    /// Every known model.
-    pub const ALL: [ServoModel; 3] = [
-        ServoModel::Xl430W250,
-        ServoModel::Xm430W350,
-        ServoModel::Xl330M288,
-    ];
-
-    /// The name used in files, e.g. `"XL430-W250"`.
-    pub fn name(self) -> &'static str {
-        match self {
-            ServoModel::Xl430W250 => "XL430-W250",
-            ServoModel::Xm430W350 => "XM430-W350",
-            ServoModel::Xl330M288 => "XL330-M288",
-        }
-    }
-
-    /// The value of the servo's Model Number register (address 0).
-    pub fn model_number(self) -> u16 {
-        match self {
-            ServoModel::Xl430W250 => 1060,
-            ServoModel::Xm430W350 => 1020,
-            ServoModel::Xl330M288 => 1200,
-        }
-    }
-
-    /// The model with this file name, if known (exact spelling).
-    pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|m| m.name() == name)
-    }
-}
 
 /// One validated `[[joint]]`.
 #[derive(Debug, Clone, PartialEq)]
@@ -95,7 +53,8 @@ pub struct Joint {
     pub reverse: bool,
 }
 
-/// The validated `[bus]`.
+/// The validated `[bus]`: where the servos are. What bring-up writes to them is the servo
+/// layer's [`Settings`], in [`Config::arm`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Bus {
     /// Simulated or real servos.
@@ -104,18 +63,34 @@ pub struct Bus {
     pub port: Option<String>,
     /// Baud rate, one of [`BAUD_RATES`].
     pub baud: u32,
-    /// Return Delay Time to write, µs (even, at most 508).
-    pub return_delay_us: u32,
-    /// Profile Velocity to write, rad/s (0 = none).
-    pub profile_velocity_rad_s: f64,
-    /// Profile Acceleration to write, rad/s² (0 = none).
-    pub profile_acceleration_rad_s2: f64,
-    /// What the servos do when the daemon exits.
-    pub on_exit: OnExit,
-    /// Bus Watchdog, ms (0 = off, else a multiple of 20 up to 2540).
-    pub watchdog_ms: u32,
-    /// Wait for one reply, ms (1..=1000).
-    pub reply_timeout_ms: u32,
+}
+
+/// One validated `[[sim.fault]]`: what goes wrong, on which servo, when.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fault {
+    /// What goes wrong.
+    pub kind: FaultKind,
+    /// The servo; every servo when `None`.
+    pub id: Option<u8>,
+    /// From this long after the simulator starts.
+    pub from: Duration,
+    /// Until this long after the start; for good when `None`.
+    pub until: Option<Duration>,
+}
+
+/// What a fault does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FaultKind {
+    /// Drop this fraction (0..=1) of status replies.
+    Drop(f64),
+    /// Damage this fraction (0..=1) of status replies.
+    Corrupt(f64),
+    /// Delay every status reply by this much more.
+    Latency(Duration),
+    /// The servo stops answering.
+    Silent,
+    /// The servo raises this hardware error (and drops torque until rebooted).
+    HardwareError(HardwareError),
 }
 
 /// The validated `[sim]`.
@@ -164,6 +139,7 @@ pub struct Config {
     home: Vec<f64>,
     joints: Vec<Joint>,
     bus: Option<Bus>,
+    arm: Option<Arm>,
     sim: Option<Sim>,
     control: Control,
     server: Server,
@@ -212,6 +188,12 @@ impl Config {
     /// The bus, if the file describes one.
     pub fn bus(&self) -> Option<&Bus> {
         self.bus.as_ref()
+    }
+
+    /// The servo chain (every joint's servo, calibration and tick limits, and the `[bus]`
+    /// settings bring-up applies), when the file has a `[bus]`.
+    pub fn arm(&self) -> Option<&Arm> {
+        self.arm.as_ref()
     }
 
     /// The simulator settings, if the file has a `[sim]` table.
@@ -318,7 +300,13 @@ impl Checker<'_> {
             path: self.path.to_path_buf(),
             source,
         })?;
-        let bus = raw.bus.map(|b| self.bus(&b, &joints)).transpose()?;
+        let (bus, arm) = match raw.bus {
+            Some(b) => {
+                let (bus, arm) = self.bus(&b, &joints)?;
+                (Some(bus), Some(arm))
+            }
+            None => (None, None),
+        };
         let sim = raw.sim.map(|s| self.sim(s, &joints)).transpose()?;
         let control = self.control(&raw.control.unwrap_or_default())?;
         let server = self.server(raw.server.unwrap_or_default())?;
@@ -328,6 +316,7 @@ impl Checker<'_> {
             home,
             joints,
             bus,
+            arm,
             sim,
             control,
             server,
@@ -345,7 +334,7 @@ impl Checker<'_> {
         let id = match raw.id {
             None => None,
             Some(v) => match u8::try_from(v) {
-                Ok(id) if (MIN_SERVO_ID..=MAX_SERVO_ID).contains(&id) => Some(id),
+                Ok(id) if (MIN_SERVO_ID..=MAX_ID).contains(&id) => Some(id),
                 _ => return Err(self.invalid(field("id"), Problem::BadId { value: v })),
             },
         };
@@ -358,6 +347,7 @@ impl Checker<'_> {
                         field("model"),
                         Problem::UnknownModel {
                             value: name.clone(),
+                            known: model_names(),
                         },
                     ))
                 }
@@ -456,24 +446,30 @@ impl Checker<'_> {
         Ok((Vec2::new(x, y), heading, home))
     }
 
-    fn bus(&self, raw: &RawBus, joints: &[Joint]) -> Result<Bus, ConfigError> {
+    fn bus(&self, raw: &RawBus, joints: &[Joint]) -> Result<(Bus, Arm), ConfigError> {
+        let mut servos = Vec::with_capacity(joints.len());
         for (i, j) in joints.iter().enumerate() {
-            if j.id.is_none() {
+            let Some(id) = j.id else {
                 return Err(self.invalid(
                     format!("joint[{}].id", i + 1),
                     Problem::Missing {
                         why: "every joint needs a servo id when the file has a [bus]",
                     },
                 ));
-            }
-            if j.model.is_none() {
+            };
+            let Some(model) = j.model else {
                 return Err(self.invalid(
                     format!("joint[{}].model", i + 1),
                     Problem::Missing {
                         why: "every joint needs a servo model when the file has a [bus]",
                     },
                 ));
-            }
+            };
+            let calibration = Calibration {
+                offset_ticks: j.offset_ticks,
+                reverse: j.reverse,
+            };
+            servos.push(JointServo::new(i + 1, id, model, calibration, j.limit));
         }
         let port = match (raw.kind, &raw.port) {
             (BusKind::Dynamixel, None) => {
@@ -529,71 +525,118 @@ impl Checker<'_> {
                 },
             ));
         }
-        Ok(Bus {
-            kind: raw.kind,
-            port,
-            baud: raw.baud,
+        let settings = Settings {
             return_delay_us: raw.return_delay_us,
             profile_velocity_rad_s,
             profile_acceleration_rad_s2,
-            on_exit: raw.on_exit,
             watchdog_ms: raw.watchdog_ms,
-            reply_timeout_ms: raw.reply_timeout_ms,
-        })
+            on_exit: match raw.on_exit {
+                raw::OnExit::TorqueOff => OnExit::TorqueOff,
+                raw::OnExit::Hold => OnExit::Hold,
+            },
+            reply_timeout: Duration::from_millis(u64::from(raw.reply_timeout_ms)),
+        };
+        let bus = Bus {
+            kind: raw.kind,
+            port,
+            baud: raw.baud,
+        };
+        Ok((bus, Arm::new(servos, settings)))
     }
 
     fn sim(&self, raw: RawSim, joints: &[Joint]) -> Result<Sim, ConfigError> {
-        for (i, fault) in raw.faults.iter().enumerate() {
-            let field = |name: &str| format!("sim.fault[{}].{name}", i + 1);
-            let (id, at_s, until_s, fraction) = match *fault {
-                Fault::Drop {
-                    fraction,
-                    id,
-                    at_s,
-                    until_s,
-                }
-                | Fault::Corrupt {
-                    fraction,
-                    id,
-                    at_s,
-                    until_s,
-                } => (id, at_s, until_s, Some(fraction)),
-                Fault::Latency {
-                    id, at_s, until_s, ..
-                } => (id, at_s, until_s, None),
-                Fault::Silent { id, at_s, until_s } => (Some(id), at_s, until_s, None),
-                Fault::HardwareError { id, at_s, .. } => (Some(id), at_s, None, None),
-            };
-            if let Some(id) = id {
-                if !joints.iter().any(|j| j.id == Some(id)) {
-                    return Err(self.invalid(field("id"), Problem::UnknownId { id }));
-                }
-            }
-            let at_s = self.non_negative(field("at_s"), at_s)?;
-            if let Some(until_s) = until_s {
-                if !(finite_within(until_s) && until_s > at_s) {
-                    return Err(
-                        self.invalid(field("until_s"), Problem::EndsBeforeStart { at_s, until_s })
-                    );
-                }
-            }
-            if let Some(value) = fraction {
-                if !(0.0..=1.0).contains(&value) {
-                    return Err(self.invalid(
-                        field("fraction"),
-                        Problem::Outside {
-                            value,
-                            lo: 0.0,
-                            hi: 1.0,
-                        },
-                    ));
-                }
-            }
-        }
+        let faults = raw
+            .faults
+            .iter()
+            .enumerate()
+            .map(|(i, f)| self.fault(i + 1, f, joints))
+            .collect::<Result<_, _>>()?;
         Ok(Sim {
             wire_timing: raw.wire_timing,
             seed: raw.seed,
-            faults: raw.faults,
+            faults,
+        })
+    }
+
+    /// Seconds as a duration the simulator's clock can hold.
+    fn seconds(&self, field: String, s: f64) -> Result<Duration, ConfigError> {
+        let s = self.non_negative(field.clone(), s)?;
+        Duration::try_from_secs_f64(s).map_err(|_| {
+            self.invalid(
+                field,
+                Problem::Outside {
+                    value: s,
+                    lo: 0.0,
+                    hi: u64::MAX as f64,
+                },
+            )
+        })
+    }
+
+    fn fault(&self, n: usize, fault: &raw::Fault, joints: &[Joint]) -> Result<Fault, ConfigError> {
+        use raw::Fault as F;
+        let field = |name: &str| format!("sim.fault[{n}].{name}");
+        let (kind, id, at_s, until_s) = match *fault {
+            F::Drop {
+                fraction,
+                id,
+                at_s,
+                until_s,
+            } => (FaultKind::Drop(fraction), id, at_s, until_s),
+            F::Corrupt {
+                fraction,
+                id,
+                at_s,
+                until_s,
+            } => (FaultKind::Corrupt(fraction), id, at_s, until_s),
+            F::Latency {
+                extra_us,
+                id,
+                at_s,
+                until_s,
+            } => (
+                FaultKind::Latency(Duration::from_micros(u64::from(extra_us))),
+                id,
+                at_s,
+                until_s,
+            ),
+            F::Silent { id, at_s, until_s } => (FaultKind::Silent, Some(id), at_s, until_s),
+            F::HardwareError { id, at_s, error } => {
+                (FaultKind::HardwareError(error), Some(id), at_s, None)
+            }
+        };
+        if let Some(id) = id {
+            if !joints.iter().any(|j| j.id == Some(id)) {
+                return Err(self.invalid(field("id"), Problem::UnknownId { id }));
+            }
+        }
+        let from = self.seconds(field("at_s"), at_s)?;
+        let until = match until_s {
+            Some(until_s) if !(finite_within(until_s) && until_s > at_s) => {
+                return Err(
+                    self.invalid(field("until_s"), Problem::EndsBeforeStart { at_s, until_s })
+                )
+            }
+            Some(until_s) => Some(self.seconds(field("until_s"), until_s)?),
+            None => None,
+        };
+        if let FaultKind::Drop(value) | FaultKind::Corrupt(value) = kind {
+            if !(0.0..=1.0).contains(&value) {
+                return Err(self.invalid(
+                    field("fraction"),
+                    Problem::Outside {
+                        value,
+                        lo: 0.0,
+                        hi: 1.0,
+                    },
+                ));
+            }
+        }
+        Ok(Fault {
+            kind,
+            id,
+            from,
+            until,
         })
     }
 

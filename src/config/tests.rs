@@ -91,11 +91,19 @@ fn base_text_loads() {
     let c = load(&base_text()).unwrap();
     assert_eq!(c.chain().len(), 3);
     assert_eq!(c.home(), &[0.1, -0.2, 0.3]);
-    assert_eq!(c.joints()[2].model, Some(ServoModel::Xl330M288));
+    assert_eq!(
+        c.joints()[2].model.map(ServoModel::name),
+        Some("XL330-M288")
+    );
     assert_eq!(c.joints()[2].offset_ticks, -12);
     assert!(c.joints()[2].reverse);
     assert_eq!(c.bus().unwrap().kind, BusKind::Sim);
-    assert_eq!(c.bus().unwrap().on_exit, OnExit::TorqueOff);
+    assert_eq!(c.arm().unwrap().settings().on_exit, OnExit::TorqueOff);
+    // The servo chain the config builds: ids, models and the calibration of every joint.
+    let arm = c.arm().unwrap();
+    assert_eq!(arm.ids(), [1, 2, 3]);
+    assert_eq!(arm.joints()[2].calibration.offset_ticks, -12);
+    assert!(arm.joints()[2].calibration.reverse);
     assert_eq!(c.sim().unwrap().seed, 7);
     assert_eq!(c.control().strategy, Strategy::Overall);
     assert_eq!(c.server().max_clients, 4);
@@ -418,18 +426,20 @@ error = "overload""#,
     assert_eq!(faults.len(), 5);
     assert_eq!(
         faults[3],
-        Fault::Silent {
-            id: 3,
-            at_s: 2.0,
-            until_s: None
+        Fault {
+            kind: FaultKind::Silent,
+            id: Some(3),
+            from: Duration::from_secs(2),
+            until: None
         }
     );
     assert_eq!(
         faults[4],
-        Fault::HardwareError {
-            id: 1,
-            at_s: 4.5,
-            error: HardwareError::Overload
+        Fault {
+            kind: FaultKind::HardwareError(HardwareError::Overload),
+            id: Some(1),
+            from: Duration::from_millis(4500),
+            until: None
         }
     );
 }
@@ -585,9 +595,23 @@ fn load_reports_unreadable_file() {
 }
 
 #[test]
-fn model_names_round_trip() {
-    for m in ServoModel::ALL {
-        assert_eq!(ServoModel::from_name(m.name()), Some(m));
-    }
-    assert_eq!(ServoModel::Xl430W250.model_number(), 1060);
+fn an_unknown_model_names_the_known_ones() {
+    let err = load(&base_text().replace("\"XL330-M288\"", "\"XL330-M999\"")).unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("joint[3].model") && msg.contains("XL330-M999"),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("XL430-W250") && msg.contains("XM540-W270"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_fault_time_beyond_any_clock_is_refused() {
+    refused(
+        &with_fault("kind = \"silent\"\nid = 1\nat_s = 1e300"),
+        &["sim.fault[1].at_s"],
+    );
 }

@@ -1,34 +1,57 @@
 //! The configured joints on a bus: which servo drives which joint, its calibration and limits;
-//! bring-up, the pose in radians, and shut-down.
+//! bring-up, the pose in radians, torque, watchdog recovery and shut-down.
 //!
 //! Bring-up ([`Arm::bring_up`]), in this order, so the arm never jumps:
 //! 1. ping every configured id and check its model; read Hardware Error Status (reboot the
-//!    servo first if asked to). Any servo missing, of the wrong model or in hardware error:
-//!    refuse, naming each one;
+//!    servo first if asked to); Homing Offset must read 0 and Drive Mode's reverse bit 0
+//!    (calibration is applied here, in software: a servo reconfigured elsewhere would shift
+//!    every angle). Any servo missing, of the wrong model, in hardware error or with such an
+//!    offset: refuse, naming each one and the register;
 //! 2. read the present pose; a joint outside its limits: refuse (move it by hand);
 //! 3. Status Return Level 2 (every instruction acknowledged); then, only where they differ,
-//!    Operating Mode 3 (position), Return Delay Time and Min/Max Position Limit from the config
-//!    (EEPROM: torque off first if it was on); Profile Velocity and Acceleration;
+//!    Operating Mode 3 (position), Return Delay Time and Min/Max Position Limit (EEPROM:
+//!    torque off first if it was on; the protected ones through [`Limited::configure`]);
+//!    Profile Velocity and Acceleration;
 //! 4. clear the Bus Watchdog (0: a watchdog that fired refuses goals until then);
 //! 5. Goal Position = present position;
 //! 6. arm the Bus Watchdog (`[bus] watchdog_ms`);
 //! 7. torque on.
 //!
+//! Every exchange of bring-up, reboot, torque, watchdog recovery and shut-down is retried up
+//! to [`RETRIES`] times on a transient error (no reply, a damaged reply): one lost byte on a
+//! long bus must not stop a start. A refusal or a hardware alert is not retried.
+//!
 //! Shut-down ([`Arm::shut_down`]) follows `[bus] on_exit`: torque off (default; one Sync Write
 //! reaches every servo at once, then each is checked) or hold (torque stays on at the last
 //! goal; the watchdog, if armed, stops the servos once the bus goes quiet).
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::chain::JointLimit;
-use crate::config::{Config, OnExit, ServoModel};
 
-use super::limits::{Limited, Strategy, TickLimits};
+use super::clock::{Clock, WallClock};
+use super::limits::{Limited, Setting, Strategy, TickLimits, POSITION_MODE};
+use super::model::ServoModel;
 use super::units::{self, Calibration};
-use super::{Fields, Goal, HardwareErrors, PingInfo, Reading, Register, ServoBus, ServoError};
+use super::{
+    Fields, Goal, HardwareErrors, PingInfo, Reading, Register, ServoBus, ServoError, States,
+};
 
-/// How long a rebooted servo may take to answer again.
-const REBOOT_WAIT: Duration = Duration::from_secs(3);
+/// Transient errors retried per exchange (so an exchange is tried at most `RETRIES + 1` times).
+pub const RETRIES: u32 = 3;
+
+/// Drive Mode bit 0: reverse direction.
+const DRIVE_MODE_REVERSE: i64 = 0x01;
+
+/// What shut-down leaves the servos in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OnExit {
+    /// Torque off every servo (the arm goes limp).
+    #[default]
+    TorqueOff,
+    /// Torque stays on at the last goal (the Bus Watchdog, if armed, stops them later).
+    Hold,
+}
 
 /// One joint's servo.
 #[derive(Debug, Clone, PartialEq)]
@@ -47,7 +70,7 @@ pub struct JointServo {
     pub ticks: TickLimits,
 }
 
-/// The `[bus]` settings bring-up and shut-down apply.
+/// The `[bus]` settings bring-up and shut-down apply, validated (the config builds them).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Settings {
     /// Return Delay Time, µs.
@@ -77,21 +100,6 @@ impl Default for Settings {
     }
 }
 
-/// A config that does not describe a servo chain.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[non_exhaustive]
-pub enum ArmError {
-    /// A joint without a servo id or model.
-    #[error("joint[{joint}]: no servo id or model")]
-    MissingServo {
-        /// 1-based joint index.
-        joint: usize,
-    },
-    /// No `[bus]` table.
-    #[error("the config has no [bus] table")]
-    NoBus,
-}
-
 /// One reason bring-up refuses to start.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -107,7 +115,7 @@ pub enum Refusal {
         source: ServoError,
     },
     /// A servo of another model answers at this id.
-    #[error("joint {joint}: servo {id} is a {} (model {found}), the config says {}", super::model_name(*found).unwrap_or("servo of unknown model"), expected.name())]
+    #[error("joint {joint}: servo {id} is a {} (model {found}), the config says {expected}", super::model_name(*found).unwrap_or("servo of unknown model"))]
     WrongModel {
         /// 1-based joint index.
         joint: usize,
@@ -127,6 +135,21 @@ pub enum Refusal {
         id: u8,
         /// Hardware Error Status.
         errors: HardwareErrors,
+    },
+    /// A calibration register is not at its neutral value: offsets and direction are applied in
+    /// software, so the servo's own would shift or flip every angle.
+    #[error("joint {joint}: servo {id} has {register:?} = {value}, expected {expected} (calibration is applied in software: `snakectl servo --port PORT --id {id} clear-calibration` resets it)")]
+    Calibration {
+        /// 1-based joint index.
+        joint: usize,
+        /// Servo id.
+        id: u8,
+        /// Homing Offset or Drive Mode.
+        register: Register,
+        /// The value read.
+        value: i64,
+        /// What it must read (Drive Mode: its reverse bit clear).
+        expected: i64,
     },
     /// The joint sits outside its limits: torque on would drive it there at full speed.
     #[error("joint {joint}: servo {id} is at {angle_rad:.3} rad, outside its limits [{lo}, {hi}] rad: move it inside by hand")]
@@ -183,6 +206,8 @@ pub struct BringUp {
     pub pose: Vec<f64>,
     /// Servos rebooted to clear a hardware error.
     pub rebooted: Vec<u8>,
+    /// Exchanges sent again after a transient error.
+    pub retries: u32,
 }
 
 /// Options of [`Arm::bring_up`].
@@ -203,32 +228,35 @@ fn step(step: &'static str) -> impl Fn(ServoError) -> BringUpError {
     move |source| BringUpError::Step { step, source }
 }
 
-impl Arm {
-    /// The joints and `[bus]` settings of `config`.
-    pub fn from_config(config: &Config) -> Result<Self, ArmError> {
-        let bus = config.bus().ok_or(ArmError::NoBus)?;
-        let settings = Settings {
-            return_delay_us: bus.return_delay_us,
-            profile_velocity_rad_s: bus.profile_velocity_rad_s,
-            profile_acceleration_rad_s2: bus.profile_acceleration_rad_s2,
-            watchdog_ms: bus.watchdog_ms,
-            on_exit: bus.on_exit,
-            reply_timeout: Duration::from_millis(u64::from(bus.reply_timeout_ms)),
-        };
-        let mut joints = Vec::with_capacity(config.joints().len());
-        for (i, j) in config.joints().iter().enumerate() {
-            let (Some(id), Some(model)) = (j.id, j.model) else {
-                return Err(ArmError::MissingServo { joint: i + 1 });
-            };
-            let calibration = Calibration {
-                offset_ticks: j.offset_ticks,
-                reverse: j.reverse,
-            };
-            joints.push(JointServo::new(i + 1, id, model, calibration, j.limit));
-        }
-        Ok(Self { joints, settings })
-    }
+/// Runs exchanges, each retried up to [`RETRIES`] times on a transient error, and counts the
+/// retries.
+#[derive(Debug, Default)]
+pub struct Retry {
+    /// Exchanges sent again so far.
+    pub retries: u32,
+}
 
+impl Retry {
+    /// `exchange`, tried again while it fails transiently, at most [`RETRIES`] more times.
+    pub fn run<T>(
+        &mut self,
+        mut exchange: impl FnMut() -> Result<T, ServoError>,
+    ) -> Result<T, ServoError> {
+        let mut left = RETRIES;
+        loop {
+            match exchange() {
+                Err(e) if e.is_transient() && left > 0 => {
+                    tracing::debug!(error = %e, "retrying");
+                    left -= 1;
+                    self.retries += 1;
+                }
+                other => return other,
+            }
+        }
+    }
+}
+
+impl Arm {
     /// An arm of these joints and settings.
     pub fn new(joints: Vec<JointServo>, settings: Settings) -> Self {
         Self { joints, settings }
@@ -259,29 +287,42 @@ impl Arm {
         Limited::new(bus, self.tick_limits(), strategy)
     }
 
-    /// The goals for a pose in radians; a non-finite angle is refused, naming the joint.
-    pub fn goals(&self, pose: &[f64]) -> Result<Vec<Goal>, ServoError> {
-        if pose.len() != self.joints.len() {
+    /// The goals for a pose in radians, into `out` (one per joint); a non-finite angle is
+    /// refused, naming the joint, and `out` is then left as it was.
+    pub fn goals_into(&self, pose: &[f64], out: &mut [Goal]) -> Result<(), ServoError> {
+        if pose.len() != self.joints.len() || out.len() != self.joints.len() {
             return Err(ServoError::PoseLength {
                 expected: self.joints.len(),
-                got: pose.len(),
+                got: if pose.len() == self.joints.len() {
+                    out.len()
+                } else {
+                    pose.len()
+                },
             });
         }
-        self.joints
-            .iter()
-            .zip(pose)
-            .map(|(j, &theta)| {
-                let ticks = j
-                    .calibration
-                    .goal_ticks(theta)
-                    .ok_or(ServoError::NotFinite {
-                        joint: j.joint,
-                        id: j.id,
-                        value: theta,
-                    })?;
-                Ok(Goal { id: j.id, ticks })
-            })
-            .collect()
+        for (j, &theta) in self.joints.iter().zip(pose) {
+            if j.calibration.goal_ticks(theta).is_none() {
+                return Err(ServoError::NotFinite {
+                    joint: j.joint,
+                    id: j.id,
+                    value: theta,
+                });
+            }
+        }
+        for ((j, &theta), goal) in self.joints.iter().zip(pose).zip(out) {
+            *goal = Goal {
+                id: j.id,
+                ticks: j.calibration.goal_ticks(theta).unwrap_or(goal.ticks),
+            };
+        }
+        Ok(())
+    }
+
+    /// The goals for a pose in radians; a non-finite angle is refused, naming the joint.
+    pub fn goals(&self, pose: &[f64]) -> Result<Vec<Goal>, ServoError> {
+        let mut out = vec![Goal { id: 0, ticks: 0 }; self.joints.len()];
+        self.goals_into(pose, &mut out)?;
+        Ok(out)
     }
 
     /// Write a pose (rad) in one Sync Write. Nothing is written if an angle is not finite.
@@ -297,6 +338,25 @@ impl Arm {
         fields: Fields,
     ) -> Result<Vec<Reading>, ServoError> {
         bus.read_states(&self.ids(), fields, self.settings.reply_timeout)
+    }
+
+    /// [`Arm::read_states`] into caller-owned buffers; `ids` is [`Arm::ids`], kept by the
+    /// caller so nothing is allocated.
+    pub fn read_states_into<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        ids: &[u8],
+        fields: Fields,
+        out: &mut States,
+    ) -> Result<(), ServoError> {
+        bus.read_states_into(ids, fields, self.settings.reply_timeout, out)
+    }
+
+    /// The angle of joint `index` (0-based) at `ticks`.
+    pub fn angle(&self, index: usize, ticks: i32) -> Option<f64> {
+        self.joints
+            .get(index)
+            .map(|j| j.calibration.radians(f64::from(ticks)))
     }
 
     /// Present angle of every joint, rad, base to tip; a servo that did not answer gives its
@@ -315,25 +375,33 @@ impl Arm {
     }
 
     /// Ping, check and prepare every servo, then torque on (see the module docs for the order).
+    /// A rebooted servo is waited for on wall time.
     pub fn bring_up<B: ServoBus>(
         &self,
-        bus: &mut B,
+        bus: &mut Limited<B>,
         options: BringUpOptions,
     ) -> Result<BringUp, BringUpError> {
+        self.bring_up_with_clock(bus, options, &WallClock::new())
+    }
+
+    /// [`Arm::bring_up`], waiting for rebooted servos on `clock`.
+    pub fn bring_up_with_clock<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        options: BringUpOptions,
+        clock: &dyn Clock,
+    ) -> Result<BringUp, BringUpError> {
         let t = self.settings.reply_timeout;
-        let (servos, rebooted) = self.check(bus, options)?;
+        let mut retry = Retry::default();
+        let (servos, rebooted) = self.check_counting(bus, options, clock, &mut retry)?;
 
         // The present pose, before anything moves.
-        let states = self
-            .read_states(bus, Fields::POSITION)
-            .map_err(step("reading the present pose"))?;
+        let present = self.read_present(bus, &mut retry)?;
         let mut pose = Vec::with_capacity(self.joints.len());
-        let mut present = Vec::with_capacity(self.joints.len());
         let mut refusals = Vec::new();
-        for (j, s) in self.joints.iter().zip(states) {
-            let s = s.map_err(step("reading the present pose"))?;
-            let angle = j.calibration.radians(f64::from(s.position_ticks));
-            if s.position_ticks < j.ticks.min || s.position_ticks > j.ticks.max {
+        for (j, &ticks) in self.joints.iter().zip(&present) {
+            let angle = j.calibration.radians(f64::from(ticks));
+            if ticks < j.ticks.min || ticks > j.ticks.max {
                 refusals.push(Refusal::OutsideLimits {
                     joint: j.joint,
                     id: j.id,
@@ -343,55 +411,109 @@ impl Arm {
                 });
             }
             pose.push(angle);
-            present.push(s.position_ticks);
         }
         if !refusals.is_empty() {
             return Err(BringUpError::Refused(refusals));
         }
 
         for j in &self.joints {
-            self.prepare(bus, j)
+            self.prepare(bus, j, &mut retry)
                 .map_err(step("writing the servo settings"))?;
         }
         // A watchdog that fired refuses Goal Position writes until 0 is written to it.
         for j in &self.joints {
-            bus.write(j.id, Register::BusWatchdog, 0, t)
+            retry
+                .run(|| bus.write(j.id, Register::BusWatchdog, 0, t))
                 .map_err(step("clearing the bus watchdog"))?;
         }
         for (j, &ticks) in self.joints.iter().zip(&present) {
-            bus.write(j.id, Register::GoalPosition, i64::from(ticks), t)
+            retry
+                .run(|| bus.write(j.id, Register::GoalPosition, i64::from(ticks), t))
                 .map_err(step("holding the present pose"))?;
         }
-        let watchdog = i64::from(self.settings.watchdog_ms / 20).min(127);
+        self.arm_watchdog(bus, &mut retry)?;
         for j in &self.joints {
-            if watchdog > 0 {
-                bus.write(j.id, Register::BusWatchdog, watchdog, t)
-                    .map_err(step("arming the bus watchdog"))?;
-            }
-        }
-        for j in &self.joints {
-            bus.set_torque(j.id, true, t).map_err(step("torque on"))?;
+            retry
+                .run(|| bus.set_torque(j.id, true, t))
+                .map_err(step("torque on"))?;
         }
         Ok(BringUp {
             servos,
             pose,
             rebooted,
+            retries: retry.retries,
         })
     }
 
-    /// Step 1 of bring-up: every servo answers, is of the configured model and has no hardware
-    /// error (rebooting it first when `options.reboot`).
+    /// The present position of every joint, ticks: one Sync Read, sent again (up to
+    /// [`RETRIES`] times) while a servo's reply is lost or damaged.
+    fn read_present<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        retry: &mut Retry,
+    ) -> Result<Vec<i32>, BringUpError> {
+        let ids = self.ids();
+        let t = self.settings.reply_timeout;
+        let states = retry
+            .run(|| {
+                let mut states = bus.read_states(&ids, Fields::POSITION, t)?;
+                let lost = states
+                    .iter()
+                    .position(|s| s.as_ref().is_err_and(ServoError::is_transient));
+                match lost.map(|i| states.swap_remove(i)) {
+                    Some(Err(e)) => Err(e),
+                    _ => Ok(states),
+                }
+            })
+            .map_err(step("reading the present pose"))?;
+        states
+            .into_iter()
+            .map(|s| s.map(|s| s.position_ticks))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(step("reading the present pose"))
+    }
+
+    fn arm_watchdog<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        retry: &mut Retry,
+    ) -> Result<(), BringUpError> {
+        let t = self.settings.reply_timeout;
+        let watchdog = i64::from(self.settings.watchdog_ms / 20).min(127);
+        if watchdog > 0 {
+            for j in &self.joints {
+                retry
+                    .run(|| bus.write(j.id, Register::BusWatchdog, watchdog, t))
+                    .map_err(step("arming the bus watchdog"))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Step 1 of bring-up: every servo answers, is of the configured model, has no hardware
+    /// error (rebooting it first when `options.reboot`) and neutral calibration registers.
     pub fn check<B: ServoBus>(
         &self,
         bus: &mut B,
         options: BringUpOptions,
+        clock: &dyn Clock,
+    ) -> Result<(Vec<PingInfo>, Vec<u8>), BringUpError> {
+        self.check_counting(bus, options, clock, &mut Retry::default())
+    }
+
+    fn check_counting<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        options: BringUpOptions,
+        clock: &dyn Clock,
+        retry: &mut Retry,
     ) -> Result<(Vec<PingInfo>, Vec<u8>), BringUpError> {
         let t = self.settings.reply_timeout;
         let mut refusals = Vec::new();
         let mut servos = Vec::new();
         let mut rebooted = Vec::new();
         for j in &self.joints {
-            let info = match bus.ping(j.id, t) {
+            let info = match retry.run(|| bus.ping(j.id, t)) {
                 Ok(info) => info,
                 Err(source) => {
                     refusals.push(Refusal::Missing {
@@ -412,15 +534,15 @@ impl Arm {
                 continue;
             }
             servos.push(info);
-            let mut errors = bus
-                .hardware_errors(j.id, t)
+            let mut errors = retry
+                .run(|| bus.hardware_errors(j.id, t))
                 .map_err(step("reading Hardware Error Status"))?;
             if !errors.is_empty() && options.reboot {
                 tracing::warn!(id = j.id, %errors, "rebooting to clear a hardware error");
-                reboot_and_wait(bus, j.id, t).map_err(step("rebooting"))?;
+                reboot_and_wait(bus, j.id, t, clock, retry).map_err(step("rebooting"))?;
                 rebooted.push(j.id);
-                errors = bus
-                    .hardware_errors(j.id, t)
+                errors = retry
+                    .run(|| bus.hardware_errors(j.id, t))
                     .map_err(step("reading Hardware Error Status"))?;
             }
             if !errors.is_empty() {
@@ -428,6 +550,32 @@ impl Arm {
                     joint: j.joint,
                     id: j.id,
                     errors,
+                });
+            }
+            let offset = retry
+                .run(|| bus.read(j.id, Register::HomingOffset, t))
+                .map_err(step("reading Homing Offset"))?
+                .value;
+            if offset != 0 {
+                refusals.push(Refusal::Calibration {
+                    joint: j.joint,
+                    id: j.id,
+                    register: Register::HomingOffset,
+                    value: offset,
+                    expected: 0,
+                });
+            }
+            let drive = retry
+                .run(|| bus.read(j.id, Register::DriveMode, t))
+                .map_err(step("reading Drive Mode"))?
+                .value;
+            if drive & DRIVE_MODE_REVERSE != 0 {
+                refusals.push(Refusal::Calibration {
+                    joint: j.joint,
+                    id: j.id,
+                    register: Register::DriveMode,
+                    value: drive,
+                    expected: drive & !DRIVE_MODE_REVERSE,
                 });
             }
         }
@@ -439,16 +587,27 @@ impl Arm {
     }
 
     /// Step 3 for one servo: acknowledgements on, EEPROM items where they differ, profiles.
-    fn prepare<B: ServoBus>(&self, bus: &mut B, j: &JointServo) -> Result<(), ServoError> {
+    fn prepare<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        j: &JointServo,
+        retry: &mut Retry,
+    ) -> Result<(), ServoError> {
         let t = self.settings.reply_timeout;
         let id = j.id;
-        if bus.read(id, Register::StatusReturnLevel, t)?.value != 2 {
+        if retry
+            .run(|| bus.read(id, Register::StatusReturnLevel, t))?
+            .value
+            != 2
+        {
             // Below level 2 the write itself is not acknowledged: check by reading back.
             match bus.write(id, Register::StatusReturnLevel, 2, t) {
                 Ok(_) | Err(ServoError::Timeout { .. }) => {}
                 Err(e) => return Err(e),
             }
-            let level = bus.read(id, Register::StatusReturnLevel, t)?.value;
+            let level = retry
+                .run(|| bus.read(id, Register::StatusReturnLevel, t))?
+                .value;
             if level != 2 {
                 return Err(ServoError::Malformed {
                     id,
@@ -456,43 +615,116 @@ impl Arm {
                 });
             }
         }
-        let eeprom = [
-            (Register::OperatingMode, 3),
-            (
-                Register::ReturnDelayTime,
-                units::return_delay(self.settings.return_delay_us),
-            ),
-            (Register::MinPositionLimit, i64::from(j.ticks.min)),
-            (Register::MaxPositionLimit, i64::from(j.ticks.max)),
-        ];
-        let mut changes = Vec::new();
-        for (register, value) in eeprom {
-            if bus.read(id, register, t)?.value != value {
-                changes.push((register, value));
-            }
-        }
-        if !changes.is_empty() {
-            if bus.read(id, Register::TorqueEnable, t)?.value != 0 {
+        let return_delay = units::return_delay(self.settings.return_delay_us);
+        let mode = retry
+            .run(|| bus.read(id, Register::OperatingMode, t))?
+            .value
+            != POSITION_MODE;
+        let delay = retry
+            .run(|| bus.read(id, Register::ReturnDelayTime, t))?
+            .value
+            != return_delay;
+        let min = retry
+            .run(|| bus.read(id, Register::MinPositionLimit, t))?
+            .value;
+        let max = retry
+            .run(|| bus.read(id, Register::MaxPositionLimit, t))?
+            .value;
+        let limits = (min, max) != (i64::from(j.ticks.min), i64::from(j.ticks.max));
+        if mode || delay || limits {
+            if retry.run(|| bus.read(id, Register::TorqueEnable, t))?.value != 0 {
                 tracing::info!(id, "torque off to write EEPROM settings");
-                bus.set_torque(id, false, t)?;
+                retry.run(|| bus.set_torque(id, false, t))?;
             }
-            for (register, value) in changes {
-                bus.write(id, register, value, t)?;
+            if mode {
+                retry.run(|| bus.configure(id, Setting::PositionMode, t))?;
+            }
+            if delay {
+                retry.run(|| bus.write(id, Register::ReturnDelayTime, return_delay, t))?;
+            }
+            if limits {
+                retry.run(|| bus.configure(id, Setting::PositionLimits, t))?;
             }
         }
-        bus.write(
-            id,
-            Register::ProfileAcceleration,
-            units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
-            t,
-        )?;
-        bus.write(
-            id,
-            Register::ProfileVelocity,
-            units::profile_velocity(self.settings.profile_velocity_rad_s),
-            t,
-        )?;
+        let acceleration = units::profile_acceleration(self.settings.profile_acceleration_rad_s2);
+        retry.run(|| bus.write(id, Register::ProfileAcceleration, acceleration, t))?;
+        let velocity = units::profile_velocity(self.settings.profile_velocity_rad_s);
+        retry.run(|| bus.write(id, Register::ProfileVelocity, velocity, t))?;
         Ok(())
+    }
+
+    /// Torque on or off for every servo, one by one, each retried on a transient error. Torque
+    /// on first sets every goal to the present position, so nothing moves.
+    pub fn set_torque<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        on: bool,
+    ) -> Result<(), BringUpError> {
+        let t = self.settings.reply_timeout;
+        let mut retry = Retry::default();
+        if on {
+            let present = self.read_present(bus, &mut retry)?;
+            for (j, &ticks) in self.joints.iter().zip(&present) {
+                retry
+                    .run(|| bus.write(j.id, Register::GoalPosition, i64::from(ticks), t))
+                    .map_err(step("holding the present pose"))?;
+            }
+        }
+        for j in &self.joints {
+            retry
+                .run(|| bus.set_torque(j.id, on, t))
+                .map_err(step(if on { "torque on" } else { "torque off" }))?;
+        }
+        Ok(())
+    }
+
+    /// The servos whose Bus Watchdog has fired (it reads -1): they refuse goals until
+    /// [`Arm::recover_watchdog`].
+    pub fn tripped_watchdogs<B: ServoBus>(&self, bus: &mut B) -> Result<Vec<u8>, BringUpError> {
+        let t = self.settings.reply_timeout;
+        let mut retry = Retry::default();
+        let mut tripped = Vec::new();
+        for j in &self.joints {
+            let v = retry
+                .run(|| bus.read(j.id, Register::BusWatchdog, t))
+                .map_err(step("reading the bus watchdog"))?
+                .value;
+            if v < 0 {
+                tripped.push(j.id);
+            }
+        }
+        Ok(tripped)
+    }
+
+    /// Recover every servo whose Bus Watchdog fired (after a long stall of the bus): clear
+    /// it, set the goal to the present position (so the servo does not jump to a stale
+    /// goal), arm it again. Returns the servos recovered.
+    pub fn recover_watchdog<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+    ) -> Result<Vec<u8>, BringUpError> {
+        let t = self.settings.reply_timeout;
+        let mut retry = Retry::default();
+        let tripped = self.tripped_watchdogs(bus)?;
+        let armed = i64::from(self.settings.watchdog_ms / 20).min(127);
+        for &id in &tripped {
+            retry
+                .run(|| bus.write(id, Register::BusWatchdog, 0, t))
+                .map_err(step("clearing the bus watchdog"))?;
+            let present = retry
+                .run(|| bus.read(id, Register::PresentPosition, t))
+                .map_err(step("reading the present position"))?
+                .value;
+            retry
+                .run(|| bus.write(id, Register::GoalPosition, present, t))
+                .map_err(step("holding the present position"))?;
+            if armed > 0 {
+                retry
+                    .run(|| bus.write(id, Register::BusWatchdog, armed, t))
+                    .map_err(step("arming the bus watchdog"))?;
+            }
+        }
+        Ok(tripped)
     }
 
     /// Leave the servos as `[bus] on_exit` says: torque off (one Sync Write, then each servo
@@ -505,18 +737,19 @@ impl Arm {
     }
 
     /// Torque off every servo: one Sync Write, then each is read back (and written once more if
-    /// it still has torque on).
+    /// it still has torque on), every exchange retried on a transient error.
     pub fn torque_off<B: ServoBus>(&self, bus: &mut B) -> Result<(), ShutDownError> {
         let t = self.settings.reply_timeout;
+        let mut retry = Retry::default();
         let values: Vec<(u8, i64)> = self.joints.iter().map(|j| (j.id, 0)).collect();
         let mut failures = Vec::new();
         if let Err(e) = bus.sync_write(Register::TorqueEnable, &values) {
             failures.push(e);
         }
         for j in &self.joints {
-            let confirmed = match bus.read(j.id, Register::TorqueEnable, t) {
+            let confirmed = match retry.run(|| bus.read(j.id, Register::TorqueEnable, t)) {
                 Ok(v) if v.value == 0 => Ok(()),
-                _ => bus.set_torque(j.id, false, t).map(|_| ()),
+                _ => retry.run(|| bus.set_torque(j.id, false, t)).map(|_| ()),
             };
             if let Err(e) = confirmed {
                 failures.push(e);
@@ -555,19 +788,25 @@ impl JointServo {
     }
 }
 
-/// Reboot `id` and wait until it answers a ping again.
+/// How long a rebooted servo may take to answer again.
+pub const REBOOT_WAIT: Duration = Duration::from_secs(3);
+
+/// Reboot `id` and wait on `clock` until it answers a ping again (at most [`REBOOT_WAIT`]);
+/// the reboot instruction itself is retried on a transient error.
 pub fn reboot_and_wait<B: ServoBus>(
     bus: &mut B,
     id: u8,
     timeout: Duration,
+    clock: &dyn Clock,
+    retry: &mut Retry,
 ) -> Result<(), ServoError> {
-    bus.reboot(id, timeout)?;
-    let give_up = Instant::now() + REBOOT_WAIT;
+    retry.run(|| bus.reboot(id, timeout))?;
+    let give_up = clock.elapsed() + REBOOT_WAIT;
     loop {
         match bus.ping(id, timeout) {
             Ok(_) => return Ok(()),
-            Err(e) if Instant::now() >= give_up => return Err(e),
-            Err(_) => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) if clock.elapsed() >= give_up => return Err(e),
+            Err(_) => clock.sleep(Duration::from_millis(10)),
         }
     }
 }

@@ -23,7 +23,8 @@ use dynamixel2::{Bus, InvalidMessage, ReadError, WriteError};
 
 use super::sysfs::{Latency, Sysfs};
 use super::{
-    baud_index, Ack, Block, PingInfo, Register, ServoBus, ServoError, Value, BROADCAST_ID, MAX_ID,
+    baud_index, Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value,
+    BROADCAST_ID, MAX_ID,
 };
 
 /// Servos one instruction may address: the buffers are sized for this many.
@@ -189,18 +190,19 @@ impl DynamixelBus {
                     skipped = Some(p.packet_id());
                 }
                 Ok(p) => {
-                    let reply = Reply {
-                        params: p.parameters().to_vec(),
+                    let data = p.parameters();
+                    let mut reply = Reply {
+                        params: [0; 4],
                         alert: p.alert(),
                     };
-                    if reply.params.len() != reply_params {
-                        return Err(ServoError::Malformed {
-                            id,
-                            what: format!(
-                                "{} data bytes, expected {reply_params}",
-                                reply.params.len()
-                            ),
-                        });
+                    match reply.params.get_mut(..data.len()) {
+                        Some(slot) if data.len() == reply_params => slot.copy_from_slice(data),
+                        _ => {
+                            return Err(ServoError::Malformed {
+                                id,
+                                what: format!("{} data bytes, expected {reply_params}", data.len()),
+                            })
+                        }
                     }
                     return Ok(reply);
                 }
@@ -216,10 +218,68 @@ impl DynamixelBus {
     }
 }
 
-/// A status reply's data, owned.
+impl DynamixelBus {
+    /// One Sync Write of `register`, encoded straight into the bus's write buffer: nothing is
+    /// allocated, nothing is sent if an id or value is refused.
+    fn send_sync_write(
+        &mut self,
+        register: Register,
+        values: impl Iterator<Item = (u8, i64)> + Clone,
+    ) -> Result<(), ServoError> {
+        let n = check_sync_write(register, values.clone())?;
+        if n == 0 {
+            return Ok(());
+        }
+        let size = usize::from(register.size());
+        self.bus
+            .write_instruction(BROADCAST_ID, ins::SYNC_WRITE, 4 + n * (1 + size), |buf| {
+                buf[..2].copy_from_slice(&register.address().to_le_bytes());
+                buf[2..4].copy_from_slice(&register.size().to_le_bytes());
+                for (chunk, (id, value)) in buf[4..].chunks_exact_mut(1 + size).zip(values) {
+                    chunk[0] = id;
+                    chunk[1..].copy_from_slice(&register.encode(value)[..size]);
+                }
+            })
+            .map_err(write_error)
+    }
+}
+
+/// A status reply's data (at most 4 bytes: a register or a ping), copied out of the bus.
 struct Reply {
-    params: Vec<u8>,
+    params: [u8; 4],
     alert: bool,
+}
+
+/// Checks a sync write's ids and values before anything is sent; returns how many there are.
+fn check_sync_write(
+    register: Register,
+    values: impl Iterator<Item = (u8, i64)> + Clone,
+) -> Result<usize, ServoError> {
+    let mut n = 0;
+    for (i, (id, value)) in values.clone().enumerate() {
+        check_id(id)?;
+        if values.clone().take(i).any(|(other, _)| other == id) {
+            return Err(ServoError::BadId {
+                id,
+                what: "listed twice in one sync write",
+            });
+        }
+        if !register.fits(value) {
+            return Err(ServoError::ValueRange {
+                id,
+                register,
+                value,
+            });
+        }
+        n += 1;
+    }
+    if n > MAX_SERVOS {
+        return Err(ServoError::BufferTooSmall {
+            needed: n,
+            have: MAX_SERVOS,
+        });
+    }
+    Ok(n)
 }
 
 impl ServoBus for DynamixelBus {
@@ -237,7 +297,7 @@ impl ServoBus for DynamixelBus {
 
     fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError> {
         let r = self.exchange(id, ins::PING, &[], 3, timeout)?;
-        let d = &r.params;
+        let d = r.params;
         Ok(PingInfo {
             id,
             model: u16::from_le_bytes([d[0], d[1]]),
@@ -282,9 +342,9 @@ impl ServoBus for DynamixelBus {
 
     fn read(&mut self, id: u8, register: Register, timeout: Duration) -> Result<Value, ServoError> {
         let size = register.size();
-        let mut params = register.address().to_le_bytes().to_vec();
-        params.extend_from_slice(&size.to_le_bytes());
-        let r = self.exchange(id, ins::READ, &params, usize::from(size), timeout)?;
+        let [a0, a1] = register.address().to_le_bytes();
+        let [s0, s1] = size.to_le_bytes();
+        let r = self.exchange(id, ins::READ, &[a0, a1, s0, s1], usize::from(size), timeout)?;
         let value = register
             .decode(&r.params)
             .ok_or_else(|| ServoError::Malformed {
@@ -311,21 +371,27 @@ impl ServoBus for DynamixelBus {
                 value,
             });
         }
-        let mut params = register.address().to_le_bytes().to_vec();
-        params.extend_from_slice(&register.encode(value));
-        let r = self.exchange(id, ins::WRITE, &params, 0, timeout)?;
+        let mut params = [0u8; 6];
+        params[..2].copy_from_slice(&register.address().to_le_bytes());
+        params[2..].copy_from_slice(&register.encode(value));
+        let len = 2 + usize::from(register.size());
+        let r = self.exchange(id, ins::WRITE, &params[..len], 0, timeout)?;
         Ok(Ack { id, alert: r.alert })
     }
 
-    fn sync_read(
+    fn sync_read_into(
         &mut self,
         ids: &[u8],
         address: u16,
         len: u16,
         timeout: Duration,
-    ) -> Result<Vec<Result<Block, ServoError>>, ServoError> {
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        let data_len = usize::from(len);
+        let per_reply = self.reply_wait(data_len, timeout);
+        out.reset(ids, len, per_reply);
         if ids.is_empty() {
-            return Ok(Vec::new());
+            return Ok(());
         }
         for (i, &id) in ids.iter().enumerate() {
             check_id(id)?;
@@ -344,9 +410,6 @@ impl ServoBus for DynamixelBus {
                 buf[4..].copy_from_slice(ids);
             })
             .map_err(write_error)?;
-        let data_len = usize::from(len);
-        let per_reply = self.reply_wait(data_len, timeout);
-        let mut out: Vec<Option<Result<Block, ServoError>>> = (0..n).map(|_| None).collect();
         // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
         let mut next = 0;
         let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.bus.baud_rate()) + per_reply;
@@ -362,88 +425,42 @@ impl ServoBus for DynamixelBus {
                         tracing::debug!(id, "sync read: reply from a servo not expected now");
                         continue;
                     };
-                    for (slot, &missing) in out[next..next + k].iter_mut().zip(&ids[next..]) {
-                        *slot = Some(Err(ServoError::Timeout {
-                            id: missing,
-                            waited: wait,
-                        }));
-                    }
-                    let result = if p.parameters().len() == data_len {
-                        Ok(Block {
-                            id,
-                            data: p.parameters().to_vec(),
-                            alert: p.alert(),
-                        })
+                    // The servos listed before this one stay marked as missing.
+                    let data = p.parameters();
+                    if data.len() == data_len {
+                        out.set(next + k, data, p.alert());
                     } else {
-                        Err(ServoError::Malformed {
-                            id,
-                            what: format!(
-                                "{} data bytes, expected {data_len}",
-                                p.parameters().len()
-                            ),
-                        })
-                    };
-                    out[next + k] = Some(result);
+                        out.fail(
+                            next + k,
+                            ServoError::Malformed {
+                                id,
+                                what: format!("{} data bytes, expected {data_len}", data.len()),
+                            },
+                        );
+                    }
                     next += k + 1;
                 }
                 Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
                 Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
                 Err(e) => {
-                    out[next] = Some(Err(read_error(ids[next], wait, e)));
+                    out.fail(next, read_error(ids[next], wait, e));
                     next += 1;
                 }
             }
             wait = per_reply;
         }
-        Ok(out
-            .into_iter()
-            .zip(ids)
-            .map(|(r, &id)| {
-                r.unwrap_or(Err(ServoError::Timeout {
-                    id,
-                    waited: per_reply,
-                }))
-            })
-            .collect())
+        Ok(())
     }
 
     fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
-        if values.is_empty() {
-            return Ok(());
-        }
-        if values.len() > MAX_SERVOS {
-            return Err(ServoError::BufferTooSmall {
-                needed: values.len(),
-                have: MAX_SERVOS,
-            });
-        }
-        let size = usize::from(register.size());
-        let mut params = Vec::with_capacity(4 + values.len() * (1 + size));
-        params.extend_from_slice(&register.address().to_le_bytes());
-        params.extend_from_slice(&register.size().to_le_bytes());
-        for (i, &(id, value)) in values.iter().enumerate() {
-            check_id(id)?;
-            if values[..i].iter().any(|&(other, _)| other == id) {
-                return Err(ServoError::BadId {
-                    id,
-                    what: "listed twice in one sync write",
-                });
-            }
-            if !register.fits(value) {
-                return Err(ServoError::ValueRange {
-                    id,
-                    register,
-                    value,
-                });
-            }
-            params.push(id);
-            params.extend_from_slice(&register.encode(value));
-        }
-        self.bus
-            .write_instruction(BROADCAST_ID, ins::SYNC_WRITE, params.len(), |buf| {
-                buf.copy_from_slice(&params)
-            })
-            .map_err(write_error)
+        self.send_sync_write(register, values.iter().copied())
+    }
+
+    fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError> {
+        self.send_sync_write(
+            Register::GoalPosition,
+            goals.iter().map(|g| (g.id, i64::from(g.ticks))),
+        )
     }
 
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {

@@ -158,6 +158,15 @@ pub enum ServoError {
         /// Highest allowed goal.
         max: i32,
     },
+    /// A register only bring-up may set (position limits, Homing Offset, Operating Mode, Drive
+    /// Mode, ID, Baud Rate), written through the limits wrapper.
+    #[error("servo {id}: {register:?} is set by bring-up alone: raw write refused")]
+    Protected {
+        /// The servo.
+        id: u8,
+        /// The register.
+        register: Register,
+    },
     /// A goal for a servo the limits wrapper has no limits for.
     #[error("servo {id}: no limits are known for it: goal refused")]
     UnknownServo {
@@ -225,6 +234,7 @@ impl ServoError {
             | Self::WrongId { id, .. }
             | Self::ValueRange { id, .. }
             | Self::OutsideLimits { id, .. }
+            | Self::Protected { id, .. }
             | Self::UnknownServo { id }
             | Self::NotFinite { id, .. }
             | Self::BadId { id, .. } => Some(*id),
@@ -236,4 +246,47 @@ impl ServoError {
     pub fn is_timeout(&self) -> bool {
         matches!(self, Self::Timeout { .. })
     }
+
+    /// What kind of failure this is, so a caller decides in one match whether to retry, give
+    /// up on the command, or treat the servo as faulted.
+    pub fn class(&self) -> ErrorClass {
+        match self {
+            Self::Timeout { .. }
+            | Self::Checksum { .. }
+            | Self::Malformed { .. }
+            | Self::WrongId { .. } => ErrorClass::Transient,
+            Self::Status { alert: true, .. } => ErrorClass::Hardware,
+            Self::Status { .. }
+            | Self::ValueRange { .. }
+            | Self::OutsideLimits { .. }
+            | Self::Protected { .. }
+            | Self::UnknownServo { .. }
+            | Self::NotFinite { .. }
+            | Self::PoseLength { .. }
+            | Self::BadId { .. }
+            | Self::Baud(_) => ErrorClass::Refused,
+            Self::BufferTooSmall { .. } | Self::Open { .. } | Self::Io(_) => ErrorClass::Bus,
+        }
+    }
+
+    /// True for an error worth retrying: the exchange failed, not the request.
+    pub fn is_transient(&self) -> bool {
+        self.class() == ErrorClass::Transient
+    }
+}
+
+/// The four kinds of [`ServoError`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ErrorClass {
+    /// The exchange failed on the wire (no reply in time, a damaged or misaddressed reply): the
+    /// same request may succeed if sent again; count it against an error budget.
+    Transient,
+    /// The request itself was refused, by this program (limits, a bad value) or by the servo
+    /// (a status error without the alert flag): sending it again gives the same answer.
+    Refused,
+    /// The servo refused with its alert flag set: a hardware error is latched (overload,
+    /// overheating, ...), torque may be off; only a reboot clears it.
+    Hardware,
+    /// The serial port itself failed (open, i/o, a packet too large for the buffers).
+    Bus,
 }

@@ -1,13 +1,22 @@
-//! A safety wrapper: [`Limited`] implements [`ServoBus`] around another bus and lets no Goal
-//! Position outside a servo's limits through, with an explicit [`Strategy`]: clamp the goal
-//! into the limits, or refuse the whole write. Every path a goal can take is checked: Sync
-//! Write (so [`ServoBus::write_goals`]) and single writes of Goal Position. A servo without
-//! known limits gets no goal at all. Everything else passes through unchanged.
+//! A safety wrapper: [`Limited`] implements [`ServoBus`] around another bus and is the only way
+//! the rest of the program reaches the servos.
+//!
+//! - No Goal Position outside a servo's limits gets through, with an explicit [`Strategy`]:
+//!   clamp the goal into the limits, or refuse the whole write. Every path a goal can take is
+//!   checked: [`ServoBus::write_goals`], a Sync Write of Goal Position, single writes. A servo
+//!   without known limits gets no goal at all.
+//! - The registers that decide what a goal means or where the limits lie (Min/Max Position
+//!   Limit, Homing Offset, Operating Mode, Drive Mode) and the bus's shape (ID, Baud Rate) are
+//!   refused as raw writes ([`ServoError::Protected`]): bring-up sets them through
+//!   [`Limited::configure`], which writes only the limits this wrapper holds and position mode.
+//! - There is no way back to the raw bus: administrative commands open their own.
+//!
+//! Everything else passes through unchanged.
 
 use std::collections::HashMap;
 use std::time::Duration;
 
-use super::{Ack, Block, PingInfo, Register, ServoBus, ServoError, Value};
+use super::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
 
 /// What to do with a goal outside the limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -27,6 +36,32 @@ pub struct TickLimits {
     pub max: i32,
 }
 
+/// The EEPROM settings bring-up makes through [`Limited::configure`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Setting {
+    /// Operating Mode 3: position control.
+    PositionMode,
+    /// Min and Max Position Limit: the limits this wrapper holds for the servo.
+    PositionLimits,
+}
+
+/// Operating Mode value of position control.
+pub const POSITION_MODE: i64 = 3;
+
+/// Registers no raw write through [`Limited`] may touch.
+pub fn is_protected(register: Register) -> bool {
+    matches!(
+        register,
+        Register::MinPositionLimit
+            | Register::MaxPositionLimit
+            | Register::HomingOffset
+            | Register::OperatingMode
+            | Register::DriveMode
+            | Register::Id
+            | Register::BaudRate
+    )
+}
+
 /// A bus that never writes a goal outside the limits.
 #[derive(Debug)]
 pub struct Limited<B> {
@@ -34,6 +69,9 @@ pub struct Limited<B> {
     limits: HashMap<u8, TickLimits>,
     strategy: Strategy,
     clamped: u64,
+    /// Checked goals of the last write, reused so a warm write allocates nothing.
+    checked: Vec<Goal>,
+    checked_values: Vec<(u8, i64)>,
 }
 
 impl<B: ServoBus> Limited<B> {
@@ -48,17 +86,9 @@ impl<B: ServoBus> Limited<B> {
             limits: limits.into_iter().collect(),
             strategy,
             clamped: 0,
+            checked: Vec::new(),
+            checked_values: Vec::new(),
         }
-    }
-
-    /// The wrapped bus.
-    pub fn inner(&mut self) -> &mut B {
-        &mut self.inner
-    }
-
-    /// Unwrap.
-    pub fn into_inner(self) -> B {
-        self.inner
     }
 
     /// The strategy.
@@ -69,6 +99,11 @@ impl<B: ServoBus> Limited<B> {
     /// How many goals were clamped so far.
     pub fn clamped(&self) -> u64 {
         self.clamped
+    }
+
+    /// Servo `id`'s limits, if known.
+    pub fn limits(&self, id: u8) -> Option<TickLimits> {
+        self.limits.get(&id).copied()
     }
 
     /// The goal to write for `ticks` on servo `id`, or the refusal.
@@ -93,6 +128,38 @@ impl<B: ServoBus> Limited<B> {
                 max: lim.max,
             }),
         }
+    }
+
+    /// Write one of bring-up's EEPROM settings to servo `id` (torque must be off, as for any
+    /// EEPROM write): position mode, or the position limits held here for it.
+    pub fn configure(
+        &mut self,
+        id: u8,
+        setting: Setting,
+        timeout: Duration,
+    ) -> Result<(), ServoError> {
+        match setting {
+            Setting::PositionMode => {
+                self.inner
+                    .write(id, Register::OperatingMode, POSITION_MODE, timeout)?;
+            }
+            Setting::PositionLimits => {
+                let lim = self.limits(id).ok_or(ServoError::UnknownServo { id })?;
+                self.inner
+                    .write(id, Register::MinPositionLimit, i64::from(lim.min), timeout)?;
+                self.inner
+                    .write(id, Register::MaxPositionLimit, i64::from(lim.max), timeout)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn protected(id: u8, register: Register) -> Result<(), ServoError> {
+    if is_protected(register) {
+        Err(ServoError::Protected { id, register })
+    } else {
+        Ok(())
     }
 }
 
@@ -124,6 +191,7 @@ impl<B: ServoBus> ServoBus for Limited<B> {
         value: i64,
         timeout: Duration,
     ) -> Result<Ack, ServoError> {
+        protected(id, register)?;
         let value = if register == Register::GoalPosition {
             self.check(id, value)?
         } else {
@@ -132,26 +200,51 @@ impl<B: ServoBus> ServoBus for Limited<B> {
         self.inner.write(id, register, value, timeout)
     }
 
-    fn sync_read(
+    fn sync_read_into(
         &mut self,
         ids: &[u8],
         address: u16,
         len: u16,
         timeout: Duration,
-    ) -> Result<Vec<Result<Block, ServoError>>, ServoError> {
-        self.inner.sync_read(ids, address, len, timeout)
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        self.inner.sync_read_into(ids, address, len, timeout, out)
     }
 
     fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
+        for &(id, _) in values {
+            protected(id, register)?;
+        }
         if register != Register::GoalPosition {
             return self.inner.sync_write(register, values);
         }
         // All or nothing: one refused goal stops the whole packet.
-        let checked = values
-            .iter()
-            .map(|&(id, v)| Ok((id, self.check(id, v)?)))
-            .collect::<Result<Vec<_>, ServoError>>()?;
-        self.inner.sync_write(register, &checked)
+        let mut checked = std::mem::take(&mut self.checked_values);
+        checked.clear();
+        let result = values.iter().try_for_each(|&(id, v)| {
+            checked.push((id, self.check(id, v)?));
+            Ok(())
+        });
+        let result = result.and_then(|()| self.inner.sync_write(register, &checked));
+        self.checked_values = checked;
+        result
+    }
+
+    fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError> {
+        let mut checked = std::mem::take(&mut self.checked);
+        checked.clear();
+        let result = goals.iter().try_for_each(|g| {
+            let ticks = self.check(g.id, i64::from(g.ticks))?;
+            checked.push(Goal {
+                id: g.id,
+                // Within the limits, which are ticks.
+                ticks: i32::try_from(ticks).unwrap_or(g.ticks),
+            });
+            Ok(())
+        });
+        let result = result.and_then(|()| self.inner.write_goals(&checked));
+        self.checked = checked;
+        result
     }
 
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
@@ -163,60 +256,7 @@ impl<B: ServoBus> ServoBus for Limited<B> {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::servo::Goal;
-
-    /// Records what reaches the wire.
-    #[derive(Debug, Default)]
-    struct Recorder {
-        sync: Vec<(Register, Vec<(u8, i64)>)>,
-        writes: Vec<(u8, Register, i64)>,
-    }
-
-    impl ServoBus for Recorder {
-        fn baud(&self) -> u32 {
-            1_000_000
-        }
-        fn set_baud(&mut self, _: u32) -> Result<(), ServoError> {
-            Ok(())
-        }
-        fn ping(&mut self, id: u8, _: Duration) -> Result<PingInfo, ServoError> {
-            Ok(PingInfo {
-                id,
-                model: 1060,
-                firmware: 48,
-                alert: false,
-            })
-        }
-        fn scan(&mut self, _: Duration) -> Result<Vec<PingInfo>, ServoError> {
-            Ok(Vec::new())
-        }
-        fn read(&mut self, _: u8, _: Register, _: Duration) -> Result<Value, ServoError> {
-            Ok(Value {
-                value: 0,
-                alert: false,
-            })
-        }
-        fn write(&mut self, id: u8, r: Register, v: i64, _: Duration) -> Result<Ack, ServoError> {
-            self.writes.push((id, r, v));
-            Ok(Ack { id, alert: false })
-        }
-        fn sync_read(
-            &mut self,
-            _: &[u8],
-            _: u16,
-            _: u16,
-            _: Duration,
-        ) -> Result<Vec<Result<Block, ServoError>>, ServoError> {
-            Ok(Vec::new())
-        }
-        fn sync_write(&mut self, r: Register, v: &[(u8, i64)]) -> Result<(), ServoError> {
-            self.sync.push((r, v.to_vec()));
-            Ok(())
-        }
-        fn reboot(&mut self, id: u8, _: Duration) -> Result<Ack, ServoError> {
-            Ok(Ack { id, alert: false })
-        }
-    }
+    use crate::servo::record::{Instruction, NullBus, Recording};
 
     fn limits() -> Vec<(u8, TickLimits)> {
         vec![
@@ -235,26 +275,31 @@ mod tests {
 
     #[test]
     fn clamp_moves_goals_to_the_nearest_limit() {
-        let mut bus = Limited::new(Recorder::default(), limits(), Strategy::Clamp);
+        let mut rec = Recording::new(NullBus::new(1060));
+        let mut bus = Limited::new(&mut rec, limits(), Strategy::Clamp);
         bus.write_goals(&[Goal { id: 1, ticks: 3500 }, Goal { id: 2, ticks: 10 }])
             .unwrap();
         bus.write(1, Register::GoalPosition, 10, T).unwrap();
+        bus.sync_write(Register::GoalPosition, &[(1, 999), (2, 4096)])
+            .unwrap();
         bus.write(1, Register::Led, 1, T).unwrap();
-        assert_eq!(bus.clamped(), 2);
-        let rec = bus.into_inner();
+        assert_eq!(bus.clamped(), 4);
+        drop(bus);
         assert_eq!(
-            rec.sync,
-            [(Register::GoalPosition, vec![(1, 3000), (2, 10)])]
-        );
-        assert_eq!(
-            rec.writes,
-            [(1, Register::GoalPosition, 1000), (1, Register::Led, 1)]
+            rec.log(),
+            [
+                Instruction::SyncWrite(Register::GoalPosition, vec![(1, 3000), (2, 10)]),
+                Instruction::Write(1, Register::GoalPosition, 1000),
+                Instruction::SyncWrite(Register::GoalPosition, vec![(1, 1000), (2, 4095)]),
+                Instruction::Write(1, Register::Led, 1),
+            ]
         );
     }
 
     #[test]
     fn refuse_writes_nothing_and_names_the_servo() {
-        let mut bus = Limited::new(Recorder::default(), limits(), Strategy::Refuse);
+        let mut rec = Recording::new(NullBus::new(1060));
+        let mut bus = Limited::new(&mut rec, limits(), Strategy::Refuse);
         let err = bus
             .write_goals(&[Goal { id: 2, ticks: 5 }, Goal { id: 1, ticks: 999 }])
             .unwrap_err();
@@ -269,21 +314,72 @@ mod tests {
         ));
         assert!(err.to_string().contains("servo 1"), "{err}");
         assert!(bus.write(1, Register::GoalPosition, 3001, T).is_err());
+        assert!(bus
+            .sync_write(Register::GoalPosition, &[(2, 7), (1, 3001)])
+            .is_err());
         bus.write_goals(&[Goal { id: 1, ticks: 1000 }]).unwrap();
-        let rec = bus.into_inner();
-        assert_eq!(rec.sync, [(Register::GoalPosition, vec![(1, 1000)])]);
-        assert!(rec.writes.is_empty());
+        drop(bus);
+        assert_eq!(
+            rec.log(),
+            [Instruction::SyncWrite(
+                Register::GoalPosition,
+                vec![(1, 1000)]
+            )]
+        );
     }
 
     #[test]
     fn a_servo_without_limits_gets_no_goal() {
         for strategy in [Strategy::Clamp, Strategy::Refuse] {
-            let mut bus = Limited::new(Recorder::default(), limits(), strategy);
+            let mut rec = Recording::new(NullBus::new(1060));
+            let mut bus = Limited::new(&mut rec, limits(), strategy);
             let err = bus.write_goals(&[Goal { id: 9, ticks: 2048 }]).unwrap_err();
             assert!(matches!(err, ServoError::UnknownServo { id: 9 }));
             // Other registers of that servo pass.
             bus.sync_write(Register::TorqueEnable, &[(9, 0)]).unwrap();
-            assert_eq!(bus.into_inner().sync.len(), 1);
+            drop(bus);
+            assert_eq!(
+                rec.log(),
+                [Instruction::SyncWrite(Register::TorqueEnable, vec![(9, 0)])]
+            );
         }
+    }
+
+    #[test]
+    fn raw_writes_to_the_registers_bring_up_owns_are_refused() {
+        let mut rec = Recording::new(NullBus::new(1060));
+        let mut bus = Limited::new(&mut rec, limits(), Strategy::Clamp);
+        for register in [
+            Register::MinPositionLimit,
+            Register::MaxPositionLimit,
+            Register::HomingOffset,
+            Register::OperatingMode,
+            Register::DriveMode,
+            Register::Id,
+            Register::BaudRate,
+        ] {
+            let err = bus.write(1, register, 0, T).unwrap_err();
+            assert!(
+                matches!(err, ServoError::Protected { id: 1, register: r } if r == register),
+                "{err}"
+            );
+            assert!(bus.sync_write(register, &[(2, 0)]).is_err());
+        }
+        // The typed path writes exactly position mode and the limits held for the servo.
+        bus.configure(1, Setting::PositionMode, T).unwrap();
+        bus.configure(1, Setting::PositionLimits, T).unwrap();
+        assert!(matches!(
+            bus.configure(9, Setting::PositionLimits, T),
+            Err(ServoError::UnknownServo { id: 9 })
+        ));
+        drop(bus);
+        assert_eq!(
+            rec.log(),
+            [
+                Instruction::Write(1, Register::OperatingMode, 3),
+                Instruction::Write(1, Register::MinPositionLimit, 1000),
+                Instruction::Write(1, Register::MaxPositionLimit, 3000),
+            ]
+        );
     }
 }

@@ -15,16 +15,21 @@
 //! - [`sysfs`]: the FTDI latency timer and the list of serial ports, read from sysfs.
 //! - [`error`]: the typed errors.
 
+pub mod admin;
 pub mod arm;
+pub mod clock;
 pub mod dynamixel;
 pub mod error;
 pub mod limits;
+pub mod model;
+pub mod record;
 pub mod sysfs;
 pub mod units;
 
 use std::time::Duration;
 
-pub use error::{status_meaning, HardwareErrors, ServoError};
+pub use error::{status_meaning, ErrorClass, HardwareErrors, ServoError};
+pub use model::{model_name, ServoModel};
 
 /// Broadcast id: every servo hears it.
 pub const BROADCAST_ID: u8 = 0xFE;
@@ -175,9 +180,11 @@ impl Register {
         }
     }
 
-    /// Little-endian bytes of `value` (which must fit).
-    pub fn encode(self, value: i64) -> Vec<u8> {
-        value.to_le_bytes()[..usize::from(self.size())].to_vec()
+    /// Little-endian bytes of `value` (which must fit): the first [`Register::size`] of them
+    /// are the register's.
+    pub fn encode(self, value: i64) -> [u8; 4] {
+        let b = value.to_le_bytes();
+        [b[0], b[1], b[2], b[3]]
     }
 
     /// The value of little-endian `bytes` (the register's size), sign-extended when signed.
@@ -276,8 +283,10 @@ impl Fields {
         temperature: true,
     };
 
-    fn registers(self) -> Vec<Register> {
-        let mut regs = vec![Register::PresentPosition];
+    /// The contiguous block (address, length) a sync read of these fields covers.
+    pub fn span(self) -> (u16, u16) {
+        let mut start = Register::PresentPosition.address();
+        let mut end = start + Register::PresentPosition.size();
         for (on, r) in [
             (self.velocity, Register::PresentVelocity),
             (self.current, Register::PresentCurrent),
@@ -285,21 +294,10 @@ impl Fields {
             (self.temperature, Register::PresentTemperature),
         ] {
             if on {
-                regs.push(r);
+                start = start.min(r.address());
+                end = end.max(r.address() + r.size());
             }
         }
-        regs
-    }
-
-    /// The contiguous block (address, length) a sync read of these fields covers.
-    pub fn span(self) -> (u16, u16) {
-        let regs = self.registers();
-        let start = regs.iter().map(|r| r.address()).min().unwrap_or(132);
-        let end = regs
-            .iter()
-            .map(|r| r.address() + r.size())
-            .max()
-            .unwrap_or(136);
         (start, end - start)
     }
 }
@@ -326,20 +324,25 @@ pub struct ServoState {
 impl ServoState {
     /// Decode a sync-read block of `fields` (as laid out by [`Fields::span`]).
     pub fn from_block(block: &Block, fields: Fields) -> Result<Self, ServoError> {
+        Self::decode(block.id, &block.data, block.alert, fields)
+    }
+
+    /// Decode servo `id`'s sync-read bytes of `fields` (as laid out by [`Fields::span`]).
+    pub fn decode(id: u8, data: &[u8], alert: bool, fields: Fields) -> Result<Self, ServoError> {
         let (start, len) = fields.span();
-        if block.data.len() != usize::from(len) {
+        if data.len() != usize::from(len) {
             return Err(ServoError::Malformed {
-                id: block.id,
-                what: format!("{} data bytes, expected {len}", block.data.len()),
+                id,
+                what: format!("{} data bytes, expected {len}", data.len()),
             });
         }
         let get = |r: Register| -> Option<i64> {
             let off = usize::from(r.address().checked_sub(start)?);
-            r.decode(block.data.get(off..)?)
+            r.decode(data.get(off..)?)
         };
         let want = |on: bool, r: Register| if on { get(r) } else { None };
         Ok(Self {
-            id: block.id,
+            id,
             position_ticks: get(Register::PresentPosition)
                 .and_then(|v| i32::try_from(v).ok())
                 .unwrap_or_default(),
@@ -351,7 +354,7 @@ impl ServoState {
                 .and_then(|v| u16::try_from(v).ok()),
             temperature_c: want(fields.temperature, Register::PresentTemperature)
                 .and_then(|v| u8::try_from(v).ok()),
-            alert: block.alert,
+            alert,
         })
     }
 }
@@ -359,12 +362,115 @@ impl ServoState {
 /// The result of reading one servo in a sync read: its values, or what went wrong with it.
 pub type Reading = Result<ServoState, ServoError>;
 
+/// Caller-owned buffers of one Sync Read: the data of every servo side by side and, per servo,
+/// its alert flag or its error. Reused from call to call, so a warm read allocates nothing.
+#[derive(Debug, Default)]
+pub struct SyncReadBuf {
+    len: usize,
+    data: Vec<u8>,
+    status: Vec<Result<bool, ServoError>>,
+}
+
+impl SyncReadBuf {
+    /// Empty buffers (they grow to the first read's size).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Make room for `servos` blocks of `len` bytes, every one marked as not yet heard from
+    /// (a timeout of `waited` naming its id in `ids`).
+    pub fn reset(&mut self, ids: &[u8], len: u16, waited: Duration) {
+        self.len = usize::from(len);
+        self.data.clear();
+        self.data.resize(ids.len() * self.len, 0);
+        self.status.clear();
+        self.status.extend(
+            ids.iter()
+                .map(|&id| Err(ServoError::Timeout { id, waited })),
+        );
+    }
+
+    /// Servos in the last read.
+    pub fn servos(&self) -> usize {
+        self.status.len()
+    }
+
+    /// Store servo `index`'s reply: its bytes (exactly the block's length) and alert flag.
+    pub fn set(&mut self, index: usize, data: &[u8], alert: bool) {
+        if let (Some(slot), Some(status)) = (
+            self.data.get_mut(index * self.len..(index + 1) * self.len),
+            self.status.get_mut(index),
+        ) {
+            if slot.len() == data.len() {
+                slot.copy_from_slice(data);
+                *status = Ok(alert);
+            }
+        }
+    }
+
+    /// Store what went wrong with servo `index`.
+    pub fn fail(&mut self, index: usize, error: ServoError) {
+        if let Some(status) = self.status.get_mut(index) {
+            *status = Err(error);
+        }
+    }
+
+    /// Servo `index`'s bytes and alert flag, or its error.
+    pub fn get(&self, index: usize) -> Result<(&[u8], bool), &ServoError> {
+        match self.status.get(index) {
+            Some(Ok(alert)) => Ok((
+                self.data
+                    .get(index * self.len..(index + 1) * self.len)
+                    .unwrap_or_default(),
+                *alert,
+            )),
+            Some(Err(e)) => Err(e),
+            None => Ok((&[], false)),
+        }
+    }
+
+    /// Servo `index`'s error, moved out (its slot then reads as an empty reply).
+    fn take_error(&mut self, index: usize) -> Option<ServoError> {
+        match self.status.get_mut(index) {
+            Some(slot @ Err(_)) => std::mem::replace(slot, Ok(false)).err(),
+            _ => None,
+        }
+    }
+}
+
+/// Caller-owned buffers of [`ServoBus::read_states_into`]: the raw sync read and the decoded
+/// readings, reused from call to call.
+#[derive(Debug, Default)]
+pub struct States {
+    raw: SyncReadBuf,
+    readings: Vec<Reading>,
+}
+
+impl States {
+    /// Empty buffers.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The readings of the last read, in the order of its ids.
+    pub fn readings(&self) -> &[Reading] {
+        &self.readings
+    }
+
+    /// The readings, to move them out.
+    pub fn readings_mut(&mut self) -> &mut Vec<Reading> {
+        &mut self.readings
+    }
+}
+
 /// A blocking bus of Dynamixel Protocol 2.0 servos.
 ///
 /// Every call that waits for a reply takes a `timeout`: how long to wait for each reply beyond
 /// its wire time (a servo that stays silent costs exactly that). Errors name the servo.
 /// Implementations: [`dynamixel::DynamixelBus`] (a serial port: hardware or the simulator),
-/// [`limits::Limited`] (a safety wrapper around another bus).
+/// [`limits::Limited`] (a safety wrapper around another bus), [`record::Recording`] (logs every
+/// instruction). The `_into` calls fill caller-owned buffers and allocate nothing once warm:
+/// they are the control loop's; the others are conveniences built on them.
 pub trait ServoBus {
     /// The bus baud rate.
     fn baud(&self) -> u32;
@@ -391,23 +497,89 @@ pub trait ServoBus {
         timeout: Duration,
     ) -> Result<Ack, ServoError>;
 
-    /// One Sync Read of `len` bytes at `address` from every servo in `ids` (no repeats). The
-    /// outer error is the bus's (the instruction could not be sent); the inner ones are each
-    /// servo's, in the order of `ids`: a silent servo costs its `timeout`, the others' data
-    /// still arrive.
+    /// One Sync Read of `len` bytes at `address` from every servo in `ids` (no repeats), into
+    /// `out`. The error is the bus's (the instruction could not be sent); each servo's own
+    /// outcome is in `out`, in the order of `ids`: a silent servo costs its `timeout`, the
+    /// others' data still arrive.
+    fn sync_read_into(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError>;
+
+    /// One Sync Write of `register` to every servo in `values` (id, value); servos do not reply.
+    fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError>;
+
+    /// Goal positions for every servo in `goals`, in one Sync Write.
+    fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError>;
+
+    /// Reboot one servo (clears a latched hardware error; torque comes back off).
+    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError>;
+
+    /// [`ServoBus::sync_read_into`] into fresh buffers: one result per servo of `ids`.
     fn sync_read(
         &mut self,
         ids: &[u8],
         address: u16,
         len: u16,
         timeout: Duration,
-    ) -> Result<Vec<Result<Block, ServoError>>, ServoError>;
+    ) -> Result<Vec<Result<Block, ServoError>>, ServoError> {
+        let mut buf = SyncReadBuf::new();
+        self.sync_read_into(ids, address, len, timeout, &mut buf)?;
+        Ok(ids
+            .iter()
+            .enumerate()
+            .map(|(i, &id)| match buf.take_error(i) {
+                Some(e) => Err(e),
+                None => buf.get(i).map_or_else(
+                    |_| {
+                        Err(ServoError::Timeout {
+                            id,
+                            waited: timeout,
+                        })
+                    },
+                    |(data, alert)| {
+                        Ok(Block {
+                            id,
+                            data: data.to_vec(),
+                            alert,
+                        })
+                    },
+                ),
+            })
+            .collect())
+    }
 
-    /// One Sync Write of `register` to every servo in `values` (id, value); servos do not reply.
-    fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError>;
-
-    /// Reboot one servo (clears a latched hardware error; torque comes back off).
-    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError>;
+    /// Present position (and the asked `fields`) of every servo in `ids`, in one Sync Read,
+    /// into `out` (see [`States::readings`]).
+    fn read_states_into(
+        &mut self,
+        ids: &[u8],
+        fields: Fields,
+        timeout: Duration,
+        out: &mut States,
+    ) -> Result<(), ServoError> {
+        let (address, len) = fields.span();
+        out.readings.clear();
+        self.sync_read_into(ids, address, len, timeout, &mut out.raw)?;
+        for (i, &id) in ids.iter().enumerate() {
+            let reading = match out.raw.take_error(i) {
+                Some(e) => Err(e),
+                None => match out.raw.get(i) {
+                    Ok((data, alert)) => ServoState::decode(id, data, alert, fields),
+                    Err(_) => Err(ServoError::Timeout {
+                        id,
+                        waited: timeout,
+                    }),
+                },
+            };
+            out.readings.push(reading);
+        }
+        Ok(())
+    }
 
     /// Present position (and the asked `fields`) of every servo in `ids`, in one Sync Read.
     fn read_states(
@@ -416,18 +588,9 @@ pub trait ServoBus {
         fields: Fields,
         timeout: Duration,
     ) -> Result<Vec<Reading>, ServoError> {
-        let (address, len) = fields.span();
-        let blocks = self.sync_read(ids, address, len, timeout)?;
-        Ok(blocks
-            .into_iter()
-            .map(|b| b.and_then(|b| ServoState::from_block(&b, fields)))
-            .collect())
-    }
-
-    /// Goal positions for every servo in `goals`, in one Sync Write.
-    fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError> {
-        let values: Vec<(u8, i64)> = goals.iter().map(|g| (g.id, i64::from(g.ticks))).collect();
-        self.sync_write(Register::GoalPosition, &values)
+        let mut out = States::new();
+        self.read_states_into(ids, fields, timeout, &mut out)?;
+        Ok(out.readings)
     }
 
     /// Torque on or off for one servo.
@@ -442,6 +605,8 @@ pub trait ServoBus {
     }
 }
 
+/// A bus borrowed is the bus: every call, provided ones included, goes to the implementation's
+/// own (a wrapper that overrides [`ServoBus::write_goals`] is not bypassed by a reference).
 impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     fn baud(&self) -> u32 {
         (**self).baud()
@@ -467,6 +632,25 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     ) -> Result<Ack, ServoError> {
         (**self).write(id, register, value, timeout)
     }
+    fn sync_read_into(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        (**self).sync_read_into(ids, address, len, timeout, out)
+    }
+    fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
+        (**self).sync_write(register, values)
+    }
+    fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError> {
+        (**self).write_goals(goals)
+    }
+    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
+        (**self).reboot(id, timeout)
+    }
     fn sync_read(
         &mut self,
         ids: &[u8],
@@ -476,31 +660,29 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     ) -> Result<Vec<Result<Block, ServoError>>, ServoError> {
         (**self).sync_read(ids, address, len, timeout)
     }
-    fn sync_write(&mut self, register: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
-        (**self).sync_write(register, values)
+    fn read_states_into(
+        &mut self,
+        ids: &[u8],
+        fields: Fields,
+        timeout: Duration,
+        out: &mut States,
+    ) -> Result<(), ServoError> {
+        (**self).read_states_into(ids, fields, timeout, out)
     }
-    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
-        (**self).reboot(id, timeout)
+    fn read_states(
+        &mut self,
+        ids: &[u8],
+        fields: Fields,
+        timeout: Duration,
+    ) -> Result<Vec<Reading>, ServoError> {
+        (**self).read_states(ids, fields, timeout)
     }
-}
-
-/// The name of an X-series model number, if known.
-pub fn model_name(model: u16) -> Option<&'static str> {
-    Some(match model {
-        1000 => "XH430-W210",
-        1010 => "XH430-W350",
-        1020 => "XM430-W350",
-        1030 => "XM430-W210",
-        1060 => "XL430-W250",
-        1070 => "XC430-W150",
-        1080 => "XC430-W240",
-        1090 => "2XL430-W250",
-        1120 => "XM540-W270",
-        1130 => "XM540-W150",
-        1190 => "XL330-M077",
-        1200 => "XL330-M288",
-        _ => return None,
-    })
+    fn set_torque(&mut self, id: u8, on: bool, timeout: Duration) -> Result<Ack, ServoError> {
+        (**self).set_torque(id, on, timeout)
+    }
+    fn hardware_errors(&mut self, id: u8, timeout: Duration) -> Result<HardwareErrors, ServoError> {
+        (**self).hardware_errors(id, timeout)
+    }
 }
 
 #[cfg(test)]
@@ -515,10 +697,8 @@ mod tests {
         );
         assert_eq!(Register::BusWatchdog.decode(&[0xFF]), Some(-1));
         assert_eq!(Register::ModelNumber.decode(&[0x24, 0x04]), Some(1060));
-        assert_eq!(
-            Register::GoalPosition.encode(-2),
-            vec![0xFE, 0xFF, 0xFF, 0xFF]
-        );
+        assert_eq!(Register::GoalPosition.encode(-2), [0xFE, 0xFF, 0xFF, 0xFF]);
+        assert_eq!(Register::ProfileVelocity.encode(300), [0x2C, 0x01, 0, 0]);
         assert!(Register::ReturnDelayTime.fits(254) && !Register::ReturnDelayTime.fits(256));
         assert!(Register::BusWatchdog.fits(-1) && !Register::BusWatchdog.fits(128));
         assert!(!Register::TorqueEnable.fits(-1));

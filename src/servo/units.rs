@@ -61,16 +61,6 @@ pub enum CurrentUnit {
     MilliAmps(f64),
 }
 
-/// The current/load unit of a model number, if known.
-pub fn current_unit(model: u16) -> Option<CurrentUnit> {
-    match model {
-        1060 | 1090 => Some(CurrentUnit::LoadPermille),
-        1000 | 1010 | 1020 | 1030 | 1120 | 1130 => Some(CurrentUnit::MilliAmps(2.69)),
-        1190 | 1200 => Some(CurrentUnit::MilliAmps(1.0)),
-        _ => None,
-    }
-}
-
 /// Present Input Voltage (0.1 V units) in volts.
 pub fn volts(raw_dv: u16) -> f64 {
     f64::from(raw_dv) / 10.0
@@ -179,7 +169,6 @@ mod tests {
         assert_eq!(profile_acceleration(1e9), PROFILE_MAX);
         assert_eq!(return_delay(500), 250);
         assert_eq!(return_delay(3), 1);
-        assert_eq!(current_unit(1200), Some(CurrentUnit::MilliAmps(1.0)));
         assert_eq!(volts(111), 11.1);
     }
 }

@@ -11,9 +11,7 @@ use std::time::Duration;
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
 use snakectl::servo::ServoBus;
-use snakectl_sim::{
-    spawn_pty, Clock, ManualClock, Model, RealClock, ServoSpec, SimConfig, SimHandle, Simulator,
-};
+use snakectl_sim::{Clock, ManualClock, Model, RealClock, ServoSpec, SimConfig, SimHandle};
 
 /// Reply timeout used by the tests: generous, so a loaded machine does not fail them.
 pub const TIMEOUT: Duration = Duration::from_millis(200);
@@ -93,8 +91,7 @@ pub fn realtime_rig(config: SimConfig) -> Rig {
 }
 
 fn serve(config: SimConfig, clock: Arc<dyn Clock>) -> SimHandle {
-    let sim = Simulator::new(config, clock).expect("simulator config");
-    spawn_pty(sim).expect("pty")
+    snakectl::connect::serve(config, clock).expect("simulator")
 }
 
 fn open(handle: &SimHandle) -> DynamixelBus {

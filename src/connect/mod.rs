@@ -1,0 +1,153 @@
+//! The one way from a config to a running bus: [`open`] takes a validated [`Config`] and returns
+//! the opened, limited bus with the [`Arm`] it drives, and the simulator's handle when it
+//! started one.
+//!
+//! - `[bus] kind = "sim"`: the config's servo chain is simulated in-process ([`spawn_sim`]) on
+//!   a pseudo-terminal and opened through the same Dynamixel code as hardware.
+//! - `[bus] kind = "dynamixel"`: `[bus] port` is opened.
+//! - An explicit port ([`Options::port`], the CLI's `--port PATH`) is opened whatever
+//!   `bus.kind` says, so the same file drives an external `snakectl sim` or a real chain.
+//!
+//! Every caller goes through here (the daemon, `snakectl sim`, the servo commands, benches and
+//! tests); [`sim`] turns a config into the simulator's plain data.
+
+pub mod sim;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use snakectl_sim::{Clock, RealClock, SimConfig, SimHandle, Simulator};
+
+use crate::config::{BusKind, Config};
+use crate::servo::arm::Arm;
+use crate::servo::dynamixel::DynamixelBus;
+use crate::servo::limits::{Limited, Strategy};
+use crate::servo::ServoError;
+
+pub use sim::{sim_config, SimBusError};
+
+/// Why a config could not be turned into a running bus.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConnectError {
+    /// The file has no `[bus]`: it describes geometry only.
+    #[error("{}: no [bus] table: add one (kind = \"sim\" or \"dynamixel\") to drive servos", path.display())]
+    NoBus {
+        /// The config file.
+        path: PathBuf,
+    },
+    /// The config's chain cannot be simulated as written.
+    #[error("{}: {source}", path.display())]
+    SimConfig {
+        /// The config file.
+        path: PathBuf,
+        /// What cannot be simulated.
+        source: SimBusError,
+    },
+    /// The simulator refused its configuration or could not start.
+    #[error("{}: simulator: {source}", path.display())]
+    Sim {
+        /// The config file.
+        path: PathBuf,
+        /// The simulator's error.
+        source: snakectl_sim::SimError,
+    },
+    /// The serial port could not be opened.
+    #[error("{source} (is the adapter plugged in? `snakectl ports` lists the serial ports)")]
+    Open {
+        /// The servo layer's error, naming the port.
+        source: ServoError,
+    },
+}
+
+/// How [`open`] reaches the servos.
+#[derive(Clone)]
+pub struct Options {
+    /// Open this port whatever `[bus] kind` says.
+    pub port: Option<PathBuf>,
+    /// The clock of a simulator started here (wall time unless a test advances its own).
+    pub clock: Arc<dyn Clock>,
+    /// What the limits wrapper does with a goal outside the joint limits.
+    pub strategy: Strategy,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            port: None,
+            clock: Arc::new(RealClock),
+            strategy: Strategy::Clamp,
+        }
+    }
+}
+
+impl std::fmt::Debug for Options {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Options")
+            .field("port", &self.port)
+            .field("strategy", &self.strategy)
+            .finish_non_exhaustive()
+    }
+}
+
+/// An opened bus, limited to the arm's joint limits, and what it drives.
+#[derive(Debug)]
+pub struct Connection {
+    /// The bus: the only way to the servos.
+    pub bus: Limited<DynamixelBus>,
+    /// The configured joints and bus settings.
+    pub arm: Arm,
+    /// The in-process simulator, when `[bus] kind = "sim"` and no port was given.
+    pub sim: Option<SimHandle>,
+}
+
+/// Open the bus `config` describes (see the module docs for which one).
+pub fn open(config: &Config, options: Options) -> Result<Connection, ConnectError> {
+    let (bus_config, arm) = match (config.bus(), config.arm()) {
+        (Some(b), Some(a)) => (b, a.clone()),
+        _ => {
+            return Err(ConnectError::NoBus {
+                path: config.path().to_path_buf(),
+            })
+        }
+    };
+    let (port, sim) = match (&options.port, bus_config.kind, &bus_config.port) {
+        (Some(port), _, _) => (port.clone(), None),
+        (None, BusKind::Dynamixel, Some(port)) => (PathBuf::from(port), None),
+        (None, _, _) => {
+            let handle = spawn_sim(config, options.clock.clone())?;
+            (handle.path().to_path_buf(), Some(handle))
+        }
+    };
+    let raw = open_port(&port, bus_config.baud)?;
+    let bus = arm.limited(raw, options.strategy);
+    Ok(Connection { bus, arm, sim })
+}
+
+/// Start the config's servo chain, simulated, on a pseudo-terminal, on `clock`.
+pub fn spawn_sim(config: &Config, clock: Arc<dyn Clock>) -> Result<SimHandle, ConnectError> {
+    let path = || config.path().to_path_buf();
+    let sim_config = sim_config(config).map_err(|source| ConnectError::SimConfig {
+        path: path(),
+        source,
+    })?;
+    serve(sim_config, clock).map_err(|source| ConnectError::Sim {
+        path: path(),
+        source,
+    })
+}
+
+/// Serve a simulated chain on a fresh pseudo-terminal, on `clock`: the one place a simulator
+/// is started (tests with chains no config describes call it directly).
+pub fn serve(
+    sim_config: SimConfig,
+    clock: Arc<dyn Clock>,
+) -> Result<SimHandle, snakectl_sim::SimError> {
+    snakectl_sim::spawn_pty(Simulator::new(sim_config, clock)?)
+}
+
+/// Open a serial port (a real adapter or a simulator's pseudo-terminal) at `baud`, raw: for the
+/// administrative commands, or to be limited by [`open`].
+pub fn open_port(port: &Path, baud: u32) -> Result<DynamixelBus, ConnectError> {
+    DynamixelBus::open(port, baud).map_err(|source| ConnectError::Open { source })
+}
