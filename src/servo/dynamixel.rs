@@ -13,7 +13,8 @@
 //! crate: in a sync read it is attributed to the first servo not yet heard from, which is
 //! exact unless an earlier servo is silent. A reply that arrives after its deadline may still
 //! be in flight when the next instruction goes out: a single exchange skips replies from other
-//! servos; a sync read counts the servos listed before a reply's id as missing.
+//! servos and replies of the wrong length (the same servo's answer to an earlier instruction);
+//! a sync read counts the servos listed before a reply's id as missing.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -179,6 +180,7 @@ impl DynamixelBus {
             + self.reply_wait(reply_params, timeout);
         let deadline = Instant::now() + waited;
         let mut skipped = None;
+        let mut stale = None;
         loop {
             match self.bus.read_status_response_deadline(deadline) {
                 Ok(p) if p.packet_id() != id => {
@@ -189,27 +191,37 @@ impl DynamixelBus {
                     );
                     skipped = Some(p.packet_id());
                 }
+                Ok(p) if p.parameters().len() != reply_params => {
+                    // The servo's late reply to an earlier instruction (another length):
+                    // skipped like another servo's. A late reply of the same length cannot be
+                    // told from this one's (Protocol 2.0 has no sequence number).
+                    tracing::debug!(
+                        id,
+                        bytes = p.parameters().len(),
+                        expected = reply_params,
+                        "skipping a reply of another length"
+                    );
+                    stale = Some(p.parameters().len());
+                }
                 Ok(p) => {
                     let data = p.parameters();
                     let mut reply = Reply {
                         params: [0; 4],
                         alert: p.alert(),
                     };
-                    match reply.params.get_mut(..data.len()) {
-                        Some(slot) if data.len() == reply_params => slot.copy_from_slice(data),
-                        _ => {
-                            return Err(ServoError::Malformed {
-                                id,
-                                what: format!("{} data bytes, expected {reply_params}", data.len()),
-                            })
-                        }
+                    if let Some(slot) = reply.params.get_mut(..data.len()) {
+                        slot.copy_from_slice(data);
                     }
                     return Ok(reply);
                 }
                 Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => {
-                    return Err(match skipped {
-                        Some(from) => ServoError::WrongId { id, from },
-                        None => ServoError::Timeout { id, waited },
+                    return Err(match (skipped, stale) {
+                        (Some(from), _) => ServoError::WrongId { id, from },
+                        (None, Some(bytes)) => ServoError::Malformed {
+                            id,
+                            what: format!("{bytes} data bytes, expected {reply_params}"),
+                        },
+                        (None, None) => ServoError::Timeout { id, waited },
                     })
                 }
                 Err(e) => return Err(read_error(id, waited, e)),
