@@ -1,26 +1,37 @@
-//! A control loop calls the resolvers every tick: once warmed up for a chain, neither strategy
-//! may allocate. A counting global allocator checks it.
+//! A control loop calls the resolvers every tick and talks to the bus every tick: once warmed
+//! up, neither strategy may allocate, and neither may a whole read -> resolve -> write cycle on
+//! the simulated chain. A counting global allocator checks it, per thread (the simulator's own
+//! thread allocates as it likes).
 // The one place the crate allows unsafe code: a global allocator must implement an unsafe trait.
 // It only counts calls and delegates every one to the system allocator.
 #![allow(clippy::unwrap_used, unsafe_code)]
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::cell::Cell;
 
 use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::resolve::overall::{Overall, OverallOptions};
 use snakectl::resolve::sequential::Sequential;
 use snakectl::resolve::Resolver;
+use std::time::Duration;
 
 struct Counting;
 
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    /// Allocations made by this thread (const-initialised: reading it never allocates).
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count() {
+    // During thread teardown the slot may be gone: such allocations are not a tick's.
+    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+}
 
 // SAFETY: every call is forwarded unchanged to `System`, which upholds the `GlobalAlloc`
 // contract; the counter has no effect on memory.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: the caller's layout is passed on as received.
         unsafe { System.alloc(layout) }
     }
@@ -29,7 +40,7 @@ unsafe impl GlobalAlloc for Counting {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: as for `dealloc`; the new size is the caller's.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -38,11 +49,11 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-/// Allocations made by `f`.
+/// Allocations made by `f` on this thread.
 fn allocations(f: impl FnOnce()) -> usize {
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = ALLOCATIONS.with(Cell::get);
     f();
-    ALLOCATIONS.load(Ordering::Relaxed) - before
+    ALLOCATIONS.with(Cell::get) - before
 }
 
 /// Runs 200 ticks of 1 mm along a 5 mm circle through `resolver::resolve` after one warm-up tick.
@@ -72,4 +83,65 @@ fn warm_ticks_allocate_nothing() {
         let mut overall = Overall::new(OverallOptions::default());
         assert_eq!(ticks(&mut overall, &chain), 0, "overall, n = {n}");
     }
+}
+
+/// One control cycle as the daemon's loop runs it: read positions and velocities (one Sync
+/// Read), resolve the next tip target from the measured pose, write the goals (one Sync Write
+/// through the limits wrapper).
+#[test]
+fn a_warm_read_resolve_write_cycle_allocates_nothing() {
+    use snakectl::config::Config;
+    use snakectl::connect::{self, Options};
+    use snakectl::servo::arm::BringUpOptions;
+    use snakectl::servo::{Fields, Goal, ServoBus, States};
+
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+    let config = Config::load(path).unwrap();
+    let mut link = connect::open(&config, Options::default()).unwrap();
+    let arm = link.arm.clone();
+    arm.bring_up(&mut link.bus, BringUpOptions::default())
+        .unwrap();
+    let chain = config.chain();
+    let ids = arm.ids();
+    let fields = Fields {
+        velocity: true,
+        ..Fields::POSITION
+    };
+    let mut states = States::new();
+    let mut theta = config.home().to_vec();
+    let mut goals = vec![Goal { id: 0, ticks: 0 }; ids.len()];
+    let mut overall = Overall::new(OverallOptions::default());
+    let start = chain.tip(&theta);
+    let mut cycle = |k: usize, theta: &mut Vec<f64>| {
+        arm.read_states_into(&mut link.bus, &ids, fields, &mut states)
+            .unwrap();
+        for (i, (slot, reading)) in theta.iter_mut().zip(states.readings()).enumerate() {
+            let measured = reading.as_ref().unwrap();
+            *slot = arm.angle(i, measured.position_ticks).unwrap();
+        }
+        let a = k as f64 * 0.05;
+        let target = start + Vec2::new(0.01 * a.sin(), 0.01 * (1.0 - a.cos()));
+        overall.resolve(chain, theta, target).unwrap();
+        arm.goals_into(theta, &mut goals).unwrap();
+        link.bus.write_goals(&goals).unwrap();
+    };
+    for k in 0..3 {
+        cycle(k, &mut theta);
+    }
+    let n = allocations(|| {
+        for k in 3..103 {
+            cycle(k, &mut theta);
+        }
+    });
+    assert_eq!(n, 0, "allocations in 100 warm cycles");
+    // The cycles did reach the servos: the goals were taken.
+    let taken = link
+        .bus
+        .read(
+            ids[0],
+            snakectl::servo::Register::GoalPosition,
+            Duration::from_millis(200),
+        )
+        .unwrap();
+    assert_eq!(taken.value, i64::from(goals[0].ticks));
 }

@@ -113,30 +113,25 @@ impl Calibration {
 mod tests {
     use super::*;
 
+    /// 4096 ticks a turn: 651.899 ticks a radian, 2048 at 0 rad (e-manual, X series).
     #[test]
-    fn round_trips_and_known_points() {
-        for cal in [
-            Calibration::default(),
-            Calibration {
-                offset_ticks: -300,
-                reverse: true,
-            },
-        ] {
-            for theta in [-2.0, -0.1, 0.0, 0.7, 3.0] {
-                assert!((cal.radians(cal.ticks(theta)) - theta).abs() < 1e-12);
-            }
-        }
+    fn known_points_by_hand() {
         let plain = Calibration::default();
         assert_eq!(plain.ticks(0.0), 2048.0);
         assert_eq!(plain.ticks(std::f64::consts::PI), 4096.0);
+        assert_eq!(plain.ticks(-std::f64::consts::FRAC_PI_2), 1024.0);
+        assert!((plain.ticks(1.0) - 2699.898_7).abs() < 1e-4);
+        assert!((plain.radians(3072.0) - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
         let rev = Calibration {
             offset_ticks: 100,
             reverse: true,
         };
+        // 2148 - 0.5 * 651.899 = 1822.051.
         assert_eq!(rev.ticks(0.0), 2148.0);
-        assert!(rev.ticks(0.5) < rev.ticks(0.0));
-        let (lo, hi) = rev.tick_range(-1.0, 1.0);
-        assert!(lo <= hi && rev.radians(lo) <= 1.0 && rev.radians(hi) >= -1.0);
+        assert!((rev.ticks(0.5) - 1822.050_7).abs() < 1e-4);
+        assert!((rev.radians(2148.0 - 1024.0) - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
+        // [-1, 1] rad reversed around 2148: ticks 1496.10..2799.90, rounded inward.
+        assert_eq!(rev.tick_range(-1.0, 1.0), (1497.0, 2799.0));
     }
 
     #[test]
@@ -156,19 +151,23 @@ mod tests {
         }
     }
 
+    /// Units from the e-manual: velocity 0.229 rev/min = 0.023981 rad/s, acceleration
+    /// 214.577 rev/min^2 = 0.374507 rad/s^2, voltage 0.1 V; Return Delay Time 2 µs.
     #[test]
-    fn raw_units() {
-        assert!((velocity_rad_s(100) - 100.0 * 0.229 * TAU / 60.0).abs() < 1e-12);
+    fn raw_units_by_hand() {
+        assert!((velocity_rad_s(100) - 2.398_082).abs() < 1e-6);
         assert_eq!(profile_velocity(0.0), 0);
         assert_eq!(profile_velocity(f64::NAN), 0);
         assert_eq!(profile_velocity(1e-6), 1);
-        assert_eq!(
-            profile_velocity(3.0),
-            (3.0 / VELOCITY_UNIT_RAD_S).round() as i64
-        );
+        // 3 / 0.023981 = 125.1; 1 / 0.023981 = 41.7.
+        assert_eq!(profile_velocity(3.0), 125);
+        assert_eq!(profile_velocity(1.0), 42);
+        // 20 / 0.374507 = 53.4.
+        assert_eq!(profile_acceleration(20.0), 53);
         assert_eq!(profile_acceleration(1e9), PROFILE_MAX);
         assert_eq!(return_delay(500), 250);
         assert_eq!(return_delay(3), 1);
+        assert_eq!(return_delay(600), 254);
         assert_eq!(volts(111), 11.1);
     }
 }
