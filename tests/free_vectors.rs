@@ -1,8 +1,9 @@
-//! The free-tail sequential tractrix against the reference answers in `../shared/vectors/free_*`
+//! The free-tail sequential tractrix against the reference answers in `tests/data/vectors/free_*`
 //! (computed outside this project), through the same `Problem` path `snakectl solve` uses.
+//! The vectors are part of the repository: a missing, empty or incomplete directory fails.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 use snakectl::problem::Problem;
@@ -14,37 +15,61 @@ struct Expected {
     base_displacement: f64,
 }
 
-fn vectors() -> Option<Vec<PathBuf>> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/vectors");
-    let entries = std::fs::read_dir(&dir).ok()?;
+/// Fewest free-tail vectors per step count the directory must hold (one step and eight steps).
+const MIN_PER_STEPS: usize = 2;
+
+fn expected_path(problem: &Path) -> PathBuf {
+    let name = problem.file_name().unwrap().to_string_lossy();
+    problem.with_file_name(name.replace(".problem.json", ".expected.json"))
+}
+
+/// The `free_*` problem files, sorted; panics if the directory cannot be read, if a problem has
+/// no expected answer next to it, or if there are too few of either step count.
+fn vectors() -> Vec<PathBuf> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/vectors");
+    let entries = std::fs::read_dir(&dir).unwrap_or_else(|e| {
+        panic!(
+            "reference vectors missing: cannot read {}: {e}",
+            dir.display()
+        )
+    });
     let mut out: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
+        .map(|e| e.unwrap().path())
         .filter(|p| {
             let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
             name.starts_with("free_") && name.ends_with(".problem.json")
         })
         .collect();
     out.sort();
-    Some(out)
+    for p in &out {
+        assert!(
+            expected_path(p).is_file(),
+            "{} has no expected answer next to it",
+            p.display()
+        );
+    }
+    let count = |steps: &str| {
+        out.iter()
+            .filter(|p| {
+                p.to_string_lossy()
+                    .ends_with(&format!(".{steps}.problem.json"))
+            })
+            .count()
+    };
+    let (one, eight) = (count("steps1"), count("steps8"));
+    assert!(
+        one >= MIN_PER_STEPS && eight >= MIN_PER_STEPS,
+        "{} holds {one} one-step and {eight} eight-step free vectors; at least \
+         {MIN_PER_STEPS} of each expected",
+        dir.display()
+    );
+    out
 }
 
 #[test]
 fn free_tail_tractrix_matches_the_reference_vectors() {
-    let Some(files) = vectors() else {
-        eprintln!("reference vectors not present next to the checkout: skipped");
-        return;
-    };
-    assert!(
-        !files.is_empty(),
-        "the vector directory holds no free_* problems"
-    );
-    for problem_file in files {
-        let expected_file = PathBuf::from(
-            problem_file
-                .to_str()
-                .unwrap()
-                .replace(".problem.json", ".expected.json"),
-        );
+    for problem_file in vectors() {
+        let expected_file = expected_path(&problem_file);
         let problem = Problem::from_json(&std::fs::read_to_string(&problem_file).unwrap())
             .unwrap_or_else(|e| panic!("{}: {e}", problem_file.display()));
         let expected: Expected =

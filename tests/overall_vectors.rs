@@ -1,12 +1,12 @@
-//! The cold overall solve against the independent reference optima in `shared/vectors`.
+//! The cold overall solve against the independent reference optima in `tests/data/vectors`.
 //!
 //! Every `overall_*.problem.json` must be solved to its expected global minimum of metric 3
 //! (within 1e-9 relative), with the tip on target (within 1e-9 m) and no joint outside its
-//! limits by any amount. The vectors live outside the repository: when their directory is
-//! absent the test says so and passes; when it is present, every vector counts.
+//! limits by any amount. The vectors are part of the repository: a missing, empty or
+//! incomplete directory fails the test rather than letting it pass on nothing.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 use snakectl::chain::{Chain, JointLimit, Vec2};
@@ -28,22 +28,25 @@ struct ExpectedFile {
     metric3: f64,
 }
 
+/// Fewest vectors the directory must hold: 9 unconstrained plus 6 with box limits.
+const MIN_OVERALL: usize = 15;
+/// Fewest of them with box limits (`overall_limits_*`).
+const MIN_LIMITED: usize = 6;
+
 fn vectors_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/vectors")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/vectors")
 }
 
-#[test]
-fn cold_solve_reaches_every_reference_optimum() {
-    let dir = vectors_dir();
-    if !dir.is_dir() {
-        println!(
-            "notice: {} not found; reference vectors skipped",
+/// The `overall_*` problem files, sorted; panics if the directory cannot be read, if a problem
+/// has no expected answer next to it, or if fewer vectors than the minimum are present.
+fn overall_problems(dir: &Path) -> Vec<PathBuf> {
+    let entries = std::fs::read_dir(dir).unwrap_or_else(|e| {
+        panic!(
+            "reference vectors missing: cannot read {}: {e}",
             dir.display()
-        );
-        return;
-    }
-    let mut names: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap()
+        )
+    });
+    let mut names: Vec<PathBuf> = entries
         .map(|e| e.unwrap().path())
         .filter(|p| {
             let name = p.file_name().unwrap().to_string_lossy().into_owned();
@@ -51,16 +54,55 @@ fn cold_solve_reaches_every_reference_optimum() {
         })
         .collect();
     names.sort();
-    assert!(!names.is_empty(), "no overall vectors in {}", dir.display());
+    for p in &names {
+        let expected = expected_path(p);
+        assert!(
+            expected.is_file(),
+            "{} has no expected answer {}",
+            p.display(),
+            expected.display()
+        );
+    }
+    let limited = names
+        .iter()
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("overall_limits_")
+        })
+        .count();
+    assert!(
+        names.len() >= MIN_OVERALL && limited >= MIN_LIMITED,
+        "{} holds {} overall vectors ({limited} with limits); at least {MIN_OVERALL} \
+         ({MIN_LIMITED} with limits) expected",
+        dir.display(),
+        names.len()
+    );
+    names
+}
+
+fn expected_path(problem: &Path) -> PathBuf {
+    let name = problem.file_name().unwrap().to_string_lossy();
+    problem.with_file_name(name.replace(".problem.json", ".expected.json"))
+}
+
+#[test]
+fn cold_solve_reaches_every_reference_optimum() {
+    let names = overall_problems(&vectors_dir());
     let mut solver = Overall::new(OverallOptions::default());
     let mut failures = Vec::new();
     for path in &names {
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
         let problem: ProblemFile =
             serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-        let expected_path = dir.join(name.replace(".problem.json", ".expected.json"));
         let expected: ExpectedFile =
-            serde_json::from_str(&std::fs::read_to_string(&expected_path).unwrap()).unwrap();
+            serde_json::from_str(&std::fs::read_to_string(expected_path(path)).unwrap()).unwrap();
+        assert_eq!(
+            problem.limits.is_some(),
+            name.starts_with("overall_limits_"),
+            "{name}: limits present exactly in the overall_limits_* vectors"
+        );
         let limits = problem
             .limits
             .as_ref()

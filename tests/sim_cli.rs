@@ -3,31 +3,80 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::path::Path;
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use snakectl_sim::protocol;
+use snakectl_sim::protocol::{self, Frame, Packet, Parser};
 
-/// Sends a ping to `id` and returns the raw status packet.
-fn ping(port: &Path, id: u8) -> Vec<u8> {
+/// Generous bound on waiting for the child: the machine may be busy. Reached only on failure.
+const DEADLINE: Duration = Duration::from_secs(30);
+
+/// A running `snakectl sim`. Dropping it (also when a test fails or panics) kills the process
+/// if it still runs, reaps it and removes the link it may have left, so nothing leaks.
+struct SimChild {
+    child: Child,
+    link: PathBuf,
+}
+
+impl SimChild {
+    /// Waits for the process to exit by itself, up to [`DEADLINE`].
+    fn wait_exit(&mut self) -> ExitStatus {
+        let deadline = Instant::now() + DEADLINE;
+        loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                return status;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "snakectl sim still runs {DEADLINE:?} after SIGTERM"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for SimChild {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+        if self.link.symlink_metadata().is_ok() {
+            let _ = std::fs::remove_file(&self.link);
+        }
+    }
+}
+
+/// Sends a ping to each of `ids` in turn, in one write, and returns the status packets that
+/// came back, read until the last id answered (the last id must be a servo that is there).
+/// The simulator answers in order, so a reply to an earlier id would come before it: absence is
+/// checked without waiting out a silence.
+fn pings(port: &Path, ids: &[u8]) -> Vec<Packet> {
+    let last = *ids.last().unwrap();
     let mut p = serialport::new(port.to_str().unwrap(), 1_000_000)
         .timeout(Duration::from_millis(200))
         .open()
         .unwrap();
-    p.write_all(&protocol::encode_instruction(
-        id,
-        protocol::instruction::PING,
-        &[],
-    ))
-    .unwrap();
+    let bytes: Vec<u8> = ids
+        .iter()
+        .flat_map(|&id| protocol::encode_instruction(id, protocol::instruction::PING, &[]))
+        .collect();
+    p.write_all(&bytes).unwrap();
+    let mut parser = Parser::default();
     let mut got = Vec::new();
     let mut buf = [0u8; 64];
-    let deadline = Instant::now() + Duration::from_millis(500);
-    // A ping status is 14 bytes: header 4, id, length 2, 0x55, error, model 2, firmware, CRC 2.
-    while got.len() < 14 && Instant::now() < deadline {
+    let deadline = Instant::now() + DEADLINE;
+    while !got.iter().any(|r: &Packet| r.id == last) {
+        assert!(Instant::now() < deadline, "no answer from {last}: {got:?}");
         if let Ok(k) = p.read(&mut buf) {
-            got.extend_from_slice(&buf[..k]);
+            for frame in parser.feed(&buf[..k], Instant::now()) {
+                match frame.frame {
+                    Frame::Packet(packet) => got.push(packet),
+                    other => panic!("bad frame from snakectl sim: {other:?}"),
+                }
+            }
         }
     }
     got
@@ -37,39 +86,49 @@ fn ping(port: &Path, id: u8) -> Vec<u8> {
 fn sim_serves_the_config_chain_on_a_linked_pty_and_stops_on_sigterm() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("snake-bus");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
-        .args(["sim", "--config", "config/sim.toml", "--link"])
-        .arg(&link)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
+    let mut sim = SimChild {
+        child: Command::new(env!("CARGO_BIN_EXE_snakectl"))
+            .args(["sim", "--config", "config/sim.toml", "--link"])
+            .arg(&link)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+        link: link.clone(),
+    };
+    // The first line names the pty; read on a thread so a silent child fails the test.
+    let stdout = sim.child.stdout.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let mut line = String::new();
+        let _ = BufReader::new(stdout).read_line(&mut line);
+        let _ = tx.send(line);
+    });
+    let line = rx
+        .recv_timeout(DEADLINE)
+        .expect("snakectl sim printed its pty");
     let pty = line.trim().to_string();
     assert!(pty.starts_with("/dev/pts/"), "{pty}");
     assert_eq!(std::fs::read_link(&link).unwrap(), Path::new(&pty));
 
-    // Servo 12 (the last of config/sim.toml) answers as an XL430-W250 (model 1060).
-    let reply = ping(&link, 12);
-    assert_eq!(reply.len(), 14, "{reply:02X?}");
-    assert_eq!(reply[4], 12);
-    assert_eq!(reply[8], 0, "no error");
-    assert_eq!(u16::from_le_bytes([reply[9], reply[10]]), 1060);
-    // The port closed above; a new client gets an answer too.
-    assert_eq!(ping(&link, 1)[4], 1);
-    // No servo 13.
-    assert!(ping(&link, 13).is_empty());
+    // Servo 12 (the last of config/sim.toml) answers as an XL430-W250 (model 1060, firmware
+    // 48), without error.
+    let reply = pings(&link, &[12]);
+    assert_eq!(reply.len(), 1, "{reply:?}");
+    assert_eq!(reply[0].id, 12);
+    assert_eq!(reply[0].instruction, protocol::STATUS);
+    assert_eq!(reply[0].params, [0, 0x24, 0x04, 48]);
+    // The port closed above; a new client gets an answer too. No servo 13: only 1 answers.
+    let ids: Vec<u8> = pings(&link, &[13, 1]).iter().map(|p| p.id).collect();
+    assert_eq!(ids, [1]);
 
     let status = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
+        .args(["-TERM", &sim.child.id().to_string()])
         .status()
         .unwrap();
     assert!(status.success());
-    let code = child.wait().unwrap();
+    let code = sim.wait_exit();
     assert!(code.success(), "{code:?}");
     assert!(link.symlink_metadata().is_err(), "the link is removed");
 }

@@ -311,6 +311,9 @@ pub struct Reply {
 /// Counters, for logs and tests.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Stats {
+    /// Bytes received from the line (everything fed to [`Simulator::handle_bytes`]). Tests
+    /// over the pty wait on it to know the simulator has taken what they wrote.
+    pub bytes: u64,
     /// Packets with a good CRC.
     pub packets: u64,
     /// Frames with a bad CRC.
@@ -543,6 +546,7 @@ impl Simulator {
     pub fn handle_bytes(&mut self, bytes: &[u8]) -> Vec<Reply> {
         let now = self.clock.now();
         self.advance_to(now);
+        self.stats.bytes += bytes.len() as u64;
         let bt = self.byte_time();
         let wire = self.config.wire_timing;
         let chunk_start = if wire { now.max(self.line_free) } else { now };

@@ -30,19 +30,56 @@ fn open(handle: &SimHandle, baud: u32) -> TTYPort {
         .expect("open raw port")
 }
 
-/// Ids of the servos answering a broadcast ping, until `n` have or `window` has passed.
-fn ping_all(port: &mut TTYPort, n: usize, window: Duration) -> Vec<u8> {
-    port.write_all(&protocol::encode_instruction(
-        protocol::BROADCAST_ID,
-        ins::PING,
-        &[],
-    ))
-    .expect("send");
-    let deadline = Instant::now() + window;
+/// Generous bound on waiting for a condition: the machine may be busy. Reached only on failure.
+const DEADLINE: Duration = Duration::from_secs(10);
+
+/// Write `bytes` and wait until the simulator has taken all of them; returns the good packets
+/// it parsed from them and the replies it made. Both are final once the bytes are in, so a
+/// silence is checked without waiting one out.
+fn send(port: &mut TTYPort, handle: &SimHandle, bytes: &[u8]) -> (u64, u64) {
+    let before = handle.with_sim(|s| s.stats());
+    port.write_all(bytes).expect("send");
+    let want = before.bytes + bytes.len() as u64;
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        let now = handle.with_sim(|s| s.stats());
+        if now.bytes >= want {
+            return (now.packets - before.packets, now.replies - before.replies);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the simulator took {} of {} bytes",
+            now.bytes - before.bytes,
+            bytes.len()
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+fn broadcast_ping() -> Vec<u8> {
+    protocol::encode_instruction(protocol::BROADCAST_ID, ins::PING, &[])
+}
+
+/// Ids of the servos answering a broadcast ping, in the order they answer; as many as the
+/// simulator made replies, each awaited with a generous deadline.
+fn ping_all(port: &mut TTYPort, handle: &SimHandle) -> Vec<u8> {
+    let (packets, n) = send(port, handle, &broadcast_ping());
+    assert_eq!(packets, 1, "the simulator parsed the ping");
+    read_ids(port, n as usize)
+}
+
+/// The ids of the next `n` status packets on the port.
+fn read_ids(port: &mut TTYPort, n: usize) -> Vec<u8> {
+    let deadline = Instant::now() + DEADLINE;
     let mut parser = Parser::default();
     let mut ids = Vec::new();
     let mut buf = [0u8; 512];
-    while Instant::now() < deadline && ids.len() < n {
+    while ids.len() < n {
+        assert!(
+            Instant::now() < deadline,
+            "{} of {n} replies came",
+            ids.len()
+        );
         if let Ok(k) = port.read(&mut buf) {
             for p in parser.feed(&buf[..k], Instant::now()) {
                 if let Frame::Packet(packet) = p.frame {
@@ -54,23 +91,19 @@ fn ping_all(port: &mut TTYPort, n: usize, window: Duration) -> Vec<u8> {
     ids
 }
 
-/// Generous for an answer (the machine may be busy); a silence is awaited for less.
-const ANSWER: Duration = Duration::from_secs(1);
-const SILENCE: Duration = Duration::from_millis(60);
-
 #[test]
 fn servos_answer_only_at_their_rate() {
     let handle = serve(1_000_000);
     let mut port = open(&handle, 57_600);
-    assert_eq!(ping_all(&mut port, 1, SILENCE), Vec::<u8>::new());
+    assert_eq!(ping_all(&mut port, &handle), Vec::<u8>::new());
     // The simulator read the rate the client set on the terminal.
     assert_eq!(handle.with_sim(|s| s.line_baud()), 57_600);
     port.set_baud_rate(1_000_000).expect("set baud");
-    assert_eq!(ping_all(&mut port, 3, ANSWER), [1, 2, 3]);
+    assert_eq!(ping_all(&mut port, &handle), [1, 2, 3]);
     assert_eq!(handle.with_sim(|s| s.line_baud()), 1_000_000);
     // A rate that is no Dynamixel rate at all: nobody hears.
     port.set_baud_rate(38_400).expect("set baud");
-    assert_eq!(ping_all(&mut port, 1, SILENCE), Vec::<u8>::new());
+    assert_eq!(ping_all(&mut port, &handle), Vec::<u8>::new());
 }
 
 #[test]
@@ -78,10 +111,10 @@ fn a_non_standard_termios_rate_is_read_exactly() {
     // 4.5 Mbps has no B-constant: the client sets it through BOTHER.
     let handle = serve(4_500_000);
     let mut port = open(&handle, 4_500_000);
-    assert_eq!(ping_all(&mut port, 3, ANSWER), [1, 2, 3]);
+    assert_eq!(ping_all(&mut port, &handle), [1, 2, 3]);
     assert_eq!(handle.with_sim(|s| s.line_baud()), 4_500_000);
     port.set_baud_rate(4_000_000).expect("set baud");
-    assert_eq!(ping_all(&mut port, 1, SILENCE), Vec::<u8>::new());
+    assert_eq!(ping_all(&mut port, &handle), Vec::<u8>::new());
 }
 
 #[test]
@@ -89,19 +122,13 @@ fn a_servo_moved_to_another_rate_answers_there_only() {
     let handle = serve(1_000_000);
     let mut port = open(&handle, 1_000_000);
     // Baud Rate 1 = 57600, written with torque off (EEPROM).
-    port.write_all(&protocol::encode_instruction(
-        2,
-        ins::WRITE,
-        &[addr::BAUD_RATE as u8, 0, 1],
-    ))
-    .expect("send");
-    // The acknowledgement may or may not come; wait until the register took the value.
-    let deadline = Instant::now() + ANSWER;
-    while handle.with_servo(2, |s| s.baud_index()) != Some(1) && Instant::now() < deadline {
-        let _ = port.read(&mut [0u8; 64]);
-    }
-    let _ = port.clear(serialport::ClearBuffer::Input);
-    assert_eq!(ping_all(&mut port, 2, ANSWER), [1, 3]);
+    let write = protocol::encode_instruction(2, ins::WRITE, &[addr::BAUD_RATE as u8, 0, 1]);
+    let (_, acks) = send(&mut port, &handle, &write);
+    assert_eq!(handle.with_servo(2, |s| s.baud_index()), Some(1));
+    // Whether the acknowledgement comes is not the point here; read it if it was made, so it
+    // is not taken for an answer to the pings below.
+    assert_eq!(read_ids(&mut port, acks as usize), vec![2; acks as usize]);
+    assert_eq!(ping_all(&mut port, &handle), [1, 3]);
     port.set_baud_rate(57_600).expect("set baud");
-    assert_eq!(ping_all(&mut port, 1, ANSWER), [2]);
+    assert_eq!(ping_all(&mut port, &handle), [2]);
 }

@@ -12,7 +12,7 @@ use dynamixel2::{Bus, ReadError, TransferError};
 use snakectl_sim::table::addr;
 use snakectl_sim::{
     spawn_pty, Fault, HardwareErrorKind, ManualClock, Model, ServoSpec, SimConfig, SimHandle,
-    Simulator,
+    Simulator, Stats,
 };
 
 type Client = Bus<Vec<u8>, Vec<u8>>;
@@ -52,27 +52,50 @@ fn advance(handle: &SimHandle, clock: &ManualClock, dt: Duration) {
     handle.with_sim(|s| s.advance());
 }
 
+/// Generous bound on waiting for a condition: the machine may be busy. Reached only on failure.
+const DEADLINE: Duration = Duration::from_secs(10);
+
+/// Wait until the simulator has parsed `packets` more good packets than it had at `before`;
+/// returns the replies it made since. The count is final once the packets are parsed.
+fn replies_since(handle: &SimHandle, before: Stats, packets: u64) -> u64 {
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        let now = handle.with_sim(|s| s.stats());
+        if now.packets >= before.packets + packets {
+            return now.replies - before.replies;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the simulator parsed {} of {packets} packets",
+            now.packets - before.packets
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
 /// Sync read sent by hand, replies matched by packet id (DESIGN 4: `sync_read_u32` hides a
-/// missing servo).
-fn sync_read_u32(bus: &mut Client, ids: &[u8], address: u16) -> Vec<(u8, u32)> {
+/// missing servo). Reads as many replies as the simulator made, each with a generous deadline,
+/// so a missing one is told apart from a slow one without a timeout.
+fn sync_read_u32(handle: &SimHandle, bus: &mut Client, ids: &[u8], address: u16) -> Vec<(u8, u32)> {
+    let before = handle.with_sim(|s| s.stats());
     bus.write_instruction(0xFE, 0x82, 4 + ids.len(), |buf| {
         buf[..2].copy_from_slice(&address.to_le_bytes());
         buf[2..4].copy_from_slice(&4u16.to_le_bytes());
         buf[4..].copy_from_slice(ids);
     })
     .expect("send sync read");
-    let mut out = Vec::new();
-    for _ in ids {
-        match bus.read_status_response_deadline(Instant::now() + Duration::from_millis(200)) {
-            Ok(p) => {
-                let d = p.parameters();
-                out.push((p.packet_id(), u32::from_le_bytes([d[0], d[1], d[2], d[3]])));
-            }
-            Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
-            Err(e) => panic!("sync read: {e:?}"),
-        }
-    }
-    out
+    let made = replies_since(handle, before, 1);
+    (0..made)
+        .map(
+            |_| match bus.read_status_response_deadline(Instant::now() + DEADLINE) {
+                Ok(p) => {
+                    let d = p.parameters();
+                    (p.packet_id(), u32::from_le_bytes([d[0], d[1], d[2], d[3]]))
+                }
+                Err(e) => panic!("sync read: {e:?}"),
+            },
+        )
+        .collect()
 }
 
 #[test]
@@ -125,7 +148,7 @@ fn every_instruction_round_trips() {
     )
     .expect("sync write");
     assert_eq!(
-        sync_read_u32(&mut bus, &[3, 1, 2], addr::GOAL_POSITION),
+        sync_read_u32(&handle, &mut bus, &[3, 1, 2], addr::GOAL_POSITION),
         [(3, 300), (1, 100), (2, 200)]
     );
     let all = bus
@@ -246,12 +269,18 @@ fn silent_servo_mid_sync_read() {
     });
     let (handle, clock) = serve(config);
     let mut bus = open(&handle);
-    let before = sync_read_u32(&mut bus, &[1, 2, 3], addr::PRESENT_POSITION);
+    let before = sync_read_u32(&handle, &mut bus, &[1, 2, 3], addr::PRESENT_POSITION);
     assert_eq!(before.iter().map(|r| r.0).collect::<Vec<_>>(), [1, 2, 3]);
     advance(&handle, &clock, Duration::from_secs(2));
-    let after = sync_read_u32(&mut bus, &[1, 2, 3], addr::PRESENT_POSITION);
+    let after = sync_read_u32(&handle, &mut bus, &[1, 2, 3], addr::PRESENT_POSITION);
     assert_eq!(after, [(1, 2048), (3, 2048)]);
+    let stats = handle.with_sim(|s| s.stats());
     assert!(bus.ping(2).is_err());
+    assert_eq!(
+        replies_since(&handle, stats, 1),
+        0,
+        "a silent servo answers nothing"
+    );
 }
 
 #[test]
@@ -282,12 +311,16 @@ fn faulty_replies_as_the_client_sees_them() {
         Err(TransferError::ReadError(ReadError::InvalidMessage(_))) => {}
         other => panic!("a corrupted reply must fail its checksum: {other:?}"),
     }
+    let stats = handle.with_sim(|s| s.stats());
     match bus.ping(2) {
         Err(TransferError::ReadError(ReadError::Io(e))) => {
             assert_eq!(e.kind(), std::io::ErrorKind::TimedOut)
         }
         other => panic!("a dropped reply must time out: {other:?}"),
     }
+    replies_since(&handle, stats, 1);
+    let dropped = handle.with_sim(|s| s.stats()).dropped - stats.dropped;
+    assert_eq!(dropped, 1, "the reply was made and dropped");
     // The instructions were still carried out.
     bus.write_u8(2, addr::LED, 1).ok();
     assert_eq!(handle.with_servo(2, |s| s.value(addr::LED)), Some(Some(1)));
@@ -296,7 +329,9 @@ fn faulty_replies_as_the_client_sees_them() {
 #[test]
 fn wire_timing_in_real_time() {
     // 57600 baud, factory Return Delay Time (500 µs): a ping takes 10 bytes in, 500 µs, 14 bytes
-    // out = 4.67 ms; a reply must never arrive earlier than that.
+    // out = 4.67 ms; a reply must never arrive earlier than that. How close to that it comes
+    // is a speed figure, measured by the `roundtrip` bench rather than asserted here: on a
+    // busy machine any upper bound would fail for reasons that are not the simulator's.
     let config = SimConfig {
         baud: 57_600,
         return_delay_us: 500,
@@ -313,7 +348,5 @@ fn wire_timing_in_real_time() {
         bus.ping(1).expect("ping");
         let took = t0.elapsed();
         assert!(took >= expected, "{took:?} < {expected:?}");
-        // Generous upper bound: the machine is shared.
-        assert!(took < expected + Duration::from_millis(20), "{took:?}");
     }
 }

@@ -35,14 +35,16 @@ fn open(handle: &SimHandle) -> TTYPort {
         .expect("open raw port")
 }
 
-/// Status packets arriving until `n` have come or `window` has passed (`n = 0`: the whole
-/// window, to check that nothing comes).
+/// Generous bound on waiting for a condition: the machine may be busy. Reached only on failure.
+const DEADLINE: Duration = Duration::from_secs(10);
+
+/// Status packets arriving until `n` have come or `window` has passed.
 fn collect_n(port: &mut TTYPort, n: usize, window: Duration) -> Vec<Packet> {
     let deadline = Instant::now() + window;
     let mut parser = Parser::default();
     let mut out = Vec::new();
     let mut buf = [0u8; 512];
-    while Instant::now() < deadline && (n == 0 || out.len() < n) {
+    while Instant::now() < deadline && out.len() < n {
         if let Ok(k) = port.read(&mut buf) {
             for p in parser.feed(&buf[..k], Instant::now()) {
                 match p.frame {
@@ -57,14 +59,32 @@ fn collect_n(port: &mut TTYPort, n: usize, window: Duration) -> Vec<Packet> {
 
 /// Wait (generously: the machine may be busy) for exactly `n` replies.
 fn expect(port: &mut TTYPort, n: usize) -> Vec<Packet> {
-    let r = collect_n(port, n, Duration::from_secs(1));
+    let r = collect_n(port, n, DEADLINE);
     assert_eq!(r.len(), n, "{r:?}");
     r
 }
 
-/// Check that nothing comes within a short window.
-fn nothing(port: &mut TTYPort) -> bool {
-    collect_n(port, 0, Duration::from_millis(40)).is_empty()
+/// Write `bytes` and wait until the simulator has taken all of them; returns how many replies
+/// they produced. That count is final once the bytes are in (replies are made as packets are
+/// parsed), so "no answer" is checked without waiting out a silence.
+fn send(port: &mut TTYPort, handle: &SimHandle, bytes: &[u8]) -> u64 {
+    let before = handle.with_sim(|s| s.stats());
+    port.write_all(bytes).expect("send");
+    let want = before.bytes + bytes.len() as u64;
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        let now = handle.with_sim(|s| s.stats());
+        if now.bytes >= want {
+            return now.replies - before.replies;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the simulator took {} of {} bytes",
+            now.bytes - before.bytes,
+            bytes.len()
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }
 
 #[test]
@@ -73,8 +93,12 @@ fn bulk_read_of_several_servos_in_instruction_order() {
     let mut port = open(&handle);
     // Id 3: Present Position (4 bytes); id 1: Model Number (2); id 2: Present Temperature (1).
     let params = [3, 132, 0, 4, 0, 1, 0, 0, 2, 0, 2, 146, 0, 1, 0];
-    port.write_all(&protocol::encode_instruction(0xFE, ins::BULK_READ, &params))
-        .expect("send");
+    let n = send(
+        &mut port,
+        &handle,
+        &protocol::encode_instruction(0xFE, ins::BULK_READ, &params),
+    );
+    assert_eq!(n, 3);
     let replies = expect(&mut port, 3);
     let got: Vec<(u8, Vec<u8>)> = replies.iter().map(|p| (p.id, p.params.clone())).collect();
     assert_eq!(
@@ -96,7 +120,7 @@ fn malformed_packets() {
     // Garbage before a packet is skipped.
     let mut bytes = hex("00 13 FF FF 42 FF FD");
     bytes.extend_from_slice(&ping);
-    port.write_all(&bytes).expect("send");
+    assert_eq!(send(&mut port, &handle, &bytes), 1);
     let r = expect(&mut port, 1);
     assert_eq!(r[0].params[0], error::NONE);
 
@@ -104,53 +128,59 @@ fn malformed_packets() {
     let mut bad = protocol::encode_instruction(1, ins::WRITE, &[65, 0, 1]);
     let n = bad.len();
     bad[n - 1] ^= 0x55;
-    port.write_all(&bad).expect("send");
+    assert_eq!(send(&mut port, &handle, &bad), 1);
     let r = expect(&mut port, 1);
     assert_eq!((r[0].id, r[0].params.as_slice()), (1, &[error::CRC][..]));
     assert_eq!(handle.with_servo(1, |s| s.value(65)), Some(Some(0)));
     // Broadcast with a bad CRC: nobody answers.
     let mut bad = protocol::encode_instruction(0xFE, ins::PING, &[]);
     bad[8] ^= 1;
-    port.write_all(&bad).expect("send");
-    assert!(nothing(&mut port));
+    assert_eq!(send(&mut port, &handle, &bad), 0);
 
     // A packet cut short and immediately followed by another: the second one is recovered.
     let read = protocol::encode_instruction(2, ins::READ, &[132, 0, 4, 0]);
     let mut bytes = read[..9].to_vec();
     bytes.extend_from_slice(&ping);
-    port.write_all(&bytes).expect("send");
+    assert_eq!(
+        send(&mut port, &handle, &bytes),
+        1,
+        "only the ping is answered"
+    );
     let r = expect(&mut port, 1);
     assert_eq!(r[0].id, 1);
-    assert!(nothing(&mut port));
 
     // A packet cut short, then silence longer than the inter-byte timeout: it is dropped.
-    port.write_all(&read[..6]).expect("send");
-    assert!(nothing(&mut port));
+    // The simulator has the first bytes before the clock moves, so the gap is seen.
+    assert_eq!(send(&mut port, &handle, &read[..6]), 0);
     clock.advance(Duration::from_millis(100));
-    port.write_all(&ping).expect("send");
+    assert_eq!(send(&mut port, &handle, &ping), 1);
     assert_eq!(
         expect(&mut port, 1)[0].params,
         [error::NONE, 0xFC, 0x03, 48]
     );
 
     // An absurd length field, an unknown instruction, a sync read not sent to broadcast.
-    port.write_all(&hex("FF FF FD 00 01 FF FF 02"))
-        .expect("send");
-    port.write_all(&ping).expect("send");
+    assert_eq!(send(&mut port, &handle, &hex("FF FF FD 00 01 FF FF 02")), 0);
+    assert_eq!(send(&mut port, &handle, &ping), 1);
     expect(&mut port, 1);
-    port.write_all(&protocol::encode_instruction(2, 0x77, &[1, 2]))
-        .expect("send");
+    assert_eq!(
+        send(
+            &mut port,
+            &handle,
+            &protocol::encode_instruction(2, 0x77, &[1, 2])
+        ),
+        1
+    );
     let r = expect(&mut port, 1);
     assert_eq!(r[0].params, [error::INSTRUCTION]);
-    port.write_all(&protocol::encode_instruction(
-        1,
-        ins::SYNC_READ,
-        &[132, 0, 4, 0, 1],
-    ))
-    .expect("send");
-    assert!(nothing(&mut port));
+    let unicast_sync_read = protocol::encode_instruction(1, ins::SYNC_READ, &[132, 0, 4, 0, 1]);
+    assert_eq!(send(&mut port, &handle, &unicast_sync_read), 0);
     // Status packets on the bus (another device's replies) are ignored.
-    port.write_all(&protocol::encode_status(1, 0, &[]))
-        .expect("send");
-    assert!(nothing(&mut port));
+    assert_eq!(
+        send(&mut port, &handle, &protocol::encode_status(1, 0, &[])),
+        0
+    );
+    // Every reply was counted and read: nothing else is on its way.
+    assert_eq!(send(&mut port, &handle, &ping), 1);
+    assert_eq!(expect(&mut port, 1)[0].id, 1);
 }
