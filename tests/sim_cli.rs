@@ -2,52 +2,16 @@
 //! 2.0 there (also after the client closes and reopens the port), and stops cleanly on SIGTERM.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod cli_support;
+
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use cli_support::{SimChild, DEADLINE};
 use snakectl_sim::protocol::{self, Frame, Packet, Parser};
-
-/// Generous bound on waiting for the child: the machine may be busy. Reached only on failure.
-const DEADLINE: Duration = Duration::from_secs(30);
-
-/// A running `snakectl sim`. Dropping it (also when a test fails or panics) kills the process
-/// if it still runs, reaps it and removes the link it may have left, so nothing leaks.
-struct SimChild {
-    child: Child,
-    link: PathBuf,
-}
-
-impl SimChild {
-    /// Waits for the process to exit by itself, up to [`DEADLINE`].
-    fn wait_exit(&mut self) -> ExitStatus {
-        let deadline = Instant::now() + DEADLINE;
-        loop {
-            if let Some(status) = self.child.try_wait().unwrap() {
-                return status;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "snakectl sim still runs {DEADLINE:?} after SIGTERM"
-            );
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-}
-
-impl Drop for SimChild {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            let _ = self.child.kill();
-        }
-        let _ = self.child.wait();
-        if self.link.symlink_metadata().is_ok() {
-            let _ = std::fs::remove_file(&self.link);
-        }
-    }
-}
 
 /// Sends a ping to each of `ids` in turn, in one write, and returns the status packets that
 /// came back, read until the last id answered (the last id must be a servo that is there).
@@ -86,29 +50,8 @@ fn pings(port: &Path, ids: &[u8]) -> Vec<Packet> {
 fn sim_serves_the_config_chain_on_a_linked_pty_and_stops_on_sigterm() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("snake-bus");
-    let mut sim = SimChild {
-        child: Command::new(env!("CARGO_BIN_EXE_snakectl"))
-            .args(["sim", "--config", "config/sim.toml", "--link"])
-            .arg(&link)
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-        link: link.clone(),
-    };
-    // The first line names the pty; read on a thread so a silent child fails the test.
-    let stdout = sim.child.stdout.take().unwrap();
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        let mut line = String::new();
-        let _ = BufReader::new(stdout).read_line(&mut line);
-        let _ = tx.send(line);
-    });
-    let line = rx
-        .recv_timeout(DEADLINE)
-        .expect("snakectl sim printed its pty");
-    let pty = line.trim().to_string();
+    // The first line names the pty.
+    let (mut sim, pty) = cli_support::spawn_sim("config/sim.toml", &link);
     assert!(pty.starts_with("/dev/pts/"), "{pty}");
     assert_eq!(std::fs::read_link(&link).unwrap(), Path::new(&pty));
 
