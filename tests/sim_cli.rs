@@ -4,13 +4,12 @@
 
 mod cli_support;
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::sync::mpsc;
+use std::io::{Read, Write};
+use std::path::Path;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
-use cli_support::{SimChild, DEADLINE};
+use cli_support::DEADLINE;
 use snakectl_sim::protocol::{self, Frame, Packet, Parser};
 
 /// Sends a ping to each of `ids` in turn, in one write, and returns the status packets that

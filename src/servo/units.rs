@@ -120,7 +120,7 @@ mod tests {
         assert_eq!(plain.ticks(0.0), 2048.0);
         assert_eq!(plain.ticks(std::f64::consts::PI), 4096.0);
         assert_eq!(plain.ticks(-std::f64::consts::FRAC_PI_2), 1024.0);
-        assert!((plain.ticks(1.0) - 2699.898_7).abs() < 1e-4);
+        assert!((plain.ticks(1.0) - 2_699.898_7).abs() < 1e-4);
         assert!((plain.radians(3072.0) - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
         let rev = Calibration {
             offset_ticks: 100,
@@ -128,7 +128,7 @@ mod tests {
         };
         // 2148 - 0.5 * 651.899 = 1822.051.
         assert_eq!(rev.ticks(0.0), 2148.0);
-        assert!((rev.ticks(0.5) - 1822.050_7).abs() < 1e-4);
+        assert!((rev.ticks(0.5) - 1_822.050_7).abs() < 1e-4);
         assert!((rev.radians(2148.0 - 1024.0) - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
         // [-1, 1] rad reversed around 2148: ticks 1496.10..2799.90, rounded inward.
         assert_eq!(rev.tick_range(-1.0, 1.0), (1497.0, 2799.0));
