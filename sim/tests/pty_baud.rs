@@ -3,7 +3,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::io::{Read, Write};
+mod common;
+
+use std::io::Read;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -30,31 +32,9 @@ fn open(handle: &SimHandle, baud: u32) -> TTYPort {
         .expect("open raw port")
 }
 
-/// Generous bound on waiting for a condition: the machine may be busy. Reached only on failure.
-const DEADLINE: Duration = Duration::from_secs(10);
+use common::DEADLINE;
 
-/// Write `bytes` and wait until the simulator has taken all of them; returns the good packets
-/// it parsed from them and the replies it made. Both are final once the bytes are in, so a
-/// silence is checked without waiting one out.
-fn send(port: &mut TTYPort, handle: &SimHandle, bytes: &[u8]) -> (u64, u64) {
-    let before = handle.with_sim(|s| s.stats());
-    port.write_all(bytes).expect("send");
-    let want = before.bytes + bytes.len() as u64;
-    let deadline = Instant::now() + DEADLINE;
-    loop {
-        let now = handle.with_sim(|s| s.stats());
-        if now.bytes >= want {
-            return (now.packets - before.packets, now.replies - before.replies);
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the simulator took {} of {} bytes",
-            now.bytes - before.bytes,
-            bytes.len()
-        );
-        std::thread::sleep(Duration::from_millis(1));
-    }
-}
+use common::send_all as send;
 
 fn broadcast_ping() -> Vec<u8> {
     protocol::encode_instruction(protocol::BROADCAST_ID, ins::PING, &[])

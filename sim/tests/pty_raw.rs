@@ -5,7 +5,7 @@
 
 mod common;
 
-use std::io::{Read, Write};
+use std::io::Read;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -35,8 +35,7 @@ fn open(handle: &SimHandle) -> TTYPort {
         .expect("open raw port")
 }
 
-/// Generous bound on waiting for a condition: the machine may be busy. Reached only on failure.
-const DEADLINE: Duration = Duration::from_secs(10);
+use common::DEADLINE;
 
 /// Status packets arriving until `n` have come or `window` has passed.
 fn collect_n(port: &mut TTYPort, n: usize, window: Duration) -> Vec<Packet> {
@@ -65,26 +64,9 @@ fn expect(port: &mut TTYPort, n: usize) -> Vec<Packet> {
 }
 
 /// Write `bytes` and wait until the simulator has taken all of them; returns how many replies
-/// they produced. That count is final once the bytes are in (replies are made as packets are
-/// parsed), so "no answer" is checked without waiting out a silence.
+/// they produced.
 fn send(port: &mut TTYPort, handle: &SimHandle, bytes: &[u8]) -> u64 {
-    let before = handle.with_sim(|s| s.stats());
-    port.write_all(bytes).expect("send");
-    let want = before.bytes + bytes.len() as u64;
-    let deadline = Instant::now() + DEADLINE;
-    loop {
-        let now = handle.with_sim(|s| s.stats());
-        if now.bytes >= want {
-            return now.replies - before.replies;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the simulator took {} of {} bytes",
-            now.bytes - before.bytes,
-            bytes.len()
-        );
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    common::send_all(port, handle, bytes).1
 }
 
 #[test]

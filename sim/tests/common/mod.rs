@@ -1,12 +1,13 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code, missing_docs, clippy::unwrap_used, clippy::expect_used)]
 
+use std::io::Write;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use snakectl_sim::protocol::{self, Frame, Parser};
 use snakectl_sim::table::ControlTable;
-use snakectl_sim::{ManualClock, Model, Reply, ServoSpec, SimConfig, Simulator};
+use snakectl_sim::{ManualClock, Model, Reply, ServoSpec, SimConfig, SimHandle, Simulator};
 
 /// A simulator on a manual clock with the given servos and otherwise default settings.
 pub fn sim(servos: Vec<ServoSpec>) -> (Simulator, ManualClock) {
@@ -120,4 +121,30 @@ pub fn hex(s: &str) -> Vec<u8> {
     s.split_whitespace()
         .map(|b| u8::from_str_radix(b, 16).expect("hex byte"))
         .collect()
+}
+
+/// Generous bound on waiting for a condition: the machine may be busy. Reached only on failure.
+pub const DEADLINE: Duration = Duration::from_secs(10);
+
+/// Write `bytes` to the simulator's pty and wait until it has taken all of them; returns the
+/// good packets it parsed from them and the replies it made. Both are final once the bytes are
+/// in (replies are made as packets are parsed), so a silence is checked without waiting one out.
+pub fn send_all(port: &mut impl Write, handle: &SimHandle, bytes: &[u8]) -> (u64, u64) {
+    let before = handle.with_sim(|s| s.stats());
+    port.write_all(bytes).expect("send");
+    let want = before.bytes + bytes.len() as u64;
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        let now = handle.with_sim(|s| s.stats());
+        if now.bytes >= want {
+            return (now.packets - before.packets, now.replies - before.replies);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the simulator took {} of {} bytes",
+            now.bytes - before.bytes,
+            bytes.len()
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }
