@@ -10,14 +10,28 @@
 //!   its two-variable dual `theta(mu) = clip(theta0 + J^T mu, lo, hi)` by semismooth Newton
 //!   (module `dual`); without limits that is the minimum-norm step with the 2 x 2 Schur complement
 //!   `J J^T`. When the linearized constraint cannot be met inside the box (or `J` loses rank)
-//!   the elastic form with a penalized constraint is solved instead. The step is globalized by
-//!   an Armijo line search on the merit `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu`
-//!   raised above the multiplier norm whenever needed.
-//! - **Newton step.** Near the solution, exact Newton on the optimality conditions over the free
-//!   joints, with the Lagrangian Hessian `I + G`, `G_ab = g_max(a,b)`, solved in O(n) through
-//!   prefix sums (module `hessian`). It is taken only when the Hessian's inertia says the point is a
-//!   local minimum on the constraint's tangent, no free joint leaves the box, and the residual
-//!   of the optimality conditions at least halves; otherwise the SQP step is used.
+//!   the elastic form with a penalized constraint is solved instead (the stiffest of a few
+//!   weights whose dual settles). The step is globalized by an Armijo line search on the merit
+//!   `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu` raised above the multiplier norm
+//!   whenever needed and, after an exact step, brought back down when it is more than ten times
+//!   what that step's multiplier needs: an elastic step's multiplier can be huge, and a `nu`
+//!   kept from it would leave the line search accepting only tiny steps.
+//! - **Newton step.** Near the solution, exact Newton on the optimality conditions
+//!   `theta = clip(theta0 + J^T mu)`, `tip = target`: the multiplier picks the active set (a
+//!   joint is held at a bound when `theta0 + J^T mu` lies on or beyond it, else free), the held
+//!   joints move onto their bounds, and the free ones take the Newton step with the Lagrangian
+//!   Hessian `I + G`, `G_ab = g_max(a,b)`, solved in O(n) through prefix sums (module
+//!   `hessian`), clipped into the box. It is taken only when the Hessian's inertia says the
+//!   point is a local minimum on the constraint's tangent and the residual of the optimality
+//!   conditions at least halves; otherwise the SQP step is used. With the active set read from
+//!   the multiplier, a joint that reaches or leaves a limit near the optimum does not stop
+//!   Newton, so limited solves converge as fast as unlimited ones.
+//! - **Stopping rule.** A local solve has converged when the tip is within the tip tolerance
+//!   and the optimality conditions hold within the stationarity tolerance. It gives up (not
+//!   converged) at the iteration cap, when no step decreases the merit, or when ten elastic
+//!   steps in a row cut the tip error by less than 1%: the box then holds no way to the target
+//!   from that start (a cold start in the wrong piece of the feasible set, or an unreachable
+//!   target, which goes on to the closest-tip search).
 //! - **Limits** are met exactly: every iterate is clipped into the box by construction.
 //! - **Straight (singular) poses.** If the iteration stalls at a pose whose Jacobian has lost
 //!   rank while the target is not met, the joints after the base are bent by a small angle with
@@ -67,8 +81,9 @@ pub struct OverallOptions {
     /// Cold solves: how many of the distinct optima found are mirrored and solved again.
     pub mirror_starts: usize,
     /// Cold solves: seeded pseudo-random starts tried when the chain has limits (limits split
-    /// the feasible set into pieces the other starts may not reach), and once more when no
-    /// start so far has reached the target.
+    /// the feasible set into pieces the other starts may not reach) and a limit comes near
+    /// enough to `theta0` to touch a better pose, and once more when no start so far has
+    /// reached the target.
     pub random_starts: usize,
     /// Seed of those starts: the same seed gives the same answer.
     pub seed: u64,
@@ -384,10 +399,16 @@ impl Overall {
     ///    mirror image across the line from the base to the target (same tip; angles taken as
     ///    the representatives nearest `theta0`, clipped into the limits).
     ///
-    /// 6. when the chain has limits, [`OverallOptions::random_starts`] pseudo-random poses
-    ///    drawn uniformly inside the limits (an unlimited joint: `theta0` +- pi/2), from a
-    ///    splitmix64 generator seeded with [`OverallOptions::seed`] at every call; the same
-    ///    number again, limited or not, when no start so far has reached the target.
+    /// 6. when the chain has limits, up to [`OverallOptions::random_starts`] pseudo-random
+    ///    poses from a splitmix64 generator seeded with [`OverallOptions::seed`] at every call.
+    ///    Any pose better than the best optimum so far (metric 3 = `r^2`) lies within `r` of
+    ///    `theta0`, so the starts are drawn there: each joint uniform over its limits within
+    ///    `+-r` of `clip(theta0)`, pulled onto the ball of radius `r` when outside it (`r`
+    ///    shrinks as better optima are found). When no limit comes within `r` of `theta0` the
+    ///    limits cannot touch a better pose, the problem there is the unlimited one, and the
+    ///    random starts are skipped. When no start so far has reached the target, the same
+    ///    number again (limited or not), uniform inside the limits (an unlimited joint:
+    ///    `theta0 +- pi/2`).
     ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
@@ -811,7 +832,7 @@ impl Overall {
                 // (a very stiff one can leave semismooth Newton crawling over clipped joints).
                 elastic = true;
                 let mut solved = false;
-                for weight in [1e-10, 1e-6, 1e-3, 1.0] {
+                for weight in [1e-6, 1e-3, 1.0] {
                     mu_q = [0.0; 2];
                     let w = &mut self.w;
                     let d = Dual {
@@ -965,11 +986,11 @@ impl Overall {
         }
     }
 
-    /// Exact Newton step on the optimality conditions over the free joints (those strictly
-    /// inside their limits), with the joints at a limit held there. Writes the new pose into
-    /// `w.trial` and returns the new multiplier, or `None` when the step is not trusted: a
-    /// near-singular Hessian, an inertia that is not that of a local minimum, a free joint
-    /// leaving its box, or a step too large to be local.
+    /// Exact Newton step on the optimality conditions with the active set the multiplier
+    /// predicts: held joints go onto their bounds, free joints take the Newton step (clipped
+    /// into the box). Writes the new pose into `w.trial` and returns the new multiplier, or
+    /// `None` when the step is not trusted: fewer than two free joints, a near-singular
+    /// Hessian, an inertia that is not that of a local minimum, or a step too large to be local.
     fn newton(&mut self, p: &Problem, mu: [f64; 2], c: Vec2) -> Option<[f64; 2]> {
         let w = &mut self.w;
         let n = w.n;
