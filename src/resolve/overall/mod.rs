@@ -424,7 +424,6 @@ impl Overall {
             Ok(p) => p,
             Err(o) => return o,
         };
-        let n = chain.len();
         let mut total = 0;
         // Best and second-best optimum: (half metric, tip error, converged, mu).
         let mut best: Option<(f64, f64, bool, [f64; 2])> = None;
