@@ -45,6 +45,13 @@ struct Eval {
 }
 
 impl Dual<'_> {
+    /// Whether a solve that cannot make progress any more has settled: within `tol`, or, in
+    /// elastic form (whose multiplier can be huge, so that `F` has a round-off floor), within a
+    /// millionth of the correction wanted; such a step is only a direction for the line search.
+    fn settled(&self, f_norm: f64, tol: f64) -> bool {
+        f_norm <= tol || (self.rho_inv > 0.0 && f_norm <= 1e-6 * self.c.norm())
+    }
+
     /// Writes `x(mu)` and the clipping state, returns `F`, the generalized Jacobian, `q`, and
     /// whether any joint changed its clipping state.
     fn eval(&self, mu: [f64; 2], x: &mut [f64], state: &mut [i8]) -> Eval {
@@ -135,6 +142,10 @@ impl Dual<'_> {
                     && !t.changed
                     && (t.f.norm() <= tol || t.f.norm() <= 1e-9 * e.f.norm());
                 if t.q >= e.q + 1e-4 * alpha * slope || full_same {
+                    if trial == *mu || t.q <= e.q {
+                        // Round-off floor: the step no longer moves the multiplier or raises q.
+                        return self.settled(e.f.norm(), tol);
+                    }
                     *mu = trial;
                     e = t;
                     accepted = true;

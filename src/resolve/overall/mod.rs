@@ -10,14 +10,28 @@
 //!   its two-variable dual `theta(mu) = clip(theta0 + J^T mu, lo, hi)` by semismooth Newton
 //!   (module `dual`); without limits that is the minimum-norm step with the 2 x 2 Schur complement
 //!   `J J^T`. When the linearized constraint cannot be met inside the box (or `J` loses rank)
-//!   the elastic form with a penalized constraint is solved instead. The step is globalized by
-//!   an Armijo line search on the merit `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu`
-//!   raised above the multiplier norm whenever needed.
-//! - **Newton step.** Near the solution, exact Newton on the optimality conditions over the free
-//!   joints, with the Lagrangian Hessian `I + G`, `G_ab = g_max(a,b)`, solved in O(n) through
-//!   prefix sums (module `hessian`). It is taken only when the Hessian's inertia says the point is a
-//!   local minimum on the constraint's tangent, no free joint leaves the box, and the residual
-//!   of the optimality conditions at least halves; otherwise the SQP step is used.
+//!   the elastic form with a penalized constraint is solved instead (the stiffest of a few
+//!   weights whose dual settles). The step is globalized by an Armijo line search on the merit
+//!   `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu` raised above the multiplier norm
+//!   whenever needed and, after an exact step, brought back down when it is more than ten times
+//!   what that step's multiplier needs: an elastic step's multiplier can be huge, and a `nu`
+//!   kept from it would leave the line search accepting only tiny steps.
+//! - **Newton step.** Near the solution, exact Newton on the optimality conditions
+//!   `theta = clip(theta0 + J^T mu)`, `tip = target`: the multiplier picks the active set (a
+//!   joint is held at a bound when `theta0 + J^T mu` lies on or beyond it, else free), the held
+//!   joints move onto their bounds, and the free ones take the Newton step with the Lagrangian
+//!   Hessian `I + G`, `G_ab = g_max(a,b)`, solved in O(n) through prefix sums (module
+//!   `hessian`), clipped into the box. It is taken only when the Hessian's inertia says the
+//!   point is a local minimum on the constraint's tangent and the residual of the optimality
+//!   conditions at least halves; otherwise the SQP step is used. With the active set read from
+//!   the multiplier, a joint that reaches or leaves a limit near the optimum does not stop
+//!   Newton, so limited solves converge as fast as unlimited ones.
+//! - **Stopping rule.** A local solve has converged when the tip is within the tip tolerance
+//!   and the optimality conditions hold within the stationarity tolerance. It gives up (not
+//!   converged) at the iteration cap, when no step decreases the merit, or when ten elastic
+//!   steps in a row cut the tip error by less than 1%: the box then holds no way to the target
+//!   from that start (a cold start in the wrong piece of the feasible set, or an unreachable
+//!   target, which goes on to the closest-tip search).
 //! - **Limits** are met exactly: every iterate is clipped into the box by construction.
 //! - **Straight (singular) poses.** If the iteration stalls at a pose whose Jacobian has lost
 //!   rank while the target is not met, the joints after the base are bent by a small angle with
@@ -67,8 +81,9 @@ pub struct OverallOptions {
     /// Cold solves: how many of the distinct optima found are mirrored and solved again.
     pub mirror_starts: usize,
     /// Cold solves: seeded pseudo-random starts tried when the chain has limits (limits split
-    /// the feasible set into pieces the other starts may not reach), and once more when no
-    /// start so far has reached the target.
+    /// the feasible set into pieces the other starts may not reach) and a limit comes near
+    /// enough to `theta0` to touch a better pose, and once more when no start so far has
+    /// reached the target.
     pub random_starts: usize,
     /// Seed of those starts: the same seed gives the same answer.
     pub seed: u64,
@@ -384,10 +399,16 @@ impl Overall {
     ///    mirror image across the line from the base to the target (same tip; angles taken as
     ///    the representatives nearest `theta0`, clipped into the limits).
     ///
-    /// 6. when the chain has limits, [`OverallOptions::random_starts`] pseudo-random poses
-    ///    drawn uniformly inside the limits (an unlimited joint: `theta0` +- pi/2), from a
-    ///    splitmix64 generator seeded with [`OverallOptions::seed`] at every call; the same
-    ///    number again, limited or not, when no start so far has reached the target.
+    /// 6. when the chain has limits, up to [`OverallOptions::random_starts`] pseudo-random
+    ///    poses from a splitmix64 generator seeded with [`OverallOptions::seed`] at every call.
+    ///    Any pose better than the best optimum so far (metric 3 = `r^2`) lies within `r` of
+    ///    `theta0`, so the starts are drawn there: each joint uniform over its limits within
+    ///    `+-r` of `clip(theta0)`, pulled onto the ball of radius `r` when outside it (`r`
+    ///    shrinks as better optima are found). When no limit comes within `r` of `theta0` the
+    ///    limits cannot touch a better pose, the problem there is the unlimited one, and the
+    ///    random starts are skipped. When no start so far has reached the target, the same
+    ///    number again (limited or not), uniform inside the limits (an unlimited joint:
+    ///    `theta0 +- pi/2`).
     ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
@@ -403,7 +424,6 @@ impl Overall {
             Ok(p) => p,
             Err(o) => return o,
         };
-        let n = chain.len();
         let mut total = 0;
         // Best and second-best optimum: (half metric, tip error, converged, mu).
         let mut best: Option<(f64, f64, bool, [f64; 2])> = None;
@@ -470,15 +490,13 @@ impl Overall {
                     }
                 }
                 k if k >= fixed => {
-                    for a in 0..n {
-                        let u = rng.unit();
-                        let (lo, hi) = (self.w.lo[a], self.w.hi[a]);
-                        self.w.theta[a] = if lo.is_finite() && hi.is_finite() {
-                            lo + (hi - lo) * u
-                        } else {
-                            let half = std::f64::consts::FRAC_PI_2;
-                            (p.theta0[a] + half * (2.0 * u - 1.0)).clamp(lo, hi)
-                        };
+                    // Any pose better than the best optimum so far lies within the ball of
+                    // radius sqrt(metric 3) around theta0.
+                    let radius = best.filter(|b| b.2).map(|b| (2.0 * b.0).sqrt());
+                    match radius {
+                        Some(r) if k == fixed && !self.limits_reach_ball(&p, r) => break,
+                        Some(r) => self.start_in_ball(&p, r, &mut rng),
+                        None => self.start_in_box(&p, &mut rng),
                     }
                 }
                 _ => {
@@ -539,6 +557,53 @@ impl Overall {
             converged = conv;
         }
         self.finish(&p, mu, total, converged, out)
+    }
+
+    /// Whether some limit comes within `r` of `theta0` (or `theta0` lies outside its limits):
+    /// only then can a limit touch a pose with metric 3 below `r^2`.
+    fn limits_reach_ball(&self, p: &Problem, r: f64) -> bool {
+        (0..p.theta0.len()).any(|a| {
+            let t = p.theta0[a];
+            !(self.w.lo[a] < t - r && t + r < self.w.hi[a])
+        })
+    }
+
+    /// A pseudo-random start inside the limits and within `r` of `clip(theta0)` (where every
+    /// pose with metric 3 below `r^2` lies): each joint uniform over its limits within
+    /// `+-r`, then pulled toward `clip(theta0)` onto the ball if outside it.
+    fn start_in_ball(&mut self, p: &Problem, r: f64, rng: &mut SplitMix) {
+        let w = &mut self.w;
+        let mut norm2 = 0.0;
+        for a in 0..p.theta0.len() {
+            let c = p.theta0[a].clamp(w.lo[a], w.hi[a]);
+            let lo = w.lo[a].max(c - r);
+            let hi = w.hi[a].min(c + r);
+            w.theta[a] = lo + (hi - lo) * rng.unit();
+            norm2 += (w.theta[a] - c) * (w.theta[a] - c);
+        }
+        let norm = norm2.sqrt();
+        if norm > r {
+            let k = r / norm;
+            for a in 0..p.theta0.len() {
+                let c = p.theta0[a].clamp(w.lo[a], w.hi[a]);
+                w.theta[a] = c + (w.theta[a] - c) * k;
+            }
+        }
+    }
+
+    /// A pseudo-random start uniform inside the limits (an unlimited joint: `theta0 +- pi/2`),
+    /// for when no start has reached the target yet.
+    fn start_in_box(&mut self, p: &Problem, rng: &mut SplitMix) {
+        for a in 0..p.theta0.len() {
+            let u = rng.unit();
+            let (lo, hi) = (self.w.lo[a], self.w.hi[a]);
+            self.w.theta[a] = if lo.is_finite() && hi.is_finite() {
+                lo + (hi - lo) * u
+            } else {
+                let half = std::f64::consts::FRAC_PI_2;
+                (p.theta0[a] + half * (2.0 * u - 1.0)).clamp(lo, hi)
+            };
+        }
     }
 
     /// Loads `clip(theta0)` as the current iterate.
@@ -678,6 +743,10 @@ impl Overall {
         let mut kicks = 0;
         let mut iterations = 0;
         let mut mu_q = *mu;
+        // Stall rule: a run of elastic steps (the linearized constraint cannot be met inside
+        // the limits) that does not cut the tip error by 1% in 10 iterations means the box
+        // holds no way to the target from here.
+        let (mut elastic_run, mut elastic_ref) = (0usize, 0.0_f64);
         loop {
             let (c, s) = self.eval(p, *mu);
             let cn = c.norm();
@@ -739,12 +808,30 @@ impl Overall {
                 self.kick();
                 continue;
             }
+            if exact_ok {
+                elastic_run = 0;
+            } else {
+                elastic_run += 1;
+                if elastic_run == 1 {
+                    elastic_ref = cn;
+                } else if elastic_run > 10 {
+                    if cn > 0.99 * elastic_ref {
+                        return Local {
+                            converged: false,
+                            tip_error: cn,
+                            iterations,
+                        };
+                    }
+                    elastic_run = 1;
+                    elastic_ref = cn;
+                }
+            }
             if !exact_ok {
                 // Elastic form with an adaptive weight: the stiffest penalty whose dual settles
                 // (a very stiff one can leave semismooth Newton crawling over clipped joints).
                 elastic = true;
                 let mut solved = false;
-                for weight in [1e-10, 1e-6, 1e-3, 1.0] {
+                for weight in [1e-6, 1e-3, 1.0] {
                     mu_q = [0.0; 2];
                     let w = &mut self.w;
                     let d = Dual {
@@ -804,8 +891,9 @@ impl Overall {
                 };
             }
             let mu_norm = mu_q[0].hypot(mu_q[1]);
-            if nu < 1.1 * mu_norm {
-                nu = 2.0 * mu_norm + 1e-6 / p.scale;
+            let nu_wanted = 2.0 * mu_norm + 1e-6 / p.scale;
+            if nu < 1.1 * mu_norm || (!elastic && nu > 10.0 * nu_wanted) {
+                nu = nu_wanted;
             }
             let w = &mut self.w;
             slope += nu * ((c - jd).norm() - cn);
@@ -897,31 +985,64 @@ impl Overall {
         }
     }
 
-    /// Exact Newton step on the optimality conditions over the free joints (those strictly
-    /// inside their limits), with the joints at a limit held there. Writes the new pose into
-    /// `w.trial` and returns the new multiplier, or `None` when the step is not trusted: a
-    /// near-singular Hessian, an inertia that is not that of a local minimum, a free joint
-    /// leaving its box, or a step too large to be local.
+    /// Exact Newton step on the optimality conditions with the active set the multiplier
+    /// predicts: held joints go onto their bounds, free joints take the Newton step (clipped
+    /// into the box). Writes the new pose into `w.trial` and returns the new multiplier, or
+    /// `None` when the step is not trusted: fewer than two free joints, a near-singular
+    /// Hessian, an inertia that is not that of a local minimum, or a step too large to be local.
     fn newton(&mut self, p: &Problem, mu: [f64; 2], c: Vec2) -> Option<[f64; 2]> {
         let w = &mut self.w;
         let n = w.n;
         let tip = w.pts[n];
+        // The active set the multiplier predicts: joint a is held at a bound when
+        // theta0_a + J_a^T mu lies on or beyond it (the generalized derivative of
+        // theta = clip(theta0 + J^T mu)), else free. A held joint moves to its bound by d_a.
         w.free.clear();
+        let mut c_free = c;
         for a in 0..n {
-            if w.theta[a] > w.lo[a] && w.theta[a] < w.hi[a] {
+            let u = p.theta0[a] + w.jx[a] * mu[0] + w.jy[a] * mu[1];
+            let d = if u <= w.lo[a] {
+                w.lo[a] - w.theta[a]
+            } else if u >= w.hi[a] {
+                w.hi[a] - w.theta[a]
+            } else {
                 w.free.push(a);
-            }
+                0.0
+            };
+            w.y4[a] = d;
+            c_free.x -= w.jx[a] * d;
+            c_free.y -= w.jy[a] * d;
         }
+        let c = c_free;
         let m = w.free.len();
         if m < 2 {
             return None;
         }
-        for (k, &a) in w.free.iter().enumerate() {
+        // Coupling of the free rows to the held joints' moves: sum_b g_max(a,b) d_b over held b,
+        // = g_a * (moves before a) + sum_{b > a} g_b d_b, from one backward and one forward pass.
+        let mut after = 0.0;
+        for a in (0..n).rev() {
             let r = tip - w.pts[a];
-            w.g[k] = mu[0] * r.x + mu[1] * r.y;
-            w.jxf[k] = w.jx[a];
-            w.jyf[k] = w.jy[a];
-            w.rf[k] = w.theta[a] - p.theta0[a] - (w.jx[a] * mu[0] + w.jy[a] * mu[1]);
+            let g = mu[0] * r.x + mu[1] * r.y;
+            w.trial[a] = after;
+            after += g * w.y4[a];
+        }
+        let mut before = 0.0;
+        let mut k = 0;
+        for a in 0..n {
+            if k < m && w.free[k] == a {
+                let r = tip - w.pts[a];
+                let g = mu[0] * r.x + mu[1] * r.y;
+                w.g[k] = g;
+                w.jxf[k] = w.jx[a];
+                w.jyf[k] = w.jy[a];
+                w.rf[k] = w.theta[a] - p.theta0[a] - (w.jx[a] * mu[0] + w.jy[a] * mu[1])
+                    + g * before
+                    + w.trial[a];
+                k += 1;
+            } else {
+                before += w.y4[a];
+            }
         }
         let f = hessian::factor(&w.g[..m], &mut w.piv[..m])?;
         if f.negative > 2 {
@@ -963,16 +1084,17 @@ impl Overall {
             (s11 * rhs[0] - s01 * rhs[1]) / det,
             (s00 * rhs[1] - s01 * rhs[0]) / det,
         ];
-        w.trial.copy_from_slice(&w.theta);
         let mut big: f64 = 0.0;
+        for a in 0..n {
+            big = big.max(w.y4[a].abs());
+            w.trial[a] = w.theta[a] + w.y4[a];
+        }
         for (k, &a) in w.free.iter().enumerate() {
             let d = w.y1[k] * dmu[0] + w.y2[k] * dmu[1] - w.y3[k];
             big = big.max(d.abs());
-            let v = w.theta[a] + d;
-            if !(v > w.lo[a] && v < w.hi[a]) {
-                return None;
-            }
-            w.trial[a] = v;
+            // Projected: a free joint that would cross a bound stops there (the next step's
+            // active set holds it if the multiplier agrees).
+            w.trial[a] = (w.theta[a] + d).clamp(w.lo[a], w.hi[a]);
         }
         if big.is_nan() || big > 0.5 {
             return None;

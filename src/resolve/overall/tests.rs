@@ -343,17 +343,17 @@ fn warm_ticks_converge_in_a_few_iterations() {
     }
 }
 
-/// Slow search for cold-start misses: 300 random problems (limited ones with +-0.8 rad), each
-/// compared with 40 extra random starts. Run with `--ignored --nocapture`.
+/// Cold-start misses: 200 seeded random problems (a third with limits of +-0.8 rad, a third
+/// with +-0.35 rad, which are often active at the optimum), each compared with 30 extra random
+/// local solves; none may find a lower metric 3 than the cold solve.
 #[test]
-#[ignore]
 fn cold_solve_is_not_beaten_by_random_starts() {
     let mut rng = StdRng::seed_from_u64(7);
     let mut worse = 0;
     let mut total = 0;
-    for case in 0..300 {
+    for case in 0..200 {
         let n = [2usize, 3, 4, 6, 10, 12, 24][case % 7];
-        let limit = if case % 3 == 0 { Some(0.8) } else { None };
+        let limit = [Some(0.8), Some(0.35), None][case % 3];
         let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.5..1.5)).collect();
         let lims = limit.map_or(Vec::new(), |l| vec![Some(JointLimit { lo: -l, hi: l }); n]);
         let chain =
@@ -372,7 +372,7 @@ fn cold_solve_is_not_beaten_by_random_starts() {
         }
         let m = metric3(&out, &theta0);
         let mut best = m;
-        for _ in 0..40 {
+        for _ in 0..30 {
             solver.prepare(&chain);
             let p = solver.problem(&chain, &theta0, target);
             for a in 0..n {
