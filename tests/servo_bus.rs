@@ -131,19 +131,26 @@ fn calibration_round_trips() {
     };
     let arm = Arm::new(joints, settings);
     let bus = &mut rig.bus;
-    let present: Vec<f64> = arm
-        .read_pose(bus)
+    // Whole ticks from each joint's zero, by the definition (2048 at the centre, plus the
+    // offset; 4096 ticks a turn; reversed joints count down): a few ticks from where it is.
+    let sign = |i: usize| if i % 3 == 1 { -1 } else { 1 };
+    let offset = |i: usize| 37 * i as i64 - 200;
+    let steps: Vec<i64> = bus
+        .read_states(&ids, Fields::POSITION, TIMEOUT)
         .unwrap()
-        .into_iter()
-        .map(Result::unwrap)
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let ticks = i64::from(s.as_ref().unwrap().position_ticks);
+            sign(i) * (ticks - 2048 - offset(i)) + 3 * (i as i64 - 5)
+        })
         .collect();
     for &id in &ids {
         bus.set_torque(id, true, TIMEOUT).unwrap();
     }
-    let pose: Vec<f64> = present
+    let pose: Vec<f64> = steps
         .iter()
-        .enumerate()
-        .map(|(i, p)| p + 0.05 * (i as f64 - 5.0))
+        .map(|&q| q as f64 * std::f64::consts::TAU / 4096.0)
         .collect();
     arm.write_pose(bus, &pose).unwrap();
     rig.settle(Duration::from_millis(500));
@@ -155,14 +162,14 @@ fn calibration_round_trips() {
             "{b:?} vs {p}"
         );
     }
-    // Each goal is the calibration's tick value of its angle.
-    for (j, p) in arm.joints().iter().zip(&pose) {
+    // Each goal is its angle's whole ticks from the joint's zero.
+    for (i, (j, q)) in arm.joints().iter().zip(&steps).enumerate() {
         let goal = rig
             .bus
             .read(j.id, Register::GoalPosition, TIMEOUT)
             .unwrap()
             .value;
-        assert_eq!(goal, i64::from(j.calibration.goal_ticks(*p).unwrap()));
+        assert_eq!(goal, 2048 + offset(i) + sign(i) * q, "servo {}", j.id);
     }
     // A non-finite angle: nothing is written.
     let mut bad = pose.clone();
