@@ -117,6 +117,8 @@ struct Work {
     trial: Vec<f64>,
     qp_x: Vec<f64>,
     state: Vec<i8>,
+    /// Kinks of the elastic dual along a line, two per joint.
+    brk: Vec<(f64, f64)>,
     free: Vec<usize>,
     g: Vec<f64>,
     piv: Vec<f64>,
@@ -165,6 +167,7 @@ impl Work {
             *v = vec![0.0; n];
         }
         self.state = vec![0; n];
+        self.brk = vec![(0.0, 0.0); 2 * n];
         self.free = Vec::with_capacity(n);
     }
 }
@@ -801,7 +804,14 @@ impl Overall {
                     c,
                     rho_inv: 0.0,
                 };
-                d.solve(&mut mu_q, &mut w.qp_x, &mut w.state, qp_tol, mu_cap)
+                d.solve(
+                    &mut mu_q,
+                    &mut w.qp_x,
+                    &mut w.state,
+                    qp_tol,
+                    mu_cap,
+                    &mut w.brk,
+                )
             };
             if !exact_ok && cn > tol && kicks < 3 && self.singular() {
                 kicks += 1;
@@ -844,7 +854,14 @@ impl Overall {
                         c,
                         rho_inv: weight * p.scale * p.scale,
                     };
-                    if d.solve(&mut mu_q, &mut w.qp_x, &mut w.state, qp_tol, f64::MAX) {
+                    if d.solve(
+                        &mut mu_q,
+                        &mut w.qp_x,
+                        &mut w.state,
+                        qp_tol,
+                        f64::MAX,
+                        &mut w.brk,
+                    ) {
                         solved = true;
                         break;
                     }
