@@ -119,6 +119,11 @@ struct Work {
     state: Vec<i8>,
     /// Kinks of the elastic dual along a line, two per joint.
     brk: Vec<(f64, f64)>,
+    /// Cold solves: `best` holds an optimum on target, and a local solve whose iterate comes
+    /// next to it stops there (it would only find that optimum again).
+    watch_best: bool,
+    /// Set by a local solve that stopped next to `best`.
+    joined_best: bool,
     free: Vec<usize>,
     g: Vec<f64>,
     piv: Vec<f64>,
@@ -514,8 +519,15 @@ impl Overall {
                     mirror_pose(&p, src, &w.lo, &w.hi, &mut w.theta);
                 }
             }
+            // A random start that runs into the best optimum so far is not followed further.
+            self.w.watch_best = kind >= fixed && best.is_some_and(|b| b.2);
+            self.w.joined_best = false;
             let l = self.local(&p, &mut mu, p.tol);
+            self.w.watch_best = false;
             total += l.iterations;
+            if self.w.joined_best {
+                continue;
+            }
             let on = l.converged && l.tip_error <= p.tol;
             let m = half_metric(&self.w.theta, p.theta0);
             let better = |o: &Option<(f64, f64, bool, [f64; 2])>| match o {
@@ -753,6 +765,17 @@ impl Overall {
         loop {
             let (c, s) = self.eval(p, *mu);
             let cn = c.norm();
+            if self.w.watch_best
+                && cn <= 1e-6 * p.scale
+                && max_abs_diff(&self.w.theta, &self.w.best) <= 1e-4
+            {
+                self.w.joined_best = true;
+                return Local {
+                    converged: false,
+                    tip_error: cn,
+                    iterations,
+                };
+            }
             if cn <= tol && s <= p.stol {
                 return Local {
                     converged: true,
