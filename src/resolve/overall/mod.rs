@@ -11,7 +11,8 @@
 //!   (module `dual`); without limits that is the minimum-norm step with the 2 x 2 Schur complement
 //!   `J J^T`. When the linearized constraint cannot be met inside the box (or `J` loses rank)
 //!   the elastic form with a penalized constraint is solved instead (the stiffest of a few
-//!   weights whose dual settles). The step is globalized by an Armijo line search on the merit
+//!   weights whose dual settles; its dual steps to the exact maximum along each Newton
+//!   direction, a few evaluations per solve). The step is globalized by an Armijo line search on the merit
 //!   `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu` raised above the multiplier norm
 //!   whenever needed and, after an exact step, brought back down when it is more than ten times
 //!   what that step's multiplier needs: an elastic step's multiplier can be huge, and a `nu`
@@ -43,7 +44,9 @@
 //!
 //! Two modes ([`OverallMode`]): **local** continues from the current pose and the stored
 //! multiplier (one control tick), **cold** ([`Overall::solve_cold`]) runs its own deterministic
-//! set of starts and keeps the best optimum by metric 3.
+//! set of starts and keeps the best optimum by metric 3; a random start whose iterate comes
+//! within 1e-4 rad of the best optimum on target so far (tip within 1e-6 of the scale) stops
+//! there, as it would only find that optimum again.
 
 mod dual;
 mod hessian;
@@ -416,7 +419,9 @@ impl Overall {
     ///    limits cannot touch a better pose, the problem there is the unlimited one, and the
     ///    random starts are skipped. When no start so far has reached the target, the same
     ///    number again (limited or not), uniform inside the limits (an unlimited joint:
-    ///    `theta0 +- pi/2`).
+    ///    `theta0 +- pi/2`). A random start stops as soon as its iterate is on target within
+    ///    1e-6 of the scale and within 1e-4 rad of the best optimum so far (it would converge
+    ///    to that optimum).
     ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
