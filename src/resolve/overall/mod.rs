@@ -11,7 +11,8 @@
 //!   (module `dual`); without limits that is the minimum-norm step with the 2 x 2 Schur complement
 //!   `J J^T`. When the linearized constraint cannot be met inside the box (or `J` loses rank)
 //!   the elastic form with a penalized constraint is solved instead (the stiffest of a few
-//!   weights whose dual settles). The step is globalized by an Armijo line search on the merit
+//!   weights whose dual settles; its dual steps to the exact maximum along each Newton
+//!   direction, a few evaluations per solve). The step is globalized by an Armijo line search on the merit
 //!   `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu` raised above the multiplier norm
 //!   whenever needed and, after an exact step, brought back down when it is more than ten times
 //!   what that step's multiplier needs: an elastic step's multiplier can be huge, and a `nu`
@@ -43,7 +44,9 @@
 //!
 //! Two modes ([`OverallMode`]): **local** continues from the current pose and the stored
 //! multiplier (one control tick), **cold** ([`Overall::solve_cold`]) runs its own deterministic
-//! set of starts and keeps the best optimum by metric 3.
+//! set of starts and keeps the best optimum by metric 3; a random start whose iterate comes
+//! within 1e-4 rad of the best optimum on target so far (tip within 1e-6 of the scale) stops
+//! there, as it would only find that optimum again.
 
 mod dual;
 mod hessian;
@@ -117,6 +120,13 @@ struct Work {
     trial: Vec<f64>,
     qp_x: Vec<f64>,
     state: Vec<i8>,
+    /// Kinks of the elastic dual along a line, two per joint.
+    brk: Vec<(f64, f64)>,
+    /// Cold solves: `best` holds an optimum on target, and a local solve whose iterate comes
+    /// next to it stops there (it would only find that optimum again).
+    watch_best: bool,
+    /// Set by a local solve that stopped next to `best`.
+    joined_best: bool,
     free: Vec<usize>,
     g: Vec<f64>,
     piv: Vec<f64>,
@@ -165,6 +175,7 @@ impl Work {
             *v = vec![0.0; n];
         }
         self.state = vec![0; n];
+        self.brk = vec![(0.0, 0.0); 2 * n];
         self.free = Vec::with_capacity(n);
     }
 }
@@ -408,7 +419,9 @@ impl Overall {
     ///    limits cannot touch a better pose, the problem there is the unlimited one, and the
     ///    random starts are skipped. When no start so far has reached the target, the same
     ///    number again (limited or not), uniform inside the limits (an unlimited joint:
-    ///    `theta0 +- pi/2`).
+    ///    `theta0 +- pi/2`). A random start stops as soon as its iterate is on target within
+    ///    1e-6 of the scale and within 1e-4 rad of the best optimum so far (it would converge
+    ///    to that optimum).
     ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
@@ -511,8 +524,15 @@ impl Overall {
                     mirror_pose(&p, src, &w.lo, &w.hi, &mut w.theta);
                 }
             }
+            // A random start that runs into the best optimum so far is not followed further.
+            self.w.watch_best = kind >= fixed && best.is_some_and(|b| b.2);
+            self.w.joined_best = false;
             let l = self.local(&p, &mut mu, p.tol);
+            self.w.watch_best = false;
             total += l.iterations;
+            if self.w.joined_best {
+                continue;
+            }
             let on = l.converged && l.tip_error <= p.tol;
             let m = half_metric(&self.w.theta, p.theta0);
             let better = |o: &Option<(f64, f64, bool, [f64; 2])>| match o {
@@ -750,6 +770,17 @@ impl Overall {
         loop {
             let (c, s) = self.eval(p, *mu);
             let cn = c.norm();
+            if self.w.watch_best
+                && cn <= 1e-6 * p.scale
+                && max_abs_diff(&self.w.theta, &self.w.best) <= 1e-4
+            {
+                self.w.joined_best = true;
+                return Local {
+                    converged: false,
+                    tip_error: cn,
+                    iterations,
+                };
+            }
             if cn <= tol && s <= p.stol {
                 return Local {
                     converged: true,
@@ -801,7 +832,14 @@ impl Overall {
                     c,
                     rho_inv: 0.0,
                 };
-                d.solve(&mut mu_q, &mut w.qp_x, &mut w.state, qp_tol, mu_cap)
+                d.solve(
+                    &mut mu_q,
+                    &mut w.qp_x,
+                    &mut w.state,
+                    qp_tol,
+                    mu_cap,
+                    &mut w.brk,
+                )
             };
             if !exact_ok && cn > tol && kicks < 3 && self.singular() {
                 kicks += 1;
@@ -844,7 +882,14 @@ impl Overall {
                         c,
                         rho_inv: weight * p.scale * p.scale,
                     };
-                    if d.solve(&mut mu_q, &mut w.qp_x, &mut w.state, qp_tol, f64::MAX) {
+                    if d.solve(
+                        &mut mu_q,
+                        &mut w.qp_x,
+                        &mut w.state,
+                        qp_tol,
+                        f64::MAX,
+                        &mut w.brk,
+                    ) {
                         solved = true;
                         break;
                     }
