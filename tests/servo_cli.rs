@@ -10,10 +10,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use snakectl_sim::table::addr;
-use snakectl_sim::{
-    spawn_pty, Fault, HardwareErrorKind, Model, RealClock, ServoSpec, SimConfig, SimHandle,
-    Simulator,
-};
+use snakectl_sim::{Fault, HardwareErrorKind, Model, RealClock, ServoSpec, SimConfig, SimHandle};
 
 fn serve(faults: Vec<Fault>) -> SimHandle {
     let mut servos: Vec<ServoSpec> = (1..=4)
@@ -26,7 +23,7 @@ fn serve(faults: Vec<Fault>) -> SimHandle {
         faults,
         ..SimConfig::default()
     };
-    spawn_pty(Simulator::new(config, Arc::new(RealClock)).unwrap()).unwrap()
+    snakectl::connect::serve(config, Arc::new(RealClock)).unwrap()
 }
 
 /// Runs the binary with nothing on stdin.
@@ -172,4 +169,37 @@ fn servo_reboot_clears_a_hardware_error_and_torque_off_works() {
 fn ports_runs_without_libudev() {
     let out = snakectl(&["ports"]);
     assert!(out.status.success(), "{:?}", text(&out));
+}
+
+#[test]
+fn clear_calibration_zeroes_homing_offset_and_the_reverse_bit() {
+    let sim = serve(vec![]);
+    sim.with_servo(3, |s| {
+        s.poke(addr::HOMING_OFFSET, 300);
+        s.poke(addr::DRIVE_MODE, 5);
+    });
+    let port = sim.path().to_str().unwrap().to_string();
+    let out = snakectl(&[
+        "servo",
+        "--port",
+        &port,
+        "--baud",
+        "1000000",
+        "--id",
+        "3",
+        "--timeout-ms",
+        "300",
+        "clear-calibration",
+    ]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stderr}");
+    assert_eq!(
+        stdout.trim(),
+        "servo 3: Homing Offset 300 -> 0, Drive Mode 5 -> 4"
+    );
+    let held = |a| sim.with_servo(3, |s| s.value(a)).flatten();
+    assert_eq!(
+        (held(addr::HOMING_OFFSET), held(addr::DRIVE_MODE)),
+        (Some(0), Some(4))
+    );
 }

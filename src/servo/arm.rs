@@ -810,3 +810,127 @@ pub fn reboot_and_wait<B: ServoBus>(
         }
     }
 }
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::servo::clock::StepClock;
+    use crate::servo::record::NullBus;
+    use crate::servo::{Ack, SyncReadBuf, Value};
+
+    /// Acknowledges everything; after a reboot, stays silent to `silent_pings` pings.
+    struct Rebooting {
+        inner: NullBus,
+        silent_pings: u32,
+    }
+
+    impl ServoBus for Rebooting {
+        fn baud(&self) -> u32 {
+            self.inner.baud()
+        }
+        fn set_baud(&mut self, b: u32) -> Result<(), ServoError> {
+            self.inner.set_baud(b)
+        }
+        fn ping(&mut self, id: u8, t: Duration) -> Result<PingInfo, ServoError> {
+            if self.silent_pings > 0 {
+                self.silent_pings -= 1;
+                return Err(ServoError::Timeout { id, waited: t });
+            }
+            self.inner.ping(id, t)
+        }
+        fn scan(&mut self, t: Duration) -> Result<Vec<PingInfo>, ServoError> {
+            self.inner.scan(t)
+        }
+        fn read(&mut self, id: u8, r: Register, t: Duration) -> Result<Value, ServoError> {
+            self.inner.read(id, r, t)
+        }
+        fn write(&mut self, id: u8, r: Register, v: i64, t: Duration) -> Result<Ack, ServoError> {
+            self.inner.write(id, r, v, t)
+        }
+        fn sync_read_into(
+            &mut self,
+            ids: &[u8],
+            a: u16,
+            l: u16,
+            t: Duration,
+            out: &mut SyncReadBuf,
+        ) -> Result<(), ServoError> {
+            self.inner.sync_read_into(ids, a, l, t, out)
+        }
+        fn sync_write(&mut self, r: Register, v: &[(u8, i64)]) -> Result<(), ServoError> {
+            self.inner.sync_write(r, v)
+        }
+        fn write_goals(&mut self, g: &[Goal]) -> Result<(), ServoError> {
+            self.inner.write_goals(g)
+        }
+        fn reboot(&mut self, id: u8, t: Duration) -> Result<Ack, ServoError> {
+            self.inner.reboot(id, t)
+        }
+    }
+
+    const T: Duration = Duration::from_millis(1);
+
+    #[test]
+    fn a_rebooted_servo_is_waited_for_on_the_given_clock() {
+        let mut bus = Rebooting {
+            inner: NullBus::new(1060),
+            silent_pings: 7,
+        };
+        let clock = StepClock::new();
+        reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap();
+        // Seven silent pings, 10 ms apart on the clock, none of it on wall time.
+        assert_eq!(clock.elapsed(), Duration::from_millis(70));
+    }
+
+    #[test]
+    fn a_servo_that_never_comes_back_is_given_up_after_the_reboot_wait() {
+        let mut bus = Rebooting {
+            inner: NullBus::new(1060),
+            silent_pings: u32::MAX,
+        };
+        let clock = StepClock::new();
+        let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap_err();
+        assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");
+        assert_eq!(clock.elapsed(), REBOOT_WAIT);
+    }
+
+    #[test]
+    fn transient_errors_are_retried_three_times_and_refusals_never() {
+        let mut retry = Retry::default();
+        let mut calls = 0;
+        let r: Result<(), ServoError> = retry.run(|| {
+            calls += 1;
+            Err(ServoError::Checksum {
+                id: 1,
+                received: 0,
+                computed: 1,
+            })
+        });
+        assert!(r.is_err());
+        assert_eq!((calls, retry.retries), (4, 3));
+        let mut calls = 0;
+        let r: Result<(), ServoError> = retry.run(|| {
+            calls += 1;
+            Err(ServoError::Status {
+                id: 1,
+                code: 6,
+                alert: false,
+            })
+        });
+        assert!(r.is_err());
+        assert_eq!((calls, retry.retries), (1, 3));
+        let mut calls = 0;
+        retry
+            .run(|| {
+                calls += 1;
+                if calls < 3 {
+                    Err(ServoError::Timeout { id: 1, waited: T })
+                } else {
+                    Ok(())
+                }
+            })
+            .unwrap();
+        assert_eq!((calls, retry.retries), (3, 5));
+    }
+}
