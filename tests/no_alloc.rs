@@ -96,7 +96,15 @@ fn a_warm_read_resolve_write_cycle_allocates_nothing() {
     use snakectl::servo::{Fields, Goal, ServoBus, States};
 
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
-    let config = Config::load(path).unwrap();
+    // A reply timeout a loaded test machine keeps (the file's 5 ms suits an idle one).
+    let text = std::fs::read_to_string(path)
+        .unwrap()
+        .replace("reply_timeout_ms = 5\n", "reply_timeout_ms = 200\n");
+    let config = Config::from_str(&text, path).unwrap();
+    assert_eq!(
+        config.arm().unwrap().settings().reply_timeout,
+        Duration::from_millis(200)
+    );
     let mut link = connect::open(&config, Options::default()).unwrap();
     let arm = link.arm.clone();
     arm.bring_up(&mut link.bus, BringUpOptions::default())

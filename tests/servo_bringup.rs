@@ -492,7 +492,10 @@ fn hold_on_exit_keeps_torque_on_until_the_watchdog_stops_the_servos() {
 fn lossy_config(seed: u64) -> Config {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
     let text = std::fs::read_to_string(path).unwrap();
-    let text = text.replace("seed = 1", &format!("seed = {seed}"))
+    // A reply timeout a loaded test machine keeps: a late reply is then a dropped one only.
+    let text = text
+        .replace("reply_timeout_ms = 5\n", "reply_timeout_ms = 100\n")
+        .replace("seed = 1", &format!("seed = {seed}"))
         + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.01\n"
         + "\n[[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.01\n";
     Config::from_str(&text, "lossy.toml").unwrap()
