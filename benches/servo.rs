@@ -16,7 +16,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
 use snakectl::servo::{Fields, Goal, ServoBus};
-use snakectl_sim::{spawn_pty, Model, RealClock, ServoSpec, SimConfig, SimHandle, Simulator};
+use snakectl_sim::{Model, RealClock, ServoSpec, SimConfig, SimHandle};
 
 const N: u8 = 12;
 const BAUD: u32 = 1_000_000;
@@ -32,8 +32,7 @@ fn start(wire_timing: bool) -> (SimHandle, DynamixelBus) {
         wire_timing,
         ..SimConfig::default()
     };
-    let sim = Simulator::new(config, Arc::new(RealClock)).expect("config");
-    let handle = spawn_pty(sim).expect("pty");
+    let handle = snakectl::connect::serve(config, Arc::new(RealClock)).expect("simulator");
     let bus = DynamixelBus::open_with_sysfs(handle.path(), BAUD, &Sysfs::new("/nonexistent"))
         .expect("open pty");
     (handle, bus)

@@ -8,7 +8,7 @@ mod cli_support;
 use std::process::Output;
 use std::sync::Arc;
 
-use snakectl_sim::{spawn_pty, Model, RealClock, ServoSpec, SimConfig, SimHandle, Simulator};
+use snakectl_sim::{Model, RealClock, ServoSpec, SimConfig, SimHandle};
 
 fn serve(baud: u32) -> SimHandle {
     let config = SimConfig {
@@ -18,7 +18,7 @@ fn serve(baud: u32) -> SimHandle {
         baud,
         ..SimConfig::default()
     };
-    spawn_pty(Simulator::new(config, Arc::new(RealClock)).unwrap()).unwrap()
+    snakectl::connect::serve(config, Arc::new(RealClock)).unwrap()
 }
 
 /// Runs the binary with nothing on stdin.

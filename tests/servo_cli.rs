@@ -10,10 +10,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use snakectl_sim::table::addr;
-use snakectl_sim::{
-    spawn_pty, Fault, HardwareErrorKind, Model, RealClock, ServoSpec, SimConfig, SimHandle,
-    Simulator,
-};
+use snakectl_sim::{Fault, HardwareErrorKind, Model, RealClock, ServoSpec, SimConfig, SimHandle};
 
 fn serve(faults: Vec<Fault>) -> SimHandle {
     let mut servos: Vec<ServoSpec> = (1..=4)
@@ -26,7 +23,7 @@ fn serve(faults: Vec<Fault>) -> SimHandle {
         faults,
         ..SimConfig::default()
     };
-    spawn_pty(Simulator::new(config, Arc::new(RealClock)).unwrap()).unwrap()
+    snakectl::connect::serve(config, Arc::new(RealClock)).unwrap()
 }
 
 /// Runs the binary with nothing on stdin.
@@ -166,6 +163,57 @@ fn servo_reboot_clears_a_hardware_error_and_torque_off_works() {
     ]);
     assert!(out.status.success(), "{:?}", text(&out));
     assert_eq!(sim.with_servo(4, |s| s.torque_enabled()), Some(false));
+}
+
+#[test]
+fn servo_clear_calibration_prints_the_values_before_and_after() {
+    let sim = serve(vec![]);
+    let port = sim.path().to_str().unwrap().to_string();
+    sim.with_servo(2, |s| {
+        s.poke(addr::HOMING_OFFSET, -300);
+        // Reverse (bit 0) and time-based profile (bit 2).
+        s.poke(addr::DRIVE_MODE, 0b101);
+        s.poke(addr::TORQUE_ENABLE, 1);
+    });
+    let run = || {
+        snakectl(&[
+            "servo",
+            "--port",
+            &port,
+            "--baud",
+            "1000000",
+            "--timeout-ms",
+            "300",
+            "--id",
+            "2",
+            "clear-calibration",
+        ])
+    };
+    let out = run();
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert_eq!(
+        stdout.trim(),
+        "servo 2: Homing Offset -300 -> 0, Drive Mode 5 -> 4"
+    );
+    assert_eq!(
+        sim.with_servo(2, |s| (
+            s.value(addr::HOMING_OFFSET),
+            s.value(addr::DRIVE_MODE)
+        )),
+        Some((Some(0), Some(4)))
+    );
+    // The others keep theirs; a second run finds nothing left to clear.
+    assert_eq!(
+        sim.with_servo(1, |s| s.value(addr::DRIVE_MODE)).flatten(),
+        Some(0)
+    );
+    let out = run();
+    assert_eq!(out.status.code(), Some(0), "{:?}", text(&out));
+    assert_eq!(
+        text(&out).0.trim(),
+        "servo 2: Homing Offset 0 -> 0, Drive Mode 4 -> 4"
+    );
 }
 
 #[test]
