@@ -166,40 +166,58 @@ fn servo_reboot_clears_a_hardware_error_and_torque_off_works() {
 }
 
 #[test]
-fn ports_runs_without_libudev() {
-    let out = snakectl(&["ports"]);
-    assert!(out.status.success(), "{:?}", text(&out));
+fn servo_clear_calibration_prints_the_values_before_and_after() {
+    let sim = serve(vec![]);
+    let port = sim.path().to_str().unwrap().to_string();
+    sim.with_servo(2, |s| {
+        s.poke(addr::HOMING_OFFSET, -300);
+        // Reverse (bit 0) and time-based profile (bit 2).
+        s.poke(addr::DRIVE_MODE, 0b101);
+        s.poke(addr::TORQUE_ENABLE, 1);
+    });
+    let run = || {
+        snakectl(&[
+            "servo",
+            "--port",
+            &port,
+            "--baud",
+            "1000000",
+            "--timeout-ms",
+            "300",
+            "--id",
+            "2",
+            "clear-calibration",
+        ])
+    };
+    let out = run();
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert_eq!(
+        stdout.trim(),
+        "servo 2: Homing Offset -300 -> 0, Drive Mode 5 -> 4"
+    );
+    assert_eq!(
+        sim.with_servo(2, |s| (
+            s.value(addr::HOMING_OFFSET),
+            s.value(addr::DRIVE_MODE)
+        )),
+        Some((Some(0), Some(4)))
+    );
+    // The others keep theirs; a second run finds nothing left to clear.
+    assert_eq!(
+        sim.with_servo(1, |s| s.value(addr::DRIVE_MODE)).flatten(),
+        Some(0)
+    );
+    let out = run();
+    assert_eq!(out.status.code(), Some(0), "{:?}", text(&out));
+    assert_eq!(
+        text(&out).0.trim(),
+        "servo 2: Homing Offset 0 -> 0, Drive Mode 4 -> 4"
+    );
 }
 
 #[test]
-fn clear_calibration_zeroes_homing_offset_and_the_reverse_bit() {
-    let sim = serve(vec![]);
-    sim.with_servo(3, |s| {
-        s.poke(addr::HOMING_OFFSET, 300);
-        s.poke(addr::DRIVE_MODE, 5);
-    });
-    let port = sim.path().to_str().unwrap().to_string();
-    let out = snakectl(&[
-        "servo",
-        "--port",
-        &port,
-        "--baud",
-        "1000000",
-        "--id",
-        "3",
-        "--timeout-ms",
-        "300",
-        "clear-calibration",
-    ]);
-    let (stdout, stderr) = text(&out);
-    assert!(out.status.success(), "{stderr}");
-    assert_eq!(
-        stdout.trim(),
-        "servo 3: Homing Offset 300 -> 0, Drive Mode 5 -> 4"
-    );
-    let held = |a| sim.with_servo(3, |s| s.value(a)).flatten();
-    assert_eq!(
-        (held(addr::HOMING_OFFSET), held(addr::DRIVE_MODE)),
-        (Some(0), Some(4))
-    );
+fn ports_runs_without_libudev() {
+    let out = snakectl(&["ports"]);
+    assert!(out.status.success(), "{:?}", text(&out));
 }

@@ -14,7 +14,7 @@ use snakectl::servo::arm::{reboot_and_wait, Retry};
 use snakectl::servo::clock::WallClock;
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
-use snakectl::servo::{baud_index, model_name, PingInfo, ServoBus, BAUD_RATES, MAX_ID};
+use snakectl::servo::{baud_index, model_name, PingInfo, Register, ServoBus, BAUD_RATES, MAX_ID};
 
 use super::{outln, Failure};
 
@@ -290,9 +290,16 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
         ServoAction::ClearCalibration => {
             let (offset, drive) =
                 admin::clear_calibration(&mut bus, id, timeout).map_err(admin_failure)?;
+            // What the servo holds now, read back.
+            let mut read = |r| bus.read(id, r, timeout).map(|v| v.value);
+            let now = (read(Register::HomingOffset), read(Register::DriveMode));
+            let (Ok(offset_now), Ok(drive_now)) = now else {
+                return Err(Failure::other(anyhow!(
+                    "servo {id}: reading back the calibration failed"
+                )));
+            };
             outln!(
-                "servo {id}: Homing Offset {offset} -> 0, Drive Mode {drive} -> {}",
-                drive & !1
+                "servo {id}: Homing Offset {offset} -> {offset_now}, Drive Mode {drive} -> {drive_now}"
             )?;
         }
         ServoAction::Info => {
