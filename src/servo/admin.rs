@@ -6,10 +6,10 @@
 use std::time::Duration;
 
 use super::clock::Clock;
-use super::{baud_index, units, PingInfo, Register, ServoBus, ServoError, MAX_ID};
+use super::{
+    baud_index, units, PingInfo, Register, ServoBus, ServoError, DRIVE_MODE_REVERSE, MAX_ID,
+};
 
-/// Drive Mode bit 0: reverse direction.
-const DRIVE_MODE_REVERSE: i64 = 0x01;
 /// How long a servo takes to listen at its new baud rate.
 const BAUD_SWITCH: Duration = Duration::from_millis(50);
 

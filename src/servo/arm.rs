@@ -35,13 +35,11 @@ use super::model::ServoModel;
 use super::units::{self, Calibration};
 use super::{
     Fields, Goal, HardwareErrors, PingInfo, Reading, Register, ServoBus, ServoError, States,
+    DRIVE_MODE_REVERSE,
 };
 
 /// Transient errors retried per exchange (so an exchange is tried at most `RETRIES + 1` times).
 pub const RETRIES: u32 = 3;
-
-/// Drive Mode bit 0: reverse direction.
-const DRIVE_MODE_REVERSE: i64 = 0x01;
 
 /// What shut-down leaves the servos in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -33,6 +33,9 @@ pub use model::{model_name, ServoModel};
 
 /// Broadcast id: every servo hears it.
 pub const BROADCAST_ID: u8 = 0xFE;
+/// Drive Mode bit 0: reverse direction (the program applies direction in software, so bring-up
+/// requires it clear).
+pub const DRIVE_MODE_REVERSE: i64 = 0x01;
 /// Highest id a servo can have.
 pub const MAX_ID: u8 = 252;
 /// Baud rates an X-series servo can be set to, indexed by the Baud Rate register value.
