@@ -25,9 +25,13 @@
 pub mod chain;
 pub mod config;
 pub mod connect;
+pub mod control;
+pub mod daemon;
 pub mod metrics;
+pub mod motion;
 pub mod plot;
 pub mod problem;
+pub mod protocol;
 pub mod resolve;
 pub mod scenario;
 pub mod servo;

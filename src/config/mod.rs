@@ -118,7 +118,16 @@ pub struct Control {
     pub max_joint_speed_rad_s: f64,
     /// Straight sub-steps per tick, at least 1.
     pub substeps: u32,
+    /// Fastest change of the commanded tip velocity, m/s², positive.
+    pub max_tip_accel_m_s2: f64,
+    /// How long a `velocity` or `jog` command lasts after its last renewal.
+    pub deadman: Duration,
+    /// Servos are read every `read_every`-th tick, at least 1.
+    pub read_every: u32,
 }
+
+/// The fastest control rate accepted, Hz.
+pub const MAX_RATE_HZ: f64 = 2000.0;
 
 /// The validated `[server]` (defaults when the table is absent).
 #[derive(Debug, Clone, PartialEq)]
@@ -642,6 +651,36 @@ impl Checker<'_> {
 
     fn control(&self, raw: &RawControl) -> Result<Control, ConfigError> {
         let rate_hz = self.positive("control.rate_hz", raw.rate_hz)?;
+        if rate_hz > MAX_RATE_HZ {
+            return Err(self.invalid(
+                "control.rate_hz",
+                Problem::Outside {
+                    value: rate_hz,
+                    lo: 0.0,
+                    hi: MAX_RATE_HZ,
+                },
+            ));
+        }
+        let max_tip_accel_m_s2 =
+            self.positive("control.max_tip_accel_m_s2", raw.max_tip_accel_m_s2)?;
+        if raw.deadman_ms == 0 {
+            return Err(self.invalid(
+                "control.deadman_ms",
+                Problem::OutOfRange {
+                    value: 0,
+                    expected: "must be at least 1",
+                },
+            ));
+        }
+        if raw.read_every == 0 {
+            return Err(self.invalid(
+                "control.read_every",
+                Problem::OutOfRange {
+                    value: 0,
+                    expected: "must be at least 1",
+                },
+            ));
+        }
         let max_tip_speed_m_s =
             self.positive("control.max_tip_speed_m_s", raw.max_tip_speed_m_s)?;
         let max_joint_speed_rad_s =
@@ -664,6 +703,9 @@ impl Checker<'_> {
             max_tip_speed_m_s,
             max_joint_speed_rad_s,
             substeps: raw.substeps,
+            max_tip_accel_m_s2,
+            deadman: Duration::from_millis(raw.deadman_ms.into()),
+            read_every: raw.read_every,
         })
     }
 

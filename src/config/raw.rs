@@ -259,6 +259,15 @@ pub struct RawControl {
     /// Straight sub-steps per tick (the paper's multi-step `K`).
     #[serde(default = "default_substeps")]
     pub substeps: u32,
+    /// Fastest change of the commanded tip velocity, m/s².
+    #[serde(default = "default_max_tip_accel_m_s2")]
+    pub max_tip_accel_m_s2: f64,
+    /// A `velocity` or `jog` command lapses this long after its last renewal, ms.
+    #[serde(default = "default_deadman_ms")]
+    pub deadman_ms: u32,
+    /// Read the servos every k-th tick.
+    #[serde(default = "default_read_every")]
+    pub read_every: u32,
 }
 
 /// `[server]`: the command/telemetry socket.
@@ -327,6 +336,21 @@ pub fn default_substeps() -> u32 {
     1
 }
 
+/// Tip acceleration, m/s².
+pub fn default_max_tip_accel_m_s2() -> f64 {
+    0.5
+}
+
+/// Deadman of velocity and jog commands, ms.
+pub fn default_deadman_ms() -> u32 {
+    500
+}
+
+/// Read every tick.
+pub fn default_read_every() -> u32 {
+    1
+}
+
 /// Listen address: local only.
 pub fn default_listen() -> String {
     "127.0.0.1:7878".to_owned()
@@ -345,6 +369,9 @@ impl Default for RawControl {
             max_tip_speed_m_s: default_max_tip_speed_m_s(),
             max_joint_speed_rad_s: default_max_joint_speed_rad_s(),
             substeps: default_substeps(),
+            max_tip_accel_m_s2: default_max_tip_accel_m_s2(),
+            deadman_ms: default_deadman_ms(),
+            read_every: default_read_every(),
         }
     }
 }

@@ -1,0 +1,82 @@
+//! The seam between the control loop's thread and the socket side.
+//!
+//! Commands go in through one bounded queue ([`COMMAND_QUEUE`] envelopes; when it is full the
+//! server answers `busy` at once instead of waiting), each with a oneshot for its reply, sent once
+//! the loop has applied the command. Telemetry comes out latest-wins through a `watch` (a slow
+//! reader sees fewer snapshots, never older ones). Events go out through a `broadcast` of
+//! [`EVENT_QUEUE`] slots (a reader that falls that far behind loses the oldest, and is told
+//! how many it lost).
+
+use std::sync::Arc;
+
+use serde_json::{Map, Value};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
+
+use crate::protocol::{ClientId, Cmd, Describe, Event, Rejection, RequestId, Telemetry};
+
+/// Envelopes the command queue holds.
+pub const COMMAND_QUEUE: usize = 64;
+
+/// Events the broadcast holds for its slowest reader.
+pub const EVENT_QUEUE: usize = 256;
+
+/// A reply's fields (flat beside `id` and `ok`), or why the command was refused.
+pub type Answer = Result<Map<String, Value>, Rejection>;
+
+/// One command on its way to the loop.
+#[derive(Debug)]
+pub struct Envelope {
+    /// Who sent it.
+    pub client: ClientId,
+    /// Its request id, when it had one.
+    pub id: Option<RequestId>,
+    /// The command, validated.
+    pub cmd: Cmd,
+    /// Where the loop sends the answer once it has applied the command. A client gone by then
+    /// is not an error.
+    pub reply: oneshot::Sender<Answer>,
+}
+
+/// What the socket side holds of a running loop.
+#[derive(Debug, Clone)]
+pub struct Handle {
+    /// The command queue (bounded: full means `busy`).
+    pub commands: mpsc::Sender<Envelope>,
+    /// The latest telemetry snapshot.
+    pub telemetry: watch::Receiver<Telemetry>,
+    /// Events; each client subscribes its own receiver.
+    pub events: broadcast::Sender<Event>,
+    /// The arm's description, fixed for the daemon's life.
+    pub describe: Arc<Describe>,
+}
+
+/// The loop's ends of the same channels.
+#[derive(Debug)]
+pub struct LoopEnds {
+    /// Commands, drained with `try_recv` at the start of each tick.
+    pub commands: mpsc::Receiver<Envelope>,
+    /// Telemetry, updated in place with `send_modify` (no allocation once warm).
+    pub telemetry: watch::Sender<Telemetry>,
+    /// Events.
+    pub events: broadcast::Sender<Event>,
+}
+
+/// A connected pair of ends, the telemetry starting from `initial`.
+pub fn channel(describe: Describe, initial: Telemetry) -> (Handle, LoopEnds) {
+    let (commands_tx, commands_rx) = mpsc::channel(COMMAND_QUEUE);
+    let (telemetry_tx, telemetry_rx) = watch::channel(initial);
+    let (events_tx, _) = broadcast::channel(EVENT_QUEUE);
+    (
+        Handle {
+            commands: commands_tx,
+            telemetry: telemetry_rx,
+            events: events_tx.clone(),
+            describe: Arc::new(describe),
+        },
+        LoopEnds {
+            commands: commands_rx,
+            telemetry: telemetry_tx,
+            events: events_tx,
+        },
+    )
+}

@@ -1,0 +1,1 @@
+//! Tip motion per tick (pure).
