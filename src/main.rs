@@ -19,6 +19,8 @@ struct Cli {
 enum Command {
     /// Resolve one tip move: joint angles, points, flags and metrics as one JSON object.
     Solve(cli::solve::SolveArgs),
+    /// The control daemon: steer the arm's tip over a JSON-lines socket until Ctrl-C or SIGTERM.
+    Run(cli::run::RunArgs),
     /// Serve the config's servo chain, simulated, on a pseudo-terminal until Ctrl-C or SIGTERM.
     Sim(cli::sim::SimArgs),
     /// Run a flexible-object scenario: figures (SVG, PNG) and the metrics table.
@@ -35,6 +37,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Solve(args) => cli::solve::run(args),
+        Command::Run(args) => cli::run::run(args),
         Command::Sim(args) => cli::sim::run(args),
         Command::Simulate(args) => cli::simulate::run(args),
         Command::Scan(args) => cli::servo::scan(args),

@@ -22,8 +22,8 @@ fn shipped(name: &str) -> PathBuf {
 /// 5 ms suits an idle machine or real servos; a real-time simulator on busy cores misses it).
 fn sim_config() -> Config {
     let text = std::fs::read_to_string(shipped("sim.toml")).unwrap();
-    assert!(text.contains("reply_timeout_ms = 5\n"));
-    let text = text.replace("reply_timeout_ms = 5\n", "reply_timeout_ms = 200\n");
+    assert!(text.contains("reply_timeout_ms = 20 "));
+    let text = text.replace("reply_timeout_ms = 20 ", "reply_timeout_ms = 200");
     Config::from_str(&text, shipped("sim.toml")).unwrap()
 }
 

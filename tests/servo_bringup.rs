@@ -494,7 +494,7 @@ fn lossy_config(seed: u64) -> Config {
     let text = std::fs::read_to_string(path).unwrap();
     // A reply timeout a loaded test machine keeps: a late reply is then a dropped one only.
     let text = text
-        .replace("reply_timeout_ms = 5\n", "reply_timeout_ms = 100\n")
+        .replace("reply_timeout_ms = 20 ", "reply_timeout_ms = 100")
         .replace("seed = 1", &format!("seed = {seed}"))
         + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.01\n"
         + "\n[[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.01\n";

@@ -1,5 +1,6 @@
 //! The subcommands, one module each, and the error type they share.
 
+pub mod run;
 pub mod servo;
 pub mod sim;
 pub mod simulate;
@@ -13,6 +14,18 @@ macro_rules! outln {
     };
 }
 pub(crate) use outln;
+
+/// Logs to stderr through `tracing`: info, or debug with `verbose`; `RUST_LOG` overrides.
+pub fn init_logs(verbose: bool) {
+    let default = if verbose { "debug" } else { "info" };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_writer(std::io::stderr)
+        .init();
+}
 
 /// Writes one line to stdout; a closed pipe becomes a quiet [`Failure`] with exit code 0.
 pub fn write_line(args: std::fmt::Arguments<'_>) -> Result<(), Failure> {

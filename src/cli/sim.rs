@@ -26,14 +26,7 @@ pub struct SimArgs {
 
 /// Runs `snakectl sim` until SIGINT or SIGTERM.
 pub fn run(args: SimArgs) -> Result<(), Failure> {
-    let default = if args.verbose { "debug" } else { "info" };
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_writer(std::io::stderr)
-        .init();
+    super::init_logs(args.verbose);
     let other = Failure::other;
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
     let handle =

@@ -124,6 +124,9 @@ fn defaults_fill_absent_tables() {
     assert!(c.sim().is_none());
     assert_eq!(c.control().rate_hz, 100.0);
     assert_eq!(c.control().substeps, 1);
+    assert_eq!(c.control().max_tip_accel_m_s2, 0.5);
+    assert_eq!(c.control().deadman, std::time::Duration::from_millis(500));
+    assert_eq!(c.control().read_every, 1);
     assert_eq!(c.server().listen.to_string(), "127.0.0.1:7878");
     assert!(c.server().token_file.is_none());
 }
@@ -494,6 +497,23 @@ fn control_checks() {
     refused(
         &with("rate_hz = 100.0", "substeps = 0"),
         &["control.substeps", "0"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "rate_hz = 2000.5"),
+        &["control.rate_hz", "2000.5", "2000"],
+    );
+    load(&with("rate_hz = 100.0", "rate_hz = 2000.0")).unwrap();
+    refused(
+        &with("rate_hz = 100.0", "max_tip_accel_m_s2 = 0.0"),
+        &["control.max_tip_accel_m_s2", "0"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "deadman_ms = 0"),
+        &["control.deadman_ms", "0"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "read_every = 0"),
+        &["control.read_every", "0"],
     );
 }
 

@@ -8,6 +8,7 @@
 //! how many it lost).
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use serde_json::{Map, Value};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
@@ -32,6 +33,8 @@ pub struct Envelope {
     pub id: Option<RequestId>,
     /// The command, validated.
     pub cmd: Cmd,
+    /// When the server read its line (the start of the command-to-wire latency).
+    pub received: Instant,
     /// Where the loop sends the answer once it has applied the command. A client gone by then
     /// is not an error.
     pub reply: oneshot::Sender<Answer>,

@@ -1,4 +1,155 @@
 //! The control daemon: a fixed-rate loop on its own thread from commanded tip motion to servo
 //! goals, and the JSON-lines socket that commands it.
+//!
+//! [`run`] opens the bus through [`crate::connect`], brings the arm up and starts the loop
+//! ([`control_loop`]) on its own thread (the bus is blocking); only once the arm holds its
+//! pose does it accept connections ([`server`]). The two sides meet in [`link`]: a bounded
+//! command queue in, telemetry out latest-wins, events out through a bounded broadcast. When
+//! the shutdown future resolves the server closes, the loop brings the arm to rest and leaves
+//! the servos as `[bus] on_exit` says, and `run` returns.
 
+pub mod control_loop;
 pub mod link;
+pub mod server;
+pub mod stats;
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+
+use crate::config::Config;
+use crate::connect::ConnectError;
+use crate::control::Refused;
+use crate::servo::arm::{BringUpError, ShutDownError};
+
+/// How [`run`] reaches the servos, beyond what the config says.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Open this port whatever `[bus] kind` says (a real adapter, or an external simulator's
+    /// link).
+    pub port: Option<PathBuf>,
+}
+
+/// What a daemon that stopped cleanly did (since start, or since the last `reset_stats`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Summary {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Periods skipped because a tick ran late.
+    pub overruns: u64,
+    /// Wall time the ticks took, s.
+    pub elapsed_s: f64,
+    /// A tick's working time (commands, motion, resolve, write, read, publish).
+    pub tick: stats::Percentiles,
+    /// The controller's share of it (motion, resolve, joint-speed limit).
+    pub solve: stats::Percentiles,
+    /// From the server reading a command's line to the Sync Write of the tick that applied it
+    /// handed to the port.
+    pub command_to_wire: stats::Percentiles,
+}
+
+impl Summary {
+    /// Ticks per second achieved.
+    pub fn rate_hz(&self) -> f64 {
+        if self.elapsed_s > 0.0 {
+            self.ticks as f64 / self.elapsed_s
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Why the daemon could not start or stopped badly.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DaemonError {
+    /// The bus could not be opened.
+    #[error(transparent)]
+    Connect(#[from] ConnectError),
+    /// Bring-up refused or failed (a servo missing, of the wrong model, a joint outside its
+    /// limits, ...).
+    #[error(transparent)]
+    BringUp(#[from] BringUpError),
+    /// The measured pose cannot seed the controller.
+    #[error("the measured pose cannot start the controller: {0}")]
+    Controller(Refused),
+    /// The loop's thread could not be started.
+    #[error("starting the control loop's thread: {0}")]
+    Thread(std::io::Error),
+    /// The socket failed.
+    #[error("the command socket: {0}")]
+    Socket(std::io::Error),
+    /// The loop panicked; the servos were shut down after it.
+    #[error("the control loop panicked (the servos were shut down after it)")]
+    LoopPanicked,
+    /// Shut-down could not reach every servo.
+    #[error(transparent)]
+    ShutDown(#[from] ShutDownError),
+    /// Start-up failed and its error went to the waiting [`run`].
+    #[error("start-up failed")]
+    StartUpReported,
+}
+
+/// Runs the daemon on `config` until `shutdown` resolves: bring-up, then the loop, commanded
+/// through `listener`. Connections that arrive before the arm is up wait in the listener's
+/// backlog for their first reply.
+pub async fn run(
+    config: Config,
+    listener: TcpListener,
+    options: RunOptions,
+    shutdown: impl Future<Output = ()>,
+) -> Result<Summary, DaemonError> {
+    let joints = config.chain().len();
+    let max_clients = config.server().max_clients as usize;
+    let stop = Arc::new(AtomicBool::new(false));
+    let (ready_tx, ready_rx) = oneshot::channel();
+    let (done_tx, done_rx) = oneshot::channel();
+    let loop_stop = stop.clone();
+    std::thread::Builder::new()
+        .name("snakectl-loop".into())
+        .spawn(move || {
+            let result = control_loop::main(config, options, loop_stop, ready_tx);
+            let _ = done_tx.send(result);
+        })
+        .map_err(DaemonError::Thread)?;
+
+    let handle = match ready_rx.await {
+        Ok(Ok(handle)) => handle,
+        Ok(Err(e)) => return Err(e),
+        // The thread ended without a word: it panicked during start-up.
+        Err(_) => {
+            return match done_rx.await {
+                Ok(Err(e)) => Err(e),
+                _ => Err(DaemonError::LoopPanicked),
+            }
+        }
+    };
+
+    let mut done_rx = done_rx;
+    let mut ended_early = None;
+    let served = {
+        let shutdown = async {
+            tokio::select! {
+                () = shutdown => {}
+                // The loop ended by itself (it panicked): stop serving too.
+                r = &mut done_rx => ended_early = Some(r.unwrap_or(Err(DaemonError::LoopPanicked))),
+            }
+        };
+        let options = server::ServerOptions {
+            joints,
+            max_clients,
+        };
+        server::serve(listener, handle, options, shutdown).await
+    };
+    stop.store(true, Ordering::Relaxed);
+    let result = match ended_early {
+        Some(r) => r,
+        None => done_rx.await.unwrap_or(Err(DaemonError::LoopPanicked)),
+    };
+    served.map_err(DaemonError::Socket)?;
+    result
+}

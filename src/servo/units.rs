@@ -76,7 +76,8 @@ pub struct Calibration {
 }
 
 impl Calibration {
-    fn sign(self) -> f64 {
+    /// +1, or -1 for a reversed servo: the joint angle's sign in the servo's frame.
+    pub fn sign(self) -> f64 {
         if self.reverse {
             -1.0
         } else {

@@ -1,0 +1,158 @@
+//! The daemon's loop on the 12-servo simulated arm: achieved rate, tick time, overruns and
+//! command-to-wire latency at fixed rates without wire timing, then the highest rate sustained
+//! without overruns with wire timing at 1 Mbps, against the wire bound.
+//!
+//! `cargo run --release --example loop_rate [-- SECONDS]` (default 5 s per rate).
+//!
+//! A client streams `velocity` commands at 20 Hz (a figure eight, as a joystick would) while
+//! the loop runs; the first half second of each run is left out of the figures
+//! (`reset_stats`).
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::TcpStream;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use snakectl::config::Config;
+use snakectl::connect;
+use snakectl::daemon::{self, RunOptions, Summary};
+
+const WARM_UP: Duration = Duration::from_millis(500);
+
+fn config(rate_hz: f64, wire_timing: bool) -> Result<Config> {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+    let text = std::fs::read_to_string(path)?
+        .replace("rate_hz = 100.0", &format!("rate_hz = {rate_hz:.1}"))
+        .replace(
+            "wire_timing = false",
+            &format!("wire_timing = {wire_timing}"),
+        );
+    Ok(Config::from_str(&text, path)?)
+}
+
+/// Sends one request line and waits for its reply, skipping event lines.
+fn request(stream: &mut BufReader<TcpStream>, line: &str) -> Result<String> {
+    stream.get_mut().write_all(line.as_bytes())?;
+    stream.get_mut().write_all(b"\n")?;
+    loop {
+        let mut reply = String::new();
+        if stream.read_line(&mut reply)? == 0 {
+            bail!("the daemon closed the connection");
+        }
+        if !reply.contains("\"type\"") {
+            if !reply.contains("\"ok\":true") {
+                bail!("{line} -> {reply}");
+            }
+            return Ok(reply);
+        }
+    }
+}
+
+/// Runs the daemon at `rate_hz` for `seconds` under a streamed figure eight.
+fn run(rate_hz: f64, wire_timing: bool, seconds: f64) -> Result<Summary> {
+    let config = config(rate_hz, wire_timing)?;
+    let sim = connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock))?;
+    let port = sim.path().to_path_buf();
+    let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
+    listener.set_nonblocking(true)?;
+    let addr = listener.local_addr()?;
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let daemon = std::thread::spawn(move || -> Result<Summary> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        runtime.block_on(async move {
+            let listener = tokio::net::TcpListener::from_std(listener)?;
+            let shutdown = async {
+                let _ = stop_rx.await;
+            };
+            Ok(daemon::run(config, listener, RunOptions { port: Some(port) }, shutdown).await?)
+        })
+    });
+
+    let stream = TcpStream::connect(addr)?;
+    stream.set_nodelay(true)?;
+    let mut client = BufReader::new(stream);
+    request(&mut client, r#"{"cmd":"status"}"#)?;
+    let start = Instant::now();
+    let mut warm = false;
+    let mut k = 0u32;
+    while start.elapsed().as_secs_f64() < seconds + WARM_UP.as_secs_f64() {
+        if !warm && start.elapsed() >= WARM_UP {
+            request(&mut client, r#"{"cmd":"reset_stats"}"#)?;
+            warm = true;
+        }
+        // A figure eight of 0.03 m tip speed, period 4 s.
+        let t = f64::from(k) * 0.05;
+        let w = std::f64::consts::TAU / 4.0;
+        let (vx, vy) = (0.03 * (w * t).cos(), 0.03 * (2.0 * w * t).cos());
+        request(
+            &mut client,
+            &format!(r#"{{"cmd":"velocity","v":[{vx:.6},{vy:.6}]}}"#),
+        )?;
+        k += 1;
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    request(&mut client, r#"{"cmd":"stop"}"#)?;
+    let _ = stop_tx.send(());
+    let summary = daemon
+        .join()
+        .map_err(|_| anyhow::anyhow!("the daemon's thread panicked"))??;
+    drop(sim);
+    Ok(summary)
+}
+
+fn row(rate_hz: f64, s: &Summary) {
+    println!(
+        "| {rate_hz:.0} | {:.1} | {:.0} / {:.0} | {} | {:.0} / {:.0} | {:.0} / {:.0} |",
+        s.rate_hz(),
+        s.tick.p50_us,
+        s.tick.p99_us,
+        s.overruns,
+        s.command_to_wire.p50_us,
+        s.command_to_wire.p99_us,
+        s.solve.p50_us,
+        s.solve.p99_us,
+    );
+}
+
+fn main() -> Result<()> {
+    let seconds: f64 = match std::env::args().nth(1) {
+        Some(s) => s.parse().context("seconds per rate")?,
+        None => 5.0,
+    };
+    println!("Without wire timing, {seconds} s per rate:\n");
+    println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
+    println!("|---|---|---|---|---|---|");
+    for rate in [100.0, 500.0, 1000.0] {
+        row(rate, &run(rate, false, seconds)?);
+    }
+
+    let n = 12.0;
+    let baud = 1e6;
+    let bound_s = (28.0 + 21.0 * n) * 10.0 / baud;
+    println!(
+        "\nWith wire timing at 1 Mbps (wire bound {:.2} ms per cycle = {:.0} Hz):\n",
+        bound_s * 1e3,
+        1.0 / bound_s
+    );
+    println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
+    println!("|---|---|---|---|---|---|");
+    let mut best = None;
+    for rate in [100.0, 200.0, 250.0, 300.0, 330.0, 350.0, 400.0] {
+        let s = run(rate, true, seconds)?;
+        row(rate, &s);
+        if s.overruns == 0 {
+            best = Some(rate);
+        }
+    }
+    match best {
+        Some(r) => println!(
+            "\nHighest rate without overruns: {r:.0} Hz ({:.0}% of the wire bound).",
+            100.0 * r * bound_s
+        ),
+        None => println!("\nNo rate ran without overruns."),
+    }
+    Ok(())
+}

@@ -1,0 +1,227 @@
+//! `snakectl run` as a user runs it: the binary a child process, the simulator served by this
+//! test on a real pseudo-terminal (`--port`), so the test sees what the servos do when the
+//! daemon stops, is told to stop, or is killed.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod daemon_support;
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{mpsc, Arc};
+use std::time::{Duration, Instant};
+
+use daemon_support::{Client, DEADLINE};
+use serde_json::json;
+use snakectl::config::Config;
+use snakectl::connect;
+use snakectl_sim::{RealClock, SimHandle};
+
+/// The shipped simulator config with `edits`, written to a file in `dir`.
+fn config_file(dir: &Path, edits: &[(&str, &str)]) -> (PathBuf, Config) {
+    let shipped = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+    let mut text = std::fs::read_to_string(shipped).unwrap();
+    for (old, new) in [("reply_timeout_ms = 20 ", "reply_timeout_ms = 100")]
+        .iter()
+        .chain(edits)
+    {
+        assert!(text.contains(old), "no `{old}` in config/sim.toml");
+        text = text.replace(old, new);
+    }
+    let path = dir.join("arm.toml");
+    std::fs::write(&path, &text).unwrap();
+    let config = Config::from_str(&text, &path).unwrap();
+    (path, config)
+}
+
+/// A `snakectl run` child; killed and reaped when dropped.
+struct DaemonChild {
+    child: Child,
+    stderr: mpsc::Receiver<String>,
+}
+
+impl DaemonChild {
+    fn spawn(config: &Path, port: &Path) -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+            .args(["run", "--listen", "127.0.0.1:0", "--config"])
+            .arg(config)
+            .arg("--port")
+            .arg(port)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let stderr = child.stderr.take().unwrap();
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        Self { child, stderr: rx }
+    }
+
+    /// The address from the "listening on ADDR" log line.
+    fn address(&self) -> SocketAddr {
+        let deadline = Instant::now() + DEADLINE;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let line = self
+                .stderr
+                .recv_timeout(left)
+                .expect("snakectl run logged where it listens");
+            if let Some(at) = line.find("listening on ") {
+                return line[at + "listening on ".len()..].trim().parse().unwrap();
+            }
+        }
+    }
+
+    /// Everything it logged until it exited.
+    fn wait(&mut self) -> (std::process::ExitStatus, String) {
+        let deadline = Instant::now() + DEADLINE;
+        let status = loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(Instant::now() < deadline, "snakectl run did not exit");
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        // The pipe closes with the process: every line logged is here.
+        let log: Vec<String> = self.stderr.iter().collect();
+        (status, log.join("\n"))
+    }
+
+    fn signal(&self, signal: &str) {
+        let ok = Command::new("kill")
+            .args([signal, &self.child.id().to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill {signal}");
+    }
+}
+
+impl Drop for DaemonChild {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn sim(config: &Config) -> SimHandle {
+    connect::spawn_sim(config, Arc::new(RealClock)).unwrap()
+}
+
+/// Starts a goto that takes about a second and waits until the arm moves.
+fn start_moving(client: &mut Client) {
+    let s = client.status();
+    let tip = [s["tip"][0].as_f64().unwrap(), s["tip"][1].as_f64().unwrap()];
+    client.ok(json!({"cmd": "goto", "target": [tip[0] + 0.1, tip[1]]}));
+    client.wait_status("moving", |s| s["state"] == "moving");
+}
+
+#[test]
+fn sigterm_brings_the_arm_to_rest_then_torque_off_and_exits_0() {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, config) = config_file(dir.path(), &[]);
+    let sim = sim(&config);
+    let mut daemon = DaemonChild::spawn(&path, sim.path());
+    let mut client = Client::connect(daemon.address());
+    start_moving(&mut client);
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+    for id in config.arm().unwrap().ids() {
+        let (torque, moving) = sim
+            .with_servo(id, |s| (s.torque_enabled(), s.moving()))
+            .unwrap();
+        assert!(!torque, "servo {id} left with torque on");
+        assert!(!moving, "servo {id} still moving");
+    }
+    // The connection was closed.
+    assert!(client.read_line(Duration::from_secs(5)).is_none());
+}
+
+#[test]
+fn after_kill_9_the_bus_watchdog_stops_the_servos() {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, config) = config_file(dir.path(), &[]);
+    let watchdog = Duration::from_millis(config.arm().unwrap().settings().watchdog_ms.into());
+    let period = Duration::from_secs_f64(1.0 / config.control().rate_hz);
+    let sim = sim(&config);
+    let mut daemon = DaemonChild::spawn(&path, sim.path());
+    let mut client = Client::connect(daemon.address());
+    start_moving(&mut client);
+    let ids = config.arm().unwrap().ids();
+    assert!(ids.iter().all(|&id| sim.with_servo(id, |s| s.watchdog()).unwrap() > 0));
+    let killed = Instant::now();
+    daemon.child.kill().unwrap();
+    daemon.child.wait().unwrap();
+    // Poll the simulated servos until every watchdog has fired.
+    let fired = loop {
+        let tripped = ids
+            .iter()
+            .all(|&id| sim.with_servo(id, |s| s.watchdog()).unwrap() < 0);
+        if tripped {
+            break killed.elapsed();
+        }
+        assert!(killed.elapsed() < DEADLINE, "the watchdogs never fired");
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    // The simulator fires each watchdog exactly `watchdog_ms` after the last packet; the
+    // margin is this test's own polling and scheduling.
+    assert!(
+        fired <= watchdog + period + Duration::from_millis(100),
+        "fired {fired:?} after the kill (watchdog {watchdog:?}, period {period:?})"
+    );
+    let positions = |sim: &SimHandle| -> Vec<i32> {
+        ids.iter()
+            .map(|&id| sim.with_servo(id, |s| s.present_position()).unwrap())
+            .collect()
+    };
+    let stopped = positions(&sim);
+    for &id in &ids {
+        assert!(!sim.with_servo(id, |s| s.moving()).unwrap(), "servo {id} moves");
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    assert_eq!(positions(&sim), stopped, "the servos still move");
+}
+
+#[test]
+fn a_missing_servo_refuses_to_start_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, _) = config_file(dir.path(), &[]);
+    // The chain on the bus lacks servo 12.
+    let shipped = std::fs::read_to_string(&path).unwrap();
+    let cut = shipped.rfind("[[joint]]").unwrap();
+    let end = shipped[cut..].find("\n\n").unwrap() + cut;
+    let short_text = format!("{}{}", &shipped[..cut], &shipped[end + 2..]).replace(
+        "home_rad = [0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1]",
+        "home_rad = [0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1]",
+    );
+    let short = Config::from_str(&short_text, &path).unwrap();
+    let sim = sim(&short);
+    let mut daemon = DaemonChild::spawn(&path, sim.path());
+    let (status, log) = daemon.wait();
+    assert_eq!(status.code(), Some(2), "log:\n{log}");
+    assert!(log.contains("12"), "the refusal does not name servo 12:\n{log}");
+}
+
+#[test]
+fn a_bad_config_value_is_refused_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, _) = config_file(dir.path(), &[("rate_hz = 100.0", "rate_hz = 5000.0")]);
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["run", "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("control.rate_hz") && err.contains("2000"), "{err}");
+}
