@@ -1,1 +1,903 @@
-//! Tip motion per tick (pure).
+//! Motion generation: the reference of one control tick from the active command (pure).
+//!
+//! The tip is a point mass `(p, v)`. Every tick its velocity moves toward a desired velocity by
+//! at most `max_tip_accel * dt` (never more), then `p += v dt`. A goto asks for the velocity
+//! pointing at the target with the speed [`approach_speed`] allows: the cruise speed, the
+//! discrete braking speed (from which decelerating by `a dt` per tick ends on the target), and
+//! no more than the remaining distance per tick. From rest every velocity is then parallel to
+//! the line to the target, so the tip follows the straight line; a goto that preempts a moving
+//! tip bends smoothly onto its target. Once within [`SNAP_M`] of the target with a velocity the
+//! accel limit can cancel in one tick, the reference snaps onto the target exactly, at rest.
+//!
+//! Joint-space moves (goto_joints, home) and jog use the same law per joint with the joint
+//! acceleration [`joint_accel`] (`max_joint_speed / JOINT_ACCEL_TIME_S`). A joint move scales
+//! each joint's speed and acceleration by its share of the largest joint distance, so from rest
+//! all joints move in proportion (a straight line in joint space) and arrive together. A jog
+//! brakes toward its joint's limit as toward a target and sits there; the reference never
+//! leaves the limits.
+//!
+//! After each tick the controller reports what the arm achieved ([`Achieved`]): when it fell
+//! short of the reference (out of reach, slowed for the joint-speed bound, clamped), the state
+//! follows the achieved pose and velocity, so the reference never runs ahead of the arm. A goto
+//! or path whose reference keeps being out of reach with no progress ends
+//! [`Finish::Saturated`] after [`STALL_TICKS`] such ticks.
+//!
+//! Nothing here allocates after [`Motion::new`] (a path's points are moved in, not copied), and
+//! nothing reads a clock: time enters as `dt`.
+
+use crate::chain::{JointLimit, Vec2};
+
+/// Joint acceleration time: a joint reaches its speed limit from rest in this long. The joint
+/// acceleration of joint moves and jog is `max_joint_speed_rad_s / JOINT_ACCEL_TIME_S`.
+pub const JOINT_ACCEL_TIME_S: f64 = 0.25;
+
+/// The joint acceleration, rad/s², used for joint moves and jog: `max_joint_speed /`
+/// [`JOINT_ACCEL_TIME_S`].
+pub fn joint_accel(max_joint_speed_rad_s: f64) -> f64 {
+    max_joint_speed_rad_s / JOINT_ACCEL_TIME_S
+}
+
+/// Distance, m, within which a tip reference that can stop in one tick snaps onto its target.
+pub const SNAP_M: f64 = 1e-9;
+
+/// Angle, rad, within which a joint reference that can stop in one tick snaps onto its target.
+pub const SNAP_RAD: f64 = 1e-9;
+
+/// Consecutive saturated ticks without progress (less than a quarter of the step asked for)
+/// after which a goto or path gives up with [`Finish::Saturated`].
+pub const STALL_TICKS: u32 = 3;
+
+/// Speed and acceleration limits of the motion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionLimits {
+    /// Fastest tip speed, m/s.
+    pub tip_speed: f64,
+    /// Fastest change of the tip velocity, m/s².
+    pub tip_accel: f64,
+    /// Fastest joint speed, rad/s.
+    pub joint_speed: f64,
+    /// Fastest change of a joint's speed, rad/s² (see [`joint_accel`]).
+    pub joint_accel: f64,
+    /// How long a velocity or jog command lasts after its last renewal, s.
+    pub deadman: f64,
+}
+
+/// How the active command ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Finish {
+    /// Goto, path, goto_joints or home: on the target, at rest.
+    Arrived,
+    /// Goto or path: the target is out of reach; the tip stopped short of it.
+    Saturated,
+    /// At rest after a stop (`deadman: false`) or after a velocity or jog lapsed (`true`).
+    Stopped {
+        /// The velocity or jog was not renewed within the deadman.
+        deadman: bool,
+    },
+}
+
+/// What the arm is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Activity {
+    /// A goto, path, velocity, jog or joint move is active.
+    Moving,
+    /// At rest, holding the last commanded pose.
+    Holding,
+    /// Decelerating to rest after a stop or a lapsed velocity or jog.
+    Stopping,
+}
+
+/// This tick's reference.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Reference {
+    /// Nothing moves: keep the last pose.
+    Hold,
+    /// A tip position, m.
+    Tip(Vec2),
+    /// A joint pose: [`Motion::joint_reference`].
+    Joints,
+}
+
+/// What the arm achieved in a tick, reported back with [`Motion::follow`].
+#[derive(Debug, Clone, Copy)]
+pub struct Achieved<'a> {
+    /// Tip of the new commanded pose, m (for a tip reference: the point the resolver reached).
+    pub tip: Vec2,
+    /// The new commanded pose, rad.
+    pub theta: &'a [f64],
+    /// The tick's length, s.
+    pub dt: f64,
+    /// The reference was met as given (not bisected, slowed or clamped).
+    pub exact: bool,
+    /// The reference (or part of the step) was out of reach.
+    pub saturated: bool,
+}
+
+/// The speed, >= 0, to ask for with `distance` left so that decelerating by `accel * dt` per
+/// tick ends exactly on the spot, capped by `max_speed`.
+///
+/// With `delta = accel * dt` and a speed `u = (m + f) delta` (integer `m >= 0`, `f` in [0, 1)),
+/// the ticks from this one on run at `u, u - delta, .., f delta` and then stop, covering
+/// `dt delta (m + 1) (m / 2 + f)`. Setting that equal to `distance` gives the largest such
+/// `u`: `m` the largest integer with `m (m + 1) / 2 <= x = distance / (accel dt^2)`, then
+/// `f = x / (m + 1) - m / 2`. The next tick (same `dt`) finds exactly `u - delta`, and the last
+/// one lands on the spot, so the braking profile is exact in discrete time, not just in the
+/// limit of small ticks.
+pub fn approach_speed(distance: f64, max_speed: f64, accel: f64, dt: f64) -> f64 {
+    if !(distance > 0.0 && max_speed > 0.0 && accel > 0.0 && dt > 0.0) {
+        return 0.0;
+    }
+    let delta = accel * dt;
+    let x = distance / (delta * dt);
+    if !x.is_finite() {
+        return max_speed;
+    }
+    let mut m = (0.5 * ((8.0 * x + 1.0).sqrt() - 1.0)).floor().max(0.0);
+    // Round-off of the square root: make sure m (m + 1) / 2 <= x < (m + 1) (m + 2) / 2.
+    if m * (m + 1.0) * 0.5 > x {
+        m -= 1.0;
+    } else if (m + 1.0) * (m + 2.0) * 0.5 <= x {
+        m += 1.0;
+    }
+    let f = (x / (m + 1.0) - 0.5 * m).clamp(0.0, 1.0);
+    ((m + f) * delta).min(max_speed)
+}
+
+/// A point of the plane with a velocity.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointMass {
+    /// Position, m.
+    pub p: Vec2,
+    /// Velocity, m/s.
+    pub v: Vec2,
+}
+
+impl PointMass {
+    /// At `p`, at rest.
+    pub fn at_rest(p: Vec2) -> Self {
+        Self {
+            p,
+            v: Vec2::zeros(),
+        }
+    }
+
+    /// Moves the velocity toward `v_des` by at most `accel * dt`, then the position by `v dt`.
+    pub fn drive(&mut self, v_des: Vec2, accel: f64, dt: f64) {
+        let dv = v_des - self.v;
+        let room = accel * dt;
+        let n = dv.norm();
+        self.v += if n > room { dv * (room / n) } else { dv };
+        self.p += self.v * dt;
+    }
+
+    /// One tick toward `target` at no more than `speed`. Returns true when the point is on the
+    /// target at rest (snapped onto it exactly).
+    pub fn approach(&mut self, target: Vec2, speed: f64, accel: f64, dt: f64) -> bool {
+        let e = target - self.p;
+        let d = e.norm();
+        if d <= SNAP_M && self.v.norm() <= accel * dt {
+            self.p = target;
+            self.v = Vec2::zeros();
+            return true;
+        }
+        let u = approach_speed(d, speed, accel, dt);
+        let v_des = if d > 0.0 { e * (u / d) } else { Vec2::zeros() };
+        self.drive(v_des, accel, dt);
+        false
+    }
+}
+
+/// One joint's reference: an angle with a rate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Axis {
+    q: f64,
+    v: f64,
+}
+
+impl Axis {
+    fn drive(&mut self, v_des: f64, accel: f64, dt: f64) {
+        let room = accel * dt;
+        self.v += (v_des - self.v).clamp(-room, room);
+        self.q += self.v * dt;
+    }
+
+    /// As [`PointMass::approach`], in one dimension.
+    fn approach(&mut self, target: f64, speed: f64, accel: f64, dt: f64) -> bool {
+        let e = target - self.q;
+        if e.abs() <= SNAP_RAD && self.v.abs() <= accel * dt {
+            self.q = target;
+            self.v = 0.0;
+            return true;
+        }
+        let u = approach_speed(e.abs(), speed, accel, dt);
+        self.drive(u.copysign(e), accel, dt);
+        false
+    }
+
+    /// Keeps the reference inside the limit, stopping it there.
+    fn confine(&mut self, limit: Option<JointLimit>) {
+        if let Some(l) = limit {
+            if !l.contains(self.q) {
+                self.q = l.clamp(self.q);
+                self.v = 0.0;
+            }
+        }
+    }
+}
+
+/// What a reference met exactly leads to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Pending {
+    /// A path corner, at rest: on to the next one.
+    Corner,
+    /// The command ends.
+    Finish(Finish),
+}
+
+/// Which space a stop decelerates in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Space {
+    Tip,
+    Joint,
+}
+
+/// The active command.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    Hold,
+    Goto {
+        target: Vec2,
+        speed: f64,
+    },
+    /// Toward `points[next]`, stopping at each corner.
+    Path {
+        next: usize,
+        speed: f64,
+    },
+    Velocity {
+        v: Vec2,
+    },
+    Jog {
+        joint: usize,
+        rate: f64,
+    },
+    Joints,
+    Stop {
+        space: Space,
+        deadman: bool,
+    },
+}
+
+/// The motion state machine: the active command and the tip and joint references.
+#[derive(Debug, Clone)]
+pub struct Motion {
+    limits: MotionLimits,
+    joint_limits: Vec<Option<JointLimit>>,
+    mode: Mode,
+    tip: PointMass,
+    axes: Vec<Axis>,
+    /// Goal of a joint move.
+    goal: Vec<f64>,
+    /// Each joint's share of a joint move (scales its speed and acceleration).
+    share: Vec<f64>,
+    /// The joint reference as angles (what [`Motion::joint_reference`] returns).
+    q: Vec<f64>,
+    path: Vec<Vec2>,
+    /// Time since the velocity or jog was last renewed, s.
+    since_renewal: f64,
+    /// Where this tick's reference leads, if the arm achieves it.
+    pending: Option<Pending>,
+    /// The joint reference before this tick's step (the last commanded pose).
+    prior: Vec<f64>,
+    /// Tip state before this tick's step (to measure progress).
+    before: PointMass,
+    stalled: u32,
+}
+
+impl Motion {
+    /// At rest at the pose `theta` whose tip is `tip`, holding. `joint_limits` has one entry per
+    /// joint (`None` = unlimited).
+    pub fn new(
+        limits: MotionLimits,
+        joint_limits: &[Option<JointLimit>],
+        tip: Vec2,
+        theta: &[f64],
+    ) -> Self {
+        let n = theta.len();
+        let mut m = Self {
+            limits,
+            joint_limits: joint_limits.to_vec(),
+            mode: Mode::Hold,
+            tip: PointMass::at_rest(tip),
+            axes: vec![Axis { q: 0.0, v: 0.0 }; n],
+            goal: vec![0.0; n],
+            share: vec![0.0; n],
+            q: vec![0.0; n],
+            path: Vec::new(),
+            since_renewal: 0.0,
+            pending: None,
+            prior: theta.to_vec(),
+            before: PointMass::at_rest(tip),
+            stalled: 0,
+        };
+        m.hold_at(tip, theta);
+        m
+    }
+
+    /// The limits in use.
+    pub fn limits(&self) -> &MotionLimits {
+        &self.limits
+    }
+
+    /// Drops the command and puts both references at rest on the pose `theta` (tip `tip`).
+    pub fn hold_at(&mut self, tip: Vec2, theta: &[f64]) {
+        self.mode = Mode::Hold;
+        self.tip = PointMass::at_rest(tip);
+        for (a, &t) in self.axes.iter_mut().zip(theta) {
+            *a = Axis { q: t, v: 0.0 };
+        }
+        self.pending = None;
+        self.stalled = 0;
+    }
+
+    fn start(&mut self, mode: Mode) {
+        self.mode = mode;
+        self.pending = None;
+        self.stalled = 0;
+    }
+
+    /// A straight line to `target` at `speed` (clamped to the tip speed limit).
+    pub fn goto(&mut self, target: Vec2, speed: f64) {
+        let speed = speed.min(self.limits.tip_speed);
+        self.start(Mode::Goto { target, speed });
+    }
+
+    /// Through `points` in turn (at least one), each corner at rest. The points are moved in.
+    pub fn path(&mut self, points: Vec<Vec2>, speed: f64) {
+        if points.is_empty() {
+            return;
+        }
+        self.path = points;
+        let speed = speed.min(self.limits.tip_speed);
+        self.start(Mode::Path { next: 0, speed });
+    }
+
+    /// A tip velocity (its magnitude clamped to the tip speed limit) for the deadman time.
+    pub fn velocity(&mut self, v: Vec2) {
+        let s = v.x.hypot(v.y);
+        let max = self.limits.tip_speed;
+        let v = if s > max { v * (max / s) } else { v };
+        self.since_renewal = 0.0;
+        self.start(Mode::Velocity { v });
+    }
+
+    /// Joint `joint` at `rate` (clamped to the joint speed limit) for the deadman time; the
+    /// other joints come to rest. Ignored for a joint that does not exist.
+    pub fn jog(&mut self, joint: usize, rate: f64) {
+        if joint >= self.axes.len() {
+            return;
+        }
+        let w = self.limits.joint_speed;
+        self.since_renewal = 0.0;
+        self.start(Mode::Jog {
+            joint,
+            rate: rate.clamp(-w, w),
+        });
+    }
+
+    /// A joint-space move to `theta` (one angle per joint, inside the limits; a wrong length is
+    /// ignored). From rest every joint moves in proportion and all arrive together.
+    pub fn joints(&mut self, theta: &[f64]) {
+        if theta.len() != self.axes.len() {
+            return;
+        }
+        self.goal.copy_from_slice(theta);
+        let w = self.limits.joint_speed;
+        let far = self
+            .axes
+            .iter()
+            .zip(theta)
+            .map(|(a, g)| (g - a.q).abs())
+            .fold(0.0, f64::max);
+        for ((s, a), g) in self.share.iter_mut().zip(&self.axes).zip(theta) {
+            let distance = if far > 0.0 {
+                (g - a.q).abs() / far
+            } else {
+                0.0
+            };
+            // A joint still moving keeps the authority to stop itself.
+            *s = distance.max(a.v.abs() / w).min(1.0);
+        }
+        self.start(Mode::Joints);
+    }
+
+    /// Decelerate to rest (in the space of the active command) and hold.
+    pub fn stop(&mut self) {
+        let space = self.space();
+        self.start(Mode::Stop {
+            space,
+            deadman: false,
+        });
+    }
+
+    fn space(&self) -> Space {
+        match self.mode {
+            Mode::Jog { .. } | Mode::Joints => Space::Joint,
+            Mode::Stop { space, .. } => space,
+            _ => Space::Tip,
+        }
+    }
+
+    /// What the arm is doing.
+    pub fn activity(&self) -> Activity {
+        match self.mode {
+            Mode::Hold => Activity::Holding,
+            Mode::Stop { .. } => Activity::Stopping,
+            _ => Activity::Moving,
+        }
+    }
+
+    /// The final target of a goto or path (a path's last point).
+    pub fn target(&self) -> Option<Vec2> {
+        match self.mode {
+            Mode::Goto { target, .. } => Some(target),
+            Mode::Path { .. } => self.path.last().copied(),
+            _ => None,
+        }
+    }
+
+    /// The tip reference state.
+    pub fn tip(&self) -> &PointMass {
+        &self.tip
+    }
+
+    /// The joint reference of this tick (meaningful after a [`Reference::Joints`] step).
+    pub fn joint_reference(&self) -> &[f64] {
+        &self.q
+    }
+
+    /// The target the tip is heading for now (a path's current corner).
+    fn tip_goal(&self) -> Option<Vec2> {
+        match self.mode {
+            Mode::Goto { target, .. } => Some(target),
+            Mode::Path { next, .. } => self.path.get(next).copied(),
+            _ => None,
+        }
+    }
+
+    /// Advances the references by `dt` (> 0) and says what to aim at this tick.
+    pub fn step(&mut self, dt: f64) -> Reference {
+        let lim = self.limits;
+        self.pending = None;
+        self.before = self.tip;
+        for (p, a) in self.prior.iter_mut().zip(&self.axes) {
+            *p = a.q;
+        }
+        if let Mode::Velocity { .. } | Mode::Jog { .. } = self.mode {
+            // The command covers `deadman` after its renewal: a tick reaching past that
+            // already decelerates.
+            if self.since_renewal + dt > lim.deadman {
+                self.mode = Mode::Stop {
+                    space: self.space(),
+                    deadman: true,
+                };
+            }
+            self.since_renewal += dt;
+        }
+        match self.mode {
+            Mode::Hold => Reference::Hold,
+            Mode::Goto { target, speed } => {
+                if self.tip.approach(target, speed, lim.tip_accel, dt) {
+                    self.pending = Some(Pending::Finish(Finish::Arrived));
+                }
+                Reference::Tip(self.tip.p)
+            }
+            Mode::Path { next, speed } => {
+                let corner = self.path.get(next).copied().unwrap_or(self.tip.p);
+                if self.tip.approach(corner, speed, lim.tip_accel, dt) {
+                    self.pending = Some(if next + 1 < self.path.len() {
+                        Pending::Corner
+                    } else {
+                        Pending::Finish(Finish::Arrived)
+                    });
+                }
+                Reference::Tip(self.tip.p)
+            }
+            Mode::Velocity { v } => {
+                self.tip.drive(v, lim.tip_accel, dt);
+                Reference::Tip(self.tip.p)
+            }
+            Mode::Stop {
+                space: Space::Tip,
+                deadman,
+            } => {
+                self.tip.drive(Vec2::zeros(), lim.tip_accel, dt);
+                if self.tip.v == Vec2::zeros() {
+                    self.pending = Some(Pending::Finish(Finish::Stopped { deadman }));
+                }
+                Reference::Tip(self.tip.p)
+            }
+            Mode::Stop {
+                space: Space::Joint,
+                deadman,
+            } => {
+                let mut rest = true;
+                for (a, l) in self.axes.iter_mut().zip(&self.joint_limits) {
+                    a.drive(0.0, lim.joint_accel, dt);
+                    a.confine(*l);
+                    rest &= a.v == 0.0;
+                }
+                if rest {
+                    self.pending = Some(Pending::Finish(Finish::Stopped { deadman }));
+                }
+                self.load_q()
+            }
+            Mode::Jog { joint, rate } => {
+                for (i, (a, l)) in self.axes.iter_mut().zip(&self.joint_limits).enumerate() {
+                    if i != joint {
+                        a.drive(0.0, lim.joint_accel, dt);
+                    } else {
+                        // Brake toward the limit ahead as toward a target, and sit on it.
+                        let end = match l {
+                            Some(l) if rate > 0.0 => Some(l.hi),
+                            Some(l) if rate < 0.0 => Some(l.lo),
+                            _ => None,
+                        };
+                        match end {
+                            Some(end) => {
+                                a.approach(end, rate.abs(), lim.joint_accel, dt);
+                            }
+                            None => a.drive(rate, lim.joint_accel, dt),
+                        }
+                    }
+                    a.confine(*l);
+                }
+                self.load_q()
+            }
+            Mode::Joints => {
+                let mut all = true;
+                for ((a, l), (g, s)) in self
+                    .axes
+                    .iter_mut()
+                    .zip(&self.joint_limits)
+                    .zip(self.goal.iter().zip(&self.share))
+                {
+                    all &= a.approach(*g, lim.joint_speed * s, lim.joint_accel * s, dt);
+                    a.confine(*l);
+                }
+                if all {
+                    self.pending = Some(Pending::Finish(Finish::Arrived));
+                }
+                self.load_q()
+            }
+        }
+    }
+
+    fn load_q(&mut self) -> Reference {
+        for (q, a) in self.q.iter_mut().zip(&self.axes) {
+            *q = a.q;
+        }
+        Reference::Joints
+    }
+
+    /// Takes in what the arm achieved this tick (after [`Motion::step`]); returns how the
+    /// active command ended, if it did (the motion then holds).
+    ///
+    /// An exact tick keeps the reference as stepped and confirms a pending finish; otherwise
+    /// the reference of the active space jumps to what was achieved, with the velocity that
+    /// took it there. The other space's reference always follows the arm.
+    pub fn follow(&mut self, got: Achieved) -> Option<Finish> {
+        let dt = got.dt;
+        let asked = (self.tip.p - self.before.p).norm();
+        let joint_space = matches!(
+            self.mode,
+            Mode::Jog { .. }
+                | Mode::Joints
+                | Mode::Stop {
+                    space: Space::Joint,
+                    ..
+                }
+        );
+        let holding = self.mode == Mode::Hold;
+        // The tip: unless it is the exactly met reference, it is where the arm put it.
+        if holding || joint_space || !got.exact {
+            self.tip.v = if holding {
+                Vec2::zeros()
+            } else {
+                (got.tip - self.before.p) / dt
+            };
+            self.tip.p = got.tip;
+            let s = self.tip.v.norm();
+            if s > self.limits.tip_speed {
+                self.tip.v *= self.limits.tip_speed / s;
+            }
+        }
+        // The joints: likewise.
+        if holding || !joint_space || !got.exact {
+            for ((a, &t), &t0) in self.axes.iter_mut().zip(got.theta).zip(&self.prior) {
+                a.v = if holding { 0.0 } else { (t - t0) / dt };
+                a.q = t;
+            }
+        }
+        // A goto or path whose reference is out of reach and that cannot get closer gives up.
+        match (got.saturated, self.tip_goal()) {
+            (true, Some(goal)) => {
+                let progress = (goal - self.before.p).norm() - (goal - got.tip).norm();
+                if progress <= 0.25 * asked {
+                    self.stalled += 1;
+                } else {
+                    self.stalled = 0;
+                }
+                if self.stalled >= STALL_TICKS {
+                    self.hold_at(got.tip, got.theta);
+                    return Some(Finish::Saturated);
+                }
+            }
+            _ => self.stalled = 0,
+        }
+        let pending = self.pending.take();
+        if !got.exact {
+            return None;
+        }
+        match pending? {
+            Pending::Corner => {
+                if let Mode::Path { next, speed } = self.mode {
+                    self.mode = Mode::Path {
+                        next: next + 1,
+                        speed,
+                    };
+                }
+                None
+            }
+            Pending::Finish(f) => {
+                self.hold_at(got.tip, got.theta);
+                Some(f)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn limits() -> MotionLimits {
+        MotionLimits {
+            tip_speed: 0.1,
+            tip_accel: 0.5,
+            joint_speed: 2.0,
+            joint_accel: joint_accel(2.0),
+            deadman: 0.5,
+        }
+    }
+
+    /// Runs `motion` with every reference met exactly; returns the finish and the ticks taken.
+    fn run_exact(
+        m: &mut Motion,
+        theta: &mut [f64],
+        dt: f64,
+        max: usize,
+    ) -> (Option<Finish>, usize) {
+        for k in 1..=max {
+            if m.step(dt) == Reference::Joints {
+                theta.copy_from_slice(m.joint_reference());
+            }
+            let tip = m.tip().p;
+            let got = Achieved {
+                tip,
+                theta,
+                dt,
+                exact: true,
+                saturated: false,
+            };
+            if let Some(f) = m.follow(got) {
+                return (Some(f), k);
+            }
+        }
+        (None, max)
+    }
+
+    #[test]
+    fn the_discrete_braking_profile_is_exact() {
+        // From u = (m + f) a dt, the next tick at the same dt asks exactly a dt less.
+        let (a, dt) = (0.7, 0.004);
+        let mut d = 0.013;
+        let mut u = approach_speed(d, 1e9, a, dt);
+        let mut ticks = 0;
+        while d > 0.0 {
+            d -= u * dt;
+            let next = approach_speed(d, 1e9, a, dt);
+            assert!(
+                next <= u && u - next <= a * dt * (1.0 + 1e-9),
+                "{u} -> {next}"
+            );
+            u = next;
+            ticks += 1;
+            assert!(ticks < 1000);
+        }
+        assert!(d.abs() < 1e-15, "ends {d} off the spot");
+        assert_eq!(approach_speed(0.0, 1.0, 1.0, 0.01), 0.0);
+        assert_eq!(approach_speed(1.0, 0.2, 1.0, 0.01), 0.2);
+    }
+
+    proptest! {
+        /// From rest the point stays on the straight line, never passes the target, never
+        /// exceeds the speed, changes its velocity by at most `a dt` a tick, and comes to rest
+        /// on the target exactly, about when the trapezoid profile says.
+        #[test]
+        fn a_goto_from_rest_is_a_straight_trapezoid(
+            dx in -1.0f64..1.0, dy in -1.0f64..1.0, speed in 0.01f64..1.0,
+            accel in 0.05f64..10.0, dt in 0.0005f64..0.02,
+        ) {
+            let target = Vec2::new(dx, dy);
+            let d = target.norm();
+            let mut pm = PointMass::at_rest(Vec2::zeros());
+            let mut t = 0.0;
+            loop {
+                let v0 = pm.v;
+                let arrived = pm.approach(target, speed, accel, dt);
+                t += dt;
+                prop_assert!((pm.v - v0).norm() <= accel * dt * (1.0 + 1e-12));
+                prop_assert!(pm.v.norm() <= speed * (1.0 + 1e-12));
+                let along = pm.p.dot(&target) / d.max(1e-300);
+                prop_assert!(along <= d * (1.0 + 1e-12) + 1e-15, "passed the target");
+                let off = (pm.p - target * (along / d.max(1e-300))).norm();
+                prop_assert!(off <= 1e-12, "{off} off the line");
+                if arrived {
+                    break;
+                }
+                prop_assert!(t < 1000.0);
+            }
+            prop_assert_eq!(pm.p, target);
+            let trapezoid = if d >= speed * speed / accel {
+                d / speed + speed / accel
+            } else {
+                2.0 * (d / accel).sqrt()
+            };
+            prop_assert!(t >= trapezoid - 2.0 * dt && t <= trapezoid + 3.0 * dt,
+                "{t} s against {trapezoid} s");
+        }
+
+        /// A goto that preempts a moving point still arrives, without exceeding the
+        /// acceleration, even with the tick length changing every tick.
+        #[test]
+        fn a_preempting_goto_still_arrives(
+            vx in -1.0f64..1.0, vy in -1.0f64..1.0, dx in -0.5f64..0.5, dy in -0.5f64..0.5,
+            accel in 0.1f64..5.0, seed in 0u64..1000,
+        ) {
+            let speed = 1.0;
+            let mut pm = PointMass { p: Vec2::zeros(), v: Vec2::new(vx, vy) * 0.7 };
+            let target = Vec2::new(dx, dy);
+            let mut state = seed;
+            let mut t = 0.0;
+            let bound = 4.0 * speed / accel + 4.0 * (1.0 + target.norm()) / speed + 1.0;
+            loop {
+                state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+                let dt = 0.0005 + 0.0195 * ((state >> 11) as f64 / (1u64 << 53) as f64);
+                let v0 = pm.v;
+                let arrived = pm.approach(target, speed, accel, dt);
+                prop_assert!((pm.v - v0).norm() <= accel * dt * (1.0 + 1e-12));
+                t += dt;
+                if arrived {
+                    break;
+                }
+                prop_assert!(t < bound, "not there after {t} s");
+            }
+            prop_assert_eq!(pm.p, target);
+        }
+    }
+
+    #[test]
+    fn a_jog_sits_on_the_limit_and_lapses() {
+        let lim = Some(JointLimit { lo: -1.0, hi: 0.5 });
+        let mut m = Motion::new(limits(), &[lim, lim], Vec2::zeros(), &[0.0, 0.2]);
+        let mut theta = [0.0, 0.2];
+        let mut since = 0.0;
+        let dt = 0.003;
+        let mut at_limit = 0;
+        while since < 3.0 {
+            if (since * 10.0f64).fract() < 0.03 {
+                m.jog(1, 50.0);
+            }
+            let _ = m.step(dt);
+            theta.copy_from_slice(m.joint_reference());
+            assert!(theta[1] <= 0.5 && theta[0] == 0.0);
+            let got = Achieved {
+                tip: Vec2::zeros(),
+                theta: &theta,
+                dt,
+                exact: true,
+                saturated: false,
+            };
+            assert_eq!(m.follow(got), None);
+            if theta[1] == 0.5 {
+                at_limit += 1;
+            }
+            since += dt;
+        }
+        assert!(at_limit > 100, "{at_limit} ticks on the limit");
+        let (f, k) = run_exact(&mut m, &mut theta, dt, 1000);
+        assert_eq!(f, Some(Finish::Stopped { deadman: true }));
+        assert!(
+            k as f64 * dt <= 0.5 + dt,
+            "lapsed after {} s",
+            k as f64 * dt
+        );
+        assert_eq!(theta[1], 0.5);
+    }
+
+    #[test]
+    fn joint_moves_arrive_together_on_the_pose() {
+        let mut m = Motion::new(limits(), &[None; 3], Vec2::zeros(), &[0.0, 0.0, 0.0]);
+        let mut theta = [0.0; 3];
+        let goal = [1.0, -0.5, 0.0];
+        m.joints(&goal);
+        let dt = 0.01;
+        let (f, k) = run_exact(&mut m, &mut theta, dt, 10_000);
+        assert_eq!(f, Some(Finish::Arrived));
+        assert_eq!(theta, goal);
+        // Joint 0 leads: 1 rad at 2 rad/s with 8 rad/s² is a triangle-free trapezoid of 0.75 s.
+        let t = k as f64 * dt;
+        assert!((t - 0.75).abs() <= 3.0 * dt, "{t} s");
+        assert_eq!(m.activity(), Activity::Holding);
+    }
+
+    #[test]
+    fn a_path_hands_over_at_each_corner() {
+        let mut m = Motion::new(limits(), &[None], Vec2::zeros(), &[0.0]);
+        let corners = vec![Vec2::new(0.01, 0.0), Vec2::new(0.01, 0.01), Vec2::zeros()];
+        m.path(corners.clone(), 1.0);
+        assert_eq!(m.target(), Some(Vec2::zeros()));
+        let mut theta = [0.0];
+        let mut visited = Vec::new();
+        for _ in 0..10_000 {
+            let _ = m.step(0.002);
+            let p = m.tip().p;
+            let got = Achieved {
+                tip: p,
+                theta: &theta,
+                dt: 0.002,
+                exact: true,
+                saturated: false,
+            };
+            let f = m.follow(got);
+            if m.tip().v == Vec2::zeros() && corners.contains(&p) && visited.last() != Some(&p) {
+                visited.push(p);
+            }
+            if f.is_some() {
+                assert_eq!(f, Some(Finish::Arrived));
+                break;
+            }
+            theta[0] = 0.0;
+        }
+        assert_eq!(visited, corners);
+    }
+
+    #[test]
+    fn a_reference_out_of_reach_gives_up_after_the_stall_ticks() {
+        let mut m = Motion::new(limits(), &[None], Vec2::zeros(), &[0.0]);
+        m.goto(Vec2::new(1.0, 0.0), 0.1);
+        let theta = [0.0];
+        for k in 1..=STALL_TICKS {
+            let _ = m.step(0.01);
+            let got = Achieved {
+                tip: Vec2::zeros(),
+                theta: &theta,
+                dt: 0.01,
+                exact: false,
+                saturated: true,
+            };
+            let f = m.follow(got);
+            assert_eq!(f.is_some(), k == STALL_TICKS, "tick {k}");
+            if let Some(f) = f {
+                assert_eq!(f, Finish::Saturated);
+            }
+            // The reference follows the arm: it stays where the arm is, at rest.
+            assert_eq!(m.tip().p, Vec2::zeros());
+            assert_eq!(m.tip().v, Vec2::zeros());
+        }
+        assert_eq!(m.activity(), Activity::Holding);
+    }
+}

@@ -1,0 +1,170 @@
+//! The control loop ticks at up to 2 kHz: once warm, `Controller::tick` allocates nothing, in
+//! every kind of motion (goto, path, velocity, jog, joint moves, stop) and on its harder paths
+//! (bisection of an unreachable step, saturation, the joint-speed slow-down, strategy
+//! switches). A counting global allocator checks it, per thread.
+// The one place this test allows unsafe code: a global allocator must implement an unsafe trait.
+// It only counts calls and delegates every one to the system allocator.
+#![allow(clippy::unwrap_used, unsafe_code)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::f64::consts::FRAC_PI_2;
+
+use snakectl::chain::{Chain, JointLimit, Vec2};
+use snakectl::control::{Command, Controller, Limits, Tick};
+use snakectl::resolve::Strategy;
+
+struct Counting;
+
+thread_local! {
+    /// Allocations made by this thread (const-initialised: reading it never allocates).
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count() {
+    // During thread teardown the slot may be gone: such allocations are not a tick's.
+    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+}
+
+// SAFETY: every call is forwarded unchanged to `System`, which upholds the `GlobalAlloc`
+// contract; the counter has no effect on memory.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count();
+        // SAFETY: the caller's layout is passed on as received.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` was allocated by `System` with `layout` (every allocation goes there).
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count();
+        // SAFETY: as for `dealloc`; the new size is the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations() -> usize {
+    ALLOCATIONS.with(Cell::get)
+}
+
+/// Runs `ticks` ticks of `dt`, counting the allocations they make; returns them and the
+/// ticks' flags or-ed together (saturated, slowed, clamped).
+fn run(c: &mut Controller, ticks: usize, dt: f64) -> (usize, [bool; 3]) {
+    let mut flags = [false; 3];
+    let mut allocated = 0;
+    for _ in 0..ticks {
+        let before = allocations();
+        let t: Tick = c.tick(dt);
+        allocated += allocations() - before;
+        flags[0] |= t.saturated;
+        flags[1] |= t.slowed;
+        flags[2] |= t.clamped;
+    }
+    (allocated, flags)
+}
+
+#[test]
+fn warm_ticks_allocate_nothing_in_any_motion() {
+    let n = 12;
+    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
+    let chain = Chain::new(vec![0.08; n], Vec2::zeros(), FRAC_PI_2, vec![lim; n]).unwrap();
+    let limits = Limits {
+        max_tip_speed_m_s: 0.1,
+        max_tip_accel_m_s2: 0.5,
+        max_joint_speed_rad_s: 0.6,
+        deadman_s: 0.3,
+    };
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        let home = vec![0.1; n];
+        let mut c = Controller::new(chain.clone(), limits, strategy, home.clone(), &home).unwrap();
+        let start = c.tip();
+        let mut seen = [false; 3];
+        let mut total = 0;
+        // The controller sizes every buffer when it is built: not even the first round
+        // allocates. Twice, so that the second starts from wherever the first left.
+        for _ in 0..2 {
+            let mut allocated = 0;
+            let mut step = |c: &mut Controller, cmd: Option<Command>, ticks: usize| {
+                if let Some(cmd) = cmd {
+                    c.command(cmd).unwrap();
+                }
+                let (a, f) = run(c, ticks, 0.01);
+                allocated += a;
+                for (s, f) in seen.iter_mut().zip(f) {
+                    *s |= f;
+                }
+            };
+            let goto = |p: Vec2| Command::Goto {
+                target: p,
+                speed: None,
+            };
+            step(&mut c, Some(goto(start + Vec2::new(0.03, -0.02))), 120);
+            let points = vec![start, start + Vec2::new(-0.02, 0.0), start];
+            step(
+                &mut c,
+                Some(Command::Path {
+                    points,
+                    speed: Some(0.05),
+                }),
+                300,
+            );
+            step(
+                &mut c,
+                Some(Command::Velocity {
+                    v: Vec2::new(0.0, -0.05),
+                }),
+                80,
+            );
+            c.set_strategy(match strategy {
+                Strategy::Overall => Strategy::Sequential,
+                Strategy::Sequential => Strategy::Overall,
+            });
+            step(
+                &mut c,
+                Some(Command::Velocity {
+                    v: Vec2::new(0.05, 0.0),
+                }),
+                80,
+            );
+            c.set_strategy(strategy);
+            step(
+                &mut c,
+                Some(Command::Jog {
+                    joint: 11,
+                    rad_s: 20.0,
+                }),
+                100,
+            );
+            step(&mut c, Some(Command::Stop), 40);
+            let pose: Vec<f64> = (0..n).map(|i| 0.3 - 0.05 * i as f64).collect();
+            step(&mut c, Some(Command::GotoJoints { theta: pose }), 150);
+            step(&mut c, Some(Command::Home), 150);
+            // Out of reach: bisection, saturation, the finish.
+            step(&mut c, Some(goto(Vec2::new(0.0, 2.0))), 600);
+            // A fast move with a slow joint limit: the slow-down and the clamp.
+            step(
+                &mut c,
+                Some(Command::Velocity {
+                    v: Vec2::new(-0.1, -0.1),
+                }),
+                50,
+            );
+            c.freeze();
+            step(&mut c, None, 5);
+            c.reseed(&home).unwrap();
+            step(&mut c, None, 5);
+            total += allocated;
+        }
+        assert_eq!(total, 0, "{strategy:?}: allocations in warm ticks");
+        assert!(seen[0], "{strategy:?}: the run never saturated");
+        assert!(
+            seen[1],
+            "{strategy:?}: the run was never slowed for the joints"
+        );
+    }
+}
