@@ -784,6 +784,12 @@ impl Cycle {
                 _ => {}
             }
         }
+        // A servo may rest a tick past a limit; its goal is the nearest pose inside them.
+        for (t, l) in self.theta_meas.iter_mut().zip(self.controller.chain().limits()) {
+            if let Some(l) = l {
+                *t = l.clamp(*t);
+            }
+        }
         if let Err(r) = self.controller.reseed(&self.theta_meas) {
             return Self::refuse(Code::Unreachable, r.to_string());
         }
@@ -820,13 +826,7 @@ fn tick_fields(tick: u64) -> Map<String, Value> {
 }
 
 fn status_fields(t: &Telemetry) -> Answer {
-    match serde_json::to_value(t) {
-        Ok(Value::Object(m)) => Ok(m),
-        _ => Err(Rejection {
-            code: Code::Busy,
-            message: "telemetry could not be encoded".into(),
-        }),
-    }
+    Ok(t.to_fields())
 }
 
 /// The `describe` reply: what a remote UI needs to draw the arm.

@@ -7,6 +7,12 @@
 //! command queue in, telemetry out latest-wins, events out through a bounded broadcast. When
 //! the shutdown future resolves the server closes, the loop brings the arm to rest and leaves
 //! the servos as `[bus] on_exit` says, and `run` returns.
+//!
+//! - [`control_loop`]: the loop's thread: start-up, the fixed-rate cycle, the shut-down guard.
+//! - [`link`]: the seam between the loop's thread and the socket side (bounded command queue,
+//!   latest-wins telemetry, broadcast events).
+//! - [`server`]: the JSON-lines TCP server on the socket side.
+//! - [`stats`]: fixed-size histograms for the run summary.
 
 pub mod control_loop;
 pub mod link;
@@ -139,10 +145,7 @@ pub async fn run(
                 r = &mut done_rx => ended_early = Some(r.unwrap_or(Err(DaemonError::LoopPanicked))),
             }
         };
-        let options = server::ServerOptions {
-            joints,
-            max_clients,
-        };
+        let options = server::ServerOptions::new(joints, max_clients);
         server::serve(listener, handle, options, shutdown).await
     };
     stop.store(true, Ordering::Relaxed);

@@ -8,12 +8,20 @@
 //!
 //! This module owns the types shared by the daemon, the one-shot clients and the teleop UI:
 //! the requests ([`Cmd`]), the error codes ([`Code`]), the telemetry snapshot ([`Telemetry`]),
-//! the arm's description ([`Describe`]) and the events ([`Event`]).
+//! the arm's description ([`Describe`]) and the events ([`Event`]); [`parse`] reads a request
+//! line and the `*_line` functions write the lines a client receives.
 
+mod parse;
+mod write;
+
+use std::fmt;
 use std::sync::Arc;
 
 use serde::Serialize;
 use serde_json::Value;
+
+pub use parse::{parse, Request, COMMANDS, MAX_PATH_POINTS};
+pub use write::{error_line, event_line, ok_line, request_line, telemetry_line};
 
 /// The version of this wire format, reported by `describe`.
 pub const PROTOCOL_VERSION: u32 = 1;
@@ -138,6 +146,8 @@ pub enum Code {
     Busy,
     /// The daemon is stopping.
     ShuttingDown,
+    /// The daemon already serves as many clients as it may; the connection is closed.
+    TooManyClients,
 }
 
 impl Code {
@@ -152,17 +162,35 @@ impl Code {
             Code::Unreachable => "unreachable",
             Code::Busy => "busy",
             Code::ShuttingDown => "shutting_down",
+            Code::TooManyClients => "too_many_clients",
         }
     }
 }
 
+impl fmt::Display for Code {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// A refused request: the reply's `error`.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, thiserror::Error)]
+#[error("{code}: {message}")]
 pub struct Rejection {
     /// The code.
     pub code: Code,
     /// What was wrong, naming the field and the value.
     pub message: String,
+}
+
+impl Rejection {
+    /// A rejection with this code and message.
+    pub fn new(code: Code, message: impl Into<String>) -> Self {
+        Rejection {
+            code,
+            message: message.into(),
+        }
+    }
 }
 
 /// The arm's state as telemetry reports it.
@@ -273,6 +301,13 @@ pub struct Telemetry {
     pub counters: Counters,
 }
 
+impl Telemetry {
+    /// Every field under its wire name: the fields of a `status` reply.
+    pub fn to_fields(&self) -> serde_json::Map<String, Value> {
+        write::fields_of(self)
+    }
+}
+
 /// What a remote UI needs to draw the arm: the reply to `describe`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Describe {
@@ -296,6 +331,13 @@ pub struct Describe {
     pub strategies: Vec<&'static str>,
     /// [`PROTOCOL_VERSION`].
     pub protocol_version: u32,
+}
+
+impl Describe {
+    /// Every field under its wire name: the fields of a `describe` reply.
+    pub fn to_fields(&self) -> serde_json::Map<String, Value> {
+        write::fields_of(self)
+    }
 }
 
 /// What an event line announces.

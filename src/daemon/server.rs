@@ -1,0 +1,670 @@
+//! The JSON-lines TCP server: the socket side of the daemon.
+//!
+//! [`serve`] accepts clients until its shutdown future resolves, then stops them, lets each flush
+//! what it has queued for a moment, and returns. Each client gets one task that reads its request
+//! lines in order and, beside it, a writer that drains the client's outgoing queue and sends its
+//! telemetry:
+//!
+//! - `describe`, `subscribe` and `unsubscribe` are answered here; every other command goes to the
+//!   loop through [`Handle::commands`] without waiting for room (full: `busy`), and its reply is
+//!   written when the loop answers, so a client's replies keep the order of its requests.
+//! - Events from [`Handle::events`] meant for this client, or for everyone, are queued as event
+//!   lines between replies.
+//! - Telemetry is not queued: the writer reads the latest snapshot from [`Handle::telemetry`] at
+//!   the subscribed rate and skips it when nothing changed, so a slow reader sees fewer samples,
+//!   never a backlog.
+//!
+//! Nothing here ever waits on the loop's room, and only a client's own task waits on it: a client
+//! whose outgoing queue stays full is disconnected; the loop and the other clients go on.
+
+use std::future::Future;
+use std::io;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use serde_json::{Map, Value};
+use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWriteExt, BufReader, BufWriter};
+use tokio::net::tcp::OwnedWriteHalf;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::broadcast::error::RecvError;
+use tokio::sync::mpsc::error::{SendTimeoutError, TrySendError};
+use tokio::sync::{broadcast, mpsc, oneshot, watch, OwnedSemaphorePermit, Semaphore};
+use tokio::task::JoinSet;
+use tokio::time::{self, Interval, MissedTickBehavior};
+use tracing::{debug, error, warn};
+
+use super::link::{Envelope, Handle, COMMAND_QUEUE};
+use crate::protocol::{
+    self, ClientId, Cmd, Code, Event, Rejection, RequestId, Telemetry, MAX_LINE,
+};
+
+/// Lines one client's outgoing queue holds (replies and events; telemetry is not queued). A client
+/// that leaves it full for [`STALL_GRACE`], by not reading, is disconnected.
+pub const CLIENT_QUEUE: usize = 256;
+
+/// How long a client's full outgoing queue may wait for room before the client is disconnected:
+/// long enough for a burst (the event broadcast alone holds as many lines as the queue) to drain
+/// into a connection that is read, short enough not to hold a stuck one for long.
+pub const STALL_GRACE: Duration = Duration::from_secs(1);
+
+/// How long a closing connection may take to send what it has queued.
+pub const FLUSH_GRACE: Duration = Duration::from_millis(500);
+
+/// Consecutive failed accepts (with a growing pause between them, up to a second) before
+/// [`serve`] gives up and returns the error.
+const MAX_ACCEPT_FAILURES: u32 = 20;
+
+/// How the server is set up.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServerOptions {
+    /// The arm's joint count, against which requests are checked.
+    pub joints: usize,
+    /// Clients served at once; one more is answered `too_many_clients` and closed.
+    pub max_clients: usize,
+    /// Lines each client's outgoing queue holds ([`CLIENT_QUEUE`]).
+    pub client_queue: usize,
+    /// How long a full outgoing queue may wait for room ([`STALL_GRACE`]).
+    pub stall_grace: Duration,
+    /// How long a closing connection may take to flush ([`FLUSH_GRACE`]).
+    pub flush_grace: Duration,
+}
+
+impl ServerOptions {
+    /// The options for an arm of `joints` joints and at most `max_clients` clients, the rest at
+    /// their defaults.
+    pub fn new(joints: usize, max_clients: usize) -> Self {
+        ServerOptions {
+            joints,
+            max_clients,
+            client_queue: CLIENT_QUEUE,
+            stall_grace: STALL_GRACE,
+            flush_grace: FLUSH_GRACE,
+        }
+    }
+}
+
+/// Serves JSON-lines clients on `listener` until `shutdown` resolves, on the tokio runtime that
+/// polls it.
+///
+/// # Behavior
+/// Clients are numbered from 1 in accept order. At most `options.max_clients` are served at once
+/// (a semaphore); one more receives a `too_many_clients` error line and is closed. When `shutdown`
+/// resolves the server stops accepting, tells every client task to stop, gives each
+/// [`ServerOptions::flush_grace`] to send what it has queued, closes what is still open after
+/// twice that, and returns.
+///
+/// # Returns
+/// `Ok(())` after a shutdown; the error of `accept` after 20 failures in a row
+/// (each logged; a pause that doubles from 10 ms to 1 s between them).
+pub async fn serve(
+    listener: TcpListener,
+    handle: Handle,
+    options: ServerOptions,
+    shutdown: impl Future<Output = ()>,
+) -> io::Result<()> {
+    let shared = Arc::new(Shared {
+        describe: handle.describe.to_fields(),
+        loop_rate_hz: handle.describe.rate_hz,
+        handle,
+        joints: options.joints,
+        max_clients: options.max_clients,
+        client_queue: options.client_queue.max(1),
+        stall_grace: options.stall_grace,
+        flush_grace: options.flush_grace,
+    });
+    // Accepted connections hold a permit; none left means `too_many_clients`.
+    let limit = Arc::new(Semaphore::new(
+        options.max_clients.min(Semaphore::MAX_PERMITS),
+    ));
+    // Dropped at shutdown: every client task's receiver then resolves and the task stops.
+    let (stop_tx, stop_rx) = watch::channel(());
+    let mut tasks = JoinSet::new();
+    let mut next_id: ClientId = 1;
+    let mut failures = 0u32;
+    let mut pause = Duration::from_millis(10);
+    tokio::pin!(shutdown);
+
+    let result = loop {
+        tokio::select! {
+            () = &mut shutdown => break Ok(()),
+            Some(done) = tasks.join_next(), if !tasks.is_empty() => report_panic(done),
+            accepted = listener.accept() => match accepted {
+                Ok((stream, peer)) => {
+                    failures = 0;
+                    pause = Duration::from_millis(10);
+                    match Arc::clone(&limit).try_acquire_owned() {
+                        Ok(permit) => {
+                            let id = next_id;
+                            next_id += 1;
+                            debug!(client = id, %peer, "client connected");
+                            let client = client(id, stream, Arc::clone(&shared), stop_rx.clone());
+                            tasks.spawn(async move {
+                                client.await;
+                                drop::<OwnedSemaphorePermit>(permit);
+                            });
+                        }
+                        Err(_) => {
+                            debug!(%peer, max = shared.max_clients, "client refused: too many");
+                            tasks.spawn(refuse(stream, shared.max_clients, shared.flush_grace));
+                        }
+                    }
+                }
+                Err(e) => {
+                    failures += 1;
+                    if failures >= MAX_ACCEPT_FAILURES {
+                        error!(error = %e, failures, "accept keeps failing; the server stops");
+                        break Err(e);
+                    }
+                    warn!(error = %e, pause_ms = pause.as_millis(), "accept failed");
+                    time::sleep(pause).await;
+                    pause = (pause * 2).min(Duration::from_secs(1));
+                }
+            },
+        }
+    };
+
+    drop(listener);
+    drop(stop_tx);
+    let drained = time::timeout(2 * shared.flush_grace, async {
+        while let Some(done) = tasks.join_next().await {
+            report_panic(done);
+        }
+    })
+    .await;
+    if drained.is_err() {
+        warn!(
+            open = tasks.len(),
+            "connections still open at shutdown; closing them"
+        );
+        tasks.shutdown().await;
+    }
+    debug!("server stopped");
+    result
+}
+
+fn report_panic(done: Result<(), tokio::task::JoinError>) {
+    if let Err(e) = done {
+        if e.is_panic() {
+            error!(error = %e, "a client task panicked");
+        }
+    }
+}
+
+/// What every client task reads.
+struct Shared {
+    handle: Handle,
+    /// The `describe` reply's fields, built once.
+    describe: Map<String, Value>,
+    loop_rate_hz: f64,
+    joints: usize,
+    max_clients: usize,
+    client_queue: usize,
+    stall_grace: Duration,
+    flush_grace: Duration,
+}
+
+impl Shared {
+    /// A subscription's rate: the one asked for, at most the loop's.
+    fn telemetry_rate(&self, asked_hz: f64) -> f64 {
+        if self.loop_rate_hz.is_finite() && self.loop_rate_hz > 0.0 {
+            asked_hz.min(self.loop_rate_hz)
+        } else {
+            asked_hz
+        }
+    }
+}
+
+/// Answers a connection over the limit and closes it. The client's own bytes are read (and
+/// dropped) for a moment so that closing does not reset the connection before it read the line.
+async fn refuse(mut stream: TcpStream, max_clients: usize, grace: Duration) {
+    let why = Rejection::new(
+        Code::TooManyClients,
+        format!("the daemon serves at most {max_clients} clients at once"),
+    );
+    let line = protocol::error_line(None, &why);
+    let _ = time::timeout(grace, async {
+        stream.write_all(line.as_bytes()).await?;
+        stream.shutdown().await?;
+        let mut sink = [0u8; 1024];
+        while stream.read(&mut sink).await? > 0 {}
+        io::Result::Ok(())
+    })
+    .await;
+}
+
+/// One client from connect to close.
+async fn client(
+    id: ClientId,
+    stream: TcpStream,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<()>,
+) {
+    if let Err(e) = stream.set_nodelay(true) {
+        debug!(client = id, error = %e, "TCP_NODELAY not set");
+    }
+    let (read, write) = stream.into_split();
+    // Bounded: full for `stall_grace` means the client does not read, and it is disconnected.
+    let (out_tx, out_rx) = mpsc::channel(shared.client_queue);
+    let (rate_tx, rate_rx) = watch::channel(None);
+    let writer = write_loop(
+        BufWriter::new(write),
+        out_rx,
+        shared.handle.telemetry.clone(),
+        rate_rx,
+    );
+    tokio::pin!(writer);
+    let mut session = Session {
+        id,
+        shared: &shared,
+        out: out_tx,
+        rate: rate_tx,
+    };
+    let events = shared.handle.events.subscribe();
+    let end = tokio::select! {
+        end = session.run(LineReader::new(read), events, &mut stop) => end,
+        written = &mut writer => {
+            match written {
+                Ok(()) => debug!(client = id, "client disconnected"),
+                Err(e) => debug!(client = id, error = %e, "client disconnected: write failed"),
+            }
+            return;
+        }
+    };
+    // Closing the queue lets the writer finish once it has sent what is in it.
+    drop(session);
+    match end {
+        End::Overflow => {
+            warn!(
+                client = id,
+                queued = shared.client_queue,
+                "client disconnected: it does not read what it is sent"
+            );
+            return;
+        }
+        End::Eof => debug!(client = id, "client disconnected"),
+        End::Stop => debug!(client = id, "closing client: the server stops"),
+        End::WriterGone => debug!(client = id, "client disconnected: write failed"),
+        End::ReadFailed(e) => debug!(client = id, error = %e, "client disconnected: read failed"),
+    }
+    if time::timeout(shared.flush_grace, writer).await.is_err() {
+        debug!(
+            client = id,
+            "client closed before its replies were all sent"
+        );
+    }
+}
+
+/// Why a client's reading stopped.
+#[derive(Debug)]
+enum End {
+    /// The client closed its side.
+    Eof,
+    /// The server stops.
+    Stop,
+    /// The outgoing queue stayed full.
+    Overflow,
+    /// The writer stopped (the connection broke).
+    WriterGone,
+    /// Reading failed.
+    ReadFailed(io::Error),
+}
+
+/// The reading side of one client.
+struct Session<'a> {
+    id: ClientId,
+    shared: &'a Shared,
+    /// Replies and events, in the order written.
+    out: mpsc::Sender<String>,
+    /// The telemetry rate, Hz, or `None` when not subscribed.
+    rate: watch::Sender<Option<f64>>,
+}
+
+impl Session<'_> {
+    /// Reads and answers requests, one at a time, and queues this client's events, until the
+    /// connection or the server ends.
+    async fn run<R: AsyncRead + Unpin>(
+        &mut self,
+        mut lines: LineReader<R>,
+        mut events: broadcast::Receiver<Event>,
+        stop: &mut watch::Receiver<()>,
+    ) -> End {
+        let mut events_open = true;
+        loop {
+            let step = tokio::select! {
+                biased;
+                _ = stop.changed() => return End::Stop,
+                event = events.recv(), if events_open => match event {
+                    Ok(event) => self.event(&event).await,
+                    Err(RecvError::Lagged(missed)) => {
+                        debug!(client = self.id, missed, "client fell behind the events");
+                        Ok(())
+                    }
+                    Err(RecvError::Closed) => {
+                        events_open = false;
+                        Ok(())
+                    }
+                },
+                line = lines.next() => match line {
+                    Ok(Line::Complete(line)) => self.request(line).await,
+                    Ok(Line::TooLong) => {
+                        let why = Rejection::new(
+                            Code::LineTooLong,
+                            format!("a request line is at most {MAX_LINE} bytes; it was discarded"),
+                        );
+                        self.push(protocol::error_line(None, &why)).await
+                    }
+                    Ok(Line::Eof) => return End::Eof,
+                    Err(e) => return End::ReadFailed(e),
+                },
+            };
+            if let Err(end) = step {
+                return end;
+            }
+        }
+    }
+
+    /// Queues an event line when the event is this client's or everyone's.
+    async fn event(&self, event: &Event) -> Result<(), End> {
+        match event.owner {
+            Some(owner) if owner != self.id => Ok(()),
+            _ => self.push(protocol::event_line(event)).await,
+        }
+    }
+
+    /// Answers one request line.
+    async fn request(&self, line: &[u8]) -> Result<(), End> {
+        let received = Instant::now();
+        if line.iter().all(u8::is_ascii_whitespace) {
+            return Ok(());
+        }
+        let request = match protocol::parse(line, self.shared.joints) {
+            Ok(request) => request,
+            Err((id, why)) => return self.push(protocol::error_line(id.as_deref(), &why)).await,
+        };
+        let id = request.id;
+        let reply = match request.cmd {
+            Cmd::Describe => protocol::ok_line(id.as_deref(), &self.shared.describe),
+            Cmd::Subscribe { rate_hz } => {
+                let rate_hz = self.shared.telemetry_rate(rate_hz);
+                let mut fields = Map::new();
+                fields.insert("rate_hz".into(), rate_hz.into());
+                // The reply is queued before the writer learns the rate, and the writer sends
+                // queued lines first: the reply precedes the first telemetry line.
+                self.push(protocol::ok_line(id.as_deref(), &fields)).await?;
+                self.rate.send_replace(Some(rate_hz));
+                return Ok(());
+            }
+            Cmd::Unsubscribe => {
+                // The other way round: no telemetry line follows the reply.
+                self.rate.send_replace(None);
+                protocol::ok_line(id.as_deref(), &Map::new())
+            }
+            cmd => self.to_loop(id, cmd, received).await,
+        };
+        self.push(reply).await
+    }
+
+    /// Hands a command to the loop and waits for its answer, as a reply line.
+    async fn to_loop(&self, id: Option<RequestId>, cmd: Cmd, received: Instant) -> String {
+        let (reply, answer) = oneshot::channel();
+        let envelope = Envelope {
+            client: self.id,
+            id: id.clone(),
+            cmd,
+            received,
+            reply,
+        };
+        let id = id.as_deref();
+        match self.shared.handle.commands.try_send(envelope) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) => {
+                let why = Rejection::new(
+                    Code::Busy,
+                    format!("the loop's command queue is full ({COMMAND_QUEUE}); send again"),
+                );
+                return protocol::error_line(id, &why);
+            }
+            Err(TrySendError::Closed(_)) => return protocol::error_line(id, &stopped()),
+        }
+        match answer.await {
+            Ok(Ok(fields)) => protocol::ok_line(id, &fields),
+            Ok(Err(why)) => protocol::error_line(id, &why),
+            Err(_) => protocol::error_line(id, &stopped()),
+        }
+    }
+
+    /// Queues a line. A full queue waits for room up to `stall_grace` (only this client waits;
+    /// its events meanwhile stay in the broadcast), then ends the client.
+    async fn push(&self, line: String) -> Result<(), End> {
+        let line = match self.out.try_send(line) {
+            Ok(()) => return Ok(()),
+            Err(TrySendError::Full(line)) => line,
+            Err(TrySendError::Closed(_)) => return Err(End::WriterGone),
+        };
+        match self.out.send_timeout(line, self.shared.stall_grace).await {
+            Ok(()) => Ok(()),
+            Err(SendTimeoutError::Timeout(_)) => Err(End::Overflow),
+            Err(SendTimeoutError::Closed(_)) => Err(End::WriterGone),
+        }
+    }
+}
+
+fn stopped() -> Rejection {
+    Rejection::new(Code::ShuttingDown, "the control loop has stopped")
+}
+
+/// Sends a client's queued lines and, while subscribed, its telemetry, until the queue closes
+/// and is empty; then closes the connection's sending side.
+async fn write_loop(
+    mut sink: BufWriter<OwnedWriteHalf>,
+    mut lines: mpsc::Receiver<String>,
+    mut telemetry: watch::Receiver<Telemetry>,
+    mut rate: watch::Receiver<Option<f64>>,
+) -> io::Result<()> {
+    let mut ticker: Option<Interval> = None;
+    // Send the next snapshot even if unchanged: the first after a subscribe.
+    let mut fresh = false;
+    let mut rate_open = true;
+    loop {
+        tokio::select! {
+            biased;
+            line = lines.recv() => {
+                let Some(line) = line else { break };
+                sink.write_all(line.as_bytes()).await?;
+                while let Ok(line) = lines.try_recv() {
+                    sink.write_all(line.as_bytes()).await?;
+                }
+                sink.flush().await?;
+            }
+            changed = rate.changed(), if rate_open => {
+                if changed.is_err() {
+                    rate_open = false;
+                    ticker = None;
+                } else {
+                    ticker = rate.borrow_and_update().map(interval_at);
+                    fresh = true;
+                }
+            }
+            () = next_tick(&mut ticker), if ticker.is_some() => {
+                if fresh || telemetry.has_changed().unwrap_or(false) {
+                    fresh = false;
+                    let line = protocol::telemetry_line(&telemetry.borrow_and_update());
+                    sink.write_all(line.as_bytes()).await?;
+                    sink.flush().await?;
+                }
+            }
+        }
+    }
+    sink.flush().await?;
+    sink.shutdown().await
+}
+
+/// A ticker at `rate_hz` whose first tick is now; ticks missed while writing are skipped.
+fn interval_at(rate_hz: f64) -> Interval {
+    let period = Duration::try_from_secs_f64(1.0 / rate_hz)
+        .unwrap_or(Duration::MAX)
+        .clamp(Duration::from_micros(1), Duration::from_secs(86_400));
+    let mut ticker = time::interval(period);
+    ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    ticker
+}
+
+async fn next_tick(ticker: &mut Option<Interval>) {
+    match ticker {
+        Some(ticker) => {
+            ticker.tick().await;
+        }
+        None => std::future::pending().await,
+    }
+}
+
+/// One read from a [`LineReader`].
+#[derive(Debug, PartialEq)]
+enum Line<'a> {
+    /// A line, without its newline (the last one may lack it).
+    Complete(&'a [u8]),
+    /// A line over [`MAX_LINE`] bytes, now discarded through its newline.
+    TooLong,
+    /// The peer closed its side.
+    Eof,
+}
+
+/// Splits a byte stream into lines of at most [`MAX_LINE`] bytes, holding no more than that.
+///
+/// [`LineReader::next`] is cancel-safe: a partial line stays in the reader until the rest comes.
+struct LineReader<R> {
+    inner: BufReader<R>,
+    line: Vec<u8>,
+    /// `line` holds a line already returned, to be cleared on the next call.
+    returned: bool,
+    /// Within a line over the limit, dropping bytes until its newline.
+    discarding: bool,
+}
+
+impl<R: AsyncRead + Unpin> LineReader<R> {
+    fn new(inner: R) -> Self {
+        LineReader {
+            inner: BufReader::new(inner),
+            line: Vec::new(),
+            returned: false,
+            discarding: false,
+        }
+    }
+
+    async fn next(&mut self) -> io::Result<Line<'_>> {
+        if self.returned {
+            self.line.clear();
+            self.returned = false;
+        }
+        loop {
+            let buf = self.inner.fill_buf().await?;
+            if buf.is_empty() {
+                if std::mem::take(&mut self.discarding) {
+                    return Ok(Line::TooLong);
+                }
+                if self.line.is_empty() {
+                    return Ok(Line::Eof);
+                }
+                self.returned = true;
+                return Ok(Line::Complete(&self.line));
+            }
+            let newline = buf.iter().position(|&b| b == b'\n');
+            let take = newline.unwrap_or(buf.len());
+            let over = self.discarding || self.line.len() + take > MAX_LINE;
+            if over {
+                self.line.clear();
+            } else {
+                self.line.extend_from_slice(&buf[..take]);
+            }
+            let consumed = newline.map_or(take, |i| i + 1);
+            self.inner.consume(consumed);
+            match (newline, over) {
+                (None, over) => self.discarding = over,
+                (Some(_), true) => {
+                    self.discarding = false;
+                    return Ok(Line::TooLong);
+                }
+                (Some(_), false) => {
+                    self.returned = true;
+                    return Ok(Line::Complete(&self.line));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use tokio::io::AsyncWriteExt;
+
+    use super::*;
+
+    /// The lines a reader yields from `input` written in `chunk`-byte pieces.
+    async fn lines_of(input: &[u8], chunk: usize) -> Vec<Result<Vec<u8>, &'static str>> {
+        let (mut tx, rx) = tokio::io::duplex(1024);
+        let input = input.to_vec();
+        let feed = tokio::spawn(async move {
+            for piece in input.chunks(chunk) {
+                tx.write_all(piece).await.unwrap();
+            }
+        });
+        let mut reader = LineReader::new(rx);
+        let mut out = Vec::new();
+        loop {
+            match reader.next().await.unwrap() {
+                Line::Complete(line) => out.push(Ok(line.to_vec())),
+                Line::TooLong => out.push(Err("too long")),
+                Line::Eof => break,
+            }
+        }
+        feed.await.unwrap();
+        out
+    }
+
+    #[tokio::test]
+    async fn lines_split_at_newlines_whatever_the_chunks() {
+        let input = b"{\"a\":1}\n\n{\"b\":2}\r\nlast";
+        for chunk in [1, 3, 7, 1000] {
+            assert_eq!(
+                lines_of(input, chunk).await,
+                vec![
+                    Ok(b"{\"a\":1}".to_vec()),
+                    Ok(Vec::new()),
+                    Ok(b"{\"b\":2}\r".to_vec()),
+                    Ok(b"last".to_vec()),
+                ],
+                "chunk {chunk}"
+            );
+        }
+    }
+
+    #[tokio::test]
+    async fn an_over_long_line_is_dropped_through_its_newline_only() {
+        let mut input = vec![b'x'; MAX_LINE + 1];
+        input.extend_from_slice(b"\nok\n");
+        input.extend(vec![b'y'; MAX_LINE]);
+        input.extend_from_slice(b"\n");
+        input.extend(vec![b'z'; 3 * MAX_LINE]);
+        for chunk in [999, 8192, 100_000] {
+            let lines = lines_of(&input, chunk).await;
+            assert_eq!(lines.len(), 4, "chunk {chunk}");
+            assert_eq!(lines[0], Err("too long"));
+            assert_eq!(lines[1], Ok(b"ok".to_vec()));
+            assert_eq!(
+                lines[2],
+                Ok(vec![b'y'; MAX_LINE]),
+                "a line of exactly MAX_LINE"
+            );
+            assert_eq!(lines[3], Err("too long"), "unterminated at the end");
+        }
+    }
+
+    #[tokio::test]
+    async fn intervals_stay_within_sane_periods() {
+        assert_eq!(interval_at(1e-300).period(), Duration::from_secs(86_400));
+        assert_eq!(interval_at(1e9).period(), Duration::from_micros(1));
+        assert_eq!(interval_at(50.0).period(), Duration::from_millis(20));
+    }
+}

@@ -1,0 +1,386 @@
+//! Reading one request line: JSON first, then the command and its arguments, each checked
+//! against the arm and named in the error when it is wrong.
+
+use std::fmt;
+use std::sync::Arc;
+
+use serde_json::{Map, Value};
+
+use super::{Cmd, Code, Rejection, RequestId, MAX_ARG};
+use crate::resolve::Strategy;
+
+/// The most corner points one `path` may have.
+pub const MAX_PATH_POINTS: usize = 10_000;
+
+/// Every command name, in the order an `unknown_cmd` message lists them.
+pub const COMMANDS: [&str; 15] = [
+    "describe",
+    "status",
+    "goto",
+    "goto_joints",
+    "path",
+    "velocity",
+    "jog",
+    "stop",
+    "estop",
+    "reset",
+    "home",
+    "strategy",
+    "subscribe",
+    "unsubscribe",
+    "reset_stats",
+];
+
+/// A request line, read and validated.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Request {
+    /// The request's `id`, echoed in its reply; `None` when absent or `null`.
+    pub id: Option<RequestId>,
+    /// What it asks for.
+    pub cmd: Cmd,
+}
+
+/// Reads one request line (without its newline) for an arm of `joints` joints.
+///
+/// # Returns
+/// The request, or the id (when the line is an object with an `id`) and why it was refused:
+/// [`Code::BadJson`] for a line that is not JSON, not an object, or holds a number JSON cannot
+/// hold (`1e999`); [`Code::UnknownCmd`] for a missing or unknown `cmd` (the message lists the
+/// known ones); [`Code::BadArg`] for a wrong argument, the message naming the field (`target[1]`)
+/// and the value.
+///
+/// An optional argument given as `null` counts as absent.
+///
+/// # Example
+/// ```
+/// use snakectl::protocol::{parse, Cmd, Code};
+///
+/// let req = parse(br#"{"cmd": "goto", "id": 7, "target": [0.1, 0.2]}"#, 3).unwrap();
+/// assert_eq!(req.cmd, Cmd::Goto { target: [0.1, 0.2], speed: None });
+/// assert_eq!(req.id.as_deref(), Some(&serde_json::json!(7)));
+///
+/// let (id, why) = parse(br#"{"cmd": "jog", "id": "a", "joint": 4, "rad_s": 1}"#, 3).unwrap_err();
+/// assert_eq!(id.as_deref(), Some(&serde_json::json!("a")));
+/// assert_eq!(why.code, Code::BadArg);
+/// assert!(why.message.contains("joint"));
+/// ```
+pub fn parse(line: &[u8], joints: usize) -> Result<Request, (Option<RequestId>, Rejection)> {
+    let value: Value = serde_json::from_slice(line).map_err(|e| {
+        (
+            None,
+            Rejection::new(Code::BadJson, format!("not JSON: {e}")),
+        )
+    })?;
+    let Value::Object(mut map) = value else {
+        let message = format!("a request is a JSON object, got {}", Shown(&value));
+        return Err((None, Rejection::new(Code::BadJson, message)));
+    };
+    let id = match map.remove("id") {
+        None | Some(Value::Null) => None,
+        Some(id) => Some(Arc::new(id)),
+    };
+    match command(map, joints) {
+        Ok(cmd) => Ok(Request { id, cmd }),
+        Err(why) => Err((id, why)),
+    }
+}
+
+/// The command of a request object whose `id` was taken out.
+fn command(mut map: Map<String, Value>, joints: usize) -> Result<Cmd, Rejection> {
+    let name = match map.remove("cmd") {
+        Some(Value::String(name)) => name,
+        None | Some(Value::Null) => return Err(unknown(format_args!("missing `cmd`"))),
+        Some(other) => {
+            return Err(unknown(format_args!(
+                "`cmd` must be a string, got {}",
+                Shown(&other)
+            )))
+        }
+    };
+    let cmd = match name.as_str() {
+        "describe" => no_args(map, Cmd::Describe)?,
+        "status" => no_args(map, Cmd::Status)?,
+        "stop" => no_args(map, Cmd::Stop)?,
+        "estop" => no_args(map, Cmd::Estop)?,
+        "reset" => no_args(map, Cmd::Reset)?,
+        "home" => no_args(map, Cmd::Home)?,
+        "unsubscribe" => no_args(map, Cmd::Unsubscribe)?,
+        "reset_stats" => no_args(map, Cmd::ResetStats)?,
+        "goto" => {
+            let mut args = Args::new(map, "goto", &["target", "speed"])?;
+            let target = point(Field::new("target"), &args.required("target")?)?;
+            let speed = args.speed()?;
+            Cmd::Goto { target, speed }
+        }
+        "goto_joints" => {
+            let mut args = Args::new(map, "goto_joints", &["theta"])?;
+            let theta = numbers(Field::new("theta"), &args.required("theta")?, joints)?;
+            Cmd::GotoJoints { theta }
+        }
+        "path" => {
+            let mut args = Args::new(map, "path", &["points", "speed"])?;
+            let points = points(Field::new("points"), &args.required("points")?)?;
+            let speed = args.speed()?;
+            Cmd::Path { points, speed }
+        }
+        "velocity" => {
+            let mut args = Args::new(map, "velocity", &["v"])?;
+            let v = point(Field::new("v"), &args.required("v")?)?;
+            Cmd::Velocity { v }
+        }
+        "jog" => {
+            let mut args = Args::new(map, "jog", &["joint", "rad_s"])?;
+            let joint = joint(Field::new("joint"), &args.required("joint")?, joints)?;
+            let rad_s = number(Field::new("rad_s"), &args.required("rad_s")?)?;
+            Cmd::Jog { joint, rad_s }
+        }
+        "strategy" => {
+            let mut args = Args::new(map, "strategy", &["name"])?;
+            let name = strategy(Field::new("name"), &args.required("name")?)?;
+            Cmd::Strategy { name }
+        }
+        "subscribe" => {
+            let mut args = Args::new(map, "subscribe", &["rate_hz"])?;
+            let rate_hz = positive(Field::new("rate_hz"), &args.required("rate_hz")?)?;
+            Cmd::Subscribe { rate_hz }
+        }
+        _ => {
+            return Err(unknown(format_args!(
+                "unknown cmd {}; known: {}",
+                Shown(&Value::String(name)),
+                COMMANDS.join(", ")
+            )))
+        }
+    };
+    Ok(cmd)
+}
+
+/// A command that takes no arguments, when none were given.
+fn no_args(map: Map<String, Value>, cmd: Cmd) -> Result<Cmd, Rejection> {
+    Args::new(map, cmd.name(), &[])?;
+    Ok(cmd)
+}
+
+/// A command's arguments: the request object without `id` and `cmd`, its keys checked.
+struct Args {
+    map: Map<String, Value>,
+}
+
+impl Args {
+    /// Refuses a key that `cmd` does not take, before any argument is read (so a misspelt key
+    /// is reported as such, not as the argument it was meant to be going missing).
+    fn new(map: Map<String, Value>, cmd: &str, takes: &[&str]) -> Result<Self, Rejection> {
+        if let Some(key) = map.keys().find(|key| !takes.contains(&key.as_str())) {
+            let takes = if takes.is_empty() {
+                "no arguments".to_owned()
+            } else {
+                takes.join(", ")
+            };
+            return Err(bad(format_args!(
+                "`{key}`: unknown argument of {cmd} (it takes {takes})"
+            )));
+        }
+        Ok(Args { map })
+    }
+
+    fn required(&mut self, key: &'static str) -> Result<Value, Rejection> {
+        match self.map.remove(key) {
+            None | Some(Value::Null) => Err(bad(format_args!("`{key}`: missing"))),
+            Some(value) => Ok(value),
+        }
+    }
+
+    /// The optional `speed`, positive when given.
+    fn speed(&mut self) -> Result<Option<f64>, Rejection> {
+        match self.map.remove("speed") {
+            None | Some(Value::Null) => Ok(None),
+            Some(value) => positive(Field::new("speed"), &value).map(Some),
+        }
+    }
+}
+
+/// Where an argument is: `target`, `theta[2]`, `points[7][1]`.
+#[derive(Clone, Copy)]
+struct Field {
+    key: &'static str,
+    index: [Option<usize>; 2],
+}
+
+impl Field {
+    fn new(key: &'static str) -> Self {
+        Field {
+            key,
+            index: [None, None],
+        }
+    }
+
+    /// The entry `i` of this field.
+    fn at(self, i: usize) -> Self {
+        let mut index = self.index;
+        match index {
+            [None, _] => index[0] = Some(i),
+            _ => index[1] = Some(i),
+        }
+        Field { index, ..self }
+    }
+}
+
+impl fmt::Display for Field {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.key)?;
+        for i in self.index.iter().flatten() {
+            write!(f, "[{i}]")?;
+        }
+        Ok(())
+    }
+}
+
+/// A finite number no larger than [`MAX_ARG`] in magnitude.
+fn number(field: Field, value: &Value) -> Result<f64, Rejection> {
+    let x = match value {
+        Value::Number(n) => n.as_f64(),
+        _ => None,
+    };
+    let Some(x) = x else {
+        return Err(bad(format_args!(
+            "`{field}`: expected a number, got {}",
+            Shown(value)
+        )));
+    };
+    if !x.is_finite() {
+        return Err(bad(format_args!("`{field}`: {x} is not finite")));
+    }
+    if x.abs() > MAX_ARG {
+        return Err(bad(format_args!(
+            "`{field}`: {x} is over {MAX_ARG} in magnitude"
+        )));
+    }
+    Ok(x)
+}
+
+/// A [`number`] above zero.
+fn positive(field: Field, value: &Value) -> Result<f64, Rejection> {
+    let x = number(field, value)?;
+    if x > 0.0 {
+        Ok(x)
+    } else {
+        Err(bad(format_args!("`{field}`: must be positive, got {x}")))
+    }
+}
+
+/// An array of exactly `len` entries.
+fn array(field: Field, value: &Value, len: usize) -> Result<&[Value], Rejection> {
+    match value {
+        Value::Array(items) if items.len() == len => Ok(items),
+        Value::Array(items) => Err(bad(format_args!(
+            "`{field}`: expected {len} entries, got {}",
+            items.len()
+        ))),
+        _ => Err(bad(format_args!(
+            "`{field}`: expected an array of {len} numbers, got {}",
+            Shown(value)
+        ))),
+    }
+}
+
+/// An `[x, y]` pair of [`number`]s.
+fn point(field: Field, value: &Value) -> Result<[f64; 2], Rejection> {
+    let items = array(field, value, 2)?;
+    Ok([
+        number(field.at(0), &items[0])?,
+        number(field.at(1), &items[1])?,
+    ])
+}
+
+/// `len` [`number`]s.
+fn numbers(field: Field, value: &Value, len: usize) -> Result<Vec<f64>, Rejection> {
+    let items = array(field, value, len)?;
+    items
+        .iter()
+        .enumerate()
+        .map(|(i, item)| number(field.at(i), item))
+        .collect()
+}
+
+/// From 1 to [`MAX_PATH_POINTS`] [`point`]s.
+fn points(field: Field, value: &Value) -> Result<Vec<[f64; 2]>, Rejection> {
+    let Value::Array(items) = value else {
+        return Err(bad(format_args!(
+            "`{field}`: expected an array of [x, y] points, got {}",
+            Shown(value)
+        )));
+    };
+    if items.is_empty() || items.len() > MAX_PATH_POINTS {
+        return Err(bad(format_args!(
+            "`{field}`: expected 1 to {MAX_PATH_POINTS} points, got {}",
+            items.len()
+        )));
+    }
+    items
+        .iter()
+        .enumerate()
+        .map(|(i, item)| point(field.at(i), item))
+        .collect()
+}
+
+/// A joint number, an integer from 1 to `joints`.
+fn joint(field: Field, value: &Value, joints: usize) -> Result<usize, Rejection> {
+    let Value::Number(n) = value else {
+        return Err(bad(format_args!(
+            "`{field}`: expected a joint number, got {}",
+            Shown(value)
+        )));
+    };
+    if n.is_f64() {
+        return Err(bad(format_args!(
+            "`{field}`: expected an integer joint number, got {n}"
+        )));
+    }
+    match n.as_u64().and_then(|k| usize::try_from(k).ok()) {
+        Some(k) if (1..=joints).contains(&k) => Ok(k),
+        _ => Err(bad(format_args!(
+            "`{field}`: {n} is out of range 1..={joints}"
+        ))),
+    }
+}
+
+/// A strategy by name.
+fn strategy(field: Field, value: &Value) -> Result<Strategy, Rejection> {
+    match value.as_str() {
+        Some("overall") => Ok(Strategy::Overall),
+        Some("sequential") => Ok(Strategy::Sequential),
+        _ => Err(bad(format_args!(
+            "`{field}`: expected \"overall\" or \"sequential\", got {}",
+            Shown(value)
+        ))),
+    }
+}
+
+fn bad(message: fmt::Arguments<'_>) -> Rejection {
+    Rejection::new(Code::BadArg, message.to_string())
+}
+
+fn unknown(message: fmt::Arguments<'_>) -> Rejection {
+    Rejection::new(Code::UnknownCmd, message.to_string())
+}
+
+/// A value as JSON for a message, cut short when long (a request line may be 64 KiB).
+struct Shown<'a>(&'a Value);
+
+impl fmt::Display for Shown<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        const MAX: usize = 40;
+        let text = self.0.to_string();
+        if text.len() <= MAX {
+            return f.write_str(&text);
+        }
+        let mut end = MAX;
+        while !text.is_char_boundary(end) {
+            end -= 1;
+        }
+        write!(f, "{}...", &text[..end])
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,532 @@
+//! Tests of request parsing: every code, the field each message names, and properties over
+//! arbitrary input.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use proptest::prelude::{
+    any, prop, prop_assert, prop_assert_eq, prop_assert_ne, prop_oneof, proptest, Just,
+    TestCaseError,
+};
+use proptest::strategy::Strategy as _;
+use serde_json::{json, Number};
+
+use super::*;
+
+const JOINTS: usize = 4;
+
+fn ok(line: &str) -> Request {
+    match parse(line.as_bytes(), JOINTS) {
+        Ok(req) => req,
+        Err((_, why)) => panic!("{line} was refused: {why}"),
+    }
+}
+
+fn refused(line: &str) -> (Option<RequestId>, Rejection) {
+    match parse(line.as_bytes(), JOINTS) {
+        Ok(req) => panic!("{line} was accepted as {req:?}"),
+        Err(err) => err,
+    }
+}
+
+/// Refused with `code`, the message containing each of `words`.
+fn refused_with(line: &str, code: Code, words: &[&str]) {
+    let (_, why) = refused(line);
+    assert_eq!(why.code, code, "{line}: {why}");
+    for word in words {
+        assert!(why.message.contains(word), "{line}: {why} lacks {word:?}");
+    }
+}
+
+#[test]
+fn every_command_parses() {
+    let cases = [
+        (r#"{"cmd":"describe"}"#, Cmd::Describe),
+        (r#"{"cmd":"status"}"#, Cmd::Status),
+        (
+            r#"{"cmd":"goto","target":[0.1,-0.2]}"#,
+            Cmd::Goto {
+                target: [0.1, -0.2],
+                speed: None,
+            },
+        ),
+        (
+            r#"{"cmd":"goto","target":[1,2],"speed":0.05}"#,
+            Cmd::Goto {
+                target: [1.0, 2.0],
+                speed: Some(0.05),
+            },
+        ),
+        (
+            r#"{"cmd":"goto","target":[1,2],"speed":null}"#,
+            Cmd::Goto {
+                target: [1.0, 2.0],
+                speed: None,
+            },
+        ),
+        (
+            r#"{"cmd":"goto_joints","theta":[0,0.5,-0.5,1]}"#,
+            Cmd::GotoJoints {
+                theta: vec![0.0, 0.5, -0.5, 1.0],
+            },
+        ),
+        (
+            r#"{"cmd":"path","points":[[0,1],[2,3]],"speed":1}"#,
+            Cmd::Path {
+                points: vec![[0.0, 1.0], [2.0, 3.0]],
+                speed: Some(1.0),
+            },
+        ),
+        (
+            r#"{"cmd":"velocity","v":[0.01,0]}"#,
+            Cmd::Velocity { v: [0.01, 0.0] },
+        ),
+        (
+            r#"{"cmd":"jog","joint":4,"rad_s":-0.3}"#,
+            Cmd::Jog {
+                joint: 4,
+                rad_s: -0.3,
+            },
+        ),
+        (r#"{"cmd":"stop"}"#, Cmd::Stop),
+        (r#"{"cmd":"estop"}"#, Cmd::Estop),
+        (r#"{"cmd":"reset"}"#, Cmd::Reset),
+        (r#"{"cmd":"home"}"#, Cmd::Home),
+        (
+            r#"{"cmd":"strategy","name":"sequential"}"#,
+            Cmd::Strategy {
+                name: Strategy::Sequential,
+            },
+        ),
+        (
+            r#"{"cmd":"strategy","name":"overall"}"#,
+            Cmd::Strategy {
+                name: Strategy::Overall,
+            },
+        ),
+        (
+            r#"{"cmd":"subscribe","rate_hz":20}"#,
+            Cmd::Subscribe { rate_hz: 20.0 },
+        ),
+        (r#"{"cmd":"unsubscribe"}"#, Cmd::Unsubscribe),
+        (r#"{"cmd":"reset_stats"}"#, Cmd::ResetStats),
+    ];
+    for (line, cmd) in cases {
+        assert_eq!(ok(line), Request { id: None, cmd }, "{line}");
+    }
+    let mut named: Vec<&str> = COMMANDS.to_vec();
+    named.sort_unstable();
+    named.dedup();
+    assert_eq!(named.len(), COMMANDS.len());
+}
+
+#[test]
+fn ids_of_any_kind_are_kept_and_null_is_none() {
+    for id in [
+        json!(7),
+        json!(-1.5),
+        json!("a b"),
+        json!({"k": [1, 2]}),
+        json!([]),
+    ] {
+        let line = json!({"cmd": "status", "id": id}).to_string();
+        assert_eq!(ok(&line).id.as_deref(), Some(&id));
+    }
+    assert_eq!(ok(r#"{"cmd":"status","id":null}"#).id, None);
+}
+
+#[test]
+fn the_id_is_echoed_when_the_rest_is_bad() {
+    let (id, why) = refused(r#"{"id":"q1","cmd":"nope"}"#);
+    assert_eq!(why.code, Code::UnknownCmd);
+    assert_eq!(id.as_deref(), Some(&json!("q1")));
+    let (id, why) = refused(r#"{"id":{"seq":3},"cmd":"goto","target":[1]}"#);
+    assert_eq!(why.code, Code::BadArg);
+    assert_eq!(id.as_deref(), Some(&json!({"seq": 3})));
+    let (id, _) = refused(r#"{"id":5}"#);
+    assert_eq!(id.as_deref(), Some(&json!(5)));
+}
+
+#[test]
+fn bad_json_for_text_that_is_not_an_object() {
+    for line in [
+        "",
+        "{",
+        "goto",
+        r#"{"cmd":"status",}"#,
+        "[1,2]",
+        "17",
+        r#""status""#,
+        "null",
+    ] {
+        let (id, why) = refused(line);
+        assert_eq!(why.code, Code::BadJson, "{line}: {why}");
+        assert_eq!(id, None);
+    }
+    let (_, why) = parse(b"{\"cmd\":\"st\xffatus\"}", JOINTS).unwrap_err();
+    assert_eq!(why.code, Code::BadJson);
+}
+
+#[test]
+fn bad_json_for_a_number_json_cannot_hold() {
+    refused_with(
+        r#"{"cmd":"goto","id":1,"target":[1e999,0]}"#,
+        Code::BadJson,
+        &["out of range"],
+    );
+    refused_with(
+        r#"{"cmd":"subscribe","rate_hz":-1e400}"#,
+        Code::BadJson,
+        &[],
+    );
+}
+
+#[test]
+fn unknown_cmd_lists_the_known_ones() {
+    let (_, why) = refused(r#"{"cmd":"fly"}"#);
+    assert_eq!(why.code, Code::UnknownCmd);
+    assert!(why.message.contains("\"fly\""), "{why}");
+    for name in COMMANDS {
+        assert!(why.message.contains(name), "{why} lacks {name}");
+    }
+    refused_with(r#"{"id":1}"#, Code::UnknownCmd, &["missing `cmd`"]);
+    refused_with(r#"{"cmd":null}"#, Code::UnknownCmd, &["missing `cmd`"]);
+    refused_with(r#"{"cmd":3}"#, Code::UnknownCmd, &["string", "3"]);
+    refused_with(r#"{"cmd":"GOTO"}"#, Code::UnknownCmd, &["GOTO"]);
+}
+
+#[test]
+fn bad_arg_names_the_field_and_the_value() {
+    let cases: &[(&str, &[&str])] = &[
+        (r#"{"cmd":"goto"}"#, &["`target`", "missing"]),
+        (r#"{"cmd":"goto","target":null}"#, &["`target`", "missing"]),
+        (
+            r#"{"cmd":"goto","target":[0,"a"]}"#,
+            &["`target[1]`", "\"a\""],
+        ),
+        (
+            r#"{"cmd":"goto","target":[0,1,2]}"#,
+            &["`target`", "2", "3"],
+        ),
+        (
+            r#"{"cmd":"goto","target":"here"}"#,
+            &["`target`", "\"here\""],
+        ),
+        (
+            r#"{"cmd":"goto","target":[2e6,0]}"#,
+            &["`target[0]`", "2000000"],
+        ),
+        (
+            r#"{"cmd":"goto","target":[0,-1000001]}"#,
+            &["`target[1]`", "-1000001"],
+        ),
+        (
+            r#"{"cmd":"goto","target":[0,0],"speed":0}"#,
+            &["`speed`", "positive", "0"],
+        ),
+        (
+            r#"{"cmd":"goto","target":[0,0],"speed":-2}"#,
+            &["`speed`", "-2"],
+        ),
+        (
+            r#"{"cmd":"goto","target":[0,0],"speed":true}"#,
+            &["`speed`", "true"],
+        ),
+        (
+            r#"{"cmd":"goto","target":[0,0],"sped":1}"#,
+            &["`sped`", "unknown", "target, speed"],
+        ),
+        (
+            r#"{"cmd":"goto_joints","theta":[0,0,0]}"#,
+            &["`theta`", "4", "3"],
+        ),
+        (
+            r#"{"cmd":"goto_joints","theta":[0,0,{},0]}"#,
+            &["`theta[2]`", "{}"],
+        ),
+        (r#"{"cmd":"path","points":[]}"#, &["`points`", "0"]),
+        (
+            r#"{"cmd":"path","points":[[0,0],[1]]}"#,
+            &["`points[1]`", "1"],
+        ),
+        (
+            r#"{"cmd":"path","points":[[0,0],[1,[]]]}"#,
+            &["`points[1][1]`", "[]"],
+        ),
+        (
+            r#"{"cmd":"path","points":{"x":1}}"#,
+            &["`points`", "{\"x\":1}"],
+        ),
+        (r#"{"cmd":"velocity","v":[0]}"#, &["`v`"]),
+        (r#"{"cmd":"velocity","v":[1e7,0]}"#, &["`v[0]`", "10000000"]),
+        (
+            r#"{"cmd":"jog","joint":0,"rad_s":1}"#,
+            &["`joint`", "0", "1..=4"],
+        ),
+        (
+            r#"{"cmd":"jog","joint":5,"rad_s":1}"#,
+            &["`joint`", "5", "1..=4"],
+        ),
+        (r#"{"cmd":"jog","joint":-1,"rad_s":1}"#, &["`joint`", "-1"]),
+        (
+            r#"{"cmd":"jog","joint":1.5,"rad_s":1}"#,
+            &["`joint`", "1.5", "integer"],
+        ),
+        (
+            r#"{"cmd":"jog","joint":"2","rad_s":1}"#,
+            &["`joint`", "\"2\""],
+        ),
+        (r#"{"cmd":"jog","joint":2}"#, &["`rad_s`", "missing"]),
+        (
+            r#"{"cmd":"strategy","name":"fast"}"#,
+            &["`name`", "\"fast\"", "overall"],
+        ),
+        (
+            r#"{"cmd":"subscribe","rate_hz":0}"#,
+            &["`rate_hz`", "positive"],
+        ),
+        (r#"{"cmd":"subscribe","rate_hz":-5}"#, &["`rate_hz`", "-5"]),
+        (
+            r#"{"cmd":"subscribe","rate_hz":"10"}"#,
+            &["`rate_hz`", "\"10\""],
+        ),
+        (r#"{"cmd":"subscribe","rate_hz":1e7}"#, &["`rate_hz`"]),
+        (r#"{"cmd":"stop","now":true}"#, &["`now`", "no arguments"]),
+    ];
+    for (line, words) in cases {
+        refused_with(line, Code::BadArg, words);
+    }
+}
+
+#[test]
+fn path_length_is_bounded() {
+    let points = |n: usize| json!({"cmd": "path", "points": vec![[0.0, 0.0]; n]}).to_string();
+    assert!(matches!(ok(&points(1)).cmd, Cmd::Path { ref points, .. } if points.len() == 1));
+    assert!(matches!(
+        ok(&points(MAX_PATH_POINTS)).cmd,
+        Cmd::Path { ref points, .. } if points.len() == MAX_PATH_POINTS
+    ));
+    refused_with(
+        &points(MAX_PATH_POINTS + 1),
+        Code::BadArg,
+        &["`points`", "10001"],
+    );
+}
+
+#[test]
+fn the_limit_itself_is_accepted() {
+    let req = ok(r#"{"cmd":"goto","target":[1e6,-1e6]}"#);
+    assert_eq!(
+        req.cmd,
+        Cmd::Goto {
+            target: [MAX_ARG, -MAX_ARG],
+            speed: None
+        }
+    );
+}
+
+#[test]
+fn a_long_value_is_cut_short_in_the_message() {
+    let long = "x".repeat(10_000);
+    let line = json!({"cmd": "strategy", "name": long}).to_string();
+    let (_, why) = refused(&line);
+    assert_eq!(why.code, Code::BadArg);
+    assert!(why.message.len() < 200, "{} bytes", why.message.len());
+    let line = json!({"cmd": "strategy", "name": "é".repeat(100)}).to_string();
+    assert_eq!(refused(&line).1.code, Code::BadArg);
+}
+
+fn json_value() -> impl proptest::strategy::Strategy<Value = Value> {
+    let leaf = prop_oneof![
+        Just(Value::Null),
+        any::<bool>().prop_map(Value::Bool),
+        any::<i64>().prop_map(Value::from),
+        any::<u64>().prop_map(Value::from),
+        any::<f64>().prop_filter_map("finite", |x| Number::from_f64(x).map(Value::Number)),
+        (-2e6..2e6f64).prop_filter_map("finite", |x| Number::from_f64(x).map(Value::Number)),
+        "[a-z_]{0,12}".prop_map(Value::String),
+    ];
+    leaf.prop_recursive(4, 48, 6, |inner| {
+        prop_oneof![
+            prop::collection::vec(inner.clone(), 0..6).prop_map(Value::Array),
+            prop::collection::btree_map("[a-z_]{0,8}", inner, 0..6)
+                .prop_map(|m| Value::Object(m.into_iter().collect())),
+        ]
+    })
+}
+
+/// An object with a known `cmd` and keys a request may carry, holding arbitrary values.
+fn request_like() -> impl proptest::strategy::Strategy<Value = (String, Value)> {
+    let keys = prop::sample::select(vec![
+        "target", "speed", "theta", "points", "v", "joint", "rad_s", "name", "rate_hz", "id",
+        "extra",
+    ]);
+    (
+        prop::sample::select(COMMANDS.to_vec()),
+        prop::collection::btree_map(keys, json_value(), 0..4),
+    )
+        .prop_map(|(cmd, args)| {
+            let mut map: Map<String, Value> =
+                args.into_iter().map(|(k, v)| (k.to_owned(), v)).collect();
+            map.insert("cmd".into(), json!(cmd));
+            (cmd.to_owned(), Value::Object(map))
+        })
+}
+
+fn number_arg() -> impl proptest::strategy::Strategy<Value = f64> {
+    prop_oneof![
+        -MAX_ARG..=MAX_ARG,
+        Just(0.0),
+        Just(MAX_ARG),
+        Just(-MAX_ARG),
+        -1.0..1.0f64
+    ]
+}
+
+fn positive_arg() -> impl proptest::strategy::Strategy<Value = f64> {
+    prop_oneof![f64::MIN_POSITIVE..=MAX_ARG, Just(MAX_ARG), 1e-9..10.0f64]
+}
+
+fn valid_cmd(joints: usize) -> impl proptest::strategy::Strategy<Value = Cmd> {
+    let point = || [number_arg(), number_arg()];
+    prop_oneof![
+        Just(Cmd::Describe),
+        Just(Cmd::Status),
+        (point(), prop::option::of(positive_arg()))
+            .prop_map(|(target, speed)| Cmd::Goto { target, speed }),
+        prop::collection::vec(number_arg(), joints).prop_map(|theta| Cmd::GotoJoints { theta }),
+        (
+            prop::collection::vec(point(), 1..20),
+            prop::option::of(positive_arg())
+        )
+            .prop_map(|(points, speed)| Cmd::Path { points, speed }),
+        point().prop_map(|v| Cmd::Velocity { v }),
+        (1..=joints, number_arg()).prop_map(|(joint, rad_s)| Cmd::Jog { joint, rad_s }),
+        Just(Cmd::Stop),
+        Just(Cmd::Estop),
+        Just(Cmd::Reset),
+        Just(Cmd::Home),
+        prop::sample::select(vec![Strategy::Overall, Strategy::Sequential])
+            .prop_map(|name| Cmd::Strategy { name }),
+        positive_arg().prop_map(|rate_hz| Cmd::Subscribe { rate_hz }),
+        Just(Cmd::Unsubscribe),
+        Just(Cmd::ResetStats),
+    ]
+}
+
+/// serde_json reads floats back to within an ulp without its `float_roundtrip` feature
+/// (relative, or absolute among the subnormals).
+fn close(a: f64, b: f64) -> bool {
+    let d = (a - b).abs();
+    a == b || d <= 2.0 * f64::EPSILON * a.abs().max(b.abs()) || d <= f64::MIN_POSITIVE
+}
+
+fn same_cmd(a: &Cmd, b: &Cmd) -> bool {
+    let all =
+        |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| close(*x, *y));
+    let opt = |a: &Option<f64>, b: &Option<f64>| match (a, b) {
+        (Some(a), Some(b)) => close(*a, *b),
+        (None, None) => true,
+        _ => false,
+    };
+    match (a, b) {
+        (
+            Cmd::Goto {
+                target: t,
+                speed: s,
+            },
+            Cmd::Goto {
+                target: u,
+                speed: r,
+            },
+        ) => all(t, u) && opt(s, r),
+        (Cmd::GotoJoints { theta: t }, Cmd::GotoJoints { theta: u }) => all(t, u),
+        (
+            Cmd::Path {
+                points: p,
+                speed: s,
+            },
+            Cmd::Path {
+                points: q,
+                speed: r,
+            },
+        ) => p.len() == q.len() && p.iter().zip(q).all(|(p, q)| all(p, q)) && opt(s, r),
+        (Cmd::Velocity { v }, Cmd::Velocity { v: w }) => all(v, w),
+        (Cmd::Jog { joint: j, rad_s: r }, Cmd::Jog { joint: k, rad_s: s }) => {
+            j == k && close(*r, *s)
+        }
+        (Cmd::Subscribe { rate_hz: r }, Cmd::Subscribe { rate_hz: s }) => close(*r, *s),
+        _ => a == b,
+    }
+}
+
+/// Equal JSON, numbers within an ulp (see [`close`]).
+fn same_json(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) if x.is_f64() || y.is_f64() => {
+            matches!((x.as_f64(), y.as_f64()), (Some(x), Some(y)) if close(x, y))
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(x, y)| same_json(x, y))
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len()
+                && x.iter()
+                    .zip(y)
+                    .all(|((k, x), (l, y))| k == l && same_json(x, y))
+        }
+        _ => a == b,
+    }
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..256)) {
+        let _ = parse(&bytes, JOINTS);
+    }
+
+    #[test]
+    fn arbitrary_json_never_panics_and_objects_keep_their_id(value in json_value(), joints in 0..6usize) {
+        let bytes = serde_json::to_vec(&value).unwrap();
+        match parse(&bytes, joints) {
+            Ok(req) => prop_assert!(value.get("cmd").is_some(), "{value} accepted as {req:?}"),
+            Err((id, why)) => {
+                if !value.is_object() {
+                    prop_assert_eq!(why.code, Code::BadJson);
+                    prop_assert_eq!(id, None);
+                } else {
+                    let sent = value.get("id").filter(|id| !id.is_null());
+                    prop_assert_eq!(id.as_deref(), sent);
+                    prop_assert_ne!(why.code, Code::BadJson);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn request_shaped_json_is_that_command_or_a_bad_arg((cmd, value) in request_like(), joints in 0..6usize) {
+        let bytes = serde_json::to_vec(&value).unwrap();
+        match parse(&bytes, joints) {
+            Ok(req) => prop_assert_eq!(req.cmd.name(), cmd.as_str()),
+            Err((_, why)) => {
+                prop_assert_eq!(why.code, Code::BadArg, "{}", why);
+                prop_assert!(why.message.starts_with('`'), "{}", why);
+            }
+        }
+    }
+
+    #[test]
+    fn valid_commands_round_trip(
+        (joints, cmd) in (1..8usize).prop_flat_map(|n| (Just(n), valid_cmd(n))),
+        id in prop::option::of(json_value().prop_filter("not null", |v| !v.is_null())),
+    ) {
+        let line = crate::protocol::request_line(id.as_ref(), &cmd);
+        prop_assert!(line.ends_with('\n'));
+        let req = parse(line.trim_end().as_bytes(), joints)
+            .map_err(|(_, why)| TestCaseError::fail(format!("{line}: {why}")))?;
+        prop_assert!(same_cmd(&req.cmd, &cmd), "{:?} read back as {:?}", cmd, req.cmd);
+        match (req.id.as_deref(), id.as_ref()) {
+            (Some(back), Some(sent)) => prop_assert!(same_json(back, sent), "{} read back as {}", sent, back),
+            (back, sent) => prop_assert_eq!(back, sent),
+        }
+    }
+}

@@ -1,0 +1,805 @@
+//! The JSON-lines server over real loopback sockets, against a fake control loop on the other
+//! ends of `link::channel`: error codes, ids, ordering, `busy`, telemetry subscriptions (on
+//! paused time), events, the client limit, a client that does not read, and shutdown.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::io;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde_json::{json, Map, Value};
+use snakectl::daemon::link::{self, Envelope, Handle, COMMAND_QUEUE};
+use snakectl::daemon::server::{serve, ServerOptions};
+use snakectl::protocol::{
+    Cmd, Code, Describe, Event, EventKind, Rejection, Telemetry, MAX_LINE, PROTOCOL_VERSION,
+};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
+use tokio::net::{TcpListener, TcpSocket, TcpStream};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
+use tokio::task::JoinHandle;
+use tokio::time::{self, Instant};
+
+const JOINTS: usize = 3;
+const LOOP_HZ: f64 = 100.0;
+/// A deadline for things that should happen at once; reaching it fails the test.
+const DEADLINE: Duration = Duration::from_secs(20);
+
+fn describe(joints: usize) -> Describe {
+    Describe {
+        links_m: vec![0.1; joints],
+        base: [0.0, 0.0, 0.0],
+        min_rad: vec![-2.0; joints],
+        max_rad: vec![2.0; joints],
+        ids: (1..=joints).map(|i| (i % 250) as u8).collect(),
+        models: vec!["XL430-W250"; joints],
+        home_rad: vec![0.0; joints],
+        rate_hz: LOOP_HZ,
+        strategies: vec!["overall", "sequential"],
+        protocol_version: PROTOCOL_VERSION,
+    }
+}
+
+fn telemetry(tick: u64) -> Telemetry {
+    Telemetry {
+        tick,
+        t_s: tick as f64 / LOOP_HZ,
+        strategy: "overall",
+        theta_cmd: vec![0.0; JOINTS],
+        theta_meas: vec![0.0; JOINTS],
+        omega_meas: vec![0.0; JOINTS],
+        ..Telemetry::default()
+    }
+}
+
+/// A daemon on a port-0 listener, with a fake loop behind it.
+struct Daemon {
+    addr: SocketAddr,
+    /// The socket side's handle, to fill the command queue from outside.
+    handle: Handle,
+    /// The loop's telemetry and event ends, driven by the test.
+    telemetry: watch::Sender<Telemetry>,
+    events: broadcast::Sender<Event>,
+    /// Whether the fake loop takes commands.
+    draining: watch::Sender<bool>,
+    fake: JoinHandle<()>,
+    stop: Option<oneshot::Sender<()>>,
+    server: Option<JoinHandle<io::Result<()>>>,
+}
+
+impl Daemon {
+    async fn start(options: ServerOptions, describe: Describe) -> Daemon {
+        let (handle, ends) = link::channel(describe, telemetry(0));
+        let (draining, draining_rx) = watch::channel(true);
+        let fake = tokio::spawn(fake_loop(
+            ends.commands,
+            ends.telemetry.subscribe(),
+            draining_rx,
+        ));
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (stop, stopped) = oneshot::channel::<()>();
+        let server = tokio::spawn(serve(listener, handle.clone(), options, async move {
+            let _ = stopped.await;
+        }));
+        Daemon {
+            addr,
+            handle,
+            telemetry: ends.telemetry,
+            events: ends.events,
+            draining,
+            fake,
+            stop: Some(stop),
+            server: Some(server),
+        }
+    }
+
+    async fn new() -> Daemon {
+        Daemon::start(ServerOptions::new(JOINTS, 8), describe(JOINTS)).await
+    }
+
+    async fn client(&self) -> Client {
+        Client::connect(self.addr).await
+    }
+
+    /// Resolves the shutdown future and waits for `serve` to return.
+    async fn shut_down(&mut self) -> io::Result<()> {
+        let _ = self.stop.take().unwrap().send(());
+        let server = self.server.take().unwrap();
+        time::timeout(DEADLINE, server)
+            .await
+            .expect("serve returns after shutdown")
+            .unwrap()
+    }
+}
+
+/// A stand-in for the control loop: every millisecond it takes the queued commands and answers
+/// each `{"tick": k, "cmd": NAME, "client": ID}`, k counting the commands it answered; `status`
+/// with the telemetry fields; `goto_joints` with an `unreachable` rejection; `reset_stats` by
+/// dropping the reply (as a loop that went away mid-command).
+async fn fake_loop(
+    mut commands: mpsc::Receiver<Envelope>,
+    telemetry: watch::Receiver<Telemetry>,
+    mut draining: watch::Receiver<bool>,
+) {
+    let mut tick = 0u64;
+    let mut every = time::interval(Duration::from_millis(1));
+    loop {
+        every.tick().await;
+        if !*draining.borrow_and_update() {
+            if draining.changed().await.is_err() {
+                return;
+            }
+            continue;
+        }
+        while let Ok(envelope) = commands.try_recv() {
+            tick += 1;
+            let answer = match envelope.cmd {
+                Cmd::Status => Ok(telemetry.borrow().to_fields()),
+                Cmd::GotoJoints { .. } => Err(Rejection::new(
+                    Code::Unreachable,
+                    "outside the joint limits",
+                )),
+                Cmd::ResetStats => continue,
+                cmd => {
+                    let mut fields = Map::new();
+                    fields.insert("tick".into(), json!(tick));
+                    fields.insert("cmd".into(), json!(cmd.name()));
+                    fields.insert("client".into(), json!(envelope.client));
+                    Ok(fields)
+                }
+            };
+            let _ = envelope.reply.send(answer);
+        }
+    }
+}
+
+struct Client {
+    lines: tokio::io::Lines<BufReader<OwnedReadHalf>>,
+    writer: OwnedWriteHalf,
+}
+
+impl Client {
+    async fn connect(addr: SocketAddr) -> Client {
+        Client::from_stream(TcpStream::connect(addr).await.unwrap())
+    }
+
+    fn from_stream(stream: TcpStream) -> Client {
+        let (read, writer) = stream.into_split();
+        Client {
+            lines: BufReader::new(read).lines(),
+            writer,
+        }
+    }
+
+    async fn send_raw(&mut self, bytes: &[u8]) {
+        self.writer.write_all(bytes).await.unwrap();
+    }
+
+    async fn send(&mut self, request: &Value) {
+        let mut line = request.to_string();
+        line.push('\n');
+        self.send_raw(line.as_bytes()).await;
+    }
+
+    /// The next line, or `None` at the end of the stream.
+    async fn next_line(&mut self) -> Option<Value> {
+        let line = time::timeout(DEADLINE, self.lines.next_line())
+            .await
+            .expect("a line within the deadline")
+            .unwrap()?;
+        Some(serde_json::from_str(&line).unwrap_or_else(|e| panic!("{line:?}: {e}")))
+    }
+
+    async fn recv(&mut self) -> Value {
+        self.next_line().await.expect("a line, not the end")
+    }
+
+    /// The next reply, skipping telemetry and event lines.
+    async fn reply(&mut self) -> Value {
+        loop {
+            let line = self.recv().await;
+            if line.get("type").is_none() {
+                return line;
+            }
+        }
+    }
+
+    async fn request(&mut self, request: Value) -> Value {
+        self.send(&request).await;
+        self.reply().await
+    }
+
+    /// Whether the server closes the connection (end of stream or reset) within the deadline,
+    /// reading whatever comes before.
+    async fn closed(&mut self) -> bool {
+        let read = time::timeout(DEADLINE, async {
+            loop {
+                match self.lines.next_line().await {
+                    Ok(Some(_)) => {}
+                    Ok(None) | Err(_) => return,
+                }
+            }
+        });
+        read.await.is_ok()
+    }
+}
+
+fn code(reply: &Value) -> &str {
+    assert_eq!(reply["ok"], json!(false), "{reply}");
+    reply["error"]["code"].as_str().unwrap()
+}
+
+fn message(reply: &Value) -> &str {
+    reply["error"]["message"].as_str().unwrap()
+}
+
+#[tokio::test]
+async fn every_request_error_code_is_answered_and_the_connection_lives() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+
+    c.send_raw(b"not json\n").await;
+    let reply = c.reply().await;
+    assert_eq!((code(&reply), &reply["id"]), ("bad_json", &Value::Null));
+
+    c.send_raw(b"[1,2,3]\n").await;
+    assert_eq!(code(&c.reply().await), "bad_json");
+
+    c.send_raw(b"{\"cmd\":\"goto\",\"id\":1,\"target\":[1e999,0]}\n")
+        .await;
+    let reply = c.reply().await;
+    assert_eq!(code(&reply), "bad_json", "{reply}");
+    assert_eq!(
+        reply["id"],
+        Value::Null,
+        "the id of a line that is not JSON is unknown"
+    );
+
+    let reply = c.request(json!({"cmd": "dance", "id": 2})).await;
+    assert_eq!((code(&reply), &reply["id"]), ("unknown_cmd", &json!(2)));
+    assert!(message(&reply).contains("goto_joints"), "{reply}");
+
+    let reply = c.request(json!({"id": 3})).await;
+    assert_eq!(code(&reply), "unknown_cmd");
+
+    let reply = c
+        .request(json!({"cmd": "goto", "id": 4, "target": [0.1, "far"]}))
+        .await;
+    assert_eq!((code(&reply), &reply["id"]), ("bad_arg", &json!(4)));
+    assert!(message(&reply).contains("target[1]"), "{reply}");
+    assert!(message(&reply).contains("\"far\""), "{reply}");
+
+    let reply = c
+        .request(json!({"cmd": "goto_joints", "id": 5, "theta": [0, 0]}))
+        .await;
+    assert_eq!(code(&reply), "bad_arg", "theta needs {JOINTS} entries");
+
+    let reply = c
+        .request(json!({"cmd": "jog", "id": 6, "joint": JOINTS + 1, "rad_s": 0.1}))
+        .await;
+    assert_eq!(code(&reply), "bad_arg");
+    assert!(message(&reply).contains("joint"), "{reply}");
+
+    // Rejections from the loop, and a reply the loop dropped.
+    let reply = c
+        .request(json!({"cmd": "goto_joints", "id": 7, "theta": [0, 0, 3]}))
+        .await;
+    assert_eq!((code(&reply), &reply["id"]), ("unreachable", &json!(7)));
+    let reply = c.request(json!({"cmd": "reset_stats", "id": 8})).await;
+    assert_eq!((code(&reply), &reply["id"]), ("shutting_down", &json!(8)));
+
+    // The connection still serves.
+    let reply = c.request(json!({"cmd": "stop", "id": 9})).await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert_eq!(reply["cmd"], json!("stop"));
+}
+
+#[tokio::test]
+async fn an_over_long_line_is_refused_and_the_next_request_answered() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    let mut long = br#"{"cmd":"path","id":1,"points":["#.to_vec();
+    while long.len() <= MAX_LINE {
+        long.extend_from_slice(b"[0.001,0.002],");
+    }
+    long.extend_from_slice(b"[0,0]]}\n");
+    c.send_raw(&long).await;
+    c.send_raw(b"\n   \n").await;
+    c.send(&json!({"cmd": "describe", "id": "after"})).await;
+    let reply = c.reply().await;
+    assert_eq!(code(&reply), "line_too_long", "{reply}");
+    assert_eq!(reply["id"], Value::Null);
+    let reply = c.reply().await;
+    assert_eq!(
+        reply["id"],
+        json!("after"),
+        "blank lines get no reply: {reply}"
+    );
+    assert_eq!(reply["ok"], json!(true));
+}
+
+#[tokio::test]
+async fn ids_of_every_kind_are_echoed() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    let ids = [
+        json!(17),
+        json!(-2.5),
+        json!(18446744073709551615u64),
+        json!("req-1"),
+        json!({"seq": 4, "tag": ["a"]}),
+        json!([1, null]),
+        json!(true),
+    ];
+    for id in &ids {
+        for cmd in ["status", "describe", "stop", "fly"] {
+            let reply = c.request(json!({"cmd": cmd, "id": id})).await;
+            assert_eq!(&reply["id"], id, "{cmd}: {reply}");
+        }
+    }
+    for cmd in ["status", "describe", "stop", "fly"] {
+        let reply = c.request(json!({"cmd": cmd})).await;
+        assert_eq!(reply["id"], Value::Null, "{reply}");
+        assert!(reply.as_object().unwrap().contains_key("id"), "{reply}");
+    }
+}
+
+#[tokio::test]
+async fn replies_keep_the_order_of_the_requests() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    // Loop commands (answered a tick later) between requests answered on the socket side at once.
+    let mut burst = String::new();
+    for i in 0..60 {
+        let request = match i % 4 {
+            0 => json!({"cmd": "stop", "id": i}),
+            1 => json!({"cmd": "describe", "id": i}),
+            2 => json!({"cmd": "goto", "id": i, "target": [0.1, 0.1]}),
+            _ => json!({"cmd": "goto", "id": i}),
+        };
+        burst.push_str(&request.to_string());
+        burst.push('\n');
+    }
+    c.send_raw(burst.as_bytes()).await;
+    let mut last_tick = 0;
+    for i in 0..60 {
+        let reply = c.reply().await;
+        assert_eq!(reply["id"], json!(i), "{reply}");
+        if let Some(tick) = reply["tick"].as_u64() {
+            assert!(tick > last_tick, "{reply} after tick {last_tick}");
+            last_tick = tick;
+        }
+    }
+}
+
+#[tokio::test]
+async fn describe_is_answered_with_its_fields_flat() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    let reply = c.request(json!({"cmd": "describe", "id": 1})).await;
+    let mut expected = describe(JOINTS).to_fields();
+    expected.insert("id".into(), json!(1));
+    expected.insert("ok".into(), json!(true));
+    assert_eq!(reply, Value::Object(expected));
+}
+
+#[tokio::test]
+async fn status_carries_the_telemetry_fields() {
+    let daemon = Daemon::new().await;
+    daemon.telemetry.send_replace(telemetry(41));
+    let mut c = daemon.client().await;
+    let reply = c.request(json!({"cmd": "status", "id": 1})).await;
+    let mut expected = telemetry(41).to_fields();
+    expected.insert("id".into(), json!(1));
+    expected.insert("ok".into(), json!(true));
+    assert_eq!(reply, Value::Object(expected));
+}
+
+#[tokio::test]
+async fn a_full_command_queue_is_answered_busy_at_once() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    daemon.draining.send_replace(false);
+    let mut waiting = Vec::new();
+    loop {
+        let (reply, answer) = oneshot::channel();
+        let envelope = Envelope {
+            client: 999,
+            id: None,
+            cmd: Cmd::Stop,
+            received: std::time::Instant::now(),
+            reply,
+        };
+        if daemon.handle.commands.try_send(envelope).is_err() {
+            break;
+        }
+        waiting.push(answer);
+    }
+    assert_eq!(waiting.len(), COMMAND_QUEUE);
+
+    let reply = c.request(json!({"cmd": "stop", "id": "s1"})).await;
+    assert_eq!((code(&reply), &reply["id"]), ("busy", &json!("s1")));
+    let reply = c.request(json!({"cmd": "describe", "id": "d"})).await;
+    assert_eq!(
+        reply["ok"],
+        json!(true),
+        "the socket side still answers: {reply}"
+    );
+
+    // Once the loop has taken what was queued, the client is served again.
+    daemon.draining.send_replace(true);
+    for answer in waiting {
+        assert!(time::timeout(DEADLINE, answer).await.unwrap().is_ok());
+    }
+    let reply = c.request(json!({"cmd": "stop", "id": "s2"})).await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+}
+
+#[tokio::test]
+async fn commands_after_the_loop_ended_are_answered_shutting_down() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    assert_eq!(c.request(json!({"cmd": "stop"})).await["ok"], json!(true));
+    daemon.fake.abort();
+    let _ = daemon.fake.await;
+    let reply = c.request(json!({"cmd": "home", "id": 1})).await;
+    assert_eq!((code(&reply), &reply["id"]), ("shutting_down", &json!(1)));
+    let reply = c.request(json!({"cmd": "describe", "id": 2})).await;
+    assert_eq!(reply["ok"], json!(true));
+}
+
+/// The telemetry lines a client receives, each with the paused clock's time it came.
+async fn telemetry_lines(c: &mut Client, n: usize) -> Vec<(Instant, Value)> {
+    let mut lines = Vec::new();
+    while lines.len() < n {
+        let line = c.recv().await;
+        if line["type"] == json!("telemetry") {
+            lines.push((Instant::now(), line));
+        }
+    }
+    lines
+}
+
+/// Publishes a new snapshot every millisecond, as a 1 kHz loop would.
+fn publish_every_ms(telemetry: watch::Sender<Telemetry>) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut every = time::interval(Duration::from_millis(1));
+        for tick in 1.. {
+            every.tick().await;
+            telemetry.send_modify(|t| {
+                t.tick = tick;
+                t.t_s = tick as f64 / 1000.0;
+            });
+        }
+    })
+}
+
+#[tokio::test(start_paused = true)]
+async fn subscribe_sends_telemetry_at_the_rate_asked() {
+    let daemon = Daemon::new().await;
+    let publisher = publish_every_ms(daemon.telemetry.clone());
+    let mut c = daemon.client().await;
+    let reply = c
+        .request(json!({"cmd": "subscribe", "id": 1, "rate_hz": 10}))
+        .await;
+    assert_eq!(
+        (&reply["ok"], &reply["rate_hz"]),
+        (&json!(true), &json!(10.0))
+    );
+    let lines = telemetry_lines(&mut c, 11).await;
+    let span = lines[10].0 - lines[0].0;
+    assert!(
+        (0.95..=1.05).contains(&span.as_secs_f64()),
+        "11 lines at 10 Hz over {span:?}"
+    );
+    let ticks: Vec<u64> = lines
+        .iter()
+        .map(|(_, l)| l["tick"].as_u64().unwrap())
+        .collect();
+    assert!(ticks.windows(2).all(|w| w[1] > w[0]), "{ticks:?}");
+    let fields = telemetry(0).to_fields();
+    let mut expected: Vec<&str> = fields.keys().map(String::as_str).collect();
+    expected.push("type");
+    expected.sort_unstable();
+    let mut got: Vec<&str> = lines[0]
+        .1
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
+    got.sort_unstable();
+    assert_eq!(got, expected);
+    publisher.abort();
+}
+
+#[tokio::test(start_paused = true)]
+async fn subscribe_is_capped_at_the_loop_rate() {
+    let daemon = Daemon::new().await;
+    let publisher = publish_every_ms(daemon.telemetry.clone());
+    let mut c = daemon.client().await;
+    let reply = c
+        .request(json!({"cmd": "subscribe", "id": 1, "rate_hz": 1000}))
+        .await;
+    assert_eq!(reply["rate_hz"], json!(LOOP_HZ), "{reply}");
+    let lines = telemetry_lines(&mut c, 21).await;
+    let span = lines[20].0 - lines[0].0;
+    assert!(
+        (0.19..=0.21).contains(&span.as_secs_f64()),
+        "21 lines at {LOOP_HZ} Hz over {span:?}"
+    );
+    publisher.abort();
+}
+
+#[tokio::test(start_paused = true)]
+async fn unchanged_telemetry_is_not_sent_again() {
+    let daemon = Daemon::new().await;
+    daemon.telemetry.send_replace(telemetry(5));
+    let mut c = daemon.client().await;
+    c.request(json!({"cmd": "subscribe", "rate_hz": 50})).await;
+    let first = c.recv().await;
+    assert_eq!(
+        (&first["type"], &first["tick"]),
+        (&json!("telemetry"), &json!(5))
+    );
+    let quiet = time::timeout(Duration::from_secs(2), c.lines.next_line()).await;
+    assert!(quiet.is_err(), "a line though nothing changed: {quiet:?}");
+    daemon.telemetry.send_replace(telemetry(6));
+    let next = c.recv().await;
+    assert_eq!(
+        (&next["type"], &next["tick"]),
+        (&json!("telemetry"), &json!(6))
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn unsubscribe_stops_telemetry() {
+    let daemon = Daemon::new().await;
+    let publisher = publish_every_ms(daemon.telemetry.clone());
+    let mut c = daemon.client().await;
+    c.request(json!({"cmd": "subscribe", "rate_hz": 100})).await;
+    telemetry_lines(&mut c, 5).await;
+    c.send(&json!({"cmd": "unsubscribe", "id": "u"})).await;
+    let reply = c.reply().await;
+    assert_eq!((&reply["ok"], &reply["id"]), (&json!(true), &json!("u")));
+    let quiet = time::timeout(Duration::from_secs(2), c.lines.next_line()).await;
+    assert!(quiet.is_err(), "telemetry after unsubscribe: {quiet:?}");
+    // Another client's subscription is its own.
+    let mut other = daemon.client().await;
+    other
+        .request(json!({"cmd": "subscribe", "rate_hz": 100}))
+        .await;
+    telemetry_lines(&mut other, 3).await;
+    let quiet = time::timeout(Duration::from_secs(1), c.lines.next_line()).await;
+    assert!(quiet.is_err(), "{quiet:?}");
+    publisher.abort();
+}
+
+fn event(owner: Option<u64>, kind: EventKind, tick: u64) -> Event {
+    Event {
+        owner,
+        cmd_id: owner.map(|o| Arc::new(json!(format!("cmd-of-{o}")))),
+        kind,
+        tick,
+        tip: [0.25, -0.5],
+        reason: (kind == EventKind::Stopped).then_some("deadman"),
+    }
+}
+
+/// The event lines a client receives up to the one at `last_tick`.
+async fn events_until(c: &mut Client, last_tick: u64) -> Vec<Value> {
+    let mut events = Vec::new();
+    loop {
+        let line = c.recv().await;
+        assert_eq!(line["type"], json!("event"), "{line}");
+        let done = line["tick"] == json!(last_tick);
+        events.push(line);
+        if done {
+            return events;
+        }
+    }
+}
+
+#[tokio::test]
+async fn events_go_to_their_owner_or_to_everyone() {
+    let daemon = Daemon::new().await;
+    let mut a = daemon.client().await;
+    let mut b = daemon.client().await;
+    let id_a = a.request(json!({"cmd": "stop"})).await["client"]
+        .as_u64()
+        .unwrap();
+    let id_b = b.request(json!({"cmd": "stop"})).await["client"]
+        .as_u64()
+        .unwrap();
+    assert_ne!(id_a, id_b);
+    assert!(id_a >= 1 && id_b >= 1);
+
+    for e in [
+        event(Some(id_a), EventKind::Arrived, 1),
+        event(Some(id_b), EventKind::Stopped, 2),
+        event(None, EventKind::Estop, 3),
+        event(Some(id_a + id_b + 100), EventKind::Preempted, 4),
+        event(None, EventKind::Reset, 5),
+    ] {
+        daemon.events.send(e).unwrap();
+    }
+    let seen_a = events_until(&mut a, 5).await;
+    let seen_b = events_until(&mut b, 5).await;
+    let ticks = |seen: &[Value]| {
+        seen.iter()
+            .map(|e| e["tick"].as_u64().unwrap())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(ticks(&seen_a), [1, 3, 5]);
+    assert_eq!(ticks(&seen_b), [2, 3, 5]);
+    assert_eq!(
+        seen_a[0],
+        json!({"type": "event", "event": "arrived", "cmd_id": format!("cmd-of-{id_a}"),
+               "tick": 1, "tip": [0.25, -0.5]})
+    );
+    assert_eq!(seen_b[0]["reason"], json!("deadman"));
+    assert_eq!(
+        seen_b[1],
+        json!({"type": "event", "event": "estop", "tick": 3, "tip": [0.25, -0.5]})
+    );
+}
+
+#[tokio::test]
+async fn a_client_behind_on_events_continues() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    c.request(json!({"cmd": "stop"})).await;
+    // While the client waits for the loop, more events come than its receiver holds.
+    daemon.draining.send_replace(false);
+    c.send(&json!({"cmd": "stop", "id": "held"})).await;
+    let flood = link::EVENT_QUEUE as u64 * 2;
+    // The request reaches the queue before the flood, so the client task is waiting on it.
+    time::timeout(DEADLINE, async {
+        while daemon.handle.commands.capacity() == COMMAND_QUEUE {
+            tokio::task::yield_now().await;
+        }
+    })
+    .await
+    .unwrap();
+    for tick in 1..=flood {
+        daemon
+            .events
+            .send(event(None, EventKind::Fault, tick))
+            .unwrap();
+    }
+    daemon.draining.send_replace(true);
+    let reply = c.reply().await;
+    assert_eq!((&reply["ok"], &reply["id"]), (&json!(true), &json!("held")));
+    let seen = events_until(&mut c, flood).await;
+    assert!(
+        seen.len() <= link::EVENT_QUEUE,
+        "{} events kept of {flood}",
+        seen.len()
+    );
+    daemon
+        .events
+        .send(event(None, EventKind::Control, flood + 1))
+        .unwrap();
+    assert_eq!(events_until(&mut c, flood + 1).await.len(), 1);
+}
+
+#[tokio::test]
+async fn one_client_over_the_limit_is_refused() {
+    let daemon = Daemon::start(ServerOptions::new(JOINTS, 2), describe(JOINTS)).await;
+    let mut a = daemon.client().await;
+    let mut b = daemon.client().await;
+    assert_eq!(
+        a.request(json!({"cmd": "describe"})).await["ok"],
+        json!(true)
+    );
+    assert_eq!(
+        b.request(json!({"cmd": "describe"})).await["ok"],
+        json!(true)
+    );
+
+    let mut c = daemon.client().await;
+    let refused = c.recv().await;
+    assert_eq!(code(&refused), "too_many_clients");
+    assert_eq!(refused["id"], Value::Null);
+    assert!(message(&refused).contains('2'), "{refused}");
+    assert!(c.closed().await);
+
+    // The others go on; one leaving makes room.
+    assert_eq!(a.request(json!({"cmd": "stop"})).await["ok"], json!(true));
+    drop(b);
+    let served = time::timeout(DEADLINE, async {
+        loop {
+            let mut d = daemon.client().await;
+            d.send(&json!({"cmd": "describe", "id": "d"})).await;
+            if d.recv().await["ok"] == json!(true) {
+                return;
+            }
+            tokio::task::yield_now().await;
+        }
+    })
+    .await;
+    assert!(served.is_ok(), "no room after a client left");
+}
+
+#[tokio::test]
+async fn a_client_that_does_not_read_is_dropped_and_the_others_go_on() {
+    // A long describe makes every reply large, so the flood outgrows the socket buffers fast.
+    let options = ServerOptions {
+        client_queue: 16,
+        ..ServerOptions::new(JOINTS, 8)
+    };
+    let daemon = Daemon::start(options, describe(2000)).await;
+    let mut good = daemon.client().await;
+    let socket = TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let stuck = socket.connect(daemon.addr).await.unwrap();
+    let (stuck_read, mut stuck_write) = stuck.into_split();
+    // Requests until writing fails: the server closed the connection. Nothing is ever read.
+    let flood = tokio::spawn(async move {
+        let lines = b"{\"cmd\":\"describe\"}\n".repeat(50);
+        let mut sent = 0usize;
+        while stuck_write.write_all(&lines).await.is_ok() {
+            sent += 50;
+        }
+        sent
+    });
+
+    // Meanwhile the other client is served.
+    for i in 0..20 {
+        let reply = good.request(json!({"cmd": "stop", "id": i})).await;
+        assert_eq!(reply["id"], json!(i), "{reply}");
+    }
+    let sent = time::timeout(DEADLINE, flood)
+        .await
+        .expect("the server closes the connection of a client that does not read")
+        .unwrap();
+    assert!(sent > 16, "{sent} requests");
+    drop(stuck_read);
+    let reply = good.request(json!({"cmd": "status", "id": "after"})).await;
+    assert_eq!(reply["id"], json!("after"));
+}
+
+#[tokio::test]
+async fn shutdown_closes_the_connections_and_returns() {
+    let mut daemon = Daemon::new().await;
+    let mut quiet = daemon.client().await;
+    let mut subscribed = daemon.client().await;
+    assert_eq!(
+        quiet.request(json!({"cmd": "stop"})).await["ok"],
+        json!(true)
+    );
+    subscribed
+        .request(json!({"cmd": "subscribe", "rate_hz": 100}))
+        .await;
+    daemon.shut_down().await.unwrap();
+    assert!(quiet.closed().await);
+    assert!(subscribed.closed().await);
+    assert!(
+        TcpStream::connect(daemon.addr).await.is_err(),
+        "still accepting after shutdown"
+    );
+    // The socket side let go of the loop's command queue.
+    assert_eq!(Arc::strong_count(&daemon.handle.describe), 1);
+}
+
+#[tokio::test]
+async fn shutdown_returns_while_the_loop_holds_a_command() {
+    let mut daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    assert_eq!(c.request(json!({"cmd": "stop"})).await["ok"], json!(true));
+    daemon.draining.send_replace(false);
+    c.send(&json!({"cmd": "home", "id": "never answered"}))
+        .await;
+    time::timeout(DEADLINE, async {
+        while daemon.handle.commands.capacity() == COMMAND_QUEUE {
+            tokio::task::yield_now().await;
+        }
+    })
+    .await
+    .unwrap();
+    daemon.shut_down().await.unwrap();
+    assert!(c.closed().await);
+}
