@@ -71,14 +71,20 @@ fn a_goto_arrives_on_target_and_the_servos_follow() {
     let d_m = dist(start, target);
     let trapezoid = d_m / MAX_TIP_SPEED + MAX_TIP_SPEED / MAX_TIP_ACCEL;
     let took = (arrived["tick"].as_u64().unwrap() - reply["tick"].as_u64().unwrap()) as f64 * DT;
-    assert!(took <= trapezoid + 0.1, "took {took:.2} s, trapezoid {trapezoid:.2} s");
+    assert!(
+        took <= trapezoid + 0.1,
+        "took {took:.2} s, trapezoid {trapezoid:.2} s"
+    );
     // The servos follow to within the rounding of their goals to ticks.
     let theta = floats(&s["theta_cmd"]);
     let bound = rounding_bound(&d.config, &theta);
     let s = c.wait_status("measured tip on target", |s| {
         dist(xy(&s["tip_meas"]), target) <= bound
     });
-    assert!(s["tracking_error_m"].as_f64().unwrap() <= bound + 1e-12, "{s}");
+    assert!(
+        s["tracking_error_m"].as_f64().unwrap() <= bound + 1e-12,
+        "{s}"
+    );
 }
 
 #[test]
@@ -103,7 +109,10 @@ fn a_path_takes_its_corners_and_arrives() {
             .map(|t| dist(tip(t), corner))
             .fold(f64::INFINITY, f64::min);
         // Slowing to a stop there: within a few ticks of the corner the tip moves ~1e-4 m.
-        assert!(nearest < 5e-4, "corner {corner:?} missed by {nearest:.2e} m");
+        assert!(
+            nearest < 5e-4,
+            "corner {corner:?} missed by {nearest:.2e} m"
+        );
     }
     let last = samples.last().unwrap();
     assert!(dist(tip(last), corners[2]) < 1e-9);
@@ -166,7 +175,11 @@ fn a_jog_stops_within_the_deadman_and_at_the_joint_limit() {
     for t in &samples {
         assert!(floats(&t["theta_cmd"])[11] <= 2.0 + 1e-12, "{t}");
     }
-    assert!(last[11] > 2.0 - 0.01, "joint 12 stopped at {} before its limit", last[11]);
+    assert!(
+        last[11] > 2.0 - 0.01,
+        "joint 12 stopped at {} before its limit",
+        last[11]
+    );
 }
 
 #[test]
@@ -194,7 +207,11 @@ fn the_strategy_switches_mid_motion_without_a_jump() {
     if clamped(samples.last().unwrap()) == clamped(&samples[0]) {
         for t in &samples {
             let off = off_segment(tip(t), start, target);
-            assert!(off < 1e-6, "the tip left its line by {off:.2e} m at tick {}", t["tick"]);
+            assert!(
+                off < 1e-6,
+                "the tip left its line by {off:.2e} m at tick {}",
+                t["tick"]
+            );
         }
     }
 }
@@ -214,8 +231,14 @@ fn estop_latches_until_reset_which_holds_without_moving() {
     for id in d.config.arm().unwrap().ids() {
         assert!(!d.torque(id), "servo {id} still has torque after estop");
     }
-    assert_eq!(c.error_code(json!({"cmd": "goto", "target": start})), "estopped");
-    assert_eq!(c.error_code(json!({"cmd": "velocity", "v": [0.01, 0.0]})), "estopped");
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "estopped"
+    );
+    assert_eq!(
+        c.error_code(json!({"cmd": "velocity", "v": [0.01, 0.0]})),
+        "estopped"
+    );
     assert_eq!(c.error_code(json!({"cmd": "home"})), "estopped");
     // Stopping is never refused.
     c.ok(json!({"cmd": "stop"}));
@@ -233,7 +256,10 @@ fn estop_latches_until_reset_which_holds_without_moving() {
     // Goal := measured: the commanded pose is the measured one, to a tick.
     let (cmd, meas) = (floats(&s["theta_cmd"]), floats(&s["theta_meas"]));
     for (a, b) in cmd.iter().zip(&meas) {
-        assert!((a - b).abs() <= std::f64::consts::TAU / 4096.0, "{a} vs {b}");
+        assert!(
+            (a - b).abs() <= std::f64::consts::TAU / 4096.0,
+            "{a} vs {b}"
+        );
     }
     // Reset never starts motion by itself.
     std::thread::sleep(Duration::from_millis(100));
@@ -269,16 +295,43 @@ fn every_error_code_is_answered_with_the_request_id() {
         let r = c.request(req.clone());
         assert_eq!(r["error"]["code"], "bad_arg", "{req} -> {r}");
         let msg = r["error"]["message"].as_str().unwrap();
-        assert!(msg.contains(field), "{req} -> {msg:?} does not name `{field}`");
+        assert!(
+            msg.contains(field),
+            "{req} -> {msg:?} does not name `{field}`"
+        );
     };
-    bad_arg(&mut c, json!({"cmd": "goto", "target": [2e6, 0.0]}), "target");
+    bad_arg(
+        &mut c,
+        json!({"cmd": "goto", "target": [2e6, 0.0]}),
+        "target",
+    );
     bad_arg(&mut c, json!({"cmd": "goto", "target": [0.1]}), "target");
-    bad_arg(&mut c, json!({"cmd": "goto", "target": [0.1, 0.2], "sped": 1}), "sped");
-    bad_arg(&mut c, json!({"cmd": "goto_joints", "theta": [0.0, 0.1]}), "theta");
-    bad_arg(&mut c, json!({"cmd": "jog", "joint": 13, "rad_s": 0.1}), "joint");
-    bad_arg(&mut c, json!({"cmd": "jog", "joint": 0, "rad_s": 0.1}), "joint");
+    bad_arg(
+        &mut c,
+        json!({"cmd": "goto", "target": [0.1, 0.2], "sped": 1}),
+        "sped",
+    );
+    bad_arg(
+        &mut c,
+        json!({"cmd": "goto_joints", "theta": [0.0, 0.1]}),
+        "theta",
+    );
+    bad_arg(
+        &mut c,
+        json!({"cmd": "jog", "joint": 13, "rad_s": 0.1}),
+        "joint",
+    );
+    bad_arg(
+        &mut c,
+        json!({"cmd": "jog", "joint": 0, "rad_s": 0.1}),
+        "joint",
+    );
     bad_arg(&mut c, json!({"cmd": "velocity", "v": "fast"}), "v");
-    bad_arg(&mut c, json!({"cmd": "strategy", "name": "fastest"}), "name");
+    bad_arg(
+        &mut c,
+        json!({"cmd": "strategy", "name": "fastest"}),
+        "name",
+    );
 
     // An over-long line is discarded; the connection lives.
     let long = format!(r#"{{"cmd":"status","pad":"{}"}}"#, "x".repeat(70 * 1024));
@@ -291,7 +344,10 @@ fn every_error_code_is_answered_with_the_request_id() {
         "unreachable"
     );
     c.ok(json!({"cmd": "estop"}));
-    assert_eq!(c.error_code(json!({"cmd": "jog", "joint": 1, "rad_s": 0.1})), "estopped");
+    assert_eq!(
+        c.error_code(json!({"cmd": "jog", "joint": 1, "rad_s": 0.1})),
+        "estopped"
+    );
 }
 
 #[test]
@@ -308,7 +364,10 @@ fn an_unreachable_goto_ends_short_with_one_saturated_event() {
     assert_eq!(s["command"]["outcome"], "saturated");
     let reach = 12.0 * 0.08;
     assert!(dist(tip(&s), [0.0, 0.0]) <= reach + 1e-9);
-    assert!(dist(tip(&s), far) < dist(start, far), "no progress toward the target");
+    assert!(
+        dist(tip(&s), far) < dist(start, far),
+        "no progress toward the target"
+    );
     let more = c.drain_events(Duration::from_millis(300));
     assert!(
         !more

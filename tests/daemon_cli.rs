@@ -20,6 +20,13 @@ use snakectl_sim::{RealClock, SimHandle};
 
 /// The shipped simulator config with `edits`, written to a file in `dir`.
 fn config_file(dir: &Path, edits: &[(&str, &str)]) -> (PathBuf, Config) {
+    let path = write_config(dir, edits);
+    let config = Config::load(&path).unwrap();
+    (path, config)
+}
+
+/// The same, only written (it may not be valid).
+fn write_config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
     let shipped = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
     let mut text = std::fs::read_to_string(shipped).unwrap();
     for (old, new) in [("reply_timeout_ms = 20 ", "reply_timeout_ms = 100")]
@@ -31,8 +38,7 @@ fn config_file(dir: &Path, edits: &[(&str, &str)]) -> (PathBuf, Config) {
     }
     let path = dir.join("arm.toml");
     std::fs::write(&path, &text).unwrap();
-    let config = Config::from_str(&text, &path).unwrap();
-    (path, config)
+    path
 }
 
 /// A `snakectl run` child; killed and reaped when dropped.
@@ -158,7 +164,9 @@ fn after_kill_9_the_bus_watchdog_stops_the_servos() {
     let mut client = Client::connect(daemon.address());
     start_moving(&mut client);
     let ids = config.arm().unwrap().ids();
-    assert!(ids.iter().all(|&id| sim.with_servo(id, |s| s.watchdog()).unwrap() > 0));
+    assert!(ids
+        .iter()
+        .all(|&id| sim.with_servo(id, |s| s.watchdog()).unwrap() > 0));
     let killed = Instant::now();
     daemon.child.kill().unwrap();
     daemon.child.wait().unwrap();
@@ -186,7 +194,10 @@ fn after_kill_9_the_bus_watchdog_stops_the_servos() {
     };
     let stopped = positions(&sim);
     for &id in &ids {
-        assert!(!sim.with_servo(id, |s| s.moving()).unwrap(), "servo {id} moves");
+        assert!(
+            !sim.with_servo(id, |s| s.moving()).unwrap(),
+            "servo {id} moves"
+        );
     }
     std::thread::sleep(Duration::from_millis(100));
     assert_eq!(positions(&sim), stopped, "the servos still move");
@@ -209,13 +220,16 @@ fn a_missing_servo_refuses_to_start_naming_it() {
     let mut daemon = DaemonChild::spawn(&path, sim.path());
     let (status, log) = daemon.wait();
     assert_eq!(status.code(), Some(2), "log:\n{log}");
-    assert!(log.contains("12"), "the refusal does not name servo 12:\n{log}");
+    assert!(
+        log.contains("12"),
+        "the refusal does not name servo 12:\n{log}"
+    );
 }
 
 #[test]
 fn a_bad_config_value_is_refused_naming_the_field() {
     let dir = tempfile::tempdir().unwrap();
-    let (path, _) = config_file(dir.path(), &[("rate_hz = 100.0", "rate_hz = 5000.0")]);
+    let path = write_config(dir.path(), &[("rate_hz = 100.0", "rate_hz = 5000.0")]);
     let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
         .args(["run", "--config"])
         .arg(&path)
@@ -223,5 +237,8 @@ fn a_bad_config_value_is_refused_naming_the_field() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("control.rate_hz") && err.contains("2000"), "{err}");
+    assert!(
+        err.contains("control.rate_hz") && err.contains("2000"),
+        "{err}"
+    );
 }

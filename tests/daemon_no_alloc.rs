@@ -93,7 +93,10 @@ fn warm_ticks_of_the_loop_thread_allocate_nothing() {
     let before = LOOP_ALLOCATIONS.load(Ordering::Relaxed);
     let t = watch_ticks(&mut c, 150);
     let moving = LOOP_ALLOCATIONS.load(Ordering::Relaxed) - before;
-    assert_eq!(t["state"], "moving", "the goto ended inside the window: {t}");
+    assert_eq!(
+        t["state"], "moving",
+        "the goto ended inside the window: {t}"
+    );
 
     assert_eq!(holding, 0, "allocations on the loop thread while holding");
     assert_eq!(moving, 0, "allocations on the loop thread while moving");

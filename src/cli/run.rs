@@ -65,7 +65,10 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
 /// Resolves on the first SIGINT or SIGTERM.
 async fn signal() {
     use tokio::signal::unix::{signal, SignalKind};
-    match (signal(SignalKind::interrupt()), signal(SignalKind::terminate())) {
+    match (
+        signal(SignalKind::interrupt()),
+        signal(SignalKind::terminate()),
+    ) {
         (Ok(mut int), Ok(mut term)) => {
             tokio::select! {
                 _ = int.recv() => {}

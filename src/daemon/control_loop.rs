@@ -405,7 +405,10 @@ impl Cycle {
         }
 
         // Write, through the limits wrapper.
-        match self.arm.goals_into(self.controller.theta(), &mut self.goals) {
+        match self
+            .arm
+            .goals_into(self.controller.theta(), &mut self.goals)
+        {
             Ok(()) => {
                 if let Err(e) = self.bus.write_goals(&self.goals) {
                     self.write_failed(&e);
@@ -416,7 +419,8 @@ impl Cycle {
         if !self.received.is_empty() {
             let written = Instant::now();
             for &r in &self.received {
-                self.latency_hist.record(written.saturating_duration_since(r));
+                self.latency_hist
+                    .record(written.saturating_duration_since(r));
             }
             self.received.clear();
         }
@@ -499,7 +503,11 @@ impl Cycle {
             }
         };
         let target = self.controller.target().map(|t| [t.x, t.y]);
-        let command = self.active.as_ref().or(self.last.as_ref()).map(Active::info);
+        let command = self
+            .active
+            .as_ref()
+            .or(self.last.as_ref())
+            .map(Active::info);
         let tracking = (self.tip_ref - tip_meas).norm();
         let loop_hz = self.window.rate_hz();
         let p99 = self.window.p99_us;
@@ -508,12 +516,8 @@ impl Cycle {
         let theta_cmd = self.controller.theta();
         let (theta_meas, omega_meas) = (&self.theta_meas, &self.omega_meas);
         let (tip_ref, saturated, solve_us) = (self.tip_ref, self.saturated, self.solve_us);
-        let (overruns, peak, m3, counters) = (
-            self.overruns,
-            self.peak_total,
-            self.m3_total,
-            self.counters,
-        );
+        let (overruns, peak, m3, counters) =
+            (self.overruns, self.peak_total, self.m3_total, self.counters);
         self.ends.telemetry.send_modify(|t| {
             t.tick = tick;
             t.t_s = t_s;
@@ -694,7 +698,12 @@ impl Cycle {
         }
         if let Some(mut old) = self.active.take() {
             old.outcome = "preempted";
-            self.event(Some(old.owner), old.id.clone(), EventKind::Preempted, Some(kind));
+            self.event(
+                Some(old.owner),
+                old.id.clone(),
+                EventKind::Preempted,
+                Some(kind),
+            );
             self.last = Some(old);
         }
         self.active = Some(Active {
@@ -785,7 +794,11 @@ impl Cycle {
             }
         }
         // A servo may rest a tick past a limit; its goal is the nearest pose inside them.
-        for (t, l) in self.theta_meas.iter_mut().zip(self.controller.chain().limits()) {
+        for (t, l) in self
+            .theta_meas
+            .iter_mut()
+            .zip(self.controller.chain().limits())
+        {
             if let Some(l) = l {
                 *t = l.clamp(*t);
             }

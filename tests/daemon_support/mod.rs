@@ -269,7 +269,10 @@ impl Client {
             if pred(&s) {
                 return s;
             }
-            assert!(Instant::now() < deadline, "{what}: not within {DEADLINE:?}; last {s}");
+            assert!(
+                Instant::now() < deadline,
+                "{what}: not within {DEADLINE:?}; last {s}"
+            );
             std::thread::sleep(Duration::from_millis(5));
         }
     }
