@@ -92,7 +92,10 @@ fn run(rate_hz: f64, wire_timing: bool, seconds: f64) -> Result<Summary> {
             &format!(r#"{{"cmd":"velocity","v":[{vx:.6},{vy:.6}]}}"#),
         )?;
         k += 1;
-        std::thread::sleep(Duration::from_millis(50));
+        // 50 ms plus a share of a period that walks around the tick (golden-ratio steps), so
+        // commands arrive at every phase of the loop instead of locking onto one.
+        let phase = (f64::from(k) * 0.618_034).fract() / rate_hz;
+        std::thread::sleep(Duration::from_millis(50) + Duration::from_secs_f64(phase));
     }
     request(&mut client, r#"{"cmd":"stop"}"#)?;
     let _ = stop_tx.send(());
@@ -139,20 +142,29 @@ fn main() -> Result<()> {
     );
     println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
     println!("|---|---|---|---|---|---|");
-    let mut best = None;
-    for rate in [100.0, 200.0, 250.0, 300.0, 330.0, 350.0, 400.0] {
+    let (mut strict, mut sustained) = (None, None);
+    for rate in [100.0, 150.0, 200.0, 225.0, 250.0, 275.0, 300.0, 350.0] {
         let s = run(rate, true, seconds)?;
         row(rate, &s);
         if s.overruns == 0 {
-            best = Some(rate);
+            strict = Some(rate);
+        }
+        if (s.overruns as f64) <= 1e-3 * s.ticks as f64 {
+            sustained = Some(rate);
         }
     }
-    match best {
+    let say = |what: &str, r: Option<f64>| match r {
         Some(r) => println!(
-            "\nHighest rate without overruns: {r:.0} Hz ({:.0}% of the wire bound).",
+            "{what}: {r:.0} Hz ({:.0}% of the wire bound).",
             100.0 * r * bound_s
         ),
-        None => println!("\nNo rate ran without overruns."),
-    }
+        None => println!("{what}: none of the rates tried."),
+    };
+    println!();
+    say("Highest rate without a single overrun", strict);
+    say(
+        "Highest rate with overruns under 0.1% of the ticks",
+        sustained,
+    );
     Ok(())
 }

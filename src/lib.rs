@@ -10,6 +10,10 @@
 //! - [`metrics`]: the paper's five motion metrics between two configurations. Pure math.
 //! - [`resolve`]: the two redundancy-resolution strategies (sequential tractrix, overall
 //!   minimization of metric 3) behind one [`resolve::Resolver`] trait. Pure math.
+//! - [`motion`]: the tip (or joint) reference of each control tick from the active command,
+//!   speed- and acceleration-limited. Pure math, time as `dt`.
+//! - [`control`]: one control tick: motion, resolve (warm, the active strategy, bisection when
+//!   out of reach), joint-speed limit; the goal pose and what happened. Pure math.
 //! - [`config`]: the one TOML file that describes an arm and how to reach it, parsed raw and then
 //!   validated, errors naming the file and the field.
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
@@ -21,6 +25,10 @@
 //! - [`plot`]: the scenario figures as SVG and PNG.
 //! - [`connect`]: the one way from a config to a running bus: the simulator spawned on a
 //!   pseudo-terminal, or a serial port, opened, limited, with the arm it drives.
+//! - [`protocol`]: the daemon's JSON-lines wire format: requests, replies, error codes,
+//!   telemetry, events; shared by the daemon and its clients.
+//! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread, the socket server on
+//!   tokio, the bounded seam between them.
 
 pub mod chain;
 pub mod config;
