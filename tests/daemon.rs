@@ -483,3 +483,81 @@ fn shutdown_brings_the_arm_to_rest_then_torque_off() {
         assert!(!servo.torque_enabled(), "servo {id} left with torque on");
     }
 }
+
+#[test]
+fn estop_keeps_torque_where_the_arm_would_fall() {
+    let d = Daemon::start(sim_config(&[(
+        "on_exit = \"torque_off\"",
+        "on_exit = \"hold\"",
+    )]));
+    let mut c = d.client();
+    let start = tip(&c.status());
+    let id = c.send(json!({"cmd": "goto", "target": [start[0] + 0.1, start[1]]}));
+    c.reply(&json!(id));
+    c.wait_status("moving", |s| s["state"] == "moving");
+    c.ok(json!({"cmd": "estop"}));
+    let s = c.status();
+    assert_eq!(s["state"], "estop");
+    for id in d.config.arm().unwrap().ids() {
+        assert!(
+            d.torque(id),
+            "servo {id} lost torque under estop with on_exit = hold"
+        );
+    }
+    // Frozen: the goals do not move while latched.
+    let frozen = floats(&s["theta_cmd"]);
+    std::thread::sleep(Duration::from_millis(50));
+    assert_eq!(floats(&c.status()["theta_cmd"]), frozen);
+}
+
+#[test]
+fn reset_stats_zeroes_what_is_kept_since_start() {
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    let start = tip(&c.status());
+    let id = c.send(json!({"cmd": "goto", "target": [start[0], start[1] - 0.02]}));
+    c.event("arrived", Some(id));
+    let s = c.status();
+    assert!(s["m3_total_rad2"].as_f64().unwrap() > 0.0);
+    assert!(s["peak_joint_speed_rad_s"].as_f64().unwrap() > 0.0);
+    let overruns = s["overruns"].as_u64().unwrap();
+    c.ok(json!({"cmd": "reset_stats"}));
+    let s = c.status();
+    assert_eq!(s["m3_total_rad2"], json!(0.0));
+    assert_eq!(s["peak_joint_speed_rad_s"], json!(0.0));
+    // Overruns count since start.
+    assert!(s["overruns"].as_u64().unwrap() >= overruns);
+    // The command's own account stays.
+    assert!(s["command"]["m3_rad2"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn a_stop_decelerates_and_holds_and_the_next_motion_resumes() {
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    let start = tip(&c.status());
+    let target = [start[0] + 0.1, start[1]];
+    let goto = c.send(json!({"cmd": "goto", "target": target}));
+    c.reply(&json!(goto));
+    c.wait_status("moving", |s| s["state"] == "moving");
+    let stop = c.send(json!({"cmd": "stop"}));
+    let reply = c.reply(&json!(stop));
+    let pre = c.event("preempted", Some(goto));
+    assert_eq!(pre["reason"], "stop");
+    let stopped = c.event("stopped", Some(stop));
+    assert_eq!(stopped["reason"], "stop");
+    // From at most the tip speed limit, at the tip acceleration limit, plus a tick.
+    let ticks = stopped["tick"].as_u64().unwrap() - reply["tick"].as_u64().unwrap();
+    assert!(
+        ticks as f64 <= MAX_TIP_SPEED / MAX_TIP_ACCEL / DT + 2.0,
+        "{ticks} ticks to rest"
+    );
+    let s = c.status();
+    assert_eq!(s["state"], "holding");
+    assert!(dist(tip(&s), target) > 0.01, "the stop did not stop short");
+    // A stop while holding comes to rest at once.
+    let again = c.send(json!({"cmd": "stop"}));
+    c.event("stopped", Some(again));
+    let resume = c.send(json!({"cmd": "goto", "target": target}));
+    c.event("arrived", Some(resume));
+}
