@@ -440,6 +440,7 @@ fn status_carries_every_telemetry_field() {
         "omega_meas",
         "tracking_error_m",
         "saturated",
+        "self_collision",
         "command",
         "solve_us",
         "loop_hz",

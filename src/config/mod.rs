@@ -124,6 +124,10 @@ pub struct Control {
     pub deadman: Duration,
     /// Servos are read every `read_every`-th tick, at least 1.
     pub read_every: u32,
+    /// Consecutive missed reads after which a servo is declared lost, at least 1.
+    pub max_missed_reads: u32,
+    /// Temperature, load and input voltage are read every `health_every`-th tick, at least 1.
+    pub health_every: u32,
 }
 
 /// The fastest control rate accepted, Hz.
@@ -672,14 +676,20 @@ impl Checker<'_> {
                 },
             ));
         }
-        if raw.read_every == 0 {
-            return Err(self.invalid(
-                "control.read_every",
-                Problem::OutOfRange {
-                    value: 0,
-                    expected: "must be at least 1",
-                },
-            ));
+        for (field, value) in [
+            ("control.read_every", raw.read_every),
+            ("control.max_missed_reads", raw.max_missed_reads),
+            ("control.health_every", raw.health_every),
+        ] {
+            if value == 0 {
+                return Err(self.invalid(
+                    field,
+                    Problem::OutOfRange {
+                        value: 0,
+                        expected: "must be at least 1",
+                    },
+                ));
+            }
         }
         let max_tip_speed_m_s =
             self.positive("control.max_tip_speed_m_s", raw.max_tip_speed_m_s)?;
@@ -706,6 +716,8 @@ impl Checker<'_> {
             max_tip_accel_m_s2,
             deadman: Duration::from_millis(raw.deadman_ms.into()),
             read_every: raw.read_every,
+            max_missed_reads: raw.max_missed_reads,
+            health_every: raw.health_every,
         })
     }
 

@@ -268,6 +268,12 @@ pub struct RawControl {
     /// Read the servos every k-th tick.
     #[serde(default = "default_read_every")]
     pub read_every: u32,
+    /// Consecutive reads a servo may miss before it is declared lost.
+    #[serde(default = "default_max_missed_reads")]
+    pub max_missed_reads: u32,
+    /// Read temperature, load and input voltage every k-th tick.
+    #[serde(default = "default_health_every")]
+    pub health_every: u32,
 }
 
 /// `[server]`: the command/telemetry socket.
@@ -351,6 +357,16 @@ pub fn default_read_every() -> u32 {
     1
 }
 
+/// Misses before a servo is lost.
+pub fn default_max_missed_reads() -> u32 {
+    5
+}
+
+/// Health read every tenth tick.
+pub fn default_health_every() -> u32 {
+    10
+}
+
 /// Listen address: local only.
 pub fn default_listen() -> String {
     "127.0.0.1:7878".to_owned()
@@ -372,6 +388,8 @@ impl Default for RawControl {
             max_tip_accel_m_s2: default_max_tip_accel_m_s2(),
             deadman_ms: default_deadman_ms(),
             read_every: default_read_every(),
+            max_missed_reads: default_max_missed_reads(),
+            health_every: default_health_every(),
         }
     }
 }

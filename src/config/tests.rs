@@ -127,6 +127,8 @@ fn defaults_fill_absent_tables() {
     assert_eq!(c.control().max_tip_accel_m_s2, 0.5);
     assert_eq!(c.control().deadman, std::time::Duration::from_millis(500));
     assert_eq!(c.control().read_every, 1);
+    assert_eq!(c.control().max_missed_reads, 5);
+    assert_eq!(c.control().health_every, 10);
     assert_eq!(c.server().listen.to_string(), "127.0.0.1:7878");
     assert!(c.server().token_file.is_none());
 }
@@ -514,6 +516,14 @@ fn control_checks() {
     refused(
         &with("rate_hz = 100.0", "read_every = 0"),
         &["control.read_every", "0"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "max_missed_reads = 0"),
+        &["control.max_missed_reads", "0"],
+    );
+    refused(
+        &with("rate_hz = 100.0", "health_every = 0"),
+        &["control.health_every", "0"],
     );
 }
 

@@ -99,6 +99,25 @@ pub enum Cmd {
     Unsubscribe,
     /// Zero the statistics kept since start (peak joint speed, metric 3 travelled, tick times).
     ResetStats,
+    /// Become the client in control (the holder is told with a `control` event).
+    TakeControl,
+    /// Stop being the client in control.
+    Release,
+    /// The first line of a client when `[server] token_file` is set.
+    Auth {
+        /// The token, compared in constant time.
+        token: String,
+    },
+    /// Torque on (goal := measured pose first) or off for every servo.
+    Torque {
+        /// On or off.
+        on: bool,
+    },
+    /// Reboot servos (all when `ids` is absent) to clear a hardware error, then recover.
+    Reboot {
+        /// Servo ids.
+        ids: Option<Vec<u8>>,
+    },
 }
 
 impl Cmd {
@@ -120,6 +139,11 @@ impl Cmd {
             Cmd::Subscribe { .. } => "subscribe",
             Cmd::Unsubscribe => "unsubscribe",
             Cmd::ResetStats => "reset_stats",
+            Cmd::TakeControl => "take_control",
+            Cmd::Release => "release",
+            Cmd::Auth { .. } => "auth",
+            Cmd::Torque { .. } => "torque",
+            Cmd::Reboot { .. } => "reboot",
         }
     }
 }
@@ -146,6 +170,12 @@ pub enum Code {
     Busy,
     /// The daemon is stopping.
     ShuttingDown,
+    /// A command that needs control, from a client that does not hold it.
+    NotInControl,
+    /// No `auth` first line, or a wrong token, where the daemon asks for one.
+    Unauthorized,
+    /// The arm holds for a fault; `status` names it (`reboot` or recovery clears it).
+    Fault,
     /// The daemon already serves as many clients as it may; the connection is closed.
     TooManyClients,
 }
@@ -162,6 +192,9 @@ impl Code {
             Code::Unreachable => "unreachable",
             Code::Busy => "busy",
             Code::ShuttingDown => "shutting_down",
+            Code::NotInControl => "not_in_control",
+            Code::Unauthorized => "unauthorized",
+            Code::Fault => "fault",
             Code::TooManyClients => "too_many_clients",
         }
     }
@@ -281,6 +314,8 @@ pub struct Telemetry {
     pub tracking_error_m: f64,
     /// Whether this tick's reference was out of reach and the tip stopped short.
     pub saturated: bool,
+    /// Whether this tick's step was cut short because the links would have crossed.
+    pub self_collision: bool,
     /// The active or last motion command.
     pub command: Option<CommandInfo>,
     /// This tick's resolve time, µs.

@@ -108,7 +108,16 @@ pub fn request_line(id: Option<&Value>, cmd: &Cmd) -> String {
         | Cmd::Reset
         | Cmd::Home
         | Cmd::Unsubscribe
-        | Cmd::ResetStats => {}
+        | Cmd::ResetStats
+        | Cmd::TakeControl
+        | Cmd::Release => {}
+        Cmd::Auth { token } => line.field("token", token),
+        Cmd::Torque { on } => line.field("on", on),
+        Cmd::Reboot { ids } => {
+            if let Some(ids) = ids {
+                line.field("ids", ids);
+            }
+        }
     }
     line.finish()
 }
