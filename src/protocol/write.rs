@@ -209,6 +209,7 @@ mod tests {
             omega_meas: vec![0.0, -1.0, 0.5],
             tracking_error_m: 0.01,
             saturated: true,
+            self_collision: false,
             command: Some(CommandInfo {
                 kind: "goto",
                 id: Some(Arc::new(json!("g1"))),
