@@ -325,6 +325,7 @@ mod tests {
             "omega_meas",
             "tracking_error_m",
             "saturated",
+            "self_collision",
             "command",
             "solve_us",
             "loop_hz",
