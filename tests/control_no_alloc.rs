@@ -1,7 +1,7 @@
 //! The control loop ticks at up to 2 kHz: once warm, `Controller::tick` allocates nothing, in
 //! every kind of motion (goto, path, velocity, jog, joint moves, stop) and on its harder paths
 //! (bisection of an unreachable step, saturation, the joint-speed slow-down, strategy
-//! switches). A counting global allocator checks it, per thread.
+//! switches, a step cut short where the arm would fold onto itself). A counting global allocator checks it, per thread.
 // The one place this test allows unsafe code: a global allocator must implement an unsafe trait.
 // It only counts calls and delegates every one to the system allocator.
 #![allow(clippy::unwrap_used, unsafe_code)]
@@ -53,9 +53,9 @@ fn allocations() -> usize {
 }
 
 /// Runs `ticks` ticks of `dt`, counting the allocations they make; returns them and the
-/// ticks' flags or-ed together (saturated, slowed, clamped).
-fn run(c: &mut Controller, ticks: usize, dt: f64) -> (usize, [bool; 3]) {
-    let mut flags = [false; 3];
+/// ticks' flags or-ed together (saturated, slowed, clamped, self_collision).
+fn run(c: &mut Controller, ticks: usize, dt: f64) -> (usize, [bool; 4]) {
+    let mut flags = [false; 4];
     let mut allocated = 0;
     for _ in 0..ticks {
         let before = allocations();
@@ -64,6 +64,7 @@ fn run(c: &mut Controller, ticks: usize, dt: f64) -> (usize, [bool; 3]) {
         flags[0] |= t.saturated;
         flags[1] |= t.slowed;
         flags[2] |= t.clamped;
+        flags[3] |= t.self_collision;
     }
     (allocated, flags)
 }
@@ -83,7 +84,7 @@ fn warm_ticks_allocate_nothing_in_any_motion() {
         let home = vec![0.1; n];
         let mut c = Controller::new(chain.clone(), limits, strategy, home.clone(), &home).unwrap();
         let start = c.tip();
-        let mut seen = [false; 3];
+        let mut seen = [false; 4];
         let mut total = 0;
         // The controller sizes every buffer when it is built: not even the first round
         // allocates. Twice, so that the second starts from wherever the first left.
@@ -144,6 +145,21 @@ fn warm_ticks_allocate_nothing_in_any_motion() {
             let pose: Vec<f64> = (0..n).map(|i| 0.3 - 0.05 * i as f64).collect();
             step(&mut c, Some(Command::GotoJoints { theta: pose }), 150);
             step(&mut c, Some(Command::Home), 150);
+            // Down beside the base and across it: the arm would fold onto itself.
+            let points = vec![
+                Vec2::new(-0.2, 0.2),
+                Vec2::new(-0.1, 0.04),
+                Vec2::new(0.1, 0.04),
+            ];
+            step(
+                &mut c,
+                Some(Command::Path {
+                    points,
+                    speed: None,
+                }),
+                3000,
+            );
+            step(&mut c, Some(Command::Home), 600);
             // Out of reach: bisection, saturation, the finish.
             step(&mut c, Some(goto(Vec2::new(0.0, 2.0))), 600);
             // A fast move with a slow joint limit: the slow-down and the clamp.
@@ -166,5 +182,6 @@ fn warm_ticks_allocate_nothing_in_any_motion() {
             seen[1],
             "{strategy:?}: the run was never slowed for the joints"
         );
+        assert!(seen[3], "{strategy:?}: the run never met a self-collision");
     }
 }

@@ -2,7 +2,7 @@
 //! limits +-2 rad, base at the origin heading up, home 0.1 rad each) and on smaller random
 //! chains: joint-speed bound, limits, tip speed and acceleration, straight gotos on time, path
 //! corners at rest, the deadman, jog at a limit, live strategy switches, freeze and reseed,
-//! unreachable targets, refusals.
+//! unreachable targets, refusals, and no goal pose whose links cross or touch.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::f64::consts::FRAC_PI_2;
@@ -68,8 +68,9 @@ impl Lcg {
 }
 
 /// Runs ticks and checks, on every one, what holds always: each goal within
-/// `max_joint_speed * dt` of the last, inside the limits, finite; the tip no faster than its
-/// limit unless the final clamp acted; `tip` the tip of the goals.
+/// `max_joint_speed * dt` of the last, inside the limits, finite, its links clear of each
+/// other; the tip no faster than its limit unless the final clamp acted; `tip` the tip of the
+/// goals; `self_collision` only on a saturated tick.
 struct Run {
     c: Controller,
     prev_theta: Vec<f64>,
@@ -116,6 +117,14 @@ impl Run {
             );
         }
         self.c.chain().check_limits(theta).unwrap();
+        let points = self.c.chain().points(theta);
+        assert_eq!(
+            Chain::self_intersects(&points),
+            None,
+            "the goal pose self-intersects at t = {}: {theta:?}",
+            self.time
+        );
+        assert!(!tick.self_collision || tick.saturated, "{tick:?}");
         let tip = self.c.chain().tip(theta);
         assert!((tip - tick.tip).norm() < 1e-12);
         let v = (tip - self.prev_tip) / dt;
@@ -291,11 +300,22 @@ proptest! {
                     tip_space = false;
                 }
                 Op::Joints { frac } => {
-                    let theta = run.c.chain().limits().iter().zip(&frac)
+                    let theta: Vec<f64> = run.c.chain().limits().iter().zip(&frac)
                         .map(|(l, f)| l.map_or(*f, |l| 0.5 * (l.lo + l.hi) + f * 0.5 * (l.hi - l.lo)))
                         .collect();
-                    run.c.command(Command::GotoJoints { theta }).unwrap();
-                    tip_space = false;
+                    // A target that folds the arm onto itself is refused, naming a touching
+                    // pair; the active command goes on.
+                    let clash = Chain::self_intersects(&run.c.chain().points(&theta));
+                    match run.c.command(Command::GotoJoints { theta }) {
+                        Ok(()) => {
+                            prop_assert_eq!(clash, None);
+                            tip_space = false;
+                        }
+                        Err(Refused::SelfCollision { a, b }) => {
+                            prop_assert_eq!(clash, Some((a, b)));
+                        }
+                        Err(e) => prop_assert!(false, "refused: {}", e),
+                    }
                 }
                 Op::Home => {
                     run.c.command(Command::Home).unwrap();
@@ -555,7 +575,8 @@ proptest! {
     }
 
     /// A joint move goes in proportion on every joint (a straight line in joint space, all
-    /// arriving together) and ends exactly on its pose, `Arrived`.
+    /// arriving together) and ends exactly on its pose, `Arrived`, unless its target folds the
+    /// arm onto itself (refused) or a pose on its line would (it stops short, `Saturated`).
     #[test]
     fn joint_moves_arrive_on_the_pose(
         frac in proptest::collection::vec(-1.0f64..1.0, N), home_after in proptest::bool::ANY,
@@ -566,10 +587,19 @@ proptest! {
         let mut run = Run::new(daemon(Strat::Sequential, limits));
         let goal: Vec<f64> = frac.iter().map(|f| 1.9 * f).collect();
         let start = run.c.theta().to_vec();
-        run.c.command(Command::GotoJoints { theta: goal.clone() }).unwrap();
+        if let Err(e) = run.c.command(Command::GotoJoints { theta: goal.clone() }) {
+            let clash = Chain::self_intersects(&run.c.chain().points(&goal));
+            prop_assert!(matches!(e, Refused::SelfCollision { a, b } if clash == Some((a, b))), "{}", e);
+            return Ok(());
+        }
         let finish = run.until_finished(dt, 30.0);
-        prop_assert_eq!(finish, Some(Finish::Arrived));
-        prop_assert_eq!(run.c.theta(), &goal[..]);
+        let blocked = run.ticks.iter().any(|r| r.tick.self_collision);
+        if blocked {
+            prop_assert_eq!(finish, Some(Finish::Saturated));
+        } else {
+            prop_assert_eq!(finish, Some(Finish::Arrived));
+            prop_assert_eq!(run.c.theta(), &goal[..]);
+        }
         // In proportion: every joint the same fraction of its way at every tick.
         let far = goal.iter().zip(&start).map(|(g, s)| (g - s).abs()).fold(0.0, f64::max);
         let mut theta = start.clone();
@@ -586,7 +616,7 @@ proptest! {
                 prop_assert!((theta[j] - expect).abs() <= 1e-9 * (1.0 + far), "joint {j} off the line");
             }
         }
-        if home_after {
+        if home_after && !blocked {
             run.c.command(Command::Home).unwrap();
             prop_assert_eq!(run.until_finished(dt, 30.0), Some(Finish::Arrived));
             prop_assert_eq!(run.c.theta(), run.c.home());
@@ -929,4 +959,193 @@ fn stop_decelerates_at_the_limit_and_holds() {
         run.time - t0
     );
     assert_eq!(run.c.activity(), Activity::Holding);
+}
+
+/// The daemon's arm driven along a path that loops down beside the base and then straight
+/// across it: following it exactly would carry the tip through the arm's first links. Both
+/// strategies stop short where two links would touch, flag `self_collision`, never send a pose
+/// that self-intersects, and end the path `Saturated` once.
+#[test]
+fn a_path_folding_the_arm_onto_itself_stops_short() {
+    let across = Vec2::new(0.1, 0.04);
+    for s in [Strat::Overall, Strat::Sequential] {
+        let mut run = Run::new(daemon(s, daemon_limits()));
+        let points = vec![Vec2::new(-0.2, 0.2), Vec2::new(-0.1, 0.04), across];
+        run.c
+            .command(Command::Path {
+                points,
+                speed: None,
+            })
+            .unwrap();
+        let finish = run.until_finished(0.01, 60.0);
+        assert_eq!(finish, Some(Finish::Saturated), "{s:?}");
+        let ends = run
+            .ticks
+            .iter()
+            .filter(|r| r.tick.finished.is_some())
+            .count();
+        assert_eq!(ends, 1);
+        assert!(
+            run.ticks.iter().any(|r| r.tick.self_collision),
+            "{s:?}: never flagged"
+        );
+        let gap = (run.c.tip() - across).norm();
+        assert!(
+            gap > 0.05,
+            "{s:?}: the tip got across, {gap} m from the corner"
+        );
+        // It stopped at the contact, not somewhere else: within 3 mm two links touch.
+        let points = run.c.chain().points(run.c.theta());
+        assert!(
+            Chain::self_intersects_within(&points, 3e-3).is_some(),
+            "{s:?}: stopped clear of any contact"
+        );
+        // Holding: nothing moves, nothing is flagged.
+        let held = run.c.theta().to_vec();
+        for _ in 0..10 {
+            let r = run.tick(0.01);
+            assert!(!r.tick.self_collision && r.tick.finished.is_none());
+        }
+        assert_eq!(run.c.theta(), &held[..]);
+    }
+}
+
+/// A jog that curls the arm tighter stops where two links would touch, flagged every tick it
+/// is held back there, and the arm never passes through itself.
+#[test]
+fn a_jog_stops_short_of_a_self_collision() {
+    let mut curl = vec![0.45; N];
+    curl[0] = 0.0;
+    assert_eq!(Chain::self_intersects(&daemon_chain().points(&curl)), None);
+    let c = Controller::new(
+        daemon_chain(),
+        daemon_limits(),
+        Strat::Overall,
+        vec![0.1; N],
+        &curl,
+    )
+    .unwrap();
+    let mut run = Run::new(c);
+    for _ in 0..40 {
+        run.c
+            .command(Command::Jog {
+                joint: 5,
+                rad_s: 1.0,
+            })
+            .unwrap();
+        for _ in 0..10 {
+            run.tick(0.01);
+        }
+    }
+    // Held back there for the last half second while the jog kept pushing.
+    let k = run.ticks.len();
+    assert!(run.ticks[k - 50..].iter().all(|r| r.tick.self_collision));
+    let q = run.c.theta()[5];
+    assert!(q < 2.0, "joint 6 went to its limit: {q}");
+    let points = run.c.chain().points(run.c.theta());
+    assert!(Chain::self_intersects_within(&points, 3e-3).is_some());
+}
+
+/// A joint move whose straight line in joint space passes through a self-intersecting pose
+/// (found by sampling the line finely) though its target is clear stops short on the line,
+/// just before the contact, and ends `Saturated`.
+#[test]
+fn a_joint_move_through_a_self_collision_stops_short() {
+    let chain = daemon_chain();
+    let home = vec![0.1; N];
+    let mut rng = Lcg(7);
+    let crosses = |goal: &[f64]| {
+        (0..=2000).any(|k| {
+            let s = k as f64 / 2000.0;
+            let pose: Vec<f64> = home
+                .iter()
+                .zip(goal)
+                .map(|(h, g)| h + s * (g - h))
+                .collect();
+            Chain::self_intersects(&chain.points(&pose)).is_some()
+        })
+    };
+    let goal = (0..10_000)
+        .map(|_| {
+            (0..N)
+                .map(|_| 1.9 * (2.0 * rng.unit() - 1.0))
+                .collect::<Vec<f64>>()
+        })
+        .find(|g| Chain::self_intersects(&chain.points(g)).is_none() && crosses(g))
+        .expect("a goal whose line crosses a self-intersecting pose");
+    let mut limits = daemon_limits();
+    limits.max_tip_speed_m_s = 10.0;
+    let mut run = Run::new(daemon(Strat::Sequential, limits));
+    run.c
+        .command(Command::GotoJoints {
+            theta: goal.clone(),
+        })
+        .unwrap();
+    let dt = 0.01;
+    assert_eq!(run.until_finished(dt, 30.0), Some(Finish::Saturated));
+    assert!(run.ticks.iter().any(|r| r.tick.self_collision));
+    // On the line, short of the goal, and one tick's step further on it would touch.
+    let theta = run.c.theta().to_vec();
+    let (i, far) = goal
+        .iter()
+        .zip(&home)
+        .map(|(g, h)| (g - h).abs())
+        .enumerate()
+        .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+    let s = (theta[i] - home[i]) / (goal[i] - home[i]);
+    assert!(s < 1.0 - 1e-6, "arrived? s = {s}");
+    for j in 0..N {
+        let on = home[j] + s * (goal[j] - home[j]);
+        assert!((theta[j] - on).abs() < 1e-9, "joint {j} off the line");
+    }
+    let ahead = (s + limits.max_joint_speed_rad_s * dt / far).min(1.0);
+    let next: Vec<f64> = home
+        .iter()
+        .zip(&goal)
+        .map(|(h, g)| h + ahead * (g - h))
+        .collect();
+    assert!(Chain::self_intersects(&chain.points(&next)).is_some());
+}
+
+/// A measured pose may already have two links in contact (the model's links have no width):
+/// the controller takes it, may move those links apart, and brings no other pair into
+/// contact. A home pose that self-intersects is refused with the pair.
+#[test]
+fn a_measured_pose_in_contact_can_move_out() {
+    // Six links closing into a hexagon: links 1 and 6 meet at the base.
+    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
+    let chain = Chain::new(vec![0.1; 6], Vec2::zeros(), 0.0, vec![lim; 6]).unwrap();
+    let k = std::f64::consts::FRAC_PI_3;
+    let closed = [0.0, k, k, k, k, k];
+    assert_eq!(Chain::self_intersects(&chain.points(&closed)), Some((0, 5)));
+    let e = Controller::new(
+        chain.clone(),
+        daemon_limits(),
+        Strat::Overall,
+        closed.to_vec(),
+        &closed,
+    )
+    .unwrap_err();
+    assert_eq!(e, Refused::SelfCollision { a: 0, b: 5 });
+    assert_eq!(e.to_string(), "links 1 and 6 of that pose cross or touch");
+    let home = vec![0.3; 6];
+    let mut c = Controller::new(chain, daemon_limits(), Strat::Overall, home, &closed).unwrap();
+    c.command(Command::Home).unwrap();
+    let mut finish = None;
+    let mut prev = c.chain().points(c.theta());
+    for _ in 0..1000 {
+        let t = c.tick(0.01);
+        let points = c.chain().points(c.theta());
+        assert_eq!(
+            Chain::new_self_intersection(&points, &prev, snakectl::chain::SELF_CLEARANCE_M),
+            None
+        );
+        prev = points;
+        if t.finished.is_some() {
+            finish = t.finished;
+            break;
+        }
+    }
+    assert_eq!(finish, Some(Finish::Arrived));
+    assert_eq!(Chain::self_intersects(&prev), None);
 }

@@ -7,13 +7,16 @@
 //!
 //! The state of an arm is its angles, so link lengths are exact by construction. Everything here
 //! is pure and allocation-free on the `_into` paths, so a control loop can call it every tick.
+//! [`Chain::self_intersects`] tells whether two links of a pose cross or touch.
 
+mod collide;
 mod workspace;
 
 use std::f64::consts::PI;
 
 use nalgebra::{Matrix2xX, Vector2};
 
+pub use collide::SELF_CLEARANCE_M;
 pub use workspace::{Reachability, Workspace};
 
 /// A point or vector in the plane, in metres.

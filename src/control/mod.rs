@@ -7,27 +7,44 @@
 //! 1. **Motion** steps the reference by `dt`: a tip point, or a joint pose for goto_joints,
 //!    home and jog (whose tip is reported as `tip_ref`).
 //! 2. **Resolve** a tip reference with the active strategy, warm from the last commanded pose.
-//!    A reference the resolver cannot reach (outside the workspace, not converged, or refused
-//!    for the joint limits) is not sent: the farthest fraction of this tick's step that
-//!    resolves is found by [`BISECTION_ROUNDS`] rounds of bisection, and the tick is
-//!    `saturated`. A joint reference is taken as it is, slowed if its tip would move faster
-//!    than the tip speed limit.
+//!    A reference the resolver cannot reach (outside the workspace, not converged, refused
+//!    for the joint limits, or folding the arm onto itself) is not sent: the farthest
+//!    fraction of this tick's step that resolves is found by [`BISECTION_ROUNDS`] rounds of
+//!    bisection, and the tick is `saturated` (and `self_collision` where links would have
+//!    touched). A joint reference is taken as it is, slowed if its tip would move faster than
+//!    the tip speed limit.
 //! 3. **Joint-speed limit.** No goal moves more than `max_joint_speed_rad_s * dt` from the last
 //!    one. A resolved step that would is shortened in proportion and re-resolved (up to
 //!    [`SLOWDOWN_ROUNDS`] times, `slowed`); a final per-joint clamp guarantees the bound
 //!    (`clamped`). The bound wins over the tip acceleration limit. Both ends of every joint's
 //!    step lie inside its limits, so the clamped pose does too.
-//! 4. The motion **follows** what was achieved: a shortened step moves the reference back onto
-//!    the arm, with the velocity the arm really had, so it never runs ahead. A goto or path that
-//!    makes no progress for [`crate::motion::STALL_TICKS`] saturated ticks ends with one
-//!    [`Finish::Saturated`].
+//! 4. **Self-collision.** No goal pose brings two links within [`SELF_CLEARANCE_M`] of each
+//!    other ([`Chain::self_intersects`]). The final pose is checked once more (a clamped step
+//!    or a joint reference was not checked yet); if it touches, the tick takes the farthest
+//!    fraction of its joint step (theta -> pose, a straight line in joint space, so the bound
+//!    and the limits still hold) that stays clear, by [`BISECTION_ROUNDS`] rounds of
+//!    bisection, and flags `saturated` and `self_collision`. Pairs of links that already touch
+//!    in the commanded pose (only a measured pose, from [`Controller::new`] or
+//!    [`Controller::reseed`], can) are exempt, so such an arm can be moved out of contact;
+//!    every other pair must stay clear. Only the poses of the ticks are checked: links are
+//!    joined end to end, so two that begin to cross within a tick still cross at its end and
+//!    are caught then, unless the arm's two free ends (the tip and the base end of link 1)
+//!    slip past each other within one tick's travel.
+//! 5. The motion **follows** what was achieved: a shortened step moves the reference back onto
+//!    the arm, with the velocity the arm really had, so it never runs ahead. A goto, path or
+//!    joint move that makes no progress for [`crate::motion::STALL_TICKS`] saturated ticks
+//!    ends with one [`Finish::Saturated`].
+//!
+//! A `GotoJoints` whose target pose itself self-intersects is refused
+//! ([`Refused::SelfCollision`]): it could never arrive. So is a home pose that does, when the
+//! controller is built.
 //!
 //! Goals jump only through [`Controller::reseed`] (goal := the measured pose, which moves no
 //! servo). Once warm, `tick` allocates nothing, and it never panics: a bad `dt` (zero, negative,
 //! non-finite) advances nothing, `dt` above [`MAX_DT_S`] counts as [`MAX_DT_S`], and commands
 //! with non-finite or huge numbers are refused by [`Controller::command`].
 
-use crate::chain::{Chain, Vec2, MAX_MAGNITUDE};
+use crate::chain::{Chain, Vec2, MAX_MAGNITUDE, SELF_CLEARANCE_M};
 use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
 use crate::resolve::overall::{Overall, OverallOptions};
 use crate::resolve::sequential::Sequential;
@@ -182,6 +199,15 @@ pub enum Refused {
         /// The largest magnitude accepted.
         max: f64,
     },
+    /// A pose that brings two links within [`SELF_CLEARANCE_M`] of each other: the arm would
+    /// fold onto itself.
+    #[error("links {la} and {lb} of that pose cross or touch", la = .a + 1, lb = .b + 1)]
+    SelfCollision {
+        /// The first link of the pair, from 0 (link `i` is the one joint `i` turns).
+        a: usize,
+        /// The second link, from 0, `b > a`.
+        b: usize,
+    },
     /// A path without points.
     #[error("a path needs at least one point")]
     EmptyPath,
@@ -202,8 +228,12 @@ pub struct Tick {
     pub tip_ref: Vec2,
     /// Tip of the new commanded pose, m.
     pub tip: Vec2,
-    /// The reference (or part of the step) was out of reach or refused for the limits.
+    /// The reference (or part of the step) was out of reach, refused for the limits, or would
+    /// have made the arm self-intersect.
     pub saturated: bool,
+    /// The step was cut short because two links would have come within [`SELF_CLEARANCE_M`]
+    /// of each other (`saturated` is then set too).
+    pub self_collision: bool,
     /// The step was shortened and re-resolved to keep within the joint-speed bound (or, for a
     /// joint reference, the tip speed limit).
     pub slowed: bool,
@@ -237,6 +267,51 @@ pub struct Controller {
     cand: Vec<f64>,
     /// A resolver's answer.
     trial: Vec<f64>,
+    /// The self-collision check, with the points of the commanded pose.
+    guard: Guard,
+}
+
+/// The self-collision check of candidate poses against the commanded one.
+#[derive(Debug)]
+struct Guard {
+    /// Points of the commanded pose.
+    now: Vec<Vec2>,
+    /// Points of the pose under test.
+    scratch: Vec<Vec2>,
+}
+
+impl Guard {
+    fn new(chain: &Chain, theta: &[f64]) -> Self {
+        let n = chain.len();
+        let mut g = Self {
+            now: vec![Vec2::zeros(); n + 1],
+            scratch: vec![Vec2::zeros(); n + 1],
+        };
+        g.commit(chain, theta);
+        g
+    }
+
+    /// The commanded pose is now `theta`; returns its tip.
+    fn commit(&mut self, chain: &Chain, theta: &[f64]) -> Vec2 {
+        chain.points_into(theta, &mut self.now);
+        self.now[chain.len()]
+    }
+
+    /// The first pair of links that `pose` brings into contact and the commanded pose does not
+    /// have in contact.
+    fn contact(&mut self, chain: &Chain, pose: &[f64]) -> Option<(usize, usize)> {
+        chain.points_into(pose, &mut self.scratch);
+        Chain::new_self_intersection(&self.scratch, &self.now, SELF_CLEARANCE_M)
+    }
+}
+
+/// The first pair of links of the pose `theta` within [`SELF_CLEARANCE_M`] of each other, as a
+/// refusal.
+fn check_clear(chain: &Chain, theta: &[f64]) -> Result<(), Refused> {
+    match Chain::self_intersects(&chain.points(theta)) {
+        Some((a, b)) => Err(Refused::SelfCollision { a, b }),
+        None => Ok(()),
+    }
 }
 
 /// Checks a pose: length, finite, inside the limits.
@@ -301,21 +376,39 @@ fn check_speed(speed: Option<f64>, max: f64) -> Result<f64, Refused> {
     }
 }
 
+/// What one resolver attempt gave.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Verdict {
+    /// On target, converged, inside the limits, finite and clear of itself: may be sent.
+    Sendable,
+    /// Out of reach, not converged, outside the limits or not finite.
+    Refused,
+    /// Fine but for two links in contact.
+    Collides,
+}
+
 /// One resolver attempt at `target` from `theta`, the answer in `out`. Returns whether it may
-/// be sent (on target, converged, inside the limits, finite) and the iterations spent.
+/// be sent and the iterations spent.
 fn attempt(
     resolver: &mut dyn Resolver,
     chain: &Chain,
+    guard: &mut Guard,
     theta: &[f64],
     target: Vec2,
     out: &mut [f64],
-) -> (bool, usize) {
+) -> (Verdict, usize) {
     if !(target.x.is_finite() && target.y.is_finite()) {
-        return (false, 0);
+        return (Verdict::Refused, 0);
     }
     let outcome = resolver.solve(chain, theta, target, out);
-    let ok = out.iter().all(|t| t.is_finite()) && verdict(chain, out, outcome).is_ok();
-    (ok, outcome.iterations)
+    let v = if !(out.iter().all(|t| t.is_finite()) && verdict(chain, out, outcome).is_ok()) {
+        Verdict::Refused
+    } else if guard.contact(chain, out).is_some() {
+        Verdict::Collides
+    } else {
+        Verdict::Sendable
+    };
+    (v, outcome.iterations)
 }
 
 fn max_step(a: &[f64], b: &[f64]) -> f64 {
@@ -328,7 +421,10 @@ fn max_step(a: &[f64], b: &[f64]) -> f64 {
 impl Controller {
     /// A controller holding the measured pose `theta` (the first goals are it), with `home` as
     /// the home pose. Refuses limits that are not positive and finite, and poses of the wrong
-    /// length, non-finite or outside the joint limits.
+    /// length, non-finite or outside the joint limits, and a home pose that self-intersects
+    /// ([`Refused::SelfCollision`]). The measured pose may self-intersect (a real arm's links
+    /// have width, the model's do not): the pairs of links in contact in it are then free to
+    /// move apart, and no other pair may touch.
     pub fn new(
         chain: Chain,
         limits: Limits,
@@ -347,8 +443,10 @@ impl Controller {
             }
         }
         check_pose(&chain, &home, "home joint angle")?;
+        check_clear(&chain, &home)?;
         check_pose(&chain, theta, "measured joint angle")?;
         let n = chain.len();
+        let guard = Guard::new(&chain, theta);
         let tip = chain.tip(theta);
         let motion = Motion::new(limits.motion(), chain.limits(), tip, theta);
         let mut c = Self {
@@ -363,6 +461,7 @@ impl Controller {
             tip,
             cand: vec![0.0; n],
             trial: vec![0.0; n],
+            guard,
         };
         // Size both resolvers' scratch now, so that even the first tick allocates nothing.
         let (theta, trial) = (c.theta.clone(), &mut c.trial);
@@ -373,6 +472,11 @@ impl Controller {
     }
 
     /// Replaces the active command. On an error nothing changes.
+    ///
+    /// A `GotoJoints` target must be a pose inside the limits whose links stay clear of each
+    /// other; one that self-intersects is refused with [`Refused::SelfCollision`] (it could
+    /// never arrive). Its way there may still be blocked by a pose in between that would
+    /// touch: the move then stops short and ends [`Finish::Saturated`].
     pub fn command(&mut self, cmd: Command) -> Result<(), Refused> {
         let max_speed = self.limits.max_tip_speed_m_s;
         match cmd {
@@ -407,6 +511,7 @@ impl Controller {
             }
             Command::GotoJoints { theta } => {
                 check_pose(&self.chain, &theta, "joint angle")?;
+                check_clear(&self.chain, &theta)?;
                 self.motion.joints(&theta);
             }
             Command::Home => self.motion.joints(&self.home),
@@ -437,11 +542,12 @@ impl Controller {
 
     /// Goal := the measured pose `theta` (after a reset or a recovery): motion at rest, holding.
     /// The only way goals jump. Refused (nothing changed) for a pose of the wrong length,
-    /// non-finite or outside the limits.
+    /// non-finite or outside the limits. A pose that self-intersects is taken (see
+    /// [`Controller::new`]).
     pub fn reseed(&mut self, theta: &[f64]) -> Result<(), Refused> {
         check_pose(&self.chain, theta, "measured joint angle")?;
         self.theta.copy_from_slice(theta);
-        self.tip = self.chain.tip(theta);
+        self.tip = self.guard.commit(&self.chain, theta);
         self.overall.reset();
         self.motion.hold_at(self.tip, &self.theta);
         Ok(())
@@ -489,6 +595,7 @@ impl Controller {
             tip_ref: self.tip,
             tip: self.tip,
             saturated: false,
+            self_collision: false,
             slowed: false,
             clamped: false,
             finished: None,
@@ -517,6 +624,11 @@ impl Controller {
             }
         }
         t.clamped = self.clamp_joint_steps(dt);
+        let cut = self.keep_clear();
+        if cut {
+            t.saturated = true;
+            t.self_collision = true;
+        }
         // Commit.
         let mut peak: f64 = 0.0;
         let mut m3 = 0.0;
@@ -526,8 +638,8 @@ impl Controller {
             m3 += d * d;
             *goal = c;
         }
-        self.tip = self.chain.tip(&self.theta);
-        if t.clamped {
+        self.tip = self.guard.commit(&self.chain, &self.theta);
+        if t.clamped || cut {
             reached = self.tip;
         }
         t.tip = self.tip;
@@ -555,25 +667,29 @@ impl Controller {
             cand,
             trial,
             limits,
+            guard,
             ..
         } = self;
         let resolver: &mut dyn Resolver = match strategy {
             Strategy::Overall => overall,
             Strategy::Sequential => sequential,
         };
-        let (ok, its) = attempt(resolver, chain, theta, r, trial);
+        let (v, its) = attempt(resolver, chain, guard, theta, r, trial);
         t.iterations += its;
+        t.self_collision |= v == Verdict::Collides;
         let mut reached = r;
-        if ok {
+        if v == Verdict::Sendable {
             cand.copy_from_slice(trial);
         } else {
             t.saturated = true;
             let (mut lo, mut hi) = (0.0, 1.0);
             for _ in 0..BISECTION_ROUNDS {
                 let mid = 0.5 * (lo + hi);
-                let (ok, its) = attempt(resolver, chain, theta, from + (r - from) * mid, trial);
+                let target = from + (r - from) * mid;
+                let (v, its) = attempt(resolver, chain, guard, theta, target, trial);
                 t.iterations += its;
-                if ok {
+                t.self_collision |= v == Verdict::Collides;
+                if v == Verdict::Sendable {
                     lo = mid;
                     cand.copy_from_slice(trial);
                 } else {
@@ -595,9 +711,9 @@ impl Controller {
             }
             t.slowed = true;
             let shorter = from + (reached - from) * (SHORTEN_MARGIN * bound / m);
-            let (ok, its) = attempt(resolver, chain, theta, shorter, trial);
+            let (v, its) = attempt(resolver, chain, guard, theta, shorter, trial);
             t.iterations += its;
-            if !ok {
+            if v != Verdict::Sendable {
                 break;
             }
             cand.copy_from_slice(trial);
@@ -661,5 +777,40 @@ impl Controller {
             }
         }
         clamped
+    }
+
+    /// The last check: if the pose `cand` brings two links into contact, it is moved back
+    /// along the joint step `theta -> cand` to the farthest fraction found clear by
+    /// [`BISECTION_ROUNDS`] rounds of bisection (the commanded pose itself at worst). A
+    /// fraction of the step keeps within the joint-speed bound and the limits. Returns whether
+    /// it had to.
+    fn keep_clear(&mut self) -> bool {
+        if self.guard.contact(&self.chain, &self.cand).is_none() {
+            return false;
+        }
+        let (mut lo, mut hi) = (0.0, 1.0);
+        for _ in 0..BISECTION_ROUNDS {
+            let mid = 0.5 * (lo + hi);
+            for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {
+                *x = t + mid * (c - t);
+            }
+            if self.guard.contact(&self.chain, &self.trial).is_none() {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        for ((c, &t), lim) in self
+            .cand
+            .iter_mut()
+            .zip(&self.theta)
+            .zip(self.chain.limits())
+        {
+            *c = if lo > 0.0 { t + lo * (*c - t) } else { t };
+            if let Some(l) = lim {
+                *c = l.clamp(*c);
+            }
+        }
+        true
     }
 }

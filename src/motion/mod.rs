@@ -20,7 +20,8 @@
 //! short of the reference (out of reach, slowed for the joint-speed bound, clamped), the state
 //! follows the achieved pose and velocity, so the reference never runs ahead of the arm. A goto
 //! or path whose reference keeps being out of reach with no progress ends
-//! [`Finish::Saturated`] after [`STALL_TICKS`] such ticks.
+//! [`Finish::Saturated`] after [`STALL_TICKS`] such ticks; so does a joint move (goto_joints,
+//! home) that keeps being cut short (by a pose on its way that the controller will not send).
 //!
 //! Nothing here allocates after [`Motion::new`] (a path's points are moved in, not copied), and
 //! nothing reads a clock: time enters as `dt`.
@@ -44,7 +45,7 @@ pub const SNAP_M: f64 = 1e-9;
 pub const SNAP_RAD: f64 = 1e-9;
 
 /// Consecutive saturated ticks without progress (less than a quarter of the step asked for)
-/// after which a goto or path gives up with [`Finish::Saturated`].
+/// after which a goto, path or joint move gives up with [`Finish::Saturated`].
 pub const STALL_TICKS: u32 = 3;
 
 /// Speed and acceleration limits of the motion.
@@ -67,7 +68,8 @@ pub struct MotionLimits {
 pub enum Finish {
     /// Goto, path, goto_joints or home: on the target, at rest.
     Arrived,
-    /// Goto or path: the target is out of reach; the tip stopped short of it.
+    /// Goto or path: the target is out of reach; the tip stopped short of it. Joint move: a
+    /// pose on the way could not be sent (it would self-intersect); the arm stopped short.
     Saturated,
     /// At rest after a stop (`deadman: false`) or after a velocity or jog lapsed (`true`).
     Stopped {
@@ -109,7 +111,7 @@ pub struct Achieved<'a> {
     pub dt: f64,
     /// The reference was met as given (not bisected, slowed or clamped).
     pub exact: bool,
-    /// The reference (or part of the step) was out of reach.
+    /// The reference (or part of the step) was out of reach, or could not be sent.
     pub saturated: bool,
 }
 
@@ -589,6 +591,26 @@ impl Motion {
     pub fn follow(&mut self, got: Achieved) -> Option<Finish> {
         let dt = got.dt;
         let asked = (self.tip.p - self.before.p).norm();
+        // A joint move's progress, in the largest joint distance to its goal.
+        let joint_move = self.mode == Mode::Joints;
+        let (asked_q, progress_q) = if joint_move {
+            let gap = |pose: &mut dyn Iterator<Item = f64>| {
+                pose.zip(&self.goal)
+                    .map(|(q, g)| (g - q).abs())
+                    .fold(0.0, f64::max)
+            };
+            let asked = self
+                .axes
+                .iter()
+                .zip(&self.prior)
+                .map(|(a, p)| (a.q - p).abs())
+                .fold(0.0, f64::max);
+            let before = gap(&mut self.prior.iter().copied());
+            let after = gap(&mut got.theta.iter().copied());
+            (asked, before - after)
+        } else {
+            (0.0, 0.0)
+        };
         let joint_space = matches!(
             self.mode,
             Mode::Jog { .. }
@@ -619,21 +641,23 @@ impl Motion {
                 a.q = t;
             }
         }
-        // A goto or path whose reference is out of reach and that cannot get closer gives up.
-        match (got.saturated, self.tip_goal()) {
+        // A goto, path or joint move whose reference cannot be met and that cannot get closer
+        // gives up.
+        let stalled = match (got.saturated, self.tip_goal()) {
             (true, Some(goal)) => {
                 let progress = (goal - self.before.p).norm() - (goal - got.tip).norm();
-                if progress <= 0.25 * asked {
-                    self.stalled += 1;
-                } else {
-                    self.stalled = 0;
-                }
-                if self.stalled >= STALL_TICKS {
-                    self.hold_at(got.tip, got.theta);
-                    return Some(Finish::Saturated);
-                }
+                Some(progress <= 0.25 * asked)
             }
+            (true, None) if joint_move => Some(progress_q <= 0.25 * asked_q),
+            _ => None,
+        };
+        match stalled {
+            Some(true) => self.stalled += 1,
             _ => self.stalled = 0,
+        }
+        if self.stalled >= STALL_TICKS {
+            self.hold_at(got.tip, got.theta);
+            return Some(Finish::Saturated);
         }
         let pending = self.pending.take();
         if !got.exact {
