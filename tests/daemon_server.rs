@@ -1,6 +1,9 @@
 //! The JSON-lines server over real loopback sockets, against a fake control loop on the other
 //! ends of `link::channel`: error codes, ids, ordering, `busy`, telemetry subscriptions (on
-//! paused time), events, the client limit, a client that does not read, and shutdown.
+//! paused time), events, the client limit, a client that does not read, shutdown, who may
+//! command (control taken, refused, released, lost with the connection), the token, and the
+//! start-up refusals of `daemon::run` (a token file it cannot use, an address beyond loopback
+//! without one).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -10,8 +13,11 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde_json::{json, Map, Value};
+use snakectl::config::Config;
+use snakectl::daemon::access::{AccessError, Token};
 use snakectl::daemon::link::{self, Envelope, Handle, COMMAND_QUEUE};
 use snakectl::daemon::server::{serve, ServerOptions};
+use snakectl::daemon::{self, DaemonError, RunOptions};
 use snakectl::protocol::{
     Cmd, Code, Describe, Event, EventKind, Rejection, Telemetry, MAX_LINE, PROTOCOL_VERSION,
 };
@@ -395,6 +401,8 @@ async fn status_carries_the_telemetry_fields() {
     let mut expected = telemetry(41).to_fields();
     expected.insert("id".into(), json!(1));
     expected.insert("ok".into(), json!(true));
+    expected.insert("controller".into(), Value::Null);
+    expected.insert("in_control".into(), json!(false));
     assert_eq!(reply, Value::Object(expected));
 }
 
@@ -502,7 +510,7 @@ async fn subscribe_sends_telemetry_at_the_rate_asked() {
     assert!(ticks.windows(2).all(|w| w[1] > w[0]), "{ticks:?}");
     let fields = telemetry(0).to_fields();
     let mut expected: Vec<&str> = fields.keys().map(String::as_str).collect();
-    expected.push("type");
+    expected.extend(["type", "controller", "in_control"]);
     expected.sort_unstable();
     let mut got: Vec<&str> = lines[0]
         .1
@@ -802,4 +810,409 @@ async fn shutdown_returns_while_the_loop_holds_a_command() {
     .unwrap();
     daemon.shut_down().await.unwrap();
     assert!(c.closed().await);
+}
+
+/// This client's id, from a `release` (which changes nothing when it holds no control).
+async fn client_id(c: &mut Client) -> u64 {
+    let reply = c.request(json!({"cmd": "release"})).await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    reply["client"].as_u64().unwrap()
+}
+
+/// The next `control` event line, skipping other lines.
+async fn next_control(c: &mut Client) -> Value {
+    loop {
+        let line = c.recv().await;
+        if line["type"] == json!("event") && line["event"] == json!("control") {
+            return line;
+        }
+    }
+}
+
+/// Sends `request`; its reply and the `control` event it causes, in whichever order they come.
+async fn request_and_control(c: &mut Client, request: Value) -> (Value, Value) {
+    c.send(&request).await;
+    let (mut reply, mut event) = (None, None);
+    while reply.is_none() || event.is_none() {
+        let line = c.recv().await;
+        if line.get("type").is_none() {
+            reply = Some(line);
+        } else if line["event"] == json!("control") {
+            event = Some(line);
+        }
+    }
+    (reply.unwrap(), event.unwrap())
+}
+
+fn control_event(holder: Option<u64>, previous: Option<u64>, cmd_id: Option<&str>) -> Value {
+    let mut event = json!({"type": "event", "event": "control", "holder": holder,
+                           "previous": previous, "tick": 0});
+    if let Some(id) = cmd_id {
+        event["cmd_id"] = json!(id);
+    }
+    event
+}
+
+#[tokio::test]
+async fn the_first_motion_takes_control_and_the_others_must_take_it() {
+    let daemon = Daemon::new().await;
+    let mut a = daemon.client().await;
+    let mut b = daemon.client().await;
+    let id_a = client_id(&mut a).await;
+    let id_b = client_id(&mut b).await;
+
+    // Nobody holds control: a's goto takes it, and everyone is told.
+    let (reply, event) = request_and_control(
+        &mut a,
+        json!({"cmd": "goto", "id": "g1", "target": [0.1, 0.1]}),
+    )
+    .await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert_eq!(event, control_event(Some(id_a), None, Some("g1")));
+    assert_eq!(
+        next_control(&mut b).await,
+        control_event(Some(id_a), None, Some("g1"))
+    );
+
+    // b is refused, told who holds control and how to take it; stopping is never refused.
+    let reply = b
+        .request(json!({"cmd": "velocity", "id": "v", "v": [0.01, 0.0]}))
+        .await;
+    assert_eq!(
+        (code(&reply), &reply["id"]),
+        ("not_in_control", &json!("v"))
+    );
+    assert!(
+        message(&reply).contains(&format!("client {id_a}")),
+        "{reply}"
+    );
+    assert!(message(&reply).contains("take_control"), "{reply}");
+    for cmd in ["stop", "estop", "describe", "status"] {
+        let reply = b.request(json!({"cmd": cmd})).await;
+        assert_ne!(reply["ok"], json!(false), "{cmd}: {reply}");
+    }
+    let status_a = a.request(json!({"cmd": "status"})).await;
+    let status_b = b.request(json!({"cmd": "status"})).await;
+    assert_eq!(
+        (&status_a["controller"], &status_a["in_control"]),
+        (&json!(id_a), &json!(true))
+    );
+    assert_eq!(
+        (&status_b["controller"], &status_b["in_control"]),
+        (&json!(id_a), &json!(false))
+    );
+
+    // b takes control: both hear of it, and a is refused from then on.
+    let (reply, event) =
+        request_and_control(&mut b, json!({"cmd": "take_control", "id": "t"})).await;
+    assert_eq!(
+        reply,
+        json!({"id": "t", "ok": true, "client": id_b, "holder": id_b, "previous": id_a})
+    );
+    assert_eq!(event, control_event(Some(id_b), Some(id_a), Some("t")));
+    assert_eq!(
+        next_control(&mut a).await,
+        control_event(Some(id_b), Some(id_a), Some("t"))
+    );
+    let reply = a.request(json!({"cmd": "home", "id": 5})).await;
+    assert_eq!(code(&reply), "not_in_control");
+    assert!(
+        message(&reply).contains(&format!("client {id_b}")),
+        "{reply}"
+    );
+    // Taking what one holds, or releasing what one does not, changes nothing.
+    let reply = b.request(json!({"cmd": "take_control"})).await;
+    assert_eq!(
+        (&reply["holder"], &reply["previous"]),
+        (&json!(id_b), &json!(id_b))
+    );
+    let reply = a.request(json!({"cmd": "release"})).await;
+    assert_eq!(reply["holder"], json!(id_b), "{reply}");
+
+    // b releases: control is free, and a's next motion takes it.
+    let (reply, event) = request_and_control(&mut b, json!({"cmd": "release", "id": "r"})).await;
+    assert_eq!(
+        reply,
+        json!({"id": "r", "ok": true, "client": id_b, "holder": null})
+    );
+    assert_eq!(event, control_event(None, Some(id_b), Some("r")));
+    assert_eq!(
+        next_control(&mut a).await,
+        control_event(None, Some(id_b), Some("r"))
+    );
+    let (reply, _) = request_and_control(&mut a, json!({"cmd": "home", "id": "h"})).await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert_eq!(
+        next_control(&mut b).await,
+        control_event(Some(id_a), None, Some("h"))
+    );
+
+    // The holder leaving frees control.
+    drop(a);
+    assert_eq!(
+        next_control(&mut b).await,
+        control_event(None, Some(id_a), None)
+    );
+    let (reply, event) = request_and_control(&mut b, json!({"cmd": "reset", "id": 1})).await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert_eq!(event["holder"], json!(id_b));
+}
+
+#[tokio::test]
+async fn a_refused_command_never_reaches_the_loop() {
+    let daemon = Daemon::new().await;
+    let mut holder = daemon.client().await;
+    let mut other = daemon.client().await;
+    holder.request(json!({"cmd": "take_control"})).await;
+    let before = holder.request(json!({"cmd": "stop"})).await["tick"]
+        .as_u64()
+        .unwrap();
+    let needs_control = [
+        json!({"cmd": "goto", "target": [0.1, 0.1]}),
+        json!({"cmd": "goto_joints", "theta": [0, 0, 0]}),
+        json!({"cmd": "path", "points": [[0.1, 0.1]]}),
+        json!({"cmd": "velocity", "v": [0.0, 0.01]}),
+        json!({"cmd": "jog", "joint": 1, "rad_s": 0.1}),
+        json!({"cmd": "home"}),
+        json!({"cmd": "strategy", "name": "sequential"}),
+        json!({"cmd": "reset"}),
+        json!({"cmd": "torque", "on": false}),
+        json!({"cmd": "reboot", "ids": [1]}),
+        json!({"cmd": "reboot"}),
+    ];
+    for request in &needs_control {
+        let reply = other.request(request.clone()).await;
+        assert_eq!(code(&reply), "not_in_control", "{request}: {reply}");
+    }
+    // The fake loop counts what it answers: nothing of the other client's came.
+    let after = holder.request(json!({"cmd": "stop"})).await["tick"]
+        .as_u64()
+        .unwrap();
+    assert_eq!(after, before + 1);
+    // The holder's own are served.
+    for request in needs_control {
+        let reply = holder.request(request.clone()).await;
+        assert_ne!(code_or_ok(&reply), "not_in_control", "{request}: {reply}");
+    }
+}
+
+fn code_or_ok(reply: &Value) -> &str {
+    reply["error"]["code"].as_str().unwrap_or("ok")
+}
+
+#[tokio::test]
+async fn a_command_answered_busy_takes_no_control() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    let mut other = daemon.client().await;
+    daemon.draining.send_replace(false);
+    let mut waiting = Vec::new();
+    loop {
+        let (reply, answer) = oneshot::channel();
+        let envelope = Envelope {
+            client: 999,
+            id: None,
+            cmd: Cmd::Stop,
+            received: std::time::Instant::now(),
+            reply,
+        };
+        if daemon.handle.commands.try_send(envelope).is_err() {
+            break;
+        }
+        waiting.push(answer);
+    }
+    let reply = c.request(json!({"cmd": "home", "id": 1})).await;
+    assert_eq!(code(&reply), "busy");
+    assert_eq!(
+        c.request(json!({"cmd": "release"})).await["holder"],
+        Value::Null
+    );
+    daemon.draining.send_replace(true);
+    for answer in waiting {
+        assert!(time::timeout(DEADLINE, answer).await.unwrap().is_ok());
+    }
+    let reply = other.request(json!({"cmd": "home", "id": 2})).await;
+    assert_eq!(reply["ok"], json!(true), "control was free: {reply}");
+}
+
+#[tokio::test]
+async fn telemetry_tells_each_client_who_is_in_control() {
+    let daemon = Daemon::new().await;
+    let publisher = publish_every_ms(daemon.telemetry.clone());
+    let mut a = daemon.client().await;
+    let mut b = daemon.client().await;
+    let id_a = client_id(&mut a).await;
+    for c in [&mut a, &mut b] {
+        c.request(json!({"cmd": "subscribe", "rate_hz": 100})).await;
+        let line = c.recv().await;
+        assert_eq!(line["type"], json!("telemetry"), "{line}");
+        assert_eq!(
+            (&line["controller"], &line["in_control"]),
+            (&Value::Null, &json!(false))
+        );
+    }
+    a.request(json!({"cmd": "take_control"})).await;
+    for (c, mine) in [(&mut a, true), (&mut b, false)] {
+        let line = loop {
+            let line = c.recv().await;
+            if line["type"] == json!("telemetry") && line["controller"] == json!(id_a) {
+                break line;
+            }
+        };
+        assert_eq!(line["in_control"], json!(mine), "{line}");
+    }
+    publisher.abort();
+}
+
+fn with_token(token: &str) -> ServerOptions {
+    ServerOptions {
+        auth_grace: Duration::from_millis(300),
+        ..ServerOptions::new(JOINTS, 8).with_token(Token::new(token))
+    }
+}
+
+/// Every line until the server closes the connection.
+async fn lines_until_closed(c: &mut Client) -> Vec<Value> {
+    let mut lines = Vec::new();
+    while let Ok(Some(line)) = time::timeout(DEADLINE, c.lines.next_line())
+        .await
+        .expect("closed within the deadline")
+    {
+        lines.push(serde_json::from_str(&line).unwrap());
+    }
+    lines
+}
+
+#[tokio::test]
+async fn with_a_token_the_first_line_must_be_auth_with_it() {
+    let daemon = Daemon::start(with_token("s3cret"), describe(JOINTS)).await;
+
+    // A silent client is told after the grace and closed; it hears no event meanwhile.
+    let mut silent = daemon.client().await;
+    // One that asks for something else first.
+    let mut eager = daemon.client().await;
+    eager.send(&json!({"cmd": "status", "id": 1})).await;
+    // One with the wrong token.
+    let mut wrong = daemon.client().await;
+    wrong
+        .send(&json!({"cmd": "auth", "id": "a", "token": "s3creT"}))
+        .await;
+    // One that sends garbage.
+    let mut garbage = daemon.client().await;
+    garbage.send_raw(b"{\"cmd\":\n").await;
+
+    // The right token, after a blank line, is admitted; later lines are served.
+    let mut good = daemon.client().await;
+    good.send_raw(b"\n").await;
+    let reply = good
+        .request(json!({"cmd": "auth", "id": "ok", "token": "s3cret"}))
+        .await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert!(reply["client"].as_u64().is_some(), "{reply}");
+    let reply = good.request(json!({"cmd": "stop"})).await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    daemon
+        .events
+        .send(event(None, EventKind::Estop, 9))
+        .unwrap();
+    assert_eq!(events_until(&mut good, 9).await.len(), 1);
+
+    for (c, id, words) in [
+        (&mut eager, json!(1), &["`auth`", "`status`"][..]),
+        (&mut wrong, json!("a"), &["wrong token"][..]),
+        (&mut garbage, Value::Null, &["`auth`"][..]),
+        (&mut silent, Value::Null, &["`auth`", "0.3 s"][..]),
+    ] {
+        let lines = lines_until_closed(c).await;
+        assert_eq!(lines.len(), 1, "one line, then closed: {lines:?}");
+        assert_eq!(code(&lines[0]), "unauthorized", "{lines:?}");
+        assert_eq!(lines[0]["id"], id);
+        for word in words {
+            assert!(message(&lines[0]).contains(word), "{lines:?} lacks {word}");
+        }
+    }
+
+    // A later `auth` with a wrong token closes an admitted connection too.
+    let reply = good
+        .request(json!({"cmd": "auth", "token": "s3cret"}))
+        .await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    good.send(&json!({"cmd": "auth", "id": 2, "token": "guess"}))
+        .await;
+    let lines = lines_until_closed(&mut good).await;
+    assert_eq!(lines.len(), 1, "{lines:?}");
+    assert_eq!(code(&lines[0]), "unauthorized");
+}
+
+#[tokio::test]
+async fn without_a_token_auth_is_answered_ok() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    let reply = c
+        .request(json!({"cmd": "auth", "id": 1, "token": "anything"}))
+        .await;
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    let id = reply["client"].as_u64().unwrap();
+    assert_eq!(client_id(&mut c).await, id);
+}
+
+/// The shipped simulator config as if read from its place, with `edits` applied.
+fn sim_config(edits: &[(&str, &str)]) -> Config {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+    let mut text = std::fs::read_to_string(path).unwrap();
+    for (old, new) in edits {
+        assert!(text.contains(old), "config/sim.toml has no `{old}`");
+        text = text.replace(old, new);
+    }
+    Config::from_str(&text, path).unwrap()
+}
+
+/// `daemon::run`'s error for `config` on `listener`, which must come before the bus is opened.
+async fn refused_at_start(config: Config, listener: TcpListener) -> DaemonError {
+    let run = daemon::run(
+        config,
+        listener,
+        RunOptions {
+            port: Some("/nonexistent/port/never/opened".into()),
+        },
+        std::future::pending(),
+    );
+    match time::timeout(DEADLINE, run).await.expect("refused at once") {
+        Ok(summary) => panic!("ran: {summary:?}"),
+        Err(e) => e,
+    }
+}
+
+#[tokio::test]
+async fn start_up_refuses_an_unusable_token_file_naming_it() {
+    let dir = std::env::temp_dir().join(format!("snakectl-server-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let empty = dir.join("empty-token");
+    std::fs::write(&empty, "\n\nsecond\n").unwrap();
+    let missing = dir.join("missing-token");
+    for (file, word) in [(&empty, "empty"), (&missing, "cannot read")] {
+        let line = format!("max_clients = 4\ntoken_file = {:?}", file.to_str().unwrap());
+        let config = sim_config(&[("max_clients = 4", &line)]);
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let e = refused_at_start(config, listener).await;
+        assert!(matches!(e, DaemonError::Access(_)), "{e}");
+        let message = e.to_string();
+        assert!(message.contains(file.to_str().unwrap()), "{message}");
+        assert!(message.contains(word), "{message}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[tokio::test]
+async fn start_up_refuses_to_listen_beyond_loopback_without_a_token() {
+    let listener = TcpListener::bind("0.0.0.0:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let e = refused_at_start(sim_config(&[]), listener).await;
+    assert!(
+        matches!(e, DaemonError::Access(AccessError::Exposed { addr: a }) if a == addr),
+        "{e}"
+    );
+    let message = e.to_string();
+    assert!(message.contains("token_file"), "{message}");
+    assert!(message.contains("loopback"), "{message}");
 }

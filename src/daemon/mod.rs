@@ -8,12 +8,16 @@
 //! the shutdown future resolves the server closes, the loop brings the arm to rest and leaves
 //! the servos as `[bus] on_exit` says, and `run` returns.
 //!
+//! - [`access`]: who may connect (the token, and no listening beyond loopback without one).
+//! - [`arbiter`]: who may command (one controller at a time).
 //! - [`control_loop`]: the loop's thread: start-up, the fixed-rate cycle, the shut-down guard.
 //! - [`link`]: the seam between the loop's thread and the socket side (bounded command queue,
 //!   latest-wins telemetry, broadcast events).
 //! - [`server`]: the JSON-lines TCP server on the socket side.
 //! - [`stats`]: fixed-size histograms for the run summary.
 
+pub mod access;
+pub mod arbiter;
 pub mod control_loop;
 pub mod link;
 pub mod server;
@@ -95,6 +99,9 @@ pub enum DaemonError {
     /// Shut-down could not reach every servo.
     #[error(transparent)]
     ShutDown(#[from] ShutDownError),
+    /// The token file cannot be used, or the address is open to other hosts without a token.
+    #[error(transparent)]
+    Access(#[from] access::AccessError),
     /// Start-up failed and its error went to the waiting [`run`].
     #[error("start-up failed")]
     StartUpReported,
@@ -103,6 +110,9 @@ pub enum DaemonError {
 /// Runs the daemon on `config` until `shutdown` resolves: bring-up, then the loop, commanded
 /// through `listener`. Connections that arrive before the arm is up wait in the listener's
 /// backlog for their first reply.
+///
+/// Before anything moves, the `[server] token_file` is read and a `listener` on an address
+/// other than loopback without one is refused ([`DaemonError::Access`]).
 pub async fn run(
     config: Config,
     listener: TcpListener,
@@ -111,6 +121,8 @@ pub async fn run(
 ) -> Result<Summary, DaemonError> {
     let joints = config.chain().len();
     let max_clients = config.server().max_clients as usize;
+    let addr = listener.local_addr().map_err(DaemonError::Socket)?;
+    let access = access::Access::prepare(config.server(), addr)?;
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = oneshot::channel();
     let (done_tx, done_rx) = oneshot::channel();
@@ -145,7 +157,7 @@ pub async fn run(
                 r = &mut done_rx => ended_early = Some(r.unwrap_or(Err(DaemonError::LoopPanicked))),
             }
         };
-        let options = server::ServerOptions::new(joints, max_clients);
+        let options = server::ServerOptions::new(joints, max_clients).with_token(access.token);
         server::serve(listener, handle, options, shutdown).await
     };
     stop.store(true, Ordering::Relaxed);

@@ -5,21 +5,27 @@
 //! lines in order and, beside it, a writer that drains the client's outgoing queue and sends its
 //! telemetry:
 //!
-//! - `describe`, `subscribe` and `unsubscribe` are answered here; every other command goes to the
+//! - With a token ([`ServerOptions::token`]) a client's first line must be `auth` with it, within
+//!   [`AUTH_GRACE`]; anything else is answered `unauthorized` and the connection closed.
+//! - `describe`, `subscribe`, `unsubscribe`, `take_control`, `release` and `auth` are answered
+//!   here. Every other command is first put to the [`Arbiter`] (one controller at a time; a
+//!   command that needs control from anyone else is answered `not_in_control`), then goes to the
 //!   loop through [`Handle::commands`] without waiting for room (full: `busy`), and its reply is
 //!   written when the loop answers, so a client's replies keep the order of its requests.
-//! - Events from [`Handle::events`] meant for this client, or for everyone, are queued as event
-//!   lines between replies.
+//! - Events from [`Handle::events`] meant for this client, or for everyone, and every change of
+//!   controller (a `control` event), are queued as event lines between replies.
 //! - Telemetry is not queued: the writer reads the latest snapshot from [`Handle::telemetry`] at
 //!   the subscribed rate and skips it when nothing changed, so a slow reader sees fewer samples,
-//!   never a backlog.
+//!   never a backlog. Telemetry lines and `status` replies gain `controller` (the holder's client
+//!   id, or `null`) and `in_control` (whether it is this client) here: the loop does not know.
 //!
 //! Nothing here ever waits on the loop's room, and only a client's own task waits on it: a client
 //! whose outgoing queue stays full is disconnected; the loop and the other clients go on.
 
+use std::fmt::Write as _;
 use std::future::Future;
 use std::io;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use serde_json::{Map, Value};
@@ -33,7 +39,9 @@ use tokio::task::JoinSet;
 use tokio::time::{self, Interval, MissedTickBehavior};
 use tracing::{debug, error, warn};
 
-use super::link::{Envelope, Handle, COMMAND_QUEUE};
+use super::access::Token;
+use super::arbiter::{self, Arbiter, Change};
+use super::link::{Answer, Envelope, Handle, COMMAND_QUEUE};
 use crate::protocol::{
     self, ClientId, Cmd, Code, Event, Rejection, RequestId, Telemetry, MAX_LINE,
 };
@@ -50,6 +58,14 @@ pub const STALL_GRACE: Duration = Duration::from_secs(1);
 /// How long a closing connection may take to send what it has queued.
 pub const FLUSH_GRACE: Duration = Duration::from_millis(500);
 
+/// How long a client may take to send its `auth` line when a token is set: a connection that
+/// says nothing must not hold one of the `max_clients` places for long.
+pub const AUTH_GRACE: Duration = Duration::from_secs(10);
+
+/// `control` event lines the broadcast holds for a client that is behind (it then misses the
+/// oldest; `status` still says who is in control).
+const CONTROL_QUEUE: usize = 64;
+
 /// Consecutive failed accepts (with a growing pause between them, up to a second) before
 /// [`serve`] gives up and returns the error.
 const MAX_ACCEPT_FAILURES: u32 = 20;
@@ -57,6 +73,11 @@ const MAX_ACCEPT_FAILURES: u32 = 20;
 /// How the server is set up.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ServerOptions {
+    /// The token a client's first line must carry (`[server] token_file`); `None`: no `auth`
+    /// needed (an `auth` line is then answered ok).
+    pub token: Option<Token>,
+    /// How long a client may take to send its `auth` line ([`AUTH_GRACE`]).
+    pub auth_grace: Duration,
     /// The arm's joint count, against which requests are checked.
     pub joints: usize,
     /// Clients served at once; one more is answered `too_many_clients` and closed.
@@ -70,10 +91,12 @@ pub struct ServerOptions {
 }
 
 impl ServerOptions {
-    /// The options for an arm of `joints` joints and at most `max_clients` clients, the rest at
-    /// their defaults.
+    /// The options for an arm of `joints` joints and at most `max_clients` clients, no token,
+    /// the rest at their defaults.
     pub fn new(joints: usize, max_clients: usize) -> Self {
         ServerOptions {
+            token: None,
+            auth_grace: AUTH_GRACE,
             joints,
             max_clients,
             client_queue: CLIENT_QUEUE,
@@ -81,13 +104,19 @@ impl ServerOptions {
             flush_grace: FLUSH_GRACE,
         }
     }
+
+    /// These options with clients asked for `token` first (none when `None`).
+    pub fn with_token(self, token: Option<Token>) -> Self {
+        ServerOptions { token, ..self }
+    }
 }
 
 /// Serves JSON-lines clients on `listener` until `shutdown` resolves, on the tokio runtime that
 /// polls it.
 ///
 /// # Behavior
-/// Clients are numbered from 1 in accept order. At most `options.max_clients` are served at once
+/// Clients are numbered from 1 in accept order; the number is also the client's id as a
+/// controller (see [`Arbiter`]). At most `options.max_clients` are served at once
 /// (a semaphore); one more receives a `too_many_clients` error line and is closed. When `shutdown`
 /// resolves the server stops accepting, tells every client task to stop, gives each
 /// [`ServerOptions::flush_grace`] to send what it has queued, closes what is still open after
@@ -111,6 +140,10 @@ pub async fn serve(
         client_queue: options.client_queue.max(1),
         stall_grace: options.stall_grace,
         flush_grace: options.flush_grace,
+        token: options.token,
+        auth_grace: options.auth_grace,
+        arbiter: Mutex::new(Arbiter::new()),
+        control: broadcast::channel(CONTROL_QUEUE).0,
     });
     // Accepted connections hold a permit; none left means `too_many_clients`.
     let limit = Arc::new(Semaphore::new(
@@ -201,9 +234,36 @@ struct Shared {
     client_queue: usize,
     stall_grace: Duration,
     flush_grace: Duration,
+    token: Option<Token>,
+    auth_grace: Duration,
+    /// Who is in control. Locked briefly, never across an await.
+    arbiter: Mutex<Arbiter>,
+    /// `control` event lines, for every client.
+    control: broadcast::Sender<Arc<str>>,
 }
 
 impl Shared {
+    fn arbiter(&self) -> MutexGuard<'_, Arbiter> {
+        // The arbiter's state is one field, whole after any panic.
+        self.arbiter.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The client in control.
+    fn holder(&self) -> Option<ClientId> {
+        self.arbiter().holder()
+    }
+
+    /// Tells every client of `change` (called with the arbiter locked, so that announcements
+    /// keep the order of the changes).
+    fn announce(&self, change: &Change, cmd_id: Option<&serde_json::Value>) {
+        let tick = self.handle.telemetry.borrow().tick;
+        debug!(holder = ?change.holder, previous = ?change.previous, "control changed");
+        // No receiver (no client left to tell) is not an error.
+        let _ = self
+            .control
+            .send(arbiter::control_line(change, cmd_id, tick).into());
+    }
+
     /// A subscription's rate: the one asked for, at most the loop's.
     fn telemetry_rate(&self, asked_hz: f64) -> f64 {
         if self.loop_rate_hz.is_finite() && self.loop_rate_hz > 0.0 {
@@ -242,7 +302,13 @@ async fn client(
     if let Err(e) = stream.set_nodelay(true) {
         debug!(client = id, error = %e, "TCP_NODELAY not set");
     }
+    // However the client ends, control it holds is freed (and everyone told).
+    let _seat = Seat {
+        id,
+        shared: &shared,
+    };
     let (read, write) = stream.into_split();
+    let mut lines = LineReader::new(read);
     // Bounded: full for `stall_grace` means the client does not read, and it is disconnected.
     let (out_tx, out_rx) = mpsc::channel(shared.client_queue);
     let (rate_tx, rate_rx) = watch::channel(None);
@@ -251,6 +317,10 @@ async fn client(
         out_rx,
         shared.handle.telemetry.clone(),
         rate_rx,
+        Viewer {
+            id,
+            shared: &shared,
+        },
     );
     tokio::pin!(writer);
     let mut session = Session {
@@ -259,9 +329,8 @@ async fn client(
         out: out_tx,
         rate: rate_tx,
     };
-    let events = shared.handle.events.subscribe();
     let end = tokio::select! {
-        end = session.run(LineReader::new(read), events, &mut stop) => end,
+        end = session.run(&mut lines, &mut stop) => end,
         written = &mut writer => {
             match written {
                 Ok(()) => debug!(client = id, "client disconnected"),
@@ -272,6 +341,7 @@ async fn client(
     };
     // Closing the queue lets the writer finish once it has sent what is in it.
     drop(session);
+    let unauthorized = matches!(end, End::Unauthorized);
     match end {
         End::Overflow => {
             warn!(
@@ -285,12 +355,36 @@ async fn client(
         End::Stop => debug!(client = id, "closing client: the server stops"),
         End::WriterGone => debug!(client = id, "client disconnected: write failed"),
         End::ReadFailed(e) => debug!(client = id, error = %e, "client disconnected: read failed"),
+        End::Unauthorized => debug!(client = id, "closing client: unauthorized"),
     }
     if time::timeout(shared.flush_grace, writer).await.is_err() {
         debug!(
             client = id,
             "client closed before its replies were all sent"
         );
+    }
+    if unauthorized {
+        // Read (and drop) what the client still sends for a moment, so that closing does not
+        // reset the connection before it read its `unauthorized` line.
+        let _ = time::timeout(shared.flush_grace, async {
+            while matches!(lines.next().await, Ok(Line::Complete(_) | Line::TooLong)) {}
+        })
+        .await;
+    }
+}
+
+/// A connected client's place: when it goes, for whatever reason, control it held is freed.
+struct Seat<'a> {
+    id: ClientId,
+    shared: &'a Shared,
+}
+
+impl Drop for Seat<'_> {
+    fn drop(&mut self) {
+        let mut arbiter = self.shared.arbiter();
+        if let Some(change) = arbiter.release(self.id) {
+            self.shared.announce(&change, None);
+        }
     }
 }
 
@@ -307,6 +401,8 @@ enum End {
     WriterGone,
     /// Reading failed.
     ReadFailed(io::Error),
+    /// No `auth` line with the right token where one is needed; the client was told.
+    Unauthorized,
 }
 
 /// The reading side of one client.
@@ -320,15 +416,23 @@ struct Session<'a> {
 }
 
 impl Session<'_> {
-    /// Reads and answers requests, one at a time, and queues this client's events, until the
-    /// connection or the server ends.
+    /// Asks for the token when there is one, then reads and answers requests, one at a time,
+    /// and queues this client's events, until the connection or the server ends.
     async fn run<R: AsyncRead + Unpin>(
         &mut self,
-        mut lines: LineReader<R>,
-        mut events: broadcast::Receiver<Event>,
+        lines: &mut LineReader<R>,
         stop: &mut watch::Receiver<()>,
     ) -> End {
+        if self.shared.token.is_some() {
+            if let Err(end) = self.authenticate(lines, stop).await {
+                return end;
+            }
+        }
+        // Only an admitted client hears events.
+        let mut events = self.shared.handle.events.subscribe();
+        let mut control = self.shared.control.subscribe();
         let mut events_open = true;
+        let mut control_open = true;
         loop {
             let step = tokio::select! {
                 biased;
@@ -341,6 +445,17 @@ impl Session<'_> {
                     }
                     Err(RecvError::Closed) => {
                         events_open = false;
+                        Ok(())
+                    }
+                },
+                line = control.recv(), if control_open => match line {
+                    Ok(line) => self.push(line.to_string()).await,
+                    Err(RecvError::Lagged(missed)) => {
+                        debug!(client = self.id, missed, "client fell behind the control events");
+                        Ok(())
+                    }
+                    Err(RecvError::Closed) => {
+                        control_open = false;
                         Ok(())
                     }
                 },
@@ -363,12 +478,90 @@ impl Session<'_> {
         }
     }
 
+    /// Waits for the first request line (blank lines aside), which must be `auth` with the
+    /// token, for at most `auth_grace`. Anything else is answered `unauthorized`, and ends the
+    /// client.
+    async fn authenticate<R: AsyncRead + Unpin>(
+        &self,
+        lines: &mut LineReader<R>,
+        stop: &mut watch::Receiver<()>,
+    ) -> Result<(), End> {
+        let deadline = time::Instant::now() + self.shared.auth_grace;
+        loop {
+            let line = tokio::select! {
+                biased;
+                _ = stop.changed() => return Err(End::Stop),
+                line = time::timeout_at(deadline, lines.next()) => line,
+            };
+            let (id, why) = match line {
+                Err(_) => (
+                    None,
+                    format!(
+                        "no `auth` line within {} s of connecting",
+                        self.shared.auth_grace.as_secs_f64()
+                    ),
+                ),
+                Ok(Err(e)) => return Err(End::ReadFailed(e)),
+                Ok(Ok(Line::Eof)) => return Err(End::Eof),
+                Ok(Ok(Line::TooLong)) => (None, "the first line must be `auth`".to_owned()),
+                Ok(Ok(Line::Complete(line))) if line.iter().all(u8::is_ascii_whitespace) => {
+                    continue
+                }
+                Ok(Ok(Line::Complete(line))) => match protocol::parse(line, self.shared.joints) {
+                    Ok(request) => match request.cmd {
+                        Cmd::Auth { token } => match self.admitted(&token) {
+                            true => {
+                                let reply = protocol::ok_line(request.id.as_deref(), &self.me());
+                                return self.push(reply).await;
+                            }
+                            false => (request.id, "wrong token".to_owned()),
+                        },
+                        other => (
+                            request.id,
+                            format!(
+                                "this daemon asks for a token: the first line must be `auth`, \
+                                 not `{}`",
+                                other.name()
+                            ),
+                        ),
+                    },
+                    Err((id, _)) => (id, "the first line must be `auth`".to_owned()),
+                },
+            };
+            return Err(self.unauthorized(id.as_deref(), why).await);
+        }
+    }
+
+    /// Whether `token` is the one asked for (any, when none is).
+    fn admitted(&self, token: &str) -> bool {
+        self.shared
+            .token
+            .as_ref()
+            .is_none_or(|t| t.matches(token.as_bytes()))
+    }
+
+    /// Queues an `unauthorized` line; the client ends after it.
+    async fn unauthorized(&self, id: Option<&serde_json::Value>, why: String) -> End {
+        let line = protocol::error_line(id, &Rejection::new(Code::Unauthorized, why));
+        match self.push(line).await {
+            Ok(()) => End::Unauthorized,
+            Err(end) => end,
+        }
+    }
+
     /// Queues an event line when the event is this client's or everyone's.
     async fn event(&self, event: &Event) -> Result<(), End> {
         match event.owner {
             Some(owner) if owner != self.id => Ok(()),
             _ => self.push(protocol::event_line(event)).await,
         }
+    }
+
+    /// `{"client": ID}`: this client's id, as the `control` events name it.
+    fn me(&self) -> Map<String, Value> {
+        let mut fields = Map::new();
+        fields.insert("client".into(), self.id.into());
+        fields
     }
 
     /// Answers one request line.
@@ -399,38 +592,92 @@ impl Session<'_> {
                 self.rate.send_replace(None);
                 protocol::ok_line(id.as_deref(), &Map::new())
             }
-            cmd => self.to_loop(id, cmd, received).await,
+            Cmd::TakeControl => {
+                let (holder, previous) = {
+                    let mut arbiter = self.shared.arbiter();
+                    let previous = arbiter.holder();
+                    if let Some(change) = arbiter.take(self.id) {
+                        self.shared.announce(&change, id.as_deref());
+                    }
+                    (arbiter.holder(), previous)
+                };
+                let mut fields = self.me();
+                fields.insert("holder".into(), holder.into());
+                fields.insert("previous".into(), previous.into());
+                protocol::ok_line(id.as_deref(), &fields)
+            }
+            Cmd::Release => {
+                let holder = {
+                    let mut arbiter = self.shared.arbiter();
+                    if let Some(change) = arbiter.release(self.id) {
+                        self.shared.announce(&change, id.as_deref());
+                    }
+                    arbiter.holder()
+                };
+                let mut fields = self.me();
+                fields.insert("holder".into(), holder.into());
+                protocol::ok_line(id.as_deref(), &fields)
+            }
+            Cmd::Auth { token } => {
+                if !self.admitted(&token) {
+                    return Err(self.unauthorized(id.as_deref(), "wrong token".into()).await);
+                }
+                protocol::ok_line(id.as_deref(), &self.me())
+            }
+            cmd => {
+                let status = matches!(cmd, Cmd::Status);
+                match self.to_loop(id.clone(), cmd, received).await {
+                    Ok(mut fields) => {
+                        if status {
+                            let holder = self.shared.holder();
+                            fields.insert("controller".into(), holder.into());
+                            fields.insert("in_control".into(), (holder == Some(self.id)).into());
+                        }
+                        protocol::ok_line(id.as_deref(), &fields)
+                    }
+                    Err(why) => protocol::error_line(id.as_deref(), &why),
+                }
+            }
         };
         self.push(reply).await
     }
 
-    /// Hands a command to the loop and waits for its answer, as a reply line.
-    async fn to_loop(&self, id: Option<RequestId>, cmd: Cmd, received: Instant) -> String {
+    /// Puts a command to the arbiter, hands it to the loop and waits for its answer.
+    async fn to_loop(&self, id: Option<RequestId>, cmd: Cmd, received: Instant) -> Answer {
         let (reply, answer) = oneshot::channel();
-        let envelope = Envelope {
-            client: self.id,
-            id: id.clone(),
-            cmd,
-            received,
-            reply,
-        };
-        let id = id.as_deref();
-        match self.shared.handle.commands.try_send(envelope) {
-            Ok(()) => {}
-            Err(TrySendError::Full(_)) => {
-                let why = Rejection::new(
-                    Code::Busy,
-                    format!("the loop's command queue is full ({COMMAND_QUEUE}); send again"),
-                );
-                return protocol::error_line(id, &why);
+        {
+            // Admission and queueing under one lock: once a `take_control` is answered, no
+            // command of the previous holder's enters the queue.
+            let mut arbiter = self.shared.arbiter();
+            let change = arbiter.admit(self.id, &cmd)?;
+            let envelope = Envelope {
+                client: self.id,
+                id: id.clone(),
+                cmd,
+                received,
+                reply,
+            };
+            let sent = self.shared.handle.commands.try_send(envelope);
+            if sent.is_err() && change.is_some() {
+                // Not taken after all: the command that would have taken it never went.
+                arbiter.release(self.id);
             }
-            Err(TrySendError::Closed(_)) => return protocol::error_line(id, &stopped()),
+            match sent {
+                Ok(()) => {
+                    if let Some(change) = change {
+                        self.shared.announce(&change, id.as_deref());
+                    }
+                }
+                Err(TrySendError::Full(_)) => {
+                    return Err(Rejection::new(
+                        Code::Busy,
+                        format!("the loop's command queue is full ({COMMAND_QUEUE}); send again"),
+                    ));
+                }
+                Err(TrySendError::Closed(_)) => return Err(stopped()),
+            }
         }
-        match answer.await {
-            Ok(Ok(fields)) => protocol::ok_line(id, &fields),
-            Ok(Err(why)) => protocol::error_line(id, &why),
-            Err(_) => protocol::error_line(id, &stopped()),
-        }
+        answer.await.unwrap_or_else(|_| Err(stopped()))
     }
 
     /// Queues a line. A full queue waits for room up to `stall_grace` (only this client waits;
@@ -453,6 +700,31 @@ fn stopped() -> Rejection {
     Rejection::new(Code::ShuttingDown, "the control loop has stopped")
 }
 
+/// Who reads a telemetry line: it says who is in control, and whether that is this client.
+struct Viewer<'a> {
+    id: ClientId,
+    shared: &'a Shared,
+}
+
+impl Viewer<'_> {
+    /// `line` (one JSON object and its newline) with `controller` and `in_control` added.
+    fn with_control(&self, mut line: String) -> String {
+        let holder = self.shared.holder();
+        if line.ends_with("}\n") {
+            line.truncate(line.len() - 2);
+            let _ = match holder {
+                Some(holder) => writeln!(
+                    line,
+                    ",\"controller\":{holder},\"in_control\":{}}}",
+                    holder == self.id
+                ),
+                None => writeln!(line, ",\"controller\":null,\"in_control\":false}}"),
+            };
+        }
+        line
+    }
+}
+
 /// Sends a client's queued lines and, while subscribed, its telemetry, until the queue closes
 /// and is empty; then closes the connection's sending side.
 async fn write_loop(
@@ -460,6 +732,7 @@ async fn write_loop(
     mut lines: mpsc::Receiver<String>,
     mut telemetry: watch::Receiver<Telemetry>,
     mut rate: watch::Receiver<Option<f64>>,
+    viewer: Viewer<'_>,
 ) -> io::Result<()> {
     let mut ticker: Option<Interval> = None;
     // Send the next snapshot even if unchanged: the first after a subscribe.
@@ -489,6 +762,7 @@ async fn write_loop(
                 if fresh || telemetry.has_changed().unwrap_or(false) {
                     fresh = false;
                     let line = protocol::telemetry_line(&telemetry.borrow_and_update());
+                    let line = viewer.with_control(line);
                     sink.write_all(line.as_bytes()).await?;
                     sink.flush().await?;
                 }

@@ -12,8 +12,15 @@ use crate::resolve::Strategy;
 /// The most corner points one `path` may have.
 pub const MAX_PATH_POINTS: usize = 10_000;
 
+/// The most servo ids one `reboot` may name: every id a servo may have (0 to
+/// [`MAX_SERVO_ID`]).
+const MAX_REBOOT_IDS: usize = MAX_SERVO_ID as usize + 1;
+
+/// The largest id a Protocol 2.0 servo may have (253 is reserved, 254 is the broadcast id).
+const MAX_SERVO_ID: u8 = 252;
+
 /// Every command name, in the order an `unknown_cmd` message lists them.
-pub const COMMANDS: [&str; 15] = [
+pub const COMMANDS: [&str; 20] = [
     "describe",
     "status",
     "goto",
@@ -29,6 +36,11 @@ pub const COMMANDS: [&str; 15] = [
     "subscribe",
     "unsubscribe",
     "reset_stats",
+    "take_control",
+    "release",
+    "auth",
+    "torque",
+    "reboot",
 ];
 
 /// A request line, read and validated.
@@ -106,6 +118,26 @@ fn command(mut map: Map<String, Value>, joints: usize) -> Result<Cmd, Rejection>
         "home" => no_args(map, Cmd::Home)?,
         "unsubscribe" => no_args(map, Cmd::Unsubscribe)?,
         "reset_stats" => no_args(map, Cmd::ResetStats)?,
+        "take_control" => no_args(map, Cmd::TakeControl)?,
+        "release" => no_args(map, Cmd::Release)?,
+        "auth" => {
+            let mut args = Args::new(map, "auth", &["token"])?;
+            let token = string(Field::new("token"), args.required("token")?)?;
+            Cmd::Auth { token }
+        }
+        "torque" => {
+            let mut args = Args::new(map, "torque", &["on"])?;
+            let on = boolean(Field::new("on"), &args.required("on")?)?;
+            Cmd::Torque { on }
+        }
+        "reboot" => {
+            let mut args = Args::new(map, "reboot", &["ids"])?;
+            let ids = match args.optional("ids") {
+                Some(value) => Some(servo_ids(Field::new("ids"), &value)?),
+                None => None,
+            };
+            Cmd::Reboot { ids }
+        }
         "goto" => {
             let mut args = Args::new(map, "goto", &["target", "speed"])?;
             let target = point(Field::new("target"), &args.required("target")?)?;
@@ -188,6 +220,11 @@ impl Args {
             None | Some(Value::Null) => Err(bad(format_args!("`{key}`: missing"))),
             Some(value) => Ok(value),
         }
+    }
+
+    /// An optional argument; `null` counts as absent.
+    fn optional(&mut self, key: &'static str) -> Option<Value> {
+        self.map.remove(key).filter(|value| !value.is_null())
     }
 
     /// The optional `speed`, positive when given.
@@ -342,6 +379,75 @@ fn joint(field: Field, value: &Value, joints: usize) -> Result<usize, Rejection>
             "`{field}`: {n} is out of range 1..={joints}"
         ))),
     }
+}
+
+/// A string, taken out of its value.
+fn string(field: Field, value: Value) -> Result<String, Rejection> {
+    match value {
+        Value::String(text) => Ok(text),
+        other => Err(bad(format_args!(
+            "`{field}`: expected a string, got {}",
+            Shown(&other)
+        ))),
+    }
+}
+
+/// `true` or `false`.
+fn boolean(field: Field, value: &Value) -> Result<bool, Rejection> {
+    value.as_bool().ok_or_else(|| {
+        bad(format_args!(
+            "`{field}`: expected true or false, got {}",
+            Shown(value)
+        ))
+    })
+}
+
+/// From 1 to [`MAX_REBOOT_IDS`] distinct servo ids, each an integer from 0 to
+/// [`MAX_SERVO_ID`]. Whether the arm has them is the loop's to check.
+fn servo_ids(field: Field, value: &Value) -> Result<Vec<u8>, Rejection> {
+    let Value::Array(items) = value else {
+        return Err(bad(format_args!(
+            "`{field}`: expected an array of servo ids, got {}",
+            Shown(value)
+        )));
+    };
+    if items.is_empty() || items.len() > MAX_REBOOT_IDS {
+        return Err(bad(format_args!(
+            "`{field}`: expected 1 to {MAX_REBOOT_IDS} servo ids, got {}",
+            items.len()
+        )));
+    }
+    let mut seen = [false; MAX_REBOOT_IDS];
+    let mut ids = Vec::with_capacity(items.len());
+    for (i, item) in items.iter().enumerate() {
+        let at = field.at(i);
+        let id = match item {
+            Value::Number(n) if !n.is_f64() => n.as_u64().and_then(|k| u8::try_from(k).ok()),
+            Value::Number(n) => {
+                return Err(bad(format_args!(
+                    "`{at}`: expected an integer servo id, got {n}"
+                )))
+            }
+            other => {
+                return Err(bad(format_args!(
+                    "`{at}`: expected a servo id, got {}",
+                    Shown(other)
+                )))
+            }
+        };
+        let Some(id) = id.filter(|&id| id <= MAX_SERVO_ID) else {
+            return Err(bad(format_args!(
+                "`{at}`: {item} is out of range 0..={MAX_SERVO_ID}"
+            )));
+        };
+        let slot = &mut seen[usize::from(id)];
+        if *slot {
+            return Err(bad(format_args!("`{at}`: servo id {id} is given twice")));
+        }
+        *slot = true;
+        ids.push(id);
+    }
+    Ok(ids)
 }
 
 /// A strategy by name.

@@ -109,6 +109,28 @@ fn every_command_parses() {
         ),
         (r#"{"cmd":"unsubscribe"}"#, Cmd::Unsubscribe),
         (r#"{"cmd":"reset_stats"}"#, Cmd::ResetStats),
+        (r#"{"cmd":"take_control"}"#, Cmd::TakeControl),
+        (r#"{"cmd":"release"}"#, Cmd::Release),
+        (
+            r#"{"cmd":"auth","token":"s3cret \u00e9"}"#,
+            Cmd::Auth {
+                token: "s3cret é".into(),
+            },
+        ),
+        (
+            r#"{"cmd":"auth","token":""}"#,
+            Cmd::Auth { token: "".into() },
+        ),
+        (r#"{"cmd":"torque","on":true}"#, Cmd::Torque { on: true }),
+        (r#"{"cmd":"torque","on":false}"#, Cmd::Torque { on: false }),
+        (r#"{"cmd":"reboot"}"#, Cmd::Reboot { ids: None }),
+        (r#"{"cmd":"reboot","ids":null}"#, Cmd::Reboot { ids: None }),
+        (
+            r#"{"cmd":"reboot","ids":[3,0,252]}"#,
+            Cmd::Reboot {
+                ids: Some(vec![3, 0, 252]),
+            },
+        ),
     ];
     for (line, cmd) in cases {
         assert_eq!(ok(line), Request { id: None, cmd }, "{line}");
@@ -291,6 +313,46 @@ fn bad_arg_names_the_field_and_the_value() {
         ),
         (r#"{"cmd":"subscribe","rate_hz":1e7}"#, &["`rate_hz`"]),
         (r#"{"cmd":"stop","now":true}"#, &["`now`", "no arguments"]),
+        (
+            r#"{"cmd":"take_control","force":true}"#,
+            &["`force`", "no arguments"],
+        ),
+        (r#"{"cmd":"release","x":1}"#, &["`x`", "no arguments"]),
+        (r#"{"cmd":"auth"}"#, &["`token`", "missing"]),
+        (r#"{"cmd":"auth","token":17}"#, &["`token`", "string", "17"]),
+        (
+            r#"{"cmd":"auth","token":"t","user":"me"}"#,
+            &["`user`", "unknown", "token"],
+        ),
+        (r#"{"cmd":"torque"}"#, &["`on`", "missing"]),
+        (
+            r#"{"cmd":"torque","on":1}"#,
+            &["`on`", "true or false", "1"],
+        ),
+        (r#"{"cmd":"torque","on":"off"}"#, &["`on`", "\"off\""]),
+        (r#"{"cmd":"reboot","ids":[]}"#, &["`ids`", "1 to 253", "0"]),
+        (r#"{"cmd":"reboot","ids":3}"#, &["`ids`", "array", "3"]),
+        (
+            r#"{"cmd":"reboot","ids":[1,253]}"#,
+            &["`ids[1]`", "253", "0..=252"],
+        ),
+        (
+            r#"{"cmd":"reboot","ids":[-1]}"#,
+            &["`ids[0]`", "-1", "0..=252"],
+        ),
+        (
+            r#"{"cmd":"reboot","ids":[1,2.5]}"#,
+            &["`ids[1]`", "2.5", "integer"],
+        ),
+        (r#"{"cmd":"reboot","ids":["1"]}"#, &["`ids[0]`", "\"1\""]),
+        (
+            r#"{"cmd":"reboot","ids":[4,5,4]}"#,
+            &["`ids[2]`", "4", "twice"],
+        ),
+        (
+            r#"{"cmd":"reboot","ids":[1e300]}"#,
+            &["`ids[0]`", "integer"],
+        ),
     ];
     for (line, words) in cases {
         refused_with(line, Code::BadArg, words);
@@ -310,6 +372,19 @@ fn path_length_is_bounded() {
         Code::BadArg,
         &["`points`", "10001"],
     );
+}
+
+#[test]
+fn reboot_ids_are_bounded_and_distinct() {
+    let all: Vec<u8> = (0..=252).collect();
+    let line = json!({"cmd": "reboot", "ids": all}).to_string();
+    assert_eq!(ok(&line).cmd, Cmd::Reboot { ids: Some(all) });
+    let mut over: Vec<u32> = (0..=252).collect();
+    over.push(7);
+    let line = json!({"cmd": "reboot", "ids": over}).to_string();
+    refused_with(&line, Code::BadArg, &["`ids`", "254"]);
+    let line = json!({"cmd": "reboot", "ids": [u64::MAX]}).to_string();
+    refused_with(&line, Code::BadArg, &["`ids[0]`", "out of range"]);
 }
 
 #[test]
@@ -358,7 +433,7 @@ fn json_value() -> impl proptest::strategy::Strategy<Value = Value> {
 fn request_like() -> impl proptest::strategy::Strategy<Value = (String, Value)> {
     let keys = prop::sample::select(vec![
         "target", "speed", "theta", "points", "v", "joint", "rad_s", "name", "rate_hz", "id",
-        "extra",
+        "extra", "token", "on", "ids",
     ]);
     (
         prop::sample::select(COMMANDS.to_vec()),
@@ -410,6 +485,14 @@ fn valid_cmd(joints: usize) -> impl proptest::strategy::Strategy<Value = Cmd> {
         positive_arg().prop_map(|rate_hz| Cmd::Subscribe { rate_hz }),
         Just(Cmd::Unsubscribe),
         Just(Cmd::ResetStats),
+        Just(Cmd::TakeControl),
+        Just(Cmd::Release),
+        any::<String>().prop_map(|token| Cmd::Auth { token }),
+        any::<bool>().prop_map(|on| Cmd::Torque { on }),
+        prop::option::of(
+            prop::sample::subsequence((0..=252u8).collect::<Vec<_>>(), 1..=253).prop_shuffle()
+        )
+        .prop_map(|ids| Cmd::Reboot { ids }),
     ]
 }
 
