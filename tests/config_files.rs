@@ -71,7 +71,11 @@ fn commented_sim_faults_parse() {
     let at = text.find("\n[control]").unwrap();
     let edited = format!("{}\n{}\n{}", &text[..at], uncommented, &text[at..]);
     let config = Config::from_str(&edited, &path).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(config.sim().unwrap().faults.len(), 5);
+    let faults = &config.sim().unwrap().faults;
+    assert_eq!(faults.len(), 6);
+    assert!(faults
+        .iter()
+        .any(|f| f.kind == snakectl::config::FaultKind::Disconnect && f.id.is_none()));
 }
 
 /// A key no table knows is refused, naming the key and the line, in every table of every

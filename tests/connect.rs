@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use snakectl::config::Config;
 use snakectl::connect::{self, ConnectError, Options};
 use snakectl::servo::arm::BringUpOptions;
-use snakectl::servo::{Register, ServoBus};
+use snakectl::servo::{Register, ServoBus, ServoError};
 
 fn shipped(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -119,5 +119,83 @@ fn a_model_the_simulator_lacks_is_named_with_its_joint() {
     assert!(
         text.starts_with("odd.toml: joint[1].model: the simulator does not model the XM540-W270"),
         "{text}"
+    );
+}
+
+/// The shipped simulator config, with `extra` appended (more `[[sim.fault]]` tables).
+fn sim_config_with(extra: &str) -> Config {
+    let text = std::fs::read_to_string(shipped("sim.toml")).unwrap();
+    let text = text.replace("reply_timeout_ms = 20 ", "reply_timeout_ms = 200") + extra;
+    Config::from_str(&text, shipped("sim.toml")).unwrap()
+}
+
+/// Poll `done` until it holds, for at most 10 s (reached only on failure).
+fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while !done() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "timed out waiting for {what}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+}
+
+#[test]
+fn the_in_process_simulator_is_reopened_on_its_link_after_a_disconnect() {
+    use snakectl::servo::ErrorClass;
+    let config =
+        sim_config_with("\n[[sim.fault]]\nkind = \"disconnect\"\nat_s = 1.0\nuntil_s = 2.0\n");
+    let clock = snakectl_sim::ManualClock::new();
+    let options = Options {
+        clock: std::sync::Arc::new(clock.clone()),
+        ..Options::default()
+    };
+    let connect::Connection { mut bus, arm, sim } =
+        connect::open(&config, options.clone()).unwrap();
+    let sim = sim.expect("the simulator was started");
+    // `open` went through the simulator's link, in a private temporary directory.
+    let port = connect::port_path(&config, &options, Some(&sim)).unwrap();
+    assert_eq!(port, sim.path());
+    assert!(port.starts_with(std::env::temp_dir()), "{}", port.display());
+    let old = sim.pty_path().unwrap();
+    assert_eq!(std::fs::read_link(&port).unwrap(), old);
+    let t = arm.settings().reply_timeout;
+    arm.bring_up(&mut bus, BringUpOptions::default()).unwrap();
+
+    clock.advance(std::time::Duration::from_secs(1));
+    wait_for("the unplug", || sim.pty_path().is_none());
+    // What the daemon sees: the port itself failed, not a servo.
+    let err = bus.ping(1, t).unwrap_err();
+    assert!(
+        matches!(err, ServoError::Io(_)) && err.class() == ErrorClass::Bus,
+        "{err:?}"
+    );
+    let err = arm.write_pose(&mut bus, config.home()).unwrap_err();
+    assert_eq!(err.class(), ErrorClass::Bus, "{err:?}");
+    let baud = config.bus().unwrap().baud;
+    match connect::reopen(&port, baud, &arm, options.strategy) {
+        Err(ConnectError::Open { source }) => assert_eq!(source.class(), ErrorClass::Bus),
+        other => panic!("reopened while unplugged: {other:?}"),
+    }
+
+    clock.advance(std::time::Duration::from_secs(1));
+    wait_for("the plug-back", || sim.pty_path().is_some());
+    assert_ne!(sim.pty_path().unwrap(), old);
+    assert_eq!(bus.ping(1, t).unwrap_err().class(), ErrorClass::Bus);
+    let mut bus = connect::reopen(&port, baud, &arm, options.strategy).unwrap();
+    for id in arm.ids() {
+        bus.ping(id, t).unwrap();
+        // Torque stayed on; the Bus Watchdog fired in the silence.
+        assert_eq!(bus.read(id, Register::TorqueEnable, t).unwrap().value, 1);
+        assert_eq!(bus.read(id, Register::BusWatchdog, t).unwrap().value, -1);
+    }
+    // Bring-up clears the fired watchdogs and takes the arm back.
+    arm.bring_up(&mut bus, BringUpOptions::default()).unwrap();
+    arm.shut_down(&mut bus).unwrap();
+    drop(sim);
+    assert!(
+        port.symlink_metadata().is_err() && !port.parent().unwrap().exists(),
+        "the private link and its directory are removed"
     );
 }

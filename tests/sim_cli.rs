@@ -96,3 +96,58 @@ fn sim_refuses_a_config_without_servos_naming_the_joint() {
         "{err}"
     );
 }
+
+/// `config/sim.toml` with `extra` appended, written into `dir`.
+fn config_with(dir: &Path, extra: &str) -> String {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"))
+        .unwrap()
+        + extra;
+    let file = dir.join("sim.toml");
+    std::fs::write(&file, text).unwrap();
+    file.to_str().unwrap().to_string()
+}
+
+#[test]
+fn sim_with_a_disconnect_fault_points_its_link_at_a_new_pty_after_the_window() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config_with(
+        dir.path(),
+        "\n[[sim.fault]]\nkind = \"disconnect\"\nat_s = 1.0\nuntil_s = 2.0\n",
+    );
+    let link = dir.path().join("snake-bus");
+    let (_sim, pty) = cli_support::spawn_sim(&config, &link);
+    assert!(pty.starts_with("/dev/pts/"), "{pty}");
+    assert_eq!(pings(&link, &[3])[0].id, 3);
+    // The link vanishes with the pty, then comes back pointing at another one.
+    let deadline = Instant::now() + DEADLINE;
+    let mut seen_gone = false;
+    let new = loop {
+        assert!(Instant::now() < deadline, "the link never moved");
+        match std::fs::read_link(&link) {
+            Ok(target) if target != Path::new(&pty) => break target,
+            Ok(_) => {}
+            Err(_) => seen_gone = true,
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    assert!(seen_gone, "the link was removed during the window");
+    assert!(new.starts_with("/dev/pts/"), "{}", new.display());
+    assert_eq!(pings(&link, &[12])[0].id, 12);
+}
+
+#[test]
+fn sim_refuses_to_replace_a_file_that_is_not_a_symlink() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("notes.txt");
+    std::fs::write(&file, "keep me").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["sim", "--config", "config/sim.toml", "--link"])
+        .arg(&file)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("notes.txt"), "{err}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
+}

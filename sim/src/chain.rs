@@ -120,6 +120,14 @@ pub enum Fault {
         /// Which error.
         kind: HardwareErrorKind,
     },
+    /// The serial adapter is unplugged: while this fault is active (wrap it in
+    /// [`Fault::During`] for a window) the pseudo-terminal of [`crate::pty`] is gone, its master
+    /// and slave ends closed, so a client's reads and writes fail; at the window's end the chain
+    /// comes back on a new pseudo-terminal (the handle's link, if any, points at it). The servos
+    /// keep running meanwhile: motor models move on, watchdogs fire. Without a window the bus
+    /// never appears. A [`Simulator`] fed bytes directly only reports it
+    /// ([`Simulator::disconnected`]).
+    Disconnect,
     /// `fault` is active only from `start` after the simulator's start until `end` (exclusive;
     /// `None`: to the end of the run). A reply fault applies to the replies of instructions
     /// received inside the window; a silent servo hears and answers again from `end` on.
@@ -279,7 +287,7 @@ impl SimConfig {
                     (*id, None)
                 }
                 Fault::Silent { id, .. } | Fault::HardwareError { id, .. } => (Some(*id), None),
-                Fault::During { .. } => (None, None),
+                Fault::Disconnect | Fault::During { .. } => (None, None),
             };
             if let Some(id) = id {
                 if !seen[usize::from(id)] {
@@ -487,6 +495,20 @@ impl Simulator {
             }
             _ => false,
         })
+    }
+
+    /// Whether a [`Fault::Disconnect`] has the line unplugged at the clock's now.
+    pub fn disconnected(&self) -> bool {
+        let elapsed = self.elapsed(self.clock.now());
+        self.config.faults.iter().any(|f| match f.window() {
+            (window, Fault::Disconnect) => window.contains(elapsed),
+            _ => false,
+        })
+    }
+
+    /// The line went away: a packet half received is lost with it.
+    pub(crate) fn line_lost(&mut self) {
+        self.parser = Parser::default();
     }
 
     /// Advance motor models, watchdogs and timed faults to the clock's now.

@@ -12,7 +12,8 @@
 //! - [`chain`]: the bus: dispatch, reply order, Status Return Level, wire timing, faults;
 //! - [`clock`]: the injectable time source ([`RealClock`], [`ManualClock`]);
 //! - [`rng`]: the seeded generator behind the random faults;
-//! - [`pty`]: serving a [`Simulator`] on a pseudo-terminal, on its own thread.
+//! - [`pty`]: serving a [`Simulator`] on a pseudo-terminal, on its own thread, with an optional
+//!   link that survives a disconnect fault.
 //!
 //! ```
 //! use std::sync::Arc;
@@ -43,7 +44,7 @@ pub use chain::{
     BAUD_RATES,
 };
 pub use clock::{Clock, ManualClock, RealClock, SharedClock};
-pub use pty::{spawn_pty, SimHandle};
+pub use pty::{spawn_pty, spawn_pty_linked, Link, SimHandle};
 pub use servo::{Servo, ServoSpec};
 pub use table::{Model, UnknownModel};
 

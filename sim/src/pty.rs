@@ -10,11 +10,19 @@
 //! handed to the simulator with every chunk it wrote, so only servos whose Baud Rate register
 //! selects that rate hear and answer, as on a real bus. Where the rate cannot be read, the line
 //! is assumed to run at the configured `baud` (logged once at debug level).
+//!
+//! [`spawn_pty_linked`] also keeps a symlink ([`Link`]) pointing at the pseudo-terminal: the one
+//! stable path while a [`Fault::Disconnect`](crate::Fault::Disconnect) unplugs the line. When
+//! such a window opens, the thread closes both ends of the pty (a client's reads and writes then
+//! fail, as with a USB adapter pulled out) and removes the link; when it closes, the chain comes
+//! back on a new pseudo-terminal (a different `/dev/pts/N`: the next one is opened before the
+//! old one is closed, so the kernel cannot hand the old number back) and the link points at it.
+//! The simulator, and so every servo's state, lives on through the window.
 
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -31,56 +39,218 @@ const IDLE_WAIT: Duration = Duration::from_millis(2);
 /// How close to a reply's deadline the thread stops sleeping and spins. Only wire timing makes
 /// replies due in the future, so only it spins.
 const SPIN_WINDOW: Duration = Duration::from_micros(80);
+/// File name of the link inside a [`Link::Private`] directory.
+const PRIVATE_LINK_NAME: &str = "port";
 
-/// A running simulator on a pseudo-terminal. Dropping it stops the serving thread.
+/// A symlink the handle keeps pointing at its current pseudo-terminal.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Link {
+    /// No link: clients open the pseudo-terminal itself ([`SimHandle::path`]).
+    None,
+    /// This path: created, or replaced when it is already a symlink (any other file there is
+    /// an error); removed when the handle stops.
+    At(PathBuf),
+    /// `port` in a new directory of its own (mode 0700) under [`std::env::temp_dir`]; both are
+    /// removed when the handle stops.
+    Private,
+}
+
+/// A running simulator on a pseudo-terminal. Dropping it stops the serving thread and removes
+/// its link.
 #[derive(Debug)]
 pub struct SimHandle {
     path: PathBuf,
+    link: Option<PathBuf>,
+    owned: Option<Owned>,
+    pty: Arc<Mutex<Option<PathBuf>>>,
     sim: Arc<Mutex<Simulator>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<Result<(), SimError>>>,
 }
 
-fn lock(sim: &Mutex<Simulator>) -> MutexGuard<'_, Simulator> {
-    sim.lock().unwrap_or_else(PoisonError::into_inner)
+/// What the handle created and removes when it stops.
+#[derive(Debug)]
+struct Owned {
+    link: PathBuf,
+    dir: Option<PathBuf>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Both ends of one pseudo-terminal and the slave's name.
+struct Line {
+    master: TTYPort,
+    /// Held while serving: the slave must stay open, and its termios tell the client's rate.
+    slave: TTYPort,
+    path: PathBuf,
+}
+
+impl Line {
+    fn open() -> Result<Self, SimError> {
+        // The slave end stays as `pair()` leaves it: no TIOCEXCL and no flock, so any client may
+        // open it (serialport's `set_exclusive(false)` would take a shared flock that blocks
+        // clients asking for an exclusive one).
+        let (master, slave) = TTYPort::pair()?;
+        let path = slave
+            .name()
+            .map(PathBuf::from)
+            .ok_or_else(|| std::io::Error::other("the pseudo-terminal has no name"))?;
+        Ok(Self {
+            master,
+            slave,
+            path,
+        })
+    }
 }
 
 /// Serve `sim` on a new pseudo-terminal; clients open [`SimHandle::path`] as a serial port.
 pub fn spawn_pty(sim: Simulator) -> Result<SimHandle, SimError> {
-    // The slave end stays as `pair()` leaves it: no TIOCEXCL and no flock, so any client may
-    // open it (serialport's `set_exclusive(false)` would take a shared flock that blocks
-    // clients asking for an exclusive one).
-    let (master, slave) = TTYPort::pair()?;
-    let path = slave
-        .name()
-        .map(PathBuf::from)
-        .ok_or_else(|| std::io::Error::other("the pseudo-terminal has no name"))?;
+    spawn_pty_linked(sim, Link::None)
+}
+
+/// Serve `sim` on a new pseudo-terminal with `link` kept pointing at it (see [`Link`]); clients
+/// open [`SimHandle::path`], which is the link when there is one.
+pub fn spawn_pty_linked(sim: Simulator, link: Link) -> Result<SimHandle, SimError> {
+    let line = Line::open()?;
+    let owned = match link {
+        Link::None => None,
+        Link::At(path) => Some(Owned {
+            link: path,
+            dir: None,
+        }),
+        Link::Private => {
+            let dir = private_dir()?;
+            Some(Owned {
+                link: dir.join(PRIVATE_LINK_NAME),
+                dir: Some(dir),
+            })
+        }
+    };
+    if let Some(owned) = &owned {
+        if let Err(e) = create_link(&owned.link, &line.path) {
+            remove_owned(owned);
+            return Err(e.into());
+        }
+    }
+    let link = owned.as_ref().map(|o| o.link.clone());
+    let path = link.clone().unwrap_or_else(|| line.path.clone());
+    let pty = Arc::new(Mutex::new(Some(line.path.clone())));
     let sim = Arc::new(Mutex::new(sim));
     let stop = Arc::new(AtomicBool::new(false));
-    let thread = {
+    tracing::info!(pty = %line.path.display(), path = %path.display(), "simulated servo chain listening");
+    let spawned = {
         let sim = Arc::clone(&sim);
         let stop = Arc::clone(&stop);
+        let pty = Arc::clone(&pty);
+        let link = link.clone();
         std::thread::Builder::new()
             .name("snakectl-sim".into())
-            .spawn(move || {
-                // Held until the thread ends: the slave must stay open while serving; its
-                // termios tell the rate the client set.
-                serve(master, &slave, &sim, &stop)
-            })?
+            .spawn(move || serve(line, &sim, &stop, link.as_deref(), &pty))
     };
-    tracing::info!(path = %path.display(), "simulated servo chain listening");
+    let thread = match spawned {
+        Ok(t) => t,
+        Err(e) => {
+            if let Some(owned) = &owned {
+                remove_owned(owned);
+            }
+            return Err(e.into());
+        }
+    };
     Ok(SimHandle {
         path,
+        link,
+        owned,
+        pty,
         sim,
         stop,
         thread: Some(thread),
     })
 }
 
+/// A new directory of this process's own under the temporary directory.
+fn private_dir() -> std::io::Result<PathBuf> {
+    use std::os::unix::fs::DirBuilderExt;
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let base = std::env::temp_dir();
+    loop {
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let dir = base.join(format!("snakectl-sim-{}-{n}", std::process::id()));
+        match std::fs::DirBuilder::new().mode(0o700).create(&dir) {
+            Ok(()) => return Ok(dir),
+            // Left by an earlier process that had the same id: take the next name.
+            Err(e) if e.kind() == ErrorKind::AlreadyExists && n < 1000 => {}
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+fn is_symlink(path: &Path) -> bool {
+    path.symlink_metadata()
+        .is_ok_and(|m| m.file_type().is_symlink())
+}
+
+/// Make `link` a symlink to `target`, replacing an old symlink but no other file.
+fn create_link(link: &Path, target: &Path) -> std::io::Result<()> {
+    let named =
+        |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", link.display()));
+    if is_symlink(link) {
+        std::fs::remove_file(link).map_err(named)?;
+    }
+    std::os::unix::fs::symlink(target, link).map_err(named)
+}
+
+/// Point the existing (or absent) symlink `link` at `target` in one step: clients never find
+/// the path missing or half made.
+fn repoint_link(link: &Path, target: &Path) -> std::io::Result<()> {
+    let name = link
+        .file_name()
+        .map_or_else(Default::default, |n| n.to_string_lossy());
+    let temp = link.with_file_name(format!(".{name}.{}.new", std::process::id()));
+    if is_symlink(&temp) {
+        std::fs::remove_file(&temp)?;
+    }
+    std::os::unix::fs::symlink(target, &temp)?;
+    std::fs::rename(&temp, link).inspect_err(|_| {
+        let _ = std::fs::remove_file(&temp);
+    })
+}
+
+/// Remove `link` if it is a symlink.
+fn remove_link(link: &Path) {
+    if is_symlink(link) {
+        if let Err(e) = std::fs::remove_file(link) {
+            tracing::warn!(link = %link.display(), error = %e, "cannot remove the link");
+        }
+    }
+}
+
+fn remove_owned(owned: &Owned) {
+    remove_link(&owned.link);
+    if let Some(dir) = &owned.dir {
+        if let Err(e) = std::fs::remove_dir(dir) {
+            tracing::warn!(dir = %dir.display(), error = %e, "cannot remove the link's directory");
+        }
+    }
+}
+
 impl SimHandle {
-    /// Path of the pseudo-terminal (e.g. `/dev/pts/3`).
+    /// The path clients open: the link when there is one (stable across disconnects), else the
+    /// pseudo-terminal served at the start (e.g. `/dev/pts/3`).
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The link kept pointing at the pseudo-terminal, if one was asked for.
+    pub fn link(&self) -> Option<&Path> {
+        self.link.as_deref()
+    }
+
+    /// The pseudo-terminal served now; `None` while a disconnect fault has the line unplugged.
+    /// A new one after every disconnect window.
+    pub fn pty_path(&self) -> Option<PathBuf> {
+        lock(&self.pty).clone()
     }
 
     /// Run `f` on the simulator while the serving thread waits.
@@ -105,17 +275,22 @@ impl SimHandle {
         self.thread.as_ref().is_some_and(|t| !t.is_finished())
     }
 
-    /// Stop serving and wait for the thread; returns the error that ended it, if any.
+    /// Stop serving, wait for the thread and remove the link; returns the error that ended the
+    /// thread, if any.
     pub fn stop(mut self) -> Result<(), SimError> {
         self.shutdown()
     }
 
     fn shutdown(&mut self) -> Result<(), SimError> {
         self.stop.store(true, Ordering::Relaxed);
-        match self.thread.take() {
+        let ended = match self.thread.take() {
             Some(t) => t.join().map_err(|_| SimError::ThreadPanicked)?,
             None => Ok(()),
+        };
+        if let Some(owned) = self.owned.take() {
+            remove_owned(&owned);
         }
+        ended
     }
 }
 
@@ -143,24 +318,65 @@ fn client_baud(slave: &TTYPort, logged: &mut bool) -> Option<u32> {
     }
 }
 
-/// The serving loop: until `stop`, read, feed, and write replies at their deadlines.
+/// The serving loop: until `stop`, read, feed, and write replies at their deadlines; unplug
+/// and plug back the line as disconnect faults say.
 fn serve(
-    mut port: TTYPort,
-    slave: &TTYPort,
+    line: Line,
     sim: &Mutex<Simulator>,
     stop: &AtomicBool,
+    link: Option<&Path>,
+    pty: &Mutex<Option<PathBuf>>,
 ) -> Result<(), SimError> {
     let clock = Arc::clone(lock(sim).clock());
+    let mut line = Some(line);
+    // The pseudo-terminal opened when the line went away, served when it comes back.
+    let mut spare: Option<Line> = None;
     // Replies waiting for their deadline, earliest first. Bounded by what one instruction can
     // ask for (one reply per servo); a client that stops reading only makes writes time out.
     let mut pending: VecDeque<Reply> = VecDeque::new();
     let mut buf = [0u8; 4096];
     let mut baud_unreadable_logged = false;
     while !stop.load(Ordering::Relaxed) {
+        let down = lock(sim).disconnected();
+        if down == line.is_some() {
+            if down {
+                // Opened before the old one closes, so it gets another number.
+                spare = Some(Line::open()?);
+                if let Some(old) = line.take() {
+                    tracing::info!(pty = %old.path.display(), "fault: the line is unplugged");
+                }
+                pending.clear();
+                lock(sim).line_lost();
+                if let Some(link) = link {
+                    remove_link(link);
+                }
+                *lock(pty) = None;
+            } else {
+                let new = match spare.take() {
+                    Some(l) => l,
+                    None => Line::open()?,
+                };
+                if let Some(link) = link {
+                    if let Err(e) = repoint_link(link, &new.path) {
+                        tracing::warn!(link = %link.display(), error = %e, "cannot point the link at the new pseudo-terminal");
+                    }
+                }
+                tracing::info!(pty = %new.path.display(), "fault over: the line is back");
+                *lock(pty) = Some(new.path.clone());
+                line = Some(new);
+            }
+            continue;
+        }
+        let Some(Line { master, slave, .. }) = line.as_mut() else {
+            // Unplugged: the servos live on.
+            lock(sim).advance();
+            std::thread::sleep(IDLE_WAIT);
+            continue;
+        };
         let now = clock.now();
         while pending.front().is_some_and(|r| r.at <= now) {
             if let Some(reply) = pending.pop_front() {
-                send(&mut port, &reply);
+                send(master, &reply);
             }
         }
         let wait = match pending
@@ -179,8 +395,8 @@ fn serve(
             }
             Some((_, left)) => (left - SPIN_WINDOW).min(IDLE_WAIT),
         };
-        port.set_timeout(wait)?;
-        match port.read(&mut buf) {
+        master.set_timeout(wait)?;
+        match master.read(&mut buf) {
             Ok(0) => {}
             Ok(n) => {
                 let bytes = &buf[..n];

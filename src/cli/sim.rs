@@ -16,7 +16,8 @@ pub struct SimArgs {
     /// Config file: the servos (ids, models, limits), `[bus]` baud and delay, `[sim]` faults.
     #[arg(long)]
     config: PathBuf,
-    /// Also make this path a symlink to the pseudo-terminal (replacing an old symlink).
+    /// Also make this path a symlink to the pseudo-terminal (replacing an old symlink), kept
+    /// pointing at it across `disconnect` faults and removed on exit.
     #[arg(long)]
     link: Option<PathBuf>,
     /// Log every packet (debug level); `RUST_LOG` overrides.
@@ -29,27 +30,24 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
     super::init_logs(args.verbose);
     let other = Failure::other;
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
-    let handle =
-        connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock)).map_err(|e| match e {
+    let link = match &args.link {
+        Some(path) => connect::Link::At(path.clone()),
+        None => connect::Link::None,
+    };
+    let handle = connect::spawn_sim_linked(&config, Arc::new(snakectl_sim::RealClock), link)
+        .map_err(|e| match e {
             ConnectError::Sim {
                 source: snakectl_sim::SimError::Pty(_) | snakectl_sim::SimError::Io(_),
                 ..
             } => other(e.into()),
             _ => Failure::bad_input(e),
         })?;
-    if let Some(link) = &args.link {
-        if link
-            .symlink_metadata()
-            .is_ok_and(|m| m.file_type().is_symlink())
-        {
-            std::fs::remove_file(link)
-                .map_err(|e| other(anyhow::anyhow!("{}: {e}", link.display())))?;
-        }
-        std::os::unix::fs::symlink(handle.path(), link)
-            .map_err(|e| other(anyhow::anyhow!("{}: {e}", link.display())))?;
-    }
-    // Printed once the link exists: a script reading this line may use either at once.
-    outln!("{}", handle.path().display())?;
+    // Printed once the link exists: a script reading this line may use either at once. (A
+    // disconnect fault from the start has already unplugged it: the link is what comes back.)
+    let pty = handle
+        .pty_path()
+        .unwrap_or_else(|| handle.path().to_path_buf());
+    outln!("{}", pty.display())?;
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))
@@ -58,9 +56,7 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
     while !stop.load(Ordering::Relaxed) && handle.is_running() {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    if let Some(link) = &args.link {
-        let _ = std::fs::remove_file(link);
-    }
+    // Stopping the handle removes the link.
     tracing::info!("stopping");
     handle.stop().map_err(|e| other(e.into()))
 }

@@ -91,6 +91,8 @@ pub enum FaultKind {
     Silent,
     /// The servo raises this hardware error (and drops torque until rebooted).
     HardwareError(HardwareError),
+    /// The whole bus is unplugged (the simulator's port goes away); never has an `id`.
+    Disconnect,
 }
 
 /// The validated `[sim]`.
@@ -617,6 +619,7 @@ impl Checker<'_> {
             F::HardwareError { id, at_s, error } => {
                 (FaultKind::HardwareError(error), Some(id), at_s, None)
             }
+            F::Disconnect { at_s, until_s } => (FaultKind::Disconnect, None, at_s, until_s),
         };
         if let Some(id) = id {
             if !joints.iter().any(|j| j.id == Some(id)) {

@@ -228,6 +228,15 @@ pub enum Fault {
         /// Which error.
         error: HardwareError,
     },
+    /// The serial adapter is unplugged: the port goes away for the window and comes back as a
+    /// new device behind the simulator's link. Concerns the whole bus, so it takes no `id`.
+    Disconnect {
+        /// Start, seconds.
+        at_s: f64,
+        /// End, seconds; the bus never comes back when absent.
+        #[serde(default)]
+        until_s: Option<f64>,
+    },
 }
 
 /// How the redundancy is resolved, as written in the file.

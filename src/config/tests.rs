@@ -449,6 +449,49 @@ error = "overload""#,
     );
 }
 
+#[test]
+fn a_disconnect_fault_parses_with_its_window_and_no_servo() {
+    let c = load(&with_fault(
+        "kind = \"disconnect\"\nat_s = 2.0\nuntil_s = 3.5",
+    ))
+    .unwrap();
+    assert_eq!(
+        c.sim().unwrap().faults,
+        [Fault {
+            kind: FaultKind::Disconnect,
+            id: None,
+            from: Duration::from_secs(2),
+            until: Some(Duration::from_millis(3500)),
+        }]
+    );
+    // Without `until_s` the bus never comes back.
+    let c = load(&with_fault("kind = \"disconnect\"\nat_s = 1.0")).unwrap();
+    assert_eq!(c.sim().unwrap().faults[0].until, None);
+}
+
+#[test]
+fn a_disconnect_fault_is_checked_like_the_others() {
+    // The whole bus goes: no servo to name.
+    refused(
+        &with_fault("kind = \"disconnect\"\nid = 2\nat_s = 1.0\nuntil_s = 2.0"),
+        &["id", "at_s", "until_s"],
+    );
+    refused(
+        &with_fault("kind = \"disconnect\"\nat_s = 3.0\nuntil_s = 2.0"),
+        &["sim.fault[1].until_s", "2", "3"],
+    );
+    refused(
+        &with_fault("kind = \"disconnect\"\nat_s = -1.0\nuntil_s = 2.0"),
+        &["sim.fault[1].at_s", "-1"],
+    );
+    refused(
+        &with_fault("kind = \"disconnect\"\nuntil_s = 2.0"),
+        &["at_s"],
+    );
+    // The list of kinds in the refusal of an unknown one names it.
+    refused(&with_fault("kind = \"meteor\""), &["meteor", "disconnect"]);
+}
+
 fn with_fault(fault: &str) -> String {
     with("seed = 7", &format!("seed = 7\n[[sim.fault]]\n{fault}"))
 }

@@ -3,13 +3,25 @@
 //! started one.
 //!
 //! - `[bus] kind = "sim"`: the config's servo chain is simulated in-process ([`spawn_sim`]) on
-//!   a pseudo-terminal and opened through the same Dynamixel code as hardware.
+//!   a pseudo-terminal and opened through the same Dynamixel code as hardware, by way of a link
+//!   in a private temporary directory ([`SimHandle::path`]) that stays valid when a
+//!   `disconnect` fault replaces the pseudo-terminal.
 //! - `[bus] kind = "dynamixel"`: `[bus] port` is opened.
 //! - An explicit port ([`Options::port`], the CLI's `--port PATH`) is opened whatever
 //!   `bus.kind` says, so the same file drives an external `snakectl sim` or a real chain.
 //!
 //! Every caller goes through here (the daemon, `snakectl sim`, the servo commands, benches and
 //! tests); [`sim`] turns a config into the simulator's plain data.
+//!
+//! # When the port vanishes
+//!
+//! A USB adapter pulled out, or a simulator's `disconnect` fault, makes every exchange on the
+//! opened bus fail with [`ServoError::Io`] (or [`ServoError::Open`] when reopening too early),
+//! both of [`ErrorClass::Bus`](crate::servo::ErrorClass::Bus): a missing reply is
+//! [`ServoError::Timeout`] instead (transient), so `Bus` alone means the port itself is gone.
+//! Such a bus is dead for good; drop it and call [`reopen`] on [`port_path`] (the same path
+//! [`open`] used: for the in-process simulator its link) until it succeeds, then bring the arm
+//! up again (the servos kept their state, but their watchdogs may have fired meanwhile).
 
 pub mod sim;
 
@@ -25,6 +37,7 @@ use crate::servo::limits::{Limited, Strategy};
 use crate::servo::ServoError;
 
 pub use sim::{sim_config, SimBusError};
+pub use snakectl_sim::Link;
 
 /// Why a config could not be turned into a running bus.
 #[derive(Debug, thiserror::Error)]
@@ -111,39 +124,86 @@ pub fn open(config: &Config, options: Options) -> Result<Connection, ConnectErro
             })
         }
     };
-    let (port, sim) = match (&options.port, bus_config.kind, &bus_config.port) {
-        (Some(port), _, _) => (port.clone(), None),
-        (None, BusKind::Dynamixel, Some(port)) => (PathBuf::from(port), None),
-        (None, _, _) => {
-            let handle = spawn_sim(config, options.clock.clone())?;
-            (handle.path().to_path_buf(), Some(handle))
-        }
+    let external = options.port.is_some()
+        || (bus_config.kind == BusKind::Dynamixel && bus_config.port.is_some());
+    let sim = if external {
+        None
+    } else {
+        Some(spawn_sim(config, options.clock.clone())?)
     };
-    let raw = open_port(&port, bus_config.baud)?;
-    let bus = arm.limited(raw, options.strategy);
+    let port = port_path(config, &options, sim.as_ref()).ok_or_else(|| ConnectError::NoBus {
+        path: config.path().to_path_buf(),
+    })?;
+    let bus = reopen(&port, bus_config.baud, &arm, options.strategy)?;
     Ok(Connection { bus, arm, sim })
 }
 
-/// Start the config's servo chain, simulated, on a pseudo-terminal, on `clock`.
+/// The path [`open`] opens for `config` and `options`: the explicit port, else `[bus] port` of a
+/// `"dynamixel"` bus, else the link of the simulator `sim` that [`open`] started (a path that
+/// survives the simulator's disconnect faults). `None` for a file without `[bus]`, or a
+/// simulated bus without its handle.
+pub fn port_path(config: &Config, options: &Options, sim: Option<&SimHandle>) -> Option<PathBuf> {
+    let bus = config.bus()?;
+    match (&options.port, bus.kind, &bus.port) {
+        (Some(port), _, _) => Some(port.clone()),
+        (None, BusKind::Dynamixel, Some(port)) => Some(PathBuf::from(port)),
+        (None, _, _) => sim.map(|s| s.path().to_path_buf()),
+    }
+}
+
+/// Open `port` at `baud` and limit it to `arm`'s joint limits with `strategy`, as [`open`]
+/// does: how a caller gets its bus back after the port vanished (call it on [`port_path`],
+/// retrying while it fails with [`ConnectError::Open`]).
+pub fn reopen(
+    port: &Path,
+    baud: u32,
+    arm: &Arm,
+    strategy: Strategy,
+) -> Result<Limited<DynamixelBus>, ConnectError> {
+    Ok(arm.limited(open_port(port, baud)?, strategy))
+}
+
+/// Start the config's servo chain, simulated, on a pseudo-terminal, on `clock`, with a link in
+/// a private temporary directory ([`SimHandle::path`]; removed when the handle drops).
 pub fn spawn_sim(config: &Config, clock: Arc<dyn Clock>) -> Result<SimHandle, ConnectError> {
+    spawn_sim_linked(config, clock, Link::Private)
+}
+
+/// [`spawn_sim`] with the link of the caller's choice (`snakectl sim --link PATH` uses
+/// [`Link::At`]; [`Link::None`] serves the bare pseudo-terminal).
+pub fn spawn_sim_linked(
+    config: &Config,
+    clock: Arc<dyn Clock>,
+    link: Link,
+) -> Result<SimHandle, ConnectError> {
     let path = || config.path().to_path_buf();
     let sim_config = sim_config(config).map_err(|source| ConnectError::SimConfig {
         path: path(),
         source,
     })?;
-    serve(sim_config, clock).map_err(|source| ConnectError::Sim {
+    serve_linked(sim_config, clock, link).map_err(|source| ConnectError::Sim {
         path: path(),
         source,
     })
 }
 
-/// Serve a simulated chain on a fresh pseudo-terminal, on `clock`: the one place a simulator
-/// is started (tests with chains no config describes call it directly).
+/// Serve a simulated chain on a fresh pseudo-terminal, on `clock`, without a link: the way
+/// tests with chains no config describes start one.
 pub fn serve(
     sim_config: SimConfig,
     clock: Arc<dyn Clock>,
 ) -> Result<SimHandle, snakectl_sim::SimError> {
-    snakectl_sim::spawn_pty(Simulator::new(sim_config, clock)?)
+    serve_linked(sim_config, clock, Link::None)
+}
+
+/// Serve a simulated chain on a fresh pseudo-terminal with `link`: the one place a simulator is
+/// started.
+pub fn serve_linked(
+    sim_config: SimConfig,
+    clock: Arc<dyn Clock>,
+    link: Link,
+) -> Result<SimHandle, snakectl_sim::SimError> {
+    snakectl_sim::spawn_pty_linked(Simulator::new(sim_config, clock)?, link)
 }
 
 /// Open a serial port (a real adapter or a simulator's pseudo-terminal) at `baud`, raw: for the

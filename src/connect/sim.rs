@@ -56,6 +56,8 @@ fn fault(f: &Fault) -> SimFault {
                 None => silent,
             };
         }
+        // The adapter unplugged: always windowed, even from 0 to the end of the run.
+        FaultKind::Disconnect => return SimFault::Disconnect.during(f.from, f.until),
         FaultKind::HardwareError(e) => {
             return SimFault::HardwareError {
                 id: f.id.unwrap_or_default(),
@@ -150,11 +152,13 @@ mod tests {
             + "\n[[sim.fault]]\nkind = \"latency\"\nextra_us = 700\nat_s = 1.0\nuntil_s = 4.0\n"
             + "\n[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 2.5\nuntil_s = 3.0\n"
             + "\n[[sim.fault]]\nkind = \"silent\"\nid = 6\nat_s = 1.0\n"
-            + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.3\n";
+            + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.3\n"
+            + "\n[[sim.fault]]\nkind = \"disconnect\"\nat_s = 0.5\nuntil_s = 1.5\n"
+            + "\n[[sim.fault]]\nkind = \"disconnect\"\nat_s = 4.0\n";
         let config = Config::from_str(&text, "sim.toml").unwrap();
         let sim = sim_config(&config).unwrap();
         let s = std::time::Duration::from_secs_f64;
-        let base = sim.faults.len() - 6;
+        let base = sim.faults.len() - 8;
         assert_eq!(
             sim.faults[base..],
             [
@@ -180,6 +184,8 @@ mod tests {
                     id: None,
                     fraction: 0.3
                 },
+                SimFault::Disconnect.during(s(0.5), Some(s(1.5))),
+                SimFault::Disconnect.during(s(4.0), None),
             ]
         );
         // And the simulator accepts them.
