@@ -2,55 +2,20 @@
 //! every kind of motion (goto, path, velocity, jog, joint moves, stop) and on its harder paths
 //! (bisection of an unreachable step, saturation, the joint-speed slow-down, strategy
 //! switches, a step cut short where the arm would fold onto itself). A counting global allocator checks it, per thread.
-// The one place this test allows unsafe code: a global allocator must implement an unsafe trait.
-// It only counts calls and delegates every one to the system allocator.
-#![allow(clippy::unwrap_used, unsafe_code)]
+#![allow(clippy::unwrap_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+mod alloc_support;
+
 use std::f64::consts::FRAC_PI_2;
 
 use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::control::{Command, Controller, Limits, Tick};
 use snakectl::resolve::Strategy;
 
-struct Counting;
-
-thread_local! {
-    /// Allocations made by this thread (const-initialised: reading it never allocates).
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-fn count() {
-    // During thread teardown the slot may be gone: such allocations are not a tick's.
-    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-}
-
-// SAFETY: every call is forwarded unchanged to `System`, which upholds the `GlobalAlloc`
-// contract; the counter has no effect on memory.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count();
-        // SAFETY: the caller's layout is passed on as received.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: `ptr` was allocated by `System` with `layout` (every allocation goes there).
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count();
-        // SAFETY: as for `dealloc`; the new size is the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: alloc_support::Counting = alloc_support::Counting;
 
-fn allocations() -> usize {
-    ALLOCATIONS.with(Cell::get)
-}
+use alloc_support::this_thread as allocations;
 
 /// Runs `ticks` ticks of `dt`, counting the allocations they make; returns them and the
 /// ticks' flags or-ed together (saturated, slowed, clamped, self_collision).

@@ -2,12 +2,9 @@
 //! up, neither strategy may allocate, and neither may a whole read -> resolve -> write cycle on
 //! the simulated chain. A counting global allocator checks it, per thread (the simulator's own
 //! thread allocates as it likes).
-// The one place the crate allows unsafe code: a global allocator must implement an unsafe trait.
-// It only counts calls and delegates every one to the system allocator.
-#![allow(clippy::unwrap_used, unsafe_code)]
+#![allow(clippy::unwrap_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+mod alloc_support;
 
 use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::resolve::overall::{Overall, OverallOptions};
@@ -15,46 +12,10 @@ use snakectl::resolve::sequential::Sequential;
 use snakectl::resolve::Resolver;
 use std::time::Duration;
 
-struct Counting;
-
-thread_local! {
-    /// Allocations made by this thread (const-initialised: reading it never allocates).
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-fn count() {
-    // During thread teardown the slot may be gone: such allocations are not a tick's.
-    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-}
-
-// SAFETY: every call is forwarded unchanged to `System`, which upholds the `GlobalAlloc`
-// contract; the counter has no effect on memory.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count();
-        // SAFETY: the caller's layout is passed on as received.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: `ptr` was allocated by `System` with `layout` (every allocation goes there).
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count();
-        // SAFETY: as for `dealloc`; the new size is the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: alloc_support::Counting = alloc_support::Counting;
 
-/// Allocations made by `f` on this thread.
-fn allocations(f: impl FnOnce()) -> usize {
-    let before = ALLOCATIONS.with(Cell::get);
-    f();
-    ALLOCATIONS.with(Cell::get) - before
-}
+use alloc_support::during as allocations;
 
 /// Runs 200 ticks of 1 mm along a 5 mm circle through `resolver::resolve` after one warm-up tick.
 fn ticks(resolver: &mut dyn Resolver, chain: &Chain) -> usize {
