@@ -13,7 +13,7 @@ use crate::resolve::Strategy;
 pub const MAX_PATH_POINTS: usize = 10_000;
 
 /// Every command name, in the order an `unknown_cmd` message lists them.
-pub const COMMANDS: [&str; 15] = [
+pub const COMMANDS: [&str; 17] = [
     "describe",
     "status",
     "goto",
@@ -29,6 +29,8 @@ pub const COMMANDS: [&str; 15] = [
     "subscribe",
     "unsubscribe",
     "reset_stats",
+    "torque",
+    "reboot",
 ];
 
 /// A request line, read and validated.
@@ -143,6 +145,48 @@ fn command(mut map: Map<String, Value>, joints: usize) -> Result<Cmd, Rejection>
             let mut args = Args::new(map, "subscribe", &["rate_hz"])?;
             let rate_hz = positive(Field::new("rate_hz"), &args.required("rate_hz")?)?;
             Cmd::Subscribe { rate_hz }
+        }
+        "torque" => {
+            let mut args = Args::new(map, "torque", &["on"])?;
+            match args.required("on")? {
+                Value::Bool(on) => Cmd::Torque { on },
+                other => {
+                    return Err(bad(format_args!(
+                        "`on`: expected true or false, got {}",
+                        Shown(&other)
+                    )))
+                }
+            }
+        }
+        "reboot" => {
+            let mut args = Args::new(map, "reboot", &["ids"])?;
+            let ids = match args.map.remove("ids") {
+                None | Some(Value::Null) => None,
+                Some(Value::Array(items)) => Some(
+                    items
+                        .iter()
+                        .enumerate()
+                        .map(|(i, v)| {
+                            v.as_u64()
+                                .and_then(|id| u8::try_from(id).ok())
+                                .filter(|&id| id <= 252)
+                                .ok_or_else(|| {
+                                    bad(format_args!(
+                                        "`ids[{i}]`: expected a servo id 0..=252, got {}",
+                                        Shown(v)
+                                    ))
+                                })
+                        })
+                        .collect::<Result<Vec<u8>, _>>()?,
+                ),
+                Some(other) => {
+                    return Err(bad(format_args!(
+                        "`ids`: expected an array of servo ids, got {}",
+                        Shown(&other)
+                    )))
+                }
+            };
+            Cmd::Reboot { ids }
         }
         _ => {
             return Err(unknown(format_args!(
