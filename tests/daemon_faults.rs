@@ -31,7 +31,12 @@ fn check_goals(samples: &[Value], lo: &[f64], hi: &[f64]) -> usize {
     let mut reseeds = 0;
     for t in samples {
         for (j, x) in floats(&t["theta_cmd"]).iter().enumerate() {
-            assert!(x.is_finite(), "joint {} goal {x} at tick {}", j + 1, t["tick"]);
+            assert!(
+                x.is_finite(),
+                "joint {} goal {x} at tick {}",
+                j + 1,
+                t["tick"]
+            );
             assert!(
                 *x >= lo[j] - 1e-12 && *x <= hi[j] + 1e-12,
                 "joint {} goal {x} outside {}..{} at tick {}",
@@ -155,7 +160,11 @@ fn one_percent_drops_and_corruption_stay_within_the_error_budget() {
     let sim1 = d.sim.with_sim(|s| s.stats());
     assert_eq!(last["command"]["outcome"], "arrived", "{last}");
     for t in &samples {
-        assert_ne!(t["state"], "fault", "a false fault at tick {}: {t}", t["tick"]);
+        assert_ne!(
+            t["state"], "fault",
+            "a false fault at tick {}: {t}",
+            t["tick"]
+        );
         assert_eq!(t["faults"], json!([]), "{t}");
     }
     let events = c.drain_events(Duration::ZERO);
@@ -219,12 +228,16 @@ fn a_silent_servo_holds_the_arm_until_it_answers_then_the_arm_moves_again() {
         watch_until_event_keeping(&mut c, fault_event("raised", "silent"), &mut skipped);
     assert_eq!(raised["fault"]["id"], json!(5), "{raised}");
     assert_eq!(raised["fault"]["joint"], json!(5), "{raised}");
-    let detected = raised["tick"].as_u64().unwrap() - raised["fault"]["since_tick"].as_u64().unwrap() + 1;
+    let detected =
+        raised["tick"].as_u64().unwrap() - raised["fault"]["since_tick"].as_u64().unwrap() + 1;
     println!("silent servo 5: fault raised on read {detected} without its reply (budget {budget})");
     assert_eq!(detected, budget, "{raised}");
     // The arm had not held before (a single miss never holds it).
     let raised_tick = raised["tick"].as_u64().unwrap();
-    for t in samples.iter().filter(|t| t["tick"].as_u64().unwrap() < raised_tick) {
+    for t in samples
+        .iter()
+        .filter(|t| t["tick"].as_u64().unwrap() < raised_tick)
+    {
         assert_ne!(t["state"], "fault", "{t}");
     }
     let s = c.status();
@@ -232,7 +245,10 @@ fn a_silent_servo_holds_the_arm_until_it_answers_then_the_arm_moves_again() {
     assert_eq!(s["faults"].as_array().unwrap().len(), 1, "{s}");
     assert_eq!(s["faults"][0]["id"], json!(5));
     assert_eq!(s["faults"][0]["kind"], "silent");
-    assert!(s["faults"][0]["detail"].as_str().unwrap().contains("consecutive"));
+    assert!(s["faults"][0]["detail"]
+        .as_str()
+        .unwrap()
+        .contains("consecutive"));
     assert_eq!(s["command"]["outcome"], "fault", "{s}");
     let stopped = skipped
         .iter()
@@ -240,15 +256,24 @@ fn a_silent_servo_holds_the_arm_until_it_answers_then_the_arm_moves_again() {
         .unwrap_or_else(|| panic!("no `stopped` event for the goto: {skipped:?}"));
     assert_eq!(stopped["reason"], "fault");
     // Motion is refused while the fault holds; stop is fine.
-    assert_eq!(c.error_code(json!({"cmd": "goto", "target": start})), "fault");
-    assert_eq!(c.error_code(json!({"cmd": "jog", "joint": 1, "rad_s": 0.1})), "fault");
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "fault"
+    );
+    assert_eq!(
+        c.error_code(json!({"cmd": "jog", "joint": 1, "rad_s": 0.1})),
+        "fault"
+    );
     c.ok(json!({"cmd": "stop"}));
     // Held: the goals do not move until it answers again.
     let (held, cleared) = watch_until_event(&mut c, fault_event("cleared", "silent"));
     let faulted: Vec<&Value> = held.iter().filter(|t| t["state"] == "fault").collect();
     assert!(faulted.len() > 10, "{} samples in fault", faulted.len());
     for t in &faulted {
-        assert_eq!(t["theta_cmd"], faulted[0]["theta_cmd"], "goals moved in fault");
+        assert_eq!(
+            t["theta_cmd"], faulted[0]["theta_cmd"],
+            "goals moved in fault"
+        );
     }
     assert_eq!(cleared["fault"]["id"], json!(5));
     // Silent for 1.5 s with torque on: its watchdog fired and was cleared.
@@ -259,7 +284,10 @@ fn a_silent_servo_holds_the_arm_until_it_answers_then_the_arm_moves_again() {
     let s = c.status();
     assert_eq!(s["state"], "holding", "{s}");
     assert_eq!(s["faults"], json!([]));
-    assert!(d.sim.with_servo(5, |s| s.watchdog()).unwrap() > 0, "watchdog not re-armed");
+    assert!(
+        d.sim.with_servo(5, |s| s.watchdog()).unwrap() > 0,
+        "watchdog not re-armed"
+    );
     // Able to move again.
     goto_arrives(&mut c, [start[0] + 0.03, start[1] - 0.02]);
     samples.extend(watch(&mut c, 5));
@@ -289,7 +317,10 @@ fn a_hardware_error_holds_until_reboot_then_torque_is_back_and_the_arm_moves() {
     assert_eq!(s["state"], "fault");
     assert_eq!(s["faults"][0]["kind"], "hardware_error");
     assert!(!d.torque(9), "the servo's own shutdown switched torque off");
-    assert_eq!(c.error_code(json!({"cmd": "goto", "target": start})), "fault");
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "fault"
+    );
     assert_eq!(c.error_code(json!({"cmd": "torque", "on": true})), "fault");
     // It holds until rebooted: a while later it still does.
     samples.extend(watch(&mut c, 30));
@@ -306,7 +337,10 @@ fn a_hardware_error_holds_until_reboot_then_torque_is_back_and_the_arm_moves() {
     for id in 1..=12 {
         assert!(d.torque(id), "servo {id} torque off after the reboot");
     }
-    assert_eq!(d.sim.with_servo(9, |s| s.hardware_error_status()).unwrap(), 0);
+    assert_eq!(
+        d.sim.with_servo(9, |s| s.hardware_error_status()).unwrap(),
+        0
+    );
     goto_arrives(&mut c, [start[0] + 0.04, start[1] - 0.02]);
     samples.extend(watch(&mut c, 5));
     check_goals(&samples, &lo, &hi);
@@ -322,7 +356,10 @@ fn torque_off_and_on_holds_the_measured_pose() {
     let s = c.status();
     assert_eq!(s["torque"], json!(false), "{s}");
     assert!((1..=12).all(|id| !d.torque(id)));
-    assert_eq!(c.error_code(json!({"cmd": "goto", "target": start})), "fault");
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "fault"
+    );
     c.ok(json!({"cmd": "torque", "on": true}));
     let s = c.status();
     assert_eq!(s["torque"], json!(true));
@@ -354,7 +391,9 @@ fn health_is_read_every_health_every_ticks_and_warns_before_the_servo_limits() {
     assert!((floats(&t["temperature_c"])[2] - 30.0).abs() < 1e-9, "{t}");
     // Temperature 4 °C under servo 3's limit: a warning, no fault.
     let limit = d.sim.with_servo(3, |s| s.value(31)).unwrap().unwrap() as f64;
-    d.sim.with_servo(3, |s| s.set_temperature(limit - 4.0)).unwrap();
+    d.sim
+        .with_servo(3, |s| s.set_temperature(limit - 4.0))
+        .unwrap();
     let (_, warning) = watch_until_event(&mut c, |e| e["event"] == "warning");
     println!("temperature warning: {warning}");
     assert_eq!(warning["reason"], "raised");
@@ -369,7 +408,9 @@ fn health_is_read_every_health_every_ticks_and_warns_before_the_servo_limits() {
     assert_eq!(cleared["reason"], "cleared");
     // Input voltage 0.3 V above servo 4's Min Voltage Limit.
     let min = d.sim.with_servo(4, |s| s.value(34)).unwrap().unwrap() as f64;
-    d.sim.with_servo(4, |s| s.set_input_voltage(min + 3.0)).unwrap();
+    d.sim
+        .with_servo(4, |s| s.set_input_voltage(min + 3.0))
+        .unwrap();
     let (_, warning) = watch_until_event(&mut c, |e| e["event"] == "warning");
     println!("voltage warning: {warning}");
     assert_eq!(warning["fault"]["id"], json!(4));

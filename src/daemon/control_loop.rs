@@ -365,7 +365,11 @@ impl Cycle {
         let reopen_path = options
             .port
             .clone()
-            .or_else(|| config.bus().and_then(|b| b.port.as_ref().map(PathBuf::from)))
+            .or_else(|| {
+                config
+                    .bus()
+                    .and_then(|b| b.port.as_ref().map(PathBuf::from))
+            })
             .or_else(|| sim.as_ref().map(|s| s.path().to_path_buf()));
         let baud = bus.baud();
         let brought = arm.bring_up(&mut bus, BringUpOptions::default())?;
@@ -818,7 +822,12 @@ impl Cycle {
         };
         self.health[i].missed = 0;
         let info = self.joint_info(i, fault.kind(), since, detail);
-        tracing::info!(id = info.id, kind = info.kind, "fault cleared: {}", info.detail);
+        tracing::info!(
+            id = info.id,
+            kind = info.kind,
+            "fault cleared: {}",
+            info.detail
+        );
         self.fault_event(EventKind::Fault, "cleared", info);
         self.rebuild_lists();
     }
@@ -834,7 +843,12 @@ impl Cycle {
     fn interrupt(&mut self, reason: &'static str) {
         if let Some(mut a) = self.active.take() {
             a.outcome = "fault";
-            self.event(Some(a.owner), a.id.clone(), EventKind::Stopped, Some(reason));
+            self.event(
+                Some(a.owner),
+                a.id.clone(),
+                EventKind::Stopped,
+                Some(reason),
+            );
             self.last = Some(a);
         }
     }
@@ -1525,7 +1539,12 @@ impl Cycle {
             self.controller.freeze();
             if let Some(mut a) = self.active.take() {
                 a.outcome = "stopped";
-                self.event(Some(a.owner), a.id.clone(), EventKind::Stopped, Some("torque"));
+                self.event(
+                    Some(a.owner),
+                    a.id.clone(),
+                    EventKind::Stopped,
+                    Some("torque"),
+                );
                 self.last = Some(a);
             }
             tracing::info!("torque off");
@@ -1539,7 +1558,10 @@ impl Cycle {
     /// that pose; every joint fault clears.
     fn reboot(&mut self, ids: Option<&[u8]>) -> Pending {
         if self.port_lost.is_some() {
-            return Self::refuse(Code::Fault, "the serial port is lost: no servo can be rebooted");
+            return Self::refuse(
+                Code::Fault,
+                "the serial port is lost: no servo can be rebooted",
+            );
         }
         let targets: Vec<u8> = match ids {
             Some(ids) => {

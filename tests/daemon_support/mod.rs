@@ -36,7 +36,9 @@ pub fn sim_config_with(edits: &[(&str, &str)], sim_tables: &str) -> Config {
         assert!(text.contains(old), "config/sim.toml has no line `{old}`");
         text = text.replace(old, new);
     }
-    let seed = text.find("\nseed = ").expect("config/sim.toml has a `seed` line");
+    let seed = text
+        .find("\nseed = ")
+        .expect("config/sim.toml has a `seed` line");
     let end = seed + 1 + text[seed + 1..].find('\n').unwrap();
     text.insert_str(end + 1, &format!("\n{sim_tables}\n"));
     Config::from_str(&text, path).unwrap()
@@ -107,9 +109,12 @@ impl Daemon {
     /// Enable in the simulator.
     pub fn stop_and_torques(mut self) -> (Result<Summary, DaemonError>, Vec<(u8, bool)>) {
         let result = self.finish();
-        let torques = self
-            .sim
-            .with_sim(|s| s.servos().iter().map(|s| (s.id(), s.torque_enabled())).collect());
+        let torques = self.sim.with_sim(|s| {
+            s.servos()
+                .iter()
+                .map(|s| (s.id(), s.torque_enabled()))
+                .collect()
+        });
         (result, torques)
     }
 
