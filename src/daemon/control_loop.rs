@@ -839,10 +839,15 @@ impl Cycle {
         self.interrupt("fault");
     }
 
-    /// The active command ends without arriving.
+    /// The active command ends without arriving (outcome `fault`, or `stopped` for a
+    /// `reboot`), its sender told by a `stopped` event with `reason`.
     fn interrupt(&mut self, reason: &'static str) {
         if let Some(mut a) = self.active.take() {
-            a.outcome = "fault";
+            a.outcome = if reason == "fault" {
+                "fault"
+            } else {
+                "stopped"
+            };
             self.event(
                 Some(a.owner),
                 a.id.clone(),
@@ -1307,7 +1312,7 @@ impl Cycle {
                 self.ticks_before = self.tick;
                 self.ok()
             }
-            Cmd::Torque { on } => self.torque_cmd(e, *on),
+            Cmd::Torque { on } => self.torque_cmd(*on),
             Cmd::Reboot { ids } => self.reboot(ids.as_deref()),
             Cmd::Describe | Cmd::Subscribe { .. } | Cmd::Unsubscribe => Self::refuse(
                 Code::UnknownCmd,
@@ -1514,7 +1519,7 @@ impl Cycle {
 
     /// `torque`: on = goals := the measured pose (tripped watchdogs cleared first), then
     /// torque on; off = torque off, the controller frozen. Refused on while a fault holds.
-    fn torque_cmd(&mut self, e: &Envelope, on: bool) -> Pending {
+    fn torque_cmd(&mut self, on: bool) -> Pending {
         if on {
             if self.estop {
                 return Self::refuse(
@@ -1549,7 +1554,6 @@ impl Cycle {
             }
             tracing::info!("torque off");
         }
-        let _ = e;
         self.ok()
     }
 
