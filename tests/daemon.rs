@@ -541,3 +541,46 @@ fn a_stop_decelerates_and_holds_and_the_next_motion_resumes() {
     let resume = c.send(json!({"cmd": "goto", "target": target}));
     c.event("arrived", Some(resume));
 }
+
+#[test]
+fn a_path_that_would_fold_the_arm_onto_itself_stops_short_flagged() {
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    c.status();
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    // Down beside the base, then straight across it: through the arm's own first links.
+    let across = [0.1, 0.04];
+    let points = json!([[-0.2, 0.2], [-0.1, 0.04], across]);
+    let id = c.send(json!({"cmd": "path", "points": points, "speed": 0.1}));
+    let samples = c.telemetry_until(|t| {
+        t["command"]["id"] == json!(id) && t["command"]["outcome"] == "saturated"
+    });
+    c.event("saturated", Some(id));
+    assert!(
+        samples.iter().any(|t| t["self_collision"] == json!(true)),
+        "never flagged self_collision"
+    );
+    for t in &samples {
+        if t["self_collision"] == json!(true) {
+            assert_eq!(t["saturated"], json!(true), "{t}");
+        }
+    }
+    assert_joint_speed_bound(&samples);
+    let s = c.status();
+    assert!(
+        dist(tip(&s), across) > 0.05,
+        "the tip got across: {:?}",
+        tip(&s)
+    );
+    // The goals never crossed: check every sample's pose.
+    let chain = d.config.chain();
+    for t in &samples {
+        let points = chain.points(&floats(&t["theta_cmd"]));
+        assert_eq!(
+            snakectl::chain::Chain::self_intersects(&points),
+            None,
+            "links touch at tick {}",
+            t["tick"]
+        );
+    }
+}

@@ -242,3 +242,72 @@ fn a_bad_config_value_is_refused_naming_the_field() {
         "{err}"
     );
 }
+
+#[test]
+fn a_stall_longer_than_the_bus_watchdog_is_recovered_and_the_arm_moves_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, config) = config_file(dir.path(), &[]);
+    let watchdog = Duration::from_millis(config.arm().unwrap().settings().watchdog_ms.into());
+    let ids = config.arm().unwrap().ids();
+    let sim = sim(&config);
+    let mut daemon = DaemonChild::spawn(&path, sim.path());
+    let mut client = Client::connect(daemon.address());
+    start_moving(&mut client);
+    // Stopped for three watchdog periods: every servo's watchdog fires.
+    daemon.signal("-STOP");
+    let stopped = Instant::now();
+    while !ids
+        .iter()
+        .all(|&id| sim.with_servo(id, |s| s.watchdog()).unwrap() < 0)
+    {
+        assert!(stopped.elapsed() < DEADLINE, "the watchdogs never fired");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    // The stall's length is the input here, not a wait for something.
+    std::thread::sleep((3 * watchdog).saturating_sub(stopped.elapsed()));
+    // A tripped watchdog refuses goals (data range error) until cleared.
+    let refused = sim
+        .with_servo(1, |s| s.check_write(116, &2048i32.to_le_bytes()))
+        .unwrap();
+    assert_eq!(refused, Err(4), "a tripped watchdog takes goals");
+    daemon.signal("-CONT");
+    let event = client
+        .next_matching(DEADLINE, |l| {
+            l["type"] == "event" && l["event"] == "fault" && l["reason"] == "recovered"
+        })
+        .expect("a `recovered` fault event");
+    assert_eq!(event["fault"]["kind"], "watchdog", "{event}");
+    let detail = event["fault"]["detail"].as_str().unwrap();
+    println!("stall of {:?}: {detail}", 3 * watchdog);
+    for &id in &ids {
+        assert!(
+            sim.with_servo(id, |s| s.watchdog()).unwrap() > 0,
+            "servo {id}: watchdog not re-armed"
+        );
+    }
+    let s = client.status();
+    assert_eq!(s["state"], "holding", "{s}");
+    assert_eq!(s["command"]["outcome"], "fault", "{s}");
+    // A goto after the recovery arrives, and the servos follow it.
+    let tip = [s["tip"][0].as_f64().unwrap(), s["tip"][1].as_f64().unwrap()];
+    let target = [tip[0] - 0.03, tip[1] - 0.02];
+    let id = client.send(json!({"cmd": "goto", "target": target}));
+    assert_eq!(client.reply(&json!(id))["ok"], json!(true));
+    client.event("arrived", Some(id));
+    client.wait_status("the servos follow", |s| {
+        let m = [
+            s["tip_meas"][0].as_f64().unwrap(),
+            s["tip_meas"][1].as_f64().unwrap(),
+        ];
+        (m[0] - target[0]).hypot(m[1] - target[1]) < 2e-3
+    });
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+    for &id in &ids {
+        assert!(
+            !sim.with_servo(id, |s| s.torque_enabled()).unwrap(),
+            "servo {id} torque on"
+        );
+    }
+}

@@ -594,6 +594,7 @@ fn event(owner: Option<u64>, kind: EventKind, tick: u64) -> Event {
         tick,
         tip: [0.25, -0.5],
         reason: (kind == EventKind::Stopped).then_some("deadman"),
+        fault: None,
     }
 }
 

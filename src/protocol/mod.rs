@@ -258,15 +258,20 @@ pub struct CommandInfo {
     pub m3_rad2: f64,
 }
 
-/// An active fault.
+/// A fault or a warning, active or (in an event) raised, cleared or recovered.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FaultInfo {
-    /// Servo id.
+    /// Servo id (0 for the port itself).
     pub id: u8,
-    /// Joint number, from 1.
+    /// Joint number, from 1 (0 for the port itself).
     pub joint: usize,
-    /// What kind of fault (`silent`, `hardware_error`, ...).
+    /// What kind: `silent` (no reply to `control.max_missed_reads` consecutive reads),
+    /// `hardware_error` (the servo's alert flag; `detail` names the error), `port` (the serial
+    /// port failed), `watchdog` (the Bus Watchdog fired and was recovered); for warnings
+    /// `temperature` or `voltage`.
     pub kind: &'static str,
+    /// The tick of its first symptom (the first missed read, the alert seen, the stall).
+    pub since_tick: u64,
     /// Details for a person.
     pub detail: String,
 }
@@ -330,8 +335,26 @@ pub struct Telemetry {
     pub peak_joint_speed_rad_s: f64,
     /// Metric 3 travelled since start or `reset_stats`, rad².
     pub m3_total_rad2: f64,
-    /// The active faults.
+    /// The active faults: while there is one, the arm holds (`state` is `fault`).
     pub faults: Vec<FaultInfo>,
+    /// The active health warnings (temperature or input voltage near the servo's own
+    /// shutdown thresholds): nothing holds for them.
+    pub warnings: Vec<FaultInfo>,
+    /// Whether the servos' torque is on (off after `torque {on: false}`, or an `estop` where
+    /// `[bus] on_exit = "torque_off"`).
+    pub torque: bool,
+    /// Present Temperature per joint, °C, as of `health_tick`.
+    pub temperature_c: Vec<f64>,
+    /// Present Input Voltage per joint, V, as of `health_tick`.
+    pub voltage_v: Vec<f64>,
+    /// Present Load or Current per joint, in the joint's frame (positive = the positive
+    /// direction), in the unit `load_unit` names, as of `health_tick`.
+    pub load: Vec<f64>,
+    /// Per joint, the unit of `load`: `"percent"` (Present Load, % of the maximum torque:
+    /// XL430, XC430) or `"A"` (Present Current: XM430, XH430, XM540, XL330).
+    pub load_unit: Vec<&'static str>,
+    /// The tick of the last health read (every `control.health_every`-th tick); 0 before it.
+    pub health_tick: u64,
     /// Counters since start.
     pub counters: Counters,
 }
@@ -392,8 +415,10 @@ pub enum EventKind {
     Estop,
     /// The estop latch was cleared.
     Reset,
-    /// A fault was raised or cleared.
+    /// A fault was raised, cleared or recovered (`reason`; `fault` names the servo and why).
     Fault,
+    /// A health warning began or ended (`reason` `raised` or `cleared`; `fault` names it).
+    Warning,
     /// Who is in control changed.
     Control,
 }
@@ -412,6 +437,9 @@ pub struct Event {
     pub tick: u64,
     /// The commanded tip at that tick, m.
     pub tip: [f64; 2],
-    /// For `preempted`, the command that replaced it; for `stopped`, why (`stop`, `deadman`).
+    /// For `preempted`, the command that replaced it; for `stopped`, why (`stop`, `deadman`);
+    /// for `fault` and `warning`, `raised`, `cleared` or `recovered`.
     pub reason: Option<&'static str>,
+    /// For `fault` and `warning`: which servo, what kind, the details.
+    pub fault: Option<FaultInfo>,
 }

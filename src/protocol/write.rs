@@ -56,7 +56,7 @@ pub fn telemetry_line(telemetry: &Telemetry) -> String {
 }
 
 /// An event line: `{"type": "event", "event": KIND, "cmd_id": ID?, "tick": .., "tip": [x, y],
-/// "reason": ..?}` (`cmd_id` and `reason` only when the event has them).
+/// "reason": ..?, "fault": {..}?}` (`cmd_id`, `reason` and `fault` only when the event has them).
 pub fn event_line(event: &Event) -> String {
     let mut line = Line::with_capacity(128);
     line.field("type", "event");
@@ -68,6 +68,9 @@ pub fn event_line(event: &Event) -> String {
     line.field("tip", &event.tip);
     if let Some(reason) = event.reason {
         line.field("reason", reason);
+    }
+    if let Some(fault) = &event.fault {
+        line.field("fault", fault);
     }
     line.finish()
 }
@@ -227,8 +230,16 @@ mod tests {
                 id: 2,
                 joint: 2,
                 kind: "silent",
+                since_tick: 37,
                 detail: "no reply".into(),
             }],
+            warnings: Vec::new(),
+            torque: true,
+            temperature_c: vec![30.0, 31.0, 32.0],
+            voltage_v: vec![12.0, 12.0, 11.9],
+            load: vec![0.0, 1.5, -0.2],
+            load_unit: vec!["percent", "percent", "A"],
+            health_tick: 40,
             counters: Counters {
                 dropped: 1,
                 corrupted: 2,
@@ -334,6 +345,13 @@ mod tests {
             "peak_joint_speed_rad_s",
             "m3_total_rad2",
             "faults",
+            "warnings",
+            "torque",
+            "temperature_c",
+            "voltage_v",
+            "load",
+            "load_unit",
+            "health_tick",
             "counters",
         ];
         wanted.sort_unstable();
@@ -385,6 +403,7 @@ mod tests {
             tick: 120,
             tip: [0.5, -0.25],
             reason: Some("goto"),
+            fault: None,
         };
         assert_eq!(
             read(&event_line(&event)),
@@ -397,6 +416,21 @@ mod tests {
         assert_eq!(
             read(&event_line(&event)),
             json!({"type": "event", "event": "estop", "tick": 120, "tip": [0.5, -0.25]})
+        );
+        event.kind = EventKind::Fault;
+        event.reason = Some("raised");
+        event.fault = Some(FaultInfo {
+            id: 5,
+            joint: 5,
+            kind: "silent",
+            since_tick: 116,
+            detail: "no reply".into(),
+        });
+        assert_eq!(
+            read(&event_line(&event)),
+            json!({"type": "event", "event": "fault", "tick": 120, "tip": [0.5, -0.25],
+                   "reason": "raised", "fault": {"id": 5, "joint": 5, "kind": "silent",
+                   "since_tick": 116, "detail": "no reply"}})
         );
     }
 

@@ -71,6 +71,12 @@ pub enum Register {
     OperatingMode,
     /// Homing Offset (20, 4; EEPROM).
     HomingOffset,
+    /// Temperature Limit (31, 1; EEPROM): °C; above it the servo raises its overheating error.
+    TemperatureLimit,
+    /// Max Voltage Limit (32, 2; EEPROM): units of 0.1 V.
+    MaxVoltageLimit,
+    /// Min Voltage Limit (34, 2; EEPROM): units of 0.1 V.
+    MinVoltageLimit,
     /// Velocity Limit (44, 4; EEPROM).
     VelocityLimit,
     /// Max Position Limit (48, 4; EEPROM).
@@ -121,6 +127,9 @@ impl Register {
             Self::DriveMode => 10,
             Self::OperatingMode => 11,
             Self::HomingOffset => 20,
+            Self::TemperatureLimit => 31,
+            Self::MaxVoltageLimit => 32,
+            Self::MinVoltageLimit => 34,
             Self::VelocityLimit => 44,
             Self::MaxPositionLimit => 48,
             Self::MinPositionLimit => 52,
@@ -145,7 +154,11 @@ impl Register {
     /// Size in bytes (1, 2 or 4).
     pub fn size(self) -> u16 {
         match self {
-            Self::ModelNumber | Self::PresentCurrent | Self::PresentInputVoltage => 2,
+            Self::ModelNumber
+            | Self::MaxVoltageLimit
+            | Self::MinVoltageLimit
+            | Self::PresentCurrent
+            | Self::PresentInputVoltage => 2,
             Self::HomingOffset
             | Self::VelocityLimit
             | Self::MaxPositionLimit

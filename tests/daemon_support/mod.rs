@@ -22,6 +22,12 @@ pub const DEADLINE: Duration = Duration::from_secs(30);
 /// The shipped simulator config, with a reply timeout a busy machine can meet, and `edits`
 /// applied (`(old, new)` replacements of whole lines, each of which must exist).
 pub fn sim_config(edits: &[(&str, &str)]) -> Config {
+    sim_config_with(edits, "")
+}
+
+/// [`sim_config`] with `sim_tables` (such as `[[sim.fault]]` tables) added to the `[sim]`
+/// section.
+pub fn sim_config_with(edits: &[(&str, &str)], sim_tables: &str) -> Config {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
     let mut text = std::fs::read_to_string(path).unwrap();
     let mut all = vec![("reply_timeout_ms = 20 ", "reply_timeout_ms = 100")];
@@ -30,6 +36,11 @@ pub fn sim_config(edits: &[(&str, &str)]) -> Config {
         assert!(text.contains(old), "config/sim.toml has no line `{old}`");
         text = text.replace(old, new);
     }
+    let seed = text
+        .find("\nseed = ")
+        .expect("config/sim.toml has a `seed` line");
+    let end = seed + 1 + text[seed + 1..].find('\n').unwrap();
+    text.insert_str(end + 1, &format!("\n{sim_tables}\n"));
     Config::from_str(&text, path).unwrap()
 }
 
@@ -92,6 +103,19 @@ impl Daemon {
         }
         let thread = self.thread.take().expect("stopped once");
         thread.join().expect("the daemon's thread panicked")
+    }
+
+    /// Stops the daemon; returns what `run` returned and, afterwards, every servo's Torque
+    /// Enable in the simulator.
+    pub fn stop_and_torques(mut self) -> (Result<Summary, DaemonError>, Vec<(u8, bool)>) {
+        let result = self.finish();
+        let torques = self.sim.with_sim(|s| {
+            s.servos()
+                .iter()
+                .map(|s| (s.id(), s.torque_enabled()))
+                .collect()
+        });
+        (result, torques)
     }
 
     /// Servo `id`'s Torque Enable in the simulator.

@@ -1,0 +1,467 @@
+//! The daemon's fault matrix end to end: the simulator's injected faults (`[[sim.fault]]` in
+//! the config), the daemon on a socket, driven and watched as a client. Every case checks
+//! that no goal left the joint limits or was non-finite, that goals moved no faster than the
+//! joint-speed limit except to the measured pose on a recovery, and that shut-down leaves
+//! torque off. Detection times are in ticks (the daemon's clock). Run with `--nocapture` for
+//! the figures the README's fault matrix quotes.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod daemon_support;
+
+use std::time::{Duration, Instant};
+
+use daemon_support::{dist, floats, sim_config_with, xy, Client, Daemon, DEADLINE};
+use serde_json::{json, Value};
+
+const MAX_JOINT_SPEED: f64 = 2.0;
+const DT: f64 = 0.01;
+/// One tick of a servo, rad.
+const TICK_RAD: f64 = std::f64::consts::TAU / 4096.0;
+
+/// The joint limits the daemon reports.
+fn limits(c: &mut Client) -> (Vec<f64>, Vec<f64>) {
+    let d = c.ok(json!({"cmd": "describe"}));
+    (floats(&d["min_rad"]), floats(&d["max_rad"]))
+}
+
+/// Every sample: goals finite and inside the limits. Between consecutive samples: no goal
+/// faster than the joint-speed limit, unless the later goals are the measured pose (a
+/// recovery re-seeds there). Returns the number of such re-seeds seen.
+fn check_goals(samples: &[Value], lo: &[f64], hi: &[f64]) -> usize {
+    let mut reseeds = 0;
+    for t in samples {
+        for (j, x) in floats(&t["theta_cmd"]).iter().enumerate() {
+            assert!(
+                x.is_finite(),
+                "joint {} goal {x} at tick {}",
+                j + 1,
+                t["tick"]
+            );
+            assert!(
+                *x >= lo[j] - 1e-12 && *x <= hi[j] + 1e-12,
+                "joint {} goal {x} outside {}..{} at tick {}",
+                j + 1,
+                lo[j],
+                hi[j],
+                t["tick"]
+            );
+        }
+    }
+    for w in samples.windows(2) {
+        let ticks = w[1]["tick"].as_u64().unwrap() - w[0]["tick"].as_u64().unwrap();
+        let (a, b) = (floats(&w[0]["theta_cmd"]), floats(&w[1]["theta_cmd"]));
+        let meas = floats(&w[1]["theta_meas"]);
+        let bound = MAX_JOINT_SPEED * DT * ticks as f64 + 1e-9;
+        let fast = a.iter().zip(&b).any(|(x, y)| (y - x).abs() > bound);
+        if fast {
+            let at_measured = b.iter().zip(&meas).all(|(x, m)| (x - m).abs() <= TICK_RAD);
+            assert!(
+                at_measured,
+                "goals jumped in {ticks} ticks at tick {} (bound {bound:.3e}), not to the \
+                 measured pose:\n{a:?}\n{b:?}\n{meas:?}",
+                w[1]["tick"]
+            );
+            reseeds += 1;
+        }
+    }
+    reseeds
+}
+
+/// Telemetry lines for `ticks` ticks (from the first one seen).
+fn watch(c: &mut Client, ticks: u64) -> Vec<Value> {
+    let mut first = None;
+    c.telemetry_until(|t| {
+        let tick = t["tick"].as_u64().unwrap();
+        tick >= *first.get_or_insert(tick) + ticks
+    })
+}
+
+/// Telemetry lines until the next event that satisfies `pred`, and that event; the other
+/// events on the way are in `skipped`.
+fn watch_until_event(c: &mut Client, pred: impl FnMut(&Value) -> bool) -> (Vec<Value>, Value) {
+    let mut skipped = Vec::new();
+    watch_until_event_keeping(c, pred, &mut skipped)
+}
+
+fn watch_until_event_keeping(
+    c: &mut Client,
+    mut pred: impl FnMut(&Value) -> bool,
+    skipped: &mut Vec<Value>,
+) -> (Vec<Value>, Value) {
+    let mut samples = Vec::new();
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        assert!(!left.is_zero(), "no such event within {DEADLINE:?}");
+        let Some(line) = c.read_line(left) else {
+            continue;
+        };
+        if line["type"] == "telemetry" {
+            samples.push(line);
+        } else if line["type"] == "event" {
+            if pred(&line) {
+                return (samples, line);
+            }
+            skipped.push(line);
+        }
+    }
+}
+
+fn fault_event<'a>(reason: &'a str, kind: &'a str) -> impl FnMut(&Value) -> bool + 'a {
+    move |e: &Value| e["event"] == "fault" && e["reason"] == reason && e["fault"]["kind"] == kind
+}
+
+/// A goto to `target` that arrives.
+fn goto_arrives(c: &mut Client, target: [f64; 2]) {
+    let id = c.send(json!({"cmd": "goto", "target": target}));
+    let reply = c.reply(&json!(id));
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    c.event("arrived", Some(id));
+    let s = c.status();
+    assert!(dist(xy(&s["tip"]), target) < 1e-9, "{s}");
+}
+
+/// Stops the daemon; every servo's torque must be off afterwards.
+fn stop_torque_off(d: Daemon) {
+    let (result, torques) = d.stop_and_torques();
+    result.unwrap();
+    for (id, on) in torques {
+        assert!(!on, "servo {id} left with torque on");
+    }
+}
+
+#[test]
+fn one_percent_drops_and_corruption_stay_within_the_error_budget() {
+    let d = Daemon::start(sim_config_with(
+        &[],
+        "[[sim.fault]]\nkind = \"drop\"\nfraction = 0.01\n\n\
+         [[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.01\n",
+    ));
+    let mut c = d.client();
+    let (lo, hi) = limits(&mut c);
+    let start = xy(&c.status()["tip"]);
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let sim0 = d.sim.with_sim(|s| s.stats());
+    let first = watch(&mut c, 1).pop().unwrap();
+    // Back and forth for about five seconds.
+    let corners = [
+        [start[0] + 0.06, start[1]],
+        [start[0] + 0.06, start[1] - 0.06],
+        [start[0], start[1]],
+        [start[0] + 0.06, start[1]],
+        [start[0], start[1]],
+    ];
+    let id = c.send(json!({"cmd": "path", "points": corners, "speed": 0.08}));
+    let mut samples = c.telemetry_until(|t| {
+        t["command"]["id"] == json!(id) && t["command"]["outcome"] != "active"
+    });
+    samples.extend(watch(&mut c, 50));
+    let last = samples.last().unwrap().clone();
+    let sim1 = d.sim.with_sim(|s| s.stats());
+    assert_eq!(last["command"]["outcome"], "arrived", "{last}");
+    for t in &samples {
+        assert_ne!(
+            t["state"], "fault",
+            "a false fault at tick {}: {t}",
+            t["tick"]
+        );
+        assert_eq!(t["faults"], json!([]), "{t}");
+    }
+    let events = c.drain_events(Duration::ZERO);
+    assert!(
+        events.iter().all(|e| e["event"] != "fault"),
+        "a fault event: {events:?}"
+    );
+    let count = |t: &Value, k: &str| t["counters"][k].as_u64().unwrap();
+    let ticks = last["tick"].as_u64().unwrap() - first["tick"].as_u64().unwrap();
+    let dropped = count(&last, "dropped") - count(&first, "dropped");
+    let corrupted = count(&last, "corrupted") - count(&first, "corrupted");
+    let sim_dropped = sim1.dropped - sim0.dropped;
+    let sim_corrupted = sim1.corrupted - sim0.corrupted;
+    let overruns = last["overruns"].as_u64().unwrap() - first["overruns"].as_u64().unwrap();
+    let replies = ticks * 12;
+    println!(
+        "drop+corrupt 1%+1%: {ticks} ticks, {replies} replies expected; daemon counted \
+         {dropped} dropped + {corrupted} corrupted ({:.2} %), the simulator {sim_dropped} + \
+         {sim_corrupted}; overruns {overruns}; loop {:.1} Hz; no fault",
+        100.0 * (dropped + corrupted) as f64 / replies as f64,
+        last["loop_hz"].as_f64().unwrap()
+    );
+    // Every reply the simulator lost or damaged is counted (the snapshots are a few reads
+    // apart at most); a damaged reply may count as lost when it came too late.
+    assert!(sim_dropped > 0 && sim_corrupted > 0, "{sim1:?}");
+    assert!(
+        dropped + corrupted + 24 >= sim_dropped + sim_corrupted,
+        "counted {dropped} + {corrupted}, the simulator {sim_dropped} + {sim_corrupted}"
+    );
+    assert!(corrupted > 0 && corrupted <= sim_corrupted + 24);
+    // About 2 % of the replies, not more than twice that.
+    assert!(
+        ((dropped + corrupted) as f64) < 0.04 * replies as f64,
+        "{dropped} + {corrupted} of {replies}"
+    );
+    // The loop keeps its rate: a lost reply costs no overrun.
+    assert!(
+        overruns * 20 <= ticks,
+        "{overruns} overruns in {ticks} ticks"
+    );
+    check_goals(&samples, &lo, &hi);
+    stop_torque_off(d);
+}
+
+#[test]
+fn a_silent_servo_holds_the_arm_until_it_answers_then_the_arm_moves_again() {
+    let d = Daemon::start(sim_config_with(
+        &[],
+        "[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 2.5\nuntil_s = 4.0\n",
+    ));
+    let budget = u64::from(d.config.control().max_missed_reads);
+    let mut c = d.client();
+    let (lo, hi) = limits(&mut c);
+    let start = xy(&c.status()["tip"]);
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    // A slow goto that is still moving when the servo goes silent.
+    let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.01}));
+    assert_eq!(c.reply(&json!(goto))["ok"], json!(true));
+    let mut skipped = Vec::new();
+    let (mut samples, raised) =
+        watch_until_event_keeping(&mut c, fault_event("raised", "silent"), &mut skipped);
+    assert_eq!(raised["fault"]["id"], json!(5), "{raised}");
+    assert_eq!(raised["fault"]["joint"], json!(5), "{raised}");
+    let detected =
+        raised["tick"].as_u64().unwrap() - raised["fault"]["since_tick"].as_u64().unwrap() + 1;
+    println!("silent servo 5: fault raised on read {detected} without its reply (budget {budget})");
+    assert_eq!(detected, budget, "{raised}");
+    // The arm had not held before (a single miss never holds it).
+    let raised_tick = raised["tick"].as_u64().unwrap();
+    for t in samples
+        .iter()
+        .filter(|t| t["tick"].as_u64().unwrap() < raised_tick)
+    {
+        assert_ne!(t["state"], "fault", "{t}");
+    }
+    let s = c.status();
+    assert_eq!(s["state"], "fault", "{s}");
+    assert_eq!(s["faults"].as_array().unwrap().len(), 1, "{s}");
+    assert_eq!(s["faults"][0]["id"], json!(5));
+    assert_eq!(s["faults"][0]["kind"], "silent");
+    assert!(s["faults"][0]["detail"]
+        .as_str()
+        .unwrap()
+        .contains("consecutive"));
+    assert_eq!(s["command"]["outcome"], "fault", "{s}");
+    let stopped = skipped
+        .iter()
+        .find(|e| e["event"] == "stopped" && e["cmd_id"] == json!(goto))
+        .unwrap_or_else(|| panic!("no `stopped` event for the goto: {skipped:?}"));
+    assert_eq!(stopped["reason"], "fault");
+    // Motion is refused while the fault holds; stop is fine.
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "fault"
+    );
+    assert_eq!(
+        c.error_code(json!({"cmd": "jog", "joint": 1, "rad_s": 0.1})),
+        "fault"
+    );
+    c.ok(json!({"cmd": "stop"}));
+    // Held: the goals do not move until it answers again.
+    let (held, cleared) = watch_until_event(&mut c, fault_event("cleared", "silent"));
+    let faulted: Vec<&Value> = held.iter().filter(|t| t["state"] == "fault").collect();
+    assert!(faulted.len() > 10, "{} samples in fault", faulted.len());
+    for t in &faulted {
+        assert_eq!(
+            t["theta_cmd"], faulted[0]["theta_cmd"],
+            "goals moved in fault"
+        );
+    }
+    assert_eq!(cleared["fault"]["id"], json!(5));
+    // Silent for 1.5 s with torque on: its watchdog fired and was cleared.
+    let detail = cleared["fault"]["detail"].as_str().unwrap();
+    assert!(detail.contains("[5]"), "{detail}");
+    println!("silent servo 5: cleared on its first answer: {detail}");
+    samples.extend(held);
+    let s = c.status();
+    assert_eq!(s["state"], "holding", "{s}");
+    assert_eq!(s["faults"], json!([]));
+    assert!(
+        d.sim.with_servo(5, |s| s.watchdog()).unwrap() > 0,
+        "watchdog not re-armed"
+    );
+    // Able to move again.
+    goto_arrives(&mut c, [start[0] + 0.03, start[1] - 0.02]);
+    samples.extend(watch(&mut c, 5));
+    let reseeds = check_goals(&samples, &lo, &hi);
+    assert!(reseeds <= 1, "{reseeds} jumps to the measured pose");
+    stop_torque_off(d);
+}
+
+#[test]
+fn a_hardware_error_holds_until_reboot_then_torque_is_back_and_the_arm_moves() {
+    let d = Daemon::start(sim_config_with(
+        &[],
+        "[[sim.fault]]\nkind = \"hardware_error\"\nid = 9\nat_s = 2.0\nerror = \"overload\"\n",
+    ));
+    let mut c = d.client();
+    let (lo, hi) = limits(&mut c);
+    let start = xy(&c.status()["tip"]);
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let (mut samples, raised) = watch_until_event(&mut c, fault_event("raised", "hardware_error"));
+    assert_eq!(raised["fault"]["id"], json!(9), "{raised}");
+    let detail = raised["fault"]["detail"].as_str().unwrap();
+    assert!(detail.contains("overload"), "{detail}");
+    let ticks = raised["tick"].as_u64().unwrap() - raised["fault"]["since_tick"].as_u64().unwrap();
+    println!("hardware error on servo 9: raised {ticks} ticks after the alert was read: {detail}");
+    assert_eq!(ticks, 0);
+    let s = c.status();
+    assert_eq!(s["state"], "fault");
+    assert_eq!(s["faults"][0]["kind"], "hardware_error");
+    assert!(!d.torque(9), "the servo's own shutdown switched torque off");
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "fault"
+    );
+    assert_eq!(c.error_code(json!({"cmd": "torque", "on": true})), "fault");
+    // It holds until rebooted: a while later it still does.
+    samples.extend(watch(&mut c, 30));
+    assert_eq!(c.status()["state"], "fault");
+    let r = c.ok(json!({"cmd": "reboot"}));
+    assert_eq!(r["rebooted"], json!([9]), "{r}");
+    let cleared = c.event("fault", None);
+    assert_eq!(cleared["reason"], "cleared", "{cleared}");
+    assert_eq!(cleared["fault"]["id"], json!(9));
+    let s = c.status();
+    assert_eq!(s["state"], "holding", "{s}");
+    assert_eq!(s["torque"], json!(true));
+    assert_eq!(s["faults"], json!([]));
+    for id in 1..=12 {
+        assert!(d.torque(id), "servo {id} torque off after the reboot");
+    }
+    assert_eq!(
+        d.sim.with_servo(9, |s| s.hardware_error_status()).unwrap(),
+        0
+    );
+    goto_arrives(&mut c, [start[0] + 0.04, start[1] - 0.02]);
+    samples.extend(watch(&mut c, 5));
+    check_goals(&samples, &lo, &hi);
+    stop_torque_off(d);
+}
+
+#[test]
+fn torque_off_and_on_holds_the_measured_pose() {
+    let d = Daemon::start(sim_config_with(&[], ""));
+    let mut c = d.client();
+    let start = xy(&c.status()["tip"]);
+    c.ok(json!({"cmd": "torque", "on": false}));
+    let s = c.status();
+    assert_eq!(s["torque"], json!(false), "{s}");
+    assert!((1..=12).all(|id| !d.torque(id)));
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "fault"
+    );
+    c.ok(json!({"cmd": "torque", "on": true}));
+    let s = c.status();
+    assert_eq!(s["torque"], json!(true));
+    assert!((1..=12).all(|id| d.torque(id)));
+    // Goals := the measured pose.
+    for (x, m) in floats(&s["theta_cmd"]).iter().zip(floats(&s["theta_meas"])) {
+        assert!((x - m).abs() <= TICK_RAD, "goal {x} measured {m}");
+    }
+    goto_arrives(&mut c, [start[0] + 0.02, start[1]]);
+    stop_torque_off(d);
+}
+
+#[test]
+fn health_is_read_every_health_every_ticks_and_warns_before_the_servo_limits() {
+    let d = Daemon::start(sim_config_with(&[], ""));
+    let every = u64::from(d.config.control().health_every);
+    let mut c = d.client();
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let samples = watch(&mut c, 3 * every);
+    for t in &samples {
+        let h = t["health_tick"].as_u64().unwrap();
+        assert_eq!(h % every, 0, "{t}");
+        assert!(t["tick"].as_u64().unwrap() - h < every, "{t}");
+        assert_eq!(t["load_unit"], json!(vec!["percent"; 12]));
+    }
+    let t = samples.last().unwrap();
+    let v0 = d.sim.with_servo(4, |s| s.value(144)).unwrap().unwrap() as f64 / 10.0;
+    assert!((floats(&t["voltage_v"])[3] - v0).abs() < 1e-9, "{t}");
+    assert!((floats(&t["temperature_c"])[2] - 30.0).abs() < 1e-9, "{t}");
+    // Temperature 4 °C under servo 3's limit: a warning, no fault.
+    let limit = d.sim.with_servo(3, |s| s.value(31)).unwrap().unwrap() as f64;
+    d.sim
+        .with_servo(3, |s| s.set_temperature(limit - 4.0))
+        .unwrap();
+    let (_, warning) = watch_until_event(&mut c, |e| e["event"] == "warning");
+    println!("temperature warning: {warning}");
+    assert_eq!(warning["reason"], "raised");
+    assert_eq!(warning["fault"]["id"], json!(3));
+    assert_eq!(warning["fault"]["kind"], "temperature");
+    let s = c.status();
+    assert_eq!(s["state"], "holding");
+    assert_eq!(s["warnings"][0]["kind"], "temperature", "{s}");
+    assert!((floats(&s["temperature_c"])[2] - (limit - 4.0)).abs() < 1e-9);
+    d.sim.with_servo(3, |s| s.set_temperature(40.0)).unwrap();
+    let (_, cleared) = watch_until_event(&mut c, |e| e["event"] == "warning");
+    assert_eq!(cleared["reason"], "cleared");
+    // Input voltage 0.3 V above servo 4's Min Voltage Limit.
+    let min = d.sim.with_servo(4, |s| s.value(34)).unwrap().unwrap() as f64;
+    d.sim
+        .with_servo(4, |s| s.set_input_voltage(min + 3.0))
+        .unwrap();
+    let (_, warning) = watch_until_event(&mut c, |e| e["event"] == "warning");
+    println!("voltage warning: {warning}");
+    assert_eq!(warning["fault"]["id"], json!(4));
+    assert_eq!(warning["fault"]["kind"], "voltage");
+    assert_eq!(c.status()["warnings"].as_array().unwrap().len(), 1);
+    stop_torque_off(d);
+}
+
+#[test]
+fn a_latency_spike_beyond_the_tick_costs_replies_never_a_burst_of_writes() {
+    // A spike of 150 ms, every reply 20 ms late (two ticks): a budget of 30 reads rides it out
+    // whatever share of the replies it costs.
+    let d = Daemon::start(sim_config_with(
+        &[("substeps = 1", "substeps = 1\nmax_missed_reads = 30")],
+        "[[sim.fault]]\nkind = \"latency\"\nextra_us = 20000\nat_s = 2.5\nuntil_s = 2.65\n",
+    ));
+    let mut c = d.client();
+    let (lo, hi) = limits(&mut c);
+    let start = xy(&c.status()["tip"]);
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.02}));
+    assert_eq!(c.reply(&json!(goto))["ok"], json!(true));
+    let first = watch(&mut c, 1).pop().unwrap();
+    let t0 = Instant::now();
+    let dropped0 = first["counters"]["dropped"].as_u64().unwrap();
+    // Until half a second after the spike, by the simulator's clock.
+    let sim_elapsed = || d.sim.with_sim(|s| s.start().elapsed());
+    let mut samples = c.telemetry_until(|_| sim_elapsed() >= Duration::from_secs_f64(3.15));
+    let wall = t0.elapsed().as_secs_f64();
+    let last = samples.last().unwrap();
+    let ticks = last["tick"].as_u64().unwrap() - first["tick"].as_u64().unwrap();
+    let overruns = last["overruns"].as_u64().unwrap() - first["overruns"].as_u64().unwrap();
+    let dropped = last["counters"]["dropped"].as_u64().unwrap() - dropped0;
+    println!(
+        "latency spike 20 ms for 150 ms: {dropped} replies lost, {ticks} ticks + {overruns} \
+         overruns in {wall:.2} s of wall time ({:.0} periods), state {}",
+        wall / DT,
+        last["state"]
+    );
+    for t in &samples {
+        assert_ne!(t["state"], "fault", "{t}");
+    }
+    // The first read in the spike waits at most to the end of its tick: every reply is lost
+    // (later reads may get the late replies of the one before, or lose them too).
+    assert!(dropped >= 12, "{dropped} replies lost");
+    // Never catching up: the ticks run plus those skipped fit in the wall time.
+    assert!(
+        (ticks + overruns) as f64 <= wall / DT + 3.0,
+        "{ticks} ticks + {overruns} overruns in {wall:.3} s"
+    );
+    samples.extend(watch(&mut c, 5));
+    assert_eq!(check_goals(&samples, &lo, &hi), 0);
+    stop_torque_off(d);
+}
