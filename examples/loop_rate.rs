@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use snakectl::config::Config;
 use snakectl::connect;
-use snakectl::daemon::{self, RunOptions, Summary};
+use snakectl::daemon::{Embedded, RunOptions, Summary};
 
 const WARM_UP: Duration = Duration::from_millis(500);
 
@@ -53,23 +53,11 @@ fn request(stream: &mut BufReader<TcpStream>, line: &str) -> Result<String> {
 fn run(rate_hz: f64, wire_timing: bool, seconds: f64) -> Result<Summary> {
     let config = config(rate_hz, wire_timing)?;
     let sim = connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock))?;
-    let port = sim.path().to_path_buf();
-    let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
-    listener.set_nonblocking(true)?;
-    let addr = listener.local_addr()?;
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let daemon = std::thread::spawn(move || -> Result<Summary> {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()?;
-        runtime.block_on(async move {
-            let listener = tokio::net::TcpListener::from_std(listener)?;
-            let shutdown = async {
-                let _ = stop_rx.await;
-            };
-            Ok(daemon::run(config, listener, RunOptions { port: Some(port) }, shutdown).await?)
-        })
-    });
+    let options = RunOptions {
+        port: Some(sim.path().to_path_buf()),
+    };
+    let daemon = Embedded::start(config, ([127, 0, 0, 1], 0).into(), options)?;
+    let addr = daemon.addr();
 
     let stream = TcpStream::connect(addr)?;
     stream.set_nodelay(true)?;
@@ -98,10 +86,7 @@ fn run(rate_hz: f64, wire_timing: bool, seconds: f64) -> Result<Summary> {
         std::thread::sleep(Duration::from_millis(50) + Duration::from_secs_f64(phase));
     }
     request(&mut client, r#"{"cmd":"stop"}"#)?;
-    let _ = stop_tx.send(());
-    let summary = daemon
-        .join()
-        .map_err(|_| anyhow::anyhow!("the daemon's thread panicked"))??;
+    let summary = daemon.stop()?;
     drop(sim);
     Ok(summary)
 }

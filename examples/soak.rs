@@ -25,7 +25,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use serde_json::Value;
 use snakectl::config::Config;
 use snakectl::connect;
-use snakectl::daemon::{self, RunOptions, Summary};
+use snakectl::daemon::{Embedded, RunOptions};
 
 /// Loop rate, Hz.
 const RATE_HZ: f64 = 1000.0;
@@ -281,23 +281,11 @@ fn main() -> Result<()> {
     };
     let config = config()?;
     let sim = connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock))?;
-    let port = sim.path().to_path_buf();
-    let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
-    listener.set_nonblocking(true)?;
-    let addr = listener.local_addr()?;
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let daemon = std::thread::spawn(move || -> Result<Summary> {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()?;
-        runtime.block_on(async move {
-            let listener = tokio::net::TcpListener::from_std(listener)?;
-            let shutdown = async {
-                let _ = stop_rx.await;
-            };
-            Ok(daemon::run(config, listener, RunOptions { port: Some(port) }, shutdown).await?)
-        })
-    });
+    let options = RunOptions {
+        port: Some(sim.path().to_path_buf()),
+    };
+    let daemon = Embedded::start(config, ([127, 0, 0, 1], 0).into(), options)?;
+    let addr = daemon.addr();
 
     let mut client = Client::connect(addr)?;
     let describe = client.request(r#"{"cmd":"describe"}"#)?;
@@ -454,10 +442,7 @@ fn main() -> Result<()> {
     let checks = reader
         .join()
         .map_err(|_| anyhow!("the telemetry reader panicked"))?;
-    let _ = stop_tx.send(());
-    let summary = daemon
-        .join()
-        .map_err(|_| anyhow!("the daemon's thread panicked"))??;
+    let summary = daemon.stop()?;
     drop(sim);
 
     let (warm_tick, rss_start) = warm.ok_or_else(|| anyhow!("never warmed up"))?;

@@ -323,16 +323,7 @@ fn check_pose(chain: &Chain, theta: &[f64], what: &'static str) -> Result<(), Re
         });
     }
     for (joint, (&value, lim)) in theta.iter().zip(chain.limits()).enumerate() {
-        if !value.is_finite() {
-            return Err(Refused::NotFinite { what });
-        }
-        if value.abs() > MAX_MAGNITUDE {
-            return Err(Refused::TooLarge {
-                what,
-                value,
-                max: MAX_MAGNITUDE,
-            });
-        }
+        check_number(value, what)?;
         if let Some(l) = lim {
             if !l.contains(value) {
                 return Err(Refused::OutsideLimits {

@@ -350,6 +350,9 @@ struct Cycle {
     load: Vec<f64>,
     load_unit: Vec<&'static str>,
     health_tick: u64,
+    /// Which joints' temperature and voltage this health read brought (the others keep
+    /// their last values and are not judged on them).
+    health_fresh: Vec<bool>,
 }
 
 impl Cycle {
@@ -478,6 +481,7 @@ impl Cycle {
             load: vec![0.0; n],
             load_unit,
             health_tick: 0,
+            health_fresh: vec![false; n],
             ids,
             arm,
         };
@@ -627,6 +631,9 @@ impl Cycle {
                 ..Fields::POSITION
             }
         };
+        if health {
+            self.health_fresh.iter_mut().for_each(|f| *f = false);
+        }
         let read = self
             .bus
             .read_states_into(&self.ids, fields, timeout, &mut self.states);
@@ -666,11 +673,10 @@ impl Cycle {
                                     CurrentUnit::MilliAmps(ma) => f64::from(c) * ma * 1e-3,
                                 };
                         }
-                        if let Some(dv) = s.voltage_dv {
+                        if let (Some(dv), Some(t)) = (s.voltage_dv, s.temperature_c) {
                             self.voltage_v[i] = units::volts(dv);
-                        }
-                        if let Some(t) = s.temperature_c {
                             self.temperature_c[i] = f64::from(t);
+                            self.health_fresh[i] = true;
                         }
                         let h = &mut self.health[i];
                         h.missed = 0;
@@ -1023,6 +1029,9 @@ impl Cycle {
     /// servo's own thresholds switch it off.
     fn check_health(&mut self) {
         for i in 0..self.health.len() {
+            if !self.health_fresh[i] {
+                continue;
+            }
             let (t, v) = (self.temperature_c[i], self.voltage_v[i]);
             let h = &self.health[i];
             if let Some(limit) = h.temperature_limit_c {

@@ -11,6 +11,7 @@
 //! - [`access`]: who may connect (the token, and no listening beyond loopback without one).
 //! - [`arbiter`]: who may command (one controller at a time).
 //! - [`control_loop`]: the loop's thread: start-up, the fixed-rate cycle, the shut-down guard.
+//! - [`embedded`]: the daemon started inside another program, on a loopback port.
 //! - [`link`]: the seam between the loop's thread and the socket side (bounded command queue,
 //!   latest-wins telemetry, broadcast events).
 //! - [`server`]: the JSON-lines TCP server on the socket side.
@@ -19,6 +20,7 @@
 pub mod access;
 pub mod arbiter;
 pub mod control_loop;
+pub mod embedded;
 pub mod link;
 pub mod server;
 pub mod stats;
@@ -30,6 +32,8 @@ use std::sync::Arc;
 
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
+
+pub use embedded::Embedded;
 
 use crate::config::Config;
 use crate::connect::ConnectError;

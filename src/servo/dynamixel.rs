@@ -182,7 +182,7 @@ impl DynamixelBus {
         let mut skipped = None;
         let mut stale = None;
         loop {
-            match self.bus.read_status_response_deadline(deadline) {
+            match self.bus.read_status_response_deadline(poll_deadline(deadline)) {
                 Ok(p) if p.packet_id() != id => {
                     tracing::debug!(
                         id,
@@ -228,6 +228,18 @@ impl DynamixelBus {
             }
         }
     }
+}
+
+/// The port's read timeout has whole-millisecond resolution, truncated: a wait of 0.99 ms polls
+/// for 0 ms and gives up at once, however soon the reply would come. So every wait for a reply
+/// is given a deadline at least [`MIN_POLL_WAIT`] away, which makes the first poll last a whole
+/// millisecond: a reply that comes within it is taken as soon as it arrives, one that does not
+/// costs about a millisecond, even where the caller asked for less.
+const MIN_POLL_WAIT: Duration = Duration::from_millis(2);
+
+/// `deadline`, or [`MIN_POLL_WAIT`] from now if that is later.
+fn poll_deadline(deadline: Instant) -> Instant {
+    deadline.max(Instant::now() + MIN_POLL_WAIT)
 }
 
 impl DynamixelBus {
@@ -330,7 +342,7 @@ impl ServoBus for DynamixelBus {
         let deadline = Instant::now() + window;
         let mut found: Vec<PingInfo> = Vec::new();
         loop {
-            match self.bus.read_status_response_deadline(deadline) {
+            match self.bus.read_status_response_deadline(poll_deadline(deadline)) {
                 Ok(p) => {
                     let d = p.parameters();
                     if d.len() == 3 && !found.iter().any(|f| f.id == p.packet_id()) {
@@ -430,7 +442,7 @@ impl ServoBus for DynamixelBus {
         while next < n && budget > 0 {
             budget -= 1;
             let deadline = Instant::now() + wait;
-            match self.bus.read_status_response_deadline(deadline) {
+            match self.bus.read_status_response_deadline(poll_deadline(deadline)) {
                 Ok(p) => {
                     let id = p.packet_id();
                     let Some(k) = ids[next..].iter().position(|&x| x == id) else {

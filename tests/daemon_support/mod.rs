@@ -7,13 +7,12 @@ use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, ErrorKind, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::sync::Arc;
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 use snakectl::config::Config;
 use snakectl::connect;
-use snakectl::daemon::{self, DaemonError, RunOptions, Summary};
+use snakectl::daemon::{DaemonError, Embedded, RunOptions, Summary};
 use snakectl_sim::{RealClock, SimHandle};
 
 /// Bound on waiting for anything; reached only when a test fails.
@@ -49,8 +48,8 @@ pub struct Daemon {
     pub addr: SocketAddr,
     pub sim: SimHandle,
     pub config: Config,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    thread: Option<JoinHandle<Result<Summary, DaemonError>>>,
+    /// Stopped (and joined) when dropped.
+    daemon: Option<Embedded>,
 }
 
 impl Daemon {
@@ -58,32 +57,16 @@ impl Daemon {
     /// first reply then waits for bring-up).
     pub fn start(config: Config) -> Self {
         let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
-        let port = sim.path().to_path_buf();
-        let std_listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        std_listener.set_nonblocking(true).unwrap();
-        let addr = std_listener.local_addr().unwrap();
-        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let run_config = config.clone();
-        let thread = std::thread::spawn(move || {
-            let runtime = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
-                .unwrap();
-            runtime.block_on(async move {
-                let listener = tokio::net::TcpListener::from_std(std_listener).unwrap();
-                let options = RunOptions { port: Some(port) };
-                daemon::run(run_config, listener, options, async {
-                    let _ = stop_rx.await;
-                })
-                .await
-            })
-        });
+        let options = RunOptions {
+            port: Some(sim.path().to_path_buf()),
+        };
+        let localhost = SocketAddr::from(([127, 0, 0, 1], 0));
+        let daemon = Embedded::start(config.clone(), localhost, options).unwrap();
         Self {
-            addr,
+            addr: daemon.addr(),
             sim,
             config,
-            stop: Some(stop_tx),
-            thread: Some(thread),
+            daemon: Some(daemon),
         }
     }
 
@@ -98,11 +81,7 @@ impl Daemon {
     }
 
     fn finish(&mut self) -> Result<Summary, DaemonError> {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-        let thread = self.thread.take().expect("stopped once");
-        thread.join().expect("the daemon's thread panicked")
+        self.daemon.take().expect("stopped once").stop()
     }
 
     /// Stops the daemon; returns what `run` returned and, afterwards, every servo's Torque
@@ -124,15 +103,6 @@ impl Daemon {
     }
 }
 
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        if self.thread.is_some() && !std::thread::panicking() {
-            let _ = self.finish();
-        } else if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-    }
-}
 
 /// A blocking JSON-lines client. Lines that are not the awaited reply (events, telemetry) are
 /// kept in arrival order for the `next_*` calls.
