@@ -584,3 +584,25 @@ fn a_path_that_would_fold_the_arm_onto_itself_stops_short_flagged() {
         );
     }
 }
+
+/// Regression: at 1 kHz a read's wait is under a millisecond, which the serial port's
+/// millisecond timeout truncated to nothing: every read gave up at once and the arm went to
+/// `fault` with every servo "silent".
+#[test]
+fn a_loop_at_1_khz_hears_its_servos() {
+    let d = Daemon::start(sim_config(&[("rate_hz = 100.0", "rate_hz = 1000.0")]));
+    let mut c = d.client();
+    let first = c.status();
+    let s = c.wait_status("1000 ticks", |s| {
+        s["tick"].as_u64().unwrap() >= first["tick"].as_u64().unwrap() + 1000
+    });
+    assert_eq!(s["faults"], json!([]), "{s}");
+    assert_ne!(s["state"], "fault");
+    let reads = s["tick"].as_u64().unwrap() * 12;
+    let missed = s["counters"]["dropped"].as_u64().unwrap();
+    // A busy machine may delay a reply past its millisecond now and then; not every one.
+    assert!(
+        (missed as f64) < 0.05 * reads as f64,
+        "{missed} of {reads} replies missed"
+    );
+}

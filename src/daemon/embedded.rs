@@ -30,7 +30,9 @@ impl Embedded {
         options: RunOptions,
     ) -> Result<Self, DaemonError> {
         let listener = TcpListener::bind(listen).map_err(DaemonError::Socket)?;
-        listener.set_nonblocking(true).map_err(DaemonError::Socket)?;
+        listener
+            .set_nonblocking(true)
+            .map_err(DaemonError::Socket)?;
         let addr = listener.local_addr().map_err(DaemonError::Socket)?;
         let (stop, stopped) = oneshot::channel::<()>();
         let thread = std::thread::Builder::new()

@@ -182,7 +182,10 @@ impl DynamixelBus {
         let mut skipped = None;
         let mut stale = None;
         loop {
-            match self.bus.read_status_response_deadline(poll_deadline(deadline)) {
+            match self
+                .bus
+                .read_status_response_deadline(poll_deadline(deadline))
+            {
                 Ok(p) if p.packet_id() != id => {
                     tracing::debug!(
                         id,
@@ -342,7 +345,10 @@ impl ServoBus for DynamixelBus {
         let deadline = Instant::now() + window;
         let mut found: Vec<PingInfo> = Vec::new();
         loop {
-            match self.bus.read_status_response_deadline(poll_deadline(deadline)) {
+            match self
+                .bus
+                .read_status_response_deadline(poll_deadline(deadline))
+            {
                 Ok(p) => {
                     let d = p.parameters();
                     if d.len() == 3 && !found.iter().any(|f| f.id == p.packet_id()) {
@@ -442,7 +448,10 @@ impl ServoBus for DynamixelBus {
         while next < n && budget > 0 {
             budget -= 1;
             let deadline = Instant::now() + wait;
-            match self.bus.read_status_response_deadline(poll_deadline(deadline)) {
+            match self
+                .bus
+                .read_status_response_deadline(poll_deadline(deadline))
+            {
                 Ok(p) => {
                     let id = p.packet_id();
                     let Some(k) = ids[next..].iter().position(|&x| x == id) else {

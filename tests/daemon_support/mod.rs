@@ -103,7 +103,6 @@ impl Daemon {
     }
 }
 
-
 /// A blocking JSON-lines client. Lines that are not the awaited reply (events, telemetry) are
 /// kept in arrival order for the `next_*` calls.
 pub struct Client {
