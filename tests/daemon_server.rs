@@ -406,11 +406,9 @@ async fn status_carries_the_telemetry_fields() {
     assert_eq!(reply, Value::Object(expected));
 }
 
-#[tokio::test]
-async fn a_full_command_queue_is_answered_busy_at_once() {
-    let daemon = Daemon::new().await;
-    let mut c = daemon.client().await;
-    daemon.draining.send_replace(false);
+/// Fills the loop's command queue (the fake loop not draining it) with another client's
+/// `stop`s; returns their pending answers.
+fn fill_the_queue(daemon: &Daemon) -> Vec<oneshot::Receiver<link::Answer>> {
     let mut waiting = Vec::new();
     loop {
         let (reply, answer) = oneshot::channel();
@@ -422,10 +420,18 @@ async fn a_full_command_queue_is_answered_busy_at_once() {
             reply,
         };
         if daemon.handle.commands.try_send(envelope).is_err() {
-            break;
+            return waiting;
         }
         waiting.push(answer);
     }
+}
+
+#[tokio::test]
+async fn a_full_command_queue_is_answered_busy_at_once() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    daemon.draining.send_replace(false);
+    let waiting = fill_the_queue(&daemon);
     assert_eq!(waiting.len(), COMMAND_QUEUE);
 
     let reply = c.request(json!({"cmd": "stop", "id": "s1"})).await;
@@ -1007,21 +1013,7 @@ async fn a_command_answered_busy_takes_no_control() {
     let mut c = daemon.client().await;
     let mut other = daemon.client().await;
     daemon.draining.send_replace(false);
-    let mut waiting = Vec::new();
-    loop {
-        let (reply, answer) = oneshot::channel();
-        let envelope = Envelope {
-            client: 999,
-            id: None,
-            cmd: Cmd::Stop,
-            received: std::time::Instant::now(),
-            reply,
-        };
-        if daemon.handle.commands.try_send(envelope).is_err() {
-            break;
-        }
-        waiting.push(answer);
-    }
+    let waiting = fill_the_queue(&daemon);
     let reply = c.request(json!({"cmd": "home", "id": 1})).await;
     assert_eq!(code(&reply), "busy");
     assert_eq!(
