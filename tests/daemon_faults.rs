@@ -24,6 +24,15 @@ fn limits(c: &mut Client) -> (Vec<f64>, Vec<f64>) {
     (floats(&d["min_rad"]), floats(&d["max_rad"]))
 }
 
+/// A client subscribed to telemetry at the loop's rate, the joint limits and the tip at start.
+fn watching(d: &Daemon) -> (Client, (Vec<f64>, Vec<f64>), [f64; 2]) {
+    let mut c = d.client();
+    let limits = limits(&mut c);
+    let start = xy(&c.status()["tip"]);
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    (c, limits, start)
+}
+
 /// Every sample: goals finite and inside the limits. Between consecutive samples: no goal
 /// faster than the joint-speed limit, unless the later goals are the measured pose (a
 /// recovery re-seeds there). Returns the number of such re-seeds seen.
@@ -137,10 +146,7 @@ fn one_percent_drops_and_corruption_stay_within_the_error_budget() {
         "[[sim.fault]]\nkind = \"drop\"\nfraction = 0.01\n\n\
          [[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.01\n",
     ));
-    let mut c = d.client();
-    let (lo, hi) = limits(&mut c);
-    let start = xy(&c.status()["tip"]);
-    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let (mut c, (lo, hi), start) = watching(&d);
     let sim0 = d.sim.with_sim(|s| s.stats());
     let first = watch(&mut c, 1).pop().unwrap();
     // Back and forth for about five seconds.
@@ -216,10 +222,7 @@ fn a_silent_servo_holds_the_arm_until_it_answers_then_the_arm_moves_again() {
         "[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 2.5\nuntil_s = 4.0\n",
     ));
     let budget = u64::from(d.config.control().max_missed_reads);
-    let mut c = d.client();
-    let (lo, hi) = limits(&mut c);
-    let start = xy(&c.status()["tip"]);
-    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let (mut c, (lo, hi), start) = watching(&d);
     // A slow goto that is still moving when the servo goes silent.
     let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.01}));
     assert_eq!(c.reply(&json!(goto))["ok"], json!(true));
@@ -302,10 +305,7 @@ fn a_hardware_error_holds_until_reboot_then_torque_is_back_and_the_arm_moves() {
         &[],
         "[[sim.fault]]\nkind = \"hardware_error\"\nid = 9\nat_s = 2.0\nerror = \"overload\"\n",
     ));
-    let mut c = d.client();
-    let (lo, hi) = limits(&mut c);
-    let start = xy(&c.status()["tip"]);
-    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let (mut c, (lo, hi), start) = watching(&d);
     let (mut samples, raised) = watch_until_event(&mut c, fault_event("raised", "hardware_error"));
     assert_eq!(raised["fault"]["id"], json!(9), "{raised}");
     let detail = raised["fault"]["detail"].as_str().unwrap();
@@ -427,10 +427,7 @@ fn a_latency_spike_beyond_the_tick_costs_replies_never_a_burst_of_writes() {
         &[("substeps = 1", "substeps = 1\nmax_missed_reads = 30")],
         "[[sim.fault]]\nkind = \"latency\"\nextra_us = 20000\nat_s = 2.5\nuntil_s = 2.65\n",
     ));
-    let mut c = d.client();
-    let (lo, hi) = limits(&mut c);
-    let start = xy(&c.status()["tip"]);
-    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let (mut c, (lo, hi), start) = watching(&d);
     let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.02}));
     assert_eq!(c.reply(&json!(goto))["ok"], json!(true));
     let first = watch(&mut c, 1).pop().unwrap();
@@ -474,10 +471,7 @@ fn a_vanished_port_holds_the_arm_is_reopened_and_the_arm_moves_again() {
         &[],
         "[[sim.fault]]\nkind = \"disconnect\"\nat_s = 2.0\nuntil_s = 3.5\n",
     ));
-    let mut c = d.client();
-    let (lo, hi) = limits(&mut c);
-    let start = xy(&c.status()["tip"]);
-    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let (mut c, (lo, hi), start) = watching(&d);
     let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.01}));
     assert_eq!(c.reply(&json!(goto))["ok"], json!(true));
     let (mut samples, raised) = watch_until_event(&mut c, fault_event("raised", "port"));
