@@ -37,6 +37,10 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         .build()
         .map_err(|e| Failure::other(anyhow::anyhow!("starting the runtime: {e}")))?;
     runtime.block_on(async move {
+        // Installed before anything is announced: a signal from then on stops the daemon
+        // gracefully (once the arm is up, if it comes during bring-up), never by default.
+        let shutdown = signals()
+            .map_err(|e| Failure::other(anyhow::anyhow!("installing the signal handlers: {e}")))?;
         let listener = tokio::net::TcpListener::bind(listen)
             .await
             .map_err(|e| Failure::other(anyhow::anyhow!("listening on {listen}: {e}")))?;
@@ -45,7 +49,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             .map_err(|e| Failure::other(anyhow::anyhow!("listening on {listen}: {e}")))?;
         tracing::info!("listening on {local}");
         let options = RunOptions { port: args.port };
-        let summary = daemon::run(config, listener, options, signal())
+        let summary = daemon::run(config, listener, options, shutdown)
             .await
             .map_err(|e| match e {
                 DaemonError::BringUp(_) | DaemonError::Connect(_) | DaemonError::Controller(_) => {
@@ -62,23 +66,16 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     })
 }
 
-/// Resolves on the first SIGINT or SIGTERM.
-async fn signal() {
+/// Installs the SIGINT and SIGTERM handlers; the future resolves on the first of them.
+fn signals() -> std::io::Result<impl std::future::Future<Output = ()>> {
     use tokio::signal::unix::{signal, SignalKind};
-    match (
-        signal(SignalKind::interrupt()),
-        signal(SignalKind::terminate()),
-    ) {
-        (Ok(mut int), Ok(mut term)) => {
-            tokio::select! {
-                _ = int.recv() => {}
-                _ = term.recv() => {}
-            }
+    let mut int = signal(SignalKind::interrupt())?;
+    let mut term = signal(SignalKind::terminate())?;
+    Ok(async move {
+        tokio::select! {
+            _ = int.recv() => {}
+            _ = term.recv() => {}
         }
-        _ => {
-            tracing::error!("signal handlers could not be installed: Ctrl-C ends the daemon hard");
-            std::future::pending::<()>().await;
-        }
-    }
-    tracing::info!("signal received: stopping");
+        tracing::info!("signal received: stopping");
+    })
 }

@@ -47,12 +47,14 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
     let pty = handle
         .pty_path()
         .unwrap_or_else(|| handle.path().to_path_buf());
-    outln!("{}", pty.display())?;
+    // The handlers go in before the line is printed: a script that signals as soon as it has
+    // read it must find them installed, not the default action that kills the process.
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))
             .map_err(|e| other(anyhow::anyhow!("installing the signal handler: {e}")))?;
     }
+    outln!("{}", pty.display())?;
     while !stop.load(Ordering::Relaxed) && handle.is_running() {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
