@@ -12,6 +12,15 @@ use std::time::{Duration, Instant};
 use cli_support::DEADLINE;
 use snakectl_sim::protocol::{self, Frame, Packet, Parser};
 
+/// The tests of this file run one at a time. Run side by side, one of them was refused its
+/// serial port now and then ("Unable to acquire exclusive lock") on a loaded machine, while
+/// another test's simulator was unplugging and replugging its pseudo-terminals.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// Sends a ping to each of `ids` in turn, in one write, and returns the status packets that
 /// came back, read until the last id answered (the last id must be a servo that is there).
 /// The simulator answers in order, so a reply to an earlier id would come before it: absence is
@@ -47,6 +56,7 @@ fn pings(port: &Path, ids: &[u8]) -> Vec<Packet> {
 
 #[test]
 fn sim_serves_the_config_chain_on_a_linked_pty_and_stops_on_sigterm() {
+    let _one_at_a_time = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("snake-bus");
     // The first line names the pty.
@@ -77,6 +87,7 @@ fn sim_serves_the_config_chain_on_a_linked_pty_and_stops_on_sigterm() {
 
 #[test]
 fn sim_refuses_a_config_without_servos_naming_the_joint() {
+    let _one_at_a_time = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("geometry.toml");
     std::fs::write(
@@ -109,6 +120,7 @@ fn config_with(dir: &Path, extra: &str) -> String {
 
 #[test]
 fn sim_with_a_disconnect_fault_points_its_link_at_a_new_pty_after_the_window() {
+    let _one_at_a_time = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let config = config_with(
         dir.path(),
@@ -137,6 +149,7 @@ fn sim_with_a_disconnect_fault_points_its_link_at_a_new_pty_after_the_window() {
 
 #[test]
 fn sim_refuses_to_replace_a_file_that_is_not_a_symlink() {
+    let _one_at_a_time = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("notes.txt");
     std::fs::write(&file, "keep me").unwrap();
