@@ -90,6 +90,14 @@ struct Record {
 }
 
 impl Run {
+    /// How many ticks so far ended a command.
+    fn finishes(&self) -> usize {
+        self.ticks
+            .iter()
+            .filter(|r| r.tick.finished.is_some())
+            .count()
+    }
+
     fn new(c: Controller) -> Self {
         let prev_theta = c.theta().to_vec();
         let prev_tip = c.tip();
@@ -726,12 +734,7 @@ fn unreachable_goto_ends_saturated_once_short_of_the_target() {
                 .unwrap();
             let finish = run.until_finished(0.01, 40.0);
             assert_eq!(finish, Some(Finish::Saturated), "{s:?} toward {target:?}");
-            let ends = run
-                .ticks
-                .iter()
-                .filter(|r| r.tick.finished.is_some())
-                .count();
-            assert_eq!(ends, 1);
+            assert_eq!(run.finishes(), 1, "one finish, not more");
             assert!(run.ticks.iter().any(|r| r.tick.saturated));
             let gap = (run.c.tip() - target).norm();
             assert!(
@@ -979,12 +982,7 @@ fn a_path_folding_the_arm_onto_itself_stops_short() {
             .unwrap();
         let finish = run.until_finished(0.01, 60.0);
         assert_eq!(finish, Some(Finish::Saturated), "{s:?}");
-        let ends = run
-            .ticks
-            .iter()
-            .filter(|r| r.tick.finished.is_some())
-            .count();
-        assert_eq!(ends, 1);
+        assert_eq!(run.finishes(), 1, "one finish, not more");
         assert!(
             run.ticks.iter().any(|r| r.tick.self_collision),
             "{s:?}: never flagged"
