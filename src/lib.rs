@@ -29,8 +29,13 @@
 //!   telemetry, events; shared by the daemon and its clients.
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread, the socket server on
 //!   tokio, the bounded seam between them.
+//! - [`client`]: a blocking client of the daemon's socket (requests, replies, events, the
+//!   latest telemetry), for the one-shot commands, teleop and the demo.
+//! - [`teleop`]: the teleop terminal UI: pure input logic (keyboard hold-to-move, joystick),
+//!   the joystick device reader, the drawing.
 
 pub mod chain;
+pub mod client;
 pub mod config;
 pub mod connect;
 pub mod control;
@@ -43,3 +48,4 @@ pub mod protocol;
 pub mod resolve;
 pub mod scenario;
 pub mod servo;
+pub mod teleop;

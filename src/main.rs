@@ -7,12 +7,13 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-/// Controller and simulator for planar snake arms and flexible ropes.
+/// Controller and simulator for planar snake arms and flexible ropes. With no subcommand:
+/// `snakectl demo`.
 #[derive(Debug, Parser)]
 #[command(name = "snakectl", version, about)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -31,11 +32,39 @@ enum Command {
     Ports(cli::servo::PortsArgs),
     /// One servo: set id, baud rate, Return Delay Time; info (calibration), reboot, torque off.
     Servo(cli::servo::ServoArgs),
+    /// The whole product in one command: simulator, daemon, a client driving them; a summary
+    /// table, `summary.json` and figures (what `cargo run --release` runs).
+    Demo(cli::demo::DemoArgs),
+    /// Steer the tip from the keyboard or a joystick in a terminal UI, the arm drawn live.
+    Teleop(cli::teleop::TeleopArgs),
+    /// The daemon's latest telemetry, one JSON object.
+    Status(cli::client::PlainArgs),
+    /// The arm's description (links, limits, servos, strategies), one JSON object.
+    Describe(cli::client::PlainArgs),
+    /// Move the tip to X Y (m) in a straight line; waits for the arrival.
+    Goto(cli::client::GotoArgs),
+    /// Move the tip along the corners of a CSV file (x,y in m), stopping at each.
+    Path(cli::client::PathArgs),
+    /// Decelerate to rest and hold.
+    Stop(cli::client::PlainArgs),
+    /// Emergency stop: freeze, torque off (or hold), latched until `reset`.
+    Estop(cli::client::PlainArgs),
+    /// Clear the estop latch: hold the measured pose, torque on.
+    Reset(cli::client::PlainArgs),
+    /// Move the joints to the home pose.
+    Home(cli::client::PlainArgs),
+    /// Switch the strategy live: `overall` or `sequential`.
+    Strategy(cli::client::StrategyArgs),
+    /// Telemetry as JSON lines until Ctrl-C.
+    Watch(cli::client::WatchArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command {
+    let result = match cli
+        .command
+        .unwrap_or(Command::Demo(cli::demo::DemoArgs::default()))
+    {
         Command::Solve(args) => cli::solve::run(args),
         Command::Run(args) => cli::run::run(args),
         Command::Sim(args) => cli::sim::run(args),
@@ -43,6 +72,18 @@ fn main() -> ExitCode {
         Command::Scan(args) => cli::servo::scan(args),
         Command::Ports(args) => cli::servo::ports(args),
         Command::Servo(args) => cli::servo::run(args),
+        Command::Demo(args) => cli::demo::run(args),
+        Command::Teleop(args) => cli::teleop::run(args),
+        Command::Status(args) => cli::client::status(args),
+        Command::Describe(args) => cli::client::describe(args),
+        Command::Goto(args) => cli::client::goto(args),
+        Command::Path(args) => cli::client::path(args),
+        Command::Stop(args) => cli::client::stop(args),
+        Command::Estop(args) => cli::client::estop(args),
+        Command::Reset(args) => cli::client::reset(args),
+        Command::Home(args) => cli::client::home(args),
+        Command::Strategy(args) => cli::client::strategy(args),
+        Command::Watch(args) => cli::client::watch(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,10 +1,13 @@
 //! The subcommands, one module each, and the error type they share.
 
+pub mod client;
+pub mod demo;
 pub mod run;
 pub mod servo;
 pub mod sim;
 pub mod simulate;
 pub mod solve;
+pub mod teleop;
 
 /// `println!` for the subcommands: a closed pipe (`snakectl ... | head`) ends the command quietly
 /// instead of panicking.

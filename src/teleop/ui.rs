@@ -1,0 +1,2 @@
+//! The teleop screen: the arm drawn from `describe` and telemetry, its state beside it, a
+//! key-help line; onto any ratatui backend.
