@@ -44,13 +44,16 @@ fn spawn(args: &[&str]) -> Child {
         .unwrap()
 }
 
-/// Waits up to [`DEADLINE`] for `child` to end (killing it past that) and collects its output.
+/// Waits up to [`DEADLINE`] for `child` to end (killing it past that) and collects its output
+/// (stdout: what is left of it, if the test has not taken it).
 fn finish(mut child: Child) -> Run {
-    let mut out = child.stdout.take().unwrap();
+    let out = child.stdout.take();
     let mut err = child.stderr.take().unwrap();
     let out = std::thread::spawn(move || {
         let mut s = String::new();
-        out.read_to_string(&mut s).unwrap();
+        if let Some(mut out) = out {
+            out.read_to_string(&mut s).unwrap();
+        }
         s
     });
     let err = std::thread::spawn(move || {
@@ -145,7 +148,11 @@ fn status_and_describe_print_one_json_object_each() {
     let d = Daemon::start(sim_config(&[]));
     let status = object(&at(&d, &["status"]));
     assert_eq!(status["state"], "holding", "{status}");
-    assert_eq!(status["theta_cmd"].as_array().unwrap().len(), 12, "{status}");
+    assert_eq!(
+        status["theta_cmd"].as_array().unwrap().len(),
+        12,
+        "{status}"
+    );
     assert!(status.get("ok").is_none() && status.get("id").is_none());
     let tip = xy(&status["tip"]);
     assert!(dist(tip, HOME_TIP) < 2e-3, "home tip {tip:?}");
@@ -176,9 +183,16 @@ fn goto_with_negative_numbers_arrives_and_home_returns() {
 fn goto_no_wait_returns_while_the_arm_moves() {
     let _one = one_at_a_time();
     let d = Daemon::start(sim_config(&[]));
-    let run = at(&d, &["goto", "-0.50", "0.66", "--speed", "0.02", "--no-wait"]);
+    let run = at(
+        &d,
+        &["goto", "-0.50", "0.66", "--speed", "0.02", "--no-wait"],
+    );
     assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
-    assert!(run.stdout.starts_with("ok: goto accepted at tick "), "{:?}", run.stdout);
+    assert!(
+        run.stdout.starts_with("ok: goto accepted at tick "),
+        "{:?}",
+        run.stdout
+    );
     // The move goes on after the client left: 7.7 cm at 2 cm/s.
     let s = d.client().status();
     assert_eq!(s["command"]["kind"], "goto", "{s}");
@@ -213,7 +227,11 @@ fn goto_while_another_client_holds_control_is_refused_naming_it() {
     let id = taken["client"].as_u64().unwrap();
     let run = at(&d, &["goto", "-0.55", "0.70"]);
     assert_fails(&run, 1, "not_in_control");
-    assert!(run.stderr.contains(&format!("client {id}")), "{:?}", run.stderr);
+    assert!(
+        run.stderr.contains(&format!("client {id}")),
+        "{:?}",
+        run.stderr
+    );
     // Not taken over: the holder still holds it, and the arm did not move.
     let s = holder.status();
     assert_eq!(s["controller"], json!(id), "{s}");
@@ -226,11 +244,23 @@ fn a_waiting_goto_interrupted_by_an_estop_fails_saying_estop() {
     let d = Daemon::start(sim_config(&[]));
     // 7.7 cm at 2 cm/s: still moving when the estop comes.
     let addr = d.addr.to_string();
-    let child = spawn(&["goto", "-0.50", "0.66", "--speed", "0.02", "--connect", &addr]);
+    let child = spawn(&[
+        "goto",
+        "-0.50",
+        "0.66",
+        "--speed",
+        "0.02",
+        "--connect",
+        &addr,
+    ]);
     wait_active(&d, "goto");
     let run = at(&d, &["estop"]);
     assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
-    assert!(run.stdout.starts_with("ok: estop at tick "), "{:?}", run.stdout);
+    assert!(
+        run.stdout.starts_with("ok: estop at tick "),
+        "{:?}",
+        run.stdout
+    );
     let run = finish(child);
     assert_fails(&run, 1, "estop");
 
@@ -238,7 +268,11 @@ fn a_waiting_goto_interrupted_by_an_estop_fails_saying_estop() {
     assert_fails(&at(&d, &["goto", "-0.55", "0.70"]), 1, "estopped");
     let run = at(&d, &["reset"]);
     assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
-    assert!(run.stdout.starts_with("ok: reset at tick "), "{:?}", run.stdout);
+    assert!(
+        run.stdout.starts_with("ok: reset at tick "),
+        "{:?}",
+        run.stdout
+    );
 }
 
 #[test]
@@ -246,11 +280,23 @@ fn a_waiting_goto_replaced_by_a_stop_fails_saying_why() {
     let _one = one_at_a_time();
     let d = Daemon::start(sim_config(&[]));
     let addr = d.addr.to_string();
-    let child = spawn(&["goto", "-0.50", "0.66", "--speed", "0.02", "--connect", &addr]);
+    let child = spawn(&[
+        "goto",
+        "-0.50",
+        "0.66",
+        "--speed",
+        "0.02",
+        "--connect",
+        &addr,
+    ]);
     wait_active(&d, "goto");
     let run = at(&d, &["stop"]);
     assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
-    assert!(run.stdout.starts_with("ok: stop at tick "), "{:?}", run.stdout);
+    assert!(
+        run.stdout.starts_with("ok: stop at tick "),
+        "{:?}",
+        run.stdout
+    );
     assert_fails(&finish(child), 1, "preempted by `stop`");
 }
 
@@ -271,12 +317,21 @@ fn bad_csv_files_exit_2_naming_the_line() {
     // Checked before connecting: nothing listens at this address.
     let addr = closed_port();
     let cases = [
-        ("x,y\n-0.5,0.7\n\n-0.5\n", ":4: expected two fields `x,y`, got 1"),
-        ("-0.5,0.7\n-0.5,0.7,0.1\n", ":2: expected two fields `x,y`, got 3"),
+        (
+            "x,y\n-0.5,0.7\n\n-0.5\n",
+            ":4: expected two fields `x,y`, got 1",
+        ),
+        (
+            "-0.5,0.7\n-0.5,0.7,0.1\n",
+            ":2: expected two fields `x,y`, got 3",
+        ),
         ("-0.5,0.7\n-0.5,abc\n", ":2: `abc` is not a number"),
-        ("x,y\n-0.5,0.7\ninf,0.7\n", ":3: `inf` is not a finite number"),
+        (
+            "x,y\n-0.5,0.7\ninf,0.7\n",
+            ":3: `inf` is not a finite number",
+        ),
         ("-0.5,y\n", ":1: `y` is not a number"),
-        ("x,y\n\n", "no points"),
+        ("x,y\n\n", ": no points"),
     ];
     for (csv, needle) in cases {
         let (_dir, file) = file_with(csv);
@@ -375,12 +430,21 @@ fn watch_ends_with_0_on_ctrl_c_and_with_1_when_the_daemon_goes() {
 #[test]
 fn with_no_daemon_every_command_says_how_to_start_one() {
     let addr = closed_port();
-    for args in [&["status"][..], &["goto", "-0.5", "0.7"], &["watch"], &["estop"]] {
+    for args in [
+        &["status"][..],
+        &["goto", "-0.5", "0.7"],
+        &["watch"],
+        &["estop"],
+    ] {
         let mut all = args.to_vec();
         all.extend(["--connect", &addr]);
         let run = snakectl(&all);
         assert_fails(&run, 1, &format!("no daemon is listening on {addr}"));
-        assert!(run.stderr.contains("snakectl run --config"), "{:?}", run.stderr);
+        assert!(
+            run.stderr.contains("snakectl run --config"),
+            "{:?}",
+            run.stderr
+        );
     }
 }
 

@@ -135,9 +135,8 @@ pub fn goto(args: GotoArgs) -> Result<(), Failure> {
 /// `snakectl path`.
 pub fn path(args: PathArgs) -> Result<(), Failure> {
     let speed = check_speed(args.speed)?;
-    let text = std::fs::read_to_string(&args.file).map_err(|e| {
-        Failure::bad_input(anyhow!("{}: cannot read it: {e}", args.file.display()))
-    })?;
+    let text = std::fs::read_to_string(&args.file)
+        .map_err(|e| Failure::bad_input(anyhow!("{}: cannot read it: {e}", args.file.display())))?;
     let points = parse_points(&text)
         .map_err(|e| Failure::bad_input(anyhow!("{}:{e}", args.file.display())))?;
     let mut client = connect(&args.connect)?;
