@@ -217,6 +217,9 @@ pub fn watch(args: WatchArgs) -> Result<(), Failure> {
 /// How often the waiting loops look at the Ctrl-C flag.
 const POLL: Duration = Duration::from_millis(100);
 
+/// Events kept while a motion command waits for its reply.
+const EARLY_EVENTS: usize = 64;
+
 /// Connects as `args` say.
 fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
     Client::connect_with(&args.connect, args.token_file.as_deref()).map_err(refused)
@@ -278,8 +281,8 @@ fn motion(client: &mut Client, cmd: &Cmd, no_wait: bool) -> Result<(), Failure> 
     let gone = |e: ClientError| {
         Failure::other(anyhow::Error::new(e).context(format!("`{name}` did not finish")))
     };
-    // Events that come before the reply are kept: their order against it is not fixed.
-    let mut early = Vec::new();
+    // Events that come before the reply are kept (a few): their order against it is not fixed.
+    let mut early = Vec::with_capacity(EARLY_EVENTS);
     let deadline = Instant::now() + REPLY_TIMEOUT;
     let accepted = loop {
         let left = deadline.saturating_duration_since(Instant::now());
@@ -297,7 +300,8 @@ fn motion(client: &mut Client, cmd: &Cmd, no_wait: bool) -> Result<(), Failure> 
                 }
             }
             Some(Incoming::Reply(_)) => {}
-            Some(Incoming::Event(event)) => early.push(event),
+            Some(Incoming::Event(event)) if early.len() < EARLY_EVENTS => early.push(event),
+            Some(Incoming::Event(_)) => {}
             None if left.is_zero() => {
                 return Err(refused(ClientError::Timeout {
                     cmd: name.to_owned(),
