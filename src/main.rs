@@ -52,7 +52,7 @@ enum Command {
     /// Clear the estop latch: hold the measured pose, torque on.
     Reset(cli::client::PlainArgs),
     /// Move the joints to the home pose.
-    Home(cli::client::PlainArgs),
+    Home(cli::client::HomeArgs),
     /// Switch the strategy live: `overall` or `sequential`.
     Strategy(cli::client::StrategyArgs),
     /// Telemetry as JSON lines until Ctrl-C.

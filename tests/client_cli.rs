@@ -1,0 +1,475 @@
+//! The one-shot client commands (`status`, `describe`, `goto`, `path`, `home`, `stop`,
+//! `estop`, `reset`, `strategy`, `watch`) as a user runs them: the built binary against a
+//! daemon on simulated servos started in this process. Exit codes, what is printed, and what
+//! the daemon did afterwards.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod daemon_support;
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use daemon_support::{dist, sim_config, xy, Daemon, DEADLINE};
+use serde_json::{json, Value};
+
+/// Where the shipped simulator's tip rests at home, m.
+const HOME_TIP: [f64; 2] = [-0.547, 0.720];
+
+/// The tests of this file run one at a time: each has its own daemon and simulator, and a
+/// loaded machine keeps their loops on time better one by one.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A finished `snakectl` run.
+struct Run {
+    code: i32,
+    stdout: String,
+    stderr: String,
+}
+
+/// `snakectl ARGS` started from the repository root, stdout and stderr piped.
+fn spawn(args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Waits up to [`DEADLINE`] for `child` to end (killing it past that) and collects its output
+/// (stdout: what is left of it, if the test has not taken it).
+fn finish(mut child: Child) -> Run {
+    let out = child.stdout.take();
+    let mut err = child.stderr.take().unwrap();
+    let out = std::thread::spawn(move || {
+        let mut s = String::new();
+        if let Some(mut out) = out {
+            out.read_to_string(&mut s).unwrap();
+        }
+        s
+    });
+    let err = std::thread::spawn(move || {
+        let mut s = String::new();
+        err.read_to_string(&mut s).unwrap();
+        s
+    });
+    let deadline = Instant::now() + DEADLINE;
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if Instant::now() > deadline {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!("snakectl still ran after {DEADLINE:?}");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    Run {
+        code: status.code().expect("exited, not killed by a signal"),
+        stdout: out.join().unwrap(),
+        stderr: err.join().unwrap(),
+    }
+}
+
+/// Runs `snakectl ARGS` to its end.
+fn snakectl(args: &[&str]) -> Run {
+    finish(spawn(args))
+}
+
+/// Runs `snakectl ARGS --connect ADDR` to its end.
+fn at(d: &Daemon, args: &[&str]) -> Run {
+    let addr = d.addr.to_string();
+    let mut all = args.to_vec();
+    all.extend(["--connect", &addr]);
+    snakectl(&all)
+}
+
+/// An address where nothing listens (bound, then let go).
+fn closed_port() -> String {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().to_string()
+}
+
+/// Asserts the run ended with `code` and `needle` in its stderr.
+fn assert_fails(run: &Run, code: i32, needle: &str) {
+    assert_eq!(
+        run.code, code,
+        "exit code; stdout {:?} stderr {:?}",
+        run.stdout, run.stderr
+    );
+    assert!(
+        run.stderr.contains(needle),
+        "stderr lacks {needle:?}: {:?}",
+        run.stderr
+    );
+}
+
+/// The one JSON object a run printed.
+fn object(run: &Run) -> Value {
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert_eq!(run.stdout.lines().count(), 1, "one line: {:?}", run.stdout);
+    let v: Value = serde_json::from_str(&run.stdout).unwrap();
+    assert!(v.is_object(), "{v}");
+    v
+}
+
+/// Waits until the daemon reports an active command of `kind`.
+fn wait_active(d: &Daemon, kind: &str) {
+    let mut c = d.client();
+    c.wait_status(&format!("{kind} active"), |s| {
+        s["command"]["kind"] == kind && s["command"]["outcome"] == "active"
+    });
+}
+
+/// A temporary file holding `text`; removed with the returned directory.
+fn file_with(text: &str) -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("path.csv");
+    std::fs::write(&path, text).unwrap();
+    (dir, path)
+}
+
+fn text(path: &Path) -> &str {
+    path.to_str().unwrap()
+}
+
+#[test]
+fn status_and_describe_print_one_json_object_each() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let status = object(&at(&d, &["status"]));
+    assert_eq!(status["state"], "holding", "{status}");
+    assert_eq!(
+        status["theta_cmd"].as_array().unwrap().len(),
+        12,
+        "{status}"
+    );
+    assert!(status.get("ok").is_none() && status.get("id").is_none());
+    let tip = xy(&status["tip"]);
+    assert!(dist(tip, HOME_TIP) < 2e-3, "home tip {tip:?}");
+
+    let describe = object(&at(&d, &["describe"]));
+    assert_eq!(describe["links_m"].as_array().unwrap().len(), 12);
+    assert_eq!(describe["strategies"], json!(["overall", "sequential"]));
+}
+
+#[test]
+fn goto_with_negative_numbers_arrives_and_home_returns() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let run = at(&d, &["goto", "-0.53", "0.70", "--speed", "0.1"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(run.stdout.starts_with("arrived at ("), "{:?}", run.stdout);
+    let tip = xy(&d.client().status()["tip"]);
+    assert!(dist(tip, [-0.53, 0.70]) < 1e-3, "tip {tip:?}");
+
+    let run = at(&d, &["home"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(run.stdout.starts_with("arrived at ("), "{:?}", run.stdout);
+    let tip = xy(&d.client().status()["tip"]);
+    assert!(dist(tip, HOME_TIP) < 2e-3, "tip {tip:?}");
+}
+
+#[test]
+fn goto_no_wait_returns_while_the_arm_moves() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let run = at(
+        &d,
+        &["goto", "-0.50", "0.66", "--speed", "0.02", "--no-wait"],
+    );
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: goto accepted at tick "),
+        "{:?}",
+        run.stdout
+    );
+    // The move goes on after the client left: 7.7 cm at 2 cm/s.
+    let s = d.client().status();
+    assert_eq!(s["command"]["kind"], "goto", "{s}");
+    assert_eq!(s["command"]["outcome"], "active", "{s}");
+}
+
+#[test]
+fn goto_out_of_reach_fails_saying_saturated() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    // 1.14 m from the base; the arm reaches 0.96 m.
+    let run = at(&d, &["goto", "-0.7", "0.9", "--speed", "0.1"]);
+    assert_fails(&run, 1, "saturated");
+    assert_eq!(run.stdout, "");
+}
+
+#[test]
+fn bad_goto_numbers_are_refused_before_connecting() {
+    let addr = closed_port();
+    let run = snakectl(&["goto", "nan", "0.7", "--connect", &addr]);
+    assert_fails(&run, 2, "finite");
+    let run = snakectl(&["goto", "-0.5", "0.7", "--speed", "-1", "--connect", &addr]);
+    assert_fails(&run, 2, "--speed");
+}
+
+#[test]
+fn goto_while_another_client_holds_control_is_refused_naming_it() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut holder = d.client();
+    let taken = holder.ok(json!({"cmd": "take_control"}));
+    let id = taken["client"].as_u64().unwrap();
+    let run = at(&d, &["goto", "-0.55", "0.70"]);
+    assert_fails(&run, 1, "not_in_control");
+    assert!(
+        run.stderr.contains(&format!("client {id}")),
+        "{:?}",
+        run.stderr
+    );
+    // Not taken over: the holder still holds it, and the arm did not move.
+    let s = holder.status();
+    assert_eq!(s["controller"], json!(id), "{s}");
+    assert_eq!(s["command"], Value::Null, "{s}");
+}
+
+#[test]
+fn a_waiting_goto_interrupted_by_an_estop_fails_saying_estop() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    // 7.7 cm at 2 cm/s: still moving when the estop comes.
+    let addr = d.addr.to_string();
+    let child = spawn(&[
+        "goto",
+        "-0.50",
+        "0.66",
+        "--speed",
+        "0.02",
+        "--connect",
+        &addr,
+    ]);
+    wait_active(&d, "goto");
+    let run = at(&d, &["estop"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: estop at tick "),
+        "{:?}",
+        run.stdout
+    );
+    let run = finish(child);
+    assert_fails(&run, 1, "estop");
+
+    // Latched: a new goto is refused with the daemon's code until `reset`.
+    assert_fails(&at(&d, &["goto", "-0.55", "0.70"]), 1, "estopped");
+    let run = at(&d, &["reset"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: reset at tick "),
+        "{:?}",
+        run.stdout
+    );
+}
+
+#[test]
+fn a_waiting_goto_replaced_by_a_stop_fails_saying_why() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let addr = d.addr.to_string();
+    let child = spawn(&[
+        "goto",
+        "-0.50",
+        "0.66",
+        "--speed",
+        "0.02",
+        "--connect",
+        &addr,
+    ]);
+    wait_active(&d, "goto");
+    let run = at(&d, &["stop"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: stop at tick "),
+        "{:?}",
+        run.stdout
+    );
+    assert_fails(&finish(child), 1, "preempted by `stop`");
+}
+
+#[test]
+fn path_from_a_csv_with_a_header_and_blank_lines_arrives() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let (_dir, file) = file_with("x,y\n-0.54,0.71\n\n  -0.53 , 0.70\n\n");
+    let run = at(&d, &["path", text(&file), "--speed", "0.1"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(run.stdout.starts_with("arrived at ("), "{:?}", run.stdout);
+    let tip = xy(&d.client().status()["tip"]);
+    assert!(dist(tip, [-0.53, 0.70]) < 1e-3, "tip {tip:?}");
+}
+
+#[test]
+fn bad_csv_files_exit_2_naming_the_line() {
+    // Checked before connecting: nothing listens at this address.
+    let addr = closed_port();
+    let cases = [
+        (
+            "x,y\n-0.5,0.7\n\n-0.5\n",
+            ":4: expected two fields `x,y`, got 1",
+        ),
+        (
+            "-0.5,0.7\n-0.5,0.7,0.1\n",
+            ":2: expected two fields `x,y`, got 3",
+        ),
+        ("-0.5,0.7\n-0.5,abc\n", ":2: `abc` is not a number"),
+        (
+            "x,y\n-0.5,0.7\ninf,0.7\n",
+            ":3: `inf` is not a finite number",
+        ),
+        ("-0.5,y\n", ":1: `y` is not a number"),
+        ("x,y\n\n", ": no points"),
+    ];
+    for (csv, needle) in cases {
+        let (_dir, file) = file_with(csv);
+        let run = snakectl(&["path", text(&file), "--connect", &addr]);
+        assert_fails(&run, 2, &format!("{}{needle}", text(&file)));
+    }
+    let too_many = "-0.5,0.7\n".repeat(snakectl::protocol::MAX_PATH_POINTS + 1);
+    let (_dir, file) = file_with(&too_many);
+    let run = snakectl(&["path", text(&file), "--connect", &addr]);
+    assert_fails(&run, 2, "too many points");
+    let run = snakectl(&["path", "/nonexistent/path.csv", "--connect", &addr]);
+    assert_fails(&run, 2, "/nonexistent/path.csv");
+}
+
+#[test]
+fn strategy_is_checked_locally_and_switched_live() {
+    let run = snakectl(&["strategy", "greedy", "--connect", &closed_port()]);
+    assert_fails(&run, 2, "`overall` and `sequential`");
+
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let run = at(&d, &["strategy", "sequential"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: strategy sequential at tick "),
+        "{:?}",
+        run.stdout
+    );
+    assert_eq!(object(&at(&d, &["status"]))["strategy"], "sequential");
+}
+
+/// A child's stdout line by line, read on its own thread.
+fn lines_of(stdout: ChildStdout) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::sync_channel(64);
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines() {
+            let Ok(line) = line else { return };
+            if tx.send(line).is_err() {
+                return;
+            }
+        }
+    });
+    rx
+}
+
+#[test]
+fn watch_prints_telemetry_lines_and_ends_quietly_on_a_closed_pipe() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let addr = d.addr.to_string();
+    let mut child = spawn(&["watch", "--rate-hz", "50", "--connect", &addr]);
+    let stdout = child.stdout.take().unwrap();
+    let mut reader = BufReader::new(stdout);
+    let mut ticks = Vec::new();
+    for _ in 0..3 {
+        let mut line = String::new();
+        reader.read_line(&mut line).unwrap();
+        let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("{line:?}: {e}"));
+        assert_eq!(v["type"], "telemetry", "{v}");
+        assert_eq!(v["theta_meas"].as_array().unwrap().len(), 12, "{v}");
+        ticks.push(v["tick"].as_u64().unwrap());
+    }
+    assert!(ticks.windows(2).all(|w| w[0] < w[1]), "ticks {ticks:?}");
+    // As `| head -3` does: the reader goes; the next line written ends watch with exit 0.
+    drop(reader);
+    let run = finish(child);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert_eq!(run.stderr, "");
+}
+
+#[test]
+fn watch_ends_with_0_on_ctrl_c_and_with_1_when_the_daemon_goes() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let addr = d.addr.to_string();
+
+    let mut child = spawn(&["watch", "--connect", &addr]);
+    let lines = lines_of(child.stdout.take().unwrap());
+    lines.recv_timeout(DEADLINE).expect("a telemetry line");
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let run = finish(child);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+
+    let mut child = spawn(&["watch", "--connect", &addr]);
+    let lines = lines_of(child.stdout.take().unwrap());
+    lines.recv_timeout(DEADLINE).expect("a telemetry line");
+    d.stop().unwrap();
+    let run = finish(child);
+    assert_fails(&run, 1, "the daemon went away");
+}
+
+#[test]
+fn with_no_daemon_every_command_says_how_to_start_one() {
+    let addr = closed_port();
+    for args in [
+        &["status"][..],
+        &["goto", "-0.5", "0.7"],
+        &["watch"],
+        &["estop"],
+    ] {
+        let mut all = args.to_vec();
+        all.extend(["--connect", &addr]);
+        let run = snakectl(&all);
+        assert_fails(&run, 1, &format!("no daemon is listening on {addr}"));
+        assert!(
+            run.stderr.contains("snakectl run --config"),
+            "{:?}",
+            run.stderr
+        );
+    }
+}
+
+#[test]
+fn a_daemon_with_a_token_admits_token_file_and_refuses_without_it() {
+    let _one = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let token = dir.path().join("token");
+    std::fs::write(&token, "correct horse\n").unwrap();
+    let line = format!("max_clients = 4\ntoken_file = {:?}", text(&token));
+    let d = Daemon::start(sim_config(&[("max_clients = 4", &line)]));
+
+    let run = at(&d, &["status"]);
+    assert_fails(&run, 1, "unauthorized");
+    assert!(run.stderr.contains("--token-file"), "{:?}", run.stderr);
+    let run = at(&d, &["goto", "-0.55", "0.70"]);
+    assert_fails(&run, 1, "unauthorized");
+
+    let status = object(&at(&d, &["status", "--token-file", text(&token)]));
+    assert_eq!(status["state"], "holding", "{status}");
+    let run = at(&d, &["goto", "-0.54", "0.71", "--token-file", text(&token)]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+
+    let wrong = dir.path().join("wrong");
+    std::fs::write(&wrong, "battery staple\n").unwrap();
+    let run = at(&d, &["status", "--token-file", text(&wrong)]);
+    assert_fails(&run, 1, "unauthorized");
+}
