@@ -631,7 +631,7 @@ impl Client {
                 Err(RecvTimeoutError::Disconnected) => return Err(self.closed()),
             };
             match incoming {
-                Incoming::Reply(reply) if reply.id == Value::from(id) => {
+                Incoming::Reply(reply) if reply.id.as_u64() == Some(id) => {
                     return reply
                         .result
                         .map_err(|(code, message)| ClientError::Refused {
