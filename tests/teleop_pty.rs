@@ -1,0 +1,260 @@
+//! `snakectl teleop --sim` on a real pseudo-terminal, its screen read back through a
+//! terminal emulator: the arm appears, an arrow key moves the tip for one hold and then it
+//! rests, `q` quits with the terminal given back as it was.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use portable_pty::{native_pty_system, Child, CommandBuilder, MasterPty, PtySize};
+
+/// Bound on waiting for anything; reached only when the test fails.
+const DEADLINE: Duration = Duration::from_secs(30);
+const ROWS: u16 = 40;
+const COLS: u16 = 120;
+
+/// Linux's `c_lflag` bits (asm-generic/termbits.h).
+const ICANON: u32 = 0o000002;
+const ECHO: u32 = 0o000010;
+
+/// The shipped simulator config on a free port, with a reply timeout a busy machine meets.
+fn config(dir: &Path) -> PathBuf {
+    let shipped = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+    let mut text = std::fs::read_to_string(shipped).unwrap();
+    for (old, new) in [
+        ("listen = \"127.0.0.1:7878\"", "listen = \"127.0.0.1:0\""),
+        ("reply_timeout_ms = 20 ", "reply_timeout_ms = 100 "),
+    ] {
+        assert!(text.contains(old), "config/sim.toml has no `{old}`");
+        text = text.replace(old, new);
+    }
+    let path = dir.join("sim.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// The UI on a pseudo-terminal: its screen as an emulator shows it, its keyboard.
+struct Ui {
+    child: Box<dyn Child + Send + Sync>,
+    master: Box<dyn MasterPty + Send>,
+    writer: Arc<Mutex<Box<dyn Write + Send>>>,
+    screen: Arc<Mutex<vt100::Parser>>,
+    reader_done: mpsc::Receiver<()>,
+}
+
+impl Ui {
+    fn start(config: &Path) -> Ui {
+        let pair = native_pty_system()
+            .openpty(PtySize {
+                rows: ROWS,
+                cols: COLS,
+                pixel_width: 0,
+                pixel_height: 0,
+            })
+            .unwrap();
+        let mut cmd = CommandBuilder::new(env!("CARGO_BIN_EXE_snakectl"));
+        cmd.args(["teleop", "--sim"]);
+        cmd.arg(config);
+        cmd.cwd(env!("CARGO_MANIFEST_DIR"));
+        cmd.env("TERM", "xterm-256color");
+        let child = pair.slave.spawn_command(cmd).unwrap();
+        // Only the child holds the terminal's side now: its exit ends the reader.
+        drop(pair.slave);
+        let writer = Arc::new(Mutex::new(pair.master.take_writer().unwrap()));
+        let screen = Arc::new(Mutex::new(vt100::Parser::new(ROWS, COLS, 0)));
+        let (done, reader_done) = mpsc::channel();
+        let mut reader = pair.master.try_clone_reader().unwrap();
+        {
+            let screen = Arc::clone(&screen);
+            let writer = Arc::clone(&writer);
+            std::thread::spawn(move || {
+                let mut buf = [0u8; 8192];
+                let mut tail: Vec<u8> = Vec::new();
+                loop {
+                    let n = match reader.read(&mut buf) {
+                        Ok(0) | Err(_) => break,
+                        Ok(n) => n,
+                    };
+                    screen.lock().unwrap().process(&buf[..n]);
+                    // Answer the primary device attributes query as a plain VT100 would (no
+                    // kitty keyboard protocol), so the UI need not wait for it to time out.
+                    tail.extend_from_slice(&buf[..n]);
+                    if let Some(at) = tail.windows(3).position(|w| w == b"\x1b[c") {
+                        let _ = writer.lock().unwrap().write_all(b"\x1b[?1;2c");
+                        tail.drain(..at + 3);
+                    }
+                    let keep = tail.len().saturating_sub(2);
+                    tail.drain(..keep);
+                }
+                let _ = done.send(());
+            });
+        }
+        Ui {
+            child,
+            master: pair.master,
+            writer,
+            screen,
+            reader_done,
+        }
+    }
+
+    fn send(&self, bytes: &[u8]) {
+        let mut writer = self.writer.lock().unwrap();
+        writer.write_all(bytes).unwrap();
+        writer.flush().unwrap();
+    }
+
+    fn contents(&self) -> String {
+        self.screen.lock().unwrap().screen().contents()
+    }
+
+    /// Polls the screen until `ready` holds; its contents then.
+    fn wait_for(&mut self, what: &str, ready: impl Fn(&str) -> bool) -> String {
+        let deadline = Instant::now() + DEADLINE;
+        loop {
+            let text = self.contents();
+            if ready(&text) {
+                return text;
+            }
+            if let Some(status) = self.child.try_wait().unwrap() {
+                panic!("teleop exited ({status:?}) before {what}:\n{text}");
+            }
+            assert!(
+                Instant::now() < deadline,
+                "no {what} within {DEADLINE:?}:\n{text}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// The terminal's local mode flags (`c_lflag`).
+    fn local_flags(&self) -> u32 {
+        let termios = self.master.get_termios().expect("the pty's termios");
+        termios.local_flags.bits()
+    }
+}
+
+impl Drop for Ui {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// The measured tip the panel shows (`tip  -0.547  +0.720 m`).
+fn tip(text: &str) -> Option<[f64; 2]> {
+    let line = text
+        .lines()
+        .find_map(|l| l.split_once("tip  ").map(|(_, r)| r))?;
+    let mut numbers = line.split_whitespace().map(|w| w.parse::<f64>());
+    let x = numbers.next()?.ok()?;
+    let y = numbers.next()?.ok()?;
+    Some([x, y])
+}
+
+/// A panel row's value (`state     holding` -> `holding`).
+fn field<'a>(text: &'a str, label: &str) -> Option<&'a str> {
+    text.lines().find_map(|l| {
+        let (_, rest) = l.split_once(&format!("│{label} "))?;
+        rest.split('│').next().map(str::trim)
+    })
+}
+
+#[test]
+fn an_arrow_moves_the_tip_for_one_hold_and_q_gives_the_terminal_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut ui = Ui::start(&config(dir.path()));
+    let text = ui.wait_for("the arm at rest, in control", |t| {
+        field(t, "state") == Some("holding")
+            && field(t, "control") == Some("you")
+            && tip(t).is_some()
+            && t.chars().any(|c| ('\u{2801}'..='\u{28ff}').contains(&c))
+    });
+    assert!(text.contains("q quit"), "no key help:\n{text}");
+    let addr = field(&text, "daemon").unwrap().to_owned();
+    let start = tip(&text).unwrap();
+    // Near the shipped home pose's tip.
+    assert!(
+        (start[0] + 0.547).abs() < 0.01 && (start[1] - 0.720).abs() < 0.01,
+        "{start:?}"
+    );
+    // The UI has the terminal in raw mode.
+    assert_eq!(ui.local_flags() & (ICANON | ECHO), 0, "not in raw mode");
+
+    // One press of Right: held for 0.6 s at 0.05 m/s, then one zero.
+    ui.send(b"\x1b[C");
+    ui.wait_for("the tip moving right", |t| {
+        tip(t).is_some_and(|p| p[0] > start[0] + 0.005)
+    });
+    // At rest: holding, and the tip shown unchanged for half a second.
+    let deadline = Instant::now() + DEADLINE;
+    let mut last = (tip(&ui.contents()), Instant::now());
+    let end = loop {
+        let text = ui.contents();
+        let now = tip(&text);
+        if now != last.0 {
+            last = (now, Instant::now());
+        } else if field(&text, "state") == Some("holding")
+            && last.1.elapsed() >= Duration::from_millis(500)
+        {
+            break now.unwrap();
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the tip never came to rest:\n{text}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let dx = end[0] - start[0];
+    assert!(
+        (0.01..0.04).contains(&dx),
+        "one hold moved the tip {dx} m in x (expected about 0.05 m/s for 0.6 s)"
+    );
+    assert!((end[1] - start[1]).abs() < 0.005, "{start:?} -> {end:?}");
+
+    // A second witness: the daemon the screen names agrees.
+    let mut client = snakectl::client::Client::connect(&addr, None).unwrap();
+    let status = client.status().unwrap();
+    assert_eq!(status.state, "holding");
+    for k in 0..2 {
+        assert!(
+            (status.tip_meas[k] - end[k]).abs() < 0.0015,
+            "screen {end:?}, daemon {:?}",
+            status.tip_meas
+        );
+    }
+    drop(client);
+
+    ui.send(b"q");
+    let deadline = Instant::now() + DEADLINE;
+    let status = loop {
+        if let Some(status) = ui.child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "teleop still runs after q:\n{}",
+            ui.contents()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "teleop exited with {status:?}");
+    ui.reader_done
+        .recv_timeout(DEADLINE)
+        .expect("the terminal's output ends with the process");
+    let parser = ui.screen.lock().unwrap();
+    assert!(
+        !parser.screen().alternate_screen(),
+        "still on the alternate screen"
+    );
+    assert!(!parser.screen().hide_cursor(), "the cursor is still hidden");
+    drop(parser);
+    let flags = ui.local_flags();
+    assert_eq!(flags & ICANON, ICANON, "not canonical again: {flags:o}");
+    assert_eq!(flags & ECHO, ECHO, "no echo again: {flags:o}");
+}
