@@ -1,15 +1,23 @@
-//! `snakectl teleop --sim` on a real pseudo-terminal, its screen read back through a
-//! terminal emulator: the arm appears, an arrow key moves the tip for one hold and then it
-//! rests, `q` quits with the terminal given back as it was.
+//! `snakectl teleop` on a real pseudo-terminal, its screen read back through a terminal
+//! emulator: with `--sim` the arm appears, an arrow key moves the tip for one hold and then it
+//! rests, `q` quits with the terminal given back as it was; with `--connect` it names another
+//! client in control, takes control back on `c`, outlives its daemon and finds a new one.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::io::{Read, Write};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use portable_pty::{native_pty_system, Child, CommandBuilder, MasterPty, PtySize};
+use snakectl::client::Client;
+use snakectl::config::Config;
+use snakectl::connect;
+use snakectl::daemon::{Embedded, RunOptions};
+use snakectl::protocol::Cmd;
+use snakectl_sim::{RealClock, SimHandle};
 
 /// Bound on waiting for anything; reached only when the test fails.
 const DEADLINE: Duration = Duration::from_secs(30);
@@ -46,7 +54,8 @@ struct Ui {
 }
 
 impl Ui {
-    fn start(config: &Path) -> Ui {
+    /// `snakectl teleop ARGS`.
+    fn start(args: &[&std::ffi::OsStr]) -> Ui {
         let pair = native_pty_system()
             .openpty(PtySize {
                 rows: ROWS,
@@ -56,8 +65,8 @@ impl Ui {
             })
             .unwrap();
         let mut cmd = CommandBuilder::new(env!("CARGO_BIN_EXE_snakectl"));
-        cmd.args(["teleop", "--sim"]);
-        cmd.arg(config);
+        cmd.arg("teleop");
+        cmd.args(args);
         cmd.cwd(env!("CARGO_MANIFEST_DIR"));
         cmd.env("TERM", "xterm-256color");
         let child = pair.slave.spawn_command(cmd).unwrap();
@@ -168,7 +177,8 @@ fn field<'a>(text: &'a str, label: &str) -> Option<&'a str> {
 #[test]
 fn an_arrow_moves_the_tip_for_one_hold_and_q_gives_the_terminal_back() {
     let dir = tempfile::tempdir().unwrap();
-    let mut ui = Ui::start(&config(dir.path()));
+    let config = config(dir.path());
+    let mut ui = Ui::start(&["--sim".as_ref(), config.as_os_str()]);
     let text = ui.wait_for("the arm at rest, in control", |t| {
         field(t, "state") == Some("holding")
             && field(t, "control") == Some("you")
@@ -218,7 +228,7 @@ fn an_arrow_moves_the_tip_for_one_hold_and_q_gives_the_terminal_back() {
     assert!((end[1] - start[1]).abs() < 0.005, "{start:?} -> {end:?}");
 
     // A second witness: the daemon the screen names agrees.
-    let mut client = snakectl::client::Client::connect(&addr, None).unwrap();
+    let mut client = Client::connect(&addr, None).unwrap();
     let status = client.status().unwrap();
     assert_eq!(status.state, "holding");
     for k in 0..2 {
@@ -231,30 +241,100 @@ fn an_arrow_moves_the_tip_for_one_hold_and_q_gives_the_terminal_back() {
     drop(client);
 
     ui.send(b"q");
-    let deadline = Instant::now() + DEADLINE;
-    let status = loop {
-        if let Some(status) = ui.child.try_wait().unwrap() {
-            break status;
-        }
+    ui.quits_giving_the_terminal_back("q");
+}
+
+impl Ui {
+    /// Waits for the process to end with status 0, and checks the terminal is as before.
+    fn quits_giving_the_terminal_back(&mut self, after: &str) {
+        let deadline = Instant::now() + DEADLINE;
+        let status = loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "teleop still runs after {after}:\n{}",
+                self.contents()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
         assert!(
-            Instant::now() < deadline,
-            "teleop still runs after q:\n{}",
-            ui.contents()
+            status.success(),
+            "teleop exited with {status:?} after {after}"
         );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    assert!(status.success(), "teleop exited with {status:?}");
-    ui.reader_done
-        .recv_timeout(DEADLINE)
-        .expect("the terminal's output ends with the process");
-    let parser = ui.screen.lock().unwrap();
-    assert!(
-        !parser.screen().alternate_screen(),
-        "still on the alternate screen"
-    );
-    assert!(!parser.screen().hide_cursor(), "the cursor is still hidden");
-    drop(parser);
-    let flags = ui.local_flags();
-    assert_eq!(flags & ICANON, ICANON, "not canonical again: {flags:o}");
-    assert_eq!(flags & ECHO, ECHO, "no echo again: {flags:o}");
+        self.reader_done
+            .recv_timeout(DEADLINE)
+            .expect("the terminal's output ends with the process");
+        let parser = self.screen.lock().unwrap();
+        assert!(
+            !parser.screen().alternate_screen(),
+            "still on the alternate screen"
+        );
+        assert!(!parser.screen().hide_cursor(), "the cursor is still hidden");
+        drop(parser);
+        let flags = self.local_flags();
+        assert_eq!(flags & ICANON, ICANON, "not canonical again: {flags:o}");
+        assert_eq!(flags & ECHO, ECHO, "no echo again: {flags:o}");
+    }
+}
+
+/// A simulator and a daemon in this process, on `listen`.
+struct LocalDaemon {
+    daemon: Embedded,
+    _sim: SimHandle,
+}
+
+impl LocalDaemon {
+    fn start(config: &Path, listen: SocketAddr) -> LocalDaemon {
+        let config = Config::load(config).unwrap();
+        let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
+        let options = RunOptions {
+            port: Some(sim.path().to_path_buf()),
+        };
+        let daemon = Embedded::start(config, listen, options).unwrap();
+        LocalDaemon { daemon, _sim: sim }
+    }
+}
+
+#[test]
+fn the_ui_outlives_its_daemon_and_takes_control_back_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    let first = LocalDaemon::start(&config, SocketAddr::from(([127, 0, 0, 1], 0)));
+    let addr = first.daemon.addr();
+    let addr_text = addr.to_string();
+    let mut ui = Ui::start(&["--connect".as_ref(), addr_text.as_ref()]);
+    ui.wait_for("control taken at start", |t| {
+        field(t, "control") == Some("you") && field(t, "state") == Some("holding")
+    });
+
+    // Another client takes control: the UI names it and says how to take it back.
+    let mut other = Client::connect(&addr_text, None).unwrap();
+    let fields = other.request(&Cmd::TakeControl).unwrap();
+    let other_id = fields["client"].as_u64().unwrap();
+    let hint = format!("client {other_id} is in control: press c to take it");
+    ui.wait_for("the other client named", |t| {
+        field(t, "control") == Some(format!("client {other_id}").as_str()) && t.contains(&hint)
+    });
+    ui.send(b"c");
+    ui.wait_for("control back after c", |t| {
+        field(t, "control") == Some("you")
+    });
+    drop(other);
+
+    // The daemon goes: the UI says so and stays up; a daemon back on the address is found.
+    first.daemon.stop().unwrap();
+    let gone = format!("daemon at {addr} gone: retrying");
+    ui.wait_for("the daemon reported gone", |t| t.contains(&gone));
+    let _second = LocalDaemon::start(&config, addr);
+    ui.wait_for("the new daemon connected, in control", |t| {
+        field(t, "link") == Some("connected")
+            && field(t, "control") == Some("you")
+            && !t.contains(&gone)
+    });
+
+    // Ctrl-C (a key in raw mode) quits as q does.
+    ui.send(b"\x03");
+    ui.quits_giving_the_terminal_back("Ctrl-C");
 }

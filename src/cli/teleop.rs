@@ -566,23 +566,16 @@ impl App {
                 }
                 self.pending.push_back((id, cmd.name()));
             }
-            Err(e) => self.lost(&e),
+            Err(_) => self.lost(),
         }
     }
 
     /// The connection is gone: tell, and try again in a second.
-    fn lost(&mut self, error: &ClientError) {
+    fn lost(&mut self) {
         self.client = None;
         self.pending.clear();
         self.status.link = Link::Gone;
-        self.status.notice = Some(match error {
-            ClientError::Closed {
-                reason: Some(r), ..
-            } if !r.is_empty() => {
-                format!("daemon at {} gone ({r}): retrying", self.addr)
-            }
-            _ => format!("daemon at {} gone: retrying", self.addr),
-        });
+        self.status.notice = Some(format!("daemon at {} gone: retrying", self.addr));
         self.notice_until = None;
         self.next_attempt = Instant::now() + RETRY;
         self.dirty = true;
@@ -616,8 +609,14 @@ impl App {
                     self.dirty = true;
                 }
                 Err(e) => {
-                    if self.was_connected {
-                        self.lost(&e);
+                    let away = matches!(
+                        e,
+                        ClientError::NoDaemon { .. }
+                            | ClientError::Connect { .. }
+                            | ClientError::Closed { reason: None, .. }
+                    );
+                    if self.was_connected && away {
+                        self.lost();
                     } else {
                         let text = match &e {
                             ClientError::NoDaemon { .. } => {
@@ -667,15 +666,8 @@ impl App {
         for one in incoming {
             self.take_incoming(one);
         }
-        if let Some(e) = error {
-            self.lost(&e);
-            return;
-        }
-        if closed {
-            self.lost(&ClientError::Closed {
-                addr: self.addr.clone(),
-                reason: None,
-            });
+        if error.is_some() || closed {
+            self.lost();
             return;
         }
         let nobody = self
