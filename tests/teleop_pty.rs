@@ -1,6 +1,7 @@
 //! `snakectl teleop` on a real pseudo-terminal, its screen read back through a terminal
 //! emulator: with `--sim` the arm appears, an arrow key moves the tip for one hold and then it
-//! rests, `q` quits with the terminal given back as it was; with `--connect` it names another
+//! rests, a click sends it to the point under the mouse, `q` quits with the terminal given
+//! back as it was; with `--connect` it names another
 //! client in control, takes control back on `c`, outlives its daemon and finds a new one.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -17,6 +18,7 @@ use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
 use snakectl::protocol::Cmd;
+use snakectl::teleop::ui;
 use snakectl_sim::{RealClock, SimHandle};
 
 /// Bound on waiting for anything; reached only when the test fails.
@@ -175,7 +177,7 @@ fn field<'a>(text: &'a str, label: &str) -> Option<&'a str> {
 }
 
 #[test]
-fn an_arrow_moves_the_tip_for_one_hold_and_q_gives_the_terminal_back() {
+fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
     let dir = tempfile::tempdir().unwrap();
     let config = config(dir.path());
     let mut ui = Ui::start(&["--sim".as_ref(), config.as_os_str()]);
@@ -238,6 +240,37 @@ fn an_arrow_moves_the_tip_for_one_hold_and_q_gives_the_terminal_back() {
             status.tip_meas
         );
     }
+
+    // A click on the canvas sends the tip to the point under it (an SGR mouse press and
+    // release, as a terminal reports them with mouse capture on).
+    let arm = client.describe().unwrap();
+    let screen = ratatui::layout::Rect::new(0, 0, COLS, ROWS);
+    let (col, row) = (30, 12);
+    let target = ui::click_to_world(&arm, screen, col, row).unwrap();
+    assert!(
+        (target[0] - end[0]).hypot(target[1] - end[1]) > 0.1,
+        "{target:?} is too close to the tip"
+    );
+    ui.send(
+        format!(
+            "\x1b[<0;{};{}M\x1b[<0;{};{}m",
+            col + 1,
+            row + 1,
+            col + 1,
+            row + 1
+        )
+        .as_bytes(),
+    );
+    let text = ui.wait_for("the tip at the clicked point", |t| {
+        field(t, "state") == Some("holding")
+            && tip(t).is_some_and(|p| (p[0] - target[0]).hypot(p[1] - target[1]) < 0.005)
+    });
+    let status = client.status().unwrap();
+    assert!(
+        (status.tip_meas[0] - target[0]).hypot(status.tip_meas[1] - target[1]) < 0.005,
+        "clicked {target:?}, the daemon has the tip at {:?}\n{text}",
+        status.tip_meas
+    );
     drop(client);
 
     ui.send(b"q");
