@@ -149,10 +149,19 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
         // Brings the arm to rest and leaves the servos as `[bus] on_exit` says.
         let stopped = embedded.stop();
         drop(sim);
-        if outcome.is_ok() {
-            stopped
-                .context("stopping the daemon")
-                .map_err(Failure::other)?;
+        match (&outcome, stopped) {
+            (_, Ok(_)) => {}
+            (Ok(()), Err(e)) => {
+                return Err(Failure::other(
+                    anyhow::Error::new(e).context("stopping the daemon"),
+                ))
+            }
+            // Why the daemon stopped is the news, not that the UI noticed it.
+            (Err(noticed), Err(e)) => {
+                return Err(Failure::other(
+                    anyhow::Error::new(e).context(noticed.to_string()),
+                ))
+            }
         }
     }
     outcome.map_err(Failure::other)
@@ -411,7 +420,8 @@ impl App {
             .into_iter()
             .flatten()
         {
-            let left = Duration::from_secs_f64((deadline - now_s).clamp(0.0, 1.0));
+            let left = Duration::try_from_secs_f64((deadline - now_s).clamp(0.0, 1.0))
+                .unwrap_or(Duration::ZERO);
             timeout = timeout.min(left);
         }
         if self.dirty {
