@@ -185,6 +185,14 @@ impl Hold {
 }
 
 /// The keyboard's hold-to-move state.
+///
+/// Arrows and `w`/`a`/`s`/`d` move the tip in the world frame (right +x, up +y). Without
+/// release reports a hold lasts [`HOLD_FIRST_S`] from its first press and
+/// [`HOLD_AFTER_REPEAT_S`] past its last repeat, whichever is later; with them, until the
+/// release. With release reports two held keys combine: on each axis the later pressed of two
+/// opposite keys wins, and a diagonal goes at the same speed as a straight move. Letters are
+/// taken in either case. A hold that starts without control, or loses it, stays silent to its
+/// end even if control comes back: motion starts only from a press made in control.
 #[derive(Debug, Clone)]
 pub struct Keyboard {
     speed_m_s: f64,
