@@ -141,6 +141,31 @@ impl Ui {
         }
     }
 
+    /// Polls until the arm is at rest: holding, and the tip shown unchanged for half a
+    /// second; that tip.
+    fn wait_rest(&mut self) -> [f64; 2] {
+        let deadline = Instant::now() + DEADLINE;
+        let mut last = (tip(&self.contents()), Instant::now());
+        loop {
+            let text = self.contents();
+            let now = tip(&text);
+            if now != last.0 {
+                last = (now, Instant::now());
+            } else if field(&text, "state") == Some("holding")
+                && last.1.elapsed() >= Duration::from_millis(500)
+            {
+                if let Some(tip) = now {
+                    return tip;
+                }
+            }
+            assert!(
+                Instant::now() < deadline,
+                "the tip never came to rest:\n{text}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// The terminal's local mode flags (`c_lflag`).
     fn local_flags(&self) -> u32 {
         let termios = self.master.get_termios().expect("the pty's termios");
@@ -203,25 +228,7 @@ fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
     ui.wait_for("the tip moving right", |t| {
         tip(t).is_some_and(|p| p[0] > start[0] + 0.005)
     });
-    // At rest: holding, and the tip shown unchanged for half a second.
-    let deadline = Instant::now() + DEADLINE;
-    let mut last = (tip(&ui.contents()), Instant::now());
-    let end = loop {
-        let text = ui.contents();
-        let now = tip(&text);
-        if now != last.0 {
-            last = (now, Instant::now());
-        } else if field(&text, "state") == Some("holding")
-            && last.1.elapsed() >= Duration::from_millis(500)
-        {
-            break now.unwrap();
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the tip never came to rest:\n{text}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let end = ui.wait_rest();
     let dx = end[0] - start[0];
     assert!(
         (0.01..0.04).contains(&dx),
@@ -370,4 +377,83 @@ fn the_ui_outlives_its_daemon_and_takes_control_back_when_asked() {
     // Ctrl-C (a key in raw mode) quits as q does.
     ui.send(b"\x03");
     ui.quits_giving_the_terminal_back("Ctrl-C");
+}
+
+/// One Linux `js_event`: time (ms), value, type (1 button, 2 axis, | 0x80 initial state),
+/// number.
+fn js_event(time_ms: u32, value: i16, kind: u8, number: u8) -> [u8; 8] {
+    let mut bytes = [0u8; 8];
+    bytes[..4].copy_from_slice(&time_ms.to_le_bytes());
+    bytes[4..6].copy_from_slice(&value.to_le_bytes());
+    bytes[6] = kind;
+    bytes[7] = number;
+    bytes
+}
+
+#[test]
+fn the_stick_moves_the_tip_only_while_the_deadman_is_held() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    // A FIFO named like a joystick device stands in for one.
+    let device = dir.path().join("js0");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&device)
+        .status()
+        .unwrap();
+    assert!(made.success(), "mkfifo failed");
+    let mut ui = Ui::start(&[
+        "--sim".as_ref(),
+        config.as_os_str(),
+        "--joystick".as_ref(),
+        device.as_os_str(),
+        "--deadman-button".as_ref(),
+        "5".as_ref(),
+    ]);
+    // Opening the writing end waits for the reader: on a thread, so a reader that never
+    // opens fails the test instead of hanging it.
+    let (opened, pad) = mpsc::channel();
+    {
+        let device = device.clone();
+        std::thread::spawn(move || {
+            let _ = opened.send(std::fs::OpenOptions::new().write(true).open(device));
+        });
+    }
+    let mut pad = pad
+        .recv_timeout(DEADLINE)
+        .expect("teleop opens the device")
+        .unwrap();
+    let mut write = |events: &[[u8; 8]]| {
+        for event in events {
+            pad.write_all(event).unwrap();
+        }
+        pad.flush().unwrap();
+    };
+    // The state on open: buttons up, stick centred.
+    let mut init: Vec<[u8; 8]> = (0..8).map(|b| js_event(0, 0, 0x81, b)).collect();
+    init.extend([js_event(0, 0, 0x82, 0), js_event(0, 0, 0x82, 1)]);
+    write(&init);
+    let text = ui.wait_for("the stick connected, the arm at rest, in control", |t| {
+        t.contains("connected (js0), deadman 5")
+            && field(t, "state") == Some("holding")
+            && field(t, "control") == Some("you")
+    });
+    let start = tip(&text).unwrap();
+
+    // The stick pushed full right, then the deadman pressed: the tip goes right.
+    write(&[js_event(100, 32767, 2, 0)]);
+    write(&[js_event(900, 1, 1, 5)]);
+    ui.wait_for("the tip moving right", |t| {
+        tip(t).is_some_and(|p| p[0] > start[0] + 0.01)
+    });
+    // Released: it stops, though the stick is still pushed.
+    write(&[js_event(1500, 0, 1, 5)]);
+    let stopped = ui.wait_rest();
+    assert!(stopped[0] > start[0] + 0.01, "{start:?} -> {stopped:?}");
+    assert!(
+        (stopped[1] - start[1]).abs() < 0.01,
+        "{start:?} -> {stopped:?}"
+    );
+
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
 }

@@ -129,7 +129,11 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
             joystick::spawn(device, tx)
                 .context("starting the joystick reader")
                 .map_err(Failure::other)?;
-            Some((name.clone(), rx))
+            // The panel is narrow: the device's file name says enough.
+            let short = std::path::Path::new(name)
+                .file_name()
+                .map_or_else(|| name.clone(), |f| f.to_string_lossy().into_owned());
+            Some((short, rx))
         }
         None => None,
     };
@@ -310,7 +314,7 @@ impl App {
     ) -> Self {
         let joystick = stick_events
             .as_ref()
-            .map(|(name, _)| format!("{name}: opening"));
+            .map(|(name, _)| format!("opening {name}"));
         let now = Instant::now();
         Self {
             status: Status {
@@ -753,7 +757,7 @@ impl App {
             }
         }
         if reader_gone {
-            self.status.joystick = Some(format!("{name}: reader stopped"));
+            self.status.joystick = Some(format!("reader stopped ({name})"));
             self.stick_events = None;
             self.dirty = true;
         }
@@ -762,13 +766,13 @@ impl App {
             match event {
                 StickEvent::Connected => {
                     self.status.joystick = Some(format!(
-                        "{name}: connected (deadman button {})",
+                        "connected ({name}), deadman {}",
                         self.stick.deadman_button()
                     ));
                     self.dirty = true;
                 }
                 StickEvent::Disconnected => {
-                    self.status.joystick = Some(format!("{name}: gone: retrying"));
+                    self.status.joystick = Some(format!("gone ({name}): retrying"));
                     self.dirty = true;
                 }
                 _ => {}
