@@ -145,7 +145,11 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
                 app.keyboard.set_releases_reported(screen.releases_reported);
                 app.run(&mut screen, embedded)
             }
-            Err(e) => Err(e),
+            Err(e) => {
+                // Whatever part of the set-up was done is undone.
+                restore_terminal();
+                Err(e)
+            }
         }
         // The screen is restored here, before the daemon is stopped.
     };
