@@ -1,8 +1,40 @@
 //! `snakectl teleop`: steer the tip from the keyboard or a joystick, the arm drawn live.
+//!
+//! One loop owns the terminal: it reads keys and clicks, turns them (and the joystick's
+//! events) into requests through `teleop::input`, sends them without waiting for replies,
+//! and redraws from the latest telemetry at most ~30 times a second. Connecting happens on a
+//! thread of its own, so the screen stays alive (and `q` quits) while the daemon is away.
 
+use std::collections::VecDeque;
+use std::io::Stdout;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver, TryRecvError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
+use anyhow::Context as _;
 use clap::Args;
+use crossterm::event::{
+    self, DisableMouseCapture, EnableMouseCapture, Event, KeyCode, KeyEvent, KeyEventKind,
+    KeyModifiers, KeyboardEnhancementFlags, MouseButton, MouseEventKind,
+    PopKeyboardEnhancementFlags, PushKeyboardEnhancementFlags,
+};
+use crossterm::terminal::{self, EnterAlternateScreen, LeaveAlternateScreen};
+use ratatui::backend::CrosstermBackend;
+use ratatui::layout::Rect;
+use ratatui::Terminal;
+
+use snakectl::client::{self, ArmInfo, Client, ClientError, Incoming, Snapshot};
+use snakectl::config::Config;
+use snakectl::connect;
+use snakectl::daemon::{Embedded, RunOptions};
+use snakectl::protocol::Cmd;
+use snakectl::resolve::Strategy;
+use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
+use snakectl::teleop::joystick::{self, Device, Stick, StickEvent};
+use snakectl::teleop::ui::{self, Link, Status, Trail, View};
+use snakectl_sim::RealClock;
 
 use super::Failure;
 
@@ -28,7 +60,743 @@ pub struct TeleopArgs {
     pub token_file: Option<PathBuf>,
 }
 
-/// Runs the UI until `q`.
-pub fn run(_args: TeleopArgs) -> Result<(), Failure> {
-    Err(Failure::other(anyhow::anyhow!("not yet")))
+/// Telemetry lines a second the UI asks for.
+const TELEMETRY_HZ: f64 = 30.0;
+
+/// The shortest time between two frames.
+const FRAME: Duration = Duration::from_millis(33);
+
+/// The longest wait for input: the loop looks at telemetry and replies at least this often.
+const MAX_POLL: Duration = Duration::from_millis(50);
+
+/// How often a lost daemon is tried again.
+const RETRY: Duration = Duration::from_secs(1);
+
+/// How long a notice stays on screen.
+const NOTICE_FOR: Duration = Duration::from_secs(5);
+
+/// Measured tips kept for the trail.
+const TRAIL_POINTS: usize = 2000;
+
+/// Requests whose replies are still awaited, remembered to name a refusal.
+const PENDING: usize = 64;
+
+/// Joystick events waiting for the loop.
+const STICK_QUEUE: usize = 256;
+
+/// Replies and events read in one pass of the loop, at most.
+const DRAIN: usize = 1024;
+
+/// Runs the UI until `q` (or Ctrl-C).
+pub fn run(args: TeleopArgs) -> Result<(), Failure> {
+    // Nothing is logged: a log line would garble the screen.
+    let mut local = None;
+    let (addr, token_file) = match &args.sim {
+        Some(path) => {
+            let config = Config::load(path).map_err(Failure::bad_input)?;
+            let sim =
+                connect::spawn_sim(&config, Arc::new(RealClock)).map_err(Failure::bad_input)?;
+            let listen = config.server().listen;
+            let token_file = args
+                .token_file
+                .clone()
+                .or_else(|| config.server().token_file.clone());
+            let options = RunOptions {
+                port: Some(sim.path().to_path_buf()),
+            };
+            let embedded = Embedded::start(config, listen, options)
+                .with_context(|| format!("starting the daemon on {listen}"))
+                .map_err(Failure::other)?;
+            let addr = embedded.addr().to_string();
+            local = Some((embedded, sim));
+            (addr, token_file)
+        }
+        None => (
+            args.connect
+                .clone()
+                .unwrap_or_else(|| client::DEFAULT_ADDR.to_owned()),
+            args.token_file.clone(),
+        ),
+    };
+    let stick = match &args.joystick {
+        Some(name) => {
+            let device = if name == "auto" {
+                Device::Auto
+            } else {
+                Device::Path(PathBuf::from(name))
+            };
+            let (tx, rx) = mpsc::sync_channel(STICK_QUEUE);
+            joystick::spawn(device, tx)
+                .context("starting the joystick reader")
+                .map_err(Failure::other)?;
+            // The panel is narrow: the device's file name says enough.
+            let short = std::path::Path::new(name)
+                .file_name()
+                .map_or_else(|| name.clone(), |f| f.to_string_lossy().into_owned());
+            Some((short, rx))
+        }
+        None => None,
+    };
+    let outcome = {
+        let embedded = local.as_ref().map(|(embedded, _)| embedded);
+        let mut app = App::new(addr, token_file, args.deadman_button, stick);
+        match Screen::enter() {
+            Ok(mut screen) => {
+                app.keyboard.set_releases_reported(screen.releases_reported);
+                app.run(&mut screen, embedded)
+            }
+            Err(e) => {
+                // Whatever part of the set-up was done is undone.
+                restore_terminal();
+                Err(e)
+            }
+        }
+        // The screen is restored here, before the daemon is stopped.
+    };
+    if let Some((embedded, sim)) = local {
+        // Brings the arm to rest and leaves the servos as `[bus] on_exit` says.
+        let stopped = embedded.stop();
+        drop(sim);
+        match (&outcome, stopped) {
+            (_, Ok(_)) => {}
+            (Ok(()), Err(e)) => {
+                return Err(Failure::other(
+                    anyhow::Error::new(e).context("stopping the daemon"),
+                ))
+            }
+            // Why the daemon stopped is the news, not that the UI noticed it.
+            (Err(noticed), Err(e)) => {
+                return Err(Failure::other(
+                    anyhow::Error::new(e).context(noticed.to_string()),
+                ))
+            }
+        }
+    }
+    outcome.map_err(Failure::other)
+}
+
+/// Whether the terminal is in the UI's modes, for the panic hook and the guard.
+static ACTIVE: AtomicBool = AtomicBool::new(false);
+/// Whether keyboard enhancement flags were pushed.
+static ENHANCED: AtomicBool = AtomicBool::new(false);
+
+/// Leaves raw mode, the alternate screen, mouse capture and the kitty flags, and shows the
+/// cursor; once, however often it is called.
+fn restore_terminal() {
+    if !ACTIVE.swap(false, Ordering::SeqCst) {
+        return;
+    }
+    let mut out = std::io::stdout();
+    if ENHANCED.swap(false, Ordering::SeqCst) {
+        let _ = crossterm::execute!(out, PopKeyboardEnhancementFlags);
+    }
+    let _ = crossterm::execute!(
+        out,
+        DisableMouseCapture,
+        LeaveAlternateScreen,
+        crossterm::cursor::Show
+    );
+    let _ = terminal::disable_raw_mode();
+}
+
+/// The terminal in the UI's modes; restored when dropped (also on an error return), and by
+/// the panic hook before a panic's message is printed.
+struct Screen {
+    terminal: Terminal<CrosstermBackend<Stdout>>,
+    releases_reported: bool,
+}
+
+impl Screen {
+    fn enter() -> anyhow::Result<Self> {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            restore_terminal();
+            previous(info);
+        }));
+        terminal::enable_raw_mode().context("putting the terminal in raw mode")?;
+        ACTIVE.store(true, Ordering::SeqCst);
+        // From here on an early return drops the screen, which restores the terminal.
+        let mut screen = Screen {
+            terminal: Terminal::new(CrosstermBackend::new(std::io::stdout()))
+                .context("opening the terminal")?,
+            releases_reported: false,
+        };
+        crossterm::execute!(
+            std::io::stdout(),
+            EnterAlternateScreen,
+            EnableMouseCapture,
+            crossterm::cursor::Hide
+        )
+        .context("setting up the terminal")?;
+        // No answer within its wait (2 s) counts as no.
+        if terminal::supports_keyboard_enhancement().unwrap_or(false) {
+            crossterm::execute!(
+                std::io::stdout(),
+                PushKeyboardEnhancementFlags(KeyboardEnhancementFlags::REPORT_EVENT_TYPES)
+            )
+            .context("setting up the terminal")?;
+            ENHANCED.store(true, Ordering::SeqCst);
+            screen.releases_reported = true;
+        }
+        screen.terminal.clear().context("clearing the screen")?;
+        Ok(screen)
+    }
+}
+
+impl Drop for Screen {
+    fn drop(&mut self) {
+        restore_terminal();
+    }
+}
+
+/// A connection being made on its own thread: the client, subscribed, and the arm.
+type Connecting = Receiver<Result<(Client, ArmInfo), ClientError>>;
+
+/// Connects, describes and subscribes on a thread, so that the loop never waits for it.
+fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
+    let (tx, rx) = mpsc::sync_channel(1);
+    let addr = addr.to_owned();
+    let spawned = std::thread::Builder::new()
+        .name("snakectl-teleop-connect".into())
+        .spawn({
+            let tx = tx.clone();
+            move || {
+                let attempt = || -> Result<(Client, ArmInfo), ClientError> {
+                    let mut client = Client::connect_with(&addr, token_file.as_deref())?;
+                    let arm = client.describe()?;
+                    client.request(&Cmd::Subscribe {
+                        rate_hz: TELEMETRY_HZ,
+                    })?;
+                    Ok((client, arm))
+                };
+                let _ = tx.send(attempt());
+            }
+        });
+    if let Err(source) = spawned {
+        let _ = tx.send(Err(ClientError::Connect {
+            addr: "a new thread".into(),
+            source,
+        }));
+    }
+    rx
+}
+
+/// The UI's state between frames.
+struct App {
+    addr: String,
+    token_file: Option<PathBuf>,
+    started: Instant,
+    arm: ArmInfo,
+    snapshot: Option<Snapshot>,
+    trail: Trail,
+    status: Status,
+    /// Until when the notice shows (`None`: while the condition lasts).
+    notice_until: Option<Instant>,
+    keyboard: Keyboard,
+    stick: Stick,
+    stick_events: Option<(String, Receiver<StickEvent>)>,
+    client: Option<Client>,
+    connecting: Option<Connecting>,
+    next_attempt: Instant,
+    /// Whether the daemon was ever reached (a lost one is "gone", a missing one "not there").
+    was_connected: bool,
+    pending: VecDeque<(u64, &'static str)>,
+    my_id: Option<u64>,
+    last_take: Option<Instant>,
+    screen_area: Rect,
+    dirty: bool,
+    last_frame: Option<Instant>,
+    actions: Vec<Action>,
+}
+
+impl App {
+    fn new(
+        addr: String,
+        token_file: Option<PathBuf>,
+        deadman_button: u8,
+        stick_events: Option<(String, Receiver<StickEvent>)>,
+    ) -> Self {
+        let joystick = stick_events
+            .as_ref()
+            .map(|(name, _)| format!("opening {name}"));
+        let now = Instant::now();
+        Self {
+            status: Status {
+                addr: addr.clone(),
+                link: Link::Connecting,
+                speed_m_s: DEFAULT_SPEED_M_S,
+                joystick,
+                notice: None,
+            },
+            addr,
+            token_file,
+            started: now,
+            arm: ArmInfo::default(),
+            snapshot: None,
+            trail: Trail::new(TRAIL_POINTS),
+            notice_until: None,
+            keyboard: Keyboard::new(DEFAULT_SPEED_M_S),
+            stick: Stick::new(deadman_button),
+            stick_events,
+            client: None,
+            connecting: None,
+            next_attempt: now,
+            was_connected: false,
+            pending: VecDeque::with_capacity(PENDING),
+            my_id: None,
+            last_take: None,
+            screen_area: Rect::default(),
+            dirty: true,
+            last_frame: None,
+            actions: Vec::new(),
+        }
+    }
+
+    fn now_s(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    /// Whether this client may command the arm now.
+    fn in_control(&self) -> bool {
+        self.client.is_some() && self.snapshot.as_ref().is_some_and(|s| s.in_control)
+    }
+
+    fn notice(&mut self, text: String) {
+        self.status.notice = Some(text);
+        self.notice_until = Some(Instant::now() + NOTICE_FOR);
+        self.dirty = true;
+    }
+
+    /// Until `q`: `Ok` on a quit, `Err` when the terminal fails or the local daemon dies.
+    fn run(&mut self, screen: &mut Screen, embedded: Option<&Embedded>) -> anyhow::Result<()> {
+        loop {
+            if embedded.is_some_and(|e| !e.is_running()) {
+                anyhow::bail!("the daemon this UI started has stopped");
+            }
+            self.keep_connected();
+            self.read_daemon();
+            self.read_stick();
+            let now_s = self.now_s();
+            let in_control = self.in_control();
+            let mut actions = std::mem::take(&mut self.actions);
+            self.keyboard.tick(now_s, in_control, &mut actions);
+            let speed = self.keyboard.speed_m_s();
+            self.stick.tick(now_s, speed, in_control, &mut actions);
+            let quit = self.execute(&mut actions);
+            self.actions = actions;
+            if quit {
+                return Ok(());
+            }
+            self.expire_notice();
+            self.draw(screen)?;
+            if self.wait_input(screen)? {
+                return Ok(());
+            }
+        }
+    }
+
+    fn draw(&mut self, screen: &mut Screen) -> anyhow::Result<()> {
+        if !self.dirty || self.last_frame.is_some_and(|t| t.elapsed() < FRAME) {
+            return Ok(());
+        }
+        self.status.speed_m_s = self.keyboard.speed_m_s();
+        let view = View {
+            arm: &self.arm,
+            snapshot: self.snapshot.as_ref(),
+            trail: &self.trail,
+            status: &self.status,
+        };
+        let mut area = self.screen_area;
+        screen
+            .terminal
+            .draw(|frame| {
+                area = frame.area();
+                ui::draw(frame, &view);
+            })
+            .context("drawing the screen")?;
+        self.screen_area = area;
+        self.dirty = false;
+        self.last_frame = Some(Instant::now());
+        Ok(())
+    }
+
+    /// Waits for input up to the next thing to do; handles what came. `true`: quit.
+    fn wait_input(&mut self, screen: &mut Screen) -> anyhow::Result<bool> {
+        let now_s = self.now_s();
+        let mut timeout = MAX_POLL;
+        for deadline in [self.keyboard.next_deadline(), self.stick.next_deadline()]
+            .into_iter()
+            .flatten()
+        {
+            let left = Duration::try_from_secs_f64((deadline - now_s).clamp(0.0, 1.0))
+                .unwrap_or(Duration::ZERO);
+            timeout = timeout.min(left);
+        }
+        if self.dirty {
+            if let Some(last) = self.last_frame {
+                timeout = timeout.min(FRAME.saturating_sub(last.elapsed()));
+            }
+        }
+        let mut wait = timeout;
+        while event::poll(wait).context("reading the terminal")? {
+            wait = Duration::ZERO;
+            let event = event::read().context("reading the terminal")?;
+            if self.handle(event, screen) {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// One terminal event. `true`: quit.
+    fn handle(&mut self, event: Event, screen: &mut Screen) -> bool {
+        match event {
+            Event::Key(key) => self.handle_key(key),
+            Event::Mouse(mouse) => {
+                if mouse.kind == MouseEventKind::Down(MouseButton::Left) {
+                    self.click(mouse.column, mouse.row);
+                }
+                false
+            }
+            Event::Resize(cols, rows) => {
+                self.screen_area = Rect::new(0, 0, cols, rows);
+                let _ = screen.terminal.autoresize();
+                self.dirty = true;
+                false
+            }
+            _ => false,
+        }
+    }
+
+    fn handle_key(&mut self, event: KeyEvent) -> bool {
+        let ctrl_c = event.code == KeyCode::Char('c') && event.modifiers == KeyModifiers::CONTROL;
+        let kind = match event.kind {
+            KeyEventKind::Press => KeyKind::Press,
+            KeyEventKind::Repeat => KeyKind::Repeat,
+            KeyEventKind::Release => KeyKind::Release,
+        };
+        let key = if ctrl_c {
+            Key::Char('q')
+        } else {
+            match event.code {
+                KeyCode::Up | KeyCode::Char('w') => Key::Up,
+                KeyCode::Down | KeyCode::Char('s') => Key::Down,
+                KeyCode::Left | KeyCode::Char('a') => Key::Left,
+                KeyCode::Right | KeyCode::Char('d') => Key::Right,
+                KeyCode::Char(' ') => Key::Space,
+                KeyCode::Tab => Key::Tab,
+                KeyCode::Char(c) => Key::Char(c),
+                // A modifier on its own is no key.
+                KeyCode::Modifier(_) => return false,
+                _ => Key::Other,
+            }
+        };
+        let motion = matches!(key, Key::Up | Key::Down | Key::Left | Key::Right);
+        // Only a motion key's release means anything: it ends that key's hold.
+        if kind == KeyKind::Release && !motion {
+            return false;
+        }
+        let quit = key == Key::Char('q') && kind == KeyKind::Press;
+        let mut actions = std::mem::take(&mut self.actions);
+        let now_s = self.now_s();
+        let in_control = self.in_control();
+        self.keyboard
+            .key(key, kind, now_s, in_control, &mut actions);
+        let asked = self.execute(&mut actions);
+        self.actions = actions;
+        self.dirty = true;
+        asked || quit
+    }
+
+    fn click(&mut self, column: u16, row: u16) {
+        let Some(target) = ui::click_to_world(&self.arm, self.screen_area, column, row) else {
+            return;
+        };
+        if self.in_control() {
+            self.send(&Cmd::Goto {
+                target,
+                speed: None,
+            });
+        } else {
+            self.notice("not in control: press c to take it".to_owned());
+        }
+    }
+
+    /// Sends each action; `true` when one is Quit (after the ones before it went out).
+    fn execute(&mut self, actions: &mut Vec<Action>) -> bool {
+        let mut quit = false;
+        for action in actions.drain(..) {
+            let cmd = match action {
+                Action::Quit => {
+                    quit = true;
+                    break;
+                }
+                Action::Velocity(v) => Cmd::Velocity { v },
+                Action::Stop => Cmd::Stop,
+                Action::Estop => Cmd::Estop,
+                Action::Reset => Cmd::Reset,
+                Action::Home => Cmd::Home,
+                Action::TakeControl => Cmd::TakeControl,
+                Action::ToggleTorque => match &self.snapshot {
+                    Some(s) => Cmd::Torque { on: !s.torque },
+                    None => continue,
+                },
+                Action::NextStrategy => match self.next_strategy() {
+                    Some(name) => Cmd::Strategy { name },
+                    None => continue,
+                },
+            };
+            self.send(&cmd);
+            self.dirty = true;
+        }
+        actions.clear();
+        quit
+    }
+
+    /// The strategy after the present one in `describe`'s list.
+    fn next_strategy(&mut self) -> Option<Strategy> {
+        let current = self.snapshot.as_ref().map(|s| s.strategy.as_str())?;
+        let list = &self.arm.strategies;
+        let at = list.iter().position(|s| s == current);
+        let next = match at {
+            Some(i) => list.get((i + 1) % list.len()),
+            None => list.first(),
+        }?
+        .clone();
+        let found = [Strategy::Overall, Strategy::Sequential]
+            .into_iter()
+            .find(|s| s.name() == next);
+        if found.is_none() {
+            self.notice(format!("strategy `{next}` is unknown to this client"));
+        }
+        found
+    }
+
+    /// Sends `cmd` without waiting for its reply.
+    fn send(&mut self, cmd: &Cmd) {
+        let Some(client) = self.client.as_mut() else {
+            return;
+        };
+        match client.send(cmd) {
+            Ok(id) => {
+                if self.pending.len() == PENDING {
+                    self.pending.pop_front();
+                }
+                self.pending.push_back((id, cmd.name()));
+            }
+            Err(_) => self.lost(),
+        }
+    }
+
+    /// The connection is gone: tell, and try again in a second.
+    fn lost(&mut self) {
+        self.client = None;
+        self.pending.clear();
+        self.status.link = Link::Gone;
+        self.status.notice = Some(format!("daemon at {} gone: retrying", self.addr));
+        self.notice_until = None;
+        self.next_attempt = Instant::now() + RETRY;
+        self.dirty = true;
+    }
+
+    /// Starts a connection when none is there or under way, and takes the one made.
+    fn keep_connected(&mut self) {
+        if self.client.is_some() {
+            return;
+        }
+        if let Some(rx) = &self.connecting {
+            let result = match rx.try_recv() {
+                Ok(result) => result,
+                Err(TryRecvError::Empty) => return,
+                Err(TryRecvError::Disconnected) => Err(ClientError::Closed {
+                    addr: self.addr.clone(),
+                    reason: None,
+                }),
+            };
+            self.connecting = None;
+            match result {
+                Ok((client, arm)) => {
+                    self.client = Some(client);
+                    self.arm = arm;
+                    self.was_connected = true;
+                    self.status.link = Link::Connected;
+                    self.status.notice = None;
+                    self.notice_until = None;
+                    self.my_id = None;
+                    self.last_take = None;
+                    self.dirty = true;
+                }
+                Err(e) => {
+                    let away = matches!(
+                        e,
+                        ClientError::NoDaemon { .. }
+                            | ClientError::Connect { .. }
+                            | ClientError::Closed { reason: None, .. }
+                    );
+                    if self.was_connected && away {
+                        self.lost();
+                    } else {
+                        let text = match &e {
+                            ClientError::NoDaemon { .. } => {
+                                format!("no daemon at {}: retrying", self.addr)
+                            }
+                            other => format!("{other}: retrying"),
+                        };
+                        self.status.notice = Some(text);
+                        self.notice_until = None;
+                        self.next_attempt = Instant::now() + RETRY;
+                        self.dirty = true;
+                    }
+                }
+            }
+            return;
+        }
+        if Instant::now() >= self.next_attempt {
+            self.connecting = Some(start_connecting(&self.addr, self.token_file.clone()));
+        }
+    }
+
+    /// The newest telemetry, the replies and events that came; takes control when nobody
+    /// holds it.
+    fn read_daemon(&mut self) {
+        let Some(client) = self.client.as_mut() else {
+            return;
+        };
+        if let Some(telemetry) = client.telemetry() {
+            let snapshot = telemetry.snapshot.clone();
+            self.trail.push(snapshot.tip_meas);
+            self.snapshot = Some(snapshot);
+            self.dirty = true;
+        }
+        let mut incoming = Vec::new();
+        let mut error = None;
+        for _ in 0..DRAIN {
+            match client.next(Duration::ZERO) {
+                Ok(Some(one)) => incoming.push(one),
+                Ok(None) => break,
+                Err(e) => {
+                    error = Some(e);
+                    break;
+                }
+            }
+        }
+        let closed = client.is_closed();
+        for one in incoming {
+            self.take_incoming(one);
+        }
+        if error.is_some() || closed {
+            self.lost();
+            return;
+        }
+        let nobody = self
+            .snapshot
+            .as_ref()
+            .is_some_and(|s| s.controller.is_none());
+        if nobody && self.last_take.is_none_or(|t| t.elapsed() >= RETRY) {
+            self.last_take = Some(Instant::now());
+            self.send(&Cmd::TakeControl);
+        }
+    }
+
+    fn take_incoming(&mut self, incoming: Incoming) {
+        match incoming {
+            Incoming::Reply(reply) => {
+                let id = reply.id.as_u64();
+                let name = match self.pending.iter().position(|(p, _)| Some(*p) == id) {
+                    Some(at) => self.pending.remove(at).map(|(_, name)| name),
+                    None => None,
+                };
+                match reply.result {
+                    Ok(fields) => {
+                        if name == Some("take_control") {
+                            if let Some(me) = fields.get("client").and_then(|v| v.as_u64()) {
+                                self.my_id = Some(me);
+                            }
+                        }
+                    }
+                    Err((code, message)) => {
+                        let name = name.unwrap_or("request");
+                        self.notice(format!("`{name}` refused: {code}: {message}"));
+                    }
+                }
+            }
+            Incoming::Event(event) => match event.event.as_str() {
+                "control" => {
+                    let mine = self.my_id.is_some() && event.previous == self.my_id;
+                    if mine && event.holder != self.my_id {
+                        let text = match event.holder {
+                            Some(n) => format!("client {n} took control: press c to take it"),
+                            None => "control released".to_owned(),
+                        };
+                        self.notice(text);
+                    }
+                }
+                "estop" => self.notice("estop: press r to reset".to_owned()),
+                "fault" | "warning" => {
+                    if let Some(fault) = &event.fault {
+                        let why = event.reason.as_deref().unwrap_or("raised");
+                        self.notice(format!("{} {why}: {fault}", event.event));
+                    }
+                }
+                _ => {}
+            },
+        }
+    }
+
+    fn read_stick(&mut self) {
+        let Some((name, rx)) = &self.stick_events else {
+            return;
+        };
+        let name = name.clone();
+        let mut events = Vec::new();
+        let mut reader_gone = false;
+        while events.len() < STICK_QUEUE {
+            match rx.try_recv() {
+                Ok(event) => events.push(event),
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => {
+                    reader_gone = true;
+                    break;
+                }
+            }
+        }
+        if reader_gone {
+            self.status.joystick = Some(format!("reader stopped ({name})"));
+            self.stick_events = None;
+            self.dirty = true;
+        }
+        let mut actions = std::mem::take(&mut self.actions);
+        for event in events {
+            match event {
+                StickEvent::Connected => {
+                    self.status.joystick = Some(format!(
+                        "connected ({name}), deadman {}",
+                        self.stick.deadman_button()
+                    ));
+                    self.dirty = true;
+                }
+                StickEvent::Disconnected => {
+                    self.status.joystick = Some(format!("gone ({name}): retrying"));
+                    self.dirty = true;
+                }
+                _ => {}
+            }
+            let now_s = self.now_s();
+            let speed = self.keyboard.speed_m_s();
+            let in_control = self.in_control();
+            self.stick
+                .event(event, now_s, speed, in_control, &mut actions);
+        }
+        // A stick asks for no quit; any that came is dropped.
+        self.execute(&mut actions);
+        self.actions = actions;
+    }
+
+    fn expire_notice(&mut self) {
+        if self.notice_until.is_some_and(|t| Instant::now() >= t) {
+            self.status.notice = None;
+            self.notice_until = None;
+            self.dirty = true;
+        }
+    }
 }

@@ -1,2 +1,528 @@
 //! The teleop screen: the arm drawn from `describe` and telemetry, its state beside it, a
 //! key-help line; onto any ratatui backend.
+//!
+//! The canvas is in world coordinates with the same scale on both axes (a terminal cell is
+//! about twice as tall as wide, a braille cell 2x4 dots), so the arm keeps its shape and a
+//! click on the canvas maps back to the point under it ([`click_to_world`]).
+
+use std::collections::VecDeque;
+
+use ratatui::layout::{Constraint, Layout, Rect};
+use ratatui::style::{Color, Modifier, Style};
+use ratatui::symbols::Marker;
+use ratatui::text::{Line, Span};
+use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as Segment, Points};
+use ratatui::widgets::{Block, Borders, Paragraph, Wrap};
+use ratatui::Frame;
+
+use crate::client::{ArmInfo, Snapshot};
+
+/// Width of the state panel, columns (less on a narrow terminal).
+const PANEL_WIDTH: u16 = 44;
+
+/// Margin around the reachable ring, as a fraction of the reach.
+const MARGIN: f64 = 0.06;
+
+/// A joint within this fraction of its range from a limit is drawn as near it.
+pub const NEAR_LIMIT: f64 = 0.10;
+
+/// The key-help line.
+pub const HELP: &str = "q quit  arrows/wasd move  +/- speed  click goto  space stop  e estop  \
+                        r reset  h home  tab strategy  t torque  c control";
+
+/// The measured tips drawn behind the arm, oldest first; bounded.
+#[derive(Debug, Clone)]
+pub struct Trail {
+    points: VecDeque<[f64; 2]>,
+    capacity: usize,
+}
+
+impl Trail {
+    /// Points closer than this to the last one kept are not kept, m.
+    pub const MIN_STEP_M: f64 = 0.001;
+
+    /// Keeps at most `capacity` points.
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            points: VecDeque::with_capacity(capacity),
+            capacity,
+        }
+    }
+
+    /// Adds a measured tip, dropping the oldest beyond the capacity; a tip within
+    /// [`Trail::MIN_STEP_M`] of the last one kept is skipped.
+    pub fn push(&mut self, tip: [f64; 2]) {
+        if self.capacity == 0 || !tip.iter().all(|c| c.is_finite()) {
+            return;
+        }
+        if let Some(last) = self.points.back() {
+            if (last[0] - tip[0]).hypot(last[1] - tip[1]) < Self::MIN_STEP_M {
+                return;
+            }
+        }
+        if self.points.len() == self.capacity {
+            self.points.pop_front();
+        }
+        self.points.push_back(tip);
+    }
+
+    /// Forgets every point.
+    pub fn clear(&mut self) {
+        self.points.clear();
+    }
+
+    /// The points, oldest first.
+    pub fn points(&self) -> impl Iterator<Item = [f64; 2]> + '_ {
+        self.points.iter().copied()
+    }
+
+    /// How many points are kept.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether no point is kept.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+}
+
+/// The connection to the daemon, as the panel shows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Link {
+    /// Connecting (or waiting for the first reply).
+    Connecting,
+    /// Connected.
+    Connected,
+    /// The daemon went away; the UI tries again every second.
+    Gone,
+}
+
+/// What the UI knows besides the arm and its telemetry.
+#[derive(Debug, Clone)]
+pub struct Status {
+    /// The daemon's address, `host:port`.
+    pub addr: String,
+    /// The connection's state.
+    pub link: Link,
+    /// The speed the keys move the tip at, m/s.
+    pub speed_m_s: f64,
+    /// The joystick's state for a person (`None`: no joystick asked for).
+    pub joystick: Option<String>,
+    /// The last thing worth telling (a refusal, the daemon gone).
+    pub notice: Option<String>,
+}
+
+/// Everything one frame shows.
+#[derive(Debug, Clone, Copy)]
+pub struct View<'a> {
+    /// The arm (`ArmInfo::default()` before the first `describe`).
+    pub arm: &'a ArmInfo,
+    /// The latest telemetry, if any came.
+    pub snapshot: Option<&'a Snapshot>,
+    /// The measured tips so far.
+    pub trail: &'a Trail,
+    /// The UI's own state.
+    pub status: &'a Status,
+}
+
+/// Where the frame's parts go.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Areas {
+    /// The arm's canvas, with its border.
+    pub canvas: Rect,
+    /// The state panel, with its border.
+    pub panel: Rect,
+    /// The key-help line.
+    pub help: Rect,
+}
+
+/// Splits the screen `area` into canvas, panel and help line.
+pub fn areas(area: Rect) -> Areas {
+    let [main, help] = Layout::vertical([Constraint::Min(3), Constraint::Length(1)]).areas(area);
+    let panel_width = PANEL_WIDTH.min(main.width / 2);
+    let [canvas, panel] =
+        Layout::horizontal([Constraint::Min(3), Constraint::Length(panel_width)]).areas(main);
+    Areas {
+        canvas,
+        panel,
+        help,
+    }
+}
+
+/// The world rectangle a canvas of `inner` (inside its border) shows, m:
+/// `([x_min, x_max], [y_min, y_max])`, centred on the base, the whole reachable ring inside,
+/// one scale on both axes (a cell taken as twice as tall as wide).
+pub fn world_bounds(arm: &ArmInfo, inner: Rect) -> ([f64; 2], [f64; 2]) {
+    let reach = arm.reach();
+    let radius = if reach > 0.0 { reach } else { 1.0 } * (1.0 + MARGIN);
+    let cols = f64::from(inner.width.max(1));
+    let rows = f64::from(inner.height.max(1));
+    // Metres per column; a row is two columns tall.
+    let scale = (2.0 * radius / cols).max(2.0 * radius / (2.0 * rows));
+    let half_w = scale * cols / 2.0;
+    let half_h = scale * rows;
+    let [bx, by, _] = arm.base;
+    ([bx - half_w, bx + half_w], [by - half_h, by + half_h])
+}
+
+/// The canvas's area inside its border.
+fn canvas_inner(canvas: Rect) -> Rect {
+    Block::default().borders(Borders::ALL).inner(canvas)
+}
+
+/// The world point (m) under the cell at (`column`, `row`) of a screen of `screen`'s size,
+/// where [`draw`] drew the canvas; `None` outside the canvas.
+pub fn click_to_world(arm: &ArmInfo, screen: Rect, column: u16, row: u16) -> Option<[f64; 2]> {
+    let inner = canvas_inner(areas(screen).canvas);
+    if inner.width == 0
+        || inner.height == 0
+        || column < inner.x
+        || row < inner.y
+        || column >= inner.x + inner.width
+        || row >= inner.y + inner.height
+    {
+        return None;
+    }
+    let (xs, ys) = world_bounds(arm, inner);
+    // The centre of the cell's braille dots (2 across, 4 down), as the canvas places them.
+    let fx = f64::from(2 * (column - inner.x) + 1) / f64::from(2 * inner.width - 1);
+    let fy = f64::from(4 * (row - inner.y) + 2) / f64::from(4 * inner.height - 1);
+    Some([xs[0] + fx * (xs[1] - xs[0]), ys[1] - fy * (ys[1] - ys[0])])
+}
+
+/// Whether joint `i` at `theta` is within [`NEAR_LIMIT`] of its range from a limit.
+pub fn near_limit(arm: &ArmInfo, i: usize, theta: f64) -> bool {
+    let (Some(&lo), Some(&hi)) = (arm.min_rad.get(i), arm.max_rad.get(i)) else {
+        return false;
+    };
+    let margin = NEAR_LIMIT * (hi - lo);
+    theta - lo < margin || hi - theta < margin
+}
+
+/// Who is in control, as the panel says it.
+pub fn controller_text(snapshot: &Snapshot) -> String {
+    match (snapshot.in_control, snapshot.controller) {
+        (true, _) => "you".to_owned(),
+        (false, Some(n)) => format!("client {n}"),
+        (false, None) => "nobody".to_owned(),
+    }
+}
+
+/// The notice line: the UI's own notice, else a hint when another client is in control.
+pub fn notice_text(view: &View<'_>) -> Option<String> {
+    if let Some(notice) = &view.status.notice {
+        return Some(notice.clone());
+    }
+    let snapshot = view.snapshot?;
+    match (snapshot.in_control, snapshot.controller) {
+        (false, Some(n)) if view.status.link == Link::Connected => {
+            Some(format!("client {n} is in control: press c to take it"))
+        }
+        _ => None,
+    }
+}
+
+/// Draws the whole screen.
+pub fn draw(frame: &mut Frame<'_>, view: &View<'_>) {
+    let parts = areas(frame.area());
+    draw_canvas(frame, parts.canvas, view);
+    draw_panel(frame, parts.panel, view);
+    frame.render_widget(
+        Paragraph::new(Line::from(Span::styled(
+            HELP,
+            Style::default().fg(Color::DarkGray),
+        ))),
+        parts.help,
+    );
+}
+
+fn draw_canvas(frame: &mut Frame<'_>, area: Rect, view: &View<'_>) {
+    let block = Block::default().borders(Borders::ALL).title(" arm ");
+    let (x_bounds, y_bounds) = world_bounds(view.arm, block.inner(area));
+    let trail: Vec<(f64, f64)> = view.trail.points().map(|[x, y]| (x, y)).collect();
+    let canvas = Canvas::default()
+        .block(block)
+        .marker(Marker::Braille)
+        .x_bounds(x_bounds)
+        .y_bounds(y_bounds)
+        .paint(|ctx| paint_arm(ctx, view, &trail));
+    frame.render_widget(canvas, area);
+}
+
+fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
+    let arm = view.arm;
+    let [bx, by, _] = arm.base;
+    let reach = arm.reach();
+    if reach > 0.0 {
+        ctx.draw(&Circle {
+            x: bx,
+            y: by,
+            radius: reach,
+            color: Color::DarkGray,
+        });
+        let inner = arm.inner_radius();
+        if inner > 0.0 {
+            ctx.draw(&Circle {
+                x: bx,
+                y: by,
+                radius: inner,
+                color: Color::DarkGray,
+            });
+        }
+    }
+    ctx.draw(&Points {
+        coords: trail,
+        color: Color::Blue,
+    });
+    let Some(snapshot) = view.snapshot else {
+        return;
+    };
+    let points = arm.points(&snapshot.theta_meas);
+    ctx.layer();
+    for pair in points.windows(2) {
+        ctx.draw(&Segment::new(
+            pair[0][0],
+            pair[0][1],
+            pair[1][0],
+            pair[1][1],
+            Color::White,
+        ));
+    }
+    ctx.layer();
+    // Joint i turns at point i; the last point is the tip.
+    let joints = points.len().saturating_sub(1);
+    let (near, fine): (Vec<usize>, Vec<usize>) = (0..joints)
+        .filter(|&i| snapshot.theta_meas.get(i).is_some())
+        .partition(|&i| near_limit(arm, i, snapshot.theta_meas[i]));
+    let coords = |set: &[usize]| -> Vec<(f64, f64)> {
+        set.iter().map(|&i| (points[i][0], points[i][1])).collect()
+    };
+    for (set, color) in [(&fine, Color::Green), (&near, Color::Red)] {
+        for (x, y) in coords(set) {
+            ctx.draw(&Circle {
+                x,
+                y,
+                radius: 0.006,
+                color,
+            });
+        }
+    }
+    for (x, y) in coords(&near) {
+        ctx.print(
+            x,
+            y,
+            Span::styled(
+                "!",
+                Style::default().fg(Color::Red).add_modifier(Modifier::BOLD),
+            ),
+        );
+    }
+    if let Some([tx, ty]) = snapshot.target {
+        ctx.print(
+            tx,
+            ty,
+            Span::styled("X", Style::default().fg(Color::Magenta)),
+        );
+    }
+    let [cx, cy] = snapshot.tip;
+    ctx.print(cx, cy, Span::styled("+", Style::default().fg(Color::Cyan)));
+    let [mx, my] = snapshot.tip_meas;
+    ctx.print(
+        mx,
+        my,
+        Span::styled(
+            "@",
+            Style::default()
+                .fg(Color::Yellow)
+                .add_modifier(Modifier::BOLD),
+        ),
+    );
+}
+
+/// The joints of the measured pose near a limit.
+fn near_ids(arm: &ArmInfo, snapshot: &Snapshot) -> Vec<usize> {
+    snapshot
+        .theta_meas
+        .iter()
+        .enumerate()
+        .filter(|&(i, &theta)| near_limit(arm, i, theta))
+        .map(|(i, _)| i)
+        .collect()
+}
+
+fn row<'a>(label: &'a str, value: String, style: Style) -> Line<'a> {
+    Line::from(vec![
+        Span::styled(format!("{label:<10}"), Style::default().fg(Color::DarkGray)),
+        Span::styled(value, style),
+    ])
+}
+
+fn state_style(state: &str) -> Style {
+    let color = match state {
+        "holding" => Color::Green,
+        "moving" => Color::Cyan,
+        "stopping" => Color::Yellow,
+        "estop" | "fault" => Color::Red,
+        _ => Color::White,
+    };
+    Style::default().fg(color).add_modifier(Modifier::BOLD)
+}
+
+/// The panel's lines.
+pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
+    let plain = Style::default();
+    let status = view.status;
+    let mut lines = vec![row("daemon", status.addr.clone(), plain)];
+    let (link, link_style) = match status.link {
+        Link::Connecting => ("connecting", Style::default().fg(Color::Yellow)),
+        Link::Connected => ("connected", Style::default().fg(Color::Green)),
+        Link::Gone => ("gone: retrying", Style::default().fg(Color::Red)),
+    };
+    lines.push(row("link", link.to_owned(), link_style));
+    match view.snapshot {
+        None => lines.push(Line::from("waiting for telemetry")),
+        Some(s) => snapshot_lines(view.arm, s, &mut lines),
+    }
+    lines.push(row("speed", format!("{:.3} m/s", status.speed_m_s), plain));
+    lines.push(row(
+        "joystick",
+        status.joystick.clone().unwrap_or_else(|| "none".to_owned()),
+        plain,
+    ));
+    lines.push(Line::from(""));
+    lines.push(Line::from(vec![
+        Span::styled("@", Style::default().fg(Color::Yellow)),
+        Span::raw(" tip  "),
+        Span::styled("+", Style::default().fg(Color::Cyan)),
+        Span::raw(" commanded  "),
+        Span::styled("X", Style::default().fg(Color::Magenta)),
+        Span::raw(" target  "),
+        Span::styled("!", Style::default().fg(Color::Red)),
+        Span::raw(" limit"),
+    ]));
+    if let Some(notice) = notice_text(view) {
+        lines.push(Line::from(""));
+        lines.push(Line::from(Span::styled(
+            notice,
+            Style::default()
+                .fg(Color::Yellow)
+                .add_modifier(Modifier::BOLD),
+        )));
+    }
+    lines
+}
+
+fn snapshot_lines(arm: &ArmInfo, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
+    let plain = Style::default();
+    let signed = |p: [f64; 2]| format!("{:+.3}  {:+.3} m", p[0], p[1]);
+    lines.push(row("state", s.state.clone(), state_style(&s.state)));
+    lines.push(row("strategy", s.strategy.clone(), plain));
+    let control_style = if s.in_control {
+        Style::default().fg(Color::Green)
+    } else {
+        Style::default().fg(Color::Yellow)
+    };
+    lines.push(row("control", controller_text(s), control_style));
+    lines.push(row(
+        "loop",
+        format!("{:.1} Hz (of {:.0})", s.loop_hz, arm.rate_hz),
+        plain,
+    ));
+    lines.push(row(
+        "solve",
+        format!("{:.0} us (p99 tick {:.0} us)", s.solve_us, s.tick_p99_us),
+        plain,
+    ));
+    lines.push(row(
+        "error",
+        format!("{:.1} mm", s.tracking_error_m * 1000.0),
+        plain,
+    ));
+    // Read by the pty test: `tip  -0.547  +0.720 m`.
+    lines.push(Line::from(format!("tip  {}", signed(s.tip_meas))));
+    lines.push(Line::from(Span::styled(
+        format!("cmd  {}", signed(s.tip)),
+        Style::default().fg(Color::Cyan),
+    )));
+    if let Some(target) = s.target {
+        lines.push(Line::from(Span::styled(
+            format!("goal {}", signed(target)),
+            Style::default().fg(Color::Magenta),
+        )));
+    }
+    let mut flags = Vec::new();
+    if s.saturated {
+        flags.push("saturated");
+    }
+    if s.self_collision {
+        flags.push("self-collision");
+    }
+    if !flags.is_empty() {
+        lines.push(row(
+            "flags",
+            flags.join(", "),
+            Style::default().fg(Color::Yellow),
+        ));
+    }
+    let (torque, torque_style) = if s.torque {
+        ("on", Style::default().fg(Color::Green))
+    } else {
+        ("off", Style::default().fg(Color::Red))
+    };
+    lines.push(row("torque", torque.to_owned(), torque_style));
+    let near = near_ids(arm, s);
+    if !near.is_empty() {
+        let joints: Vec<String> = near.iter().map(|i| (i + 1).to_string()).collect();
+        lines.push(row(
+            "limits",
+            format!("joint {} near a limit", joints.join(", ")),
+            Style::default().fg(Color::Red),
+        ));
+    }
+    if s.faults.is_empty() {
+        lines.push(row("faults", "none".to_owned(), plain));
+    } else {
+        lines.push(row(
+            "faults",
+            s.faults.len().to_string(),
+            Style::default().fg(Color::Red),
+        ));
+        for fault in &s.faults {
+            lines.push(Line::from(Span::styled(
+                fault.to_string(),
+                Style::default().fg(Color::Red),
+            )));
+        }
+    }
+    if s.warnings.is_empty() {
+        lines.push(row("warnings", "none".to_owned(), plain));
+    } else {
+        lines.push(row(
+            "warnings",
+            s.warnings.len().to_string(),
+            Style::default().fg(Color::Yellow),
+        ));
+        for warning in &s.warnings {
+            lines.push(Line::from(Span::styled(
+                warning.to_string(),
+                Style::default().fg(Color::Yellow),
+            )));
+        }
+    }
+}
+
+fn draw_panel(frame: &mut Frame<'_>, area: Rect, view: &View<'_>) {
+    let block = Block::default()
+        .borders(Borders::ALL)
+        .title(" snakectl teleop ");
+    frame.render_widget(
+        Paragraph::new(panel_lines(view))
+            .block(block)
+            .wrap(Wrap { trim: false }),
+        area,
+    );
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,370 @@
+//! The screen drawn onto a test backend and read back as text.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use ratatui::backend::TestBackend;
+use ratatui::buffer::Buffer;
+use ratatui::style::Color;
+use ratatui::Terminal;
+
+use super::*;
+use crate::client::FaultInfo;
+
+const COLS: u16 = 120;
+const ROWS: u16 = 40;
+
+/// The shipped simulator's arm: 12 links of 0.08 m, base at the origin pointing up.
+fn sim_arm() -> ArmInfo {
+    ArmInfo {
+        links_m: vec![0.08; 12],
+        base: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
+        min_rad: vec![-2.0; 12],
+        max_rad: vec![2.0; 12],
+        ids: (1..=12).collect(),
+        models: vec!["XL430-W250".into(); 12],
+        home_rad: vec![0.1; 12],
+        rate_hz: 100.0,
+        strategies: vec!["overall".into(), "sequential".into()],
+        protocol_version: 1,
+    }
+}
+
+/// The arm at `theta`, holding, this client in control.
+fn snapshot_at(arm: &ArmInfo, theta: &[f64]) -> Snapshot {
+    let points = arm.points(theta);
+    let tip = *points.last().unwrap();
+    Snapshot {
+        state: "holding".into(),
+        strategy: "overall".into(),
+        tip,
+        tip_meas: tip,
+        tip_ref: tip,
+        theta_cmd: theta.to_vec(),
+        theta_meas: theta.to_vec(),
+        loop_hz: 100.0,
+        solve_us: 42.0,
+        torque: true,
+        controller: Some(1),
+        in_control: true,
+        ..Snapshot::default()
+    }
+}
+
+fn status() -> Status {
+    Status {
+        addr: "127.0.0.1:40404".into(),
+        link: Link::Connected,
+        speed_m_s: 0.05,
+        joystick: None,
+        notice: None,
+    }
+}
+
+fn render(view: &View<'_>) -> Buffer {
+    let mut terminal = Terminal::new(TestBackend::new(COLS, ROWS)).unwrap();
+    terminal.draw(|frame| draw(frame, view)).unwrap();
+    terminal.backend().buffer().clone()
+}
+
+fn lines(buffer: &Buffer) -> Vec<String> {
+    (0..buffer.area.height)
+        .map(|y| {
+            (0..buffer.area.width)
+                .map(|x| buffer[(x, y)].symbol())
+                .collect()
+        })
+        .collect()
+}
+
+fn screen() -> Rect {
+    Rect::new(0, 0, COLS, ROWS)
+}
+
+fn is_braille(symbol: &str) -> bool {
+    symbol
+        .chars()
+        .next()
+        .is_some_and(|c| ('\u{2801}'..='\u{28ff}').contains(&c))
+}
+
+/// The cell a world point falls in, as the canvas places labels.
+fn cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
+    let inner = canvas_inner(areas(screen()).canvas);
+    let (xs, ys) = world_bounds(arm, inner);
+    let col = (p[0] - xs[0]) / (xs[1] - xs[0]) * f64::from(inner.width - 1);
+    let row = (ys[1] - p[1]) / (ys[1] - ys[0]) * f64::from(inner.height - 1);
+    (inner.x + col as u16, inner.y + row as u16)
+}
+
+/// The cell whose braille dots show a world point.
+fn dot_cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
+    let inner = canvas_inner(areas(screen()).canvas);
+    let (xs, ys) = world_bounds(arm, inner);
+    let dot_x = (p[0] - xs[0]) / (xs[1] - xs[0]) * f64::from(2 * inner.width - 1);
+    let dot_y = (ys[1] - p[1]) / (ys[1] - ys[0]) * f64::from(4 * inner.height - 1);
+    (inner.x + dot_x as u16 / 2, inner.y + dot_y as u16 / 4)
+}
+
+#[test]
+fn the_measured_arm_is_drawn_inside_the_canvas_and_nowhere_else() {
+    let arm = sim_arm();
+    let snapshot = snapshot_at(&arm, &arm.home_rad);
+    let trail = Trail::new(10);
+    let status = status();
+    let view = View {
+        arm: &arm,
+        snapshot: Some(&snapshot),
+        trail: &trail,
+        status: &status,
+    };
+    let buffer = render(&view);
+    let parts = areas(screen());
+    let inner = canvas_inner(parts.canvas);
+    // Every link's midpoint lies on a drawn cell.
+    let points = arm.points(&snapshot.theta_meas);
+    for (i, pair) in points.windows(2).enumerate() {
+        let mid = [
+            (pair[0][0] + pair[1][0]) / 2.0,
+            (pair[0][1] + pair[1][1]) / 2.0,
+        ];
+        let (x, y) = dot_cell_of(&arm, mid);
+        let symbol = buffer[(x, y)].symbol();
+        assert!(
+            is_braille(symbol),
+            "link {} is not drawn at ({x}, {y}): {symbol:?}\n{}",
+            i + 1,
+            lines(&buffer).join("\n")
+        );
+    }
+    for y in 0..ROWS {
+        for x in 0..COLS {
+            let inside = x >= inner.x
+                && x < inner.x + inner.width
+                && y >= inner.y
+                && y < inner.y + inner.height;
+            if !inside {
+                assert!(!is_braille(buffer[(x, y)].symbol()), "dots at ({x}, {y})");
+            }
+        }
+    }
+    // The measured tip's marker sits on the tip.
+    let (x, y) = cell_of(&arm, snapshot.tip_meas);
+    assert_eq!(buffer[(x, y)].symbol(), "@");
+}
+
+#[test]
+fn the_canvas_keeps_one_scale_on_both_axes() {
+    let arm = sim_arm();
+    for (cols, rows) in [(120, 40), (80, 24), (200, 30), (60, 60)] {
+        let inner = canvas_inner(areas(Rect::new(0, 0, cols, rows)).canvas);
+        let (xs, ys) = world_bounds(&arm, inner);
+        let per_col = (xs[1] - xs[0]) / f64::from(inner.width);
+        let per_row = (ys[1] - ys[0]) / f64::from(inner.height);
+        assert!(
+            (per_row - 2.0 * per_col).abs() < 1e-9,
+            "{cols}x{rows}: {per_col} m a column, {per_row} m a row"
+        );
+        // The whole reachable ring is in view.
+        assert!(xs[0] <= -arm.reach() && xs[1] >= arm.reach(), "{xs:?}");
+        assert!(ys[0] <= -arm.reach() && ys[1] >= arm.reach(), "{ys:?}");
+    }
+}
+
+#[test]
+fn the_panel_shows_address_state_control_and_the_measured_tip() {
+    let arm = sim_arm();
+    let snapshot = snapshot_at(&arm, &arm.home_rad);
+    let trail = Trail::new(10);
+    let status = status();
+    let view = View {
+        arm: &arm,
+        snapshot: Some(&snapshot),
+        trail: &trail,
+        status: &status,
+    };
+    let text = lines(&render(&view)).join("\n");
+    for expected in [
+        "127.0.0.1:40404",
+        "holding",
+        "overall",
+        "control   you",
+        "tip  -0.547  +0.720 m",
+        "0.050 m/s",
+        "faults    none",
+        "torque    on",
+        "100.0 Hz",
+        "q quit",
+    ] {
+        assert!(text.contains(expected), "no {expected:?} in\n{text}");
+    }
+}
+
+#[test]
+fn a_fault_is_named_by_its_servo() {
+    let arm = sim_arm();
+    let mut snapshot = snapshot_at(&arm, &arm.home_rad);
+    snapshot.state = "fault".into();
+    snapshot.faults.push(FaultInfo {
+        id: 5,
+        joint: 5,
+        kind: "silent".into(),
+        since_tick: 200,
+        detail: "no status".into(),
+    });
+    let trail = Trail::new(10);
+    let status = status();
+    let view = View {
+        arm: &arm,
+        snapshot: Some(&snapshot),
+        trail: &trail,
+        status: &status,
+    };
+    let text = lines(&render(&view)).join("\n");
+    assert!(text.contains("servo 5 (joint 5): silent"), "{text}");
+    assert!(text.contains("fault"), "{text}");
+}
+
+#[test]
+fn a_joint_near_its_limit_is_marked_in_red() {
+    let arm = sim_arm();
+    let mut theta = arm.home_rad.clone();
+    // 0.15 rad from +2: inside 10 % of the 4 rad range.
+    theta[2] = 1.85;
+    let snapshot = snapshot_at(&arm, &theta);
+    let trail = Trail::new(10);
+    let status = status();
+    let view = View {
+        arm: &arm,
+        snapshot: Some(&snapshot),
+        trail: &trail,
+        status: &status,
+    };
+    let buffer = render(&view);
+    let text = lines(&buffer).join("\n");
+    assert!(text.contains("joint 3 near a limit"), "{text}");
+    let joint = arm.points(&theta)[2];
+    let (x, y) = cell_of(&arm, joint);
+    assert_eq!(buffer[(x, y)].symbol(), "!");
+    assert_eq!(buffer[(x, y)].fg, Color::Red);
+    // A joint mid-range is not marked.
+    assert!(!near_limit(&arm, 0, 0.1));
+    assert!(near_limit(&arm, 0, -1.7));
+}
+
+#[test]
+fn another_client_in_control_is_named_with_the_way_to_take_over() {
+    let arm = sim_arm();
+    let mut snapshot = snapshot_at(&arm, &arm.home_rad);
+    snapshot.in_control = false;
+    snapshot.controller = Some(3);
+    let trail = Trail::new(10);
+    let status = status();
+    let view = View {
+        arm: &arm,
+        snapshot: Some(&snapshot),
+        trail: &trail,
+        status: &status,
+    };
+    let text = lines(&render(&view)).join("\n");
+    assert!(text.contains("control   client 3"), "{text}");
+    assert!(
+        text.contains("client 3 is in control: press c to take it"),
+        "{text}"
+    );
+    snapshot.controller = None;
+    assert_eq!(controller_text(&snapshot), "nobody");
+}
+
+#[test]
+fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
+    let arm = sim_arm();
+    let snapshot = snapshot_at(&arm, &arm.home_rad);
+    let trail = Trail::new(10);
+    let mut status = status();
+    status.link = Link::Gone;
+    status.notice = Some("daemon at 127.0.0.1:40404 gone: retrying".into());
+    let view = View {
+        arm: &arm,
+        snapshot: Some(&snapshot),
+        trail: &trail,
+        status: &status,
+    };
+    let buffer = render(&view);
+    let text = lines(&buffer).join("\n");
+    assert!(
+        text.contains("daemon at 127.0.0.1:40404 gone: retrying"),
+        "{text}"
+    );
+    let (x, y) = cell_of(&arm, snapshot.tip_meas);
+    assert_eq!(buffer[(x, y)].symbol(), "@");
+}
+
+#[test]
+fn before_any_telemetry_the_screen_says_it_waits() {
+    let arm = ArmInfo::default();
+    let trail = Trail::new(10);
+    let mut status = status();
+    status.link = Link::Connecting;
+    let view = View {
+        arm: &arm,
+        snapshot: None,
+        trail: &trail,
+        status: &status,
+    };
+    let text = lines(&render(&view)).join("\n");
+    assert!(text.contains("waiting for telemetry"), "{text}");
+    assert!(text.contains("connecting"), "{text}");
+}
+
+#[test]
+fn the_trail_is_drawn_and_bounded() {
+    let arm = sim_arm();
+    let mut trail = Trail::new(100);
+    for i in 0..1000 {
+        trail.push([f64::from(i) * 0.002 - 1.5, 0.3]);
+    }
+    assert_eq!(trail.len(), 100);
+    let first = trail.points().next().unwrap();
+    assert!(
+        (first[0] - (900.0 * 0.002 - 1.5)).abs() < 1e-12,
+        "{first:?}"
+    );
+    // A tip that did not move is not kept twice.
+    let last = trail.points().last().unwrap();
+    trail.push([last[0] + 0.0001, last[1]]);
+    assert_eq!(trail.points().last().unwrap(), last);
+
+    let status = status();
+    let view = View {
+        arm: &arm,
+        snapshot: None,
+        trail: &trail,
+        status: &status,
+    };
+    let buffer = render(&view);
+    let (x, y) = dot_cell_of(&arm, [0.4, 0.3]);
+    assert!(
+        is_braille(buffer[(x, y)].symbol()),
+        "no trail at ({x}, {y})"
+    );
+    assert_eq!(buffer[(x, y)].fg, Color::Blue);
+}
+
+#[test]
+fn a_click_on_the_canvas_maps_back_to_the_point_drawn_there() {
+    let arm = sim_arm();
+    let inner = canvas_inner(areas(screen()).canvas);
+    let (xs, _) = world_bounds(&arm, inner);
+    let cell_m = (xs[1] - xs[0]) / f64::from(inner.width);
+    for p in [[-0.547, 0.720], [0.3, -0.2], [0.0, 0.0], [0.9, 0.1]] {
+        let (col, row) = dot_cell_of(&arm, p);
+        let back = click_to_world(&arm, screen(), col, row).unwrap();
+        // Within a cell: one column wide, one row (two columns) tall.
+        assert!((back[0] - p[0]).abs() <= cell_m, "{p:?} -> {back:?}");
+        assert!((back[1] - p[1]).abs() <= 2.0 * cell_m, "{p:?} -> {back:?}");
+    }
+    let parts = areas(screen());
+    // The border, the panel and the help line are not the canvas.
+    assert_eq!(click_to_world(&arm, screen(), 0, 5), None);
+    assert_eq!(click_to_world(&arm, screen(), parts.panel.x + 3, 5), None);
+    assert_eq!(click_to_world(&arm, screen(), 10, parts.help.y), None);
+}

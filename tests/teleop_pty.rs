@@ -1,0 +1,459 @@
+//! `snakectl teleop` on a real pseudo-terminal, its screen read back through a terminal
+//! emulator: with `--sim` the arm appears, an arrow key moves the tip for one hold and then it
+//! rests, a click sends it to the point under the mouse, `q` quits with the terminal given
+//! back as it was; with `--connect` it names another
+//! client in control, takes control back on `c`, outlives its daemon and finds a new one.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::io::{Read, Write};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use portable_pty::{native_pty_system, Child, CommandBuilder, MasterPty, PtySize};
+use snakectl::client::Client;
+use snakectl::config::Config;
+use snakectl::connect;
+use snakectl::daemon::{Embedded, RunOptions};
+use snakectl::protocol::Cmd;
+use snakectl::teleop::ui;
+use snakectl_sim::{RealClock, SimHandle};
+
+/// Bound on waiting for anything; reached only when the test fails.
+const DEADLINE: Duration = Duration::from_secs(30);
+const ROWS: u16 = 40;
+const COLS: u16 = 120;
+
+/// Linux's `c_lflag` bits (asm-generic/termbits.h).
+const ICANON: u32 = 0o000002;
+const ECHO: u32 = 0o000010;
+
+/// The shipped simulator config on a free port, with a reply timeout a busy machine meets.
+fn config(dir: &Path) -> PathBuf {
+    let shipped = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+    let mut text = std::fs::read_to_string(shipped).unwrap();
+    for (old, new) in [
+        ("listen = \"127.0.0.1:7878\"", "listen = \"127.0.0.1:0\""),
+        ("reply_timeout_ms = 20 ", "reply_timeout_ms = 100 "),
+    ] {
+        assert!(text.contains(old), "config/sim.toml has no `{old}`");
+        text = text.replace(old, new);
+    }
+    let path = dir.join("sim.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// The UI on a pseudo-terminal: its screen as an emulator shows it, its keyboard.
+struct Ui {
+    child: Box<dyn Child + Send + Sync>,
+    master: Box<dyn MasterPty + Send>,
+    writer: Arc<Mutex<Box<dyn Write + Send>>>,
+    screen: Arc<Mutex<vt100::Parser>>,
+    reader_done: mpsc::Receiver<()>,
+}
+
+impl Ui {
+    /// `snakectl teleop ARGS`.
+    fn start(args: &[&std::ffi::OsStr]) -> Ui {
+        let pair = native_pty_system()
+            .openpty(PtySize {
+                rows: ROWS,
+                cols: COLS,
+                pixel_width: 0,
+                pixel_height: 0,
+            })
+            .unwrap();
+        let mut cmd = CommandBuilder::new(env!("CARGO_BIN_EXE_snakectl"));
+        cmd.arg("teleop");
+        cmd.args(args);
+        cmd.cwd(env!("CARGO_MANIFEST_DIR"));
+        cmd.env("TERM", "xterm-256color");
+        let child = pair.slave.spawn_command(cmd).unwrap();
+        // Only the child holds the terminal's side now: its exit ends the reader.
+        drop(pair.slave);
+        let writer = Arc::new(Mutex::new(pair.master.take_writer().unwrap()));
+        let screen = Arc::new(Mutex::new(vt100::Parser::new(ROWS, COLS, 0)));
+        let (done, reader_done) = mpsc::channel();
+        let mut reader = pair.master.try_clone_reader().unwrap();
+        {
+            let screen = Arc::clone(&screen);
+            let writer = Arc::clone(&writer);
+            std::thread::spawn(move || {
+                let mut buf = [0u8; 8192];
+                let mut tail: Vec<u8> = Vec::new();
+                loop {
+                    let n = match reader.read(&mut buf) {
+                        Ok(0) | Err(_) => break,
+                        Ok(n) => n,
+                    };
+                    screen.lock().unwrap().process(&buf[..n]);
+                    // Answer the primary device attributes query as a plain VT100 would (no
+                    // kitty keyboard protocol), so the UI need not wait for it to time out.
+                    tail.extend_from_slice(&buf[..n]);
+                    if let Some(at) = tail.windows(3).position(|w| w == b"\x1b[c") {
+                        let _ = writer.lock().unwrap().write_all(b"\x1b[?1;2c");
+                        tail.drain(..at + 3);
+                    }
+                    let keep = tail.len().saturating_sub(2);
+                    tail.drain(..keep);
+                }
+                let _ = done.send(());
+            });
+        }
+        Ui {
+            child,
+            master: pair.master,
+            writer,
+            screen,
+            reader_done,
+        }
+    }
+
+    fn send(&self, bytes: &[u8]) {
+        let mut writer = self.writer.lock().unwrap();
+        writer.write_all(bytes).unwrap();
+        writer.flush().unwrap();
+    }
+
+    fn contents(&self) -> String {
+        self.screen.lock().unwrap().screen().contents()
+    }
+
+    /// Polls the screen until `ready` holds; its contents then.
+    fn wait_for(&mut self, what: &str, ready: impl Fn(&str) -> bool) -> String {
+        let deadline = Instant::now() + DEADLINE;
+        loop {
+            let text = self.contents();
+            if ready(&text) {
+                return text;
+            }
+            if let Some(status) = self.child.try_wait().unwrap() {
+                panic!("teleop exited ({status:?}) before {what}:\n{text}");
+            }
+            assert!(
+                Instant::now() < deadline,
+                "no {what} within {DEADLINE:?}:\n{text}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Polls until the arm is at rest: holding, and the tip shown unchanged for half a
+    /// second; that tip.
+    fn wait_rest(&mut self) -> [f64; 2] {
+        let deadline = Instant::now() + DEADLINE;
+        let mut last = (tip(&self.contents()), Instant::now());
+        loop {
+            let text = self.contents();
+            let now = tip(&text);
+            if now != last.0 {
+                last = (now, Instant::now());
+            } else if field(&text, "state") == Some("holding")
+                && last.1.elapsed() >= Duration::from_millis(500)
+            {
+                if let Some(tip) = now {
+                    return tip;
+                }
+            }
+            assert!(
+                Instant::now() < deadline,
+                "the tip never came to rest:\n{text}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// The terminal's local mode flags (`c_lflag`).
+    fn local_flags(&self) -> u32 {
+        let termios = self.master.get_termios().expect("the pty's termios");
+        termios.local_flags.bits()
+    }
+}
+
+impl Drop for Ui {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// The measured tip the panel shows (`tip  -0.547  +0.720 m`).
+fn tip(text: &str) -> Option<[f64; 2]> {
+    let line = text
+        .lines()
+        .find_map(|l| l.split_once("tip  ").map(|(_, r)| r))?;
+    let mut numbers = line.split_whitespace().map(|w| w.parse::<f64>());
+    let x = numbers.next()?.ok()?;
+    let y = numbers.next()?.ok()?;
+    Some([x, y])
+}
+
+/// A panel row's value (`state     holding` -> `holding`).
+fn field<'a>(text: &'a str, label: &str) -> Option<&'a str> {
+    text.lines().find_map(|l| {
+        let (_, rest) = l.split_once(&format!("│{label} "))?;
+        rest.split('│').next().map(str::trim)
+    })
+}
+
+#[test]
+fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    let mut ui = Ui::start(&["--sim".as_ref(), config.as_os_str()]);
+    let text = ui.wait_for("the arm at rest, in control", |t| {
+        field(t, "state") == Some("holding")
+            && field(t, "control") == Some("you")
+            && tip(t).is_some()
+            && t.chars().any(|c| ('\u{2801}'..='\u{28ff}').contains(&c))
+    });
+    assert!(text.contains("q quit"), "no key help:\n{text}");
+    let addr = field(&text, "daemon").unwrap().to_owned();
+    let start = tip(&text).unwrap();
+    // Near the shipped home pose's tip.
+    assert!(
+        (start[0] + 0.547).abs() < 0.01 && (start[1] - 0.720).abs() < 0.01,
+        "{start:?}"
+    );
+    // The UI has the terminal in raw mode.
+    assert_eq!(ui.local_flags() & (ICANON | ECHO), 0, "not in raw mode");
+
+    // One press of Right: held for 0.6 s at 0.05 m/s, then one zero.
+    ui.send(b"\x1b[C");
+    ui.wait_for("the tip moving right", |t| {
+        tip(t).is_some_and(|p| p[0] > start[0] + 0.005)
+    });
+    let end = ui.wait_rest();
+    let dx = end[0] - start[0];
+    assert!(
+        (0.01..0.04).contains(&dx),
+        "one hold moved the tip {dx} m in x (expected about 0.05 m/s for 0.6 s)"
+    );
+    assert!((end[1] - start[1]).abs() < 0.005, "{start:?} -> {end:?}");
+
+    // A second witness: the daemon the screen names agrees.
+    let mut client = Client::connect(&addr, None).unwrap();
+    let status = client.status().unwrap();
+    assert_eq!(status.state, "holding");
+    for k in 0..2 {
+        assert!(
+            (status.tip_meas[k] - end[k]).abs() < 0.0015,
+            "screen {end:?}, daemon {:?}",
+            status.tip_meas
+        );
+    }
+
+    // A click on the canvas sends the tip to the point under it (an SGR mouse press and
+    // release, as a terminal reports them with mouse capture on).
+    let arm = client.describe().unwrap();
+    let screen = ratatui::layout::Rect::new(0, 0, COLS, ROWS);
+    let (col, row) = (30, 12);
+    let target = ui::click_to_world(&arm, screen, col, row).unwrap();
+    assert!(
+        (target[0] - end[0]).hypot(target[1] - end[1]) > 0.1,
+        "{target:?} is too close to the tip"
+    );
+    ui.send(
+        format!(
+            "\x1b[<0;{};{}M\x1b[<0;{};{}m",
+            col + 1,
+            row + 1,
+            col + 1,
+            row + 1
+        )
+        .as_bytes(),
+    );
+    let text = ui.wait_for("the tip at the clicked point", |t| {
+        field(t, "state") == Some("holding")
+            && tip(t).is_some_and(|p| (p[0] - target[0]).hypot(p[1] - target[1]) < 0.005)
+    });
+    let status = client.status().unwrap();
+    assert!(
+        (status.tip_meas[0] - target[0]).hypot(status.tip_meas[1] - target[1]) < 0.005,
+        "clicked {target:?}, the daemon has the tip at {:?}\n{text}",
+        status.tip_meas
+    );
+    drop(client);
+
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+}
+
+impl Ui {
+    /// Waits for the process to end with status 0, and checks the terminal is as before.
+    fn quits_giving_the_terminal_back(&mut self, after: &str) {
+        let deadline = Instant::now() + DEADLINE;
+        let status = loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "teleop still runs after {after}:\n{}",
+                self.contents()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        assert!(
+            status.success(),
+            "teleop exited with {status:?} after {after}"
+        );
+        self.reader_done
+            .recv_timeout(DEADLINE)
+            .expect("the terminal's output ends with the process");
+        let parser = self.screen.lock().unwrap();
+        assert!(
+            !parser.screen().alternate_screen(),
+            "still on the alternate screen"
+        );
+        assert!(!parser.screen().hide_cursor(), "the cursor is still hidden");
+        drop(parser);
+        let flags = self.local_flags();
+        assert_eq!(flags & ICANON, ICANON, "not canonical again: {flags:o}");
+        assert_eq!(flags & ECHO, ECHO, "no echo again: {flags:o}");
+    }
+}
+
+/// A simulator and a daemon in this process, on `listen`.
+struct LocalDaemon {
+    daemon: Embedded,
+    _sim: SimHandle,
+}
+
+impl LocalDaemon {
+    fn start(config: &Path, listen: SocketAddr) -> LocalDaemon {
+        let config = Config::load(config).unwrap();
+        let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
+        let options = RunOptions {
+            port: Some(sim.path().to_path_buf()),
+        };
+        let daemon = Embedded::start(config, listen, options).unwrap();
+        LocalDaemon { daemon, _sim: sim }
+    }
+}
+
+#[test]
+fn the_ui_outlives_its_daemon_and_takes_control_back_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    let first = LocalDaemon::start(&config, SocketAddr::from(([127, 0, 0, 1], 0)));
+    let addr = first.daemon.addr();
+    let addr_text = addr.to_string();
+    let mut ui = Ui::start(&["--connect".as_ref(), addr_text.as_ref()]);
+    ui.wait_for("control taken at start", |t| {
+        field(t, "control") == Some("you") && field(t, "state") == Some("holding")
+    });
+
+    // Another client takes control: the UI names it and says how to take it back.
+    let mut other = Client::connect(&addr_text, None).unwrap();
+    let fields = other.request(&Cmd::TakeControl).unwrap();
+    let other_id = fields["client"].as_u64().unwrap();
+    let hint = format!("client {other_id} is in control: press c to take it");
+    ui.wait_for("the other client named", |t| {
+        field(t, "control") == Some(format!("client {other_id}").as_str()) && t.contains(&hint)
+    });
+    ui.send(b"c");
+    ui.wait_for("control back after c", |t| {
+        field(t, "control") == Some("you")
+    });
+    drop(other);
+
+    // The daemon goes: the UI says so and stays up; a daemon back on the address is found.
+    first.daemon.stop().unwrap();
+    let gone = format!("daemon at {addr} gone: retrying");
+    ui.wait_for("the daemon reported gone", |t| t.contains(&gone));
+    let _second = LocalDaemon::start(&config, addr);
+    ui.wait_for("the new daemon connected, in control", |t| {
+        field(t, "link") == Some("connected")
+            && field(t, "control") == Some("you")
+            && !t.contains(&gone)
+    });
+
+    // Ctrl-C (a key in raw mode) quits as q does.
+    ui.send(b"\x03");
+    ui.quits_giving_the_terminal_back("Ctrl-C");
+}
+
+/// One Linux `js_event`: time (ms), value, type (1 button, 2 axis, | 0x80 initial state),
+/// number.
+fn js_event(time_ms: u32, value: i16, kind: u8, number: u8) -> [u8; 8] {
+    let mut bytes = [0u8; 8];
+    bytes[..4].copy_from_slice(&time_ms.to_le_bytes());
+    bytes[4..6].copy_from_slice(&value.to_le_bytes());
+    bytes[6] = kind;
+    bytes[7] = number;
+    bytes
+}
+
+#[test]
+fn the_stick_moves_the_tip_only_while_the_deadman_is_held() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    // A FIFO named like a joystick device stands in for one.
+    let device = dir.path().join("js0");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&device)
+        .status()
+        .unwrap();
+    assert!(made.success(), "mkfifo failed");
+    let mut ui = Ui::start(&[
+        "--sim".as_ref(),
+        config.as_os_str(),
+        "--joystick".as_ref(),
+        device.as_os_str(),
+        "--deadman-button".as_ref(),
+        "5".as_ref(),
+    ]);
+    // Opening the writing end waits for the reader: on a thread, so a reader that never
+    // opens fails the test instead of hanging it.
+    let (opened, pad) = mpsc::channel();
+    {
+        let device = device.clone();
+        std::thread::spawn(move || {
+            let _ = opened.send(std::fs::OpenOptions::new().write(true).open(device));
+        });
+    }
+    let mut pad = pad
+        .recv_timeout(DEADLINE)
+        .expect("teleop opens the device")
+        .unwrap();
+    let mut write = |events: &[[u8; 8]]| {
+        for event in events {
+            pad.write_all(event).unwrap();
+        }
+        pad.flush().unwrap();
+    };
+    // The state on open: buttons up, stick centred.
+    let mut init: Vec<[u8; 8]> = (0..8).map(|b| js_event(0, 0, 0x81, b)).collect();
+    init.extend([js_event(0, 0, 0x82, 0), js_event(0, 0, 0x82, 1)]);
+    write(&init);
+    let text = ui.wait_for("the stick connected, the arm at rest, in control", |t| {
+        t.contains("connected (js0), deadman 5")
+            && field(t, "state") == Some("holding")
+            && field(t, "control") == Some("you")
+    });
+    let start = tip(&text).unwrap();
+
+    // The stick pushed full right, then the deadman pressed: the tip goes right.
+    write(&[js_event(100, 32767, 2, 0)]);
+    write(&[js_event(900, 1, 1, 5)]);
+    ui.wait_for("the tip moving right", |t| {
+        tip(t).is_some_and(|p| p[0] > start[0] + 0.01)
+    });
+    // Released: it stops, though the stick is still pushed.
+    write(&[js_event(1500, 0, 1, 5)]);
+    let stopped = ui.wait_rest();
+    assert!(stopped[0] > start[0] + 0.01, "{start:?} -> {stopped:?}");
+    assert!(
+        (stopped[1] - start[1]).abs() < 0.01,
+        "{start:?} -> {stopped:?}"
+    );
+
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+}
