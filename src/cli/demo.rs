@@ -788,7 +788,7 @@ impl Session<'_> {
         eight: &Eight,
         max_tip_speed: f64,
     ) -> anyhow::Result<PathFigures> {
-        let d = eight.a;
+        let d = 0.8 * eight.a;
         let c = eight.centre;
         let (t, u) = (eight.along, eight.across);
         let at = |p: f64, q: f64| [c[0] + p * t[0] + q * u[0], c[1] + p * t[1] + q * u[1]];
@@ -799,13 +799,18 @@ impl Session<'_> {
             .windows(2)
             .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
             .sum();
+        // Overall keeps the arm's shape; sequential curls the last joints toward their limits
+        // on the way round the corners.
+        self.client.request(&Cmd::Strategy {
+            name: Strategy::Overall,
+        })?;
         self.progress.line(format!(
-            "path: {} corners, each taken at a stop; an estop partway",
+            "path (overall): {} corners, each taken at a stop; an estop partway",
             corners.len()
         ));
         let mut reference = vec![c];
         reference.extend(&corners);
-        self.begin_phase("path, estop, reset", true, reference);
+        self.begin_phase("path, estop", true, reference);
         self.activity = "path".into();
         self.client.send(&Cmd::Path {
             points: corners.clone(),

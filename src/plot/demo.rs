@@ -355,16 +355,20 @@ fn zoom_panel(
         .draw()
         .map_err(draw_err)?;
     if !reference.is_empty() {
+        // A pale band under the measured line, so that both show where they agree.
         chart
-            .draw_series(DashedLineSeries::new(
+            .draw_series(LineSeries::new(
                 reference.iter().copied(),
-                6,
-                4,
-                REFERENCE.stroke_width(1),
+                REFERENCE.mix(0.18).stroke_width(8),
             ))
             .map_err(draw_err)?
             .label("reference")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 7, y)], REFERENCE.stroke_width(1)));
+            .legend(|(x, y)| {
+                PathElement::new(
+                    vec![(x, y), (x + 18, y)],
+                    REFERENCE.mix(0.18).stroke_width(8),
+                )
+            });
     }
     chart
         .draw_series(LineSeries::new(
