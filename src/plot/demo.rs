@@ -284,12 +284,12 @@ fn arm_panel(
             colour.stroke_width(2),
         )))
         .map_err(draw_err)?
-        .label(format!("arm at {} moments", picks.len()))
+        .label(format!("arm at {} moments, pale first", picks.len()))
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
-    mark_events(&mut chart, events)?;
+    mark_events(&mut chart, events, false)?;
     chart
         .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
+        .position(SeriesLabelPosition::LowerLeft)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK.mix(0.3))
         .label_font((FONT, 13))
@@ -298,17 +298,31 @@ fn arm_panel(
     Ok(())
 }
 
-fn mark_events(chart: &mut Chart<'_, '_>, events: &[&Event]) -> Result<(), PlotError> {
+/// A cross at each event; named beside it when `labels`, else once in the legend.
+fn mark_events(
+    chart: &mut Chart<'_, '_>,
+    events: &[&Event],
+    labels: bool,
+) -> Result<(), PlotError> {
     for (k, e) in events.iter().enumerate() {
         let at = xy(e.tip);
+        let cross = chart
+            .draw_series(std::iter::once(Cross::new(at, 7, EVENT.stroke_width(3))))
+            .map_err(draw_err)?;
+        if !labels {
+            if k == 0 {
+                let names: Vec<&str> = events.iter().map(|e| e.label.as_str()).collect();
+                cross
+                    .label(names.join(", "))
+                    .legend(|(x, y)| Cross::new((x + 9, y), 5, EVENT.stroke_width(2)));
+            }
+            continue;
+        }
         // Events at nearly one place keep their names apart: above, then below.
         let v = if k % 2 == 0 { VPos::Bottom } else { VPos::Top };
         chart
-            .draw_series(std::iter::once(Cross::new(at, 7, EVENT.stroke_width(3))))
-            .map_err(draw_err)?;
-        chart
             .draw_series(std::iter::once(Text::new(
-                format!("  {}", e.label),
+                format!("   {}", e.label),
                 at,
                 (FONT, 14)
                     .into_font()
@@ -385,7 +399,7 @@ fn zoom_panel(
             .label("start")
             .legend(|(x, y)| Circle::new((x + 9, y), 4, BLACK.filled()));
     }
-    mark_events(&mut chart, events)?;
+    mark_events(&mut chart, events, true)?;
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
@@ -501,19 +515,58 @@ pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
             .draw()
             .map_err(draw_err)?;
         shade_phases(&mut chart, record, (0.0, err_max), false)?;
+        let errors: Vec<f64> = record
+            .samples
+            .iter()
+            .map(|s| s.tracking_error_m * 1e3)
+            .collect();
+        let times = record.samples.iter().map(|s| s.t_s);
         chart
             .draw_series(LineSeries::new(
-                record
-                    .samples
-                    .iter()
-                    .map(|s| (s.t_s, s.tracking_error_m * 1e3)),
-                BLACK.stroke_width(1),
+                times.clone().zip(errors.iter().copied()),
+                BLACK.mix(0.3).stroke_width(1),
             ))
-            .map_err(draw_err)?;
+            .map_err(draw_err)?
+            .label("each sample")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.mix(0.3)));
+        chart
+            .draw_series(LineSeries::new(
+                times.zip(rolling_median(&errors, MEDIAN_HALF)),
+                BLACK.stroke_width(2),
+            ))
+            .map_err(draw_err)?
+            .label(format!("median of {} samples", 2 * MEDIAN_HALF + 1))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
         mark_times(&mut chart, record, (0.0, err_max), false)?;
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.3))
+            .label_font((FONT, 13))
+            .draw()
+            .map_err(draw_err)?;
         root.present().map_err(draw_err)?;
     }
     Ok(svg)
+}
+
+/// Samples each side of the tracking error's running median.
+const MEDIAN_HALF: usize = 12;
+
+/// The median of each value and the `half` values each side of it (fewer at the ends).
+fn rolling_median(values: &[f64], half: usize) -> Vec<f64> {
+    let mut window = Vec::with_capacity(2 * half + 1);
+    (0..values.len())
+        .map(|i| {
+            window.clear();
+            window.extend_from_slice(
+                &values[i.saturating_sub(half)..(i + half + 1).min(values.len())],
+            );
+            window.sort_by(f64::total_cmp);
+            window[window.len() / 2]
+        })
+        .collect()
 }
 
 type Chart<'a, 'b> = ChartContext<
@@ -571,7 +624,7 @@ fn mark_times(
             .map_err(draw_err)?;
         if labels {
             // Staggered, so that events close in time keep their names apart.
-            let y = hi - (0.08 + 0.06 * (k % 2) as f64) * (hi - lo);
+            let y = hi - (0.14 + 0.06 * (k % 2) as f64) * (hi - lo);
             chart
                 .draw_series(std::iter::once(Text::new(
                     format!(" {}", e.label),
@@ -633,6 +686,16 @@ mod tests {
         let (sx, sy) = (400.0 / (x.end - x.start), 100.0 / (y.end - y.start));
         assert!((sx - sy).abs() < 1e-9, "{sx} vs {sy}");
         assert!(x.start <= 0.0 && x.end >= 2.0 && y.start <= 0.0 && y.end >= 1.0);
+    }
+
+    #[test]
+    fn the_running_median_ignores_single_spikes() {
+        let v = [1.0, 1.0, 9.0, 1.0, 1.0, 2.0, 2.0];
+        assert_eq!(
+            rolling_median(&v, 1),
+            vec![1.0, 1.0, 1.0, 1.0, 1.0, 2.0, 2.0]
+        );
+        assert!(rolling_median(&[], 3).is_empty());
     }
 
     #[test]
