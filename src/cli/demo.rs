@@ -1,19 +1,62 @@
 //! `snakectl demo` (and `cargo run --release` with no arguments): the whole product in one
 //! command, driven through the daemon's socket as any client would drive it.
+//!
+//! The simulator and the daemon start in this process (a real pseudo-terminal, a real socket on
+//! a free loopback port); a [`Client`] then steers the tip around a figure eight once per
+//! strategy, as a joystick would (`velocity` at 50 Hz), and along a path interrupted by an
+//! estop. What telemetry said becomes a summary table, `summary.json` and two figures.
 
-use std::path::PathBuf;
+use std::io::{IsTerminal, Write};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
+use anyhow::{anyhow, bail, Context};
 use clap::Args;
+use serde::Serialize;
+use serde_json::Value;
 
-use super::Failure;
+use snakectl::client::{ArmInfo, Client, ClientError, EventInfo, Incoming, Snapshot};
+use snakectl::config::Config;
+use snakectl::connect;
+use snakectl::daemon::{DaemonError, Embedded, RunOptions};
+use snakectl::plot;
+use snakectl::plot::demo::{Event, Phase, Record, Sample};
+use snakectl::protocol::Cmd;
+use snakectl::resolve::Strategy;
+use snakectl_sim::RealClock;
 
-#[derive(Debug, Args, Default)]
+use super::{outln, Failure};
+
+/// The shipped simulator config, compiled in so the demo runs from any directory.
+const SHIPPED: &str = include_str!("../../config/sim.toml");
+const SHIPPED_PATH: &str = "config/sim.toml";
+const DEFAULT_OUT: &str = "snakectl-demo";
+/// Each figure eight's duration unless `--seconds` says otherwise, s.
+const DEFAULT_SECONDS: f64 = 15.0;
+const MIN_SECONDS: f64 = 2.0;
+const MAX_SECONDS: f64 = 600.0;
+/// How often the eight's `velocity` is renewed, as a joystick's would be.
+const SEND_PERIOD: Duration = Duration::from_millis(20);
+/// The eight's fastest feed-forward tip speed, as a share of `max_tip_speed_m_s`.
+const SPEED_SHARE: f64 = 0.6;
+/// No `velocity` sent is faster than this share of `max_tip_speed_m_s`.
+const COMMAND_SHARE: f64 = 0.8;
+/// The proportional correction toward the curve's point, 1/s.
+const GAIN: f64 = 3.0;
+/// About how long one loop of the eight takes, s.
+const LOOP_S: f64 = 7.5;
+/// Waits for the daemon beyond a motion's own duration; reached only when something is wrong.
+const SLACK: Duration = Duration::from_secs(15);
+
+#[derive(Debug, Args)]
 pub struct DemoArgs {
     /// The simulated arm's config (default: the shipped `config/sim.toml`).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Where to write `summary.json` and the figures.
-    #[arg(long, value_name = "DIR", default_value = "snakectl-demo")]
+    #[arg(long, value_name = "DIR", default_value = DEFAULT_OUT)]
     pub out: PathBuf,
     /// How long the figure eights take, each, s (the whole demo takes about twice this, plus
     /// the path).
@@ -21,7 +64,1012 @@ pub struct DemoArgs {
     pub seconds: Option<f64>,
 }
 
+impl Default for DemoArgs {
+    fn default() -> Self {
+        Self {
+            config: None,
+            out: PathBuf::from(DEFAULT_OUT),
+            seconds: None,
+        }
+    }
+}
+
 /// Runs the demo and writes its outputs.
-pub fn run(_args: DemoArgs) -> Result<(), Failure> {
-    Err(Failure::other(anyhow::anyhow!("not yet")))
+pub fn run(args: DemoArgs) -> Result<(), Failure> {
+    init_logs();
+    let seconds = args.seconds.unwrap_or(DEFAULT_SECONDS);
+    if !(MIN_SECONDS..=MAX_SECONDS).contains(&seconds) {
+        return Err(Failure::bad_input(anyhow!(
+            "--seconds {seconds}: give {MIN_SECONDS} to {MAX_SECONDS} s"
+        )));
+    }
+    let config = match &args.config {
+        Some(path) => Config::load(path).map_err(Failure::bad_input)?,
+        None => Config::from_str(SHIPPED, SHIPPED_PATH).map_err(Failure::other)?,
+    };
+    let out = if args.out.as_os_str().is_empty() {
+        PathBuf::from(DEFAULT_OUT)
+    } else {
+        args.out
+    };
+    std::fs::create_dir_all(&out)
+        .with_context(|| format!("creating {}", out.display()))
+        .map_err(Failure::other)?;
+
+    let mut progress = Progress::new();
+    progress.line(format!(
+        "snakectl demo: {} ({} joints, simulated), figure eights of {seconds} s",
+        config.path().display(),
+        config.chain().len()
+    ));
+    let sim = connect::spawn_sim(&config, Arc::new(RealClock)).map_err(Failure::bad_input)?;
+    let options = RunOptions {
+        port: Some(sim.path().to_path_buf()),
+    };
+    let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
+    let daemon = Embedded::start(config.clone(), loopback, options).map_err(Failure::other)?;
+    progress.line(format!(
+        "daemon on {}, simulator on {}",
+        daemon.addr(),
+        sim.path().display()
+    ));
+    let driven = drive(&config, daemon.addr(), seconds, &mut progress);
+    progress.clear();
+    let stopped = daemon.stop();
+    drop(sim);
+    let demo = match (driven, stopped) {
+        (Ok(demo), Ok(_)) => demo,
+        // The daemon's own failure (a bring-up refused, say) is the cause; the client only saw
+        // the connection close.
+        (Err(seen), Err(e)) => {
+            let code = if matches!(
+                e,
+                DaemonError::BringUp(_) | DaemonError::Connect(_) | DaemonError::Controller(_)
+            ) {
+                2
+            } else {
+                1
+            };
+            return Err(Failure {
+                code,
+                error: anyhow::Error::new(e).context(format!("the daemon failed ({seen:#})")),
+            });
+        }
+        (Err(seen), Ok(_)) => return Err(Failure::other(seen.context("the demo failed"))),
+        (Ok(_), Err(e)) => {
+            return Err(Failure::other(
+                anyhow::Error::new(e).context("the daemon did not stop cleanly"),
+            ))
+        }
+    };
+    report(&demo, &out)
+}
+
+/// Warnings and errors only: the progress lines tell the rest. `RUST_LOG` overrides.
+fn init_logs() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Progress on stderr: a live status line (carriage return) on a terminal, plain lines
+/// otherwise.
+struct Progress {
+    tty: bool,
+    live_shown: bool,
+    last_live: Option<Instant>,
+}
+
+impl Progress {
+    fn new() -> Self {
+        Self {
+            tty: std::io::stderr().is_terminal(),
+            live_shown: false,
+            last_live: None,
+        }
+    }
+
+    /// A line that stays.
+    fn line(&mut self, text: impl AsRef<str>) {
+        self.clear();
+        eprintln!("{}", text.as_ref());
+    }
+
+    /// The live line, redrawn at most ten times a second; nothing when stderr is not a terminal.
+    fn live(&mut self, text: impl FnOnce() -> String) {
+        if !self.tty
+            || self
+                .last_live
+                .is_some_and(|t| t.elapsed() < Duration::from_millis(100))
+        {
+            return;
+        }
+        self.last_live = Some(Instant::now());
+        let mut err = std::io::stderr().lock();
+        let _ = write!(err, "\r\x1b[K{}", text());
+        let _ = err.flush();
+        self.live_shown = true;
+    }
+
+    /// Takes the live line away.
+    fn clear(&mut self) {
+        if self.live_shown {
+            eprint!("\r\x1b[K");
+            self.live_shown = false;
+        }
+    }
+}
+
+/// A figure eight (a lemniscate of Gerono's kind: `sin φ` along, `sin 2φ` across) around
+/// `centre`, whose phase speeds up smoothly from rest and slows to rest at the end.
+#[derive(Debug, Clone, Copy)]
+struct Eight {
+    centre: [f64; 2],
+    /// Unit vector of the long axis.
+    along: [f64; 2],
+    /// Unit vector of the short axis.
+    across: [f64; 2],
+    /// Half-width along, m.
+    a: f64,
+    /// Half-height across, m.
+    b: f64,
+    /// Phase rate between the ramps, rad/s.
+    omega: f64,
+    /// Ramp duration at each end, s.
+    ramp: f64,
+    /// Total duration, s.
+    duration: f64,
+    loops: u32,
+}
+
+impl Eight {
+    /// An eight inside the arm's workspace, in front of its home tip, sized so that its
+    /// fastest point moves at [`SPEED_SHARE`] of `max_tip_speed`.
+    fn new(arm: &ArmInfo, seconds: f64, max_tip_speed: f64) -> Self {
+        let base = [arm.base[0], arm.base[1]];
+        let home_tip = arm
+            .points(&arm.home_rad)
+            .last()
+            .copied()
+            .unwrap_or([base[0], base[1] + arm.reach()]);
+        let (dx, dy) = (home_tip[0] - base[0], home_tip[1] - base[1]);
+        let distance = dx.hypot(dy);
+        let across = if distance > 1e-9 {
+            [dx / distance, dy / distance]
+        } else {
+            [arm.base[2].cos(), arm.base[2].sin()]
+        };
+        let along = [-across[1], across[0]];
+        let radius = distance.min(0.85 * arm.reach());
+        let centre = [base[0] + radius * across[0], base[1] + radius * across[1]];
+        let loops = ((seconds / LOOP_S).round() as u32).max(1);
+        let ramp = (seconds / 5.0).min(1.0);
+        let omega = 2.0 * std::f64::consts::PI * f64::from(loops) / (seconds - ramp);
+        // The fastest point is the crossing: |dP/dφ| = sqrt(a² + 4b²) = a √2 with b = a / 2.
+        let a = (SPEED_SHARE * max_tip_speed / (omega * std::f64::consts::SQRT_2))
+            .min(0.1 * arm.reach());
+        Self {
+            centre,
+            along,
+            across,
+            a,
+            b: 0.5 * a,
+            omega,
+            ramp,
+            duration: seconds,
+            loops,
+        }
+    }
+
+    /// The phase and its rate at `tau` s after the start.
+    fn phase(&self, tau: f64) -> (f64, f64) {
+        let (w, r) = (self.omega, self.ramp);
+        // The rate follows smoothstep 3x² - 2x³ up over the first ramp and down over the last;
+        // its integral is x³ - x⁴/2.
+        let rise = |x: f64| {
+            (
+                3.0 * x * x - 2.0 * x * x * x,
+                x * x * x - 0.5 * x * x * x * x,
+            )
+        };
+        let tau = tau.clamp(0.0, self.duration);
+        if tau < r {
+            let (rate, integral) = rise(tau / r);
+            (w * r * integral, w * rate)
+        } else if tau > self.duration - r {
+            let (rate, integral) = rise((self.duration - tau) / r);
+            (w * (self.duration - r) - w * r * integral, w * rate)
+        } else {
+            (w * (0.5 * r + tau - r), w)
+        }
+    }
+
+    /// The point at phase `phi` and its derivative by the phase.
+    fn at_phase(&self, phi: f64) -> ([f64; 2], [f64; 2]) {
+        let (u, v) = (self.a * phi.sin(), self.b * (2.0 * phi).sin());
+        let (du, dv) = (self.a * phi.cos(), 2.0 * self.b * (2.0 * phi).cos());
+        (
+            [
+                self.centre[0] + u * self.along[0] + v * self.across[0],
+                self.centre[1] + u * self.along[1] + v * self.across[1],
+            ],
+            [
+                du * self.along[0] + dv * self.across[0],
+                du * self.along[1] + dv * self.across[1],
+            ],
+        )
+    }
+
+    /// The point and its velocity at `tau` s after the start.
+    fn at(&self, tau: f64) -> ([f64; 2], [f64; 2]) {
+        let (phi, rate) = self.phase(tau);
+        let (p, d) = self.at_phase(phi);
+        (p, [d[0] * rate, d[1] * rate])
+    }
+
+    /// The whole curve, for the figures.
+    fn polyline(&self) -> Vec<[f64; 2]> {
+        (0..=400)
+            .map(|k| {
+                self.at_phase(2.0 * std::f64::consts::PI * f64::from(k) / 400.0)
+                    .0
+            })
+            .collect()
+    }
+}
+
+/// One telemetry sample as recorded.
+#[derive(Debug, Clone)]
+struct Rec {
+    tick: u64,
+    solve_us: f64,
+    saturated: bool,
+    sample: Sample,
+}
+
+/// What one strategy's figure eight measured.
+#[derive(Debug, Clone, Serialize)]
+struct StrategyFigures {
+    name: &'static str,
+    peak_joint_speed_rad_s: f64,
+    m3_rad2: f64,
+    tracking_error_p50_m: f64,
+    tracking_error_max_m: f64,
+    loop_hz: f64,
+    tick_p99_us: f64,
+    solve_us_p50: f64,
+    solve_us_p99: f64,
+    /// The fastest reference tip speed between samples, m/s.
+    peak_tip_speed_m_s: f64,
+    velocity_commands: u64,
+    samples: usize,
+    saturated_samples: usize,
+    overruns: u64,
+}
+
+/// The path with its estop.
+#[derive(Debug, Clone, Serialize)]
+struct PathFigures {
+    corners: Vec<[f64; 2]>,
+    estop_tick: u64,
+    estop_tip: [f64; 2],
+    /// What a motion command got while the latch was set.
+    refused_while_latched: String,
+    reset_tick: u64,
+    arrived_tick: u64,
+}
+
+/// The eight's shape.
+#[derive(Debug, Clone, Serialize)]
+struct EightShape {
+    centre: [f64; 2],
+    width_m: f64,
+    height_m: f64,
+    loops: u32,
+    seconds: f64,
+}
+
+/// `summary.json`.
+#[derive(Debug, Clone, Serialize)]
+struct Summary {
+    max_joint_speed_rad_s: f64,
+    max_tip_speed_m_s: f64,
+    strategies: Vec<StrategyFigures>,
+    eight: EightShape,
+    path: PathFigures,
+    config: String,
+}
+
+/// A finished run: its figures and its record.
+struct Demo {
+    summary: Summary,
+    record: Record,
+}
+
+/// The session on the socket: the client, and what it has recorded so far.
+struct Session<'p> {
+    client: Client,
+    arm: ArmInfo,
+    progress: &'p mut Progress,
+    recs: Vec<Rec>,
+    latest: Option<Snapshot>,
+    phases: Vec<Phase>,
+    events: Vec<Event>,
+    /// What the live line says is going on.
+    activity: String,
+    /// Samples kept at most (a run of [`MAX_SECONDS`] eights stays within it).
+    cap: usize,
+}
+
+/// The run from connecting to the last arrival.
+fn drive(
+    config: &Config,
+    addr: SocketAddr,
+    seconds: f64,
+    progress: &mut Progress,
+) -> anyhow::Result<Demo> {
+    let control = config.control();
+    let token = config.server().token_file.as_deref();
+    let mut client = Client::connect_with(&addr.to_string(), token)?;
+    progress.line("bringing the arm up ...");
+    let arm = client.describe()?;
+    client.request(&Cmd::Subscribe {
+        rate_hz: arm.rate_hz,
+    })?;
+    let cap = ((2.0 * MAX_SECONDS + 600.0) * arm.rate_hz) as usize;
+    let mut s = Session {
+        client,
+        arm,
+        progress,
+        recs: Vec::new(),
+        latest: None,
+        phases: Vec::new(),
+        events: Vec::new(),
+        activity: "holding".into(),
+        cap,
+    };
+    s.wait_for(|_| true, SLACK, "the first telemetry line")?;
+    let eight = Eight::new(&s.arm, seconds, control.max_tip_speed_m_s);
+    s.progress.line(format!(
+        "arm up: {} links, {:.2} m reach, {} Hz; figure eight {:.0} x {:.0} mm around ({:.3}, {:.3}) m, {} loop(s)",
+        s.arm.links_m.len(),
+        s.arm.reach(),
+        s.arm.rate_hz,
+        4e3 * eight.a / 2.0,
+        4e3 * eight.b / 2.0,
+        eight.centre[0],
+        eight.centre[1],
+        eight.loops
+    ));
+    let cap_speed = COMMAND_SHARE * control.max_tip_speed_m_s;
+    let mut strategies = Vec::new();
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        strategies.push(s.figure_eight(strategy, &eight, cap_speed)?);
+    }
+    let path = s.path_with_estop(&eight, control.max_tip_speed_m_s)?;
+    s.progress.line("done: the arm holds");
+
+    let t0 = s.recs.first().map_or(0.0, |r| r.sample.t_s);
+    let shift = |t: f64| t - t0;
+    let record = Record {
+        links_m: s.arm.links_m.clone(),
+        base: s.arm.base,
+        samples: s
+            .recs
+            .iter()
+            .map(|r| Sample {
+                t_s: shift(r.sample.t_s),
+                ..r.sample.clone()
+            })
+            .collect(),
+        phases: s
+            .phases
+            .iter()
+            .map(|p| Phase {
+                t0: shift(p.t0),
+                t1: shift(p.t1),
+                ..p.clone()
+            })
+            .collect(),
+        events: s
+            .events
+            .iter()
+            .map(|e| Event {
+                t_s: shift(e.t_s),
+                ..e.clone()
+            })
+            .collect(),
+    };
+    let summary = Summary {
+        max_joint_speed_rad_s: control.max_joint_speed_rad_s,
+        max_tip_speed_m_s: control.max_tip_speed_m_s,
+        strategies,
+        eight: EightShape {
+            centre: eight.centre,
+            width_m: 2.0 * eight.a,
+            height_m: 2.0 * eight.b,
+            loops: eight.loops,
+            seconds,
+        },
+        path,
+        config: config.path().display().to_string(),
+    };
+    Ok(Demo { summary, record })
+}
+
+impl Session<'_> {
+    /// Waits up to `wait` for a telemetry line and records it; then takes every reply and event
+    /// that came. A refused request fails the run; the events are returned.
+    fn pump(&mut self, wait: Duration) -> anyhow::Result<Vec<EventInfo>> {
+        if let Some(t) = self.client.wait_telemetry(wait)? {
+            self.record(&t.snapshot);
+        }
+        let mut events = Vec::new();
+        while let Some(incoming) = self.client.next(Duration::ZERO)? {
+            match incoming {
+                Incoming::Event(e) => {
+                    if e.event == "fault" && e.reason.as_deref() == Some("raised") {
+                        let what = e.fault.as_ref().map(ToString::to_string);
+                        bail!(
+                            "the arm holds for a fault: {}",
+                            what.unwrap_or_else(|| "(no details)".into())
+                        );
+                    }
+                    events.push(e);
+                }
+                Incoming::Reply(reply) => {
+                    if let Err((code, message)) = reply.result {
+                        bail!("the daemon refused request {}: {code}: {message}", reply.id);
+                    }
+                }
+            }
+        }
+        Ok(events)
+    }
+
+    fn record(&mut self, snap: &Snapshot) {
+        if self.recs.len() < self.cap {
+            self.recs.push(Rec {
+                tick: snap.tick,
+                solve_us: snap.solve_us,
+                saturated: snap.saturated,
+                sample: Sample {
+                    t_s: snap.t_s,
+                    theta: snap.theta_meas.clone(),
+                    tip_ref: snap.tip_ref,
+                    tip_meas: snap.tip_meas,
+                    tracking_error_m: snap.tracking_error_m,
+                },
+            });
+        }
+        let activity = &self.activity;
+        self.progress.live(|| {
+            format!(
+                "  {activity} | t {:6.2} s | tip ({:+.3}, {:+.3}) m | error {:5.2} mm | {:5.1} Hz | {}",
+                snap.t_s,
+                snap.tip_meas[0],
+                snap.tip_meas[1],
+                snap.tracking_error_m * 1e3,
+                snap.loop_hz,
+                snap.state
+            )
+        });
+        self.latest = Some(snap.clone());
+    }
+
+    /// Pumps until the latest telemetry satisfies `done`.
+    fn wait_for(
+        &mut self,
+        done: impl Fn(&Snapshot) -> bool,
+        timeout: Duration,
+        what: &str,
+    ) -> anyhow::Result<Snapshot> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(latest) = self.latest.as_ref().filter(|s| done(s)) {
+                return Ok(latest.clone());
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                bail!("waited {} s for {what} in vain", timeout.as_secs());
+            }
+            self.pump(left.min(Duration::from_millis(50)))?;
+        }
+    }
+
+    /// Pumps until the event `kind` about request `id` (`None`: any request) comes; an event
+    /// that ends that request otherwise fails the run.
+    fn wait_event(
+        &mut self,
+        kind: &str,
+        id: Option<u64>,
+        timeout: Duration,
+    ) -> anyhow::Result<EventInfo> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                bail!(
+                    "no `{kind}` event within {:.1} s (state {})",
+                    timeout.as_secs_f64(),
+                    self.latest.as_ref().map_or("unknown", |s| s.state.as_str())
+                );
+            }
+            for e in self.pump(left.min(Duration::from_millis(50)))? {
+                let ours = id.is_none() || e.cmd_id.as_ref().and_then(Value::as_u64) == id;
+                if !ours {
+                    continue;
+                }
+                if e.event == kind {
+                    return Ok(e);
+                }
+                if matches!(e.event.as_str(), "saturated" | "preempted" | "stopped") {
+                    bail!(
+                        "waiting for `{kind}`, the command ended `{}`{} at tick {}",
+                        e.event,
+                        e.reason.map(|r| format!(" ({r})")).unwrap_or_default(),
+                        e.tick
+                    );
+                }
+            }
+        }
+    }
+
+    fn begin_phase(&mut self, label: &str, pictured: bool, reference: Vec<[f64; 2]>) {
+        let t = self.latest.as_ref().map_or(0.0, |s| s.t_s);
+        self.phases.push(Phase {
+            label: label.to_owned(),
+            t0: t,
+            t1: t,
+            reference,
+            pictured,
+        });
+    }
+
+    fn end_phase(&mut self) {
+        let t = self.latest.as_ref().map_or(0.0, |s| s.t_s);
+        if let Some(p) = self.phases.last_mut() {
+            p.t1 = t;
+        }
+    }
+
+    /// A `goto`, waited for.
+    fn goto(&mut self, target: [f64; 2], max_tip_speed: f64) -> anyhow::Result<()> {
+        let from = self.latest.as_ref().map_or(target, |s| s.tip);
+        let id = self.client.send(&Cmd::Goto {
+            target,
+            speed: None,
+        })?;
+        let distance = (target[0] - from[0]).hypot(target[1] - from[1]);
+        self.wait_event("arrived", Some(id), secs(distance / max_tip_speed) + SLACK)?;
+        Ok(())
+    }
+
+    /// One strategy's figure eight: set it, go to the start, zero the statistics, stream the
+    /// eight, come to rest, read the figures.
+    fn figure_eight(
+        &mut self,
+        strategy: Strategy,
+        eight: &Eight,
+        cap_speed: f64,
+    ) -> anyhow::Result<StrategyFigures> {
+        let name = strategy.name();
+        self.client.request(&Cmd::Strategy { name: strategy })?;
+        self.progress
+            .line(format!("{name}: strategy set; to the eight's start"));
+        self.activity = format!("{name}: goto start");
+        self.begin_phase(&format!("{name}: goto"), false, Vec::new());
+        self.goto(eight.centre, cap_speed / COMMAND_SHARE)?;
+        self.end_phase();
+        self.client.request(&Cmd::ResetStats)?;
+
+        self.progress.line(format!(
+            "{name}: figure eight, {:.1} s of `velocity` at {} Hz",
+            eight.duration,
+            1000 / SEND_PERIOD.as_millis().max(1)
+        ));
+        self.begin_phase(&format!("{name}: eight"), true, eight.polyline());
+        let first = self.recs.len();
+        let start = Instant::now();
+        let mut next_send = start;
+        let mut sent = 0u64;
+        let mut next_note = 5.0;
+        loop {
+            let tau = start.elapsed().as_secs_f64();
+            if tau >= eight.duration {
+                break;
+            }
+            if Instant::now() >= next_send {
+                let (p, v) = eight.at(tau);
+                let tip = self.latest.as_ref().map_or(p, |s| s.tip);
+                let mut cmd = [v[0] + GAIN * (p[0] - tip[0]), v[1] + GAIN * (p[1] - tip[1])];
+                let speed = cmd[0].hypot(cmd[1]);
+                if speed > cap_speed {
+                    cmd = [cmd[0] * cap_speed / speed, cmd[1] * cap_speed / speed];
+                }
+                self.client.send(&Cmd::Velocity { v: cmd })?;
+                sent += 1;
+                next_send += SEND_PERIOD;
+                // Late (a busy machine): carry on from now, never in a burst.
+                let now = Instant::now();
+                if next_send < now {
+                    next_send = now + SEND_PERIOD;
+                }
+                self.activity = format!("{name}: eight {tau:5.1}/{:.1} s", eight.duration);
+            }
+            if !self.progress.tty && tau >= next_note {
+                let err = self.latest.as_ref().map_or(0.0, |s| s.tracking_error_m);
+                self.progress.line(format!(
+                    "{name}: {tau:.0}/{:.0} s, tracking error {:.2} mm",
+                    eight.duration,
+                    err * 1e3
+                ));
+                next_note += 5.0;
+            }
+            for e in self.pump(next_send.saturating_duration_since(Instant::now()))? {
+                if matches!(e.event.as_str(), "preempted" | "stopped" | "estop") {
+                    bail!(
+                        "{name}: the eight's `velocity` ended `{}` at tick {}",
+                        e.event,
+                        e.tick
+                    );
+                }
+            }
+        }
+        let end = self.recs.len();
+        let loop_figures = self
+            .latest
+            .clone()
+            .ok_or_else(|| anyhow!("no telemetry during the eight"))?;
+        self.end_phase();
+
+        self.activity = format!("{name}: coming to rest");
+        let zero = self.client.send(&Cmd::Velocity { v: [0.0, 0.0] })?;
+        sent += 1;
+        self.wait_event("stopped", Some(zero), SLACK)?;
+        let status = self.client.status()?;
+        let command = status
+            .command
+            .clone()
+            .ok_or_else(|| anyhow!("{name}: status reports no command after the eight"))?;
+        if command.kind != "velocity" || command.id.as_u64() != Some(zero) {
+            bail!(
+                "{name}: status reports `{}` (id {}) as the last command, not the eight's `velocity`",
+                command.kind,
+                command.id
+            );
+        }
+
+        let recs = &self.recs[first..end];
+        let mut errors: Vec<f64> = recs.iter().map(|r| r.sample.tracking_error_m).collect();
+        let mut solve: Vec<f64> = recs.iter().map(|r| r.solve_us).collect();
+        let peak_tip_speed = recs
+            .windows(2)
+            .filter(|w| w[1].tick > w[0].tick)
+            .map(|w| {
+                let (a, b) = (w[0].sample.tip_ref, w[1].sample.tip_ref);
+                let dt = (w[1].tick - w[0].tick) as f64 / self.arm.rate_hz;
+                (b[0] - a[0]).hypot(b[1] - a[1]) / dt
+            })
+            .fold(0.0, f64::max);
+        let figures = StrategyFigures {
+            name,
+            peak_joint_speed_rad_s: command.peak_joint_speed_rad_s,
+            m3_rad2: command.m3_rad2,
+            tracking_error_p50_m: percentile(&mut errors, 0.5),
+            tracking_error_max_m: errors.iter().copied().fold(f64::NAN, f64::max),
+            loop_hz: loop_figures.loop_hz,
+            tick_p99_us: loop_figures.tick_p99_us,
+            solve_us_p50: percentile(&mut solve, 0.5),
+            solve_us_p99: percentile(&mut solve, 0.99),
+            peak_tip_speed_m_s: peak_tip_speed,
+            velocity_commands: sent,
+            samples: recs.len(),
+            saturated_samples: recs.iter().filter(|r| r.saturated).count(),
+            overruns: status.overruns,
+        };
+        self.progress.line(format!(
+            "{name}: at rest; tracking error p50 {:.2} mm, max {:.2} mm; peak joint speed {:.3} rad/s",
+            figures.tracking_error_p50_m * 1e3,
+            figures.tracking_error_max_m * 1e3,
+            figures.peak_joint_speed_rad_s
+        ));
+        Ok(figures)
+    }
+
+    /// A path of four corners with a sudden estop partway, the refusal it brings, the reset,
+    /// and the rest of the path.
+    fn path_with_estop(
+        &mut self,
+        eight: &Eight,
+        max_tip_speed: f64,
+    ) -> anyhow::Result<PathFigures> {
+        let d = 0.8 * eight.a;
+        let c = eight.centre;
+        let (t, u) = (eight.along, eight.across);
+        let at = |p: f64, q: f64| [c[0] + p * t[0] + q * u[0], c[1] + p * t[1] + q * u[1]];
+        let corners = vec![at(d, 0.0), at(d, -d), at(-d, -d), at(-d, 0.0)];
+        let length: f64 = std::iter::once(c)
+            .chain(corners.iter().copied())
+            .collect::<Vec<_>>()
+            .windows(2)
+            .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+            .sum();
+        // Overall keeps the arm's shape; sequential curls the last joints toward their limits
+        // on the way round the corners.
+        self.client.request(&Cmd::Strategy {
+            name: Strategy::Overall,
+        })?;
+        self.progress.line(format!(
+            "path (overall): {} corners, each taken at a stop; an estop partway",
+            corners.len()
+        ));
+        let mut reference = vec![c];
+        reference.extend(&corners);
+        self.begin_phase("path, estop", true, reference);
+        self.activity = "path".into();
+        self.client.send(&Cmd::Path {
+            points: corners.clone(),
+            speed: None,
+        })?;
+        let budget = secs(length / max_tip_speed) + SLACK;
+        let near = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
+        let (second, third) = (corners[1], corners[2]);
+        self.wait_for(
+            |s| near(s.tip, second) < 5e-4,
+            budget,
+            "the path's second corner",
+        )?;
+        let half = 0.5 * near(second, third);
+        self.wait_for(
+            |s| near(s.tip, second) >= half,
+            budget,
+            "the tip halfway to the third corner",
+        )?;
+
+        self.client.request(&Cmd::Estop)?;
+        let estop = self.wait_event("estop", None, SLACK)?;
+        let estop_tip = self.latest.as_ref().map_or(estop.tip, |s| s.tip_meas);
+        self.events.push(Event {
+            label: "estop".into(),
+            t_s: estop.tick as f64 / self.arm.rate_hz,
+            tip: estop_tip,
+        });
+        self.progress.line(format!(
+            "ESTOP at tick {} with the tip at ({:+.3}, {:+.3}) m: goals frozen, latched",
+            estop.tick, estop_tip[0], estop_tip[1]
+        ));
+        self.activity = "ESTOP latched".into();
+        let refused = match self.client.request(&Cmd::Goto {
+            target: third,
+            speed: None,
+        }) {
+            Err(ClientError::Refused { code, .. }) => code,
+            Ok(_) => bail!("a `goto` was accepted while the estop latch was set"),
+            Err(e) => return Err(e.into()),
+        };
+        self.progress
+            .line(format!("  a `goto` while latched is refused: {refused}"));
+        // Stay latched for a second of the daemon's ticks.
+        let hold_until = estop.tick + self.arm.rate_hz.round() as u64;
+        self.wait_for(|s| s.tick >= hold_until, SLACK, "a second under estop")?;
+
+        self.client.request(&Cmd::Reset)?;
+        let reset = self.wait_event("reset", None, SLACK)?;
+        let reset_tip = self.latest.as_ref().map_or(reset.tip, |s| s.tip_meas);
+        self.events.push(Event {
+            label: "reset".into(),
+            t_s: reset.tick as f64 / self.arm.rate_hz,
+            tip: reset_tip,
+        });
+        self.wait_for(
+            |s| s.state == "holding",
+            SLACK,
+            "the arm holding after reset",
+        )?;
+        self.progress.line(format!(
+            "reset at tick {}: holding the measured pose; the rest of the path",
+            reset.tick
+        ));
+        // The estop ended the first path; the rest of it goes as a new one.
+        self.activity = "path, after reset".into();
+        let rest = corners[2..].to_vec();
+        let id = self.client.send(&Cmd::Path {
+            points: rest,
+            speed: None,
+        })?;
+        let arrived = self.wait_event("arrived", Some(id), budget)?;
+        self.end_phase();
+        self.progress
+            .line(format!("path: arrived at tick {}", arrived.tick));
+        Ok(PathFigures {
+            corners,
+            estop_tick: estop.tick,
+            estop_tip,
+            refused_while_latched: refused,
+            reset_tick: reset.tick,
+            arrived_tick: arrived.tick,
+        })
+    }
+}
+
+fn secs(s: f64) -> Duration {
+    Duration::from_secs_f64(s.clamp(0.0, 3600.0))
+}
+
+/// The `p`-quantile (nearest rank) of `values`, sorting them; NaN when empty.
+fn percentile(values: &mut [f64], p: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    let rank = (p * values.len() as f64).ceil() as usize;
+    values[rank.clamp(1, values.len()) - 1]
+}
+
+/// The table, `summary.json` and the figures.
+fn report(demo: &Demo, out: &Path) -> Result<(), Failure> {
+    let s = &demo.summary;
+    outln!("")?;
+    outln!(
+        "{:<11} {:>17} {:>9} {:>9} {:>15} {:>11} {:>22}",
+        "strategy",
+        "tracking p50/max",
+        "loop",
+        "tick p99",
+        "solve p50/p99",
+        "metric 3",
+        "peak joint speed"
+    )?;
+    outln!(
+        "{:<11} {:>17} {:>9} {:>9} {:>15} {:>11} {:>22}",
+        "",
+        "mm",
+        "Hz",
+        "µs",
+        "µs",
+        "rad²",
+        "rad/s (limit)"
+    )?;
+    for f in &s.strategies {
+        outln!(
+            "{:<11} {:>17} {:>9.1} {:>9.0} {:>15} {:>11.5} {:>22}",
+            f.name,
+            format!(
+                "{:.2} / {:.2}",
+                f.tracking_error_p50_m * 1e3,
+                f.tracking_error_max_m * 1e3
+            ),
+            f.loop_hz,
+            f.tick_p99_us,
+            format!("{:.0} / {:.0}", f.solve_us_p50, f.solve_us_p99),
+            f.m3_rad2,
+            format!(
+                "{:.3} ({:.1})",
+                f.peak_joint_speed_rad_s, s.max_joint_speed_rad_s
+            )
+        )?;
+    }
+    outln!(
+        "estop at tick {} (a `goto` then: {}), reset at tick {}, path arrived at tick {}",
+        s.path.estop_tick,
+        s.path.refused_while_latched,
+        s.path.reset_tick,
+        s.path.arrived_tick
+    )?;
+
+    let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, Failure> {
+        let path = out.join(name);
+        std::fs::write(&path, bytes)
+            .with_context(|| format!("writing {}", path.display()))
+            .map_err(Failure::other)?;
+        Ok(path)
+    };
+    let json = serde_json::to_string_pretty(s).map_err(Failure::other)?;
+    let mut written = vec![write("summary.json", format!("{json}\n").as_bytes())?];
+    let figures = [
+        (
+            "motion",
+            plot::demo::motion(
+                &demo.record,
+                "snakectl demo: the tip steered over the socket, as a joystick would",
+            ),
+        ),
+        (
+            "joints",
+            plot::demo::joints(
+                &demo.record,
+                "snakectl demo: joint angles and tracking error over the run",
+            ),
+        ),
+    ];
+    let mut fonts = true;
+    for (name, svg) in figures {
+        let svg = svg.map_err(Failure::other)?;
+        written.push(write(&format!("{name}.svg"), svg.as_bytes())?);
+        let (png, found) = plot::png(&svg).map_err(Failure::other)?;
+        fonts &= found;
+        written.push(write(&format!("{name}.png"), &png)?);
+    }
+    if !fonts {
+        eprintln!("snakectl: no system font found: the PNG figures have no text");
+    }
+    outln!("")?;
+    outln!("written to {}:", out.display())?;
+    for path in written {
+        outln!("  {}", path.display())?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    fn sim_arm() -> ArmInfo {
+        ArmInfo {
+            links_m: vec![0.08; 12],
+            base: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
+            home_rad: vec![0.1; 12],
+            rate_hz: 100.0,
+            ..ArmInfo::default()
+        }
+    }
+
+    #[test]
+    fn the_eight_starts_and_ends_at_rest_at_its_centre() {
+        for seconds in [3.0, 15.0, 60.0] {
+            let eight = Eight::new(&sim_arm(), seconds, 0.1);
+            for tau in [0.0, seconds] {
+                let (p, v) = eight.at(tau);
+                let off = (p[0] - eight.centre[0]).hypot(p[1] - eight.centre[1]);
+                assert!(off < 1e-9, "{seconds} s: {off} m off the centre at {tau} s");
+                assert!(v[0].hypot(v[1]) < 1e-12, "{seconds} s: moving at {tau} s");
+            }
+        }
+    }
+
+    #[test]
+    fn the_eight_keeps_under_its_speed_share_and_inside_the_reach() {
+        for seconds in [2.0, 3.0, 15.0, 600.0] {
+            let arm = sim_arm();
+            let eight = Eight::new(&arm, seconds, 0.1);
+            let (mut fastest, mut farthest) = (0.0f64, 0.0f64);
+            let mut last = eight.at(0.0).0;
+            for k in 1..=20_000 {
+                let tau = seconds * f64::from(k) / 20_000.0;
+                let (p, v) = eight.at(tau);
+                fastest = fastest.max(v[0].hypot(v[1]));
+                farthest = farthest.max(p[0].hypot(p[1]));
+                // The velocity is the derivative of the point.
+                let dt = seconds / 20_000.0;
+                let step = ((p[0] - last[0]) / dt - v[0]).hypot((p[1] - last[1]) / dt - v[1]);
+                assert!(step < 1e-3 + 0.05 * fastest, "{seconds} s at {tau}: {step}");
+                last = p;
+            }
+            assert!(
+                fastest <= SPEED_SHARE * 0.1 + 1e-9,
+                "{seconds} s: {fastest} m/s"
+            );
+            assert!(
+                fastest > 0.5 * SPEED_SHARE * 0.1,
+                "{seconds} s: {fastest} m/s"
+            );
+            assert!(farthest < 0.9 * arm.reach(), "{seconds} s: {farthest} m");
+        }
+    }
+
+    #[test]
+    fn percentiles_are_nearest_rank() {
+        let mut v = vec![5.0, 1.0, 4.0, 2.0, 3.0];
+        assert_eq!(percentile(&mut v, 0.5), 3.0);
+        assert_eq!(percentile(&mut v, 0.99), 5.0);
+        assert_eq!(percentile(&mut v, 0.0), 1.0);
+        assert!(percentile(&mut [], 0.5).is_nan());
+    }
 }

@@ -16,6 +16,8 @@ use plotters::prelude::*;
 use crate::chain::Vec2;
 use crate::scenario::{rotations as joint_rotations, Run, Scenario};
 
+pub mod demo;
+
 /// Why a figure could not be produced.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]

@@ -1,0 +1,707 @@
+//! The figures of `snakectl demo`, drawn from what a client of the daemon recorded: plain data
+//! in ([`Record`]), SVG text out (rasterize it with [`super::png`]).
+//!
+//! - [`motion`]: one column per pictured phase (each strategy's figure eight, the path with its
+//!   estop): on top the whole arm at a few moments, below a close-up of the tip, the reference
+//!   against the measured tip.
+//! - [`joints`]: every joint angle and the tracking error against time over the whole run, the
+//!   phases shaded and the events (estop, reset) marked.
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+use super::{draw_err, PlotError};
+
+/// One telemetry sample.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Sample {
+    /// Daemon time, s.
+    pub t_s: f64,
+    /// Measured joint angles, rad.
+    pub theta: Vec<f64>,
+    /// The tip reference, m.
+    pub tip_ref: [f64; 2],
+    /// The measured tip, m.
+    pub tip_meas: [f64; 2],
+    /// `|tip_ref - tip_meas|`, m.
+    pub tracking_error_m: f64,
+}
+
+/// A stretch of the run.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Phase {
+    /// Its name in the figures.
+    pub label: String,
+    /// Start, daemon time, s.
+    pub t0: f64,
+    /// End, daemon time, s.
+    pub t1: f64,
+    /// The curve the tip was meant to follow (empty: none), m.
+    pub reference: Vec<[f64; 2]>,
+    /// Whether it gets a column of its own in [`motion`] and a shade in [`joints`].
+    pub pictured: bool,
+}
+
+/// Something that happened at one moment (an estop, a reset).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Event {
+    /// Its name in the figures.
+    pub label: String,
+    /// Daemon time, s.
+    pub t_s: f64,
+    /// The measured tip then, m.
+    pub tip: [f64; 2],
+}
+
+/// What the figures are drawn from.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Record {
+    /// Link lengths, base to tip, m.
+    pub links_m: Vec<f64>,
+    /// Base pose: x, y (m), heading (rad).
+    pub base: [f64; 3],
+    /// Samples in time order.
+    pub samples: Vec<Sample>,
+    /// Phases in time order.
+    pub phases: Vec<Phase>,
+    /// Events in time order.
+    pub events: Vec<Event>,
+}
+
+impl Record {
+    /// The joint points, base to tip, of a pose.
+    fn points(&self, theta: &[f64]) -> Vec<(f64, f64)> {
+        let [mut x, mut y, mut heading] = self.base;
+        let mut points = vec![(x, y)];
+        for (length, angle) in self.links_m.iter().zip(theta) {
+            heading += angle;
+            x += length * heading.cos();
+            y += length * heading.sin();
+            points.push((x, y));
+        }
+        points
+    }
+
+    fn samples_in(&self, phase: &Phase) -> Vec<&Sample> {
+        self.samples
+            .iter()
+            .filter(|s| s.t_s >= phase.t0 && s.t_s <= phase.t1)
+            .collect()
+    }
+}
+
+/// Colour of the `i`-th pictured phase.
+const PHASE_COLOURS: [RGBColor; 4] = [
+    RGBColor(30, 90, 200),
+    RGBColor(230, 120, 20),
+    RGBColor(40, 150, 80),
+    RGBColor(140, 60, 170),
+];
+const EVENT: RGBColor = RGBColor(210, 30, 30);
+const REFERENCE: RGBColor = RGBColor(40, 40, 40);
+const FONT: &str = "sans-serif";
+
+/// Arms drawn per column of [`motion`].
+const SNAPSHOTS: usize = 6;
+const COL_W: u32 = 440;
+const ARM_H: u32 = 440;
+const ZOOM_H: u32 = 330;
+const TITLE_H: u32 = 44;
+/// Room a chart takes around its plotting area: margins, caption, label areas (w, h), px.
+const CHART_EXTRA: (u32, u32) = (2 * 10 + 56, 2 * 10 + 26 + 40);
+
+/// Ranges of equal scale on both axes holding `(x0, x1, y0, y1)`, padded, for a plotting area
+/// of `w` by `h` pixels.
+fn equal_ranges(
+    (x0, x1, y0, y1): (f64, f64, f64, f64),
+    w: f64,
+    h: f64,
+    pad: f64,
+) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    let span = (x1 - x0).max(y1 - y0).max(1e-6);
+    let (x0, x1, y0, y1) = (
+        x0 - pad * span,
+        x1 + pad * span,
+        y0 - pad * span,
+        y1 + pad * span,
+    );
+    let scale = (w / (x1 - x0)).min(h / (y1 - y0));
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let (hx, hy) = (0.5 * w / scale, 0.5 * h / scale);
+    ((cx - hx)..(cx + hx), (cy - hy)..(cy + hy))
+}
+
+/// The bounding box `(x0, x1, y0, y1)` of some points.
+fn bbox<'a>(points: impl IntoIterator<Item = &'a (f64, f64)>) -> (f64, f64, f64, f64) {
+    let mut b = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for &(x, y) in points {
+        b = (b.0.min(x), b.1.max(x), b.2.min(y), b.3.max(y));
+    }
+    if b.0 > b.1 {
+        (0.0, 1.0, 0.0, 1.0)
+    } else {
+        b
+    }
+}
+
+fn xy(p: [f64; 2]) -> (f64, f64) {
+    (p[0], p[1])
+}
+
+/// The motion figure as SVG text.
+pub fn motion(record: &Record, title: &str) -> Result<String, PlotError> {
+    let phases: Vec<&Phase> = record.phases.iter().filter(|p| p.pictured).collect();
+    if phases.is_empty() || record.samples.is_empty() {
+        return Err(PlotError::Empty);
+    }
+    let per_phase: Vec<Vec<&Sample>> = phases.iter().map(|p| record.samples_in(p)).collect();
+    // One view of the whole arm, the same in every column: the base and every pose drawn.
+    let mut arm_points = vec![(record.base[0], record.base[1])];
+    for samples in &per_phase {
+        for s in samples {
+            arm_points.extend(record.points(&s.theta));
+        }
+    }
+    let plot_w = f64::from(COL_W - CHART_EXTRA.0);
+    let arm_view = equal_ranges(
+        bbox(&arm_points),
+        plot_w,
+        f64::from(ARM_H - CHART_EXTRA.1),
+        0.06,
+    );
+    let width = COL_W * phases.len() as u32;
+    let height = TITLE_H + ARM_H + ZOOM_H;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err)?;
+        let root = root.titled(title, (FONT, 22)).map_err(draw_err)?;
+        let (top, bottom) = root.split_vertically(ARM_H);
+        let tops = top.split_evenly((1, phases.len()));
+        let bottoms = bottom.split_evenly((1, phases.len()));
+        for (i, (phase, samples)) in phases.iter().zip(&per_phase).enumerate() {
+            let colour = PHASE_COLOURS[i % PHASE_COLOURS.len()];
+            let events: Vec<&Event> = record
+                .events
+                .iter()
+                .filter(|e| e.t_s >= phase.t0 && e.t_s <= phase.t1)
+                .collect();
+            arm_panel(
+                &tops[i],
+                record,
+                phase,
+                samples,
+                &events,
+                colour,
+                arm_view.clone(),
+            )?;
+            zoom_panel(&bottoms[i], phase, samples, &events, colour)?;
+        }
+        root.present().map_err(draw_err)?;
+    }
+    Ok(svg)
+}
+
+/// Indices of `count` samples spread evenly over `len`, first and last included.
+fn spread(len: usize, count: usize) -> Vec<usize> {
+    match (len, count) {
+        (0, _) | (_, 0) => Vec::new(),
+        (_, 1) => vec![len - 1],
+        _ => {
+            let mut v: Vec<usize> = (0..count).map(|k| k * (len - 1) / (count - 1)).collect();
+            v.dedup();
+            v
+        }
+    }
+}
+
+fn arm_panel(
+    area: &DrawingArea<SVGBackend, Shift>,
+    record: &Record,
+    phase: &Phase,
+    samples: &[&Sample],
+    events: &[&Event],
+    colour: RGBColor,
+    (xr, yr): (std::ops::Range<f64>, std::ops::Range<f64>),
+) -> Result<(), PlotError> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(format!("{}: the arm", phase.label), (FONT, 17))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(56)
+        .build_cartesian_2d(xr, yr)
+        .map_err(draw_err)?;
+    chart
+        .configure_mesh()
+        .light_line_style(TRANSPARENT)
+        .bold_line_style(BLACK.mix(0.08))
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .x_labels(6)
+        .y_labels(6)
+        .draw()
+        .map_err(draw_err)?;
+    let picks = spread(samples.len(), SNAPSHOTS);
+    for (k, &i) in picks.iter().enumerate() {
+        // Early poses pale, the last one full.
+        let strength = 0.25 + 0.75 * (k + 1) as f64 / picks.len() as f64;
+        let points = record.points(&samples[i].theta);
+        let style = colour.mix(strength).stroke_width(2);
+        chart
+            .draw_series(LineSeries::new(points.iter().copied(), style))
+            .map_err(draw_err)?;
+        chart
+            .draw_series(
+                points
+                    .iter()
+                    .map(|&p| Circle::new(p, 2, colour.mix(strength).filled())),
+            )
+            .map_err(draw_err)?;
+    }
+    // The base.
+    let base = (record.base[0], record.base[1]);
+    chart
+        .draw_series(std::iter::once(TriangleMarker::new(
+            base,
+            7,
+            BLACK.filled(),
+        )))
+        .map_err(draw_err)?
+        .label("base")
+        .legend(|(x, y)| TriangleMarker::new((x + 9, y), 5, BLACK.filled()));
+    chart
+        .draw_series(LineSeries::new(
+            samples.iter().map(|s| xy(s.tip_meas)),
+            BLACK.stroke_width(1),
+        ))
+        .map_err(draw_err)?
+        .label("tip, measured")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(1)));
+    chart
+        .draw_series(std::iter::once(PathElement::new(
+            Vec::<(f64, f64)>::new(),
+            colour.stroke_width(2),
+        )))
+        .map_err(draw_err)?
+        .label(format!("arm at {} moments, pale first", picks.len()))
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+    mark_events(&mut chart, events, false)?;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font((FONT, 13))
+        .draw()
+        .map_err(draw_err)?;
+    Ok(())
+}
+
+/// A cross at each event; named beside it when `labels`, else once in the legend.
+fn mark_events(
+    chart: &mut Chart<'_, '_>,
+    events: &[&Event],
+    labels: bool,
+) -> Result<(), PlotError> {
+    for (k, e) in events.iter().enumerate() {
+        let at = xy(e.tip);
+        let cross = chart
+            .draw_series(std::iter::once(Cross::new(at, 7, EVENT.stroke_width(3))))
+            .map_err(draw_err)?;
+        if !labels {
+            if k == 0 {
+                let names: Vec<&str> = events.iter().map(|e| e.label.as_str()).collect();
+                cross
+                    .label(names.join(", "))
+                    .legend(|(x, y)| Cross::new((x + 9, y), 5, EVENT.stroke_width(2)));
+            }
+            continue;
+        }
+        // Events at nearly one place keep their names apart: above, then below.
+        let v = if k % 2 == 0 { VPos::Bottom } else { VPos::Top };
+        chart
+            .draw_series(std::iter::once(Text::new(
+                format!("   {}", e.label),
+                at,
+                (FONT, 14)
+                    .into_font()
+                    .color(&EVENT)
+                    .pos(Pos::new(HPos::Left, v)),
+            )))
+            .map_err(draw_err)?;
+    }
+    Ok(())
+}
+
+fn zoom_panel(
+    area: &DrawingArea<SVGBackend, Shift>,
+    phase: &Phase,
+    samples: &[&Sample],
+    events: &[&Event],
+    colour: RGBColor,
+) -> Result<(), PlotError> {
+    let reference: Vec<(f64, f64)> = phase.reference.iter().map(|&p| xy(p)).collect();
+    let trace: Vec<(f64, f64)> = samples.iter().map(|s| xy(s.tip_meas)).collect();
+    // Room above the curve for the legend.
+    let (x0, x1, y0, y1) = bbox(reference.iter().chain(&trace));
+    let view = equal_ranges(
+        (x0, x1, y0, y1 + 0.45 * (y1 - y0).max(0.3 * (x1 - x0))),
+        f64::from(COL_W - CHART_EXTRA.0),
+        f64::from(ZOOM_H - CHART_EXTRA.1),
+        0.12,
+    );
+    let mut chart = ChartBuilder::on(area)
+        .caption(format!("{}: the tip", phase.label), (FONT, 17))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(56)
+        .build_cartesian_2d(view.0, view.1)
+        .map_err(draw_err)?;
+    chart
+        .configure_mesh()
+        .light_line_style(TRANSPARENT)
+        .bold_line_style(BLACK.mix(0.08))
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .x_labels(5)
+        .y_labels(5)
+        .draw()
+        .map_err(draw_err)?;
+    if !reference.is_empty() {
+        // A pale band under the measured line, so that both show where they agree.
+        chart
+            .draw_series(LineSeries::new(
+                reference.iter().copied(),
+                REFERENCE.mix(0.18).stroke_width(8),
+            ))
+            .map_err(draw_err)?
+            .label("reference")
+            .legend(|(x, y)| {
+                PathElement::new(
+                    vec![(x, y), (x + 18, y)],
+                    REFERENCE.mix(0.18).stroke_width(8),
+                )
+            });
+    }
+    chart
+        .draw_series(LineSeries::new(
+            trace.iter().copied(),
+            colour.stroke_width(2),
+        ))
+        .map_err(draw_err)?
+        .label("tip, measured")
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+    if let Some(&start) = trace.first() {
+        chart
+            .draw_series(std::iter::once(Circle::new(start, 4, BLACK.filled())))
+            .map_err(draw_err)?
+            .label("start")
+            .legend(|(x, y)| Circle::new((x + 9, y), 4, BLACK.filled()));
+    }
+    mark_events(&mut chart, events, true)?;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font((FONT, 13))
+        .draw()
+        .map_err(draw_err)?;
+    Ok(())
+}
+
+/// Colour of joint `j` of `n`: from deep blue at the base through green to amber at the tip.
+fn joint_colour(j: usize, n: usize) -> RGBColor {
+    const STOPS: [(f64, f64, f64); 4] = [
+        (40.0, 50.0, 150.0),
+        (30.0, 140.0, 160.0),
+        (90.0, 170.0, 70.0),
+        (230.0, 160.0, 20.0),
+    ];
+    let s = if n > 1 {
+        j as f64 / (n - 1) as f64
+    } else {
+        0.0
+    } * (STOPS.len() - 1) as f64;
+    let k = (s.floor() as usize).min(STOPS.len() - 2);
+    let f = s - k as f64;
+    let (a, b) = (STOPS[k], STOPS[k + 1]);
+    let mix = |x: f64, y: f64| (x + (y - x) * f).round().clamp(0.0, 255.0) as u8;
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+const TIME_W: u32 = 1200;
+const ANGLES_H: u32 = 420;
+const ERROR_H: u32 = 280;
+const LEGEND_W: u32 = 120;
+
+/// The time figure as SVG text: joint angles, then the tracking error, against time.
+pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
+    let first = record.samples.first().ok_or(PlotError::Empty)?;
+    let last = record.samples.last().ok_or(PlotError::Empty)?;
+    let n = first.theta.len();
+    let (t0, t1) = (first.t_s, last.t_s.max(first.t_s + 1e-3));
+    let (mut lo, mut hi) = (f64::MAX, f64::MIN);
+    for s in &record.samples {
+        for &a in &s.theta {
+            lo = lo.min(a);
+            hi = hi.max(a);
+        }
+    }
+    let pad = 0.08 * (hi - lo).max(0.05);
+    let (lo, hi) = (lo - pad, hi + 2.5 * pad);
+    let err_max = record
+        .samples
+        .iter()
+        .map(|s| s.tracking_error_m * 1e3)
+        .fold(0.0, f64::max)
+        .max(0.1)
+        * 1.15;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (TIME_W, TITLE_H + ANGLES_H + ERROR_H))
+            .into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err)?;
+        let root = root.titled(title, (FONT, 22)).map_err(draw_err)?;
+        let (top, bottom) = root.split_vertically(ANGLES_H);
+        let (angles_area, legend_area) = top.split_horizontally(TIME_W - LEGEND_W);
+        let (error_area, _) = bottom.split_horizontally(TIME_W - LEGEND_W);
+
+        let mut chart = ChartBuilder::on(&angles_area)
+            .caption("measured joint angles", (FONT, 17))
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(t0..t1, lo..hi)
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .light_line_style(TRANSPARENT)
+            .bold_line_style(BLACK.mix(0.08))
+            .x_desc("time (s)")
+            .y_desc("angle (rad)")
+            .draw()
+            .map_err(draw_err)?;
+        shade_phases(&mut chart, record, (lo, hi), true)?;
+        for j in 0..n {
+            let colour = joint_colour(j, n);
+            chart
+                .draw_series(LineSeries::new(
+                    record
+                        .samples
+                        .iter()
+                        .filter_map(|s| s.theta.get(j).map(|&a| (s.t_s, a))),
+                    colour.stroke_width(2),
+                ))
+                .map_err(draw_err)?;
+        }
+        mark_times(&mut chart, record, (lo, hi), true)?;
+        joint_legend(&legend_area, n)?;
+
+        let mut chart = ChartBuilder::on(&error_area)
+            .caption("tracking error |tip_ref - tip_meas|", (FONT, 17))
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(t0..t1, 0.0..err_max)
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .light_line_style(TRANSPARENT)
+            .bold_line_style(BLACK.mix(0.08))
+            .x_desc("time (s)")
+            .y_desc("error (mm)")
+            .draw()
+            .map_err(draw_err)?;
+        shade_phases(&mut chart, record, (0.0, err_max), false)?;
+        let errors: Vec<f64> = record
+            .samples
+            .iter()
+            .map(|s| s.tracking_error_m * 1e3)
+            .collect();
+        let times = record.samples.iter().map(|s| s.t_s);
+        chart
+            .draw_series(LineSeries::new(
+                times.clone().zip(errors.iter().copied()),
+                BLACK.mix(0.3).stroke_width(1),
+            ))
+            .map_err(draw_err)?
+            .label("each sample")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.mix(0.3)));
+        chart
+            .draw_series(LineSeries::new(
+                times.zip(rolling_median(&errors, MEDIAN_HALF)),
+                BLACK.stroke_width(2),
+            ))
+            .map_err(draw_err)?
+            .label(format!("median of {} samples", 2 * MEDIAN_HALF + 1))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+        mark_times(&mut chart, record, (0.0, err_max), false)?;
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.3))
+            .label_font((FONT, 13))
+            .draw()
+            .map_err(draw_err)?;
+        root.present().map_err(draw_err)?;
+    }
+    Ok(svg)
+}
+
+/// Samples each side of the tracking error's running median.
+const MEDIAN_HALF: usize = 12;
+
+/// The median of each value and the `half` values each side of it (fewer at the ends).
+fn rolling_median(values: &[f64], half: usize) -> Vec<f64> {
+    let mut window = Vec::with_capacity(2 * half + 1);
+    (0..values.len())
+        .map(|i| {
+            window.clear();
+            window.extend_from_slice(
+                &values[i.saturating_sub(half)..(i + half + 1).min(values.len())],
+            );
+            window.sort_by(f64::total_cmp);
+            window[window.len() / 2]
+        })
+        .collect()
+}
+
+type Chart<'a, 'b> = ChartContext<
+    'a,
+    SVGBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
+
+/// Pale bands under the pictured phases, named at the top when `labels`.
+fn shade_phases(
+    chart: &mut Chart<'_, '_>,
+    record: &Record,
+    (lo, hi): (f64, f64),
+    labels: bool,
+) -> Result<(), PlotError> {
+    for (i, phase) in record.phases.iter().filter(|p| p.pictured).enumerate() {
+        let colour = PHASE_COLOURS[i % PHASE_COLOURS.len()];
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(phase.t0, lo), (phase.t1, hi)],
+                colour.mix(0.10).filled(),
+            )))
+            .map_err(draw_err)?;
+        if labels {
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    phase.label.clone(),
+                    (phase.t0, hi),
+                    (FONT, 14)
+                        .into_font()
+                        .color(&colour)
+                        .pos(Pos::new(HPos::Left, VPos::Top)),
+                )))
+                .map_err(draw_err)?;
+        }
+    }
+    Ok(())
+}
+
+/// A dashed vertical line at each event, named near the top when `labels`.
+fn mark_times(
+    chart: &mut Chart<'_, '_>,
+    record: &Record,
+    (lo, hi): (f64, f64),
+    labels: bool,
+) -> Result<(), PlotError> {
+    for (k, e) in record.events.iter().enumerate() {
+        chart
+            .draw_series(DashedLineSeries::new(
+                [(e.t_s, lo), (e.t_s, hi)],
+                5,
+                4,
+                EVENT.stroke_width(2),
+            ))
+            .map_err(draw_err)?;
+        if labels {
+            // Staggered, so that events close in time keep their names apart.
+            let y = hi - (0.14 + 0.06 * (k % 2) as f64) * (hi - lo);
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    format!(" {}", e.label),
+                    (e.t_s, y),
+                    (FONT, 14)
+                        .into_font()
+                        .color(&EVENT)
+                        .pos(Pos::new(HPos::Left, VPos::Center)),
+                )))
+                .map_err(draw_err)?;
+        }
+    }
+    Ok(())
+}
+
+/// The joints' colours, base to tip, in a column beside the angle chart.
+fn joint_legend(area: &DrawingArea<SVGBackend, Shift>, n: usize) -> Result<(), PlotError> {
+    let font = TextStyle::from((FONT, 13).into_font());
+    let (x, mut y) = (8, 46);
+    for j in 0..n {
+        let colour = joint_colour(j, n);
+        area.draw(&PathElement::new(
+            vec![(x, y), (x + 22, y)],
+            colour.stroke_width(3),
+        ))
+        .map_err(draw_err)?;
+        let name = match j {
+            0 => format!("joint {} (base)", j + 1),
+            _ if j + 1 == n => format!("joint {} (tip)", j + 1),
+            _ => format!("joint {}", j + 1),
+        };
+        area.draw(&Text::new(
+            name,
+            (x + 28, y),
+            font.clone().pos(Pos::new(HPos::Left, VPos::Center)),
+        ))
+        .map_err(draw_err)?;
+        y += 22;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    #[test]
+    fn spread_keeps_both_ends_and_never_repeats() {
+        assert_eq!(spread(0, 6), Vec::<usize>::new());
+        assert_eq!(spread(1, 6), vec![0]);
+        assert_eq!(spread(3, 6), vec![0, 1, 2]);
+        assert_eq!(spread(101, 5), vec![0, 25, 50, 75, 100]);
+    }
+
+    #[test]
+    fn equal_ranges_give_both_axes_one_scale() {
+        let (x, y) = equal_ranges((0.0, 2.0, 0.0, 1.0), 400.0, 100.0, 0.0);
+        let (sx, sy) = (400.0 / (x.end - x.start), 100.0 / (y.end - y.start));
+        assert!((sx - sy).abs() < 1e-9, "{sx} vs {sy}");
+        assert!(x.start <= 0.0 && x.end >= 2.0 && y.start <= 0.0 && y.end >= 1.0);
+    }
+
+    #[test]
+    fn the_running_median_ignores_single_spikes() {
+        let v = [1.0, 1.0, 9.0, 1.0, 1.0, 2.0, 2.0];
+        assert_eq!(
+            rolling_median(&v, 1),
+            vec![1.0, 1.0, 1.0, 1.0, 1.0, 2.0, 2.0]
+        );
+        assert!(rolling_median(&[], 3).is_empty());
+    }
+
+    #[test]
+    fn an_empty_record_is_refused() {
+        let record = Record::default();
+        assert_eq!(motion(&record, "t"), Err(PlotError::Empty));
+        assert_eq!(joints(&record, "t"), Err(PlotError::Empty));
+    }
+}
