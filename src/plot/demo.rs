@@ -287,14 +287,7 @@ fn arm_panel(
         .label(format!("arm at {} moments, pale first", picks.len()))
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
     mark_events(&mut chart, events, false)?;
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::LowerLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.3))
-        .label_font((FONT, 13))
-        .draw()
-        .map_err(draw_err)?;
+    legend_box(&mut chart, SeriesLabelPosition::LowerLeft)?;
     Ok(())
 }
 
@@ -400,14 +393,7 @@ fn zoom_panel(
             .legend(|(x, y)| Circle::new((x + 9, y), 4, BLACK.filled()));
     }
     mark_events(&mut chart, events, true)?;
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.3))
-        .label_font((FONT, 13))
-        .draw()
-        .map_err(draw_err)?;
+    legend_box(&mut chart, SeriesLabelPosition::UpperRight)?;
     Ok(())
 }
 
@@ -538,17 +524,25 @@ pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
             .label(format!("median of {} samples", 2 * MEDIAN_HALF + 1))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
         mark_times(&mut chart, record, (0.0, err_max), false)?;
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.3))
-            .label_font((FONT, 13))
-            .draw()
-            .map_err(draw_err)?;
+        legend_box(&mut chart, SeriesLabelPosition::UpperLeft)?;
         root.present().map_err(draw_err)?;
     }
     Ok(svg)
+}
+
+/// Draws a chart's legend at `position`, in the one style every panel uses.
+fn legend_box<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> Result<(), PlotError> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font((FONT, 13))
+        .draw()
+        .map_err(draw_err)
 }
 
 /// Samples each side of the tracking error's running median.
