@@ -1,7 +1,8 @@
 //! `snakectl teleop` on a real pseudo-terminal, its screen read back through a terminal
 //! emulator: with `--sim` the arm appears, an arrow key moves the tip for one hold and then it
 //! rests, a click sends it to the point under the mouse, `q` quits with the terminal given
-//! back as it was; with `--connect` it names another
+//! back as it was; on a terminal with the kitty keyboard protocol a held arrow moves the tip
+//! until its release; with `--connect` it names another
 //! client in control, takes control back on `c`, outlives its daemon and finds a new one.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -25,6 +26,9 @@ use snakectl_sim::{RealClock, SimHandle};
 const DEADLINE: Duration = Duration::from_secs(30);
 const ROWS: u16 = 40;
 const COLS: u16 = 120;
+
+/// Mode sequences kept per run, at most.
+const MODES_KEPT: usize = 1024;
 
 /// Linux's `c_lflag` bits (asm-generic/termbits.h).
 const ICANON: u32 = 0o000002;
@@ -52,12 +56,19 @@ struct Ui {
     master: Box<dyn MasterPty + Send>,
     writer: Arc<Mutex<Box<dyn Write + Send>>>,
     screen: Arc<Mutex<vt100::Parser>>,
+    /// The screen and keyboard mode sequences it wrote (see [`Csi::is_mode`]).
+    modes: Arc<Mutex<Vec<Csi>>>,
     reader_done: mpsc::Receiver<()>,
 }
 
 impl Ui {
-    /// `snakectl teleop ARGS`.
+    /// `snakectl teleop ARGS` on a plain VT100.
     fn start(args: &[&std::ffi::OsStr]) -> Ui {
+        Ui::start_on(Answers::Vt100, args)
+    }
+
+    /// `snakectl teleop ARGS` on a terminal that answers queries as `answers` says.
+    fn start_on(answers: Answers, args: &[&std::ffi::OsStr]) -> Ui {
         let pair = native_pty_system()
             .openpty(PtySize {
                 rows: ROWS,
@@ -76,29 +87,33 @@ impl Ui {
         drop(pair.slave);
         let writer = Arc::new(Mutex::new(pair.master.take_writer().unwrap()));
         let screen = Arc::new(Mutex::new(vt100::Parser::new(ROWS, COLS, 0)));
+        let modes = Arc::new(Mutex::new(Vec::new()));
         let (done, reader_done) = mpsc::channel();
         let mut reader = pair.master.try_clone_reader().unwrap();
         {
             let screen = Arc::clone(&screen);
             let writer = Arc::clone(&writer);
+            let modes = Arc::clone(&modes);
             std::thread::spawn(move || {
                 let mut buf = [0u8; 8192];
-                let mut tail: Vec<u8> = Vec::new();
+                let mut scanner = CsiScanner::default();
                 loop {
                     let n = match reader.read(&mut buf) {
                         Ok(0) | Err(_) => break,
                         Ok(n) => n,
                     };
+                    // Sequences first: whatever the screen shows, its modes are recorded.
+                    scanner.feed(&buf[..n], |csi| {
+                        // Answered at once, so the UI need not wait for its query to time out.
+                        if let Some(reply) = answers.reply(&csi) {
+                            let _ = writer.lock().unwrap().write_all(reply);
+                        }
+                        let mut modes = modes.lock().unwrap();
+                        if csi.is_mode() && modes.len() < MODES_KEPT {
+                            modes.push(csi);
+                        }
+                    });
                     screen.lock().unwrap().process(&buf[..n]);
-                    // Answer the primary device attributes query as a plain VT100 would (no
-                    // kitty keyboard protocol), so the UI need not wait for it to time out.
-                    tail.extend_from_slice(&buf[..n]);
-                    if let Some(at) = tail.windows(3).position(|w| w == b"\x1b[c") {
-                        let _ = writer.lock().unwrap().write_all(b"\x1b[?1;2c");
-                        tail.drain(..at + 3);
-                    }
-                    let keep = tail.len().saturating_sub(2);
-                    tail.drain(..keep);
                 }
                 let _ = done.send(());
             });
@@ -108,8 +123,14 @@ impl Ui {
             master: pair.master,
             writer,
             screen,
+            modes,
             reader_done,
         }
+    }
+
+    /// The mode changes the UI wrote so far, in order.
+    fn modes(&self) -> Vec<Csi> {
+        self.modes.lock().unwrap().clone()
     }
 
     fn send(&self, bytes: &[u8]) {
@@ -201,6 +222,105 @@ fn field<'a>(text: &'a str, label: &str) -> Option<&'a str> {
     })
 }
 
+/// How the terminal on the far side of the pty answers the UI's start-up queries.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Answers {
+    /// A plain VT100: device attributes only, the kitty keyboard query ignored.
+    Vt100,
+    /// A terminal with the kitty keyboard protocol: its flags (none set yet), then its device
+    /// attributes.
+    Kitty,
+}
+
+impl Answers {
+    /// What this terminal sends back for `csi`, if anything.
+    fn reply(self, csi: &Csi) -> Option<&'static [u8]> {
+        match (self, csi.params.as_str(), csi.end) {
+            // Primary device attributes.
+            (Answers::Vt100, "", 'c') => Some(b"\x1b[?1;2c"),
+            (Answers::Kitty, "", 'c') => Some(b"\x1b[?62;c"),
+            // The progressive keyboard enhancement flags in effect.
+            (Answers::Kitty, "?", 'u') => Some(b"\x1b[?0u"),
+            _ => None,
+        }
+    }
+}
+
+/// A control sequence from the UI: `ESC [`, `params` (private marker included), `end`.
+#[derive(Debug, Clone, PartialEq)]
+struct Csi {
+    params: String,
+    end: char,
+}
+
+/// The kitty keyboard flag that asks for repeat and release events.
+const REPORT_EVENT_TYPES: u32 = 0b10;
+
+impl Csi {
+    /// The alternate screen switched on or off, or a kitty keyboard sequence.
+    fn is_mode(&self) -> bool {
+        self.end == 'u' || (self.params == "?1049" && matches!(self.end, 'h' | 'l'))
+    }
+
+    /// `ESC [ > flags u`: the flags pushed.
+    fn pushed(&self) -> Option<u32> {
+        let flags = self.params.strip_prefix('>').filter(|_| self.end == 'u')?;
+        if flags.is_empty() {
+            return Some(0);
+        }
+        flags.parse().ok()
+    }
+
+    /// `ESC [ < n u`: how many entries are popped.
+    fn popped(&self) -> Option<u32> {
+        let n = self.params.strip_prefix('<').filter(|_| self.end == 'u')?;
+        if n.is_empty() {
+            return Some(1);
+        }
+        n.parse().ok()
+    }
+}
+
+/// Where [`CsiScanner`] is in the byte stream.
+#[derive(Debug, Default)]
+enum Scan {
+    #[default]
+    Text,
+    Escape,
+    Csi(Vec<u8>),
+}
+
+/// Picks control sequences out of the terminal's output, across reads.
+#[derive(Debug, Default)]
+struct CsiScanner {
+    state: Scan,
+}
+
+impl CsiScanner {
+    /// Feeds `bytes`; `found` gets each sequence they complete.
+    fn feed(&mut self, bytes: &[u8], mut found: impl FnMut(Csi)) {
+        for &b in bytes {
+            self.state = match std::mem::take(&mut self.state) {
+                _ if b == 0x1b => Scan::Escape,
+                Scan::Escape if b == b'[' => Scan::Csi(Vec::new()),
+                // Parameter and intermediate bytes (a runaway one is dropped).
+                Scan::Csi(mut params) if (0x20..0x40).contains(&b) && params.len() < 64 => {
+                    params.push(b);
+                    Scan::Csi(params)
+                }
+                Scan::Csi(params) if (0x40..0x7f).contains(&b) => {
+                    found(Csi {
+                        params: String::from_utf8_lossy(&params).into_owned(),
+                        end: char::from(b),
+                    });
+                    Scan::Text
+                }
+                _ => Scan::Text,
+            };
+        }
+    }
+}
+
 #[test]
 fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
     let dir = tempfile::tempdir().unwrap();
@@ -220,8 +340,14 @@ fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
         (start[0] + 0.547).abs() < 0.01 && (start[1] - 0.720).abs() < 0.01,
         "{start:?}"
     );
-    // The UI has the terminal in raw mode.
+    // The UI has the terminal in raw mode; a terminal without the kitty protocol gets no
+    // keyboard flags.
     assert_eq!(ui.local_flags() & (ICANON | ECHO), 0, "not in raw mode");
+    let modes = ui.modes();
+    assert!(
+        modes.iter().all(|c| c.pushed().is_none()),
+        "keyboard flags pushed to a VT100: {modes:?}"
+    );
 
     // One press of Right: held for 0.6 s at 0.05 m/s, then one zero.
     ui.send(b"\x1b[C");
@@ -282,6 +408,123 @@ fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
 
     ui.send(b"q");
     ui.quits_giving_the_terminal_back("q");
+}
+
+/// Sleeps until `when` (for holding a key that long, not for waiting on a condition).
+fn sleep_until(when: Instant) {
+    std::thread::sleep(when.saturating_duration_since(Instant::now()));
+}
+
+/// The daemon's measured tip.
+fn daemon_tip(client: &mut Client) -> [f64; 2] {
+    client.status().unwrap().tip_meas
+}
+
+#[test]
+fn on_a_kitty_terminal_a_held_arrow_moves_the_tip_until_its_release() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    let mut ui = Ui::start_on(Answers::Kitty, &["--sim".as_ref(), config.as_os_str()]);
+    let text = ui.wait_for("the arm at rest, in control", |t| {
+        field(t, "state") == Some("holding")
+            && field(t, "control") == Some("you")
+            && tip(t).is_some()
+    });
+    let start = tip(&text).unwrap();
+    let mut client = Client::connect(field(&text, "daemon").unwrap(), None).unwrap();
+
+    // Asked for key event types, on the alternate screen (kitty keeps a stack per screen).
+    let modes = ui.modes();
+    let alternate = modes
+        .iter()
+        .position(|c| c.params == "?1049" && c.end == 'h')
+        .unwrap_or_else(|| panic!("no alternate screen: {modes:?}"));
+    let push = modes
+        .iter()
+        .position(|c| c.pushed().is_some())
+        .unwrap_or_else(|| panic!("no keyboard flags pushed: {modes:?}"));
+    assert!(
+        alternate < push,
+        "flags pushed before the alternate screen: {modes:?}"
+    );
+    let flags = modes[push].pushed().unwrap();
+    assert_eq!(
+        flags & REPORT_EVENT_TYPES,
+        REPORT_EVENT_TYPES,
+        "pushed flags {flags:#b} ask for no releases"
+    );
+
+    // Right pressed (`CSI 1;1:1 C`) and held for 1.2 s, with no repeats: timing alone would
+    // end the hold 0.6 s after the press.
+    ui.send(b"\x1b[1;1:1C");
+    let pressed = Instant::now();
+    ui.wait_for("the tip moving right", |t| {
+        tip(t).is_some_and(|p| p[0] > start[0] + 0.002)
+    });
+    let moving = Instant::now();
+    sleep_until(moving + Duration::from_millis(900));
+    let late = daemon_tip(&mut client);
+    sleep_until(moving + Duration::from_millis(1200));
+    let held = daemon_tip(&mut client);
+    ui.send(b"\x1b[1;1:3C");
+    let released = Instant::now();
+    // 0.3 s at 0.05 m/s is 0.015 m; a hold ended by timing would be at rest by then.
+    assert!(
+        held[0] - late[0] > 0.005,
+        "the tip stopped before the release: x {} at 0.9 s, {} at 1.2 s",
+        late[0],
+        held[0]
+    );
+
+    // The release stops it: at rest and holding, after at most a deadman's worth of travel
+    // (0.5 s at 0.05 m/s) and the braking (0.0025 m at 0.5 m/s²).
+    let end = ui.wait_rest();
+    assert!(
+        end[0] - held[0] < 0.03,
+        "the tip went on {} m after the release",
+        end[0] - held[0]
+    );
+    let dx = end[0] - start[0];
+    // One timed hold moves it 0.03 m at most; 1.2 s at 0.05 m/s, less the start's ramp, 0.0575.
+    assert!(dx > 0.045, "the hold moved the tip only {dx} m");
+    let bound = 0.05 * released.duration_since(pressed).as_secs_f64() + 0.03;
+    assert!(dx < bound, "the hold moved the tip {dx} m, over {bound} m");
+    assert!((end[1] - start[1]).abs() < 0.005, "{start:?} -> {end:?}");
+    let status = client.status().unwrap();
+    assert_eq!(status.state, "holding");
+    for k in 0..2 {
+        assert!(
+            (status.tip_meas[k] - end[k]).abs() < 0.0015,
+            "screen {end:?}, daemon {:?}",
+            status.tip_meas
+        );
+    }
+    drop(client);
+
+    // `q` (a text key: kitty sends it plain) quits, the flags popped before the alternate
+    // screen is left.
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+    let modes = ui.modes();
+    let pop = modes
+        .iter()
+        .rposition(|c| c.popped().is_some())
+        .unwrap_or_else(|| panic!("the keyboard flags were not popped: {modes:?}"));
+    assert!(pop > push, "{modes:?}");
+    let pushes = modes.iter().filter(|c| c.pushed().is_some()).count();
+    let popped: u32 = modes.iter().filter_map(Csi::popped).sum();
+    assert!(
+        popped as usize >= pushes,
+        "{pushes} pushes, {popped} popped: {modes:?}"
+    );
+    let leave = modes
+        .iter()
+        .rposition(|c| c.params == "?1049" && c.end == 'l')
+        .unwrap_or_else(|| panic!("the alternate screen was not left: {modes:?}"));
+    assert!(
+        pop < leave,
+        "flags popped after leaving the alternate screen: {modes:?}"
+    );
 }
 
 impl Ui {
