@@ -66,6 +66,12 @@ pub const HOLD_FIRST_S: f64 = 0.6;
 /// Without release reports, a hold lasts this long after the last repeat, s.
 pub const HOLD_AFTER_REPEAT_S: f64 = 0.15;
 
+/// With release reports, a hold that hears nothing of its keys (no repeat, no release) for
+/// this long ends all the same, s, so a lost release (the terminal lost focus, say) cannot leave
+/// the tip moving. A held key repeats every 30-50 ms once the repeat delay (usually 500-660 ms)
+/// has passed.
+pub const RELEASE_GUARD_S: f64 = 1.5;
+
 /// How often a held velocity is renewed, Hz (well inside the daemon's deadman).
 pub const RENEW_HZ: f64 = 20.0;
 
@@ -137,7 +143,8 @@ struct Hold {
     held: [Option<u64>; 4],
     /// When the first press of this hold came, s.
     first_s: f64,
-    /// Without release reports, when the hold ends, s; `None` with release reports.
+    /// When the hold ends unless a key event extends it, s: by timing without release
+    /// reports, by [`RELEASE_GUARD_S`] with them.
     end_s: Option<f64>,
     /// When the velocity last went out at once; renewals count from here, s.
     base_s: f64,
@@ -189,7 +196,7 @@ impl Hold {
 /// Arrows and `w`/`a`/`s`/`d` move the tip in the world frame (right +x, up +y). Without
 /// release reports a hold lasts [`HOLD_FIRST_S`] from its first press and
 /// [`HOLD_AFTER_REPEAT_S`] past its last repeat, whichever is later; with them, until the
-/// release. With release reports two held keys combine: on each axis the later pressed of two
+/// release (or [`RELEASE_GUARD_S`] without a word of its keys). With release reports two held keys combine: on each axis the later pressed of two
 /// opposite keys wins, and a diagonal goes at the same speed as a straight move. Letters are
 /// taken in either case. A hold that starts without control, or loses it, stays silent to its
 /// end even if control comes back: motion starts only from a press made in control.
@@ -407,22 +414,28 @@ impl Keyboard {
         in_control: bool,
         out: &mut Vec<Action>,
     ) {
+        let guard = Some(now_s + RELEASE_GUARD_S);
         match kind {
-            KeyKind::Repeat => {}
+            KeyKind::Repeat => {
+                if let Some(hold) = self.hold.as_mut().filter(|hold| hold.held[dir].is_some()) {
+                    hold.end_s = guard;
+                }
+            }
             KeyKind::Press => {
                 let order = self.next_press();
                 match self.hold.as_mut() {
                     None => {
                         let mut held = [None; 4];
                         held[dir] = Some(order);
-                        self.start_hold(held, None, now_s, in_control, out);
+                        self.start_hold(held, guard, now_s, in_control, out);
                     }
                     Some(hold) if hold.held[dir].is_none() => {
                         let before = hold.direction();
                         hold.held[dir] = Some(order);
+                        hold.end_s = guard;
                         self.redirect(before, now_s, out);
                     }
-                    Some(_) => {}
+                    Some(hold) => hold.end_s = guard,
                 }
             }
             KeyKind::Release => {
@@ -790,10 +803,17 @@ mod tests {
             press(&mut kb, Key::Left, 0.0),
             [Action::Velocity([-0.05, 0.0])]
         );
+        // Repeats from 0.5 s, every 0.5 s here (a terminal sends them every 30-50 ms).
         let mut out = Vec::new();
-        kb.key(Key::Left, KeyKind::Repeat, 0.5, true, &mut out);
-        assert!(out.is_empty());
-        let got = run(&mut kb, 0.0, 3.0, true);
+        let mut got = Vec::new();
+        for k in 0..6 {
+            let t = 0.5 * f64::from(k);
+            if k > 0 {
+                kb.key(Key::Left, KeyKind::Repeat, t, true, &mut out);
+                assert!(out.is_empty(), "a repeat sends nothing by itself");
+            }
+            got.extend(run(&mut kb, t, t + 0.5, true));
+        }
         assert!(got
             .iter()
             .all(|(_, a)| *a == Action::Velocity([-0.05, 0.0])));
@@ -801,6 +821,29 @@ mod tests {
         kb.key(Key::Left, KeyKind::Release, 3.0, true, &mut out);
         assert_eq!(out, [ZERO]);
         assert!(run(&mut kb, 3.0, 4.0, true).is_empty());
+    }
+
+    #[test]
+    fn with_releases_a_hold_whose_release_is_lost_ends_by_the_guard() {
+        let mut kb = Keyboard::new(0.05);
+        kb.set_releases_reported(true);
+        press(&mut kb, Key::Up, 0.0);
+        let mut out = Vec::new();
+        kb.key(Key::Up, KeyKind::Repeat, 0.6, true, &mut out);
+        // No repeat and no release after 0.6 s: the hold ends RELEASE_GUARD_S later.
+        let got = run(&mut kb, 0.0, 4.0, true);
+        let zeros: Vec<f64> = got
+            .iter()
+            .filter(|(_, a)| *a == ZERO)
+            .map(|(t, _)| *t)
+            .collect();
+        assert_eq!(zeros.len(), 1, "{got:?}");
+        assert!(
+            (zeros[0] - (0.6 + RELEASE_GUARD_S)).abs() < 2e-3,
+            "{zeros:?}"
+        );
+        assert_eq!(got.last().map(|(_, a)| *a), Some(ZERO));
+        assert_eq!(kb.next_deadline(), None);
     }
 
     #[test]
