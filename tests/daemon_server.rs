@@ -1211,7 +1211,7 @@ async fn start_up_refuses_to_listen_beyond_loopback_without_a_token() {
 }
 
 #[tokio::test]
-async fn start_up_refuses_zenoh_in_a_build_without_it() {
+async fn start_up_refuses_zenoh_only_in_a_build_without_it() {
     let config = sim_config(&[(
         "max_clients = 4",
         "max_clients = 4\n\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:0\"]",
