@@ -27,6 +27,8 @@
 //!   pseudo-terminal, or a serial port, opened, limited, with the arm it drives.
 //! - [`protocol`]: the daemon's JSON-lines wire format: requests, replies, error codes,
 //!   telemetry, events; shared by the daemon and its clients.
+//! - [`ros`]: the ROS 2 messages the arm speaks on a Zenoh network (`JointState`,
+//!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in.
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread, the socket server on
 //!   tokio, the bounded seam between them.
 //! - [`client`]: a blocking client of the daemon's socket (requests, replies, events, the
@@ -46,6 +48,7 @@ pub mod plot;
 pub mod problem;
 pub mod protocol;
 pub mod resolve;
+pub mod ros;
 pub mod scenario;
 pub mod servo;
 pub mod teleop;

@@ -114,3 +114,36 @@ fn unknown_key_in_any_table_is_refused() {
         assert!(tried >= 2, "{}: too few tables", path.display());
     }
 }
+
+/// The commented `[zenoh]` table of each shipped file, uncommented, is valid and says what the
+/// defaults are.
+#[test]
+fn commented_zenoh_tables_show_the_defaults() {
+    for name in ["sim.toml", "arm.toml"] {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("config")
+            .join(name);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let start = text
+            .find("\n# [zenoh]\n")
+            .unwrap_or_else(|| panic!("{name}: no [zenoh]"));
+        let end = text[start + 1..]
+            .find("\n\n")
+            .map_or(text.len(), |n| start + 1 + n);
+        let uncommented: String = text[start..end]
+            .lines()
+            .filter(|l| !l.starts_with("#  "))
+            .map(|l| l.strip_prefix("# ").unwrap_or(l))
+            .collect::<Vec<_>>()
+            .join("\n");
+        assert!(
+            uncommented.contains("\n[zenoh]\nenabled = false"),
+            "{uncommented}"
+        );
+        let edited = format!("{text}\n{uncommented}\n");
+        let with_table = Config::from_str(&edited, &path).unwrap_or_else(|e| panic!("{e}"));
+        let without = Config::load(&path).unwrap();
+        assert_eq!(with_table.zenoh(), without.zenoh(), "{name}");
+        assert!(!without.zenoh().enabled);
+    }
+}

@@ -3,7 +3,7 @@
 //! paused time), events, the client limit, a client that does not read, shutdown, who may
 //! command (control taken, refused, released, lost with the connection), the token, and the
 //! start-up refusals of `daemon::run` (a token file it cannot use, an address beyond loopback
-//! without one).
+//! without one, Zenoh enabled in a build without it).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -1208,4 +1208,28 @@ async fn start_up_refuses_to_listen_beyond_loopback_without_a_token() {
     let message = e.to_string();
     assert!(message.contains("token_file"), "{message}");
     assert!(message.contains("loopback"), "{message}");
+}
+
+#[tokio::test]
+async fn start_up_refuses_zenoh_only_in_a_build_without_it() {
+    let config = sim_config(&[(
+        "max_clients = 4",
+        "max_clients = 4\n\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:0\"]",
+    )]);
+    assert!(config.zenoh().enabled);
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let e = refused_at_start(config, listener).await;
+    if cfg!(feature = "zenoh") {
+        // Built with it: start-up goes on to open the (absent) port.
+        assert!(matches!(e, DaemonError::Connect(_)), "{e}");
+    } else {
+        assert!(matches!(e, DaemonError::ZenohNotBuilt { .. }), "{e}");
+        let message = e.to_string();
+        assert!(message.contains("config/sim.toml"), "{message}");
+        assert!(message.contains("[zenoh] enabled = true"), "{message}");
+        assert!(
+            message.contains("cargo build --release --features zenoh"),
+            "{message}"
+        );
+    }
 }

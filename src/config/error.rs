@@ -188,4 +188,41 @@ pub enum Problem {
         /// The parser's reason.
         reason: String,
     },
+    /// A Zenoh endpoint that is not `tcp/` + `host:port`.
+    #[error("\"{value}\" is not a Zenoh endpoint such as tcp/127.0.0.1:7447 ({reason})")]
+    BadEndpoint {
+        /// The text given.
+        value: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A key prefix that is not a plain Zenoh key expression.
+    #[error("\"{value}\" is not a key prefix such as snakectl or lab/arm_1 ({reason})")]
+    BadPrefix {
+        /// The text given.
+        value: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+    /// A rate above the control loop's, which has nothing new to give that often.
+    #[error(
+        "{value} Hz must be positive and at most control.rate_hz = {rate_hz} Hz: the loop has \
+         nothing new to publish faster than it runs"
+    )]
+    AboveLoopRate {
+        /// The rate given, Hz.
+        value: f64,
+        /// The loop's rate, Hz.
+        rate_hz: f64,
+    },
+    /// Commands taken from a network other hosts can reach, with no access control.
+    #[error(
+        "true, but {exposure}: any host that reaches the arm could move it; configure Zenoh's \
+         access control in a Zenoh config file named by config_file, or keep every endpoint on \
+         loopback with multicast = false"
+    )]
+    CommandsExposed {
+        /// What opens the session to other hosts (an endpoint, or multicast scouting).
+        exposure: String,
+    },
 }

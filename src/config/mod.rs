@@ -10,17 +10,20 @@
 //!
 //! The tables: `[arm]` and `[[joint]]` (geometry, limits, home pose and per-joint servo
 //! settings), `[bus]` (serial bus), `[sim]` with `[[sim.fault]]` (the simulated servo chain),
-//! `[control]` (the loop) and `[server]` (the socket). Geometry is checked in full; the other
-//! tables get the cheap checks (signs, ranges, known names, ids that exist).
+//! `[control]` (the loop), `[server]` (the socket) and `[zenoh]` (the daemon on a Zenoh
+//! network, in [`zenoh_table`]). Geometry is checked in full; the other tables get the cheap
+//! checks (signs, ranges, known names, ids that exist, endpoint syntax).
 
 mod error;
 pub mod raw;
+pub mod zenoh_table;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 pub use error::{ConfigError, Problem};
 pub use raw::{BusKind, HardwareError};
+pub use zenoh_table::{Endpoint, Host, Zenoh, ZenohMode};
 
 use std::time::Duration;
 
@@ -158,6 +161,7 @@ pub struct Config {
     sim: Option<Sim>,
     control: Control,
     server: Server,
+    zenoh: Zenoh,
 }
 
 impl Config {
@@ -172,7 +176,7 @@ impl Config {
     }
 
     /// Checks `text` as if read from `path`, which names the file in errors and anchors a
-    /// relative `server.token_file`.
+    /// relative `server.token_file` and `zenoh.config_file`.
     #[allow(clippy::should_implement_trait)]
     pub fn from_str(text: &str, path: impl AsRef<Path>) -> Result<Config, ConfigError> {
         let path = path.as_ref();
@@ -225,6 +229,11 @@ impl Config {
     pub fn server(&self) -> &Server {
         &self.server
     }
+
+    /// The Zenoh settings (`enabled = false` when the file has no `[zenoh]`).
+    pub fn zenoh(&self) -> &Zenoh {
+        &self.zenoh
+    }
 }
 
 /// Turns a TOML error into one naming the file, line and column.
@@ -266,6 +275,15 @@ impl Checker<'_> {
             path: self.path.to_path_buf(),
             field: field.into(),
             problem,
+        }
+    }
+
+    /// `file` as named in the config: relative paths start at the config file's directory.
+    fn relative_to_file(&self, file: PathBuf) -> PathBuf {
+        if file.is_relative() {
+            self.path.parent().unwrap_or(Path::new("")).join(file)
+        } else {
+            file
         }
     }
 
@@ -325,6 +343,7 @@ impl Checker<'_> {
         let sim = raw.sim.map(|s| self.sim(s, &joints)).transpose()?;
         let control = self.control(&raw.control.unwrap_or_default())?;
         let server = self.server(raw.server.unwrap_or_default())?;
+        let zenoh = self.zenoh(raw.zenoh.unwrap_or_default(), control.rate_hz)?;
         Ok(Config {
             path: self.path.to_path_buf(),
             chain,
@@ -335,6 +354,7 @@ impl Checker<'_> {
             sim,
             control,
             server,
+            zenoh,
         })
     }
 
@@ -743,13 +763,7 @@ impl Checker<'_> {
                 },
             ));
         }
-        let token_file = raw.token_file.map(|f| {
-            if f.is_relative() {
-                self.path.parent().unwrap_or(Path::new("")).join(f)
-            } else {
-                f
-            }
-        });
+        let token_file = raw.token_file.map(|f| self.relative_to_file(f));
         Ok(Server {
             listen,
             token_file,

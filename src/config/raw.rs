@@ -34,6 +34,9 @@ pub struct RawConfig {
     /// `[server]`: the command/telemetry socket; defaults apply when absent.
     #[serde(default)]
     pub server: Option<RawServer>,
+    /// `[zenoh]`: the daemon on a Zenoh network; off when absent.
+    #[serde(default)]
+    pub zenoh: Option<RawZenoh>,
 }
 
 /// `[arm]`: where the chain is mounted and where it starts.
@@ -301,6 +304,50 @@ pub struct RawServer {
     pub max_clients: u32,
 }
 
+/// How the Zenoh session joins the network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ZenohMode {
+    /// A peer: talks to other peers directly, and to routers.
+    Peer,
+    /// A client: reaches the network only through a router it connects to.
+    Client,
+}
+
+/// `[zenoh]`: publishing telemetry and taking commands on a Zenoh network.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawZenoh {
+    /// Join the network at all.
+    #[serde(default)]
+    pub enabled: bool,
+    /// `"peer"` or `"client"`.
+    #[serde(default = "default_zenoh_mode")]
+    pub mode: ZenohMode,
+    /// Endpoints to connect to, such as `"tcp/192.168.1.10:7447"`.
+    #[serde(default)]
+    pub connect: Vec<String>,
+    /// Endpoints to listen on, such as `"tcp/127.0.0.1:7447"`.
+    #[serde(default)]
+    pub listen: Vec<String>,
+    /// Find other sessions by multicast scouting.
+    #[serde(default)]
+    pub multicast: bool,
+    /// The arm's namespace: every key starts with it.
+    #[serde(default = "default_zenoh_prefix")]
+    pub prefix: String,
+    /// Publishing rate, Hz; the smaller of 50 and `control.rate_hz` when absent.
+    #[serde(default)]
+    pub publish_hz: Option<f64>,
+    /// Take `cmd_vel` and `goal` from the network.
+    #[serde(default)]
+    pub accept_commands: bool,
+    /// A Zenoh json5 config file passed through to the session (access control, TLS, ...);
+    /// relative to the config file's directory.
+    #[serde(default)]
+    pub config_file: Option<PathBuf>,
+}
+
 /// Factory baud rate of X-series servos.
 pub fn default_baud() -> u32 {
     57_600
@@ -386,6 +433,19 @@ pub fn default_max_clients() -> u32 {
     8
 }
 
+/// Zenoh mode: a peer, which needs no router.
+pub fn default_zenoh_mode() -> ZenohMode {
+    ZenohMode::Peer
+}
+
+/// Zenoh key prefix.
+pub fn default_zenoh_prefix() -> String {
+    "snakectl".to_owned()
+}
+
+/// Zenoh publishing rate, Hz, when the loop runs at least this fast.
+pub const DEFAULT_ZENOH_PUBLISH_HZ: f64 = 50.0;
+
 impl Default for RawControl {
     fn default() -> Self {
         Self {
@@ -399,6 +459,22 @@ impl Default for RawControl {
             read_every: default_read_every(),
             max_missed_reads: default_max_missed_reads(),
             health_every: default_health_every(),
+        }
+    }
+}
+
+impl Default for RawZenoh {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            mode: default_zenoh_mode(),
+            connect: Vec::new(),
+            listen: Vec::new(),
+            multicast: false,
+            prefix: default_zenoh_prefix(),
+            publish_hz: None,
+            accept_commands: false,
+            config_file: None,
         }
     }
 }

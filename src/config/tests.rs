@@ -56,6 +56,15 @@ strategy = "overall"
 listen = "127.0.0.1:7878"
 token_file = "token.txt"
 max_clients = 4
+
+[zenoh]
+enabled = true
+mode = "peer"
+listen = ["tcp/127.0.0.1:7447"]
+connect = ["tcp/[::1]:7448", "tcp/localhost:7449"]
+prefix = "lab/arm_1"
+publish_hz = 25.0
+accept_commands = true
 "#
     .to_owned()
 }
@@ -112,6 +121,18 @@ fn base_text_loads() {
         Some(Path::new("config/token.txt"))
     );
     assert_eq!(c.path(), Path::new(FILE));
+    let z = c.zenoh();
+    assert!(z.enabled && z.accept_commands && !z.multicast);
+    assert_eq!(z.mode, ZenohMode::Peer);
+    assert_eq!(z.prefix, "lab/arm_1");
+    assert_eq!(z.key("joint_states"), "lab/arm_1/joint_states");
+    assert_eq!(z.publish_hz, 25.0);
+    assert!(z.config_file.is_none());
+    let shown = |list: &[Endpoint]| list.iter().map(ToString::to_string).collect::<Vec<_>>();
+    assert_eq!(shown(&z.listen), ["tcp/127.0.0.1:7447"]);
+    assert_eq!(shown(&z.connect), ["tcp/[::1]:7448", "tcp/localhost:7449"]);
+    assert_eq!(z.connect[1].host, Host::Name("localhost".into()));
+    assert_eq!(z.connect[1].port, 7449);
 }
 
 #[test]
@@ -131,6 +152,13 @@ fn defaults_fill_absent_tables() {
     assert_eq!(c.control().health_every, 10);
     assert_eq!(c.server().listen.to_string(), "127.0.0.1:7878");
     assert!(c.server().token_file.is_none());
+    let z = c.zenoh();
+    assert!(!z.enabled && !z.multicast && !z.accept_commands);
+    assert_eq!(z.mode, ZenohMode::Peer);
+    assert!(z.connect.is_empty() && z.listen.is_empty());
+    assert_eq!(z.prefix, "snakectl");
+    assert_eq!(z.publish_hz, 50.0);
+    assert!(z.config_file.is_none());
 }
 
 #[test]
@@ -609,6 +637,11 @@ fn unknown_keys_refused_everywhere() {
             "max_clients = 4\npassword = \"x\"\n",
             "password",
         ),
+        (
+            "publish_hz = 25.0\n",
+            "publish_hz = 25.0\nrouter = true\n",
+            "router",
+        ),
     ];
     for (from, to, key) in cases {
         let text = with(from, to);
@@ -686,5 +719,184 @@ fn a_fault_time_beyond_any_clock_is_refused() {
     refused(
         &with_fault("kind = \"silent\"\nid = 1\nat_s = 1e300"),
         &["sim.fault[1].at_s"],
+    );
+}
+
+/// `base_text` with its `[zenoh]` table replaced by `table` (the lines after the header).
+fn with_zenoh(table: &str) -> String {
+    let text = base_text();
+    let at = text.find("[zenoh]\n").unwrap();
+    format!("{}[zenoh]\n{table}\n", &text[..at])
+}
+
+#[test]
+fn zenoh_defaults_follow_a_slow_loop() {
+    // Absent publish_hz: 50 Hz, or the loop's rate when that is slower.
+    let c = load(&with("rate_hz = 100.0", "rate_hz = 20.0").replace("publish_hz = 25.0\n", ""))
+        .unwrap();
+    assert_eq!(c.zenoh().publish_hz, 20.0);
+    let c = load(&with_zenoh("")).unwrap();
+    assert_eq!(c.zenoh().publish_hz, 50.0);
+    assert!(!c.zenoh().enabled);
+}
+
+#[test]
+fn zenoh_endpoints_must_be_tcp_host_port() {
+    let cases = [
+        ("udp/127.0.0.1:7447", "only tcp"),
+        ("tls/arm.local:7447", "only tcp"),
+        ("127.0.0.1:7447", "no transport"),
+        ("tcp/127.0.0.1", "no :port"),
+        ("tcp/127.0.0.1:70000", "70000"),
+        ("tcp/127.0.0.1:", "port"),
+        ("tcp/::1:7447", "brackets"),
+        ("tcp/[::1:7447", "[address]:port"),
+        ("tcp/[fe80::zz]:7447", "not an IPv6 address"),
+        ("tcp/arm_1.local:7447", "host name"),
+        ("tcp/:7447", "host name"),
+        ("tcp/10.0.0.300:7447", "host name"),
+        ("tcp/127.0.0.1:7447#iface=lo", "config_file"),
+        ("tcp/127.0.0.1:7447?prio=1", "config_file"),
+    ];
+    for (endpoint, reason) in cases {
+        let table = format!("listen = [\"tcp/127.0.0.1:7447\", \"{endpoint}\"]");
+        refused(&with_zenoh(&table), &["zenoh.listen[2]", endpoint, reason]);
+        let table = format!("connect = [\"{endpoint}\"]");
+        refused(&with_zenoh(&table), &["zenoh.connect[1]", endpoint, reason]);
+    }
+    // Port 0 picks a free port for a listener, but cannot be connected to.
+    let c = load(&with_zenoh("listen = [\"tcp/127.0.0.1:0\"]")).unwrap();
+    assert_eq!(c.zenoh().listen[0].port, 0);
+    refused(
+        &with_zenoh("connect = [\"tcp/127.0.0.1:0\"]"),
+        &["zenoh.connect[1]", "port 0"],
+    );
+}
+
+#[test]
+fn zenoh_endpoints_know_loopback() {
+    let loopback = |text: &str| Endpoint::parse(text).unwrap().is_loopback();
+    assert!(loopback("tcp/127.0.0.1:7447"));
+    assert!(loopback("tcp/127.3.2.1:7447"));
+    assert!(loopback("tcp/[::1]:7447"));
+    assert!(loopback("tcp/LocalHost:7447"));
+    assert!(!loopback("tcp/0.0.0.0:7447"));
+    assert!(!loopback("tcp/[::]:7447"));
+    assert!(!loopback("tcp/192.168.1.10:7447"));
+    assert!(!loopback("tcp/arm.local:7447"));
+    assert!(!loopback("tcp/localhost.example.org:7447"));
+}
+
+#[test]
+fn zenoh_prefix_is_a_plain_key_expression() {
+    for (prefix, reason) in [
+        ("", "empty"),
+        ("arm/*", "wildcards"),
+        ("arm/**", "wildcards"),
+        ("arm$*", "wildcards"),
+        ("arm?x", "wildcards"),
+        ("arm#1", "wildcards"),
+        ("/arm", "leading or trailing"),
+        ("arm/", "leading or trailing"),
+        ("lab//arm", "empty chunk"),
+        ("lab/@arm", "reserved"),
+    ] {
+        let table = format!("prefix = \"{prefix}\"");
+        refused(
+            &with_zenoh(&table),
+            &["zenoh.prefix", &format!("\"{prefix}\""), reason],
+        );
+    }
+    for prefix in ["arm", "lab/arm_1", "fleet/row-2/arm.3"] {
+        let table = format!("prefix = \"{prefix}\"");
+        assert_eq!(load(&with_zenoh(&table)).unwrap().zenoh().prefix, prefix);
+    }
+}
+
+#[test]
+fn zenoh_publish_hz_is_positive_and_at_most_the_loop_rate() {
+    for value in ["0.0", "-5.0", "100.5", "nan", "inf"] {
+        let table = format!("publish_hz = {value}");
+        refused(
+            &with_zenoh(&table),
+            &["zenoh.publish_hz", "control.rate_hz = 100 Hz"],
+        );
+    }
+    let c = load(&with_zenoh("publish_hz = 100.0")).unwrap();
+    assert_eq!(c.zenoh().publish_hz, 100.0);
+}
+
+#[test]
+fn zenoh_commands_from_beyond_this_host_need_access_control() {
+    let exposed = [
+        (
+            "listen = [\"tcp/127.0.0.1:7447\", \"tcp/0.0.0.0:7447\"]",
+            "zenoh.listen[2] = \"tcp/0.0.0.0:7447\" is not loopback",
+        ),
+        (
+            "connect = [\"tcp/192.168.1.10:7447\"]",
+            "zenoh.connect[1] = \"tcp/192.168.1.10:7447\" is not loopback",
+        ),
+        (
+            "connect = [\"tcp/router.lab:7447\"]",
+            "\"tcp/router.lab:7447\" is not loopback",
+        ),
+        (
+            "listen = [\"tcp/127.0.0.1:7447\"]\nmulticast = true",
+            "multicast",
+        ),
+    ];
+    for (lines, exposure) in exposed {
+        let table = format!("enabled = true\naccept_commands = true\n{lines}");
+        let msg = refused(
+            &with_zenoh(&table),
+            &[
+                "zenoh.accept_commands",
+                exposure,
+                "config_file",
+                "could move",
+            ],
+        );
+        // The same network without commands is fine: watching is harmless.
+        load(&with_zenoh(&format!("enabled = true\n{lines}"))).unwrap_or_else(|e| {
+            panic!("watching refused ({msg}): {e}");
+        });
+        // With Zenoh's access control configured, the choice is the user's.
+        let table = format!("{table}\nconfig_file = \"zenoh.json5\"");
+        let c = load(&with_zenoh(&table)).unwrap();
+        assert_eq!(
+            c.zenoh().config_file.as_deref(),
+            Some(Path::new("config/zenoh.json5"))
+        );
+    }
+    let table = "accept_commands = true\nconfig_file = \"/etc/zenoh/arm.json5\"";
+    let c = load(&with_zenoh(table)).unwrap();
+    assert_eq!(
+        c.zenoh().config_file.as_deref(),
+        Some(Path::new("/etc/zenoh/arm.json5"))
+    );
+}
+
+#[test]
+fn an_enabled_zenoh_must_be_reachable() {
+    refused(
+        &with_zenoh("enabled = true"),
+        &["zenoh.listen", "no other session could reach the arm"],
+    );
+    refused(
+        &with_zenoh("enabled = true\nmode = \"client\"\nlisten = [\"tcp/127.0.0.1:7447\"]"),
+        &["zenoh.connect", "router"],
+    );
+    for table in [
+        "enabled = true\nmulticast = true",
+        "enabled = true\nconnect = [\"tcp/127.0.0.1:7447\"]",
+        "enabled = true\nmode = \"client\"\nconnect = [\"tcp/127.0.0.1:7447\"]",
+        "enabled = true\nconfig_file = \"zenoh.json5\"",
+    ] {
+        assert!(load(&with_zenoh(table)).unwrap().zenoh().enabled, "{table}");
+    }
+    refused(
+        &with_zenoh("mode = \"router\""),
+        &["config/test.toml:", "router"],
     );
 }

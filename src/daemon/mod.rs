@@ -109,20 +109,42 @@ pub enum DaemonError {
     /// Start-up failed and its error went to the waiting [`run`].
     #[error("start-up failed")]
     StartUpReported,
+    /// The config enables Zenoh, which this build does not have.
+    #[error(
+        "{}: [zenoh] enabled = true, but this snakectl was built without Zenoh: build it with \
+         `cargo build --release --features zenoh`",
+        path.display()
+    )]
+    ZenohNotBuilt {
+        /// The config file.
+        path: PathBuf,
+    },
+}
+
+/// Refuses a config that enables Zenoh in a build without the `zenoh` feature.
+pub fn check_zenoh_built(config: &Config) -> Result<(), DaemonError> {
+    if config.zenoh().enabled && !cfg!(feature = "zenoh") {
+        return Err(DaemonError::ZenohNotBuilt {
+            path: config.path().to_path_buf(),
+        });
+    }
+    Ok(())
 }
 
 /// Runs the daemon on `config` until `shutdown` resolves: bring-up, then the loop, commanded
 /// through `listener`. Connections that arrive before the arm is up wait in the listener's
 /// backlog for their first reply.
 ///
-/// Before anything moves, the `[server] token_file` is read and a `listener` on an address
-/// other than loopback without one is refused ([`DaemonError::Access`]).
+/// Before anything moves, `[zenoh] enabled = true` in a build without Zenoh is refused
+/// ([`DaemonError::ZenohNotBuilt`]), the `[server] token_file` is read and a `listener` on an
+/// address other than loopback without one is refused ([`DaemonError::Access`]).
 pub async fn run(
     config: Config,
     listener: TcpListener,
     options: RunOptions,
     shutdown: impl Future<Output = ()>,
 ) -> Result<Summary, DaemonError> {
+    check_zenoh_built(&config)?;
     let joints = config.chain().len();
     let max_clients = config.server().max_clients as usize;
     let addr = listener.local_addr().map_err(DaemonError::Socket)?;

@@ -1,0 +1,268 @@
+//! The validated `[zenoh]` table: endpoints, the key prefix, the publishing rate, and the
+//! refusal to take commands from a network other hosts can reach without access control.
+//!
+//! The table is checked in every build, with or without Zenoh compiled in, so a file means the
+//! same everywhere; the daemon refuses `enabled = true` at start-up when Zenoh is not built.
+
+use std::fmt;
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr};
+use std::path::PathBuf;
+
+pub use super::raw::ZenohMode;
+
+use super::raw::{RawZenoh, DEFAULT_ZENOH_PUBLISH_HZ};
+use super::{finite_within, Checker, ConfigError, Problem};
+
+/// The validated `[zenoh]` (defaults, and `enabled = false`, when the table is absent).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Zenoh {
+    /// Whether the daemon joins the network.
+    pub enabled: bool,
+    /// Peer or client.
+    pub mode: ZenohMode,
+    /// Endpoints to connect to; port 0 is refused.
+    pub connect: Vec<Endpoint>,
+    /// Endpoints to listen on (port 0: any free port). Empty means none: the session must not
+    /// fall back to Zenoh's own default of listening on every interface.
+    pub listen: Vec<Endpoint>,
+    /// Multicast scouting on.
+    pub multicast: bool,
+    /// The arm's namespace, the start of every key: one or more `/`-separated chunks, none
+    /// empty, with no wildcard or special character (`*`, `$`, `?`, `#`) and none starting
+    /// with `@`.
+    pub prefix: String,
+    /// Publishing rate, Hz, positive and at most `control.rate_hz`.
+    pub publish_hz: f64,
+    /// Whether `cmd_vel` and `goal` are taken from the network. When true, every endpoint is
+    /// on loopback and multicast is off, unless `config_file` is set.
+    pub accept_commands: bool,
+    /// A Zenoh json5 config file for the session, resolved against the config file's
+    /// directory (not read here).
+    pub config_file: Option<PathBuf>,
+}
+
+impl Zenoh {
+    /// The keys of the arm: `<prefix>/<name>`.
+    pub fn key(&self, name: &str) -> String {
+        format!("{}/{name}", self.prefix)
+    }
+}
+
+/// A host of a Zenoh endpoint.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Host {
+    /// An IPv4 or IPv6 address.
+    Ip(IpAddr),
+    /// A host name, resolved when the session starts.
+    Name(String),
+}
+
+/// A validated Zenoh TCP endpoint, `tcp/HOST:PORT`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Endpoint {
+    /// The host.
+    pub host: Host,
+    /// The port; 0 (listen only) lets the system pick.
+    pub port: u16,
+}
+
+impl Endpoint {
+    /// Whether only this host can reach it: 127.0.0.0/8, `::1` or `localhost`.
+    pub fn is_loopback(&self) -> bool {
+        match &self.host {
+            Host::Ip(ip) => ip.is_loopback(),
+            Host::Name(name) => name.eq_ignore_ascii_case("localhost"),
+        }
+    }
+
+    /// Parses `tcp/HOST:PORT` (an IPv6 address in brackets); the error is the reason.
+    pub fn parse(text: &str) -> Result<Endpoint, String> {
+        let Some(address) = text.strip_prefix("tcp/") else {
+            return Err(match text.split_once('/') {
+                Some((scheme, _)) => format!(
+                    "the {scheme:?} transport is not available: only tcp is built into snakectl"
+                ),
+                None => "no transport: write tcp/ then host:port".to_owned(),
+            });
+        };
+        if address.contains(['?', '#']) {
+            return Err(
+                "endpoint metadata (?) and options (#) are not taken here: put them \
+                        in config_file"
+                    .to_owned(),
+            );
+        }
+        let (host, port) = if let Some(rest) = address.strip_prefix('[') {
+            let (ip, port) = rest
+                .split_once("]:")
+                .ok_or("an IPv6 address is written [address]:port")?;
+            let ip: Ipv6Addr = ip
+                .parse()
+                .map_err(|_| format!("{ip:?} is not an IPv6 address"))?;
+            (Host::Ip(IpAddr::V6(ip)), port)
+        } else {
+            let (host, port) = address.rsplit_once(':').ok_or("no :port")?;
+            if host.contains(':') {
+                return Err("an IPv6 address is written in brackets, [address]:port".to_owned());
+            }
+            (parse_host(host)?, port)
+        };
+        let port = port
+            .parse::<u16>()
+            .map_err(|_| format!("port {port:?} is not a number in 0..=65535"))?;
+        Ok(Endpoint { host, port })
+    }
+}
+
+impl fmt::Display for Endpoint {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &self.host {
+            Host::Ip(IpAddr::V6(ip)) => write!(f, "tcp/[{ip}]:{}", self.port),
+            Host::Ip(IpAddr::V4(ip)) => write!(f, "tcp/{ip}:{}", self.port),
+            Host::Name(name) => write!(f, "tcp/{name}:{}", self.port),
+        }
+    }
+}
+
+/// An IPv4 address or a DNS host name.
+fn parse_host(host: &str) -> Result<Host, String> {
+    if let Ok(ip) = host.parse::<Ipv4Addr>() {
+        return Ok(Host::Ip(IpAddr::V4(ip)));
+    }
+    let label_ok = |l: &str| {
+        !l.is_empty()
+            && l.len() <= 63
+            && !l.starts_with('-')
+            && !l.ends_with('-')
+            && l.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-')
+    };
+    let labels: Vec<&str> = host.split('.').collect();
+    let numeric_tail = labels
+        .last()
+        .is_some_and(|l| l.bytes().all(|b| b.is_ascii_digit()));
+    if host.is_empty() || host.len() > 253 || !labels.iter().all(|l| label_ok(l)) || numeric_tail {
+        return Err(format!(
+            "{host:?} is neither an IPv4 address nor a host name"
+        ));
+    }
+    Ok(Host::Name(host.to_owned()))
+}
+
+/// Why `prefix` is not a plain key expression, if it is not.
+fn prefix_problem(prefix: &str) -> Option<&'static str> {
+    if prefix.is_empty() {
+        Some("empty")
+    } else if prefix.contains(['*', '$', '?', '#']) {
+        Some("*, $, ? and # are Zenoh's wildcards and separators")
+    } else if prefix.starts_with('/') || prefix.ends_with('/') {
+        Some("no leading or trailing /")
+    } else if prefix.contains("//") {
+        Some("an empty chunk between two /")
+    } else if prefix.split('/').any(|chunk| chunk.starts_with('@')) {
+        Some("a chunk starting with @ is reserved by Zenoh")
+    } else {
+        None
+    }
+}
+
+impl Checker<'_> {
+    /// Checks `[zenoh]`; `rate_hz` is the validated loop rate.
+    pub(super) fn zenoh(&self, raw: RawZenoh, rate_hz: f64) -> Result<Zenoh, ConfigError> {
+        let endpoints = |name: &str, list: &[String]| {
+            list.iter()
+                .enumerate()
+                .map(|(i, text)| {
+                    let field = format!("zenoh.{name}[{}]", i + 1);
+                    let bad = |reason: String| {
+                        self.invalid(
+                            field.clone(),
+                            Problem::BadEndpoint {
+                                value: text.clone(),
+                                reason,
+                            },
+                        )
+                    };
+                    let endpoint = Endpoint::parse(text).map_err(bad)?;
+                    if name == "connect" && endpoint.port == 0 {
+                        return Err(bad("port 0 cannot be connected to".to_owned()));
+                    }
+                    Ok(endpoint)
+                })
+                .collect::<Result<Vec<_>, _>>()
+        };
+        let connect = endpoints("connect", &raw.connect)?;
+        let listen = endpoints("listen", &raw.listen)?;
+        if let Some(reason) = prefix_problem(&raw.prefix) {
+            return Err(self.invalid(
+                "zenoh.prefix",
+                Problem::BadPrefix {
+                    value: raw.prefix,
+                    reason,
+                },
+            ));
+        }
+        let publish_hz = match raw.publish_hz {
+            None => DEFAULT_ZENOH_PUBLISH_HZ.min(rate_hz),
+            Some(value) if finite_within(value) && value > 0.0 && value <= rate_hz => value,
+            Some(value) => {
+                return Err(self.invalid(
+                    "zenoh.publish_hz",
+                    Problem::AboveLoopRate { value, rate_hz },
+                ))
+            }
+        };
+        let config_file = raw.config_file.map(|f| self.relative_to_file(f));
+        if raw.accept_commands && config_file.is_none() {
+            let open = |name: &str, list: &[Endpoint]| {
+                list.iter()
+                    .position(|e| !e.is_loopback())
+                    .map(|i| format!("zenoh.{name}[{}] = \"{}\" is not loopback", i + 1, list[i]))
+            };
+            let exposure = if raw.multicast {
+                Some("multicast scouting is on".to_owned())
+            } else {
+                open("listen", &listen).or_else(|| open("connect", &connect))
+            };
+            if let Some(exposure) = exposure {
+                return Err(self.invalid(
+                    "zenoh.accept_commands",
+                    Problem::CommandsExposed { exposure },
+                ));
+            }
+        }
+        if raw.enabled && config_file.is_none() && !raw.multicast {
+            match raw.mode {
+                ZenohMode::Client if connect.is_empty() => {
+                    return Err(self.invalid(
+                        "zenoh.connect",
+                        Problem::Missing {
+                            why: "mode = \"client\" needs a router to connect to (or multicast \
+                                  = true to scout for one)",
+                        },
+                    ))
+                }
+                ZenohMode::Peer if connect.is_empty() && listen.is_empty() => {
+                    return Err(self.invalid(
+                        "zenoh.listen",
+                        Problem::Missing {
+                            why: "with no listen, no connect and multicast = false, no other \
+                                  session could reach the arm",
+                        },
+                    ))
+                }
+                _ => {}
+            }
+        }
+        Ok(Zenoh {
+            enabled: raw.enabled,
+            mode: raw.mode,
+            connect,
+            listen,
+            multicast: raw.multicast,
+            prefix: raw.prefix,
+            publish_hz,
+            accept_commands: raw.accept_commands,
+            config_file,
+        })
+    }
+}
