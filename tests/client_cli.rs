@@ -142,6 +142,29 @@ fn text(path: &Path) -> &str {
     path.to_str().unwrap()
 }
 
+/// Asserts `run` succeeded with the `ok: NAME at tick N` line.
+fn assert_ok(run: &Run, name: &str) {
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    let expected = format!("ok: {name} at tick ");
+    assert!(run.stdout.starts_with(&expected), "{:?}", run.stdout);
+}
+
+/// Starts a waiting `goto` of 7.7 cm at 2 cm/s (still moving seconds later) and returns once
+/// the daemon runs it.
+fn slow_goto(d: &Daemon, addr: &str) -> Child {
+    let child = spawn(&[
+        "goto",
+        "-0.50",
+        "0.66",
+        "--speed",
+        "0.02",
+        "--connect",
+        addr,
+    ]);
+    wait_active(d, "goto");
+    child
+}
+
 #[test]
 fn status_and_describe_print_one_json_object_each() {
     let _one = one_at_a_time();
@@ -242,37 +265,17 @@ fn goto_while_another_client_holds_control_is_refused_naming_it() {
 fn a_waiting_goto_interrupted_by_an_estop_fails_saying_estop() {
     let _one = one_at_a_time();
     let d = Daemon::start(sim_config(&[]));
-    // 7.7 cm at 2 cm/s: still moving when the estop comes.
     let addr = d.addr.to_string();
-    let child = spawn(&[
-        "goto",
-        "-0.50",
-        "0.66",
-        "--speed",
-        "0.02",
-        "--connect",
-        &addr,
-    ]);
-    wait_active(&d, "goto");
+    let child = slow_goto(&d, &addr);
     let run = at(&d, &["estop"]);
-    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
-    assert!(
-        run.stdout.starts_with("ok: estop at tick "),
-        "{:?}",
-        run.stdout
-    );
+    assert_ok(&run, "estop");
     let run = finish(child);
     assert_fails(&run, 1, "estop");
 
     // Latched: a new goto is refused with the daemon's code until `reset`.
     assert_fails(&at(&d, &["goto", "-0.55", "0.70"]), 1, "estopped");
     let run = at(&d, &["reset"]);
-    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
-    assert!(
-        run.stdout.starts_with("ok: reset at tick "),
-        "{:?}",
-        run.stdout
-    );
+    assert_ok(&run, "reset");
 }
 
 #[test]
@@ -280,23 +283,9 @@ fn a_waiting_goto_replaced_by_a_stop_fails_saying_why() {
     let _one = one_at_a_time();
     let d = Daemon::start(sim_config(&[]));
     let addr = d.addr.to_string();
-    let child = spawn(&[
-        "goto",
-        "-0.50",
-        "0.66",
-        "--speed",
-        "0.02",
-        "--connect",
-        &addr,
-    ]);
-    wait_active(&d, "goto");
+    let child = slow_goto(&d, &addr);
     let run = at(&d, &["stop"]);
-    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
-    assert!(
-        run.stdout.starts_with("ok: stop at tick "),
-        "{:?}",
-        run.stdout
-    );
+    assert_ok(&run, "stop");
     assert_fails(&finish(child), 1, "preempted by `stop`");
 }
 
