@@ -321,6 +321,20 @@ impl CsiScanner {
     }
 }
 
+/// Asserts the daemon holds with its measured tip where the screen shows it (within 1.5 mm:
+/// the screen rounds to a millimetre).
+fn assert_daemon_holds_at(client: &mut Client, end: [f64; 2]) {
+    let status = client.status().unwrap();
+    assert_eq!(status.state, "holding");
+    for k in 0..2 {
+        assert!(
+            (status.tip_meas[k] - end[k]).abs() < 0.0015,
+            "screen {end:?}, daemon {:?}",
+            status.tip_meas
+        );
+    }
+}
+
 #[test]
 fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
     let dir = tempfile::tempdir().unwrap();
@@ -364,15 +378,7 @@ fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
 
     // A second witness: the daemon the screen names agrees.
     let mut client = Client::connect(&addr, None).unwrap();
-    let status = client.status().unwrap();
-    assert_eq!(status.state, "holding");
-    for k in 0..2 {
-        assert!(
-            (status.tip_meas[k] - end[k]).abs() < 0.0015,
-            "screen {end:?}, daemon {:?}",
-            status.tip_meas
-        );
-    }
+    assert_daemon_holds_at(&mut client, end);
 
     // A click on the canvas sends the tip to the point under it (an SGR mouse press and
     // release, as a terminal reports them with mouse capture on).
@@ -490,15 +496,7 @@ fn on_a_kitty_terminal_a_held_arrow_moves_the_tip_until_its_release() {
     let bound = 0.05 * released.duration_since(pressed).as_secs_f64() + 0.03;
     assert!(dx < bound, "the hold moved the tip {dx} m, over {bound} m");
     assert!((end[1] - start[1]).abs() < 0.005, "{start:?} -> {end:?}");
-    let status = client.status().unwrap();
-    assert_eq!(status.state, "holding");
-    for k in 0..2 {
-        assert!(
-            (status.tip_meas[k] - end[k]).abs() < 0.0015,
-            "screen {end:?}, daemon {:?}",
-            status.tip_meas
-        );
-    }
+    assert_daemon_holds_at(&mut client, end);
     drop(client);
 
     // `q` (a text key: kitty sends it plain) quits, the flags popped before the alternate

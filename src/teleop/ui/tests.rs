@@ -65,6 +65,17 @@ fn render(view: &View<'_>) -> Buffer {
     terminal.backend().buffer().clone()
 }
 
+/// Renders `arm` with `snapshot` and `status`, and an empty trail.
+fn render_arm(arm: &ArmInfo, snapshot: Option<&Snapshot>, status: &Status) -> Buffer {
+    let trail = Trail::new(10);
+    render(&View {
+        arm,
+        snapshot,
+        trail: &trail,
+        status,
+    })
+}
+
 fn lines(buffer: &Buffer) -> Vec<String> {
     (0..buffer.area.height)
         .map(|y| {
@@ -108,15 +119,8 @@ fn dot_cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
 fn the_measured_arm_is_drawn_inside_the_canvas_and_nowhere_else() {
     let arm = sim_arm();
     let snapshot = snapshot_at(&arm, &arm.home_rad);
-    let trail = Trail::new(10);
     let status = status();
-    let view = View {
-        arm: &arm,
-        snapshot: Some(&snapshot),
-        trail: &trail,
-        status: &status,
-    };
-    let buffer = render(&view);
+    let buffer = render_arm(&arm, Some(&snapshot), &status);
     let parts = areas(screen());
     let inner = canvas_inner(parts.canvas);
     // Every link's midpoint lies on a drawn cell.
@@ -173,15 +177,8 @@ fn the_canvas_keeps_one_scale_on_both_axes() {
 fn the_panel_shows_address_state_control_and_the_measured_tip() {
     let arm = sim_arm();
     let snapshot = snapshot_at(&arm, &arm.home_rad);
-    let trail = Trail::new(10);
     let status = status();
-    let view = View {
-        arm: &arm,
-        snapshot: Some(&snapshot),
-        trail: &trail,
-        status: &status,
-    };
-    let text = lines(&render(&view)).join("\n");
+    let text = lines(&render_arm(&arm, Some(&snapshot), &status)).join("\n");
     for expected in [
         "127.0.0.1:40404",
         "holding",
@@ -210,15 +207,8 @@ fn a_fault_is_named_by_its_servo() {
         since_tick: 200,
         detail: "no status".into(),
     });
-    let trail = Trail::new(10);
     let status = status();
-    let view = View {
-        arm: &arm,
-        snapshot: Some(&snapshot),
-        trail: &trail,
-        status: &status,
-    };
-    let text = lines(&render(&view)).join("\n");
+    let text = lines(&render_arm(&arm, Some(&snapshot), &status)).join("\n");
     assert!(text.contains("servo 5 (joint 5): silent"), "{text}");
     assert!(text.contains("fault"), "{text}");
 }
@@ -230,15 +220,8 @@ fn a_joint_near_its_limit_is_marked_in_red() {
     // 0.15 rad from +2: inside 10 % of the 4 rad range.
     theta[2] = 1.85;
     let snapshot = snapshot_at(&arm, &theta);
-    let trail = Trail::new(10);
     let status = status();
-    let view = View {
-        arm: &arm,
-        snapshot: Some(&snapshot),
-        trail: &trail,
-        status: &status,
-    };
-    let buffer = render(&view);
+    let buffer = render_arm(&arm, Some(&snapshot), &status);
     let text = lines(&buffer).join("\n");
     assert!(text.contains("joint 3 near a limit"), "{text}");
     let joint = arm.points(&theta)[2];
@@ -256,15 +239,8 @@ fn another_client_in_control_is_named_with_the_way_to_take_over() {
     let mut snapshot = snapshot_at(&arm, &arm.home_rad);
     snapshot.in_control = false;
     snapshot.controller = Some(3);
-    let trail = Trail::new(10);
     let status = status();
-    let view = View {
-        arm: &arm,
-        snapshot: Some(&snapshot),
-        trail: &trail,
-        status: &status,
-    };
-    let text = lines(&render(&view)).join("\n");
+    let text = lines(&render_arm(&arm, Some(&snapshot), &status)).join("\n");
     assert!(text.contains("control   client 3"), "{text}");
     assert!(
         text.contains("client 3 is in control: press c to take it"),
@@ -278,17 +254,10 @@ fn another_client_in_control_is_named_with_the_way_to_take_over() {
 fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
     let arm = sim_arm();
     let snapshot = snapshot_at(&arm, &arm.home_rad);
-    let trail = Trail::new(10);
     let mut status = status();
     status.link = Link::Gone;
     status.notice = Some("daemon at 127.0.0.1:40404 gone: retrying".into());
-    let view = View {
-        arm: &arm,
-        snapshot: Some(&snapshot),
-        trail: &trail,
-        status: &status,
-    };
-    let buffer = render(&view);
+    let buffer = render_arm(&arm, Some(&snapshot), &status);
     let text = lines(&buffer).join("\n");
     assert!(
         text.contains("daemon at 127.0.0.1:40404 gone: retrying"),
@@ -301,16 +270,9 @@ fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
 #[test]
 fn before_any_telemetry_the_screen_says_it_waits() {
     let arm = ArmInfo::default();
-    let trail = Trail::new(10);
     let mut status = status();
     status.link = Link::Connecting;
-    let view = View {
-        arm: &arm,
-        snapshot: None,
-        trail: &trail,
-        status: &status,
-    };
-    let text = lines(&render(&view)).join("\n");
+    let text = lines(&render_arm(&arm, None, &status)).join("\n");
     assert!(text.contains("waiting for telemetry"), "{text}");
     assert!(text.contains("connecting"), "{text}");
 }
