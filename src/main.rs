@@ -57,6 +57,9 @@ enum Command {
     Strategy(cli::client::StrategyArgs),
     /// Telemetry as JSON lines until Ctrl-C.
     Watch(cli::client::WatchArgs),
+    /// The arms on a Zenoh network, one line each: state, measured tip, strategy, controller
+    /// (a build with `--features zenoh`).
+    Fleet(cli::fleet::FleetArgs),
 }
 
 fn main() -> ExitCode {
@@ -84,6 +87,7 @@ fn main() -> ExitCode {
         Command::Home(args) => cli::client::home(args),
         Command::Strategy(args) => cli::client::strategy(args),
         Command::Watch(args) => cli::client::watch(args),
+        Command::Fleet(args) => cli::fleet::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,6 +2,7 @@
 
 pub mod client;
 pub mod demo;
+pub mod fleet;
 pub mod run;
 pub mod servo;
 pub mod sim;

@@ -10,6 +10,7 @@
 //!
 //! - [`access`]: who may connect (the token, and no listening beyond loopback without one).
 //! - [`arbiter`]: who may command (one controller at a time).
+//! - `bridge` (the `zenoh` feature): the daemon on a Zenoh network, in ROS 2's message formats.
 //! - [`control_loop`]: the loop's thread: start-up, the fixed-rate cycle, the shut-down guard.
 //! - [`embedded`]: the daemon started inside another program, on a loopback port.
 //! - [`link`]: the seam between the loop's thread and the socket side (bounded command queue,
@@ -19,6 +20,8 @@
 
 pub mod access;
 pub mod arbiter;
+#[cfg(feature = "zenoh")]
+pub mod bridge;
 pub mod control_loop;
 pub mod embedded;
 pub mod link;
@@ -111,20 +114,28 @@ pub enum DaemonError {
     StartUpReported,
     /// The config enables Zenoh, which this build does not have.
     #[error(
-        "{}: [zenoh] enabled = true, but this snakectl has no Zenoh transport built in: set \
-         enabled = false (the socket serves every client)",
+        "{}: [zenoh] enabled = true, but this snakectl was built without Zenoh: build it with \
+         `cargo build --release --features zenoh` (or set enabled = false)",
         path.display()
     )]
     ZenohNotBuilt {
         /// The config file.
         path: PathBuf,
     },
+    /// The Zenoh session could not be opened or set up.
+    #[cfg(feature = "zenoh")]
+    #[error("{}: [zenoh]: {source}", path.display())]
+    Zenoh {
+        /// The config file.
+        path: PathBuf,
+        /// Why.
+        source: bridge::NetError,
+    },
 }
 
-/// Refuses a config that enables Zenoh in a build without it (for now, every build: the table
-/// is parsed and validated, the transport is not there yet).
+/// Refuses a config that enables Zenoh in a build without the `zenoh` feature.
 pub fn check_zenoh_built(config: &Config) -> Result<(), DaemonError> {
-    if config.zenoh().enabled {
+    if config.zenoh().enabled && !cfg!(feature = "zenoh") {
         return Err(DaemonError::ZenohNotBuilt {
             path: config.path().to_path_buf(),
         });
@@ -138,7 +149,8 @@ pub fn check_zenoh_built(config: &Config) -> Result<(), DaemonError> {
 ///
 /// Before anything moves, `[zenoh] enabled = true` in a build without Zenoh is refused
 /// ([`DaemonError::ZenohNotBuilt`]), the `[server] token_file` is read and a `listener` on an
-/// address other than loopback without one is refused ([`DaemonError::Access`]).
+/// address other than loopback without one is refused ([`DaemonError::Access`]), and, with
+/// the `zenoh` feature and the table enabled, the Zenoh session is opened.
 pub async fn run(
     config: Config,
     listener: TcpListener,
@@ -150,6 +162,19 @@ pub async fn run(
     let max_clients = config.server().max_clients as usize;
     let addr = listener.local_addr().map_err(DaemonError::Socket)?;
     let access = access::Access::prepare(config.server(), addr)?;
+    // Opened before anything moves: a taken endpoint stops start-up here.
+    #[cfg(feature = "zenoh")]
+    let mut bridge = match config.zenoh().enabled {
+        true => Some(
+            bridge::Bridge::open(&config)
+                .await
+                .map_err(|source| DaemonError::Zenoh {
+                    path: config.path().to_path_buf(),
+                    source,
+                })?,
+        ),
+        false => None,
+    };
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = oneshot::channel();
     let (done_tx, done_rx) = oneshot::channel();
@@ -185,8 +210,17 @@ pub async fn run(
             }
         };
         let options = server::ServerOptions::new(joints, max_clients).with_token(access.token);
-        server::serve(listener, handle, options, shutdown).await
+        let server = server::Server::new(handle, options);
+        #[cfg(feature = "zenoh")]
+        if let Some(bridge) = bridge.as_mut() {
+            bridge.start(server.door());
+        }
+        server.serve(listener, shutdown).await
     };
+    #[cfg(feature = "zenoh")]
+    if let Some(bridge) = bridge.take() {
+        bridge.stop().await;
+    }
     stop.store(true, Ordering::Relaxed);
     let result = match ended_early {
         Some(r) => r,

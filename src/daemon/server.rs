@@ -25,6 +25,7 @@
 use std::fmt::Write as _;
 use std::future::Future;
 use std::io;
+use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
@@ -131,88 +132,218 @@ pub async fn serve(
     options: ServerOptions,
     shutdown: impl Future<Output = ()>,
 ) -> io::Result<()> {
-    let shared = Arc::new(Shared {
-        describe: handle.describe.to_fields(),
-        loop_rate_hz: handle.describe.rate_hz,
-        handle,
-        joints: options.joints,
-        max_clients: options.max_clients,
-        client_queue: options.client_queue.max(1),
-        stall_grace: options.stall_grace,
-        flush_grace: options.flush_grace,
-        token: options.token,
-        auth_grace: options.auth_grace,
-        arbiter: Mutex::new(Arbiter::new()),
-        control: broadcast::channel(CONTROL_QUEUE).0,
-    });
-    // Accepted connections hold a permit; none left means `too_many_clients`.
-    let limit = Arc::new(Semaphore::new(
-        options.max_clients.min(Semaphore::MAX_PERMITS),
-    ));
-    // Dropped at shutdown: every client task's receiver then resolves and the task stops.
-    let (stop_tx, stop_rx) = watch::channel(());
-    let mut tasks = JoinSet::new();
-    let mut next_id: ClientId = 1;
-    let mut failures = 0u32;
-    let mut pause = Duration::from_millis(10);
-    tokio::pin!(shutdown);
+    Server::new(handle, options).serve(listener, shutdown).await
+}
 
-    let result = loop {
-        tokio::select! {
-            () = &mut shutdown => break Ok(()),
-            Some(done) = tasks.join_next(), if !tasks.is_empty() => report_panic(done),
-            accepted = listener.accept() => match accepted {
-                Ok((stream, peer)) => {
-                    failures = 0;
-                    pause = Duration::from_millis(10);
-                    match Arc::clone(&limit).try_acquire_owned() {
-                        Ok(permit) => {
-                            let id = next_id;
-                            next_id += 1;
-                            debug!(client = id, %peer, "client connected");
-                            let client = client(id, stream, Arc::clone(&shared), stop_rx.clone());
-                            tasks.spawn(async move {
-                                client.await;
-                                drop::<OwnedSemaphorePermit>(permit);
-                            });
-                        }
-                        Err(_) => {
-                            debug!(%peer, max = shared.max_clients, "client refused: too many");
-                            tasks.spawn(refuse(stream, shared.max_clients, shared.flush_grace));
-                        }
-                    }
-                }
-                Err(e) => {
-                    failures += 1;
-                    if failures >= MAX_ACCEPT_FAILURES {
-                        error!(error = %e, failures, "accept keeps failing; the server stops");
-                        break Err(e);
-                    }
-                    warn!(error = %e, pause_ms = pause.as_millis(), "accept failed");
-                    time::sleep(pause).await;
-                    pause = (pause * 2).min(Duration::from_secs(1));
-                }
-            },
-        }
-    };
+/// The server before it serves: [`Server::door`] hands out ways in for sources of commands
+/// other than its socket clients, then [`Server::serve`] runs it as [`serve`] does.
+pub struct Server {
+    shared: Arc<Shared>,
+}
 
-    drop(listener);
-    drop(stop_tx);
-    let drained = time::timeout(2 * shared.flush_grace, async {
-        while let Some(done) = tasks.join_next().await {
-            report_panic(done);
-        }
-    })
-    .await;
-    if drained.is_err() {
-        warn!(
-            open = tasks.len(),
-            "connections still open at shutdown; closing them"
-        );
-        tasks.shutdown().await;
+impl Server {
+    /// A server for the loop behind `handle`.
+    pub fn new(handle: Handle, options: ServerOptions) -> Server {
+        let shared = Arc::new(Shared {
+            describe: handle.describe.to_fields(),
+            loop_rate_hz: handle.describe.rate_hz,
+            handle,
+            joints: options.joints,
+            max_clients: options.max_clients,
+            client_queue: options.client_queue.max(1),
+            stall_grace: options.stall_grace,
+            flush_grace: options.flush_grace,
+            token: options.token,
+            auth_grace: options.auth_grace,
+            arbiter: Mutex::new(Arbiter::new()),
+            control: broadcast::channel(CONTROL_QUEUE).0,
+            next_id: AtomicU64::new(1),
+        });
+        Server { shared }
     }
-    debug!("server stopped");
-    result
+
+    /// A way in for commands that do not come from a socket client (the Zenoh bridge): it
+    /// takes the next controller id, so the arbiter, the queue and the loop treat it as one
+    /// more client.
+    pub fn door(&self) -> Door {
+        Door {
+            id: self.shared.take_id(),
+            shared: Arc::clone(&self.shared),
+        }
+    }
+
+    /// Serves clients on `listener` until `shutdown` resolves (see [`serve`]).
+    pub async fn serve(
+        self,
+        listener: TcpListener,
+        shutdown: impl Future<Output = ()>,
+    ) -> io::Result<()> {
+        let shared = self.shared;
+        // Accepted connections hold a permit; none left means `too_many_clients`.
+        let limit = Arc::new(Semaphore::new(
+            shared.max_clients.min(Semaphore::MAX_PERMITS),
+        ));
+        // Dropped at shutdown: every client task's receiver then resolves and the task stops.
+        let (stop_tx, stop_rx) = watch::channel(());
+        let mut tasks = JoinSet::new();
+        let mut failures = 0u32;
+        let mut pause = Duration::from_millis(10);
+        tokio::pin!(shutdown);
+
+        let result = loop {
+            tokio::select! {
+                () = &mut shutdown => break Ok(()),
+                Some(done) = tasks.join_next(), if !tasks.is_empty() => report_panic(done),
+                accepted = listener.accept() => match accepted {
+                    Ok((stream, peer)) => {
+                        failures = 0;
+                        pause = Duration::from_millis(10);
+                        match Arc::clone(&limit).try_acquire_owned() {
+                            Ok(permit) => {
+                                let id = shared.take_id();
+                                debug!(client = id, %peer, "client connected");
+                                let client = client(id, stream, Arc::clone(&shared), stop_rx.clone());
+                                tasks.spawn(async move {
+                                    client.await;
+                                    drop::<OwnedSemaphorePermit>(permit);
+                                });
+                            }
+                            Err(_) => {
+                                debug!(%peer, max = shared.max_clients, "client refused: too many");
+                                tasks.spawn(refuse(stream, shared.max_clients, shared.flush_grace));
+                            }
+                        }
+                    }
+                    Err(e) => {
+                        failures += 1;
+                        if failures >= MAX_ACCEPT_FAILURES {
+                            error!(error = %e, failures, "accept keeps failing; the server stops");
+                            break Err(e);
+                        }
+                        warn!(error = %e, pause_ms = pause.as_millis(), "accept failed");
+                        time::sleep(pause).await;
+                        pause = (pause * 2).min(Duration::from_secs(1));
+                    }
+                },
+            }
+        };
+
+        drop(listener);
+        drop(stop_tx);
+        let drained = time::timeout(2 * shared.flush_grace, async {
+            while let Some(done) = tasks.join_next().await {
+                report_panic(done);
+            }
+        })
+        .await;
+        if drained.is_err() {
+            warn!(
+                open = tasks.len(),
+                "connections still open at shutdown; closing them"
+            );
+            tasks.shutdown().await;
+        }
+        debug!("server stopped");
+        result
+    }
+}
+
+/// A source of commands beside the socket's clients, under one controller id of its own
+/// ([`Server::door`]): its commands meet the same [`Arbiter`] and the same bounded queue as a
+/// client's, so it cannot pass an estop, a limit or another client's control. Nothing here
+/// waits: a full queue is `busy`. Dropping it gives back control it holds.
+pub struct Door {
+    id: ClientId,
+    shared: Arc<Shared>,
+}
+
+impl Door {
+    /// Its controller id (what `status` and `control` events name when it holds control).
+    pub fn id(&self) -> ClientId {
+        self.id
+    }
+
+    /// Who holds control.
+    pub fn holder(&self) -> Option<ClientId> {
+        self.shared.holder()
+    }
+
+    /// Puts `cmd` to the arbiter and, admitted, queues it for the loop; the loop's answer
+    /// arrives on the returned receiver. Refused at once: `not_in_control`, `busy`, or the loop
+    /// gone. What the server answers itself (`describe`, `subscribe`, `take_control`, ...) is
+    /// refused `bad_arg`: a door moves, stops and asks for status, nothing else.
+    pub fn send(&self, cmd: Cmd) -> Result<oneshot::Receiver<Answer>, Rejection> {
+        if matches!(
+            cmd,
+            Cmd::Describe
+                | Cmd::Subscribe { .. }
+                | Cmd::Unsubscribe
+                | Cmd::TakeControl
+                | Cmd::Release
+                | Cmd::Auth { .. }
+        ) {
+            return Err(Rejection::new(
+                Code::BadArg,
+                format!("`{}` is not taken through this door", cmd.name()),
+            ));
+        }
+        self.shared.submit(self.id, None, cmd, Instant::now())
+    }
+
+    /// Lets go of control if this door holds it (everyone is told); whether it did.
+    pub fn release(&self) -> bool {
+        let mut arbiter = self.shared.arbiter();
+        match arbiter.release(self.id) {
+            Some(change) => {
+                self.shared.announce(&change, None);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The loop's latest telemetry (latest wins: reading it never holds the loop up).
+    pub fn telemetry(&self) -> watch::Receiver<Telemetry> {
+        self.shared.handle.telemetry.clone()
+    }
+
+    /// The loop's events, from now on.
+    pub fn events(&self) -> broadcast::Receiver<Event> {
+        self.shared.handle.events.subscribe()
+    }
+
+    /// The `describe` reply's fields.
+    pub fn describe(&self) -> &Map<String, Value> {
+        &self.shared.describe
+    }
+
+    /// `telemetry` as the socket's telemetry line, with `controller` and `in_control` (whether
+    /// this door holds control).
+    pub fn telemetry_line(&self, telemetry: &Telemetry) -> String {
+        with_control(protocol::telemetry_line(telemetry), self.holder(), self.id)
+    }
+
+    /// `telemetry` as the socket's `status` reply (id null), with `controller` and
+    /// `in_control`.
+    pub fn status_line(&self, telemetry: &Telemetry) -> String {
+        let holder = self.holder();
+        let mut fields = telemetry.to_fields();
+        fields.insert("controller".into(), holder.into());
+        fields.insert("in_control".into(), (holder == Some(self.id)).into());
+        protocol::ok_line(None, &fields)
+    }
+}
+
+impl std::fmt::Debug for Door {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Door").field("id", &self.id).finish()
+    }
+}
+
+impl Drop for Door {
+    fn drop(&mut self) {
+        self.release();
+    }
 }
 
 fn report_panic(done: Result<(), tokio::task::JoinError>) {
@@ -240,6 +371,8 @@ struct Shared {
     arbiter: Mutex<Arbiter>,
     /// `control` event lines, for every client.
     control: broadcast::Sender<Arc<str>>,
+    /// The next controller id to hand out (clients and doors share the space).
+    next_id: AtomicU64,
 }
 
 impl Shared {
@@ -251,6 +384,51 @@ impl Shared {
     /// The client in control.
     fn holder(&self) -> Option<ClientId> {
         self.arbiter().holder()
+    }
+
+    fn take_id(&self) -> ClientId {
+        self.next_id.fetch_add(1, AtomicOrdering::Relaxed)
+    }
+
+    /// Puts `cmd` from `who` to the arbiter and, admitted, queues it for the loop without
+    /// waiting for room (full: `busy`, and control taken for it is given back).
+    fn submit(
+        &self,
+        who: ClientId,
+        id: Option<RequestId>,
+        cmd: Cmd,
+        received: Instant,
+    ) -> Result<oneshot::Receiver<Answer>, Rejection> {
+        let (reply, answer) = oneshot::channel();
+        // Admission and queueing under one lock: once a `take_control` is answered, no
+        // command of the previous holder's enters the queue.
+        let mut arbiter = self.arbiter();
+        let change = arbiter.admit(who, &cmd)?;
+        let envelope = Envelope {
+            client: who,
+            id: id.clone(),
+            cmd,
+            received,
+            reply,
+        };
+        let sent = self.handle.commands.try_send(envelope);
+        if sent.is_err() && change.is_some() {
+            // Not taken after all: the command that would have taken it never went.
+            arbiter.release(who);
+        }
+        match sent {
+            Ok(()) => {
+                if let Some(change) = change {
+                    self.announce(&change, id.as_deref());
+                }
+                Ok(answer)
+            }
+            Err(TrySendError::Full(_)) => Err(Rejection::new(
+                Code::Busy,
+                format!("the loop's command queue is full ({COMMAND_QUEUE}); send again"),
+            )),
+            Err(TrySendError::Closed(_)) => Err(stopped()),
+        }
     }
 
     /// Tells every client of `change` (called with the arbiter locked, so that announcements
@@ -644,39 +822,7 @@ impl Session<'_> {
 
     /// Puts a command to the arbiter, hands it to the loop and waits for its answer.
     async fn to_loop(&self, id: Option<RequestId>, cmd: Cmd, received: Instant) -> Answer {
-        let (reply, answer) = oneshot::channel();
-        {
-            // Admission and queueing under one lock: once a `take_control` is answered, no
-            // command of the previous holder's enters the queue.
-            let mut arbiter = self.shared.arbiter();
-            let change = arbiter.admit(self.id, &cmd)?;
-            let envelope = Envelope {
-                client: self.id,
-                id: id.clone(),
-                cmd,
-                received,
-                reply,
-            };
-            let sent = self.shared.handle.commands.try_send(envelope);
-            if sent.is_err() && change.is_some() {
-                // Not taken after all: the command that would have taken it never went.
-                arbiter.release(self.id);
-            }
-            match sent {
-                Ok(()) => {
-                    if let Some(change) = change {
-                        self.shared.announce(&change, id.as_deref());
-                    }
-                }
-                Err(TrySendError::Full(_)) => {
-                    return Err(Rejection::new(
-                        Code::Busy,
-                        format!("the loop's command queue is full ({COMMAND_QUEUE}); send again"),
-                    ));
-                }
-                Err(TrySendError::Closed(_)) => return Err(stopped()),
-            }
-        }
+        let answer = self.shared.submit(self.id, id, cmd, received)?;
         answer.await.unwrap_or_else(|_| Err(stopped()))
     }
 
@@ -707,22 +853,26 @@ struct Viewer<'a> {
 }
 
 impl Viewer<'_> {
-    /// `line` (one JSON object and its newline) with `controller` and `in_control` added.
-    fn with_control(&self, mut line: String) -> String {
-        let holder = self.shared.holder();
-        if line.ends_with("}\n") {
-            line.truncate(line.len() - 2);
-            let _ = match holder {
-                Some(holder) => writeln!(
-                    line,
-                    ",\"controller\":{holder},\"in_control\":{}}}",
-                    holder == self.id
-                ),
-                None => writeln!(line, ",\"controller\":null,\"in_control\":false}}"),
-            };
-        }
-        line
+    fn with_control(&self, line: String) -> String {
+        with_control(line, self.shared.holder(), self.id)
     }
+}
+
+/// `line` (one JSON object and its newline) with `controller` (`holder`) and `in_control`
+/// (whether that is `me`) added.
+fn with_control(mut line: String, holder: Option<ClientId>, me: ClientId) -> String {
+    if line.ends_with("}\n") {
+        line.truncate(line.len() - 2);
+        let _ = match holder {
+            Some(holder) => writeln!(
+                line,
+                ",\"controller\":{holder},\"in_control\":{}}}",
+                holder == me
+            ),
+            None => writeln!(line, ",\"controller\":null,\"in_control\":false}}"),
+        };
+    }
+    line
 }
 
 /// Sends a client's queued lines and, while subscribed, its telemetry, until the queue closes

@@ -20,7 +20,7 @@ use std::sync::Arc;
 use serde::Serialize;
 use serde_json::Value;
 
-pub use parse::{parse, Request, COMMANDS, MAX_PATH_POINTS};
+pub use parse::{checked_point, parse, Request, COMMANDS, MAX_PATH_POINTS};
 pub use write::{error_line, event_line, ok_line, request_line, telemetry_line};
 
 /// The version of this wire format, reported by `describe`.

@@ -284,6 +284,11 @@ fn number(field: Field, value: &Value) -> Result<f64, Rejection> {
             Shown(value)
         )));
     };
+    in_range(field, x)
+}
+
+/// `x` if finite and no larger than [`MAX_ARG`] in magnitude.
+fn in_range(field: Field, x: f64) -> Result<f64, Rejection> {
     if !x.is_finite() {
         return Err(bad(format_args!("`{field}`: {x} is not finite")));
     }
@@ -293,6 +298,14 @@ fn number(field: Field, value: &Value) -> Result<f64, Rejection> {
         )));
     }
     Ok(x)
+}
+
+/// A point that came by another way than a request line (a network message), held to the
+/// same rule as a request's numbers: finite, and no larger than the parser allows. `field`
+/// names it in the refusal (`v`, `target`).
+pub fn checked_point(field: &'static str, p: [f64; 2]) -> Result<[f64; 2], Rejection> {
+    let field = Field::new(field);
+    Ok([in_range(field.at(0), p[0])?, in_range(field.at(1), p[1])?])
 }
 
 /// A [`number`] above zero.

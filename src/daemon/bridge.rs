@@ -1,0 +1,792 @@
+//! The daemon on a Zenoh network, in ROS 2's message formats: the one file that speaks Zenoh
+//! (the `zenoh` feature).
+//!
+//! [`Bridge`] runs a Zenoh session on a thread of its own, with a runtime of its own (Zenoh
+//! needs a multi-threaded one; the daemon's is single-threaded). Under `<prefix>/` it publishes
+//! `joint_states`, `tip`, `target` (ROS 2 messages in CDR, [`crate::ros`]), `telemetry` (the
+//! socket's telemetry line) and `events` (event lines, and refusals of network commands), at
+//! `publish_hz` from the loop's latest telemetry: the loop hands over a snapshot, latest wins,
+//! and never waits on Zenoh. It answers `<prefix>/status` (the socket's `status` reply) and
+//! `<prefix>/describe`, and holds the liveliness token `<prefix>` while it runs.
+//!
+//! With `accept_commands`, `cmd_vel` (`Twist`) and `goal` (`PointStamped`) become `velocity`
+//! and `goto` through a [`Door`]: one controller id for everything that comes from the
+//! network, put to the same arbiter and the same bounded queue as a socket client's commands,
+//! and let go of after the deadman's silence.
+//!
+//! [`Peer`] is a plain, blocking session for tools and tests (`snakectl fleet`), and [`fleet`]
+//! lists the arms a peer can see.
+
+use std::path::PathBuf;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use serde_json::Value;
+use tokio::sync::{broadcast, oneshot};
+use tokio::time::{self, MissedTickBehavior};
+use tracing::{debug, info, warn};
+use zenoh::bytes::Encoding;
+use zenoh::handlers::{RingChannel, RingChannelHandler};
+use zenoh::qos::CongestionControl;
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::{Session, Wait};
+
+use super::server::Door;
+use crate::config::{Config, Endpoint, Zenoh, ZenohMode};
+use crate::protocol::{self, Cmd, Code, Rejection, Telemetry};
+use crate::ros;
+
+/// Network commands held for the bridge between two of its turns; the newest win (a newer
+/// `cmd_vel` replaces an older one anyway).
+const COMMAND_RING: usize = 8;
+
+/// Queries held before the bridge answers them; more wait in Zenoh.
+const QUERY_QUEUE: usize = 64;
+
+/// Samples a [`Subscription`] keeps for a reader that is behind; older ones are dropped.
+const SUBSCRIPTION_RING: usize = 256;
+
+/// Why Zenoh could not be used.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum NetError {
+    /// The session's settings were refused.
+    #[error("the Zenoh settings `{key}`: {message}")]
+    Setting {
+        /// The Zenoh config key.
+        key: &'static str,
+        /// Zenoh's reason.
+        message: String,
+    },
+    /// `config_file` could not be read as a Zenoh config.
+    #[error("the Zenoh config file {}: {message}", path.display())]
+    ConfigFile {
+        /// The file.
+        path: PathBuf,
+        /// Zenoh's reason.
+        message: String,
+    },
+    /// The session could not be opened (an endpoint taken, no router to reach, ...).
+    #[error("opening the Zenoh session: {0}")]
+    Open(String),
+    /// A publisher, subscriber, queryable or token could not be declared.
+    #[error("declaring `{key}` on Zenoh: {message}")]
+    Declare {
+        /// The key.
+        key: String,
+        /// Zenoh's reason.
+        message: String,
+    },
+    /// A put or a query failed.
+    #[error("`{key}` on Zenoh: {message}")]
+    Io {
+        /// The key.
+        key: String,
+        /// Zenoh's reason.
+        message: String,
+    },
+    /// The bridge's thread could not be started, or ended before it said why.
+    #[error("the Zenoh thread: {0}")]
+    Thread(String),
+}
+
+/// The session's Zenoh config from the `[zenoh]` table: `config_file` as the start (access
+/// control, TLS, timeouts), then the table's `mode` and `multicast`, and its endpoint lists.
+/// A list is set even when empty, so that the session never falls back to Zenoh's default of
+/// listening on every interface; only with `file_endpoints` and a `config_file` does an empty
+/// list leave the file's (the daemon's rule: endpoints may live in that file).
+fn session_config(table: &Zenoh, file_endpoints: bool) -> Result<zenoh::Config, NetError> {
+    let mut config = match &table.config_file {
+        Some(path) => zenoh::Config::from_file(path).map_err(|e| NetError::ConfigFile {
+            path: path.clone(),
+            message: e.to_string(),
+        })?,
+        None => zenoh::Config::default(),
+    };
+    let mode = match table.mode {
+        ZenohMode::Peer => "peer",
+        ZenohMode::Client => "client",
+    };
+    set(&mut config, "mode", &Value::from(mode))?;
+    set(
+        &mut config,
+        "scouting/multicast/enabled",
+        &Value::from(table.multicast),
+    )?;
+    let from_file = file_endpoints && table.config_file.is_some();
+    for (key, list) in [
+        ("connect/endpoints", &table.connect),
+        ("listen/endpoints", &table.listen),
+    ] {
+        if !(from_file && list.is_empty()) {
+            let list: Vec<Value> = list.iter().map(|e| e.to_string().into()).collect();
+            set(&mut config, key, &Value::from(list))?;
+        }
+    }
+    Ok(config)
+}
+
+fn set(config: &mut zenoh::Config, key: &'static str, value: &Value) -> Result<(), NetError> {
+    config
+        .insert_json5(key, &value.to_string())
+        .map_err(|e| NetError::Setting {
+            key,
+            message: e.to_string(),
+        })
+}
+
+/// Seconds since the Unix epoch now: ROS stamps are wall-clock time.
+fn wall_clock_s() -> f64 {
+    match SystemTime::now().duration_since(UNIX_EPOCH) {
+        Ok(d) => d.as_secs_f64(),
+        Err(e) => -e.duration().as_secs_f64(),
+    }
+}
+
+/// What the bridge needs of the config, taken before the loop's thread owns it.
+#[derive(Debug, Clone)]
+struct Settings {
+    prefix: String,
+    publish_period: Duration,
+    accept_commands: bool,
+    deadman: Duration,
+}
+
+impl Settings {
+    fn key(&self, name: &str) -> String {
+        format!("{}/{name}", self.prefix)
+    }
+}
+
+/// The daemon's Zenoh session, on its own thread: opened by [`Bridge::open`] before anything
+/// moves, serving once [`Bridge::start`] hands it the way in, closed by [`Bridge::stop`].
+#[derive(Debug)]
+pub struct Bridge {
+    start: Option<oneshot::Sender<Door>>,
+    stop: Option<oneshot::Sender<()>>,
+    done: Option<oneshot::Receiver<()>>,
+    thread: Option<JoinHandle<()>>,
+    prefix: String,
+}
+
+impl Bridge {
+    /// Opens the session `config`'s `[zenoh]` table describes; returns once it is open, or
+    /// with why it could not be.
+    pub async fn open(config: &Config) -> Result<Bridge, NetError> {
+        let table = config.zenoh();
+        let zenoh_config = session_config(table, true)?;
+        let settings = Settings {
+            prefix: table.prefix.clone(),
+            publish_period: Duration::try_from_secs_f64(1.0 / table.publish_hz)
+                .unwrap_or(Duration::from_secs(1))
+                .max(Duration::from_micros(100)),
+            accept_commands: table.accept_commands,
+            deadman: config.control().deadman,
+        };
+        let prefix = settings.prefix.clone();
+        let (opened_tx, opened_rx) = oneshot::channel();
+        let (start_tx, start_rx) = oneshot::channel();
+        let (stop_tx, stop_rx) = oneshot::channel();
+        let (done_tx, done_rx) = oneshot::channel();
+        let thread = std::thread::Builder::new()
+            .name("snakectl-zenoh".into())
+            .spawn(move || {
+                bridge_thread(zenoh_config, settings, opened_tx, start_rx, stop_rx);
+                let _ = done_tx.send(());
+            })
+            .map_err(|e| NetError::Thread(e.to_string()))?;
+        match opened_rx.await {
+            Ok(Ok(())) => Ok(Bridge {
+                start: Some(start_tx),
+                stop: Some(stop_tx),
+                done: Some(done_rx),
+                thread: Some(thread),
+                prefix,
+            }),
+            Ok(Err(e)) => {
+                let _ = thread.join();
+                Err(e)
+            }
+            Err(_) => {
+                let _ = thread.join();
+                Err(NetError::Thread(
+                    "it ended while opening the session".into(),
+                ))
+            }
+        }
+    }
+
+    /// The arm's namespace on the network.
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    /// Starts publishing, answering and (with `accept_commands`) commanding through `door`.
+    pub fn start(&mut self, door: Door) {
+        if let Some(start) = self.start.take() {
+            let _ = start.send(door);
+        }
+    }
+
+    /// Withdraws the token, closes the session and waits for the thread.
+    pub async fn stop(mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        if let Some(done) = self.done.take() {
+            let _ = done.await;
+        }
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+impl Drop for Bridge {
+    fn drop(&mut self) {
+        // Told to stop; the thread closes its session by itself.
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+    }
+}
+
+fn bridge_thread(
+    zenoh_config: zenoh::Config,
+    settings: Settings,
+    opened: oneshot::Sender<Result<(), NetError>>,
+    start: oneshot::Receiver<Door>,
+    mut stop: oneshot::Receiver<()>,
+) {
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("snakectl-zenoh-rt")
+        .enable_all()
+        .build()
+    {
+        Ok(runtime) => runtime,
+        Err(e) => {
+            let _ = opened.send(Err(NetError::Thread(e.to_string())));
+            return;
+        }
+    };
+    runtime.block_on(async move {
+        let session = match zenoh::open(zenoh_config).await {
+            Ok(session) => session,
+            Err(e) => {
+                let _ = opened.send(Err(NetError::Open(e.to_string())));
+                return;
+            }
+        };
+        let _ = opened.send(Ok(()));
+        let door = tokio::select! {
+            door = start => door.ok(),
+            _ = &mut stop => None,
+        };
+        if let Some(door) = door {
+            match Served::declare(&session, &settings, door).await {
+                Ok(served) => served.run(&mut stop).await,
+                Err(e) => {
+                    warn!(error = %e, "the Zenoh bridge could not start; the socket serves on")
+                }
+            }
+        }
+        if let Err(e) = session.close().await {
+            debug!(error = %e, "closing the Zenoh session");
+        }
+    });
+}
+
+/// The bridge's declarations, while it serves.
+struct Served<'a> {
+    session: &'a Session,
+    settings: &'a Settings,
+    door: Door,
+    joint_states: zenoh::pubsub::Publisher<'static>,
+    tip: zenoh::pubsub::Publisher<'static>,
+    target: zenoh::pubsub::Publisher<'static>,
+    telemetry: zenoh::pubsub::Publisher<'static>,
+    events_key: String,
+    status: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+    describe: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+    cmd_vel: Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
+    goal: Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
+    _token: zenoh::liveliness::LivelinessToken,
+    frame_id: String,
+}
+
+impl<'a> Served<'a> {
+    async fn declare(
+        session: &'a Session,
+        settings: &'a Settings,
+        door: Door,
+    ) -> Result<Served<'a>, NetError> {
+        let declare_err = |key: &str| {
+            let key = key.to_owned();
+            move |e: zenoh::Error| NetError::Declare {
+                key,
+                message: e.to_string(),
+            }
+        };
+        let publisher = |name: &'static str, encoding: Encoding| {
+            let key = settings.key(name);
+            async move {
+                session
+                    .declare_publisher(key.clone())
+                    .encoding(encoding)
+                    // A congested link drops a sample rather than hold the bridge up.
+                    .congestion_control(CongestionControl::Drop)
+                    .await
+                    .map_err(declare_err(&key))
+            }
+        };
+        let queryable = |name: &'static str| {
+            let key = settings.key(name);
+            async move {
+                session
+                    .declare_queryable(key.clone())
+                    .with(zenoh::handlers::FifoChannel::new(QUERY_QUEUE))
+                    .await
+                    .map_err(declare_err(&key))
+            }
+        };
+        let subscriber = |name: &'static str| {
+            let key = settings.key(name);
+            async move {
+                session
+                    .declare_subscriber(key.clone())
+                    .with(RingChannel::new(COMMAND_RING))
+                    .await
+                    .map_err(declare_err(&key))
+            }
+        };
+        let joint_states = publisher("joint_states", Encoding::APPLICATION_CDR).await?;
+        let tip = publisher("tip", Encoding::APPLICATION_CDR).await?;
+        let target = publisher("target", Encoding::APPLICATION_CDR).await?;
+        let telemetry = publisher("telemetry", Encoding::APPLICATION_JSON).await?;
+        let status = queryable("status").await?;
+        let describe = queryable("describe").await?;
+        let (cmd_vel, goal) = if settings.accept_commands {
+            (
+                Some(subscriber("cmd_vel").await?),
+                Some(subscriber("goal").await?),
+            )
+        } else {
+            (None, None)
+        };
+        let token = session
+            .liveliness()
+            .declare_token(settings.prefix.clone())
+            .await
+            .map_err(declare_err(&settings.prefix))?;
+        info!(
+            prefix = %settings.prefix,
+            controller = door.id(),
+            accept_commands = settings.accept_commands,
+            "on the Zenoh network"
+        );
+        Ok(Served {
+            session,
+            settings,
+            door,
+            joint_states,
+            tip,
+            target,
+            telemetry,
+            events_key: settings.key("events"),
+            status,
+            describe,
+            cmd_vel,
+            goal,
+            _token: token,
+            frame_id: format!("{}/world", settings.prefix),
+        })
+    }
+
+    async fn run(self, stop: &mut oneshot::Receiver<()>) {
+        let mut ticker = time::interval(self.settings.publish_period);
+        ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
+        let mut telemetry = self.door.telemetry();
+        let mut events = self.door.events();
+        let mut events_open = true;
+        // When the last network command was taken, while this door may hold control.
+        let mut last_command: Option<time::Instant> = None;
+        let mut refusals = Refusals::default();
+        let (answers_tx, mut answers) = tokio::sync::mpsc::channel::<Rejection>(QUERY_QUEUE);
+        loop {
+            let silence = last_command.map(|t| t + self.settings.deadman);
+            tokio::select! {
+                _ = &mut *stop => break,
+                _ = ticker.tick() => {
+                    if telemetry.has_changed().unwrap_or(false) {
+                        // Cloned, then the snapshot is let go: encoding never holds the loop.
+                        let t = telemetry.borrow_and_update().clone();
+                        self.publish(&t).await;
+                    }
+                }
+                event = events.recv(), if events_open => match event {
+                    Ok(event) => {
+                        if event.owner.is_none_or(|owner| owner == self.door.id()) {
+                            self.put_event(protocol::event_line(&event)).await;
+                        }
+                    }
+                    Err(broadcast::error::RecvError::Lagged(missed)) => {
+                        debug!(missed, "the Zenoh bridge fell behind the events");
+                    }
+                    Err(broadcast::error::RecvError::Closed) => events_open = false,
+                },
+                query = self.status.recv_async() => {
+                    if let Ok(query) = query {
+                        let t = telemetry.borrow().clone();
+                        self.answer(&query, "status", self.door.status_line(&t)).await;
+                    }
+                }
+                query = self.describe.recv_async() => {
+                    if let Ok(query) = query {
+                        let line = protocol::ok_line(None, self.door.describe());
+                        self.answer(&query, "describe", line).await;
+                    }
+                }
+                sample = recv(&self.cmd_vel) => {
+                    let cmd = velocity(&sample);
+                    if self.command(cmd, &answers_tx, &mut refusals).await {
+                        last_command = Some(time::Instant::now());
+                    }
+                }
+                sample = recv(&self.goal) => {
+                    let cmd = goto(&sample);
+                    if self.command(cmd, &answers_tx, &mut refusals).await {
+                        last_command = Some(time::Instant::now());
+                    }
+                }
+                Some(why) = answers.recv() => self.refused(why, &mut refusals).await,
+                () = sleep_until(silence), if silence.is_some() => {
+                    last_command = None;
+                    if self.door.release() {
+                        info!(
+                            deadman_ms = self.settings.deadman.as_millis() as u64,
+                            "no Zenoh command for the deadman: control released"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Publishes one snapshot on every key.
+    async fn publish(&self, t: &Telemetry) {
+        let stamp = wall_clock_s();
+        let cdr = |result: Result<Vec<u8>, ros::RosError>| match result {
+            Ok(bytes) => Some(bytes),
+            Err(e) => {
+                warn!(error = %e, "a ROS message could not be encoded");
+                None
+            }
+        };
+        if let Some(bytes) = cdr(ros::encode(&ros::joint_state(t, stamp))) {
+            self.put(&self.joint_states, bytes).await;
+        }
+        let tip = ros::point_stamped(t.tip_meas, stamp, &self.frame_id);
+        if let Some(bytes) = cdr(ros::encode(&tip)) {
+            self.put(&self.tip, bytes).await;
+        }
+        if let Some(target) = t.target {
+            let target = ros::point_stamped(target, stamp, &self.frame_id);
+            if let Some(bytes) = cdr(ros::encode(&target)) {
+                self.put(&self.target, bytes).await;
+            }
+        }
+        let line = self.door.telemetry_line(t);
+        self.put(&self.telemetry, line.trim_end().as_bytes().to_vec())
+            .await;
+    }
+
+    async fn put(&self, publisher: &zenoh::pubsub::Publisher<'static>, bytes: Vec<u8>) {
+        if let Err(e) = publisher.put(bytes).await {
+            debug!(key = %publisher.key_expr(), error = %e, "a Zenoh put failed");
+        }
+    }
+
+    async fn put_event(&self, line: String) {
+        let sent = self
+            .session
+            .put(&self.events_key, line.trim_end().to_owned())
+            .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(CongestionControl::Drop)
+            .await;
+        if let Err(e) = sent {
+            debug!(key = %self.events_key, error = %e, "a Zenoh put failed");
+        }
+    }
+
+    async fn answer(&self, query: &zenoh::query::Query, name: &str, line: String) {
+        let key = self.settings.key(name);
+        let sent = query
+            .reply(key.clone(), line.trim_end().to_owned())
+            .encoding(Encoding::APPLICATION_JSON)
+            .await;
+        if let Err(e) = sent {
+            debug!(%key, error = %e, "a Zenoh reply failed");
+        }
+    }
+
+    /// Puts a network command through the door; whether it was taken (admitted and queued).
+    /// The loop's refusal, if any, arrives later through `answers`.
+    async fn command(
+        &self,
+        cmd: Result<Cmd, Rejection>,
+        answers: &tokio::sync::mpsc::Sender<Rejection>,
+        refusals: &mut Refusals,
+    ) -> bool {
+        let sent = cmd.and_then(|cmd| self.door.send(cmd));
+        match sent {
+            Ok(answer) => {
+                refusals.last = None;
+                let answers = answers.clone();
+                tokio::spawn(async move {
+                    if let Ok(Err(why)) = answer.await {
+                        // Full: the refusal is dropped, the next one will be told.
+                        let _ = answers.try_send(why);
+                    }
+                });
+                true
+            }
+            Err(why) => {
+                self.refused(why, refusals).await;
+                false
+            }
+        }
+    }
+
+    /// Tells the network why a command was refused, on `<prefix>/events`, and the log once per
+    /// run of the same refusal.
+    async fn refused(&self, why: Rejection, refusals: &mut Refusals) {
+        if refusals.last != Some(why.code) {
+            warn!(code = ?why.code, reason = %why.message, "a Zenoh command was refused");
+            refusals.last = Some(why.code);
+        }
+        self.put_event(protocol::error_line(None, &why)).await;
+    }
+}
+
+/// The last refusal logged, so that a stream of refused `cmd_vel`s logs once.
+#[derive(Default)]
+struct Refusals {
+    last: Option<Code>,
+}
+
+/// The next sample of `subscriber`; never, without one.
+async fn recv(
+    subscriber: &Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
+) -> Sample {
+    match subscriber {
+        Some(subscriber) => match subscriber.recv_async().await {
+            Ok(sample) => sample,
+            Err(_) => std::future::pending().await,
+        },
+        None => std::future::pending().await,
+    }
+}
+
+async fn sleep_until(deadline: Option<time::Instant>) {
+    match deadline {
+        Some(deadline) => time::sleep_until(deadline).await,
+        None => std::future::pending().await,
+    }
+}
+
+fn bad(what: &str, e: impl std::fmt::Display) -> Rejection {
+    Rejection::new(Code::BadArg, format!("{what}: {e}"))
+}
+
+/// A `cmd_vel` sample as `velocity`: `linear.x`, `linear.y`, m/s; the rest is ignored.
+fn velocity(sample: &Sample) -> Result<Cmd, Rejection> {
+    let twist: ros::Twist = ros::decode(&sample.payload().to_bytes())
+        .map_err(|e| bad("cmd_vel is not a geometry_msgs/msg/Twist in CDR", e))?;
+    let v = protocol::checked_point("v", [twist.linear.x, twist.linear.y])?;
+    Ok(Cmd::Velocity { v })
+}
+
+/// A `goal` sample as `goto` at the default speed: `point.x`, `point.y`, m.
+fn goto(sample: &Sample) -> Result<Cmd, Rejection> {
+    let goal: ros::PointStamped = ros::decode(&sample.payload().to_bytes())
+        .map_err(|e| bad("goal is not a geometry_msgs/msg/PointStamped in CDR", e))?;
+    let target = protocol::checked_point("target", [goal.point.x, goal.point.y])?;
+    Ok(Cmd::Goto {
+        target,
+        speed: None,
+    })
+}
+
+/// A blocking Zenoh session for tools and tests: peer mode, the given endpoints, multicast
+/// scouting off unless a `[zenoh]` table says otherwise. Not for use inside an async runtime.
+pub struct Peer {
+    session: Session,
+}
+
+/// One sample a [`Subscription`] received.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Received {
+    /// The key it was put on.
+    pub key: String,
+    /// Its payload.
+    pub payload: Vec<u8>,
+}
+
+/// A subscription of a [`Peer`]: the newest [`SUBSCRIPTION_RING`] samples are kept.
+pub struct Subscription {
+    inner: zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>,
+}
+
+impl Subscription {
+    /// The next sample, waiting up to `timeout`.
+    pub fn recv_timeout(&self, timeout: Duration) -> Option<Received> {
+        match self.inner.recv_timeout(timeout) {
+            Ok(Some(sample)) if sample.kind() == SampleKind::Put => Some(Received {
+                key: sample.key_expr().to_string(),
+                payload: sample.payload().to_bytes().into_owned(),
+            }),
+            _ => None,
+        }
+    }
+}
+
+impl Peer {
+    /// A peer that connects to `connect` and listens on `listen` (none: it listens nowhere).
+    pub fn open(connect: &[Endpoint], listen: &[Endpoint]) -> Result<Peer, NetError> {
+        let table = Zenoh {
+            enabled: true,
+            mode: ZenohMode::Peer,
+            connect: connect.to_vec(),
+            listen: listen.to_vec(),
+            multicast: false,
+            prefix: String::new(),
+            publish_hz: 1.0,
+            accept_commands: false,
+            config_file: None,
+        };
+        Peer::with_table(&table)
+    }
+
+    /// A session as `table` describes (its mode, endpoints, multicast and `config_file`; the
+    /// table's endpoint lists replace the file's, even when empty).
+    pub fn with_table(table: &Zenoh) -> Result<Peer, NetError> {
+        let config = session_config(table, false)?;
+        let session = zenoh::open(config)
+            .wait()
+            .map_err(|e| NetError::Open(e.to_string()))?;
+        Ok(Peer { session })
+    }
+
+    /// Subscribes to `key` (wildcards allowed).
+    pub fn subscribe(&self, key: &str) -> Result<Subscription, NetError> {
+        let inner = self
+            .session
+            .declare_subscriber(key.to_owned())
+            .with(RingChannel::new(SUBSCRIPTION_RING))
+            .wait()
+            .map_err(|e| NetError::Declare {
+                key: key.to_owned(),
+                message: e.to_string(),
+            })?;
+        Ok(Subscription { inner })
+    }
+
+    /// Puts `payload` on `key`.
+    pub fn put(&self, key: &str, payload: Vec<u8>) -> Result<(), NetError> {
+        self.session
+            .put(key.to_owned(), payload)
+            .wait()
+            .map_err(|e| NetError::Io {
+                key: key.to_owned(),
+                message: e.to_string(),
+            })
+    }
+
+    /// Asks `selector` and gathers the answers that arrive within `timeout`.
+    pub fn get(&self, selector: &str, timeout: Duration) -> Result<Vec<Received>, NetError> {
+        let replies = self
+            .session
+            .get(selector.to_owned())
+            .timeout(timeout)
+            .wait()
+            .map_err(|e| NetError::Io {
+                key: selector.to_owned(),
+                message: e.to_string(),
+            })?;
+        let deadline = Instant::now() + timeout;
+        let mut out = Vec::new();
+        while let Ok(Some(reply)) = replies.recv_deadline(deadline) {
+            if let Ok(sample) = reply.result() {
+                out.push(Received {
+                    key: sample.key_expr().to_string(),
+                    payload: sample.payload().to_bytes().into_owned(),
+                });
+            }
+        }
+        Ok(out)
+    }
+
+    /// The liveliness tokens matching `key` seen within `wait` (those alive when it starts, and
+    /// those that come up meanwhile), sorted, each once.
+    pub fn alive(&self, key: &str, wait: Duration) -> Result<Vec<String>, NetError> {
+        let tokens = self
+            .session
+            .liveliness()
+            .declare_subscriber(key.to_owned())
+            .history(true)
+            .with(RingChannel::new(SUBSCRIPTION_RING))
+            .wait()
+            .map_err(|e| NetError::Declare {
+                key: key.to_owned(),
+                message: e.to_string(),
+            })?;
+        let deadline = Instant::now() + wait;
+        let mut seen = std::collections::BTreeSet::new();
+        while let Ok(Some(sample)) = tokens.recv_deadline(deadline) {
+            let key = sample.key_expr().to_string();
+            match sample.kind() {
+                SampleKind::Put => seen.insert(key),
+                SampleKind::Delete => seen.remove(&key),
+            };
+        }
+        Ok(seen.into_iter().collect())
+    }
+}
+
+/// An arm a [`Peer`] found: its prefix, and its `status` reply (`None` when it did not answer
+/// in time).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ArmSeen {
+    /// The arm's prefix (its liveliness token).
+    pub prefix: String,
+    /// Its `status` reply's fields.
+    pub status: Option<serde_json::Map<String, Value>>,
+}
+
+/// The arms `peer` sees, sorted by prefix: liveliness tokens seen within `wait`, each asked
+/// for `<prefix>/status`. Tokens under Zenoh's `@` namespaces (ROS 2's own among them) are not
+/// arms, nor is a token whose status answers are not a snakectl `status` reply; one that does
+/// not answer within `wait` is listed without a status.
+pub fn fleet(peer: &Peer, wait: Duration) -> Result<Vec<ArmSeen>, NetError> {
+    let mut arms = Vec::new();
+    for prefix in peer.alive("**", wait)? {
+        if prefix.starts_with('@') {
+            continue;
+        }
+        let replies = peer.get(&format!("{prefix}/status"), wait)?;
+        let status =
+            replies
+                .iter()
+                .find_map(|r| match serde_json::from_slice::<Value>(&r.payload) {
+                    Ok(Value::Object(fields)) if fields.get("ok") == Some(&Value::Bool(true)) => {
+                        Some(fields)
+                    }
+                    _ => None,
+                });
+        if status.is_some() || replies.is_empty() {
+            arms.push(ArmSeen { prefix, status });
+        }
+    }
+    Ok(arms)
+}
