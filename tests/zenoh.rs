@@ -1,0 +1,438 @@
+//! The daemon on a Zenoh network (the `zenoh` feature), against the simulator on a real
+//! pseudo-terminal. Each test's sessions are peers on explicit `tcp/127.0.0.1` endpoints with
+//! multicast scouting off, so which sessions meet does not depend on the machine's network.
+//! Timing is asserted in the daemon's ticks, never in wall-clock speed.
+#![cfg(feature = "zenoh")]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod daemon_support;
+
+use std::net::{SocketAddr, TcpListener};
+use std::process::Command;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use daemon_support::{dist, floats, sim_config, xy, Daemon, DEADLINE};
+use serde_json::{json, Value};
+use snakectl::config::{Config, Endpoint};
+use snakectl::daemon::bridge::{self, Peer, Subscription};
+use snakectl::daemon::{DaemonError, Embedded, RunOptions};
+use snakectl::ros::{self, JointState, PointStamped, Twist, Vector3};
+
+/// The shipped simulator config's limits.
+const DEADMAN_S: f64 = 0.5;
+const MAX_TIP_ACCEL: f64 = 0.5;
+const DT: f64 = 0.01;
+
+/// A port nobody listens on now (the system's pick for port 0, released).
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The `[zenoh]` table text: listening on `port` of loopback, under `prefix`.
+fn zenoh_table(prefix: &str, port: u16, accept_commands: bool) -> String {
+    format!(
+        "[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\nprefix = \"{prefix}\"\n\
+         accept_commands = {accept_commands}\n"
+    )
+}
+
+/// The shipped simulator config with `table` added.
+fn config_with(table: &str) -> Config {
+    sim_config(&[("max_clients = 4", &format!("max_clients = 4\n\n{table}"))])
+}
+
+/// A daemon on the Zenoh network, and the port it listens on there.
+fn daemon(prefix: &str, accept_commands: bool) -> (Daemon, u16) {
+    let port = free_port();
+    let daemon = Daemon::start(config_with(&zenoh_table(prefix, port, accept_commands)));
+    // The first reply waits for bring-up, after which the bridge serves.
+    daemon.client().status();
+    (daemon, port)
+}
+
+/// A second session: a peer that connects to `port` and listens nowhere.
+fn peer(port: u16) -> Peer {
+    let endpoint = Endpoint::parse(&format!("tcp/127.0.0.1:{port}")).unwrap();
+    Peer::open(&[endpoint], &[]).unwrap()
+}
+
+/// The next sample of `sub`, within [`DEADLINE`].
+fn next_payload(sub: &Subscription, what: &str) -> Vec<u8> {
+    sub.recv_timeout(DEADLINE)
+        .unwrap_or_else(|| panic!("no `{what}` sample within {DEADLINE:?}"))
+        .payload
+}
+
+/// The next JSON sample of `sub` that satisfies `pred`, within [`DEADLINE`].
+fn next_json(sub: &Subscription, what: &str, mut pred: impl FnMut(&Value) -> bool) -> Value {
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        assert!(!left.is_zero(), "no `{what}` within {DEADLINE:?}");
+        if let Some(sample) = sub.recv_timeout(left) {
+            let value: Value = serde_json::from_slice(&sample.payload).unwrap();
+            if pred(&value) {
+                return value;
+            }
+        }
+    }
+}
+
+fn twist(vx: f64, vy: f64) -> Vec<u8> {
+    ros::encode(&Twist {
+        linear: Vector3 {
+            x: vx,
+            y: vy,
+            z: 0.0,
+        },
+        angular: Vector3::default(),
+    })
+    .unwrap()
+}
+
+/// Puts `cmd_vel` = (vx, vy) on `prefix` at 20 Hz for `seconds`, as a teleop node would.
+fn stream_cmd_vel(peer: &Peer, prefix: &str, v: [f64; 2], seconds: f64) {
+    let key = format!("{prefix}/cmd_vel");
+    let n = (seconds * 20.0).round() as usize;
+    for _ in 0..n {
+        peer.put(&key, twist(v[0], v[1])).unwrap();
+        // The stream's own pace, not a wait for anything.
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn joint_states_carry_the_measured_pose_in_cdr() {
+    let (daemon, port) = daemon("snakectl", false);
+    let mut client = daemon.client();
+    let peer = peer(port);
+    let joint_states = peer.subscribe("snakectl/joint_states").unwrap();
+    let tips = peer.subscribe("snakectl/tip").unwrap();
+
+    // Away from home first, so that the pose checked is not the config's home pose.
+    let id = client.ok(json!({"cmd": "goto", "target": [-0.45, 0.70]}))["id"].as_u64();
+    client.event("arrived", id);
+    let status = client.wait_status("at rest", |s| {
+        s["state"] == "holding" && floats(&s["omega_meas"]).iter().all(|w| *w == 0.0)
+    });
+    let theta_meas = floats(&status["theta_meas"]);
+    let home = daemon.config.home().to_vec();
+    assert!(
+        theta_meas
+            .iter()
+            .zip(&home)
+            .any(|(a, b)| (a - b).abs() > 0.01),
+        "the goto left the arm at home: {theta_meas:?}"
+    );
+
+    // Samples published before the arm came to rest are skipped: at rest they match exactly.
+    let deadline = Instant::now() + DEADLINE;
+    let message = loop {
+        let m: JointState = ros::decode(&next_payload(&joint_states, "joint_states")).unwrap();
+        if m.position == theta_meas {
+            break m;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "joint_states never showed the measured pose {theta_meas:?}; last {:?}",
+            m.position
+        );
+    };
+    let names: Vec<String> = (1..=12).map(|i| format!("joint_{i}")).collect();
+    assert_eq!(message.name, names);
+    assert_eq!(message.velocity, floats(&status["omega_meas"]));
+    assert!(message.effort.is_empty());
+    // The stamp is wall-clock time (ROS's), not the daemon's time since start.
+    let now = SystemTime::now().duration_since(UNIX_EPOCH).unwrap();
+    let stamp = message.header.stamp.as_secs_f64();
+    assert!(
+        (now.as_secs_f64() - stamp).abs() < 60.0,
+        "stamp {stamp} s is not near the wall clock {} s",
+        now.as_secs_f64()
+    );
+
+    let deadline = Instant::now() + DEADLINE;
+    let tip_meas = xy(&status["tip_meas"]);
+    loop {
+        let tip: PointStamped = ros::decode(&next_payload(&tips, "tip")).unwrap();
+        if [tip.point.x, tip.point.y] == tip_meas {
+            assert_eq!(tip.point.z, 0.0);
+            break;
+        }
+        assert!(Instant::now() < deadline, "tip never showed {tip_meas:?}");
+    }
+    daemon.stop().unwrap();
+}
+
+#[test]
+fn the_status_query_answers_the_sockets_status_reply() {
+    let (daemon, port) = daemon("lab/arm_1", false);
+    let mut client = daemon.client();
+    let peer = peer(port);
+    let status = client.wait_status("at rest", |s| s["state"] == "holding");
+
+    let replies = peer.get("lab/arm_1/status", DEADLINE).unwrap();
+    assert_eq!(replies.len(), 1, "one arm, one answer");
+    assert_eq!(replies[0].key, "lab/arm_1/status");
+    let reply: Value = serde_json::from_slice(&replies[0].payload).unwrap();
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert_eq!(reply["state"], json!("holding"));
+    assert_eq!(reply["tip_meas"], status["tip_meas"]);
+    assert_eq!(reply["controller"], Value::Null);
+    assert_eq!(reply["in_control"], json!(false));
+    // Every field of the socket's reply is there.
+    for key in status.as_object().unwrap().keys() {
+        assert!(reply.get(key).is_some(), "`{key}` missing from {reply}");
+    }
+
+    let describe = peer.get("lab/arm_1/describe", DEADLINE).unwrap();
+    let describe: Value = serde_json::from_slice(&describe[0].payload).unwrap();
+    assert_eq!(describe["links_m"].as_array().unwrap().len(), 12);
+    // Another prefix is another arm: nobody answers.
+    assert!(peer
+        .get("lab/arm_2/status", Duration::from_millis(300))
+        .unwrap()
+        .is_empty());
+    daemon.stop().unwrap();
+}
+
+#[test]
+fn cmd_vel_moves_the_tip_and_stops_within_the_deadman_then_lets_go() {
+    let (daemon, port) = daemon("snakectl", true);
+    let mut client = daemon.client();
+    let peer = peer(port);
+    let events = peer.subscribe("snakectl/events").unwrap();
+    let start = client.wait_status("at rest", |s| s["state"] == "holding");
+    let v = [0.04, 0.0];
+
+    stream_cmd_vel(&peer, "snakectl", v, 1.5);
+    let last = client.status();
+    let moved = dist(xy(&last["tip"]), xy(&start["tip"]));
+    assert!(
+        xy(&last["tip"])[0] - xy(&start["tip"])[0] > 0.5 * v[0] * 1.0,
+        "1.5 s of cmd_vel at {v:?} moved the tip {moved} m"
+    );
+    assert_eq!(last["controller"], json!(1), "the network holds control");
+
+    // The stream stopped: the deadman runs out, the tip comes to rest.
+    let stopped = next_json(&events, "stopped", |e| e["event"] == "stopped");
+    let rest = client.wait_status("at rest", |s| s["state"] == "holding");
+    let after = dist(xy(&rest["tip"]), xy(&last["tip"]));
+    // At most the deadman at full speed, the braking, and a tick's latency each way.
+    let bound = v[0] * (DEADMAN_S + 2.0 * DT) + v[0] * v[0] / (2.0 * MAX_TIP_ACCEL);
+    assert!(
+        after <= bound,
+        "{after} m after the last cmd_vel, over {bound} m"
+    );
+    let ticks = stopped["tick"].as_u64().unwrap() - last["tick"].as_u64().unwrap();
+    let within_s = ticks as f64 * DT;
+    assert!(
+        within_s <= DEADMAN_S + v[0] / MAX_TIP_ACCEL + 0.1,
+        "stopped {within_s} s after the last cmd_vel"
+    );
+
+    // After the deadman's silence, control is free: a socket client moves without asking.
+    let free = client.wait_status("control let go", |s| s["controller"].is_null());
+    assert_eq!(free["controller"], Value::Null);
+    let id = client.ok(json!({"cmd": "goto", "target": xy(&start["tip"])}))["id"].as_u64();
+    client.event("arrived", id);
+    daemon.stop().unwrap();
+}
+
+#[test]
+fn without_accept_commands_cmd_vel_and_goal_are_ignored() {
+    let (daemon, port) = daemon("snakectl", false);
+    let mut client = daemon.client();
+    let peer = peer(port);
+    // The link works: the daemon's samples reach this peer.
+    let joint_states = peer.subscribe("snakectl/joint_states").unwrap();
+    next_payload(&joint_states, "joint_states");
+    let start = client.wait_status("at rest", |s| s["state"] == "holding");
+
+    let goal = ros::encode(&ros::point_stamped([-0.40, 0.60], 0.0, "")).unwrap();
+    peer.put("snakectl/goal", goal).unwrap();
+    stream_cmd_vel(&peer, "snakectl", [0.05, 0.0], 1.0);
+    let end = client.status();
+    assert_eq!(end["tip_ref"], start["tip_ref"], "the arm moved");
+    assert_eq!(end["state"], json!("holding"));
+    assert_eq!(end["controller"], Value::Null);
+    daemon.stop().unwrap();
+}
+
+#[test]
+fn network_commands_meet_the_arbiter_and_the_estop() {
+    let (daemon, port) = daemon("snakectl", true);
+    let mut client = daemon.client();
+    let peer = peer(port);
+    let events = peer.subscribe("snakectl/events").unwrap();
+    let start = client.wait_status("at rest", |s| s["state"] == "holding");
+
+    // A socket client holds control: the network's cmd_vel is refused, and says so.
+    client.ok(json!({"cmd": "take_control"}));
+    peer.put("snakectl/cmd_vel", twist(0.05, 0.0)).unwrap();
+    let refused = next_json(&events, "a refusal", |e| e["ok"] == json!(false));
+    assert_eq!(
+        refused["error"]["code"],
+        json!("not_in_control"),
+        "{refused}"
+    );
+    stream_cmd_vel(&peer, "snakectl", [0.05, 0.0], 0.5);
+    assert_eq!(client.status()["tip_ref"], start["tip_ref"]);
+
+    // Estop latched: released control does not let the network past it.
+    client.ok(json!({"cmd": "estop"}));
+    client.ok(json!({"cmd": "release"}));
+    let goal = ros::encode(&ros::point_stamped([-0.40, 0.60], 0.0, "")).unwrap();
+    peer.put("snakectl/goal", goal).unwrap();
+    let refused = next_json(&events, "a refusal", |e| {
+        e["ok"] == json!(false) && e["error"]["code"] != json!("not_in_control")
+    });
+    assert_eq!(refused["error"]["code"], json!("estopped"), "{refused}");
+    let end = client.status();
+    assert_eq!(end["state"], json!("estop"));
+    assert_eq!(end["tip_ref"], start["tip_ref"]);
+
+    // Not a ROS message at all, or not finite: refused, named.
+    peer.put("snakectl/cmd_vel", b"{\"v\": [1, 2]}".to_vec())
+        .unwrap();
+    let refused = next_json(&events, "a refusal", |e| e["error"]["code"] == "bad_arg");
+    let message = refused["error"]["message"].as_str().unwrap();
+    assert!(message.contains("geometry_msgs/msg/Twist"), "{message}");
+    peer.put("snakectl/cmd_vel", twist(f64::NAN, 0.0)).unwrap();
+    let refused = next_json(&events, "a refusal", |e| {
+        e["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("not finite"))
+    });
+    assert_eq!(refused["error"]["code"], json!("bad_arg"));
+    daemon.stop().unwrap();
+}
+
+#[test]
+fn fleet_lists_two_arms_by_prefix() {
+    let (a, port_a) = daemon("lab/arm_a", false);
+    let (b, port_b) = daemon("lab/arm_b", false);
+    let tip_a = xy(&a
+        .client()
+        .wait_status("a at rest", |s| s["state"] == "holding")["tip_meas"]);
+
+    // The library: one peer that reaches both.
+    let endpoints: Vec<Endpoint> = [port_a, port_b]
+        .iter()
+        .map(|p| Endpoint::parse(&format!("tcp/127.0.0.1:{p}")).unwrap())
+        .collect();
+    let peer = Peer::open(&endpoints, &[]).unwrap();
+    let arms = bridge::fleet(&peer, Duration::from_secs(2)).unwrap();
+    let prefixes: Vec<&str> = arms.iter().map(|a| a.prefix.as_str()).collect();
+    assert_eq!(prefixes, ["lab/arm_a", "lab/arm_b"]);
+    let status_a = arms[0].status.as_ref().unwrap();
+    assert_eq!(xy(&status_a["tip_meas"]), tip_a);
+
+    // The command: one line each, state and measured tip.
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["fleet", "--wait-ms", "2000"])
+        .args(["--connect", &format!("tcp/127.0.0.1:{port_a}")])
+        .args(["--connect", &format!("tcp/127.0.0.1:{port_b}")])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    assert!(lines[0].starts_with("lab/arm_a "), "{stdout}");
+    assert!(lines[1].starts_with("lab/arm_b "), "{stdout}");
+    assert!(lines.iter().all(|l| l.contains("holding")), "{stdout}");
+    let tip = format!("tip ({:+.3}, {:+.3}) m", tip_a[0], tip_a[1]);
+    assert!(lines[0].contains(&tip), "{stdout} lacks {tip}");
+
+    // Through a config file: what the daemon listens on is connected to.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("arm_b.toml");
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    std::fs::write(
+        &path,
+        format!("{text}\n{}", zenoh_table("lab/arm_b", port_b, false)),
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["fleet", "--wait-ms", "2000", "--json", "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // arm_b, and any arm it knows of (Zenoh's peers tell each other of the peers they meet).
+    let arms: Vec<Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let arm_b = arms.iter().find(|a| a["prefix"] == "lab/arm_b");
+    let arm_b = arm_b.unwrap_or_else(|| panic!("no lab/arm_b in {stdout}"));
+    assert_eq!(arm_b["status"]["state"], json!("holding"));
+    a.stop().unwrap();
+    b.stop().unwrap();
+}
+
+#[test]
+fn fleet_with_nothing_up_says_so() {
+    let port = free_port();
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["fleet", "--wait-ms", "300", "--connect"])
+        .arg(format!("tcp/127.0.0.1:{port}"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("no arm seen within 300 ms"), "{stderr}");
+    assert!(
+        stderr.contains(&format!("tcp/127.0.0.1:{port}")),
+        "{stderr}"
+    );
+
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["fleet", "--connect", "udp/127.0.0.1:7447"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("only tcp is built into snakectl"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn start_up_stops_before_the_arm_moves_when_the_zenoh_endpoint_is_taken() {
+    let taken = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let config = config_with(&zenoh_table("snakectl", port, false));
+    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
+        .unwrap();
+    let options = RunOptions {
+        port: Some(sim.path().to_path_buf()),
+    };
+    let daemon = Embedded::start(config, SocketAddr::from(([127, 0, 0, 1], 0)), options).unwrap();
+    let e = daemon.stop().unwrap_err();
+    assert!(matches!(e, DaemonError::Zenoh { .. }), "{e}");
+    let message = e.to_string();
+    assert!(message.contains("config/sim.toml: [zenoh]"), "{message}");
+    assert!(message.contains("opening the Zenoh session"), "{message}");
+    // Nothing was asked of the servos: every torque is as the simulator started.
+    let torques: Vec<bool> =
+        sim.with_sim(|s| s.servos().iter().map(|s| s.torque_enabled()).collect());
+    assert!(torques.iter().all(|on| !on), "{torques:?}");
+    drop(taken);
+}
