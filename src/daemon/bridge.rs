@@ -44,7 +44,7 @@ const COMMAND_RING: usize = 8;
 const QUERY_QUEUE: usize = 64;
 
 /// Samples a [`Subscription`] keeps for a reader that is behind; older ones are dropped.
-const SUBSCRIPTION_RING: usize = 256;
+pub const SUBSCRIPTION_RING: usize = 256;
 
 /// Why Zenoh could not be used.
 #[derive(Debug, thiserror::Error)]
