@@ -4,6 +4,10 @@
 //!
 //! `cargo run --release --example loop_rate [-- SECONDS]` (default 5 s per rate).
 //!
+//! `cargo run --release --features zenoh --example loop_rate -- SECONDS --zenoh` instead runs
+//! each fixed rate twice, without and with the daemon on a Zenoh network (publishing at the
+//! default rate to a peer subscribed to every key), one after the other.
+//!
 //! A client streams `velocity` commands at 20 Hz (a figure eight, as a joystick would) while
 //! the loop runs; the first half second of each run is left out of the figures
 //! (`reset_stats`).
@@ -20,9 +24,15 @@ use snakectl::daemon::{Embedded, RunOptions, Summary};
 
 const WARM_UP: Duration = Duration::from_millis(500);
 
-fn config(rate_hz: f64, wire_timing: bool) -> Result<Config> {
+fn config(rate_hz: f64, wire_timing: bool, zenoh_port: Option<u16>) -> Result<Config> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
-    let text = std::fs::read_to_string(path)?
+    let mut text = std::fs::read_to_string(path)?;
+    if let Some(port) = zenoh_port {
+        text.push_str(&format!(
+            "\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\n"
+        ));
+    }
+    let text = text
         .replace("rate_hz = 100.0", &format!("rate_hz = {rate_hz:.1}"))
         .replace(
             "wire_timing = false",
@@ -64,7 +74,17 @@ struct Measured {
 
 /// Runs the daemon at `rate_hz` for `seconds` under a streamed figure eight.
 fn run(rate_hz: f64, wire_timing: bool, seconds: f64) -> Result<Measured> {
-    let config = config(rate_hz, wire_timing)?;
+    run_with(rate_hz, wire_timing, seconds, None)
+}
+
+/// [`run`], on a Zenoh network listening on `zenoh_port` when given.
+fn run_with(
+    rate_hz: f64,
+    wire_timing: bool,
+    seconds: f64,
+    zenoh_port: Option<u16>,
+) -> Result<Measured> {
+    let config = config(rate_hz, wire_timing, zenoh_port)?;
     let sim = connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock))?;
     let options = RunOptions {
         port: Some(sim.path().to_path_buf()),
@@ -111,10 +131,15 @@ fn run(rate_hz: f64, wire_timing: bool, seconds: f64) -> Result<Measured> {
 }
 
 fn row(rate_hz: f64, m: &Measured) {
+    println!("| {rate_hz:.0} | {}", cells(m));
+}
+
+/// A run's columns after the rate, each closed by `|`.
+fn cells(m: &Measured) -> String {
     let s = &m.summary;
     let held = if m.fault { ", then `fault`" } else { "" };
-    println!(
-        "| {rate_hz:.0} | {:.1} | {:.0} / {:.0} | {}{held} | {:.0} / {:.0} | {:.0} / {:.0} |",
+    format!(
+        "{:.1} | {:.0} / {:.0} | {}{held} | {:.0} / {:.0} | {:.0} / {:.0} |",
         s.rate_hz(),
         s.tick.p50_us,
         s.tick.p99_us,
@@ -123,7 +148,7 @@ fn row(rate_hz: f64, m: &Measured) {
         s.command_to_wire.p99_us,
         s.solve.p50_us,
         s.solve.p99_us,
-    );
+    )
 }
 
 fn main() -> Result<()> {
@@ -131,6 +156,9 @@ fn main() -> Result<()> {
         Some(s) => s.parse().context("seconds per rate")?,
         None => 5.0,
     };
+    if std::env::args().nth(2).as_deref() == Some("--zenoh") {
+        return with_zenoh::table(seconds);
+    }
     println!("Without wire timing, {seconds} s per rate:\n");
     println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
     println!("|---|---|---|---|---|---|");
@@ -177,4 +205,62 @@ fn main() -> Result<()> {
         sustained,
     );
     Ok(())
+}
+
+/// The fixed rates without and with Zenoh.
+#[cfg(feature = "zenoh")]
+mod with_zenoh {
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use anyhow::Result;
+    use snakectl::config::Endpoint;
+    use snakectl::daemon::bridge::Peer;
+
+    use super::{cells, run_with};
+
+    pub fn table(seconds: f64) -> Result<()> {
+        println!("Without wire timing, {seconds} s per rate, Zenoh off then on:\n");
+        println!("| rate, Hz | Zenoh | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs | samples received |");
+        println!("|---|---|---|---|---|---|---|---|");
+        for rate in [100.0, 500.0, 1000.0] {
+            let off = run_with(rate, false, seconds, None)?;
+            println!("| {rate:.0} | off | {} 0 |", cells(&off));
+            let port = std::net::TcpListener::bind("127.0.0.1:0")?
+                .local_addr()?
+                .port();
+            // A watcher on every key, as a ROS 2 bridge or a dashboard would be.
+            let stop = Arc::new(AtomicBool::new(false));
+            let count = Arc::new(AtomicU64::new(0));
+            let watcher = {
+                let (stop, count) = (stop.clone(), count.clone());
+                std::thread::spawn(move || -> Result<()> {
+                    let endpoint = Endpoint::parse(&format!("tcp/127.0.0.1:{port}"))
+                        .map_err(anyhow::Error::msg)?;
+                    let peer = Peer::open(&[endpoint], &[])?;
+                    let all = peer.subscribe("snakectl/**")?;
+                    while !stop.load(Ordering::Relaxed) {
+                        if all.recv_timeout(Duration::from_millis(100)).is_some() {
+                            count.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
+                    Ok(())
+                })
+            };
+            let measured = run_with(rate, false, seconds, Some(port))?;
+            stop.store(true, Ordering::Relaxed);
+            let _ = watcher.join();
+            let received = count.load(Ordering::Relaxed);
+            println!("| {rate:.0} | on | {} {received} |", cells(&measured));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(not(feature = "zenoh"))]
+mod with_zenoh {
+    pub fn table(_seconds: f64) -> anyhow::Result<()> {
+        anyhow::bail!("--zenoh needs the zenoh feature: cargo run --release --features zenoh --example loop_rate -- 5 --zenoh")
+    }
 }

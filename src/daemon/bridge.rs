@@ -91,7 +91,7 @@ pub enum NetError {
 }
 
 /// The session's Zenoh config from the `[zenoh]` table: `config_file` as the start (access
-/// control, TLS, timeouts), then the table's `mode` and `multicast`, and its endpoint lists.
+/// control, timeouts), then the table's `mode` and `multicast`, and its endpoint lists.
 /// A list is set even when empty, so that the session never falls back to Zenoh's default of
 /// listening on every interface; only with `file_endpoints` and a `config_file` does an empty
 /// list leave the file's (the daemon's rule: endpoints may live in that file).
