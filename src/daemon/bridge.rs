@@ -43,6 +43,9 @@ const COMMAND_RING: usize = 8;
 /// Queries held before the bridge answers them; more wait in Zenoh.
 const QUERY_QUEUE: usize = 64;
 
+/// A queryable whose queries wait in a bounded channel.
+type Queryable = zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>;
+
 /// Samples a [`Subscription`] keeps for a reader that is behind; older ones are dropped.
 pub const SUBSCRIPTION_RING: usize = 256;
 
@@ -307,8 +310,8 @@ struct Served<'a> {
     target: zenoh::pubsub::Publisher<'static>,
     telemetry: zenoh::pubsub::Publisher<'static>,
     events_key: String,
-    status: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
-    describe: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+    status: Queryable,
+    describe: Queryable,
     cmd_vel: Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
     goal: Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
     _token: zenoh::liveliness::LivelinessToken,
@@ -435,17 +438,13 @@ impl<'a> Served<'a> {
                     }
                     Err(broadcast::error::RecvError::Closed) => events_open = false,
                 },
-                query = self.status.recv_async() => {
-                    if let Ok(query) = query {
-                        let t = telemetry.borrow().clone();
-                        self.answer(&query, "status", self.door.status_line(&t)).await;
-                    }
+                query = next_query(&self.status) => {
+                    let t = telemetry.borrow().clone();
+                    self.answer(&query, "status", self.door.status_line(&t)).await;
                 }
-                query = self.describe.recv_async() => {
-                    if let Ok(query) = query {
-                        let line = protocol::ok_line(None, self.door.describe());
-                        self.answer(&query, "describe", line).await;
-                    }
+                query = next_query(&self.describe) => {
+                    let line = protocol::ok_line(None, self.door.describe());
+                    self.answer(&query, "describe", line).await;
                 }
                 sample = recv(&self.cmd_vel) => {
                     let cmd = velocity(&sample);
@@ -585,6 +584,14 @@ async fn recv(
             Err(_) => std::future::pending().await,
         },
         None => std::future::pending().await,
+    }
+}
+
+/// The next query of `queryable`; never, once it is closed.
+async fn next_query(queryable: &Queryable) -> zenoh::query::Query {
+    match queryable.recv_async().await {
+        Ok(query) => query,
+        Err(_) => std::future::pending().await,
     }
 }
 
