@@ -11,7 +11,7 @@ use std::net::{SocketAddr, TcpListener};
 use std::process::Command;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use daemon_support::{dist, floats, sim_config, xy, Daemon, DEADLINE};
+use daemon_support::{dist, floats, sim_config, xy, Client, Daemon, DEADLINE};
 use serde_json::{json, Value};
 use snakectl::config::{Config, Endpoint};
 use snakectl::daemon::bridge::{self, Peer, Subscription};
@@ -58,6 +58,18 @@ fn daemon(prefix: &str, accept_commands: bool) -> (Daemon, u16) {
 fn peer(port: u16) -> Peer {
     let endpoint = Endpoint::parse(&format!("tcp/127.0.0.1:{port}")).unwrap();
     Peer::open(&[endpoint], &[]).unwrap()
+}
+
+/// A daemon on the network under `prefix`, a socket client of it, and a peer that reaches it.
+fn on_network(prefix: &str, accept_commands: bool) -> (Daemon, Client, Peer) {
+    let (daemon, port) = daemon(prefix, accept_commands);
+    let client = daemon.client();
+    (daemon, client, peer(port))
+}
+
+/// `client`'s status once the arm holds still.
+fn at_rest(client: &mut Client) -> Value {
+    client.wait_status("at rest", |s| s["state"] == "holding")
 }
 
 /// The next sample of `sub`, within [`DEADLINE`].
@@ -107,9 +119,7 @@ fn stream_cmd_vel(peer: &Peer, prefix: &str, v: [f64; 2], seconds: f64) {
 
 #[test]
 fn joint_states_carry_the_measured_pose_in_cdr() {
-    let (daemon, port) = daemon("snakectl", false);
-    let mut client = daemon.client();
-    let peer = peer(port);
+    let (daemon, mut client, peer) = on_network("snakectl", false);
     let joint_states = peer.subscribe("snakectl/joint_states").unwrap();
     let tips = peer.subscribe("snakectl/tip").unwrap();
 
@@ -170,10 +180,8 @@ fn joint_states_carry_the_measured_pose_in_cdr() {
 
 #[test]
 fn the_status_query_answers_the_sockets_status_reply() {
-    let (daemon, port) = daemon("lab/arm_1", false);
-    let mut client = daemon.client();
-    let peer = peer(port);
-    let status = client.wait_status("at rest", |s| s["state"] == "holding");
+    let (daemon, mut client, peer) = on_network("lab/arm_1", false);
+    let status = at_rest(&mut client);
 
     let replies = peer.get("lab/arm_1/status", DEADLINE).unwrap();
     assert_eq!(replies.len(), 1, "one arm, one answer");
@@ -202,11 +210,9 @@ fn the_status_query_answers_the_sockets_status_reply() {
 
 #[test]
 fn cmd_vel_moves_the_tip_and_stops_within_the_deadman_then_lets_go() {
-    let (daemon, port) = daemon("snakectl", true);
-    let mut client = daemon.client();
-    let peer = peer(port);
+    let (daemon, mut client, peer) = on_network("snakectl", true);
     let events = peer.subscribe("snakectl/events").unwrap();
-    let start = client.wait_status("at rest", |s| s["state"] == "holding");
+    let start = at_rest(&mut client);
     let v = [0.04, 0.0];
 
     stream_cmd_vel(&peer, "snakectl", v, 1.5);
@@ -220,7 +226,7 @@ fn cmd_vel_moves_the_tip_and_stops_within_the_deadman_then_lets_go() {
 
     // The stream stopped: the deadman runs out, the tip comes to rest.
     let stopped = next_json(&events, "stopped", |e| e["event"] == "stopped");
-    let rest = client.wait_status("at rest", |s| s["state"] == "holding");
+    let rest = at_rest(&mut client);
     let after = dist(xy(&rest["tip"]), xy(&last["tip"]));
     // At most the deadman at full speed, the braking, and a tick's latency each way.
     let bound = v[0] * (DEADMAN_S + 2.0 * DT) + v[0] * v[0] / (2.0 * MAX_TIP_ACCEL);
@@ -245,13 +251,11 @@ fn cmd_vel_moves_the_tip_and_stops_within_the_deadman_then_lets_go() {
 
 #[test]
 fn without_accept_commands_cmd_vel_and_goal_are_ignored() {
-    let (daemon, port) = daemon("snakectl", false);
-    let mut client = daemon.client();
-    let peer = peer(port);
+    let (daemon, mut client, peer) = on_network("snakectl", false);
     // The link works: the daemon's samples reach this peer.
     let joint_states = peer.subscribe("snakectl/joint_states").unwrap();
     next_payload(&joint_states, "joint_states");
-    let start = client.wait_status("at rest", |s| s["state"] == "holding");
+    let start = at_rest(&mut client);
 
     let goal = ros::encode(&ros::point_stamped([-0.40, 0.60], 0.0, "")).unwrap();
     peer.put("snakectl/goal", goal).unwrap();
@@ -265,11 +269,9 @@ fn without_accept_commands_cmd_vel_and_goal_are_ignored() {
 
 #[test]
 fn network_commands_meet_the_arbiter_and_the_estop() {
-    let (daemon, port) = daemon("snakectl", true);
-    let mut client = daemon.client();
-    let peer = peer(port);
+    let (daemon, mut client, peer) = on_network("snakectl", true);
     let events = peer.subscribe("snakectl/events").unwrap();
-    let start = client.wait_status("at rest", |s| s["state"] == "holding");
+    let start = at_rest(&mut client);
 
     // A socket client holds control: the network's cmd_vel is refused, and says so.
     client.ok(json!({"cmd": "take_control"}));
