@@ -318,9 +318,7 @@ fn network_commands_meet_the_arbiter_and_the_estop() {
 fn fleet_lists_two_arms_by_prefix() {
     let (a, port_a) = daemon("lab/arm_a", false);
     let (b, port_b) = daemon("lab/arm_b", false);
-    let tip_a = xy(&a
-        .client()
-        .wait_status("a at rest", |s| s["state"] == "holding")["tip_meas"]);
+    let tip_a = xy(&at_rest(&mut a.client())["tip_meas"]);
 
     // The library: one peer that reaches both.
     let endpoints: Vec<Endpoint> = [port_a, port_b]
