@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::anyhow;
 #[cfg(feature = "zenoh")]
-use snakectl::config::{Config, Endpoint, Host, Zenoh, ZenohMode};
+use snakectl::config::{Config, Endpoint, Host, Zenoh};
 
 use super::Failure;
 
@@ -147,26 +147,12 @@ fn table(args: &FleetArgs) -> Result<Zenoh, Failure> {
                 .connect
                 .iter()
                 .map(|text| {
-                    Endpoint::parse(text)
+                    Endpoint::parse_connect(text)
                         .map_err(|why| anyhow!("--connect {text:?}: {why}"))
-                        .and_then(|e| match e.port {
-                            0 => Err(anyhow!("--connect {text:?}: port 0 cannot be connected to")),
-                            _ => Ok(e),
-                        })
                 })
                 .collect::<Result<Vec<_>, _>>()
                 .map_err(Failure::bad_input)?;
-            Zenoh {
-                enabled: true,
-                mode: ZenohMode::Peer,
-                connect,
-                listen: Vec::new(),
-                multicast: false,
-                prefix: String::new(),
-                publish_hz: 1.0,
-                accept_commands: false,
-                config_file: None,
-            }
+            Zenoh::peer(connect, Vec::new())
         }
     };
     table.listen.clear();

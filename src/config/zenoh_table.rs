@@ -42,6 +42,22 @@ pub struct Zenoh {
 }
 
 impl Zenoh {
+    /// An enabled peer on `connect` and `listen` (none: it listens nowhere), multicast off,
+    /// under the default prefix and no commands: the table of a tool's own session.
+    pub fn peer(connect: Vec<Endpoint>, listen: Vec<Endpoint>) -> Zenoh {
+        Zenoh {
+            enabled: true,
+            mode: ZenohMode::Peer,
+            connect,
+            listen,
+            multicast: false,
+            prefix: super::raw::default_zenoh_prefix(),
+            publish_hz: DEFAULT_ZENOH_PUBLISH_HZ,
+            accept_commands: false,
+            config_file: None,
+        }
+    }
+
     /// The keys of the arm: `<prefix>/<name>`.
     pub fn key(&self, name: &str) -> String {
         format!("{}/{name}", self.prefix)
@@ -72,6 +88,15 @@ impl Endpoint {
         match &self.host {
             Host::Ip(ip) => ip.is_loopback(),
             Host::Name(name) => name.eq_ignore_ascii_case("localhost"),
+        }
+    }
+
+    /// [`Endpoint::parse`], for an endpoint to connect to: port 0 is refused.
+    pub fn parse_connect(text: &str) -> Result<Endpoint, String> {
+        let endpoint = Endpoint::parse(text)?;
+        match endpoint.port {
+            0 => Err("port 0 cannot be connected to".to_owned()),
+            _ => Ok(endpoint),
         }
     }
 
@@ -182,11 +207,11 @@ impl Checker<'_> {
                             },
                         )
                     };
-                    let endpoint = Endpoint::parse(text).map_err(bad)?;
-                    if name == "connect" && endpoint.port == 0 {
-                        return Err(bad("port 0 cannot be connected to".to_owned()));
+                    match name {
+                        "connect" => Endpoint::parse_connect(text),
+                        _ => Endpoint::parse(text),
                     }
-                    Ok(endpoint)
+                    .map_err(bad)
                 })
                 .collect::<Result<Vec<_>, _>>()
         };

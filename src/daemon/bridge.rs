@@ -169,7 +169,6 @@ pub struct Bridge {
     stop: Option<oneshot::Sender<()>>,
     done: Option<oneshot::Receiver<()>>,
     thread: Option<JoinHandle<()>>,
-    prefix: String,
 }
 
 impl Bridge {
@@ -186,7 +185,6 @@ impl Bridge {
             accept_commands: table.accept_commands,
             deadman: config.control().deadman,
         };
-        let prefix = settings.prefix.clone();
         let (opened_tx, opened_rx) = oneshot::channel();
         let (start_tx, start_rx) = oneshot::channel();
         let (stop_tx, stop_rx) = oneshot::channel();
@@ -204,7 +202,6 @@ impl Bridge {
                 stop: Some(stop_tx),
                 done: Some(done_rx),
                 thread: Some(thread),
-                prefix,
             }),
             Ok(Err(e)) => {
                 let _ = thread.join();
@@ -217,11 +214,6 @@ impl Bridge {
                 ))
             }
         }
-    }
-
-    /// The arm's namespace on the network.
-    pub fn prefix(&self) -> &str {
-        &self.prefix
     }
 
     /// Starts publishing, answering and (with `accept_commands`) commanding through `door`.
@@ -661,18 +653,7 @@ impl Subscription {
 impl Peer {
     /// A peer that connects to `connect` and listens on `listen` (none: it listens nowhere).
     pub fn open(connect: &[Endpoint], listen: &[Endpoint]) -> Result<Peer, NetError> {
-        let table = Zenoh {
-            enabled: true,
-            mode: ZenohMode::Peer,
-            connect: connect.to_vec(),
-            listen: listen.to_vec(),
-            multicast: false,
-            prefix: String::new(),
-            publish_hz: 1.0,
-            accept_commands: false,
-            config_file: None,
-        };
-        Peer::with_table(&table)
+        Peer::with_table(&Zenoh::peer(connect.to_vec(), listen.to_vec()))
     }
 
     /// A session as `table` describes (its mode, endpoints, multicast and `config_file`; the

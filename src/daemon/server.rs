@@ -326,10 +326,8 @@ impl Door {
     /// `telemetry` as the socket's `status` reply (id null), with `controller` and
     /// `in_control`.
     pub fn status_line(&self, telemetry: &Telemetry) -> String {
-        let holder = self.holder();
         let mut fields = telemetry.to_fields();
-        fields.insert("controller".into(), holder.into());
-        fields.insert("in_control".into(), (holder == Some(self.id)).into());
+        self.shared.add_control(&mut fields, self.id);
         protocol::ok_line(None, &fields)
     }
 }
@@ -384,6 +382,13 @@ impl Shared {
     /// The client in control.
     fn holder(&self) -> Option<ClientId> {
         self.arbiter().holder()
+    }
+
+    /// Adds `controller` (the holder) and `in_control` (whether that is `me`) to a reply.
+    fn add_control(&self, fields: &mut Map<String, Value>, me: ClientId) {
+        let holder = self.holder();
+        fields.insert("controller".into(), holder.into());
+        fields.insert("in_control".into(), (holder == Some(me)).into());
     }
 
     fn take_id(&self) -> ClientId {
@@ -807,9 +812,7 @@ impl Session<'_> {
                 match self.to_loop(id.clone(), cmd, received).await {
                     Ok(mut fields) => {
                         if status {
-                            let holder = self.shared.holder();
-                            fields.insert("controller".into(), holder.into());
-                            fields.insert("in_control".into(), (holder == Some(self.id)).into());
+                            self.shared.add_control(&mut fields, self.id);
                         }
                         protocol::ok_line(id.as_deref(), &fields)
                     }
