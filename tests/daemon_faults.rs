@@ -377,6 +377,11 @@ fn health_is_read_every_health_every_ticks_and_warns_before_the_servo_limits() {
     let d = Daemon::start(sim_config_with(&[], ""));
     let every = u64::from(d.config.control().health_every);
     let mut c = d.client();
+    // The first answer already carries a health read: the one made before any client.
+    let first = c.status();
+    assert_eq!(first["load_unit"], json!(vec!["percent"; 12]), "{first}");
+    assert_eq!(floats(&first["temperature_c"]), vec![30.0; 12], "{first}");
+    assert!(first["tick"].as_u64().unwrap() < every, "{first}");
     c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
     let samples = watch(&mut c, 3 * every);
     for t in &samples {

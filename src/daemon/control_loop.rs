@@ -22,10 +22,10 @@
 //!
 //! While a fault holds, the controller is frozen and motion commands are refused (`fault`);
 //! once every fault has cleared, goals := the measured pose (tripped watchdogs cleared first)
-//! and the arm holds: it never resumes the command the fault interrupted. Every
-//! `control.health_every`-th tick the read extends to Present Current/Load, Input Voltage and
-//! Temperature (one contiguous Sync Read), and a `warning` event comes before the servo's own
-//! temperature and voltage limits.
+//! and the arm holds: it never resumes the command the fault interrupted. At tick 0, before
+//! any client is served, and every `control.health_every`-th tick after, the read extends to
+//! Present Current/Load, Input Voltage and Temperature (one contiguous Sync Read), and a
+//! `warning` event comes before the servo's own temperature and voltage limits.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
@@ -95,18 +95,24 @@ pub(super) fn main(
     stop: Arc<AtomicBool>,
     ready: oneshot::Sender<Result<Handle, DaemonError>>,
 ) -> Result<Summary, DaemonError> {
-    let mut cycle = match Cycle::start(&config, options) {
-        Ok((cycle, handle)) => {
-            // A `run` that stopped waiting is not this thread's problem: it shuts down below.
-            let _ = ready.send(Ok(handle));
-            cycle
-        }
+    let (mut cycle, handle) = match Cycle::start(&config, options) {
+        Ok(started) => started,
         Err(e) => {
             let _ = ready.send(Err(e));
             return Err(DaemonError::StartUpReported);
         }
     };
-    let outcome = catch_unwind(AssertUnwindSafe(|| cycle.run(&stop)));
+    let mut ready = Some((ready, handle));
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
+        // Tick 0: one full read, so the first snapshot a client sees is measured, health
+        // included, never the placeholder the channel was made with.
+        cycle.read_everything();
+        if let Some((ready, handle)) = ready.take() {
+            // A `run` that stopped waiting is not this thread's problem: it shuts down below.
+            let _ = ready.send(Ok(handle));
+        }
+        cycle.run(&stop);
+    }));
     // The shut-down guard: whatever ended the cycle, leave the servos as `[bus] on_exit` says.
     let shut = cycle.arm.shut_down(&mut cycle.bus);
     match outcome {
@@ -616,6 +622,12 @@ impl Cycle {
 
         self.publish();
         self.answer();
+    }
+
+    /// Tick 0, before any client: every field of every servo, then a snapshot of it.
+    fn read_everything(&mut self) {
+        self.read(Instant::now() + self.period, true);
+        self.publish();
     }
 
     fn read(&mut self, deadline: Instant, health: bool) {
