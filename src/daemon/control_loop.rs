@@ -392,25 +392,9 @@ impl Cycle {
         let n = arm.joints().len();
         let describe = describe(config, &arm);
         let tip = controller.chain().tip(&brought.pose);
-        let initial = Telemetry {
-            strategy: c.strategy.name(),
-            tip_ref: [tip.x, tip.y],
-            tip: [tip.x, tip.y],
-            tip_meas: [tip.x, tip.y],
-            theta_cmd: brought.pose.clone(),
-            theta_meas: brought.pose.clone(),
-            omega_meas: vec![0.0; n],
-            counters: Counters {
-                retries: u64::from(brought.retries),
-                ..Counters::default()
-            },
-            torque: true,
-            temperature_c: vec![0.0; n],
-            voltage_v: vec![0.0; n],
-            load: vec![0.0; n],
-            ..Telemetry::default()
-        };
-        let (handle, ends) = link::channel(describe, initial);
+        // The channel's first value is never seen: tick 0 publishes a measured snapshot
+        // before `ready` hands the handle to anyone who could read it.
+        let (handle, ends) = link::channel(describe, Telemetry::default());
         let settings = arm.settings().clone();
         let ids = arm.ids();
         let period = Duration::from_secs_f64(1.0 / c.rate_hz);
