@@ -102,15 +102,12 @@ pub(super) fn main(
             return Err(DaemonError::StartUpReported);
         }
     };
-    let mut ready = Some((ready, handle));
     let outcome = catch_unwind(AssertUnwindSafe(|| {
         // Tick 0: one full read, so the first snapshot a client sees is measured, health
         // included, never the placeholder the channel was made with.
         cycle.read_everything();
-        if let Some((ready, handle)) = ready.take() {
-            // A `run` that stopped waiting is not this thread's problem: it shuts down below.
-            let _ = ready.send(Ok(handle));
-        }
+        // A `run` that stopped waiting is not this thread's problem: it shuts down below.
+        let _ = ready.send(Ok(handle));
         cycle.run(&stop);
     }));
     // The shut-down guard: whatever ended the cycle, leave the servos as `[bus] on_exit` says.
