@@ -66,7 +66,7 @@ fn the_short_demo_drives_both_strategies_and_writes_its_figures() {
     let config = dir.path().join("sim.toml");
     std::fs::write(
         &config,
-        shipped.replace("\n[control]\n", "\n[control]\nmax_missed_reads = 30\n"),
+        shipped.replace("\n[control]\n", "\n[control]\nmax_silence_ms = 300\n"),
     )
     .unwrap();
     let output = demo(&[

@@ -9,13 +9,13 @@
 
 mod servo_support;
 
-use std::cell::Cell;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use servo_support::{sim_rig, xl430, Rig, TIMEOUT};
 use snakectl::servo::admin::{self, AdminError, Info};
 use snakectl::servo::arm::{reboot_and_wait, Retry, REBOOT_WAIT};
-use snakectl::servo::clock::{Clock, StepClock};
+use snakectl::servo::clock::{Clock, ManualClock};
 use snakectl::servo::{HardwareErrors, ServoBus, ServoError};
 use snakectl_sim::table::addr;
 use snakectl_sim::{Model, ServoSpec, SimConfig, SimHandle};
@@ -87,7 +87,7 @@ fn set_id_to_the_same_id_or_out_of_range_changes_nothing() {
 #[test]
 fn set_baud_leaves_the_servo_answering_only_at_the_new_rate() {
     let mut rig = sim_rig(xl430(&[1, 2]));
-    let clock = StepClock::new();
+    let clock = ManualClock::new();
     admin::set_baud(&mut rig.bus, 2, 57_600, TIMEOUT, &clock).unwrap();
     // The switch-over wait went on the injected clock, not the wall.
     assert!(clock.elapsed() > Duration::ZERO);
@@ -106,7 +106,7 @@ fn set_baud_leaves_the_servo_answering_only_at_the_new_rate() {
 #[test]
 fn set_baud_refuses_a_rate_the_servos_do_not_have() {
     let mut rig = sim_rig(xl430(&[1]));
-    let clock = StepClock::new();
+    let clock = ManualClock::new();
     match admin::set_baud(&mut rig.bus, 1, 12_345, TIMEOUT, &clock) {
         Err(AdminError::Servo(ServoError::Baud(12_345))) => {}
         other => panic!("expected a refused baud rate, got {other:?}"),
@@ -264,19 +264,20 @@ fn find_names_the_rates_it_tried_when_nothing_answers() {
 
 /// A step clock that takes servo `id` off the bus the first time the wait reads it, that is
 /// once the reboot instruction has been answered: a servo that does not come back.
+#[derive(Debug)]
 struct NeverBack<'a> {
-    step: StepClock,
+    step: ManualClock,
     sim: &'a SimHandle,
     id: u8,
-    gone: Cell<bool>,
+    gone: AtomicBool,
 }
 
 impl Clock for NeverBack<'_> {
-    fn elapsed(&self) -> Duration {
-        if !self.gone.replace(true) {
+    fn now(&self) -> std::time::Instant {
+        if !self.gone.swap(true, Ordering::SeqCst) {
             self.sim.with_servo(self.id, |s| s.set_silent(true));
         }
-        self.step.elapsed()
+        self.step.now()
     }
     fn sleep(&self, d: Duration) {
         self.step.sleep(d);
@@ -288,10 +289,10 @@ fn reboot_wait_gives_up_on_the_injected_clock_when_the_servo_never_answers() {
     let mut rig = sim_rig(xl430(&[1, 2]));
     let sim = rig.sim.as_ref().unwrap();
     let clock = NeverBack {
-        step: StepClock::new(),
+        step: ManualClock::new(),
         sim,
         id: 2,
-        gone: Cell::new(false),
+        gone: AtomicBool::new(false),
     };
     // Each ping of the silent servo waits its reply deadline on the wall; keep it short.
     let timeout = Duration::from_millis(10);
@@ -321,7 +322,7 @@ fn reboot_wait_returns_at_once_when_the_servo_is_back_and_clears_the_error() {
         rig.bus.hardware_errors(2, TIMEOUT).unwrap(),
         HardwareErrors(0x20)
     );
-    let clock = StepClock::new();
+    let clock = ManualClock::new();
     reboot_and_wait(&mut rig.bus, 2, TIMEOUT, &clock, &mut Retry::default()).unwrap();
     assert_eq!(clock.elapsed(), Duration::ZERO);
     assert_eq!(

@@ -95,7 +95,7 @@ fn every_trait_call_round_trips() {
         bus,
         id,
         TIMEOUT,
-        &snakectl::servo::clock::WallClock::new(),
+        &snakectl::servo::clock::RealClock,
         &mut snakectl::servo::arm::Retry::default(),
     )
     .unwrap();
@@ -457,7 +457,7 @@ fn a_hardware_error_sets_the_alert_flag_until_a_reboot() {
         bus,
         2,
         TIMEOUT,
-        &snakectl::servo::clock::WallClock::new(),
+        &snakectl::servo::clock::RealClock,
         &mut snakectl::servo::arm::Retry::default(),
     )
     .unwrap();

@@ -11,7 +11,7 @@ use clap::{Args, Subcommand};
 use snakectl::connect::{self, ConnectError};
 use snakectl::servo::admin::{self, AdminError};
 use snakectl::servo::arm::{reboot_and_wait, Retry};
-use snakectl::servo::clock::WallClock;
+use snakectl::servo::clock::RealClock;
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
 use snakectl::servo::{baud_index, model_name, PingInfo, Register, ServoBus, BAUD_RATES, MAX_ID};
@@ -279,8 +279,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
             }
         }
         ServoAction::SetBaud { new_baud } => {
-            admin::set_baud(&mut bus, id, new_baud, timeout, &WallClock::new())
-                .map_err(admin_failure)?;
+            admin::set_baud(&mut bus, id, new_baud, timeout, &RealClock).map_err(admin_failure)?;
             outln!("servo {id}: now at {new_baud} baud (set [bus] baud = {new_baud})")?;
         }
         ServoAction::SetReturnDelay { us } => {
@@ -331,14 +330,8 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
             )?;
         }
         ServoAction::Reboot => {
-            reboot_and_wait(
-                &mut bus,
-                id,
-                timeout,
-                &WallClock::new(),
-                &mut Retry::default(),
-            )
-            .map_err(Failure::other)?;
+            reboot_and_wait(&mut bus, id, timeout, &RealClock, &mut Retry::default())
+                .map_err(Failure::other)?;
             let errors = bus.hardware_errors(id, timeout).map_err(Failure::other)?;
             outln!("servo {id}: rebooted; hardware errors: {errors}")?;
         }

@@ -215,6 +215,12 @@ pub enum Problem {
         /// The loop's rate, Hz.
         rate_hz: f64,
     },
+    /// Two keys that say the same thing, given together.
+    #[error("given together with {other}, which it replaces: keep only {other}")]
+    Replaced {
+        /// The key that replaces this one.
+        other: &'static str,
+    },
     /// Commands taken from a network other hosts can reach, with no access control.
     #[error(
         "true, but {exposure}: any host that reaches the arm could move it; configure Zenoh's \

@@ -30,9 +30,12 @@ use std::time::Duration;
 use crate::chain::{Chain, JointLimit, Vec2, MAX_MAGNITUDE};
 use crate::resolve::Strategy;
 use crate::servo::arm::{Arm, JointServo, OnExit, Settings};
-use crate::servo::units::Calibration;
+use crate::servo::units::{self, Calibration};
 use crate::servo::{model::model_names, ServoModel, BAUD_RATES, MAX_ID};
-use raw::{RawArm, RawBus, RawConfig, RawControl, RawJoint, RawServer, RawSim, StrategyName};
+use raw::{
+    RawArm, RawBus, RawConfig, RawControl, RawJoint, RawServer, RawSim, StrategyName,
+    DEFAULT_MAX_SILENCE_MS,
+};
 
 /// Lowest servo id a joint may use (0 is reserved by convention).
 pub const MIN_SERVO_ID: u8 = 1;
@@ -129,8 +132,9 @@ pub struct Control {
     pub deadman: Duration,
     /// Servos are read every `read_every`-th tick, at least 1.
     pub read_every: u32,
-    /// Consecutive missed reads after which a servo is declared lost, at least 1.
-    pub max_missed_reads: u32,
+    /// How long a servo may go without a valid reply before it is declared silent: the same
+    /// at every loop rate.
+    pub max_silence: Duration,
     /// Temperature, load and input voltage are read every `health_every`-th tick, at least 1.
     pub health_every: u32,
 }
@@ -542,7 +546,9 @@ impl Checker<'_> {
             "bus.profile_acceleration_rad_s2",
             raw.profile_acceleration_rad_s2,
         )?;
-        if raw.watchdog_ms % 20 != 0 || raw.watchdog_ms > 2540 {
+        if raw.watchdog_ms % units::WATCHDOG_UNIT_MS != 0
+            || raw.watchdog_ms > units::WATCHDOG_UNIT_MS * units::WATCHDOG_MAX_UNITS
+        {
             return Err(self.invalid(
                 "bus.watchdog_ms",
                 Problem::OutOfRange {
@@ -701,7 +707,6 @@ impl Checker<'_> {
         }
         for (field, value) in [
             ("control.read_every", raw.read_every),
-            ("control.max_missed_reads", raw.max_missed_reads),
             ("control.health_every", raw.health_every),
         ] {
             if value == 0 {
@@ -727,6 +732,7 @@ impl Checker<'_> {
                 },
             ));
         }
+        let max_silence = self.max_silence(raw, rate_hz)?;
         Ok(Control {
             rate_hz,
             strategy: match raw.strategy {
@@ -739,9 +745,50 @@ impl Checker<'_> {
             max_tip_accel_m_s2,
             deadman: Duration::from_millis(raw.deadman_ms.into()),
             read_every: raw.read_every,
-            max_missed_reads: raw.max_missed_reads,
+            max_silence,
             health_every: raw.health_every,
         })
+    }
+
+    /// `control.max_silence_ms`, or the deprecated `control.max_missed_reads` converted at the
+    /// read rate (`read_every` ticks at `rate_hz`), with a warning in the log.
+    fn max_silence(&self, raw: &RawControl, rate_hz: f64) -> Result<Duration, ConfigError> {
+        match (raw.max_silence_ms, raw.max_missed_reads) {
+            (Some(_), Some(_)) => Err(self.invalid(
+                "control.max_missed_reads",
+                Problem::Replaced {
+                    other: "control.max_silence_ms",
+                },
+            )),
+            (Some(0), None) => Err(self.invalid(
+                "control.max_silence_ms",
+                Problem::OutOfRange {
+                    value: 0,
+                    expected: "must be at least 1",
+                },
+            )),
+            (Some(ms), None) => Ok(Duration::from_millis(ms.into())),
+            (None, Some(0)) => Err(self.invalid(
+                "control.max_missed_reads",
+                Problem::OutOfRange {
+                    value: 0,
+                    expected: "must be at least 1",
+                },
+            )),
+            (None, Some(reads)) => {
+                let read_period_s = f64::from(raw.read_every) / rate_hz;
+                let silence = Duration::from_secs_f64(f64::from(reads) * read_period_s);
+                tracing::warn!(
+                    "{}: control.max_missed_reads = {reads} is deprecated; read as \
+                     control.max_silence_ms = {} (that many reads at the read rate): \
+                     write that instead",
+                    self.path.display(),
+                    silence.as_millis()
+                );
+                Ok(silence)
+            }
+            (None, None) => Ok(Duration::from_millis(DEFAULT_MAX_SILENCE_MS.into())),
+        }
     }
 
     fn server(&self, raw: RawServer) -> Result<Server, ConfigError> {

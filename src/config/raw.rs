@@ -280,9 +280,14 @@ pub struct RawControl {
     /// Read the servos every k-th tick.
     #[serde(default = "default_read_every")]
     pub read_every: u32,
-    /// Consecutive reads a servo may miss before it is declared lost.
-    #[serde(default = "default_max_missed_reads")]
-    pub max_missed_reads: u32,
+    /// How long a servo may go without a valid reply before it is declared silent, ms
+    /// (default 50).
+    #[serde(default)]
+    pub max_silence_ms: Option<u32>,
+    /// Deprecated: the same budget counted in reads; converted to `max_silence_ms` at the read
+    /// rate, with a warning. Refused together with `max_silence_ms`.
+    #[serde(default)]
+    pub max_missed_reads: Option<u32>,
     /// Read temperature, load and input voltage every k-th tick.
     #[serde(default = "default_health_every")]
     pub health_every: u32,
@@ -413,10 +418,8 @@ pub fn default_read_every() -> u32 {
     1
 }
 
-/// Misses before a servo is lost.
-pub fn default_max_missed_reads() -> u32 {
-    5
-}
+/// How long a servo may stay silent before it is declared so, ms.
+pub const DEFAULT_MAX_SILENCE_MS: u32 = 50;
 
 /// Health read every tenth tick.
 pub fn default_health_every() -> u32 {
@@ -457,7 +460,8 @@ impl Default for RawControl {
             max_tip_accel_m_s2: default_max_tip_accel_m_s2(),
             deadman_ms: default_deadman_ms(),
             read_every: default_read_every(),
-            max_missed_reads: default_max_missed_reads(),
+            max_silence_ms: None,
+            max_missed_reads: None,
             health_every: default_health_every(),
         }
     }

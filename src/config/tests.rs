@@ -148,7 +148,10 @@ fn defaults_fill_absent_tables() {
     assert_eq!(c.control().max_tip_accel_m_s2, 0.5);
     assert_eq!(c.control().deadman, std::time::Duration::from_millis(500));
     assert_eq!(c.control().read_every, 1);
-    assert_eq!(c.control().max_missed_reads, 5);
+    assert_eq!(
+        c.control().max_silence,
+        std::time::Duration::from_millis(50)
+    );
     assert_eq!(c.control().health_every, 10);
     assert_eq!(c.server().listen.to_string(), "127.0.0.1:7878");
     assert!(c.server().token_file.is_none());
@@ -596,6 +599,41 @@ fn control_checks() {
         &with("rate_hz = 100.0", "health_every = 0"),
         &["control.health_every", "0"],
     );
+    refused(
+        &with("rate_hz = 100.0", "max_silence_ms = 0"),
+        &["control.max_silence_ms", "0"],
+    );
+}
+
+#[test]
+fn the_error_budget_is_a_time_and_the_old_count_converts_at_the_read_rate() {
+    let c = load(&with(
+        "rate_hz = 100.0",
+        "rate_hz = 100.0\nmax_silence_ms = 120",
+    ))
+    .unwrap();
+    assert_eq!(
+        c.control().max_silence,
+        std::time::Duration::from_millis(120)
+    );
+    // 5 reads, every 2nd tick at 200 Hz: 50 ms.
+    let c = load(&with(
+        "rate_hz = 100.0",
+        "rate_hz = 200.0\nread_every = 2\nmax_missed_reads = 5",
+    ))
+    .unwrap();
+    assert_eq!(
+        c.control().max_silence,
+        std::time::Duration::from_millis(50)
+    );
+    let msg = refused(
+        &with(
+            "rate_hz = 100.0",
+            "rate_hz = 100.0\nmax_missed_reads = 5\nmax_silence_ms = 50",
+        ),
+        &["control.max_missed_reads", "control.max_silence_ms"],
+    );
+    assert!(msg.contains("replaces"), "{msg}");
 }
 
 #[test]

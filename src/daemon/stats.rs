@@ -1,7 +1,19 @@
-//! Fixed-size histograms of durations, for the loop's run summary: recording allocates
-//! nothing, so the loop can keep one for every tick.
+//! The loop's statistics: fixed-size histograms of durations for the run summary, the
+//! window of recent ticks that telemetry's rate and 99th percentile come from, overruns, the
+//! running totals, and the transport counters, all behind one [`Stats::reset`]. Recording
+//! allocates nothing, so the loop keeps them for every tick.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+use crate::protocol::Counters;
+
+use super::Summary;
+
+/// Ticks the loop-rate and tick-time statistics look back over.
+pub const WINDOW: usize = 1000;
+
+/// Overrun messages come at most this often.
+const OVERRUN_LOG_EVERY: Duration = Duration::from_secs(1);
 
 /// Buckets of 1 µs below this, µs.
 const FINE_US: u64 = 1_000;
@@ -119,6 +131,204 @@ impl Histogram {
     }
 }
 
+/// Times of the last [`WINDOW`] ticks, in fixed buffers.
+#[derive(Debug, Clone)]
+struct Window {
+    starts: Vec<Instant>,
+    work_us: Vec<f64>,
+    scratch: Vec<f64>,
+    next: usize,
+    filled: usize,
+    p99_us: f64,
+}
+
+impl Window {
+    fn new(now: Instant) -> Self {
+        Self {
+            starts: vec![now; WINDOW],
+            work_us: vec![0.0; WINDOW],
+            scratch: vec![0.0; WINDOW],
+            next: 0,
+            filled: 0,
+            p99_us: 0.0,
+        }
+    }
+
+    fn record(&mut self, start: Instant, work_us: f64) {
+        self.starts[self.next] = start;
+        self.work_us[self.next] = work_us;
+        self.next = (self.next + 1) % WINDOW;
+        self.filled = (self.filled + 1).min(WINDOW);
+        // The percentile is refreshed every tenth tick: a selection over 1000 values.
+        if self.next % 10 == 0 {
+            let n = self.filled;
+            self.scratch[..n].copy_from_slice(&self.work_us[..n]);
+            let k = ((n as f64) * 0.99).ceil() as usize;
+            let k = k.clamp(1, n) - 1;
+            let (_, p, _) = self.scratch[..n].select_nth_unstable_by(k, f64::total_cmp);
+            self.p99_us = *p;
+        }
+    }
+
+    /// Ticks per second over the window.
+    fn rate_hz(&self) -> f64 {
+        if self.filled < 2 {
+            return 0.0;
+        }
+        let newest = self.starts[(self.next + WINDOW - 1) % WINDOW];
+        let oldest = if self.filled == WINDOW {
+            self.starts[self.next]
+        } else {
+            self.starts[0]
+        };
+        let span = newest.saturating_duration_since(oldest).as_secs_f64();
+        if span > 0.0 {
+            (self.filled - 1) as f64 / span
+        } else {
+            0.0
+        }
+    }
+
+    fn clear(&mut self) {
+        self.next = 0;
+        self.filled = 0;
+        self.p99_us = 0.0;
+    }
+}
+
+/// Everything the loop counts.
+#[derive(Debug, Clone)]
+pub struct Stats {
+    window: Window,
+    tick: Histogram,
+    solve: Histogram,
+    latency: Histogram,
+    overruns: u64,
+    overruns_logged: u64,
+    last_overrun_log: Option<Instant>,
+    peak_total: f64,
+    m3_total: f64,
+    /// Start of the span the summary covers, and the ticks and overruns before it.
+    since: Instant,
+    ticks_before: u64,
+    overruns_before: u64,
+    /// Transport counters: never reset, a client tracks their growth.
+    pub counters: Counters,
+    write_errors: u64,
+}
+
+impl Stats {
+    /// Nothing counted yet, at `now`.
+    pub fn new(now: Instant) -> Self {
+        Self {
+            window: Window::new(now),
+            tick: Histogram::new(),
+            solve: Histogram::new(),
+            latency: Histogram::new(),
+            overruns: 0,
+            overruns_logged: 0,
+            last_overrun_log: None,
+            peak_total: 0.0,
+            m3_total: 0.0,
+            since: now,
+            ticks_before: 0,
+            overruns_before: 0,
+            counters: Counters::default(),
+            write_errors: 0,
+        }
+    }
+
+    /// `reset_stats` at `tick`: the summary, the window, the histograms and the running totals
+    /// start again; the transport counters and the overrun total go on.
+    pub fn reset(&mut self, now: Instant, tick: u64) {
+        self.window.clear();
+        self.tick.clear();
+        self.solve.clear();
+        self.latency.clear();
+        self.peak_total = 0.0;
+        self.m3_total = 0.0;
+        self.since = now;
+        self.ticks_before = tick;
+        self.overruns_before = self.overruns;
+    }
+
+    /// A tick that started at `start` and worked for `work`.
+    pub fn record_tick(&mut self, start: Instant, work: Duration) {
+        self.window.record(start, work.as_secs_f64() * 1e6);
+        self.tick.record(work);
+    }
+
+    /// The controller's time in a tick, its joint-speed peak and metric-3 increment.
+    pub fn record_solve(&mut self, solve: Duration, peak_joint_speed_rad_s: f64, m3_rad2: f64) {
+        self.solve.record(solve);
+        self.peak_total = self.peak_total.max(peak_joint_speed_rad_s);
+        self.m3_total += m3_rad2;
+    }
+
+    /// From a command's line read to the write of the tick that applied it.
+    pub fn record_latency(&mut self, latency: Duration) {
+        self.latency.record(latency);
+    }
+
+    /// `missed` periods skipped at `now`; the count to log, at most once a second.
+    pub fn overrun(&mut self, missed: u64, now: Instant) -> Option<(u64, u64)> {
+        self.overruns += missed;
+        let due = self
+            .last_overrun_log
+            .is_none_or(|t| now.saturating_duration_since(t) >= OVERRUN_LOG_EVERY);
+        if !due {
+            return None;
+        }
+        let since_last = self.overruns - self.overruns_logged;
+        self.last_overrun_log = Some(now);
+        self.overruns_logged = self.overruns;
+        Some((since_last, self.overruns))
+    }
+
+    /// A goal write failed; true when the count reaches a power of two (worth a log line).
+    pub fn write_failed(&mut self) -> (u64, bool) {
+        self.write_errors += 1;
+        (self.write_errors, self.write_errors.is_power_of_two())
+    }
+
+    /// Ticks per second over the window.
+    pub fn rate_hz(&self) -> f64 {
+        self.window.rate_hz()
+    }
+
+    /// The window's 99th percentile of tick work, µs.
+    pub fn tick_p99_us(&self) -> f64 {
+        self.window.p99_us
+    }
+
+    /// Periods skipped since start.
+    pub fn overruns(&self) -> u64 {
+        self.overruns
+    }
+
+    /// The fastest joint speed since the last reset, rad/s.
+    pub fn peak_total(&self) -> f64 {
+        self.peak_total
+    }
+
+    /// Metric 3 summed since the last reset, rad².
+    pub fn m3_total(&self) -> f64 {
+        self.m3_total
+    }
+
+    /// The run summary as of `tick` at `now`.
+    pub fn summary(&self, tick: u64, now: Instant) -> Summary {
+        Summary {
+            ticks: tick - self.ticks_before,
+            overruns: self.overruns - self.overruns_before,
+            elapsed_s: now.saturating_duration_since(self.since).as_secs_f64(),
+            tick: self.tick.summary(),
+            solve: self.solve.summary(),
+            command_to_wire: self.latency.summary(),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -149,5 +359,54 @@ mod tests {
         assert_eq!(h.quantile_us(1.0), 250_000.0);
         h.clear();
         assert_eq!(h.summary(), Percentiles::default());
+    }
+
+    #[test]
+    fn one_reset_starts_every_statistic_again_but_the_counters() {
+        let t0 = Instant::now();
+        let mut s = Stats::new(t0);
+        s.counters.dropped = 3;
+        for k in 0..20u32 {
+            s.record_tick(
+                t0 + k * Duration::from_millis(10),
+                Duration::from_micros(200),
+            );
+        }
+        s.record_solve(Duration::from_micros(50), 1.5, 0.25);
+        s.record_latency(Duration::from_micros(900));
+        assert!(s.overrun(2, t0).is_some());
+        assert!(
+            s.overrun(1, t0 + Duration::from_millis(10)).is_none(),
+            "throttled"
+        );
+        assert_eq!(
+            s.overrun(1, t0 + Duration::from_secs(1)),
+            Some((2, 4)),
+            "the count since the last message, and the total"
+        );
+        assert!((s.rate_hz() - 100.0).abs() < 1e-6, "{}", s.rate_hz());
+        assert_eq!(s.tick_p99_us(), 200.0);
+        let before = s.summary(20, t0 + Duration::from_millis(200));
+        assert_eq!((before.ticks, before.overruns), (20, 4));
+        assert_eq!(before.solve.count, 1);
+
+        s.reset(t0 + Duration::from_secs(2), 20);
+        let after = s.summary(25, t0 + Duration::from_secs(3));
+        assert_eq!((after.ticks, after.overruns), (5, 0));
+        assert_eq!(after.elapsed_s, 1.0);
+        assert_eq!(
+            (
+                after.tick.count,
+                after.solve.count,
+                after.command_to_wire.count
+            ),
+            (0, 0, 0)
+        );
+        assert_eq!(
+            (s.peak_total(), s.m3_total(), s.rate_hz(), s.tick_p99_us()),
+            (0.0, 0.0, 0.0, 0.0)
+        );
+        assert_eq!(s.overruns(), 4, "the total goes on");
+        assert_eq!(s.counters.dropped, 3, "the counters go on");
     }
 }

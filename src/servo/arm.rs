@@ -29,7 +29,7 @@ use std::time::Duration;
 
 use crate::chain::JointLimit;
 
-use super::clock::{Clock, WallClock};
+use super::clock::{Clock, RealClock};
 use super::limits::{Limited, Setting, Strategy, TickLimits, POSITION_MODE};
 use super::model::ServoModel;
 use super::units::{self, Calibration};
@@ -379,7 +379,7 @@ impl Arm {
         bus: &mut Limited<B>,
         options: BringUpOptions,
     ) -> Result<BringUp, BringUpError> {
-        self.bring_up_with_clock(bus, options, &WallClock::new())
+        self.bring_up_with_clock(bus, options, &RealClock)
     }
 
     /// [`Arm::bring_up`], waiting for rebooted servos on `clock`.
@@ -477,7 +477,7 @@ impl Arm {
         retry: &mut Retry,
     ) -> Result<(), BringUpError> {
         let t = self.settings.reply_timeout;
-        let watchdog = i64::from(self.settings.watchdog_ms / 20).min(127);
+        let watchdog = units::watchdog_units(self.settings.watchdog_ms);
         if watchdog > 0 {
             for j in &self.joints {
                 retry
@@ -704,7 +704,7 @@ impl Arm {
         let t = self.settings.reply_timeout;
         let mut retry = Retry::default();
         let tripped = self.tripped_watchdogs(bus)?;
-        let armed = i64::from(self.settings.watchdog_ms / 20).min(127);
+        let armed = units::watchdog_units(self.settings.watchdog_ms);
         for &id in &tripped {
             retry
                 .run(|| bus.write(id, Register::BusWatchdog, 0, t))
@@ -799,11 +799,11 @@ pub fn reboot_and_wait<B: ServoBus>(
     retry: &mut Retry,
 ) -> Result<(), ServoError> {
     retry.run(|| bus.reboot(id, timeout))?;
-    let give_up = clock.elapsed() + REBOOT_WAIT;
+    let give_up = clock.now() + REBOOT_WAIT;
     loop {
         match bus.ping(id, timeout) {
             Ok(_) => return Ok(()),
-            Err(e) if clock.elapsed() >= give_up => return Err(e),
+            Err(e) if clock.now() >= give_up => return Err(e),
             Err(_) => clock.sleep(Duration::from_millis(10)),
         }
     }
@@ -813,7 +813,7 @@ pub fn reboot_and_wait<B: ServoBus>(
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::servo::clock::StepClock;
+    use crate::servo::clock::ManualClock;
     use crate::servo::record::NullBus;
     use crate::servo::{Ack, SyncReadBuf, Value};
 
@@ -875,7 +875,7 @@ mod tests {
             inner: NullBus::new(1060),
             silent_pings: 7,
         };
-        let clock = StepClock::new();
+        let clock = ManualClock::new();
         reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap();
         // Seven silent pings, 10 ms apart on the clock, none of it on wall time.
         assert_eq!(clock.elapsed(), Duration::from_millis(70));
@@ -887,7 +887,7 @@ mod tests {
             inner: NullBus::new(1060),
             silent_pings: u32::MAX,
         };
-        let clock = StepClock::new();
+        let clock = ManualClock::new();
         let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap_err();
         assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");
         assert_eq!(clock.elapsed(), REBOOT_WAIT);

@@ -66,6 +66,51 @@ pub fn volts(raw_dv: u16) -> f64 {
     f64::from(raw_dv) / 10.0
 }
 
+/// A voltage limit register (Min/Max Voltage Limit, 0.1 V units, read as a register value) in
+/// volts.
+pub fn limit_volts(raw_dv: i64) -> f64 {
+    raw_dv as f64 / 10.0
+}
+
+impl CurrentUnit {
+    /// Present Current / Load `raw` in this unit's physical value: percent of the maximum
+    /// torque for a load, amperes for a current.
+    pub fn value(self, raw: i16) -> f64 {
+        match self {
+            CurrentUnit::LoadPermille => f64::from(raw) * 0.1,
+            CurrentUnit::MilliAmps(ma) => f64::from(raw) * ma * 1e-3,
+        }
+    }
+
+    /// The name of [`CurrentUnit::value`]'s unit on the wire.
+    pub fn name(self) -> &'static str {
+        match self {
+            CurrentUnit::LoadPermille => "percent",
+            CurrentUnit::MilliAmps(_) => "A",
+        }
+    }
+}
+
+/// One unit of the Bus Watchdog register (98), ms.
+pub const WATCHDOG_UNIT_MS: u32 = 20;
+
+/// The largest Bus Watchdog value (the register is signed; -1 means it fired).
+pub const WATCHDOG_MAX_UNITS: u32 = 127;
+
+/// The Bus Watchdog register value for `ms` (rounded down to its 20 ms units, at most 127
+/// units; 0 disables it).
+pub fn watchdog_units(ms: u32) -> i64 {
+    i64::from((ms / WATCHDOG_UNIT_MS).min(WATCHDOG_MAX_UNITS))
+}
+
+/// The period the Bus Watchdog runs with for `ms`, as the register holds it; `None` when off.
+pub fn watchdog_period(ms: u32) -> Option<std::time::Duration> {
+    let units = watchdog_units(ms);
+    (units > 0).then(|| {
+        std::time::Duration::from_millis(units.unsigned_abs() * u64::from(WATCHDOG_UNIT_MS))
+    })
+}
+
 /// Per-joint calibration: software zero and direction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Calibration {

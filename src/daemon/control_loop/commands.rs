@@ -1,0 +1,388 @@
+//! Commands as the loop applies them, at the start of a tick in arrival order: each checked
+//! against the supervisor's mode, handed to the controller, entered in the ledger, and answered
+//! once this tick's telemetry is out.
+
+use serde_json::{Map, Value};
+
+use crate::chain::Vec2;
+use crate::control::{self, Refused};
+use crate::protocol::{Cmd, Code, Event, EventKind, Rejection};
+use crate::servo::arm::{self, BringUpOptions, OnExit, Retry};
+use crate::servo::clock::Clock;
+use crate::servo::ServoBus;
+
+use super::ledger::{Renewal, StopReason};
+use super::link::{Answer, Envelope, COMMAND_QUEUE};
+use super::supervisor::Blocked;
+use super::{Cycle, Pending};
+
+fn refuse(code: Code, message: impl Into<String>) -> Pending {
+    Pending::Ready(Err(Rejection {
+        code,
+        message: message.into(),
+    }))
+}
+
+fn tick_fields(tick: u64) -> Map<String, Value> {
+    let mut m = Map::new();
+    m.insert("tick".into(), Value::from(tick));
+    m
+}
+
+impl<B: ServoBus, C: Clock> Cycle<B, C> {
+    /// The commands queued since the last tick, applied; their answers wait for this tick's
+    /// telemetry.
+    pub(super) fn apply_commands(&mut self) {
+        // Bounded per tick by the queue's capacity: a flood waits for the next tick.
+        for _ in 0..COMMAND_QUEUE {
+            let Ok(envelope) = self.ends.commands.try_recv() else {
+                break;
+            };
+            let pending = self.apply(&envelope);
+            self.received.push(envelope.received);
+            self.pending.push((envelope.reply, pending));
+        }
+    }
+
+    /// Sends the answers of the commands applied in this tick.
+    pub(super) fn answer(&mut self) {
+        if self.pending.is_empty() {
+            return;
+        }
+        let mut status: Option<Answer> = None;
+        for (reply, pending) in self.pending.drain(..) {
+            let answer = match pending {
+                Pending::Ready(a) => a,
+                Pending::Status => status
+                    .get_or_insert_with(|| Ok(self.ends.telemetry.borrow().to_fields()))
+                    .clone(),
+            };
+            // A client gone before its answer is not an error.
+            let _ = reply.send(answer);
+        }
+    }
+
+    /// Commands still queued when the loop ends are answered, not dropped silently.
+    pub(super) fn answer_queued_for_exit(&mut self) {
+        while let Ok(e) = self.ends.commands.try_recv() {
+            let _ = e.reply.send(Err(Rejection {
+                code: Code::ShuttingDown,
+                message: "the daemon is stopping".into(),
+            }));
+        }
+        self.answer();
+    }
+
+    fn ok(&self) -> Pending {
+        Pending::Ready(Ok(tick_fields(self.tick)))
+    }
+
+    fn apply(&mut self, e: &Envelope) -> Pending {
+        if self.supervisor.exiting() && !matches!(e.cmd, Cmd::Status | Cmd::Stop | Cmd::Estop) {
+            return refuse(Code::ShuttingDown, "the daemon is stopping");
+        }
+        match &e.cmd {
+            Cmd::Status => Pending::Status,
+            Cmd::Stop => self.stop(e),
+            Cmd::Estop => {
+                self.estop(e);
+                self.ok()
+            }
+            Cmd::Reset => self.reset(e),
+            Cmd::Strategy { name } => {
+                self.controller.set_strategy(*name);
+                tracing::info!(strategy = name.name(), "strategy switched");
+                self.ok()
+            }
+            Cmd::ResetStats => {
+                self.stats.reset(self.clock.now(), self.tick);
+                self.ok()
+            }
+            Cmd::Torque { on } => self.torque(*on),
+            Cmd::Reboot { ids } => self.reboot(ids.as_deref()),
+            Cmd::Goto { target, speed } => self.move_arm(
+                e,
+                control::Command::Goto {
+                    target: v2(target),
+                    speed: *speed,
+                },
+            ),
+            Cmd::GotoJoints { theta } => self.move_arm(
+                e,
+                control::Command::GotoJoints {
+                    theta: theta.clone(),
+                },
+            ),
+            Cmd::Path { points, speed } => self.move_arm(
+                e,
+                control::Command::Path {
+                    points: points.iter().map(v2).collect(),
+                    speed: *speed,
+                },
+            ),
+            Cmd::Velocity { v } => self.move_arm(e, control::Command::Velocity { v: v2(v) }),
+            Cmd::Jog { joint, rad_s } => match joint.checked_sub(1) {
+                Some(joint) => self.move_arm(
+                    e,
+                    control::Command::Jog {
+                        joint,
+                        rad_s: *rad_s,
+                    },
+                ),
+                None => refuse(Code::BadArg, "`joint` counts from 1"),
+            },
+            Cmd::Home => self.move_arm(
+                e,
+                control::Command::GotoJoints {
+                    theta: self.home.clone(),
+                },
+            ),
+            Cmd::Describe
+            | Cmd::Subscribe { .. }
+            | Cmd::Unsubscribe
+            | Cmd::TakeControl
+            | Cmd::Release
+            | Cmd::Auth { .. } => refuse(
+                Code::UnknownCmd,
+                format!("`{}` is answered by the socket, not the loop", e.cmd.name()),
+            ),
+        }
+    }
+
+    /// `stop`: decelerate to rest and hold (nothing to do under the estop latch).
+    fn stop(&mut self, e: &Envelope) -> Pending {
+        if !self.supervisor.estopped() {
+            if let Err(r) = self.controller.command(control::Command::Stop) {
+                return refuse(Code::BadArg, r.to_string());
+            }
+            self.begin(e);
+        }
+        self.ok()
+    }
+
+    /// A command that moves the arm: refused while the supervisor holds it, else handed to the
+    /// controller and entered in the ledger.
+    fn move_arm(&mut self, e: &Envelope, command: control::Command) -> Pending {
+        match self.supervisor.blocked() {
+            Some(Blocked::Estop) => {
+                return refuse(
+                    Code::Estopped,
+                    "the estop latch is set: send `reset` before moving",
+                )
+            }
+            Some(Blocked::Fault) => return refuse(Code::Fault, self.fault_summary()),
+            Some(Blocked::TorqueOff) => {
+                return refuse(
+                    Code::Fault,
+                    "torque is off: send `torque` with `on: true` before moving",
+                )
+            }
+            None => {}
+        }
+        match self.controller.command(command) {
+            Ok(()) => {
+                self.begin(e);
+                self.ok()
+            }
+            Err(r @ (Refused::OutsideLimits { .. } | Refused::SelfCollision { .. })) => {
+                refuse(Code::Unreachable, r.to_string())
+            }
+            Err(r) => refuse(Code::BadArg, r.to_string()),
+        }
+    }
+
+    /// A command accepted by the controller becomes the active one (a velocity, or the same
+    /// joint's jog, from the same client renews it).
+    fn begin(&mut self, e: &Envelope) {
+        let renewal = match e.cmd {
+            Cmd::Velocity { .. } => Renewal::Velocity,
+            Cmd::Jog { joint, .. } => Renewal::Jog(joint),
+            _ => Renewal::None,
+        };
+        let ended = self
+            .ledger
+            .begin(e.client, e.id.clone(), e.cmd.name(), renewal);
+        self.owe(ended);
+    }
+
+    fn estop(&mut self, e: &Envelope) {
+        if self.supervisor.estopped() {
+            return;
+        }
+        self.controller.freeze();
+        self.ledger.estop();
+        tracing::warn!("estop: goals frozen");
+        let torque_off = self.on_exit == OnExit::TorqueOff;
+        self.supervisor.estop(torque_off);
+        if torque_off {
+            if let Err(err) = self.arm.torque_off(self.port.bus()) {
+                tracing::error!("estop: torque off failed: {err}");
+            }
+        }
+        self.event(Event {
+            owner: None,
+            cmd_id: e.id.clone(),
+            kind: EventKind::Estop,
+            tick: self.tick,
+            tip: self.tip(),
+            reason: None,
+            fault: None,
+        });
+    }
+
+    /// `reset`: out of the estop latch, holding the measured pose with torque on.
+    fn reset(&mut self, e: &Envelope) -> Pending {
+        if !self.supervisor.estopped() {
+            return self.ok();
+        }
+        // Goal := the measured pose, read now; then torque on holding it.
+        if let Err(err) = self.measure_pose() {
+            return refuse(Code::Busy, format!("{err} (for reset)"));
+        }
+        if let Err(r) = self.controller.reseed(&self.measured.theta) {
+            return refuse(Code::Unreachable, r.to_string());
+        }
+        if let Err(err) = self.arm.set_torque(self.port.bus(), true) {
+            return refuse(Code::Busy, format!("torque on for reset: {err}"));
+        }
+        self.supervisor.reset();
+        tracing::info!("reset: holding the measured pose");
+        self.event(Event {
+            owner: None,
+            cmd_id: e.id.clone(),
+            kind: EventKind::Reset,
+            tick: self.tick,
+            tip: self.tip(),
+            reason: None,
+            fault: None,
+        });
+        self.ok()
+    }
+
+    /// Why the arm holds for a fault, naming every fault.
+    fn fault_summary(&self) -> String {
+        let list: Vec<String> = self
+            .lists
+            .faults
+            .iter()
+            .map(|f| match f.kind {
+                "port" => format!("port: {}", f.detail),
+                _ => format!(
+                    "servo {} (joint {}) {}: {}",
+                    f.id, f.joint, f.kind, f.detail
+                ),
+            })
+            .collect();
+        format!(
+            "the arm holds for a fault: {}; `status` lists the faults, `reboot` clears a hardware error",
+            list.join("; ")
+        )
+    }
+
+    /// `torque`: on = goals := the measured pose (tripped watchdogs cleared first), then
+    /// torque on; off = torque off, the controller frozen. Refused on while a fault holds.
+    fn torque(&mut self, on: bool) -> Pending {
+        if on {
+            match self.supervisor.blocked() {
+                Some(Blocked::Estop) => {
+                    return refuse(
+                        Code::Estopped,
+                        "the estop latch is set: `reset` turns torque on",
+                    )
+                }
+                Some(Blocked::Fault) => return refuse(Code::Fault, self.fault_summary()),
+                Some(Blocked::TorqueOff) | None => {}
+            }
+            let before = self.supervisor;
+            self.supervisor.set_torque(true);
+            if let Err(err) = self.recover() {
+                self.supervisor = before;
+                return refuse(Code::Busy, format!("torque on: {err}"));
+            }
+            tracing::info!("torque on, holding the measured pose");
+        } else {
+            if let Err(err) = self.arm.torque_off(self.port.bus()) {
+                return refuse(Code::Busy, format!("torque off: {err}"));
+            }
+            self.supervisor.set_torque(false);
+            self.controller.freeze();
+            let ended = self.ledger.interrupt(StopReason::Torque);
+            self.owe(ended);
+            tracing::info!("torque off");
+        }
+        self.ok()
+    }
+
+    /// `reboot`: reboot `ids` (default: the servos in hardware error, else all), bring the arm
+    /// up again where it stands (settings, watchdog, goal := present, torque on), goals := that
+    /// pose; every joint fault clears.
+    fn reboot(&mut self, ids: Option<&[u8]>) -> Pending {
+        if self.port.is_lost() {
+            return refuse(
+                Code::Fault,
+                "the serial port is lost: no servo can be rebooted",
+            );
+        }
+        let targets: Vec<u8> = match ids {
+            Some(ids) => {
+                if let Some(id) = ids.iter().find(|id| !self.ids.contains(id)) {
+                    return refuse(
+                        Code::BadArg,
+                        format!("`ids`: servo {id} is not on this arm (ids {:?})", self.ids),
+                    );
+                }
+                ids.to_vec()
+            }
+            None => Some(self.health.hardware_faulted())
+                .filter(|h| !h.is_empty())
+                .unwrap_or_else(|| self.ids.clone()),
+        };
+        self.controller.freeze();
+        let ended = self.ledger.interrupt(StopReason::Reboot);
+        self.owe(ended);
+        if let Err(refusal) = self.reboot_and_bring_up(&targets) {
+            return refusal;
+        }
+        tracing::info!(?targets, "rebooted; holding the measured pose");
+        for i in 0..self.health.len() {
+            let id = self.ids.get(i).copied().unwrap_or_default();
+            let detail = if targets.contains(&id) {
+                "rebooted; goals := measured pose, torque on"
+            } else {
+                "answers after the reboot; goals := measured pose, torque on"
+            };
+            self.clear(i, detail.into());
+        }
+        self.sync_faulted();
+        let mut m = tick_fields(self.tick);
+        m.insert("rebooted".into(), Value::from(targets));
+        Pending::Ready(Ok(m))
+    }
+
+    /// The reboots, then the bring-up where the arm stands; goals := that pose, torque on.
+    fn reboot_and_bring_up(&mut self, targets: &[u8]) -> Result<(), Pending> {
+        let timeout = self.schedule.reply_timeout;
+        let mut retry = Retry::default();
+        for &id in targets {
+            arm::reboot_and_wait(self.port.bus(), id, timeout, &self.clock, &mut retry)
+                .map_err(|err| refuse(Code::Fault, format!("reboot of servo {id}: {err}")))?;
+        }
+        let brought = self
+            .arm
+            .bring_up_with_clock(self.port.bus(), BringUpOptions::default(), &self.clock)
+            .map_err(|err| refuse(Code::Fault, format!("bring-up after the reboot: {err}")))?;
+        self.stats.counters.retries += u64::from(retry.retries + brought.retries);
+        self.port.contact(self.clock.now());
+        self.measured.theta.copy_from_slice(&brought.pose);
+        self.controller
+            .reseed(&brought.pose)
+            .map_err(|r| refuse(Code::Fault, format!("after the reboot: {r}")))?;
+        self.supervisor.set_torque(true);
+        self.recover_after = None;
+        Ok(())
+    }
+}
+
+fn v2(p: &[f64; 2]) -> Vec2 {
+    Vec2::new(p[0], p[1])
+}

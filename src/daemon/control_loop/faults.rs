@@ -1,0 +1,376 @@
+//! The loop's fault path: reading the servos, judging what the read showed (through
+//! [`Health`](super::health::Health)), holding the arm through the supervisor, recovering, and
+//! keeping the port (reopening it, recovering from a stall past the Bus Watchdog).
+
+use std::time::{Duration, Instant};
+
+use crate::protocol::EventKind;
+use crate::servo::arm::{Arm, Retry};
+use crate::servo::clock::Clock;
+use crate::servo::limits::Limited;
+use crate::servo::{units, ErrorClass, Fields, HardwareErrors, Register, ServoBus, ServoError};
+
+use super::health::{FaultKind, JointFault, Limits};
+use super::ledger::StopReason;
+use super::port::{ReopenError, RETRY_EVERY};
+use super::Cycle;
+
+/// The shortest wait for a reply the deadline cap leaves a read.
+const MIN_READ_WAIT: Duration = Duration::from_micros(300);
+
+/// What a read leaves of its tick for publishing and answering: a reply that never comes then
+/// costs no overrun.
+const READ_TAIL: Duration = Duration::from_micros(500);
+
+impl<B: ServoBus, C: Clock> Cycle<B, C> {
+    /// The read of the tick scheduled at `scheduled`, its wait capped short of `deadline`;
+    /// with `health`, Present Current/Load, Input Voltage and Temperature too.
+    pub(super) fn read(&mut self, scheduled: Instant, deadline: Instant, health: bool) {
+        let left = deadline
+            .saturating_duration_since(self.clock.now())
+            .saturating_sub(READ_TAIL);
+        let timeout = self.schedule.reply_timeout.min(left).max(MIN_READ_WAIT);
+        let fields = if health {
+            self.measured.begin_health();
+            Fields::ALL
+        } else {
+            Fields {
+                velocity: true,
+                ..Fields::POSITION
+            }
+        };
+        let read = self
+            .port
+            .bus()
+            .read_states_into(&self.ids, fields, timeout, &mut self.states);
+        let mut attention = false;
+        match read {
+            Err(e) if e.class() == ErrorClass::Bus => {
+                self.lose_port(&e);
+                return;
+            }
+            Err(e) => {
+                tracing::debug!("sync read failed: {e}");
+                self.stats.counters.dropped += self.ids.len() as u64;
+                for i in 0..self.health.len() {
+                    attention |= self.health.missed(i, self.tick, scheduled);
+                }
+            }
+            Ok(()) => {
+                self.port.contact(self.clock.now());
+                for i in 0..self.ids.len() {
+                    attention |= self.take_reading(i, scheduled);
+                }
+            }
+        }
+        if health {
+            self.measured.health_tick = self.tick;
+            self.check_health();
+        }
+        if attention {
+            self.review_faults(scheduled);
+        }
+    }
+
+    /// Joint `i`'s part of this read; true when the fault path has something to look at.
+    fn take_reading(&mut self, i: usize, scheduled: Instant) -> bool {
+        match self.states.readings().get(i) {
+            Some(Ok(s)) => {
+                self.measured.record(i, s);
+                self.health.answered(i, s.alert)
+            }
+            missing => {
+                if matches!(missing, Some(Err(e)) if !e.is_timeout()) {
+                    self.stats.counters.corrupted += 1;
+                } else {
+                    self.stats.counters.dropped += 1;
+                }
+                self.health.missed(i, self.tick, scheduled)
+            }
+        }
+    }
+
+    /// Whether a fault holds the arm, as the port and the joints say now, told to the
+    /// supervisor; entering the protective stop freezes the arm and ends the active command.
+    pub(super) fn sync_faulted(&mut self) {
+        let faulted = self.port.is_lost() || self.health.any_fault();
+        if self.supervisor.set_faulted(faulted) {
+            self.controller.freeze();
+            let ended = self.ledger.interrupt(StopReason::Fault);
+            self.owe(ended);
+        }
+    }
+
+    /// Joint `i` faulted: the first fault freezes the arm and ends the active command.
+    fn raise(&mut self, i: usize, fault: JointFault, since: u64, detail: String) {
+        let change = self.health.raise(i, fault, since, detail);
+        self.sync_faulted();
+        self.report(EventKind::Fault, change);
+    }
+
+    /// Joint `i`'s fault cleared.
+    pub(super) fn clear(&mut self, i: usize, detail: String) {
+        if let Some(change) = self.health.clear(i, detail) {
+            self.report(EventKind::Fault, change);
+        }
+    }
+
+    /// The fault path after a read: raise what the read showed, clear what it cleared, recover
+    /// once nothing holds any more.
+    fn review_faults(&mut self, scheduled: Instant) {
+        let tick = self.tick;
+        for i in self.health.take_alerts() {
+            let id = self.ids.get(i).copied().unwrap_or_default();
+            let timeout = self.schedule.reply_timeout;
+            let (bits, detail) = match self.port.bus().hardware_errors(id, timeout) {
+                Ok(bits) => (
+                    bits,
+                    format!("hardware error {bits}: the servo may have switched its torque off; `reboot` clears it"),
+                ),
+                Err(e) => (
+                    HardwareErrors::default(),
+                    format!("alert flag set; Hardware Error Status unreadable ({e}); `reboot` clears it"),
+                ),
+            };
+            self.raise(i, JointFault::Hardware(bits), tick, detail);
+        }
+        for (i, since, detail) in self.health.exhausted(scheduled) {
+            self.raise(i, JointFault::Silent, since, detail);
+        }
+        let back = self.health.back_from_silence();
+        if back.is_empty() {
+            return;
+        }
+        if self.port.is_lost() || self.health.faulted_except(&back) {
+            for i in back {
+                self.clear(i, "answers again (other faults still hold the arm)".into());
+            }
+            return;
+        }
+        if self.recover_after.is_some_and(|t| self.clock.now() < t) {
+            return;
+        }
+        match self.recover() {
+            Ok(watchdogs) => {
+                let detail = recovered_detail(&watchdogs);
+                for i in back {
+                    self.clear(i, format!("answers again; {detail}"));
+                }
+                self.sync_faulted();
+            }
+            Err(e) => {
+                tracing::warn!("recovery failed, holding: {e}");
+                self.recover_after = Some(self.clock.now() + RETRY_EVERY);
+            }
+        }
+    }
+
+    /// After a fault: tripped Bus Watchdogs cleared (goal := present, re-armed), goals := the
+    /// measured pose, torque on again where it should be. Returns the servos whose watchdog
+    /// had fired.
+    pub(super) fn recover(&mut self) -> Result<Vec<u8>, String> {
+        let watchdogs = self
+            .arm
+            .recover_watchdog(self.port.bus())
+            .map_err(|e| e.to_string())?;
+        self.measure_pose()?;
+        self.controller
+            .reseed(&self.measured.theta)
+            .map_err(|r| r.to_string())?;
+        if self.supervisor.torque() {
+            self.arm
+                .set_torque(self.port.bus(), true)
+                .map_err(|e| e.to_string())?;
+        }
+        self.port.contact(self.clock.now());
+        self.recover_after = None;
+        self.health.forgive();
+        tracing::info!("recovered: holding the measured pose");
+        Ok(watchdogs)
+    }
+
+    /// The measured pose (one Sync Read of every position), each angle clamped into its
+    /// joint's limits (a servo may rest a tick past one).
+    pub(super) fn measure_pose(&mut self) -> Result<(), String> {
+        let timeout = self.schedule.reply_timeout;
+        self.port
+            .bus()
+            .read_states_into(&self.ids, Fields::POSITION, timeout, &mut self.states)
+            .map_err(|e| format!("reading the pose: {e}"))?;
+        for (i, reading) in self.states.readings().iter().enumerate() {
+            match reading {
+                Ok(s) => self.measured.record_position(i, s.position_ticks),
+                Err(err) => return Err(format!("reading the pose: {err}")),
+            }
+        }
+        let limits = self.controller.chain().limits();
+        for (t, l) in self.measured.theta.iter_mut().zip(limits) {
+            if let Some(l) = l {
+                *t = l.clamp(*t);
+            }
+        }
+        Ok(())
+    }
+
+    /// Before the tick's work: a lost port reopened when due, else a stall past the Bus
+    /// Watchdog recovered.
+    pub(super) fn tend_port(&mut self) {
+        if self.port.is_lost() {
+            self.retry_port();
+        } else {
+            self.check_stall();
+        }
+    }
+
+    /// The loop went quiet longer than the Bus Watchdog (the process was stopped, the machine
+    /// stalled): the servos whose watchdog fired refuse goals until recovered.
+    fn check_stall(&mut self) {
+        let Some((gap, watchdog)) = self.port.stalled(self.clock.now()) else {
+            return;
+        };
+        let tripped = self.arm.tripped_watchdogs(self.port.bus());
+        self.port.contact(self.clock.now());
+        let tripped = match tripped {
+            Ok(t) if t.is_empty() => return,
+            Ok(t) => t,
+            Err(e) => {
+                tracing::warn!("after a {gap:?} stall, reading the bus watchdogs failed: {e}");
+                return;
+            }
+        };
+        tracing::warn!(
+            ?tripped,
+            "the loop stalled {gap:?}: bus watchdogs fired, recovering"
+        );
+        let tick = self.tick;
+        let detail = format!(
+            "the loop stalled {} ms (watchdog {} ms): the Bus Watchdog fired; cleared, goal := present position, re-armed",
+            gap.as_millis(),
+            watchdog.as_millis()
+        );
+        let ended = self.ledger.interrupt(StopReason::Fault);
+        self.owe(ended);
+        match self.recover() {
+            Ok(_) => {
+                for id in tripped {
+                    if let Some(i) = self.ids.iter().position(|&x| x == id) {
+                        let kind = FaultKind::Watchdog.as_str();
+                        let info = self.health.info(i, kind, tick, detail.clone());
+                        self.announce(EventKind::Fault, "recovered", info);
+                    }
+                }
+            }
+            Err(e) => {
+                // Next tick's stall check (the gap is measured again) tries once more.
+                tracing::warn!("watchdog recovery failed: {e}");
+                self.controller.freeze();
+                self.port.stall_again(self.clock.now());
+            }
+        }
+    }
+
+    /// The serial port failed: hold, report, reopen every [`RETRY_EVERY`].
+    pub(super) fn lose_port(&mut self, e: &ServoError) {
+        let Some(info) = self.port.lose(self.tick, self.clock.now(), e) else {
+            return;
+        };
+        self.sync_faulted();
+        tracing::error!("{}", info.detail);
+        self.announce(EventKind::Fault, "raised", info);
+        self.rebuild_lists();
+    }
+
+    fn retry_port(&mut self) {
+        if !self.port.reopen_due(self.clock.now()) {
+            return;
+        }
+        let reopened = self
+            .port
+            .reopen(&self.arm)
+            .and_then(|()| self.recover().map(|_| ()).map_err(ReopenError::Recover));
+        match reopened {
+            Ok(()) => {
+                tracing::info!("port reopened");
+                if let Some(info) = self.port.found() {
+                    self.announce(EventKind::Fault, "cleared", info);
+                }
+                self.rebuild_lists();
+                self.sync_faulted();
+            }
+            Err(e) => {
+                tracing::debug!("reopening the port: {e}");
+                self.port.retry_later(self.clock.now());
+            }
+        }
+    }
+
+    pub(super) fn write_failed(&mut self, e: &ServoError) {
+        if e.class() == ErrorClass::Bus {
+            self.lose_port(e);
+            return;
+        }
+        let (count, worth_a_line) = self.stats.write_failed();
+        if worth_a_line {
+            tracing::warn!(count, "writing the goals failed: {e}");
+        }
+    }
+
+    /// Health warnings from this tick's temperature and voltage readings, before the servo's
+    /// own thresholds switch it off.
+    fn check_health(&mut self) {
+        for i in 0..self.health.len() {
+            if !self.measured.fresh.get(i).copied().unwrap_or(false) {
+                continue;
+            }
+            let (t, v) = (self.measured.temperature_c[i], self.measured.voltage_v[i]);
+            for change in self.health.judge(i, t, v, self.tick) {
+                self.report(EventKind::Warning, change);
+            }
+        }
+    }
+}
+
+/// Each joint's health thresholds, read once after bring-up: Temperature Limit and Min/Max
+/// Voltage Limit (a servo that does not answer them gets no warnings, logged).
+pub(super) fn health_limits<B: ServoBus>(arm: &Arm, bus: &mut Limited<B>) -> Vec<Limits> {
+    let t = arm.settings().reply_timeout;
+    let mut retry = Retry::default();
+    arm.joints()
+        .iter()
+        .map(|j| {
+            let mut read = |r: Register| retry.run(|| bus.read(j.id, r, t)).map(|v| v.value);
+            let temperature = read(Register::TemperatureLimit);
+            let voltage = (
+                read(Register::MinVoltageLimit),
+                read(Register::MaxVoltageLimit),
+            );
+            let temperature_c = match temperature {
+                Ok(c) => Some(c as f64),
+                Err(e) => {
+                    tracing::warn!(id = j.id, "no temperature warnings: {e}");
+                    None
+                }
+            };
+            let voltage_v = match voltage {
+                (Ok(lo), Ok(hi)) => Some((units::limit_volts(lo), units::limit_volts(hi))),
+                (Err(e), _) | (_, Err(e)) => {
+                    tracing::warn!(id = j.id, "no voltage warnings: {e}");
+                    None
+                }
+            };
+            Limits {
+                temperature_c,
+                voltage_v,
+            }
+        })
+        .collect()
+}
+
+/// What a recovery did, for the `cleared` event.
+fn recovered_detail(watchdogs: &[u8]) -> String {
+    if watchdogs.is_empty() {
+        "goals := measured pose".into()
+    } else {
+        format!("goals := measured pose; the Bus Watchdog of servos {watchdogs:?} had fired and was cleared")
+    }
+}

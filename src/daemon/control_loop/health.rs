@@ -1,0 +1,605 @@
+//! Joint health, pure: each servo's error budget (a time, the same at every loop rate), the
+//! fault that holds it, and its temperature and voltage warnings with hysteresis. Readings and
+//! times go in, [`Change`]s come out; the cycle turns them into events and log lines, and does
+//! the bus work (reading Hardware Error Status, recovering) itself.
+
+use std::time::{Duration, Instant};
+
+use crate::protocol::FaultInfo;
+use crate::servo::HardwareErrors;
+
+/// A temperature warning this close below the servo's Temperature Limit, °C.
+pub const TEMPERATURE_MARGIN_C: f64 = 5.0;
+
+/// A voltage warning this close to the servo's Min/Max Voltage Limit, V.
+pub const VOLTAGE_MARGIN_V: f64 = 0.5;
+
+/// How far back outside its margin a temperature must come before the warning clears, °C.
+pub const TEMPERATURE_HYSTERESIS_C: f64 = 1.0;
+
+/// How far back outside its margin a voltage must come before the warning clears, V.
+pub const VOLTAGE_HYSTERESIS_V: f64 = 0.1;
+
+/// What holds one joint's servo.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JointFault {
+    /// No valid reply for `control.max_silence_ms`.
+    Silent,
+    /// Its alert flag: a latched hardware error (the bits read, empty when unreadable).
+    Hardware(HardwareErrors),
+}
+
+/// A fault's kind, as clients read it in `faults[].kind` and fault events.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultKind {
+    /// No valid reply for the error budget.
+    Silent,
+    /// A latched hardware error.
+    HardwareError,
+    /// The Bus Watchdog fired while the loop stalled (reported as recovered at once).
+    Watchdog,
+    /// The serial port failed.
+    Port,
+}
+
+impl FaultKind {
+    /// The name on the wire.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FaultKind::Silent => "silent",
+            FaultKind::HardwareError => "hardware_error",
+            FaultKind::Watchdog => "watchdog",
+            FaultKind::Port => "port",
+        }
+    }
+}
+
+impl JointFault {
+    /// Its kind on the wire.
+    pub fn kind(self) -> FaultKind {
+        match self {
+            JointFault::Silent => FaultKind::Silent,
+            JointFault::Hardware(_) => FaultKind::HardwareError,
+        }
+    }
+}
+
+/// What a warning watches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WarningKind {
+    /// Present Temperature near the Temperature Limit.
+    Temperature,
+    /// Present Input Voltage near the voltage limits.
+    Voltage,
+}
+
+impl WarningKind {
+    /// The name on the wire.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            WarningKind::Temperature => "temperature",
+            WarningKind::Voltage => "voltage",
+        }
+    }
+}
+
+/// One joint's thresholds for warnings, read once after bring-up (`None`: the servo did not
+/// answer that register, so it gets no such warning).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Limits {
+    /// Temperature Limit (register 31), °C.
+    pub temperature_c: Option<f64>,
+    /// Min and Max Voltage Limit (registers 34 and 32), V.
+    pub voltage_v: Option<(f64, f64)>,
+}
+
+/// The error budget: how long a servo may go without a valid reply, and how often it is read.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Budget {
+    /// `control.max_silence_ms`.
+    pub max_silence: Duration,
+    /// Time between two reads on schedule (`read_every` periods).
+    pub read_interval: Duration,
+}
+
+/// A change of a fault or warning, for the cycle to report.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Change {
+    /// A fault or warning was raised.
+    Raised(FaultInfo),
+    /// A fault or warning cleared.
+    Cleared(FaultInfo),
+}
+
+/// A fault held, since which tick, and why.
+#[derive(Debug, Clone, PartialEq)]
+struct Held {
+    fault: JointFault,
+    since: u64,
+    detail: String,
+}
+
+/// The first read of a run of reads that missed a servo's reply.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Streak {
+    reads: u32,
+    first_tick: u64,
+    first_at: Instant,
+}
+
+#[derive(Debug, Clone, Default)]
+struct Joint {
+    id: u8,
+    streak: Option<Streak>,
+    /// The reply of this read carried the alert flag (handled after the read).
+    alert: bool,
+    fault: Option<Held>,
+    limits: Limits,
+    /// Active warnings: since which tick, and why.
+    temperature: Option<(u64, String)>,
+    voltage: Option<(u64, String)>,
+}
+
+/// Every joint's health.
+#[derive(Debug, Clone)]
+pub struct Health {
+    joints: Vec<Joint>,
+    budget: Budget,
+}
+
+impl Health {
+    /// Healthy joints with servo `ids` and their warning `limits` (one each).
+    pub fn new(ids: &[u8], limits: &[Limits], budget: Budget) -> Self {
+        let joints = ids
+            .iter()
+            .zip(
+                limits
+                    .iter()
+                    .copied()
+                    .chain(std::iter::repeat(Limits::default())),
+            )
+            .map(|(&id, limits)| Joint {
+                id,
+                limits,
+                ..Joint::default()
+            })
+            .collect();
+        Self { joints, budget }
+    }
+
+    /// The joints, counted.
+    pub fn len(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// No joints at all.
+    pub fn is_empty(&self) -> bool {
+        self.joints.is_empty()
+    }
+
+    /// The fault report of joint `i` (1-based joint, its servo id).
+    pub fn info(&self, i: usize, kind: &'static str, since: u64, detail: String) -> FaultInfo {
+        FaultInfo {
+            id: self.joints.get(i).map_or(0, |j| j.id),
+            joint: i + 1,
+            kind,
+            since_tick: since,
+            detail,
+        }
+    }
+
+    /// Joint `i` answered a read with a valid reply (`alert`: its alert flag was set). True when
+    /// the fault path has something to look at: a servo back from silence, or a new alert.
+    pub fn answered(&mut self, i: usize, alert: bool) -> bool {
+        let Some(j) = self.joints.get_mut(i) else {
+            return false;
+        };
+        j.streak = None;
+        let hardware = matches!(
+            j.fault,
+            Some(Held {
+                fault: JointFault::Hardware(_),
+                ..
+            })
+        );
+        let mut attention = matches!(
+            j.fault,
+            Some(Held {
+                fault: JointFault::Silent,
+                ..
+            })
+        );
+        if alert && !hardware {
+            j.alert = true;
+            attention = true;
+        }
+        attention
+    }
+
+    /// Joint `i` missed its reply to the read of `tick`, scheduled at `at`; true when that
+    /// exhausts its budget. The silence counts from one read interval before the first read
+    /// of the run that missed (when the servo last answered, on schedule), so a stall of the
+    /// loop itself before a miss is never held against the servo.
+    pub fn missed(&mut self, i: usize, tick: u64, at: Instant) -> bool {
+        let budget = self.budget;
+        let Some(j) = self.joints.get_mut(i) else {
+            return false;
+        };
+        let streak = j.streak.get_or_insert(Streak {
+            reads: 0,
+            first_tick: tick,
+            first_at: at,
+        });
+        streak.reads = streak.reads.saturating_add(1);
+        j.fault.is_none() && silence(streak, at, budget) >= budget.max_silence
+    }
+
+    /// Silent joints to raise, as of `at`: each with the tick its silence began and why.
+    pub fn exhausted(&self, at: Instant) -> Vec<(usize, u64, String)> {
+        let budget = self.budget;
+        self.joints
+            .iter()
+            .enumerate()
+            .filter(|(_, j)| j.fault.is_none())
+            .filter_map(|(i, j)| {
+                let s = j.streak?;
+                let quiet = silence(&s, at, budget);
+                (quiet >= budget.max_silence).then(|| {
+                    let detail = format!(
+                        "no valid reply for {} ms, {} consecutive reads since tick {} \
+                         (control.max_silence_ms = {})",
+                        quiet.as_millis(),
+                        s.reads,
+                        s.first_tick,
+                        budget.max_silence.as_millis()
+                    );
+                    (i, s.first_tick, detail)
+                })
+            })
+            .collect()
+    }
+
+    /// The joints whose alert flag came up since the last call, cleared.
+    pub fn take_alerts(&mut self) -> Vec<usize> {
+        let mut alerts = Vec::new();
+        for (i, j) in self.joints.iter_mut().enumerate() {
+            if std::mem::take(&mut j.alert) {
+                alerts.push(i);
+            }
+        }
+        alerts
+    }
+
+    /// Silent joints that answer again.
+    pub fn back_from_silence(&self) -> Vec<usize> {
+        (0..self.joints.len())
+            .filter(|&i| {
+                let j = &self.joints[i];
+                j.streak.is_none()
+                    && matches!(
+                        j.fault,
+                        Some(Held {
+                            fault: JointFault::Silent,
+                            ..
+                        })
+                    )
+            })
+            .collect()
+    }
+
+    /// A fault on any joint other than those in `except`.
+    pub fn faulted_except(&self, except: &[usize]) -> bool {
+        self.joints
+            .iter()
+            .enumerate()
+            .any(|(i, j)| j.fault.is_some() && !except.contains(&i))
+    }
+
+    /// A fault on any joint.
+    pub fn any_fault(&self) -> bool {
+        self.faulted_except(&[])
+    }
+
+    /// The servos held by a hardware error.
+    pub fn hardware_faulted(&self) -> Vec<u8> {
+        self.joints
+            .iter()
+            .filter(|j| {
+                matches!(
+                    j.fault,
+                    Some(Held {
+                        fault: JointFault::Hardware(_),
+                        ..
+                    })
+                )
+            })
+            .map(|j| j.id)
+            .collect()
+    }
+
+    /// Hold joint `i` for `fault`, since tick `since`.
+    pub fn raise(&mut self, i: usize, fault: JointFault, since: u64, detail: String) -> Change {
+        if let Some(j) = self.joints.get_mut(i) {
+            j.fault = Some(Held {
+                fault,
+                since,
+                detail: detail.clone(),
+            });
+        }
+        Change::Raised(self.info(i, fault.kind().as_str(), since, detail))
+    }
+
+    /// Joint `i`'s fault cleared (`None` when it had none); its budget starts afresh.
+    pub fn clear(&mut self, i: usize, detail: String) -> Option<Change> {
+        let j = self.joints.get_mut(i)?;
+        let held = j.fault.take()?;
+        j.streak = None;
+        Some(Change::Cleared(self.info(
+            i,
+            held.fault.kind().as_str(),
+            held.since,
+            detail,
+        )))
+    }
+
+    /// Every budget starts afresh (after a recovery: the servos were just read).
+    pub fn forgive(&mut self) {
+        for j in &mut self.joints {
+            j.streak = None;
+        }
+    }
+
+    /// Warnings raised or cleared by joint `i`'s fresh temperature `t_c` and input voltage
+    /// `v_v`, read at `tick`: raised within a margin of the servo's own limits, cleared only
+    /// once the value is back past the margin by the hysteresis.
+    pub fn judge(&mut self, i: usize, t_c: f64, v_v: f64, tick: u64) -> Vec<Change> {
+        let mut changes = Vec::new();
+        let Some(j) = self.joints.get(i) else {
+            return changes;
+        };
+        let (limits, hot, low) = (j.limits, j.temperature.is_some(), j.voltage.is_some());
+        if let Some(limit) = limits.temperature_c {
+            let warn_at = limit - TEMPERATURE_MARGIN_C;
+            if !hot && t_c >= warn_at {
+                let detail = format!(
+                    "{t_c:.0} °C, within {TEMPERATURE_MARGIN_C:.0} °C of its Temperature Limit {limit:.0} °C"
+                );
+                changes.extend(self.warn(i, WarningKind::Temperature, tick, Some(detail)));
+            } else if hot && t_c < warn_at - TEMPERATURE_HYSTERESIS_C {
+                changes.extend(self.warn(i, WarningKind::Temperature, tick, None));
+            }
+        }
+        if let Some((lo, hi)) = limits.voltage_v {
+            let near = v_v <= lo + VOLTAGE_MARGIN_V || v_v >= hi - VOLTAGE_MARGIN_V;
+            let clear = v_v > lo + VOLTAGE_MARGIN_V + VOLTAGE_HYSTERESIS_V
+                && v_v < hi - VOLTAGE_MARGIN_V - VOLTAGE_HYSTERESIS_V;
+            if !low && near {
+                let detail = format!(
+                    "input {v_v:.1} V, within {VOLTAGE_MARGIN_V} V of its voltage limits {lo:.1}..{hi:.1} V"
+                );
+                changes.extend(self.warn(i, WarningKind::Voltage, tick, Some(detail)));
+            } else if low && clear {
+                changes.extend(self.warn(i, WarningKind::Voltage, tick, None));
+            }
+        }
+        changes
+    }
+
+    /// Raise (`detail`) or clear (`None`) joint `i`'s warning of `kind`.
+    fn warn(
+        &mut self,
+        i: usize,
+        kind: WarningKind,
+        tick: u64,
+        detail: Option<String>,
+    ) -> Option<Change> {
+        let j = self.joints.get_mut(i)?;
+        let slot = match kind {
+            WarningKind::Temperature => &mut j.temperature,
+            WarningKind::Voltage => &mut j.voltage,
+        };
+        let name = kind.as_str();
+        Some(match detail {
+            Some(d) => {
+                *slot = Some((tick, d.clone()));
+                Change::Raised(self.info(i, name, tick, d))
+            }
+            None => {
+                let (since, _) = slot.take()?;
+                Change::Cleared(self.info(i, name, since, format!("{name} back in range")))
+            }
+        })
+    }
+
+    /// The fault and warning lists telemetry carries, `port` first when the port is lost.
+    pub fn lists(&self, port: Option<FaultInfo>) -> (Vec<FaultInfo>, Vec<FaultInfo>) {
+        let mut faults: Vec<FaultInfo> = port.into_iter().collect();
+        let mut warnings = Vec::new();
+        for (i, j) in self.joints.iter().enumerate() {
+            if let Some(h) = &j.fault {
+                faults.push(self.info(i, h.fault.kind().as_str(), h.since, h.detail.clone()));
+            }
+            for (kind, slot) in [
+                (WarningKind::Temperature, &j.temperature),
+                (WarningKind::Voltage, &j.voltage),
+            ] {
+                if let Some((since, detail)) = slot {
+                    warnings.push(self.info(i, kind.as_str(), *since, detail.clone()));
+                }
+            }
+        }
+        (faults, warnings)
+    }
+}
+
+/// How long a run of missed reads has kept a servo silent as of `at`.
+fn silence(streak: &Streak, at: Instant, budget: Budget) -> Duration {
+    at.saturating_duration_since(streak.first_at) + budget.read_interval
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    fn health(read_interval_ms: u64) -> Health {
+        let limits = Limits {
+            temperature_c: Some(70.0),
+            voltage_v: Some((9.5, 16.0)),
+        };
+        Health::new(
+            &[1, 2],
+            &[limits, limits],
+            Budget {
+                max_silence: 50 * MS,
+                read_interval: read_interval_ms as u32 * MS,
+            },
+        )
+    }
+
+    /// Reads on schedule every `interval_ms` that miss joint 0 until it is exhausted: the
+    /// number of reads it took.
+    fn reads_to_exhaust(interval_ms: u64) -> u64 {
+        let mut h = health(interval_ms);
+        let t0 = Instant::now();
+        for k in 1..=10_000u64 {
+            if h.missed(0, k, t0 + Duration::from_millis(k * interval_ms)) {
+                return k;
+            }
+        }
+        panic!("never exhausted");
+    }
+
+    #[test]
+    fn the_budget_is_the_same_time_at_every_read_rate() {
+        // 50 ms: 5 reads at 100 Hz, 50 at 1 kHz, 1 at 20 Hz (a read every 50 ms).
+        assert_eq!(reads_to_exhaust(10), 5);
+        assert_eq!(reads_to_exhaust(1), 50);
+        assert_eq!(reads_to_exhaust(50), 1);
+    }
+
+    #[test]
+    fn a_valid_reply_restarts_the_budget() {
+        let mut h = health(10);
+        let t0 = Instant::now();
+        for k in 1..=4u64 {
+            assert!(!h.missed(0, k, t0 + k as u32 * 10 * MS));
+        }
+        assert!(!h.answered(0, false));
+        for k in 6..=9u64 {
+            assert!(!h.missed(0, k, t0 + k as u32 * 10 * MS));
+        }
+        assert!(h.missed(0, 10, t0 + 100 * MS));
+        let exhausted = h.exhausted(t0 + 100 * MS);
+        assert_eq!(exhausted.len(), 1);
+        assert_eq!(exhausted[0].0, 0);
+        assert_eq!(exhausted[0].1, 6, "the silence began at tick 6");
+        assert!(
+            exhausted[0].2.contains("5 consecutive reads"),
+            "{}",
+            exhausted[0].2
+        );
+    }
+
+    #[test]
+    fn a_stall_of_the_loop_before_a_miss_is_not_held_against_the_servo() {
+        let mut h = health(10);
+        let t0 = Instant::now();
+        assert!(!h.answered(0, false));
+        // The loop stood still for 300 ms; the first read after it misses.
+        assert!(!h.missed(0, 2, t0 + 300 * MS));
+        assert!(h.exhausted(t0 + 300 * MS).is_empty());
+    }
+
+    #[test]
+    fn a_fault_is_raised_once_and_cleared_with_its_report() {
+        let mut h = health(10);
+        let change = h.raise(1, JointFault::Silent, 7, "quiet".into());
+        assert!(
+            matches!(&change, Change::Raised(f) if f.id == 2 && f.joint == 2 && f.kind == "silent" && f.since_tick == 7)
+        );
+        assert!(h.any_fault() && !h.faulted_except(&[1]));
+        // A faulted joint does not exhaust again.
+        let t0 = Instant::now();
+        for k in 0..10u64 {
+            assert!(!h.missed(1, k, t0 + k as u32 * 10 * MS));
+        }
+        assert!(h.exhausted(t0 + 100 * MS).is_empty());
+        assert!(h.back_from_silence().is_empty());
+        assert!(h.answered(1, false), "back from silence needs attention");
+        assert_eq!(h.back_from_silence(), vec![1]);
+        let cleared = h.clear(1, "answers".into());
+        assert!(
+            matches!(cleared, Some(Change::Cleared(f)) if f.since_tick == 7 && f.detail == "answers")
+        );
+        assert!(h.clear(1, "again".into()).is_none());
+        assert!(!h.any_fault());
+    }
+
+    #[test]
+    fn an_alert_is_taken_once_and_not_again_while_its_hardware_error_holds() {
+        let mut h = health(10);
+        assert!(h.answered(0, true));
+        assert_eq!(h.take_alerts(), vec![0]);
+        assert!(h.take_alerts().is_empty());
+        h.raise(
+            0,
+            JointFault::Hardware(HardwareErrors(0x20)),
+            3,
+            "overload".into(),
+        );
+        assert!(!h.answered(0, true));
+        assert!(h.take_alerts().is_empty());
+        assert_eq!(h.hardware_faulted(), vec![1]);
+    }
+
+    #[test]
+    fn temperature_warnings_have_hysteresis() {
+        let mut h = health(10);
+        // Limit 70 °C: warns at 65, clears below 64.
+        assert!(h.judge(0, 64.9, 12.0, 1).is_empty());
+        let raised = h.judge(0, 65.0, 12.0, 2);
+        assert!(
+            matches!(&raised[..], [Change::Raised(f)] if f.kind == "temperature" && f.since_tick == 2)
+        );
+        assert!(
+            h.judge(0, 64.5, 12.0, 3).is_empty(),
+            "inside the hysteresis"
+        );
+        let cleared = h.judge(0, 63.9, 12.0, 4);
+        assert!(matches!(&cleared[..], [Change::Cleared(f)] if f.since_tick == 2));
+        assert_eq!(h.lists(None).1.len(), 0);
+    }
+
+    #[test]
+    fn voltage_warnings_have_hysteresis_at_both_ends() {
+        let mut h = health(10);
+        // Limits 9.5..16 V: warns at or below 10.0, clears above 10.1.
+        let raised = h.judge(1, 40.0, 10.0, 1);
+        assert!(matches!(&raised[..], [Change::Raised(f)] if f.kind == "voltage" && f.id == 2));
+        assert_eq!(h.lists(None).1.len(), 1);
+        assert!(h.judge(1, 40.0, 10.05, 2).is_empty());
+        assert_eq!(h.judge(1, 40.0, 10.2, 3).len(), 1);
+        assert_eq!(h.judge(1, 40.0, 15.5, 4).len(), 1, "the high end warns too");
+    }
+
+    #[test]
+    fn the_lists_put_the_port_first() {
+        let mut h = health(10);
+        h.raise(0, JointFault::Silent, 1, "quiet".into());
+        let port = FaultInfo {
+            id: 0,
+            joint: 0,
+            kind: "port",
+            since_tick: 4,
+            detail: "gone".into(),
+        };
+        let (faults, warnings) = h.lists(Some(port));
+        assert_eq!(faults.len(), 2);
+        assert_eq!(faults[0].kind, "port");
+        assert_eq!(faults[1].kind, "silent");
+        assert!(warnings.is_empty());
+    }
+}

@@ -1,0 +1,630 @@
+//! The control loop's thread: start-up, the fixed-rate cycle, and a shut-down that runs on every
+//! exit, a panic included.
+//!
+//! The loop is held as parts, each owning one concern, and [`Cycle`] only keeps their order:
+//! - [`port`]: the bus (generic over [`ServoBus`]), reopening it, the Bus Watchdog's contact;
+//! - [`health`]: pure: each servo's error budget in time, its fault, its warnings;
+//! - [`supervisor`]: the arm's mode as one enum (operating, torque off, fault, estop) and the
+//!   shut-down;
+//! - [`ledger`]: the active and last command, and the event each ending owes its sender;
+//! - [`measure`]: this tick's measurements in SI units;
+//! - the statistics ([`crate::daemon::stats::Stats`], one reset).
+//!
+//! Each tick, in this order: apply the queued commands (in arrival order; the estop latch is
+//! checked per command, so nothing queued after an `estop` can undo it), tend the port (reopen
+//! a lost one, recover from a stall past the Bus Watchdog), decide (motion -> resolve ->
+//! joint-speed limit, [`Controller::tick`]; frozen while the supervisor holds the arm), write
+//! the goals (one Sync Write through the limits wrapper), read (one Sync Read of Present
+//! Velocity and Position every `read_every`-th tick, its wait capped at the end of the tick;
+//! the next tick decides on it), publish the telemetry (latest wins), then answer the commands
+//! applied in this tick. A tick that runs late makes the loop skip the periods it missed
+//! (counted as overruns), never catch up in a burst. Once warm a tick allocates nothing unless a
+//! command or an event needs it.
+//!
+//! Time comes from an injected [`Clock`] and the servos from any [`ServoBus`]: the daemon runs
+//! on the real port and the wall clock, the tests on an in-memory bus and a manual clock.
+//!
+//! Faults (a protective stop: hold and report, see the fault matrix in the docs):
+//! - a servo is declared `silent` only once it has gone `control.max_silence_ms` without a valid
+//!   reply (an error budget: a lost or damaged reply is counted, never a hold);
+//! - a reply with the alert flag: Hardware Error Status is read and the servo is held in
+//!   `hardware_error` until `reboot`;
+//! - the serial port failing (an error of class `Bus`): `port`, reopened once a second;
+//! - a stall of the loop longer than the Bus Watchdog (the process stopped): the watchdogs
+//!   that fired are cleared, goals := the measured pose, re-armed (`watchdog`, recovered at
+//!   once).
+//!
+//! While a fault holds, the controller is frozen and motion commands are refused (`fault`);
+//! once every fault has cleared, goals := the measured pose (tripped watchdogs cleared first)
+//! and the arm holds: it never resumes the command the fault interrupted. At tick 0, before
+//! any client is served, and every `control.health_every`-th tick after, the read extends to
+//! Present Current/Load, Input Voltage and Temperature (one contiguous Sync Read), and a
+//! `warning` event comes before the servo's own temperature and voltage limits.
+
+mod commands;
+mod faults;
+pub mod health;
+pub mod ledger;
+pub mod measure;
+pub mod port;
+pub mod supervisor;
+#[cfg(test)]
+mod tests;
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tokio::sync::oneshot;
+
+use crate::chain::Vec2;
+use crate::config::Config;
+use crate::connect::{self, Connection};
+use crate::control::{self, Activity, Controller};
+use crate::protocol::{Describe, Event, EventKind, FaultInfo, Telemetry, PROTOCOL_VERSION};
+use crate::resolve::Strategy;
+use crate::servo::arm::{Arm, BringUpOptions, OnExit};
+use crate::servo::clock::{Clock, RealClock};
+use crate::servo::dynamixel::DynamixelBus;
+use crate::servo::limits::{Limited, Strategy as LimitStrategy};
+use crate::servo::{units, Goal, ServoBus, States};
+
+use self::health::{Budget, Change, Health};
+use self::ledger::{Ended, Ledger};
+use self::measure::Measured;
+use self::port::{Opener, Port, ReopenError};
+use self::supervisor::Supervisor;
+use super::link::{self, Answer, Handle, LoopEnds, COMMAND_QUEUE};
+use super::stats::Stats;
+use super::{DaemonError, RunOptions, Summary};
+
+/// Longest a shut-down waits for the arm to come to rest before it lets go anyway.
+const STOP_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Start-up on the calling thread (open the bus, bring the arm up), then the cycle until `stop`
+/// is set and the arm is at rest, then shut-down. `ready` receives the socket side's handle once
+/// the arm holds its pose, or the reason start-up failed.
+pub(super) fn main(
+    config: Config,
+    options: RunOptions,
+    stop: Arc<AtomicBool>,
+    ready: oneshot::Sender<Result<Handle, DaemonError>>,
+) -> Result<Summary, DaemonError> {
+    let started = open(&config, options).and_then(|parts| Cycle::new(&config, parts));
+    let (mut cycle, handle) = match started {
+        Ok(started) => started,
+        Err(e) => {
+            let _ = ready.send(Err(e));
+            return Err(DaemonError::StartUpReported);
+        }
+    };
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
+        // Tick 0: one full read, so the first snapshot a client sees is measured, health
+        // included, never the placeholder the channel was made with.
+        cycle.read_everything();
+        // A `run` that stopped waiting is not this thread's problem: it shuts down below.
+        let _ = ready.send(Ok(handle));
+        cycle.run(&stop);
+    }));
+    cycle.shut_down(outcome.is_err())
+}
+
+/// The real port the config names, on the wall clock, reopened the same way when it vanishes.
+fn open(
+    config: &Config,
+    options: RunOptions,
+) -> Result<Parts<DynamixelBus, RealClock>, DaemonError> {
+    let options = connect::Options {
+        port: options.port.clone(),
+        ..connect::Options::default()
+    };
+    let Connection { bus, arm, sim } = connect::open(config, options.clone())?;
+    // What to reopen if the port vanishes: the given port, `[bus] port`, or the in-process
+    // simulator's link, which survives a disconnect as a USB adapter's by-id link does.
+    let path = connect::port_path(config, &options, sim.as_ref());
+    let baud = bus.baud();
+    let opener: Opener<DynamixelBus> = Box::new(move |arm: &Arm| {
+        let path = path.as_deref().ok_or(ReopenError::NoPath)?;
+        Ok(connect::reopen(path, baud, arm, LimitStrategy::Clamp)?)
+    });
+    Ok(Parts {
+        bus,
+        arm,
+        opener,
+        clock: RealClock,
+        sim,
+    })
+}
+
+/// What a [`Cycle`] runs on.
+pub(crate) struct Parts<B: ServoBus, C: Clock> {
+    /// The bus, limited to the joint limits, not yet brought up.
+    pub bus: Limited<B>,
+    /// The joints and bus settings.
+    pub arm: Arm,
+    /// Opens the bus again after the port vanished.
+    pub opener: Opener<B>,
+    /// Where time comes from.
+    pub clock: C,
+    /// An in-process simulator to keep alive as long as the loop.
+    pub sim: Option<snakectl_sim::SimHandle>,
+}
+
+/// The loop's fixed timing.
+#[derive(Debug, Clone, Copy)]
+struct Schedule {
+    period: Duration,
+    dt: f64,
+    read_every: u64,
+    health_every: u64,
+    reply_timeout: Duration,
+}
+
+/// What the controller made of this tick, for telemetry.
+#[derive(Debug, Clone, Copy, Default)]
+struct Decided {
+    tip_ref: Vec2,
+    saturated: bool,
+    self_collision: bool,
+    solve_us: f64,
+}
+
+/// The fault and warning lists telemetry carries, rebuilt when one changes.
+#[derive(Debug, Default)]
+struct Lists {
+    faults: Vec<FaultInfo>,
+    warnings: Vec<FaultInfo>,
+    changed: bool,
+}
+
+/// An answer to send once this tick's telemetry is out.
+enum Pending {
+    Ready(Answer),
+    /// `status`: the telemetry of the tick that applied it.
+    Status,
+}
+
+/// Where the fixed-rate schedule stands between two ticks.
+#[derive(Debug, Clone, Copy)]
+struct Pace {
+    /// When the next tick is due.
+    deadline: Instant,
+    /// When the shut-down began.
+    stop_since: Option<Instant>,
+}
+
+/// The loop: its parts and the buffers it reuses.
+pub(crate) struct Cycle<B: ServoBus, C: Clock> {
+    port: Port<B>,
+    arm: Arm,
+    clock: C,
+    /// Keeps an in-process simulator alive as long as the loop.
+    _sim: Option<snakectl_sim::SimHandle>,
+    controller: Controller,
+    ends: LoopEnds,
+    health: Health,
+    supervisor: Supervisor,
+    ledger: Ledger,
+    stats: Stats,
+    measured: Measured,
+    decided: Decided,
+    lists: Lists,
+    schedule: Schedule,
+    goals: Vec<Goal>,
+    states: States,
+    pending: Vec<(oneshot::Sender<Answer>, Pending)>,
+    /// When the lines of the commands applied in this tick were read.
+    received: Vec<Instant>,
+    home: Vec<f64>,
+    ids: Vec<u8>,
+    on_exit: OnExit,
+    tick: u64,
+    /// No recovery is tried before this instant, after one failed.
+    recover_after: Option<Instant>,
+}
+
+impl<B: ServoBus, C: Clock> Cycle<B, C> {
+    /// Brings the arm up on `parts` (holding its present pose) and makes the loop and the
+    /// socket side's handle.
+    pub(crate) fn new(config: &Config, parts: Parts<B, C>) -> Result<(Self, Handle), DaemonError> {
+        let Parts {
+            mut bus,
+            arm,
+            opener,
+            clock,
+            sim,
+        } = parts;
+        let brought = arm.bring_up_with_clock(&mut bus, BringUpOptions::default(), &clock)?;
+        tracing::info!(
+            servos = brought.servos.len(),
+            retries = brought.retries,
+            "arm up, holding its present pose"
+        );
+        let c = config.control();
+        let limits = control::Limits {
+            max_tip_speed_m_s: c.max_tip_speed_m_s,
+            max_tip_accel_m_s2: c.max_tip_accel_m_s2,
+            max_joint_speed_rad_s: c.max_joint_speed_rad_s,
+            deadman_s: c.deadman.as_secs_f64(),
+        };
+        let home = config.home().to_vec();
+        let controller = Controller::new(
+            config.chain().clone(),
+            limits,
+            c.strategy,
+            home.clone(),
+            &brought.pose,
+        )
+        .map_err(DaemonError::Controller)?;
+        // The channel's first value is never seen: tick 0 publishes a measured snapshot
+        // before `ready` hands the handle to anyone who could read it.
+        let (handle, ends) = link::channel(describe(config, &arm), Telemetry::default());
+        let period = Duration::from_secs_f64(1.0 / c.rate_hz);
+        let schedule = Schedule {
+            period,
+            dt: period.as_secs_f64(),
+            read_every: u64::from(c.read_every.max(1)),
+            health_every: u64::from(c.health_every.max(1)),
+            reply_timeout: arm.settings().reply_timeout,
+        };
+        let ids = arm.ids();
+        let budget = Budget {
+            max_silence: c.max_silence,
+            read_interval: period * c.read_every.max(1),
+        };
+        let health = Health::new(&ids, &faults::health_limits(&arm, &mut bus), budget);
+        let now = clock.now();
+        let watchdog = units::watchdog_period(arm.settings().watchdog_ms);
+        let mut stats = Stats::new(now);
+        stats.counters.retries = u64::from(brought.retries);
+        let cycle = Self {
+            port: Port::new(bus, opener, watchdog, now),
+            measured: Measured::new(&arm, &brought.pose),
+            decided: Decided {
+                tip_ref: controller.chain().tip(&brought.pose),
+                ..Decided::default()
+            },
+            goals: vec![Goal { id: 0, ticks: 0 }; ids.len()],
+            on_exit: arm.settings().on_exit,
+            arm,
+            clock,
+            _sim: sim,
+            controller,
+            ends,
+            health,
+            supervisor: Supervisor::new(),
+            ledger: Ledger::new(),
+            stats,
+            lists: Lists::default(),
+            schedule,
+            states: States::new(),
+            pending: Vec::with_capacity(COMMAND_QUEUE),
+            received: Vec::with_capacity(COMMAND_QUEUE),
+            home,
+            ids,
+            tick: 0,
+            recover_after: None,
+        };
+        Ok((cycle, handle))
+    }
+
+    /// Ticks until `stop` is set and the arm has come to rest.
+    fn run(&mut self, stop: &AtomicBool) {
+        let mut pace = Pace {
+            deadline: self.clock.now(),
+            stop_since: None,
+        };
+        while self.turn(&mut pace, stop.load(Ordering::Relaxed)) {}
+        self.answer_queued_for_exit();
+    }
+
+    /// One turn of the schedule: a tick, then the wait for the next one. `stop`: the daemon is
+    /// to shut down. False once the shut-down found the arm at rest (or gave up waiting).
+    fn turn(&mut self, pace: &mut Pace, stop: bool) -> bool {
+        let start = self.clock.now();
+        let scheduled = pace.deadline;
+        pace.deadline += self.schedule.period;
+        if stop && !self.supervisor.exiting() {
+            self.begin_exit();
+            pace.stop_since = Some(start);
+        }
+        self.step(scheduled, pace.deadline);
+        let now = self.clock.now();
+        self.stats
+            .record_tick(start, now.saturating_duration_since(start));
+        if let Some(since) = pace.stop_since {
+            let at_rest =
+                self.supervisor.estopped() || self.controller.activity() == Activity::Holding;
+            if at_rest || now.saturating_duration_since(since) > STOP_TIMEOUT {
+                return false;
+            }
+        }
+        if now > pace.deadline {
+            // Late: skip the periods missed instead of running them back to back.
+            let late = now.duration_since(pace.deadline).as_nanos();
+            let missed = (late / self.schedule.period.as_nanos().max(1)) as u64 + 1;
+            pace.deadline += self.schedule.period * missed as u32;
+            if let Some((overruns, total)) = self.stats.overrun(missed, now) {
+                tracing::warn!(overruns, total, "control loop overran its period");
+            }
+        }
+        self.clock
+            .sleep(pace.deadline.saturating_duration_since(self.clock.now()));
+        true
+    }
+
+    /// The shut-down began: decelerate to rest before letting go.
+    fn begin_exit(&mut self) {
+        self.supervisor.begin_exit();
+        if !self.supervisor.estopped() {
+            // A failure here cannot be worse than holding, which the next ticks do anyway.
+            let _ = self.controller.command(control::Command::Stop);
+        }
+        tracing::info!("stopping: bringing the arm to rest");
+    }
+
+    /// One tick, scheduled at `scheduled`, ending by `deadline`.
+    fn step(&mut self, scheduled: Instant, deadline: Instant) {
+        self.tick += 1;
+        self.apply_commands();
+        self.tend_port();
+        if self.port.is_lost() {
+            // Nothing to write to: hold the goals until the port is back.
+            self.received.clear();
+            self.decided = Decided {
+                tip_ref: self.decided.tip_ref,
+                ..Decided::default()
+            };
+        } else {
+            self.decide();
+            self.write();
+            let s = self.schedule;
+            let health = self.tick % s.health_every == 0;
+            if !self.port.is_lost() && (health || self.tick % s.read_every == 0) {
+                self.read(scheduled, deadline, health);
+            }
+        }
+        self.publish();
+        self.answer();
+    }
+
+    /// Motion -> resolve -> joint-speed limit; frozen while the supervisor holds the arm.
+    fn decide(&mut self) {
+        if !self.supervisor.moves() {
+            self.decided = Decided {
+                tip_ref: self.decided.tip_ref,
+                ..Decided::default()
+            };
+            return;
+        }
+        let t0 = self.clock.now();
+        let tick = self.controller.tick(self.schedule.dt);
+        let solve = self.clock.now().saturating_duration_since(t0);
+        self.stats
+            .record_solve(solve, tick.peak_joint_speed_rad_s, tick.m3_rad2);
+        self.decided = Decided {
+            tip_ref: tick.tip_ref,
+            saturated: tick.saturated,
+            self_collision: tick.self_collision,
+            solve_us: solve.as_secs_f64() * 1e6,
+        };
+        if tick.clamped {
+            self.stats.counters.clamped += 1;
+        }
+        self.ledger
+            .account(tick.peak_joint_speed_rad_s, tick.m3_rad2);
+        if let Some(finish) = tick.finished {
+            let ended = self.ledger.finish(finish);
+            self.owe(ended);
+        }
+    }
+
+    /// The goals, through the limits wrapper, in one Sync Write.
+    fn write(&mut self) {
+        let written = self
+            .arm
+            .goals_into(self.controller.theta(), &mut self.goals)
+            .and_then(|()| self.port.bus().write_goals(&self.goals));
+        let now = self.clock.now();
+        match written {
+            Ok(()) => self.port.contact(now),
+            Err(e) => self.write_failed(&e),
+        }
+        for &r in &self.received {
+            self.stats.record_latency(now.saturating_duration_since(r));
+        }
+        self.received.clear();
+    }
+
+    /// Tick 0, before any client: every field of every servo, then a snapshot of it.
+    fn read_everything(&mut self) {
+        let now = self.clock.now();
+        self.read(now, now + self.schedule.period, true);
+        self.publish();
+    }
+
+    fn publish(&mut self) {
+        let chain = self.controller.chain();
+        let tip = chain.tip(self.controller.theta());
+        let tip_meas = chain.tip(&self.measured.theta);
+        let state = self.supervisor.state(self.controller.activity());
+        let target = self.controller.target().map(|t| [t.x, t.y]);
+        let command = self.ledger.info();
+        let d = self.decided;
+        let tracking = (d.tip_ref - tip_meas).norm();
+        let (loop_hz, p99) = (self.stats.rate_hz(), self.stats.tick_p99_us());
+        let strategy = self.controller.strategy().name();
+        let (tick, t_s) = (self.tick, self.tick as f64 * self.schedule.dt);
+        let theta_cmd = self.controller.theta();
+        let m = &self.measured;
+        let (overruns, peak, m3, counters) = (
+            self.stats.overruns(),
+            self.stats.peak_total(),
+            self.stats.m3_total(),
+            self.stats.counters,
+        );
+        let torque = self.supervisor.torque();
+        let lists = std::mem::take(&mut self.lists.changed)
+            .then_some((&self.lists.faults, &self.lists.warnings));
+        self.ends.telemetry.send_modify(|t| {
+            t.tick = tick;
+            t.t_s = t_s;
+            t.state = state;
+            t.strategy = strategy;
+            t.tip_ref = [d.tip_ref.x, d.tip_ref.y];
+            t.tip = [tip.x, tip.y];
+            t.tip_meas = [tip_meas.x, tip_meas.y];
+            t.target = target;
+            copy(&mut t.theta_cmd, theta_cmd);
+            copy(&mut t.theta_meas, &m.theta);
+            copy(&mut t.omega_meas, &m.omega);
+            t.tracking_error_m = tracking;
+            t.saturated = d.saturated;
+            t.self_collision = d.self_collision;
+            t.command = command;
+            t.solve_us = d.solve_us;
+            t.loop_hz = loop_hz;
+            t.tick_p99_us = p99;
+            t.overruns = overruns;
+            t.peak_joint_speed_rad_s = peak;
+            t.m3_total_rad2 = m3;
+            t.counters = counters;
+            t.torque = torque;
+            copy(&mut t.temperature_c, &m.temperature_c);
+            copy(&mut t.voltage_v, &m.voltage_v);
+            copy(&mut t.load, &m.load);
+            copy(&mut t.load_unit, &m.load_unit);
+            t.health_tick = m.health_tick;
+            if let Some((faults, warnings)) = lists {
+                t.faults.clone_from(faults);
+                t.warnings.clone_from(warnings);
+            }
+        });
+    }
+
+    /// An event at this tick, with the commanded tip.
+    fn event(&self, event: Event) {
+        // No subscriber is not an error: nobody is listening.
+        let _ = self.ends.events.send(event);
+    }
+
+    /// The commanded tip, for events.
+    fn tip(&self) -> [f64; 2] {
+        let tip = self.controller.chain().tip(self.controller.theta());
+        [tip.x, tip.y]
+    }
+
+    /// The event a command's ending owes its sender, sent.
+    fn owe(&self, ended: Option<Ended>) {
+        if let Some(e) = ended {
+            self.event(Event {
+                owner: Some(e.owner),
+                cmd_id: e.id,
+                kind: e.kind,
+                tick: self.tick,
+                tip: self.tip(),
+                reason: e.reason,
+                fault: None,
+            });
+        }
+    }
+
+    /// A fault or warning change: logged, sent to everyone, the lists rebuilt.
+    fn report(&mut self, kind: EventKind, change: Change) {
+        let (reason, info) = match change {
+            Change::Raised(info) => ("raised", info),
+            Change::Cleared(info) => ("cleared", info),
+        };
+        match (kind, reason) {
+            (EventKind::Fault, "raised") => tracing::warn!(
+                id = info.id,
+                joint = info.joint,
+                kind = info.kind,
+                "fault: {}",
+                info.detail
+            ),
+            (EventKind::Fault, _) => {
+                tracing::info!(
+                    id = info.id,
+                    kind = info.kind,
+                    "fault cleared: {}",
+                    info.detail
+                )
+            }
+            _ => tracing::warn!(
+                id = info.id,
+                kind = info.kind,
+                reason,
+                "health: {}",
+                info.detail
+            ),
+        }
+        self.announce(kind, reason, info);
+        self.rebuild_lists();
+    }
+
+    /// A `fault` or `warning` event, to everyone.
+    fn announce(&self, kind: EventKind, reason: &'static str, info: FaultInfo) {
+        self.event(Event {
+            owner: None,
+            cmd_id: None,
+            kind,
+            tick: self.tick,
+            tip: self.tip(),
+            reason: Some(reason),
+            fault: Some(info),
+        });
+    }
+
+    fn rebuild_lists(&mut self) {
+        let (faults, warnings) = self.health.lists(self.port.fault());
+        self.lists = Lists {
+            faults,
+            warnings,
+            changed: true,
+        };
+    }
+
+    /// The summary of the run, and the servos left as `[bus] on_exit` says (the shut-down
+    /// guard: it runs whatever ended the cycle).
+    fn shut_down(mut self, panicked: bool) -> Result<Summary, DaemonError> {
+        let shut = self.arm.shut_down(self.port.bus());
+        if panicked {
+            if let Err(e) = shut {
+                tracing::error!("shut-down after a panic of the loop: {e}");
+            }
+            return Err(DaemonError::LoopPanicked);
+        }
+        shut.map_err(DaemonError::ShutDown)?;
+        Ok(self.stats.summary(self.tick, self.clock.now()))
+    }
+}
+
+fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
+    dst.clear();
+    dst.extend_from_slice(src);
+}
+
+/// The `describe` reply: what a remote UI needs to draw the arm.
+pub(super) fn describe(config: &Config, arm: &Arm) -> Describe {
+    let chain = config.chain();
+    let base = chain.base();
+    let (min_rad, max_rad) = chain
+        .limits()
+        .iter()
+        .map(|l| l.map_or((f64::MIN, f64::MAX), |l| (l.lo, l.hi)))
+        .unzip();
+    Describe {
+        links_m: chain.links().to_vec(),
+        base: [base.x, base.y, chain.heading()],
+        min_rad,
+        max_rad,
+        ids: arm.ids(),
+        models: arm.joints().iter().map(|j| j.model.name()).collect(),
+        home_rad: config.home().to_vec(),
+        rate_hz: config.control().rate_hz,
+        strategies: vec![Strategy::Overall.name(), Strategy::Sequential.name()],
+        protocol_version: PROTOCOL_VERSION,
+    }
+}

@@ -1,0 +1,163 @@
+//! The serial port as the loop holds it: the bus (limited to the joint limits), the way to
+//! open it again when it vanishes, and the Bus Watchdog's view of the loop's contact with the
+//! servos. Generic over the bus, so the loop's logic runs on an in-memory bus in tests.
+
+use std::time::{Duration, Instant};
+
+use crate::connect::ConnectError;
+use crate::protocol::FaultInfo;
+use crate::servo::arm::Arm;
+use crate::servo::limits::Limited;
+use crate::servo::ServoBus;
+
+/// How often a lost port is reopened, and a failed recovery tried again.
+pub const RETRY_EVERY: Duration = Duration::from_secs(1);
+
+/// Opens the port again, limited as at start.
+pub type Opener<B> = Box<dyn FnMut(&Arm) -> Result<Limited<B>, ReopenError>>;
+
+/// Why reopening the port failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ReopenError {
+    /// Nothing says which port to open.
+    #[error("no port to reopen is known")]
+    NoPath,
+    /// Opening it failed.
+    #[error(transparent)]
+    Open(#[from] ConnectError),
+    /// It opened, but the arm did not recover.
+    #[error("the port opened, but the arm did not recover: {0}")]
+    Recover(String),
+}
+
+/// The port failed at tick `since`; it is reopened every [`RETRY_EVERY`].
+#[derive(Debug, Clone)]
+struct Lost {
+    since: u64,
+    next_try: Instant,
+    detail: String,
+}
+
+/// The bus and what keeps it.
+pub struct Port<B: ServoBus> {
+    bus: Limited<B>,
+    opener: Opener<B>,
+    lost: Option<Lost>,
+    /// The last instruction that reached every servo (a Sync Write or Sync Read sent).
+    last_contact: Instant,
+    /// The Bus Watchdog's period, when armed.
+    watchdog: Option<Duration>,
+}
+
+impl<B: ServoBus> Port<B> {
+    /// `bus`, just brought up at `now`; `opener` opens it again; the servos' Bus Watchdog runs
+    /// with `watchdog` (`None`: off).
+    pub fn new(
+        bus: Limited<B>,
+        opener: Opener<B>,
+        watchdog: Option<Duration>,
+        now: Instant,
+    ) -> Self {
+        Self {
+            bus,
+            opener,
+            lost: None,
+            last_contact: now,
+            watchdog,
+        }
+    }
+
+    /// The bus.
+    pub fn bus(&mut self) -> &mut Limited<B> {
+        &mut self.bus
+    }
+
+    /// The port is lost.
+    pub fn is_lost(&self) -> bool {
+        self.lost.is_some()
+    }
+
+    /// An instruction reached every servo at `now`.
+    pub fn contact(&mut self, now: Instant) {
+        self.last_contact = now;
+    }
+
+    /// The port failed with `why` at `tick`: the fault to report, `None` if it already was.
+    pub fn lose(
+        &mut self,
+        tick: u64,
+        now: Instant,
+        why: &dyn std::fmt::Display,
+    ) -> Option<FaultInfo> {
+        if self.lost.is_some() {
+            return None;
+        }
+        let detail = format!("the serial port failed ({why}); reopening it every second");
+        self.lost = Some(Lost {
+            since: tick,
+            next_try: now + RETRY_EVERY,
+            detail,
+        });
+        self.fault()
+    }
+
+    /// The port's fault as listed, while lost.
+    pub fn fault(&self) -> Option<FaultInfo> {
+        self.lost
+            .as_ref()
+            .map(|l| port_info(l.since, l.detail.clone()))
+    }
+
+    /// A lost port whose next try is due at `now`.
+    pub fn reopen_due(&self, now: Instant) -> bool {
+        self.lost.as_ref().is_some_and(|l| now >= l.next_try)
+    }
+
+    /// Open the port again (the arm still to recover on it).
+    pub fn reopen(&mut self, arm: &Arm) -> Result<(), ReopenError> {
+        self.bus = (self.opener)(arm)?;
+        Ok(())
+    }
+
+    /// The port is back: the fault's clearing to report.
+    pub fn found(&mut self) -> Option<FaultInfo> {
+        let lost = self.lost.take()?;
+        Some(port_info(
+            lost.since,
+            "the port is open again; goals := measured pose".into(),
+        ))
+    }
+
+    /// A reopening failed at `now`: the next try one [`RETRY_EVERY`] later.
+    pub fn retry_later(&mut self, now: Instant) {
+        if let Some(lost) = self.lost.as_mut() {
+            lost.next_try = now + RETRY_EVERY;
+        }
+    }
+
+    /// The loop went quiet at least as long as the Bus Watchdog (the process was stopped, the
+    /// machine stalled): the gap and the watchdog's period.
+    pub fn stalled(&self, now: Instant) -> Option<(Duration, Duration)> {
+        let watchdog = self.watchdog?;
+        let gap = now.saturating_duration_since(self.last_contact);
+        (gap >= watchdog).then_some((gap, watchdog))
+    }
+
+    /// A stall's recovery failed: the next tick's check sees the stall again.
+    pub fn stall_again(&mut self, now: Instant) {
+        if let Some(watchdog) = self.watchdog {
+            self.last_contact = now.checked_sub(watchdog).unwrap_or(self.last_contact);
+        }
+    }
+}
+
+/// The port's fault, as listed and reported.
+fn port_info(since: u64, detail: String) -> FaultInfo {
+    FaultInfo {
+        id: 0,
+        joint: 0,
+        kind: super::health::FaultKind::Port.as_str(),
+        since_tick: since,
+        detail,
+    }
+}

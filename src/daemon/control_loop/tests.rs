@@ -1,0 +1,614 @@
+//! The loop's logic on an in-memory bus and a manual clock: the fault matrix, each case in a
+//! few thousand ticks of manual time, no sleep, no pseudo-terminal.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use serde_json::{json, Map, Value as Json};
+use tokio::sync::{broadcast, oneshot};
+
+use super::port::ReopenError;
+use super::{Cycle, Pace, Parts};
+use crate::config::Config;
+use crate::daemon::link::{Envelope, Handle};
+use crate::protocol::{Cmd, Event, EventKind, Rejection, State};
+use crate::servo::clock::{Clock, ManualClock};
+use crate::servo::limits::Strategy as LimitStrategy;
+use crate::servo::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
+
+const MS: Duration = Duration::from_millis(1);
+
+/// One servo's control table, and how it misbehaves.
+#[derive(Debug, Clone)]
+struct Servo {
+    table: Vec<u8>,
+    silent: bool,
+}
+
+impl Servo {
+    fn get(&self, r: Register) -> i64 {
+        let a = usize::from(r.address());
+        r.decode(&self.table[a..a + usize::from(r.size())]).unwrap()
+    }
+    fn set(&mut self, r: Register, v: i64) {
+        let a = usize::from(r.address());
+        let n = usize::from(r.size());
+        self.table[a..a + n].copy_from_slice(&r.encode(v)[..n]);
+    }
+    fn alert(&self) -> bool {
+        self.get(Register::HardwareErrorStatus) != 0
+    }
+}
+
+#[derive(Debug, Default)]
+struct Wire {
+    servos: BTreeMap<u8, Servo>,
+    port_gone: bool,
+}
+
+/// An in-memory chain of servos whose motors reach every goal at once. Clones share it.
+#[derive(Debug, Clone, Default)]
+struct MemoryBus(Arc<Mutex<Wire>>);
+
+impl MemoryBus {
+    fn wire(&self) -> MutexGuard<'_, Wire> {
+        self.0.lock().unwrap()
+    }
+    fn servo(&self, id: u8, f: impl FnOnce(&mut Servo)) {
+        f(self.wire().servos.get_mut(&id).unwrap());
+    }
+    fn port(&self) -> Result<(), ServoError> {
+        if self.wire().port_gone {
+            return Err(ServoError::Io(std::io::Error::new(
+                std::io::ErrorKind::BrokenPipe,
+                "the adapter is gone",
+            )));
+        }
+        Ok(())
+    }
+    fn answering(&self, id: u8, timeout: Duration) -> Result<(), ServoError> {
+        self.port()?;
+        match self.wire().servos.get(&id) {
+            Some(s) if !s.silent => Ok(()),
+            _ => Err(ServoError::Timeout {
+                id,
+                waited: timeout,
+            }),
+        }
+    }
+}
+
+impl ServoBus for MemoryBus {
+    fn baud(&self) -> u32 {
+        1_000_000
+    }
+    fn set_baud(&mut self, _: u32) -> Result<(), ServoError> {
+        Ok(())
+    }
+    fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError> {
+        self.answering(id, timeout)?;
+        let w = self.wire();
+        let s = &w.servos[&id];
+        Ok(PingInfo {
+            id,
+            model: s.get(Register::ModelNumber) as u16,
+            firmware: 46,
+            alert: s.alert(),
+        })
+    }
+    fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
+        let ids: Vec<u8> = self.wire().servos.keys().copied().collect();
+        Ok(ids
+            .into_iter()
+            .filter_map(|id| self.ping(id, timeout).ok())
+            .collect())
+    }
+    fn read(&mut self, id: u8, r: Register, timeout: Duration) -> Result<Value, ServoError> {
+        self.answering(id, timeout)?;
+        let w = self.wire();
+        let s = &w.servos[&id];
+        Ok(Value {
+            value: s.get(r),
+            alert: s.alert(),
+        })
+    }
+    fn write(&mut self, id: u8, r: Register, v: i64, timeout: Duration) -> Result<Ack, ServoError> {
+        self.answering(id, timeout)?;
+        let mut w = self.wire();
+        let s = w.servos.get_mut(&id).unwrap();
+        s.set(r, v);
+        if r == Register::GoalPosition {
+            s.set(Register::PresentPosition, v);
+        }
+        Ok(Ack {
+            id,
+            alert: s.alert(),
+        })
+    }
+    fn sync_read_into(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        self.port()?;
+        out.reset(ids, len, timeout);
+        let w = self.wire();
+        for (i, id) in ids.iter().enumerate() {
+            if let Some(s) = w.servos.get(id).filter(|s| !s.silent) {
+                let a = usize::from(address);
+                out.set(i, &s.table[a..a + usize::from(len)], s.alert());
+            }
+        }
+        Ok(())
+    }
+    fn sync_write(&mut self, r: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
+        self.port()?;
+        let mut w = self.wire();
+        for &(id, v) in values {
+            if let Some(s) = w.servos.get_mut(&id).filter(|s| !s.silent) {
+                s.set(r, v);
+            }
+        }
+        Ok(())
+    }
+    fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError> {
+        self.port()?;
+        let mut w = self.wire();
+        for g in goals {
+            if let Some(s) = w.servos.get_mut(&g.id).filter(|s| !s.silent) {
+                s.set(Register::GoalPosition, g.ticks.into());
+                s.set(Register::PresentPosition, g.ticks.into());
+            }
+        }
+        Ok(())
+    }
+    fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
+        self.answering(id, timeout)?;
+        self.servo(id, |s| {
+            s.set(Register::HardwareErrorStatus, 0);
+            s.set(Register::TorqueEnable, 0);
+        });
+        Ok(Ack { id, alert: false })
+    }
+}
+
+/// A loop on the shipped simulated arm's config (12 joints) at `rate_hz`, its servos in memory
+/// at the home pose, on a manual clock.
+struct Rig {
+    cycle: Cycle<MemoryBus, ManualClock>,
+    handle: Handle,
+    bus: MemoryBus,
+    clock: ManualClock,
+    pace: Pace,
+    events: broadcast::Receiver<Event>,
+    next_id: u64,
+}
+
+impl Rig {
+    fn new(rate_hz: f64, control: &str) -> Rig {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+        let text = std::fs::read_to_string(path).unwrap().replace(
+            "rate_hz = 100.0",
+            &format!("rate_hz = {rate_hz:?}\n{control}"),
+        );
+        let config = Config::from_str(&text, path).unwrap();
+        let arm = config.arm().unwrap().clone();
+        let bus = MemoryBus::default();
+        let home = arm.goals(config.home()).unwrap();
+        for (j, g) in arm.joints().iter().zip(&home) {
+            let mut s = Servo {
+                table: vec![0; 256],
+                silent: false,
+            };
+            s.set(Register::ModelNumber, j.model.model_number().into());
+            s.set(Register::TemperatureLimit, 80);
+            s.set(Register::MaxVoltageLimit, 140);
+            s.set(Register::MinVoltageLimit, 60);
+            s.set(Register::PresentInputVoltage, 120);
+            s.set(Register::PresentTemperature, 30);
+            s.set(Register::PresentPosition, g.ticks.into());
+            bus.wire().servos.insert(j.id, s);
+        }
+        let reopen = bus.clone();
+        let parts = Parts {
+            bus: arm.limited(bus.clone(), LimitStrategy::Clamp),
+            arm,
+            opener: Box::new(move |arm| {
+                if reopen.wire().port_gone {
+                    return Err(ReopenError::NoPath);
+                }
+                Ok(arm.limited(reopen.clone(), LimitStrategy::Clamp))
+            }),
+            clock: ManualClock::new(),
+            sim: None,
+        };
+        let clock = parts.clock.clone();
+        let (mut cycle, handle) = Cycle::new(&config, parts).unwrap();
+        let events = handle.events.subscribe();
+        cycle.read_everything();
+        let pace = Pace {
+            deadline: clock.now(),
+            stop_since: None,
+        };
+        Rig {
+            cycle,
+            handle,
+            bus,
+            clock,
+            pace,
+            events,
+            next_id: 0,
+        }
+    }
+
+    /// `n` ticks on schedule.
+    fn ticks(&mut self, n: usize) {
+        for _ in 0..n {
+            assert!(self.cycle.turn(&mut self.pace, false));
+        }
+    }
+
+    /// Queues `cmd` from client 1; its answer comes with the next tick.
+    fn send(&mut self, cmd: Cmd) -> oneshot::Receiver<Result<Map<String, Json>, Rejection>> {
+        let (reply, answer) = oneshot::channel();
+        self.next_id += 1;
+        self.handle
+            .commands
+            .try_send(Envelope {
+                client: 1,
+                id: Some(Arc::new(json!(self.next_id))),
+                cmd,
+                received: self.clock.now(),
+                reply,
+            })
+            .unwrap();
+        answer
+    }
+
+    /// `cmd` applied in one tick: its answer.
+    fn command(&mut self, cmd: Cmd) -> Result<Map<String, Json>, Rejection> {
+        let mut answer = self.send(cmd);
+        self.ticks(1);
+        answer
+            .try_recv()
+            .expect("answered in the tick that applied it")
+    }
+
+    fn status(&self) -> crate::protocol::Telemetry {
+        self.handle.telemetry.borrow().clone()
+    }
+
+    /// The events since the last call.
+    fn events(&mut self) -> Vec<Event> {
+        std::iter::from_fn(|| self.events.try_recv().ok()).collect()
+    }
+
+    /// A goto 5 cm to the side of the present tip, slow enough to still be moving a second on.
+    fn slow_goto(&mut self) {
+        let tip = self.status().tip;
+        let goto = Cmd::Goto {
+            target: [tip[0] + 0.05, tip[1]],
+            speed: Some(0.01),
+        };
+        self.command(goto).unwrap();
+    }
+}
+
+fn fault_events(events: &[Event], reason: &str) -> Vec<(u8, &'static str, u64)> {
+    events
+        .iter()
+        .filter(|e| e.kind == EventKind::Fault && e.reason == Some(reason))
+        .filter_map(|e| e.fault.as_ref().map(|f| (f.id, f.kind, f.since_tick)))
+        .collect()
+}
+
+/// The read that declares a silent servo: its tick minus the tick of the first read it missed,
+/// plus one; and the events up to it.
+fn reads_to_declare_silent(rate_hz: f64) -> (u64, Rig) {
+    let mut rig = Rig::new(rate_hz, "");
+    rig.ticks(5);
+    rig.bus.servo(5, |s| s.silent = true);
+    let first_missed = rig.status().tick + 1;
+    for _ in 0..10_000 {
+        rig.ticks(1);
+        if rig.status().state == State::Fault {
+            let declared = rig.status().tick;
+            return (declared - first_missed + 1, rig);
+        }
+    }
+    panic!("servo 5 never declared silent at {rate_hz} Hz");
+}
+
+#[test]
+fn the_error_budget_is_50_ms_at_every_loop_rate() {
+    assert_eq!(reads_to_declare_silent(100.0).0, 5);
+    assert_eq!(reads_to_declare_silent(1000.0).0, 50);
+    assert_eq!(reads_to_declare_silent(20.0).0, 1);
+}
+
+#[test]
+fn a_custom_budget_is_honoured_and_the_deprecated_count_converts() {
+    assert_eq!(
+        reads_to_declare_silent_with(100.0, "max_silence_ms = 120"),
+        12
+    );
+    assert_eq!(
+        reads_to_declare_silent_with(500.0, "max_missed_reads = 7"),
+        7
+    );
+}
+
+fn reads_to_declare_silent_with(rate_hz: f64, control: &str) -> u64 {
+    let mut rig = Rig::new(rate_hz, control);
+    rig.bus.servo(2, |s| s.silent = true);
+    let first = rig.status().tick + 1;
+    for _ in 0..1000 {
+        rig.ticks(1);
+        if rig.status().state == State::Fault {
+            return rig.status().tick - first + 1;
+        }
+    }
+    panic!("never declared");
+}
+
+#[test]
+fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_answers() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(10);
+    assert_eq!(rig.status().state, State::Moving);
+    rig.events();
+    rig.bus.servo(5, |s| s.silent = true);
+    rig.ticks(5);
+    let s = rig.status();
+    assert_eq!(s.state, State::Fault);
+    let held = s.theta_cmd.clone();
+    let events = rig.events();
+    assert_eq!(
+        fault_events(&events, "raised"),
+        vec![(5, "silent", s.tick - 4)]
+    );
+    let stopped = events
+        .iter()
+        .find(|e| e.kind == EventKind::Stopped)
+        .unwrap();
+    assert_eq!(stopped.reason, Some("fault"));
+    assert_eq!(s.command.as_ref().unwrap().outcome, "fault");
+    assert_eq!(s.faults.len(), 1);
+    assert!(
+        s.faults[0].detail.contains("50 ms"),
+        "{}",
+        s.faults[0].detail
+    );
+    // Held: goals frozen, motion refused with the fault named.
+    rig.ticks(20);
+    assert_eq!(rig.status().theta_cmd, held);
+    let refused = rig.command(Cmd::Home).unwrap_err();
+    assert_eq!(refused.code, crate::protocol::Code::Fault);
+    assert!(
+        refused.message.contains("servo 5 (joint 5) silent"),
+        "{}",
+        refused.message
+    );
+    // It answers again: cleared, holding the measured pose, and the arm moves again.
+    rig.bus.servo(5, |s| s.silent = false);
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.state, State::Holding);
+    assert!(s.faults.is_empty());
+    assert_eq!(
+        fault_events(&rig.events(), "cleared"),
+        vec![(5, "silent", s.tick - 26)]
+    );
+    rig.slow_goto();
+    rig.ticks(1);
+    assert_eq!(rig.status().state, State::Moving);
+}
+
+#[test]
+fn a_hardware_error_holds_until_reboot_which_brings_torque_back() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.servo(3, |s| {
+        s.set(Register::HardwareErrorStatus, 0x20);
+        s.set(Register::TorqueEnable, 0);
+    });
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.state, State::Fault);
+    assert_eq!(s.faults[0].kind, "hardware_error");
+    assert!(
+        s.faults[0].detail.contains("overload"),
+        "{}",
+        s.faults[0].detail
+    );
+    assert_eq!(
+        rig.command(Cmd::Torque { on: true }).unwrap_err().code,
+        crate::protocol::Code::Fault
+    );
+    let answer = rig.command(Cmd::Reboot { ids: None }).unwrap();
+    assert_eq!(
+        answer["rebooted"],
+        json!([3]),
+        "only the servo in hardware error"
+    );
+    let s = rig.status();
+    assert_eq!(s.state, State::Holding);
+    assert!(s.torque && s.faults.is_empty());
+    let torque = rig.bus.wire().servos[&3].get(Register::TorqueEnable);
+    assert_eq!(torque, 1, "brought up again with torque on");
+    rig.slow_goto();
+}
+
+#[test]
+fn an_estop_while_the_port_is_lost_stays_latched_when_the_port_comes_back() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(3);
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.state, State::Fault);
+    assert_eq!(s.faults[0].kind, "port");
+    rig.command(Cmd::Estop).unwrap();
+    assert_eq!(rig.status().state, State::Estop);
+    // Reopened once a second; gone still after the first try.
+    rig.ticks(150);
+    assert_eq!(rig.status().faults.len(), 1);
+    rig.bus.wire().port_gone = false;
+    rig.ticks(100);
+    let s = rig.status();
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert_eq!(s.state, State::Estop, "the latch outlives the fault");
+    assert_eq!(
+        rig.command(Cmd::Home).unwrap_err().code,
+        crate::protocol::Code::Estopped
+    );
+    rig.command(Cmd::Reset).unwrap();
+    assert_eq!(rig.status().state, State::Holding);
+    assert!(rig.status().torque);
+}
+
+#[test]
+fn a_stall_past_the_bus_watchdog_recovers_the_servos_whose_watchdog_fired() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(2);
+    rig.events();
+    // The process stood still 300 ms; servos 2 and 7 saw their Bus Watchdog fire.
+    rig.clock.advance(300 * MS);
+    for id in [2, 7] {
+        rig.bus.servo(id, |s| s.set(Register::BusWatchdog, -1));
+    }
+    rig.ticks(1);
+    let events = rig.events();
+    let recovered = fault_events(&events, "recovered");
+    assert_eq!(
+        recovered.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(),
+        vec![(2, "watchdog"), (7, "watchdog")]
+    );
+    assert!(events
+        .iter()
+        .any(|e| e.kind == EventKind::Stopped && e.reason == Some("fault")));
+    for id in [2, 7] {
+        assert!(
+            rig.bus.wire().servos[&id].get(Register::BusWatchdog) > 0,
+            "re-armed"
+        );
+    }
+    assert_eq!(rig.status().state, State::Holding, "recovered at once");
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.overruns, 30, "the stall's periods count as overruns");
+}
+
+#[test]
+fn overruns_count_the_periods_a_late_tick_skipped() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(10);
+    assert_eq!(rig.status().overruns, 0);
+    let tick = rig.status().tick;
+    // The next tick starts 35 ms late: the periods due at +10, +20 and +30 ms are skipped.
+    rig.clock.advance(35 * MS);
+    rig.ticks(1);
+    assert_eq!(
+        rig.status().tick,
+        tick + 1,
+        "one tick ran late, none ran twice"
+    );
+    // Telemetry goes out before the tick's lateness is known: the next one reports it.
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!((s.tick, s.overruns), (tick + 2, 3));
+    rig.ticks(10);
+    assert_eq!(rig.status().overruns, 3, "back on schedule");
+}
+
+#[test]
+fn reset_stats_starts_the_statistics_again_but_not_the_counters() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(50);
+    let s = rig.status();
+    assert!(s.m3_total_rad2 > 0.0 && s.peak_joint_speed_rad_s > 0.0);
+    rig.bus.servo(4, |s| s.silent = true);
+    rig.ticks(2);
+    rig.bus.servo(4, |s| s.silent = false);
+    let dropped = rig.status().counters.dropped;
+    assert_eq!(dropped, 2);
+    rig.command(Cmd::ResetStats).unwrap();
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(
+        (s.m3_total_rad2 > 0.0, s.counters.dropped),
+        (true, 2),
+        "moving still"
+    );
+    let summary = rig.cycle.stats.summary(rig.cycle.tick, rig.clock.now());
+    assert_eq!(summary.ticks, 1, "counted from the tick that applied it");
+    rig.command(Cmd::Stop).unwrap();
+    rig.ticks(200);
+    rig.command(Cmd::ResetStats).unwrap();
+    let s = rig.status();
+    assert_eq!((s.m3_total_rad2, s.peak_joint_speed_rad_s), (0.0, 0.0));
+    assert_eq!(s.counters.dropped, 2);
+}
+
+#[test]
+fn health_warnings_come_before_the_servo_limits_with_hysteresis() {
+    let mut rig = Rig::new(100.0, "");
+    // Temperature Limit 80 °C: a warning at 75, cleared below 74.
+    rig.bus
+        .servo(6, |s| s.set(Register::PresentTemperature, 75));
+    rig.ticks(10);
+    let s = rig.status();
+    assert_eq!(s.warnings.len(), 1);
+    assert_eq!((s.warnings[0].id, s.warnings[0].kind), (6, "temperature"));
+    assert_eq!(s.temperature_c[5], 75.0);
+    rig.bus
+        .servo(6, |s| s.set(Register::PresentTemperature, 74));
+    rig.ticks(10);
+    assert_eq!(rig.status().warnings.len(), 1, "inside the hysteresis");
+    rig.bus
+        .servo(6, |s| s.set(Register::PresentTemperature, 73));
+    rig.ticks(10);
+    assert!(rig.status().warnings.is_empty());
+    let events = rig.events();
+    let warnings: Vec<_> = events
+        .iter()
+        .filter(|e| e.kind == EventKind::Warning)
+        .map(|e| e.reason)
+        .collect();
+    assert_eq!(warnings, vec![Some("raised"), Some("cleared")]);
+    assert_eq!(
+        rig.status().state,
+        State::Holding,
+        "a warning never holds the arm"
+    );
+}
+
+#[test]
+fn the_shut_down_brings_the_arm_to_rest_then_ends() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(5);
+    let mut turns = 0;
+    while rig.cycle.turn(&mut rig.pace, true) {
+        turns += 1;
+        assert!(turns < 1000, "never came to rest");
+    }
+    assert!(turns > 0, "decelerated over some ticks");
+    assert_eq!(rig.status().state, State::Holding);
+    let refused = rig.send(Cmd::Home);
+    rig.cycle.answer_queued_for_exit();
+    let mut refused = refused;
+    assert_eq!(
+        refused.try_recv().unwrap().unwrap_err().code,
+        crate::protocol::Code::ShuttingDown
+    );
+}
