@@ -3,7 +3,7 @@
 //! that no goal left the joint limits or was non-finite, that goals moved no faster than the
 //! joint-speed limit except to the measured pose on a recovery, and that shut-down leaves
 //! torque off. Detection times are in ticks (the daemon's clock). Run with `--nocapture` for
-//! the figures the README's fault matrix quotes.
+//! the figures the fault matrix of `docs/FAULTS.md` quotes.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod daemon_support;

@@ -14,7 +14,7 @@ use super::{outln, Failure};
 
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
-    /// Scenario file (TOML, see the README).
+    /// Scenario file (TOML, see docs/FLEXIBLE-OBJECTS.md).
     #[arg(long, conflicts_with = "all", required_unless_present = "all")]
     scenario: Option<PathBuf>,
     /// Run every `*.toml` of this directory, each into `OUT/<file stem>/`.

@@ -12,7 +12,7 @@ use super::{outln, Failure};
 
 #[derive(Debug, Args)]
 pub struct SolveArgs {
-    /// Problem file in the JSON format of the README; `-` reads stdin.
+    /// Problem file in the JSON format of docs/SOLVE.md; `-` reads stdin.
     #[arg(conflicts_with_all = ["config", "from"], required_unless_present = "config")]
     problem: Option<PathBuf>,
     /// Take the arm from this config file instead of a problem file.

@@ -7,7 +7,8 @@
 //! uniqueness) are checked afterwards by [`super::Config`]. Integers a user may plausibly get
 //! wrong (servo ids) are read wide here so that the validated error can quote the bad value.
 //!
-//! Defaults live in the `default_*` functions below, one place for the README table to cite.
+//! Defaults live in the `default_*` functions below, one place for the table in
+//! `docs/CONFIG.md` to cite.
 
 use std::path::PathBuf;
 
