@@ -265,7 +265,7 @@ pub struct FaultInfo {
     pub id: u8,
     /// Joint number, from 1 (0 for the port itself).
     pub joint: usize,
-    /// What kind: `silent` (no reply to `control.max_missed_reads` consecutive reads),
+    /// What kind: `silent` (no valid reply for `control.max_silence_ms`),
     /// `hardware_error` (the servo's alert flag; `detail` names the error), `port` (the serial
     /// port failed), `watchdog` (the Bus Watchdog fired and was recovered); for warnings
     /// `temperature` or `voltage`.
