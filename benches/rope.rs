@@ -11,9 +11,9 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use snakectl::chain::Vec2;
-use snakectl::resolve::rope::{Objective, RopeOptimizer};
 use snakectl::resolve::sequential::pull_free;
 use snakectl::resolve::tractrix::Propagation;
+use snakectl::rope::{Objective, RopeOptimizer};
 
 const LINKS: usize = 1000;
 const STEPS: usize = 100;

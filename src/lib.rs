@@ -4,51 +4,77 @@
 //! (ropes, chains, hair), after Banerjee, Menon, Ananthasuresh and Ghosal, "Simulation of
 //! Length-Preserving Motions of Flexible One Dimensional Objects using Optimization" (2011).
 //!
-//! Layout, lowest layer first (a layer uses only those above it in this list):
+//! Layout, in groups; a module uses only its own group and the groups above it (the simulator
+//! crate, `snakectl-sim`, sits below them all: it depends on nothing of this one, and its clock
+//! is the workspace's one [`servo::clock::Clock`]).
+//!
+//! **The math core**, pure (no I/O, clock, threads, serde or tracing; `tests/layers.rs` checks):
 //! - [`chain`]: links, base pose, relative angles, limits; forward kinematics, Jacobian,
-//!   workspace ring. Pure math.
-//! - [`metrics`]: the paper's five motion metrics between two configurations. Pure math.
-//! - [`resolve`]: the two redundancy-resolution strategies (sequential tractrix, overall
-//!   minimization of metric 3) behind one [`resolve::Resolver`] trait. Pure math.
+//!   workspace ring.
+//! - [`metrics`]: the paper's five motion metrics between two configurations.
+//! - [`resolve`]: the arm's two redundancy-resolution strategies (sequential tractrix, overall
+//!   minimization of metric 3) behind one [`resolve::Resolver`] trait.
 //! - [`motion`]: the tip (or joint) reference of each control tick from the active command,
-//!   speed- and acceleration-limited. Pure math, time as `dt`.
+//!   speed- and acceleration-limited, time as `dt`.
 //! - [`control`]: one control tick: motion, resolve (warm, the active strategy, bisection when
-//!   out of reach), joint-speed limit; the goal pose and what happened. Pure math.
-//! - [`config`]: the one TOML file that describes an arm and how to reach it, parsed raw and then
-//!   validated, errors naming the file and the field.
+//!   out of reach), joint-speed limit; the goal pose and what happened.
+//! - [`rope`]: the overall optimization of a free rope under any of the five metrics (the
+//!   paper's flexible objects; not a [`resolve::Resolver`]: nothing holds its base).
+//!
+//! **The paper's tooling** (flexible objects, one-shot problems; uses the math core only):
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
-//! - [`servo`]: the `ServoBus` trait, its Dynamixel implementation, the model table, units and
-//!   calibration, the joint-limit wrapper, bring-up and shut-down, the one-time servo settings,
-//!   a recording bus, serial-port discovery in sysfs.
 //! - [`scenario`]: flexible-object scenarios (TOML): initial curve, pull, strategies; runs them
 //!   and tabulates the metrics.
-//! - [`plot`]: the scenario figures as SVG and PNG.
+//! - [`plot`]: the scenario figures and the demo's figures, as SVG and PNG.
+//!
+//! **The servos** (the hardware edge):
+//! - [`servo`]: the `ServoBus` trait, its Dynamixel implementation (the one file that imports
+//!   `dynamixel2`), the model table, units and calibration, the joint-limit wrapper, the arm's
+//!   bring-up and shut-down, the one-time servo settings, a recording bus, serial-port
+//!   discovery in sysfs.
+//!
+//! **The arm's configuration and connection** (use the math core and the servos):
+//! - [`config`]: the one TOML file that describes an arm and how to reach it, parsed raw and then
+//!   validated, errors naming the file and the field; it builds the servo layer's `Arm`.
 //! - [`connect`]: the one way from a config to a running bus: the simulator spawned on a
 //!   pseudo-terminal, or a serial port, opened, limited, with the arm it drives.
+//!
+//! **The daemon and its clients**:
 //! - [`protocol`]: the daemon's JSON-lines wire format: requests, replies, error codes,
-//!   telemetry, events; shared by the daemon and its clients.
+//!   telemetry, events; the one set of types the daemon and every client use.
 //! - [`ros`]: the ROS 2 messages the arm speaks on a Zenoh network (`JointState`,
 //!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in.
-//! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread, the socket server on
-//!   tokio, the bounded seam between them.
+//! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread (held as parts: port,
+//!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
+//!   between them.
 //! - [`client`]: a blocking client of the daemon's socket (requests, replies, events, the
 //!   latest telemetry), for the one-shot commands, teleop and the demo.
 //! - [`teleop`]: the teleop terminal UI: pure input logic (keyboard hold-to-move, joystick),
 //!   the joystick device reader, the drawing.
 
+// The math core.
 pub mod chain;
-pub mod client;
-pub mod config;
-pub mod connect;
 pub mod control;
-pub mod daemon;
 pub mod metrics;
 pub mod motion;
+pub mod resolve;
+pub mod rope;
+
+// The paper's tooling.
 pub mod plot;
 pub mod problem;
-pub mod protocol;
-pub mod resolve;
-pub mod ros;
 pub mod scenario;
+
+// The servos.
 pub mod servo;
+
+// The arm's configuration and connection.
+pub mod config;
+pub mod connect;
+
+// The daemon and its clients.
+pub mod client;
+pub mod daemon;
+pub mod protocol;
+pub mod ros;
 pub mod teleop;

@@ -4,9 +4,9 @@
 
 use snakectl::chain::Vec2;
 use snakectl::metrics;
-use snakectl::resolve::rope::{residuals, Objective, RopeOptimizer};
 use snakectl::resolve::sequential::pull_free;
 use snakectl::resolve::tractrix::{distance_step, Propagation};
+use snakectl::rope::{residuals, Objective, RopeOptimizer};
 
 fn all_objectives() -> [Objective; 5] {
     [

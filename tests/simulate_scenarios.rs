@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use snakectl::resolve::rope::Objective;
+use snakectl::rope::Objective;
 use snakectl::scenario::table::Table;
 use snakectl::scenario::{rotations, Run, Scenario, StrategySpec};
 

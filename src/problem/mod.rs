@@ -2,7 +2,7 @@
 //!
 //! A problem is a chain (links, base pose, limits), a start pose, a tip target and how to
 //! resolve it. A free base (a rope) is resolved by default by the overall optimization of
-//! [`crate::resolve::rope`] under an objective (`"m1"`..`"m5"`, default `"m2"`, the paper's);
+//! [`crate::rope`] under an objective (`"m1"`..`"m5"`, default `"m2"`, the paper's);
 //! `"m3"` and `"m5"` need a `companion_weight` (the weight of M1 added to them), which the
 //! others refuse. Parsing is strict: unknown keys, wrong lengths, non-finite numbers, magnitudes
 //! above [`MAX_MAGNITUDE`] and inconsistent limits are refused with a [`ProblemError`] naming the
@@ -15,10 +15,10 @@ use serde::{Deserialize, Serialize};
 use crate::chain::{Chain, ChainError, JointLimit, Vec2, MAX_MAGNITUDE};
 use crate::metrics::{self, Metrics};
 use crate::resolve::overall::{Overall, OverallMode, OverallOptions};
-use crate::resolve::rope::{Objective, RopeOptimizer, RopeReport};
 use crate::resolve::sequential::{pull_free, Sequential, SequentialOptions};
 use crate::resolve::tractrix::Propagation;
 use crate::resolve::{solve_steps, Resolver, Strategy};
+use crate::rope::{Objective, RopeOptimizer, RopeReport};
 
 /// A refused problem: the field at fault and what is wrong with it. Displays on one line.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -227,7 +227,7 @@ pub fn parse_objective(
     }
     let name = name.unwrap_or("m2");
     Objective::from_name(name, companion_weight).map_err(|e| {
-        use crate::resolve::rope::ObjectiveError as E;
+        use crate::rope::ObjectiveError as E;
         let field = match e {
             E::Unknown { .. } => "objective",
             _ => "companion_weight",

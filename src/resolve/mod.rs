@@ -11,7 +11,6 @@
 //! the next tip target. [`solve_steps`] splits a long move into straight sub-moves for either.
 
 pub mod overall;
-pub mod rope;
 pub mod sequential;
 pub mod tractrix;
 

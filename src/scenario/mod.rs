@@ -47,9 +47,9 @@ use serde::Deserialize;
 
 use crate::chain::{wrap_angle, Vec2, MAX_MAGNITUDE};
 use crate::metrics::{self, Metrics};
-use crate::resolve::rope::{Objective, RopeOptimizer};
 use crate::resolve::sequential::pull_free;
 use crate::resolve::tractrix::Propagation;
+use crate::rope::{Objective, RopeOptimizer};
 
 use curve::Curve;
 use expr::Expr;
@@ -458,7 +458,7 @@ impl Scenario {
                     }
                 }
             }
-            let (l, _) = crate::resolve::rope::residuals(&current, &self.links, target);
+            let (l, _) = crate::rope::residuals(&current, &self.links, target);
             length_residual = length_residual.max(l);
             frames.push(current.clone());
         }
@@ -762,7 +762,7 @@ fn strategy_of(cx: &Ctx, i: usize, s: &RawStrategy) -> Result<StrategySpec, Scen
             Objective::from_name(name, s.companion_weight)
                 .map(StrategySpec::Overall)
                 .map_err(|e| {
-                    use crate::resolve::rope::ObjectiveError as E;
+                    use crate::rope::ObjectiveError as E;
                     let name = match e {
                         E::Unknown { .. } => "objective",
                         _ => "companion_weight",

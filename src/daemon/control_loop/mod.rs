@@ -1,7 +1,7 @@
 //! The control loop's thread: start-up, the fixed-rate cycle, and a shut-down that runs on every
 //! exit, a panic included.
 //!
-//! The loop is held as parts, each owning one concern, and [`Cycle`] only keeps their order:
+//! The loop is held as parts, each owning one concern, and `Cycle` only keeps their order:
 //! - [`port`]: the bus (generic over [`ServoBus`]), reopening it, the Bus Watchdog's contact;
 //! - [`health`]: pure: each servo's error budget in time, its fault, its warnings;
 //! - [`supervisor`]: the arm's mode as one enum (operating, torque off, fault, estop) and the

@@ -39,10 +39,10 @@
 //! tolerance; hitting [`RopeOptions::max_iterations`] in a stage flags the answer as not
 //! converged. [`RopeReport`] carries the residuals.
 
-use super::sequential::sweep;
-use super::tractrix::Propagation;
 use crate::chain::{nearest_representative, Vec2};
 use crate::metrics::{self, Metrics};
+use crate::resolve::sequential::sweep;
+use crate::resolve::tractrix::Propagation;
 
 /// The objective of the overall rope optimization.
 #[derive(Debug, Clone, Copy, PartialEq)]
