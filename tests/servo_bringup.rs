@@ -13,7 +13,7 @@ use std::time::Duration;
 use servo_support::{sim_rig, Rig, TIMEOUT};
 use snakectl::config::Config;
 use snakectl::servo::arm::{Arm, BringUpError, BringUpOptions, Refusal};
-use snakectl::servo::limits::{Limited, Strategy};
+use snakectl::servo::limits::{LimitPolicy, Limited};
 use snakectl::servo::record::{Instruction, Recording};
 use snakectl::servo::units;
 use snakectl::servo::{Register, ServoBus, ServoError};
@@ -72,7 +72,7 @@ fn limited<'a>(
     rig: &'a mut Rig,
     arm: &Arm,
 ) -> Limited<&'a mut snakectl::servo::dynamixel::DynamixelBus> {
-    arm.limited(&mut rig.bus, Strategy::Clamp)
+    arm.limited(&mut rig.bus, LimitPolicy::Clamp)
 }
 
 /// Every joint's servo reads Torque Enable = `expected`.
@@ -167,7 +167,7 @@ fn bring_up_sends_its_instructions_in_the_safe_order() {
     let mut rig = rig(&config, |_| {});
     let mut rec = Recording::new(&mut rig.bus);
     arm.bring_up(
-        &mut arm.limited(&mut rec, Strategy::Clamp),
+        &mut arm.limited(&mut rec, LimitPolicy::Clamp),
         BringUpOptions::default(),
     )
     .unwrap();
@@ -518,13 +518,13 @@ fn bring_up_torque_and_shut_down_ride_out_a_lossy_bus() {
         let mut rec = Recording::new(&mut rig.bus);
         let up = arm
             .bring_up(
-                &mut arm.limited(&mut rec, Strategy::Clamp),
+                &mut arm.limited(&mut rec, LimitPolicy::Clamp),
                 BringUpOptions::default(),
             )
             .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
         exchanges += rec.log().len();
         retries += up.retries;
-        let mut bus = arm.limited(&mut rec, Strategy::Clamp);
+        let mut bus = arm.limited(&mut rec, LimitPolicy::Clamp);
         arm.set_torque(&mut bus, false).unwrap();
         arm.set_torque(&mut bus, true).unwrap();
         arm.shut_down(&mut bus).unwrap();
@@ -556,7 +556,7 @@ fn the_limits_wrapper_clamps_or_refuses_on_the_real_bus() {
     };
     let before = goal(&rig);
     {
-        let mut refuse = arm.limited(&mut rig.bus, Strategy::Refuse);
+        let mut refuse = arm.limited(&mut rig.bus, LimitPolicy::Refuse);
         let err = arm
             .write_pose(&mut refuse, &[0.0, 1.4, 0.0, 0.0])
             .unwrap_err();
@@ -573,7 +573,7 @@ fn the_limits_wrapper_clamps_or_refuses_on_the_real_bus() {
     rig.settle(Duration::ZERO);
     assert_eq!(goal(&rig), before, "a refused pose writes nothing");
     {
-        let mut clamp = arm.limited(&mut rig.bus, Strategy::Clamp);
+        let mut clamp = arm.limited(&mut rig.bus, LimitPolicy::Clamp);
         arm.write_pose(&mut clamp, &[0.0, 1.4, 0.0, 0.0]).unwrap();
         assert_eq!(clamp.clamped(), 1);
     }

@@ -42,7 +42,7 @@ pub enum ConfigError {
         /// Dotted path of the field, e.g. `joint[3].link_m` or `arm.home_rad[2]`.
         field: String,
         /// What is wrong, with the value.
-        problem: Problem,
+        problem: FieldProblem,
     },
     /// The chain model refused the geometry (a check the config module missed).
     #[error("{}: {source}", path.display())]
@@ -57,7 +57,7 @@ pub enum ConfigError {
 /// What is wrong with one field. Each variant carries the offending value.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
-pub enum Problem {
+pub enum FieldProblem {
     /// No `[[joint]]` table at all.
     #[error("no [[joint]] tables: an arm needs at least one joint")]
     NoJoints,

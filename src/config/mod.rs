@@ -21,7 +21,7 @@ pub mod zenoh_table;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
-pub use error::{ConfigError, Problem};
+pub use error::{ConfigError, FieldProblem};
 pub use raw::{BusKind, HardwareError};
 pub use zenoh_table::{Endpoint, Host, Zenoh, ZenohMode};
 
@@ -274,7 +274,7 @@ struct Checker<'a> {
 }
 
 impl Checker<'_> {
-    fn invalid(&self, field: impl Into<String>, problem: Problem) -> ConfigError {
+    fn invalid(&self, field: impl Into<String>, problem: FieldProblem) -> ConfigError {
         ConfigError::Invalid {
             path: self.path.to_path_buf(),
             field: field.into(),
@@ -295,7 +295,7 @@ impl Checker<'_> {
         if finite_within(value) && value > 0.0 {
             Ok(value)
         } else {
-            Err(self.invalid(field, Problem::NotPositive { value }))
+            Err(self.invalid(field, FieldProblem::NotPositive { value }))
         }
     }
 
@@ -303,7 +303,7 @@ impl Checker<'_> {
         if finite_within(value) && value >= 0.0 {
             Ok(value)
         } else {
-            Err(self.invalid(field, Problem::Negative { value }))
+            Err(self.invalid(field, FieldProblem::Negative { value }))
         }
     }
 
@@ -311,7 +311,7 @@ impl Checker<'_> {
         if finite_within(value) {
             Ok(value)
         } else {
-            Err(self.invalid(field, Problem::NotFinite { value }))
+            Err(self.invalid(field, FieldProblem::NotFinite { value }))
         }
     }
 
@@ -323,7 +323,7 @@ impl Checker<'_> {
             .map(|(i, j)| self.joint(i + 1, j))
             .collect::<Result<Vec<_>, _>>()?;
         if joints.is_empty() {
-            return Err(self.invalid("joint", Problem::NoJoints));
+            return Err(self.invalid("joint", FieldProblem::NoJoints));
         }
         self.unique_ids(&joints)?;
         let (base, heading, home) = self.arm(&raw.arm, &joints)?;
@@ -368,13 +368,16 @@ impl Checker<'_> {
         let min_rad = self.finite(field("min_rad"), raw.min_rad)?;
         let max_rad = self.finite(field("max_rad"), raw.max_rad)?;
         if min_rad >= max_rad {
-            return Err(self.invalid(field("max_rad"), Problem::EmptyRange { min_rad, max_rad }));
+            return Err(self.invalid(
+                field("max_rad"),
+                FieldProblem::EmptyRange { min_rad, max_rad },
+            ));
         }
         let id = match raw.id {
             None => None,
             Some(v) => match u8::try_from(v) {
                 Ok(id) if (MIN_SERVO_ID..=MAX_ID).contains(&id) => Some(id),
-                _ => return Err(self.invalid(field("id"), Problem::BadId { value: v })),
+                _ => return Err(self.invalid(field("id"), FieldProblem::BadId { value: v })),
             },
         };
         let model = match &raw.model {
@@ -384,7 +387,7 @@ impl Checker<'_> {
                 None => {
                     return Err(self.invalid(
                         field("model"),
-                        Problem::UnknownModel {
+                        FieldProblem::UnknownModel {
                             value: name.clone(),
                             known: model_names(),
                         },
@@ -397,7 +400,7 @@ impl Checker<'_> {
             _ => {
                 return Err(self.invalid(
                     field("offset_ticks"),
-                    Problem::OutOfRange {
+                    FieldProblem::OutOfRange {
                         value: raw.offset_ticks,
                         expected: "must lie within one turn, -4095..=4095",
                     },
@@ -425,7 +428,7 @@ impl Checker<'_> {
                 if *slot != 0 {
                     return Err(self.invalid(
                         format!("joint[{}].id", i + 1),
-                        Problem::DuplicateId { id, other: *slot },
+                        FieldProblem::DuplicateId { id, other: *slot },
                     ));
                 }
                 *slot = i + 1;
@@ -443,7 +446,7 @@ impl Checker<'_> {
                 if home.len() != joints.len() {
                     return Err(self.invalid(
                         "arm.home_rad",
-                        Problem::Count {
+                        FieldProblem::Count {
                             got: home.len(),
                             expected: joints.len(),
                         },
@@ -453,7 +456,7 @@ impl Checker<'_> {
                     if !j.limit.contains(value) {
                         return Err(self.invalid(
                             format!("arm.home_rad[{}]", i + 1),
-                            Problem::OutsideLimits {
+                            FieldProblem::OutsideLimits {
                                 joint: i + 1,
                                 value,
                                 min_rad: j.limit.lo,
@@ -472,7 +475,7 @@ impl Checker<'_> {
                 {
                     return Err(self.invalid(
                         "arm.home_rad",
-                        Problem::ZeroOutsideLimits {
+                        FieldProblem::ZeroOutsideLimits {
                             joint: i + 1,
                             min_rad: j.limit.lo,
                             max_rad: j.limit.hi,
@@ -491,7 +494,7 @@ impl Checker<'_> {
             let Some(id) = j.id else {
                 return Err(self.invalid(
                     format!("joint[{}].id", i + 1),
-                    Problem::Missing {
+                    FieldProblem::Missing {
                         why: "every joint needs a servo id when the file has a [bus]",
                     },
                 ));
@@ -499,7 +502,7 @@ impl Checker<'_> {
             let Some(model) = j.model else {
                 return Err(self.invalid(
                     format!("joint[{}].model", i + 1),
-                    Problem::Missing {
+                    FieldProblem::Missing {
                         why: "every joint needs a servo model when the file has a [bus]",
                     },
                 ));
@@ -514,7 +517,7 @@ impl Checker<'_> {
             (BusKind::Dynamixel, None) => {
                 return Err(self.invalid(
                     "bus.port",
-                    Problem::Missing {
+                    FieldProblem::Missing {
                         why: "kind = \"dynamixel\" needs the serial device, e.g. /dev/ttyUSB0",
                     },
                 ))
@@ -524,7 +527,7 @@ impl Checker<'_> {
         if !BAUD_RATES.contains(&raw.baud) {
             return Err(self.invalid(
                 "bus.baud",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: raw.baud.into(),
                     expected: "must be one of 9600, 57600, 115200, 1000000, 2000000, 3000000, \
                                4000000, 4500000",
@@ -534,7 +537,7 @@ impl Checker<'_> {
         if raw.return_delay_us % 2 != 0 || raw.return_delay_us > 508 {
             return Err(self.invalid(
                 "bus.return_delay_us",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: raw.return_delay_us.into(),
                     expected: "must be even and at most 508 (the register counts 2 µs)",
                 },
@@ -551,7 +554,7 @@ impl Checker<'_> {
         {
             return Err(self.invalid(
                 "bus.watchdog_ms",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: raw.watchdog_ms.into(),
                     expected: "must be 0 (off) or a multiple of 20 up to 2540",
                 },
@@ -560,7 +563,7 @@ impl Checker<'_> {
         if !(1..=1000).contains(&raw.reply_timeout_ms) {
             return Err(self.invalid(
                 "bus.reply_timeout_ms",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: raw.reply_timeout_ms.into(),
                     expected: "must lie in 1..=1000",
                 },
@@ -605,7 +608,7 @@ impl Checker<'_> {
         Duration::try_from_secs_f64(s).map_err(|_| {
             self.invalid(
                 field,
-                Problem::Outside {
+                FieldProblem::Outside {
                     value: s,
                     lo: 0.0,
                     hi: u64::MAX as f64,
@@ -649,15 +652,16 @@ impl Checker<'_> {
         };
         if let Some(id) = id {
             if !joints.iter().any(|j| j.id == Some(id)) {
-                return Err(self.invalid(field("id"), Problem::UnknownId { id }));
+                return Err(self.invalid(field("id"), FieldProblem::UnknownId { id }));
             }
         }
         let from = self.seconds(field("at_s"), at_s)?;
         let until = match until_s {
             Some(until_s) if !(finite_within(until_s) && until_s > at_s) => {
-                return Err(
-                    self.invalid(field("until_s"), Problem::EndsBeforeStart { at_s, until_s })
-                )
+                return Err(self.invalid(
+                    field("until_s"),
+                    FieldProblem::EndsBeforeStart { at_s, until_s },
+                ))
             }
             Some(until_s) => Some(self.seconds(field("until_s"), until_s)?),
             None => None,
@@ -666,7 +670,7 @@ impl Checker<'_> {
             if !(0.0..=1.0).contains(&value) {
                 return Err(self.invalid(
                     field("fraction"),
-                    Problem::Outside {
+                    FieldProblem::Outside {
                         value,
                         lo: 0.0,
                         hi: 1.0,
@@ -687,7 +691,7 @@ impl Checker<'_> {
         if rate_hz > MAX_RATE_HZ {
             return Err(self.invalid(
                 "control.rate_hz",
-                Problem::Outside {
+                FieldProblem::Outside {
                     value: rate_hz,
                     lo: 0.0,
                     hi: MAX_RATE_HZ,
@@ -699,7 +703,7 @@ impl Checker<'_> {
         if raw.deadman_ms == 0 {
             return Err(self.invalid(
                 "control.deadman_ms",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: 0,
                     expected: "must be at least 1",
                 },
@@ -712,7 +716,7 @@ impl Checker<'_> {
             if value == 0 {
                 return Err(self.invalid(
                     field,
-                    Problem::OutOfRange {
+                    FieldProblem::OutOfRange {
                         value: 0,
                         expected: "must be at least 1",
                     },
@@ -726,7 +730,7 @@ impl Checker<'_> {
         if raw.substeps == 0 {
             return Err(self.invalid(
                 "control.substeps",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: 0,
                     expected: "must be at least 1",
                 },
@@ -756,13 +760,13 @@ impl Checker<'_> {
         match (raw.max_silence_ms, raw.max_missed_reads) {
             (Some(_), Some(_)) => Err(self.invalid(
                 "control.max_missed_reads",
-                Problem::Replaced {
+                FieldProblem::Replaced {
                     other: "control.max_silence_ms",
                 },
             )),
             (Some(0), None) => Err(self.invalid(
                 "control.max_silence_ms",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: 0,
                     expected: "must be at least 1",
                 },
@@ -770,7 +774,7 @@ impl Checker<'_> {
             (Some(ms), None) => Ok(Duration::from_millis(ms.into())),
             (None, Some(0)) => Err(self.invalid(
                 "control.max_missed_reads",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: 0,
                     expected: "must be at least 1",
                 },
@@ -795,7 +799,7 @@ impl Checker<'_> {
         let listen = raw.listen.parse::<SocketAddr>().map_err(|e| {
             self.invalid(
                 "server.listen",
-                Problem::BadAddress {
+                FieldProblem::BadAddress {
                     value: raw.listen.clone(),
                     reason: e.to_string(),
                 },
@@ -804,7 +808,7 @@ impl Checker<'_> {
         if raw.max_clients == 0 {
             return Err(self.invalid(
                 "server.max_clients",
-                Problem::OutOfRange {
+                FieldProblem::OutOfRange {
                     value: 0,
                     expected: "must be at least 1",
                 },

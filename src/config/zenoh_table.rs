@@ -11,7 +11,7 @@ use std::path::PathBuf;
 pub use super::raw::ZenohMode;
 
 use super::raw::{RawZenoh, DEFAULT_ZENOH_PUBLISH_HZ};
-use super::{finite_within, Checker, ConfigError, Problem};
+use super::{finite_within, Checker, ConfigError, FieldProblem};
 
 /// The validated `[zenoh]` (defaults, and `enabled = false`, when the table is absent).
 #[derive(Debug, Clone, PartialEq)]
@@ -201,7 +201,7 @@ impl Checker<'_> {
                     let bad = |reason: String| {
                         self.invalid(
                             field.clone(),
-                            Problem::BadEndpoint {
+                            FieldProblem::BadEndpoint {
                                 value: text.clone(),
                                 reason,
                             },
@@ -220,7 +220,7 @@ impl Checker<'_> {
         if let Some(reason) = prefix_problem(&raw.prefix) {
             return Err(self.invalid(
                 "zenoh.prefix",
-                Problem::BadPrefix {
+                FieldProblem::BadPrefix {
                     value: raw.prefix,
                     reason,
                 },
@@ -232,7 +232,7 @@ impl Checker<'_> {
             Some(value) => {
                 return Err(self.invalid(
                     "zenoh.publish_hz",
-                    Problem::AboveLoopRate { value, rate_hz },
+                    FieldProblem::AboveLoopRate { value, rate_hz },
                 ))
             }
         };
@@ -251,7 +251,7 @@ impl Checker<'_> {
             if let Some(exposure) = exposure {
                 return Err(self.invalid(
                     "zenoh.accept_commands",
-                    Problem::CommandsExposed { exposure },
+                    FieldProblem::CommandsExposed { exposure },
                 ));
             }
         }
@@ -260,7 +260,7 @@ impl Checker<'_> {
                 ZenohMode::Client if connect.is_empty() => {
                     return Err(self.invalid(
                         "zenoh.connect",
-                        Problem::Missing {
+                        FieldProblem::Missing {
                             why: "mode = \"client\" needs a router to connect to (or multicast \
                                   = true to scout for one)",
                         },
@@ -269,7 +269,7 @@ impl Checker<'_> {
                 ZenohMode::Peer if connect.is_empty() && listen.is_empty() => {
                     return Err(self.invalid(
                         "zenoh.listen",
-                        Problem::Missing {
+                        FieldProblem::Missing {
                             why: "with no listen, no connect and multicast = false, no other \
                                   session could reach the arm",
                         },

@@ -33,7 +33,7 @@ use snakectl_sim::{Clock, RealClock, SimConfig, SimHandle, Simulator};
 use crate::config::{BusKind, Config};
 use crate::servo::arm::Arm;
 use crate::servo::dynamixel::DynamixelBus;
-use crate::servo::limits::{Limited, Strategy};
+use crate::servo::limits::{LimitPolicy, Limited};
 use crate::servo::ServoError;
 
 pub use sim::{sim_config, SimBusError};
@@ -81,7 +81,7 @@ pub struct Options {
     /// The clock of a simulator started here (wall time unless a test advances its own).
     pub clock: Arc<dyn Clock>,
     /// What the limits wrapper does with a goal outside the joint limits.
-    pub strategy: Strategy,
+    pub strategy: LimitPolicy,
 }
 
 impl Default for Options {
@@ -89,7 +89,7 @@ impl Default for Options {
         Self {
             port: None,
             clock: Arc::new(RealClock),
-            strategy: Strategy::Clamp,
+            strategy: LimitPolicy::Clamp,
         }
     }
 }
@@ -158,7 +158,7 @@ pub fn reopen(
     port: &Path,
     baud: u32,
     arm: &Arm,
-    strategy: Strategy,
+    strategy: LimitPolicy,
 ) -> Result<Limited<DynamixelBus>, ConnectError> {
     Ok(arm.limited(open_port(port, baud)?, strategy))
 }

@@ -30,7 +30,7 @@ use std::time::Duration;
 use crate::chain::JointLimit;
 
 use super::clock::{Clock, RealClock};
-use super::limits::{Limited, Setting, Strategy, TickLimits, POSITION_MODE};
+use super::limits::{LimitPolicy, Limited, Setting, TickLimits, POSITION_MODE};
 use super::model::ServoModel;
 use super::units::{self, Calibration};
 use super::{
@@ -281,7 +281,7 @@ impl Arm {
     }
 
     /// `bus` wrapped so that no goal outside the joint limits is written.
-    pub fn limited<B: ServoBus>(&self, bus: B, strategy: Strategy) -> Limited<B> {
+    pub fn limited<B: ServoBus>(&self, bus: B, strategy: LimitPolicy) -> Limited<B> {
         Limited::new(bus, self.tick_limits(), strategy)
     }
 

@@ -1,7 +1,7 @@
 //! A safety wrapper: [`Limited`] implements [`ServoBus`] around another bus and is the only way
 //! the rest of the program reaches the servos.
 //!
-//! - No Goal Position outside a servo's limits gets through, with an explicit [`Strategy`]:
+//! - No Goal Position outside a servo's limits gets through, with an explicit [`LimitPolicy`]:
 //!   clamp the goal into the limits, or refuse the whole write. Every path a goal can take is
 //!   checked: [`ServoBus::write_goals`], a Sync Write of Goal Position, single writes. A servo
 //!   without known limits gets no goal at all.
@@ -20,7 +20,7 @@ use super::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Va
 
 /// What to do with a goal outside the limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Strategy {
+pub enum LimitPolicy {
     /// Move it to the nearest limit and write that.
     Clamp,
     /// Write nothing and return [`ServoError::OutsideLimits`].
@@ -67,7 +67,7 @@ pub fn is_protected(register: Register) -> bool {
 pub struct Limited<B> {
     inner: B,
     limits: HashMap<u8, TickLimits>,
-    strategy: Strategy,
+    strategy: LimitPolicy,
     clamped: u64,
     /// Checked goals of the last write, reused so a warm write allocates nothing.
     checked: Vec<Goal>,
@@ -79,7 +79,7 @@ impl<B: ServoBus> Limited<B> {
     pub fn new(
         inner: B,
         limits: impl IntoIterator<Item = (u8, TickLimits)>,
-        strategy: Strategy,
+        strategy: LimitPolicy,
     ) -> Self {
         Self {
             inner,
@@ -92,7 +92,7 @@ impl<B: ServoBus> Limited<B> {
     }
 
     /// The strategy.
-    pub fn strategy(&self) -> Strategy {
+    pub fn strategy(&self) -> LimitPolicy {
         self.strategy
     }
 
@@ -117,11 +117,11 @@ impl<B: ServoBus> Limited<B> {
             return Ok(ticks);
         }
         match self.strategy {
-            Strategy::Clamp => {
+            LimitPolicy::Clamp => {
                 self.clamped += 1;
                 Ok(ticks.clamp(lo, hi))
             }
-            Strategy::Refuse => Err(ServoError::OutsideLimits {
+            LimitPolicy::Refuse => Err(ServoError::OutsideLimits {
                 id,
                 ticks: i32::try_from(ticks).unwrap_or(if ticks < 0 { i32::MIN } else { i32::MAX }),
                 min: lim.min,
@@ -276,7 +276,7 @@ mod tests {
     #[test]
     fn clamp_moves_goals_to_the_nearest_limit() {
         let mut rec = Recording::new(NullBus::new(1060));
-        let mut bus = Limited::new(&mut rec, limits(), Strategy::Clamp);
+        let mut bus = Limited::new(&mut rec, limits(), LimitPolicy::Clamp);
         bus.write_goals(&[Goal { id: 1, ticks: 3500 }, Goal { id: 2, ticks: 10 }])
             .unwrap();
         bus.write(1, Register::GoalPosition, 10, T).unwrap();
@@ -299,7 +299,7 @@ mod tests {
     #[test]
     fn refuse_writes_nothing_and_names_the_servo() {
         let mut rec = Recording::new(NullBus::new(1060));
-        let mut bus = Limited::new(&mut rec, limits(), Strategy::Refuse);
+        let mut bus = Limited::new(&mut rec, limits(), LimitPolicy::Refuse);
         let err = bus
             .write_goals(&[Goal { id: 2, ticks: 5 }, Goal { id: 1, ticks: 999 }])
             .unwrap_err();
@@ -330,7 +330,7 @@ mod tests {
 
     #[test]
     fn a_servo_without_limits_gets_no_goal() {
-        for strategy in [Strategy::Clamp, Strategy::Refuse] {
+        for strategy in [LimitPolicy::Clamp, LimitPolicy::Refuse] {
             let mut rec = Recording::new(NullBus::new(1060));
             let mut bus = Limited::new(&mut rec, limits(), strategy);
             let err = bus.write_goals(&[Goal { id: 9, ticks: 2048 }]).unwrap_err();
@@ -348,7 +348,7 @@ mod tests {
     #[test]
     fn raw_writes_to_the_registers_bring_up_owns_are_refused() {
         let mut rec = Recording::new(NullBus::new(1060));
-        let mut bus = Limited::new(&mut rec, limits(), Strategy::Clamp);
+        let mut bus = Limited::new(&mut rec, limits(), LimitPolicy::Clamp);
         for register in [
             Register::MinPositionLimit,
             Register::MaxPositionLimit,

@@ -67,7 +67,7 @@ use crate::resolve::Strategy;
 use crate::servo::arm::{Arm, BringUpOptions, OnExit};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
-use crate::servo::limits::{Limited, Strategy as LimitStrategy};
+use crate::servo::limits::{LimitPolicy, Limited};
 use crate::servo::{units, Goal, ServoBus, States};
 
 use self::health::{Budget, Change, Health};
@@ -126,7 +126,7 @@ fn open(
     let baud = bus.baud();
     let opener: Opener<DynamixelBus> = Box::new(move |arm: &Arm| {
         let path = path.as_deref().ok_or(ReopenError::NoPath)?;
-        Ok(connect::reopen(path, baud, arm, LimitStrategy::Clamp)?)
+        Ok(connect::reopen(path, baud, arm, LimitPolicy::Clamp)?)
     });
     Ok(Parts {
         bus,

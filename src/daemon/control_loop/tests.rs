@@ -16,7 +16,7 @@ use crate::config::Config;
 use crate::daemon::link::{Envelope, Handle};
 use crate::protocol::{Cmd, Event, EventKind, Rejection, State};
 use crate::servo::clock::{Clock, ManualClock};
-use crate::servo::limits::Strategy as LimitStrategy;
+use crate::servo::limits::LimitPolicy;
 use crate::servo::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
 
 const MS: Duration = Duration::from_millis(1);
@@ -217,13 +217,13 @@ impl Rig {
         }
         let reopen = bus.clone();
         let parts = Parts {
-            bus: arm.limited(bus.clone(), LimitStrategy::Clamp),
+            bus: arm.limited(bus.clone(), LimitPolicy::Clamp),
             arm,
             opener: Box::new(move |arm| {
                 if reopen.wire().port_gone {
                     return Err(ReopenError::NoPath);
                 }
-                Ok(arm.limited(reopen.clone(), LimitStrategy::Clamp))
+                Ok(arm.limited(reopen.clone(), LimitPolicy::Clamp))
             }),
             clock: ManualClock::new(),
             sim: None,
