@@ -43,7 +43,7 @@ pub(crate) struct Dual<'a> {
     pub jx: &'a [f64],
     /// Second row of the tip Jacobian.
     pub jy: &'a [f64],
-    /// Centre of the proximity term (theta0 for the SQP step, theta for a Gauss-Newton step).
+    /// Centre of the proximity term (`theta0`: the SQP step measures metric 3 from it).
     pub z: &'a [f64],
     /// Linearization point.
     pub theta: &'a [f64],
