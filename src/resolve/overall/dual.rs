@@ -20,13 +20,30 @@
 
 use crate::chain::Vec2;
 
+/// Most semismooth Newton steps of one solve: a solve settles in a handful, the cap only bounds
+/// a pathological one.
+const MAX_STEPS: usize = 60;
+/// Relative shift of the Newton matrix's diagonal that keeps the direction defined when the
+/// free columns are parallel (the line search keeps it an ascent step either way).
+const REGULARIZATION: f64 = 1e-14;
+/// Halvings of an exact-form step before it fails: `2^-40` of a step is below its round-off.
+const MAX_HALVINGS: usize = 40;
+/// Armijo's sufficient-increase fraction for the dual (the customary value).
+const ARMIJO: f64 = 1e-4;
+/// A full step that keeps the clipping pattern has solved the dual once `|F|` fell by this
+/// factor: the dual is a quadratic there, so what is left is round-off.
+const FULL_STEP_SOLVED: f64 = 1e-9;
+/// Elastic form: `|F|` within this fraction of the correction wanted counts as settled (its
+/// multiplier can be huge, which puts a round-off floor under `F`).
+const ELASTIC_SETTLED: f64 = 1e-6;
+
 /// The data of one linearized subproblem (all slices have one entry per joint).
 pub(crate) struct Dual<'a> {
     /// First row of the tip Jacobian.
     pub jx: &'a [f64],
     /// Second row of the tip Jacobian.
     pub jy: &'a [f64],
-    /// Centre of the proximity term (theta0 for the SQP step, theta for a Gauss-Newton step).
+    /// Centre of the proximity term (`theta0`: the SQP step measures metric 3 from it).
     pub z: &'a [f64],
     /// Linearization point.
     pub theta: &'a [f64],
@@ -42,10 +59,24 @@ pub(crate) struct Dual<'a> {
 
 /// One evaluation of the dual at a multiplier.
 struct Eval {
+    /// `F(mu)`, the negative gradient of the dual.
     f: Vec2,
+    /// The generalized Jacobian of `F`, symmetric: entries (0,0), (0,1), (1,1).
     m: [f64; 3],
+    /// The dual function's value.
     q: f64,
+    /// Whether any joint changed its clipping state.
     changed: bool,
+}
+
+/// How one backtracking step of the exact form ended.
+enum Ascent {
+    /// The multiplier moved.
+    Moved,
+    /// A full step kept the clipping pattern: the dual is solved.
+    Solved,
+    /// The solve ends with this answer.
+    Done(bool),
 }
 
 impl Dual<'_> {
@@ -53,7 +84,7 @@ impl Dual<'_> {
     /// elastic form (whose multiplier can be huge, so that `F` has a round-off floor), within a
     /// millionth of the correction wanted; such a step is only a direction for the line search.
     fn settled(&self, f_norm: f64, tol: f64) -> bool {
-        f_norm <= tol || (self.rho_inv > 0.0 && f_norm <= 1e-6 * self.c.norm())
+        f_norm <= tol || (self.rho_inv > 0.0 && f_norm <= ELASTIC_SETTLED * self.c.norm())
     }
 
     /// Writes `x(mu)` and the clipping state, returns `F`, the generalized Jacobian, `q`, and
@@ -165,29 +196,16 @@ impl Dual<'_> {
         mu_cap: f64,
         brk: &mut [(f64, f64)],
     ) -> bool {
+        let bounded = |mu: &[f64; 2]| mu[0].abs() <= mu_cap && mu[1].abs() <= mu_cap;
         state.iter_mut().for_each(|s| *s = 2);
         let mut e = self.eval(*mu, x, state);
-        for _ in 0..60 {
+        for _ in 0..MAX_STEPS {
             if e.f.norm() <= tol {
                 return true;
             }
-            let tr = e.m[0] + e.m[2];
-            if tr.is_nan() || tr <= 0.0 {
+            let Some(d) = Self::newton_direction(&e) else {
                 return false;
-            }
-            // A tiny shift keeps the direction defined when the free columns are parallel; the
-            // line search keeps it an ascent step either way.
-            let reg = 1e-14 * tr;
-            let (m0, m1, m2) = (e.m[0] + reg, e.m[1], e.m[2] + reg);
-            let det = m0 * m2 - m1 * m1;
-            if det.is_nan() || det <= 0.0 {
-                return false;
-            }
-            let d = [
-                -(m2 * e.f.x - m1 * e.f.y) / det,
-                -(m0 * e.f.y - m1 * e.f.x) / det,
-            ];
-            let slope = -(e.f.x * d[0] + e.f.y * d[1]);
+            };
             if self.rho_inv > 0.0 {
                 // Elastic form: the dual is strictly concave along every line, so the step goes
                 // straight to the maximum along the Newton direction. With fewer than two
@@ -205,37 +223,73 @@ impl Dual<'_> {
                 e = te;
                 continue;
             }
-            let mut alpha = 1.0;
-            let mut accepted = false;
-            for _ in 0..40 {
-                let trial = [mu[0] + alpha * d[0], mu[1] + alpha * d[1]];
-                let t = self.eval(trial, x, state);
-                // Same clipping pattern before and after a full step: the dual is a quadratic
-                // there, and unless the free columns are parallel the step solved it up to
-                // round-off.
-                let full_same = alpha == 1.0
-                    && !t.changed
-                    && (t.f.norm() <= tol || t.f.norm() <= 1e-9 * e.f.norm());
-                if t.q >= e.q + 1e-4 * alpha * slope || full_same {
-                    if trial == *mu || t.q <= e.q {
-                        // Round-off floor: the step no longer moves the multiplier or raises q.
-                        return self.settled(e.f.norm(), tol);
-                    }
-                    *mu = trial;
-                    e = t;
-                    accepted = true;
-                    if full_same {
-                        return mu[0].abs() <= mu_cap && mu[1].abs() <= mu_cap;
-                    }
-                    break;
-                }
-                alpha *= 0.5;
-            }
-            let bounded = mu[0].abs() <= mu_cap && mu[1].abs() <= mu_cap;
-            if !accepted || !bounded {
-                return false;
+            match self.backtrack(mu, &mut e, d, x, state, tol) {
+                Ascent::Moved if bounded(mu) => {}
+                Ascent::Moved => return false,
+                Ascent::Solved => return bounded(mu),
+                Ascent::Done(ok) => return ok,
             }
         }
         e.f.norm() <= tol
+    }
+
+    /// The semismooth Newton direction `-(M + reg I)^-1 F` at `e`, with `M` the generalized
+    /// Jacobian; `None` when `M` is not positive definite (no joint free in exact form, or
+    /// round-off).
+    fn newton_direction(e: &Eval) -> Option<[f64; 2]> {
+        let tr = e.m[0] + e.m[2];
+        if tr.is_nan() || tr <= 0.0 {
+            return None;
+        }
+        let reg = REGULARIZATION * tr;
+        let (m0, m1, m2) = (e.m[0] + reg, e.m[1], e.m[2] + reg);
+        let det = m0 * m2 - m1 * m1;
+        if det.is_nan() || det <= 0.0 {
+            return None;
+        }
+        Some([
+            -(m2 * e.f.x - m1 * e.f.y) / det,
+            -(m0 * e.f.y - m1 * e.f.x) / det,
+        ])
+    }
+
+    /// Exact form: backtracking from the full Newton step `d` until the dual rises enough
+    /// (Armijo), updating `mu` and `e` to the accepted step.
+    fn backtrack(
+        &self,
+        mu: &mut [f64; 2],
+        e: &mut Eval,
+        d: [f64; 2],
+        x: &mut [f64],
+        state: &mut [i8],
+        tol: f64,
+    ) -> Ascent {
+        let slope = -(e.f.x * d[0] + e.f.y * d[1]);
+        let mut alpha = 1.0;
+        for _ in 0..MAX_HALVINGS {
+            let trial = [mu[0] + alpha * d[0], mu[1] + alpha * d[1]];
+            let t = self.eval(trial, x, state);
+            // Same clipping pattern before and after a full step: the dual is a quadratic
+            // there, and unless the free columns are parallel the step solved it up to
+            // round-off.
+            let full_same = alpha == 1.0
+                && !t.changed
+                && (t.f.norm() <= tol || t.f.norm() <= FULL_STEP_SOLVED * e.f.norm());
+            if t.q >= e.q + ARMIJO * alpha * slope || full_same {
+                if trial == *mu || t.q <= e.q {
+                    // Round-off floor: the step no longer moves the multiplier or raises q.
+                    return Ascent::Done(self.settled(e.f.norm(), tol));
+                }
+                *mu = trial;
+                *e = t;
+                return if full_same {
+                    Ascent::Solved
+                } else {
+                    Ascent::Moved
+                };
+            }
+            alpha *= 0.5;
+        }
+        Ascent::Done(false)
     }
 }

@@ -22,6 +22,10 @@
 //! same inertia: the signs of the pivots of an `LDL^T` factorization of `T` count the negative
 //! eigenvalues of `H`, which the second-order check of the solver needs.
 
+/// A pivot below this fraction of its row's size (`2 + |g_a| + |g_a+1|`) is round-off: `H` is
+/// then too near singular for its solve, or its inertia, to be trusted.
+const PIVOT_FLOOR: f64 = 1e-13;
+
 /// An `LDL^T` factorization of the tridiagonal `T` for a given `g` (pivots only: the
 /// off-diagonal is -1, so the unit factor is `l_a = -1 / piv_{a-1}`).
 pub(crate) struct Factor {
@@ -44,7 +48,7 @@ pub(crate) fn factor(g: &[f64], piv: &mut [f64]) -> Option<Factor> {
         };
         let p = if a == 0 { diag } else { diag - 1.0 / prev };
         let scale = 2.0 + g[a].abs() + if a + 1 < m { g[a + 1].abs() } else { 0.0 };
-        if !p.is_finite() || p.abs() <= 1e-13 * scale {
+        if !p.is_finite() || p.abs() <= PIVOT_FLOOR * scale {
             return None;
         }
         if p < 0.0 {

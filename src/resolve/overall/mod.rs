@@ -5,57 +5,177 @@
 //! subject to tip(theta) = target,   lo_i <= theta_i <= hi_i
 //! ```
 //!
-//! Method (every iteration is O(n); nothing is allocated once the scratch is sized for n):
-//! - **SQP step.** The linearized subproblem, with the identity as Hessian, is solved through
-//!   its two-variable dual `theta(mu) = clip(theta0 + J^T mu, lo, hi)` by semismooth Newton
-//!   (module `dual`); without limits that is the minimum-norm step with the 2 x 2 Schur complement
-//!   `J J^T`. When the linearized constraint cannot be met inside the box (or `J` loses rank)
-//!   the elastic form with a penalized constraint is solved instead (the stiffest of a few
-//!   weights whose dual settles; its dual steps to the exact maximum along each Newton
-//!   direction, a few evaluations per solve). The step is globalized by an Armijo line search on the merit
-//!   `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu` raised above the multiplier norm
-//!   whenever needed and, after an exact step, brought back down when it is more than ten times
-//!   what that step's multiplier needs: an elastic step's multiplier can be huge, and a `nu`
-//!   kept from it would leave the line search accepting only tiny steps.
-//! - **Newton step.** Near the solution, exact Newton on the optimality conditions
-//!   `theta = clip(theta0 + J^T mu)`, `tip = target`: the multiplier picks the active set (a
-//!   joint is held at a bound when `theta0 + J^T mu` lies on or beyond it, else free), the held
-//!   joints move onto their bounds, and the free ones take the Newton step with the Lagrangian
-//!   Hessian `I + G`, `G_ab = g_max(a,b)`, solved in O(n) through prefix sums (module
-//!   `hessian`), clipped into the box. It is taken only when the Hessian's inertia says the
-//!   point is a local minimum on the constraint's tangent and the residual of the optimality
-//!   conditions at least halves; otherwise the SQP step is used. With the active set read from
-//!   the multiplier, a joint that reaches or leaves a limit near the optimum does not stop
-//!   Newton, so limited solves converge as fast as unlimited ones.
-//! - **Stopping rule.** A local solve has converged when the tip is within the tip tolerance
-//!   and the optimality conditions hold within the stationarity tolerance. It gives up (not
-//!   converged) at the iteration cap, when no step decreases the merit, or when ten elastic
-//!   steps in a row cut the tip error by less than 1%: the box then holds no way to the target
-//!   from that start (a cold start in the wrong piece of the feasible set, or an unreachable
-//!   target, which goes on to the closest-tip search).
+//! Method (every iteration is O(n); nothing is allocated once the scratch is sized for n). One
+//! local solve is the loop of `Overall::local`: evaluate the pose (`eval`), apply the stopping
+//! rule (`stop_rule`), then take a Newton step when one is due (`try_newton`), else an SQP step
+//! (`sqp_step`).
+//! - **SQP step** (`sqp_step`). The linearized subproblem, with the identity as Hessian, is
+//!   solved through its two-variable dual `theta(mu) = clip(theta0 + J^T mu, lo, hi)` by
+//!   semismooth Newton (`sqp_subproblem`, module `dual`); without limits that is the
+//!   minimum-norm step with the 2 x 2 Schur complement `J J^T`. When the linearized constraint
+//!   cannot be met inside the box (or `J` loses rank) the elastic form with a penalized
+//!   constraint is solved instead (`solve_elastic`: the stiffest of a few weights whose dual
+//!   settles; its dual steps to the exact maximum along each Newton direction, a few evaluations
+//!   per solve). The step is globalized by an Armijo line search (`line_search`) on the merit
+//!   `1/2 |theta - theta0|^2 + nu |tip - target|`, with `nu` (`merit_weight`) raised above the
+//!   multiplier norm whenever needed and, after an exact step, brought back down when it is
+//!   more than ten times what that step's multiplier needs: an elastic step's multiplier can be
+//!   huge, and a `nu` kept from it would leave the line search accepting only tiny steps.
+//! - **Newton step** (`try_newton`, `newton`). Near the solution, exact Newton on the
+//!   optimality conditions `theta = clip(theta0 + J^T mu)`, `tip = target`: the multiplier
+//!   picks the active set (`predict_active_set`: a joint is held at a bound when
+//!   `theta0 + J^T mu` lies on or beyond it, else free), the held joints move onto their bounds,
+//!   and the free ones take the Newton step with the Lagrangian Hessian `I + G`,
+//!   `G_ab = g_max(a,b)` (`newton_rows`), solved in O(n) through prefix sums (module `hessian`)
+//!   and a 2 x 2 Schur complement (`Schur`), clipped into the box (`newton_pose`). It is taken
+//!   only when the Hessian's inertia says the point is a local minimum on the constraint's
+//!   tangent and the residual of the optimality conditions at least halves; otherwise the SQP
+//!   step is used. With the active set read from the multiplier, a joint that reaches or leaves
+//!   a limit near the optimum does not stop Newton, so limited solves converge as fast as
+//!   unlimited ones.
+//! - **Stopping rule** (`stop_rule`; `Exit` names every way out). A local solve has converged
+//!   when the tip is within the tip tolerance and the optimality conditions hold within the
+//!   stationarity tolerance. It gives up (not converged) at the iteration cap, when no step
+//!   decreases the merit, or when ten elastic steps in a row cut the tip error by less than 1%
+//!   (`ElasticStall`): the box then holds no way to the target from that start (a cold start in
+//!   the wrong piece of the feasible set, or an unreachable target, which goes on to the
+//!   closest-tip search).
 //! - **Limits** are met exactly: every iterate is clipped into the box by construction.
-//! - **Straight (singular) poses.** If the iteration stalls at a pose whose Jacobian has lost
-//!   rank while the target is not met, the joints after the base are bent by a small angle with
-//!   a deterministic sign: that of the last solved pose's total bend, else positive.
-//! - **Unreachable targets.** The pose whose tip is closest to the target is found by projected
-//!   Levenberg-Marquardt on the squared tip distance, then metric 3 is minimized among the poses
-//!   reaching that closest point; an unlimited chain outside its ring has the closed form (the
-//!   arm straight toward the target, or folded around its longest link).
+//! - **Straight (singular) poses** (`singular`, `kick`). If the iteration stalls at a pose
+//!   whose Jacobian has lost rank while the target is not met, the joints after the base are
+//!   bent by a small angle with a deterministic sign: that of the last solved pose's total
+//!   bend, else positive.
+//! - **Unreachable targets** (`closest`, `closed_form_outside`). The pose whose tip is closest
+//!   to the target is found by projected Levenberg-Marquardt on the squared tip distance
+//!   (`closest_step`: the free joints and gradient from `lm_free_set`, the damped step from
+//!   `lm_trial`), then metric 3 is minimized among the poses reaching that closest point; an
+//!   unlimited chain outside its ring has the closed form (the arm straight toward the target,
+//!   or folded around its longest link).
 //!
-//! Two modes ([`OverallMode`]): **local** continues from the current pose and the stored
-//! multiplier (one control tick), **cold** ([`Overall::solve_cold`]) runs its own deterministic
-//! set of starts and keeps the best optimum by metric 3; a random start whose iterate comes
-//! within 1e-4 rad of the best optimum on target so far (tip within 1e-6 of the scale) stops
-//! there, as it would only find that optimum again.
+//! Two modes ([`OverallMode`]): **local** ([`Overall::solve_local`]) continues from the current
+//! pose and the stored multiplier (one control tick), **cold** ([`Overall::solve_cold`]) runs
+//! its own deterministic set of starts (`Start`, in the order of `Schedule`) and keeps the best
+//! optimum by metric 3 (`Podium`); a random start whose iterate comes within 1e-4 rad of the
+//! best optimum on target so far (tip within 1e-6 of the scale) stops there, as it would only
+//! find that optimum again.
 
 mod dual;
 mod hessian;
 
-use crate::chain::{nearest_representative, Chain, Reachability, Vec2};
+use std::ops::ControlFlow;
+
+use crate::chain::{nearest_representative, wrap_angle, Chain, Reachability, Vec2};
 use crate::resolve::{check_input, Outcome, Resolver, Strategy};
 
 use dual::Dual;
 
+// Cold solves.
+
+/// A mirrored answer replaces a local answer only when it lowers metric 3 by this relative
+/// margin: a mirror-symmetric tie (equal up to round-off) keeps the tie-break's side.
+const MIRROR_GAIN: f64 = 1e-9;
+/// Tip tolerance of a continuation stage, relative to the scale: an intermediate target only
+/// guides the next stage, so a loose solve is enough.
+const STAGE_TIP_TOLERANCE: f64 = 1e-6;
+/// Stationarity tolerance of a continuation stage, rad: loose for the same reason.
+const STAGE_STATIONARITY_TOLERANCE: f64 = 1e-6;
+/// Two optima are the same when their metric 3 agrees within this relative amount (the
+/// round-off of two converged solves)...
+const SAME_OPTIMUM_METRIC: f64 = 1e-9;
+/// ...and their poses within this many rad (far below the distance between distinct optima).
+const SAME_OPTIMUM_POSE: f64 = 1e-6;
+/// A random start joins the best optimum once its tip is on target within this fraction of the
+/// scale (well inside the Newton phase's reach)...
+const JOIN_BEST_TIP: f64 = 1e-6;
+/// ...and its pose within this many rad of that optimum: from there it can only converge to it.
+const JOIN_BEST_POSE: f64 = 1e-4;
+/// Half-width of the range of a random start's unlimited joint around `theta0`, rad: a
+/// quarter turn either way covers every bend without folding the arm back on itself.
+const UNLIMITED_START_SPREAD: f64 = std::f64::consts::FRAC_PI_2;
+
+// The local solve.
+
+/// A Newton step is kept when the optimality residual at least shrinks by this factor: a step
+/// that does less is no better than the SQP step it replaces.
+const NEWTON_CONTRACTION: f64 = 0.5;
+/// Newton is tried after an exact SQP step taken whole, or once the tip is within this fraction
+/// of the scale (the active set has settled there).
+const NEWTON_RANGE: f64 = 1e-3;
+/// A Newton step that moves any joint by more than this (rad) is not local: its quadratic
+/// model is not trusted.
+const NEWTON_MAX_MOVE: f64 = 0.5;
+/// Rows of the tip constraint: the 2 x 2 Schur complement can carry at most this many negative
+/// eigenvalues of the Hessian, so more rule out a local minimum at once.
+const TIP_ROWS: usize = 2;
+/// The Schur complement `J H^-1 J^T` counts as singular when its determinant is below this
+/// fraction of its squared size (near round-off of its entries).
+const SCHUR_SINGULAR: f64 = 1e-14;
+/// The subproblem's dual is solved to this fraction of the tip tolerance, so that its error
+/// does not limit the outer solve...
+const QP_TOLERANCE: f64 = 1e-3;
+/// ...but not below the round-off of a tip position, relative to the scale.
+const QP_TOLERANCE_FLOOR: f64 = 1e-15;
+/// Largest multiplier (times the scale) of the exact subproblem: beyond it the dual is running
+/// away, the linearized constraint being (numerically) infeasible in the box.
+const MU_CAP: f64 = 1e12;
+/// Inverse penalty weights of the elastic form relative to `scale^2`, stiffest first: the
+/// first whose dual settles is used (a very stiff one can leave semismooth Newton crawling
+/// over clipped joints).
+const ELASTIC_WEIGHTS: [f64; 3] = [1e-6, 1e-3, 1.0];
+/// Stall rule: a run of this many elastic steps...
+const ELASTIC_STALL_STEPS: usize = 10;
+/// ...must bring the tip error below this fraction of where the run began (a 1% cut), or the
+/// box holds no way to the target from here.
+const ELASTIC_STALL_RATIO: f64 = 0.99;
+/// A step whose largest joint move is below this fraction of `1 + max |theta|` is round-off:
+/// no step is left.
+const STEP_FLOOR: f64 = 1e-15;
+/// Stationarity reachable through round-off alone, rad: where no step is left, a residual
+/// below it still counts as optimal.
+const ROUND_OFF_STATIONARITY: f64 = 1e-9;
+/// The merit's weight is set to this multiple of the multiplier norm (an exact penalty needs
+/// more than the norm; twice keeps a clear margin)...
+const MERIT_WEIGHT_FACTOR: f64 = 2.0;
+/// ...plus this much over the scale, so that a zero multiplier still weights the tip error.
+const MERIT_WEIGHT_FLOOR: f64 = 1e-6;
+/// The weight is raised once it falls below this multiple of the multiplier norm (the exact
+/// penalty's bound, with a little margin)...
+const MERIT_WEIGHT_MARGIN: f64 = 1.1;
+/// ...and, after an exact step, lowered once it exceeds this multiple of what that step needs.
+const MERIT_WEIGHT_EXCESS: f64 = 10.0;
+/// Armijo's sufficient-decrease fraction (the customary value).
+const ARMIJO: f64 = 1e-4;
+/// Halvings before the line search gives up: `2^-50` of a step is below its round-off.
+const MAX_HALVINGS: usize = 50;
+/// Tie-breaks at singular poses per local solve: more would only circle around the same pose.
+const MAX_KICKS: usize = 3;
+/// Size of a tie-break's bend, rad (its joint vector has about this Euclidean norm, each joint
+/// `KICK_ANGLE / sqrt(n)`): far above round-off, small enough to keep the pose near.
+const KICK_ANGLE: f64 = 0.02;
+/// Relative shift that keeps `J J^T` invertible in the tie-break's projection (it is rank
+/// deficient at the poses the tie-break is for).
+const KICK_REGULARIZATION: f64 = 1e-12;
+/// The Jacobian has lost rank when `det(J J^T)` is below this times `trace^2` (singular values
+/// 1e-10 apart, relative).
+const RANK_LOSS: f64 = 1e-20;
+
+// The closest-tip search.
+
+/// Initial Levenberg-Marquardt damping relative to `scale^2`: a cautious first step.
+const LM_DAMPING_START: f64 = 1e-3;
+/// Largest damping relative to `scale^2`: beyond it the step is below round-off.
+const LM_DAMPING_MAX: f64 = 1e14;
+/// Smallest damping relative to `scale^2`, so that the model stays regularized.
+const LM_DAMPING_MIN: f64 = 1e-12;
+/// Damping growth after a rejected step.
+const LM_DAMPING_UP: f64 = 4.0;
+/// Damping decrease after an accepted step (slower than the growth, against oscillation).
+const LM_DAMPING_DOWN: f64 = 3.0;
+/// The search has converged when the projected gradient is below this fraction of
+/// `scale * distance` (round-off of the gradient).
+const LM_GRADIENT_FLOOR: f64 = 1e-14;
+/// A rejected step whose largest joint move (rad) is below this cannot be refined further.
+const LM_STEP_FLOOR: f64 = 1e-16;
 /// Which starts a solve uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum OverallMode {
@@ -107,39 +227,68 @@ impl Default for OverallOptions {
     }
 }
 
-/// Scratch buffers, sized once per joint count.
+/// Scratch buffers, sized once per joint count. Vectors named `*_free` hold one entry per free
+/// joint of the current Newton or Levenberg-Marquardt step (the first `free.len()` entries).
 #[derive(Debug, Default)]
 struct Work {
+    /// The joint count the buffers are sized for.
     n: usize,
+    /// Joint positions of the last evaluated pose, base first, tip last.
     pts: Vec<Vec2>,
+    /// First row of the tip Jacobian at the last evaluated pose.
     jx: Vec<f64>,
+    /// Second row of the tip Jacobian at the last evaluated pose.
     jy: Vec<f64>,
+    /// Lower bounds (`-inf` when unlimited).
     lo: Vec<f64>,
+    /// Upper bounds (`+inf` when unlimited).
     hi: Vec<f64>,
+    /// The current iterate.
     theta: Vec<f64>,
+    /// A candidate pose: line-search trial, Newton or Levenberg-Marquardt step, mirror image.
     trial: Vec<f64>,
+    /// Solution of the linearized subproblem (the SQP step's end point).
     qp_x: Vec<f64>,
+    /// Clipping state of each joint in the subproblem's dual.
     state: Vec<i8>,
     /// Kinks of the elastic dual along a line, two per joint.
     brk: Vec<(f64, f64)>,
     /// Cold solves: `best` holds an optimum on target, and a local solve whose iterate comes
-    /// next to it stops there (it would only find that optimum again).
+    /// next to it stops there ([`Exit::JoinedBest`]; it would only find that optimum again).
     watch_best: bool,
-    /// Set by a local solve that stopped next to `best`.
-    joined_best: bool,
+    /// The free joints of the current Newton or Levenberg-Marquardt step, in order.
     free: Vec<usize>,
-    g: Vec<f64>,
+    /// `g` of the free joints: the Hessian's `G_ab = g_max(a,b)`.
+    g_free: Vec<f64>,
+    /// Pivots of the factorization of the free joints' Hessian.
     piv: Vec<f64>,
-    s: Vec<f64>,
-    rf: Vec<f64>,
-    jxf: Vec<f64>,
-    jyf: Vec<f64>,
-    y1: Vec<f64>,
-    y2: Vec<f64>,
-    y3: Vec<f64>,
-    y4: Vec<f64>,
+    /// Prefix sums, scratch of [`hessian::solve`].
+    prefix: Vec<f64>,
+    /// First Jacobian row at the free joints.
+    jx_free: Vec<f64>,
+    /// Second Jacobian row at the free joints.
+    jy_free: Vec<f64>,
+    /// Right-hand side at the free joints: the Newton residual of their rows, or the negative
+    /// gradient of the squared tip distance.
+    rhs_free: Vec<f64>,
+    /// The Hessian's inverse applied to `jx_free`.
+    hinv_jx: Vec<f64>,
+    /// The Hessian's inverse applied to `jy_free`.
+    hinv_jy: Vec<f64>,
+    /// The Hessian's inverse applied to `rhs_free`.
+    hinv_rhs: Vec<f64>,
+    /// Newton step, per joint: the move of a held joint onto its bound (0 for a free joint).
+    held_move: Vec<f64>,
+    /// Newton step, per joint: `sum_{b > a} g_b held_move_b`, the coupling of row `a` to the
+    /// held joints after it.
+    coupling: Vec<f64>,
+    /// Levenberg-Marquardt step, per joint: the gradient of the squared tip distance.
+    grad: Vec<f64>,
+    /// Cold solves: the pose of the best optimum so far (other solves: a saved pose).
     best: Vec<f64>,
+    /// Cold solves: the pose of the second-best optimum so far.
     second: Vec<f64>,
+    /// The pose lent out by [`Resolver::scratch_pose`].
     stage: Vec<f64>,
 }
 
@@ -158,16 +307,18 @@ impl Work {
             &mut self.theta,
             &mut self.trial,
             &mut self.qp_x,
-            &mut self.g,
+            &mut self.g_free,
             &mut self.piv,
-            &mut self.s,
-            &mut self.rf,
-            &mut self.jxf,
-            &mut self.jyf,
-            &mut self.y1,
-            &mut self.y2,
-            &mut self.y3,
-            &mut self.y4,
+            &mut self.prefix,
+            &mut self.jx_free,
+            &mut self.jy_free,
+            &mut self.rhs_free,
+            &mut self.hinv_jx,
+            &mut self.hinv_jy,
+            &mut self.hinv_rhs,
+            &mut self.held_move,
+            &mut self.coupling,
+            &mut self.grad,
             &mut self.best,
             &mut self.second,
             &mut self.stage,
@@ -178,9 +329,19 @@ impl Work {
         self.brk = vec![(0.0, 0.0); 2 * n];
         self.free = Vec::with_capacity(n);
     }
+
+    /// Applies the inverse of the free joints' Hessian, factorized into `piv[..m]`, to
+    /// `jx_free`, `jy_free` and `rhs_free`, giving `hinv_jx`, `hinv_jy` and `hinv_rhs`.
+    fn solve_free(&mut self, m: usize) {
+        let (piv, prefix) = (&self.piv[..m], &mut self.prefix[..m]);
+        hessian::solve(piv, &self.jx_free[..m], prefix, &mut self.hinv_jx[..m]);
+        hessian::solve(piv, &self.jy_free[..m], prefix, &mut self.hinv_jy[..m]);
+        hessian::solve(piv, &self.rhs_free[..m], prefix, &mut self.hinv_rhs[..m]);
+    }
 }
 
 /// The fixed data of one problem.
+#[derive(Clone, Copy)]
 struct Problem<'a> {
     chain: &'a Chain,
     theta0: &'a [f64],
@@ -193,12 +354,199 @@ struct Problem<'a> {
     stol: f64,
 }
 
+/// Why a local solve stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Exit {
+    /// Tip within the tolerance and the optimality conditions within theirs.
+    Converged,
+    /// Cold solves: on target next to the best optimum so far ([`Work::watch_best`]).
+    JoinedBest,
+    /// The iteration cap was reached.
+    IterationCap,
+    /// A run of elastic steps stopped cutting the tip error ([`ElasticStall`]).
+    ElasticStall,
+    /// Not even the elastic form of the subproblem could be solved.
+    ElasticFailed,
+    /// The SQP step vanished (on target: optimal up to round-off).
+    NoStep,
+    /// No step along the SQP direction decreases the merit.
+    NoDescent,
+}
+
 /// How one local solve ended.
 #[derive(Debug, Clone, Copy)]
 struct Local {
+    exit: Exit,
     converged: bool,
     tip_error: f64,
     iterations: usize,
+}
+
+impl Local {
+    /// The end of a local solve at the evaluated iterate `at`. Converged when the stopping rule
+    /// says so, or when no step is left on target with the optimality conditions met up to
+    /// round-off.
+    fn stopped(exit: Exit, p: &Problem, at: &Iterate, tol: f64, iterations: usize) -> Self {
+        let converged = match exit {
+            Exit::Converged => true,
+            Exit::NoStep | Exit::NoDescent => {
+                at.cn <= tol && at.s <= p.stol.max(ROUND_OFF_STATIONARITY)
+            }
+            Exit::JoinedBest | Exit::IterationCap | Exit::ElasticStall | Exit::ElasticFailed => {
+                false
+            }
+        };
+        Self {
+            exit,
+            converged,
+            tip_error: at.cn,
+            iterations,
+        }
+    }
+}
+
+/// An evaluated iterate.
+#[derive(Debug, Clone, Copy)]
+struct Iterate {
+    /// Tip correction wanted, `target - tip`.
+    c: Vec2,
+    /// Its norm, the tip error.
+    cn: f64,
+    /// Stationarity residual `max |theta - clip(theta0 + J^T mu)|`.
+    s: f64,
+}
+
+/// What a local solve carries from one iteration to the next.
+#[derive(Debug)]
+struct LocalRun {
+    /// Iterations so far (SQP and Newton steps).
+    iterations: usize,
+    /// Weight of the tip error in the merit.
+    nu: f64,
+    /// Try a Newton step next: the last SQP step was exact and taken whole, or near the target.
+    newton_ready: bool,
+    /// Tie-breaks spent at singular poses.
+    kicks: usize,
+    /// Multiplier of the last subproblem solved.
+    mu_q: [f64; 2],
+    /// The stall rule's run of elastic steps.
+    stall: ElasticStall,
+}
+
+impl LocalRun {
+    fn new(mu: [f64; 2]) -> Self {
+        Self {
+            iterations: 0,
+            nu: 0.0,
+            newton_ready: false,
+            kicks: 0,
+            mu_q: mu,
+            stall: ElasticStall::default(),
+        }
+    }
+}
+
+/// The stall rule: a run of elastic steps (the linearized constraint cannot be met inside the
+/// limits) that does not cut the tip error by 1% in 10 iterations means the box holds no way to
+/// the target from here.
+#[derive(Debug, Default)]
+struct ElasticStall {
+    /// Elastic steps in the current run.
+    run: usize,
+    /// Tip error where the run (or its last window) began.
+    reference: f64,
+}
+
+impl ElasticStall {
+    /// An exact step ends the run.
+    fn exact(&mut self) {
+        self.run = 0;
+    }
+
+    /// Counts an elastic step at tip error `cn`; true when the run has stalled.
+    fn elastic(&mut self, cn: f64) -> bool {
+        self.run += 1;
+        if self.run == 1 {
+            self.reference = cn;
+        } else if self.run > ELASTIC_STALL_STEPS {
+            if cn > ELASTIC_STALL_RATIO * self.reference {
+                return true;
+            }
+            self.run = 1;
+            self.reference = cn;
+        }
+        false
+    }
+}
+
+/// How the subproblem of one SQP iteration came out.
+enum Subproblem {
+    /// `w.qp_x` and the run's `mu_q` hold its solution; `elastic` when only the elastic form
+    /// could be solved.
+    Solved { elastic: bool },
+    /// A singular pose was bent instead (the next iteration starts from there).
+    Kicked,
+    /// The local solve stops.
+    Stop(Exit),
+}
+
+/// The SQP direction `d = w.qp_x - w.theta`, summarized for the line search.
+struct Direction {
+    /// Largest joint move, rad.
+    largest: f64,
+    /// `1 + max |theta|`, the size a move is round-off against.
+    pose_size: f64,
+    /// Derivative of the half metric along `d`.
+    metric_slope: f64,
+    /// Tip move the linearization predicts, `J d`.
+    tip_move: Vec2,
+}
+
+/// The symmetric 2 x 2 Schur complement `S = J H^-1 J^T` of the free joints and `J H^-1 r`
+/// for their Newton residual `r`.
+struct Schur {
+    s00: f64,
+    s01: f64,
+    s11: f64,
+    e0: f64,
+    e1: f64,
+}
+
+impl Schur {
+    /// The multiplier step that meets the linearized tip constraint (with the tip correction
+    /// `c` left for the free joints), or `None` when `S` is singular or the KKT matrix's
+    /// inertia is not that of a local minimum: that holds exactly when `S` has as many negative
+    /// eigenvalues as the Hessian (`negative`) and the rest positive.
+    fn multiplier_step(&self, c: Vec2, negative: usize) -> Option<[f64; 2]> {
+        let Self {
+            s00,
+            s01,
+            s11,
+            e0,
+            e1,
+        } = *self;
+        let det = s00 * s11 - s01 * s01;
+        let tr = s00 + s11;
+        let scale = s00.abs() + s11.abs() + s01.abs();
+        if det.is_nan() || det.abs() <= SCHUR_SINGULAR * scale * scale {
+            return None;
+        }
+        let neg_s = if det < 0.0 {
+            1
+        } else if tr < 0.0 {
+            2
+        } else {
+            0
+        };
+        if neg_s != negative {
+            return None;
+        }
+        let rhs = [c.x + e0, c.y + e1];
+        Some([
+            (s11 * rhs[0] - s01 * rhs[1]) / det,
+            (s00 * rhs[1] - s01 * rhs[0]) / det,
+        ])
+    }
 }
 
 /// The overall (metric-3) resolver. Holds its scratch, the last multiplier (warm start of the
@@ -227,6 +575,159 @@ impl SplitMix {
     }
 }
 
+/// The kinds of start of a cold solve, in the order they are tried (see
+/// [`Overall::solve_cold`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Start {
+    /// `clip(theta0)`.
+    Clipped,
+    /// `clip(theta0)` with the base joint turned so that the tip points toward the target.
+    Turned,
+    /// Continuation along the straight tip path to the target.
+    StraightPath,
+    /// Continuation along the polar path around the base.
+    PolarPath,
+    /// The mirror image of the optimum of this rank so far (0 the best, 1 the second; no
+    /// further ones are kept, so later ranks are skipped).
+    Mirror(usize),
+    /// A seeded pseudo-random pose; `first` for the first of the call, which decides whether
+    /// random starts are needed at all.
+    Random { first: bool },
+}
+
+impl Start {
+    /// The deterministic starts before the mirrored ones.
+    const FIXED: usize = 4;
+
+    /// The start at `index` of a cold solve with `mirrors` mirrored starts.
+    fn at(index: usize, mirrors: usize) -> Self {
+        match index {
+            0 => Self::Clipped,
+            1 => Self::Turned,
+            2 => Self::StraightPath,
+            3 => Self::PolarPath,
+            k if k < Self::FIXED + mirrors => Self::Mirror(k - Self::FIXED),
+            k => Self::Random {
+                first: k == Self::FIXED + mirrors,
+            },
+        }
+    }
+}
+
+/// The sequence of starts of one cold solve: the fixed and mirrored starts, the random ones
+/// when the chain has limits, and one more round of random starts when no start so far has
+/// reached the target.
+struct Schedule {
+    next: usize,
+    end: usize,
+    mirrors: usize,
+    random: usize,
+    second_round: bool,
+}
+
+impl Schedule {
+    fn new(opts: &OverallOptions, limited: bool) -> Self {
+        let mut end = Start::FIXED + opts.mirror_starts;
+        if limited {
+            end += opts.random_starts;
+        }
+        Self {
+            next: 0,
+            end,
+            mirrors: opts.mirror_starts,
+            random: opts.random_starts,
+            second_round: false,
+        }
+    }
+
+    /// The next start, or `None` when done; `reached` says whether a start has reached the
+    /// target so far.
+    fn next(&mut self, reached: bool) -> Option<Start> {
+        if self.next >= self.end {
+            if reached || self.second_round || self.random == 0 {
+                return None;
+            }
+            self.second_round = true;
+            self.end += self.random;
+        }
+        let index = self.next;
+        self.next += 1;
+        Some(Start::at(index, self.mirrors))
+    }
+}
+
+/// What a start of a cold solve produced (its pose lives in the scratch).
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    half_metric: f64,
+    tip_error: f64,
+    /// Converged with the tip on target.
+    on_target: bool,
+    mu: [f64; 2],
+}
+
+impl Candidate {
+    /// Whether this answer is better than `other`: on target beats off target, then the lower
+    /// metric 3 (on target) or the lower tip error (off target); a tie keeps `other`.
+    fn beats(&self, other: Option<&Candidate>) -> bool {
+        match other {
+            None => true,
+            Some(o) if self.on_target != o.on_target => self.on_target,
+            Some(o) if self.on_target => self.half_metric < o.half_metric,
+            Some(o) => self.tip_error < o.tip_error,
+        }
+    }
+}
+
+/// The best and second-best distinct answers of a cold solve; their poses are `Work::best` and
+/// `Work::second`.
+#[derive(Debug, Default)]
+struct Podium {
+    best: Option<Candidate>,
+    second: Option<Candidate>,
+}
+
+impl Podium {
+    /// Whether some start has reached the target.
+    fn reached(&self) -> bool {
+        self.best.is_some_and(|b| b.on_target)
+    }
+
+    /// Ranks the answer `found`, whose pose is `w.theta`; the same optimum as the best is
+    /// dropped.
+    fn offer(&mut self, w: &mut Work, found: Candidate) {
+        let m = found.half_metric;
+        let same_as_best = self.best.is_some_and(|b| {
+            (b.half_metric - m).abs() <= SAME_OPTIMUM_METRIC * (1.0 + m)
+                && max_abs_diff(&w.best, &w.theta) < SAME_OPTIMUM_POSE
+        });
+        if same_as_best {
+            return;
+        }
+        if found.beats(self.best.as_ref()) {
+            if self.best.is_some() {
+                w.second.copy_from_slice(&w.best);
+                self.second = self.best;
+            }
+            w.best.copy_from_slice(&w.theta);
+            self.best = Some(found);
+        } else if found.beats(self.second.as_ref()) {
+            w.second.copy_from_slice(&w.theta);
+            self.second = Some(found);
+        }
+    }
+}
+
+/// What preparing a start of a cold solve decided.
+enum Loaded {
+    /// `w.theta` holds the start; `iterations` were spent preparing it.
+    Ready { iterations: usize },
+    /// This start does not apply; go on with the next.
+    Skip,
+    /// No further start can find a better optimum.
+    Done,
+}
+
 /// Half of metric 3.
 fn half_metric(theta: &[f64], theta0: &[f64]) -> f64 {
     0.5 * theta
@@ -236,6 +737,7 @@ fn half_metric(theta: &[f64], theta0: &[f64]) -> f64 {
         .sum::<f64>()
 }
 
+/// The largest difference between two poses, rad.
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
     a.iter()
         .zip(b)
@@ -243,13 +745,17 @@ fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The direction of `v` as an angle from the x axis.
+fn bearing(v: Vec2) -> f64 {
+    v.y.atan2(v.x)
+}
+
 /// The mirror image of the pose `src` across the line from the base through the target (same
 /// tip for an unlimited chain), written to `out`: absolute angles `phi -> 2 line - phi`, so
 /// `theta_1 -> 2 (line - h) - theta_1` and every later relative angle changes sign. Each angle is
 /// taken as the representative nearest `theta0` and clipped into `[lo, hi]`.
 fn mirror_pose(p: &Problem, src: &[f64], lo: &[f64], hi: &[f64], out: &mut [f64]) {
-    let to = p.target - p.chain.base();
-    let line = to.y.atan2(to.x);
+    let line = bearing(p.target - p.chain.base());
     for a in 0..out.len() {
         let m = if a == 0 {
             2.0 * (line - p.chain.heading()) - src[0]
@@ -257,6 +763,20 @@ fn mirror_pose(p: &Problem, src: &[f64], lo: &[f64], hi: &[f64], out: &mut [f64]
             -src[a]
         };
         out[a] = nearest_representative(m, p.theta0[a]).clamp(lo[a], hi[a]);
+    }
+}
+
+/// The merit's weight on the tip error for a step with the multiplier `mu_q`, from the
+/// current weight `nu`: raised when below the exact penalty's bound, and after an exact step
+/// (not `elastic`) lowered when far above what that step needs, since a weight kept from an
+/// elastic step's huge multiplier would leave the line search accepting only tiny steps.
+fn merit_weight(nu: f64, mu_q: [f64; 2], elastic: bool, scale: f64) -> f64 {
+    let mu_norm = mu_q[0].hypot(mu_q[1]);
+    let wanted = MERIT_WEIGHT_FACTOR * mu_norm + MERIT_WEIGHT_FLOOR / scale;
+    if nu < MERIT_WEIGHT_MARGIN * mu_norm || (!elastic && nu > MERIT_WEIGHT_EXCESS * wanted) {
+        wanted
+    } else {
+        nu
     }
 }
 
@@ -349,9 +869,7 @@ impl Overall {
             Ok(p) => p,
             Err(o) => return o,
         };
-        for a in 0..p.theta0.len() {
-            self.w.theta[a] = p.theta0[a].clamp(self.w.lo[a], self.w.hi[a]);
-        }
+        self.start_clipped(&p);
         let mut mu = self.mu;
         let local = self.local(&p, &mut mu, p.tol);
         let mut iterations = local.iterations;
@@ -376,8 +894,7 @@ impl Overall {
             let w = &mut self.w;
             mirror_pose(p, &w.theta, &w.lo, &w.hi, &mut w.trial);
         }
-        // A clear improvement only: a mirror-symmetric tie keeps the tie-break's side.
-        let goal = current * (1.0 - 1e-9);
+        let goal = current * (1.0 - MIRROR_GAIN);
         if half_metric(&self.w.trial, p.theta0) >= goal {
             return 0;
         }
@@ -438,145 +955,147 @@ impl Overall {
             Err(o) => return o,
         };
         let mut total = 0;
-        // Best and second-best optimum: (half metric, tip error, converged, mu).
-        let mut best: Option<(f64, f64, bool, [f64; 2])> = None;
-        let mut second: Option<(f64, f64, bool, [f64; 2])> = None;
-
-        let mut starts = 0usize;
-        let fixed = 4 + self.opts.mirror_starts;
-        let mut kinds = fixed;
-        if chain.is_limited() {
-            kinds += self.opts.random_starts;
-        }
-        let mut second_round = false;
+        let mut podium = Podium::default();
+        let mut schedule = Schedule::new(&self.opts, chain.is_limited());
         let mut rng = SplitMix(self.opts.seed);
-        loop {
-            if starts >= kinds {
-                let reached = best.is_some_and(|b| b.2);
-                if reached || second_round || self.opts.random_starts == 0 {
-                    break;
-                }
-                second_round = true;
-                kinds += self.opts.random_starts;
-            }
-            let kind = starts;
-            starts += 1;
+        while let Some(start) = schedule.next(podium.reached()) {
             let mut mu = [0.0; 2];
-            match kind {
-                0 => self.start_clipped(&p),
-                1 => {
-                    self.start_clipped(&p);
-                    let tip0 = chain.tip(&self.w.theta);
-                    let from = (tip0 - chain.base()).y.atan2((tip0 - chain.base()).x);
-                    let to = (target - chain.base()).y.atan2((target - chain.base()).x);
-                    let turn = crate::chain::wrap_angle(to - from);
-                    self.w.theta[0] = (self.w.theta[0] + turn).clamp(self.w.lo[0], self.w.hi[0]);
-                }
-                2 | 3 => {
-                    self.start_clipped(&p);
-                    let stages = self.opts.continuation_stages;
-                    if stages == 0 {
-                        continue;
-                    }
-                    let tip0 = chain.tip(&self.w.theta);
-                    let b = chain.base();
-                    let (r0, a0) = ((tip0 - b).norm(), (tip0 - b).y.atan2((tip0 - b).x));
-                    let (r1, a1) = ((target - b).norm(), (target - b).y.atan2((target - b).x));
-                    let da = crate::chain::wrap_angle(a1 - a0);
-                    for k in 1..=stages {
-                        let s = k as f64 / (stages + 1) as f64;
-                        let t = if kind == 2 {
-                            tip0 + (target - tip0) * s
-                        } else {
-                            let r = r0 + (r1 - r0) * s;
-                            let a = a0 + da * s;
-                            b + Vec2::new(r * a.cos(), r * a.sin())
-                        };
-                        let sub = Problem {
-                            target: t,
-                            tol: 1e-6 * p.scale,
-                            stol: 1e-6,
-                            ..p
-                        };
-                        let l = self.local(&sub, &mut mu, sub.tol);
-                        total += l.iterations;
-                    }
-                }
-                k if k >= fixed => {
-                    // Any pose better than the best optimum so far lies within the ball of
-                    // radius sqrt(metric 3) around theta0.
-                    let radius = best.filter(|b| b.2).map(|b| (2.0 * b.0).sqrt());
-                    match radius {
-                        Some(r) if k == fixed && !self.limits_reach_ball(&p, r) => break,
-                        Some(r) => self.start_in_ball(&p, r, &mut rng),
-                        None => self.start_in_box(&p, &mut rng),
-                    }
-                }
-                _ => {
-                    let which = kind - 4;
-                    match (which, &best, &second) {
-                        (0, Some(b), _) if b.2 => {}
-                        (1, _, Some(s)) if s.2 => {}
-                        _ => continue,
-                    }
-                    let w = &mut self.w;
-                    let src = if which == 0 { &w.best } else { &w.second };
-                    mirror_pose(&p, src, &w.lo, &w.hi, &mut w.theta);
-                }
+            match self.load_start(&p, start, &podium, &mut rng, &mut mu) {
+                Loaded::Ready { iterations } => total += iterations,
+                Loaded::Skip => continue,
+                Loaded::Done => break,
             }
             // A random start that runs into the best optimum so far is not followed further.
-            self.w.watch_best = kind >= fixed && best.is_some_and(|b| b.2);
-            self.w.joined_best = false;
+            self.w.watch_best = matches!(start, Start::Random { .. }) && podium.reached();
             let l = self.local(&p, &mut mu, p.tol);
             self.w.watch_best = false;
             total += l.iterations;
-            if self.w.joined_best {
+            if l.exit == Exit::JoinedBest {
                 continue;
             }
-            let on = l.converged && l.tip_error <= p.tol;
-            let m = half_metric(&self.w.theta, p.theta0);
-            let better = |o: &Option<(f64, f64, bool, [f64; 2])>| match o {
-                None => true,
-                Some((bm, be, bc, _)) => {
-                    if on != *bc {
-                        on
-                    } else if on {
-                        m < *bm
-                    } else {
-                        l.tip_error < *be
-                    }
-                }
+            let found = Candidate {
+                half_metric: half_metric(&self.w.theta, p.theta0),
+                tip_error: l.tip_error,
+                on_target: l.converged && l.tip_error <= p.tol,
+                mu,
             };
-            let same_as_best = best.is_some_and(|b| {
-                (b.0 - m).abs() <= 1e-9 * (1.0 + m)
-                    && max_abs_diff(&self.w.best, &self.w.theta) < 1e-6
-            });
-            if same_as_best {
-                continue;
-            }
-            if better(&best) {
-                if best.is_some() {
-                    self.w.second.copy_from_slice(&self.w.best);
-                    second = best;
-                }
-                self.w.best.copy_from_slice(&self.w.theta);
-                best = Some((m, l.tip_error, on, mu));
-            } else if better(&second) {
-                self.w.second.copy_from_slice(&self.w.theta);
-                second = Some((m, l.tip_error, on, mu));
-            }
+            podium.offer(&mut self.w, found);
         }
-        let Some((_, _, on, mut mu)) = best else {
+        let Some(best) = podium.best else {
             return self.finish(&p, [0.0; 2], total, false, out);
         };
         self.w.theta.copy_from_slice(&self.w.best);
-        let mut converged = on;
-        if !on {
+        let mut mu = best.mu;
+        let mut converged = best.on_target;
+        if !best.on_target {
             let (its, conv) = self.closest(&p, &mut mu);
             total += its;
             converged = conv;
         }
         self.finish(&p, mu, total, converged, out)
+    }
+
+    /// Loads the pose of `start` into `w.theta` (a continuation start solves its stages into
+    /// `mu`, which the final local solve continues from).
+    fn load_start(
+        &mut self,
+        p: &Problem,
+        start: Start,
+        podium: &Podium,
+        rng: &mut SplitMix,
+        mu: &mut [f64; 2],
+    ) -> Loaded {
+        match start {
+            Start::Clipped => self.start_clipped(p),
+            Start::Turned => self.start_turned(p),
+            Start::StraightPath | Start::PolarPath => {
+                self.start_clipped(p);
+                if self.opts.continuation_stages == 0 {
+                    return Loaded::Skip;
+                }
+                let polar = matches!(start, Start::PolarPath);
+                let iterations = self.continuation(p, polar, mu);
+                return Loaded::Ready { iterations };
+            }
+            Start::Mirror(rank) => {
+                let source = match rank {
+                    0 => podium.best,
+                    1 => podium.second,
+                    _ => None,
+                };
+                if !source.is_some_and(|s| s.on_target) {
+                    return Loaded::Skip;
+                }
+                let w = &mut self.w;
+                let src = if rank == 0 { &w.best } else { &w.second };
+                mirror_pose(p, src, &w.lo, &w.hi, &mut w.theta);
+            }
+            Start::Random { first } => {
+                // Any pose better than the best optimum so far lies within the ball of
+                // radius sqrt(metric 3) around theta0.
+                let radius = podium
+                    .best
+                    .filter(|b| b.on_target)
+                    .map(|b| (2.0 * b.half_metric).sqrt());
+                match radius {
+                    Some(r) if first && !self.limits_reach_ball(p, r) => return Loaded::Done,
+                    Some(r) => self.start_in_ball(p, r, rng),
+                    None => self.start_in_box(p, rng),
+                }
+            }
+        }
+        Loaded::Ready { iterations: 0 }
+    }
+
+    /// Loads `clip(theta0)` as the current iterate.
+    fn start_clipped(&mut self, p: &Problem) {
+        for a in 0..p.theta0.len() {
+            self.w.theta[a] = p.theta0[a].clamp(self.w.lo[a], self.w.hi[a]);
+        }
+    }
+
+    /// Loads `clip(theta0)` with the base joint turned so that the tip points from the base
+    /// toward the target (clipped into the base joint's limits).
+    fn start_turned(&mut self, p: &Problem) {
+        self.start_clipped(p);
+        let base = p.chain.base();
+        let from = bearing(p.chain.tip(&self.w.theta) - base);
+        let to = bearing(p.target - base);
+        let turn = wrap_angle(to - from);
+        self.w.theta[0] = (self.w.theta[0] + turn).clamp(self.w.lo[0], self.w.hi[0]);
+    }
+
+    /// A continuation start from the pose in `w.theta`: solves
+    /// [`OverallOptions::continuation_stages`] equally spaced intermediate targets on the path
+    /// from its tip to the target, straight or (`polar`) with radius and bearing around the base
+    /// interpolated linearly, each from the previous answer and with loose tolerances. Returns
+    /// the iterations spent.
+    fn continuation(&mut self, p: &Problem, polar: bool, mu: &mut [f64; 2]) -> usize {
+        let stages = self.opts.continuation_stages;
+        let tip0 = p.chain.tip(&self.w.theta);
+        let b = p.chain.base();
+        let (r0, a0) = ((tip0 - b).norm(), bearing(tip0 - b));
+        let (r1, a1) = ((p.target - b).norm(), bearing(p.target - b));
+        let da = wrap_angle(a1 - a0);
+        let mut iterations = 0;
+        for k in 1..=stages {
+            let s = k as f64 / (stages + 1) as f64;
+            let t = if polar {
+                let r = r0 + (r1 - r0) * s;
+                let a = a0 + da * s;
+                b + Vec2::new(r * a.cos(), r * a.sin())
+            } else {
+                tip0 + (p.target - tip0) * s
+            };
+            let sub = Problem {
+                target: t,
+                tol: STAGE_TIP_TOLERANCE * p.scale,
+                stol: STAGE_STATIONARITY_TOLERANCE,
+                ..*p
+            };
+            iterations += self.local(&sub, mu, sub.tol).iterations;
+        }
+        iterations
     }
 
     /// Whether some limit comes within `r` of `theta0` (or `theta0` lies outside its limits):
@@ -620,16 +1139,8 @@ impl Overall {
             self.w.theta[a] = if lo.is_finite() && hi.is_finite() {
                 lo + (hi - lo) * u
             } else {
-                let half = std::f64::consts::FRAC_PI_2;
-                (p.theta0[a] + half * (2.0 * u - 1.0)).clamp(lo, hi)
+                (p.theta0[a] + UNLIMITED_START_SPREAD * (2.0 * u - 1.0)).clamp(lo, hi)
             };
-        }
-    }
-
-    /// Loads `clip(theta0)` as the current iterate.
-    fn start_clipped(&mut self, p: &Problem) {
-        for a in 0..p.theta0.len() {
-            self.w.theta[a] = p.theta0[a].clamp(self.w.lo[a], self.w.hi[a]);
         }
     }
 
@@ -755,226 +1266,240 @@ impl Overall {
     }
 
     /// One local solve from `w.theta` with the multiplier `mu`; the answer is left in
-    /// `w.theta`, its multiplier in `mu`.
+    /// `w.theta`, its multiplier in `mu`. The driver: each iteration evaluates the pose,
+    /// applies the stopping rule, then takes a Newton step when one is due and succeeds, else
+    /// an SQP step; either may end the solve ([`Exit`]).
     fn local(&mut self, p: &Problem, mu: &mut [f64; 2], tol: f64) -> Local {
-        let n = self.w.n;
-        let mut nu: f64 = 0.0;
-        let mut newton_ready = false;
-        let mut kicks = 0;
-        let mut iterations = 0;
-        let mut mu_q = *mu;
-        // Stall rule: a run of elastic steps (the linearized constraint cannot be met inside
-        // the limits) that does not cut the tip error by 1% in 10 iterations means the box
-        // holds no way to the target from here.
-        let (mut elastic_run, mut elastic_ref) = (0usize, 0.0_f64);
+        let mut run = LocalRun::new(*mu);
         loop {
             let (c, s) = self.eval(p, *mu);
-            let cn = c.norm();
-            if self.w.watch_best
-                && cn <= 1e-6 * p.scale
-                && max_abs_diff(&self.w.theta, &self.w.best) <= 1e-4
-            {
-                self.w.joined_best = true;
-                return Local {
-                    converged: false,
-                    tip_error: cn,
-                    iterations,
-                };
+            let at = Iterate { c, cn: c.norm(), s };
+            if let Some(exit) = self.stop_rule(p, &at, tol, run.iterations) {
+                return Local::stopped(exit, p, &at, tol, run.iterations);
             }
-            if cn <= tol && s <= p.stol {
-                return Local {
-                    converged: true,
-                    tip_error: cn,
-                    iterations,
-                };
-            }
-            if iterations >= self.opts.max_iterations {
-                return Local {
-                    converged: false,
-                    tip_error: cn,
-                    iterations,
-                };
-            }
-            iterations += 1;
-            let residual = cn / p.scale + s;
-            if newton_ready {
-                if let Some(mu_n) = self.newton(p, *mu, c) {
-                    std::mem::swap(&mut self.w.theta, &mut self.w.trial);
-                    let (c2, s2) = self.eval(p, mu_n);
-                    let cn2 = c2.norm();
-                    if cn2 / p.scale + s2 <= 0.5 * residual || (cn2 <= tol && s2 <= p.stol) {
-                        *mu = mu_n;
-                        continue;
-                    }
-                    std::mem::swap(&mut self.w.theta, &mut self.w.trial);
-                    self.eval(p, *mu);
-                }
-                newton_ready = false;
-            }
-            // SQP step: exact linearized subproblem, else its elastic form.
-            let qp_tol = (1e-3 * tol).max(1e-15 * p.scale);
-            let mu_cap = 1e12 / p.scale;
-            let mut elastic = false;
-            mu_q = if mu_q[0].is_finite() && mu_q[1].is_finite() {
-                *mu
-            } else {
-                [0.0; 2]
-            };
-            let exact_ok = {
-                let w = &mut self.w;
-                let d = Dual {
-                    jx: &w.jx,
-                    jy: &w.jy,
-                    z: p.theta0,
-                    theta: &w.theta,
-                    lo: &w.lo,
-                    hi: &w.hi,
-                    c,
-                    rho_inv: 0.0,
-                };
-                d.solve(
-                    &mut mu_q,
-                    &mut w.qp_x,
-                    &mut w.state,
-                    qp_tol,
-                    mu_cap,
-                    &mut w.brk,
-                )
-            };
-            if !exact_ok && cn > tol && kicks < 3 && self.singular() {
-                kicks += 1;
-                self.kick();
-                continue;
-            }
-            if exact_ok {
-                elastic_run = 0;
-            } else {
-                elastic_run += 1;
-                if elastic_run == 1 {
-                    elastic_ref = cn;
-                } else if elastic_run > 10 {
-                    if cn > 0.99 * elastic_ref {
-                        return Local {
-                            converged: false,
-                            tip_error: cn,
-                            iterations,
-                        };
-                    }
-                    elastic_run = 1;
-                    elastic_ref = cn;
-                }
-            }
-            if !exact_ok {
-                // Elastic form with an adaptive weight: the stiffest penalty whose dual settles
-                // (a very stiff one can leave semismooth Newton crawling over clipped joints).
-                elastic = true;
-                let mut solved = false;
-                for weight in [1e-6, 1e-3, 1.0] {
-                    mu_q = [0.0; 2];
-                    let w = &mut self.w;
-                    let d = Dual {
-                        jx: &w.jx,
-                        jy: &w.jy,
-                        z: p.theta0,
-                        theta: &w.theta,
-                        lo: &w.lo,
-                        hi: &w.hi,
-                        c,
-                        rho_inv: weight * p.scale * p.scale,
-                    };
-                    if d.solve(
-                        &mut mu_q,
-                        &mut w.qp_x,
-                        &mut w.state,
-                        qp_tol,
-                        f64::MAX,
-                        &mut w.brk,
-                    ) {
-                        solved = true;
-                        break;
-                    }
-                }
-                if !solved {
-                    return Local {
-                        converged: false,
-                        tip_error: cn,
-                        iterations,
-                    };
-                }
-            }
-            let w = &mut self.w;
-            let mut step = 0.0_f64;
-            let mut slope = 0.0;
-            let mut jd = Vec2::zeros();
-            for a in 0..n {
-                let d = w.qp_x[a] - w.theta[a];
-                step = step.max(d.abs());
-                slope += (w.theta[a] - p.theta0[a]) * d;
-                jd.x += w.jx[a] * d;
-                jd.y += w.jy[a] * d;
-            }
-            let theta_scale = 1.0 + w.theta.iter().fold(0.0_f64, |m, t| m.max(t.abs()));
-            if step <= 1e-15 * theta_scale {
-                if cn > tol && kicks < 3 && self.singular() {
-                    kicks += 1;
-                    self.kick();
+            run.iterations += 1;
+            if run.newton_ready {
+                if self.try_newton(p, mu, &at, tol) {
                     continue;
                 }
-                if cn <= tol {
-                    // On target and no step left: optimal up to round-off.
-                    *mu = mu_q;
-                    return Local {
-                        converged: s <= p.stol.max(1e-9),
-                        tip_error: cn,
-                        iterations,
-                    };
-                }
-                return Local {
-                    converged: false,
-                    tip_error: cn,
-                    iterations,
-                };
+                run.newton_ready = false;
             }
-            let mu_norm = mu_q[0].hypot(mu_q[1]);
-            let nu_wanted = 2.0 * mu_norm + 1e-6 / p.scale;
-            if nu < 1.1 * mu_norm || (!elastic && nu > 10.0 * nu_wanted) {
-                nu = nu_wanted;
+            if let ControlFlow::Break(exit) = self.sqp_step(p, mu, &at, tol, &mut run) {
+                return Local::stopped(exit, p, &at, tol, run.iterations);
             }
-            let w = &mut self.w;
-            slope += nu * ((c - jd).norm() - cn);
-            let merit0 = half_metric(&w.theta, p.theta0) + nu * cn;
-            let mut alpha = 1.0;
-            let mut moved = false;
-            for _ in 0..50 {
-                for a in 0..n {
-                    w.trial[a] = w.theta[a] + alpha * (w.qp_x[a] - w.theta[a]);
-                }
-                if alpha == 1.0 {
-                    w.trial.copy_from_slice(&w.qp_x);
-                }
-                let m = half_metric(&w.trial, p.theta0)
-                    + nu * (p.chain.tip(&w.trial) - p.target).norm();
-                if m <= merit0 + 1e-4 * alpha * slope.min(0.0) {
-                    moved = true;
-                    break;
-                }
-                alpha *= 0.5;
+        }
+    }
+
+    /// The exits checked before every step: next to the best optimum of a cold solve (when
+    /// watched), converged, or out of iterations.
+    fn stop_rule(&self, p: &Problem, at: &Iterate, tol: f64, iterations: usize) -> Option<Exit> {
+        if self.w.watch_best
+            && at.cn <= JOIN_BEST_TIP * p.scale
+            && max_abs_diff(&self.w.theta, &self.w.best) <= JOIN_BEST_POSE
+        {
+            return Some(Exit::JoinedBest);
+        }
+        if at.cn <= tol && at.s <= p.stol {
+            return Some(Exit::Converged);
+        }
+        if iterations >= self.opts.max_iterations {
+            return Some(Exit::IterationCap);
+        }
+        None
+    }
+
+    /// Takes the Newton step from the evaluated iterate `at` when it is trusted and the
+    /// optimality residual at least halves (or the solve converges there); true when taken, with
+    /// `w.theta` and `mu` updated. When not taken, the evaluation at `w.theta` is restored for
+    /// the SQP step.
+    fn try_newton(&mut self, p: &Problem, mu: &mut [f64; 2], at: &Iterate, tol: f64) -> bool {
+        let residual = at.cn / p.scale + at.s;
+        let Some(mu_n) = self.newton(p, *mu, at.c) else {
+            return false;
+        };
+        std::mem::swap(&mut self.w.theta, &mut self.w.trial);
+        let (c2, s2) = self.eval(p, mu_n);
+        let cn2 = c2.norm();
+        if cn2 / p.scale + s2 <= NEWTON_CONTRACTION * residual || (cn2 <= tol && s2 <= p.stol) {
+            *mu = mu_n;
+            return true;
+        }
+        std::mem::swap(&mut self.w.theta, &mut self.w.trial);
+        self.eval(p, *mu);
+        false
+    }
+
+    /// One SQP iteration from the evaluated iterate `at`: solve the subproblem, then take the
+    /// largest step toward its solution that the line search accepts, updating `w.theta` and
+    /// `mu`. A singular pose may be bent instead. Breaks with the exit when no step is left or
+    /// none decreases the merit.
+    fn sqp_step(
+        &mut self,
+        p: &Problem,
+        mu: &mut [f64; 2],
+        at: &Iterate,
+        tol: f64,
+        run: &mut LocalRun,
+    ) -> ControlFlow<Exit> {
+        let elastic = match self.sqp_subproblem(p, *mu, at, tol, run) {
+            Subproblem::Solved { elastic } => elastic,
+            Subproblem::Kicked => return ControlFlow::Continue(()),
+            Subproblem::Stop(exit) => return ControlFlow::Break(exit),
+        };
+        let dir = self.direction(p);
+        if dir.largest <= STEP_FLOOR * dir.pose_size {
+            if self.kick_if_singular(at, tol, &mut run.kicks) {
+                return ControlFlow::Continue(());
             }
-            if !moved {
-                if cn > tol && kicks < 3 && self.singular() {
-                    kicks += 1;
-                    self.kick();
-                    continue;
-                }
-                return Local {
-                    converged: cn <= tol && s <= p.stol.max(1e-9),
-                    tip_error: cn,
-                    iterations,
-                };
+            if at.cn <= tol {
+                // On target and no step left: optimal up to round-off.
+                *mu = run.mu_q;
             }
-            std::mem::swap(&mut self.w.theta, &mut self.w.trial);
-            *mu = mu_q;
-            newton_ready = !elastic && (alpha == 1.0 || cn < 1e-3 * p.scale);
+            return ControlFlow::Break(Exit::NoStep);
+        }
+        run.nu = merit_weight(run.nu, run.mu_q, elastic, p.scale);
+        let Some(alpha) = self.line_search(p, at, run.nu, &dir) else {
+            if self.kick_if_singular(at, tol, &mut run.kicks) {
+                return ControlFlow::Continue(());
+            }
+            return ControlFlow::Break(Exit::NoDescent);
+        };
+        std::mem::swap(&mut self.w.theta, &mut self.w.trial);
+        *mu = run.mu_q;
+        run.newton_ready = !elastic && (alpha == 1.0 || at.cn < NEWTON_RANGE * p.scale);
+        ControlFlow::Continue(())
+    }
+
+    /// The subproblem of an SQP iteration at the evaluated iterate `at`, warm-started from `mu`:
+    /// the exact form, else (after bending a singular pose off target, and unless the run of
+    /// elastic steps has stalled) the elastic form. The solution goes to `w.qp_x`, its
+    /// multiplier to `run.mu_q`.
+    fn sqp_subproblem(
+        &mut self,
+        p: &Problem,
+        mu: [f64; 2],
+        at: &Iterate,
+        tol: f64,
+        run: &mut LocalRun,
+    ) -> Subproblem {
+        let qp_tol = (QP_TOLERANCE * tol).max(QP_TOLERANCE_FLOOR * p.scale);
+        run.mu_q = if run.mu_q[0].is_finite() && run.mu_q[1].is_finite() {
+            mu
+        } else {
+            [0.0; 2]
+        };
+        if self.solve_dual(p, at.c, 0.0, &mut run.mu_q, qp_tol, MU_CAP / p.scale) {
+            run.stall.exact();
+            return Subproblem::Solved { elastic: false };
+        }
+        if self.kick_if_singular(at, tol, &mut run.kicks) {
+            return Subproblem::Kicked;
+        }
+        if run.stall.elastic(at.cn) {
+            return Subproblem::Stop(Exit::ElasticStall);
+        }
+        if self.solve_elastic(p, at.c, &mut run.mu_q, qp_tol) {
+            Subproblem::Solved { elastic: true }
+        } else {
+            Subproblem::Stop(Exit::ElasticFailed)
+        }
+    }
+
+    /// The elastic form of the subproblem with an adaptive weight: the stiffest penalty of
+    /// [`ELASTIC_WEIGHTS`] whose dual settles, each tried from a zero multiplier.
+    fn solve_elastic(&mut self, p: &Problem, c: Vec2, mu_q: &mut [f64; 2], qp_tol: f64) -> bool {
+        for weight in ELASTIC_WEIGHTS {
+            *mu_q = [0.0; 2];
+            let rho_inv = weight * p.scale * p.scale;
+            if self.solve_dual(p, c, rho_inv, mu_q, qp_tol, f64::MAX) {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Solves the subproblem at the evaluated pose (tip correction `c`) through its dual,
+    /// exact (`rho_inv = 0`) or elastic, from the multiplier `mu_q`; see [`Dual::solve`].
+    fn solve_dual(
+        &mut self,
+        p: &Problem,
+        c: Vec2,
+        rho_inv: f64,
+        mu_q: &mut [f64; 2],
+        qp_tol: f64,
+        mu_cap: f64,
+    ) -> bool {
+        let w = &mut self.w;
+        let d = Dual {
+            jx: &w.jx,
+            jy: &w.jy,
+            z: p.theta0,
+            theta: &w.theta,
+            lo: &w.lo,
+            hi: &w.hi,
+            c,
+            rho_inv,
+        };
+        d.solve(mu_q, &mut w.qp_x, &mut w.state, qp_tol, mu_cap, &mut w.brk)
+    }
+
+    /// The SQP direction from `w.theta` to `w.qp_x` at the evaluated pose.
+    fn direction(&self, p: &Problem) -> Direction {
+        let w = &self.w;
+        let mut largest = 0.0_f64;
+        let mut metric_slope = 0.0;
+        let mut tip_move = Vec2::zeros();
+        for a in 0..w.n {
+            let d = w.qp_x[a] - w.theta[a];
+            largest = largest.max(d.abs());
+            metric_slope += (w.theta[a] - p.theta0[a]) * d;
+            tip_move.x += w.jx[a] * d;
+            tip_move.y += w.jy[a] * d;
+        }
+        let pose_size = 1.0 + w.theta.iter().fold(0.0_f64, |m, t| m.max(t.abs()));
+        Direction {
+            largest,
+            pose_size,
+            metric_slope,
+            tip_move,
+        }
+    }
+
+    /// Armijo backtracking on the merit `1/2 |theta - theta0|^2 + nu |tip - target|` along
+    /// `dir`, halving from the full step; the accepted pose is left in `w.trial`. Returns the
+    /// step fraction taken, or `None` when no fraction decreases the merit enough.
+    fn line_search(&mut self, p: &Problem, at: &Iterate, nu: f64, dir: &Direction) -> Option<f64> {
+        let w = &mut self.w;
+        // Directional derivative of the merit; the tip term's from the linearized tip move.
+        let slope = dir.metric_slope + nu * ((at.c - dir.tip_move).norm() - at.cn);
+        let merit0 = half_metric(&w.theta, p.theta0) + nu * at.cn;
+        let mut alpha = 1.0;
+        for _ in 0..MAX_HALVINGS {
+            for a in 0..w.n {
+                w.trial[a] = w.theta[a] + alpha * (w.qp_x[a] - w.theta[a]);
+            }
+            if alpha == 1.0 {
+                w.trial.copy_from_slice(&w.qp_x);
+            }
+            let m =
+                half_metric(&w.trial, p.theta0) + nu * (p.chain.tip(&w.trial) - p.target).norm();
+            if m <= merit0 + ARMIJO * alpha * slope.min(0.0) {
+                return Some(alpha);
+            }
+            alpha *= 0.5;
+        }
+        None
+    }
+
+    /// At a singular pose off target, bends it ([`Self::kick`], at most [`MAX_KICKS`] times
+    /// per local solve); true when it did.
+    fn kick_if_singular(&mut self, at: &Iterate, tol: f64, kicks: &mut usize) -> bool {
+        if at.cn > tol && *kicks < MAX_KICKS && self.singular() {
+            *kicks += 1;
+            self.kick();
+            true
+        } else {
+            false
         }
     }
 
@@ -987,7 +1512,7 @@ impl Overall {
             c += self.w.jy[i] * self.w.jy[i];
         }
         let tr: f64 = a + c;
-        tr <= 0.0 || a * c - b * b <= 1e-20 * tr * tr
+        tr <= 0.0 || a * c - b * b <= RANK_LOSS * tr * tr
     }
 
     /// The deterministic tie-break at a singular pose: bend the joints after the base by a
@@ -998,7 +1523,7 @@ impl Overall {
         let w = &mut self.w;
         let n = w.n;
         let first = usize::from(n >= 2);
-        let amount = 0.02 / (n as f64).sqrt();
+        let amount = KICK_ANGLE / (n as f64).sqrt();
         let mut bend: f64 = w.theta.iter().skip(1).sum();
         if bend == 0.0 || !bend.is_finite() {
             bend = self.bend_sign;
@@ -1015,7 +1540,7 @@ impl Overall {
                 vy += w.jy[i];
             }
         }
-        let eps = 1e-12 * (a + c) + f64::MIN_POSITIVE;
+        let eps = KICK_REGULARIZATION * (a + c) + f64::MIN_POSITIVE;
         let (a, c) = (a + eps, c + eps);
         let det = a * c - b * b;
         let (mx, my) = if det > 0.0 {
@@ -1036,15 +1561,36 @@ impl Overall {
     /// `None` when the step is not trusted: fewer than two free joints, a near-singular
     /// Hessian, an inertia that is not that of a local minimum, or a step too large to be local.
     fn newton(&mut self, p: &Problem, mu: [f64; 2], c: Vec2) -> Option<[f64; 2]> {
+        let c_free = self.predict_active_set(p, mu, c);
+        let m = self.w.free.len();
+        if m < 2 {
+            return None;
+        }
+        self.newton_rows(p, mu);
         let w = &mut self.w;
-        let n = w.n;
-        let tip = w.pts[n];
-        // The active set the multiplier predicts: joint a is held at a bound when
-        // theta0_a + J_a^T mu lies on or beyond it (the generalized derivative of
-        // theta = clip(theta0 + J^T mu)), else free. A held joint moves to its bound by d_a.
+        let f = hessian::factor(&w.g_free[..m], &mut w.piv[..m])?;
+        if f.negative > TIP_ROWS {
+            return None;
+        }
+        w.solve_free(m);
+        let dmu = w.schur(m).multiplier_step(c_free, f.negative)?;
+        let largest = self.newton_pose(dmu);
+        if largest.is_nan() || largest > NEWTON_MAX_MOVE {
+            return None;
+        }
+        Some([mu[0] + dmu[0], mu[1] + dmu[1]])
+    }
+
+    /// The active set the multiplier predicts: joint `a` is held at a bound when
+    /// `theta0_a + J_a^T mu` lies on or beyond it (the generalized derivative of
+    /// `theta = clip(theta0 + J^T mu)`), else free. Fills `w.free` and `w.held_move` (the move of
+    /// each held joint onto its bound) and returns the tip correction `c` less what those moves
+    /// make, which is left for the free joints.
+    fn predict_active_set(&mut self, p: &Problem, mu: [f64; 2], c: Vec2) -> Vec2 {
+        let w = &mut self.w;
         w.free.clear();
         let mut c_free = c;
-        for a in 0..n {
+        for a in 0..w.n {
             let u = p.theta0[a] + w.jx[a] * mu[0] + w.jy[a] * mu[1];
             let d = if u <= w.lo[a] {
                 w.lo[a] - w.theta[a]
@@ -1054,23 +1600,29 @@ impl Overall {
                 w.free.push(a);
                 0.0
             };
-            w.y4[a] = d;
+            w.held_move[a] = d;
             c_free.x -= w.jx[a] * d;
             c_free.y -= w.jy[a] * d;
         }
-        let c = c_free;
+        c_free
+    }
+
+    /// The Newton system of the free joints: their `g` (the Lagrangian Hessian `I + G`
+    /// restricted to them), their Jacobian columns, and their rows' residual
+    /// `theta - theta0 - J^T mu` plus the held joints' moves coupled through `G`: for row `a`,
+    /// `sum_b g_max(a,b) d_b` over held `b`, `= g_a * (moves before a) + sum_{b > a} g_b d_b`,
+    /// from one backward and one forward pass.
+    fn newton_rows(&mut self, p: &Problem, mu: [f64; 2]) {
+        let w = &mut self.w;
+        let n = w.n;
         let m = w.free.len();
-        if m < 2 {
-            return None;
-        }
-        // Coupling of the free rows to the held joints' moves: sum_b g_max(a,b) d_b over held b,
-        // = g_a * (moves before a) + sum_{b > a} g_b d_b, from one backward and one forward pass.
+        let tip = w.pts[n];
         let mut after = 0.0;
         for a in (0..n).rev() {
             let r = tip - w.pts[a];
             let g = mu[0] * r.x + mu[1] * r.y;
-            w.trial[a] = after;
-            after += g * w.y4[a];
+            w.coupling[a] = after;
+            after += g * w.held_move[a];
         }
         let mut before = 0.0;
         let mut k = 0;
@@ -1078,73 +1630,37 @@ impl Overall {
             if k < m && w.free[k] == a {
                 let r = tip - w.pts[a];
                 let g = mu[0] * r.x + mu[1] * r.y;
-                w.g[k] = g;
-                w.jxf[k] = w.jx[a];
-                w.jyf[k] = w.jy[a];
-                w.rf[k] = w.theta[a] - p.theta0[a] - (w.jx[a] * mu[0] + w.jy[a] * mu[1])
+                w.g_free[k] = g;
+                w.jx_free[k] = w.jx[a];
+                w.jy_free[k] = w.jy[a];
+                w.rhs_free[k] = w.theta[a] - p.theta0[a] - (w.jx[a] * mu[0] + w.jy[a] * mu[1])
                     + g * before
-                    + w.trial[a];
+                    + w.coupling[a];
                 k += 1;
             } else {
-                before += w.y4[a];
+                before += w.held_move[a];
             }
         }
-        let f = hessian::factor(&w.g[..m], &mut w.piv[..m])?;
-        if f.negative > 2 {
-            return None;
-        }
-        hessian::solve(&w.piv[..m], &w.jxf[..m], &mut w.s[..m], &mut w.y1[..m]);
-        hessian::solve(&w.piv[..m], &w.jyf[..m], &mut w.s[..m], &mut w.y2[..m]);
-        hessian::solve(&w.piv[..m], &w.rf[..m], &mut w.s[..m], &mut w.y3[..m]);
-        let (mut s00, mut s01, mut s10, mut s11, mut e0, mut e1) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-        for k in 0..m {
-            s00 += w.jxf[k] * w.y1[k];
-            s01 += w.jxf[k] * w.y2[k];
-            s10 += w.jyf[k] * w.y1[k];
-            s11 += w.jyf[k] * w.y2[k];
-            e0 += w.jxf[k] * w.y3[k];
-            e1 += w.jyf[k] * w.y3[k];
-        }
-        let s01 = 0.5 * (s01 + s10);
-        // Second-order check: the KKT matrix has inertia (m, 2, 0) exactly when the Schur
-        // complement S = J H^-1 J^T has as many negative eigenvalues as H and the rest positive.
-        let det = s00 * s11 - s01 * s01;
-        let tr = s00 + s11;
-        let scale = s00.abs() + s11.abs() + s01.abs();
-        if det.is_nan() || det.abs() <= 1e-14 * scale * scale {
-            return None;
-        }
-        let neg_s = if det < 0.0 {
-            1
-        } else if tr < 0.0 {
-            2
-        } else {
-            0
-        };
-        if neg_s != f.negative {
-            return None;
-        }
-        let rhs = [c.x + e0, c.y + e1];
-        let dmu = [
-            (s11 * rhs[0] - s01 * rhs[1]) / det,
-            (s00 * rhs[1] - s01 * rhs[0]) / det,
-        ];
-        let mut big: f64 = 0.0;
-        for a in 0..n {
-            big = big.max(w.y4[a].abs());
-            w.trial[a] = w.theta[a] + w.y4[a];
+    }
+
+    /// Writes the Newton pose into `w.trial`: held joints onto their bounds, free joints moved by
+    /// the step for the multiplier step `dmu` and clipped into the box. Returns the largest joint
+    /// move before clipping.
+    fn newton_pose(&mut self, dmu: [f64; 2]) -> f64 {
+        let w = &mut self.w;
+        let mut largest: f64 = 0.0;
+        for a in 0..w.n {
+            largest = largest.max(w.held_move[a].abs());
+            w.trial[a] = w.theta[a] + w.held_move[a];
         }
         for (k, &a) in w.free.iter().enumerate() {
-            let d = w.y1[k] * dmu[0] + w.y2[k] * dmu[1] - w.y3[k];
-            big = big.max(d.abs());
+            let d = w.hinv_jx[k] * dmu[0] + w.hinv_jy[k] * dmu[1] - w.hinv_rhs[k];
+            largest = largest.max(d.abs());
             // Projected: a free joint that would cross a bound stops there (the next step's
             // active set holds it if the multiplier agrees).
             w.trial[a] = (w.theta[a] + d).clamp(w.lo[a], w.hi[a]);
         }
-        if big.is_nan() || big > 0.5 {
-            return None;
-        }
-        Some([mu[0] + dmu[0], mu[1] + dmu[1]])
+        largest
     }
 
     /// Closest reachable tip from `w.theta`: projected Levenberg-Marquardt on
@@ -1159,7 +1675,7 @@ impl Overall {
     /// a limit whose gradient pushes them outward are held; the step is clipped into the box.
     fn closest(&mut self, p: &Problem, mu: &mut [f64; 2]) -> (usize, bool) {
         let s2 = p.scale * p.scale;
-        let mut lambda = 1e-3 * s2;
+        let mut lambda = LM_DAMPING_START * s2;
         let mut iterations = 0;
         let (mut c, _) = self.eval(p, [0.0; 2]);
         let mut cn = c.norm();
@@ -1194,18 +1710,45 @@ impl Overall {
     }
 
     /// One accepted step of the projected Levenberg-Marquardt iteration of [`Self::closest`]
-    /// from the evaluated pose (residual `c`, its norm `cn`); false when no step decreases the
+    /// from the evaluated pose (residual `c`, its norm `cn`): the damping `lambda` grows until a
+    /// step decreases the distance, and shrinks after it. False when no step decreases the
     /// distance any more (converged or stuck).
     fn closest_step(&mut self, p: &Problem, c: Vec2, cn: f64, lambda: &mut f64) -> bool {
+        if !self.lm_free_set(p, c, cn) {
+            return false;
+        }
         let s2 = p.scale * p.scale;
+        while *lambda <= LM_DAMPING_MAX * s2 {
+            let Some(step) = self.lm_trial(c, *lambda) else {
+                *lambda *= LM_DAMPING_UP;
+                continue;
+            };
+            let w = &mut self.w;
+            let d_new = (p.chain.tip(&w.trial) - p.target).norm();
+            if d_new < cn && step.is_finite() {
+                std::mem::swap(&mut w.theta, &mut w.trial);
+                *lambda = (*lambda / LM_DAMPING_DOWN).max(LM_DAMPING_MIN * s2);
+                return true;
+            }
+            if step <= LM_STEP_FLOOR {
+                return false;
+            }
+            *lambda *= LM_DAMPING_UP;
+        }
+        false
+    }
+
+    /// The gradient of the squared tip distance at the evaluated pose (residual `c`) and the
+    /// free joints: all but those at a limit that the gradient pushes outward. Fills `w.free`,
+    /// the free Jacobian columns and `w.rhs_free` (the negative gradient there). False when the
+    /// projected gradient vanishes (relative to `scale * cn`) or no joint is free.
+    fn lm_free_set(&mut self, p: &Problem, c: Vec2, cn: f64) -> bool {
         let w = &mut self.w;
-        let n = w.n;
-        let tip = w.pts[n];
         let mut pg: f64 = 0.0;
         w.free.clear();
-        for a in 0..n {
+        for a in 0..w.n {
             let grad = -(w.jx[a] * c.x + w.jy[a] * c.y);
-            w.rf[a] = grad;
+            w.grad[a] = grad;
             let moved = (w.theta[a] - grad).clamp(w.lo[a], w.hi[a]);
             pg = pg.max((moved - w.theta[a]).abs());
             let held =
@@ -1214,66 +1757,84 @@ impl Overall {
                 w.free.push(a);
             }
         }
-        if pg <= 1e-14 * p.scale * cn || w.free.is_empty() {
+        if pg <= LM_GRADIENT_FLOOR * p.scale * cn || w.free.is_empty() {
             return false;
         }
+        for (k, &a) in w.free.iter().enumerate() {
+            w.jx_free[k] = w.jx[a];
+            w.jy_free[k] = w.jy[a];
+            w.rhs_free[k] = -w.grad[a];
+        }
+        true
+    }
+
+    /// The damped step of the free joints for the damping `lambda`, written (clipped into the
+    /// box) into `w.trial`: `(lambda I + G + J^T J)^-1` applied to the negative gradient, with
+    /// `lambda I + G` solved by [`hessian`] and `J^T J` by a 2 x 2 Woodbury correction. Returns
+    /// the largest joint move, or `None` when the model is not positive definite at this
+    /// damping.
+    fn lm_trial(&mut self, c: Vec2, lambda: f64) -> Option<f64> {
+        let w = &mut self.w;
+        let tip = w.pts[w.n];
         let m = w.free.len();
         for (k, &a) in w.free.iter().enumerate() {
-            w.jxf[k] = w.jx[a];
-            w.jyf[k] = w.jy[a];
-            w.y3[k] = -w.rf[a];
+            let r = tip - w.pts[a];
+            w.g_free[k] = (c.x * r.x + c.y * r.y) / lambda;
         }
-        while *lambda <= 1e14 * s2 {
-            for (k, &a) in w.free.iter().enumerate() {
-                let r = tip - w.pts[a];
-                w.g[k] = (c.x * r.x + c.y * r.y) / *lambda;
-            }
-            let positive =
-                hessian::factor(&w.g[..m], &mut w.piv[..m]).is_some_and(|f| f.negative == 0);
-            if !positive {
-                *lambda *= 4.0;
-                continue;
-            }
-            // u = A^-1 v with A = lambda (I + G / lambda); the 1 / lambda is applied below.
-            hessian::solve(&w.piv[..m], &w.jxf[..m], &mut w.s[..m], &mut w.y1[..m]);
-            hessian::solve(&w.piv[..m], &w.jyf[..m], &mut w.s[..m], &mut w.y2[..m]);
-            hessian::solve(&w.piv[..m], &w.y3[..m], &mut w.s[..m], &mut w.y4[..m]);
-            let inv = 1.0 / *lambda;
-            let (mut s00, mut s01, mut s11, mut e0, mut e1) = (1.0, 0.0, 1.0, 0.0, 0.0);
-            for k in 0..m {
-                s00 += w.jxf[k] * w.y1[k] * inv;
-                s01 += 0.5 * (w.jxf[k] * w.y2[k] + w.jyf[k] * w.y1[k]) * inv;
-                s11 += w.jyf[k] * w.y2[k] * inv;
-                e0 += w.jxf[k] * w.y4[k] * inv;
-                e1 += w.jyf[k] * w.y4[k] * inv;
-            }
-            let det = s00 * s11 - s01 * s01;
-            if det.is_nan() || det <= 0.0 {
-                *lambda *= 4.0;
-                continue;
-            }
-            let z0 = (s11 * e0 - s01 * e1) / det;
-            let z1 = (s00 * e1 - s01 * e0) / det;
-            w.trial.copy_from_slice(&w.theta);
-            let mut step: f64 = 0.0;
-            for (k, &a) in w.free.iter().enumerate() {
-                let d = (w.y4[k] - w.y1[k] * z0 - w.y2[k] * z1) * inv;
-                let v = (w.theta[a] + d).clamp(w.lo[a], w.hi[a]);
-                step = step.max((v - w.theta[a]).abs());
-                w.trial[a] = v;
-            }
-            let d_new = (p.chain.tip(&w.trial) - p.target).norm();
-            if d_new < cn && step.is_finite() {
-                std::mem::swap(&mut w.theta, &mut w.trial);
-                *lambda = (*lambda / 3.0).max(1e-12 * s2);
-                return true;
-            }
-            if step <= 1e-16 {
-                return false;
-            }
-            *lambda *= 4.0;
+        let positive =
+            hessian::factor(&w.g_free[..m], &mut w.piv[..m]).is_some_and(|f| f.negative == 0);
+        if !positive {
+            return None;
         }
-        false
+        // u = A^-1 v with A = lambda (I + G / lambda); the 1 / lambda is applied below.
+        w.solve_free(m);
+        let inv = 1.0 / lambda;
+        let (mut s00, mut s01, mut s11, mut e0, mut e1) = (1.0, 0.0, 1.0, 0.0, 0.0);
+        for k in 0..m {
+            s00 += w.jx_free[k] * w.hinv_jx[k] * inv;
+            s01 += 0.5 * (w.jx_free[k] * w.hinv_jy[k] + w.jy_free[k] * w.hinv_jx[k]) * inv;
+            s11 += w.jy_free[k] * w.hinv_jy[k] * inv;
+            e0 += w.jx_free[k] * w.hinv_rhs[k] * inv;
+            e1 += w.jy_free[k] * w.hinv_rhs[k] * inv;
+        }
+        let det = s00 * s11 - s01 * s01;
+        if det.is_nan() || det <= 0.0 {
+            return None;
+        }
+        let z0 = (s11 * e0 - s01 * e1) / det;
+        let z1 = (s00 * e1 - s01 * e0) / det;
+        w.trial.copy_from_slice(&w.theta);
+        let mut step: f64 = 0.0;
+        for (k, &a) in w.free.iter().enumerate() {
+            let d = (w.hinv_rhs[k] - w.hinv_jx[k] * z0 - w.hinv_jy[k] * z1) * inv;
+            let v = (w.theta[a] + d).clamp(w.lo[a], w.hi[a]);
+            step = step.max((v - w.theta[a]).abs());
+            w.trial[a] = v;
+        }
+        Some(step)
+    }
+}
+
+impl Work {
+    /// The Schur complement of the free joints' Newton system, from [`Work::solve_free`]'s
+    /// results.
+    fn schur(&self, m: usize) -> Schur {
+        let (mut s00, mut s01, mut s10, mut s11, mut e0, mut e1) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for k in 0..m {
+            s00 += self.jx_free[k] * self.hinv_jx[k];
+            s01 += self.jx_free[k] * self.hinv_jy[k];
+            s10 += self.jy_free[k] * self.hinv_jx[k];
+            s11 += self.jy_free[k] * self.hinv_jy[k];
+            e0 += self.jx_free[k] * self.hinv_rhs[k];
+            e1 += self.jy_free[k] * self.hinv_rhs[k];
+        }
+        Schur {
+            s00,
+            s01: 0.5 * (s01 + s10),
+            s11,
+            e0,
+            e1,
+        }
     }
 }
 

@@ -397,3 +397,60 @@ fn cold_solve_is_not_beaten_by_random_starts() {
     eprintln!("{worse} of {total} missed");
     assert_eq!(worse, 0);
 }
+
+#[test]
+fn cold_starts_come_in_the_documented_order() {
+    let opts = OverallOptions {
+        mirror_starts: 2,
+        random_starts: 3,
+        ..OverallOptions::default()
+    };
+    let fixed = [
+        Start::Clipped,
+        Start::Turned,
+        Start::StraightPath,
+        Start::PolarPath,
+        Start::Mirror(0),
+        Start::Mirror(1),
+    ];
+    let first = Start::Random { first: true };
+    let later = Start::Random { first: false };
+    // Limited chain: the random starts follow; a second round only while nothing is on target.
+    let mut s = Schedule::new(&opts, true);
+    let got: Vec<Start> = std::iter::from_fn(|| s.next(true)).collect();
+    let mut want = fixed.to_vec();
+    want.extend([first, later, later]);
+    assert_eq!(got, want);
+    let mut s = Schedule::new(&opts, true);
+    let got: Vec<Start> = std::iter::from_fn(|| s.next(false)).collect();
+    want.extend([later; 3]);
+    assert_eq!(got, want);
+    // Unlimited chain: random starts only when nothing has reached the target.
+    let mut s = Schedule::new(&opts, false);
+    assert_eq!(std::iter::from_fn(|| s.next(true)).count(), fixed.len());
+    let mut s = Schedule::new(&opts, false);
+    let got: Vec<Start> = std::iter::from_fn(|| s.next(false)).collect();
+    let mut want = fixed.to_vec();
+    want.extend([first, later, later]);
+    assert_eq!(got, want);
+}
+
+#[test]
+fn elastic_runs_stall_without_a_one_percent_cut() {
+    // Ten elastic steps after the first must bring the error below 99% of where the run began.
+    let mut stall = ElasticStall::default();
+    for _ in 0..ELASTIC_STALL_STEPS {
+        assert!(!stall.elastic(1.0));
+    }
+    assert!(stall.elastic(0.995));
+    // A 1% cut opens a new window; an exact step ends the run.
+    let mut stall = ElasticStall::default();
+    for _ in 0..ELASTIC_STALL_STEPS {
+        assert!(!stall.elastic(1.0));
+    }
+    assert!(!stall.elastic(0.98));
+    stall.exact();
+    for _ in 0..ELASTIC_STALL_STEPS {
+        assert!(!stall.elastic(1.0));
+    }
+}
