@@ -400,6 +400,21 @@ proptest! {
         let cruise = cruise.map_or(speed, |c| c.min(speed));
         let expected = trapezoid_time((target - start).norm(), cruise, accel);
         let finish = run.until_finished(dt, 3.0 * expected + 1.0);
+        if !overall && finish == Some(Finish::Saturated) {
+            // The sequential strategy does not steer around the limits: a move can fold a joint
+            // onto its limit on the way (the spread above makes it rare, not impossible). Then,
+            // and only then, it may stop short: on the line, with a joint within one tick's
+            // joint motion of its limit.
+            let theta = run.c.theta().to_vec();
+            let near = limits.max_joint_speed_rad_s * dt + 1e-9;
+            let at_limit = theta.iter().zip(run.c.chain().limits()).any(|(t, l)| {
+                l.is_some_and(|l| (t - l.lo).abs() < near || (t - l.hi).abs() < near)
+            });
+            prop_assert!(at_limit, "stopped short with no joint at a limit: {:?}", theta);
+            let off = segment_distance(run.c.tip(), start, target);
+            prop_assert!(off < 1e-6, "stopped {off} m off the line");
+            return Ok(());
+        }
         prop_assert_eq!(finish, Some(Finish::Arrived));
         prop_assert!((run.c.tip() - target).norm() <= 1e-9, "off by {}", (run.c.tip() - target).norm());
         prop_assert_eq!(run.c.target(), None);
