@@ -33,7 +33,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use serde_json::{Map, Value};
 use tokio::sync::oneshot;
 
 use crate::chain::Vec2;
@@ -41,10 +40,10 @@ use crate::config::Config;
 use crate::connect::{self, Connection};
 use crate::control::{self, Activity, Controller, Finish, Refused};
 use crate::protocol::{
-    ClientId, Cmd, Code, CommandInfo, Counters, Describe, Event, EventKind, FaultInfo, Rejection,
-    RequestId, State, Telemetry, PROTOCOL_VERSION,
+    Answer, ClientId, CmdName, Code, CommandInfo, Counters, Describe, Event, FaultChange,
+    FaultInfo, FaultKind, LoadUnit, LoopCmd, Motion, Outcome, Rebooted, Rejection, Reply,
+    RequestId, State, Status, StopReason, Telemetry, What,
 };
-use crate::resolve::Strategy;
 use crate::servo::arm::{self, Arm, BringUpOptions, OnExit, Retry};
 use crate::servo::clock::WallClock;
 use crate::servo::dynamixel::DynamixelBus;
@@ -54,7 +53,7 @@ use crate::servo::{
     units, ErrorClass, Fields, Goal, HardwareErrors, Register, ServoBus, ServoError, States,
 };
 
-use super::link::{self, Answer, Envelope, Handle, LoopEnds, COMMAND_QUEUE};
+use super::link::{self, Envelope, Handle, LoopEnds, COMMAND_QUEUE};
 use super::stats::Histogram;
 use super::{DaemonError, RunOptions, Summary};
 
@@ -131,8 +130,8 @@ pub(super) fn main(
 struct Active {
     owner: ClientId,
     id: Option<RequestId>,
-    kind: &'static str,
-    outcome: &'static str,
+    kind: CmdName,
+    outcome: Outcome,
     peak: f64,
     m3: f64,
 }
@@ -159,10 +158,10 @@ enum JointFault {
 }
 
 impl JointFault {
-    fn kind(self) -> &'static str {
+    fn kind(self) -> FaultKind {
         match self {
-            JointFault::Silent => "silent",
-            JointFault::Hardware(_) => "hardware_error",
+            JointFault::Silent => FaultKind::Silent,
+            JointFault::Hardware(_) => FaultKind::HardwareError,
         }
     }
 }
@@ -351,7 +350,7 @@ struct Cycle {
     temperature_c: Vec<f64>,
     voltage_v: Vec<f64>,
     load: Vec<f64>,
-    load_unit: Vec<&'static str>,
+    load_unit: Vec<LoadUnit>,
     health_tick: u64,
     /// Which joints' temperature and voltage this health read brought (the others keep
     /// their last values and are not judged on them).
@@ -400,8 +399,8 @@ impl Cycle {
             .joints()
             .iter()
             .map(|j| match j.model.current_unit() {
-                CurrentUnit::LoadPermille => "percent",
-                CurrentUnit::MilliAmps(_) => "A",
+                CurrentUnit::LoadPermille => LoadUnit::Percent,
+                CurrentUnit::MilliAmps(_) => LoadUnit::Amps,
             })
             .collect();
         let cycle = Self {
@@ -801,11 +800,11 @@ impl Cycle {
         tracing::warn!(
             id = info.id,
             joint = info.joint,
-            kind = info.kind,
+            kind = %info.kind,
             "fault: {}",
             info.detail
         );
-        self.fault_event(EventKind::Fault, "raised", info);
+        self.fault_event(FaultChange::Raised, info);
         self.rebuild_lists();
     }
 
@@ -818,11 +817,11 @@ impl Cycle {
         let info = self.joint_info(i, fault.kind(), since, detail);
         tracing::info!(
             id = info.id,
-            kind = info.kind,
+            kind = %info.kind,
             "fault cleared: {}",
             info.detail
         );
-        self.fault_event(EventKind::Fault, "cleared", info);
+        self.fault_event(FaultChange::Cleared, info);
         self.rebuild_lists();
     }
 
@@ -830,24 +829,22 @@ impl Cycle {
     /// `stopped` event with reason `fault` to its owner).
     fn hold_for_fault(&mut self) {
         self.controller.freeze();
-        self.interrupt("fault");
+        self.interrupt(StopReason::Fault);
     }
 
     /// The active command ends without arriving (outcome `fault`, or `stopped` for a
     /// `reboot`), its sender told by a `stopped` event with `reason`.
-    fn interrupt(&mut self, reason: &'static str) {
+    fn interrupt(&mut self, reason: StopReason) {
         if let Some(mut a) = self.active.take() {
-            a.outcome = if reason == "fault" {
-                "fault"
+            a.outcome = if reason == StopReason::Fault {
+                Outcome::Fault
             } else {
-                "stopped"
+                Outcome::Stopped
             };
-            self.event(
-                Some(a.owner),
-                a.id.clone(),
-                EventKind::Stopped,
-                Some(reason),
-            );
+            self.event(Some(a.owner), a.id.clone(), |tip| What::Stopped {
+                tip,
+                reason,
+            });
             self.last = Some(a);
         }
     }
@@ -942,13 +939,13 @@ impl Cycle {
             gap.as_millis(),
             watchdog.as_millis()
         );
-        self.interrupt("fault");
+        self.interrupt(StopReason::Fault);
         match self.recover() {
             Ok(_) => {
                 for id in tripped {
                     if let Some(i) = self.ids.iter().position(|&x| x == id) {
-                        let info = self.joint_info(i, "watchdog", tick, detail.clone());
-                        self.fault_event(EventKind::Fault, "recovered", info);
+                        let info = self.joint_info(i, FaultKind::Watchdog, tick, detail.clone());
+                        self.fault_event(FaultChange::Recovered, info);
                     }
                 }
             }
@@ -978,7 +975,7 @@ impl Cycle {
         }
         tracing::error!("{detail}");
         let info = port_info(self.tick, detail);
-        self.fault_event(EventKind::Fault, "raised", info);
+        self.fault_event(FaultChange::Raised, info);
         self.rebuild_lists();
     }
 
@@ -998,7 +995,7 @@ impl Cycle {
                     "the port is open again; goals := measured pose".into(),
                 );
                 tracing::info!("port reopened");
-                self.fault_event(EventKind::Fault, "cleared", info);
+                self.fault_event(FaultChange::Cleared, info);
                 self.rebuild_lists();
             }
             Err(e) => {
@@ -1034,10 +1031,10 @@ impl Cycle {
                         let detail = format!(
                             "{t:.0} °C, within {TEMPERATURE_MARGIN_C:.0} °C of its Temperature Limit {limit:.0} °C"
                         );
-                        self.warn(i, "temperature", Some(detail));
+                        self.warn(i, FaultKind::Temperature, Some(detail));
                     }
                     Some(_) if t < warn_at - TEMPERATURE_HYSTERESIS_C => {
-                        self.warn(i, "temperature", None);
+                        self.warn(i, FaultKind::Temperature, None);
                     }
                     _ => {}
                 }
@@ -1052,9 +1049,9 @@ impl Cycle {
                         let detail = format!(
                             "input {v:.1} V, within {VOLTAGE_MARGIN_V} V of its voltage limits {lo:.1}..{hi:.1} V"
                         );
-                        self.warn(i, "voltage", Some(detail));
+                        self.warn(i, FaultKind::Voltage, Some(detail));
                     }
-                    Some(_) if clear => self.warn(i, "voltage", None),
+                    Some(_) if clear => self.warn(i, FaultKind::Voltage, None),
                     _ => {}
                 }
             }
@@ -1062,29 +1059,29 @@ impl Cycle {
     }
 
     /// Raise (`detail`) or clear (`None`) joint `i`'s warning of `kind`.
-    fn warn(&mut self, i: usize, kind: &'static str, detail: Option<String>) {
+    fn warn(&mut self, i: usize, kind: FaultKind, detail: Option<String>) {
         let tick = self.tick;
         let slot = match kind {
-            "temperature" => &mut self.health[i].temperature_warning,
+            FaultKind::Temperature => &mut self.health[i].temperature_warning,
             _ => &mut self.health[i].voltage_warning,
         };
         let (reason, since, detail) = match detail {
             Some(d) => {
                 *slot = Some((tick, d.clone()));
-                ("raised", tick, d)
+                (FaultChange::Raised, tick, d)
             }
             None => match slot.take() {
-                Some((since, _)) => ("cleared", since, format!("{kind} back in range")),
+                Some((since, _)) => (FaultChange::Cleared, since, format!("{kind} back in range")),
                 None => return,
             },
         };
         let info = self.joint_info(i, kind, since, detail);
-        tracing::warn!(id = info.id, kind, reason, "health: {}", info.detail);
-        self.fault_event(EventKind::Warning, reason, info);
+        tracing::warn!(id = info.id, kind = %kind, reason = %reason, "health: {}", info.detail);
+        self.fault_event(reason, info);
         self.rebuild_lists();
     }
 
-    fn joint_info(&self, i: usize, kind: &'static str, since: u64, detail: String) -> FaultInfo {
+    fn joint_info(&self, i: usize, kind: FaultKind, since: u64, detail: String) -> FaultInfo {
         FaultInfo {
             id: self.ids.get(i).copied().unwrap_or_default(),
             joint: i + 1,
@@ -1106,10 +1103,10 @@ impl Cycle {
                 faults.push(self.joint_info(i, fault.kind(), *since, detail.clone()));
             }
             if let Some((since, detail)) = &h.temperature_warning {
-                warnings.push(self.joint_info(i, "temperature", *since, detail.clone()));
+                warnings.push(self.joint_info(i, FaultKind::Temperature, *since, detail.clone()));
             }
             if let Some((since, detail)) = &h.voltage_warning {
-                warnings.push(self.joint_info(i, "voltage", *since, detail.clone()));
+                warnings.push(self.joint_info(i, FaultKind::Voltage, *since, detail.clone()));
             }
         }
         self.fault_list = faults;
@@ -1117,18 +1114,9 @@ impl Cycle {
         self.lists_changed = true;
     }
 
-    /// A `fault` or `warning` event, to everyone.
-    fn fault_event(&self, kind: EventKind, reason: &'static str, info: FaultInfo) {
-        let tip = self.controller.chain().tip(self.controller.theta());
-        let _ = self.ends.events.send(Event {
-            owner: None,
-            cmd_id: None,
-            kind,
-            tick: self.tick,
-            tip: [tip.x, tip.y],
-            reason: Some(reason),
-            fault: Some(info),
-        });
+    /// A `fault` event, or a `warning` one for a warning's kind, to everyone.
+    fn fault_event(&self, reason: FaultChange, info: FaultInfo) {
+        self.event(None, None, |tip| What::alarm(tip, reason, info));
     }
 
     fn write_failed(&mut self, e: &ServoError) {
@@ -1182,7 +1170,7 @@ impl Cycle {
         let tracking = (self.tip_ref - tip_meas).norm();
         let loop_hz = self.window.rate_hz();
         let p99 = self.window.p99_us;
-        let strategy = self.controller.strategy().name();
+        let strategy = self.controller.strategy();
         let (tick, t_s) = (self.tick, self.tick as f64 * self.dt);
         let theta_cmd = self.controller.theta();
         let (theta_meas, omega_meas) = (&self.theta_meas, &self.omega_meas);
@@ -1273,31 +1261,33 @@ impl Cycle {
     }
 
     fn apply(&mut self, e: &Envelope) -> Pending {
-        if self.stopping_for_exit && !matches!(e.cmd, Cmd::Status | Cmd::Stop | Cmd::Estop) {
+        if self.stopping_for_exit
+            && !matches!(e.cmd, LoopCmd::Status | LoopCmd::Stop | LoopCmd::Estop)
+        {
             return Self::refuse(Code::ShuttingDown, "the daemon is stopping");
         }
         match &e.cmd {
-            Cmd::Status => Pending::Status,
-            Cmd::Stop => {
+            LoopCmd::Status => Pending::Status,
+            LoopCmd::Stop => {
                 if !self.estop {
                     if let Err(r) = self.controller.command(control::Command::Stop) {
                         return Self::refuse(Code::BadArg, r.to_string());
                     }
-                    self.begin(e, "stop");
+                    self.begin(e, CmdName::Stop);
                 }
                 self.ok()
             }
-            Cmd::Estop => {
+            LoopCmd::Estop => {
                 self.estop_now(e);
                 self.ok()
             }
-            Cmd::Reset => self.reset(e),
-            Cmd::Strategy { name } => {
+            LoopCmd::Reset => self.reset(e),
+            LoopCmd::Strategy { name } => {
                 self.controller.set_strategy(*name);
                 tracing::info!(strategy = name.name(), "strategy switched");
                 self.ok()
             }
-            Cmd::ResetStats => {
+            LoopCmd::ResetStats => {
                 self.peak_total = 0.0;
                 self.m3_total = 0.0;
                 self.overruns_before = self.overruns;
@@ -1309,13 +1299,9 @@ impl Cycle {
                 self.ticks_before = self.tick;
                 self.ok()
             }
-            Cmd::Torque { on } => self.torque_cmd(*on),
-            Cmd::Reboot { ids } => self.reboot(ids.as_deref()),
-            Cmd::Describe | Cmd::Subscribe { .. } | Cmd::Unsubscribe => Self::refuse(
-                Code::UnknownCmd,
-                format!("`{}` is answered by the socket, not the loop", e.cmd.name()),
-            ),
-            motion => {
+            LoopCmd::Torque { on } => self.torque_cmd(*on),
+            LoopCmd::Reboot { ids } => self.reboot(ids.as_deref()),
+            LoopCmd::Motion(motion) => {
                 if self.estop {
                     return Self::refuse(
                         Code::Estopped,
@@ -1348,45 +1334,44 @@ impl Cycle {
         }
     }
 
-    fn motion(&self, cmd: &Cmd) -> Option<control::Command> {
+    fn motion(&self, cmd: &Motion) -> Option<control::Command> {
         let v2 = |p: &[f64; 2]| Vec2::new(p[0], p[1]);
         Some(match cmd {
-            Cmd::Goto { target, speed } => control::Command::Goto {
+            Motion::Goto { target, speed } => control::Command::Goto {
                 target: v2(target),
                 speed: *speed,
             },
-            Cmd::GotoJoints { theta } => control::Command::GotoJoints {
+            Motion::GotoJoints { theta } => control::Command::GotoJoints {
                 theta: theta.clone(),
             },
-            Cmd::Path { points, speed } => control::Command::Path {
+            Motion::Path { points, speed } => control::Command::Path {
                 points: points.iter().map(v2).collect(),
                 speed: *speed,
             },
-            Cmd::Velocity { v } => control::Command::Velocity { v: v2(v) },
-            Cmd::Jog { joint, rad_s } => control::Command::Jog {
+            Motion::Velocity { v } => control::Command::Velocity { v: v2(v) },
+            Motion::Jog { joint, rad_s } => control::Command::Jog {
                 joint: joint.checked_sub(1)?,
                 rad_s: *rad_s,
             },
-            Cmd::Home => control::Command::GotoJoints {
+            Motion::Home => control::Command::GotoJoints {
                 theta: self.home.clone(),
             },
-            _ => return None,
         })
     }
 
     /// A command accepted by the controller becomes the active one. Renewing a velocity (or the
     /// same joint's jog) keeps the running account; anything else preempts it.
-    fn begin(&mut self, e: &Envelope, kind: &'static str) {
+    fn begin(&mut self, e: &Envelope, kind: CmdName) {
         let renewal = self.active.as_ref().is_some_and(|a| {
             a.owner == e.client
                 && a.kind == kind
                 && match e.cmd {
-                    Cmd::Velocity { .. } => true,
-                    Cmd::Jog { joint, .. } => self.last_jog == Some(joint),
+                    LoopCmd::Motion(Motion::Velocity { .. }) => true,
+                    LoopCmd::Motion(Motion::Jog { joint, .. }) => self.last_jog == Some(joint),
                     _ => false,
                 }
         });
-        if let Cmd::Jog { joint, .. } = e.cmd {
+        if let LoopCmd::Motion(Motion::Jog { joint, .. }) = e.cmd {
             self.last_jog = Some(joint);
         }
         if renewal {
@@ -1396,20 +1381,18 @@ impl Cycle {
             return;
         }
         if let Some(mut old) = self.active.take() {
-            old.outcome = "preempted";
-            self.event(
-                Some(old.owner),
-                old.id.clone(),
-                EventKind::Preempted,
-                Some(kind),
-            );
+            old.outcome = Outcome::Preempted;
+            self.event(Some(old.owner), old.id.clone(), |tip| What::Preempted {
+                tip,
+                reason: kind,
+            });
             self.last = Some(old);
         }
         self.active = Some(Active {
             owner: e.client,
             id: e.id.clone(),
             kind,
-            outcome: "active",
+            outcome: Outcome::Active,
             peak: 0.0,
             m3: 0.0,
         });
@@ -1420,34 +1403,37 @@ impl Cycle {
         let Some(mut done) = self.active.take() else {
             return;
         };
-        let (kind, outcome, reason) = match finish {
-            Finish::Arrived => (EventKind::Arrived, "arrived", None),
-            Finish::Saturated => (EventKind::Saturated, "saturated", None),
-            Finish::Stopped { deadman: true } => (EventKind::Stopped, "stopped", Some("deadman")),
-            Finish::Stopped { deadman: false } => (EventKind::Stopped, "stopped", Some("stop")),
+        let (outcome, what): (Outcome, fn([f64; 2]) -> What) = match finish {
+            Finish::Arrived => (Outcome::Arrived, |tip| What::Arrived { tip }),
+            Finish::Saturated => (Outcome::Saturated, |tip| What::Saturated { tip }),
+            Finish::Stopped { deadman: true } => (Outcome::Stopped, |tip| What::Stopped {
+                tip,
+                reason: StopReason::Deadman,
+            }),
+            Finish::Stopped { deadman: false } => (Outcome::Stopped, |tip| What::Stopped {
+                tip,
+                reason: StopReason::Stop,
+            }),
         };
         done.outcome = outcome;
-        self.event(Some(done.owner), done.id.clone(), kind, reason);
+        self.event(Some(done.owner), done.id.clone(), what);
         self.last = Some(done);
     }
 
+    /// An event at this tick; `what` is given the commanded tip.
     fn event(
         &self,
         owner: Option<ClientId>,
         cmd_id: Option<RequestId>,
-        kind: EventKind,
-        reason: Option<&'static str>,
+        what: impl FnOnce([f64; 2]) -> What,
     ) {
         let tip = self.controller.chain().tip(self.controller.theta());
         // No subscriber is not an error: nobody is listening.
         let _ = self.ends.events.send(Event {
             owner,
             cmd_id,
-            kind,
             tick: self.tick,
-            tip: [tip.x, tip.y],
-            reason,
-            fault: None,
+            what: what([tip.x, tip.y]),
         });
     }
 
@@ -1458,7 +1444,7 @@ impl Cycle {
         self.controller.freeze();
         self.estop = true;
         if let Some(mut a) = self.active.take() {
-            a.outcome = "estop";
+            a.outcome = Outcome::Estop;
             self.last = Some(a);
         }
         tracing::warn!("estop: goals frozen");
@@ -1468,7 +1454,7 @@ impl Cycle {
                 tracing::error!("estop: torque off failed: {err}");
             }
         }
-        self.event(None, e.id.clone(), EventKind::Estop, None);
+        self.event(None, e.id.clone(), |tip| What::Estop { tip });
     }
 
     fn reset(&mut self, e: &Envelope) -> Pending {
@@ -1488,7 +1474,7 @@ impl Cycle {
         self.torque = true;
         self.estop = false;
         tracing::info!("reset: holding the measured pose");
-        self.event(None, e.id.clone(), EventKind::Reset, None);
+        self.event(None, e.id.clone(), |tip| What::Reset { tip });
         self.ok()
     }
 
@@ -1501,7 +1487,7 @@ impl Cycle {
             .fault_list
             .iter()
             .map(|f| match f.kind {
-                "port" => format!("port: {}", f.detail),
+                FaultKind::Port => format!("port: {}", f.detail),
                 _ => format!(
                     "servo {} (joint {}) {}: {}",
                     f.id, f.joint, f.kind, f.detail
@@ -1540,13 +1526,11 @@ impl Cycle {
             self.torque = false;
             self.controller.freeze();
             if let Some(mut a) = self.active.take() {
-                a.outcome = "stopped";
-                self.event(
-                    Some(a.owner),
-                    a.id.clone(),
-                    EventKind::Stopped,
-                    Some("torque"),
-                );
+                a.outcome = Outcome::Stopped;
+                self.event(Some(a.owner), a.id.clone(), |tip| What::Stopped {
+                    tip,
+                    reason: StopReason::Torque,
+                });
                 self.last = Some(a);
             }
             tracing::info!("torque off");
@@ -1590,7 +1574,7 @@ impl Cycle {
             }
         };
         self.controller.freeze();
-        self.interrupt("reboot");
+        self.interrupt(StopReason::Reboot);
         let clock = WallClock::new();
         let mut retry = Retry::default();
         for &id in &targets {
@@ -1624,9 +1608,11 @@ impl Cycle {
             };
             self.clear(i, detail.into());
         }
-        let mut m = tick_fields(self.tick);
-        m.insert("rebooted".into(), Value::from(targets));
-        Pending::Ready(Ok(m))
+        Pending::Ready(Ok(Reply::Rebooted(Rebooted {
+            tick: self.tick,
+            rebooted: targets,
+        })
+        .into()))
     }
 
     /// Commands still queued when the loop ends are answered, not dropped silently.
@@ -1646,14 +1632,13 @@ fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
     dst.extend_from_slice(src);
 }
 
-fn tick_fields(tick: u64) -> Map<String, Value> {
-    let mut m = Map::new();
-    m.insert("tick".into(), Value::from(tick));
-    m
+fn tick_fields(tick: u64) -> crate::protocol::Fields {
+    Reply::Applied(crate::protocol::Applied { tick }).into()
 }
 
+/// The `status` answer: the snapshot, nobody named in control (the socket side fills it in).
 fn status_fields(t: &Telemetry) -> Answer {
-    Ok(t.to_fields())
+    Ok(Reply::Status(Box::new(Status::of(t.clone()))).into())
 }
 
 /// Each joint's health thresholds, read once after bring-up: Temperature Limit and Min/Max
@@ -1698,7 +1683,7 @@ fn port_info(since: u64, detail: String) -> FaultInfo {
     FaultInfo {
         id: 0,
         joint: 0,
-        kind: "port",
+        kind: FaultKind::Port,
         since_tick: since,
         detail,
     }
@@ -1715,23 +1700,14 @@ fn recovered_detail(watchdogs: &[u8]) -> String {
 
 /// The `describe` reply: what a remote UI needs to draw the arm.
 pub(super) fn describe(config: &Config, arm: &Arm) -> Describe {
-    let chain = config.chain();
-    let base = chain.base();
-    let (min_rad, max_rad) = chain
-        .limits()
-        .iter()
-        .map(|l| l.map_or((f64::MIN, f64::MAX), |l| (l.lo, l.hi)))
-        .unzip();
-    Describe {
-        links_m: chain.links().to_vec(),
-        base: [base.x, base.y, chain.heading()],
-        min_rad,
-        max_rad,
-        ids: arm.ids(),
-        models: arm.joints().iter().map(|j| j.model.name()).collect(),
-        home_rad: config.home().to_vec(),
-        rate_hz: config.control().rate_hz,
-        strategies: vec![Strategy::Overall.name(), Strategy::Sequential.name()],
-        protocol_version: PROTOCOL_VERSION,
-    }
+    Describe::of_chain(
+        config.chain(),
+        arm.ids(),
+        arm.joints()
+            .iter()
+            .map(|j| j.model.name().to_owned())
+            .collect(),
+        config.home().to_vec(),
+        config.control().rate_hz,
+    )
 }
