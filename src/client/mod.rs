@@ -131,6 +131,13 @@ pub enum ClientError {
         /// The line as it came.
         line: String,
     },
+    /// A reply read as another command's than the one asked (replies are typed by the command
+    /// they answer, so this is a fault of this client's).
+    #[error("the reply to `{cmd}` was read as another command's")]
+    WrongReply {
+        /// The command asked.
+        cmd: CmdName,
+    },
     /// `describe` described an arm no chain can be built from.
     #[error("the daemon describes an arm that cannot be drawn: {source}")]
     BadArm {
@@ -623,7 +630,9 @@ impl Client {
     pub fn describe(&mut self) -> Result<Arm, ClientError> {
         let fields = self.request(&Cmd::Describe)?;
         let Reply::Describe(describe) = fields.reply else {
-            return Err(self.wrong_reply(CmdName::Describe));
+            return Err(ClientError::WrongReply {
+                cmd: CmdName::Describe,
+            });
         };
         Arm::new(Arc::unwrap_or_clone(describe)).map_err(|source| ClientError::BadArm { source })
     }
@@ -633,7 +642,9 @@ impl Client {
         let fields = self.request(&Cmd::Status)?;
         match fields.reply {
             Reply::Status(status) => Ok(*status),
-            _ => Err(self.wrong_reply(CmdName::Status)),
+            _ => Err(ClientError::WrongReply {
+                cmd: CmdName::Status,
+            }),
         }
     }
 
@@ -642,7 +653,9 @@ impl Client {
         let fields = self.request(&Cmd::TakeControl)?;
         match fields.reply {
             Reply::TookControl(took) => Ok(took),
-            _ => Err(self.wrong_reply(CmdName::TakeControl)),
+            _ => Err(ClientError::WrongReply {
+                cmd: CmdName::TakeControl,
+            }),
         }
     }
 
@@ -842,14 +855,6 @@ impl Client {
         Ok(fields)
     }
 
-    /// A reply typed by the command it answers that is not that command's reply: cannot
-    /// happen, [`Fields::read`] types by command.
-    fn wrong_reply(&self, cmd: CmdName) -> ClientError {
-        ClientError::Stray {
-            line: format!("(a reply to `{cmd}` of another shape)"),
-        }
-    }
-
     fn write_line(&mut self, line: &str) -> Result<(), ClientError> {
         self.writer
             .write_all(line.as_bytes())
@@ -918,7 +923,7 @@ impl Client {
                 line,
                 source: error,
             }),
-            Arrival::Event(_) => Err(self.wrong_reply(cmd)),
+            Arrival::Event(_) => Err(ClientError::WrongReply { cmd }),
         }
     }
 
