@@ -7,11 +7,12 @@
 //!
 //! - With a token ([`ServerOptions::token`]) a client's first line must be `auth` with it, within
 //!   [`AUTH_GRACE`]; anything else is answered `unauthorized` and the connection closed.
-//! - `describe`, `subscribe`, `unsubscribe`, `take_control`, `release` and `auth` are answered
-//!   here. Every other command is first put to the [`Arbiter`] (one controller at a time; a
-//!   command that needs control from anyone else is answered `not_in_control`), then goes to the
-//!   loop through [`Handle::commands`] without waiting for room (full: `busy`), and its reply is
-//!   written when the loop answers, so a client's replies keep the order of its requests.
+//! - Where a command goes is [`Cmd::route`]'s to say: a [`SessionCmd`] (`describe`,
+//!   `subscribe`, `unsubscribe`, `take_control`, `release`, `auth`) is answered here; a
+//!   [`LoopCmd`] is first put to the [`Arbiter`] (one controller at a time; a command that needs
+//!   control from anyone else is answered `not_in_control`), then goes to the loop through
+//!   [`Handle::commands`] without waiting for room (full: `busy`), and its reply is written when
+//!   the loop answers, so a client's replies keep the order of its requests.
 //! - Events from [`Handle::events`] meant for this client, or for everyone, and every change of
 //!   controller (a `control` event), are queued as event lines between replies, all written by
 //!   [`protocol::event_line`].
