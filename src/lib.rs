@@ -41,14 +41,16 @@
 //!
 //! **The daemon and its clients**:
 //! - [`protocol`]: the daemon's JSON-lines wire format: requests, replies, error codes,
-//!   telemetry, events; the one set of types the daemon and every client use.
+//!   telemetry, events, each written and read by the same type, shared by the daemon and its
+//!   clients; and where each command goes (who may send it, the socket side or the loop).
 //! - [`ros`]: the ROS 2 messages the arm speaks on a Zenoh network (`JointState`,
 //!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in.
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread (held as parts: port,
 //!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
 //!   between them.
-//! - [`client`]: a blocking client of the daemon's socket (requests, replies, events, the
-//!   latest telemetry), for the one-shot commands, teleop and the demo.
+//! - [`client`]: a blocking client of the daemon's socket (requests, typed replies, events, the
+//!   latest telemetry, a motion command run to its end; the arm drawn by its chain), for the
+//!   one-shot commands, teleop and the demo.
 //! - [`teleop`]: the teleop terminal UI: pure input logic (keyboard hold-to-move, joystick),
 //!   the joystick device reader, the drawing.
 

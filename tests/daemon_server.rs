@@ -19,8 +19,11 @@ use snakectl::daemon::link::{self, Envelope, Handle, COMMAND_QUEUE};
 use snakectl::daemon::server::{serve, ServerOptions};
 use snakectl::daemon::{self, DaemonError, RunOptions};
 use snakectl::protocol::{
-    Cmd, Code, Describe, Event, EventKind, Rejection, Telemetry, MAX_LINE, PROTOCOL_VERSION,
+    Applied, CmdName, Code, Describe, Event, EventKind, FaultChange, FaultInfo, FaultKind, Fields,
+    LoopCmd, Motion, Rejection, Reply, Status, StopReason, Telemetry, What, MAX_LINE,
+    PROTOCOL_VERSION, STRATEGIES,
 };
+use snakectl::resolve::Strategy;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpSocket, TcpStream};
@@ -40,10 +43,10 @@ fn describe(joints: usize) -> Describe {
         min_rad: vec![-2.0; joints],
         max_rad: vec![2.0; joints],
         ids: (1..=joints).map(|i| (i % 250) as u8).collect(),
-        models: vec!["XL430-W250"; joints],
+        models: vec!["XL430-W250".into(); joints],
         home_rad: vec![0.0; joints],
         rate_hz: LOOP_HZ,
-        strategies: vec!["overall", "sequential"],
+        strategies: STRATEGIES.to_vec(),
         protocol_version: PROTOCOL_VERSION,
     }
 }
@@ -52,7 +55,7 @@ fn telemetry(tick: u64) -> Telemetry {
     Telemetry {
         tick,
         t_s: tick as f64 / LOOP_HZ,
-        strategy: "overall",
+        strategy: Strategy::Overall,
         theta_cmd: vec![0.0; JOINTS],
         theta_meas: vec![0.0; JOINTS],
         omega_meas: vec![0.0; JOINTS],
@@ -143,18 +146,23 @@ async fn fake_loop(
         while let Ok(envelope) = commands.try_recv() {
             tick += 1;
             let answer = match envelope.cmd {
-                Cmd::Status => Ok(telemetry.borrow().to_fields()),
-                Cmd::GotoJoints { .. } => Err(Rejection::new(
+                LoopCmd::Status => {
+                    let status = Status::of(telemetry.borrow().clone());
+                    Ok(Reply::Status(Box::new(status)).into())
+                }
+                LoopCmd::Motion(Motion::GotoJoints { .. }) => Err(Rejection::new(
                     Code::Unreachable,
                     "outside the joint limits",
                 )),
-                Cmd::ResetStats => continue,
+                LoopCmd::ResetStats => continue,
                 cmd => {
-                    let mut fields = Map::new();
-                    fields.insert("tick".into(), json!(tick));
-                    fields.insert("cmd".into(), json!(cmd.name()));
-                    fields.insert("client".into(), json!(envelope.client));
-                    Ok(fields)
+                    let mut more = Map::new();
+                    more.insert("cmd".into(), json!(cmd.name()));
+                    more.insert("client".into(), json!(envelope.client));
+                    Ok(Fields {
+                        reply: Reply::Applied(Applied { tick }),
+                        more,
+                    })
                 }
             };
             let _ = envelope.reply.send(answer);
@@ -415,7 +423,7 @@ fn fill_the_queue(daemon: &Daemon) -> Vec<oneshot::Receiver<link::Answer>> {
         let envelope = Envelope {
             client: 999,
             id: None,
-            cmd: Cmd::Stop,
+            cmd: LoopCmd::Stop,
             received: std::time::Instant::now(),
             reply,
         };
@@ -593,14 +601,47 @@ async fn unsubscribe_stops_telemetry() {
 }
 
 fn event(owner: Option<u64>, kind: EventKind, tick: u64) -> Event {
+    let tip = [0.25, -0.5];
+    let fault = FaultInfo {
+        id: 1,
+        joint: 1,
+        kind: FaultKind::Silent,
+        since_tick: tick,
+        detail: "no reply".into(),
+    };
+    let what = match kind {
+        EventKind::Arrived => What::Arrived { tip },
+        EventKind::Saturated => What::Saturated { tip },
+        EventKind::Preempted => What::Preempted {
+            tip,
+            reason: CmdName::Goto,
+        },
+        EventKind::Stopped => What::Stopped {
+            tip,
+            reason: StopReason::Deadman,
+        },
+        EventKind::Estop => What::Estop { tip },
+        EventKind::Reset => What::Reset { tip },
+        EventKind::Fault => What::Fault {
+            tip,
+            reason: FaultChange::Raised,
+            fault,
+        },
+        EventKind::Warning => What::Warning {
+            tip,
+            reason: FaultChange::Raised,
+            fault,
+        },
+        EventKind::Control => What::Control {
+            holder: None,
+            previous: None,
+        },
+    };
     Event {
         owner,
         cmd_id: owner.map(|o| Arc::new(json!(format!("cmd-of-{o}")))),
-        kind,
         tick,
-        tip: [0.25, -0.5],
-        reason: (kind == EventKind::Stopped).then_some("deadman"),
-        fault: None,
+        what,
     }
 }
 

@@ -593,7 +593,7 @@ fn the_ui_outlives_its_daemon_and_takes_control_back_when_asked() {
     // Another client takes control: the UI names it and says how to take it back.
     let mut other = Client::connect(&addr_text, None).unwrap();
     let fields = other.request(&Cmd::TakeControl).unwrap();
-    let other_id = fields["client"].as_u64().unwrap();
+    let other_id = fields.reply.client().unwrap();
     let hint = format!("client {other_id} is in control: press c to take it");
     ui.wait_for("the other client named", |t| {
         field(t, "control") == Some(format!("client {other_id}").as_str()) && t.contains(&hint)

@@ -275,6 +275,12 @@ impl Chain {
         out
     }
 
+    /// `p_0..p_n` for a pose that came from elsewhere (a daemon's telemetry, a record):
+    /// `None`, rather than a panic, when it does not have one angle per joint.
+    pub fn checked_points(&self, theta: &[f64]) -> Option<Vec<Vec2>> {
+        (theta.len() == self.len()).then(|| self.points(theta))
+    }
+
     /// The tip `p_n` for the pose `theta`.
     pub fn tip(&self, theta: &[f64]) -> Vec2 {
         let mut phi = self.heading;

@@ -3,20 +3,21 @@
 //! it was done, 2 for bad input found before connecting, 1 for anything the daemon refused or
 //! that ended a motion short of its target (estop, fault, preemption, the daemon gone).
 //!
-//! A motion command waits for the event about its own request id; the daemon sends those to
-//! the client that sent the command, and estops and faults to everyone.
+//! A motion command waits for its ending as the client library tells it
+//! ([`Client::start_motion`], [`Client::wait_ending`]): the event about its own request id
+//! (the daemon sends those to the client that sent the command), or an estop or a fault (sent
+//! to everyone).
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::anyhow;
 use clap::Args;
-use serde_json::{Map, Value};
-use snakectl::client::{Client, ClientError, EventInfo, Incoming, REPLY_TIMEOUT};
-use snakectl::protocol::{Cmd, MAX_PATH_POINTS};
-use snakectl::resolve::Strategy;
+use serde_json::Value;
+use snakectl::client::{Client, ClientError, Ending, Fields};
+use snakectl::protocol::{strategy_named, Cmd, Code, MAX_PATH_POINTS, STRATEGIES};
 
 use super::{outln, Failure};
 
@@ -104,14 +105,14 @@ pub struct WatchArgs {
 pub fn status(args: PlainArgs) -> Result<(), Failure> {
     let mut client = connect(&args.connect)?;
     let fields = client.request(&Cmd::Status).map_err(refused)?;
-    print_object(fields)
+    print_object(&fields)
 }
 
 /// `snakectl describe`.
 pub fn describe(args: PlainArgs) -> Result<(), Failure> {
     let mut client = connect(&args.connect)?;
     let fields = client.request(&Cmd::Describe).map_err(refused)?;
-    print_object(fields)
+    print_object(&fields)
 }
 
 /// `snakectl goto`.
@@ -166,14 +167,16 @@ pub fn home(args: HomeArgs) -> Result<(), Failure> {
 
 /// `snakectl strategy`.
 pub fn strategy(args: StrategyArgs) -> Result<(), Failure> {
-    let name = match args.name.as_str() {
-        "overall" => Strategy::Overall,
-        "sequential" => Strategy::Sequential,
-        other => {
-            return Err(Failure::bad_input(anyhow!(
-                "unknown strategy `{other}`: the strategies are `overall` and `sequential`"
-            )))
-        }
+    let Some(name) = strategy_named(&args.name) else {
+        let names: Vec<String> = STRATEGIES
+            .iter()
+            .map(|s| format!("`{}`", s.name()))
+            .collect();
+        return Err(Failure::bad_input(anyhow!(
+            "unknown strategy `{}`: the strategies are {}",
+            args.name,
+            names.join(" and ")
+        )));
     };
     one_shot(&args.connect, &Cmd::Strategy { name })
 }
@@ -199,8 +202,16 @@ pub fn watch(args: WatchArgs) -> Result<(), Failure> {
         })
         .map_err(refused)?;
     while !interrupted.load(Ordering::Relaxed) {
-        // Events are not printed; reading them keeps the client's queue from filling.
-        while let Ok(Some(_)) = client.next(Duration::ZERO) {}
+        // Events are not printed; reading them keeps the client's queue from filling. A line
+        // that does not read is told, and the watch goes on.
+        loop {
+            match client.next(Duration::ZERO) {
+                Ok(Some(_)) => {}
+                Ok(None) => break,
+                Err(e) if e.is_closed() => break,
+                Err(e) => eprintln!("snakectl: {e}"),
+            }
+        }
         match client.wait_telemetry(POLL) {
             Ok(Some(telemetry)) => outln!("{}", telemetry.line)?,
             Ok(None) => {}
@@ -217,8 +228,8 @@ pub fn watch(args: WatchArgs) -> Result<(), Failure> {
 /// How often the waiting loops look at the Ctrl-C flag.
 const POLL: Duration = Duration::from_millis(100);
 
-/// Events kept while a motion command waits for its reply.
-const EARLY_EVENTS: usize = 64;
+/// How long a motion command is waited for: as long as it takes.
+const FOREVER: Duration = Duration::MAX;
 
 /// Connects as `args` say.
 fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
@@ -227,13 +238,7 @@ fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
 
 /// Exit code 1 with the client's error; a missing token gets a hint.
 fn refused(e: ClientError) -> Failure {
-    let unauthorized = match &e {
-        ClientError::Refused { code, .. } => code == "unauthorized",
-        ClientError::Closed { reason, .. } => reason
-            .as_deref()
-            .is_some_and(|r| r.starts_with("unauthorized")),
-        _ => false,
-    };
+    let unauthorized = e.code() == Some(Code::Unauthorized);
     let error = anyhow::Error::new(e);
     Failure::other(if unauthorized {
         error.context("the daemon wants its token: pass --token-file FILE")
@@ -242,9 +247,9 @@ fn refused(e: ClientError) -> Failure {
     })
 }
 
-/// Prints a reply's fields as one JSON object on one line.
-fn print_object(fields: Map<String, Value>) -> Result<(), Failure> {
-    outln!("{}", Value::Object(fields))
+/// Prints a reply's fields (every one that came) as one JSON object on one line.
+fn print_object(fields: &Fields) -> Result<(), Failure> {
+    outln!("{}", Value::Object(fields.to_map()))
 }
 
 /// `--speed`, which must be positive when given.
@@ -257,103 +262,35 @@ fn check_speed(speed: Option<f64>) -> Result<Option<f64>, Failure> {
     }
 }
 
-/// The `tick` of a reply, 0 when it has none.
-fn tick_of(fields: &Map<String, Value>) -> u64 {
-    fields.get("tick").and_then(Value::as_u64).unwrap_or(0)
-}
-
 /// Sends `cmd`, prints `ok: CMD at tick N`.
 fn one_shot(args: &ConnectArgs, cmd: &Cmd) -> Result<(), Failure> {
     let mut client = connect(args)?;
     let fields = client.request(cmd).map_err(refused)?;
     let what = match cmd {
         Cmd::Strategy { name } => format!("strategy {}", name.name()),
-        cmd => cmd.name().to_owned(),
+        cmd => cmd.name().to_string(),
     };
-    outln!("ok: {what} at tick {}", tick_of(&fields))
+    outln!("ok: {what} at tick {}", fields.reply.tick().unwrap_or(0))
 }
 
-/// Sends a motion command; unless `no_wait`, waits for the event that ends it and prints where
-/// the tip arrived. Anything else that ends it is an error naming why.
+/// Sends a motion command; unless `no_wait`, waits for its ending and prints where the tip
+/// arrived. Anything else that ends it is an error naming why.
 fn motion(client: &mut Client, cmd: &Cmd, no_wait: bool) -> Result<(), Failure> {
     let name = cmd.name();
-    let id = client.send(cmd).map_err(refused)?;
-    let gone = |e: ClientError| {
-        Failure::other(anyhow::Error::new(e).context(format!("`{name}` did not finish")))
-    };
-    // Events that come before the reply are kept (a few): their order against it is not fixed.
-    let mut early = Vec::with_capacity(EARLY_EVENTS);
-    let deadline = Instant::now() + REPLY_TIMEOUT;
-    let accepted = loop {
-        let left = deadline.saturating_duration_since(Instant::now());
-        match client.next(left).map_err(refused)? {
-            Some(Incoming::Reply(reply)) if reply.id.as_u64() == Some(id) || reply.id.is_null() => {
-                match reply.result {
-                    Ok(fields) => break tick_of(&fields),
-                    Err((code, message)) => {
-                        return Err(refused(ClientError::Refused {
-                            cmd: name.to_owned(),
-                            code,
-                            message,
-                        }))
-                    }
-                }
-            }
-            Some(Incoming::Reply(_)) => {}
-            Some(Incoming::Event(event)) if early.len() < EARLY_EVENTS => early.push(event),
-            Some(Incoming::Event(_)) => {}
-            None if left.is_zero() => {
-                return Err(refused(ClientError::Timeout {
-                    cmd: name.to_owned(),
-                    timeout: REPLY_TIMEOUT,
-                }))
-            }
-            None => {}
-        }
-    };
+    let motion = client.start_motion(cmd).map_err(refused)?;
     if no_wait {
-        return outln!("ok: {name} accepted at tick {accepted}");
+        return outln!("ok: {name} accepted at tick {}", motion.accepted);
     }
-    for event in early {
-        if let Some(end) = ending(&event, id, accepted) {
-            return end.map_or_else(|e| Err(Failure::other(e)), |line| outln!("{line}"));
-        }
+    let ending = client
+        .wait_ending(&motion, FOREVER, |_| Ok(()))
+        .map_err(|e: ClientError| {
+            Failure::other(anyhow::Error::new(e).context(format!("`{name}` did not finish")))
+        })?;
+    match ending {
+        Some(arrived @ Ending::Arrived { .. }) => outln!("{arrived}"),
+        Some(other) => Err(Failure::other(anyhow!("{other}"))),
+        None => Err(Failure::other(anyhow!("`{name}` did not finish"))),
     }
-    loop {
-        if let Some(event) = client.next_event(Duration::from_secs(3600)).map_err(gone)? {
-            if let Some(end) = ending(&event, id, accepted) {
-                return end.map_or_else(|e| Err(Failure::other(e)), |line| outln!("{line}"));
-            }
-        }
-    }
-}
-
-/// Whether `event` ends the command with request id `id`, accepted at tick `accepted`: the
-/// line to print for an arrival, or the error for anything else.
-fn ending(event: &EventInfo, id: u64, accepted: u64) -> Option<Result<String, anyhow::Error>> {
-    let [x, y] = event.tip;
-    let at = format!("({x:.4}, {y:.4}) m, tick {}", event.tick);
-    let reason = event.reason.as_deref().unwrap_or("unknown");
-    let ours = event.cmd_id.as_ref().and_then(Value::as_u64) == Some(id);
-    let result = match event.event.as_str() {
-        "arrived" if ours => Ok(format!("arrived at {at}")),
-        "saturated" if ours => Err(anyhow!(
-            "saturated: the target is out of reach; the tip stopped short at {at}"
-        )),
-        "preempted" if ours => Err(anyhow!("preempted by `{reason}` at {at}")),
-        "stopped" if ours => Err(anyhow!("stopped ({reason}) at {at}")),
-        // Events for everyone: only those from the command's time on concern it.
-        "estop" if event.tick >= accepted => Err(anyhow!("estop: emergency stop at {at}")),
-        "fault" if event.tick >= accepted && reason == "raised" => {
-            let what = event
-                .fault
-                .as_ref()
-                .map_or_else(|| "unknown".to_owned(), ToString::to_string);
-            Err(anyhow!("fault: {what}, at {at}"))
-        }
-        _ => return None,
-    };
-    Some(result)
 }
 
 /// Why a CSV line is not a point.

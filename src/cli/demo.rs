@@ -17,13 +17,15 @@ use clap::Args;
 use serde::Serialize;
 use serde_json::Value;
 
-use snakectl::client::{ArmInfo, Client, ClientError, EventInfo, Incoming, Snapshot};
+use snakectl::client::{Arm, Client, ClientError, Ending, Motion, Seen, Status as Snapshot};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{DaemonError, Embedded, RunOptions};
 use snakectl::plot;
 use snakectl::plot::demo::{Event, Phase, Record, Sample};
-use snakectl::protocol::Cmd;
+use snakectl::protocol::{
+    Cmd, CmdName, Event as ProtocolEvent, EventKind, FaultChange, State, What,
+};
 use snakectl::resolve::Strategy;
 use snakectl_sim::RealClock;
 
@@ -229,7 +231,7 @@ struct Eight {
 impl Eight {
     /// An eight inside the arm's workspace, in front of its home tip, sized so that its
     /// fastest point moves at [`SPEED_SHARE`] of `max_tip_speed`.
-    fn new(arm: &ArmInfo, seconds: f64, max_tip_speed: f64) -> Self {
+    fn new(arm: &Arm, seconds: f64, max_tip_speed: f64) -> Self {
         let base = [arm.base[0], arm.base[1]];
         let home_tip = arm
             .points(&arm.home_rad)
@@ -390,10 +392,16 @@ struct Demo {
     record: Record,
 }
 
-/// The session on the socket: the client, and what it has recorded so far.
+/// The session on the socket: the client, and what it has seen and recorded so far.
 struct Session<'p> {
     client: Client,
-    arm: ArmInfo,
+    rec: Recorder<'p>,
+}
+
+/// What the session has seen and recorded: kept apart from the client, so that what the
+/// client shows while it waits can be recorded as it comes.
+struct Recorder<'p> {
+    arm: Arm,
     progress: &'p mut Progress,
     recs: Vec<Rec>,
     latest: Option<Snapshot>,
@@ -423,22 +431,24 @@ fn drive(
     let cap = ((2.0 * MAX_SECONDS + 600.0) * arm.rate_hz) as usize;
     let mut s = Session {
         client,
-        arm,
-        progress,
-        recs: Vec::new(),
-        latest: None,
-        phases: Vec::new(),
-        events: Vec::new(),
-        activity: "holding".into(),
-        cap,
+        rec: Recorder {
+            arm,
+            progress,
+            recs: Vec::new(),
+            latest: None,
+            phases: Vec::new(),
+            events: Vec::new(),
+            activity: "holding".into(),
+            cap,
+        },
     };
     s.wait_for(|_| true, SLACK, "the first telemetry line")?;
-    let eight = Eight::new(&s.arm, seconds, control.max_tip_speed_m_s);
-    s.progress.line(format!(
+    let eight = Eight::new(&s.rec.arm, seconds, control.max_tip_speed_m_s);
+    s.rec.progress.line(format!(
         "arm up: {} links, {:.2} m reach, {} Hz; figure eight {:.0} x {:.0} mm around ({:.3}, {:.3}) m, {} loop(s)",
-        s.arm.links_m.len(),
-        s.arm.reach(),
-        s.arm.rate_hz,
+        s.rec.arm.links_m.len(),
+        s.rec.arm.reach(),
+        s.rec.arm.rate_hz,
         4e3 * eight.a / 2.0,
         4e3 * eight.b / 2.0,
         eight.centre[0],
@@ -451,14 +461,14 @@ fn drive(
         strategies.push(s.figure_eight(strategy, &eight, cap_speed)?);
     }
     let path = s.path_with_estop(&eight, control.max_tip_speed_m_s)?;
-    s.progress.line("done: the arm holds");
+    s.rec.progress.line("done: the arm holds");
 
-    let t0 = s.recs.first().map_or(0.0, |r| r.sample.t_s);
+    let rec = &s.rec;
+    let t0 = rec.recs.first().map_or(0.0, |r| r.sample.t_s);
     let shift = |t: f64| t - t0;
     let record = Record {
-        links_m: s.arm.links_m.clone(),
-        base: s.arm.base,
-        samples: s
+        chain: Some(rec.arm.chain().clone()),
+        samples: rec
             .recs
             .iter()
             .map(|r| Sample {
@@ -466,7 +476,7 @@ fn drive(
                 ..r.sample.clone()
             })
             .collect(),
-        phases: s
+        phases: rec
             .phases
             .iter()
             .map(|p| Phase {
@@ -475,7 +485,7 @@ fn drive(
                 ..p.clone()
             })
             .collect(),
-        events: s
+        events: rec
             .events
             .iter()
             .map(|e| Event {
@@ -501,34 +511,30 @@ fn drive(
     Ok(Demo { summary, record })
 }
 
-impl Session<'_> {
-    /// Waits up to `wait` for a telemetry line and records it; then takes every reply and event
-    /// that came. A refused request fails the run; the events are returned.
-    fn pump(&mut self, wait: Duration) -> anyhow::Result<Vec<EventInfo>> {
-        if let Some(t) = self.client.wait_telemetry(wait)? {
-            self.record(&t.snapshot);
-        }
-        let mut events = Vec::new();
-        while let Some(incoming) = self.client.next(Duration::ZERO)? {
-            match incoming {
-                Incoming::Event(e) => {
-                    if e.event == "fault" && e.reason.as_deref() == Some("raised") {
-                        let what = e.fault.as_ref().map(ToString::to_string);
-                        bail!(
-                            "the arm holds for a fault: {}",
-                            what.unwrap_or_else(|| "(no details)".into())
-                        );
-                    }
-                    events.push(e);
+impl Recorder<'_> {
+    /// Takes what the client shows: a telemetry line is recorded; a refused request or a
+    /// fault raised fails the run.
+    fn take(&mut self, seen: Seen<'_>) -> anyhow::Result<()> {
+        match seen {
+            Seen::Telemetry(t) => self.record(&t.status),
+            Seen::Reply(reply) => {
+                if let Err(why) = &reply.result {
+                    let id = reply.id.as_deref().unwrap_or(&Value::Null);
+                    bail!("the daemon refused request {id}: {why}");
                 }
-                Incoming::Reply(reply) => {
-                    if let Err((code, message)) = reply.result {
-                        bail!("the daemon refused request {}: {code}: {message}", reply.id);
-                    }
+            }
+            Seen::Event(e) => {
+                if let What::Fault {
+                    reason: FaultChange::Raised,
+                    fault,
+                    ..
+                } = &e.what
+                {
+                    bail!("the arm holds for a fault: {fault}");
                 }
             }
         }
-        Ok(events)
+        Ok(())
     }
 
     fn record(&mut self, snap: &Snapshot) {
@@ -561,62 +567,11 @@ impl Session<'_> {
         self.latest = Some(snap.clone());
     }
 
-    /// Pumps until the latest telemetry satisfies `done`.
-    fn wait_for(
-        &mut self,
-        done: impl Fn(&Snapshot) -> bool,
-        timeout: Duration,
-        what: &str,
-    ) -> anyhow::Result<Snapshot> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(latest) = self.latest.as_ref().filter(|s| done(s)) {
-                return Ok(latest.clone());
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                bail!("waited {} s for {what} in vain", timeout.as_secs());
-            }
-            self.pump(left.min(Duration::from_millis(50)))?;
-        }
-    }
-
-    /// Pumps until the event `kind` about request `id` (`None`: any request) comes; an event
-    /// that ends that request otherwise fails the run.
-    fn wait_event(
-        &mut self,
-        kind: &str,
-        id: Option<u64>,
-        timeout: Duration,
-    ) -> anyhow::Result<EventInfo> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                bail!(
-                    "no `{kind}` event within {:.1} s (state {})",
-                    timeout.as_secs_f64(),
-                    self.latest.as_ref().map_or("unknown", |s| s.state.as_str())
-                );
-            }
-            for e in self.pump(left.min(Duration::from_millis(50)))? {
-                let ours = id.is_none() || e.cmd_id.as_ref().and_then(Value::as_u64) == id;
-                if !ours {
-                    continue;
-                }
-                if e.event == kind {
-                    return Ok(e);
-                }
-                if matches!(e.event.as_str(), "saturated" | "preempted" | "stopped") {
-                    bail!(
-                        "waiting for `{kind}`, the command ended `{}`{} at tick {}",
-                        e.event,
-                        e.reason.map(|r| format!(" ({r})")).unwrap_or_default(),
-                        e.tick
-                    );
-                }
-            }
-        }
+    /// The arm's state as the latest telemetry says it.
+    fn state(&self) -> String {
+        self.latest
+            .as_ref()
+            .map_or_else(|| "unknown".to_owned(), |s| s.state.to_string())
     }
 
     fn begin_phase(&mut self, label: &str, pictured: bool, reference: Vec<[f64; 2]>) {
@@ -636,16 +591,105 @@ impl Session<'_> {
             p.t1 = t;
         }
     }
+}
+
+impl Session<'_> {
+    /// Records what comes until the latest telemetry satisfies `done`.
+    fn wait_for(
+        &mut self,
+        done: impl Fn(&Snapshot) -> bool,
+        timeout: Duration,
+        what: &str,
+    ) -> anyhow::Result<Snapshot> {
+        if let Some(latest) = self.rec.latest.as_ref().filter(|s| done(s)) {
+            return Ok(latest.clone());
+        }
+        let rec = &mut self.rec;
+        let found = self
+            .client
+            .watch(timeout, |seen| -> anyhow::Result<Option<Snapshot>> {
+                rec.take(seen)?;
+                Ok(match seen {
+                    Seen::Telemetry(_) => rec.latest.as_ref().filter(|s| done(s)).cloned(),
+                    Seen::Reply(_) | Seen::Event(_) => None,
+                })
+            })?;
+        found.ok_or_else(|| anyhow!("waited {} s for {what} in vain", timeout.as_secs()))
+    }
+
+    /// Records what comes until an event `kind` (about any request) comes; a command ending
+    /// meanwhile fails the run.
+    fn wait_event(&mut self, kind: EventKind, timeout: Duration) -> anyhow::Result<ProtocolEvent> {
+        let rec = &mut self.rec;
+        let found =
+            self.client
+                .watch(timeout, |seen| -> anyhow::Result<Option<ProtocolEvent>> {
+                    rec.take(seen)?;
+                    let Seen::Event(e) = seen else {
+                        return Ok(None);
+                    };
+                    if e.kind() == Some(kind) {
+                        return Ok(Some(e.clone()));
+                    }
+                    let reason = match &e.what {
+                        What::Saturated { .. } => String::new(),
+                        What::Preempted { reason, .. } => format!(" ({reason})"),
+                        What::Stopped { reason, .. } => format!(" ({reason})"),
+                        _ => return Ok(None),
+                    };
+                    bail!(
+                        "waiting for `{kind}`, the command ended `{}`{reason} at tick {}",
+                        e.what.name(),
+                        e.tick
+                    )
+                })?;
+        match found {
+            Some(e) => Ok(e),
+            None => bail!(
+                "no `{kind}` event within {:.1} s (state {})",
+                timeout.as_secs_f64(),
+                self.rec.state()
+            ),
+        }
+    }
+
+    /// Sends a motion command and records what comes until it ends; an ending other than
+    /// the one `wanted` fails the run.
+    fn run_motion(
+        &mut self,
+        cmd: &Cmd,
+        wanted: fn(&Ending) -> bool,
+        timeout: Duration,
+    ) -> anyhow::Result<(Motion, Ending)> {
+        let motion = self.client.start_motion(cmd)?;
+        let rec = &mut self.rec;
+        let ending = self
+            .client
+            .wait_ending(&motion, timeout, |seen| rec.take(seen))?;
+        match ending {
+            Some(ending) if wanted(&ending) => Ok((motion, ending)),
+            Some(ending) => bail!("`{}` ended: {ending}", motion.cmd),
+            None => bail!(
+                "`{}` did not end within {:.1} s (state {})",
+                motion.cmd,
+                timeout.as_secs_f64(),
+                self.rec.state()
+            ),
+        }
+    }
 
     /// A `goto`, waited for.
     fn goto(&mut self, target: [f64; 2], max_tip_speed: f64) -> anyhow::Result<()> {
-        let from = self.latest.as_ref().map_or(target, |s| s.tip);
-        let id = self.client.send(&Cmd::Goto {
-            target,
-            speed: None,
-        })?;
+        let from = self.rec.latest.as_ref().map_or(target, |s| s.tip);
         let distance = (target[0] - from[0]).hypot(target[1] - from[1]);
-        self.wait_event("arrived", Some(id), secs(distance / max_tip_speed) + SLACK)?;
+        self.run_motion(
+            &Cmd::Goto {
+                target,
+                speed: None,
+            },
+            |e| matches!(e, Ending::Arrived { .. }),
+            secs(distance / max_tip_speed) + SLACK,
+        )?;
         Ok(())
     }
 
@@ -659,21 +703,24 @@ impl Session<'_> {
     ) -> anyhow::Result<StrategyFigures> {
         let name = strategy.name();
         self.client.request(&Cmd::Strategy { name: strategy })?;
-        self.progress
+        self.rec
+            .progress
             .line(format!("{name}: strategy set; to the eight's start"));
-        self.activity = format!("{name}: goto start");
-        self.begin_phase(&format!("{name}: goto"), false, Vec::new());
+        self.rec.activity = format!("{name}: goto start");
+        self.rec
+            .begin_phase(&format!("{name}: goto"), false, Vec::new());
         self.goto(eight.centre, cap_speed / COMMAND_SHARE)?;
-        self.end_phase();
+        self.rec.end_phase();
         self.client.request(&Cmd::ResetStats)?;
 
-        self.progress.line(format!(
+        self.rec.progress.line(format!(
             "{name}: figure eight, {:.1} s of `velocity` at {} Hz",
             eight.duration,
             1000 / SEND_PERIOD.as_millis().max(1)
         ));
-        self.begin_phase(&format!("{name}: eight"), true, eight.polyline());
-        let first = self.recs.len();
+        self.rec
+            .begin_phase(&format!("{name}: eight"), true, eight.polyline());
+        let first = self.rec.recs.len();
         let start = Instant::now();
         let mut next_send = start;
         let mut sent = 0u64;
@@ -685,7 +732,7 @@ impl Session<'_> {
             }
             if Instant::now() >= next_send {
                 let (p, v) = eight.at(tau);
-                let tip = self.latest.as_ref().map_or(p, |s| s.tip);
+                let tip = self.rec.latest.as_ref().map_or(p, |s| s.tip);
                 let mut cmd = [v[0] + GAIN * (p[0] - tip[0]), v[1] + GAIN * (p[1] - tip[1])];
                 let speed = cmd[0].hypot(cmd[1]);
                 if speed > cap_speed {
@@ -699,52 +746,75 @@ impl Session<'_> {
                 if next_send < now {
                     next_send = now + SEND_PERIOD;
                 }
-                self.activity = format!("{name}: eight {tau:5.1}/{:.1} s", eight.duration);
+                self.rec.activity = format!("{name}: eight {tau:5.1}/{:.1} s", eight.duration);
             }
-            if !self.progress.tty && tau >= next_note {
-                let err = self.latest.as_ref().map_or(0.0, |s| s.tracking_error_m);
-                self.progress.line(format!(
+            if !self.rec.progress.tty && tau >= next_note {
+                let err = self.rec.latest.as_ref().map_or(0.0, |s| s.tracking_error_m);
+                self.rec.progress.line(format!(
                     "{name}: {tau:.0}/{:.0} s, tracking error {:.2} mm",
                     eight.duration,
                     err * 1e3
                 ));
                 next_note += 5.0;
             }
-            for e in self.pump(next_send.saturating_duration_since(Instant::now()))? {
-                if matches!(e.event.as_str(), "preempted" | "stopped" | "estop") {
-                    bail!(
-                        "{name}: the eight's `velocity` ended `{}` at tick {}",
-                        e.event,
-                        e.tick
-                    );
-                }
+            let wait = next_send.saturating_duration_since(Instant::now());
+            let rec = &mut self.rec;
+            let ended =
+                self.client
+                    .watch(wait, |seen| -> anyhow::Result<Option<ProtocolEvent>> {
+                        rec.take(seen)?;
+                        Ok(match seen {
+                            Seen::Event(e)
+                                if matches!(
+                                    e.what,
+                                    What::Preempted { .. }
+                                        | What::Stopped { .. }
+                                        | What::Estop { .. }
+                                ) =>
+                            {
+                                Some(e.clone())
+                            }
+                            Seen::Telemetry(_) | Seen::Reply(_) | Seen::Event(_) => None,
+                        })
+                    })?;
+            if let Some(e) = ended {
+                bail!(
+                    "{name}: the eight's `velocity` ended `{}` at tick {}",
+                    e.what.name(),
+                    e.tick
+                );
             }
         }
-        let end = self.recs.len();
+        let end = self.rec.recs.len();
         let loop_figures = self
+            .rec
             .latest
             .clone()
             .ok_or_else(|| anyhow!("no telemetry during the eight"))?;
-        self.end_phase();
+        self.rec.end_phase();
 
-        self.activity = format!("{name}: coming to rest");
-        let zero = self.client.send(&Cmd::Velocity { v: [0.0, 0.0] })?;
+        self.rec.activity = format!("{name}: coming to rest");
+        let (zero, _) = self.run_motion(
+            &Cmd::Velocity { v: [0.0, 0.0] },
+            |e| matches!(e, Ending::Stopped { .. }),
+            SLACK,
+        )?;
         sent += 1;
-        self.wait_event("stopped", Some(zero), SLACK)?;
         let status = self.client.status()?;
         let command = status
             .command
             .clone()
             .ok_or_else(|| anyhow!("{name}: status reports no command after the eight"))?;
-        if command.kind != "velocity" || command.id.as_u64() != Some(zero) {
+        let last_id = command.id.as_deref().and_then(Value::as_u64);
+        if command.kind != CmdName::Velocity || last_id != Some(zero.id) {
             bail!(
                 "{name}: status reports `{}` (id {}) as the last command, not the eight's `velocity`",
                 command.kind,
-                command.id
+                command.id.as_deref().unwrap_or(&Value::Null)
             );
         }
 
-        let recs = &self.recs[first..end];
+        let recs = &self.rec.recs[first..end];
         let mut errors: Vec<f64> = recs.iter().map(|r| r.sample.tracking_error_m).collect();
         let mut solve: Vec<f64> = recs.iter().map(|r| r.solve_us).collect();
         let peak_tip_speed = recs
@@ -752,7 +822,7 @@ impl Session<'_> {
             .filter(|w| w[1].tick > w[0].tick)
             .map(|w| {
                 let (a, b) = (w[0].sample.tip_ref, w[1].sample.tip_ref);
-                let dt = (w[1].tick - w[0].tick) as f64 / self.arm.rate_hz;
+                let dt = (w[1].tick - w[0].tick) as f64 / self.rec.arm.rate_hz;
                 (b[0] - a[0]).hypot(b[1] - a[1]) / dt
             })
             .fold(0.0, f64::max);
@@ -772,7 +842,7 @@ impl Session<'_> {
             saturated_samples: recs.iter().filter(|r| r.saturated).count(),
             overruns: status.overruns,
         };
-        self.progress.line(format!(
+        self.rec.progress.line(format!(
             "{name}: at rest; tracking error p50 {:.2} mm, max {:.2} mm; peak joint speed {:.3} rad/s",
             figures.tracking_error_p50_m * 1e3,
             figures.tracking_error_max_m * 1e3,
@@ -804,14 +874,14 @@ impl Session<'_> {
         self.client.request(&Cmd::Strategy {
             name: Strategy::Overall,
         })?;
-        self.progress.line(format!(
+        self.rec.progress.line(format!(
             "path (overall): {} corners, each taken at a stop; an estop partway",
             corners.len()
         ));
         let mut reference = vec![c];
         reference.extend(&corners);
-        self.begin_phase("path, estop", true, reference);
-        self.activity = "path".into();
+        self.rec.begin_phase("path, estop", true, reference);
+        self.rec.activity = "path".into();
         self.client.send(&Cmd::Path {
             points: corners.clone(),
             speed: None,
@@ -832,67 +902,80 @@ impl Session<'_> {
         )?;
 
         self.client.request(&Cmd::Estop)?;
-        let estop = self.wait_event("estop", None, SLACK)?;
-        let estop_tip = self.latest.as_ref().map_or(estop.tip, |s| s.tip_meas);
-        self.events.push(Event {
+        let estop = self.wait_event(EventKind::Estop, SLACK)?;
+        let estop_tip = self
+            .rec
+            .latest
+            .as_ref()
+            .map_or(estop.what.tip().unwrap_or_default(), |s| s.tip_meas);
+        self.rec.events.push(Event {
             label: "estop".into(),
-            t_s: estop.tick as f64 / self.arm.rate_hz,
+            t_s: estop.tick as f64 / self.rec.arm.rate_hz,
             tip: estop_tip,
         });
-        self.progress.line(format!(
+        self.rec.progress.line(format!(
             "ESTOP at tick {} with the tip at ({:+.3}, {:+.3}) m: goals frozen, latched",
             estop.tick, estop_tip[0], estop_tip[1]
         ));
-        self.activity = "ESTOP latched".into();
+        self.rec.activity = "ESTOP latched".into();
         let refused = match self.client.request(&Cmd::Goto {
             target: third,
             speed: None,
         }) {
-            Err(ClientError::Refused { code, .. }) => code,
+            Err(ClientError::Refused { rejection, .. }) => rejection.code.to_string(),
             Ok(_) => bail!("a `goto` was accepted while the estop latch was set"),
             Err(e) => return Err(e.into()),
         };
-        self.progress
+        self.rec
+            .progress
             .line(format!("  a `goto` while latched is refused: {refused}"));
         // Stay latched for a second of the daemon's ticks.
-        let hold_until = estop.tick + self.arm.rate_hz.round() as u64;
+        let hold_until = estop.tick + self.rec.arm.rate_hz.round() as u64;
         self.wait_for(|s| s.tick >= hold_until, SLACK, "a second under estop")?;
 
         self.client.request(&Cmd::Reset)?;
-        let reset = self.wait_event("reset", None, SLACK)?;
-        let reset_tip = self.latest.as_ref().map_or(reset.tip, |s| s.tip_meas);
-        self.events.push(Event {
+        let reset = self.wait_event(EventKind::Reset, SLACK)?;
+        let reset_tip = self
+            .rec
+            .latest
+            .as_ref()
+            .map_or(reset.what.tip().unwrap_or_default(), |s| s.tip_meas);
+        self.rec.events.push(Event {
             label: "reset".into(),
-            t_s: reset.tick as f64 / self.arm.rate_hz,
+            t_s: reset.tick as f64 / self.rec.arm.rate_hz,
             tip: reset_tip,
         });
         self.wait_for(
-            |s| s.state == "holding",
+            |s| s.state == State::Holding,
             SLACK,
             "the arm holding after reset",
         )?;
-        self.progress.line(format!(
+        self.rec.progress.line(format!(
             "reset at tick {}: holding the measured pose; the rest of the path",
             reset.tick
         ));
         // The estop ended the first path; the rest of it goes as a new one.
-        self.activity = "path, after reset".into();
+        self.rec.activity = "path, after reset".into();
         let rest = corners[2..].to_vec();
-        let id = self.client.send(&Cmd::Path {
-            points: rest,
-            speed: None,
-        })?;
-        let arrived = self.wait_event("arrived", Some(id), budget)?;
-        self.end_phase();
-        self.progress
-            .line(format!("path: arrived at tick {}", arrived.tick));
+        let (_, arrived) = self.run_motion(
+            &Cmd::Path {
+                points: rest,
+                speed: None,
+            },
+            |e| matches!(e, Ending::Arrived { .. }),
+            budget,
+        )?;
+        self.rec.end_phase();
+        self.rec
+            .progress
+            .line(format!("path: arrived at tick {}", arrived.tick()));
         Ok(PathFigures {
             corners,
             estop_tick: estop.tick,
             estop_tip,
             refused_while_latched: refused,
             reset_tick: reset.tick,
-            arrived_tick: arrived.tick,
+            arrived_tick: arrived.tick(),
         })
     }
 }
@@ -1011,14 +1094,15 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
 
-    fn sim_arm() -> ArmInfo {
-        ArmInfo {
+    fn sim_arm() -> Arm {
+        Arm::new(snakectl::protocol::Describe {
             links_m: vec![0.08; 12],
             base: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
             home_rad: vec![0.1; 12],
             rate_hz: 100.0,
-            ..ArmInfo::default()
-        }
+            ..Default::default()
+        })
+        .unwrap()
     }
 
     #[test]

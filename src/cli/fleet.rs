@@ -74,38 +74,20 @@ pub fn run(args: FleetArgs) -> Result<(), Failure> {
 /// One arm in columns: prefix, state, measured tip, strategy, controller, faults.
 #[cfg(feature = "zenoh")]
 fn line(arm: &snakectl::daemon::bridge::ArmSeen, width: usize) -> String {
-    use serde_json::Value;
     let prefix = &arm.prefix;
-    let Some(status) = &arm.status else {
+    let Some(status) = arm.read_status() else {
         return format!("{prefix:<width$}  up, no status answer");
     };
-    let text = |key: &str| {
-        status
-            .get(key)
-            .and_then(Value::as_str)
-            .unwrap_or("?")
-            .to_owned()
+    let [x, y] = status.tip_meas;
+    let controller = match status.controller {
+        Some(n) => format!("controller {n}"),
+        None => "no controller".to_owned(),
     };
-    let tip = status
-        .get("tip_meas")
-        .and_then(Value::as_array)
-        .map(|xy| xy.iter().filter_map(Value::as_f64).collect::<Vec<_>>())
-        .filter(|xy| xy.len() == 2)
-        .map_or("?".to_owned(), |xy| {
-            format!("({:+.3}, {:+.3}) m", xy[0], xy[1])
-        });
-    let controller = match status.get("controller") {
-        Some(Value::Number(n)) => format!("controller {n}"),
-        _ => "no controller".to_owned(),
-    };
-    let faults = status
-        .get("faults")
-        .and_then(Value::as_array)
-        .map_or(0, Vec::len);
     format!(
-        "{prefix:<width$}  {:<8}  tip {tip}  {}  {controller}  faults {faults}",
-        text("state"),
-        text("strategy"),
+        "{prefix:<width$}  {:<8}  tip ({x:+.3}, {y:+.3}) m  {}  {controller}  faults {}",
+        status.state.as_str(),
+        status.strategy.name(),
+        status.faults.len(),
     )
 }
 

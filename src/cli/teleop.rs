@@ -5,7 +5,6 @@
 //! and redraws from the latest telemetry at most ~30 times a second. Connecting happens on a
 //! thread of its own, so the screen stays alive (and `q` quits) while the daemon is away.
 
-use std::collections::VecDeque;
 use std::io::Stdout;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -25,11 +24,11 @@ use ratatui::backend::CrosstermBackend;
 use ratatui::layout::Rect;
 use ratatui::Terminal;
 
-use snakectl::client::{self, ArmInfo, Client, ClientError, Incoming, Snapshot};
+use snakectl::client::{self, Arm, Client, ClientError, Incoming, Replied, Status as Snapshot};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
-use snakectl::protocol::Cmd;
+use snakectl::protocol::{Cmd, CmdName, What};
 use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
 use snakectl::teleop::joystick::{self, Device, Stick, StickEvent};
@@ -77,9 +76,6 @@ const NOTICE_FOR: Duration = Duration::from_secs(5);
 
 /// Measured tips kept for the trail.
 const TRAIL_POINTS: usize = 2000;
-
-/// Requests whose replies are still awaited, remembered to name a refusal.
-const PENDING: usize = 64;
 
 /// Joystick events waiting for the loop.
 const STICK_QUEUE: usize = 256;
@@ -250,7 +246,7 @@ impl Drop for Screen {
 }
 
 /// A connection being made on its own thread: the client, subscribed, and the arm.
-type Connecting = Receiver<Result<(Client, ArmInfo), ClientError>>;
+type Connecting = Receiver<Result<(Client, Arm), ClientError>>;
 
 /// Connects, describes and subscribes on a thread, so that the loop never waits for it.
 fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
@@ -261,7 +257,7 @@ fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
         .spawn({
             let tx = tx.clone();
             move || {
-                let attempt = || -> Result<(Client, ArmInfo), ClientError> {
+                let attempt = || -> Result<(Client, Arm), ClientError> {
                     let mut client = Client::connect_with(&addr, token_file.as_deref())?;
                     let arm = client.describe()?;
                     client.request(&Cmd::Subscribe {
@@ -286,7 +282,7 @@ struct App {
     addr: String,
     token_file: Option<PathBuf>,
     started: Instant,
-    arm: ArmInfo,
+    arm: Option<Arm>,
     snapshot: Option<Snapshot>,
     trail: Trail,
     status: Status,
@@ -300,7 +296,6 @@ struct App {
     next_attempt: Instant,
     /// Whether the daemon was ever reached (a lost one is "gone", a missing one "not there").
     was_connected: bool,
-    pending: VecDeque<(u64, &'static str)>,
     my_id: Option<u64>,
     last_take: Option<Instant>,
     screen_area: Rect,
@@ -331,7 +326,7 @@ impl App {
             addr,
             token_file,
             started: now,
-            arm: ArmInfo::default(),
+            arm: None,
             snapshot: None,
             trail: Trail::new(TRAIL_POINTS),
             notice_until: None,
@@ -342,7 +337,6 @@ impl App {
             connecting: None,
             next_attempt: now,
             was_connected: false,
-            pending: VecDeque::with_capacity(PENDING),
             my_id: None,
             last_take: None,
             screen_area: Rect::default(),
@@ -401,7 +395,7 @@ impl App {
         }
         self.status.speed_m_s = self.keyboard.speed_m_s();
         let view = View {
-            arm: &self.arm,
+            arm: self.arm.as_ref(),
             snapshot: self.snapshot.as_ref(),
             trail: &self.trail,
             status: &self.status,
@@ -509,7 +503,10 @@ impl App {
     }
 
     fn click(&mut self, column: u16, row: u16) {
-        let Some(target) = ui::click_to_world(&self.arm, self.screen_area, column, row) else {
+        let Some(arm) = &self.arm else {
+            return;
+        };
+        let Some(target) = ui::click_to_world(arm, self.screen_area, column, row) else {
             return;
         };
         if self.in_control() {
@@ -555,21 +552,13 @@ impl App {
 
     /// The strategy after the present one in `describe`'s list.
     fn next_strategy(&mut self) -> Option<Strategy> {
-        let current = self.snapshot.as_ref().map(|s| s.strategy.as_str())?;
-        let list = &self.arm.strategies;
-        let at = list.iter().position(|s| s == current);
-        let next = match at {
+        let current = self.snapshot.as_ref().map(|s| s.strategy)?;
+        let list = &self.arm.as_ref()?.strategies;
+        let next = match list.iter().position(|&s| s == current) {
             Some(i) => list.get((i + 1) % list.len()),
             None => list.first(),
-        }?
-        .clone();
-        let found = [Strategy::Overall, Strategy::Sequential]
-            .into_iter()
-            .find(|s| s.name() == next);
-        if found.is_none() {
-            self.notice(format!("strategy `{next}` is unknown to this client"));
-        }
-        found
+        };
+        next.copied()
     }
 
     /// Sends `cmd` without waiting for its reply.
@@ -577,21 +566,14 @@ impl App {
         let Some(client) = self.client.as_mut() else {
             return;
         };
-        match client.send(cmd) {
-            Ok(id) => {
-                if self.pending.len() == PENDING {
-                    self.pending.pop_front();
-                }
-                self.pending.push_back((id, cmd.name()));
-            }
-            Err(_) => self.lost(),
+        if client.send(cmd).is_err() {
+            self.lost();
         }
     }
 
     /// The connection is gone: tell, and try again in a second.
     fn lost(&mut self) {
         self.client = None;
-        self.pending.clear();
         self.status.link = Link::Gone;
         self.status.notice = Some(format!("daemon at {} gone: retrying", self.addr));
         self.notice_until = None;
@@ -617,7 +599,7 @@ impl App {
             match result {
                 Ok((client, arm)) => {
                     self.client = Some(client);
-                    self.arm = arm;
+                    self.arm = Some(arm);
                     self.was_connected = true;
                     self.status.link = Link::Connected;
                     self.status.notice = None;
@@ -663,28 +645,34 @@ impl App {
             return;
         };
         if let Some(telemetry) = client.telemetry() {
-            let snapshot = telemetry.snapshot.clone();
+            let snapshot = telemetry.status.clone();
             self.trail.push(snapshot.tip_meas);
             self.snapshot = Some(snapshot);
             self.dirty = true;
         }
         let mut incoming = Vec::new();
-        let mut error = None;
+        let mut unreadable = None;
+        let mut gone = false;
         for _ in 0..DRAIN {
             match client.next(Duration::ZERO) {
                 Ok(Some(one)) => incoming.push(one),
                 Ok(None) => break,
-                Err(e) => {
-                    error = Some(e);
+                Err(e) if e.is_closed() => {
+                    gone = true;
                     break;
                 }
+                // A line that does not read is told; the connection serves on.
+                Err(e) => unreadable = Some(e),
             }
         }
-        let closed = client.is_closed();
+        let closed = gone || client.is_closed();
         for one in incoming {
             self.take_incoming(one);
         }
-        if error.is_some() || closed {
+        if let Some(e) = unreadable {
+            self.notice(e.to_string());
+        }
+        if closed {
             self.lost();
             return;
         }
@@ -700,43 +688,36 @@ impl App {
 
     fn take_incoming(&mut self, incoming: Incoming) {
         match incoming {
-            Incoming::Reply(reply) => {
-                let id = reply.id.as_u64();
-                let name = match self.pending.iter().position(|(p, _)| Some(*p) == id) {
-                    Some(at) => self.pending.remove(at).map(|(_, name)| name),
-                    None => None,
-                };
-                match reply.result {
-                    Ok(fields) => {
-                        if name == Some("take_control") {
-                            if let Some(me) = fields.get("client").and_then(|v| v.as_u64()) {
-                                self.my_id = Some(me);
-                            }
+            Incoming::Reply(Replied { cmd, result, .. }) => match result {
+                Ok(fields) => {
+                    if cmd == Some(CmdName::TakeControl) {
+                        if let Some(me) = fields.reply.client() {
+                            self.my_id = Some(me);
                         }
                     }
-                    Err((code, message)) => {
-                        let name = name.unwrap_or("request");
-                        self.notice(format!("`{name}` refused: {code}: {message}"));
-                    }
                 }
-            }
-            Incoming::Event(event) => match event.event.as_str() {
-                "control" => {
-                    let mine = self.my_id.is_some() && event.previous == self.my_id;
-                    if mine && event.holder != self.my_id {
-                        let text = match event.holder {
+                Err(rejection) => {
+                    let name = cmd.map_or("request", CmdName::as_str);
+                    self.notice(format!("`{name}` refused: {rejection}"));
+                }
+            },
+            Incoming::Event(event) => match event.what {
+                What::Control { holder, previous } => {
+                    let mine = self.my_id.is_some() && previous == self.my_id;
+                    if mine && holder != self.my_id {
+                        let text = match holder {
                             Some(n) => format!("client {n} took control: press c to take it"),
                             None => "control released".to_owned(),
                         };
                         self.notice(text);
                     }
                 }
-                "estop" => self.notice("estop: press r to reset".to_owned()),
-                "fault" | "warning" => {
-                    if let Some(fault) = &event.fault {
-                        let why = event.reason.as_deref().unwrap_or("raised");
-                        self.notice(format!("{} {why}: {fault}", event.event));
-                    }
+                What::Estop { .. } => self.notice("estop: press r to reset".to_owned()),
+                What::Fault { reason, fault, .. } => {
+                    self.notice(format!("fault {reason}: {fault}"));
+                }
+                What::Warning { reason, fault, .. } => {
+                    self.notice(format!("warning {reason}: {fault}"));
                 }
                 _ => {}
             },

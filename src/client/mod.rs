@@ -1,26 +1,38 @@
 //! A client of the daemon's socket, for the one-shot commands, teleop and the demo: connect
-//! (with the token, where the daemon wants one), send requests, wait for their replies, and
-//! read events and the latest telemetry.
+//! (with the token, where the daemon wants one), send requests, wait for their replies, read
+//! events and the latest telemetry, and run a motion command to its end ([`Client::start_motion`],
+//! [`Client::wait_ending`]).
 //!
-//! One thread per connection reads the socket. Replies and events go through a bounded queue
-//! in arrival order; telemetry goes into a latest-wins slot, so a reader that falls behind sees
-//! the newest snapshot, never a backlog. Everything the daemon sends is read into the owned,
-//! tolerant views of this module ([`Snapshot`], [`ArmInfo`], [`EventInfo`]): a field a newer
-//! daemon adds is ignored, one an older daemon lacks takes its default.
+//! Everything is read with the daemon's own types ([`crate::protocol`]): replies are typed by
+//! the command they answer ([`Fields`]), telemetry is a [`Status`], events are [`Event`]s, the
+//! arm is built from `describe` into an [`Arm`] whose forward kinematics are its
+//! [`Chain`]'s. A field a newer daemon adds, or an event name it adds, is not an error; a line
+//! this client cannot read is, and it is handed to the caller with the line
+//! ([`ClientError::Unreadable`]), never dropped.
+//!
+//! One thread per connection reads the socket into one inbox: replies, events and unreadable
+//! lines queue in arrival order (bounded: the reading thread waits for the caller), telemetry
+//! goes into a latest-wins slot, so a reader that falls behind sees the newest snapshot, never
+//! a backlog.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
+use std::fmt;
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
+use std::ops::Deref;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use serde::Deserialize;
-use serde_json::{Map, Value};
+use serde_json::Value;
 
-use crate::protocol::{self, Cmd};
+use crate::chain::{Chain, ChainError};
+use crate::protocol::{self, ClientId, ReadError, ReplyLine, RequestId, ServerLine};
+pub use crate::protocol::{
+    Cmd, CmdName, Code, CommandInfo, Describe, Event, EventKind, FaultChange, FaultInfo, FaultKind,
+    Fields, Rejection, Reply, State, Status, StopReason, Telemetry, TookControl, What,
+};
 
 /// Where the daemon listens unless told otherwise (`[server] listen` of the shipped configs).
 pub const DEFAULT_ADDR: &str = "127.0.0.1:7878";
@@ -29,11 +41,12 @@ pub const DEFAULT_ADDR: &str = "127.0.0.1:7878";
 /// two; the first waits for the arm's bring-up.
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(10);
 
-/// Replies and events held for the caller before the reading thread waits for it.
+/// Replies, events and unreadable lines held for the caller before the reading thread waits
+/// for it (unless a request is waiting for its reply behind them).
 const QUEUE: usize = 1024;
 
-/// Events kept while [`Client::request`] waits for a reply, for [`Client::next_event`].
-const HELD_EVENTS: usize = 256;
+/// The most of a line an error message shows (the error itself carries all of it).
+const SHOWN: usize = 200;
 
 /// Why a client could not talk to the daemon.
 #[derive(Debug, thiserror::Error)]
@@ -71,38 +84,65 @@ pub enum ClientError {
         path: PathBuf,
     },
     /// The daemon closed the connection (it stopped, or it refused this client).
-    #[error("the daemon at {addr} closed the connection{}", reason.as_deref().map(|r| format!(": {r}")).unwrap_or_default())]
+    #[error("the daemon at {addr} closed the connection{}", reason.as_ref().map(|r| format!(": {r}")).unwrap_or_default())]
     Closed {
         /// Its address.
         addr: String,
-        /// The last error it sent, if any (`unauthorized`, `too_many_clients`).
-        reason: Option<String>,
+        /// The last refusal it sent, if any (`unauthorized`, `too_many_clients`).
+        reason: Option<Rejection>,
     },
     /// The daemon refused a request.
-    #[error("`{cmd}` refused: {code}: {message}")]
+    #[error("`{cmd}` refused: {rejection}")]
     Refused {
-        /// The request's `cmd`.
-        cmd: String,
-        /// The error code (`not_in_control`, `estopped`, ...).
-        code: String,
-        /// The daemon's message.
-        message: String,
+        /// The request's command.
+        cmd: CmdName,
+        /// The daemon's code and message.
+        rejection: Rejection,
     },
     /// No reply within the time allowed.
     #[error("no reply to `{cmd}` within {} ms", timeout.as_millis())]
     Timeout {
-        /// The request's `cmd`.
-        cmd: String,
+        /// The request's command.
+        cmd: CmdName,
         /// How long it waited.
         timeout: Duration,
     },
-    /// A reply this client cannot read.
-    #[error("cannot read the daemon's reply to `{cmd}`: {source}")]
+    /// A reply to a request of this client's without the fields its command answers.
+    #[error("cannot read the daemon's reply to `{cmd}`: {source}: {}", Shown(line))]
     BadReply {
-        /// The request's `cmd`.
-        cmd: String,
+        /// The request's command.
+        cmd: CmdName,
+        /// The line as it came.
+        line: String,
         /// What did not fit.
         source: serde_json::Error,
+    },
+    /// A line this client cannot read at all.
+    #[error("cannot read a line from the daemon: {source}: {}", Shown(line))]
+    Unreadable {
+        /// The line as it came.
+        line: String,
+        /// Why it does not read.
+        source: ReadError,
+    },
+    /// An ok reply whose id names no request of this client's.
+    #[error("a reply to no request of this client: {}", Shown(line))]
+    Stray {
+        /// The line as it came.
+        line: String,
+    },
+    /// A reply read as another command's than the one asked (replies are typed by the command
+    /// they answer, so this is a fault of this client's).
+    #[error("the reply to `{cmd}` was read as another command's")]
+    WrongReply {
+        /// The command asked.
+        cmd: CmdName,
+    },
+    /// `describe` described an arm no chain can be built from.
+    #[error("the daemon describes an arm that cannot be drawn: {source}")]
+    BadArm {
+        /// Why its chain was refused.
+        source: ChainError,
     },
     /// Writing to the socket failed.
     #[error("cannot write to the daemon at {addr}: {source}")]
@@ -115,12 +155,35 @@ pub enum ClientError {
 }
 
 impl ClientError {
-    /// The daemon's error code, for a refused request.
-    pub fn code(&self) -> Option<&str> {
+    /// The daemon's error code: of a refused request, or of the refusal it closed the
+    /// connection with.
+    pub fn code(&self) -> Option<Code> {
         match self {
-            ClientError::Refused { code, .. } => Some(code),
+            ClientError::Refused { rejection, .. } => Some(rejection.code),
+            ClientError::Closed { reason, .. } => reason.as_ref().map(|r| r.code),
             _ => None,
         }
+    }
+
+    /// Whether the connection is gone (rather than one line or one request having failed).
+    pub fn is_closed(&self) -> bool {
+        matches!(self, ClientError::Closed { .. })
+    }
+}
+
+/// A line in a message: its first [`SHOWN`] bytes.
+struct Shown<'a>(&'a str);
+
+impl fmt::Display for Shown<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.0.len() <= SHOWN {
+            return f.write_str(self.0);
+        }
+        let mut end = SHOWN;
+        while !self.0.is_char_boundary(end) {
+            end -= 1;
+        }
+        write!(f, "{}...", &self.0[..end])
     }
 }
 
@@ -139,237 +202,316 @@ pub fn read_token(path: &Path) -> Result<String, ClientError> {
     Ok(token.to_owned())
 }
 
-/// The arm as `describe` tells it: what a UI needs to draw it.
-#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
-#[serde(default)]
-pub struct ArmInfo {
-    /// Link lengths, base to tip, m.
-    pub links_m: Vec<f64>,
-    /// Base pose: x, y (m), heading (rad).
-    pub base: [f64; 3],
-    /// Lower joint limits, rad.
-    pub min_rad: Vec<f64>,
-    /// Upper joint limits, rad.
-    pub max_rad: Vec<f64>,
-    /// Servo ids, base to tip.
-    pub ids: Vec<u8>,
-    /// Servo model names, base to tip.
-    pub models: Vec<String>,
-    /// The home pose, rad.
-    pub home_rad: Vec<f64>,
-    /// The loop rate, Hz.
-    pub rate_hz: f64,
-    /// The strategies `strategy` accepts.
-    pub strategies: Vec<String>,
-    /// The wire format's version.
-    pub protocol_version: u32,
+/// The arm as `describe` tells it, with the chain built from it: what a UI needs to draw it.
+/// It reads as its [`Describe`] (`arm.rate_hz`); its geometry is its [`Chain`]'s.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Arm {
+    describe: Describe,
+    chain: Chain,
 }
 
-impl ArmInfo {
-    /// The joint points `p_0` (the base) .. `p_n` (the tip) of a pose, m.
+impl Arm {
+    /// The arm `describe` tells of; refused when its links, base or limits make no chain.
+    pub fn new(describe: Describe) -> Result<Arm, ChainError> {
+        let chain = describe.chain()?;
+        Ok(Arm { describe, chain })
+    }
+
+    /// What `describe` said.
+    pub fn describe(&self) -> &Describe {
+        &self.describe
+    }
+
+    /// The chain: links, base, limits and forward kinematics.
+    pub fn chain(&self) -> &Chain {
+        &self.chain
+    }
+
+    /// The joint points `p_0` (the base) .. `p_n` (the tip) of a pose, m; none when the pose
+    /// does not have one angle per joint.
     pub fn points(&self, theta: &[f64]) -> Vec<[f64; 2]> {
-        let [mut x, mut y, mut heading] = self.base;
-        let mut points = Vec::with_capacity(self.links_m.len() + 1);
-        points.push([x, y]);
-        for (length, angle) in self.links_m.iter().zip(theta) {
-            heading += angle;
-            x += length * heading.cos();
-            y += length * heading.sin();
-            points.push([x, y]);
-        }
-        points
+        self.chain
+            .checked_points(theta)
+            .unwrap_or_default()
+            .iter()
+            .map(|p| [p.x, p.y])
+            .collect()
     }
 
     /// The arm's reach from the base, m (the outer radius of its workspace ring).
     pub fn reach(&self) -> f64 {
-        self.links_m.iter().sum()
+        self.chain.reach()
     }
 
     /// The inner radius of the workspace ring without limits, m.
     pub fn inner_radius(&self) -> f64 {
-        let longest = self.links_m.iter().copied().fold(0.0, f64::max);
-        (2.0 * longest - self.reach()).max(0.0)
+        self.chain.ring().r_min
     }
 }
 
-/// The motion command a snapshot reports.
-#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
-#[serde(default)]
-pub struct CommandInfo {
-    /// Its `cmd` name.
-    pub kind: String,
-    /// Its request id.
-    pub id: Value,
-    /// `active`, `arrived`, `saturated`, `preempted`, `stopped`, `estop` or `fault`.
-    pub outcome: String,
-    /// Fastest joint speed while it ran, rad/s.
-    pub peak_joint_speed_rad_s: f64,
-    /// Metric 3 travelled while it ran, rad².
-    pub m3_rad2: f64,
-}
+impl Deref for Arm {
+    type Target = Describe;
 
-/// A fault or warning as telemetry and events name it.
-#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
-#[serde(default)]
-pub struct FaultInfo {
-    /// Servo id (0 for the port).
-    pub id: u8,
-    /// Joint number, from 1 (0 for the port).
-    pub joint: usize,
-    /// `silent`, `hardware_error`, `port`, `watchdog`, `temperature`, `voltage`.
-    pub kind: String,
-    /// The tick of its first symptom.
-    pub since_tick: u64,
-    /// Details for a person.
-    pub detail: String,
-}
-
-impl std::fmt::Display for FaultInfo {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        if self.id == 0 {
-            write!(f, "port: {} ({})", self.kind, self.detail)
-        } else {
-            write!(
-                f,
-                "servo {} (joint {}): {} ({})",
-                self.id, self.joint, self.kind, self.detail
-            )
-        }
+    fn deref(&self) -> &Describe {
+        &self.describe
     }
 }
 
-/// One telemetry line or `status` reply, as a client reads it.
-#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
-#[serde(default)]
-pub struct Snapshot {
-    /// Ticks since start.
-    pub tick: u64,
-    /// `tick` times the nominal period, s.
-    pub t_s: f64,
-    /// `moving`, `holding`, `stopping`, `estop` or `fault`.
-    pub state: String,
-    /// The active strategy.
-    pub strategy: String,
-    /// This tick's motion reference for the tip, m.
-    pub tip_ref: [f64; 2],
-    /// The tip of the commanded pose, m.
-    pub tip: [f64; 2],
-    /// The tip of the measured pose, m.
-    pub tip_meas: [f64; 2],
-    /// Where the active `goto`/`path` goes, m.
-    pub target: Option<[f64; 2]>,
-    /// The commanded pose, rad.
-    pub theta_cmd: Vec<f64>,
-    /// The measured pose, rad.
-    pub theta_meas: Vec<f64>,
-    /// The measured joint velocities, rad/s.
-    pub omega_meas: Vec<f64>,
-    /// `|tip_ref - tip_meas|`, m.
-    pub tracking_error_m: f64,
-    /// The reference was out of reach this tick.
-    pub saturated: bool,
-    /// The step was cut short by the arm's own links.
-    pub self_collision: bool,
-    /// The active or last motion command.
-    pub command: Option<CommandInfo>,
-    /// This tick's controller time, µs.
-    pub solve_us: f64,
-    /// Ticks per second over the last 1000 ticks.
-    pub loop_hz: f64,
-    /// 99th percentile of a tick's working time, µs.
-    pub tick_p99_us: f64,
-    /// Periods skipped since start.
-    pub overruns: u64,
-    /// Fastest joint speed commanded since start or `reset_stats`, rad/s.
-    pub peak_joint_speed_rad_s: f64,
-    /// Metric 3 travelled since start or `reset_stats`, rad².
-    pub m3_total_rad2: f64,
-    /// The active faults.
-    pub faults: Vec<FaultInfo>,
-    /// The active health warnings.
-    pub warnings: Vec<FaultInfo>,
-    /// Whether torque is on.
-    pub torque: bool,
-    /// The client in control (`None`: nobody).
-    pub controller: Option<u64>,
-    /// Whether this client is in control.
-    pub in_control: bool,
-}
-
-/// An event line, as a client reads it.
-#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
-#[serde(default)]
-pub struct EventInfo {
-    /// `arrived`, `saturated`, `preempted`, `stopped`, `estop`, `reset`, `fault`, `warning`,
-    /// `control`.
-    pub event: String,
-    /// The request id of the command it concerns.
-    pub cmd_id: Option<Value>,
-    /// The tick it happened in.
-    pub tick: u64,
-    /// The commanded tip then, m.
-    pub tip: [f64; 2],
-    /// Why (`preempted`: the new command; `stopped`: `stop`, `deadman` or `fault`; `fault`:
-    /// `raised`, `cleared`, `recovered`).
-    pub reason: Option<String>,
-    /// For `fault` and `warning`: which servo and why.
-    pub fault: Option<FaultInfo>,
-    /// For `control`: the new holder.
-    pub holder: Option<u64>,
-    /// For `control`: the previous holder.
-    pub previous: Option<u64>,
-}
-
-/// A reply: its id and, when `ok`, its fields.
+/// A reply as the client reads it: its id, the command it answers (when it is one of this
+/// client's), and its fields typed by that command, or the refusal.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Reply {
-    /// The id it echoes.
-    pub id: Value,
-    /// The reply's fields (`ok` and `id` removed), or the daemon's `(code, message)`.
-    pub result: Result<Map<String, Value>, (String, String)>,
+pub struct Replied {
+    /// The id it echoes (`None` for `null`: a line the daemon could not read).
+    pub id: Option<RequestId>,
+    /// The command it answers, when its id is one this client sent.
+    pub cmd: Option<CmdName>,
+    /// The reply's fields, or the daemon's refusal.
+    pub result: Result<Fields, Rejection>,
 }
 
-/// What the reading thread passes on, in arrival order.
+/// What the caller reads, in arrival order.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Incoming {
     /// A reply to a request.
-    Reply(Reply),
+    Reply(Replied),
     /// An event.
-    Event(EventInfo),
-}
-
-/// The newest telemetry line, with a count of the lines seen so far.
-#[derive(Default)]
-struct Latest {
-    slot: Mutex<(u64, Option<Arc<Telemetry>>)>,
-    fresh: Condvar,
+    Event(Event),
 }
 
 /// One telemetry line: the line as sent and what it says.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Telemetry {
+pub struct TelemetryLine {
     /// The line itself, without its newline (for `watch`, which prints it as it came).
     pub line: String,
     /// What it says.
-    pub snapshot: Snapshot,
+    pub status: Status,
+}
+
+/// Something [`Client::watch`] shows its caller.
+#[derive(Debug, Clone, Copy)]
+pub enum Seen<'a> {
+    /// The newest telemetry line.
+    Telemetry(&'a TelemetryLine),
+    /// A reply (to a request sent without waiting).
+    Reply(&'a Replied),
+    /// An event.
+    Event(&'a Event),
+}
+
+/// A motion command the daemon accepted: what [`Client::wait_ending`] waits on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Motion {
+    /// Its request id.
+    pub id: u64,
+    /// Its command.
+    pub cmd: CmdName,
+    /// The tick it was applied in.
+    pub accepted: u64,
+}
+
+impl Motion {
+    /// Whether `event` ends this command, and how: an `arrived`, `saturated`, `preempted` or
+    /// `stopped` about its own request id; an `estop`, or a `fault` raised, from its tick on.
+    pub fn ending(&self, event: &Event) -> Option<Ending> {
+        let ours = event.cmd_id.as_deref().and_then(Value::as_u64) == Some(self.id);
+        let since = event.tick >= self.accepted;
+        let tick = event.tick;
+        match &event.what {
+            What::Arrived { tip } if ours => Some(Ending::Arrived { tick, tip: *tip }),
+            What::Saturated { tip } if ours => Some(Ending::Saturated { tick, tip: *tip }),
+            What::Preempted { tip, reason } if ours => Some(Ending::Preempted {
+                tick,
+                tip: *tip,
+                by: *reason,
+            }),
+            What::Stopped { tip, reason } if ours => Some(Ending::Stopped {
+                tick,
+                tip: *tip,
+                reason: *reason,
+            }),
+            What::Estop { tip } if since => Some(Ending::Estop { tick, tip: *tip }),
+            What::Fault {
+                tip,
+                reason: FaultChange::Raised,
+                fault,
+            } if since => Some(Ending::Fault {
+                tick,
+                tip: *tip,
+                fault: fault.clone(),
+            }),
+            _ => None,
+        }
+    }
+}
+
+/// How a motion command ended: the tick and the commanded tip then, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Ending {
+    /// It reached its target.
+    Arrived {
+        /// The tick.
+        tick: u64,
+        /// The commanded tip, m.
+        tip: [f64; 2],
+    },
+    /// Its target was out of reach; the tip stopped short.
+    Saturated {
+        /// The tick.
+        tick: u64,
+        /// The commanded tip, m.
+        tip: [f64; 2],
+    },
+    /// Another command replaced it.
+    Preempted {
+        /// The tick.
+        tick: u64,
+        /// The commanded tip, m.
+        tip: [f64; 2],
+        /// The command that replaced it.
+        by: CmdName,
+    },
+    /// It came to rest, or was cut short.
+    Stopped {
+        /// The tick.
+        tick: u64,
+        /// The commanded tip, m.
+        tip: [f64; 2],
+        /// Why.
+        reason: StopReason,
+    },
+    /// An estop.
+    Estop {
+        /// The tick.
+        tick: u64,
+        /// The commanded tip, m.
+        tip: [f64; 2],
+    },
+    /// A fault was raised.
+    Fault {
+        /// The tick.
+        tick: u64,
+        /// The commanded tip, m.
+        tip: [f64; 2],
+        /// Which servo, and why.
+        fault: FaultInfo,
+    },
+}
+
+impl Ending {
+    /// The tick it ended in.
+    pub fn tick(&self) -> u64 {
+        match self {
+            Ending::Arrived { tick, .. }
+            | Ending::Saturated { tick, .. }
+            | Ending::Preempted { tick, .. }
+            | Ending::Stopped { tick, .. }
+            | Ending::Estop { tick, .. }
+            | Ending::Fault { tick, .. } => *tick,
+        }
+    }
+
+    /// The commanded tip then, m.
+    pub fn tip(&self) -> [f64; 2] {
+        match self {
+            Ending::Arrived { tip, .. }
+            | Ending::Saturated { tip, .. }
+            | Ending::Preempted { tip, .. }
+            | Ending::Stopped { tip, .. }
+            | Ending::Estop { tip, .. }
+            | Ending::Fault { tip, .. } => *tip,
+        }
+    }
+}
+
+impl fmt::Display for Ending {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [x, y] = self.tip();
+        let at = format!("({x:.4}, {y:.4}) m, tick {}", self.tick());
+        match self {
+            Ending::Arrived { .. } => write!(f, "arrived at {at}"),
+            Ending::Saturated { .. } => write!(
+                f,
+                "saturated: the target is out of reach; the tip stopped short at {at}"
+            ),
+            Ending::Preempted { by, .. } => write!(f, "preempted by `{by}` at {at}"),
+            Ending::Stopped { reason, .. } => write!(f, "stopped ({reason}) at {at}"),
+            Ending::Estop { .. } => write!(f, "estop: emergency stop at {at}"),
+            Ending::Fault { fault, .. } => write!(f, "fault: {fault}, at {at}"),
+        }
+    }
+}
+
+/// One thing the reading thread queued.
+#[derive(Debug)]
+enum Arrival {
+    Reply { line: String, reply: ReplyLine },
+    Event(Event),
+    Unreadable { line: String, error: ReadError },
+}
+
+/// What the reading thread hands the caller.
+#[derive(Debug, Default)]
+struct Inbox {
+    /// Replies, events and unreadable lines, in arrival order.
+    queue: VecDeque<Arrival>,
+    /// Telemetry lines seen so far, and the newest.
+    telemetry_count: u64,
+    telemetry: Option<Arc<TelemetryLine>>,
+    /// The reading thread has ended: the connection is closed.
+    closed: bool,
+    /// The last refusal the daemon sent (why it closed, if it did).
+    refusal: Option<Rejection>,
+    /// A request waits for its reply: the queue may grow past [`QUEUE`] meanwhile.
+    waiting: bool,
+    /// The client is gone: the reading thread stops waiting for room.
+    dropped: bool,
+}
+
+/// The inbox and its two conditions.
+#[derive(Debug, Default)]
+struct Shared {
+    inbox: Mutex<Inbox>,
+    /// Something arrived, or the connection closed.
+    changed: Condvar,
+    /// The caller took something from a full queue, or went away.
+    room: Condvar,
+}
+
+impl Shared {
+    fn inbox(&self) -> MutexGuard<'_, Inbox> {
+        // The inbox is whole after any panic: each change is one push or pop.
+        self.inbox.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Waits up to `wait` for the inbox to change.
+    fn wait_changed<'a>(
+        &'a self,
+        inbox: MutexGuard<'a, Inbox>,
+        wait: Duration,
+    ) -> MutexGuard<'a, Inbox> {
+        self.changed
+            .wait_timeout(inbox, wait)
+            .unwrap_or_else(|e| e.into_inner())
+            .0
+    }
 }
 
 /// A connection to the daemon.
 pub struct Client {
     addr: String,
     writer: TcpStream,
-    incoming: Receiver<Incoming>,
-    held: VecDeque<EventInfo>,
-    latest: Arc<Latest>,
+    shared: Arc<Shared>,
+    /// The count of the last telemetry line returned.
     seen: u64,
     next_id: u64,
-    id: Option<u64>,
-    closed_reason: Arc<Mutex<Option<String>>>,
+    id: Option<ClientId>,
+    /// The requests sent whose replies have not been read: id to command.
+    pending: HashMap<u64, CmdName>,
     reader: Option<JoinHandle<()>>,
 }
 
-impl std::fmt::Debug for Client {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl fmt::Debug for Client {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Client")
             .field("addr", &self.addr)
             .field("id", &self.id)
@@ -406,48 +548,47 @@ impl Client {
             }
         }
         let stream = stream.ok_or_else(|| connect_error(last))?;
-        let _ = stream.set_nodelay(true);
-        let read_half = stream.try_clone().map_err(connect_error)?;
-        let (tx, rx) = mpsc::sync_channel(QUEUE);
-        let latest = Arc::new(Latest::default());
-        let closed_reason = Arc::new(Mutex::new(None));
-        let reader = {
-            let latest = Arc::clone(&latest);
-            let closed_reason = Arc::clone(&closed_reason);
-            std::thread::Builder::new()
-                .name("snakectl-client".into())
-                .spawn(move || read_loop(read_half, tx, &latest, &closed_reason))
-                .map_err(connect_error)?
-        };
-        let mut client = Client {
-            addr: addr.to_owned(),
-            writer: stream,
-            incoming: rx,
-            held: VecDeque::new(),
-            latest,
-            seen: 0,
-            next_id: 1,
-            id: None,
-            closed_reason,
-            reader: Some(reader),
-        };
-        if let Some(token) = token {
-            let id = client.next_request_id();
-            let line = format!(
-                "{}\n",
-                serde_json::json!({"cmd": "auth", "id": id, "token": token})
-            );
-            client.write_line(&line)?;
-            let fields = client.wait_reply(id, "auth", REPLY_TIMEOUT)?;
-            client.note_client_id(&fields);
-        }
-        Ok(client)
+        Client::over(addr, stream, token)
     }
 
     /// [`Client::connect`] with the token read from `token_file`, if given.
     pub fn connect_with(addr: &str, token_file: Option<&Path>) -> Result<Client, ClientError> {
         let token = token_file.map(read_token).transpose()?;
         Client::connect(addr, token.as_deref())
+    }
+
+    /// A client on a connected `stream` to the daemon at `addr`.
+    fn over(addr: &str, stream: TcpStream, token: Option<&str>) -> Result<Client, ClientError> {
+        let io_error = |source: std::io::Error| ClientError::Connect {
+            addr: addr.to_owned(),
+            source,
+        };
+        let _ = stream.set_nodelay(true);
+        let read_half = stream.try_clone().map_err(io_error)?;
+        let shared = Arc::new(Shared::default());
+        let reader = {
+            let shared = Arc::clone(&shared);
+            std::thread::Builder::new()
+                .name("snakectl-client".into())
+                .spawn(move || read_loop(read_half, &shared))
+                .map_err(io_error)?
+        };
+        let mut client = Client {
+            addr: addr.to_owned(),
+            writer: stream,
+            shared,
+            seen: 0,
+            next_id: 1,
+            id: None,
+            pending: HashMap::new(),
+            reader: Some(reader),
+        };
+        if let Some(token) = token {
+            client.request(&Cmd::Auth {
+                token: token.to_owned(),
+            })?;
+        }
+        Ok(client)
     }
 
     /// The address it is connected to.
@@ -457,95 +598,184 @@ impl Client {
 
     /// This client's id on the daemon, once a reply to `auth`, `take_control` or `release` has
     /// told it.
-    pub fn client_id(&self) -> Option<u64> {
+    pub fn client_id(&self) -> Option<ClientId> {
         self.id
     }
 
-    /// Sends `cmd` without waiting; returns the request id it carries.
+    /// Sends `cmd` without waiting; returns the request id it carries. Its reply comes through
+    /// [`Client::next`] (or [`Client::watch`]), typed by `cmd`.
     pub fn send(&mut self, cmd: &Cmd) -> Result<u64, ClientError> {
-        let id = self.next_request_id();
+        let id = self.next_id;
+        self.next_id += 1;
         let line = protocol::request_line(Some(&Value::from(id)), cmd);
         self.write_line(&line)?;
+        self.pending.insert(id, cmd.name());
         Ok(id)
     }
 
     /// Sends `cmd` and waits up to [`REPLY_TIMEOUT`] for its reply: its fields, or
-    /// [`ClientError::Refused`] with the daemon's code and message. Events that arrive
-    /// meanwhile are kept for [`Client::next_event`].
-    pub fn request(&mut self, cmd: &Cmd) -> Result<Map<String, Value>, ClientError> {
+    /// [`ClientError::Refused`] with the daemon's code and message. Events and other replies
+    /// that arrive meanwhile stay queued, in order, for [`Client::next`].
+    pub fn request(&mut self, cmd: &Cmd) -> Result<Fields, ClientError> {
         self.request_within(cmd, REPLY_TIMEOUT)
     }
 
     /// [`Client::request`] with its own timeout.
-    pub fn request_within(
-        &mut self,
-        cmd: &Cmd,
-        timeout: Duration,
-    ) -> Result<Map<String, Value>, ClientError> {
+    pub fn request_within(&mut self, cmd: &Cmd, timeout: Duration) -> Result<Fields, ClientError> {
         let id = self.send(cmd)?;
-        let fields = self.wait_reply(id, cmd.name(), timeout)?;
-        if matches!(cmd, Cmd::TakeControl | Cmd::Release | Cmd::Auth { .. }) {
-            self.note_client_id(&fields);
-        }
-        Ok(fields)
+        self.wait_reply(id, cmd.name(), timeout)
     }
 
-    /// `describe`.
-    pub fn describe(&mut self) -> Result<ArmInfo, ClientError> {
+    /// `describe`: the arm, its chain built.
+    pub fn describe(&mut self) -> Result<Arm, ClientError> {
         let fields = self.request(&Cmd::Describe)?;
-        ArmInfo::deserialize(Value::Object(fields)).map_err(|source| ClientError::BadReply {
-            cmd: "describe".into(),
-            source,
-        })
+        let Reply::Describe(describe) = fields.reply else {
+            return Err(ClientError::WrongReply {
+                cmd: CmdName::Describe,
+            });
+        };
+        Arm::new(Arc::unwrap_or_clone(describe)).map_err(|source| ClientError::BadArm { source })
     }
 
     /// `status`.
-    pub fn status(&mut self) -> Result<Snapshot, ClientError> {
+    pub fn status(&mut self) -> Result<Status, ClientError> {
         let fields = self.request(&Cmd::Status)?;
-        Snapshot::deserialize(Value::Object(fields)).map_err(|source| ClientError::BadReply {
-            cmd: "status".into(),
-            source,
+        match fields.reply {
+            Reply::Status(status) => Ok(*status),
+            _ => Err(ClientError::WrongReply {
+                cmd: CmdName::Status,
+            }),
+        }
+    }
+
+    /// `take_control`: this client's id, the holder now and before.
+    pub fn take_control(&mut self) -> Result<TookControl, ClientError> {
+        let fields = self.request(&Cmd::TakeControl)?;
+        match fields.reply {
+            Reply::TookControl(took) => Ok(took),
+            _ => Err(ClientError::WrongReply {
+                cmd: CmdName::TakeControl,
+            }),
+        }
+    }
+
+    /// Sends a motion command and waits for its reply: the command, accepted, to wait on with
+    /// [`Client::wait_ending`].
+    pub fn start_motion(&mut self, cmd: &Cmd) -> Result<Motion, ClientError> {
+        let id = self.send(cmd)?;
+        let fields = self.wait_reply(id, cmd.name(), REPLY_TIMEOUT)?;
+        Ok(Motion {
+            id,
+            cmd: cmd.name(),
+            accepted: fields.reply.tick().unwrap_or(0),
         })
     }
 
-    /// The next reply or event within `timeout` (`Ok(None)`: none came); events held while a
-    /// request waited come first. [`ClientError::Closed`] once the daemon has gone.
-    pub fn next(&mut self, timeout: Duration) -> Result<Option<Incoming>, ClientError> {
-        if let Some(event) = self.held.pop_front() {
-            return Ok(Some(Incoming::Event(event)));
-        }
-        match self.incoming.recv_timeout(timeout) {
-            Ok(incoming) => Ok(Some(incoming)),
-            Err(RecvTimeoutError::Timeout) => Ok(None),
-            Err(RecvTimeoutError::Disconnected) => Err(self.closed()),
-        }
+    /// Waits up to `timeout` for `motion` to end (`Ok(None)`: it did not); everything that
+    /// comes meanwhile (telemetry, replies, events, the ending included) is shown to `seen`
+    /// first, which may stop the wait with an error.
+    pub fn wait_ending<E: From<ClientError>>(
+        &mut self,
+        motion: &Motion,
+        timeout: Duration,
+        mut seen: impl FnMut(Seen<'_>) -> Result<(), E>,
+    ) -> Result<Option<Ending>, E> {
+        self.watch(timeout, |what| {
+            let ending = match what {
+                Seen::Event(event) => motion.ending(event),
+                Seen::Telemetry(_) | Seen::Reply(_) => None,
+            };
+            seen(what)?;
+            Ok(ending)
+        })
     }
 
-    /// The next event within `timeout`, skipping replies nobody waits for.
-    pub fn next_event(&mut self, timeout: Duration) -> Result<Option<EventInfo>, ClientError> {
-        let deadline = Instant::now() + timeout;
+    /// Shows `look` everything that comes, in order (the queued replies and events first, then
+    /// the newest telemetry line when there is a newer one), until it returns `Some` or
+    /// `timeout` passes (`Ok(None)`). A line this client cannot read ends the watch with its
+    /// error; so does the connection closing.
+    pub fn watch<T, E: From<ClientError>>(
+        &mut self,
+        timeout: Duration,
+        mut look: impl FnMut(Seen<'_>) -> Result<Option<T>, E>,
+    ) -> Result<Option<T>, E> {
+        let deadline = Instant::now().checked_add(timeout);
+        let shared = Arc::clone(&self.shared);
         loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            match self.next(left)? {
-                Some(Incoming::Event(event)) => return Ok(Some(event)),
-                Some(Incoming::Reply(_)) => {}
-                None => return Ok(None),
+            let mut inbox = shared.inbox();
+            if let Some(arrival) = inbox.queue.pop_front() {
+                drop(inbox);
+                shared.room.notify_one();
+                let found = match self.take(arrival)? {
+                    Incoming::Reply(reply) => look(Seen::Reply(&reply))?,
+                    Incoming::Event(event) => look(Seen::Event(&event))?,
+                };
+                if found.is_some() {
+                    return Ok(found);
+                }
+                continue;
             }
-            if Instant::now() >= deadline {
+            if inbox.telemetry_count != self.seen {
+                self.seen = inbox.telemetry_count;
+                let line = inbox.telemetry.clone();
+                drop(inbox);
+                if let Some(line) = line {
+                    if let Some(found) = look(Seen::Telemetry(&line))? {
+                        return Ok(Some(found));
+                    }
+                }
+                continue;
+            }
+            if inbox.closed {
+                drop(inbox);
+                return Err(self.closed().into());
+            }
+            let left = match deadline {
+                Some(deadline) => deadline.saturating_duration_since(Instant::now()),
+                None => Duration::from_secs(3600),
+            };
+            if left.is_zero() {
                 return Ok(None);
             }
+            drop(shared.wait_changed(inbox, left));
         }
     }
 
-    /// The newest telemetry line, if one came since the last call (latest wins: lines in
-    /// between are skipped).
-    pub fn telemetry(&mut self) -> Option<Arc<Telemetry>> {
-        let slot = self.latest.slot.lock().unwrap_or_else(|e| e.into_inner());
-        if slot.0 == self.seen {
+    /// The next reply or event within `timeout` (`Ok(None)`: none came).
+    /// [`ClientError::Closed`] once the daemon has gone and nothing is left;
+    /// [`ClientError::Unreadable`] for a line that does not read (the next call goes on after
+    /// it).
+    pub fn next(&mut self, timeout: Duration) -> Result<Option<Incoming>, ClientError> {
+        let deadline = Instant::now() + timeout;
+        let shared = Arc::clone(&self.shared);
+        let mut inbox = shared.inbox();
+        loop {
+            if let Some(arrival) = inbox.queue.pop_front() {
+                drop(inbox);
+                shared.room.notify_one();
+                return self.take(arrival).map(Some);
+            }
+            if inbox.closed {
+                drop(inbox);
+                return Err(self.closed());
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
+            inbox = shared.wait_changed(inbox, left);
+        }
+    }
+
+    /// The newest telemetry line, if one came since the last one returned (latest wins: lines
+    /// in between are skipped).
+    pub fn telemetry(&mut self) -> Option<Arc<TelemetryLine>> {
+        let inbox = self.shared.inbox();
+        if inbox.telemetry_count == self.seen {
             return None;
         }
-        self.seen = slot.0;
-        slot.1.clone()
+        self.seen = inbox.telemetry_count;
+        inbox.telemetry.clone()
     }
 
     /// Waits up to `timeout` for a telemetry line newer than the last one returned.
@@ -553,48 +783,76 @@ impl Client {
     pub fn wait_telemetry(
         &mut self,
         timeout: Duration,
-    ) -> Result<Option<Arc<Telemetry>>, ClientError> {
+    ) -> Result<Option<Arc<TelemetryLine>>, ClientError> {
         let deadline = Instant::now() + timeout;
-        let mut slot = self.latest.slot.lock().unwrap_or_else(|e| e.into_inner());
+        let shared = Arc::clone(&self.shared);
+        let mut inbox = shared.inbox();
         loop {
-            if slot.0 != self.seen {
-                self.seen = slot.0;
-                return Ok(slot.1.clone());
+            if inbox.telemetry_count != self.seen {
+                self.seen = inbox.telemetry_count;
+                return Ok(inbox.telemetry.clone());
             }
-            if self.reader.as_ref().is_none_or(|r| r.is_finished()) {
-                drop(slot);
+            if inbox.closed {
+                drop(inbox);
                 return Err(self.closed());
             }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Ok(None);
             }
-            // Woken by every line, and at least every 100 ms to notice a closed socket.
-            let wait = left.min(Duration::from_millis(100));
-            slot = self
-                .latest
-                .fresh
-                .wait_timeout(slot, wait)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            inbox = shared.wait_changed(inbox, left);
         }
     }
 
     /// Whether the daemon has closed the connection.
     pub fn is_closed(&self) -> bool {
-        self.reader.as_ref().is_none_or(|r| r.is_finished())
+        self.shared.inbox().closed
     }
 
-    fn next_request_id(&mut self) -> u64 {
-        let id = self.next_id;
-        self.next_id += 1;
-        id
+    /// What the caller reads of an arrival: a reply typed by the command it answers.
+    fn take(&mut self, arrival: Arrival) -> Result<Incoming, ClientError> {
+        match arrival {
+            Arrival::Event(event) => Ok(Incoming::Event(event)),
+            Arrival::Unreadable { line, error } => Err(ClientError::Unreadable {
+                line,
+                source: error,
+            }),
+            Arrival::Reply { line, reply } => {
+                let cmd = reply
+                    .id
+                    .as_deref()
+                    .and_then(Value::as_u64)
+                    .and_then(|id| self.pending.remove(&id));
+                let result = match (reply.result, cmd) {
+                    (Ok(fields), Some(cmd)) => Ok(self.typed(cmd, fields, line)?),
+                    (Ok(_), None) => return Err(ClientError::Stray { line }),
+                    (Err(rejection), _) => Err(rejection),
+                };
+                Ok(Incoming::Reply(Replied {
+                    id: reply.id,
+                    cmd,
+                    result,
+                }))
+            }
+        }
     }
 
-    fn note_client_id(&mut self, fields: &Map<String, Value>) {
-        if let Some(id) = fields.get("client").and_then(Value::as_u64) {
+    /// An ok reply's fields typed by `cmd`; the client's id noted when they tell it.
+    fn typed(
+        &mut self,
+        cmd: CmdName,
+        fields: serde_json::Map<String, Value>,
+        line: String,
+    ) -> Result<Fields, ClientError> {
+        let fields = Fields::read(cmd, fields).map_err(|source| ClientError::BadReply {
+            cmd,
+            line,
+            source,
+        })?;
+        if let Some(id) = fields.reply.client() {
             self.id = Some(id);
         }
+        Ok(fields)
     }
 
     fn write_line(&mut self, line: &str) -> Result<(), ClientError> {
@@ -611,72 +869,76 @@ impl Client {
             })
     }
 
+    /// Waits for the reply to request `id` (of `cmd`), leaving everything else queued in
+    /// order. A refusal without an id (of a line the daemon could not read) is taken as this
+    /// request's, and a line this client cannot read ends the wait with its error.
     fn wait_reply(
         &mut self,
         id: u64,
-        cmd: &str,
+        cmd: CmdName,
         timeout: Duration,
-    ) -> Result<Map<String, Value>, ClientError> {
+    ) -> Result<Fields, ClientError> {
         let deadline = Instant::now() + timeout;
-        loop {
+        let shared = Arc::clone(&self.shared);
+        let mut inbox = shared.inbox();
+        inbox.waiting = true;
+        let found = loop {
+            let at = inbox.queue.iter().position(|arrival| match arrival {
+                Arrival::Reply { reply, .. } => match reply.id.as_deref() {
+                    Some(got) => got.as_u64() == Some(id),
+                    None => reply.result.is_err(),
+                },
+                Arrival::Unreadable { .. } => true,
+                Arrival::Event(_) => false,
+            });
+            if let Some(arrival) = at.and_then(|at| inbox.queue.remove(at)) {
+                break Ok(arrival);
+            }
+            if inbox.closed {
+                break Err(None);
+            }
             let left = deadline.saturating_duration_since(Instant::now());
-            let incoming = match self.incoming.recv_timeout(left) {
-                Ok(incoming) => incoming,
-                Err(RecvTimeoutError::Timeout) => {
-                    return Err(ClientError::Timeout {
-                        cmd: cmd.to_owned(),
-                        timeout,
-                    })
-                }
-                Err(RecvTimeoutError::Disconnected) => return Err(self.closed()),
-            };
-            match incoming {
-                Incoming::Reply(reply) if reply.id.as_u64() == Some(id) => {
-                    return reply
-                        .result
-                        .map_err(|(code, message)| ClientError::Refused {
-                            cmd: cmd.to_owned(),
-                            code,
-                            message,
-                        });
-                }
-                // A refusal of a line the daemon could not read carries no id; it can only
-                // be ours when nothing else is in flight, as here.
-                Incoming::Reply(Reply {
-                    id: Value::Null,
-                    result: Err((code, message)),
-                }) => {
-                    return Err(ClientError::Refused {
-                        cmd: cmd.to_owned(),
-                        code,
-                        message,
-                    })
-                }
-                Incoming::Reply(_) => {}
-                Incoming::Event(event) => {
-                    if self.held.len() == HELD_EVENTS {
-                        self.held.pop_front();
-                    }
-                    self.held.push_back(event);
+            if left.is_zero() {
+                break Err(Some(ClientError::Timeout { cmd, timeout }));
+            }
+            inbox = shared.wait_changed(inbox, left);
+        };
+        inbox.waiting = false;
+        drop(inbox);
+        shared.room.notify_all();
+        let arrival = match found {
+            Ok(arrival) => arrival,
+            Err(Some(timeout)) => return Err(timeout),
+            Err(None) => return Err(self.closed()),
+        };
+        match arrival {
+            Arrival::Reply { line, reply } => {
+                self.pending.remove(&id);
+                match reply.result {
+                    Ok(fields) => self.typed(cmd, fields, line),
+                    Err(rejection) => Err(ClientError::Refused { cmd, rejection }),
                 }
             }
+            Arrival::Unreadable { line, error } => Err(ClientError::Unreadable {
+                line,
+                source: error,
+            }),
+            Arrival::Event(_) => Err(ClientError::WrongReply { cmd }),
         }
     }
 
     fn closed(&self) -> ClientError {
         ClientError::Closed {
             addr: self.addr.clone(),
-            reason: self
-                .closed_reason
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .clone(),
+            reason: self.shared.inbox().refusal.clone(),
         }
     }
 }
 
 impl Drop for Client {
     fn drop(&mut self) {
+        self.shared.inbox().dropped = true;
+        self.shared.room.notify_all();
         let _ = self.writer.shutdown(std::net::Shutdown::Both);
         if let Some(reader) = self.reader.take() {
             let _ = reader.join();
@@ -684,144 +946,66 @@ impl Drop for Client {
     }
 }
 
-/// The reading thread: sorts the daemon's lines until the socket closes.
-fn read_loop(
-    stream: TcpStream,
-    tx: SyncSender<Incoming>,
-    latest: &Latest,
-    closed_reason: &Mutex<Option<String>>,
-) {
+/// The reading thread: reads the daemon's lines into the inbox until the socket closes.
+fn read_loop(stream: TcpStream, shared: &Shared) {
     let mut reader = BufReader::new(stream);
-    let mut line = String::new();
+    let mut bytes = Vec::new();
     loop {
-        line.clear();
-        match reader.read_line(&mut line) {
+        bytes.clear();
+        match reader.read_until(b'\n', &mut bytes) {
             Ok(0) | Err(_) => break,
             Ok(_) => {}
         }
-        let text = line.trim_end();
+        let text = String::from_utf8_lossy(&bytes);
+        let text = text.trim_end();
         if text.is_empty() {
             continue;
         }
-        let Ok(Value::Object(mut object)) = serde_json::from_str::<Value>(text) else {
-            continue;
-        };
-        let kind = object
-            .get("type")
-            .and_then(Value::as_str)
-            .map(str::to_owned);
-        let incoming = match kind.as_deref() {
-            Some("telemetry") => {
-                if let Ok(snapshot) = Snapshot::deserialize(Value::Object(object)) {
-                    let telemetry = Arc::new(Telemetry {
-                        line: text.to_owned(),
-                        snapshot,
-                    });
-                    let mut slot = latest.slot.lock().unwrap_or_else(|e| e.into_inner());
-                    slot.0 += 1;
-                    slot.1 = Some(telemetry);
-                    latest.fresh.notify_all();
-                }
+        let arrival = match protocol::read_line(text) {
+            Ok(ServerLine::Telemetry(status)) => {
+                let line = Arc::new(TelemetryLine {
+                    line: text.to_owned(),
+                    status: *status,
+                });
+                let mut inbox = shared.inbox();
+                inbox.telemetry_count += 1;
+                inbox.telemetry = Some(line);
+                drop(inbox);
+                shared.changed.notify_all();
                 continue;
             }
-            Some("event") => match EventInfo::deserialize(Value::Object(object)) {
-                Ok(event) => Incoming::Event(event),
-                Err(_) => continue,
+            Ok(ServerLine::Event(event)) => Arrival::Event(event),
+            Ok(ServerLine::Reply(reply)) => Arrival::Reply {
+                line: text.to_owned(),
+                reply,
             },
-            _ => {
-                let id = object.remove("id").unwrap_or(Value::Null);
-                let ok = object
-                    .remove("ok")
-                    .and_then(|v| v.as_bool())
-                    .unwrap_or(false);
-                let result = if ok {
-                    Ok(object)
-                } else {
-                    let error = object.get("error");
-                    let field = |name: &str| {
-                        error
-                            .and_then(|e| e.get(name))
-                            .and_then(Value::as_str)
-                            .unwrap_or("")
-                            .to_owned()
-                    };
-                    let (code, message) = (field("code"), field("message"));
-                    *closed_reason.lock().unwrap_or_else(|e| e.into_inner()) =
-                        Some(format!("{code}: {message}"));
-                    Err((code, message))
-                };
-                Incoming::Reply(Reply { id, result })
-            }
+            Err(error) => Arrival::Unreadable {
+                line: text.to_owned(),
+                error,
+            },
         };
-        let mut pending = incoming;
-        // Bounded: a caller that stops reading makes this thread wait (and the daemon's queue
-        // for this client fill), never grow without end.
-        loop {
-            match tx.try_send(pending) {
-                Ok(()) => break,
-                Err(TrySendError::Full(back)) => {
-                    pending = back;
-                    std::thread::sleep(Duration::from_millis(5));
-                }
-                Err(TrySendError::Disconnected(_)) => return,
+        let mut inbox = shared.inbox();
+        if let Arrival::Reply { reply, .. } = &arrival {
+            if let Err(rejection) = &reply.result {
+                inbox.refusal = Some(rejection.clone());
             }
         }
+        // Bounded: a caller that stops reading makes this thread wait (and the daemon's queue
+        // for this client fill), never grow without end; a request waiting for its reply
+        // behind the queue lets it grow meanwhile.
+        while inbox.queue.len() >= QUEUE && !inbox.waiting && !inbox.dropped {
+            inbox = shared.room.wait(inbox).unwrap_or_else(|e| e.into_inner());
+        }
+        if inbox.dropped {
+            return;
+        }
+        inbox.queue.push_back(arrival);
+        drop(inbox);
+        shared.changed.notify_all();
     }
-    latest.fresh.notify_all();
+    shared.inbox().closed = true;
+    shared.changed.notify_all();
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn points_walk_the_links_from_the_base() {
-        let arm = ArmInfo {
-            links_m: vec![1.0, 1.0],
-            base: [1.0, 2.0, std::f64::consts::FRAC_PI_2],
-            ..ArmInfo::default()
-        };
-        let p = arm.points(&[0.0, -std::f64::consts::FRAC_PI_2]);
-        let expected = [[1.0, 2.0], [1.0, 3.0], [2.0, 3.0]];
-        for (got, want) in p.iter().zip(expected) {
-            assert!((got[0] - want[0]).abs() < 1e-12 && (got[1] - want[1]).abs() < 1e-12);
-        }
-        assert_eq!(arm.reach(), 2.0);
-        assert_eq!(arm.inner_radius(), 0.0);
-    }
-
-    #[test]
-    fn a_refused_connection_says_no_daemon_listens() {
-        // Bind and drop: the port is then (almost certainly) closed.
-        let addr = {
-            let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap_or_else(|e| panic!("{e}"));
-            l.local_addr().unwrap_or_else(|e| panic!("{e}"))
-        };
-        let err = Client::connect(&addr.to_string(), None)
-            .err()
-            .unwrap_or_else(|| panic!("connected to a closed port"));
-        let text = err.to_string();
-        assert!(
-            text.contains("no daemon is listening on 127.0.0.1"),
-            "{text}"
-        );
-        assert!(text.contains("--connect"), "{text}");
-    }
-
-    #[test]
-    fn token_files_are_read_as_the_daemon_reads_them() {
-        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let path = dir.path().join("token");
-        std::fs::write(&path, "  s3cret \nsecond line\n").unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(
-            read_token(&path).unwrap_or_else(|e| panic!("{e}")),
-            "s3cret"
-        );
-        std::fs::write(&path, "\n").unwrap_or_else(|e| panic!("{e}"));
-        let err = read_token(&path)
-            .err()
-            .map(|e| e.to_string())
-            .unwrap_or_default();
-        assert!(err.contains("the token file is empty"), "{err}");
-    }
-}
+mod tests;

@@ -11,55 +11,19 @@
 //! - Reading and the session's own commands ([`Need::Nothing`]) need nothing.
 //!
 //! `take_control` takes control from whoever holds it; `release`, or the holder leaving, frees
-//! it. Every change is a [`Change`], announced to every client as a `control` event line
-//! ([`control_line`]).
+//! it. Every change is a [`Change`], announced to every client as a `control` event
+//! ([`Change::event`]).
 
-use serde::Serialize;
+use std::sync::Arc;
+
 use serde_json::Value;
 
-use crate::protocol::{ClientId, Cmd, Code, Rejection};
+pub use crate::protocol::Need;
+use crate::protocol::{event_line, ClientId, CmdName, Code, Event, Rejection, What};
 
 /// Who would command the arm: a client of the server, or any other source given an id from the
 /// same space.
 pub type ControllerId = ClientId;
-
-/// What a command needs from the arbiter.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Need {
-    /// Control: refused `not_in_control` to anyone but the holder; takes control when free.
-    Control,
-    /// Nothing, ever: stopping is never refused.
-    Stop,
-    /// Nothing: it reads, or manages the session.
-    Nothing,
-}
-
-impl Need {
-    /// What `cmd` needs.
-    pub fn of(cmd: &Cmd) -> Need {
-        match cmd {
-            Cmd::Goto { .. }
-            | Cmd::GotoJoints { .. }
-            | Cmd::Path { .. }
-            | Cmd::Velocity { .. }
-            | Cmd::Jog { .. }
-            | Cmd::Home
-            | Cmd::Strategy { .. }
-            | Cmd::Reset
-            | Cmd::Torque { .. }
-            | Cmd::Reboot { .. } => Need::Control,
-            Cmd::Stop | Cmd::Estop => Need::Stop,
-            Cmd::Describe
-            | Cmd::Status
-            | Cmd::Subscribe { .. }
-            | Cmd::Unsubscribe
-            | Cmd::ResetStats
-            | Cmd::TakeControl
-            | Cmd::Release
-            | Cmd::Auth { .. } => Need::Nothing,
-        }
-    }
-}
 
 /// Who holds control after a change, and who held it before.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -87,11 +51,16 @@ impl Arbiter {
         self.holder
     }
 
-    /// Whether `who` may send `cmd`. A command that needs control takes it when nobody holds it
-    /// (the change is returned); from anyone but the holder it is refused `not_in_control`,
-    /// the message naming the holder.
-    pub fn admit(&mut self, who: ControllerId, cmd: &Cmd) -> Result<Option<Change>, Rejection> {
-        if Need::of(cmd) != Need::Control {
+    /// Whether `who` may send `cmd` (a command, or its name). A command that needs control
+    /// takes it when nobody holds it (the change is returned); from anyone but the holder it is
+    /// refused `not_in_control`, the message naming the holder.
+    pub fn admit(
+        &mut self,
+        who: ControllerId,
+        cmd: impl Into<CmdName>,
+    ) -> Result<Option<Change>, Rejection> {
+        let cmd = cmd.into();
+        if cmd.need() != Need::Control {
             return Ok(None);
         }
         match self.holder {
@@ -99,9 +68,8 @@ impl Arbiter {
             Some(holder) => Err(Rejection::new(
                 Code::NotInControl,
                 format!(
-                    "`{}` needs control, which client {holder} holds; send `take_control` to \
-                     take it",
-                    cmd.name()
+                    "`{cmd}` needs control, which client {holder} holds; send `take_control` to \
+                     take it"
                 ),
             )),
             None => Ok(self.take(who)),
@@ -131,33 +99,27 @@ impl Arbiter {
     }
 }
 
-/// The `control` event line announcing `change`: `{"type": "event", "event": "control",
-/// "holder": ID|null, "previous": ID|null, "cmd_id": ID?, "tick": N}` (`cmd_id`: the request
-/// that made the change, absent when a disconnect did; `tick`: the latest published tick).
-pub fn control_line(change: &Change, cmd_id: Option<&Value>, tick: u64) -> String {
-    #[derive(Serialize)]
-    struct Line<'a> {
-        #[serde(rename = "type")]
-        kind: &'static str,
-        event: &'static str,
-        holder: Option<ControllerId>,
-        previous: Option<ControllerId>,
-        #[serde(skip_serializing_if = "Option::is_none")]
-        cmd_id: Option<&'a Value>,
-        tick: u64,
+impl Change {
+    /// The `control` event announcing it: `cmd_id` the request that made the change (none
+    /// when a disconnect did), `tick` the latest published tick.
+    pub fn event(&self, cmd_id: Option<Arc<Value>>, tick: u64) -> Event {
+        Event {
+            owner: None,
+            cmd_id,
+            tick,
+            what: What::Control {
+                holder: self.holder,
+                previous: self.previous,
+            },
+        }
     }
-    let line = Line {
-        kind: "event",
-        event: "control",
-        holder: change.holder,
-        previous: change.previous,
-        cmd_id,
-        tick,
-    };
-    // Serializing integers, strings and a JSON value cannot fail.
-    let mut text = serde_json::to_string(&line).unwrap_or_default();
-    text.push('\n');
-    text
+}
+
+/// The `control` event line announcing `change`: `{"type": "event", "event": "control",
+/// "holder": ID|null, "previous": ID|null, "cmd_id": ID?, "tick": N}` ([`Change::event`],
+/// written as every event line is).
+pub fn control_line(change: &Change, cmd_id: Option<&Value>, tick: u64) -> String {
+    event_line(&change.event(cmd_id.cloned().map(Arc::new), tick))
 }
 
 #[cfg(test)]
@@ -167,6 +129,7 @@ mod tests {
     use serde_json::json;
 
     use super::*;
+    use crate::protocol::Cmd;
 
     fn goto() -> Cmd {
         Cmd::Goto {

@@ -33,7 +33,9 @@ use zenoh::{Session, Wait};
 
 use super::server::Door;
 use crate::config::{Config, Endpoint, Zenoh, ZenohMode};
-use crate::protocol::{self, Cmd, Code, Rejection, Telemetry};
+use crate::protocol::{
+    self, Cmd, CmdName, Code, Fields, Rejection, Reply, ReplyLine, ServerLine, Status, Telemetry,
+};
 use crate::ros;
 
 /// Network commands held for the bridge between two of its turns; the newest win (a newer
@@ -435,8 +437,7 @@ impl<'a> Served<'a> {
                     self.answer(&query, "status", self.door.status_line(&t)).await;
                 }
                 query = next_query(&self.describe) => {
-                    let line = protocol::ok_line(None, self.door.describe());
-                    self.answer(&query, "describe", line).await;
+                    self.answer(&query, "describe", self.door.describe_line()).await;
                 }
                 sample = recv(&self.cmd_vel) => {
                     let cmd = velocity(&sample);
@@ -748,8 +749,32 @@ impl Peer {
 pub struct ArmSeen {
     /// The arm's prefix (its liveliness token).
     pub prefix: String,
-    /// Its `status` reply's fields.
+    /// Its `status` reply's fields, every one as it came.
     pub status: Option<serde_json::Map<String, Value>>,
+}
+
+impl ArmSeen {
+    /// Its `status` reply, read.
+    pub fn read_status(&self) -> Option<Status> {
+        let fields = Fields::read(CmdName::Status, self.status.clone()?).ok()?;
+        match fields.reply {
+            Reply::Status(status) => Some(*status),
+            _ => None,
+        }
+    }
+}
+
+/// The fields of `payload` when it is a snakectl `status` reply (ok, with a status's fields).
+fn status_reply(payload: &[u8]) -> Option<serde_json::Map<String, Value>> {
+    let text = std::str::from_utf8(payload).ok()?;
+    let ServerLine::Reply(ReplyLine {
+        result: Ok(fields), ..
+    }) = protocol::read_line(text).ok()?
+    else {
+        return None;
+    };
+    Fields::read(CmdName::Status, fields.clone()).ok()?;
+    Some(fields)
 }
 
 /// The arms `peer` sees, sorted by prefix: liveliness tokens seen within `wait`, each asked
@@ -763,15 +788,7 @@ pub fn fleet(peer: &Peer, wait: Duration) -> Result<Vec<ArmSeen>, NetError> {
             continue;
         }
         let replies = peer.get(&format!("{prefix}/status"), wait)?;
-        let status =
-            replies
-                .iter()
-                .find_map(|r| match serde_json::from_slice::<Value>(&r.payload) {
-                    Ok(Value::Object(fields)) if fields.get("ok") == Some(&Value::Bool(true)) => {
-                        Some(fields)
-                    }
-                    _ => None,
-                });
+        let status = replies.iter().find_map(|r| status_reply(&r.payload));
         if status.is_some() || replies.is_empty() {
             arms.push(ArmSeen { prefix, status });
         }

@@ -10,19 +10,16 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use serde_json::{Map, Value};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
-use crate::protocol::{ClientId, Cmd, Describe, Event, Rejection, RequestId, Telemetry};
+pub use crate::protocol::Answer;
+use crate::protocol::{ClientId, Describe, Event, LoopCmd, RequestId, Telemetry};
 
 /// Envelopes the command queue holds.
 pub const COMMAND_QUEUE: usize = 64;
 
 /// Events the broadcast holds for its slowest reader.
 pub const EVENT_QUEUE: usize = 256;
-
-/// A reply's fields (flat beside `id` and `ok`), or why the command was refused.
-pub type Answer = Result<Map<String, Value>, Rejection>;
 
 /// One command on its way to the loop.
 #[derive(Debug)]
@@ -31,8 +28,8 @@ pub struct Envelope {
     pub client: ClientId,
     /// Its request id, when it had one.
     pub id: Option<RequestId>,
-    /// The command, validated.
-    pub cmd: Cmd,
+    /// The command, validated and routed to the loop.
+    pub cmd: LoopCmd,
     /// When the server read its line (the start of the command-to-wire latency).
     pub received: Instant,
     /// Where the loop sends the answer once it has applied the command. A client gone by then

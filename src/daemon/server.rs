@@ -7,29 +7,30 @@
 //!
 //! - With a token ([`ServerOptions::token`]) a client's first line must be `auth` with it, within
 //!   [`AUTH_GRACE`]; anything else is answered `unauthorized` and the connection closed.
-//! - `describe`, `subscribe`, `unsubscribe`, `take_control`, `release` and `auth` are answered
-//!   here. Every other command is first put to the [`Arbiter`] (one controller at a time; a
-//!   command that needs control from anyone else is answered `not_in_control`), then goes to the
-//!   loop through [`Handle::commands`] without waiting for room (full: `busy`), and its reply is
-//!   written when the loop answers, so a client's replies keep the order of its requests.
+//! - Where a command goes is [`Cmd::route`]'s to say: a [`SessionCmd`] (`describe`,
+//!   `subscribe`, `unsubscribe`, `take_control`, `release`, `auth`) is answered here; a
+//!   [`LoopCmd`] is first put to the [`Arbiter`] (one controller at a time; a command that needs
+//!   control from anyone else is answered `not_in_control`), then goes to the loop through
+//!   [`Handle::commands`] without waiting for room (full: `busy`), and its reply is written when
+//!   the loop answers, so a client's replies keep the order of its requests.
 //! - Events from [`Handle::events`] meant for this client, or for everyone, and every change of
-//!   controller (a `control` event), are queued as event lines between replies.
+//!   controller (a `control` event), are queued as event lines between replies, all written by
+//!   [`protocol::event_line`].
 //! - Telemetry is not queued: the writer reads the latest snapshot from [`Handle::telemetry`] at
 //!   the subscribed rate and skips it when nothing changed, so a slow reader sees fewer samples,
-//!   never a backlog. Telemetry lines and `status` replies gain `controller` (the holder's client
-//!   id, or `null`) and `in_control` (whether it is this client) here: the loop does not know.
+//!   never a backlog. Telemetry lines and `status` replies are a [`Status`]: the snapshot with
+//!   `controller` (the holder's client id, or `null`) and `in_control` (whether it is this
+//!   client), filled in here: the loop does not know.
 //!
 //! Nothing here ever waits on the loop's room, and only a client's own task waits on it: a client
 //! whose outgoing queue stays full is disconnected; the loop and the other clients go on.
 
-use std::fmt::Write as _;
 use std::future::Future;
 use std::io;
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use serde_json::{Map, Value};
 use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWriteExt, BufReader, BufWriter};
 use tokio::net::tcp::OwnedWriteHalf;
 use tokio::net::{TcpListener, TcpStream};
@@ -41,10 +42,12 @@ use tokio::time::{self, Interval, MissedTickBehavior};
 use tracing::{debug, error, warn};
 
 use super::access::Token;
-use super::arbiter::{self, Arbiter, Change};
+use super::arbiter::{Arbiter, Change};
 use super::link::{Answer, Envelope, Handle, COMMAND_QUEUE};
 use crate::protocol::{
-    self, ClientId, Cmd, Code, Event, Rejection, RequestId, Telemetry, MAX_LINE,
+    self, Admitted, ClientId, Cmd, Code, Describe, Event, Fields, LoopCmd, Rejection, Released,
+    Reply, RequestId, Route, SessionCmd, Status, Subscribed, Telemetry, TookControl, Unsubscribed,
+    MAX_LINE,
 };
 
 /// Lines one client's outgoing queue holds (replies and events; telemetry is not queued). A client
@@ -63,7 +66,7 @@ pub const FLUSH_GRACE: Duration = Duration::from_millis(500);
 /// says nothing must not hold one of the `max_clients` places for long.
 pub const AUTH_GRACE: Duration = Duration::from_secs(10);
 
-/// `control` event lines the broadcast holds for a client that is behind (it then misses the
+/// `control` events the broadcast holds for a client that is behind (it then misses the
 /// oldest; `status` still says who is in control).
 const CONTROL_QUEUE: usize = 64;
 
@@ -145,7 +148,6 @@ impl Server {
     /// A server for the loop behind `handle`.
     pub fn new(handle: Handle, options: ServerOptions) -> Server {
         let shared = Arc::new(Shared {
-            describe: handle.describe.to_fields(),
             loop_rate_hz: handle.describe.rate_hz,
             handle,
             joints: options.joints,
@@ -273,21 +275,13 @@ impl Door {
     /// gone. What the server answers itself (`describe`, `subscribe`, `take_control`, ...) is
     /// refused `bad_arg`: a door moves, stops and asks for status, nothing else.
     pub fn send(&self, cmd: Cmd) -> Result<oneshot::Receiver<Answer>, Rejection> {
-        if matches!(
-            cmd,
-            Cmd::Describe
-                | Cmd::Subscribe { .. }
-                | Cmd::Unsubscribe
-                | Cmd::TakeControl
-                | Cmd::Release
-                | Cmd::Auth { .. }
-        ) {
-            return Err(Rejection::new(
+        match cmd.route() {
+            Route::Loop(cmd) => self.shared.submit(self.id, None, cmd, Instant::now()),
+            Route::Session(cmd) => Err(Rejection::new(
                 Code::BadArg,
                 format!("`{}` is not taken through this door", cmd.name()),
-            ));
+            )),
         }
-        self.shared.submit(self.id, None, cmd, Instant::now())
     }
 
     /// Lets go of control if this door holds it (everyone is told); whether it did.
@@ -312,23 +306,28 @@ impl Door {
         self.shared.handle.events.subscribe()
     }
 
-    /// The `describe` reply's fields.
-    pub fn describe(&self) -> &Map<String, Value> {
-        &self.shared.describe
+    /// The arm's description: the `describe` reply.
+    pub fn describe(&self) -> &Arc<Describe> {
+        &self.shared.handle.describe
     }
 
     /// `telemetry` as the socket's telemetry line, with `controller` and `in_control` (whether
     /// this door holds control).
     pub fn telemetry_line(&self, telemetry: &Telemetry) -> String {
-        with_control(protocol::telemetry_line(telemetry), self.holder(), self.id)
+        protocol::telemetry_line(&self.shared.status(telemetry, self.id))
     }
 
     /// `telemetry` as the socket's `status` reply (id null), with `controller` and
     /// `in_control`.
     pub fn status_line(&self, telemetry: &Telemetry) -> String {
-        let mut fields = telemetry.to_fields();
-        self.shared.add_control(&mut fields, self.id);
-        protocol::ok_line(None, &fields)
+        let status = self.shared.status(telemetry.clone(), self.id);
+        protocol::ok_line(None, &Reply::Status(Box::new(status)).into())
+    }
+
+    /// The `describe` reply (id null).
+    pub fn describe_line(&self) -> String {
+        let describe = Arc::clone(self.describe());
+        protocol::ok_line(None, &Reply::Describe(describe).into())
     }
 }
 
@@ -355,8 +354,6 @@ fn report_panic(done: Result<(), tokio::task::JoinError>) {
 /// What every client task reads.
 struct Shared {
     handle: Handle,
-    /// The `describe` reply's fields, built once.
-    describe: Map<String, Value>,
     loop_rate_hz: f64,
     joints: usize,
     max_clients: usize,
@@ -367,8 +364,8 @@ struct Shared {
     auth_grace: Duration,
     /// Who is in control. Locked briefly, never across an await.
     arbiter: Mutex<Arbiter>,
-    /// `control` event lines, for every client.
-    control: broadcast::Sender<Arc<str>>,
+    /// `control` events, for every client.
+    control: broadcast::Sender<Event>,
     /// The next controller id to hand out (clients and doors share the space).
     next_id: AtomicU64,
 }
@@ -384,11 +381,23 @@ impl Shared {
         self.arbiter().holder()
     }
 
-    /// Adds `controller` (the holder) and `in_control` (whether that is `me`) to a reply.
-    fn add_control(&self, fields: &mut Map<String, Value>, me: ClientId) {
+    /// `telemetry` as `me` sees it: with the holder of control, and whether that is `me`.
+    fn status<T>(&self, telemetry: T, me: ClientId) -> Status<T> {
         let holder = self.holder();
-        fields.insert("controller".into(), holder.into());
-        fields.insert("in_control".into(), (holder == Some(me)).into());
+        Status {
+            telemetry,
+            controller: holder,
+            in_control: holder == Some(me),
+        }
+    }
+
+    /// Fills in who is in control, as `me` sees it, when the loop's answer is a `status`.
+    fn add_control(&self, fields: &mut Fields, me: ClientId) {
+        if let Reply::Status(status) = &mut fields.reply {
+            let holder = self.holder();
+            status.controller = holder;
+            status.in_control = holder == Some(me);
+        }
     }
 
     fn take_id(&self) -> ClientId {
@@ -401,7 +410,7 @@ impl Shared {
         &self,
         who: ClientId,
         id: Option<RequestId>,
-        cmd: Cmd,
+        cmd: LoopCmd,
         received: Instant,
     ) -> Result<oneshot::Receiver<Answer>, Rejection> {
         let (reply, answer) = oneshot::channel();
@@ -424,7 +433,7 @@ impl Shared {
         match sent {
             Ok(()) => {
                 if let Some(change) = change {
-                    self.announce(&change, id.as_deref());
+                    self.announce(&change, id.as_ref());
                 }
                 Ok(answer)
             }
@@ -438,13 +447,11 @@ impl Shared {
 
     /// Tells every client of `change` (called with the arbiter locked, so that announcements
     /// keep the order of the changes).
-    fn announce(&self, change: &Change, cmd_id: Option<&serde_json::Value>) {
+    fn announce(&self, change: &Change, cmd_id: Option<&RequestId>) {
         let tick = self.handle.telemetry.borrow().tick;
         debug!(holder = ?change.holder, previous = ?change.previous, "control changed");
         // No receiver (no client left to tell) is not an error.
-        let _ = self
-            .control
-            .send(arbiter::control_line(change, cmd_id, tick).into());
+        let _ = self.control.send(change.event(cmd_id.cloned(), tick));
     }
 
     /// A subscription's rate: the one asked for, at most the loop's.
@@ -631,8 +638,8 @@ impl Session<'_> {
                         Ok(())
                     }
                 },
-                line = control.recv(), if control_open => match line {
-                    Ok(line) => self.push(line.to_string()).await,
+                event = control.recv(), if control_open => match event {
+                    Ok(event) => self.event(&event).await,
                     Err(RecvError::Lagged(missed)) => {
                         debug!(client = self.id, missed, "client fell behind the control events");
                         Ok(())
@@ -741,10 +748,8 @@ impl Session<'_> {
     }
 
     /// `{"client": ID}`: this client's id, as the `control` events name it.
-    fn me(&self) -> Map<String, Value> {
-        let mut fields = Map::new();
-        fields.insert("client".into(), self.id.into());
-        fields
+    fn me(&self) -> Fields {
+        Reply::Admitted(Admitted { client: self.id }).into()
     }
 
     /// Answers one request line.
@@ -758,73 +763,76 @@ impl Session<'_> {
             Err((id, why)) => return self.push(protocol::error_line(id.as_deref(), &why)).await,
         };
         let id = request.id;
-        let reply = match request.cmd {
-            Cmd::Describe => protocol::ok_line(id.as_deref(), &self.shared.describe),
-            Cmd::Subscribe { rate_hz } => {
-                let rate_hz = self.shared.telemetry_rate(rate_hz);
-                let mut fields = Map::new();
-                fields.insert("rate_hz".into(), rate_hz.into());
-                // The reply is queued before the writer learns the rate, and the writer sends
-                // queued lines first: the reply precedes the first telemetry line.
-                self.push(protocol::ok_line(id.as_deref(), &fields)).await?;
-                self.rate.send_replace(Some(rate_hz));
-                return Ok(());
-            }
-            Cmd::Unsubscribe => {
-                // The other way round: no telemetry line follows the reply.
-                self.rate.send_replace(None);
-                protocol::ok_line(id.as_deref(), &Map::new())
-            }
-            Cmd::TakeControl => {
-                let (holder, previous) = {
-                    let mut arbiter = self.shared.arbiter();
-                    let previous = arbiter.holder();
-                    if let Some(change) = arbiter.take(self.id) {
-                        self.shared.announce(&change, id.as_deref());
-                    }
-                    (arbiter.holder(), previous)
-                };
-                let mut fields = self.me();
-                fields.insert("holder".into(), holder.into());
-                fields.insert("previous".into(), previous.into());
-                protocol::ok_line(id.as_deref(), &fields)
-            }
-            Cmd::Release => {
-                let holder = {
-                    let mut arbiter = self.shared.arbiter();
-                    if let Some(change) = arbiter.release(self.id) {
-                        self.shared.announce(&change, id.as_deref());
-                    }
-                    arbiter.holder()
-                };
-                let mut fields = self.me();
-                fields.insert("holder".into(), holder.into());
-                protocol::ok_line(id.as_deref(), &fields)
-            }
-            Cmd::Auth { token } => {
-                if !self.admitted(&token) {
-                    return Err(self.unauthorized(id.as_deref(), "wrong token".into()).await);
+        let answer: Answer = match request.cmd.route() {
+            Route::Session(cmd) => match cmd {
+                SessionCmd::Describe => {
+                    Ok(Reply::Describe(Arc::clone(&self.shared.handle.describe)).into())
                 }
-                protocol::ok_line(id.as_deref(), &self.me())
-            }
-            cmd => {
-                let status = matches!(cmd, Cmd::Status);
-                match self.to_loop(id.clone(), cmd, received).await {
-                    Ok(mut fields) => {
-                        if status {
-                            self.shared.add_control(&mut fields, self.id);
+                SessionCmd::Subscribe { rate_hz } => {
+                    let rate_hz = self.shared.telemetry_rate(rate_hz);
+                    let reply = Reply::Subscribed(Subscribed { rate_hz }).into();
+                    // The reply is queued before the writer learns the rate, and the writer
+                    // sends queued lines first: the reply precedes the first telemetry line.
+                    self.push(protocol::ok_line(id.as_deref(), &reply)).await?;
+                    self.rate.send_replace(Some(rate_hz));
+                    return Ok(());
+                }
+                SessionCmd::Unsubscribe => {
+                    // The other way round: no telemetry line follows the reply.
+                    self.rate.send_replace(None);
+                    Ok(Reply::Unsubscribed(Unsubscribed {}).into())
+                }
+                SessionCmd::TakeControl => {
+                    let (holder, previous) = {
+                        let mut arbiter = self.shared.arbiter();
+                        let previous = arbiter.holder();
+                        if let Some(change) = arbiter.take(self.id) {
+                            self.shared.announce(&change, id.as_ref());
                         }
-                        protocol::ok_line(id.as_deref(), &fields)
-                    }
-                    Err(why) => protocol::error_line(id.as_deref(), &why),
+                        (arbiter.holder(), previous)
+                    };
+                    Ok(Reply::TookControl(TookControl {
+                        client: self.id,
+                        holder,
+                        previous,
+                    })
+                    .into())
                 }
-            }
+                SessionCmd::Release => {
+                    let holder = {
+                        let mut arbiter = self.shared.arbiter();
+                        if let Some(change) = arbiter.release(self.id) {
+                            self.shared.announce(&change, id.as_ref());
+                        }
+                        arbiter.holder()
+                    };
+                    Ok(Reply::Released(Released {
+                        client: self.id,
+                        holder,
+                    })
+                    .into())
+                }
+                SessionCmd::Auth { token } => {
+                    if !self.admitted(&token) {
+                        return Err(self.unauthorized(id.as_deref(), "wrong token".into()).await);
+                    }
+                    Ok(self.me())
+                }
+            },
+            Route::Loop(cmd) => self
+                .to_loop(id.clone(), cmd, received)
+                .await
+                .map(|mut fields| {
+                    self.shared.add_control(&mut fields, self.id);
+                    fields
+                }),
         };
-        self.push(reply).await
+        self.push(protocol::reply_line(id.as_deref(), &answer))
+            .await
     }
 
     /// Puts a command to the arbiter, hands it to the loop and waits for its answer.
-    async fn to_loop(&self, id: Option<RequestId>, cmd: Cmd, received: Instant) -> Answer {
+    async fn to_loop(&self, id: Option<RequestId>, cmd: LoopCmd, received: Instant) -> Answer {
         let answer = self.shared.submit(self.id, id, cmd, received)?;
         answer.await.unwrap_or_else(|_| Err(stopped()))
     }
@@ -856,26 +864,10 @@ struct Viewer<'a> {
 }
 
 impl Viewer<'_> {
-    fn with_control(&self, line: String) -> String {
-        with_control(line, self.shared.holder(), self.id)
+    /// The telemetry line of `telemetry` for this client.
+    fn line(&self, telemetry: &Telemetry) -> String {
+        protocol::telemetry_line(&self.shared.status(telemetry, self.id))
     }
-}
-
-/// `line` (one JSON object and its newline) with `controller` (`holder`) and `in_control`
-/// (whether that is `me`) added.
-fn with_control(mut line: String, holder: Option<ClientId>, me: ClientId) -> String {
-    if line.ends_with("}\n") {
-        line.truncate(line.len() - 2);
-        let _ = match holder {
-            Some(holder) => writeln!(
-                line,
-                ",\"controller\":{holder},\"in_control\":{}}}",
-                holder == me
-            ),
-            None => writeln!(line, ",\"controller\":null,\"in_control\":false}}"),
-        };
-    }
-    line
 }
 
 /// Sends a client's queued lines and, while subscribed, its telemetry, until the queue closes
@@ -914,8 +906,7 @@ async fn write_loop(
             () = next_tick(&mut ticker), if ticker.is_some() => {
                 if fresh || telemetry.has_changed().unwrap_or(false) {
                     fresh = false;
-                    let line = protocol::telemetry_line(&telemetry.borrow_and_update());
-                    let line = viewer.with_control(line);
+                    let line = viewer.line(&telemetry.borrow_and_update());
                     sink.write_all(line.as_bytes()).await?;
                     sink.flush().await?;
                 }

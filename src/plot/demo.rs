@@ -12,6 +12,7 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::{draw_err, PlotError};
+use crate::chain::Chain;
 
 /// One telemetry sample.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -57,10 +58,8 @@ pub struct Event {
 /// What the figures are drawn from.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Record {
-    /// Link lengths, base to tip, m.
-    pub links_m: Vec<f64>,
-    /// Base pose: x, y (m), heading (rad).
-    pub base: [f64; 3],
+    /// The arm: its poses are drawn by its forward kinematics (`None`: no arm to draw).
+    pub chain: Option<Chain>,
     /// Samples in time order.
     pub samples: Vec<Sample>,
     /// Phases in time order.
@@ -70,17 +69,23 @@ pub struct Record {
 }
 
 impl Record {
-    /// The joint points, base to tip, of a pose.
+    /// The joint points, base to tip, of a pose (none without an arm, or for a pose that does
+    /// not have one angle per joint).
     fn points(&self, theta: &[f64]) -> Vec<(f64, f64)> {
-        let [mut x, mut y, mut heading] = self.base;
-        let mut points = vec![(x, y)];
-        for (length, angle) in self.links_m.iter().zip(theta) {
-            heading += angle;
-            x += length * heading.cos();
-            y += length * heading.sin();
-            points.push((x, y));
-        }
-        points
+        self.chain
+            .as_ref()
+            .and_then(|chain| chain.checked_points(theta))
+            .unwrap_or_default()
+            .iter()
+            .map(|p| (p.x, p.y))
+            .collect()
+    }
+
+    /// The base point, m (the origin without an arm).
+    fn base(&self) -> (f64, f64) {
+        self.chain
+            .as_ref()
+            .map_or((0.0, 0.0), |chain| (chain.base().x, chain.base().y))
     }
 
     fn samples_in(&self, phase: &Phase) -> Vec<&Sample> {
@@ -157,7 +162,7 @@ pub fn motion(record: &Record, title: &str) -> Result<String, PlotError> {
     }
     let per_phase: Vec<Vec<&Sample>> = phases.iter().map(|p| record.samples_in(p)).collect();
     // One view of the whole arm, the same in every column: the base and every pose drawn.
-    let mut arm_points = vec![(record.base[0], record.base[1])];
+    let mut arm_points = vec![record.base()];
     for samples in &per_phase {
         for s in samples {
             arm_points.extend(record.points(&s.theta));
@@ -260,7 +265,7 @@ fn arm_panel(
             .map_err(draw_err)?;
     }
     // The base.
-    let base = (record.base[0], record.base[1]);
+    let base = record.base();
     chart
         .draw_series(std::iter::once(TriangleMarker::new(
             base,

@@ -6,7 +6,9 @@ use std::sync::Arc;
 
 use serde_json::{Map, Value};
 
-use super::{Cmd, Code, Rejection, RequestId, MAX_ARG};
+use super::{
+    strategy_named, Cmd, CmdName, Code, Rejection, Request, RequestId, MAX_ARG, STRATEGIES,
+};
 use crate::resolve::Strategy;
 
 /// The most corner points one `path` may have.
@@ -18,39 +20,6 @@ const MAX_REBOOT_IDS: usize = MAX_SERVO_ID as usize + 1;
 
 /// The largest id a Protocol 2.0 servo may have (253 is reserved, 254 is the broadcast id).
 const MAX_SERVO_ID: u8 = 252;
-
-/// Every command name, in the order an `unknown_cmd` message lists them.
-pub const COMMANDS: [&str; 20] = [
-    "describe",
-    "status",
-    "goto",
-    "goto_joints",
-    "path",
-    "velocity",
-    "jog",
-    "stop",
-    "estop",
-    "reset",
-    "home",
-    "strategy",
-    "subscribe",
-    "unsubscribe",
-    "reset_stats",
-    "take_control",
-    "release",
-    "auth",
-    "torque",
-    "reboot",
-];
-
-/// A request line, read and validated.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Request {
-    /// The request's `id`, echoed in its reply; `None` when absent or `null`.
-    pub id: Option<RequestId>,
-    /// What it asks for.
-    pub cmd: Cmd,
-}
 
 /// Reads one request line (without its newline) for an arm of `joints` joints.
 ///
@@ -109,79 +78,80 @@ fn command(mut map: Map<String, Value>, joints: usize) -> Result<Cmd, Rejection>
             )))
         }
     };
-    let cmd = match name.as_str() {
-        "describe" => no_args(map, Cmd::Describe)?,
-        "status" => no_args(map, Cmd::Status)?,
-        "stop" => no_args(map, Cmd::Stop)?,
-        "estop" => no_args(map, Cmd::Estop)?,
-        "reset" => no_args(map, Cmd::Reset)?,
-        "home" => no_args(map, Cmd::Home)?,
-        "unsubscribe" => no_args(map, Cmd::Unsubscribe)?,
-        "reset_stats" => no_args(map, Cmd::ResetStats)?,
-        "take_control" => no_args(map, Cmd::TakeControl)?,
-        "release" => no_args(map, Cmd::Release)?,
-        "auth" => {
-            let mut args = Args::new(map, "auth", &["token"])?;
+    let Some(known) = CmdName::from_name(&name) else {
+        let known: Vec<&str> = CmdName::ALL.iter().map(|n| n.as_str()).collect();
+        return Err(unknown(format_args!(
+            "unknown cmd {}; known: {}",
+            Shown(&Value::String(name)),
+            known.join(", ")
+        )));
+    };
+    let cmd = match known {
+        CmdName::Describe => no_args(map, Cmd::Describe)?,
+        CmdName::Status => no_args(map, Cmd::Status)?,
+        CmdName::Stop => no_args(map, Cmd::Stop)?,
+        CmdName::Estop => no_args(map, Cmd::Estop)?,
+        CmdName::Reset => no_args(map, Cmd::Reset)?,
+        CmdName::Home => no_args(map, Cmd::Home)?,
+        CmdName::Unsubscribe => no_args(map, Cmd::Unsubscribe)?,
+        CmdName::ResetStats => no_args(map, Cmd::ResetStats)?,
+        CmdName::TakeControl => no_args(map, Cmd::TakeControl)?,
+        CmdName::Release => no_args(map, Cmd::Release)?,
+        CmdName::Auth => {
+            let mut args = Args::new(map, known, &["token"])?;
             let token = string(Field::new("token"), args.required("token")?)?;
             Cmd::Auth { token }
         }
-        "torque" => {
-            let mut args = Args::new(map, "torque", &["on"])?;
+        CmdName::Torque => {
+            let mut args = Args::new(map, known, &["on"])?;
             let on = boolean(Field::new("on"), &args.required("on")?)?;
             Cmd::Torque { on }
         }
-        "reboot" => {
-            let mut args = Args::new(map, "reboot", &["ids"])?;
+        CmdName::Reboot => {
+            let mut args = Args::new(map, known, &["ids"])?;
             let ids = match args.optional("ids") {
                 Some(value) => Some(servo_ids(Field::new("ids"), &value)?),
                 None => None,
             };
             Cmd::Reboot { ids }
         }
-        "goto" => {
-            let mut args = Args::new(map, "goto", &["target", "speed"])?;
+        CmdName::Goto => {
+            let mut args = Args::new(map, known, &["target", "speed"])?;
             let target = point(Field::new("target"), &args.required("target")?)?;
             let speed = args.speed()?;
             Cmd::Goto { target, speed }
         }
-        "goto_joints" => {
-            let mut args = Args::new(map, "goto_joints", &["theta"])?;
+        CmdName::GotoJoints => {
+            let mut args = Args::new(map, known, &["theta"])?;
             let theta = numbers(Field::new("theta"), &args.required("theta")?, joints)?;
             Cmd::GotoJoints { theta }
         }
-        "path" => {
-            let mut args = Args::new(map, "path", &["points", "speed"])?;
+        CmdName::Path => {
+            let mut args = Args::new(map, known, &["points", "speed"])?;
             let points = points(Field::new("points"), &args.required("points")?)?;
             let speed = args.speed()?;
             Cmd::Path { points, speed }
         }
-        "velocity" => {
-            let mut args = Args::new(map, "velocity", &["v"])?;
+        CmdName::Velocity => {
+            let mut args = Args::new(map, known, &["v"])?;
             let v = point(Field::new("v"), &args.required("v")?)?;
             Cmd::Velocity { v }
         }
-        "jog" => {
-            let mut args = Args::new(map, "jog", &["joint", "rad_s"])?;
+        CmdName::Jog => {
+            let mut args = Args::new(map, known, &["joint", "rad_s"])?;
             let joint = joint(Field::new("joint"), &args.required("joint")?, joints)?;
             let rad_s = number(Field::new("rad_s"), &args.required("rad_s")?)?;
             Cmd::Jog { joint, rad_s }
         }
-        "strategy" => {
-            let mut args = Args::new(map, "strategy", &["name"])?;
+        CmdName::Strategy => {
+            let mut args = Args::new(map, known, &["name"])?;
             let name = strategy(Field::new("name"), &args.required("name")?)?;
             Cmd::Strategy { name }
         }
-        "subscribe" => {
-            let mut args = Args::new(map, "subscribe", &["rate_hz"])?;
+        CmdName::Subscribe => {
+            let mut args = Args::new(map, known, &["rate_hz"])?;
             let rate_hz = positive(Field::new("rate_hz"), &args.required("rate_hz")?)?;
             Cmd::Subscribe { rate_hz }
-        }
-        _ => {
-            return Err(unknown(format_args!(
-                "unknown cmd {}; known: {}",
-                Shown(&Value::String(name)),
-                COMMANDS.join(", ")
-            )))
         }
     };
     Ok(cmd)
@@ -201,7 +171,7 @@ struct Args {
 impl Args {
     /// Refuses a key that `cmd` does not take, before any argument is read (so a misspelt key
     /// is reported as such, not as the argument it was meant to be going missing).
-    fn new(map: Map<String, Value>, cmd: &str, takes: &[&str]) -> Result<Self, Rejection> {
+    fn new(map: Map<String, Value>, cmd: CmdName, takes: &[&str]) -> Result<Self, Rejection> {
         if let Some(key) = map.keys().find(|key| !takes.contains(&key.as_str())) {
             let takes = if takes.is_empty() {
                 "no arguments".to_owned()
@@ -465,13 +435,19 @@ fn servo_ids(field: Field, value: &Value) -> Result<Vec<u8>, Rejection> {
 
 /// A strategy by name.
 fn strategy(field: Field, value: &Value) -> Result<Strategy, Rejection> {
-    match value.as_str() {
-        Some("overall") => Ok(Strategy::Overall),
-        Some("sequential") => Ok(Strategy::Sequential),
-        _ => Err(bad(format_args!(
-            "`{field}`: expected \"overall\" or \"sequential\", got {}",
-            Shown(value)
-        ))),
+    match value.as_str().and_then(strategy_named) {
+        Some(strategy) => Ok(strategy),
+        None => {
+            let names: Vec<String> = STRATEGIES
+                .iter()
+                .map(|s| format!("\"{}\"", s.name()))
+                .collect();
+            Err(bad(format_args!(
+                "`{field}`: expected {}, got {}",
+                names.join(" or "),
+                Shown(value)
+            )))
+        }
     }
 }
 

@@ -81,14 +81,6 @@ impl CurrentUnit {
             CurrentUnit::MilliAmps(ma) => f64::from(raw) * ma * 1e-3,
         }
     }
-
-    /// The name of [`CurrentUnit::value`]'s unit on the wire.
-    pub fn name(self) -> &'static str {
-        match self {
-            CurrentUnit::LoadPermille => "percent",
-            CurrentUnit::MilliAmps(_) => "A",
-        }
-    }
 }
 
 /// One unit of the Bus Watchdog register (98), ms.

@@ -15,7 +15,7 @@ use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as Segment, Points}
 use ratatui::widgets::{Block, Borders, Paragraph, Wrap};
 use ratatui::Frame;
 
-use crate::client::{ArmInfo, Snapshot};
+use crate::client::{Arm, State, Status as Snapshot};
 
 /// Width of the state panel, columns (less on a narrow terminal).
 const PANEL_WIDTH: u16 = 44;
@@ -116,8 +116,8 @@ pub struct Status {
 /// Everything one frame shows.
 #[derive(Debug, Clone, Copy)]
 pub struct View<'a> {
-    /// The arm (`ArmInfo::default()` before the first `describe`).
-    pub arm: &'a ArmInfo,
+    /// The arm (`None` before the first `describe`).
+    pub arm: Option<&'a Arm>,
     /// The latest telemetry, if any came.
     pub snapshot: Option<&'a Snapshot>,
     /// The measured tips so far.
@@ -152,9 +152,11 @@ pub fn areas(area: Rect) -> Areas {
 
 /// The world rectangle a canvas of `inner` (inside its border) shows, m:
 /// `([x_min, x_max], [y_min, y_max])`, centred on the base, the whole reachable ring inside,
-/// one scale on both axes (a cell taken as twice as tall as wide).
-pub fn world_bounds(arm: &ArmInfo, inner: Rect) -> ([f64; 2], [f64; 2]) {
-    let reach = arm.reach();
+/// one scale on both axes (a cell taken as twice as tall as wide). Without an arm, 1 m around
+/// the origin.
+pub fn world_bounds<'a>(arm: impl Into<Option<&'a Arm>>, inner: Rect) -> ([f64; 2], [f64; 2]) {
+    let arm = arm.into();
+    let reach = arm.map_or(0.0, Arm::reach);
     let radius = if reach > 0.0 { reach } else { 1.0 } * (1.0 + MARGIN);
     let cols = f64::from(inner.width.max(1));
     let rows = f64::from(inner.height.max(1));
@@ -162,7 +164,7 @@ pub fn world_bounds(arm: &ArmInfo, inner: Rect) -> ([f64; 2], [f64; 2]) {
     let scale = (2.0 * radius / cols).max(2.0 * radius / (2.0 * rows));
     let half_w = scale * cols / 2.0;
     let half_h = scale * rows;
-    let [bx, by, _] = arm.base;
+    let [bx, by, _] = arm.map_or([0.0; 3], |arm| arm.base);
     ([bx - half_w, bx + half_w], [by - half_h, by + half_h])
 }
 
@@ -173,7 +175,7 @@ fn canvas_inner(canvas: Rect) -> Rect {
 
 /// The world point (m) under the cell at (`column`, `row`) of a screen of `screen`'s size,
 /// where [`draw`] drew the canvas; `None` outside the canvas.
-pub fn click_to_world(arm: &ArmInfo, screen: Rect, column: u16, row: u16) -> Option<[f64; 2]> {
+pub fn click_to_world(arm: &Arm, screen: Rect, column: u16, row: u16) -> Option<[f64; 2]> {
     let inner = canvas_inner(areas(screen).canvas);
     if inner.width == 0
         || inner.height == 0
@@ -192,7 +194,7 @@ pub fn click_to_world(arm: &ArmInfo, screen: Rect, column: u16, row: u16) -> Opt
 }
 
 /// Whether joint `i` at `theta` is within [`NEAR_LIMIT`] of its range from a limit.
-pub fn near_limit(arm: &ArmInfo, i: usize, theta: f64) -> bool {
+pub fn near_limit(arm: &Arm, i: usize, theta: f64) -> bool {
     let (Some(&lo), Some(&hi)) = (arm.min_rad.get(i), arm.max_rad.get(i)) else {
         return false;
     };
@@ -251,7 +253,13 @@ fn draw_canvas(frame: &mut Frame<'_>, area: Rect, view: &View<'_>) {
 }
 
 fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
-    let arm = view.arm;
+    let Some(arm) = view.arm else {
+        ctx.draw(&Points {
+            coords: trail,
+            color: Color::Blue,
+        });
+        return;
+    };
     let [bx, by, _] = arm.base;
     let reach = arm.reach();
     if reach > 0.0 {
@@ -341,7 +349,7 @@ fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
 }
 
 /// The joints of the measured pose near a limit.
-fn near_ids(arm: &ArmInfo, snapshot: &Snapshot) -> Vec<usize> {
+fn near_ids(arm: &Arm, snapshot: &Snapshot) -> Vec<usize> {
     snapshot
         .theta_meas
         .iter()
@@ -358,13 +366,12 @@ fn row<'a>(label: &'a str, value: String, style: Style) -> Line<'a> {
     ])
 }
 
-fn state_style(state: &str) -> Style {
+fn state_style(state: State) -> Style {
     let color = match state {
-        "holding" => Color::Green,
-        "moving" => Color::Cyan,
-        "stopping" => Color::Yellow,
-        "estop" | "fault" => Color::Red,
-        _ => Color::White,
+        State::Holding => Color::Green,
+        State::Moving => Color::Cyan,
+        State::Stopping => Color::Yellow,
+        State::Estop | State::Fault => Color::Red,
     };
     Style::default().fg(color).add_modifier(Modifier::BOLD)
 }
@@ -413,11 +420,11 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     lines
 }
 
-fn snapshot_lines(arm: &ArmInfo, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
+fn snapshot_lines(arm: Option<&Arm>, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
     let plain = Style::default();
     let signed = |p: [f64; 2]| format!("{:+.3}  {:+.3} m", p[0], p[1]);
-    lines.push(row("state", s.state.clone(), state_style(&s.state)));
-    lines.push(row("strategy", s.strategy.clone(), plain));
+    lines.push(row("state", s.state.to_string(), state_style(s.state)));
+    lines.push(row("strategy", s.strategy.name().to_owned(), plain));
     let control_style = if s.in_control {
         Style::default().fg(Color::Green)
     } else {
@@ -426,7 +433,11 @@ fn snapshot_lines(arm: &ArmInfo, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
     lines.push(row("control", controller_text(s), control_style));
     lines.push(row(
         "loop",
-        format!("{:.1} Hz (of {:.0})", s.loop_hz, arm.rate_hz),
+        format!(
+            "{:.1} Hz (of {:.0})",
+            s.loop_hz,
+            arm.map_or(0.0, |arm| arm.rate_hz)
+        ),
         plain,
     ));
     lines.push(row(
@@ -471,7 +482,7 @@ fn snapshot_lines(arm: &ArmInfo, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
         ("off", Style::default().fg(Color::Red))
     };
     lines.push(row("torque", torque.to_owned(), torque_style));
-    let near = near_ids(arm, s);
+    let near = arm.map(|arm| near_ids(arm, s)).unwrap_or_default();
     if !near.is_empty() {
         let joints: Vec<String> = near.iter().map(|i| (i + 1).to_string()).collect();
         lines.push(row(

@@ -2,17 +2,18 @@
 //! against the supervisor's mode, handed to the controller, entered in the ledger, and answered
 //! once this tick's telemetry is out.
 
-use serde_json::{Map, Value};
-
 use crate::chain::Vec2;
 use crate::control::{self, Refused};
-use crate::protocol::{Cmd, Code, Event, EventKind, Rejection};
+use crate::protocol::{
+    Answer, Applied, Code, FaultKind, LoopCmd, Motion, Rebooted, Rejection, Reply, Status,
+    StopReason, What,
+};
 use crate::servo::arm::{self, BringUpOptions, OnExit, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::ServoBus;
 
-use super::ledger::{Renewal, StopReason};
-use super::link::{Answer, Envelope, COMMAND_QUEUE};
+use super::ledger::Renewal;
+use super::link::{Envelope, COMMAND_QUEUE};
 use super::supervisor::Blocked;
 use super::{Cycle, Pending};
 
@@ -23,10 +24,8 @@ fn refuse(code: Code, message: impl Into<String>) -> Pending {
     }))
 }
 
-fn tick_fields(tick: u64) -> Map<String, Value> {
-    let mut m = Map::new();
-    m.insert("tick".into(), Value::from(tick));
-    m
+fn applied(tick: u64) -> Pending {
+    Pending::Ready(Ok(Reply::Applied(Applied { tick }).into()))
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -54,7 +53,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             let answer = match pending {
                 Pending::Ready(a) => a,
                 Pending::Status => status
-                    .get_or_insert_with(|| Ok(self.ends.telemetry.borrow().to_fields()))
+                    .get_or_insert_with(|| {
+                        let t = self.ends.telemetry.borrow().clone();
+                        Ok(Reply::Status(Box::new(Status::of(t))).into())
+                    })
                     .clone(),
             };
             // A client gone before its answer is not an error.
@@ -74,79 +76,64 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     fn ok(&self) -> Pending {
-        Pending::Ready(Ok(tick_fields(self.tick)))
+        applied(self.tick)
     }
 
     fn apply(&mut self, e: &Envelope) -> Pending {
-        if self.supervisor.exiting() && !matches!(e.cmd, Cmd::Status | Cmd::Stop | Cmd::Estop) {
+        let stops = matches!(e.cmd, LoopCmd::Status | LoopCmd::Stop | LoopCmd::Estop);
+        if self.supervisor.exiting() && !stops {
             return refuse(Code::ShuttingDown, "the daemon is stopping");
         }
         match &e.cmd {
-            Cmd::Status => Pending::Status,
-            Cmd::Stop => self.stop(e),
-            Cmd::Estop => {
+            LoopCmd::Status => Pending::Status,
+            LoopCmd::Stop => self.stop(e),
+            LoopCmd::Estop => {
                 self.estop(e);
                 self.ok()
             }
-            Cmd::Reset => self.reset(e),
-            Cmd::Strategy { name } => {
+            LoopCmd::Reset => self.reset(e),
+            LoopCmd::Strategy { name } => {
                 self.controller.set_strategy(*name);
                 tracing::info!(strategy = name.name(), "strategy switched");
                 self.ok()
             }
-            Cmd::ResetStats => {
+            LoopCmd::ResetStats => {
                 self.stats.reset(self.clock.now(), self.tick);
                 self.ok()
             }
-            Cmd::Torque { on } => self.torque(*on),
-            Cmd::Reboot { ids } => self.reboot(ids.as_deref()),
-            Cmd::Goto { target, speed } => self.move_arm(
-                e,
-                control::Command::Goto {
-                    target: v2(target),
-                    speed: *speed,
-                },
-            ),
-            Cmd::GotoJoints { theta } => self.move_arm(
-                e,
-                control::Command::GotoJoints {
-                    theta: theta.clone(),
-                },
-            ),
-            Cmd::Path { points, speed } => self.move_arm(
-                e,
-                control::Command::Path {
-                    points: points.iter().map(v2).collect(),
-                    speed: *speed,
-                },
-            ),
-            Cmd::Velocity { v } => self.move_arm(e, control::Command::Velocity { v: v2(v) }),
-            Cmd::Jog { joint, rad_s } => match joint.checked_sub(1) {
-                Some(joint) => self.move_arm(
-                    e,
-                    control::Command::Jog {
-                        joint,
-                        rad_s: *rad_s,
-                    },
-                ),
+            LoopCmd::Torque { on } => self.torque(*on),
+            LoopCmd::Reboot { ids } => self.reboot(ids.as_deref()),
+            LoopCmd::Motion(motion) => match self.motion(motion) {
+                Some(command) => self.move_arm(e, command),
                 None => refuse(Code::BadArg, "`joint` counts from 1"),
             },
-            Cmd::Home => self.move_arm(
-                e,
-                control::Command::GotoJoints {
-                    theta: self.home.clone(),
-                },
-            ),
-            Cmd::Describe
-            | Cmd::Subscribe { .. }
-            | Cmd::Unsubscribe
-            | Cmd::TakeControl
-            | Cmd::Release
-            | Cmd::Auth { .. } => refuse(
-                Code::UnknownCmd,
-                format!("`{}` is answered by the socket, not the loop", e.cmd.name()),
-            ),
         }
+    }
+
+    /// The controller's command for a motion (`None`: a jog of joint 0, which the parser
+    /// refuses before it gets here).
+    fn motion(&self, cmd: &Motion) -> Option<control::Command> {
+        Some(match cmd {
+            Motion::Goto { target, speed } => control::Command::Goto {
+                target: v2(target),
+                speed: *speed,
+            },
+            Motion::GotoJoints { theta } => control::Command::GotoJoints {
+                theta: theta.clone(),
+            },
+            Motion::Path { points, speed } => control::Command::Path {
+                points: points.iter().map(v2).collect(),
+                speed: *speed,
+            },
+            Motion::Velocity { v } => control::Command::Velocity { v: v2(v) },
+            Motion::Jog { joint, rad_s } => control::Command::Jog {
+                joint: joint.checked_sub(1)?,
+                rad_s: *rad_s,
+            },
+            Motion::Home => control::Command::GotoJoints {
+                theta: self.home.clone(),
+            },
+        })
     }
 
     /// `stop`: decelerate to rest and hold (nothing to do under the estop latch).
@@ -195,8 +182,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// joint's jog, from the same client renews it).
     fn begin(&mut self, e: &Envelope) {
         let renewal = match e.cmd {
-            Cmd::Velocity { .. } => Renewal::Velocity,
-            Cmd::Jog { joint, .. } => Renewal::Jog(joint),
+            LoopCmd::Motion(Motion::Velocity { .. }) => Renewal::Velocity,
+            LoopCmd::Motion(Motion::Jog { joint, .. }) => Renewal::Jog(joint),
             _ => Renewal::None,
         };
         let ended = self
@@ -219,15 +206,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 tracing::error!("estop: torque off failed: {err}");
             }
         }
-        self.event(Event {
-            owner: None,
-            cmd_id: e.id.clone(),
-            kind: EventKind::Estop,
-            tick: self.tick,
-            tip: self.tip(),
-            reason: None,
-            fault: None,
-        });
+        self.event(None, e.id.clone(), |tip| What::Estop { tip });
     }
 
     /// `reset`: out of the estop latch, holding the measured pose with torque on.
@@ -247,15 +226,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         self.supervisor.reset();
         tracing::info!("reset: holding the measured pose");
-        self.event(Event {
-            owner: None,
-            cmd_id: e.id.clone(),
-            kind: EventKind::Reset,
-            tick: self.tick,
-            tip: self.tip(),
-            reason: None,
-            fault: None,
-        });
+        self.event(None, e.id.clone(), |tip| What::Reset { tip });
         self.ok()
     }
 
@@ -266,7 +237,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             .faults
             .iter()
             .map(|f| match f.kind {
-                "port" => format!("port: {}", f.detail),
+                FaultKind::Port => format!("port: {}", f.detail),
                 _ => format!(
                     "servo {} (joint {}) {}: {}",
                     f.id, f.joint, f.kind, f.detail
@@ -354,9 +325,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.clear(i, detail.into());
         }
         self.sync_faulted();
-        let mut m = tick_fields(self.tick);
-        m.insert("rebooted".into(), Value::from(targets));
-        Pending::Ready(Ok(m))
+        Pending::Ready(Ok(Reply::Rebooted(Rebooted {
+            tick: self.tick,
+            rebooted: targets,
+        })
+        .into()))
     }
 
     /// The reboots, then the bring-up where the arm stands; goals := that pose, torque on.

@@ -4,16 +4,16 @@
 
 use std::time::{Duration, Instant};
 
-use crate::protocol::EventKind;
+use crate::protocol::{FaultChange, FaultKind};
 use crate::servo::arm::{Arm, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::limits::Limited;
 use crate::servo::{units, ErrorClass, Fields, HardwareErrors, Register, ServoBus, ServoError};
 
-use super::health::{FaultKind, JointFault, Limits};
-use super::ledger::StopReason;
+use super::health::{JointFault, Limits};
 use super::port::{ReopenError, RETRY_EVERY};
 use super::Cycle;
+use crate::protocol::StopReason;
 
 /// The shortest wait for a reply the deadline cap leaves a read.
 const MIN_READ_WAIT: Duration = Duration::from_micros(300);
@@ -105,13 +105,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn raise(&mut self, i: usize, fault: JointFault, since: u64, detail: String) {
         let change = self.health.raise(i, fault, since, detail);
         self.sync_faulted();
-        self.report(EventKind::Fault, change);
+        self.report(change);
     }
 
     /// Joint `i`'s fault cleared.
     pub(super) fn clear(&mut self, i: usize, detail: String) {
         if let Some(change) = self.health.clear(i, detail) {
-            self.report(EventKind::Fault, change);
+            self.report(change);
         }
     }
 
@@ -254,9 +254,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             Ok(_) => {
                 for id in tripped {
                     if let Some(i) = self.ids.iter().position(|&x| x == id) {
-                        let kind = FaultKind::Watchdog.as_str();
-                        let info = self.health.info(i, kind, tick, detail.clone());
-                        self.announce(EventKind::Fault, "recovered", info);
+                        let info = self
+                            .health
+                            .info(i, FaultKind::Watchdog, tick, detail.clone());
+                        self.announce(FaultChange::Recovered, info);
                     }
                 }
             }
@@ -276,7 +277,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         };
         self.sync_faulted();
         tracing::error!("{}", info.detail);
-        self.announce(EventKind::Fault, "raised", info);
+        self.announce(FaultChange::Raised, info);
         self.rebuild_lists();
     }
 
@@ -292,7 +293,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             Ok(()) => {
                 tracing::info!("port reopened");
                 if let Some(info) = self.port.found() {
-                    self.announce(EventKind::Fault, "cleared", info);
+                    self.announce(FaultChange::Cleared, info);
                 }
                 self.rebuild_lists();
                 self.sync_faulted();
@@ -324,7 +325,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             let (t, v) = (self.measured.temperature_c[i], self.measured.voltage_v[i]);
             for change in self.health.judge(i, t, v, self.tick) {
-                self.report(EventKind::Warning, change);
+                self.report(change);
             }
         }
     }

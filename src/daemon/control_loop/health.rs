@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::protocol::FaultInfo;
+use crate::protocol::{FaultChange, FaultInfo, FaultKind};
 use crate::servo::HardwareErrors;
 
 /// A temperature warning this close below the servo's Temperature Limit, °C.
@@ -29,56 +29,12 @@ pub enum JointFault {
     Hardware(HardwareErrors),
 }
 
-/// A fault's kind, as clients read it in `faults[].kind` and fault events.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FaultKind {
-    /// No valid reply for the error budget.
-    Silent,
-    /// A latched hardware error.
-    HardwareError,
-    /// The Bus Watchdog fired while the loop stalled (reported as recovered at once).
-    Watchdog,
-    /// The serial port failed.
-    Port,
-}
-
-impl FaultKind {
-    /// The name on the wire.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            FaultKind::Silent => "silent",
-            FaultKind::HardwareError => "hardware_error",
-            FaultKind::Watchdog => "watchdog",
-            FaultKind::Port => "port",
-        }
-    }
-}
-
 impl JointFault {
     /// Its kind on the wire.
     pub fn kind(self) -> FaultKind {
         match self {
             JointFault::Silent => FaultKind::Silent,
             JointFault::Hardware(_) => FaultKind::HardwareError,
-        }
-    }
-}
-
-/// What a warning watches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum WarningKind {
-    /// Present Temperature near the Temperature Limit.
-    Temperature,
-    /// Present Input Voltage near the voltage limits.
-    Voltage,
-}
-
-impl WarningKind {
-    /// The name on the wire.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            WarningKind::Temperature => "temperature",
-            WarningKind::Voltage => "voltage",
         }
     }
 }
@@ -104,11 +60,27 @@ pub struct Budget {
 
 /// A change of a fault or warning, for the cycle to report.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Change {
-    /// A fault or warning was raised.
-    Raised(FaultInfo),
-    /// A fault or warning cleared.
-    Cleared(FaultInfo),
+pub struct Change {
+    /// Raised or cleared.
+    pub change: FaultChange,
+    /// Which servo, what kind, the details.
+    pub info: FaultInfo,
+}
+
+impl Change {
+    fn raised(info: FaultInfo) -> Change {
+        Change {
+            change: FaultChange::Raised,
+            info,
+        }
+    }
+
+    fn cleared(info: FaultInfo) -> Change {
+        Change {
+            change: FaultChange::Cleared,
+            info,
+        }
+    }
 }
 
 /// A fault held, since which tick, and why.
@@ -178,7 +150,7 @@ impl Health {
     }
 
     /// The fault report of joint `i` (1-based joint, its servo id).
-    pub fn info(&self, i: usize, kind: &'static str, since: u64, detail: String) -> FaultInfo {
+    pub fn info(&self, i: usize, kind: FaultKind, since: u64, detail: String) -> FaultInfo {
         FaultInfo {
             id: self.joints.get(i).map_or(0, |j| j.id),
             joint: i + 1,
@@ -326,7 +298,7 @@ impl Health {
                 detail: detail.clone(),
             });
         }
-        Change::Raised(self.info(i, fault.kind().as_str(), since, detail))
+        Change::raised(self.info(i, fault.kind(), since, detail))
     }
 
     /// Joint `i`'s fault cleared (`None` when it had none); its budget starts afresh.
@@ -334,9 +306,9 @@ impl Health {
         let j = self.joints.get_mut(i)?;
         let held = j.fault.take()?;
         j.streak = None;
-        Some(Change::Cleared(self.info(
+        Some(Change::cleared(self.info(
             i,
-            held.fault.kind().as_str(),
+            held.fault.kind(),
             held.since,
             detail,
         )))
@@ -364,9 +336,9 @@ impl Health {
                 let detail = format!(
                     "{t_c:.0} °C, within {TEMPERATURE_MARGIN_C:.0} °C of its Temperature Limit {limit:.0} °C"
                 );
-                changes.extend(self.warn(i, WarningKind::Temperature, tick, Some(detail)));
+                changes.extend(self.warn(i, FaultKind::Temperature, tick, Some(detail)));
             } else if hot && t_c < warn_at - TEMPERATURE_HYSTERESIS_C {
-                changes.extend(self.warn(i, WarningKind::Temperature, tick, None));
+                changes.extend(self.warn(i, FaultKind::Temperature, tick, None));
             }
         }
         if let Some((lo, hi)) = limits.voltage_v {
@@ -377,9 +349,9 @@ impl Health {
                 let detail = format!(
                     "input {v_v:.1} V, within {VOLTAGE_MARGIN_V} V of its voltage limits {lo:.1}..{hi:.1} V"
                 );
-                changes.extend(self.warn(i, WarningKind::Voltage, tick, Some(detail)));
+                changes.extend(self.warn(i, FaultKind::Voltage, tick, Some(detail)));
             } else if low && clear {
-                changes.extend(self.warn(i, WarningKind::Voltage, tick, None));
+                changes.extend(self.warn(i, FaultKind::Voltage, tick, None));
             }
         }
         changes
@@ -389,24 +361,24 @@ impl Health {
     fn warn(
         &mut self,
         i: usize,
-        kind: WarningKind,
+        kind: FaultKind,
         tick: u64,
         detail: Option<String>,
     ) -> Option<Change> {
         let j = self.joints.get_mut(i)?;
-        let slot = match kind {
-            WarningKind::Temperature => &mut j.temperature,
-            WarningKind::Voltage => &mut j.voltage,
+        let slot = if kind == FaultKind::Temperature {
+            &mut j.temperature
+        } else {
+            &mut j.voltage
         };
-        let name = kind.as_str();
         Some(match detail {
             Some(d) => {
                 *slot = Some((tick, d.clone()));
-                Change::Raised(self.info(i, name, tick, d))
+                Change::raised(self.info(i, kind, tick, d))
             }
             None => {
                 let (since, _) = slot.take()?;
-                Change::Cleared(self.info(i, name, since, format!("{name} back in range")))
+                Change::cleared(self.info(i, kind, since, format!("{kind} back in range")))
             }
         })
     }
@@ -417,14 +389,14 @@ impl Health {
         let mut warnings = Vec::new();
         for (i, j) in self.joints.iter().enumerate() {
             if let Some(h) = &j.fault {
-                faults.push(self.info(i, h.fault.kind().as_str(), h.since, h.detail.clone()));
+                faults.push(self.info(i, h.fault.kind(), h.since, h.detail.clone()));
             }
             for (kind, slot) in [
-                (WarningKind::Temperature, &j.temperature),
-                (WarningKind::Voltage, &j.voltage),
+                (FaultKind::Temperature, &j.temperature),
+                (FaultKind::Voltage, &j.voltage),
             ] {
                 if let Some((since, detail)) = slot {
-                    warnings.push(self.info(i, kind.as_str(), *since, detail.clone()));
+                    warnings.push(self.info(i, kind, *since, detail.clone()));
                 }
             }
         }
@@ -517,9 +489,9 @@ mod tests {
     fn a_fault_is_raised_once_and_cleared_with_its_report() {
         let mut h = health(10);
         let change = h.raise(1, JointFault::Silent, 7, "quiet".into());
-        assert!(
-            matches!(&change, Change::Raised(f) if f.id == 2 && f.joint == 2 && f.kind == "silent" && f.since_tick == 7)
-        );
+        assert_eq!(change.change, FaultChange::Raised);
+        let f = &change.info;
+        assert!(f.id == 2 && f.joint == 2 && f.kind == FaultKind::Silent && f.since_tick == 7);
         assert!(h.any_fault() && !h.faulted_except(&[1]));
         // A faulted joint does not exhaust again.
         let t0 = Instant::now();
@@ -531,9 +503,9 @@ mod tests {
         assert!(h.answered(1, false), "back from silence needs attention");
         assert_eq!(h.back_from_silence(), vec![1]);
         let cleared = h.clear(1, "answers".into());
-        assert!(
-            matches!(cleared, Some(Change::Cleared(f)) if f.since_tick == 7 && f.detail == "answers")
-        );
+        let cleared = cleared.unwrap();
+        assert_eq!(cleared.change, FaultChange::Cleared);
+        assert!(cleared.info.since_tick == 7 && cleared.info.detail == "answers");
         assert!(h.clear(1, "again".into()).is_none());
         assert!(!h.any_fault());
     }
@@ -562,14 +534,16 @@ mod tests {
         assert!(h.judge(0, 64.9, 12.0, 1).is_empty());
         let raised = h.judge(0, 65.0, 12.0, 2);
         assert!(
-            matches!(&raised[..], [Change::Raised(f)] if f.kind == "temperature" && f.since_tick == 2)
+            matches!(&raised[..], [Change { change: FaultChange::Raised, info }] if info.kind == FaultKind::Temperature && info.since_tick == 2)
         );
         assert!(
             h.judge(0, 64.5, 12.0, 3).is_empty(),
             "inside the hysteresis"
         );
         let cleared = h.judge(0, 63.9, 12.0, 4);
-        assert!(matches!(&cleared[..], [Change::Cleared(f)] if f.since_tick == 2));
+        assert!(
+            matches!(&cleared[..], [Change { change: FaultChange::Cleared, info }] if info.since_tick == 2)
+        );
         assert_eq!(h.lists(None).1.len(), 0);
     }
 
@@ -578,7 +552,9 @@ mod tests {
         let mut h = health(10);
         // Limits 9.5..16 V: warns at or below 10.0, clears above 10.1.
         let raised = h.judge(1, 40.0, 10.0, 1);
-        assert!(matches!(&raised[..], [Change::Raised(f)] if f.kind == "voltage" && f.id == 2));
+        assert!(
+            matches!(&raised[..], [Change { change: FaultChange::Raised, info }] if info.kind == FaultKind::Voltage && info.id == 2)
+        );
         assert_eq!(h.lists(None).1.len(), 1);
         assert!(h.judge(1, 40.0, 10.05, 2).is_empty());
         assert_eq!(h.judge(1, 40.0, 10.2, 3).len(), 1);
@@ -592,14 +568,14 @@ mod tests {
         let port = FaultInfo {
             id: 0,
             joint: 0,
-            kind: "port",
+            kind: FaultKind::Port,
             since_tick: 4,
             detail: "gone".into(),
         };
         let (faults, warnings) = h.lists(Some(port));
         assert_eq!(faults.len(), 2);
-        assert_eq!(faults[0].kind, "port");
-        assert_eq!(faults[1].kind, "silent");
+        assert_eq!(faults[0].kind, FaultKind::Port);
+        assert_eq!(faults[1].kind, FaultKind::Silent);
         assert!(warnings.is_empty());
     }
 }

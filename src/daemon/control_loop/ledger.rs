@@ -3,66 +3,29 @@
 //! sends it with the tick and the tip.
 
 use crate::control::Finish;
-use crate::protocol::{ClientId, CommandInfo, EventKind, RequestId};
+use crate::protocol::{ClientId, CmdName, CommandInfo, Outcome, RequestId, StopReason, What};
 
-/// How a command ended, or that it is still running.
+/// What a command's ending owes its sender: the event, once the tick's tip is known.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Outcome {
-    /// Still moving the arm.
-    Active,
-    /// On its target.
+pub enum Ending {
+    /// `arrived`.
     Arrived,
-    /// Stopped short of a target out of reach.
+    /// `saturated`.
     Saturated,
-    /// Brought to rest (a stop, the deadman, a reboot, torque off).
-    Stopped,
-    /// Replaced by another command.
-    Preempted,
-    /// Ended by a fault.
-    Fault,
-    /// Ended by the estop.
-    Estop,
+    /// `preempted` by the command named.
+    Preempted(CmdName),
+    /// `stopped`, and why.
+    Stopped(StopReason),
 }
 
-impl Outcome {
-    /// The name on the wire (`command.outcome`).
-    pub fn as_str(self) -> &'static str {
+impl Ending {
+    /// The event, with the commanded tip at its tick.
+    pub fn what(self, tip: [f64; 2]) -> What {
         match self {
-            Outcome::Active => "active",
-            Outcome::Arrived => "arrived",
-            Outcome::Saturated => "saturated",
-            Outcome::Stopped => "stopped",
-            Outcome::Preempted => "preempted",
-            Outcome::Fault => "fault",
-            Outcome::Estop => "estop",
-        }
-    }
-}
-
-/// Why a command was brought to rest without arriving.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum StopReason {
-    /// A `stop` command.
-    Stop,
-    /// A velocity or jog not renewed within the deadman.
-    Deadman,
-    /// A fault (the protective stop, or the loop stalling past the Bus Watchdog).
-    Fault,
-    /// A `reboot` command.
-    Reboot,
-    /// Torque switched off by command.
-    Torque,
-}
-
-impl StopReason {
-    /// The name on the wire (a `stopped` event's `reason`).
-    pub fn as_str(self) -> &'static str {
-        match self {
-            StopReason::Stop => "stop",
-            StopReason::Deadman => "deadman",
-            StopReason::Fault => "fault",
-            StopReason::Reboot => "reboot",
-            StopReason::Torque => "torque",
+            Ending::Arrived => What::Arrived { tip },
+            Ending::Saturated => What::Saturated { tip },
+            Ending::Preempted(reason) => What::Preempted { tip, reason },
+            Ending::Stopped(reason) => What::Stopped { tip, reason },
         }
     }
 }
@@ -74,10 +37,8 @@ pub struct Ended {
     pub owner: ClientId,
     /// Its request id.
     pub id: Option<RequestId>,
-    /// The event.
-    pub kind: EventKind,
-    /// The event's reason.
-    pub reason: Option<&'static str>,
+    /// The event it is owed.
+    pub ending: Ending,
 }
 
 /// A command that moves the arm, and its running account.
@@ -85,19 +46,18 @@ pub struct Ended {
 struct Entry {
     owner: ClientId,
     id: Option<RequestId>,
-    kind: &'static str,
+    kind: CmdName,
     outcome: Outcome,
     peak: f64,
     m3: f64,
 }
 
 impl Entry {
-    fn ended(&self, kind: EventKind, reason: Option<&'static str>) -> Ended {
+    fn ended(&self, ending: Ending) -> Ended {
         Ended {
             owner: self.owner,
             id: self.id.clone(),
-            kind,
-            reason,
+            ending,
         }
     }
 }
@@ -136,7 +96,7 @@ impl Ledger {
             .map(|e| CommandInfo {
                 kind: e.kind,
                 id: e.id.clone(),
-                outcome: e.outcome.as_str(),
+                outcome: e.outcome,
                 peak_joint_speed_rad_s: e.peak,
                 m3_rad2: e.m3,
             })
@@ -149,7 +109,7 @@ impl Ledger {
         &mut self,
         owner: ClientId,
         id: Option<RequestId>,
-        kind: &'static str,
+        kind: CmdName,
         renewal: Renewal,
     ) -> Option<Ended> {
         let renews = self.active.as_ref().is_some_and(|a| {
@@ -171,7 +131,7 @@ impl Ledger {
             return None;
         }
         let preempted = self.end(Outcome::Preempted, |e| {
-            Some(e.ended(EventKind::Preempted, Some(kind)))
+            Some(e.ended(Ending::Preempted(kind)))
         });
         self.active = Some(Entry {
             owner,
@@ -194,19 +154,17 @@ impl Ledger {
 
     /// The controller finished the active command.
     pub fn finish(&mut self, finish: Finish) -> Option<Ended> {
-        let (outcome, kind, reason) = match finish {
-            Finish::Arrived => (Outcome::Arrived, EventKind::Arrived, None),
-            Finish::Saturated => (Outcome::Saturated, EventKind::Saturated, None),
-            Finish::Stopped { deadman } => {
-                let reason = if deadman {
-                    StopReason::Deadman
-                } else {
-                    StopReason::Stop
-                };
-                (Outcome::Stopped, EventKind::Stopped, Some(reason.as_str()))
+        let (outcome, ending) = match finish {
+            Finish::Arrived => (Outcome::Arrived, Ending::Arrived),
+            Finish::Saturated => (Outcome::Saturated, Ending::Saturated),
+            Finish::Stopped { deadman: true } => {
+                (Outcome::Stopped, Ending::Stopped(StopReason::Deadman))
+            }
+            Finish::Stopped { deadman: false } => {
+                (Outcome::Stopped, Ending::Stopped(StopReason::Stop))
             }
         };
-        self.end(outcome, |e| Some(e.ended(kind, reason)))
+        self.end(outcome, |e| Some(e.ended(ending)))
     }
 
     /// The active command ends without arriving: outcome `fault` for a fault, else `stopped`,
@@ -217,9 +175,7 @@ impl Ledger {
         } else {
             Outcome::Stopped
         };
-        self.end(outcome, |e| {
-            Some(e.ended(EventKind::Stopped, Some(reason.as_str())))
-        })
+        self.end(outcome, |e| Some(e.ended(Ending::Stopped(reason))))
     }
 
     /// The estop ends the active command (outcome `estop`; the estop event goes to everyone).
@@ -256,50 +212,55 @@ mod tests {
     #[test]
     fn a_velocity_renewal_keeps_its_account_and_a_new_command_preempts_it() {
         let mut l = Ledger::new();
-        assert!(l.begin(1, id(1), "velocity", Renewal::Velocity).is_none());
+        assert!(l
+            .begin(1, id(1), CmdName::Velocity, Renewal::Velocity)
+            .is_none());
         l.account(0.5, 0.25);
-        assert!(l.begin(1, id(2), "velocity", Renewal::Velocity).is_none());
+        assert!(l
+            .begin(1, id(2), CmdName::Velocity, Renewal::Velocity)
+            .is_none());
         l.account(0.25, 0.25);
         let info = l.info().unwrap();
         assert_eq!((info.peak_joint_speed_rad_s, info.m3_rad2), (0.5, 0.5));
         assert_eq!(info.id, id(2));
         // Another client's velocity is a new command.
-        let ended = l.begin(2, id(3), "velocity", Renewal::Velocity).unwrap();
+        let ended = l
+            .begin(2, id(3), CmdName::Velocity, Renewal::Velocity)
+            .unwrap();
         assert_eq!(ended.owner, 1);
-        assert_eq!(ended.kind, EventKind::Preempted);
-        assert_eq!(ended.reason, Some("velocity"));
+        assert_eq!(ended.ending, Ending::Preempted(CmdName::Velocity));
         assert_eq!(l.info().unwrap().m3_rad2, 0.0);
     }
 
     #[test]
     fn a_jog_of_another_joint_is_a_new_command() {
         let mut l = Ledger::new();
-        assert!(l.begin(1, id(1), "jog", Renewal::Jog(3)).is_none());
-        assert!(l.begin(1, id(2), "jog", Renewal::Jog(3)).is_none());
-        assert!(l.begin(1, id(3), "jog", Renewal::Jog(4)).is_some());
+        assert!(l.begin(1, id(1), CmdName::Jog, Renewal::Jog(3)).is_none());
+        assert!(l.begin(1, id(2), CmdName::Jog, Renewal::Jog(3)).is_none());
+        assert!(l.begin(1, id(3), CmdName::Jog, Renewal::Jog(4)).is_some());
     }
 
     #[test]
     fn each_ending_names_its_outcome_and_event() {
         let mut l = Ledger::new();
-        l.begin(1, id(1), "goto", Renewal::None);
+        l.begin(1, id(1), CmdName::Goto, Renewal::None);
         let e = l.finish(Finish::Stopped { deadman: true }).unwrap();
-        assert_eq!((e.kind, e.reason), (EventKind::Stopped, Some("deadman")));
-        assert_eq!(l.info().unwrap().outcome, "stopped");
+        assert_eq!(e.ending, Ending::Stopped(StopReason::Deadman));
+        assert_eq!(l.info().unwrap().outcome, Outcome::Stopped);
         assert!(l.finish(Finish::Arrived).is_none(), "nothing active");
 
-        l.begin(1, id(2), "path", Renewal::None);
+        l.begin(1, id(2), CmdName::Path, Renewal::None);
         let e = l.interrupt(StopReason::Fault).unwrap();
-        assert_eq!((e.kind, e.reason), (EventKind::Stopped, Some("fault")));
-        assert_eq!(l.info().unwrap().outcome, "fault");
+        assert_eq!(e.ending, Ending::Stopped(StopReason::Fault));
+        assert_eq!(l.info().unwrap().outcome, Outcome::Fault);
 
-        l.begin(1, id(3), "goto", Renewal::None);
+        l.begin(1, id(3), CmdName::Goto, Renewal::None);
         l.interrupt(StopReason::Reboot);
-        assert_eq!(l.info().unwrap().outcome, "stopped");
+        assert_eq!(l.info().unwrap().outcome, Outcome::Stopped);
 
-        l.begin(1, id(4), "goto", Renewal::None);
+        l.begin(1, id(4), CmdName::Goto, Renewal::None);
         l.estop();
         let info = l.info().unwrap();
-        assert_eq!((info.kind, info.outcome), ("goto", "estop"));
+        assert_eq!((info.kind, info.outcome), (CmdName::Goto, Outcome::Estop));
     }
 }

@@ -1,6 +1,7 @@
 //! This tick's measurements in SI units, from the servos' raw readings: joint angles and
 //! speeds every read, load, input voltage and temperature on health reads. Pure.
 
+use crate::protocol::LoadUnit;
 use crate::servo::arm::Arm;
 use crate::servo::units::{self, Calibration, CurrentUnit};
 use crate::servo::ServoState;
@@ -19,7 +20,7 @@ pub struct Measured {
     /// Present Load (percent) or Current (A), per `load_unit`.
     pub load: Vec<f64>,
     /// The unit of each joint's `load`.
-    pub load_unit: Vec<&'static str>,
+    pub load_unit: Vec<LoadUnit>,
     /// The tick of the last health read.
     pub health_tick: u64,
     /// Which joints' temperature and voltage the last health read brought (the others keep
@@ -43,7 +44,13 @@ impl Measured {
             temperature_c: vec![0.0; n],
             voltage_v: vec![0.0; n],
             load: vec![0.0; n],
-            load_unit: joints.iter().map(|(_, u)| u.name()).collect(),
+            load_unit: joints
+                .iter()
+                .map(|(_, u)| match u {
+                    CurrentUnit::LoadPermille => LoadUnit::Percent,
+                    CurrentUnit::MilliAmps(_) => LoadUnit::Amps,
+                })
+                .collect(),
             health_tick: 0,
             fresh: vec![false; n],
             joints,

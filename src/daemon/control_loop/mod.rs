@@ -62,8 +62,7 @@ use crate::chain::Vec2;
 use crate::config::Config;
 use crate::connect::{self, Connection};
 use crate::control::{self, Activity, Controller};
-use crate::protocol::{Describe, Event, EventKind, FaultInfo, Telemetry, PROTOCOL_VERSION};
-use crate::resolve::Strategy;
+use crate::protocol::{Answer, Describe, Event, FaultChange, FaultInfo, Telemetry, What};
 use crate::servo::arm::{Arm, BringUpOptions, OnExit};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
@@ -75,7 +74,7 @@ use self::ledger::{Ended, Ledger};
 use self::measure::Measured;
 use self::port::{Opener, Port, ReopenError};
 use self::supervisor::Supervisor;
-use super::link::{self, Answer, Handle, LoopEnds, COMMAND_QUEUE};
+use super::link::{self, Handle, LoopEnds, COMMAND_QUEUE};
 use super::stats::Stats;
 use super::{DaemonError, RunOptions, Summary};
 
@@ -454,7 +453,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let d = self.decided;
         let tracking = (d.tip_ref - tip_meas).norm();
         let (loop_hz, p99) = (self.stats.rate_hz(), self.stats.tick_p99_us());
-        let strategy = self.controller.strategy().name();
+        let strategy = self.controller.strategy();
         let (tick, t_s) = (self.tick, self.tick as f64 * self.schedule.dt);
         let theta_cmd = self.controller.theta();
         let m = &self.measured;
@@ -503,10 +502,20 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         });
     }
 
-    /// An event at this tick, with the commanded tip.
-    fn event(&self, event: Event) {
+    /// An event at this tick, with the commanded tip, to `owner` (`None`: everyone).
+    fn event(
+        &self,
+        owner: Option<crate::protocol::ClientId>,
+        cmd_id: Option<crate::protocol::RequestId>,
+        what: impl FnOnce([f64; 2]) -> What,
+    ) {
         // No subscriber is not an error: nobody is listening.
-        let _ = self.ends.events.send(event);
+        let _ = self.ends.events.send(Event {
+            owner,
+            cmd_id,
+            tick: self.tick,
+            what: what(self.tip()),
+        });
     }
 
     /// The commanded tip, for events.
@@ -518,63 +527,39 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The event a command's ending owes its sender, sent.
     fn owe(&self, ended: Option<Ended>) {
         if let Some(e) = ended {
-            self.event(Event {
-                owner: Some(e.owner),
-                cmd_id: e.id,
-                kind: e.kind,
-                tick: self.tick,
-                tip: self.tip(),
-                reason: e.reason,
-                fault: None,
-            });
+            self.event(Some(e.owner), e.id, |tip| e.ending.what(tip));
         }
     }
 
     /// A fault or warning change: logged, sent to everyone, the lists rebuilt.
-    fn report(&mut self, kind: EventKind, change: Change) {
-        let (reason, info) = match change {
-            Change::Raised(info) => ("raised", info),
-            Change::Cleared(info) => ("cleared", info),
-        };
-        match (kind, reason) {
-            (EventKind::Fault, "raised") => tracing::warn!(
+    fn report(&mut self, change: Change) {
+        let Change { change, info } = change;
+        match (info.kind.is_warning(), change) {
+            (false, FaultChange::Raised) => tracing::warn!(
                 id = info.id,
                 joint = info.joint,
-                kind = info.kind,
+                kind = %info.kind,
                 "fault: {}",
                 info.detail
             ),
-            (EventKind::Fault, _) => {
-                tracing::info!(
-                    id = info.id,
-                    kind = info.kind,
-                    "fault cleared: {}",
-                    info.detail
-                )
+            (false, _) => {
+                tracing::info!(id = info.id, kind = %info.kind, "fault cleared: {}", info.detail)
             }
-            _ => tracing::warn!(
+            (true, _) => tracing::warn!(
                 id = info.id,
-                kind = info.kind,
-                reason,
+                kind = %info.kind,
+                reason = %change,
                 "health: {}",
                 info.detail
             ),
         }
-        self.announce(kind, reason, info);
+        self.announce(change, info);
         self.rebuild_lists();
     }
 
-    /// A `fault` or `warning` event, to everyone.
-    fn announce(&self, kind: EventKind, reason: &'static str, info: FaultInfo) {
-        self.event(Event {
-            owner: None,
-            cmd_id: None,
-            kind,
-            tick: self.tick,
-            tip: self.tip(),
-            reason: Some(reason),
-            fault: Some(info),
-        });
+    /// A `fault` event, or a `warning` one for a warning's kind, to everyone.
+    fn announce(&self, change: FaultChange, info: FaultInfo) {
+        self.event(None, None, |tip| What::alarm(tip, change, info));
     }
 
     fn rebuild_lists(&mut self) {
@@ -608,23 +593,14 @@ fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
 
 /// The `describe` reply: what a remote UI needs to draw the arm.
 pub(super) fn describe(config: &Config, arm: &Arm) -> Describe {
-    let chain = config.chain();
-    let base = chain.base();
-    let (min_rad, max_rad) = chain
-        .limits()
-        .iter()
-        .map(|l| l.map_or((f64::MIN, f64::MAX), |l| (l.lo, l.hi)))
-        .unzip();
-    Describe {
-        links_m: chain.links().to_vec(),
-        base: [base.x, base.y, chain.heading()],
-        min_rad,
-        max_rad,
-        ids: arm.ids(),
-        models: arm.joints().iter().map(|j| j.model.name()).collect(),
-        home_rad: config.home().to_vec(),
-        rate_hz: config.control().rate_hz,
-        strategies: vec![Strategy::Overall.name(), Strategy::Sequential.name()],
-        protocol_version: PROTOCOL_VERSION,
-    }
+    Describe::of_chain(
+        config.chain(),
+        arm.ids(),
+        arm.joints()
+            .iter()
+            .map(|j| j.model.name().to_owned())
+            .collect(),
+        config.home().to_vec(),
+        config.control().rate_hz,
+    )
 }

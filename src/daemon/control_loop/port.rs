@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use crate::connect::ConnectError;
-use crate::protocol::FaultInfo;
+use crate::protocol::{FaultInfo, FaultKind};
 use crate::servo::arm::Arm;
 use crate::servo::limits::Limited;
 use crate::servo::ServoBus;
@@ -156,7 +156,7 @@ fn port_info(since: u64, detail: String) -> FaultInfo {
     FaultInfo {
         id: 0,
         joint: 0,
-        kind: super::health::FaultKind::Port.as_str(),
+        kind: FaultKind::Port,
         since_tick: since,
         detail,
     }

@@ -7,14 +7,17 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use serde_json::{json, Map, Value as Json};
+use serde_json::json;
 use tokio::sync::{broadcast, oneshot};
 
 use super::port::ReopenError;
 use super::{Cycle, Pace, Parts};
 use crate::config::Config;
 use crate::daemon::link::{Envelope, Handle};
-use crate::protocol::{Cmd, Event, EventKind, Rejection, State};
+use crate::protocol::{
+    Answer, Code, Event, FaultChange, FaultKind, LoopCmd, Motion, Outcome, Reply, State,
+    StopReason, What,
+};
 use crate::servo::clock::{Clock, ManualClock};
 use crate::servo::limits::LimitPolicy;
 use crate::servo::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
@@ -255,7 +258,7 @@ impl Rig {
     }
 
     /// Queues `cmd` from client 1; its answer comes with the next tick.
-    fn send(&mut self, cmd: Cmd) -> oneshot::Receiver<Result<Map<String, Json>, Rejection>> {
+    fn send(&mut self, cmd: LoopCmd) -> oneshot::Receiver<Answer> {
         let (reply, answer) = oneshot::channel();
         self.next_id += 1;
         self.handle
@@ -272,7 +275,7 @@ impl Rig {
     }
 
     /// `cmd` applied in one tick: its answer.
-    fn command(&mut self, cmd: Cmd) -> Result<Map<String, Json>, Rejection> {
+    fn command(&mut self, cmd: LoopCmd) -> Answer {
         let mut answer = self.send(cmd);
         self.ticks(1);
         answer
@@ -292,20 +295,34 @@ impl Rig {
     /// A goto 5 cm to the side of the present tip, slow enough to still be moving a second on.
     fn slow_goto(&mut self) {
         let tip = self.status().tip;
-        let goto = Cmd::Goto {
+        let goto = LoopCmd::Motion(Motion::Goto {
             target: [tip[0] + 0.05, tip[1]],
             speed: Some(0.01),
-        };
+        });
         self.command(goto).unwrap();
     }
 }
 
-fn fault_events(events: &[Event], reason: &str) -> Vec<(u8, &'static str, u64)> {
+fn fault_events(events: &[Event], change: FaultChange) -> Vec<(u8, FaultKind, u64)> {
     events
         .iter()
-        .filter(|e| e.kind == EventKind::Fault && e.reason == Some(reason))
-        .filter_map(|e| e.fault.as_ref().map(|f| (f.id, f.kind, f.since_tick)))
+        .filter_map(|e| match &e.what {
+            What::Fault { reason, fault, .. } if *reason == change => {
+                Some((fault.id, fault.kind, fault.since_tick))
+            }
+            _ => None,
+        })
         .collect()
+}
+
+fn stopped_for_fault(e: &Event) -> bool {
+    matches!(
+        e.what,
+        What::Stopped {
+            reason: StopReason::Fault,
+            ..
+        }
+    )
 }
 
 /// The read that declares a silent servo: its tick minus the tick of the first read it missed,
@@ -371,15 +388,11 @@ fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_a
     let held = s.theta_cmd.clone();
     let events = rig.events();
     assert_eq!(
-        fault_events(&events, "raised"),
-        vec![(5, "silent", s.tick - 4)]
+        fault_events(&events, FaultChange::Raised),
+        vec![(5, FaultKind::Silent, s.tick - 4)]
     );
-    let stopped = events
-        .iter()
-        .find(|e| e.kind == EventKind::Stopped)
-        .unwrap();
-    assert_eq!(stopped.reason, Some("fault"));
-    assert_eq!(s.command.as_ref().unwrap().outcome, "fault");
+    assert!(events.iter().any(stopped_for_fault), "{events:?}");
+    assert_eq!(s.command.as_ref().unwrap().outcome, Outcome::Fault);
     assert_eq!(s.faults.len(), 1);
     assert!(
         s.faults[0].detail.contains("50 ms"),
@@ -389,8 +402,8 @@ fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_a
     // Held: goals frozen, motion refused with the fault named.
     rig.ticks(20);
     assert_eq!(rig.status().theta_cmd, held);
-    let refused = rig.command(Cmd::Home).unwrap_err();
-    assert_eq!(refused.code, crate::protocol::Code::Fault);
+    let refused = rig.command(LoopCmd::Motion(Motion::Home)).unwrap_err();
+    assert_eq!(refused.code, Code::Fault);
     assert!(
         refused.message.contains("servo 5 (joint 5) silent"),
         "{}",
@@ -403,8 +416,8 @@ fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_a
     assert_eq!(s.state, State::Holding);
     assert!(s.faults.is_empty());
     assert_eq!(
-        fault_events(&rig.events(), "cleared"),
-        vec![(5, "silent", s.tick - 26)]
+        fault_events(&rig.events(), FaultChange::Cleared),
+        vec![(5, FaultKind::Silent, s.tick - 26)]
     );
     rig.slow_goto();
     rig.ticks(1);
@@ -421,22 +434,21 @@ fn a_hardware_error_holds_until_reboot_which_brings_torque_back() {
     rig.ticks(1);
     let s = rig.status();
     assert_eq!(s.state, State::Fault);
-    assert_eq!(s.faults[0].kind, "hardware_error");
+    assert_eq!(s.faults[0].kind, FaultKind::HardwareError);
     assert!(
         s.faults[0].detail.contains("overload"),
         "{}",
         s.faults[0].detail
     );
     assert_eq!(
-        rig.command(Cmd::Torque { on: true }).unwrap_err().code,
-        crate::protocol::Code::Fault
+        rig.command(LoopCmd::Torque { on: true }).unwrap_err().code,
+        Code::Fault
     );
-    let answer = rig.command(Cmd::Reboot { ids: None }).unwrap();
-    assert_eq!(
-        answer["rebooted"],
-        json!([3]),
-        "only the servo in hardware error"
-    );
+    let answer = rig.command(LoopCmd::Reboot { ids: None }).unwrap();
+    match answer.reply {
+        Reply::Rebooted(r) => assert_eq!(r.rebooted, vec![3], "only the servo in hardware error"),
+        other => panic!("not a reboot's reply: {other:?}"),
+    }
     let s = rig.status();
     assert_eq!(s.state, State::Holding);
     assert!(s.torque && s.faults.is_empty());
@@ -454,8 +466,8 @@ fn an_estop_while_the_port_is_lost_stays_latched_when_the_port_comes_back() {
     rig.ticks(1);
     let s = rig.status();
     assert_eq!(s.state, State::Fault);
-    assert_eq!(s.faults[0].kind, "port");
-    rig.command(Cmd::Estop).unwrap();
+    assert_eq!(s.faults[0].kind, FaultKind::Port);
+    rig.command(LoopCmd::Estop).unwrap();
     assert_eq!(rig.status().state, State::Estop);
     // Reopened once a second; gone still after the first try.
     rig.ticks(150);
@@ -466,10 +478,10 @@ fn an_estop_while_the_port_is_lost_stays_latched_when_the_port_comes_back() {
     assert!(s.faults.is_empty(), "{:?}", s.faults);
     assert_eq!(s.state, State::Estop, "the latch outlives the fault");
     assert_eq!(
-        rig.command(Cmd::Home).unwrap_err().code,
-        crate::protocol::Code::Estopped
+        rig.command(LoopCmd::Motion(Motion::Home)).unwrap_err().code,
+        Code::Estopped
     );
-    rig.command(Cmd::Reset).unwrap();
+    rig.command(LoopCmd::Reset).unwrap();
     assert_eq!(rig.status().state, State::Holding);
     assert!(rig.status().torque);
 }
@@ -487,14 +499,12 @@ fn a_stall_past_the_bus_watchdog_recovers_the_servos_whose_watchdog_fired() {
     }
     rig.ticks(1);
     let events = rig.events();
-    let recovered = fault_events(&events, "recovered");
+    let recovered = fault_events(&events, FaultChange::Recovered);
     assert_eq!(
         recovered.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(),
-        vec![(2, "watchdog"), (7, "watchdog")]
+        vec![(2, FaultKind::Watchdog), (7, FaultKind::Watchdog)]
     );
-    assert!(events
-        .iter()
-        .any(|e| e.kind == EventKind::Stopped && e.reason == Some("fault")));
+    assert!(events.iter().any(stopped_for_fault), "{events:?}");
     for id in [2, 7] {
         assert!(
             rig.bus.wire().servos[&id].get(Register::BusWatchdog) > 0,
@@ -541,7 +551,7 @@ fn reset_stats_starts_the_statistics_again_but_not_the_counters() {
     rig.bus.servo(4, |s| s.silent = false);
     let dropped = rig.status().counters.dropped;
     assert_eq!(dropped, 2);
-    rig.command(Cmd::ResetStats).unwrap();
+    rig.command(LoopCmd::ResetStats).unwrap();
     rig.ticks(1);
     let s = rig.status();
     assert_eq!(
@@ -551,9 +561,9 @@ fn reset_stats_starts_the_statistics_again_but_not_the_counters() {
     );
     let summary = rig.cycle.stats.summary(rig.cycle.tick, rig.clock.now());
     assert_eq!(summary.ticks, 1, "counted from the tick that applied it");
-    rig.command(Cmd::Stop).unwrap();
+    rig.command(LoopCmd::Stop).unwrap();
     rig.ticks(200);
-    rig.command(Cmd::ResetStats).unwrap();
+    rig.command(LoopCmd::ResetStats).unwrap();
     let s = rig.status();
     assert_eq!((s.m3_total_rad2, s.peak_joint_speed_rad_s), (0.0, 0.0));
     assert_eq!(s.counters.dropped, 2);
@@ -568,7 +578,10 @@ fn health_warnings_come_before_the_servo_limits_with_hysteresis() {
     rig.ticks(10);
     let s = rig.status();
     assert_eq!(s.warnings.len(), 1);
-    assert_eq!((s.warnings[0].id, s.warnings[0].kind), (6, "temperature"));
+    assert_eq!(
+        (s.warnings[0].id, s.warnings[0].kind),
+        (6, FaultKind::Temperature)
+    );
     assert_eq!(s.temperature_c[5], 75.0);
     rig.bus
         .servo(6, |s| s.set(Register::PresentTemperature, 74));
@@ -581,10 +594,12 @@ fn health_warnings_come_before_the_servo_limits_with_hysteresis() {
     let events = rig.events();
     let warnings: Vec<_> = events
         .iter()
-        .filter(|e| e.kind == EventKind::Warning)
-        .map(|e| e.reason)
+        .filter_map(|e| match &e.what {
+            What::Warning { reason, .. } => Some(*reason),
+            _ => None,
+        })
         .collect();
-    assert_eq!(warnings, vec![Some("raised"), Some("cleared")]);
+    assert_eq!(warnings, vec![FaultChange::Raised, FaultChange::Cleared]);
     assert_eq!(
         rig.status().state,
         State::Holding,
@@ -604,11 +619,11 @@ fn the_shut_down_brings_the_arm_to_rest_then_ends() {
     }
     assert!(turns > 0, "decelerated over some ticks");
     assert_eq!(rig.status().state, State::Holding);
-    let refused = rig.send(Cmd::Home);
+    let refused = rig.send(LoopCmd::Motion(Motion::Home));
     rig.cycle.answer_queued_for_exit();
     let mut refused = refused;
     assert_eq!(
         refused.try_recv().unwrap().unwrap_err().code,
-        crate::protocol::Code::ShuttingDown
+        Code::ShuttingDown
     );
 }

@@ -11,6 +11,7 @@ use proptest::strategy::Strategy as _;
 use serde_json::{json, Number};
 
 use super::*;
+use crate::protocol::COMMANDS;
 
 const JOINTS: usize = 4;
 

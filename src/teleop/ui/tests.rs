@@ -7,14 +7,16 @@ use ratatui::style::Color;
 use ratatui::Terminal;
 
 use super::*;
-use crate::client::FaultInfo;
+use crate::client::{Describe, FaultInfo, FaultKind, Telemetry};
+use crate::protocol::STRATEGIES;
+use crate::resolve::Strategy;
 
 const COLS: u16 = 120;
 const ROWS: u16 = 40;
 
 /// The shipped simulator's arm: 12 links of 0.08 m, base at the origin pointing up.
-fn sim_arm() -> ArmInfo {
-    ArmInfo {
+fn sim_arm() -> Arm {
+    Arm::new(Describe {
         links_m: vec![0.08; 12],
         base: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
         min_rad: vec![-2.0; 12],
@@ -23,29 +25,32 @@ fn sim_arm() -> ArmInfo {
         models: vec!["XL430-W250".into(); 12],
         home_rad: vec![0.1; 12],
         rate_hz: 100.0,
-        strategies: vec!["overall".into(), "sequential".into()],
+        strategies: STRATEGIES.to_vec(),
         protocol_version: 1,
-    }
+    })
+    .unwrap()
 }
 
 /// The arm at `theta`, holding, this client in control.
-fn snapshot_at(arm: &ArmInfo, theta: &[f64]) -> Snapshot {
+fn snapshot_at(arm: &Arm, theta: &[f64]) -> Snapshot {
     let points = arm.points(theta);
     let tip = *points.last().unwrap();
     Snapshot {
-        state: "holding".into(),
-        strategy: "overall".into(),
-        tip,
-        tip_meas: tip,
-        tip_ref: tip,
-        theta_cmd: theta.to_vec(),
-        theta_meas: theta.to_vec(),
-        loop_hz: 100.0,
-        solve_us: 42.0,
-        torque: true,
+        telemetry: Telemetry {
+            state: State::Holding,
+            strategy: Strategy::Overall,
+            tip,
+            tip_meas: tip,
+            tip_ref: tip,
+            theta_cmd: theta.to_vec(),
+            theta_meas: theta.to_vec(),
+            loop_hz: 100.0,
+            solve_us: 42.0,
+            torque: true,
+            ..Telemetry::default()
+        },
         controller: Some(1),
         in_control: true,
-        ..Snapshot::default()
     }
 }
 
@@ -66,10 +71,14 @@ fn render(view: &View<'_>) -> Buffer {
 }
 
 /// Renders `arm` with `snapshot` and `status`, and an empty trail.
-fn render_arm(arm: &ArmInfo, snapshot: Option<&Snapshot>, status: &Status) -> Buffer {
+fn render_arm<'a>(
+    arm: impl Into<Option<&'a Arm>>,
+    snapshot: Option<&Snapshot>,
+    status: &Status,
+) -> Buffer {
     let trail = Trail::new(10);
     render(&View {
-        arm,
+        arm: arm.into(),
         snapshot,
         trail: &trail,
         status,
@@ -98,7 +107,7 @@ fn is_braille(symbol: &str) -> bool {
 }
 
 /// The cell a world point falls in, as the canvas places labels.
-fn cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
+fn cell_of(arm: &Arm, p: [f64; 2]) -> (u16, u16) {
     let inner = canvas_inner(areas(screen()).canvas);
     let (xs, ys) = world_bounds(arm, inner);
     let col = (p[0] - xs[0]) / (xs[1] - xs[0]) * f64::from(inner.width - 1);
@@ -107,7 +116,7 @@ fn cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
 }
 
 /// The cell whose braille dots show a world point.
-fn dot_cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
+fn dot_cell_of(arm: &Arm, p: [f64; 2]) -> (u16, u16) {
     let inner = canvas_inner(areas(screen()).canvas);
     let (xs, ys) = world_bounds(arm, inner);
     let dot_x = (p[0] - xs[0]) / (xs[1] - xs[0]) * f64::from(2 * inner.width - 1);
@@ -199,11 +208,11 @@ fn the_panel_shows_address_state_control_and_the_measured_tip() {
 fn a_fault_is_named_by_its_servo() {
     let arm = sim_arm();
     let mut snapshot = snapshot_at(&arm, &arm.home_rad);
-    snapshot.state = "fault".into();
+    snapshot.state = State::Fault;
     snapshot.faults.push(FaultInfo {
         id: 5,
         joint: 5,
-        kind: "silent".into(),
+        kind: FaultKind::Silent,
         since_tick: 200,
         detail: "no status".into(),
     });
@@ -269,10 +278,9 @@ fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
 
 #[test]
 fn before_any_telemetry_the_screen_says_it_waits() {
-    let arm = ArmInfo::default();
     let mut status = status();
     status.link = Link::Connecting;
-    let text = lines(&render_arm(&arm, None, &status)).join("\n");
+    let text = lines(&render_arm(None, None, &status)).join("\n");
     assert!(text.contains("waiting for telemetry"), "{text}");
     assert!(text.contains("connecting"), "{text}");
 }
@@ -297,7 +305,7 @@ fn the_trail_is_drawn_and_bounded() {
 
     let status = status();
     let view = View {
-        arm: &arm,
+        arm: Some(&arm),
         snapshot: None,
         trail: &trail,
         status: &status,

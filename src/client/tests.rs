@@ -1,0 +1,418 @@
+//! The client against a scripted daemon on a loopback socket: typed replies, events and
+//! telemetry; lines it cannot read surfaced with the line; unknown fields and events tolerated;
+//! how a motion command ends.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::{TcpListener, TcpStream};
+
+use serde_json::json;
+
+use super::*;
+use crate::protocol::{Applied, ClientId, Counters, Rebooted};
+
+/// A daemon that answers by script: it reads request lines and writes what the test says.
+struct Scripted {
+    lines: BufReader<TcpStream>,
+    out: TcpStream,
+}
+
+impl Scripted {
+    /// A listener, a client connected to it, and the daemon's end.
+    fn start() -> (Client, Scripted) {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap().to_string();
+        let client = Client::connect(&addr, None).unwrap();
+        let (stream, _) = listener.accept().unwrap();
+        let out = stream.try_clone().unwrap();
+        (
+            client,
+            Scripted {
+                lines: BufReader::new(stream),
+                out,
+            },
+        )
+    }
+
+    /// The next request line, parsed.
+    fn request(&mut self) -> protocol::Request {
+        let mut line = String::new();
+        self.lines.read_line(&mut line).unwrap();
+        protocol::parse(line.trim_end().as_bytes(), 3).unwrap()
+    }
+
+    fn send(&mut self, line: &str) {
+        self.out.write_all(line.as_bytes()).unwrap();
+        if !line.ends_with('\n') {
+            self.out.write_all(b"\n").unwrap();
+        }
+    }
+}
+
+const WAIT: Duration = Duration::from_secs(10);
+
+fn sim_describe() -> Describe {
+    Describe {
+        links_m: vec![1.0, 1.0],
+        base: [1.0, 2.0, std::f64::consts::FRAC_PI_2],
+        min_rad: vec![f64::MIN, -2.0],
+        max_rad: vec![f64::MAX, 2.0],
+        ids: vec![1, 2],
+        models: vec!["XL430-W250".into(); 2],
+        home_rad: vec![0.0, 0.0],
+        rate_hz: 100.0,
+        strategies: protocol::STRATEGIES.to_vec(),
+        protocol_version: protocol::PROTOCOL_VERSION,
+    }
+}
+
+#[test]
+fn the_arm_draws_with_its_chain() {
+    let arm = Arm::new(sim_describe()).unwrap();
+    let p = arm.points(&[0.0, -std::f64::consts::FRAC_PI_2]);
+    let expected = [[1.0, 2.0], [1.0, 3.0], [2.0, 3.0]];
+    assert_eq!(p.len(), 3);
+    for (got, want) in p.iter().zip(expected) {
+        assert!((got[0] - want[0]).abs() < 1e-12 && (got[1] - want[1]).abs() < 1e-12);
+    }
+    assert_eq!(arm.reach(), 2.0);
+    assert_eq!(arm.inner_radius(), 0.0);
+    // Joint 1 is unlimited (written as the extreme floats), joint 2 limited.
+    assert_eq!(arm.chain().limits()[0], None);
+    assert!(arm.chain().limits()[1].is_some());
+    // A pose of the wrong length draws nothing rather than panic.
+    assert!(arm.points(&[0.0]).is_empty());
+    assert_eq!(arm.rate_hz, 100.0, "an arm reads as its description");
+    let mut bad = sim_describe();
+    bad.links_m = Vec::new();
+    assert!(Arm::new(bad).is_err());
+}
+
+#[test]
+fn a_refused_connection_says_no_daemon_listens() {
+    // Bind and drop: the port is then (almost certainly) closed.
+    let addr = {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap()
+    };
+    let err = Client::connect(&addr.to_string(), None)
+        .err()
+        .unwrap_or_else(|| panic!("connected to a closed port"));
+    let text = err.to_string();
+    assert!(
+        text.contains("no daemon is listening on 127.0.0.1"),
+        "{text}"
+    );
+    assert!(text.contains("--connect"), "{text}");
+}
+
+#[test]
+fn token_files_are_read_as_the_daemon_reads_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("token");
+    std::fs::write(&path, "  s3cret \nsecond line\n").unwrap();
+    assert_eq!(read_token(&path).unwrap(), "s3cret");
+    std::fs::write(&path, "\n").unwrap();
+    let err = read_token(&path)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(err.contains("the token file is empty"), "{err}");
+}
+
+#[test]
+fn replies_are_typed_by_the_command_they_answer() {
+    let (mut client, mut daemon) = Scripted::start();
+    let worker = std::thread::spawn(move || {
+        let r = daemon.request();
+        assert_eq!(r.cmd, Cmd::Describe);
+        let describe = json!({"id": r.id.as_deref().unwrap(), "ok": true});
+        let mut line = describe.as_object().unwrap().clone();
+        line.extend(sim_describe().to_fields());
+        daemon.send(&Value::Object(line).to_string());
+        let r = daemon.request();
+        assert_eq!(r.cmd, Cmd::Reboot { ids: None });
+        let id = r.id.as_deref().unwrap().clone();
+        // A field this version does not know is kept, not refused.
+        daemon.send(
+            &json!({"id": id, "ok": true, "tick": 7, "rebooted": [1, 2], "later": "x"}).to_string(),
+        );
+        let r = daemon.request();
+        assert_eq!(r.cmd, Cmd::TakeControl);
+        let id = r.id.as_deref().unwrap().clone();
+        daemon.send(
+            &json!({"id": id, "ok": true, "client": 4, "holder": 4, "previous": null}).to_string(),
+        );
+        let r = daemon.request();
+        let id = r.id.as_deref().unwrap().clone();
+        daemon.send(
+            &json!({"id": id, "ok": false, "error": {"code": "estopped", "message": "latched"}})
+                .to_string(),
+        );
+        daemon
+    });
+    let arm = client.describe().unwrap();
+    assert_eq!(arm.describe(), &sim_describe());
+    let fields = client.request(&Cmd::Reboot { ids: None }).unwrap();
+    assert_eq!(
+        fields.reply,
+        Reply::Rebooted(Rebooted {
+            tick: 7,
+            rebooted: vec![1, 2]
+        })
+    );
+    assert_eq!(fields.more.get("later"), Some(&json!("x")));
+    assert_eq!(fields.to_map()["later"], json!("x"));
+    let took = client.take_control().unwrap();
+    assert_eq!(took.client, 4);
+    assert_eq!(client.client_id(), Some(4 as ClientId));
+    let err = client
+        .request(&Cmd::Goto {
+            target: [0.1, 0.2],
+            speed: None,
+        })
+        .unwrap_err();
+    assert_eq!(err.code(), Some(Code::Estopped));
+    assert!(
+        err.to_string()
+            .contains("`goto` refused: estopped: latched"),
+        "{err}"
+    );
+    worker.join().unwrap();
+}
+
+#[test]
+fn a_line_the_client_cannot_read_is_an_error_with_the_line_and_the_rest_goes_on() {
+    let (mut client, mut daemon) = Scripted::start();
+    let id = client.send(&Cmd::Stop).unwrap();
+    let r = daemon.request();
+    assert_eq!(r.cmd, Cmd::Stop);
+    for garbage in [
+        "not json at all",
+        "[1, 2]",
+        r#"{"type": "gossip", "tick": 1}"#,
+        r#"{"type": "telemetry", "tick": "soon"}"#,
+        r#"{"type": "event", "event": "arrived", "tick": 3}"#,
+        r#"{"id": 9, "nothing": true}"#,
+        r#"{"id": null, "ok": false, "error": {"code": "no_such_code", "message": "?"}}"#,
+    ] {
+        daemon.send(garbage);
+        match client.next(WAIT) {
+            Err(ClientError::Unreadable { line, .. }) => assert_eq!(line, garbage),
+            other => panic!("{garbage}: {other:?}"),
+        }
+    }
+    // An ok reply to an id this client never sent.
+    daemon.send(r#"{"id": 12345, "ok": true, "tick": 1}"#);
+    assert!(
+        matches!(client.next(WAIT), Err(ClientError::Stray { line }) if line.contains("12345"))
+    );
+    // A reply without the fields of its command.
+    daemon.send(&json!({"id": id, "ok": true, "tick": "late"}).to_string());
+    match client.next(WAIT) {
+        Err(ClientError::BadReply { cmd, line, .. }) => {
+            assert_eq!(cmd, CmdName::Stop);
+            assert!(line.contains("late"), "{line}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // And the connection serves on.
+    let id = client.send(&Cmd::Stop).unwrap();
+    daemon.request();
+    daemon.send(&json!({"id": id, "ok": true, "tick": 8}).to_string());
+    match client.next(WAIT).unwrap() {
+        Some(Incoming::Reply(Replied {
+            cmd: Some(CmdName::Stop),
+            result: Ok(fields),
+            ..
+        })) => assert_eq!(fields.reply, Reply::Applied(Applied { tick: 8 })),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_request_meets_an_unreadable_line_as_an_error_and_its_reply_comes_later() {
+    let (mut client, mut daemon) = Scripted::start();
+    let worker = std::thread::spawn(move || {
+        let r = daemon.request();
+        daemon.send("{broken");
+        let id = r.id.as_deref().unwrap().clone();
+        daemon.send(&json!({"id": id, "ok": true, "tick": 5}).to_string());
+        daemon
+    });
+    match client.request(&Cmd::Reset) {
+        Err(ClientError::Unreadable { line, .. }) => assert_eq!(line, "{broken"),
+        other => panic!("{other:?}"),
+    }
+    let _daemon = worker.join().unwrap();
+    match client.next(WAIT).unwrap() {
+        Some(Incoming::Reply(Replied {
+            cmd: Some(CmdName::Reset),
+            result: Ok(fields),
+            ..
+        })) => assert_eq!(fields.reply.tick(), Some(5)),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn unknown_fields_and_events_are_not_errors() {
+    let (mut client, mut daemon) = Scripted::start();
+    daemon.send(
+        r#"{"type": "event", "event": "arrived", "cmd_id": 1, "tick": 3, "tip": [0.5, 1], "new": {"a": 1}}"#,
+    );
+    daemon.send(r#"{"type": "event", "event": "sparkle", "tick": 4, "colour": "blue"}"#);
+    let mut telemetry = Telemetry::default().to_fields();
+    telemetry.insert("type".into(), json!("telemetry"));
+    telemetry.insert("tick".into(), json!(77));
+    telemetry.insert("controller".into(), json!(2));
+    telemetry.insert("brand_new".into(), json!([1, 2, 3]));
+    daemon.send(&Value::Object(telemetry).to_string());
+    match client.next(WAIT).unwrap() {
+        Some(Incoming::Event(event)) => {
+            assert_eq!(event.what, What::Arrived { tip: [0.5, 1.0] });
+            assert_eq!(event.cmd_id.as_deref(), Some(&json!(1)));
+        }
+        other => panic!("{other:?}"),
+    }
+    match client.next(WAIT).unwrap() {
+        Some(Incoming::Event(event)) => {
+            assert_eq!(
+                event.what,
+                What::Other {
+                    name: "sparkle".into()
+                }
+            );
+            assert_eq!(event.kind(), None);
+            assert_eq!(event.tick, 4);
+        }
+        other => panic!("{other:?}"),
+    }
+    let line = client.wait_telemetry(WAIT).unwrap().unwrap();
+    assert_eq!(line.status.tick, 77);
+    assert_eq!(line.status.controller, Some(2));
+    assert_eq!(line.status.counters, Counters::default());
+    assert!(
+        line.line.contains("brand_new"),
+        "the line is kept as it came"
+    );
+}
+
+#[test]
+fn a_motion_ends_by_its_own_events_and_by_estops_and_faults_after_it() {
+    let motion = Motion {
+        id: 7,
+        cmd: CmdName::Goto,
+        accepted: 100,
+    };
+    let tip = [0.1, 0.2];
+    let event = |cmd_id: Option<u64>, tick: u64, what: What| Event {
+        owner: None,
+        cmd_id: cmd_id.map(|id| Arc::new(json!(id))),
+        tick,
+        what,
+    };
+    let fault = FaultInfo {
+        id: 3,
+        joint: 3,
+        kind: FaultKind::Silent,
+        since_tick: 101,
+        detail: "no reply".into(),
+    };
+    let cases = [
+        (event(Some(7), 150, What::Arrived { tip }), Some("arrived at (0.1000, 0.2000) m, tick 150")),
+        (event(Some(8), 150, What::Arrived { tip }), None),
+        (event(None, 150, What::Arrived { tip }), None),
+        (
+            event(Some(7), 120, What::Saturated { tip }),
+            Some("saturated: the target is out of reach; the tip stopped short at (0.1000, 0.2000) m, tick 120"),
+        ),
+        (
+            event(Some(7), 120, What::Preempted { tip, reason: CmdName::Stop }),
+            Some("preempted by `stop` at (0.1000, 0.2000) m, tick 120"),
+        ),
+        (
+            event(Some(7), 120, What::Stopped { tip, reason: StopReason::Fault }),
+            Some("stopped (fault) at (0.1000, 0.2000) m, tick 120"),
+        ),
+        (event(None, 100, What::Estop { tip }), Some("estop: emergency stop at (0.1000, 0.2000) m, tick 100")),
+        (event(None, 99, What::Estop { tip }), None),
+        (
+            event(None, 101, What::Fault { tip, reason: FaultChange::Raised, fault: fault.clone() }),
+            Some("fault: servo 3 (joint 3): silent (no reply), at (0.1000, 0.2000) m, tick 101"),
+        ),
+        (event(None, 101, What::Fault { tip, reason: FaultChange::Cleared, fault }), None),
+        (event(Some(7), 130, What::Reset { tip }), None),
+        (event(Some(7), 130, What::Other { name: "new".into() }), None),
+    ];
+    for (event, expected) in cases {
+        let got = motion.ending(&event).map(|e| e.to_string());
+        assert_eq!(got.as_deref(), expected, "{event:?}");
+    }
+}
+
+#[test]
+fn wait_ending_shows_everything_before_the_ending() {
+    let (mut client, mut daemon) = Scripted::start();
+    let worker = std::thread::spawn(move || {
+        let r = daemon.request();
+        let id = r.id.as_deref().unwrap().clone();
+        // An event before the reply: its order against it is not fixed.
+        daemon.send(&json!({"type": "event", "event": "preempted", "cmd_id": "other", "tick": 10, "tip": [0, 0], "reason": "goto"}).to_string());
+        daemon.send(&json!({"id": id, "ok": true, "tick": 10}).to_string());
+        let mut t = Telemetry::default().to_fields();
+        t.insert("type".into(), json!("telemetry"));
+        t.insert("tick".into(), json!(11));
+        daemon.send(&Value::Object(t).to_string());
+        std::thread::sleep(Duration::from_millis(50));
+        daemon.send(&json!({"type": "event", "event": "arrived", "cmd_id": id, "tick": 30, "tip": [0.3, 0.4]}).to_string());
+        daemon
+    });
+    let motion = client
+        .start_motion(&Cmd::Goto {
+            target: [0.3, 0.4],
+            speed: None,
+        })
+        .unwrap();
+    assert_eq!(motion.accepted, 10);
+    let mut seen = Vec::new();
+    let ending = client
+        .wait_ending(&motion, WAIT, |what| -> Result<(), ClientError> {
+            seen.push(match what {
+                Seen::Telemetry(t) => format!("telemetry {}", t.status.tick),
+                Seen::Event(e) => format!("event {}", e.what.name()),
+                Seen::Reply(_) => "reply".into(),
+            });
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(
+        ending,
+        Some(Ending::Arrived {
+            tick: 30,
+            tip: [0.3, 0.4]
+        })
+    );
+    assert_eq!(seen, ["event preempted", "telemetry 11", "event arrived"]);
+    worker.join().unwrap();
+}
+
+#[test]
+fn a_closed_connection_names_the_last_refusal() {
+    let (mut client, mut daemon) = Scripted::start();
+    daemon.send(
+        r#"{"id": null, "ok": false, "error": {"code": "too_many_clients", "message": "full"}}"#,
+    );
+    drop(daemon);
+    match client.next(WAIT).unwrap() {
+        Some(Incoming::Reply(Replied { result: Err(r), .. })) => {
+            assert_eq!(r.code, Code::TooManyClients)
+        }
+        other => panic!("{other:?}"),
+    }
+    let err = client.next(WAIT).unwrap_err();
+    assert!(err.is_closed());
+    assert_eq!(err.code(), Some(Code::TooManyClients));
+    assert!(err.to_string().contains("too_many_clients: full"), "{err}");
+}

@@ -1,0 +1,213 @@
+//! Replies: `{"id": ID, "ok": true, ...fields}` with the fields each command answers, typed
+//! ([`Reply`]), or `{"id": ID, "ok": false, "error": {"code", "message"}}` ([`Rejection`]).
+//!
+//! A reply's shape depends on the command it answers, which the reply does not name: a client
+//! reads one with the name of the command it sent ([`Fields::read`]). Fields beside the typed
+//! ones (a newer daemon's) are kept in [`Fields::more`], not refused.
+
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+use super::{ClientId, CmdName, Describe, Rejection, Status};
+
+/// `subscribe`: the rate granted (at most the loop's).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Subscribed {
+    /// Telemetry lines per second.
+    pub rate_hz: f64,
+}
+
+/// `unsubscribe`: nothing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+pub struct Unsubscribed {}
+
+/// `take_control`: who this client is, who holds control now and who held it before.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TookControl {
+    /// This client's id.
+    pub client: ClientId,
+    /// The holder now (this client).
+    pub holder: Option<ClientId>,
+    /// The holder before (`None`: nobody).
+    pub previous: Option<ClientId>,
+}
+
+/// `release`: who this client is and who holds control now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Released {
+    /// This client's id.
+    pub client: ClientId,
+    /// The holder now (`None`: nobody).
+    pub holder: Option<ClientId>,
+}
+
+/// `auth`: who this client is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Admitted {
+    /// This client's id.
+    pub client: ClientId,
+}
+
+/// A command the loop applied: the tick it was applied in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Applied {
+    /// The tick.
+    pub tick: u64,
+}
+
+/// `reboot`: the tick, and the servos rebooted.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rebooted {
+    /// The tick.
+    pub tick: u64,
+    /// The servo ids rebooted.
+    pub rebooted: Vec<u8>,
+}
+
+/// What an ok reply answers, by the command it answers; written flat beside `id` and `ok`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum Reply {
+    /// `describe`.
+    Describe(Arc<Describe>),
+    /// `status`.
+    Status(Box<Status>),
+    /// `subscribe`.
+    Subscribed(Subscribed),
+    /// `unsubscribe`.
+    Unsubscribed(Unsubscribed),
+    /// `take_control`.
+    TookControl(TookControl),
+    /// `release`.
+    Released(Released),
+    /// `auth`.
+    Admitted(Admitted),
+    /// Every other command the loop applies.
+    Applied(Applied),
+    /// `reboot`.
+    Rebooted(Rebooted),
+}
+
+impl Reply {
+    /// The reply to `cmd` in `fields` (an ok reply's object, `id` and `ok` aside). Fields it
+    /// does not name are ignored; a missing or mistyped one is an error.
+    pub fn read(cmd: CmdName, fields: &Value) -> Result<Reply, serde_json::Error> {
+        fn from<T: serde::de::DeserializeOwned>(fields: &Value) -> Result<T, serde_json::Error> {
+            T::deserialize(fields)
+        }
+        Ok(match cmd {
+            CmdName::Describe => Reply::Describe(Arc::new(from(fields)?)),
+            CmdName::Status => Reply::Status(Box::new(from(fields)?)),
+            CmdName::Subscribe => Reply::Subscribed(from(fields)?),
+            CmdName::Unsubscribe => Reply::Unsubscribed(from(fields)?),
+            CmdName::TakeControl => Reply::TookControl(from(fields)?),
+            CmdName::Release => Reply::Released(from(fields)?),
+            CmdName::Auth => Reply::Admitted(from(fields)?),
+            CmdName::Reboot => Reply::Rebooted(from(fields)?),
+            CmdName::Goto
+            | CmdName::GotoJoints
+            | CmdName::Path
+            | CmdName::Velocity
+            | CmdName::Jog
+            | CmdName::Stop
+            | CmdName::Estop
+            | CmdName::Reset
+            | CmdName::Home
+            | CmdName::Strategy
+            | CmdName::ResetStats
+            | CmdName::Torque => Reply::Applied(from(fields)?),
+        })
+    }
+
+    /// The tick the loop applied the command in, for the replies that carry one.
+    pub fn tick(&self) -> Option<u64> {
+        match self {
+            Reply::Applied(Applied { tick }) | Reply::Rebooted(Rebooted { tick, .. }) => {
+                Some(*tick)
+            }
+            Reply::Status(status) => Some(status.tick),
+            Reply::Describe(_)
+            | Reply::Subscribed(_)
+            | Reply::Unsubscribed(_)
+            | Reply::TookControl(_)
+            | Reply::Released(_)
+            | Reply::Admitted(_) => None,
+        }
+    }
+
+    /// This client's id, for the replies that tell it (`take_control`, `release`, `auth`).
+    pub fn client(&self) -> Option<ClientId> {
+        match self {
+            Reply::TookControl(TookControl { client, .. })
+            | Reply::Released(Released { client, .. })
+            | Reply::Admitted(Admitted { client }) => Some(*client),
+            Reply::Describe(_)
+            | Reply::Status(_)
+            | Reply::Subscribed(_)
+            | Reply::Unsubscribed(_)
+            | Reply::Applied(_)
+            | Reply::Rebooted(_) => None,
+        }
+    }
+}
+
+/// An ok reply's fields: the reply, typed, and any fields beside those it names.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fields {
+    /// What the command answers.
+    pub reply: Reply,
+    /// Fields the reply does not name: none from this daemon; a newer one's, kept as they came
+    /// so that a client passing a reply on (`snakectl status`) passes them too.
+    pub more: Map<String, Value>,
+}
+
+impl Fields {
+    /// The fields of the reply to `cmd` (an ok reply's, `id` and `ok` aside).
+    pub fn read(cmd: CmdName, fields: Map<String, Value>) -> Result<Fields, serde_json::Error> {
+        let fields = Value::Object(fields);
+        let reply = Reply::read(cmd, &fields)?;
+        let mut more = match fields {
+            Value::Object(map) => map,
+            _ => Map::new(),
+        };
+        for key in super::write::fields_of(&reply).keys() {
+            more.remove(key);
+        }
+        Ok(Fields { reply, more })
+    }
+
+    /// Every field under its wire name: the reply's, then the others (but never `id`, `ok`
+    /// or `type`, which are the line's own, nor one the reply already names).
+    pub fn to_map(&self) -> Map<String, Value> {
+        let mut map = super::write::fields_of(&self.reply);
+        for (key, value) in &self.more {
+            if !matches!(key.as_str(), "id" | "ok" | "type") && !map.contains_key(key) {
+                map.insert(key.clone(), value.clone());
+            }
+        }
+        map
+    }
+}
+
+impl From<Reply> for Fields {
+    fn from(reply: Reply) -> Fields {
+        Fields {
+            reply,
+            more: Map::new(),
+        }
+    }
+}
+
+/// An ok reply's fields, or why the command was refused.
+pub type Answer = Result<Fields, Rejection>;
+
+/// A reply line as read, before its fields are typed (which needs the command it answers).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplyLine {
+    /// The id it echoes (`None` for `null`).
+    pub id: Option<super::RequestId>,
+    /// Its fields (`id` and `ok` taken out), or the refusal.
+    pub result: Result<Map<String, Value>, Rejection>,
+}
