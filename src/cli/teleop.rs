@@ -32,7 +32,7 @@ use snakectl::protocol::{Cmd, CmdName, What};
 use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
 use snakectl::teleop::joystick::{self, Device, Stick, StickEvent};
-use snakectl::teleop::ui::{self, Link, Status, Trail, View};
+use snakectl::teleop::ui::{self, Contact, Status, Trail, View};
 use snakectl_sim::RealClock;
 
 use super::Failure;
@@ -318,7 +318,7 @@ impl App {
         Self {
             status: Status {
                 addr: addr.clone(),
-                link: Link::Connecting,
+                link: Contact::Connecting,
                 speed_m_s: DEFAULT_SPEED_M_S,
                 joystick,
                 notice: None,
@@ -574,7 +574,7 @@ impl App {
     /// The connection is gone: tell, and try again in a second.
     fn lost(&mut self) {
         self.client = None;
-        self.status.link = Link::Gone;
+        self.status.link = Contact::Gone;
         self.status.notice = Some(format!("daemon at {} gone: retrying", self.addr));
         self.notice_until = None;
         self.next_attempt = Instant::now() + RETRY;
@@ -601,7 +601,7 @@ impl App {
                     self.client = Some(client);
                     self.arm = Some(arm);
                     self.was_connected = true;
-                    self.status.link = Link::Connected;
+                    self.status.link = Contact::Connected;
                     self.status.notice = None;
                     self.notice_until = None;
                     self.my_id = None;

@@ -89,7 +89,7 @@ impl Trail {
 
 /// The connection to the daemon, as the panel shows it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Link {
+pub enum Contact {
     /// Connecting (or waiting for the first reply).
     Connecting,
     /// Connected.
@@ -104,7 +104,7 @@ pub struct Status {
     /// The daemon's address, `host:port`.
     pub addr: String,
     /// The connection's state.
-    pub link: Link,
+    pub link: Contact,
     /// The speed the keys move the tip at, m/s.
     pub speed_m_s: f64,
     /// The joystick's state for a person (`None`: no joystick asked for).
@@ -218,7 +218,7 @@ pub fn notice_text(view: &View<'_>) -> Option<String> {
     }
     let snapshot = view.snapshot?;
     match (snapshot.in_control, snapshot.controller) {
-        (false, Some(n)) if view.status.link == Link::Connected => {
+        (false, Some(n)) if view.status.link == Contact::Connected => {
             Some(format!("client {n} is in control: press c to take it"))
         }
         _ => None,
@@ -382,9 +382,9 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     let status = view.status;
     let mut lines = vec![row("daemon", status.addr.clone(), plain)];
     let (link, link_style) = match status.link {
-        Link::Connecting => ("connecting", Style::default().fg(Color::Yellow)),
-        Link::Connected => ("connected", Style::default().fg(Color::Green)),
-        Link::Gone => ("gone: retrying", Style::default().fg(Color::Red)),
+        Contact::Connecting => ("connecting", Style::default().fg(Color::Yellow)),
+        Contact::Connected => ("connected", Style::default().fg(Color::Green)),
+        Contact::Gone => ("gone: retrying", Style::default().fg(Color::Red)),
     };
     lines.push(row("link", link.to_owned(), link_style));
     match view.snapshot {

@@ -57,7 +57,7 @@ fn snapshot_at(arm: &Arm, theta: &[f64]) -> Snapshot {
 fn status() -> Status {
     Status {
         addr: "127.0.0.1:40404".into(),
-        link: Link::Connected,
+        link: Contact::Connected,
         speed_m_s: 0.05,
         joystick: None,
         notice: None,
@@ -264,7 +264,7 @@ fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
     let arm = sim_arm();
     let snapshot = snapshot_at(&arm, &arm.home_rad);
     let mut status = status();
-    status.link = Link::Gone;
+    status.link = Contact::Gone;
     status.notice = Some("daemon at 127.0.0.1:40404 gone: retrying".into());
     let buffer = render_arm(&arm, Some(&snapshot), &status);
     let text = lines(&buffer).join("\n");
@@ -279,7 +279,7 @@ fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
 #[test]
 fn before_any_telemetry_the_screen_says_it_waits() {
     let mut status = status();
-    status.link = Link::Connecting;
+    status.link = Contact::Connecting;
     let text = lines(&render_arm(None, None, &status)).join("\n");
     assert!(text.contains("waiting for telemetry"), "{text}");
     assert!(text.contains("connecting"), "{text}");
