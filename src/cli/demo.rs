@@ -17,7 +17,7 @@ use clap::Args;
 use serde::Serialize;
 use serde_json::Value;
 
-use snakectl::client::{Arm, Client, ClientError, Ending, Motion, Seen, Status as Snapshot};
+use snakectl::client::{ArmInfo, Client, ClientError, Ending, Motion, Seen, Status as Snapshot};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{DaemonError, Embedded, RunOptions};
@@ -231,7 +231,7 @@ struct Eight {
 impl Eight {
     /// An eight inside the arm's workspace, in front of its home tip, sized so that its
     /// fastest point moves at [`SPEED_SHARE`] of `max_tip_speed`.
-    fn new(arm: &Arm, seconds: f64, max_tip_speed: f64) -> Self {
+    fn new(arm: &ArmInfo, seconds: f64, max_tip_speed: f64) -> Self {
         let base = [arm.base[0], arm.base[1]];
         let home_tip = arm
             .points(&arm.home_rad)
@@ -401,7 +401,7 @@ struct Session<'p> {
 /// What the session has seen and recorded: kept apart from the client, so that what the
 /// client shows while it waits can be recorded as it comes.
 struct Recorder<'p> {
-    arm: Arm,
+    arm: ArmInfo,
     progress: &'p mut Progress,
     recs: Vec<Rec>,
     latest: Option<Snapshot>,
@@ -1094,8 +1094,8 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
 
-    fn sim_arm() -> Arm {
-        Arm::new(snakectl::protocol::Describe {
+    fn sim_arm() -> ArmInfo {
+        ArmInfo::new(snakectl::protocol::Describe {
             links_m: vec![0.08; 12],
             base: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
             home_rad: vec![0.1; 12],

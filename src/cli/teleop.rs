@@ -24,7 +24,7 @@ use ratatui::backend::CrosstermBackend;
 use ratatui::layout::Rect;
 use ratatui::Terminal;
 
-use snakectl::client::{self, Arm, Client, ClientError, Incoming, Replied, Status as Snapshot};
+use snakectl::client::{self, ArmInfo, Client, ClientError, Incoming, Replied, Status as Snapshot};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
@@ -32,7 +32,7 @@ use snakectl::protocol::{Cmd, CmdName, What};
 use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
 use snakectl::teleop::joystick::{self, Device, Stick, StickEvent};
-use snakectl::teleop::ui::{self, Contact, Status, Trail, View};
+use snakectl::teleop::ui::{self, Contact, Panel, Trail, View};
 use snakectl_sim::RealClock;
 
 use super::Failure;
@@ -246,7 +246,7 @@ impl Drop for Screen {
 }
 
 /// A connection being made on its own thread: the client, subscribed, and the arm.
-type Connecting = Receiver<Result<(Client, Arm), ClientError>>;
+type Connecting = Receiver<Result<(Client, ArmInfo), ClientError>>;
 
 /// Connects, describes and subscribes on a thread, so that the loop never waits for it.
 fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
@@ -257,7 +257,7 @@ fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
         .spawn({
             let tx = tx.clone();
             move || {
-                let attempt = || -> Result<(Client, Arm), ClientError> {
+                let attempt = || -> Result<(Client, ArmInfo), ClientError> {
                     let mut client = Client::connect_with(&addr, token_file.as_deref())?;
                     let arm = client.describe()?;
                     client.request(&Cmd::Subscribe {
@@ -282,10 +282,10 @@ struct App {
     addr: String,
     token_file: Option<PathBuf>,
     started: Instant,
-    arm: Option<Arm>,
+    arm: Option<ArmInfo>,
     snapshot: Option<Snapshot>,
     trail: Trail,
-    status: Status,
+    status: Panel,
     /// Until when the notice shows (`None`: while the condition lasts).
     notice_until: Option<Instant>,
     keyboard: Keyboard,
@@ -316,7 +316,7 @@ impl App {
             .map(|(name, _)| format!("opening {name}"));
         let now = Instant::now();
         Self {
-            status: Status {
+            status: Panel {
                 addr: addr.clone(),
                 link: Contact::Connecting,
                 speed_m_s: DEFAULT_SPEED_M_S,

@@ -5,7 +5,7 @@
 //!
 //! Everything is read with the daemon's own types ([`crate::protocol`]): replies are typed by
 //! the command they answer ([`Fields`]), telemetry is a [`Status`], events are [`Event`]s, the
-//! arm is built from `describe` into an [`Arm`] whose forward kinematics are its
+//! arm is built from `describe` into an [`ArmInfo`] whose forward kinematics are its
 //! [`Chain`]'s. A field a newer daemon adds, or an event name it adds, is not an error; a line
 //! this client cannot read is, and it is handed to the caller with the line
 //! ([`ClientError::Unreadable`]), never dropped.
@@ -205,16 +205,16 @@ pub fn read_token(path: &Path) -> Result<String, ClientError> {
 /// The arm as `describe` tells it, with the chain built from it: what a UI needs to draw it.
 /// It reads as its [`Describe`] (`arm.rate_hz`); its geometry is its [`Chain`]'s.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Arm {
+pub struct ArmInfo {
     describe: Describe,
     chain: Chain,
 }
 
-impl Arm {
+impl ArmInfo {
     /// The arm `describe` tells of; refused when its links, base or limits make no chain.
-    pub fn new(describe: Describe) -> Result<Arm, ChainError> {
+    pub fn new(describe: Describe) -> Result<ArmInfo, ChainError> {
         let chain = describe.chain()?;
-        Ok(Arm { describe, chain })
+        Ok(ArmInfo { describe, chain })
     }
 
     /// What `describe` said.
@@ -249,7 +249,7 @@ impl Arm {
     }
 }
 
-impl Deref for Arm {
+impl Deref for ArmInfo {
     type Target = Describe;
 
     fn deref(&self) -> &Describe {
@@ -627,14 +627,15 @@ impl Client {
     }
 
     /// `describe`: the arm, its chain built.
-    pub fn describe(&mut self) -> Result<Arm, ClientError> {
+    pub fn describe(&mut self) -> Result<ArmInfo, ClientError> {
         let fields = self.request(&Cmd::Describe)?;
         let Reply::Describe(describe) = fields.reply else {
             return Err(ClientError::WrongReply {
                 cmd: CmdName::Describe,
             });
         };
-        Arm::new(Arc::unwrap_or_clone(describe)).map_err(|source| ClientError::BadArm { source })
+        ArmInfo::new(Arc::unwrap_or_clone(describe))
+            .map_err(|source| ClientError::BadArm { source })
     }
 
     /// `status`.

@@ -69,7 +69,7 @@ fn sim_describe() -> Describe {
 
 #[test]
 fn the_arm_draws_with_its_chain() {
-    let arm = Arm::new(sim_describe()).unwrap();
+    let arm = ArmInfo::new(sim_describe()).unwrap();
     let p = arm.points(&[0.0, -std::f64::consts::FRAC_PI_2]);
     let expected = [[1.0, 2.0], [1.0, 3.0], [2.0, 3.0]];
     assert_eq!(p.len(), 3);
@@ -86,7 +86,7 @@ fn the_arm_draws_with_its_chain() {
     assert_eq!(arm.rate_hz, 100.0, "an arm reads as its description");
     let mut bad = sim_describe();
     bad.links_m = Vec::new();
-    assert!(Arm::new(bad).is_err());
+    assert!(ArmInfo::new(bad).is_err());
 }
 
 #[test]

@@ -15,7 +15,7 @@ use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as Segment, Points}
 use ratatui::widgets::{Block, Borders, Paragraph, Wrap};
 use ratatui::Frame;
 
-use crate::client::{Arm, State, Status as Snapshot};
+use crate::client::{ArmInfo, State, Status as Snapshot};
 
 /// Width of the state panel, columns (less on a narrow terminal).
 const PANEL_WIDTH: u16 = 44;
@@ -100,7 +100,7 @@ pub enum Contact {
 
 /// What the UI knows besides the arm and its telemetry.
 #[derive(Debug, Clone)]
-pub struct Status {
+pub struct Panel {
     /// The daemon's address, `host:port`.
     pub addr: String,
     /// The connection's state.
@@ -117,13 +117,13 @@ pub struct Status {
 #[derive(Debug, Clone, Copy)]
 pub struct View<'a> {
     /// The arm (`None` before the first `describe`).
-    pub arm: Option<&'a Arm>,
+    pub arm: Option<&'a ArmInfo>,
     /// The latest telemetry, if any came.
     pub snapshot: Option<&'a Snapshot>,
     /// The measured tips so far.
     pub trail: &'a Trail,
     /// The UI's own state.
-    pub status: &'a Status,
+    pub status: &'a Panel,
 }
 
 /// Where the frame's parts go.
@@ -154,9 +154,9 @@ pub fn areas(area: Rect) -> Areas {
 /// `([x_min, x_max], [y_min, y_max])`, centred on the base, the whole reachable ring inside,
 /// one scale on both axes (a cell taken as twice as tall as wide). Without an arm, 1 m around
 /// the origin.
-pub fn world_bounds<'a>(arm: impl Into<Option<&'a Arm>>, inner: Rect) -> ([f64; 2], [f64; 2]) {
+pub fn world_bounds<'a>(arm: impl Into<Option<&'a ArmInfo>>, inner: Rect) -> ([f64; 2], [f64; 2]) {
     let arm = arm.into();
-    let reach = arm.map_or(0.0, Arm::reach);
+    let reach = arm.map_or(0.0, ArmInfo::reach);
     let radius = if reach > 0.0 { reach } else { 1.0 } * (1.0 + MARGIN);
     let cols = f64::from(inner.width.max(1));
     let rows = f64::from(inner.height.max(1));
@@ -175,7 +175,7 @@ fn canvas_inner(canvas: Rect) -> Rect {
 
 /// The world point (m) under the cell at (`column`, `row`) of a screen of `screen`'s size,
 /// where [`draw`] drew the canvas; `None` outside the canvas.
-pub fn click_to_world(arm: &Arm, screen: Rect, column: u16, row: u16) -> Option<[f64; 2]> {
+pub fn click_to_world(arm: &ArmInfo, screen: Rect, column: u16, row: u16) -> Option<[f64; 2]> {
     let inner = canvas_inner(areas(screen).canvas);
     if inner.width == 0
         || inner.height == 0
@@ -194,7 +194,7 @@ pub fn click_to_world(arm: &Arm, screen: Rect, column: u16, row: u16) -> Option<
 }
 
 /// Whether joint `i` at `theta` is within [`NEAR_LIMIT`] of its range from a limit.
-pub fn near_limit(arm: &Arm, i: usize, theta: f64) -> bool {
+pub fn near_limit(arm: &ArmInfo, i: usize, theta: f64) -> bool {
     let (Some(&lo), Some(&hi)) = (arm.min_rad.get(i), arm.max_rad.get(i)) else {
         return false;
     };
@@ -349,7 +349,7 @@ fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
 }
 
 /// The joints of the measured pose near a limit.
-fn near_ids(arm: &Arm, snapshot: &Snapshot) -> Vec<usize> {
+fn near_ids(arm: &ArmInfo, snapshot: &Snapshot) -> Vec<usize> {
     snapshot
         .theta_meas
         .iter()
@@ -420,7 +420,7 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     lines
 }
 
-fn snapshot_lines(arm: Option<&Arm>, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
+fn snapshot_lines(arm: Option<&ArmInfo>, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
     let plain = Style::default();
     let signed = |p: [f64; 2]| format!("{:+.3}  {:+.3} m", p[0], p[1]);
     lines.push(row("state", s.state.to_string(), state_style(s.state)));

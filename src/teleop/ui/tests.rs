@@ -15,8 +15,8 @@ const COLS: u16 = 120;
 const ROWS: u16 = 40;
 
 /// The shipped simulator's arm: 12 links of 0.08 m, base at the origin pointing up.
-fn sim_arm() -> Arm {
-    Arm::new(Describe {
+fn sim_arm() -> ArmInfo {
+    ArmInfo::new(Describe {
         links_m: vec![0.08; 12],
         base: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
         min_rad: vec![-2.0; 12],
@@ -32,7 +32,7 @@ fn sim_arm() -> Arm {
 }
 
 /// The arm at `theta`, holding, this client in control.
-fn snapshot_at(arm: &Arm, theta: &[f64]) -> Snapshot {
+fn snapshot_at(arm: &ArmInfo, theta: &[f64]) -> Snapshot {
     let points = arm.points(theta);
     let tip = *points.last().unwrap();
     Snapshot {
@@ -54,8 +54,8 @@ fn snapshot_at(arm: &Arm, theta: &[f64]) -> Snapshot {
     }
 }
 
-fn status() -> Status {
-    Status {
+fn status() -> Panel {
+    Panel {
         addr: "127.0.0.1:40404".into(),
         link: Contact::Connected,
         speed_m_s: 0.05,
@@ -72,9 +72,9 @@ fn render(view: &View<'_>) -> Buffer {
 
 /// Renders `arm` with `snapshot` and `status`, and an empty trail.
 fn render_arm<'a>(
-    arm: impl Into<Option<&'a Arm>>,
+    arm: impl Into<Option<&'a ArmInfo>>,
     snapshot: Option<&Snapshot>,
-    status: &Status,
+    status: &Panel,
 ) -> Buffer {
     let trail = Trail::new(10);
     render(&View {
@@ -107,7 +107,7 @@ fn is_braille(symbol: &str) -> bool {
 }
 
 /// The cell a world point falls in, as the canvas places labels.
-fn cell_of(arm: &Arm, p: [f64; 2]) -> (u16, u16) {
+fn cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
     let inner = canvas_inner(areas(screen()).canvas);
     let (xs, ys) = world_bounds(arm, inner);
     let col = (p[0] - xs[0]) / (xs[1] - xs[0]) * f64::from(inner.width - 1);
@@ -116,7 +116,7 @@ fn cell_of(arm: &Arm, p: [f64; 2]) -> (u16, u16) {
 }
 
 /// The cell whose braille dots show a world point.
-fn dot_cell_of(arm: &Arm, p: [f64; 2]) -> (u16, u16) {
+fn dot_cell_of(arm: &ArmInfo, p: [f64; 2]) -> (u16, u16) {
     let inner = canvas_inner(areas(screen()).canvas);
     let (xs, ys) = world_bounds(arm, inner);
     let dot_x = (p[0] - xs[0]) / (xs[1] - xs[0]) * f64::from(2 * inner.width - 1);
