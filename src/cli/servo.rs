@@ -14,6 +14,7 @@ use snakectl::servo::arm::{reboot_and_wait, Retry};
 use snakectl::servo::clock::RealClock;
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
+use snakectl::servo::units;
 use snakectl::servo::{baud_index, model_name, PingInfo, Register, ServoBus, BAUD_RATES, MAX_ID};
 
 use super::{outln, Failure};
@@ -326,7 +327,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
             outln!(
                 "present position {} ticks (offset_ticks = {} makes it 0 rad)",
                 i.position,
-                i.position - 2048
+                i.position - i64::from(units::CENTRE_TICKS)
             )?;
         }
         ServoAction::Reboot => {
