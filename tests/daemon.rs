@@ -606,3 +606,19 @@ fn a_loop_at_1_khz_hears_its_servos() {
         "{missed} of {reads} replies missed"
     );
 }
+
+#[test]
+fn a_home_pose_exactly_on_a_joint_limit_starts_and_holds_on_the_limit() {
+    // The simulated servo rests on the nearest tick, one past the limit rounded inward.
+    let config =
+        daemon_support::sim_config_with(&[("home_rad = [0.1, 0.1,", "home_rad = [2.0, 0.1,")], "");
+    assert_eq!(config.home()[0], 2.0);
+    let d = Daemon::start(config);
+    let mut c = d.client();
+    let s = c.status();
+    assert_eq!(s["state"], "holding", "{s}");
+    let theta = floats(&s["theta_cmd"]);
+    assert!(theta[0] <= 2.0 && theta[0] > 2.0 - 0.002, "{s}");
+    drop(c);
+    d.stop().unwrap();
+}

@@ -581,3 +581,42 @@ fn the_limits_wrapper_clamps_or_refuses_on_the_real_bus() {
     // Reversed joint: +1 rad is the low tick limit, 2048 - 651.9 rounded up.
     assert_eq!(goal(&rig), 1397);
 }
+
+#[test]
+fn a_servo_one_tick_past_its_limit_is_brought_up_on_the_limit_two_ticks_are_refused() {
+    // `home_rad` exactly on joint 1's limit (2 rad) lands on tick 3352, the nearest; the limit
+    // rounded inward is 3351.
+    let config = config("torque_off");
+    let arm = arm_of(&config);
+    let mut one_past = rig(&config, |s| s.servos[0].initial_position_ticks = Some(3352));
+    let up = arm
+        .bring_up(&mut limited(&mut one_past, &arm), BringUpOptions::default())
+        .unwrap();
+    assert_eq!(up.pose[0], 2.0, "held on the limit itself");
+    let goal = one_past
+        .bus
+        .read(1, Register::GoalPosition, TIMEOUT)
+        .unwrap()
+        .value;
+    assert_eq!(
+        goal, TICK_LIMITS[0].1,
+        "the goal written lies inside the limits"
+    );
+
+    let mut two_past = rig(&config, |s| s.servos[0].initial_position_ticks = Some(3353));
+    let err = arm
+        .bring_up(&mut limited(&mut two_past, &arm), BringUpOptions::default())
+        .unwrap_err();
+    let r = refusals(err);
+    assert!(
+        matches!(
+            r[..],
+            [Refusal::OutsideLimits {
+                joint: 1,
+                id: 1,
+                ..
+            }]
+        ),
+        "{r:?}"
+    );
+}

@@ -38,6 +38,11 @@ use super::{
     DRIVE_MODE_REVERSE,
 };
 
+/// How far past a joint's limit, ticks, a servo may read at bring-up and still be brought up
+/// (held on the limit): a pose set exactly on a limit in radians lands on the nearest tick,
+/// which can lie one tick outside the limit rounded inward to ticks.
+pub const LIMIT_ROUNDING_TICKS: i32 = 1;
+
 /// Transient errors retried per exchange (so an exchange is tried at most `RETRIES + 1` times).
 pub const RETRIES: u32 = 3;
 
@@ -393,13 +398,18 @@ impl Arm {
         let mut retry = Retry::default();
         let (servos, rebooted) = self.check_counting(bus, options, clock, &mut retry)?;
 
-        // The present pose, before anything moves.
-        let present = self.read_present(bus, &mut retry)?;
+        // The present pose, before anything moves. A servo set exactly on a limit may read one
+        // tick past it: that pose is held on the limit itself.
+        let mut present = self.read_present(bus, &mut retry)?;
         let mut pose = Vec::with_capacity(self.joints.len());
         let mut refusals = Vec::new();
-        for (j, &ticks) in self.joints.iter().zip(&present) {
-            let angle = j.calibration.radians(f64::from(ticks));
-            if ticks < j.ticks.min || ticks > j.ticks.max {
+        for (j, ticks) in self.joints.iter().zip(&mut present) {
+            let angle = j.calibration.radians(f64::from(*ticks));
+            let (min, max) = (
+                j.ticks.min - LIMIT_ROUNDING_TICKS,
+                j.ticks.max + LIMIT_ROUNDING_TICKS,
+            );
+            if *ticks < min || *ticks > max {
                 refusals.push(Refusal::OutsideLimits {
                     joint: j.joint,
                     id: j.id,
@@ -408,7 +418,8 @@ impl Arm {
                     hi: j.limit.hi,
                 });
             }
-            pose.push(angle);
+            *ticks = (*ticks).clamp(j.ticks.min, j.ticks.max);
+            pose.push(j.limit.clamp(angle));
         }
         if !refusals.is_empty() {
             return Err(BringUpError::Refused(refusals));

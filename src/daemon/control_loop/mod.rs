@@ -333,8 +333,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.stats
             .record_tick(start, now.saturating_duration_since(start));
         if let Some(since) = pace.stop_since {
+            // Held by the latch or a fault, the arm is at rest already: nothing moves it.
             let at_rest =
-                self.supervisor.estopped() || self.controller.activity() == Activity::Holding;
+                !self.supervisor.moves() || self.controller.activity() == Activity::Holding;
             if at_rest || now.saturating_duration_since(since) > STOP_TIMEOUT {
                 return false;
             }
@@ -356,7 +357,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The shut-down began: decelerate to rest before letting go.
     fn begin_exit(&mut self) {
         self.supervisor.begin_exit();
-        if !self.supervisor.estopped() {
+        if self.supervisor.moves() {
             // A failure here cannot be worse than holding, which the next ticks do anyway.
             let _ = self.controller.command(control::Command::Stop);
         }

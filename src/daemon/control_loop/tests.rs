@@ -627,3 +627,15 @@ fn the_shut_down_brings_the_arm_to_rest_then_ends() {
         Code::ShuttingDown
     );
 }
+
+#[test]
+fn a_shut_down_while_a_fault_holds_the_arm_ends_at_once() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(3);
+    rig.bus.servo(5, |s| s.silent = true);
+    rig.ticks(5);
+    assert_eq!(rig.status().state, State::Fault);
+    // Held and frozen: at rest already, so the first turn of the shut-down is the last.
+    assert!(!rig.cycle.turn(&mut rig.pace, true));
+}
