@@ -150,21 +150,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// A command that moves the arm: refused while the supervisor holds it, else handed to the
     /// controller and entered in the ledger.
     fn move_arm(&mut self, e: &Envelope, command: control::Command) -> Pending {
-        match self.supervisor.blocked() {
-            Some(Blocked::Estop) => {
-                return refuse(
-                    Code::Estopped,
-                    "the estop latch is set: send `reset` before moving",
-                )
-            }
-            Some(Blocked::Fault) => return refuse(Code::Fault, self.fault_summary()),
-            Some(Blocked::TorqueOff) => {
-                return refuse(
-                    Code::Fault,
-                    "torque is off: send `torque` with `on: true` before moving",
-                )
-            }
-            None => {}
+        if let Some(blocked) = self.supervisor.blocked() {
+            return self.blocked(blocked, "send `reset` before moving");
         }
         match self.controller.command(command) {
             Ok(()) => {
@@ -230,6 +217,21 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.ok()
     }
 
+    /// The refusal for what holds the arm; `after_estop` says how to leave the latch.
+    fn blocked(&self, blocked: Blocked, after_estop: &str) -> Pending {
+        match blocked {
+            Blocked::Estop => refuse(
+                Code::Estopped,
+                format!("the estop latch is set: {after_estop}"),
+            ),
+            Blocked::Fault => refuse(Code::Fault, self.fault_summary()),
+            Blocked::TorqueOff => refuse(
+                Code::Fault,
+                "torque is off: send `torque` with `on: true` before moving",
+            ),
+        }
+    }
+
     /// Why the arm holds for a fault, naming every fault.
     fn fault_summary(&self) -> String {
         let list: Vec<String> = self
@@ -255,14 +257,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn torque(&mut self, on: bool) -> Pending {
         if on {
             match self.supervisor.blocked() {
-                Some(Blocked::Estop) => {
-                    return refuse(
-                        Code::Estopped,
-                        "the estop latch is set: `reset` turns torque on",
-                    )
-                }
-                Some(Blocked::Fault) => return refuse(Code::Fault, self.fault_summary()),
                 Some(Blocked::TorqueOff) | None => {}
+                Some(blocked) => return self.blocked(blocked, "`reset` turns torque on"),
             }
             let before = self.supervisor;
             self.supervisor.set_torque(true);

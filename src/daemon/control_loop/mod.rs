@@ -62,7 +62,9 @@ use crate::chain::Vec2;
 use crate::config::Config;
 use crate::connect::{self, Connection};
 use crate::control::{self, Activity, Controller};
-use crate::protocol::{Answer, Describe, Event, FaultChange, FaultInfo, Telemetry, What};
+use crate::protocol::{
+    Answer, ClientId, Describe, Event, FaultChange, FaultInfo, RequestId, Telemetry, What,
+};
 use crate::servo::arm::{Arm, BringUpOptions, OnExit};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
@@ -167,6 +169,16 @@ struct Decided {
     saturated: bool,
     self_collision: bool,
     solve_us: f64,
+}
+
+impl Decided {
+    /// A tick in which the controller did not run: the reference stays, nothing else happened.
+    fn frozen(self) -> Decided {
+        Decided {
+            tip_ref: self.tip_ref,
+            ..Decided::default()
+        }
+    }
 }
 
 /// The fault and warning lists telemetry carries, rebuilt when one changes.
@@ -372,10 +384,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if self.port.is_lost() {
             // Nothing to write to: hold the goals until the port is back.
             self.received.clear();
-            self.decided = Decided {
-                tip_ref: self.decided.tip_ref,
-                ..Decided::default()
-            };
+            self.decided = self.decided.frozen();
         } else {
             self.decide();
             self.write();
@@ -392,10 +401,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// Motion -> resolve -> joint-speed limit; frozen while the supervisor holds the arm.
     fn decide(&mut self) {
         if !self.supervisor.moves() {
-            self.decided = Decided {
-                tip_ref: self.decided.tip_ref,
-                ..Decided::default()
-            };
+            self.decided = self.decided.frozen();
             return;
         }
         let t0 = self.clock.now();
@@ -506,8 +512,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// An event at this tick, with the commanded tip, to `owner` (`None`: everyone).
     fn event(
         &self,
-        owner: Option<crate::protocol::ClientId>,
-        cmd_id: Option<crate::protocol::RequestId>,
+        owner: Option<ClientId>,
+        cmd_id: Option<RequestId>,
         what: impl FnOnce([f64; 2]) -> What,
     ) {
         // No subscriber is not an error: nobody is listening.

@@ -325,18 +325,17 @@ fn stopped_for_fault(e: &Event) -> bool {
     )
 }
 
-/// The read that declares a silent servo: its tick minus the tick of the first read it missed,
-/// plus one; and the events up to it.
-fn reads_to_declare_silent(rate_hz: f64) -> (u64, Rig) {
-    let mut rig = Rig::new(rate_hz, "");
+/// How many reads it takes to declare a servo silent at `rate_hz` with the `[control]` lines
+/// `control`: from the first read it missed to the one that declared it, both counted.
+fn reads_to_declare_silent(rate_hz: f64, control: &str) -> u64 {
+    let mut rig = Rig::new(rate_hz, control);
     rig.ticks(5);
     rig.bus.servo(5, |s| s.silent = true);
     let first_missed = rig.status().tick + 1;
     for _ in 0..10_000 {
         rig.ticks(1);
         if rig.status().state == State::Fault {
-            let declared = rig.status().tick;
-            return (declared - first_missed + 1, rig);
+            return rig.status().tick - first_missed + 1;
         }
     }
     panic!("servo 5 never declared silent at {rate_hz} Hz");
@@ -344,34 +343,15 @@ fn reads_to_declare_silent(rate_hz: f64) -> (u64, Rig) {
 
 #[test]
 fn the_error_budget_is_50_ms_at_every_loop_rate() {
-    assert_eq!(reads_to_declare_silent(100.0).0, 5);
-    assert_eq!(reads_to_declare_silent(1000.0).0, 50);
-    assert_eq!(reads_to_declare_silent(20.0).0, 1);
+    assert_eq!(reads_to_declare_silent(100.0, ""), 5);
+    assert_eq!(reads_to_declare_silent(1000.0, ""), 50);
+    assert_eq!(reads_to_declare_silent(20.0, ""), 1);
 }
 
 #[test]
 fn a_custom_budget_is_honoured_and_the_deprecated_count_converts() {
-    assert_eq!(
-        reads_to_declare_silent_with(100.0, "max_silence_ms = 120"),
-        12
-    );
-    assert_eq!(
-        reads_to_declare_silent_with(500.0, "max_missed_reads = 7"),
-        7
-    );
-}
-
-fn reads_to_declare_silent_with(rate_hz: f64, control: &str) -> u64 {
-    let mut rig = Rig::new(rate_hz, control);
-    rig.bus.servo(2, |s| s.silent = true);
-    let first = rig.status().tick + 1;
-    for _ in 0..1000 {
-        rig.ticks(1);
-        if rig.status().state == State::Fault {
-            return rig.status().tick - first + 1;
-        }
-    }
-    panic!("never declared");
+    assert_eq!(reads_to_declare_silent(100.0, "max_silence_ms = 120"), 12);
+    assert_eq!(reads_to_declare_silent(500.0, "max_missed_reads = 7"), 7);
 }
 
 #[test]
