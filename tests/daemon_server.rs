@@ -15,7 +15,7 @@ use std::time::Duration;
 use serde_json::{json, Map, Value};
 use snakectl::config::Config;
 use snakectl::daemon::access::{AccessError, Token};
-use snakectl::daemon::link::{self, Envelope, Handle, COMMAND_QUEUE};
+use snakectl::daemon::link::{self, Envelope, Handle, COMMAND_QUEUE, STOP_QUEUE};
 use snakectl::daemon::server::{serve, ServerOptions};
 use snakectl::daemon::{self, DaemonError, RunOptions};
 use snakectl::protocol::{
@@ -84,6 +84,7 @@ impl Daemon {
         let (draining, draining_rx) = watch::channel(true);
         let fake = tokio::spawn(fake_loop(
             ends.commands,
+            ends.stops,
             ends.telemetry.subscribe(),
             draining_rx,
         ));
@@ -124,12 +125,14 @@ impl Daemon {
     }
 }
 
-/// A stand-in for the control loop: every millisecond it takes the queued commands and answers
+/// A stand-in for the control loop: every millisecond it takes the queued commands (`stop` and
+/// `estop` from their own queue, merged by arrival) and answers
 /// each `{"tick": k, "cmd": NAME, "client": ID}`, k counting the commands it answered; `status`
 /// with the telemetry fields; `goto_joints` with an `unreachable` rejection; `reset_stats` by
 /// dropping the reply (as a loop that went away mid-command).
 async fn fake_loop(
     mut commands: mpsc::Receiver<Envelope>,
+    mut stops: mpsc::Receiver<Envelope>,
     telemetry: watch::Receiver<Telemetry>,
     mut draining: watch::Receiver<bool>,
 ) {
@@ -143,7 +146,10 @@ async fn fake_loop(
             }
             continue;
         }
-        while let Ok(envelope) = commands.try_recv() {
+        let mut taken: Vec<Envelope> = std::iter::from_fn(|| stops.try_recv().ok()).collect();
+        taken.extend(std::iter::from_fn(|| commands.try_recv().ok()));
+        taken.sort_by_key(|e| e.received);
+        for envelope in taken {
             tick += 1;
             let answer = match envelope.cmd {
                 LoopCmd::Status => {
@@ -415,7 +421,7 @@ async fn status_carries_the_telemetry_fields() {
 }
 
 /// Fills the loop's command queue (the fake loop not draining it) with another client's
-/// `stop`s; returns their pending answers.
+/// `status` requests; returns their pending answers.
 fn fill_the_queue(daemon: &Daemon) -> Vec<oneshot::Receiver<link::Answer>> {
     let mut waiting = Vec::new();
     loop {
@@ -423,7 +429,7 @@ fn fill_the_queue(daemon: &Daemon) -> Vec<oneshot::Receiver<link::Answer>> {
         let envelope = Envelope {
             client: 999,
             id: None,
-            cmd: LoopCmd::Stop,
+            cmd: LoopCmd::Status,
             received: std::time::Instant::now(),
             reply,
         };
@@ -435,28 +441,42 @@ fn fill_the_queue(daemon: &Daemon) -> Vec<oneshot::Receiver<link::Answer>> {
 }
 
 #[tokio::test]
-async fn a_full_command_queue_is_answered_busy_at_once() {
+async fn a_full_command_queue_is_answered_busy_at_once_but_never_holds_a_stop() {
     let daemon = Daemon::new().await;
     let mut c = daemon.client().await;
     daemon.draining.send_replace(false);
     let waiting = fill_the_queue(&daemon);
     assert_eq!(waiting.len(), COMMAND_QUEUE);
 
-    let reply = c.request(json!({"cmd": "stop", "id": "s1"})).await;
-    assert_eq!((code(&reply), &reply["id"]), ("busy", &json!("s1")));
+    let reply = c.request(json!({"cmd": "home", "id": "h1"})).await;
+    assert_eq!((code(&reply), &reply["id"]), ("busy", &json!("h1")));
     let reply = c.request(json!({"cmd": "describe", "id": "d"})).await;
     assert_eq!(
         reply["ok"],
         json!(true),
         "the socket side still answers: {reply}"
     );
+    // A stop goes through its own queue: it waits for the loop's next tick, not for room.
+    c.send(&json!({"cmd": "stop", "id": "s1"})).await;
+    c.send(&json!({"cmd": "estop", "id": "e1"})).await;
+    time::timeout(DEADLINE, async {
+        while daemon.handle.stops.capacity() > STOP_QUEUE - 2 {
+            tokio::task::yield_now().await;
+        }
+    })
+    .await
+    .expect("stop and estop queued beside a full command queue");
 
     // Once the loop has taken what was queued, the client is served again.
     daemon.draining.send_replace(true);
     for answer in waiting {
         assert!(time::timeout(DEADLINE, answer).await.unwrap().is_ok());
     }
-    let reply = c.request(json!({"cmd": "stop", "id": "s2"})).await;
+    for id in ["s1", "e1"] {
+        let reply = c.reply().await;
+        assert_eq!((&reply["ok"], &reply["id"]), (&json!(true), &json!(id)));
+    }
+    let reply = c.request(json!({"cmd": "home", "id": "h2"})).await;
     assert_eq!(reply["ok"], json!(true), "{reply}");
 }
 
@@ -636,6 +656,7 @@ fn event(owner: Option<u64>, kind: EventKind, tick: u64) -> Event {
             holder: None,
             previous: None,
         },
+        EventKind::ShuttingDown => What::ShuttingDown { tip },
     };
     Event {
         owner,
@@ -714,7 +735,7 @@ async fn a_client_behind_on_events_continues() {
     let flood = link::EVENT_QUEUE as u64 * 2;
     // The request reaches the queue before the flood, so the client task is waiting on it.
     time::timeout(DEADLINE, async {
-        while daemon.handle.commands.capacity() == COMMAND_QUEUE {
+        while daemon.handle.stops.capacity() == STOP_QUEUE {
             tokio::task::yield_now().await;
         }
     })

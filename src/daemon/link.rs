@@ -2,8 +2,11 @@
 //!
 //! Commands go in through one bounded queue ([`COMMAND_QUEUE`] envelopes; when it is full the
 //! server answers `busy` at once instead of waiting), each with a oneshot for its reply, sent once
-//! the loop has applied the command. Telemetry comes out latest-wins through a `watch` (a slow
-//! reader sees fewer snapshots, never older ones). Events go out through a `broadcast` of
+//! the loop has applied the command. `stop` and `estop` have a queue of their own
+//! ([`STOP_QUEUE`]), so that no backlog of other commands can hold them back; the loop drains
+//! both at the start of every tick and applies what it took in the order the lines arrived.
+//! Telemetry comes out latest-wins through a `watch` (a slow reader sees fewer snapshots, never
+//! older ones). Events go out through a `broadcast` of
 //! [`EVENT_QUEUE`] slots (a reader that falls that far behind loses the oldest, and is told
 //! how many it lost).
 
@@ -17,6 +20,10 @@ use crate::protocol::{ClientId, Describe, Event, LoopCmd, RequestId, Telemetry};
 
 /// Envelopes the command queue holds.
 pub const COMMAND_QUEUE: usize = 64;
+
+/// Envelopes the `stop`/`estop` queue holds: far more than the clients can fill in one tick
+/// within their share ([`crate::daemon::server::STOPS_IN_FLIGHT`] each).
+pub const STOP_QUEUE: usize = 256;
 
 /// Events the broadcast holds for its slowest reader.
 pub const EVENT_QUEUE: usize = 256;
@@ -42,6 +49,8 @@ pub struct Envelope {
 pub struct Handle {
     /// The command queue (bounded: full means `busy`).
     pub commands: mpsc::Sender<Envelope>,
+    /// The queue of `stop` and `estop`, beside the other commands' so never behind them.
+    pub stops: mpsc::Sender<Envelope>,
     /// The latest telemetry snapshot.
     pub telemetry: watch::Receiver<Telemetry>,
     /// Events; each client subscribes its own receiver.
@@ -55,6 +64,8 @@ pub struct Handle {
 pub struct LoopEnds {
     /// Commands, drained with `try_recv` at the start of each tick.
     pub commands: mpsc::Receiver<Envelope>,
+    /// `stop` and `estop`, drained with the commands.
+    pub stops: mpsc::Receiver<Envelope>,
     /// Telemetry, updated in place with `send_modify` (no allocation once warm).
     pub telemetry: watch::Sender<Telemetry>,
     /// Events.
@@ -64,17 +75,20 @@ pub struct LoopEnds {
 /// A connected pair of ends, the telemetry starting from `initial`.
 pub fn channel(describe: Describe, initial: Telemetry) -> (Handle, LoopEnds) {
     let (commands_tx, commands_rx) = mpsc::channel(COMMAND_QUEUE);
+    let (stops_tx, stops_rx) = mpsc::channel(STOP_QUEUE);
     let (telemetry_tx, telemetry_rx) = watch::channel(initial);
     let (events_tx, _) = broadcast::channel(EVENT_QUEUE);
     (
         Handle {
             commands: commands_tx,
+            stops: stops_tx,
             telemetry: telemetry_rx,
             events: events_tx.clone(),
             describe: Arc::new(describe),
         },
         LoopEnds {
             commands: commands_rx,
+            stops: stops_rx,
             telemetry: telemetry_tx,
             events: events_tx,
         },

@@ -4,9 +4,11 @@
 //! [`run`] opens the bus through [`crate::connect`], brings the arm up and starts the loop
 //! ([`control_loop`]) on its own thread (the bus is blocking); only once the arm holds its
 //! pose does it accept connections ([`server`]). The two sides meet in [`link`]: a bounded
-//! command queue in, telemetry out latest-wins, events out through a bounded broadcast. When
-//! the shutdown future resolves the server closes, the loop brings the arm to rest and leaves
-//! the servos as `[bus] on_exit` says, and `run` returns.
+//! command queue in (and one for `stop` and `estop`, so nothing queues ahead of them),
+//! telemetry out latest-wins, events out through a bounded broadcast. When the shutdown future
+//! resolves the loop tells every client (a `shutting_down` event), brings the arm to rest (at
+//! once when a fault or the estop latch holds it) and leaves the servos as `[bus] on_exit`
+//! says; then the server closes the connections and `run` returns.
 //!
 //! - [`access`]: who may connect (the token, and no listening beyond loopback without one).
 //! - [`arbiter`]: who may command (one controller at a time).
@@ -200,13 +202,19 @@ pub async fn run(
     };
 
     let mut done_rx = done_rx;
-    let mut ended_early = None;
+    let mut ended = None;
     let served = {
+        // The server outlives the loop: clients see the arm come to rest, hear the
+        // `shutting_down` event, and get the answers the loop gave last, before their
+        // connections close.
         let shutdown = async {
             tokio::select! {
-                () = shutdown => {}
+                () = shutdown => {
+                    stop.store(true, Ordering::Relaxed);
+                    ended = Some((&mut done_rx).await.unwrap_or(Err(DaemonError::LoopPanicked)));
+                }
                 // The loop ended by itself (it panicked): stop serving too.
-                r = &mut done_rx => ended_early = Some(r.unwrap_or(Err(DaemonError::LoopPanicked))),
+                r = &mut done_rx => ended = Some(r.unwrap_or(Err(DaemonError::LoopPanicked))),
             }
         };
         let options = server::ServerOptions::new(joints, max_clients).with_token(access.token);
@@ -221,8 +229,9 @@ pub async fn run(
     if let Some(bridge) = bridge.take() {
         bridge.stop().await;
     }
+    // The server may have stopped by itself (accept kept failing): the loop stops too.
     stop.store(true, Ordering::Relaxed);
-    let result = match ended_early {
+    let result = match ended {
         Some(r) => r,
         None => done_rx.await.unwrap_or(Err(DaemonError::LoopPanicked)),
     };

@@ -37,11 +37,13 @@ pub enum EventKind {
     Warning,
     /// Who is in control changed.
     Control,
+    /// The daemon is shutting down: the connection closes once the loop has ended.
+    ShuttingDown,
 }
 
 impl EventKind {
     /// Every event name.
-    pub const ALL: [EventKind; 9] = [
+    pub const ALL: [EventKind; 10] = [
         EventKind::Arrived,
         EventKind::Saturated,
         EventKind::Preempted,
@@ -51,6 +53,7 @@ impl EventKind {
         EventKind::Fault,
         EventKind::Warning,
         EventKind::Control,
+        EventKind::ShuttingDown,
     ];
 
     /// The name as the wire writes it.
@@ -65,6 +68,7 @@ impl EventKind {
             EventKind::Fault => "fault",
             EventKind::Warning => "warning",
             EventKind::Control => "control",
+            EventKind::ShuttingDown => "shutting_down",
         }
     }
 
@@ -216,6 +220,14 @@ pub enum What {
         /// The holder before.
         previous: Option<ClientId>,
     },
+    /// The daemon is shutting down (a signal, or its owner stopped it): the arm comes to rest
+    /// (at once when a fault or the estop latch holds it), the servos are left as
+    /// `[bus] on_exit` says, then the connections close.
+    ShuttingDown {
+        /// The commanded tip, m.
+        #[serde(deserialize_with = "values::point::deserialize")]
+        tip: [f64; 2],
+    },
     /// An event this version does not know, by its name (a newer daemon's).
     #[serde(skip)]
     Other {
@@ -246,6 +258,7 @@ impl What {
             What::Fault { .. } => EventKind::Fault,
             What::Warning { .. } => EventKind::Warning,
             What::Control { .. } => EventKind::Control,
+            What::ShuttingDown { .. } => EventKind::ShuttingDown,
             What::Other { .. } => return None,
         })
     }
@@ -268,7 +281,8 @@ impl What {
             | What::Estop { tip }
             | What::Reset { tip }
             | What::Fault { tip, .. }
-            | What::Warning { tip, .. } => Some(*tip),
+            | What::Warning { tip, .. }
+            | What::ShuttingDown { tip } => Some(*tip),
             What::Control { .. } | What::Other { .. } => None,
         }
     }

@@ -78,8 +78,12 @@ pub enum Code {
     Estopped,
     /// A `goto_joints` pose outside the joint limits.
     Unreachable,
-    /// The loop's command queue is full; send again.
+    /// The loop's command queue is full, or this connection already has its share of it
+    /// waiting; send again.
     Busy,
+    /// A `velocity` that waited longer than the deadman before the loop could apply it (the
+    /// loop was held up); it was not applied.
+    Stale,
     /// The daemon is stopping.
     ShuttingDown,
     /// A command that needs control, from a client that does not hold it.
@@ -103,6 +107,7 @@ impl Code {
             Code::Estopped => "estopped",
             Code::Unreachable => "unreachable",
             Code::Busy => "busy",
+            Code::Stale => "stale",
             Code::ShuttingDown => "shutting_down",
             Code::NotInControl => "not_in_control",
             Code::Unauthorized => "unauthorized",

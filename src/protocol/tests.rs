@@ -156,6 +156,7 @@ fn event_of(kind: EventKind) -> What {
             holder: None,
             previous: Some(3),
         },
+        EventKind::ShuttingDown => What::ShuttingDown { tip },
     }
 }
 

@@ -13,7 +13,7 @@ use crate::servo::clock::Clock;
 use crate::servo::ServoBus;
 
 use super::ledger::Renewal;
-use super::link::{Envelope, COMMAND_QUEUE};
+use super::link::{Envelope, COMMAND_QUEUE, STOP_QUEUE};
 use super::supervisor::Blocked;
 use super::{Cycle, Pending};
 
@@ -29,18 +29,41 @@ fn applied(tick: u64) -> Pending {
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
-    /// The commands queued since the last tick, applied; their answers wait for this tick's
-    /// telemetry.
+    /// The commands queued since the last tick, applied in the order their lines arrived;
+    /// their answers wait for this tick's telemetry. Every `stop` and `estop` queued is taken,
+    /// so none waits behind other commands: each is applied after the commands whose lines came
+    /// before it, which it therefore overrides.
     pub(super) fn apply_commands(&mut self) {
-        // Bounded per tick by the queue's capacity: a flood waits for the next tick.
+        let mut stops = std::mem::take(&mut self.stops);
+        // Bounded per tick by the queues' capacities: a flood waits for the next tick.
+        while stops.len() < STOP_QUEUE {
+            match self.ends.stops.try_recv() {
+                Ok(envelope) => stops.push_back(envelope),
+                Err(_) => break,
+            }
+        }
         for _ in 0..COMMAND_QUEUE {
             let Ok(envelope) = self.ends.commands.try_recv() else {
                 break;
             };
-            let pending = self.apply(&envelope);
-            self.received.push(envelope.received);
-            self.pending.push((envelope.reply, pending));
+            while stops.front().is_some_and(|s| s.received <= envelope.received) {
+                if let Some(stop) = stops.pop_front() {
+                    self.take(stop);
+                }
+            }
+            self.take(envelope);
         }
+        while let Some(stop) = stops.pop_front() {
+            self.take(stop);
+        }
+        self.stops = stops;
+    }
+
+    /// One command applied; its answer waits for this tick's telemetry.
+    fn take(&mut self, envelope: Envelope) {
+        let pending = self.apply(&envelope);
+        self.received.push(envelope.received);
+        self.pending.push((envelope.reply, pending));
     }
 
     /// Sends the answers of the commands applied in this tick.
@@ -66,7 +89,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// Commands still queued when the loop ends are answered, not dropped silently.
     pub(super) fn answer_queued_for_exit(&mut self) {
-        while let Ok(e) = self.ends.commands.try_recv() {
+        self.ends.commands.close();
+        self.ends.stops.close();
+        let stops = std::iter::from_fn(|| self.ends.stops.try_recv().ok());
+        let queued: Vec<Envelope> = stops
+            .chain(std::iter::from_fn(|| self.ends.commands.try_recv().ok()))
+            .collect();
+        for e in queued {
             let _ = e.reply.send(Err(Rejection {
                 code: Code::ShuttingDown,
                 message: "the daemon is stopping".into(),
@@ -103,11 +132,31 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             LoopCmd::Torque { on } => self.torque(*on),
             LoopCmd::Reboot { ids } => self.reboot(ids.as_deref()),
+            LoopCmd::Motion(Motion::Velocity { .. }) if self.stale(e) => refuse(
+                Code::Stale,
+                format!(
+                    "this `velocity` waited {:.0} ms for the loop, longer than the deadman ({} ms): \
+                     not applied; send a fresh one",
+                    self.waited(e).as_secs_f64() * 1e3,
+                    self.schedule.deadman.as_millis()
+                ),
+            ),
             LoopCmd::Motion(motion) => match self.motion(motion) {
                 Some(command) => self.move_arm(e, command),
                 None => refuse(Code::BadArg, "`joint` counts from 1"),
             },
         }
+    }
+
+    /// How long `e` waited between its line's arrival and now.
+    fn waited(&self, e: &Envelope) -> std::time::Duration {
+        self.clock.now().saturating_duration_since(e.received)
+    }
+
+    /// Whether `e` waited longer than the deadman: a renewal that old would move the arm on a
+    /// wish the deadman has already given up on.
+    fn stale(&self, e: &Envelope) -> bool {
+        self.waited(e) > self.schedule.deadman
     }
 
     /// The controller's command for a motion (`None`: a jog of joint 0, which the parser

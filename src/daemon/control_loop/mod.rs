@@ -10,8 +10,9 @@
 //! - [`measure`]: this tick's measurements in SI units;
 //! - the statistics ([`crate::daemon::stats::Stats`], one reset).
 //!
-//! Each tick, in this order: apply the queued commands (in arrival order; the estop latch is
-//! checked per command, so nothing queued after an `estop` can undo it), tend the port (reopen
+//! Each tick, in this order: apply the queued commands (in arrival order, `stop` and `estop`
+//! from their own queue merged in by arrival; the estop latch is checked per command, so nothing
+//! queued after an `estop` can undo it), tend the port (reopen
 //! a lost one, recover from a stall past the Bus Watchdog), decide (motion -> resolve ->
 //! joint-speed limit, [`Controller::tick`]; frozen while the supervisor holds the arm), write
 //! the goals (one Sync Write through the limits wrapper), read (one Sync Read of Present
@@ -51,6 +52,7 @@ pub mod supervisor;
 #[cfg(test)]
 mod tests;
 
+use std::collections::VecDeque;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -76,7 +78,7 @@ use self::ledger::{Ended, Ledger};
 use self::measure::Measured;
 use self::port::{Opener, Port, ReopenError};
 use self::supervisor::Supervisor;
-use super::link::{self, Handle, LoopEnds, COMMAND_QUEUE};
+use super::link::{self, Handle, LoopEnds, COMMAND_QUEUE, STOP_QUEUE};
 use super::stats::Stats;
 use super::{DaemonError, RunOptions, Summary};
 
@@ -160,6 +162,8 @@ struct Schedule {
     read_every: u64,
     health_every: u64,
     reply_timeout: Duration,
+    /// A `velocity` that waited longer than this is not applied.
+    deadman: Duration,
 }
 
 /// What the controller made of this tick, for telemetry.
@@ -225,6 +229,8 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     goals: Vec<Goal>,
     states: States,
     pending: Vec<(oneshot::Sender<Answer>, Pending)>,
+    /// This tick's `stop`s and `estop`s, merged with the other commands by arrival.
+    stops: VecDeque<link::Envelope>,
     /// When the lines of the commands applied in this tick were read.
     received: Vec<Instant>,
     home: Vec<f64>,
@@ -278,6 +284,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             read_every: u64::from(c.read_every.max(1)),
             health_every: u64::from(c.health_every.max(1)),
             reply_timeout: arm.settings().reply_timeout,
+            deadman: c.deadman,
         };
         let ids = arm.ids();
         let budget = Budget {
@@ -310,8 +317,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             lists: Lists::default(),
             schedule,
             states: States::new(),
-            pending: Vec::with_capacity(COMMAND_QUEUE),
-            received: Vec::with_capacity(COMMAND_QUEUE),
+            pending: Vec::with_capacity(COMMAND_QUEUE + STOP_QUEUE),
+            stops: VecDeque::with_capacity(STOP_QUEUE),
+            received: Vec::with_capacity(COMMAND_QUEUE + STOP_QUEUE),
             home,
             ids,
             tick: 0,
@@ -374,6 +382,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             let _ = self.controller.command(control::Command::Stop);
         }
         tracing::info!("stopping: bringing the arm to rest");
+        self.event(None, None, |tip| What::ShuttingDown { tip });
     }
 
     /// One tick, scheduled at `scheduled`, ending by `deadline`.
