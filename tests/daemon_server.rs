@@ -764,8 +764,12 @@ async fn a_client_behind_on_events_continues() {
 }
 
 #[tokio::test]
-async fn one_client_over_the_limit_is_refused() {
-    let daemon = Daemon::start(ServerOptions::new(JOINTS, 2), describe(JOINTS)).await;
+async fn over_the_limit_only_a_stop_or_an_estop_is_taken() {
+    let options = ServerOptions {
+        auth_grace: Duration::from_millis(300),
+        ..ServerOptions::new(JOINTS, 2)
+    };
+    let daemon = Daemon::start(options, describe(JOINTS)).await;
     let mut a = daemon.client().await;
     let mut b = daemon.client().await;
     assert_eq!(
@@ -777,12 +781,26 @@ async fn one_client_over_the_limit_is_refused() {
         json!(true)
     );
 
+    // Anything else is refused, answering its id, and the connection closed.
     let mut c = daemon.client().await;
-    let refused = c.recv().await;
-    assert_eq!(code(&refused), "too_many_clients");
-    assert_eq!(refused["id"], Value::Null);
+    let refused = c.request(json!({"cmd": "describe", "id": "d3"})).await;
+    assert_eq!((code(&refused), &refused["id"]), ("too_many_clients", &json!("d3")));
     assert!(message(&refused).contains('2'), "{refused}");
     assert!(c.closed().await);
+    // A stop and an estop are carried out and answered; then the connection closes.
+    for cmd in ["stop", "estop"] {
+        let mut c = daemon.client().await;
+        let reply = c.request(json!({"cmd": cmd, "id": cmd})).await;
+        assert_eq!((&reply["ok"], &reply["id"]), (&json!(true), &json!(cmd)), "{reply}");
+        assert_eq!(reply["cmd"], json!(cmd), "the loop applied it: {reply}");
+        assert!(c.closed().await);
+    }
+    // Silence past the first-line deadline is refused too.
+    let mut silent = daemon.client().await;
+    let refused = silent.recv().await;
+    assert_eq!(code(&refused), "too_many_clients");
+    assert_eq!(refused["id"], Value::Null);
+    assert!(silent.closed().await);
 
     // The others go on; one leaving makes room.
     assert_eq!(a.request(json!({"cmd": "stop"})).await["ok"], json!(true));
@@ -837,6 +855,24 @@ async fn a_client_that_does_not_read_is_dropped_and_the_others_go_on() {
     drop(stuck_read);
     let reply = good.request(json!({"cmd": "status", "id": "after"})).await;
     assert_eq!(reply["id"], json!("after"));
+}
+
+#[tokio::test]
+async fn a_connection_that_says_nothing_is_closed_after_the_first_line_deadline() {
+    let options = ServerOptions {
+        auth_grace: Duration::from_millis(300),
+        ..ServerOptions::new(JOINTS, 8)
+    };
+    let daemon = Daemon::start(options, describe(JOINTS)).await;
+    let mut silent = daemon.client().await;
+    let mut talker = daemon.client().await;
+    assert_eq!(talker.request(json!({"cmd": "describe"})).await["ok"], json!(true));
+    let started = Instant::now();
+    assert!(silent.closed().await, "closed without a word");
+    assert!(started.elapsed() >= Duration::from_millis(200));
+    // One line is enough: a client that spoke may listen as long as it likes.
+    time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(talker.request(json!({"cmd": "describe"})).await["ok"], json!(true));
 }
 
 #[tokio::test]
