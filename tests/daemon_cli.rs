@@ -13,7 +13,7 @@ use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use daemon_support::{Client, DEADLINE};
-use serde_json::json;
+use serde_json::{json, Value};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl_sim::{RealClock, SimHandle};
@@ -149,8 +149,13 @@ fn sigterm_brings_the_arm_to_rest_then_torque_off_and_exits_0() {
         assert!(!torque, "servo {id} left with torque on");
         assert!(!moving, "servo {id} still moving");
     }
-    // The connection was closed.
-    assert!(client.read_line(Duration::from_secs(5)).is_none());
+    // The client was told before the connection closed.
+    let told: Vec<Value> =
+        std::iter::from_fn(|| client.read_line(Duration::from_secs(5))).collect();
+    assert!(
+        told.iter().any(|l| l["event"] == "shutting_down"),
+        "no shutting_down event: {told:?}"
+    );
 }
 
 #[test]

@@ -784,14 +784,21 @@ async fn over_the_limit_only_a_stop_or_an_estop_is_taken() {
     // Anything else is refused, answering its id, and the connection closed.
     let mut c = daemon.client().await;
     let refused = c.request(json!({"cmd": "describe", "id": "d3"})).await;
-    assert_eq!((code(&refused), &refused["id"]), ("too_many_clients", &json!("d3")));
+    assert_eq!(
+        (code(&refused), &refused["id"]),
+        ("too_many_clients", &json!("d3"))
+    );
     assert!(message(&refused).contains('2'), "{refused}");
     assert!(c.closed().await);
     // A stop and an estop are carried out and answered; then the connection closes.
     for cmd in ["stop", "estop"] {
         let mut c = daemon.client().await;
         let reply = c.request(json!({"cmd": cmd, "id": cmd})).await;
-        assert_eq!((&reply["ok"], &reply["id"]), (&json!(true), &json!(cmd)), "{reply}");
+        assert_eq!(
+            (&reply["ok"], &reply["id"]),
+            (&json!(true), &json!(cmd)),
+            "{reply}"
+        );
         assert_eq!(reply["cmd"], json!(cmd), "the loop applied it: {reply}");
         assert!(c.closed().await);
     }
@@ -866,13 +873,19 @@ async fn a_connection_that_says_nothing_is_closed_after_the_first_line_deadline(
     let daemon = Daemon::start(options, describe(JOINTS)).await;
     let mut silent = daemon.client().await;
     let mut talker = daemon.client().await;
-    assert_eq!(talker.request(json!({"cmd": "describe"})).await["ok"], json!(true));
+    assert_eq!(
+        talker.request(json!({"cmd": "describe"})).await["ok"],
+        json!(true)
+    );
     let started = Instant::now();
     assert!(silent.closed().await, "closed without a word");
     assert!(started.elapsed() >= Duration::from_millis(200));
     // One line is enough: a client that spoke may listen as long as it likes.
     time::sleep(Duration::from_millis(500)).await;
-    assert_eq!(talker.request(json!({"cmd": "describe"})).await["ok"], json!(true));
+    assert_eq!(
+        talker.request(json!({"cmd": "describe"})).await["ok"],
+        json!(true)
+    );
 }
 
 #[tokio::test]

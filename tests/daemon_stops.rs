@@ -84,7 +84,8 @@ impl Flooder {
             while flooding.load(Ordering::SeqCst) {
                 sent += 1;
                 let sign = if (sent / 200) % 2 == 0 { 1.0 } else { -1.0 };
-                let line = json!({"cmd": "velocity", "v": [0.02 * sign, 0.0], "id": format!("v{sent}")});
+                let line =
+                    json!({"cmd": "velocity", "v": [0.02 * sign, 0.0], "id": format!("v{sent}")});
                 let mut line = line.to_string();
                 line.push('\n');
                 if writer.write_all(line.as_bytes()).is_err() {
@@ -134,8 +135,11 @@ fn a_velocity_flood_never_holds_back_a_stop_or_an_estop_on_its_own_connection() 
     flooder.start();
     thread::sleep(FLOOD);
     let sent = flooder.halt();
-    let (stop_tick, probe_tick, reply) =
-        together(&mut flooder, json!({"cmd": "stop", "id": "stop"}), &mut idle);
+    let (stop_tick, probe_tick, reply) = together(
+        &mut flooder,
+        json!({"cmd": "stop", "id": "stop"}),
+        &mut idle,
+    );
     assert_eq!(reply["ok"], json!(true), "{reply}");
     println!("stop applied at tick {stop_tick}, the idle client's status at {probe_tick}, after {sent} velocity lines");
     assert!(
@@ -162,8 +166,11 @@ fn a_velocity_flood_never_holds_back_a_stop_or_an_estop_on_its_own_connection() 
     flooder.start();
     thread::sleep(FLOOD);
     flooder.halt();
-    let (estop_tick, probe_tick, reply) =
-        together(&mut flooder, json!({"cmd": "estop", "id": "estop"}), &mut idle);
+    let (estop_tick, probe_tick, reply) = together(
+        &mut flooder,
+        json!({"cmd": "estop", "id": "estop"}),
+        &mut idle,
+    );
     assert_eq!(reply["ok"], json!(true), "{reply}");
     println!("estop applied at tick {estop_tick}, the idle client's status at {probe_tick}");
     assert!(

@@ -46,7 +46,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             let Ok(envelope) = self.ends.commands.try_recv() else {
                 break;
             };
-            while stops.front().is_some_and(|s| s.received <= envelope.received) {
+            while stops
+                .front()
+                .is_some_and(|s| s.received <= envelope.received)
+            {
                 if let Some(stop) = stops.pop_front() {
                     self.take(stop);
                 }

@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use serde_json::json;
 use tokio::sync::{broadcast, oneshot};
@@ -618,4 +618,82 @@ fn a_shut_down_while_a_fault_holds_the_arm_ends_at_once() {
     assert_eq!(rig.status().state, State::Fault);
     // Held and frozen: at rest already, so the first turn of the shut-down is the last.
     assert!(!rig.cycle.turn(&mut rig.pace, true));
+}
+
+/// `cmd` from client 1 on the stop queue (`stops`) or the command queue, its line read at
+/// `received`.
+fn queue(rig: &Rig, stops: bool, cmd: LoopCmd, received: Instant) -> oneshot::Receiver<Answer> {
+    let (reply, answer) = oneshot::channel();
+    let envelope = Envelope {
+        client: 1,
+        id: None,
+        cmd,
+        received,
+        reply,
+    };
+    let queue = if stops {
+        &rig.handle.stops
+    } else {
+        &rig.handle.commands
+    };
+    queue.try_send(envelope).unwrap();
+    answer
+}
+
+#[test]
+fn a_stop_is_applied_after_the_commands_that_came_before_it_and_before_those_after() {
+    let mut rig = Rig::new(100.0, "");
+    let tip = rig.status().tip;
+    let goto = |dx: f64| {
+        LoopCmd::Motion(Motion::Goto {
+            target: [tip[0] + dx, tip[1]],
+            speed: Some(0.01),
+        })
+    };
+    // A goto, then a stop: both in one tick, the stop last, so the arm does not set off.
+    let t = rig.clock.now();
+    let mut before = queue(&rig, false, goto(0.05), t);
+    let mut stop = queue(&rig, true, LoopCmd::Stop, t + MS / 10);
+    rig.ticks(1);
+    assert!(before.try_recv().unwrap().is_ok());
+    assert!(stop.try_recv().unwrap().is_ok());
+    assert_eq!(rig.status().target, None, "the stop came last");
+    rig.ticks(20);
+    assert_eq!(rig.status().state, State::Holding);
+    let held = rig.status().tip_ref;
+
+    // A stop, then a goto, in one tick: the goto goes ahead.
+    let t = rig.clock.now();
+    let mut stop = queue(&rig, true, LoopCmd::Stop, t);
+    let mut after = queue(&rig, false, goto(-0.05), t + MS / 10);
+    rig.ticks(1);
+    assert!(stop.try_recv().unwrap().is_ok());
+    assert!(after.try_recv().unwrap().is_ok());
+    assert_eq!(rig.status().target, Some([tip[0] - 0.05, tip[1]]));
+    rig.ticks(20);
+    assert!(
+        rig.status().tip_ref[0] < held[0],
+        "moving to the new target"
+    );
+}
+
+#[test]
+fn a_velocity_older_than_the_deadman_is_refused_stale_and_never_moves_the_arm() {
+    let mut rig = Rig::new(100.0, "");
+    let deadman = rig.cycle.schedule.deadman;
+    let old = rig.clock.now() - deadman - MS;
+    let velocity = LoopCmd::Motion(Motion::Velocity { v: [0.05, 0.0] });
+    let mut answer = queue(&rig, false, velocity.clone(), old);
+    let tip = rig.status().tip_ref;
+    rig.ticks(10);
+    let refused = answer.try_recv().unwrap().unwrap_err();
+    assert_eq!(refused.code, Code::Stale, "{refused}");
+    assert!(refused.message.contains("deadman"), "{refused}");
+    assert_eq!(rig.status().tip_ref, tip, "the arm never moved");
+    // A fresh one is applied.
+    let now = rig.clock.now();
+    let mut answer = queue(&rig, false, velocity, now);
+    rig.ticks(10);
+    assert!(answer.try_recv().unwrap().is_ok());
+    assert!(rig.status().tip_ref[0] > tip[0]);
 }

@@ -48,14 +48,14 @@ use tokio::task::JoinSet;
 use tokio::time;
 use tracing::{debug, error, warn};
 
+use self::lines::{Line, LineReader};
 pub use self::session::{ANSWERS_WAITING, COMMANDS_IN_FLIGHT, STOPS_IN_FLIGHT};
 pub use self::writer::{SEND_BUFFER, SLOW_READER};
-use self::lines::{Line, LineReader};
 use super::access::Token;
 use super::arbiter::{Arbiter, Change};
 use super::link::{Answer, Envelope, Handle, COMMAND_QUEUE, STOP_QUEUE};
 use crate::protocol::{
-    self, Cmd, ClientId, Code, Describe, Event, Fields, LoopCmd, Rejection, Reply, RequestId,
+    self, ClientId, Cmd, Code, Describe, Event, Fields, LoopCmd, Rejection, Reply, RequestId,
     Route, Status, Telemetry,
 };
 
@@ -605,7 +605,6 @@ async fn over_the_limit(
 fn stopped() -> Rejection {
     Rejection::new(Code::ShuttingDown, "the control loop has stopped")
 }
-
 
 #[cfg(test)]
 pub(super) mod tests {

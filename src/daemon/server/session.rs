@@ -493,7 +493,9 @@ impl Session<'_> {
         }
         let request = match protocol::parse(line, self.shared.joints) {
             Ok(request) => request,
-            Err((id, why)) => return self.owe(Owed::Line(protocol::error_line(id.as_deref(), &why))),
+            Err((id, why)) => {
+                return self.owe(Owed::Line(protocol::error_line(id.as_deref(), &why)))
+            }
         };
         let id = request.id;
         let answer: Answer = match request.cmd.route() {
@@ -521,7 +523,7 @@ impl Session<'_> {
                     Ok(self.me())
                 }
             },
-            Route::Loop(cmd) => return self.to_loop(id, cmd, received),
+            Route::Loop(cmd) => return self.send_on(id, cmd, received),
         };
         self.owe(Owed::Line(protocol::reply_line(id.as_deref(), &answer)))
     }
@@ -560,7 +562,12 @@ impl Session<'_> {
 
     /// Puts a command to the arbiter and hands it to the loop, within this connection's share;
     /// its answer is owed in its place.
-    fn to_loop(&mut self, id: Option<RequestId>, cmd: LoopCmd, received: Instant) -> Result<(), End> {
+    fn send_on(
+        &mut self,
+        id: Option<RequestId>,
+        cmd: LoopCmd,
+        received: Instant,
+    ) -> Result<(), End> {
         let flight = match cmd {
             LoopCmd::Stop => Flight::Stop,
             LoopCmd::Estop => Flight::Estop,

@@ -40,7 +40,11 @@ impl Viewer<'_> {
 
 /// Writes `bytes` and flushes them, or fails with `TimedOut` when the client has not taken them
 /// within `patience`.
-async fn send<W: AsyncWrite + Unpin>(sink: &mut W, bytes: &[u8], patience: Duration) -> io::Result<()> {
+async fn send<W: AsyncWrite + Unpin>(
+    sink: &mut W,
+    bytes: &[u8],
+    patience: Duration,
+) -> io::Result<()> {
     let written = time::timeout(patience, async {
         sink.write_all(bytes).await?;
         sink.flush().await
