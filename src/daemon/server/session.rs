@@ -299,6 +299,14 @@ impl Session<'_> {
                     self.drain_events(&mut events, &mut control);
                     return End::Stop;
                 }
+                () = self.answers.settle_front(|id, answer| reply(self.shared, self.id, id, answer)), if waits => Ok(()),
+                permit = out.reserve_owned(), if ready => match permit {
+                    Ok(permit) => {
+                        self.write_front(permit);
+                        Ok(())
+                    }
+                    Err(_) => Err(End::WriterGone),
+                },
                 line = lines.next() => {
                     spoken = true;
                     match line {
@@ -314,14 +322,6 @@ impl Session<'_> {
                         Err(e) => return End::ReadFailed(e),
                     }
                 }
-                () = self.answers.settle_front(|id, answer| reply(self.shared, self.id, id, answer)), if waits => Ok(()),
-                permit = out.reserve_owned(), if ready => match permit {
-                    Ok(permit) => {
-                        self.write_front(permit);
-                        Ok(())
-                    }
-                    Err(_) => Err(End::WriterGone),
-                },
                 event = events.recv(), if events_open => match event {
                     Ok(event) => self.event(&event),
                     Err(RecvError::Lagged(missed)) => {
