@@ -132,8 +132,18 @@ fn snakectl(args: &[&str]) -> (ExitStatus, String, String) {
     let status = wait_within(&mut child, &format!("snakectl {}", args.join(" ")));
     let mut stdout = String::new();
     let mut stderr = String::new();
-    child.stdout.take().unwrap().read_to_string(&mut stdout).unwrap();
-    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stdout)
+        .unwrap();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
     (status, stdout, stderr)
 }
 
@@ -322,15 +332,7 @@ fn a_servo_command_during_a_run_is_refused_and_changes_nothing() {
     let before = rig.counters();
     let link = rig.link();
     let args = [
-        "servo",
-        "--port",
-        &link,
-        "--baud",
-        "1000000",
-        "--id",
-        "3",
-        "set-id",
-        "20",
+        "servo", "--port", &link, "--baud", "1000000", "--id", "3", "set-id", "20",
     ];
     rig.refused(&args, &link);
     assert!(rig.sim.with_servo(3, |_| ()).is_some());
@@ -353,4 +355,30 @@ fn a_daemon_killed_outright_leaves_no_lock_behind() {
     rig.client = client;
     let before = rig.counters();
     rig.assert_undisturbed(&before);
+}
+
+#[test]
+fn a_bus_closed_after_a_failure_frees_its_port_for_this_process_to_open_again() {
+    use snakectl::connect::ConnectError;
+    use snakectl::servo::{ErrorClass, ServoBus, ServoError};
+    let config = Config::load(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
+    let baud = config.bus().unwrap().baud;
+    let t = Duration::from_millis(100);
+    let mut bus = connect::open_port(sim.path(), baud).unwrap();
+    bus.ping(1, t).unwrap();
+    // While it is open, even this process cannot open the device a second time.
+    match connect::open_port(&sim.pty_path().unwrap(), baud) {
+        Err(ConnectError::InUse(ServoError::InUse {
+            holder: Some(holder),
+            ..
+        })) => assert_eq!(holder.pid, std::process::id()),
+        other => panic!("a second opening: {other:?}"),
+    }
+    // What the daemon does before it reopens a failed port: the closed bus fails as a vanished
+    // port does, and the same device opens again.
+    bus.close();
+    assert_eq!(bus.ping(1, t).unwrap_err().class(), ErrorClass::Bus);
+    let mut again = connect::open_port(sim.path(), baud).unwrap();
+    again.ping(1, t).unwrap();
 }

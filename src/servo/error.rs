@@ -81,7 +81,11 @@ impl std::fmt::Display for HardwareErrors {
 
 /// What [`ServoError::InUse`] says: the port (and the device, when a symlink named it), who has
 /// it, and that one program at a time drives a port.
-fn in_use_text(port: &std::path::Path, device: &std::path::Path, holder: Option<&Holder>) -> String {
+fn in_use_text(
+    port: &std::path::Path,
+    device: &std::path::Path,
+    holder: Option<&Holder>,
+) -> String {
     let name = if port == device {
         port.display().to_string()
     } else {
@@ -89,7 +93,8 @@ fn in_use_text(port: &std::path::Path, device: &std::path::Path, holder: Option<
     };
     match holder {
         Some(holder) => format!(
-            "{name} is in use by {holder} (one program at a time drives a port): stop it first"
+            "{name} is in use by {holder}: one program at a time drives a port; stop that one \
+             first"
         ),
         None => format!(
             "{name} is in use by another process, one not visible from here (another container \
