@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use snakectl::config::Config;
+use snakectl::connect::ConnectError;
 use snakectl::daemon::{self, DaemonError, RunOptions};
 
 use super::Failure;
@@ -52,6 +53,8 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         let summary = daemon::run(config, listener, options, shutdown)
             .await
             .map_err(|e| match e {
+                // Not the input's fault: the port is busy, and free again once its holder exits.
+                DaemonError::Connect(ConnectError::InUse(_)) => Failure::other(e),
                 DaemonError::BringUp(_) | DaemonError::Connect(_) | DaemonError::Controller(_) => {
                     Failure::bad_input(e)
                 }

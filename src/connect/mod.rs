@@ -13,13 +13,20 @@
 //! Every caller goes through here (the daemon, `snakectl sim`, the servo commands, benches and
 //! tests); [`sim`] turns a config into the simulator's plain data.
 //!
+//! # One owner per port
+//!
+//! Every port is opened through [`open_port`], which locks the device first: a port another
+//! program holds (a running daemon, a `scan`) is refused with [`ConnectError::InUse`], naming
+//! that program, before anything is written to it. The lock lasts as long as the bus.
+//!
 //! # When the port vanishes
 //!
 //! A USB adapter pulled out, or a simulator's `disconnect` fault, makes every exchange on the
 //! opened bus fail with [`ServoError::Io`] (or [`ServoError::Open`] when reopening too early),
 //! both of [`ErrorClass::Bus`](crate::servo::ErrorClass::Bus): a missing reply is
 //! [`ServoError::Timeout`] instead (transient), so `Bus` alone means the port itself is gone.
-//! Such a bus is dead for good; drop it and call [`reopen`] on [`port_path`] (the same path
+//! Such a bus is dead for good; drop (or [`close`](crate::servo::ServoBus::close)) it, which
+//! frees its lock, and call [`reopen`] on [`port_path`] (the same path
 //! [`open`] used: for the in-process simulator its link) until it succeeds, then bring the arm
 //! up again (the servos kept their state, but their watchdogs may have fired meanwhile).
 
@@ -71,6 +78,10 @@ pub enum ConnectError {
         /// The servo layer's error, naming the port.
         source: ServoError,
     },
+    /// Another program has the serial port ([`ServoError::InUse`]: the port, the device and the
+    /// process that holds it): nothing was written to it.
+    #[error(transparent)]
+    InUse(ServoError),
 }
 
 /// How [`open`] reaches the servos.
@@ -153,7 +164,8 @@ pub fn port_path(config: &Config, options: &Options, sim: Option<&SimHandle>) ->
 
 /// Open `port` at `baud` and limit it to `arm`'s joint limits with `strategy`, as [`open`]
 /// does: how a caller gets its bus back after the port vanished (call it on [`port_path`],
-/// retrying while it fails with [`ConnectError::Open`]).
+/// retrying while it fails with [`ConnectError::Open`], or [`ConnectError::InUse`] while
+/// another program has it).
 pub fn reopen(
     port: &Path,
     baud: u32,
@@ -207,7 +219,12 @@ pub fn serve_linked(
 }
 
 /// Open a serial port (a real adapter or a simulator's pseudo-terminal) at `baud`, raw: for the
-/// administrative commands, or to be limited by [`open`].
+/// administrative commands, or to be limited by [`open`]. The port is this process's alone
+/// while the bus lives: one another program holds is refused with [`ConnectError::InUse`]
+/// before a byte is written (see [`crate::servo::lock`]).
 pub fn open_port(port: &Path, baud: u32) -> Result<DynamixelBus, ConnectError> {
-    DynamixelBus::open(port, baud).map_err(|source| ConnectError::Open { source })
+    DynamixelBus::open(port, baud).map_err(|source| match source {
+        ServoError::InUse { .. } => ConnectError::InUse(source),
+        source => ConnectError::Open { source },
+    })
 }

@@ -22,6 +22,7 @@ use std::time::{Duration, Instant};
 use dynamixel2::instructions::instruction_id as ins;
 use dynamixel2::{Bus, InvalidMessage, ReadError, WriteError};
 
+use super::lock::PortLock;
 use super::sysfs::{Latency, Sysfs};
 use super::{
     baud_index, Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value,
@@ -41,12 +42,31 @@ const STATUS_OVERHEAD: usize = 11;
 /// CRC 2.
 const INSTRUCTION_OVERHEAD: usize = 10;
 
-/// A Dynamixel Protocol 2.0 bus on a serial port.
+/// A Dynamixel Protocol 2.0 bus on a serial port, which it holds the lock of (see
+/// [`super::lock`]) until dropped or closed.
 #[derive(Debug)]
 pub struct DynamixelBus {
-    bus: Bus<Vec<u8>, Vec<u8>>,
+    /// The open port; `None` once closed.
+    open: Option<Open>,
+    baud: u32,
     port: PathBuf,
     latency: Latency,
+}
+
+/// A port open, and the lock that makes this process its one owner. The fields drop in this
+/// order: the port is closed before its lock goes.
+#[derive(Debug)]
+struct Open {
+    bus: Bus<Vec<u8>, Vec<u8>>,
+    lock: PortLock,
+}
+
+/// What every exchange on a closed bus fails with: the port is gone, as when it vanishes.
+fn closed() -> ServoError {
+    ServoError::Io(std::io::Error::new(
+        std::io::ErrorKind::NotConnected,
+        "the port was closed",
+    ))
 }
 
 /// Time `bytes` take on the wire at `baud` (10 bits a byte).
@@ -105,8 +125,10 @@ fn check_id(id: u8) -> Result<(), ServoError> {
 
 impl DynamixelBus {
     /// Open `port` at `baud` (one of [`super::BAUD_RATES`]; other rates are refused because no
-    /// servo could answer). On an FTDI `ttyUSB` port, the latency timer is set to 1 ms when
-    /// writable; otherwise a warning gives the command that does it.
+    /// servo could answer). The device is locked first ([`PortLock::acquire`]): a port another
+    /// program has is refused with [`ServoError::InUse`] before anything is written to it. On
+    /// an FTDI `ttyUSB` port, the latency timer is set to 1 ms when writable; otherwise a
+    /// warning gives the command that does it.
     pub fn open(port: impl AsRef<Path>, baud: u32) -> Result<Self, ServoError> {
         Self::open_with_sysfs(port, baud, &Sysfs::system())
     }
@@ -121,6 +143,7 @@ impl DynamixelBus {
         if baud_index(baud).is_none() {
             return Err(ServoError::Baud(baud));
         }
+        let lock = PortLock::acquire(&port)?;
         let bus = Bus::open_with_buffers(&port, baud, vec![0; READ_BUFFER], vec![0; WRITE_BUFFER])
             .map_err(|source| ServoError::Open {
                 port: port.clone(),
@@ -141,7 +164,12 @@ impl DynamixelBus {
             }
             Latency::NotApplicable | Latency::Low => {}
         }
-        Ok(Self { bus, port, latency })
+        Ok(Self {
+            open: Some(Open { bus, lock }),
+            baud,
+            port,
+            latency,
+        })
     }
 
     /// What was found (and done) about the port's FTDI latency timer when it was opened.
@@ -154,9 +182,20 @@ impl DynamixelBus {
         &self.port
     }
 
+    /// The device locked while the port is open (its path with symlinks resolved); `None` once
+    /// closed.
+    pub fn device(&self) -> Option<&Path> {
+        self.open.as_ref().map(|o| o.lock.device())
+    }
+
+    /// The open port, or the error of a closed one.
+    fn wire(&mut self) -> Result<&mut Bus<Vec<u8>, Vec<u8>>, ServoError> {
+        self.open.as_mut().map(|o| &mut o.bus).ok_or_else(closed)
+    }
+
     /// How long to wait for a reply of `params` parameters: its wire time plus `timeout`.
     fn reply_wait(&self, params: usize, timeout: Duration) -> Duration {
-        wire_time(STATUS_OVERHEAD + params, self.bus.baud_rate()) + timeout
+        wire_time(STATUS_OVERHEAD + params, self.baud) + timeout
     }
 
     /// Send one instruction to `id` and wait for its reply (of `params` parameters) with the
@@ -171,19 +210,19 @@ impl DynamixelBus {
         timeout: Duration,
     ) -> Result<Reply, ServoError> {
         check_id(id)?;
-        self.bus
+        self.wire()?
             .write_instruction(id, instruction, params.len(), |buf| {
                 buf.copy_from_slice(params)
             })
             .map_err(write_error)?;
-        let waited = wire_time(INSTRUCTION_OVERHEAD + params.len(), self.bus.baud_rate())
+        let waited = wire_time(INSTRUCTION_OVERHEAD + params.len(), self.baud)
             + self.reply_wait(reply_params, timeout);
         let deadline = Instant::now() + waited;
         let mut skipped = None;
         let mut stale = None;
         loop {
             match self
-                .bus
+                .wire()?
                 .read_status_response_deadline(poll_deadline(deadline))
             {
                 Ok(p) if p.packet_id() != id => {
@@ -258,7 +297,7 @@ impl DynamixelBus {
             return Ok(());
         }
         let size = usize::from(register.size());
-        self.bus
+        self.wire()?
             .write_instruction(BROADCAST_ID, ins::SYNC_WRITE, 4 + n * (1 + size), |buf| {
                 buf[..2].copy_from_slice(&register.address().to_le_bytes());
                 buf[2..4].copy_from_slice(&register.size().to_le_bytes());
@@ -311,14 +350,15 @@ fn check_sync_write(
 
 impl ServoBus for DynamixelBus {
     fn baud(&self) -> u32 {
-        self.bus.baud_rate()
+        self.baud
     }
 
     fn set_baud(&mut self, baud: u32) -> Result<(), ServoError> {
         if baud_index(baud).is_none() {
             return Err(ServoError::Baud(baud));
         }
-        self.bus.set_baud_rate(baud)?;
+        self.wire()?.set_baud_rate(baud)?;
+        self.baud = baud;
         Ok(())
     }
 
@@ -334,10 +374,10 @@ impl ServoBus for DynamixelBus {
     }
 
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
-        self.bus
+        self.wire()?
             .write_instruction(BROADCAST_ID, ins::PING, 0, |_| {})
             .map_err(write_error)?;
-        let baud = self.bus.baud_rate();
+        let baud = self.baud;
         // Every id may answer, one after the other.
         let window = wire_time(INSTRUCTION_OVERHEAD, baud)
             + wire_time((STATUS_OVERHEAD + 3) * (usize::from(MAX_ID) + 1), baud)
@@ -346,7 +386,7 @@ impl ServoBus for DynamixelBus {
         let mut found: Vec<PingInfo> = Vec::new();
         loop {
             match self
-                .bus
+                .wire()?
                 .read_status_response_deadline(poll_deadline(deadline))
             {
                 Ok(p) => {
@@ -433,7 +473,7 @@ impl ServoBus for DynamixelBus {
             }
         }
         let n = ids.len();
-        self.bus
+        self.wire()?
             .write_instruction(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
                 buf[..2].copy_from_slice(&address.to_le_bytes());
                 buf[2..4].copy_from_slice(&len.to_le_bytes());
@@ -442,14 +482,14 @@ impl ServoBus for DynamixelBus {
             .map_err(write_error)?;
         // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
         let mut next = 0;
-        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.bus.baud_rate()) + per_reply;
+        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud) + per_reply;
         // Bounds the loop if stray packets keep arriving.
         let mut budget = 2 * n + 8;
         while next < n && budget > 0 {
             budget -= 1;
             let deadline = Instant::now() + wait;
             match self
-                .bus
+                .wire()?
                 .read_status_response_deadline(poll_deadline(deadline))
             {
                 Ok(p) => {
@@ -499,5 +539,11 @@ impl ServoBus for DynamixelBus {
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
         let r = self.exchange(id, ins::REBOOT, &[], 0, timeout)?;
         Ok(Ack { id, alert: r.alert })
+    }
+
+    fn close(&mut self) {
+        if self.open.take().is_some() {
+            tracing::debug!(port = %self.port.display(), "port closed, lock released");
+        }
     }
 }

@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use super::lock::Holder;
 use super::Register;
 
 /// The meaning of a Protocol 2.0 status error code (the low 7 bits of the error byte).
@@ -75,6 +76,30 @@ impl std::fmt::Display for HardwareErrors {
         } else {
             write!(f, "{} (0x{:02X})", self.names().join(", "), self.0)
         }
+    }
+}
+
+/// What [`ServoError::InUse`] says: the port (and the device, when a symlink named it), who has
+/// it, and that one program at a time drives a port.
+fn in_use_text(
+    port: &std::path::Path,
+    device: &std::path::Path,
+    holder: Option<&Holder>,
+) -> String {
+    let name = if port == device {
+        port.display().to_string()
+    } else {
+        format!("{} ({})", port.display(), device.display())
+    };
+    match holder {
+        Some(holder) => format!(
+            "{name} is in use by {holder}: one program at a time drives a port; stop that one \
+             first"
+        ),
+        None => format!(
+            "{name} is in use by another process, one not visible from here (another container \
+             or PID namespace): one program at a time drives a port"
+        ),
     }
 }
 
@@ -218,6 +243,17 @@ pub enum ServoError {
         /// The operating system's error.
         source: std::io::Error,
     },
+    /// Another program has the serial port (holds its lock, or has it in exclusive mode):
+    /// refused before anything was written to it.
+    #[error("{}", in_use_text(port, device, holder.as_ref()))]
+    InUse {
+        /// The port as given.
+        port: PathBuf,
+        /// The device it names, symlinks resolved (what is locked).
+        device: PathBuf,
+        /// The process that holds it, when this process can see it.
+        holder: Option<Holder>,
+    },
     /// Reading from or writing to the serial port failed.
     #[error("serial port i/o: {0}")]
     Io(#[from] std::io::Error),
@@ -265,7 +301,9 @@ impl ServoError {
             | Self::PoseLength { .. }
             | Self::BadId { .. }
             | Self::Baud(_) => ErrorClass::Refused,
-            Self::BufferTooSmall { .. } | Self::Open { .. } | Self::Io(_) => ErrorClass::Bus,
+            Self::BufferTooSmall { .. } | Self::Open { .. } | Self::InUse { .. } | Self::Io(_) => {
+                ErrorClass::Bus
+            }
         }
     }
 
@@ -287,6 +325,7 @@ pub enum ErrorClass {
     /// The servo refused with its alert flag set: a hardware error is latched (overload,
     /// overheating, ...), torque may be off; only a reboot clears it.
     Hardware,
-    /// The serial port itself failed (open, i/o, a packet too large for the buffers).
+    /// The serial port itself failed (open, in use by another program, i/o, a packet too large
+    /// for the buffers).
     Bus,
 }

@@ -168,6 +168,10 @@ impl<B: ServoBus> ServoBus for Limited<B> {
         self.inner.baud()
     }
 
+    fn close(&mut self) {
+        self.inner.close()
+    }
+
     fn set_baud(&mut self, baud: u32) -> Result<(), ServoError> {
         self.inner.set_baud(baud)
     }

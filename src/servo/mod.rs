@@ -12,6 +12,7 @@
 //! - [`units`]: radians <-> ticks with per-joint offset and direction; raw units of velocity,
 //!   current, voltage.
 //! - [`arm`]: the configured joints on a bus: bring-up, pose read/write in radians, shut-down.
+//! - [`lock`]: one owner per serial port: the exclusive lock taken before a port is opened.
 //! - [`sysfs`]: the FTDI latency timer and the list of serial ports, read from sysfs.
 //! - [`error`]: the typed errors.
 
@@ -21,6 +22,7 @@ pub mod clock;
 pub mod dynamixel;
 pub mod error;
 pub mod limits;
+pub mod lock;
 pub mod model;
 pub mod record;
 pub mod sysfs;
@@ -619,6 +621,11 @@ pub trait ServoBus {
         let v = self.read(id, Register::HardwareErrorStatus, timeout)?;
         Ok(HardwareErrors(u8::try_from(v.value).unwrap_or(u8::MAX)))
     }
+
+    /// Close the port for good, its lock included, so that it can be opened again after it
+    /// failed: every exchange afterwards fails as on a vanished port. A bus without a port of
+    /// its own has nothing to give up (the default).
+    fn close(&mut self) {}
 }
 
 /// A bus borrowed is the bus: every call, provided ones included, goes to the implementation's
@@ -626,6 +633,9 @@ pub trait ServoBus {
 impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     fn baud(&self) -> u32 {
         (**self).baud()
+    }
+    fn close(&mut self) {
+        (**self).close()
     }
     fn set_baud(&mut self, baud: u32) -> Result<(), ServoError> {
         (**self).set_baud(baud)

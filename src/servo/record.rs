@@ -72,6 +72,9 @@ impl<B: ServoBus> ServoBus for Recording<B> {
     fn baud(&self) -> u32 {
         self.inner.baud()
     }
+    fn close(&mut self) {
+        self.inner.close()
+    }
     fn set_baud(&mut self, baud: u32) -> Result<(), ServoError> {
         self.log.push(Instruction::SetBaud(baud));
         self.inner.set_baud(baud)

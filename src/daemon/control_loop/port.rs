@@ -113,8 +113,10 @@ impl<B: ServoBus> Port<B> {
         self.lost.as_ref().is_some_and(|l| now >= l.next_try)
     }
 
-    /// Open the port again (the arm still to recover on it).
+    /// Open the port again (the arm still to recover on it). The failed one is closed first,
+    /// so its lock is free for this process to take again.
     pub fn reopen(&mut self, arm: &Arm) -> Result<(), ReopenError> {
+        self.bus.close();
         self.bus = (self.opener)(arm)?;
         Ok(())
     }
