@@ -335,7 +335,10 @@ fn every_error_code_is_answered_with_the_request_id() {
     );
 
     // An over-long line is discarded; the connection lives.
-    let long = format!(r#"{{"cmd":"status","pad":"{}"}}"#, "x".repeat(70 * 1024));
+    let long = format!(
+        r#"{{"cmd":"status","pad":"{}"}}"#,
+        "x".repeat(snakectl::protocol::MAX_LINE)
+    );
     let r = raw(&mut c, &long);
     assert_eq!(r["error"]["code"], "line_too_long");
     c.status();
@@ -613,10 +616,8 @@ fn a_loop_at_1_khz_hears_its_servos() {
 /// daemon measures and holds each joint inside its limits, within a tick of the limit.
 #[test]
 fn a_home_pose_exactly_on_joint_limits_starts_inside_them() {
-    let config = daemon_support::sim_config_with(
-        &[("home_rad = [0.1, 0.1,", "home_rad = [2.0, -2.0,")],
-        "",
-    );
+    let config =
+        daemon_support::sim_config_with(&[("home_rad = [0.1, 0.1,", "home_rad = [2.0, -2.0,")], "");
     assert_eq!(config.home()[..2], [2.0, -2.0]);
     let arm = config.arm().unwrap().clone();
     let sim = snakectl::connect::sim_config(&config).unwrap();

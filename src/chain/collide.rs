@@ -205,7 +205,8 @@ impl Chain {
     ) -> Option<(usize, usize)> {
         assert_eq!(points.len(), before.len(), "two poses of one chain");
         let links = points.len().saturating_sub(1);
-        let touched = |a: usize, b: usize| a < b && b < links && Self::links_touch(before, a, b, clearance);
+        let touched =
+            |a: usize, b: usize| a < b && b < links && Self::links_touch(before, a, b, clearance);
         for a in 0..links {
             for b in a + 1..links {
                 if !Self::links_touch(points, a, b, clearance) || touched(a, b) {
@@ -404,13 +405,27 @@ mod tests {
         let v = Vec2::new;
         let c = SELF_CLEARANCE_M;
         // Link 3 (x = 2, downward) crosses link 0 (the x axis from 0 to 4).
-        let before = [v(0., 0.), v(4., 0.), v(4., 2.), v(2., 2.), v(2., -1.), v(3., -1.)];
+        let before = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., -1.),
+            v(3., -1.),
+        ];
         assert_eq!(Chain::self_intersects(&before), Some((0, 3)));
         assert_eq!(Chain::crossings(&before), 1);
         assert!(Chain::links_cross(&before, 0, 3));
         assert!(!Chain::links_cross(&before, 0, 1));
         // The joint between links 3 and 4 passes over link 0: the crossing slides onto link 4.
-        let slid = [v(0., 0.), v(4., 0.), v(4., 2.), v(2., 2.), v(2., 0.5), v(3., -1.)];
+        let slid = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., 0.5),
+            v(3., -1.),
+        ];
         assert!(Chain::links_cross(&slid, 0, 4));
         assert_eq!(Chain::worse_self_intersection(&slid, &before, c), None);
         // Which the rule for a clear pose would have stopped.
@@ -419,20 +434,41 @@ mod tests {
             Some((0, 4))
         );
         // Link 4 swung up across link 0 too: two crossings where there was one.
-        let more = [v(0., 0.), v(4., 0.), v(4., 2.), v(2., 2.), v(2., -1.), v(3., 1.)];
+        let more = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., -1.),
+            v(3., 1.),
+        ];
         assert_eq!(Chain::crossings(&more), 2);
         assert_eq!(
             Chain::worse_self_intersection(&more, &before, c),
             Some((0, 4))
         );
         // Link 4's end against link 1, far along the chain from the crossing.
-        let elsewhere = [v(0., 0.), v(4., 0.), v(4., 2.), v(2., 2.), v(2., -1.), v(4., -5e-4)];
+        let elsewhere = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., -1.),
+            v(4., -5e-4),
+        ];
         assert_eq!(
             Chain::worse_self_intersection(&elsewhere, &before, c),
             Some((1, 4))
         );
         // Untangled.
-        let clear = [v(0., 0.), v(4., 0.), v(4., 2.), v(2., 2.), v(2., 1.), v(3., 1.)];
+        let clear = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., 1.),
+            v(3., 1.),
+        ];
         assert_eq!(Chain::self_intersects(&clear), None);
         assert_eq!(Chain::worse_self_intersection(&clear, &before, c), None);
     }

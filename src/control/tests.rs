@@ -158,13 +158,13 @@ fn a_crossed_start_pose_is_told_and_home_untangles_it() {
     let mut c = holding(limits(), &start);
     let contact = c.self_contact().expect("a tangled start");
     assert!(contact.crossing, "{contact:?}");
-    assert!(Chain::links_cross(
-        &ch.points(&start),
-        contact.a,
-        contact.b
-    ));
+    assert!(Chain::links_cross(&ch.points(&start), contact.a, contact.b));
     let told = contact.to_string();
-    let pair = format!("links {} and {} of the arm's pose cross", contact.a + 1, contact.b + 1);
+    let pair = format!(
+        "links {} and {} of the arm's pose cross",
+        contact.a + 1,
+        contact.b + 1
+    );
     assert!(told.starts_with(&pair), "{told}");
     assert!(told.contains("`home`"), "{told}");
 
@@ -201,7 +201,10 @@ fn a_tangled_arm_is_not_tangled_further() {
             for _ in 0..50 {
                 let t = c.tick(0.01);
                 let now = Chain::crossings(&ch.points(c.theta()));
-                assert!(now <= crossings, "jog {joint} at {rad_s}: {crossings} -> {now}");
+                assert!(
+                    now <= crossings,
+                    "jog {joint} at {rad_s}: {crossings} -> {now}"
+                );
                 crossings = now;
                 assert!(!t.self_collision || t.saturated, "{t:?}");
             }

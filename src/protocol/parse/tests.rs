@@ -206,7 +206,10 @@ fn bad_json_for_a_number_json_cannot_hold() {
 #[test]
 fn a_key_given_twice_is_bad_json_naming_it_at_any_depth() {
     let cases = [
-        (r#"{"cmd":"goto","target":[0.1,0.2],"speed":0.01,"speed":5}"#, "\"speed\""),
+        (
+            r#"{"cmd":"goto","target":[0.1,0.2],"speed":0.01,"speed":5}"#,
+            "\"speed\"",
+        ),
         (r#"{"cmd":"status","cmd":"estop"}"#, "\"cmd\""),
         (r#"{"id":1,"cmd":"status","id":2}"#, "\"id\""),
         (r#"{"id":{"seq":1,"seq":2},"cmd":"status"}"#, "\"seq\""),
@@ -245,7 +248,10 @@ fn a_key_given_twice_is_bad_json_naming_it_at_any_depth() {
 /// precision and as long as a double gets.
 #[test]
 fn the_longest_path_fits_in_one_line() {
-    let widest = [-1.234_567_890_123_456_7e-300, -0.000_012_345_678_901_234_567];
+    let widest = [
+        -1.234_567_890_123_456_7e-300,
+        -0.000_012_345_678_901_234_567,
+    ];
     for x in widest {
         assert_eq!(serde_json::to_string(&x).unwrap().len(), 24, "{x}");
     }
