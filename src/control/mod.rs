@@ -31,10 +31,9 @@
 //!    ([`Chain::worse_self_intersection`]: no more pairs crossing, and no contact but where
 //!    one was or on the next link of the chain), so a joint move such as `home` slides a
 //!    crossing off the arm; once clear, no pair may touch again. Only the poses of the ticks
-//!    are checked: links are
-//!    joined end to end, so two that begin to cross within a tick still cross at its end and
-//!    are caught then, unless the arm's two free ends (the tip and the base end of link 1)
-//!    slip past each other within one tick's travel.
+//!    are checked: links are joined end to end, so two that begin to cross within a tick
+//!    still cross at its end and are caught then, unless the arm's two free ends (the tip and
+//!    the base end of link 1) slip past each other within one tick's travel.
 //! 5. The motion **follows** what was achieved: a shortened step moves the reference back onto
 //!    the arm, with the velocity the arm really had, so it never runs ahead. A goto, path or
 //!    joint move that makes no progress for [`crate::motion::STALL_TICKS`] saturated ticks
@@ -624,11 +623,8 @@ impl Controller {
         let p = &self.guard.now;
         let n = self.chain.len();
         // A crossing pair first: it is what a user must untangle.
-        let crossing = (0..n).flat_map(|a| (a + 2..n).map(move |b| (a, b)));
-        if let Some((a, b)) = crossing
-            .into_iter()
-            .find(|&(a, b)| Chain::links_cross(p, a, b))
-        {
+        let mut pairs = (0..n).flat_map(|a| (a + 2..n).map(move |b| (a, b)));
+        if let Some((a, b)) = pairs.find(|&(a, b)| Chain::links_cross(p, a, b)) {
             return Some(SelfContact {
                 a,
                 b,
