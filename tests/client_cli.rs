@@ -301,6 +301,36 @@ fn path_from_a_csv_with_a_header_and_blank_lines_arrives() {
     assert!(dist(tip, [-0.53, 0.70]) < 1e-3, "tip {tip:?}");
 }
 
+/// The longest path a daemon takes, every coordinate written at full precision (far over the
+/// 64 KiB a request line once was), goes through as one request: the daemon holds it, its
+/// last point the target.
+#[test]
+fn a_path_of_the_most_points_at_full_precision_is_accepted() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let n = snakectl::protocol::MAX_PATH_POINTS;
+    let mut csv = String::from("x,y\n");
+    let mut last = [0.0; 2];
+    for i in 0..n {
+        // A millimetre circle around the home tip, at 17 significant digits.
+        let a = i as f64 * 0.618_033_988_749_894_9;
+        last = [HOME_TIP[0] + 1e-3 * a.cos(), HOME_TIP[1] + 1e-3 * a.sin()];
+        csv.push_str(&format!("{:?},{:?}\n", last[0], last[1]));
+    }
+    assert!(csv.len() > 2 * 64 * 1024, "{} bytes", csv.len());
+    let (_dir, file) = file_with(&csv);
+    let run = at(&d, &["path", text(&file), "--no-wait"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: path accepted at tick "),
+        "{:?}",
+        run.stdout
+    );
+    let status = d.client().status();
+    assert_eq!(status["target"], json!(last), "{status}");
+    assert_ok(&at(&d, &["stop"]), "stop");
+}
+
 #[test]
 fn bad_csv_files_exit_2_naming_the_line() {
     // Checked before connecting: nothing listens at this address.
@@ -330,7 +360,14 @@ fn bad_csv_files_exit_2_naming_the_line() {
     let too_many = "-0.5,0.7\n".repeat(snakectl::protocol::MAX_PATH_POINTS + 1);
     let (_dir, file) = file_with(&too_many);
     let run = snakectl(&["path", text(&file), "--connect", &addr]);
-    assert_fails(&run, 2, "too many points");
+    assert_fails(
+        &run,
+        2,
+        &format!(
+            "{}: 10001 points, over the limit of 10000 points a path may have",
+            text(&file)
+        ),
+    );
     let run = snakectl(&["path", "/nonexistent/path.csv", "--connect", &addr]);
     assert_fails(&run, 2, "/nonexistent/path.csv");
 }

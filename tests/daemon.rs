@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use daemon_support::{dist, floats, rounding_bound, sim_config, xy, Daemon};
 use serde_json::{json, Value};
+use snakectl_sim::table::addr;
 
 /// The shipped simulator config's limits.
 const MAX_JOINT_SPEED: f64 = 2.0;
@@ -334,7 +335,10 @@ fn every_error_code_is_answered_with_the_request_id() {
     );
 
     // An over-long line is discarded; the connection lives.
-    let long = format!(r#"{{"cmd":"status","pad":"{}"}}"#, "x".repeat(70 * 1024));
+    let long = format!(
+        r#"{{"cmd":"status","pad":"{}"}}"#,
+        "x".repeat(snakectl::protocol::MAX_LINE)
+    );
     let r = raw(&mut c, &long);
     assert_eq!(r["error"]["code"], "line_too_long");
     c.status();
@@ -607,18 +611,49 @@ fn a_loop_at_1_khz_hears_its_servos() {
     );
 }
 
+/// A home pose exactly on joint limits (joint 1 on its upper one, joint 2 on its lower one)
+/// starts: the simulated servos power on at ticks inside the limits rounded inward, and the
+/// daemon measures and holds each joint inside its limits, within a tick of the limit.
 #[test]
-fn a_home_pose_exactly_on_a_joint_limit_starts_and_holds_on_the_limit() {
-    // The simulated servo rests on the nearest tick, one past the limit rounded inward.
+fn a_home_pose_exactly_on_joint_limits_starts_inside_them() {
     let config =
-        daemon_support::sim_config_with(&[("home_rad = [0.1, 0.1,", "home_rad = [2.0, 0.1,")], "");
-    assert_eq!(config.home()[0], 2.0);
+        daemon_support::sim_config_with(&[("home_rad = [0.1, 0.1,", "home_rad = [2.0, -2.0,")], "");
+    assert_eq!(config.home()[..2], [2.0, -2.0]);
+    let arm = config.arm().unwrap().clone();
+    let sim = snakectl::connect::sim_config(&config).unwrap();
+    for (spec, j) in sim.servos.iter().zip(arm.joints()).take(2) {
+        let t = spec.initial_position_ticks.unwrap();
+        assert!(
+            (j.ticks.min..=j.ticks.max).contains(&t),
+            "servo {} powers on at tick {t}, limits {:?}",
+            j.id,
+            j.ticks
+        );
+    }
     let d = Daemon::start(config);
+    for j in &arm.joints()[..2] {
+        let present = d
+            .sim
+            .with_servo(j.id, |s| s.value(addr::PRESENT_POSITION))
+            .flatten()
+            .unwrap();
+        let present = i32::try_from(present).unwrap();
+        assert!(
+            (j.ticks.min..=j.ticks.max).contains(&present),
+            "servo {} at tick {present}, limits {:?}",
+            j.id,
+            j.ticks
+        );
+    }
     let mut c = d.client();
     let s = c.status();
     assert_eq!(s["state"], "holding", "{s}");
-    let theta = floats(&s["theta_cmd"]);
-    assert!(theta[0] <= 2.0 && theta[0] > 2.0 - 0.002, "{s}");
+    let tick = std::f64::consts::TAU / 4096.0;
+    for key in ["theta_cmd", "theta_meas"] {
+        let theta = floats(&s[key]);
+        assert!(theta[0] <= 2.0 && theta[0] > 2.0 - tick, "{key}: {s}");
+        assert!(theta[1] >= -2.0 && theta[1] < -2.0 + tick, "{key}: {s}");
+    }
     drop(c);
     d.stop().unwrap();
 }

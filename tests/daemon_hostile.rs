@@ -73,10 +73,10 @@ fn catalogue() -> Vec<(Vec<u8>, &'static str)> {
     lines.into_iter().map(|(l, c)| (l.to_vec(), c)).collect()
 }
 
-/// A line over 64 KiB.
+/// A line over the limit (`MAX_LINE`, 1 MiB).
 fn over_long() -> Vec<u8> {
     let mut line = b"{\"cmd\":\"path\",\"points\":[".to_vec();
-    while line.len() <= 70 * 1024 {
+    while line.len() <= snakectl::protocol::MAX_LINE {
         line.extend_from_slice(b"[0.001,0.002],");
     }
     line.extend_from_slice(b"[0,0]]}");

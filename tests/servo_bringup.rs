@@ -584,8 +584,8 @@ fn the_limits_wrapper_clamps_or_refuses_on_the_real_bus() {
 
 #[test]
 fn a_servo_one_tick_past_its_limit_is_brought_up_on_the_limit_two_ticks_are_refused() {
-    // `home_rad` exactly on joint 1's limit (2 rad) lands on tick 3352, the nearest; the limit
-    // rounded inward is 3351.
+    // A servo left one tick past joint 1's limit rounded inward (3351), as other software
+    // rounding 2 rad to its nearest tick (3352) would leave it.
     let config = config("torque_off");
     let arm = arm_of(&config);
     let mut one_past = rig(&config, |s| s.servos[0].initial_position_ticks = Some(3352));

@@ -39,6 +39,15 @@ fn point_segment_distance2(p: Vec2, a: Vec2, b: Vec2) -> f64 {
     (p - (a + ab * s)).norm_squared()
 }
 
+/// Whether the segments `a0..a1` and `b0..b1` cross properly: each one's ends strictly on
+/// both sides of the other's line (an end on the other segment is no proper crossing).
+fn segments_cross(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> bool {
+    let (da, db) = (a1 - a0, b1 - b0);
+    let (s0, s1) = (cross(db, a0 - b0), cross(db, a1 - b0));
+    let (t0, t1) = (cross(da, b0 - a0), cross(da, b1 - a0));
+    s0 * s1 < 0.0 && t0 * t1 < 0.0
+}
+
 /// Whether the segments `a0..a1` and `b0..b1` come within `c` (>= 0) of each other.
 fn segments_within(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2, c: f64) -> bool {
     // Bounding boxes grown by the clearance: most pairs of a chain end here.
@@ -49,13 +58,9 @@ fn segments_within(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2, c: f64) -> bool {
     {
         return false;
     }
-    // A proper crossing: each segment's ends strictly on both sides of the other's line.
     // Touching and collinear overlaps put an end on the other segment (distance 0), which the
     // end-point distances below catch.
-    let (da, db) = (a1 - a0, b1 - b0);
-    let (s0, s1) = (cross(db, a0 - b0), cross(db, a1 - b0));
-    let (t0, t1) = (cross(da, b0 - a0), cross(da, b1 - a0));
-    if s0 * s1 < 0.0 && t0 * t1 < 0.0 {
+    if segments_cross(a0, a1, b0, b1) {
         return true;
     }
     let c2 = c * c;
@@ -140,6 +145,88 @@ impl Chain {
                     && !Self::links_touch(before, a, b, clearance)
                 {
                     return Some((a, b));
+                }
+            }
+        }
+        None
+    }
+
+    /// Whether links `a` and `b` (from 0, `a < b`) of the pose `points` cross properly: each
+    /// one's ends strictly on both sides of the other's line. Adjacent links never do.
+    ///
+    /// # Panics
+    /// If `b + 1 >= points.len()` (a programming error).
+    pub fn links_cross(points: &[Vec2], a: usize, b: usize) -> bool {
+        b > a + 1 && segments_cross(points[a], points[a + 1], points[b], points[b + 1])
+    }
+
+    /// How many pairs of non-adjacent links of the pose `points` cross properly (each link's
+    /// ends strictly on both sides of the other's line). Allocation-free, O(n²).
+    pub fn crossings(points: &[Vec2]) -> usize {
+        let links = points.len().saturating_sub(1);
+        let mut n = 0;
+        for a in 0..links {
+            for b in a + 2..links {
+                let (a0, a1, b0, b1) = (points[a], points[a + 1], points[b], points[b + 1]);
+                if a0.x.max(a1.x) < b0.x.min(b1.x)
+                    || b0.x.max(b1.x) < a0.x.min(a1.x)
+                    || a0.y.max(a1.y) < b0.y.min(b1.y)
+                    || b0.y.max(b1.y) < a0.y.min(a1.y)
+                {
+                    continue;
+                }
+                n += usize::from(segments_cross(a0, a1, b0, b1));
+            }
+        }
+        n
+    }
+
+    /// As [`Chain::new_self_intersection`], for a pose `before` that is tangled (two links in
+    /// contact) and is to be untangled: the first pair that makes `points` worse than
+    /// `before`, or `None`. Worse is:
+    ///
+    /// - a pair in contact that was not, and is no neighbour of a pair that was (`(a, b)`
+    ///   neighbours `(a, b +- 1)` and `(a +- 1, b)`): a crossing may slide from one link onto
+    ///   the next through the joint between them, nothing may touch anywhere else;
+    /// - more pairs crossing than in `before` (the pair reported is then the first that
+    ///   crosses in `points` and did not in `before`).
+    ///
+    /// So a tangled arm may move while its crossings slide toward a free end and fall off it,
+    /// never gaining one. For a `before` clear of itself this is
+    /// [`Chain::new_self_intersection`] but for pairs that cross without touching first (which
+    /// a continuous motion cannot do).
+    ///
+    /// # Panics
+    /// If the two poses differ in length (a programming error).
+    pub fn worse_self_intersection(
+        points: &[Vec2],
+        before: &[Vec2],
+        clearance: f64,
+    ) -> Option<(usize, usize)> {
+        assert_eq!(points.len(), before.len(), "two poses of one chain");
+        let links = points.len().saturating_sub(1);
+        let touched =
+            |a: usize, b: usize| a < b && b < links && Self::links_touch(before, a, b, clearance);
+        for a in 0..links {
+            for b in a + 1..links {
+                if !Self::links_touch(points, a, b, clearance) || touched(a, b) {
+                    continue;
+                }
+                let neighbour = touched(a, b + 1)
+                    || (b > 0 && touched(a, b - 1))
+                    || touched(a + 1, b)
+                    || (a > 0 && touched(a - 1, b));
+                if !neighbour {
+                    return Some((a, b));
+                }
+            }
+        }
+        if Self::crossings(points) > Self::crossings(before) {
+            for a in 0..links {
+                for b in a + 2..links {
+                    if Self::links_cross(points, a, b) && !Self::links_cross(before, a, b) {
+                        return Some((a, b));
+                    }
                 }
             }
         }
@@ -311,6 +398,79 @@ mod tests {
             Chain::new_self_intersection(&curl(hex), &curl(0.5), SELF_CLEARANCE_M),
             Some((0, 5))
         );
+    }
+
+    #[test]
+    fn a_tangled_pose_may_move_while_it_gets_no_worse() {
+        let v = Vec2::new;
+        let c = SELF_CLEARANCE_M;
+        // Link 3 (x = 2, downward) crosses link 0 (the x axis from 0 to 4).
+        let before = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., -1.),
+            v(3., -1.),
+        ];
+        assert_eq!(Chain::self_intersects(&before), Some((0, 3)));
+        assert_eq!(Chain::crossings(&before), 1);
+        assert!(Chain::links_cross(&before, 0, 3));
+        assert!(!Chain::links_cross(&before, 0, 1));
+        // The joint between links 3 and 4 passes over link 0: the crossing slides onto link 4.
+        let slid = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., 0.5),
+            v(3., -1.),
+        ];
+        assert!(Chain::links_cross(&slid, 0, 4));
+        assert_eq!(Chain::worse_self_intersection(&slid, &before, c), None);
+        // Which the rule for a clear pose would have stopped.
+        assert_eq!(
+            Chain::new_self_intersection(&slid, &before, c),
+            Some((0, 4))
+        );
+        // Link 4 swung up across link 0 too: two crossings where there was one.
+        let more = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., -1.),
+            v(3., 1.),
+        ];
+        assert_eq!(Chain::crossings(&more), 2);
+        assert_eq!(
+            Chain::worse_self_intersection(&more, &before, c),
+            Some((0, 4))
+        );
+        // Link 4's end against link 1, far along the chain from the crossing.
+        let elsewhere = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., -1.),
+            v(4., -5e-4),
+        ];
+        assert_eq!(
+            Chain::worse_self_intersection(&elsewhere, &before, c),
+            Some((1, 4))
+        );
+        // Untangled.
+        let clear = [
+            v(0., 0.),
+            v(4., 0.),
+            v(4., 2.),
+            v(2., 2.),
+            v(2., 1.),
+            v(3., 1.),
+        ];
+        assert_eq!(Chain::self_intersects(&clear), None);
+        assert_eq!(Chain::worse_self_intersection(&clear, &before, c), None);
     }
 
     #[test]

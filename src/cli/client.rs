@@ -140,6 +140,15 @@ pub fn path(args: PathArgs) -> Result<(), Failure> {
         .map_err(|e| Failure::bad_input(anyhow!("{}: cannot read it: {e}", args.file.display())))?;
     let points = parse_points(&text)
         .map_err(|e| Failure::bad_input(anyhow!("{}:{e}", args.file.display())))?;
+    // Refused here rather than by the daemon: every path up to the limit fits in one request
+    // line, so this is the only size check a path needs.
+    if points.len() > MAX_PATH_POINTS {
+        return Err(Failure::bad_input(anyhow!(
+            "{}: {} points, over the limit of {MAX_PATH_POINTS} points a path may have",
+            args.file.display(),
+            points.len()
+        )));
+    }
     let mut client = connect(&args.connect)?;
     motion(&mut client, &Cmd::Path { points, speed }, args.no_wait)
 }
@@ -344,12 +353,6 @@ fn parse_points(text: &str) -> Result<Vec<[f64; 2]>, String> {
             continue;
         }
         points.push(parse_row(line).map_err(|e| format!("{}: {e}", i + 1))?);
-        if points.len() > MAX_PATH_POINTS {
-            return Err(format!(
-                "{}: too many points: a path has at most {MAX_PATH_POINTS}",
-                i + 1
-            ));
-        }
     }
     if points.is_empty() {
         return Err(" no points: expected lines `x,y` in metres".to_owned());

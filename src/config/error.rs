@@ -87,6 +87,29 @@ pub enum FieldProblem {
         /// Upper limit given, rad.
         max_rad: f64,
     },
+    /// A joint limit the servo cannot reach: beyond its one turn, with the joint's
+    /// `offset_ticks` and `reverse`.
+    #[error(
+        "{value} rad is servo position {ticks:.1} ticks (offset_ticks and reverse included), \
+         beyond the servo's one turn 0..=4095"
+    )]
+    BeyondTurn {
+        /// The limit, rad.
+        value: f64,
+        /// Where it falls, ticks.
+        ticks: f64,
+    },
+    /// Limits so close that no whole servo tick lies between them.
+    #[error(
+        "limits [{min_rad}, {max_rad}] rad hold no whole servo tick (a tick is 0.0015 rad): \
+         widen them"
+    )]
+    NoWholeTick {
+        /// Lower limit, rad.
+        min_rad: f64,
+        /// Upper limit, rad.
+        max_rad: f64,
+    },
     /// A list with the wrong number of entries.
     #[error("{got} entries for {expected} joints: give one per [[joint]]")]
     Count {

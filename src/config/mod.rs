@@ -511,6 +511,7 @@ impl Checker<'_> {
                 offset_ticks: j.offset_ticks,
                 reverse: j.reverse,
             };
+            self.tick_limits(i + 1, calibration, j.limit)?;
             servos.push(JointServo::new(i + 1, id, model, calibration, j.limit));
         }
         let port = match (raw.kind, &raw.port) {
@@ -586,6 +587,37 @@ impl Checker<'_> {
             baud: raw.baud,
         };
         Ok((bus, Arm::new(servos, settings)))
+    }
+
+    /// Joint `n`'s limits as servo ticks: within the servo's one turn, and at least one whole
+    /// tick apart once rounded inward (so that every angle inside the limits, a home pose on
+    /// one of them included, has a tick inside them).
+    fn tick_limits(
+        &self,
+        n: usize,
+        calibration: Calibration,
+        limit: JointLimit,
+    ) -> Result<(), ConfigError> {
+        for (name, value) in [("min_rad", limit.lo), ("max_rad", limit.hi)] {
+            let ticks = calibration.ticks(value);
+            if !(0.0..=4095.0).contains(&ticks) {
+                return Err(self.invalid(
+                    format!("joint[{n}].{name}"),
+                    FieldProblem::BeyondTurn { value, ticks },
+                ));
+            }
+        }
+        let (lo, hi) = calibration.tick_range(limit.lo, limit.hi);
+        if lo > hi {
+            return Err(self.invalid(
+                format!("joint[{n}].max_rad"),
+                FieldProblem::NoWholeTick {
+                    min_rad: limit.lo,
+                    max_rad: limit.hi,
+                },
+            ));
+        }
+        Ok(())
     }
 
     fn sim(&self, raw: RawSim, joints: &[Joint]) -> Result<Sim, ConfigError> {

@@ -288,6 +288,74 @@ fn home_outside_limits() {
     );
 }
 
+/// A home pose exactly on a limit is inside it, and so is the servo position it becomes:
+/// on the upper limit of joint 1, the lower of joint 2, and both limits of the reversed,
+/// offset joint 3 (the nearest tick of 2 rad lies past the limit rounded inward).
+#[test]
+fn home_on_a_limit_is_inside_in_ticks_too() {
+    for home in ["[2.0, -2.0, 2.0]", "[-2.0, 2.0, -2.0]"] {
+        let c = load(&with(
+            "home_rad = [0.1, -0.2, 0.3]",
+            &format!("home_rad = {home}"),
+        ))
+        .unwrap();
+        let arm = c.arm().unwrap();
+        for (j, &theta) in arm.joints().iter().zip(c.home()) {
+            let nearest = j.calibration.ticks(theta).round() as i32;
+            let t = j.position_ticks(theta).unwrap();
+            assert!(
+                (j.ticks.min..=j.ticks.max).contains(&t),
+                "joint {}: {theta} rad is tick {t}, limits {:?}",
+                j.joint,
+                j.ticks
+            );
+            assert!((t - nearest).abs() <= 1, "{t} against {nearest}");
+            let back = j.calibration.radians(f64::from(t));
+            assert!(j.limit.contains(back), "{back} rad");
+        }
+    }
+}
+
+#[test]
+fn limits_beyond_the_servos_turn_or_within_one_tick() {
+    // 3.5 rad is 2048 + 2281.6 ticks: past 4095.
+    refused(
+        &with(
+            "min_rad = -2.0\nmax_rad = 2.0\nid = 2",
+            "min_rad = -2.0\nmax_rad = 3.5\nid = 2",
+        ),
+        &["joint[2].max_rad", "3.5 rad", "4329.6 ticks", "0..=4095"],
+    );
+    // Reversed and 12 ticks off: -3.2 rad is 2036 + 2086.1 ticks.
+    refused(
+        &with(
+            "min_rad = -2.0\nmax_rad = 2.0\nid = 3",
+            "min_rad = -3.2\nmax_rad = 2.0\nid = 3",
+        ),
+        &["joint[3].min_rad", "-3.2 rad", "4122.1 ticks"],
+    );
+    // 1 mrad wide, between two ticks (a tick is 1.53 mrad).
+    refused(
+        &with(
+            "min_rad = -2.0\nmax_rad = 2.0\nid = 1",
+            "min_rad = 0.0002\nmax_rad = 0.0012\nid = 1",
+        )
+        .replace(
+            "home_rad = [0.1, -0.2, 0.3]",
+            "home_rad = [0.001, -0.2, 0.3]",
+        ),
+        &["joint[1].max_rad", "no whole servo tick"],
+    );
+    // Without servos, nothing in ticks is asked of the limits.
+    let text = with(
+        "min_rad = -2.0\nmax_rad = 2.0\nid = 2",
+        "min_rad = -2.0\nmax_rad = 3.5\nid = 2",
+    );
+    let cut = text.find("[bus]").unwrap();
+    let text = text[..cut].to_owned() + &text[text.find("[control]").unwrap()..];
+    load(&text).unwrap();
+}
+
 #[test]
 fn absent_home_must_have_zero_inside() {
     let text = with("home_rad = [0.1, -0.2, 0.3]", "")

@@ -102,7 +102,7 @@ pub fn sim_config(config: &Config) -> Result<SimConfig, SimBusError> {
         let mut spec = ServoSpec::new(joint.id, model);
         spec.min_position_ticks = u32::try_from(joint.ticks.min).ok();
         spec.max_position_ticks = u32::try_from(joint.ticks.max).ok();
-        spec.initial_position_ticks = Some(joint.calibration.ticks(*home).round() as i32);
+        spec.initial_position_ticks = joint.position_ticks(*home);
         servos.push(spec);
     }
     let mut out = SimConfig {

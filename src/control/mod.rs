@@ -4,15 +4,16 @@
 //! resolvers (one [`Overall`] and one [`Sequential`], so switching strategy costs nothing) and
 //! every scratch buffer. Each [`Controller::tick`]:
 //!
-//! 1. **Motion** steps the reference by `dt`: a tip point, or a joint pose for goto_joints,
-//!    home and jog (whose tip is reported as `tip_ref`).
+//! 1. **Motion** steps the reference by `dt`: a tip point (goto, path, velocity: at most the
+//!    tip speed limit), or a joint pose for goto_joints, home and jog (whose tip is reported as
+//!    `tip_ref`; at most the joint speed limit, whatever speed the tip then has).
 //! 2. **Resolve** a tip reference with the active strategy, warm from the last commanded pose.
 //!    A reference the resolver cannot reach (outside the workspace, not converged, refused
 //!    for the joint limits, or folding the arm onto itself) is not sent: the farthest
 //!    fraction of this tick's step that resolves is found by [`BISECTION_ROUNDS`] rounds of
 //!    bisection, and the tick is `saturated` (and `self_collision` where links would have
-//!    touched). A joint reference is taken as it is, slowed if its tip would move faster than
-//!    the tip speed limit.
+//!    touched). A joint reference is taken as it is: joint-space motion is bounded by the
+//!    joint speed limit alone, not by the tip speed limit.
 //! 3. **Joint-speed limit.** No goal moves more than `max_joint_speed_rad_s * dt` from the last
 //!    one. A resolved step that would is shortened in proportion and re-resolved (up to
 //!    [`SLOWDOWN_ROUNDS`] times, `slowed`); a final per-joint clamp guarantees the bound
@@ -23,13 +24,16 @@
 //!    or a joint reference was not checked yet); if it touches, the tick takes the farthest
 //!    fraction of its joint step (theta -> pose, a straight line in joint space, so the bound
 //!    and the limits still hold) that stays clear, by [`BISECTION_ROUNDS`] rounds of
-//!    bisection, and flags `saturated` and `self_collision`. Pairs of links that already touch
-//!    in the commanded pose (only a measured pose, from [`Controller::new`] or
-//!    [`Controller::reseed`], can) are exempt, so such an arm can be moved out of contact;
-//!    every other pair must stay clear. Only the poses of the ticks are checked: links are
-//!    joined end to end, so two that begin to cross within a tick still cross at its end and
-//!    are caught then, unless the arm's two free ends (the tip and the base end of link 1)
-//!    slip past each other within one tick's travel.
+//!    bisection, and flags `saturated` and `self_collision`. A commanded pose with links
+//!    already in contact (only a measured pose, from [`Controller::new`] or
+//!    [`Controller::reseed`], can be; [`Controller::self_contact`] names the pair) is
+//!    **tangled**: it may move as long as it gets no worse
+//!    ([`Chain::worse_self_intersection`]: no more pairs crossing, and no contact but where
+//!    one was or on the next link of the chain), so a joint move such as `home` slides a
+//!    crossing off the arm; once clear, no pair may touch again. Only the poses of the ticks
+//!    are checked: links are joined end to end, so two that begin to cross within a tick
+//!    still cross at its end and are caught then, unless the arm's two free ends (the tip and
+//!    the base end of link 1) slip past each other within one tick's travel.
 //! 5. The motion **follows** what was achieved: a shortened step moves the reference back onto
 //!    the arm, with the velocity the arm really had, so it never runs ahead. A goto, path or
 //!    joint move that makes no progress for [`crate::motion::STALL_TICKS`] saturated ticks
@@ -221,6 +225,32 @@ pub enum Refused {
     },
 }
 
+/// Two links of the commanded pose in contact ([`Controller::self_contact`]). Displays as a
+/// warning for a user (links counted from 1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SelfContact {
+    /// The first link of the pair, from 0.
+    pub a: usize,
+    /// The second link, from 0, `b > a`.
+    pub b: usize,
+    /// The two cross (rather than come within [`SELF_CLEARANCE_M`] of each other).
+    pub crossing: bool,
+}
+
+impl std::fmt::Display for SelfContact {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "links {} and {} of the arm's pose {}: until they are clear, the arm moves only \
+             where that tangles it no further (`home`, or a `goto_joints` to a clear pose, \
+             untangles it)",
+            self.a + 1,
+            self.b + 1,
+            if self.crossing { "cross" } else { "touch" }
+        )
+    }
+}
+
 /// What one tick did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Tick {
@@ -234,8 +264,7 @@ pub struct Tick {
     /// The step was cut short because two links would have come within [`SELF_CLEARANCE_M`]
     /// of each other (`saturated` is then set too).
     pub self_collision: bool,
-    /// The step was shortened and re-resolved to keep within the joint-speed bound (or, for a
-    /// joint reference, the tip speed limit).
+    /// The step was shortened and re-resolved to keep within the joint-speed bound.
     pub slowed: bool,
     /// The final per-joint clamp had to shorten a joint's step.
     pub clamped: bool,
@@ -278,6 +307,8 @@ struct Guard {
     now: Vec<Vec2>,
     /// Points of the pose under test.
     scratch: Vec<Vec2>,
+    /// Two links of the commanded pose are in contact.
+    tangled: bool,
 }
 
 impl Guard {
@@ -286,6 +317,7 @@ impl Guard {
         let mut g = Self {
             now: vec![Vec2::zeros(); n + 1],
             scratch: vec![Vec2::zeros(); n + 1],
+            tangled: false,
         };
         g.commit(chain, theta);
         g
@@ -294,14 +326,19 @@ impl Guard {
     /// The commanded pose is now `theta`; returns its tip.
     fn commit(&mut self, chain: &Chain, theta: &[f64]) -> Vec2 {
         chain.points_into(theta, &mut self.now);
+        self.tangled = Chain::self_intersects(&self.now).is_some();
         self.now[chain.len()]
     }
 
     /// The first pair of links that `pose` brings into contact and the commanded pose does not
-    /// have in contact.
+    /// have in contact; from a tangled pose, the first pair that makes it worse.
     fn contact(&mut self, chain: &Chain, pose: &[f64]) -> Option<(usize, usize)> {
         chain.points_into(pose, &mut self.scratch);
-        Chain::new_self_intersection(&self.scratch, &self.now, SELF_CLEARANCE_M)
+        if self.tangled {
+            Chain::worse_self_intersection(&self.scratch, &self.now, SELF_CLEARANCE_M)
+        } else {
+            Chain::new_self_intersection(&self.scratch, &self.now, SELF_CLEARANCE_M)
+        }
     }
 }
 
@@ -579,6 +616,29 @@ impl Controller {
         &self.home
     }
 
+    /// The first pair of links of the commanded pose in contact, when there is one (a measured
+    /// pose taken by [`Controller::new`] or [`Controller::reseed`]): the arm is tangled, and
+    /// moves only as long as that gets no worse (see the module doc). Worth a warning.
+    pub fn self_contact(&self) -> Option<SelfContact> {
+        let p = &self.guard.now;
+        let n = self.chain.len();
+        // A crossing pair first: it is what a user must untangle.
+        let mut pairs = (0..n).flat_map(|a| (a + 2..n).map(move |b| (a, b)));
+        if let Some((a, b)) = pairs.find(|&(a, b)| Chain::links_cross(p, a, b)) {
+            return Some(SelfContact {
+                a,
+                b,
+                crossing: true,
+            });
+        }
+        let (a, b) = Chain::self_intersects(p)?;
+        Some(SelfContact {
+            a,
+            b,
+            crossing: false,
+        })
+    }
+
     /// One tick of `dt` seconds: steps the motion, resolves, limits the joint speeds and
     /// commits the new goals (see the module doc).
     pub fn tick(&mut self, dt: f64) -> Tick {
@@ -610,8 +670,7 @@ impl Controller {
             Reference::Joints => {
                 self.cand.copy_from_slice(self.motion.joint_reference());
                 t.tip_ref = self.chain.tip(&self.cand);
-                t.slowed = self.limit_tip_speed(from, dt);
-                reached = self.chain.tip(&self.cand);
+                reached = t.tip_ref;
             }
         }
         t.clamped = self.clamp_joint_steps(dt);
@@ -713,36 +772,6 @@ impl Controller {
         reached
     }
 
-    /// Shortens the joint step `theta -> cand` uniformly so that its tip moves no more than the
-    /// tip speed limit allows. Returns whether it had to.
-    fn limit_tip_speed(&mut self, from: Vec2, dt: f64) -> bool {
-        let room = self.limits.max_tip_speed_m_s * dt;
-        let mut scale = 1.0;
-        let mut slowed = false;
-        for round in 0..4 {
-            for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {
-                *x = t + scale * (c - t);
-            }
-            let moved = (self.chain.tip(&self.trial) - from).norm();
-            if moved <= room {
-                break;
-            }
-            slowed = true;
-            scale = if round == 3 {
-                0.0
-            } else {
-                scale * SHORTEN_MARGIN * room / moved
-            };
-        }
-        if slowed {
-            for ((c, &t), x) in self.cand.iter_mut().zip(&self.theta).zip(&mut self.trial) {
-                *x = t + scale * (*c - t);
-                *c = *x;
-            }
-        }
-        slowed
-    }
-
     /// The final guarantee: every goal within `max_joint_speed * dt` of the last one, finite and
     /// inside its limits. Returns whether a step had to be shortened.
     fn clamp_joint_steps(&mut self, dt: f64) -> bool {
@@ -805,3 +834,6 @@ impl Controller {
         true
     }
 }
+
+#[cfg(test)]
+mod tests;

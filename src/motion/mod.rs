@@ -41,6 +41,11 @@ pub fn joint_accel(max_joint_speed_rad_s: f64) -> f64 {
 /// Distance, m, within which a tip reference that can stop in one tick snaps onto its target.
 pub const SNAP_M: f64 = 1e-9;
 
+/// Distance, m, within which consecutive path points are merged into one corner
+/// ([`Motion::path`]): the snap distance, so two points the tip cannot tell apart cost one
+/// stop, not two.
+pub const PATH_MERGE_M: f64 = SNAP_M;
+
 /// Angle, rad, within which a joint reference that can stop in one tick snaps onto its target.
 pub const SNAP_RAD: f64 = 1e-9;
 
@@ -355,10 +360,14 @@ impl Motion {
     }
 
     /// Through `points` in turn (at least one), each corner at rest. The points are moved in.
-    pub fn path(&mut self, points: Vec<Vec2>, speed: f64) {
+    ///
+    /// Consecutive points within [`PATH_MERGE_M`] of each other are one corner (the first of
+    /// them is kept): a repeated point would otherwise cost a tick at rest on the spot.
+    pub fn path(&mut self, mut points: Vec<Vec2>, speed: f64) {
         if points.is_empty() {
             return;
         }
+        points.dedup_by(|p, kept| (*p - *kept).norm() <= PATH_MERGE_M);
         self.path = points;
         let speed = speed.min(self.limits.tip_speed);
         self.start(Mode::Path { next: 0, speed });

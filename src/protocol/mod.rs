@@ -48,8 +48,15 @@ pub use write::{error_line, event_line, ok_line, reply_line, request_line, telem
 /// The version of this wire format, reported by `describe`.
 pub const PROTOCOL_VERSION: u32 = 1;
 
-/// The longest request line accepted, bytes (newline excluded).
-pub const MAX_LINE: usize = 64 * 1024;
+/// The longest request line accepted, bytes (newline excluded): 1 MiB.
+///
+/// Sized so that the longest `path` ([`MAX_PATH_POINTS`] points) fits however its numbers are
+/// written: a coordinate at full precision takes at most 24 characters
+/// (`-1.2345678901234567e-300`), a point with its brackets and separators at most 54 bytes
+/// (`[x, y], ` with spaces), so 10,000 points take at most 540,000 bytes, about half the
+/// line. The server's line reader holds up to this much per client, so `[server]
+/// max_clients` connections hold at most that many MiB between them.
+pub const MAX_LINE: usize = 1024 * 1024;
 
 /// The largest magnitude a number in a request may have.
 pub const MAX_ARG: f64 = 1e6;
@@ -65,7 +72,8 @@ pub type RequestId = Arc<Value>;
 #[serde(rename_all = "snake_case")]
 #[non_exhaustive]
 pub enum Code {
-    /// Not JSON, not an object, or a number JSON cannot hold (such as 1e999).
+    /// Not JSON, not an object, a number JSON cannot hold (such as 1e999), or an object (at any
+    /// depth) with the same key twice.
     BadJson,
     /// A `cmd` this daemon does not know.
     UnknownCmd,

@@ -11,6 +11,8 @@ use super::{
 };
 use crate::resolve::Strategy;
 
+mod strict;
+
 /// The most corner points one `path` may have.
 pub const MAX_PATH_POINTS: usize = 10_000;
 
@@ -26,7 +28,8 @@ const MAX_SERVO_ID: u8 = 252;
 /// # Returns
 /// The request, or the id (when the line is an object with an `id`) and why it was refused:
 /// [`Code::BadJson`] for a line that is not JSON, not an object, or holds a number JSON cannot
-/// hold (`1e999`); [`Code::UnknownCmd`] for a missing or unknown `cmd` (the message lists the
+/// hold (`1e999`) or an object with the same key twice (at any depth; the message names the
+/// key); [`Code::UnknownCmd`] for a missing or unknown `cmd` (the message lists the
 /// known ones); [`Code::BadArg`] for a wrong argument, the message naming the field (`target[1]`)
 /// and the value.
 ///
@@ -46,11 +49,14 @@ const MAX_SERVO_ID: u8 = 252;
 /// assert!(why.message.contains("joint"));
 /// ```
 pub fn parse(line: &[u8], joints: usize) -> Result<Request, (Option<RequestId>, Rejection)> {
-    let value: Value = serde_json::from_slice(line).map_err(|e| {
-        (
-            None,
-            Rejection::new(Code::BadJson, format!("not JSON: {e}")),
-        )
+    let value = strict::from_slice(line).map_err(|e| {
+        // A data error is a duplicate key, the only thing the reader refuses in valid JSON.
+        let message = if e.is_data() {
+            e.to_string()
+        } else {
+            format!("not JSON: {e}")
+        };
+        (None, Rejection::new(Code::BadJson, message))
     })?;
     let Value::Object(mut map) = value else {
         let message = format!("a request is a JSON object, got {}", Shown(&value));

@@ -39,8 +39,9 @@ use super::{
 };
 
 /// How far past a joint's limit, ticks, a servo may read at bring-up and still be brought up
-/// (held on the limit): a pose set exactly on a limit in radians lands on the nearest tick,
-/// which can lie one tick outside the limit rounded inward to ticks.
+/// (held on the limit): a servo placed on a limit by other software, which rounds the limit
+/// to the nearest tick rather than inward, may sit one tick outside. Poses converted here
+/// never need it ([`JointServo::position_ticks`] keeps a pose on a limit inside).
 pub const LIMIT_ROUNDING_TICKS: i32 = 1;
 
 /// Transient errors retried per exchange (so an exchange is tried at most `RETRIES + 1` times).
@@ -304,7 +305,7 @@ impl Arm {
             });
         }
         for (j, &theta) in self.joints.iter().zip(pose) {
-            if j.calibration.goal_ticks(theta).is_none() {
+            if j.position_ticks(theta).is_none() {
                 return Err(ServoError::NotFinite {
                     joint: j.joint,
                     id: j.id,
@@ -315,7 +316,7 @@ impl Arm {
         for ((j, &theta), goal) in self.joints.iter().zip(pose).zip(out) {
             *goal = Goal {
                 id: j.id,
-                ticks: j.calibration.goal_ticks(theta).unwrap_or(goal.ticks),
+                ticks: j.position_ticks(theta).unwrap_or(goal.ticks),
             };
         }
         Ok(())
@@ -773,6 +774,21 @@ impl Arm {
 }
 
 impl JointServo {
+    /// The position, ticks, of the joint angle `theta_rad`: the nearest tick, except that an
+    /// angle inside the joint's limits (on one included) never lands outside the tick limits,
+    /// which are the limits rounded inward. A pose exactly on a limit would otherwise round
+    /// to the tick just past it. `None` for an angle that is not finite or beyond the
+    /// register's range. An angle outside the limits converts as it is, for the limit wrapper
+    /// to refuse or clamp.
+    pub fn position_ticks(&self, theta_rad: f64) -> Option<i32> {
+        let t = self.calibration.goal_ticks(theta_rad)?;
+        Some(if self.limit.contains(theta_rad) {
+            t.max(self.ticks.min).min(self.ticks.max)
+        } else {
+            t
+        })
+    }
+
     /// A joint's servo; the tick limits follow from the calibration.
     pub fn new(
         joint: usize,

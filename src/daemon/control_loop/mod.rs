@@ -274,6 +274,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             &brought.pose,
         )
         .map_err(DaemonError::Controller)?;
+        if let Some(contact) = controller.self_contact() {
+            tracing::warn!("{contact}");
+        }
         // The channel's first value is never seen: tick 0 publishes a measured snapshot
         // before `ready` hands the handle to anyone who could read it.
         let (handle, ends) = link::channel(describe(config, &arm), Telemetry::default());

@@ -204,6 +204,81 @@ fn bad_json_for_a_number_json_cannot_hold() {
 }
 
 #[test]
+fn a_key_given_twice_is_bad_json_naming_it_at_any_depth() {
+    let cases = [
+        (
+            r#"{"cmd":"goto","target":[0.1,0.2],"speed":0.01,"speed":5}"#,
+            "\"speed\"",
+        ),
+        (r#"{"cmd":"status","cmd":"estop"}"#, "\"cmd\""),
+        (r#"{"id":1,"cmd":"status","id":2}"#, "\"id\""),
+        (r#"{"id":{"seq":1,"seq":2},"cmd":"status"}"#, "\"seq\""),
+        (
+            r#"{"cmd":"goto","target":[{"x":1,"y":2,"x":3},0]}"#,
+            "\"x\"",
+        ),
+        (r#"{"cmd":"status","params":{"a":{"b":1,"b":1}}}"#, "\"b\""),
+    ];
+    for (line, key) in cases {
+        let (id, why) = refused(line);
+        assert_eq!(why.code, Code::BadJson, "{line}: {why}");
+        assert!(why.message.contains("duplicate key"), "{line}: {why}");
+        assert!(why.message.contains(key), "{line}: {why} lacks {key}");
+        assert_eq!(id, None, "{line}");
+    }
+    // Equal keys in different objects are no duplicates.
+    let req = ok(r#"{"id":{"x":1,"y":{"x":2}},"cmd":"goto","target":[0.1,0.2]}"#);
+    assert_eq!(req.id.as_deref(), Some(&json!({"x": 1, "y": {"x": 2}})));
+    // A key differing only in case, or escaped differently but equal, is told apart or not
+    // as JSON says: "sp\u0065ed" is "speed".
+    refused_with(
+        r#"{"cmd":"goto","target":[0,0],"speed":1,"sp\u0065ed":2}"#,
+        Code::BadJson,
+        &["duplicate key", "\"speed\""],
+    );
+    refused_with(
+        r#"{"cmd":"goto","target":[0,0],"speed":1,"Speed":2}"#,
+        Code::BadArg,
+        &["`Speed`"],
+    );
+}
+
+/// The longest path the parser takes fits in one request line, written compactly (as
+/// `request_line` writes it) or with a space after every separator, every coordinate at full
+/// precision and as long as a double gets.
+#[test]
+fn the_longest_path_fits_in_one_line() {
+    let widest = [
+        -1.234_567_890_123_456_7e-300,
+        -0.000_012_345_678_901_234_567,
+    ];
+    for x in widest {
+        assert_eq!(serde_json::to_string(&x).unwrap().len(), 24, "{x}");
+    }
+    let points: Vec<[f64; 2]> = (0..MAX_PATH_POINTS)
+        .map(|i| [widest[i % 2], widest[(i + 1) % 2]])
+        .collect();
+    let cmd = Cmd::Path {
+        points: points.clone(),
+        speed: Some(-widest[0]),
+    };
+    let compact = crate::protocol::request_line(Some(&json!(u64::MAX)), &cmd);
+    let spaced = compact.replace(',', ", ").replace(':', ": ");
+    for line in [compact.trim_end(), spaced.trim_end()] {
+        assert!(
+            line.len() <= crate::protocol::MAX_LINE,
+            "{} bytes over {}",
+            line.len(),
+            crate::protocol::MAX_LINE
+        );
+        assert!(matches!(
+            ok(line).cmd,
+            Cmd::Path { points: ref got, .. } if *got == points
+        ));
+    }
+}
+
+#[test]
 fn unknown_cmd_lists_the_known_ones() {
     let (_, why) = refused(r#"{"cmd":"fly"}"#);
     assert_eq!(why.code, Code::UnknownCmd);
