@@ -465,7 +465,7 @@ fn unknown(message: fmt::Arguments<'_>) -> Rejection {
     Rejection::new(Code::UnknownCmd, message.to_string())
 }
 
-/// A value as JSON for a message, cut short when long (a request line may be 64 KiB).
+/// A value as JSON for a message, cut short when long (a request line may be 1 MiB).
 struct Shown<'a>(&'a Value);
 
 impl fmt::Display for Shown<'_> {
