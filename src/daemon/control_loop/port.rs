@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use crate::connect::ConnectError;
-use crate::protocol::{FaultInfo, FaultKind};
+use crate::protocol::FaultInfo;
 use crate::servo::arm::Arm;
 use crate::servo::limits::Limited;
 use crate::servo::ServoBus;
@@ -47,13 +47,16 @@ pub struct Port<B: ServoBus> {
     last_contact: Instant,
     /// The Bus Watchdog's period, when armed.
     watchdog: Option<Duration>,
+    /// The port's path, for the reports (`None`: not known).
+    name: Option<String>,
 }
 
 impl<B: ServoBus> Port<B> {
-    /// `bus`, just brought up at `now`; `opener` opens it again; the servos' Bus Watchdog runs
-    /// with `watchdog` (`None`: off).
+    /// `bus` on the port at path `name`, just brought up at `now`; `opener` opens it again; the
+    /// servos' Bus Watchdog runs with `watchdog` (`None`: off).
     pub fn new(
         bus: Limited<B>,
+        name: Option<String>,
         opener: Opener<B>,
         watchdog: Option<Duration>,
         now: Instant,
@@ -64,7 +67,13 @@ impl<B: ServoBus> Port<B> {
             lost: None,
             last_contact: now,
             watchdog,
+            name,
         }
+    }
+
+    /// The port's path, when known.
+    pub fn name(&self) -> Option<&str> {
+        self.name.as_deref()
     }
 
     /// The bus.
@@ -105,7 +114,7 @@ impl<B: ServoBus> Port<B> {
     pub fn fault(&self) -> Option<FaultInfo> {
         self.lost
             .as_ref()
-            .map(|l| port_info(l.since, l.detail.clone()))
+            .map(|l| FaultInfo::port(self.name.clone(), l.since, l.detail.clone()))
     }
 
     /// A lost port whose next try is due at `now`.
@@ -122,7 +131,8 @@ impl<B: ServoBus> Port<B> {
     /// The port is back: the fault's clearing to report.
     pub fn found(&mut self) -> Option<FaultInfo> {
         let lost = self.lost.take()?;
-        Some(port_info(
+        Some(FaultInfo::port(
+            self.name.clone(),
             lost.since,
             "the port is open again; goals := measured pose".into(),
         ))
@@ -148,16 +158,5 @@ impl<B: ServoBus> Port<B> {
         if let Some(watchdog) = self.watchdog {
             self.last_contact = now.checked_sub(watchdog).unwrap_or(self.last_contact);
         }
-    }
-}
-
-/// The port's fault, as listed and reported.
-fn port_info(since: u64, detail: String) -> FaultInfo {
-    FaultInfo {
-        id: 0,
-        joint: 0,
-        kind: FaultKind::Port,
-        since_tick: since,
-        detail,
     }
 }

@@ -221,6 +221,7 @@ impl Rig {
         let reopen = bus.clone();
         let parts = Parts {
             bus: arm.limited(bus.clone(), LimitPolicy::Clamp),
+            port: Some("/dev/memory".into()),
             arm,
             opener: Box::new(move |arm| {
                 if reopen.wire().port_gone {
