@@ -348,23 +348,28 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.controller.freeze();
         let ended = self.ledger.interrupt(StopReason::Reboot);
         self.owe(ended);
+        // Under a latch that switched torque off, torque stays off until `reset`.
+        let latched_off = self.supervisor.estopped() && !self.supervisor.torque();
         if let Err(refusal) = self.reboot_and_bring_up(&targets) {
             return refusal;
         }
-        if self.supervisor.estopped() && self.on_exit == OnExit::TorqueOff {
-            // Brought up with torque on; the latch keeps it off until `reset`.
+        let torque = if latched_off {
+            // Bring-up switched it on; the latch keeps it off.
             self.torque_off_all("reboot under the estop latch");
             self.supervisor.set_torque(false);
-        }
+            "torque off under the estop latch"
+        } else {
+            "torque on"
+        };
         tracing::info!(?targets, "rebooted; holding the measured pose");
         for i in 0..self.health.len() {
             let id = self.ids.get(i).copied().unwrap_or_default();
             let detail = if targets.contains(&id) {
-                "rebooted; goals := measured pose, torque on"
+                format!("rebooted; goals := measured pose, {torque}")
             } else {
-                "answers after the reboot; goals := measured pose, torque on"
+                format!("answers after the reboot; goals := measured pose, {torque}")
             };
-            self.clear(i, detail.into());
+            self.clear(i, detail);
         }
         self.sync_faulted();
         Pending::Ready(Ok(Reply::Rebooted(Rebooted {

@@ -620,6 +620,23 @@ mod tests {
     }
 
     #[test]
+    fn the_servos_not_to_wait_on_are_the_silent_and_those_that_missed_their_last_read() {
+        let mut h = health(10);
+        let t0 = Instant::now();
+        assert!(h.unanswering().is_empty());
+        assert!(!h.missed(1, 1, t0));
+        assert_eq!(h.unanswering(), vec![2], "missed its latest read");
+        assert!(!h.answered(1, false));
+        assert!(h.unanswering().is_empty());
+        h.raise(0, JointFault::Silent, 3, "quiet".into());
+        assert_eq!(h.unanswering(), vec![1]);
+        h.raise(1, JointFault::PowerLoss, 4, "RAM reset".into());
+        assert_eq!(h.power_lost(), vec![2]);
+        assert_eq!(h.unanswering(), vec![1], "a servo back from a power loss answers");
+        assert_eq!(h.index_of(2), Some(1));
+    }
+
+    #[test]
     fn the_lists_put_the_port_first() {
         let mut h = health(10);
         h.raise(0, JointFault::Silent, 1, "quiet".into());

@@ -865,3 +865,22 @@ fn a_shut_down_with_a_silent_servo_does_not_wait_on_it_and_names_it() {
     }
     assert!((1..=12).filter(|&id| id != 5).all(|id| bus.torque(id) == 0));
 }
+
+#[test]
+fn a_reboot_under_the_estop_latch_leaves_torque_off_until_reset() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.servo(3, |s| {
+        s.set(Register::HardwareErrorStatus, 0x20);
+        s.set(Register::TorqueEnable, 0);
+    });
+    rig.ticks(1);
+    rig.command(LoopCmd::Estop).unwrap();
+    rig.command(LoopCmd::Reboot { ids: None }).unwrap();
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Estop, false));
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 0));
+    rig.command(LoopCmd::Reset).unwrap();
+    assert_eq!(rig.status().state, State::Holding);
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 1));
+}
