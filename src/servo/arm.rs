@@ -112,6 +112,13 @@ impl<'a> Within<'a> {
         }
     }
 
+    /// Exchanges on the wall clock for `span` from now, each reply waited for at most
+    /// `timeout` (for callers outside the control loop: tools, tests).
+    pub fn wall(span: Duration, timeout: Duration) -> Within<'static> {
+        static WALL: RealClock = RealClock;
+        Within::new(&WALL, Instant::now() + span, timeout)
+    }
+
     /// The wait for the next reply, or `None` when there is no time left for one.
     pub fn wait(&self) -> Option<Duration> {
         let left = self.until.saturating_duration_since(self.clock.now());
@@ -864,10 +871,12 @@ impl Arm {
             let blocks = bus.sync_read(&pending, register.address(), register.size(), wait)?;
             for (id, block) in pending.iter().zip(blocks) {
                 let decoded = block.and_then(|b| {
-                    register.decode(&b.data).ok_or_else(|| ServoError::Malformed {
-                        id: *id,
-                        what: format!("{} bytes for {register:?}", b.data.len()),
-                    })
+                    register
+                        .decode(&b.data)
+                        .ok_or_else(|| ServoError::Malformed {
+                            id: *id,
+                            what: format!("{} bytes for {register:?}", b.data.len()),
+                        })
                 });
                 match decoded {
                     Ok(v) => {
@@ -885,16 +894,13 @@ impl Arm {
         }
         if let Some(i) = values.iter().position(Option::is_none) {
             let id = ids.get(i).copied().unwrap_or_default();
-            return Err(last
-                .into_iter()
-                .find(|(x, _)| *x == id)
-                .map_or(
-                    ServoError::Timeout {
-                        id,
-                        waited: Duration::ZERO,
-                    },
-                    |(_, e)| e,
-                ));
+            return Err(last.into_iter().find(|(x, _)| *x == id).map_or(
+                ServoError::Timeout {
+                    id,
+                    waited: Duration::ZERO,
+                },
+                |(_, e)| e,
+            ));
         }
         Ok(values.into_iter().flatten().collect())
     }
@@ -944,7 +950,9 @@ impl Arm {
                 .map_err(step("holding the present position"))?;
             if armed > 0 {
                 retry
-                    .within(within, id, |w| bus.write(id, Register::BusWatchdog, armed, w))
+                    .within(within, id, |w| {
+                        bus.write(id, Register::BusWatchdog, armed, w)
+                    })
                     .map_err(step("arming the bus watchdog"))?;
             }
         }
@@ -963,7 +971,11 @@ impl Arm {
         within: &Within<'_>,
     ) -> Result<Option<String>, ServoError> {
         let mut retry = Retry::default();
-        let mut read = |r: Register| retry.within(within, id, |w| bus.read(id, r, w)).map(|v| v.value);
+        let mut read = |r: Register| {
+            retry
+                .within(within, id, |w| bus.read(id, r, w))
+                .map(|v| v.value)
+        };
         let mut reset = Vec::new();
         let armed = units::watchdog_units(self.settings.watchdog_ms);
         if armed > 0 && read(Register::BusWatchdog)? == 0 {
@@ -1109,7 +1121,9 @@ impl Arm {
                 let written = match block {
                     Ok(b) if b.data.first() == Some(&0) => continue,
                     // Still on: the Sync Write was lost on its way to this one.
-                    Ok(_) => within.wait_for(id).and_then(|w| bus.set_torque(id, false, w)),
+                    Ok(_) => within
+                        .wait_for(id)
+                        .and_then(|w| bus.set_torque(id, false, w)),
                     Err(e) => Err(e),
                 };
                 if let Err(e) = written {

@@ -207,6 +207,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// lost power have none anyway), their RAM written again as bring-up did, and each held in
     /// a `power_loss` fault until `reset`, which alone turns torque back on.
     fn latch_power_loss(&mut self, back: &[usize], lost: Vec<(usize, String)>) {
+        for &i in back {
+            let detail = match lost.iter().find(|(j, _)| *j == i) {
+                Some((_, what)) => format!("answers again, with its RAM reset: {what}"),
+                None => "answers again (another servo lost power: the arm is latched)".into(),
+            };
+            self.clear(i, detail);
+        }
         if !self.supervisor.estopped() {
             self.controller.freeze();
             self.ledger.estop();
@@ -217,23 +224,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             self.event(None, None, |tip| What::Estop { tip });
         }
-        for &i in back {
-            if !lost.iter().any(|(j, _)| *j == i) {
-                self.clear(
-                    i,
-                    "answers again (another servo lost power: the arm is latched)".into(),
-                );
-            }
-        }
         let tick = self.tick;
         for (i, what) in lost {
             let id = self.ids.get(i).copied().unwrap_or_default();
             let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
             let restored = match self.arm.restore_ram(self.port.bus(), id, &within) {
-                Ok(()) => "its settings written again (profiles, Bus Watchdog, goal := present position)".to_owned(),
+                Ok(()) => {
+                    "its settings written again (profiles, Bus Watchdog, goal := present position)"
+                        .to_owned()
+                }
                 Err(e) => format!("writing its settings again failed ({e}): `reboot` brings it up"),
             };
-            self.clear(i, format!("answers again, with its RAM reset: {what}"));
             let detail = format!(
                 "lost power: it answers again with its RAM reset ({what}); {restored}; its torque \
                  stays off and the arm is latched as after an estop: `reset` turns torque on"
@@ -304,10 +305,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
         }
         if !missing.is_empty() {
-            return Err(format!(
-                "the pose cannot be read: {}",
-                missing.join("; ")
-            ));
+            return Err(format!("the pose cannot be read: {}", missing.join("; ")));
         }
         let limits = self.controller.chain().limits();
         for (t, l) in self.measured.theta.iter_mut().zip(limits) {

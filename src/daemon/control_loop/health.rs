@@ -632,7 +632,11 @@ mod tests {
         assert_eq!(h.unanswering(), vec![1]);
         h.raise(1, JointFault::PowerLoss, 4, "RAM reset".into());
         assert_eq!(h.power_lost(), vec![2]);
-        assert_eq!(h.unanswering(), vec![1], "a servo back from a power loss answers");
+        assert_eq!(
+            h.unanswering(),
+            vec![1],
+            "a servo back from a power loss answers"
+        );
         assert_eq!(h.index_of(2), Some(1));
     }
 

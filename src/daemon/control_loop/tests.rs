@@ -690,7 +690,9 @@ fn an_estop_with_a_silent_servo_is_answered_in_its_tick_without_an_overrun() {
     let start = rig.clock.now();
     let mut answer = rig.send(LoopCmd::Estop);
     rig.ticks(1);
-    let applied = answer.try_recv().expect("answered in the tick that applied it");
+    let applied = answer
+        .try_recv()
+        .expect("answered in the tick that applied it");
     assert!(applied.is_ok(), "{applied:?}");
     rig.ticks(1);
     let s = rig.status();
@@ -700,7 +702,11 @@ fn an_estop_with_a_silent_servo_is_answered_in_its_tick_without_an_overrun() {
     // Two ticks on schedule: the silent servo was never waited on.
     assert_eq!(rig.clock.now() - start, 20 * MS);
     for id in (1..=12).filter(|&id| id != 5) {
-        assert_eq!(rig.bus.torque(id), 0, "servo {id} torque on after the estop");
+        assert_eq!(
+            rig.bus.torque(id),
+            0,
+            "servo {id} torque on after the estop"
+        );
     }
 }
 
@@ -724,7 +730,9 @@ fn torque_off_with_a_silent_servo_costs_no_overrun_and_says_torque_off() {
     rig.ticks(1);
     assert_eq!(rig.status().overruns, overruns);
     assert_eq!(rig.clock.now() - start, 20 * MS);
-    assert!((1..=12).filter(|&id| id != 8).all(|id| rig.bus.torque(id) == 0));
+    assert!((1..=12)
+        .filter(|&id| id != 8)
+        .all(|id| rig.bus.torque(id) == 0));
     assert_eq!(rig.status().state, State::TorqueOff);
 }
 
@@ -737,7 +745,9 @@ fn reset_and_torque_on_with_a_silent_servo_are_refused_with_fault_naming_it() {
     let refused = rig.command(LoopCmd::Reset).unwrap_err();
     assert_eq!(refused.code, Code::Fault, "{refused:?}");
     assert!(
-        refused.message.contains("servo 5 (joint 5) does not answer"),
+        refused
+            .message
+            .contains("servo 5 (joint 5) does not answer"),
         "{}",
         refused.message
     );
@@ -777,7 +787,9 @@ fn a_servo_that_lost_power_latches_the_arm_and_only_reset_brings_torque_back() {
     assert!(!s.torque);
     let events = rig.events();
     assert!(
-        events.iter().any(|e| matches!(e.what, What::Estop { .. }) && e.owner.is_none()),
+        events
+            .iter()
+            .any(|e| matches!(e.what, What::Estop { .. }) && e.owner.is_none()),
         "{events:?}"
     );
     let raised: Vec<_> = events
