@@ -906,57 +906,114 @@ impl Arm {
     }
 
     /// The servos whose Bus Watchdog has fired (it reads -1): they refuse goals until
-    /// [`Arm::recover_watchdog`]. One Sync Read, within `within`.
+    /// [`Arm::recover_watchdog`]; with them those whose watchdog reads 0 where `[bus]
+    /// watchdog_ms` arms it (a recovery cut short). One Sync Read, within `within`.
     pub fn tripped_watchdogs<B: ServoBus>(
         &self,
         bus: &mut B,
         within: &Within<'_>,
     ) -> Result<Vec<u8>, BringUpError> {
         let ids = self.ids();
+        let armed = units::watchdog_units(self.settings.watchdog_ms);
         let values = self
             .sync_read_within(bus, &ids, Register::BusWatchdog, within)
             .map_err(step("reading the bus watchdog"))?;
         Ok(ids
             .into_iter()
             .zip(values)
-            .filter(|&(_, v)| v < 0)
+            .filter(|&(_, v)| v < 0 || (v == 0 && armed > 0))
             .map(|(id, _)| id)
             .collect())
     }
 
     /// Recover every servo whose Bus Watchdog fired (after a long stall of the bus): clear
     /// it, set the goal to the present position (so the servo does not jump to a stale
-    /// goal), arm it again; within `within`. Returns the servos recovered.
+    /// goal), arm it again, each step one Sync Write to all of them; one Sync Read of the
+    /// watchdog and the goal confirms it, and the servos it does not confirm go through it
+    /// again while `within` allows. Returns the servos recovered.
     pub fn recover_watchdog<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,
         within: &Within<'_>,
     ) -> Result<Vec<u8>, BringUpError> {
-        let mut retry = Retry::default();
         let tripped = self.tripped_watchdogs(bus, within)?;
         let armed = units::watchdog_units(self.settings.watchdog_ms);
-        for &id in &tripped {
-            retry
-                .within(within, id, |w| bus.write(id, Register::BusWatchdog, 0, w))
+        // Bus Watchdog (98) to Goal Position (116..119) in one read.
+        let (first, goal_at) = (Register::BusWatchdog.address(), 18usize);
+        let len = Register::GoalPosition.address() + Register::GoalPosition.size() - first;
+        let mut pending = tripped.clone();
+        let mut last: Option<ServoError> = None;
+        for _ in 0..=RETRIES {
+            if pending.is_empty() {
+                break;
+            }
+            let zeros: Vec<(u8, i64)> = pending.iter().map(|&id| (id, 0)).collect();
+            bus.sync_write(Register::BusWatchdog, &zeros)
                 .map_err(step("clearing the bus watchdog"))?;
-            let present = retry
-                .within(within, id, |w| bus.read(id, Register::PresentPosition, w))
-                .map_err(step("reading the present position"))?
-                .value;
-            retry
-                .within(within, id, |w| {
-                    bus.write(id, Register::GoalPosition, present, w)
-                })
+            let present = self
+                .sync_read_within(bus, &pending, Register::PresentPosition, within)
+                .map_err(step("reading the present position"))?;
+            let goals: Vec<(u8, i64)> = pending
+                .iter()
+                .zip(present)
+                .map(|(&id, p)| (id, self.clamp_ticks(id, p)))
+                .collect();
+            bus.sync_write(Register::GoalPosition, &goals)
                 .map_err(step("holding the present position"))?;
             if armed > 0 {
-                retry
-                    .within(within, id, |w| {
-                        bus.write(id, Register::BusWatchdog, armed, w)
-                    })
+                let arm: Vec<(u8, i64)> = pending.iter().map(|&id| (id, armed)).collect();
+                bus.sync_write(Register::BusWatchdog, &arm)
                     .map_err(step("arming the bus watchdog"))?;
             }
+            let Some(wait) = within.wait() else {
+                break;
+            };
+            let blocks = bus
+                .sync_read(&pending, first, len, wait)
+                .map_err(step("checking the bus watchdog"))?;
+            let mut still = Vec::new();
+            for ((&id, goal), block) in pending.iter().zip(&goals).zip(blocks) {
+                let held = block.map(|b| {
+                    let watchdog = b.data.first().map(|&w| i64::from(w as i8));
+                    let at = b.data.get(goal_at..goal_at + 4);
+                    let goal_now = at.and_then(|g| Register::GoalPosition.decode(g));
+                    watchdog == Some(armed) && goal_now == Some(goal.1)
+                });
+                match held {
+                    Ok(true) => {}
+                    Ok(false) => {
+                        last = Some(ServoError::Malformed {
+                            id,
+                            what: "the watchdog or the goal did not take its new value".into(),
+                        });
+                        still.push(id);
+                    }
+                    Err(e) => {
+                        last = Some(e);
+                        still.push(id);
+                    }
+                }
+            }
+            pending = still;
+        }
+        if let Some(&id) = pending.first() {
+            return Err(BringUpError::Step {
+                step: "recovering the bus watchdog",
+                source: last.unwrap_or(ServoError::Timeout {
+                    id,
+                    waited: Duration::ZERO,
+                }),
+            });
         }
         Ok(tripped)
+    }
+
+    /// `ticks` of servo `id` inside its joint's Goal Position limits.
+    fn clamp_ticks(&self, id: u8, ticks: i64) -> i64 {
+        match self.joints.iter().find(|j| j.id == id) {
+            Some(j) => ticks.clamp(i64::from(j.ticks.min), i64::from(j.ticks.max)),
+            None => ticks,
+        }
     }
 
     /// What of the RAM bring-up wrote servo `id` no longer holds, `None` when it all does: a
