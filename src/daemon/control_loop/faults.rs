@@ -336,10 +336,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let tripped = self.arm.tripped_watchdogs(self.port.bus(), &within);
         self.port.contact(self.clock.now());
         let tripped = match tripped {
-            Ok(t) if t.is_empty() => return,
+            Ok(t) if t.is_empty() => {
+                self.port.stall_handled();
+                return;
+            }
             Ok(t) => t,
             Err(e) => {
+                // Looked at again next tick: the stall stands until they are read.
                 tracing::warn!("after a {gap:?} stall, reading the bus watchdogs failed: {e}");
+                self.port.stall_again(gap);
                 return;
             }
         };
@@ -357,6 +362,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.owe(ended);
         match self.recover() {
             Ok(_) => {
+                self.port.stall_handled();
                 for id in tripped {
                     if let Some(i) = self.ids.iter().position(|&x| x == id) {
                         let info = self
@@ -370,7 +376,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 // Next tick's stall check (the gap is measured again) tries once more.
                 tracing::warn!("watchdog recovery failed: {e}");
                 self.controller.freeze();
-                self.port.stall_again(self.clock.now());
+                self.port.stall_again(gap);
             }
         }
     }

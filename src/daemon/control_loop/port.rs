@@ -49,6 +49,9 @@ pub struct Port<B: ServoBus> {
     watchdog: Option<Duration>,
     /// The port's path, for the reports (`None`: not known).
     name: Option<String>,
+    /// A stall whose recovery is still to be done, and how long it was: the goals written since
+    /// renew the contact, so the gap alone would not show it again.
+    stall_left: Option<Duration>,
 }
 
 impl<B: ServoBus> Port<B> {
@@ -68,6 +71,7 @@ impl<B: ServoBus> Port<B> {
             last_contact: now,
             watchdog,
             name,
+            stall_left: None,
         }
     }
 
@@ -146,17 +150,27 @@ impl<B: ServoBus> Port<B> {
     }
 
     /// The loop went quiet at least as long as the Bus Watchdog (the process was stopped, the
-    /// machine stalled): the gap and the watchdog's period.
+    /// machine stalled), or such a stall is still to be recovered from: the gap and the
+    /// watchdog's period.
     pub fn stalled(&self, now: Instant) -> Option<(Duration, Duration)> {
         let watchdog = self.watchdog?;
+        if let Some(gap) = self.stall_left {
+            return Some((gap, watchdog));
+        }
         let gap = now.saturating_duration_since(self.last_contact);
         (gap >= watchdog).then_some((gap, watchdog))
     }
 
-    /// A stall's recovery failed: the next tick's check sees the stall again.
-    pub fn stall_again(&mut self, now: Instant) {
-        if let Some(watchdog) = self.watchdog {
-            self.last_contact = now.checked_sub(watchdog).unwrap_or(self.last_contact);
+    /// A stall of `gap` could not be recovered from this tick: the next tick's check sees it
+    /// again.
+    pub fn stall_again(&mut self, gap: Duration) {
+        if self.watchdog.is_some() {
+            self.stall_left = Some(gap);
         }
+    }
+
+    /// The stall is dealt with.
+    pub fn stall_handled(&mut self) {
+        self.stall_left = None;
     }
 }

@@ -896,3 +896,28 @@ fn a_reboot_under_the_estop_latch_leaves_torque_off_until_reset() {
     assert_eq!(rig.status().state, State::Holding);
     assert!((1..=12).all(|id| rig.bus.torque(id) == 1));
 }
+
+#[test]
+fn a_stall_whose_watchdogs_cannot_be_read_at_once_is_recovered_on_a_later_tick() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(2);
+    rig.events();
+    rig.clock.advance(300 * MS);
+    for id in [2, 7] {
+        rig.bus.servo(id, |s| s.set(Register::BusWatchdog, -1));
+    }
+    // Servo 7 misses the first reads after the stall.
+    rig.bus.servo(7, |s| s.silent = true);
+    rig.ticks(1);
+    rig.bus.servo(7, |s| s.silent = false);
+    rig.ticks(2);
+    let recovered = fault_events(&rig.events(), FaultChange::Recovered);
+    assert_eq!(
+        recovered.iter().map(|r| r.0).collect::<Vec<_>>(),
+        vec![Some(2), Some(7)]
+    );
+    for id in [2, 7] {
+        assert!(rig.bus.wire().servos[&id].get(Register::BusWatchdog) > 0);
+    }
+    assert_eq!(rig.status().state, State::Holding);
+}
