@@ -161,6 +161,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             for i in back {
                 self.clear(i, "answers again (other faults still hold the arm)".into());
             }
+            if !self.port.is_lost() && !self.supervisor.torque() {
+                // A torque off it missed while silent reaches it now.
+                self.torque_off_all("a servo back from silence");
+            }
             return;
         }
         if self.recover_after.is_some_and(|t| self.clock.now() < t) {

@@ -921,3 +921,20 @@ fn a_stall_whose_watchdogs_cannot_be_read_at_once_is_recovered_on_a_later_tick()
     }
     assert_eq!(rig.status().state, State::Holding);
 }
+
+#[test]
+fn a_shut_down_with_the_port_lost_ends_at_once_naming_every_servo() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    assert!(!rig.cycle.turn(&mut rig.pace, true), "at rest: the port holds it");
+    let Rig { cycle, clock, .. } = rig;
+    let start = clock.now();
+    match cycle.shut_down(false).unwrap_err() {
+        crate::daemon::DaemonError::ShutDown(e) => {
+            assert_eq!(e.unreached.len(), 12, "{e}");
+        }
+        other => panic!("not a shut-down error: {other}"),
+    }
+    assert_eq!(clock.now(), start);
+}
