@@ -61,6 +61,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 for i in 0..self.ids.len() {
                     attention |= self.take_reading(i, scheduled);
                 }
+                self.retry_torque_off();
             }
         }
         if health {
@@ -253,9 +254,37 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     pub(super) fn torque_off_all(&mut self, why: &str) {
         let silent = self.health.unanswering();
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        self.torque_off_pending.clear();
         if let Err(unreached) = self.arm.torque_off(self.port.bus(), &silent, &within) {
             let list: Vec<String> = unreached.iter().map(ToString::to_string).collect();
-            tracing::warn!("{why}: torque off not confirmed: {}", list.join("; "));
+            tracing::warn!(
+                "{why}: torque off not confirmed (sent again once they answer): {}",
+                list.join("; ")
+            );
+            self.torque_off_pending
+                .extend(unreached.iter().map(|u| u.id));
+        }
+    }
+
+    /// A torque off that missed servos reaches them once one of them answers a read (torque
+    /// on since makes it moot).
+    fn retry_torque_off(&mut self) {
+        if self.torque_off_pending.is_empty() {
+            return;
+        }
+        if self.supervisor.torque() {
+            self.torque_off_pending.clear();
+            return;
+        }
+        let answered = self.torque_off_pending.iter().any(|id| {
+            self.ids
+                .iter()
+                .position(|x| x == id)
+                .and_then(|i| self.states.readings().get(i))
+                .is_some_and(Result::is_ok)
+        });
+        if answered {
+            self.torque_off_all("a servo answering again");
         }
     }
 

@@ -246,6 +246,8 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     recover_after: Option<Instant>,
     /// Until when the fault path of this tick may wait on the bus (see [`Cycle::within`]).
     fault_until: Instant,
+    /// Servos a torque off did not reach: switched off once they answer a read.
+    torque_off_pending: Vec<u8>,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -336,6 +338,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             tick: 0,
             recover_after: None,
             fault_until: now,
+            torque_off_pending: Vec::new(),
         };
         Ok((cycle, handle))
     }

@@ -734,6 +734,11 @@ fn torque_off_with_a_silent_servo_costs_no_overrun_and_says_torque_off() {
         .filter(|&id| id != 8)
         .all(|id| rig.bus.torque(id) == 0));
     assert_eq!(rig.status().state, State::TorqueOff);
+    // It answers again: the torque off it missed reaches it.
+    assert_eq!(rig.bus.torque(8), 1);
+    rig.bus.servo(8, |s| s.silent = false);
+    rig.ticks(1);
+    assert_eq!(rig.bus.torque(8), 0, "servo 8 kept its torque");
 }
 
 #[test]
@@ -927,7 +932,10 @@ fn a_shut_down_with_the_port_lost_ends_at_once_naming_every_servo() {
     let mut rig = Rig::new(100.0, "");
     rig.bus.wire().port_gone = true;
     rig.ticks(1);
-    assert!(!rig.cycle.turn(&mut rig.pace, true), "at rest: the port holds it");
+    assert!(
+        !rig.cycle.turn(&mut rig.pace, true),
+        "at rest: the port holds it"
+    );
     let Rig { cycle, clock, .. } = rig;
     let start = clock.now();
     match cycle.shut_down(false).unwrap_err() {
