@@ -32,7 +32,13 @@
 //! - the serial port failing (an error of class `Bus`): `port`, reopened once a second;
 //! - a stall of the loop longer than the Bus Watchdog (the process stopped): the watchdogs
 //!   that fired are cleared, goals := the measured pose, re-armed (`watchdog`, recovered at
-//!   once).
+//!   once);
+//! - a servo back from silence with its RAM at the defaults (it lost power): `power_loss`, the
+//!   arm latched as by an estop, its RAM written again, torque only on `reset`.
+//!
+//! The fault path never holds the tick longer than a period: its exchanges wait at most to the
+//! end of the tick and are not sent again past it, and servos known silent are not waited on
+//! (torque off is one Sync Write, confirmed by the servos that answer).
 //!
 //! While a fault holds, the controller is frozen and motion commands are refused (`fault`);
 //! once every fault has cleared, goals := the measured pose (tripped watchdogs cleared first)
