@@ -208,12 +208,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// Why the measured pose cannot be read now, without asking the bus: the port is lost, or
-    /// servos do not answer (held silent, or missing from the latest read).
+    /// servos are held silent. (A servo that only missed a read or two is asked, within the
+    /// tick.)
     fn pose_unreadable(&self) -> Option<String> {
         if self.port.is_lost() {
             return Some("the serial port is lost: the measured pose cannot be read".into());
         }
-        let silent = self.health.unanswering();
+        let silent = self.health.silent();
         (!silent.is_empty()).then(|| {
             format!(
                 "{} {} not answer: the measured pose cannot be read",

@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use crate::protocol::{FaultChange, FaultKind, What};
-use crate::servo::arm::{Arm, OnExit, Retry};
+use crate::servo::arm::{self, Arm, OnExit, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::limits::Limited;
 use crate::servo::{units, ErrorClass, Fields, HardwareErrors, Register, ServoBus, ServoError};
@@ -323,21 +323,36 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// every servo that did not answer.
     pub(super) fn measure_pose(&mut self) -> Result<(), String> {
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
-        let wait = within
-            .wait()
-            .ok_or("reading the pose: no time left in this tick")?;
-        self.port
-            .bus()
-            .read_states_into(&self.ids, Fields::POSITION, wait, &mut self.states)
-            .map_err(|e| format!("reading the pose: {e}"))?;
+        let mut heard = vec![false; self.ids.len()];
         let mut missing = Vec::new();
-        for (i, reading) in self.states.readings().iter().enumerate() {
-            match reading {
-                Ok(s) => self.measured.record_position(i, s.position_ticks),
-                Err(err) => missing.push(format!("joint {}: {err}", i + 1)),
+        // A lost or damaged reply is asked for again while the tick allows.
+        for _ in 0..=arm::RETRIES {
+            let Some(wait) = within.wait() else {
+                break;
+            };
+            self.port
+                .bus()
+                .read_states_into(&self.ids, Fields::POSITION, wait, &mut self.states)
+                .map_err(|e| format!("reading the pose: {e}"))?;
+            missing.clear();
+            for (i, reading) in self.states.readings().iter().enumerate() {
+                match reading {
+                    Ok(s) => {
+                        self.measured.record_position(i, s.position_ticks);
+                        heard[i] = true;
+                    }
+                    Err(_) if heard[i] => {}
+                    Err(err) => missing.push(format!("joint {}: {err}", i + 1)),
+                }
+            }
+            if missing.is_empty() {
+                break;
             }
         }
-        if !missing.is_empty() {
+        if heard.iter().any(|h| !h) {
+            if missing.is_empty() {
+                missing.push("no time left in this tick".into());
+            }
             return Err(format!("the pose cannot be read: {}", missing.join("; ")));
         }
         let limits = self.controller.chain().limits();

@@ -189,6 +189,23 @@ impl Health {
             .collect()
     }
 
+    /// The servos held silent.
+    pub fn silent(&self) -> Vec<u8> {
+        self.joints
+            .iter()
+            .filter(|j| {
+                matches!(
+                    j.fault,
+                    Some(Held {
+                        fault: JointFault::Silent,
+                        ..
+                    })
+                )
+            })
+            .map(|j| j.id)
+            .collect()
+    }
+
     /// The servos held for a power loss.
     pub fn power_lost(&self) -> Vec<u8> {
         self.joints
@@ -630,6 +647,7 @@ mod tests {
         assert!(h.unanswering().is_empty());
         h.raise(0, JointFault::Silent, 3, "quiet".into());
         assert_eq!(h.unanswering(), vec![1]);
+        assert_eq!(h.silent(), vec![1]);
         h.raise(1, JointFault::PowerLoss, 4, "RAM reset".into());
         assert_eq!(h.power_lost(), vec![2]);
         assert_eq!(
