@@ -792,55 +792,101 @@ impl Arm {
         Ok(())
     }
 
-    /// Torque on for every servo but those in `skip`, within `within`: each servo's goal set to
-    /// its present position first (so nothing moves), both writes acknowledged one by one. A
-    /// servo that does not answer in time fails the whole, naming it; the servos already
-    /// switched on are then switched off again (one Sync Write), so torque is on for all or
-    /// for none of them as far as the bus lets it be.
+    /// Torque on for every servo but those in `skip`, within `within`, in three round trips:
+    /// each goal := its present position (one Sync Read, one Sync Write, confirmed by one Sync
+    /// Read of the goals, so nothing moves), then Torque Enable 1 (one Sync Write, confirmed by
+    /// one Sync Read) to the servos whose goal was confirmed; what is not confirmed is sent again
+    /// while `within` allows. A servo not confirmed in time fails the whole, naming it; the
+    /// servos then switched on are switched off again (one Sync Write), so torque is on for all
+    /// or for none of them as far as the bus lets it be.
     pub fn torque_on<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,
         skip: &[u8],
         within: &Within<'_>,
     ) -> Result<(), BringUpError> {
-        let joints: Vec<&JointServo> = self
-            .joints
-            .iter()
-            .filter(|j| !skip.contains(&j.id))
+        let ids: Vec<u8> = self
+            .ids()
+            .into_iter()
+            .filter(|id| !skip.contains(id))
             .collect();
-        let result = self.torque_on_joints(bus, &joints, within);
+        let result = self.torque_on_ids(bus, &ids, within);
         if result.is_err() {
-            let values: Vec<(u8, i64)> = joints.iter().map(|j| (j.id, 0)).collect();
+            let values: Vec<(u8, i64)> = ids.iter().map(|&id| (id, 0)).collect();
             // Best effort: a port that fails here failed the torque on already.
             let _ = bus.sync_write(Register::TorqueEnable, &values);
         }
         result
     }
 
-    fn torque_on_joints<B: ServoBus>(
+    fn torque_on_ids<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,
-        joints: &[&JointServo],
+        ids: &[u8],
         within: &Within<'_>,
     ) -> Result<(), BringUpError> {
-        let mut retry = Retry::default();
-        let ids: Vec<u8> = joints.iter().map(|j| j.id).collect();
         let present = self
-            .sync_read_within(bus, &ids, Register::PresentPosition, within)
+            .sync_read_within(bus, ids, Register::PresentPosition, within)
             .map_err(step("reading the present pose"))?;
-        for (j, &ticks) in joints.iter().zip(&present) {
-            retry
-                .within(within, j.id, |w| {
-                    bus.write(j.id, Register::GoalPosition, ticks, w)
-                })
-                .map_err(step("holding the present pose"))?;
+        let goals: Vec<(u8, i64)> = ids
+            .iter()
+            .zip(present)
+            .map(|(&id, p)| (id, self.clamp_ticks(id, p)))
+            .collect();
+        self.write_confirmed(bus, Register::GoalPosition, &goals, within)
+            .map_err(step("holding the present pose"))?;
+        let on: Vec<(u8, i64)> = ids.iter().map(|&id| (id, 1)).collect();
+        self.write_confirmed(bus, Register::TorqueEnable, &on, within)
+            .map_err(step("torque on"))
+    }
+
+    /// `values` (servo, value) of `register` in one Sync Write, confirmed by one Sync Read; the
+    /// servos that do not read back their value get it again while `within` allows.
+    fn write_confirmed<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        register: Register,
+        values: &[(u8, i64)],
+        within: &Within<'_>,
+    ) -> Result<(), ServoError> {
+        let mut pending: Vec<(u8, i64)> = values.to_vec();
+        let mut last: Option<ServoError> = None;
+        for _ in 0..=RETRIES {
+            if pending.is_empty() {
+                return Ok(());
+            }
+            bus.sync_write(register, &pending)?;
+            let Some(wait) = within.wait() else {
+                break;
+            };
+            let ids: Vec<u8> = pending.iter().map(|&(id, _)| id).collect();
+            let blocks = bus.sync_read(&ids, register.address(), register.size(), wait)?;
+            let mut still = Vec::new();
+            for (&(id, value), block) in pending.iter().zip(blocks) {
+                match block.map(|b| register.decode(&b.data)) {
+                    Ok(Some(v)) if v == value => {}
+                    Ok(read) => {
+                        last = Some(ServoError::Malformed {
+                            id,
+                            what: format!("{register:?} reads {read:?} after writing {value}"),
+                        });
+                        still.push((id, value));
+                    }
+                    Err(e) => {
+                        last = Some(e);
+                        still.push((id, value));
+                    }
+                }
+            }
+            pending = still;
         }
-        for j in joints {
-            retry
-                .within(within, j.id, |w| bus.set_torque(j.id, true, w))
-                .map_err(step("torque on"))?;
+        match pending.first() {
+            None => Ok(()),
+            Some(&(id, _)) => Err(last.unwrap_or(ServoError::Timeout {
+                id,
+                waited: Duration::ZERO,
+            })),
         }
-        Ok(())
     }
 
     /// `register` of every servo in `ids`, in order, by Sync Reads within `within`: the servos

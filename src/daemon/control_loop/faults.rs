@@ -299,9 +299,6 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             .recover_watchdog(self.port.bus(), &within)
             .map_err(|e| e.to_string())?;
         self.measure_pose()?;
-        self.controller
-            .reseed(&self.measured.theta)
-            .map_err(|r| r.to_string())?;
         if self.supervisor.torque() {
             let skip = self.health.power_lost();
             let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
@@ -311,6 +308,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         } else {
             self.torque_off_all("recovery");
         }
+        // Only once the bus work is done: a recovery that fails leaves the goals as they were.
+        self.controller
+            .reseed(&self.measured.theta)
+            .map_err(|r| r.to_string())?;
         self.port.contact(self.clock.now());
         self.recover_after = None;
         self.health.forgive();
