@@ -6,10 +6,11 @@
 mod cli_support;
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use snakectl::config::Config;
 use snakectl::connect::{self, ConnectError, Options};
-use snakectl::servo::arm::BringUpOptions;
+use snakectl::servo::arm::{BringUpOptions, Within};
 use snakectl::servo::{Register, ServoBus, ServoError};
 
 fn shipped(name: &str) -> PathBuf {
@@ -44,7 +45,8 @@ fn drive(config: &Config, mut link: connect::Connection) {
             1
         );
     }
-    arm.shut_down(&mut link.bus).unwrap();
+    arm.shut_down(&mut link.bus, &[], &Within::wall(Duration::from_secs(1), t))
+        .unwrap();
 }
 
 #[test]
@@ -192,7 +194,9 @@ fn the_in_process_simulator_is_reopened_on_its_link_after_a_disconnect() {
     }
     // Bring-up clears the fired watchdogs and takes the arm back.
     arm.bring_up(&mut bus, BringUpOptions::default()).unwrap();
-    arm.shut_down(&mut bus).unwrap();
+    let t = arm.settings().reply_timeout;
+    arm.shut_down(&mut bus, &[], &Within::wall(Duration::from_secs(1), t))
+        .unwrap();
     drop(sim);
     assert!(
         port.symlink_metadata().is_err() && !port.parent().unwrap().exists(),

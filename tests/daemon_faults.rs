@@ -528,3 +528,58 @@ fn a_vanished_port_holds_the_arm_is_reopened_and_the_arm_moves_again() {
     assert!(reseeds <= 1, "{reseeds} jumps to the measured pose");
     stop_torque_off(d);
 }
+
+#[test]
+fn a_servo_that_lost_power_latches_the_arm_until_reset_turns_torque_back_on() {
+    let d = Daemon::start(sim_config_with(&[], ""));
+    let (mut c, (lo, hi), start) = watching(&d);
+    let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.01}));
+    assert_eq!(c.reply(&json!(goto))["ok"], json!(true));
+    assert!(d.sim.with_sim(|s| s.lose_power(5)));
+    let (mut samples, _) = watch_until_event(&mut c, fault_event("raised", "silent"));
+    // Power back: the servo answers with its RAM at the defaults.
+    assert!(d.sim.with_sim(|s| s.restore_power(5)));
+    let mut skipped = Vec::new();
+    let (held, raised) =
+        watch_until_event_keeping(&mut c, fault_event("raised", "power_loss"), &mut skipped);
+    samples.extend(held);
+    println!("power loss of servo 5: {raised}");
+    assert_eq!(raised["fault"]["id"], json!(5), "{raised}");
+    assert_eq!(raised["fault"]["joint"], json!(5), "{raised}");
+    let detail = raised["fault"]["detail"].as_str().unwrap();
+    assert!(detail.contains("Bus Watchdog 0"), "{detail}");
+    assert!(detail.contains("`reset`"), "{detail}");
+    assert!(
+        skipped.iter().any(|e| e["event"] == "estop"),
+        "no estop event: {skipped:?}"
+    );
+    let s = c.status();
+    assert_eq!(s["state"], "estop", "{s}");
+    assert_eq!(s["torque"], json!(false), "{s}");
+    // Not handed torque by itself: a second on, every servo is still limp.
+    samples.extend(watch(&mut c, 100));
+    for id in 1..=12 {
+        assert!(!d.torque(id), "servo {id} torque on under the latch");
+    }
+    // Its RAM was written again as bring-up did.
+    assert!(d.sim.with_servo(5, |s| s.watchdog()).unwrap() > 0);
+    assert_eq!(
+        c.error_code(json!({"cmd": "goto", "target": start})),
+        "estopped"
+    );
+    assert_eq!(
+        c.error_code(json!({"cmd": "torque", "on": true})),
+        "estopped"
+    );
+    c.ok(json!({"cmd": "reset"}));
+    let s = c.status();
+    assert_eq!(s["state"], "holding", "{s}");
+    assert_eq!(s["faults"], json!([]), "{s}");
+    for id in 1..=12 {
+        assert!(d.torque(id), "servo {id} torque off after the reset");
+    }
+    goto_arrives(&mut c, [start[0] + 0.03, start[1] - 0.02]);
+    samples.extend(watch(&mut c, 5));
+    check_goals(&samples, &lo, &hi);
+    stop_torque_off(d);
+}

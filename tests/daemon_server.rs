@@ -623,8 +623,9 @@ async fn unsubscribe_stops_telemetry() {
 fn event(owner: Option<u64>, kind: EventKind, tick: u64) -> Event {
     let tip = [0.25, -0.5];
     let fault = FaultInfo {
-        id: 1,
-        joint: 1,
+        id: Some(1),
+        joint: Some(1),
+        port: None,
         kind: FaultKind::Silent,
         since_tick: tick,
         detail: "no reply".into(),

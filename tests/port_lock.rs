@@ -208,8 +208,8 @@ impl Rig {
 
     /// Runs `snakectl ARGS` while the daemon is stopped (SIGSTOP), so that every byte the
     /// simulator receives meanwhile would be that program's; asserts it sent none and was
-    /// refused (exit 1) naming `port` and the daemon's process. Returns its stderr.
-    fn refused(&self, args: &[&str], port: &str) -> String {
+    /// refused (exit `code`) naming `port` and the daemon's process. Returns its stderr.
+    fn refused(&self, args: &[&str], port: &str, code: i32) -> String {
         self.daemon.signal("-STOP");
         // Quiet: what the daemon wrote before it stopped has reached the simulator.
         let mut before = self.bytes();
@@ -225,7 +225,7 @@ impl Rig {
         let after = self.bytes();
         self.daemon.signal("-CONT");
         assert_eq!(after, before, "the refused program wrote to the port");
-        assert_eq!(status.code(), Some(1), "{stdout}{stderr}");
+        assert_eq!(status.code(), Some(code), "{stdout}{stderr}");
         let holder = format!("process {} (snakectl)", self.daemon.pid());
         assert!(
             stderr.contains(&format!("{port} ")) && stderr.contains(&holder),
@@ -289,7 +289,8 @@ fn a_second_run_on_the_port_of_a_running_daemon_is_refused_and_the_first_runs_on
         "--port",
         &pty,
     ];
-    rig.refused(&args, &pty);
+    // `run` refused at start-up: exit 2.
+    rig.refused(&args, &pty, 2);
     rig.assert_undisturbed(&before);
 
     // Once the daemon has exited, the port is free: a scan finds the chain.
@@ -320,7 +321,7 @@ fn a_scan_during_a_run_is_refused_and_faults_no_servo() {
     let before = rig.counters();
     let link = rig.link();
     // Without --baud, scan would try every common rate: refused before the first.
-    let stderr = rig.refused(&["scan", "--port", &link, "--timeout-ms", "300"], &link);
+    let stderr = rig.refused(&["scan", "--port", &link, "--timeout-ms", "300"], &link, 1);
     // Named by the link, with the device it points at.
     assert!(stderr.contains(&format!("({})", rig.pty())), "{stderr}");
     rig.assert_undisturbed(&before);
@@ -334,7 +335,7 @@ fn a_servo_command_during_a_run_is_refused_and_changes_nothing() {
     let args = [
         "servo", "--port", &link, "--baud", "1000000", "--id", "3", "set-id", "20",
     ];
-    rig.refused(&args, &link);
+    rig.refused(&args, &link, 1);
     assert!(rig.sim.with_servo(3, |_| ()).is_some());
     assert!(rig.sim.with_servo(20, |_| ()).is_none());
     rig.assert_undisturbed(&before);

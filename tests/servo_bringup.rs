@@ -12,13 +12,18 @@ use std::time::Duration;
 
 use servo_support::{sim_rig, Rig, TIMEOUT};
 use snakectl::config::Config;
-use snakectl::servo::arm::{Arm, BringUpError, BringUpOptions, Refusal};
+use snakectl::servo::arm::{Arm, BringUpError, BringUpOptions, Refusal, Within};
 use snakectl::servo::limits::{LimitPolicy, Limited};
 use snakectl::servo::record::{Instruction, Recording};
 use snakectl::servo::units;
 use snakectl::servo::{Register, ServoBus, ServoError};
 use snakectl_sim::table::addr;
 use snakectl_sim::{Fault, HardwareErrorKind, Model, SimConfig};
+
+/// Two seconds of wall time for a job on a running arm, each reply waited for [`TIMEOUT`].
+fn within() -> Within<'static> {
+    Within::wall(Duration::from_secs(2), TIMEOUT)
+}
 
 const HOME: [f64; 4] = [0.3, -0.2, 0.1, 0.5];
 
@@ -149,7 +154,7 @@ fn bring_up_holds_the_present_pose_then_arms_the_watchdog_and_torques_on() {
     for (got, want) in pose.iter().zip(&up.pose) {
         assert!((got - want).abs() < 1e-12);
     }
-    arm.shut_down(&mut rig.bus).unwrap();
+    arm.shut_down(&mut rig.bus, &[], &within()).unwrap();
     assert_torque(&mut rig, &arm, 0);
 }
 
@@ -410,9 +415,15 @@ fn a_tripped_watchdog_is_found_and_recovered_without_a_jump() {
     let mut rig = rig(&config, |_| {});
     arm.bring_up(&mut limited(&mut rig, &arm), BringUpOptions::default())
         .unwrap();
-    assert!(arm.tripped_watchdogs(&mut rig.bus).unwrap().is_empty());
+    assert!(arm
+        .tripped_watchdogs(&mut rig.bus, &within())
+        .unwrap()
+        .is_empty());
     go_quiet(&mut rig);
-    assert_eq!(arm.tripped_watchdogs(&mut rig.bus).unwrap(), arm.ids());
+    assert_eq!(
+        arm.tripped_watchdogs(&mut rig.bus, &within()).unwrap(),
+        arm.ids()
+    );
     // A goal is refused by the servo while its watchdog reads -1.
     let goals = arm.goals(&[0.0, 0.0, 0.0, 0.0]).unwrap();
     let refused = rig
@@ -439,7 +450,9 @@ fn a_tripped_watchdog_is_found_and_recovered_without_a_jump() {
         })
         .collect();
 
-    let recovered = arm.recover_watchdog(&mut limited(&mut rig, &arm)).unwrap();
+    let recovered = arm
+        .recover_watchdog(&mut limited(&mut rig, &arm), &within())
+        .unwrap();
     assert_eq!(recovered, arm.ids());
     for (&id, present) in arm.ids().iter().zip(&before) {
         let mut read = |r| rig.bus.read(id, r, TIMEOUT).unwrap().value;
@@ -470,11 +483,14 @@ fn hold_on_exit_keeps_torque_on_until_the_watchdog_stops_the_servos() {
     let arm = arm_of(&config("hold"));
     arm.bring_up(&mut limited(&mut rig_hold, &arm), BringUpOptions::default())
         .unwrap();
-    arm.shut_down(&mut rig_hold.bus).unwrap();
+    arm.shut_down(&mut rig_hold.bus, &[], &within()).unwrap();
     assert_torque(&mut rig_hold, &arm, 1);
     // Once the bus is quiet the watchdog fires: the servos stop, torque stays on.
     go_quiet(&mut rig_hold);
-    assert_eq!(arm.tripped_watchdogs(&mut rig_hold.bus).unwrap(), arm.ids());
+    assert_eq!(
+        arm.tripped_watchdogs(&mut rig_hold.bus, &within()).unwrap(),
+        arm.ids()
+    );
     assert_torque(&mut rig_hold, &arm, 1);
 
     // The same arm with torque_off goes limp at shut-down.
@@ -483,7 +499,7 @@ fn hold_on_exit_keeps_torque_on_until_the_watchdog_stops_the_servos() {
     arm.bring_up(&mut limited(&mut rig_off, &arm), BringUpOptions::default())
         .unwrap();
     assert_torque(&mut rig_off, &arm, 1);
-    arm.shut_down(&mut rig_off.bus).unwrap();
+    arm.shut_down(&mut rig_off.bus, &[], &within()).unwrap();
     assert_torque(&mut rig_off, &arm, 0);
 }
 
@@ -525,9 +541,9 @@ fn bring_up_torque_and_shut_down_ride_out_a_lossy_bus() {
         exchanges += rec.log().len();
         retries += up.retries;
         let mut bus = arm.limited(&mut rec, LimitPolicy::Clamp);
-        arm.set_torque(&mut bus, false).unwrap();
-        arm.set_torque(&mut bus, true).unwrap();
-        arm.shut_down(&mut bus).unwrap();
+        arm.torque_off(&mut bus, &[], &within()).unwrap();
+        arm.torque_on(&mut bus, &[], &within()).unwrap();
+        arm.shut_down(&mut bus, &[], &within()).unwrap();
         drop(bus);
         // Read inside the simulator: the bus itself still loses replies.
         for id in arm.ids() {

@@ -464,6 +464,22 @@ impl Simulator {
         self.servos.iter_mut().find(|s| s.id() == id)
     }
 
+    /// Servo `id` (current id) loses its power: silent and limp until
+    /// [`Simulator::restore_power`]. False when there is no such servo.
+    pub fn lose_power(&mut self, id: u8) -> bool {
+        self.advance();
+        self.servo_mut(id).map(Servo::lose_power).is_some()
+    }
+
+    /// Servo `id` (current id) gets its power back at the clock's now: it answers again with its
+    /// RAM at the initial values, its EEPROM (id, baud rate, limits, ...) kept. False when there
+    /// is no such servo.
+    pub fn restore_power(&mut self, id: u8) -> bool {
+        self.advance();
+        let now = self.clock.now();
+        self.servo_mut(id).map(|s| s.restore_power(now)).is_some()
+    }
+
     /// Time one byte takes on the wire at the line's rate (start bit, 8 data bits, stop bit).
     pub fn byte_time(&self) -> Duration {
         Duration::from_nanos(10_000_000_000 / u64::from(self.line_baud.max(1)))

@@ -272,6 +272,21 @@ impl Servo {
         self.silent = silent;
     }
 
+    /// The servo loses its power: off the bus (it neither hears nor answers) and limp, until
+    /// [`Servo::restore_power`]. The shaft stays where it is.
+    pub fn lose_power(&mut self) {
+        self.silent = true;
+        self.put(addr::TORQUE_ENABLE, 0);
+    }
+
+    /// Power comes back at `now`: the servo boots as at power-on, its RAM at the initial values
+    /// (Torque Enable 0, Bus Watchdog 0, profiles 0, Status Return Level 2, no hardware error,
+    /// Goal Position := present position), its EEPROM kept, and it is back on the bus.
+    pub fn restore_power(&mut self, now: Instant) {
+        self.power_on(now);
+        self.silent = false;
+    }
+
     /// The error byte of a status packet: `code` plus the alert bit when a hardware error is
     /// latched.
     pub fn status_error(&self, code: u8) -> u8 {

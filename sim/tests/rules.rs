@@ -452,3 +452,38 @@ fn indirect_data_follows_indirect_address() {
     // The target's rules apply through the indirection.
     assert_eq!(write(&mut s, 1, 228, &[5]), error::DATA_RANGE);
 }
+
+#[test]
+fn a_servo_that_loses_power_answers_again_with_its_ram_reset_and_its_eeprom_kept() {
+    let (mut s, clock) = sim(xl430(&[1, 2]));
+    assert_eq!(
+        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3000i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::PROFILE_VELOCITY, &[50, 0, 0, 0]), 0);
+    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &2500i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    clock.advance(Duration::from_secs(2));
+    let held = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    assert!(s.lose_power(1));
+    // Off the bus while unpowered; the other servo answers.
+    assert!(send(&mut s, 1, ins::PING, &[]).is_empty());
+    assert_eq!(read(&mut s, 2, addr::TORQUE_ENABLE, 1), (0, 0));
+    clock.advance(Duration::from_millis(500));
+    assert!(s.restore_power(1));
+    // RAM at the defaults: no torque, no watchdog, no profile; goal := where it rests.
+    assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::BUS_WATCHDOG, 1), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::STATUS_RETURN_LEVEL, 1), (0, 2));
+    let present = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    assert!((present - held).abs() <= 1, "{present} after {held}");
+    assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4).1, present);
+    // EEPROM kept.
+    assert_eq!(read(&mut s, 1, addr::MAX_POSITION_LIMIT, 4), (0, 3000));
+    assert!(!s.lose_power(9) && !s.restore_power(9), "no servo 9");
+}

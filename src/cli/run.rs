@@ -1,14 +1,27 @@
 //! `snakectl run`: the control daemon on the config's arm, commanded over its socket.
+//!
+//! Its exit code says how it ended (docs/DAEMON.md, **Stopping**): 0 when every servo was left as
+//! `[bus] on_exit` says, else [`EXIT_FAILED`], [`EXIT_REFUSED`] or [`EXIT_UNREACHED`].
 
 use std::path::PathBuf;
 
 use clap::Args;
 
 use snakectl::config::Config;
-use snakectl::connect::ConnectError;
 use snakectl::daemon::{self, DaemonError, RunOptions};
 
 use super::Failure;
+
+/// The daemon failed while running (the socket, the loop's thread); the servos were shut down
+/// after it as far as they could be.
+pub const EXIT_FAILED: u8 = 1;
+/// Start-up refused before the arm was brought up, or during bring-up: a bad config or token
+/// file, a port that cannot be opened, a servo missing, of the wrong model, in hardware error or
+/// outside its limits. The log names the cause.
+pub const EXIT_REFUSED: u8 = 2;
+/// Shut down, but servos could not be reached (silent, or the port lost): their state is
+/// unknown (their torque may still be on). The log names each one.
+pub const EXIT_UNREACHED: u8 = 3;
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -26,8 +39,9 @@ pub struct RunArgs {
     verbose: bool,
 }
 
-/// Runs the daemon until SIGINT or SIGTERM: the arm is brought to rest, then left as
-/// `[bus] on_exit` says.
+/// Runs the daemon until SIGINT or SIGTERM: the arm is brought to rest (at once when the estop
+/// latch or a fault already holds it), then left as `[bus] on_exit` says; the exit code says how
+/// that went.
 pub fn run(args: RunArgs) -> Result<(), Failure> {
     super::init_logs(args.verbose);
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
@@ -48,18 +62,13 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         let local = listener
             .local_addr()
             .map_err(|e| Failure::other(anyhow::anyhow!("listening on {listen}: {e}")))?;
-        tracing::info!("listening on {local}");
+        // Connections are taken from here on, but answered only once the arm is up (the loop
+        // logs that it is serving).
+        tracing::info!("listening on {local} (bringing the arm up first)");
         let options = RunOptions { port: args.port };
         let summary = daemon::run(config, listener, options, shutdown)
             .await
-            .map_err(|e| match e {
-                // Not the input's fault: the port is busy, and free again once its holder exits.
-                DaemonError::Connect(ConnectError::InUse(_)) => Failure::other(e),
-                DaemonError::BringUp(_) | DaemonError::Connect(_) | DaemonError::Controller(_) => {
-                    Failure::bad_input(e)
-                }
-                e => Failure::other(e),
-            })?;
+            .map_err(failure)?;
         tracing::info!(
             ticks = summary.ticks,
             overruns = summary.overruns,
@@ -67,6 +76,23 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         );
         Ok(())
     })
+}
+
+/// The exit code and error of a daemon that did not end cleanly.
+fn failure(e: DaemonError) -> Failure {
+    let code = match e {
+        DaemonError::BringUp(_)
+        | DaemonError::Connect(_)
+        | DaemonError::Controller(_)
+        | DaemonError::Access(_)
+        | DaemonError::ZenohNotBuilt { .. } => EXIT_REFUSED,
+        DaemonError::ShutDown(_) => EXIT_UNREACHED,
+        _ => EXIT_FAILED,
+    };
+    Failure {
+        code,
+        error: e.into(),
+    }
 }
 
 /// Installs the SIGINT and SIGTERM handlers; the future resolves on the first of them.

@@ -314,8 +314,9 @@ fn a_motion_ends_by_its_own_events_and_by_estops_and_faults_after_it() {
         what,
     };
     let fault = FaultInfo {
-        id: 3,
-        joint: 3,
+        id: Some(3),
+        joint: Some(3),
+        port: None,
         kind: FaultKind::Silent,
         since_tick: 101,
         detail: "no reply".into(),

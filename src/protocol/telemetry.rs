@@ -32,6 +32,9 @@ pub enum State {
     Estop,
     /// A fault holds the arm.
     Fault,
+    /// Torque is off by command (`torque` with `on: false`): the arm is limp and the goals
+    /// frozen until `torque` on.
+    TorqueOff,
 }
 
 impl State {
@@ -43,6 +46,7 @@ impl State {
             State::Stopping => "stopping",
             State::Estop => "estop",
             State::Fault => "fault",
+            State::TorqueOff => "torque_off",
         }
     }
 }
@@ -115,6 +119,9 @@ pub enum FaultKind {
     Port,
     /// The Bus Watchdog fired and was recovered.
     Watchdog,
+    /// The servo answered again with its RAM reset to the defaults (it lost power): its
+    /// settings were written again, torque left off, the arm latched until `reset`.
+    PowerLoss,
     /// A warning: the temperature is near the servo's limit.
     Temperature,
     /// A warning: the input voltage is near the servo's limits.
@@ -129,6 +136,7 @@ impl FaultKind {
             FaultKind::HardwareError => "hardware_error",
             FaultKind::Port => "port",
             FaultKind::Watchdog => "watchdog",
+            FaultKind::PowerLoss => "power_loss",
             FaultKind::Temperature => "temperature",
             FaultKind::Voltage => "voltage",
         }
@@ -141,7 +149,8 @@ impl FaultKind {
             FaultKind::Silent
             | FaultKind::HardwareError
             | FaultKind::Port
-            | FaultKind::Watchdog => false,
+            | FaultKind::Watchdog
+            | FaultKind::PowerLoss => false,
         }
     }
 }
@@ -152,13 +161,21 @@ impl fmt::Display for FaultKind {
     }
 }
 
-/// A fault or a warning, active or (in an event) raised, cleared or recovered.
+/// A fault or a warning, active or (in an event) raised, cleared or recovered. A servo's
+/// carries its `id` and `joint` and the `port` it is on; the port's own (`kind: "port"`)
+/// carries `port` with `id` and `joint` null.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FaultInfo {
-    /// Servo id (0 for the port itself).
-    pub id: u8,
-    /// Joint number, from 1 (0 for the port itself).
-    pub joint: usize,
+    /// Servo id (`None` for the port itself).
+    #[serde(default)]
+    pub id: Option<u8>,
+    /// Joint number, from 1 (`None` for the port itself).
+    #[serde(default)]
+    pub joint: Option<usize>,
+    /// The serial port (its path) the fault is about or the servo is on; `None` when the daemon
+    /// does not know it (a bus handed to it without a path).
+    #[serde(default)]
+    pub port: Option<String>,
     /// What kind.
     pub kind: FaultKind,
     /// The tick of its first symptom (the first missed read, the alert seen, the stall).
@@ -168,16 +185,50 @@ pub struct FaultInfo {
     pub detail: String,
 }
 
+impl FaultInfo {
+    /// A fault or warning of servo `id` driving joint `joint`, on `port`.
+    pub fn servo(
+        id: u8,
+        joint: usize,
+        port: Option<String>,
+        kind: FaultKind,
+        since_tick: u64,
+        detail: String,
+    ) -> FaultInfo {
+        FaultInfo {
+            id: Some(id),
+            joint: Some(joint),
+            port,
+            kind,
+            since_tick,
+            detail,
+        }
+    }
+
+    /// A fault of the port itself.
+    pub fn port(port: Option<String>, since_tick: u64, detail: String) -> FaultInfo {
+        FaultInfo {
+            id: None,
+            joint: None,
+            port,
+            kind: FaultKind::Port,
+            since_tick,
+            detail,
+        }
+    }
+}
+
 impl fmt::Display for FaultInfo {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.id == 0 {
-            write!(f, "port: {} ({})", self.kind, self.detail)
-        } else {
-            write!(
+        match (self.id, self.joint, self.port.as_deref()) {
+            (Some(id), Some(joint), _) => write!(
                 f,
-                "servo {} (joint {}): {} ({})",
-                self.id, self.joint, self.kind, self.detail
-            )
+                "servo {id} (joint {joint}): {} ({})",
+                self.kind, self.detail
+            ),
+            (Some(id), None, _) => write!(f, "servo {id}: {} ({})", self.kind, self.detail),
+            (None, _, Some(port)) => write!(f, "port {port}: {} ({})", self.kind, self.detail),
+            (None, _, None) => write!(f, "port: {} ({})", self.kind, self.detail),
         }
     }
 }

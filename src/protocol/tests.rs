@@ -114,13 +114,14 @@ fn describe() -> Describe {
 }
 
 fn fault() -> FaultInfo {
-    FaultInfo {
-        id: 9,
-        joint: 9,
-        kind: FaultKind::HardwareError,
-        since_tick: 300,
-        detail: "overload (0x20)".into(),
-    }
+    FaultInfo::servo(
+        9,
+        9,
+        Some("/dev/ttyUSB0".into()),
+        FaultKind::HardwareError,
+        300,
+        "overload (0x20)".into(),
+    )
 }
 
 /// An event of each name, everything it carries set.
@@ -493,6 +494,7 @@ fn closed_sets_are_written_as_the_strings_they_always_were() {
         (State::Stopping, "stopping"),
         (State::Estop, "estop"),
         (State::Fault, "fault"),
+        (State::TorqueOff, "torque_off"),
     ] {
         wire(state, text);
         assert_eq!(state.as_str(), text);
@@ -513,6 +515,7 @@ fn closed_sets_are_written_as_the_strings_they_always_were() {
         (FaultKind::HardwareError, "hardware_error"),
         (FaultKind::Port, "port"),
         (FaultKind::Watchdog, "watchdog"),
+        (FaultKind::PowerLoss, "power_loss"),
         (FaultKind::Temperature, "temperature"),
         (FaultKind::Voltage, "voltage"),
     ] {
@@ -600,4 +603,32 @@ fn a_description_gives_back_the_chain_it_was_made_from() {
         ..describe()
     };
     assert!(!unlimited.chain().unwrap().is_limited());
+}
+
+#[test]
+fn a_port_fault_names_the_port_with_id_and_joint_null() {
+    let port = FaultInfo::port(Some("/dev/ttyUSB0".into()), 12, "gone".into());
+    let wire = serde_json::to_value(&port).unwrap();
+    assert_eq!(wire["id"], Value::Null, "{wire}");
+    assert_eq!(wire["joint"], Value::Null, "{wire}");
+    assert_eq!(wire["port"], json!("/dev/ttyUSB0"));
+    assert_eq!(wire["kind"], json!("port"));
+    assert_eq!(serde_json::from_value::<FaultInfo>(wire).unwrap(), port);
+    assert_eq!(port.to_string(), "port /dev/ttyUSB0: port (gone)");
+    // A servo's fault carries its id, joint and the port it is on.
+    let servo = serde_json::to_value(fault()).unwrap();
+    assert_eq!(
+        (&servo["id"], &servo["joint"], &servo["port"]),
+        (&json!(9), &json!(9), &json!("/dev/ttyUSB0"))
+    );
+    assert_eq!(
+        fault().to_string(),
+        "servo 9 (joint 9): hardware_error (overload (0x20))"
+    );
+    // An older daemon's line without `port` still reads.
+    let old: FaultInfo = serde_json::from_value(json!({
+        "id": 3, "joint": 3, "kind": "silent", "since_tick": 4, "detail": "quiet"
+    }))
+    .unwrap();
+    assert_eq!((old.id, old.joint, old.port), (Some(3), Some(3), None));
 }

@@ -21,11 +21,18 @@
 //! to [`RETRIES`] times on a transient error (no reply, a damaged reply): one lost byte on a
 //! long bus must not stop a start. A refusal or a hardware alert is not retried.
 //!
-//! Shut-down ([`Arm::shut_down`]) follows `[bus] on_exit`: torque off (default; one Sync Write
-//! reaches every servo at once, then each is checked) or hold (torque stays on at the last
-//! goal; the watchdog, if armed, stops the servos once the bus goes quiet).
+//! What the control loop does to a running arm (torque off and on, watchdog recovery, the RAM
+//! of a servo that lost power, shut-down) runs [`Within`] a time: every wait for a reply is cut
+//! to what is left and nothing is sent again past it, and servos known silent are not waited
+//! on at all. Torque off is one Sync Write (no replies), then one Sync Read of Torque Enable
+//! confirms it; a servo that did not confirm is named ([`Unreached`]).
+//!
+//! Shut-down ([`Arm::shut_down`]) follows `[bus] on_exit`: torque off (default) or hold (torque
+//! stays on at the last goal; the watchdog, if armed, stops the servos once the bus goes
+//! quiet). Either way a servo it could not reach is named: its state is unknown.
 
-use std::time::Duration;
+use std::fmt;
+use std::time::{Duration, Instant};
 
 use crate::chain::JointLimit;
 
@@ -34,8 +41,8 @@ use super::limits::{LimitPolicy, Limited, Setting, TickLimits, POSITION_MODE};
 use super::model::ServoModel;
 use super::units::{self, Calibration};
 use super::{
-    Fields, Goal, HardwareErrors, PingInfo, Reading, Register, ServoBus, ServoError, States,
-    DRIVE_MODE_REVERSE,
+    ErrorClass, Fields, Goal, HardwareErrors, PingInfo, Reading, Register, ServoBus, ServoError,
+    States, DRIVE_MODE_REVERSE,
 };
 
 /// How far past a joint's limit, ticks, a servo may read at bring-up and still be brought up
@@ -55,6 +62,94 @@ pub enum OnExit {
     TorqueOff,
     /// Torque stays on at the last goal (the Bus Watchdog, if armed, stops them later).
     Hold,
+}
+
+impl OnExit {
+    /// The value as `[bus] on_exit` writes it.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            OnExit::TorqueOff => "torque_off",
+            OnExit::Hold => "hold",
+        }
+    }
+}
+
+impl fmt::Display for OnExit {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// The shortest wait for a reply worth starting: the serial port polls with millisecond
+/// granularity, so less than this cannot tell a reply from a missing one.
+pub const MIN_WAIT: Duration = Duration::from_micros(300);
+
+/// The time the exchanges of one job may take, measured on `clock`: each wait for a reply is the
+/// reply timeout cut to what is left before `until`, and nothing is sent once less than
+/// [`MIN_WAIT`] is left. The control loop gives its fault path the rest of its tick.
+#[derive(Clone, Copy)]
+pub struct Within<'a> {
+    clock: &'a dyn Clock,
+    until: Instant,
+    timeout: Duration,
+}
+
+impl fmt::Debug for Within<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Within")
+            .field("until", &self.until)
+            .field("timeout", &self.timeout)
+            .finish()
+    }
+}
+
+impl<'a> Within<'a> {
+    /// Exchanges until `until` on `clock`, each reply waited for at most `timeout`.
+    pub fn new(clock: &'a dyn Clock, until: Instant, timeout: Duration) -> Self {
+        Self {
+            clock,
+            until,
+            timeout,
+        }
+    }
+
+    /// Exchanges on the wall clock for `span` from now, each reply waited for at most
+    /// `timeout` (for callers outside the control loop: tools, tests).
+    pub fn wall(span: Duration, timeout: Duration) -> Within<'static> {
+        static WALL: RealClock = RealClock;
+        Within::new(&WALL, Instant::now() + span, timeout)
+    }
+
+    /// The wait for the next reply, or `None` when there is no time left for one.
+    pub fn wait(&self) -> Option<Duration> {
+        let left = self.until.saturating_duration_since(self.clock.now());
+        (left >= MIN_WAIT).then(|| self.timeout.min(left))
+    }
+
+    /// The wait for the next reply, or a timeout of `id` that was never waited for.
+    fn wait_for(&self, id: u8) -> Result<Duration, ServoError> {
+        self.wait().ok_or(ServoError::Timeout {
+            id,
+            waited: Duration::ZERO,
+        })
+    }
+}
+
+/// A servo a torque off (or a shut-down) could not reach: its state is unknown.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unreached {
+    /// 1-based joint index.
+    pub joint: usize,
+    /// Servo id.
+    pub id: u8,
+    /// Why.
+    pub why: String,
+}
+
+impl fmt::Display for Unreached {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "servo {} (joint {}) {}", self.id, self.joint, self.why)
+    }
 }
 
 /// One joint's servo.
@@ -188,10 +283,15 @@ pub enum BringUpError {
     },
 }
 
-/// Servos that did not confirm torque off at shut-down.
+/// Servos shut-down could not leave as `[bus] on_exit` says, each named: their state is unknown.
 #[derive(Debug, thiserror::Error)]
-#[error("shut-down: torque off not confirmed: {}", join(.0))]
-pub struct ShutDownError(pub Vec<ServoError>);
+#[error("shut-down (on_exit = {on_exit}): servos left in an unknown state: {}", join(.unreached))]
+pub struct ShutDownError {
+    /// What shut-down was to leave them in.
+    pub on_exit: OnExit,
+    /// The servos it could not reach.
+    pub unreached: Vec<Unreached>,
+}
 
 fn join<T: std::fmt::Display>(items: &[T]) -> String {
     items
@@ -241,6 +341,36 @@ pub struct Retry {
 }
 
 impl Retry {
+    /// `exchange` with servo `id` within `within`: each try gets the wait [`Within::wait`]
+    /// allows, and is made again while it fails transiently, at most [`RETRIES`] more times and
+    /// never once the time is up.
+    pub fn within<T>(
+        &mut self,
+        within: &Within<'_>,
+        id: u8,
+        mut exchange: impl FnMut(Duration) -> Result<T, ServoError>,
+    ) -> Result<T, ServoError> {
+        let mut left = RETRIES;
+        let mut last = None;
+        loop {
+            let Some(wait) = within.wait() else {
+                return Err(last.unwrap_or(ServoError::Timeout {
+                    id,
+                    waited: Duration::ZERO,
+                }));
+            };
+            match exchange(wait) {
+                Err(e) if e.is_transient() && left > 0 => {
+                    tracing::debug!(error = %e, "retrying");
+                    left -= 1;
+                    self.retries += 1;
+                    last = Some(e);
+                }
+                other => return other,
+            }
+        }
+    }
+
     /// `exchange`, tried again while it fails transiently, at most [`RETRIES`] more times.
     pub fn run<T>(
         &mut self,
@@ -663,112 +793,487 @@ impl Arm {
         Ok(())
     }
 
-    /// Torque on or off for every servo, one by one, each retried on a transient error. Torque
-    /// on first sets every goal to the present position, so nothing moves.
-    pub fn set_torque<B: ServoBus>(
+    /// Torque on for every servo but those in `skip`, within `within`, in three round trips:
+    /// each goal := its present position (one Sync Read, one Sync Write, confirmed by one Sync
+    /// Read of the goals, so nothing moves), then Torque Enable 1 (one Sync Write, confirmed by
+    /// one Sync Read) to the servos whose goal was confirmed; what is not confirmed is sent again
+    /// while `within` allows. A servo not confirmed in time fails the whole, naming it; the
+    /// servos then switched on are switched off again (one Sync Write), so torque is on for all
+    /// or for none of them as far as the bus lets it be.
+    pub fn torque_on<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,
-        on: bool,
+        skip: &[u8],
+        within: &Within<'_>,
     ) -> Result<(), BringUpError> {
-        let t = self.settings.reply_timeout;
-        let mut retry = Retry::default();
-        if on {
-            let present = self.read_present(bus, &mut retry)?;
-            for (j, &ticks) in self.joints.iter().zip(&present) {
-                retry
-                    .run(|| bus.write(j.id, Register::GoalPosition, i64::from(ticks), t))
-                    .map_err(step("holding the present pose"))?;
+        let ids: Vec<u8> = self
+            .ids()
+            .into_iter()
+            .filter(|id| !skip.contains(id))
+            .collect();
+        let result = self.torque_on_ids(bus, &ids, within);
+        if result.is_err() {
+            let values: Vec<(u8, i64)> = ids.iter().map(|&id| (id, 0)).collect();
+            // Best effort: a port that fails here failed the torque on already.
+            let _ = bus.sync_write(Register::TorqueEnable, &values);
+        }
+        result
+    }
+
+    fn torque_on_ids<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        ids: &[u8],
+        within: &Within<'_>,
+    ) -> Result<(), BringUpError> {
+        let present = self
+            .sync_read_within(bus, ids, Register::PresentPosition, within)
+            .map_err(step("reading the present pose"))?;
+        let goals: Vec<(u8, i64)> = ids
+            .iter()
+            .zip(present)
+            .map(|(&id, p)| (id, self.clamp_ticks(id, p)))
+            .collect();
+        self.write_confirmed(bus, Register::GoalPosition, &goals, within)
+            .map_err(step("holding the present pose"))?;
+        let on: Vec<(u8, i64)> = ids.iter().map(|&id| (id, 1)).collect();
+        self.write_confirmed(bus, Register::TorqueEnable, &on, within)
+            .map_err(step("torque on"))
+    }
+
+    /// `values` (servo, value) of `register` in one Sync Write, confirmed by one Sync Read; the
+    /// servos that do not read back their value get it again while `within` allows.
+    fn write_confirmed<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        register: Register,
+        values: &[(u8, i64)],
+        within: &Within<'_>,
+    ) -> Result<(), ServoError> {
+        let mut pending: Vec<(u8, i64)> = values.to_vec();
+        let mut last: Option<ServoError> = None;
+        for _ in 0..=RETRIES {
+            if pending.is_empty() {
+                return Ok(());
+            }
+            bus.sync_write(register, &pending)?;
+            let Some(wait) = within.wait() else {
+                break;
+            };
+            let ids: Vec<u8> = pending.iter().map(|&(id, _)| id).collect();
+            let blocks = bus.sync_read(&ids, register.address(), register.size(), wait)?;
+            let mut still = Vec::new();
+            for (&(id, value), block) in pending.iter().zip(blocks) {
+                match block.map(|b| register.decode(&b.data)) {
+                    Ok(Some(v)) if v == value => {}
+                    Ok(read) => {
+                        last = Some(ServoError::Malformed {
+                            id,
+                            what: format!("{register:?} reads {read:?} after writing {value}"),
+                        });
+                        still.push((id, value));
+                    }
+                    Err(e) => {
+                        last = Some(e);
+                        still.push((id, value));
+                    }
+                }
+            }
+            pending = still;
+        }
+        match pending.first() {
+            None => Ok(()),
+            Some(&(id, _)) => Err(last.unwrap_or(ServoError::Timeout {
+                id,
+                waited: Duration::ZERO,
+            })),
+        }
+    }
+
+    /// `register` of every servo in `ids`, in order, by Sync Reads within `within`: the servos
+    /// that did not answer are asked again (at most [`RETRIES`] more times); the first error of
+    /// a servo that never answered is returned.
+    fn sync_read_within<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        ids: &[u8],
+        register: Register,
+        within: &Within<'_>,
+    ) -> Result<Vec<i64>, ServoError> {
+        let mut values: Vec<Option<i64>> = vec![None; ids.len()];
+        let mut last: Vec<(u8, ServoError)> = Vec::new();
+        for _ in 0..=RETRIES {
+            let pending: Vec<u8> = ids
+                .iter()
+                .zip(&values)
+                .filter(|(_, v)| v.is_none())
+                .map(|(&id, _)| id)
+                .collect();
+            if pending.is_empty() {
+                break;
+            }
+            let Some(wait) = within.wait() else {
+                break;
+            };
+            let blocks = bus.sync_read(&pending, register.address(), register.size(), wait)?;
+            for (id, block) in pending.iter().zip(blocks) {
+                let decoded = block.and_then(|b| {
+                    register
+                        .decode(&b.data)
+                        .ok_or_else(|| ServoError::Malformed {
+                            id: *id,
+                            what: format!("{} bytes for {register:?}", b.data.len()),
+                        })
+                });
+                match decoded {
+                    Ok(v) => {
+                        if let Some(i) = ids.iter().position(|x| x == id) {
+                            values[i] = Some(v);
+                        }
+                    }
+                    Err(e) if e.is_transient() => {
+                        last.retain(|(x, _)| x != id);
+                        last.push((*id, e));
+                    }
+                    Err(e) => return Err(e),
+                }
             }
         }
-        for j in &self.joints {
-            retry
-                .run(|| bus.set_torque(j.id, on, t))
-                .map_err(step(if on { "torque on" } else { "torque off" }))?;
+        if let Some(i) = values.iter().position(Option::is_none) {
+            let id = ids.get(i).copied().unwrap_or_default();
+            return Err(last.into_iter().find(|(x, _)| *x == id).map_or(
+                ServoError::Timeout {
+                    id,
+                    waited: Duration::ZERO,
+                },
+                |(_, e)| e,
+            ));
         }
-        Ok(())
+        Ok(values.into_iter().flatten().collect())
     }
 
     /// The servos whose Bus Watchdog has fired (it reads -1): they refuse goals until
-    /// [`Arm::recover_watchdog`].
-    pub fn tripped_watchdogs<B: ServoBus>(&self, bus: &mut B) -> Result<Vec<u8>, BringUpError> {
-        let t = self.settings.reply_timeout;
-        let mut retry = Retry::default();
-        let mut tripped = Vec::new();
-        for j in &self.joints {
-            let v = retry
-                .run(|| bus.read(j.id, Register::BusWatchdog, t))
-                .map_err(step("reading the bus watchdog"))?
-                .value;
-            if v < 0 {
-                tripped.push(j.id);
-            }
-        }
-        Ok(tripped)
+    /// [`Arm::recover_watchdog`]; with them those whose watchdog reads 0 where `[bus]
+    /// watchdog_ms` arms it (a recovery cut short). One Sync Read, within `within`.
+    pub fn tripped_watchdogs<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        within: &Within<'_>,
+    ) -> Result<Vec<u8>, BringUpError> {
+        let ids = self.ids();
+        let armed = units::watchdog_units(self.settings.watchdog_ms);
+        let values = self
+            .sync_read_within(bus, &ids, Register::BusWatchdog, within)
+            .map_err(step("reading the bus watchdog"))?;
+        Ok(ids
+            .into_iter()
+            .zip(values)
+            .filter(|&(_, v)| v < 0 || (v == 0 && armed > 0))
+            .map(|(id, _)| id)
+            .collect())
     }
 
     /// Recover every servo whose Bus Watchdog fired (after a long stall of the bus): clear
     /// it, set the goal to the present position (so the servo does not jump to a stale
-    /// goal), arm it again. Returns the servos recovered.
+    /// goal), arm it again, each step one Sync Write to all of them; one Sync Read of the
+    /// watchdog and the goal confirms it, and the servos it does not confirm go through it
+    /// again while `within` allows. Returns the servos recovered.
     pub fn recover_watchdog<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,
+        within: &Within<'_>,
     ) -> Result<Vec<u8>, BringUpError> {
-        let t = self.settings.reply_timeout;
-        let mut retry = Retry::default();
-        let tripped = self.tripped_watchdogs(bus)?;
+        let tripped = self.tripped_watchdogs(bus, within)?;
         let armed = units::watchdog_units(self.settings.watchdog_ms);
-        for &id in &tripped {
-            retry
-                .run(|| bus.write(id, Register::BusWatchdog, 0, t))
+        // Bus Watchdog (98) to Goal Position (116..119) in one read.
+        let (first, goal_at) = (Register::BusWatchdog.address(), 18usize);
+        let len = Register::GoalPosition.address() + Register::GoalPosition.size() - first;
+        let mut pending = tripped.clone();
+        let mut last: Option<ServoError> = None;
+        for _ in 0..=RETRIES {
+            if pending.is_empty() {
+                break;
+            }
+            let zeros: Vec<(u8, i64)> = pending.iter().map(|&id| (id, 0)).collect();
+            bus.sync_write(Register::BusWatchdog, &zeros)
                 .map_err(step("clearing the bus watchdog"))?;
-            let present = retry
-                .run(|| bus.read(id, Register::PresentPosition, t))
-                .map_err(step("reading the present position"))?
-                .value;
-            retry
-                .run(|| bus.write(id, Register::GoalPosition, present, t))
+            let present = self
+                .sync_read_within(bus, &pending, Register::PresentPosition, within)
+                .map_err(step("reading the present position"))?;
+            let goals: Vec<(u8, i64)> = pending
+                .iter()
+                .zip(present)
+                .map(|(&id, p)| (id, self.clamp_ticks(id, p)))
+                .collect();
+            bus.sync_write(Register::GoalPosition, &goals)
                 .map_err(step("holding the present position"))?;
             if armed > 0 {
-                retry
-                    .run(|| bus.write(id, Register::BusWatchdog, armed, t))
+                let arm: Vec<(u8, i64)> = pending.iter().map(|&id| (id, armed)).collect();
+                bus.sync_write(Register::BusWatchdog, &arm)
                     .map_err(step("arming the bus watchdog"))?;
             }
+            let Some(wait) = within.wait() else {
+                break;
+            };
+            let blocks = bus
+                .sync_read(&pending, first, len, wait)
+                .map_err(step("checking the bus watchdog"))?;
+            let mut still = Vec::new();
+            for ((&id, goal), block) in pending.iter().zip(&goals).zip(blocks) {
+                let held = block.map(|b| {
+                    let watchdog = b.data.first().map(|&w| i64::from(w as i8));
+                    let at = b.data.get(goal_at..goal_at + 4);
+                    let goal_now = at.and_then(|g| Register::GoalPosition.decode(g));
+                    watchdog == Some(armed) && goal_now == Some(goal.1)
+                });
+                match held {
+                    Ok(true) => {}
+                    Ok(false) => {
+                        last = Some(ServoError::Malformed {
+                            id,
+                            what: "the watchdog or the goal did not take its new value".into(),
+                        });
+                        still.push(id);
+                    }
+                    Err(e) => {
+                        last = Some(e);
+                        still.push(id);
+                    }
+                }
+            }
+            pending = still;
+        }
+        if let Some(&id) = pending.first() {
+            return Err(BringUpError::Step {
+                step: "recovering the bus watchdog",
+                source: last.unwrap_or(ServoError::Timeout {
+                    id,
+                    waited: Duration::ZERO,
+                }),
+            });
         }
         Ok(tripped)
     }
 
-    /// Leave the servos as `[bus] on_exit` says: torque off (one Sync Write, then each servo
-    /// checked) or hold.
-    pub fn shut_down<B: ServoBus>(&self, bus: &mut B) -> Result<(), ShutDownError> {
-        match self.settings.on_exit {
-            OnExit::Hold => Ok(()),
-            OnExit::TorqueOff => self.torque_off(bus),
+    /// `ticks` of servo `id` inside its joint's Goal Position limits.
+    fn clamp_ticks(&self, id: u8, ticks: i64) -> i64 {
+        match self.joints.iter().find(|j| j.id == id) {
+            Some(j) => ticks.clamp(i64::from(j.ticks.min), i64::from(j.ticks.max)),
+            None => ticks,
         }
     }
 
-    /// Torque off every servo: one Sync Write, then each is read back (and written once more if
-    /// it still has torque on), every exchange retried on a transient error.
-    pub fn torque_off<B: ServoBus>(&self, bus: &mut B) -> Result<(), ShutDownError> {
-        let t = self.settings.reply_timeout;
+    /// What of the RAM bring-up wrote servo `id` no longer holds, `None` when it all does: a
+    /// servo that lost power answers again with its RAM at the defaults (Bus Watchdog 0 where
+    /// it was armed, profiles 0, Torque Enable 0 where `torque` was on). A Bus Watchdog that
+    /// fired (-1) is a powered servo's. Within `within`.
+    pub fn ram_reset<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        id: u8,
+        torque: bool,
+        within: &Within<'_>,
+    ) -> Result<Option<String>, ServoError> {
         let mut retry = Retry::default();
-        let values: Vec<(u8, i64)> = self.joints.iter().map(|j| (j.id, 0)).collect();
-        let mut failures = Vec::new();
-        if let Err(e) = bus.sync_write(Register::TorqueEnable, &values) {
-            failures.push(e);
+        let mut read = |r: Register| {
+            retry
+                .within(within, id, |w| bus.read(id, r, w))
+                .map(|v| v.value)
+        };
+        let mut reset = Vec::new();
+        let armed = units::watchdog_units(self.settings.watchdog_ms);
+        if armed > 0 && read(Register::BusWatchdog)? == 0 {
+            reset.push(format!("Bus Watchdog 0 (armed at {armed})"));
         }
-        for j in &self.joints {
-            let confirmed = match retry.run(|| bus.read(j.id, Register::TorqueEnable, t)) {
-                Ok(v) if v.value == 0 => Ok(()),
-                _ => retry.run(|| bus.set_torque(j.id, false, t)).map(|_| ()),
-            };
-            if let Err(e) = confirmed {
-                failures.push(e);
+        for (register, expected) in [
+            (
+                Register::ProfileAcceleration,
+                units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
+            ),
+            (
+                Register::ProfileVelocity,
+                units::profile_velocity(self.settings.profile_velocity_rad_s),
+            ),
+        ] {
+            if expected != 0 {
+                let value = read(register)?;
+                if value != expected {
+                    reset.push(format!("{register:?} {value} (written {expected})"));
+                }
             }
         }
-        if failures.is_empty() {
+        if torque && read(Register::TorqueEnable)? == 0 {
+            reset.push("Torque Enable 0".into());
+        }
+        Ok((!reset.is_empty()).then(|| reset.join(", ")))
+    }
+
+    /// The RAM part of bring-up again for servo `id` (after it lost power): acknowledgements
+    /// on, the profiles, the Bus Watchdog cleared, goal := present position, the watchdog
+    /// armed. Torque stays off. Within `within`.
+    pub fn restore_ram<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        id: u8,
+        within: &Within<'_>,
+    ) -> Result<(), ServoError> {
+        let mut retry = Retry::default();
+        let mut write = |r: Register, v: i64| {
+            retry
+                .within(within, id, |w| bus.write(id, r, v, w))
+                .map(|_| ())
+        };
+        write(Register::StatusReturnLevel, 2)?;
+        write(
+            Register::ProfileAcceleration,
+            units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
+        )?;
+        write(
+            Register::ProfileVelocity,
+            units::profile_velocity(self.settings.profile_velocity_rad_s),
+        )?;
+        write(Register::BusWatchdog, 0)?;
+        let present = retry
+            .within(within, id, |w| bus.read(id, Register::PresentPosition, w))?
+            .value;
+        retry.within(within, id, |w| {
+            bus.write(id, Register::GoalPosition, present, w)
+        })?;
+        let armed = units::watchdog_units(self.settings.watchdog_ms);
+        if armed > 0 {
+            retry.within(within, id, |w| {
+                bus.write(id, Register::BusWatchdog, armed, w)
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Leave the servos as `[bus] on_exit` says: torque off (see [`Arm::torque_off`]) or hold,
+    /// within `within`. The servos in `silent` are not waited on: with `hold` as with torque
+    /// off, they are named as unreached.
+    pub fn shut_down<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        silent: &[u8],
+        within: &Within<'_>,
+    ) -> Result<(), ShutDownError> {
+        let on_exit = self.settings.on_exit;
+        let unreached = match on_exit {
+            OnExit::Hold => self
+                .joints
+                .iter()
+                .filter(|j| silent.contains(&j.id))
+                .map(|j| Unreached {
+                    joint: j.joint,
+                    id: j.id,
+                    why: "does not answer: not waited on".into(),
+                })
+                .collect(),
+            OnExit::TorqueOff => match self.torque_off(bus, silent, within) {
+                Ok(()) => Vec::new(),
+                Err(unreached) => unreached,
+            },
+        };
+        if unreached.is_empty() {
             Ok(())
         } else {
-            Err(ShutDownError(failures))
+            Err(ShutDownError { on_exit, unreached })
+        }
+    }
+
+    /// Torque off every servo within `within`: one Sync Write to all (no replies, so it costs
+    /// no wait, and a silent servo that still hears takes it too), then one Sync Read of Torque
+    /// Enable from those not in `silent` confirms it; a servo that still reads 1 is written
+    /// once more, one that did not answer is asked again while there is time. Returns the
+    /// servos not confirmed, each with why (the `silent` ones were not waited on).
+    pub fn torque_off<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        silent: &[u8],
+        within: &Within<'_>,
+    ) -> Result<(), Vec<Unreached>> {
+        let values: Vec<(u8, i64)> = self.joints.iter().map(|j| (j.id, 0)).collect();
+        let mut failed: Vec<(u8, String)> = Vec::new();
+        let mut pending: Vec<u8> = Vec::new();
+        match bus.sync_write(Register::TorqueEnable, &values) {
+            Err(e) if e.class() == ErrorClass::Bus => {
+                let why = format!("was not reached: the port failed ({e})");
+                failed.extend(self.joints.iter().map(|j| (j.id, why.clone())));
+            }
+            _ => pending.extend(self.ids().into_iter().filter(|id| !silent.contains(id))),
+        }
+        let mut last: Vec<(u8, ServoError)> = Vec::new();
+        for _ in 0..=RETRIES {
+            let Some(wait) = pending.first().and_then(|_| within.wait()) else {
+                break;
+            };
+            let blocks = match bus.sync_read(
+                &pending,
+                Register::TorqueEnable.address(),
+                Register::TorqueEnable.size(),
+                wait,
+            ) {
+                Ok(blocks) => blocks,
+                Err(e) => {
+                    let why = format!("was not reached: {e}");
+                    failed.extend(pending.drain(..).map(|id| (id, why.clone())));
+                    break;
+                }
+            };
+            let mut still = Vec::new();
+            for (&id, block) in pending.iter().zip(blocks) {
+                let written = match block {
+                    Ok(b) if b.data.first() == Some(&0) => continue,
+                    // Still on: the Sync Write was lost on its way to this one.
+                    Ok(_) => within
+                        .wait_for(id)
+                        .and_then(|w| bus.set_torque(id, false, w)),
+                    Err(e) => Err(e),
+                };
+                if let Err(e) = written {
+                    last.retain(|(x, _)| *x != id);
+                    last.push((id, e));
+                    still.push(id);
+                }
+            }
+            pending = still;
+            if !pending.is_empty() {
+                let values: Vec<(u8, i64)> = pending.iter().map(|&id| (id, 0)).collect();
+                let _ = bus.sync_write(Register::TorqueEnable, &values);
+            }
+        }
+        for id in pending {
+            let why = match last.iter().find(|(x, _)| *x == id) {
+                Some((_, e)) => format!("did not confirm torque off: {e}"),
+                None => "did not confirm torque off in the time allowed".into(),
+            };
+            failed.push((id, why));
+        }
+        let unreached: Vec<Unreached> = self
+            .joints
+            .iter()
+            .filter_map(|j| {
+                if silent.contains(&j.id) && !failed.iter().any(|(id, _)| *id == j.id) {
+                    return Some(Unreached {
+                        joint: j.joint,
+                        id: j.id,
+                        why: "does not answer: torque off sent, not waited on".into(),
+                    });
+                }
+                failed
+                    .iter()
+                    .find(|(id, _)| *id == j.id)
+                    .map(|(_, why)| Unreached {
+                        joint: j.joint,
+                        id: j.id,
+                        why: why.clone(),
+                    })
+            })
+            .collect();
+        if unreached.is_empty() {
+            Ok(())
+        } else {
+            Err(unreached)
         }
     }
 }

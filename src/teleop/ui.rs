@@ -370,7 +370,7 @@ fn state_style(state: State) -> Style {
     let color = match state {
         State::Holding => Color::Green,
         State::Moving => Color::Cyan,
-        State::Stopping => Color::Yellow,
+        State::Stopping | State::TorqueOff => Color::Yellow,
         State::Estop | State::Fault => Color::Red,
     };
     Style::default().fg(color).add_modifier(Modifier::BOLD)

@@ -5,8 +5,7 @@
 use crate::chain::Vec2;
 use crate::control::{self, Refused};
 use crate::protocol::{
-    Answer, Applied, Code, FaultKind, LoopCmd, Motion, Rebooted, Rejection, Reply, Status,
-    StopReason, What,
+    Answer, Applied, Code, LoopCmd, Motion, Rebooted, Rejection, Reply, Status, StopReason, What,
 };
 use crate::servo::arm::{self, BringUpOptions, OnExit, Retry};
 use crate::servo::clock::Clock;
@@ -231,6 +230,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.owe(ended);
     }
 
+    /// `estop`: goals frozen, the latch set, torque off where `[bus] on_exit` says so: one Sync
+    /// Write, confirmed within this tick by the servos that answer (the silent ones are not
+    /// waited on, and named in the log).
     fn estop(&mut self, e: &Envelope) {
         if self.supervisor.estopped() {
             return;
@@ -241,28 +243,75 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let torque_off = self.on_exit == OnExit::TorqueOff;
         self.supervisor.estop(torque_off);
         if torque_off {
-            if let Err(err) = self.arm.torque_off(self.port.bus()) {
-                tracing::error!("estop: torque off failed: {err}");
-            }
+            self.torque_off_all("estop");
         }
         self.event(None, e.id.clone(), |tip| What::Estop { tip });
     }
 
-    /// `reset`: out of the estop latch, holding the measured pose with torque on.
+    /// The servos among `ids`, named with their joints.
+    fn name_servos(&self, ids: &[u8]) -> String {
+        ids.iter()
+            .map(|&id| match self.ids.iter().position(|&x| x == id) {
+                Some(i) => format!("servo {id} (joint {})", i + 1),
+                None => format!("servo {id}"),
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// Why the measured pose cannot be read now, without asking the bus: the port is lost, or
+    /// servos are held silent. (A servo that only missed a read or two is asked, within the
+    /// tick.)
+    fn pose_unreadable(&self) -> Option<String> {
+        if self.port.is_lost() {
+            return Some("the serial port is lost: the measured pose cannot be read".into());
+        }
+        let silent = self.health.silent();
+        (!silent.is_empty()).then(|| {
+            format!(
+                "{} {} not answer: the measured pose cannot be read",
+                self.name_servos(&silent),
+                if silent.len() == 1 { "does" } else { "do" }
+            )
+        })
+    }
+
+    /// `reset`: out of the estop latch, holding the measured pose with torque on: tripped
+    /// watchdogs cleared, goals := the measured pose, torque on (within this tick), any
+    /// `power_loss` fault cleared. Refused with `fault`, naming the servos, while the pose
+    /// cannot be read or torque cannot be switched on; the latch then stays.
     fn reset(&mut self, e: &Envelope) -> Pending {
         if !self.supervisor.estopped() {
             return self.ok();
         }
-        // Goal := the measured pose, read now; then torque on holding it.
+        if let Some(why) = self.pose_unreadable() {
+            return refuse(Code::Fault, format!("reset: {why}; the latch stays"));
+        }
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        if let Err(err) = self.arm.recover_watchdog(self.port.bus(), &within) {
+            return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
+        }
         if let Err(err) = self.measure_pose() {
-            return refuse(Code::Busy, format!("{err} (for reset)"));
+            return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
         }
         if let Err(r) = self.controller.reseed(&self.measured.theta) {
             return refuse(Code::Unreachable, r.to_string());
         }
-        if let Err(err) = self.arm.set_torque(self.port.bus(), true) {
-            return refuse(Code::Busy, format!("torque on for reset: {err}"));
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        if let Err(err) = self.arm.torque_on(self.port.bus(), &[], &within) {
+            return refuse(
+                Code::Fault,
+                format!("reset: torque on failed: {err}; the latch stays"),
+            );
         }
+        self.port.contact(self.clock.now());
+        self.supervisor.set_torque(true);
+        for id in self.health.power_lost() {
+            if let Some(i) = self.health.index_of(id) {
+                self.clear(i, "reset: torque on, holding the measured pose".into());
+            }
+        }
+        self.sync_faulted();
         self.supervisor.reset();
         tracing::info!("reset: holding the measured pose");
         self.event(None, e.id.clone(), |tip| What::Reset { tip });
@@ -286,18 +335,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// Why the arm holds for a fault, naming every fault.
     fn fault_summary(&self) -> String {
-        let list: Vec<String> = self
-            .lists
-            .faults
-            .iter()
-            .map(|f| match f.kind {
-                FaultKind::Port => format!("port: {}", f.detail),
-                _ => format!(
-                    "servo {} (joint {}) {}: {}",
-                    f.id, f.joint, f.kind, f.detail
-                ),
-            })
-            .collect();
+        let list: Vec<String> = self.lists.faults.iter().map(ToString::to_string).collect();
         format!(
             "the arm holds for a fault: {}; `status` lists the faults, `reboot` clears a hardware error",
             list.join("; ")
@@ -305,24 +343,28 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// `torque`: on = goals := the measured pose (tripped watchdogs cleared first), then
-    /// torque on; off = torque off, the controller frozen. Refused on while a fault holds.
+    /// torque on; refused with `fault` while a fault holds or a servo does not answer. Off =
+    /// torque off (one Sync Write, confirmed within this tick by the servos that answer; one
+    /// that does not is named in the log and switched off on its recovery), the controller
+    /// frozen: never refused.
     fn torque(&mut self, on: bool) -> Pending {
         if on {
             match self.supervisor.blocked() {
                 Some(Blocked::TorqueOff) | None => {}
                 Some(blocked) => return self.blocked(blocked, "`reset` turns torque on"),
             }
+            if let Some(why) = self.pose_unreadable() {
+                return refuse(Code::Fault, format!("torque on: {why}"));
+            }
             let before = self.supervisor;
             self.supervisor.set_torque(true);
             if let Err(err) = self.recover() {
                 self.supervisor = before;
-                return refuse(Code::Busy, format!("torque on: {err}"));
+                return refuse(Code::Fault, format!("torque on: {err}"));
             }
             tracing::info!("torque on, holding the measured pose");
         } else {
-            if let Err(err) = self.arm.torque_off(self.port.bus()) {
-                return refuse(Code::Busy, format!("torque off: {err}"));
-            }
+            self.torque_off_all("torque off");
             self.supervisor.set_torque(false);
             self.controller.freeze();
             let ended = self.ledger.interrupt(StopReason::Torque);
@@ -359,18 +401,28 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.controller.freeze();
         let ended = self.ledger.interrupt(StopReason::Reboot);
         self.owe(ended);
+        // Under a latch that switched torque off, torque stays off until `reset`.
+        let latched_off = self.supervisor.estopped() && !self.supervisor.torque();
         if let Err(refusal) = self.reboot_and_bring_up(&targets) {
             return refusal;
         }
+        let torque = if latched_off {
+            // Bring-up switched it on; the latch keeps it off.
+            self.torque_off_all("reboot under the estop latch");
+            self.supervisor.set_torque(false);
+            "torque off under the estop latch"
+        } else {
+            "torque on"
+        };
         tracing::info!(?targets, "rebooted; holding the measured pose");
         for i in 0..self.health.len() {
             let id = self.ids.get(i).copied().unwrap_or_default();
             let detail = if targets.contains(&id) {
-                "rebooted; goals := measured pose, torque on"
+                format!("rebooted; goals := measured pose, {torque}")
             } else {
-                "answers after the reboot; goals := measured pose, torque on"
+                format!("answers after the reboot; goals := measured pose, {torque}")
             };
-            self.clear(i, detail.into());
+            self.clear(i, detail);
         }
         self.sync_faulted();
         Pending::Ready(Ok(Reply::Rebooted(Rebooted {

@@ -4,8 +4,8 @@
 
 use std::time::{Duration, Instant};
 
-use crate::protocol::{FaultChange, FaultKind};
-use crate::servo::arm::{Arm, Retry};
+use crate::protocol::{FaultChange, FaultKind, What};
+use crate::servo::arm::{self, Arm, OnExit, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::limits::Limited;
 use crate::servo::{units, ErrorClass, Fields, HardwareErrors, Register, ServoBus, ServoError};
@@ -20,7 +20,7 @@ const MIN_READ_WAIT: Duration = Duration::from_micros(300);
 
 /// What a read leaves of its tick for publishing and answering: a reply that never comes then
 /// costs no overrun.
-const READ_TAIL: Duration = Duration::from_micros(500);
+pub(super) const READ_TAIL: Duration = Duration::from_micros(500);
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The read of the tick scheduled at `scheduled`, its wait capped short of `deadline`;
@@ -61,6 +61,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 for i in 0..self.ids.len() {
                     attention |= self.take_reading(i, scheduled);
                 }
+                self.retry_torque_off();
             }
         }
         if health {
@@ -121,8 +122,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let tick = self.tick;
         for i in self.health.take_alerts() {
             let id = self.ids.get(i).copied().unwrap_or_default();
-            let timeout = self.schedule.reply_timeout;
-            let (bits, detail) = match self.port.bus().hardware_errors(id, timeout) {
+            let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+            let read = match within.wait() {
+                Some(wait) => self.port.bus().hardware_errors(id, wait),
+                None => Err(ServoError::Timeout {
+                    id,
+                    waited: Duration::ZERO,
+                }),
+            };
+            let (bits, detail) = match read {
                 Ok(bits) => (
                     bits,
                     format!("hardware error {bits}: the servo may have switched its torque off; `reboot` clears it"),
@@ -141,9 +149,22 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if back.is_empty() {
             return;
         }
+        // A servo that lost power answers with its RAM at the defaults: no torque for it
+        // until `reset`.
+        let Some(lost) = self.check_ram(&back) else {
+            return;
+        };
+        if !lost.is_empty() {
+            self.latch_power_loss(&back, lost);
+            return;
+        }
         if self.port.is_lost() || self.health.faulted_except(&back) {
             for i in back {
                 self.clear(i, "answers again (other faults still hold the arm)".into());
+            }
+            if !self.port.is_lost() && !self.supervisor.torque() {
+                // A torque off it missed while silent reaches it now.
+                self.torque_off_all("a servo back from silence");
             }
             return;
         }
@@ -165,23 +186,132 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
     }
 
+    /// Which of the servos `back` from silence (joint indices) answer with the RAM bring-up
+    /// wrote reset (they lost power), each with what was reset; `None` when one could not be
+    /// read (it is looked at again on its next answer).
+    fn check_ram(&mut self, back: &[usize]) -> Option<Vec<(usize, String)>> {
+        let torque = self.supervisor.torque();
+        let mut lost = Vec::new();
+        for &i in back {
+            let id = self.ids.get(i).copied()?;
+            let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+            match self.arm.ram_reset(self.port.bus(), id, torque, &within) {
+                Ok(Some(what)) => lost.push((i, what)),
+                Ok(None) => {}
+                Err(e) => {
+                    tracing::debug!(id, "servo back from silence, its RAM unreadable: {e}");
+                    return None;
+                }
+            }
+        }
+        Some(lost)
+    }
+
+    /// Servos (joint index, what of their RAM was reset) answer again after losing power: the
+    /// arm is latched as under an estop (torque off as `[bus] on_exit` says; the servos that
+    /// lost power have none anyway), their RAM written again as bring-up did, and each held in
+    /// a `power_loss` fault until `reset`, which alone turns torque back on.
+    fn latch_power_loss(&mut self, back: &[usize], lost: Vec<(usize, String)>) {
+        for &i in back {
+            let detail = match lost.iter().find(|(j, _)| *j == i) {
+                Some((_, what)) => format!("answers again, with its RAM reset: {what}"),
+                None => "answers again (another servo lost power: the arm is latched)".into(),
+            };
+            self.clear(i, detail);
+        }
+        if !self.supervisor.estopped() {
+            self.controller.freeze();
+            self.ledger.estop();
+            let torque_off = self.on_exit == OnExit::TorqueOff;
+            self.supervisor.estop(torque_off);
+            if torque_off {
+                self.torque_off_all("power loss");
+            }
+            self.event(None, None, |tip| What::Estop { tip });
+        }
+        let tick = self.tick;
+        for (i, what) in lost {
+            let id = self.ids.get(i).copied().unwrap_or_default();
+            let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+            let restored = match self.arm.restore_ram(self.port.bus(), id, &within) {
+                Ok(()) => {
+                    "its settings written again (profiles, Bus Watchdog, goal := present position)"
+                        .to_owned()
+                }
+                Err(e) => format!("writing its settings again failed ({e}): `reboot` brings it up"),
+            };
+            let detail = format!(
+                "lost power: it answers again with its RAM reset ({what}); {restored}; its torque \
+                 stays off and the arm is latched as after an estop: `reset` turns torque on"
+            );
+            tracing::warn!(id, "servo lost power: the arm is latched until `reset`");
+            self.raise(i, JointFault::PowerLoss, tick, detail);
+        }
+    }
+
+    /// Torque off every servo within this tick, not waiting on the silent ones; `why` names
+    /// the occasion in the log line naming the servos not confirmed.
+    pub(super) fn torque_off_all(&mut self, why: &str) {
+        let silent = self.health.unanswering();
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        self.torque_off_pending.clear();
+        if let Err(unreached) = self.arm.torque_off(self.port.bus(), &silent, &within) {
+            let list: Vec<String> = unreached.iter().map(ToString::to_string).collect();
+            tracing::warn!(
+                "{why}: torque off not confirmed (sent again once they answer): {}",
+                list.join("; ")
+            );
+            self.torque_off_pending
+                .extend(unreached.iter().map(|u| u.id));
+        }
+    }
+
+    /// A torque off that missed servos reaches them once one of them answers a read (torque
+    /// on since makes it moot).
+    fn retry_torque_off(&mut self) {
+        if self.torque_off_pending.is_empty() {
+            return;
+        }
+        if self.supervisor.torque() {
+            self.torque_off_pending.clear();
+            return;
+        }
+        let answered = self.torque_off_pending.iter().any(|id| {
+            self.ids
+                .iter()
+                .position(|x| x == id)
+                .and_then(|i| self.states.readings().get(i))
+                .is_some_and(Result::is_ok)
+        });
+        if answered {
+            self.torque_off_all("a servo answering again");
+        }
+    }
+
     /// After a fault: tripped Bus Watchdogs cleared (goal := present, re-armed), goals := the
-    /// measured pose, torque on again where it should be. Returns the servos whose watchdog
-    /// had fired.
+    /// measured pose, torque on again where it should be (never for a servo held for a power
+    /// loss) or off where it should be off. Returns the servos whose watchdog had fired. Every
+    /// exchange within this tick.
     pub(super) fn recover(&mut self) -> Result<Vec<u8>, String> {
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         let watchdogs = self
             .arm
-            .recover_watchdog(self.port.bus())
+            .recover_watchdog(self.port.bus(), &within)
             .map_err(|e| e.to_string())?;
         self.measure_pose()?;
+        if self.supervisor.torque() {
+            let skip = self.health.power_lost();
+            let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+            self.arm
+                .torque_on(self.port.bus(), &skip, &within)
+                .map_err(|e| e.to_string())?;
+        } else {
+            self.torque_off_all("recovery");
+        }
+        // Only once the bus work is done: a recovery that fails leaves the goals as they were.
         self.controller
             .reseed(&self.measured.theta)
             .map_err(|r| r.to_string())?;
-        if self.supervisor.torque() {
-            self.arm
-                .set_torque(self.port.bus(), true)
-                .map_err(|e| e.to_string())?;
-        }
         self.port.contact(self.clock.now());
         self.recover_after = None;
         self.health.forgive();
@@ -189,19 +319,42 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         Ok(watchdogs)
     }
 
-    /// The measured pose (one Sync Read of every position), each angle clamped into its
-    /// joint's limits (a servo may rest a tick past one).
+    /// The measured pose (one Sync Read of every position, its wait within this tick), each
+    /// angle clamped into its joint's limits (a servo may rest a tick past one). The error names
+    /// every servo that did not answer.
     pub(super) fn measure_pose(&mut self) -> Result<(), String> {
-        let timeout = self.schedule.reply_timeout;
-        self.port
-            .bus()
-            .read_states_into(&self.ids, Fields::POSITION, timeout, &mut self.states)
-            .map_err(|e| format!("reading the pose: {e}"))?;
-        for (i, reading) in self.states.readings().iter().enumerate() {
-            match reading {
-                Ok(s) => self.measured.record_position(i, s.position_ticks),
-                Err(err) => return Err(format!("reading the pose: {err}")),
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        let mut heard = vec![false; self.ids.len()];
+        let mut missing = Vec::new();
+        // A lost or damaged reply is asked for again while the tick allows.
+        for _ in 0..=arm::RETRIES {
+            let Some(wait) = within.wait() else {
+                break;
+            };
+            self.port
+                .bus()
+                .read_states_into(&self.ids, Fields::POSITION, wait, &mut self.states)
+                .map_err(|e| format!("reading the pose: {e}"))?;
+            missing.clear();
+            for (i, reading) in self.states.readings().iter().enumerate() {
+                match reading {
+                    Ok(s) => {
+                        self.measured.record_position(i, s.position_ticks);
+                        heard[i] = true;
+                    }
+                    Err(_) if heard[i] => {}
+                    Err(err) => missing.push(format!("joint {}: {err}", i + 1)),
+                }
             }
+            if missing.is_empty() {
+                break;
+            }
+        }
+        if heard.iter().any(|h| !h) {
+            if missing.is_empty() {
+                missing.push("no time left in this tick".into());
+            }
+            return Err(format!("the pose cannot be read: {}", missing.join("; ")));
         }
         let limits = self.controller.chain().limits();
         for (t, l) in self.measured.theta.iter_mut().zip(limits) {
@@ -228,13 +381,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let Some((gap, watchdog)) = self.port.stalled(self.clock.now()) else {
             return;
         };
-        let tripped = self.arm.tripped_watchdogs(self.port.bus());
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        let tripped = self.arm.tripped_watchdogs(self.port.bus(), &within);
         self.port.contact(self.clock.now());
         let tripped = match tripped {
-            Ok(t) if t.is_empty() => return,
+            Ok(t) if t.is_empty() => {
+                self.port.stall_handled();
+                return;
+            }
             Ok(t) => t,
             Err(e) => {
+                // Looked at again next tick: the stall stands until they are read.
                 tracing::warn!("after a {gap:?} stall, reading the bus watchdogs failed: {e}");
+                self.port.stall_again(gap);
                 return;
             }
         };
@@ -252,6 +411,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.owe(ended);
         match self.recover() {
             Ok(_) => {
+                self.port.stall_handled();
                 for id in tripped {
                     if let Some(i) = self.ids.iter().position(|&x| x == id) {
                         let info = self
@@ -265,7 +425,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 // Next tick's stall check (the gap is measured again) tries once more.
                 tracing::warn!("watchdog recovery failed: {e}");
                 self.controller.freeze();
-                self.port.stall_again(self.clock.now());
+                self.port.stall_again(gap);
             }
         }
     }

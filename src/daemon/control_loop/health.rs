@@ -27,6 +27,9 @@ pub enum JointFault {
     Silent,
     /// Its alert flag: a latched hardware error (the bits read, empty when unreadable).
     Hardware(HardwareErrors),
+    /// It answered again with its RAM reset (it lost power): held, with the arm latched, until
+    /// `reset` (or `reboot`).
+    PowerLoss,
 }
 
 impl JointFault {
@@ -35,6 +38,7 @@ impl JointFault {
         match self {
             JointFault::Silent => FaultKind::Silent,
             JointFault::Hardware(_) => FaultKind::HardwareError,
+            JointFault::PowerLoss => FaultKind::PowerLoss,
         }
     }
 }
@@ -117,11 +121,13 @@ struct Joint {
 pub struct Health {
     joints: Vec<Joint>,
     budget: Budget,
+    /// The port the servos are on, for the reports.
+    port: Option<String>,
 }
 
 impl Health {
-    /// Healthy joints with servo `ids` and their warning `limits` (one each).
-    pub fn new(ids: &[u8], limits: &[Limits], budget: Budget) -> Self {
+    /// Healthy joints with servo `ids` and their warning `limits` (one each), on `port`.
+    pub fn new(ids: &[u8], limits: &[Limits], budget: Budget, port: Option<String>) -> Self {
         let joints = ids
             .iter()
             .zip(
@@ -136,7 +142,11 @@ impl Health {
                 ..Joint::default()
             })
             .collect();
-        Self { joints, budget }
+        Self {
+            joints,
+            budget,
+            port,
+        }
     }
 
     /// The joints, counted.
@@ -152,12 +162,70 @@ impl Health {
     /// The fault report of joint `i` (1-based joint, its servo id).
     pub fn info(&self, i: usize, kind: FaultKind, since: u64, detail: String) -> FaultInfo {
         FaultInfo {
-            id: self.joints.get(i).map_or(0, |j| j.id),
-            joint: i + 1,
+            id: self.joints.get(i).map(|j| j.id),
+            joint: Some(i + 1),
+            port: self.port.clone(),
             kind,
             since_tick: since,
             detail,
         }
+    }
+
+    /// The servos not to wait on: those held silent, and those that missed their latest read.
+    pub fn unanswering(&self) -> Vec<u8> {
+        self.joints
+            .iter()
+            .filter(|j| {
+                j.streak.is_some()
+                    || matches!(
+                        j.fault,
+                        Some(Held {
+                            fault: JointFault::Silent,
+                            ..
+                        })
+                    )
+            })
+            .map(|j| j.id)
+            .collect()
+    }
+
+    /// The servos held silent.
+    pub fn silent(&self) -> Vec<u8> {
+        self.joints
+            .iter()
+            .filter(|j| {
+                matches!(
+                    j.fault,
+                    Some(Held {
+                        fault: JointFault::Silent,
+                        ..
+                    })
+                )
+            })
+            .map(|j| j.id)
+            .collect()
+    }
+
+    /// The servos held for a power loss.
+    pub fn power_lost(&self) -> Vec<u8> {
+        self.joints
+            .iter()
+            .filter(|j| {
+                matches!(
+                    j.fault,
+                    Some(Held {
+                        fault: JointFault::PowerLoss,
+                        ..
+                    })
+                )
+            })
+            .map(|j| j.id)
+            .collect()
+    }
+
+    /// The joint (0-based) of servo `id`.
+    pub fn index_of(&self, id: u8) -> Option<usize> {
+        self.joints.iter().position(|j| j.id == id)
     }
 
     /// Joint `i` answered a read with a valid reply (`alert`: its alert flag was set). True when
@@ -428,6 +496,7 @@ mod tests {
                 max_silence: 50 * MS,
                 read_interval: read_interval_ms as u32 * MS,
             },
+            Some("/dev/ttyUSB0".into()),
         )
     }
 
@@ -491,7 +560,13 @@ mod tests {
         let change = h.raise(1, JointFault::Silent, 7, "quiet".into());
         assert_eq!(change.change, FaultChange::Raised);
         let f = &change.info;
-        assert!(f.id == 2 && f.joint == 2 && f.kind == FaultKind::Silent && f.since_tick == 7);
+        assert!(
+            f.id == Some(2)
+                && f.joint == Some(2)
+                && f.port.as_deref() == Some("/dev/ttyUSB0")
+                && f.kind == FaultKind::Silent
+                && f.since_tick == 7
+        );
         assert!(h.any_fault() && !h.faulted_except(&[1]));
         // A faulted joint does not exhaust again.
         let t0 = Instant::now();
@@ -553,7 +628,7 @@ mod tests {
         // Limits 9.5..16 V: warns at or below 10.0, clears above 10.1.
         let raised = h.judge(1, 40.0, 10.0, 1);
         assert!(
-            matches!(&raised[..], [Change { change: FaultChange::Raised, info }] if info.kind == FaultKind::Voltage && info.id == 2)
+            matches!(&raised[..], [Change { change: FaultChange::Raised, info }] if info.kind == FaultKind::Voltage && info.id == Some(2))
         );
         assert_eq!(h.lists(None).1.len(), 1);
         assert!(h.judge(1, 40.0, 10.05, 2).is_empty());
@@ -562,16 +637,32 @@ mod tests {
     }
 
     #[test]
+    fn the_servos_not_to_wait_on_are_the_silent_and_those_that_missed_their_last_read() {
+        let mut h = health(10);
+        let t0 = Instant::now();
+        assert!(h.unanswering().is_empty());
+        assert!(!h.missed(1, 1, t0));
+        assert_eq!(h.unanswering(), vec![2], "missed its latest read");
+        assert!(!h.answered(1, false));
+        assert!(h.unanswering().is_empty());
+        h.raise(0, JointFault::Silent, 3, "quiet".into());
+        assert_eq!(h.unanswering(), vec![1]);
+        assert_eq!(h.silent(), vec![1]);
+        h.raise(1, JointFault::PowerLoss, 4, "RAM reset".into());
+        assert_eq!(h.power_lost(), vec![2]);
+        assert_eq!(
+            h.unanswering(),
+            vec![1],
+            "a servo back from a power loss answers"
+        );
+        assert_eq!(h.index_of(2), Some(1));
+    }
+
+    #[test]
     fn the_lists_put_the_port_first() {
         let mut h = health(10);
         h.raise(0, JointFault::Silent, 1, "quiet".into());
-        let port = FaultInfo {
-            id: 0,
-            joint: 0,
-            kind: FaultKind::Port,
-            since_tick: 4,
-            detail: "gone".into(),
-        };
+        let port = FaultInfo::port(Some("/dev/ttyUSB0".into()), 4, "gone".into());
         let (faults, warnings) = h.lists(Some(port));
         assert_eq!(faults.len(), 2);
         assert_eq!(faults[0].kind, FaultKind::Port);

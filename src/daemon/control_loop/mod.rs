@@ -33,7 +33,13 @@
 //! - the serial port failing (an error of class `Bus`): `port`, reopened once a second;
 //! - a stall of the loop longer than the Bus Watchdog (the process stopped): the watchdogs
 //!   that fired are cleared, goals := the measured pose, re-armed (`watchdog`, recovered at
-//!   once).
+//!   once);
+//! - a servo back from silence with its RAM at the defaults (it lost power): `power_loss`, the
+//!   arm latched as by an estop, its RAM written again, torque only on `reset`.
+//!
+//! The fault path never holds the tick longer than a period: its exchanges wait at most to the
+//! end of the tick and are not sent again past it, and servos known silent are not waited on
+//! (torque off is one Sync Write, confirmed by the servos that answer).
 //!
 //! While a fault holds, the controller is frozen and motion commands are refused (`fault`);
 //! once every fault has cleared, goals := the measured pose (tripped watchdogs cleared first)
@@ -67,7 +73,7 @@ use crate::control::{self, Activity, Controller};
 use crate::protocol::{
     Answer, ClientId, Describe, Event, FaultChange, FaultInfo, RequestId, Telemetry, What,
 };
-use crate::servo::arm::{Arm, BringUpOptions, OnExit};
+use crate::servo::arm::{Arm, BringUpOptions, OnExit, Within};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
 use crate::servo::limits::{LimitPolicy, Limited};
@@ -84,6 +90,11 @@ use super::{DaemonError, RunOptions, Summary};
 
 /// Longest a shut-down waits for the arm to come to rest before it lets go anyway.
 const STOP_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// What the last exchanges of a shut-down (leaving the servos as `[bus] on_exit` says) may
+/// take: the servos that answer confirm in a few milliseconds, and a silent one is not waited
+/// on, so this bounds only a bus that fails meanwhile.
+const SHUT_DOWN_WITHIN: Duration = Duration::from_millis(250);
 
 /// Start-up on the calling thread (open the bus, bring the arm up), then the cycle until `stop`
 /// is set and the arm is at rest, then shut-down. `ready` receives the socket side's handle once
@@ -107,7 +118,9 @@ pub(super) fn main(
         // included, never the placeholder the channel was made with.
         cycle.read_everything();
         // A `run` that stopped waiting is not this thread's problem: it shuts down below.
-        let _ = ready.send(Ok(handle));
+        if ready.send(Ok(handle)).is_ok() {
+            tracing::info!("the arm holds its pose: serving commands");
+        }
         cycle.run(&stop);
     }));
     cycle.shut_down(outcome.is_err())
@@ -126,6 +139,7 @@ fn open(
     // What to reopen if the port vanishes: the given port, `[bus] port`, or the in-process
     // simulator's link, which survives a disconnect as a USB adapter's by-id link does.
     let path = connect::port_path(config, &options, sim.as_ref());
+    let name = path.as_ref().map(|p| p.display().to_string());
     let baud = bus.baud();
     let opener: Opener<DynamixelBus> = Box::new(move |arm: &Arm| {
         let path = path.as_deref().ok_or(ReopenError::NoPath)?;
@@ -133,6 +147,7 @@ fn open(
     });
     Ok(Parts {
         bus,
+        port: name,
         arm,
         opener,
         clock: RealClock,
@@ -144,6 +159,8 @@ fn open(
 pub(crate) struct Parts<B: ServoBus, C: Clock> {
     /// The bus, limited to the joint limits, not yet brought up.
     pub bus: Limited<B>,
+    /// The port's path, for the fault reports (`None`: not known).
+    pub port: Option<String>,
     /// The joints and bus settings.
     pub arm: Arm,
     /// Opens the bus again after the port vanished.
@@ -239,6 +256,10 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     tick: u64,
     /// No recovery is tried before this instant, after one failed.
     recover_after: Option<Instant>,
+    /// Until when the fault path of this tick may wait on the bus (see [`Cycle::within`]).
+    fault_until: Instant,
+    /// Servos a torque off did not reach: switched off once they answer a read.
+    torque_off_pending: Vec<u8>,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -247,6 +268,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     pub(crate) fn new(config: &Config, parts: Parts<B, C>) -> Result<(Self, Handle), DaemonError> {
         let Parts {
             mut bus,
+            port,
             arm,
             opener,
             clock,
@@ -294,13 +316,18 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             max_silence: c.max_silence,
             read_interval: period * c.read_every.max(1),
         };
-        let health = Health::new(&ids, &faults::health_limits(&arm, &mut bus), budget);
+        let health = Health::new(
+            &ids,
+            &faults::health_limits(&arm, &mut bus),
+            budget,
+            port.clone(),
+        );
         let now = clock.now();
         let watchdog = units::watchdog_period(arm.settings().watchdog_ms);
         let mut stats = Stats::new(now);
         stats.counters.retries = u64::from(brought.retries);
         let cycle = Self {
-            port: Port::new(bus, opener, watchdog, now),
+            port: Port::new(bus, port, opener, watchdog, now),
             measured: Measured::new(&arm, &brought.pose),
             decided: Decided {
                 tip_ref: controller.chain().tip(&brought.pose),
@@ -327,6 +354,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             ids,
             tick: 0,
             recover_after: None,
+            fault_until: now,
+            torque_off_pending: Vec::new(),
         };
         Ok((cycle, handle))
     }
@@ -391,6 +420,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// One tick, scheduled at `scheduled`, ending by `deadline`.
     fn step(&mut self, scheduled: Instant, deadline: Instant) {
         self.tick += 1;
+        self.set_fault_until(deadline);
         self.apply_commands();
         self.tend_port();
         if self.port.is_lost() {
@@ -455,9 +485,27 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.received.clear();
     }
 
+    /// The fault path of a tick ending by `deadline` may wait on the bus until short of it, or,
+    /// in a tick that started late, one period from now: never longer than a period, and the
+    /// read, the publishing and the answers keep their share.
+    fn set_fault_until(&mut self, deadline: Instant) {
+        let now = self.clock.now();
+        self.fault_until = deadline
+            .max(now + self.schedule.period)
+            .checked_sub(faults::READ_TAIL)
+            .unwrap_or(now);
+    }
+
+    /// The time the fault path's exchanges may take, as a [`Within`]: an associated function, so
+    /// it borrows the clock alone, beside the port's bus.
+    fn within(clock: &C, until: Instant, timeout: Duration) -> Within<'_> {
+        Within::new(clock, until, timeout)
+    }
+
     /// Tick 0, before any client: every field of every servo, then a snapshot of it.
     fn read_everything(&mut self) {
         let now = self.clock.now();
+        self.set_fault_until(now + self.schedule.period);
         self.read(now, now + self.schedule.period, true);
         self.publish();
     }
@@ -555,17 +603,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let Change { change, info } = change;
         match (info.kind.is_warning(), change) {
             (false, FaultChange::Raised) => tracing::warn!(
-                id = info.id,
-                joint = info.joint,
+                id = ?info.id,
+                joint = ?info.joint,
                 kind = %info.kind,
                 "fault: {}",
                 info.detail
             ),
             (false, _) => {
-                tracing::info!(id = info.id, kind = %info.kind, "fault cleared: {}", info.detail)
+                tracing::info!(id = ?info.id, kind = %info.kind, "fault cleared: {}", info.detail)
             }
             (true, _) => tracing::warn!(
-                id = info.id,
+                id = ?info.id,
                 kind = %info.kind,
                 reason = %change,
                 "health: {}",
@@ -591,9 +639,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// The summary of the run, and the servos left as `[bus] on_exit` says (the shut-down
-    /// guard: it runs whatever ended the cycle).
+    /// guard: it runs whatever ended the cycle). The servos that do not answer are not waited
+    /// on, and the whole takes at most [`SHUT_DOWN_WITHIN`]; a servo it could not reach is
+    /// named in the error.
     fn shut_down(mut self, panicked: bool) -> Result<Summary, DaemonError> {
-        let shut = self.arm.shut_down(self.port.bus());
+        let silent = if self.port.is_lost() {
+            tracing::warn!("shut-down: the serial port is lost, no servo can be reached");
+            self.ids.clone()
+        } else {
+            self.health.unanswering()
+        };
+        let until = self.clock.now() + SHUT_DOWN_WITHIN;
+        let within = Self::within(&self.clock, until, self.schedule.reply_timeout);
+        let shut = self.arm.shut_down(self.port.bus(), &silent, &within);
         if panicked {
             if let Err(e) = shut {
                 tracing::error!("shut-down after a panic of the loop: {e}");

@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use crate::connect::ConnectError;
-use crate::protocol::{FaultInfo, FaultKind};
+use crate::protocol::FaultInfo;
 use crate::servo::arm::Arm;
 use crate::servo::limits::Limited;
 use crate::servo::ServoBus;
@@ -47,13 +47,19 @@ pub struct Port<B: ServoBus> {
     last_contact: Instant,
     /// The Bus Watchdog's period, when armed.
     watchdog: Option<Duration>,
+    /// The port's path, for the reports (`None`: not known).
+    name: Option<String>,
+    /// A stall whose recovery is still to be done, and how long it was: the goals written since
+    /// renew the contact, so the gap alone would not show it again.
+    stall_left: Option<Duration>,
 }
 
 impl<B: ServoBus> Port<B> {
-    /// `bus`, just brought up at `now`; `opener` opens it again; the servos' Bus Watchdog runs
-    /// with `watchdog` (`None`: off).
+    /// `bus` on the port at path `name`, just brought up at `now`; `opener` opens it again; the
+    /// servos' Bus Watchdog runs with `watchdog` (`None`: off).
     pub fn new(
         bus: Limited<B>,
+        name: Option<String>,
         opener: Opener<B>,
         watchdog: Option<Duration>,
         now: Instant,
@@ -64,7 +70,14 @@ impl<B: ServoBus> Port<B> {
             lost: None,
             last_contact: now,
             watchdog,
+            name,
+            stall_left: None,
         }
+    }
+
+    /// The port's path, when known.
+    pub fn name(&self) -> Option<&str> {
+        self.name.as_deref()
     }
 
     /// The bus.
@@ -105,7 +118,7 @@ impl<B: ServoBus> Port<B> {
     pub fn fault(&self) -> Option<FaultInfo> {
         self.lost
             .as_ref()
-            .map(|l| port_info(l.since, l.detail.clone()))
+            .map(|l| FaultInfo::port(self.name.clone(), l.since, l.detail.clone()))
     }
 
     /// A lost port whose next try is due at `now`.
@@ -124,7 +137,8 @@ impl<B: ServoBus> Port<B> {
     /// The port is back: the fault's clearing to report.
     pub fn found(&mut self) -> Option<FaultInfo> {
         let lost = self.lost.take()?;
-        Some(port_info(
+        Some(FaultInfo::port(
+            self.name.clone(),
             lost.since,
             "the port is open again; goals := measured pose".into(),
         ))
@@ -138,28 +152,27 @@ impl<B: ServoBus> Port<B> {
     }
 
     /// The loop went quiet at least as long as the Bus Watchdog (the process was stopped, the
-    /// machine stalled): the gap and the watchdog's period.
+    /// machine stalled), or such a stall is still to be recovered from: the gap and the
+    /// watchdog's period.
     pub fn stalled(&self, now: Instant) -> Option<(Duration, Duration)> {
         let watchdog = self.watchdog?;
+        if let Some(gap) = self.stall_left {
+            return Some((gap, watchdog));
+        }
         let gap = now.saturating_duration_since(self.last_contact);
         (gap >= watchdog).then_some((gap, watchdog))
     }
 
-    /// A stall's recovery failed: the next tick's check sees the stall again.
-    pub fn stall_again(&mut self, now: Instant) {
-        if let Some(watchdog) = self.watchdog {
-            self.last_contact = now.checked_sub(watchdog).unwrap_or(self.last_contact);
+    /// A stall of `gap` could not be recovered from this tick: the next tick's check sees it
+    /// again.
+    pub fn stall_again(&mut self, gap: Duration) {
+        if self.watchdog.is_some() {
+            self.stall_left = Some(gap);
         }
     }
-}
 
-/// The port's fault, as listed and reported.
-fn port_info(since: u64, detail: String) -> FaultInfo {
-    FaultInfo {
-        id: 0,
-        joint: 0,
-        kind: FaultKind::Port,
-        since_tick: since,
-        detail,
+    /// The stall is dealt with.
+    pub fn stall_handled(&mut self) {
+        self.stall_left = None;
     }
 }

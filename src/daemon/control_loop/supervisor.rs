@@ -118,7 +118,8 @@ impl Supervisor {
         match self.mode {
             Mode::Estop { .. } => State::Estop,
             Mode::Fault { .. } => State::Fault,
-            Mode::Operating | Mode::TorqueOff => match activity {
+            Mode::TorqueOff => State::TorqueOff,
+            Mode::Operating => match activity {
                 Activity::Moving => State::Moving,
                 Activity::Holding => State::Holding,
                 Activity::Stopping => State::Stopping,
@@ -193,6 +194,7 @@ mod tests {
         assert_eq!(s.blocked(), Some(Blocked::Fault));
         s.set_faulted(false);
         assert_eq!(s.mode(), Mode::TorqueOff);
+        assert_eq!(s.state(Activity::Holding), State::TorqueOff);
         assert_eq!(s.blocked(), Some(Blocked::TorqueOff));
         s.set_torque(true);
         assert_eq!(s.mode(), Mode::Operating);

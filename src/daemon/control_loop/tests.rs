@@ -50,6 +50,9 @@ impl Servo {
 struct Wire {
     servos: BTreeMap<u8, Servo>,
     port_gone: bool,
+    /// When set, a wait for a reply that never comes costs its timeout on this clock, as on a
+    /// real port.
+    clock: Option<ManualClock>,
 }
 
 /// An in-memory chain of servos whose motors reach every goal at once. Clones share it.
@@ -74,13 +77,46 @@ impl MemoryBus {
     }
     fn answering(&self, id: u8, timeout: Duration) -> Result<(), ServoError> {
         self.port()?;
-        match self.wire().servos.get(&id) {
+        let w = self.wire();
+        match w.servos.get(&id) {
             Some(s) if !s.silent => Ok(()),
-            _ => Err(ServoError::Timeout {
-                id,
-                waited: timeout,
-            }),
+            _ => {
+                if let Some(c) = &w.clock {
+                    c.advance(timeout);
+                }
+                Err(ServoError::Timeout {
+                    id,
+                    waited: timeout,
+                })
+            }
         }
+    }
+    /// Servo `id` loses its power: silent (and limp) until [`MemoryBus::power_back`].
+    fn lose_power(&self, id: u8) {
+        self.servo(id, |s| {
+            s.silent = true;
+            s.set(Register::TorqueEnable, 0);
+        });
+    }
+    /// Servo `id` answers again with its RAM at the defaults.
+    fn power_back(&self, id: u8) {
+        self.servo(id, |s| {
+            s.silent = false;
+            for r in [
+                Register::TorqueEnable,
+                Register::BusWatchdog,
+                Register::ProfileAcceleration,
+                Register::ProfileVelocity,
+                Register::HardwareErrorStatus,
+            ] {
+                s.set(r, 0);
+            }
+            let present = s.get(Register::PresentPosition);
+            s.set(Register::GoalPosition, present);
+        });
+    }
+    fn torque(&self, id: u8) -> i64 {
+        self.wire().servos[&id].get(Register::TorqueEnable)
     }
 }
 
@@ -142,11 +178,17 @@ impl ServoBus for MemoryBus {
         self.port()?;
         out.reset(ids, len, timeout);
         let w = self.wire();
+        let mut missing = false;
         for (i, id) in ids.iter().enumerate() {
             if let Some(s) = w.servos.get(id).filter(|s| !s.silent) {
                 let a = usize::from(address);
                 out.set(i, &s.table[a..a + usize::from(len)], s.alert());
+            } else {
+                missing = true;
             }
+        }
+        if let (true, Some(c)) = (missing, &w.clock) {
+            c.advance(timeout);
         }
         Ok(())
     }
@@ -221,6 +263,7 @@ impl Rig {
         let reopen = bus.clone();
         let parts = Parts {
             bus: arm.limited(bus.clone(), LimitPolicy::Clamp),
+            port: Some("/dev/memory".into()),
             arm,
             opener: Box::new(move |arm| {
                 if reopen.wire().port_gone {
@@ -235,6 +278,7 @@ impl Rig {
         let (mut cycle, handle) = Cycle::new(&config, parts).unwrap();
         let events = handle.events.subscribe();
         cycle.read_everything();
+        bus.wire().clock = Some(clock.clone());
         let pace = Pace {
             deadline: clock.now(),
             stop_since: None,
@@ -303,7 +347,7 @@ impl Rig {
     }
 }
 
-fn fault_events(events: &[Event], change: FaultChange) -> Vec<(u8, FaultKind, u64)> {
+fn fault_events(events: &[Event], change: FaultChange) -> Vec<(Option<u8>, FaultKind, u64)> {
     events
         .iter()
         .filter_map(|e| match &e.what {
@@ -369,7 +413,7 @@ fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_a
     let events = rig.events();
     assert_eq!(
         fault_events(&events, FaultChange::Raised),
-        vec![(5, FaultKind::Silent, s.tick - 4)]
+        vec![(Some(5), FaultKind::Silent, s.tick - 4)]
     );
     assert!(events.iter().any(stopped_for_fault), "{events:?}");
     assert_eq!(s.command.as_ref().unwrap().outcome, Outcome::Fault);
@@ -385,7 +429,7 @@ fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_a
     let refused = rig.command(LoopCmd::Motion(Motion::Home)).unwrap_err();
     assert_eq!(refused.code, Code::Fault);
     assert!(
-        refused.message.contains("servo 5 (joint 5) silent"),
+        refused.message.contains("servo 5 (joint 5): silent"),
         "{}",
         refused.message
     );
@@ -397,7 +441,7 @@ fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_a
     assert!(s.faults.is_empty());
     assert_eq!(
         fault_events(&rig.events(), FaultChange::Cleared),
-        vec![(5, FaultKind::Silent, s.tick - 26)]
+        vec![(Some(5), FaultKind::Silent, s.tick - 26)]
     );
     rig.slow_goto();
     rig.ticks(1);
@@ -482,7 +526,10 @@ fn a_stall_past_the_bus_watchdog_recovers_the_servos_whose_watchdog_fired() {
     let recovered = fault_events(&events, FaultChange::Recovered);
     assert_eq!(
         recovered.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(),
-        vec![(2, FaultKind::Watchdog), (7, FaultKind::Watchdog)]
+        vec![
+            (Some(2), FaultKind::Watchdog),
+            (Some(7), FaultKind::Watchdog)
+        ]
     );
     assert!(events.iter().any(stopped_for_fault), "{events:?}");
     for id in [2, 7] {
@@ -560,7 +607,7 @@ fn health_warnings_come_before_the_servo_limits_with_hysteresis() {
     assert_eq!(s.warnings.len(), 1);
     assert_eq!(
         (s.warnings[0].id, s.warnings[0].kind),
-        (6, FaultKind::Temperature)
+        (Some(6), FaultKind::Temperature)
     );
     assert_eq!(s.temperature_c[5], 75.0);
     rig.bus
@@ -618,6 +665,282 @@ fn a_shut_down_while_a_fault_holds_the_arm_ends_at_once() {
     assert_eq!(rig.status().state, State::Fault);
     // Held and frozen: at rest already, so the first turn of the shut-down is the last.
     assert!(!rig.cycle.turn(&mut rig.pace, true));
+}
+
+/// Ticks until servo `id`, silent, is held for it.
+fn declare_silent(rig: &mut Rig, id: u8) {
+    rig.bus.servo(id, |s| s.silent = true);
+    for _ in 0..100 {
+        rig.ticks(1);
+        if rig.status().faults.iter().any(|f| f.id == Some(id)) {
+            return;
+        }
+    }
+    panic!("servo {id} never declared silent");
+}
+
+#[test]
+fn an_estop_with_a_silent_servo_is_answered_in_its_tick_without_an_overrun() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(3);
+    declare_silent(&mut rig, 5);
+    rig.ticks(2);
+    let before = rig.status();
+    let start = rig.clock.now();
+    let mut answer = rig.send(LoopCmd::Estop);
+    rig.ticks(1);
+    let applied = answer
+        .try_recv()
+        .expect("answered in the tick that applied it");
+    assert!(applied.is_ok(), "{applied:?}");
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.state, State::Estop);
+    assert!(!s.torque);
+    assert_eq!(s.overruns, before.overruns, "the estop cost an overrun");
+    // Two ticks on schedule: the silent servo was never waited on.
+    assert_eq!(rig.clock.now() - start, 20 * MS);
+    for id in (1..=12).filter(|&id| id != 5) {
+        assert_eq!(
+            rig.bus.torque(id),
+            0,
+            "servo {id} torque on after the estop"
+        );
+    }
+}
+
+#[test]
+fn torque_off_with_a_silent_servo_costs_no_overrun_and_says_torque_off() {
+    let mut rig = Rig::new(100.0, "");
+    rig.command(LoopCmd::Torque { on: false }).unwrap();
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::TorqueOff, false));
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 0));
+    rig.command(LoopCmd::Torque { on: true }).unwrap();
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Holding, true));
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 1));
+    // Servo 8 missed a read (not yet declared silent): torque off does not wait on it.
+    rig.bus.servo(8, |s| s.silent = true);
+    rig.ticks(1);
+    let overruns = rig.status().overruns;
+    let start = rig.clock.now();
+    rig.command(LoopCmd::Torque { on: false }).unwrap();
+    rig.ticks(1);
+    assert_eq!(rig.status().overruns, overruns);
+    assert_eq!(rig.clock.now() - start, 20 * MS);
+    assert!((1..=12)
+        .filter(|&id| id != 8)
+        .all(|id| rig.bus.torque(id) == 0));
+    assert_eq!(rig.status().state, State::TorqueOff);
+    // It answers again: the torque off it missed reaches it.
+    assert_eq!(rig.bus.torque(8), 1);
+    rig.bus.servo(8, |s| s.silent = false);
+    rig.ticks(1);
+    assert_eq!(rig.bus.torque(8), 0, "servo 8 kept its torque");
+}
+
+#[test]
+fn reset_and_torque_on_with_a_silent_servo_are_refused_with_fault_naming_it() {
+    let mut rig = Rig::new(100.0, "");
+    rig.command(LoopCmd::Estop).unwrap();
+    declare_silent(&mut rig, 5);
+    let overruns = rig.status().overruns;
+    let refused = rig.command(LoopCmd::Reset).unwrap_err();
+    assert_eq!(refused.code, Code::Fault, "{refused:?}");
+    assert!(
+        refused
+            .message
+            .contains("servo 5 (joint 5) does not answer"),
+        "{}",
+        refused.message
+    );
+    assert_eq!(rig.status().state, State::Estop, "the latch stays");
+    rig.bus.servo(5, |s| s.silent = false);
+    rig.ticks(1);
+    rig.command(LoopCmd::Reset).unwrap();
+    assert_eq!(rig.status().state, State::Holding);
+    rig.command(LoopCmd::Torque { on: false }).unwrap();
+    rig.bus.servo(9, |s| s.silent = true);
+    rig.ticks(1);
+    // Asked within the tick, in vain: refused, naming it.
+    let refused = rig.command(LoopCmd::Torque { on: true }).unwrap_err();
+    assert_eq!(refused.code, Code::Fault, "{refused:?}");
+    assert!(refused.message.contains("servo 9"), "{}", refused.message);
+    rig.ticks(2);
+    assert_eq!(rig.status().overruns, overruns, "a refusal cost an overrun");
+}
+
+#[test]
+fn a_servo_that_lost_power_latches_the_arm_and_only_reset_brings_torque_back() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(3);
+    rig.bus.lose_power(5);
+    rig.ticks(20);
+    assert_eq!(rig.status().state, State::Fault);
+    rig.events();
+    rig.bus.power_back(5);
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.state, State::Estop, "latched, not recovered");
+    assert!(!s.torque);
+    let events = rig.events();
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e.what, What::Estop { .. }) && e.owner.is_none()),
+        "{events:?}"
+    );
+    let raised: Vec<_> = events
+        .iter()
+        .filter_map(|e| match &e.what {
+            What::Fault {
+                reason: FaultChange::Raised,
+                fault,
+                ..
+            } => Some(fault.clone()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(raised.len(), 1, "{events:?}");
+    assert_eq!(
+        (raised[0].id, raised[0].joint, raised[0].kind),
+        (Some(5), Some(5), FaultKind::PowerLoss)
+    );
+    assert!(
+        raised[0].detail.contains("Bus Watchdog 0"),
+        "{}",
+        raised[0].detail
+    );
+    assert_eq!(s.faults.len(), 1);
+    // Its RAM written again, torque off everywhere, for as long as nobody resets.
+    assert!(rig.bus.wire().servos[&5].get(Register::BusWatchdog) > 0);
+    rig.ticks(50);
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 0));
+    assert_eq!(
+        rig.command(LoopCmd::Torque { on: true }).unwrap_err().code,
+        Code::Estopped
+    );
+    assert_eq!(
+        rig.command(LoopCmd::Motion(Motion::Home)).unwrap_err().code,
+        Code::Estopped
+    );
+    rig.command(LoopCmd::Reset).unwrap();
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Holding, true));
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 1));
+    assert_eq!(
+        fault_events(&rig.events(), FaultChange::Cleared),
+        vec![(Some(5), FaultKind::PowerLoss, raised[0].since_tick)]
+    );
+}
+
+#[test]
+fn a_port_fault_names_the_port_not_a_servo() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    let f = rig.status().faults[0].clone();
+    assert_eq!(f.kind, FaultKind::Port);
+    assert_eq!((f.id, f.joint), (None, None));
+    assert_eq!(f.port.as_deref(), Some("/dev/memory"));
+    let refused = rig.command(LoopCmd::Motion(Motion::Home)).unwrap_err();
+    assert!(
+        refused.message.contains("port /dev/memory"),
+        "{}",
+        refused.message
+    );
+}
+
+#[test]
+fn a_shut_down_with_a_silent_servo_does_not_wait_on_it_and_names_it() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(3);
+    declare_silent(&mut rig, 5);
+    assert!(!rig.cycle.turn(&mut rig.pace, true));
+    let Rig {
+        cycle, bus, clock, ..
+    } = rig;
+    let start = clock.now();
+    let err = cycle.shut_down(false).unwrap_err();
+    assert_eq!(clock.now(), start, "waited on the silent servo");
+    match err {
+        crate::daemon::DaemonError::ShutDown(e) => {
+            let ids: Vec<u8> = e.unreached.iter().map(|u| u.id).collect();
+            assert_eq!(ids, vec![5], "{e}");
+            assert!(e.to_string().contains("servo 5 (joint 5)"), "{e}");
+        }
+        other => panic!("not a shut-down error: {other}"),
+    }
+    assert!((1..=12).filter(|&id| id != 5).all(|id| bus.torque(id) == 0));
+}
+
+#[test]
+fn a_reboot_under_the_estop_latch_leaves_torque_off_until_reset() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.servo(3, |s| {
+        s.set(Register::HardwareErrorStatus, 0x20);
+        s.set(Register::TorqueEnable, 0);
+    });
+    rig.ticks(1);
+    rig.command(LoopCmd::Estop).unwrap();
+    rig.command(LoopCmd::Reboot { ids: None }).unwrap();
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Estop, false));
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 0));
+    rig.command(LoopCmd::Reset).unwrap();
+    assert_eq!(rig.status().state, State::Holding);
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 1));
+}
+
+#[test]
+fn a_stall_whose_watchdogs_cannot_be_read_at_once_is_recovered_on_a_later_tick() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(2);
+    rig.events();
+    rig.clock.advance(300 * MS);
+    for id in [2, 7] {
+        rig.bus.servo(id, |s| s.set(Register::BusWatchdog, -1));
+    }
+    // Servo 7 misses the first reads after the stall.
+    rig.bus.servo(7, |s| s.silent = true);
+    rig.ticks(1);
+    rig.bus.servo(7, |s| s.silent = false);
+    rig.ticks(2);
+    let recovered = fault_events(&rig.events(), FaultChange::Recovered);
+    assert_eq!(
+        recovered.iter().map(|r| r.0).collect::<Vec<_>>(),
+        vec![Some(2), Some(7)]
+    );
+    for id in [2, 7] {
+        assert!(rig.bus.wire().servos[&id].get(Register::BusWatchdog) > 0);
+    }
+    assert_eq!(rig.status().state, State::Holding);
+}
+
+#[test]
+fn a_shut_down_with_the_port_lost_ends_at_once_naming_every_servo() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    assert!(
+        !rig.cycle.turn(&mut rig.pace, true),
+        "at rest: the port holds it"
+    );
+    let Rig { cycle, clock, .. } = rig;
+    let start = clock.now();
+    match cycle.shut_down(false).unwrap_err() {
+        crate::daemon::DaemonError::ShutDown(e) => {
+            assert_eq!(e.unreached.len(), 12, "{e}");
+        }
+        other => panic!("not a shut-down error: {other}"),
+    }
+    assert_eq!(clock.now(), start);
 }
 
 /// `cmd` from client 1 on the stop queue (`stops`) or the command queue, its line read at

@@ -53,15 +53,17 @@ pub(crate) fn telemetry() -> Telemetry {
         peak_joint_speed_rad_s: 2.0,
         m3_total_rad2: 0.5,
         faults: vec![FaultInfo {
-            id: 2,
-            joint: 2,
+            id: Some(2),
+            joint: Some(2),
+            port: None,
             kind: FaultKind::Silent,
             since_tick: 37,
             detail: "no reply".into(),
         }],
         warnings: vec![FaultInfo {
-            id: 3,
-            joint: 3,
+            id: Some(3),
+            joint: Some(3),
+            port: None,
             kind: FaultKind::Temperature,
             since_tick: 40,
             detail: "hot".into(),
@@ -277,8 +279,9 @@ fn event_line_has_cmd_id_and_reason_only_when_given() {
         tip: [0.5, -0.25],
         reason: FaultChange::Raised,
         fault: FaultInfo {
-            id: 5,
-            joint: 5,
+            id: Some(5),
+            joint: Some(5),
+            port: None,
             kind: FaultKind::Silent,
             since_tick: 116,
             detail: "no reply".into(),
@@ -287,7 +290,7 @@ fn event_line_has_cmd_id_and_reason_only_when_given() {
     assert_eq!(
         read(&event_line(&event)),
         json!({"type": "event", "event": "fault", "tick": 120, "tip": [0.5, -0.25],
-               "reason": "raised", "fault": {"id": 5, "joint": 5, "kind": "silent",
+               "reason": "raised", "fault": {"id": 5, "joint": 5, "port": null, "kind": "silent",
                "since_tick": 116, "detail": "no reply"}})
     );
     event.what = What::Control {

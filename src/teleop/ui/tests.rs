@@ -210,8 +210,9 @@ fn a_fault_is_named_by_its_servo() {
     let mut snapshot = snapshot_at(&arm, &arm.home_rad);
     snapshot.state = State::Fault;
     snapshot.faults.push(FaultInfo {
-        id: 5,
-        joint: 5,
+        id: Some(5),
+        joint: Some(5),
+        port: None,
         kind: FaultKind::Silent,
         since_tick: 200,
         detail: "no status".into(),
