@@ -67,7 +67,9 @@ impl DaemonChild {
                 .recv_timeout(left)
                 .expect("snakectl run logged where it listens");
             if let Some(at) = line.find("listening on ") {
-                return line[at + "listening on ".len()..].trim().parse().unwrap();
+                let rest = &line[at + "listening on ".len()..];
+                let addr = rest.split_whitespace().next().unwrap_or(rest);
+                return addr.parse().unwrap();
             }
         }
     }
