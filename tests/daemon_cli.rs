@@ -5,13 +5,12 @@
 
 mod daemon_support;
 
-use std::io::{BufRead, BufReader};
-use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{mpsc, Arc};
+use std::process::Command;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use daemon_support::child::DaemonChild;
 use daemon_support::{Client, DEADLINE};
 use serde_json::{json, Value};
 use snakectl::config::Config;
@@ -39,85 +38,6 @@ fn write_config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
     let path = dir.join("arm.toml");
     std::fs::write(&path, &text).unwrap();
     path
-}
-
-/// A `snakectl run` child; killed and reaped when dropped.
-struct DaemonChild {
-    child: Child,
-    stderr: mpsc::Receiver<String>,
-}
-
-impl DaemonChild {
-    fn spawn(config: &Path, port: &Path) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
-            .args(["run", "--listen", "127.0.0.1:0", "--config"])
-            .arg(config)
-            .arg("--port")
-            .arg(port)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let stderr = child.stderr.take().unwrap();
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        Self { child, stderr: rx }
-    }
-
-    /// The address from the "listening on ADDR ..." log line.
-    fn address(&self) -> SocketAddr {
-        let deadline = Instant::now() + DEADLINE;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let line = self
-                .stderr
-                .recv_timeout(left)
-                .expect("snakectl run logged where it listens");
-            if let Some(at) = line.find("listening on ") {
-                let rest = &line[at + "listening on ".len()..];
-                return rest.split_whitespace().next().unwrap().parse().unwrap();
-            }
-        }
-    }
-
-    /// Everything it logged until it exited.
-    fn wait(&mut self) -> (std::process::ExitStatus, String) {
-        let deadline = Instant::now() + DEADLINE;
-        let status = loop {
-            if let Some(status) = self.child.try_wait().unwrap() {
-                break status;
-            }
-            assert!(Instant::now() < deadline, "snakectl run did not exit");
-            std::thread::sleep(Duration::from_millis(10));
-        };
-        // The pipe closes with the process: every line logged is here.
-        let log: Vec<String> = self.stderr.iter().collect();
-        (status, log.join("\n"))
-    }
-
-    fn signal(&self, signal: &str) {
-        let ok = Command::new("kill")
-            .args([signal, &self.child.id().to_string()])
-            .status()
-            .unwrap()
-            .success();
-        assert!(ok, "kill {signal}");
-    }
-}
-
-impl Drop for DaemonChild {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
 }
 
 fn sim(config: &Config) -> SimHandle {
@@ -174,8 +94,7 @@ fn after_kill_9_the_bus_watchdog_stops_the_servos() {
         .iter()
         .all(|&id| sim.with_servo(id, |s| s.watchdog()).unwrap() > 0));
     let killed = Instant::now();
-    daemon.child.kill().unwrap();
-    daemon.child.wait().unwrap();
+    daemon.kill();
     // Poll the simulated servos until every watchdog has fired.
     let fired = loop {
         let tripped = ids

@@ -9,117 +9,18 @@
 
 mod daemon_support;
 
-use std::io::{BufRead, BufReader, Read};
-use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::{mpsc, Arc};
-use std::time::{Duration, Instant};
+use std::io::Read;
+use std::path::PathBuf;
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::Arc;
+use std::time::Duration;
 
-use daemon_support::{Client, DEADLINE};
+use daemon_support::child::{wait_within, DaemonChild};
+use daemon_support::Client;
 use serde_json::{json, Value};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl_sim::{RealClock, SimHandle};
-
-/// A `snakectl run` child; killed and reaped when dropped.
-struct DaemonChild {
-    child: Child,
-    stderr: mpsc::Receiver<String>,
-}
-
-impl DaemonChild {
-    fn spawn(config: &Path, port: &Path) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
-            .args(["run", "--listen", "127.0.0.1:0", "--config"])
-            .arg(config)
-            .arg("--port")
-            .arg(port)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let stderr = child.stderr.take().unwrap();
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        Self { child, stderr: rx }
-    }
-
-    fn pid(&self) -> u32 {
-        self.child.id()
-    }
-
-    /// The address from the "listening on ADDR" log line.
-    fn address(&self) -> SocketAddr {
-        let deadline = Instant::now() + DEADLINE;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let line = self
-                .stderr
-                .recv_timeout(left)
-                .expect("snakectl run logged where it listens");
-            if let Some(at) = line.find("listening on ") {
-                let rest = &line[at + "listening on ".len()..];
-                let addr = rest.split_whitespace().next().unwrap_or(rest);
-                return addr.parse().unwrap();
-            }
-        }
-    }
-
-    fn signal(&self, signal: &str) {
-        let ok = Command::new("kill")
-            .args([signal, &self.pid().to_string()])
-            .status()
-            .unwrap()
-            .success();
-        assert!(ok, "kill {signal}");
-    }
-
-    /// Its exit status and everything it logged.
-    fn wait(&mut self) -> (ExitStatus, String) {
-        let status = wait_within(&mut self.child, "snakectl run");
-        let log: Vec<String> = self.stderr.iter().collect();
-        (status, log.join("\n"))
-    }
-}
-
-impl Drop for DaemonChild {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            // A stopped daemon (a test that failed while it was) is continued, then killed.
-            let _ = Command::new("kill")
-                .args(["-CONT", &self.pid().to_string()])
-                .status();
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// `child`'s exit status, waited for up to [`DEADLINE`] (a generous bound, reached only when
-/// the program did not exit: a refusal that did not happen).
-fn wait_within(child: &mut Child, what: &str) -> ExitStatus {
-    let deadline = Instant::now() + DEADLINE;
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            return status;
-        }
-        if Instant::now() >= deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{what} still runs after {DEADLINE:?}: it was not refused");
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-}
 
 /// Runs `snakectl ARGS` to its end; its exit status and stderr.
 fn snakectl(args: &[&str]) -> (ExitStatus, String, String) {
@@ -346,8 +247,7 @@ fn a_servo_command_during_a_run_is_refused_and_changes_nothing() {
 #[test]
 fn a_daemon_killed_outright_leaves_no_lock_behind() {
     let mut rig = Rig::start();
-    rig.daemon.child.kill().unwrap();
-    rig.daemon.child.wait().unwrap();
+    rig.daemon.kill();
     // A new daemon takes the port at once and brings the arm up.
     let daemon = DaemonChild::spawn(&rig.config_path, rig.sim.path());
     let mut client = Client::connect(daemon.address());
