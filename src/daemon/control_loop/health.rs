@@ -191,36 +191,12 @@ impl Health {
 
     /// The servos held silent.
     pub fn silent(&self) -> Vec<u8> {
-        self.joints
-            .iter()
-            .filter(|j| {
-                matches!(
-                    j.fault,
-                    Some(Held {
-                        fault: JointFault::Silent,
-                        ..
-                    })
-                )
-            })
-            .map(|j| j.id)
-            .collect()
+        self.held_for(|f| f == JointFault::Silent)
     }
 
     /// The servos held for a power loss.
     pub fn power_lost(&self) -> Vec<u8> {
-        self.joints
-            .iter()
-            .filter(|j| {
-                matches!(
-                    j.fault,
-                    Some(Held {
-                        fault: JointFault::PowerLoss,
-                        ..
-                    })
-                )
-            })
-            .map(|j| j.id)
-            .collect()
+        self.held_for(|f| f == JointFault::PowerLoss)
     }
 
     /// The joint (0-based) of servo `id`.
@@ -342,17 +318,14 @@ impl Health {
 
     /// The servos held by a hardware error.
     pub fn hardware_faulted(&self) -> Vec<u8> {
+        self.held_for(|f| matches!(f, JointFault::Hardware(_)))
+    }
+
+    /// The servos whose fault `which` picks.
+    fn held_for(&self, which: impl Fn(JointFault) -> bool) -> Vec<u8> {
         self.joints
             .iter()
-            .filter(|j| {
-                matches!(
-                    j.fault,
-                    Some(Held {
-                        fault: JointFault::Hardware(_),
-                        ..
-                    })
-                )
-            })
+            .filter(|j| j.fault.as_ref().is_some_and(|h| which(h.fault)))
             .map(|j| j.id)
             .collect()
     }

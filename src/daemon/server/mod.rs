@@ -2,8 +2,8 @@
 //!
 //! [`serve`] accepts clients until its shutdown future resolves, then stops them, lets each flush
 //! what it owes for a moment, and returns. Each client gets one task that reads its request
-//! lines as they come ([`session`]) and, beside it, a writer that sends its replies and events in
-//! order and its telemetry ([`writer`]):
+//! lines as they come (`session`) and, beside it, a writer that sends its replies and events in
+//! order and its telemetry (`writer`):
 //!
 //! - A client's first line is due within [`AUTH_GRACE`]; with a token
 //!   ([`ServerOptions::token`]) it must be `auth` with it, and anything else is answered
