@@ -8,16 +8,21 @@
 //! - **circle**: `|c - q| - r` with `q` the segment's point nearest the centre. Exact: inside,
 //!   it is minus the depth of the segment's deepest point.
 //! - **polygon**, when the segment meets it: minus the largest depth (distance to the boundary)
-//!   of the segment's points sampled at `s = k / DEPTH_SAMPLES`, `k = 0..=DEPTH_SAMPLES`, points
-//!   outside counting 0. The depth of a point is 1-Lipschitz, so this is continuous in the
-//!   segment, never deeper than the true deepest point, shallower by at most
+//!   of the segment's points sampled at `s = k / DEPTH_SAMPLES`, `k = 0..=DEPTH_SAMPLES`, and at
+//!   the middle of each stretch that begins where it crosses an edge (so a segment that enters
+//!   the polygon at all is negative); points outside count 0. The depth of a point is
+//!   1-Lipschitz, so this is never deeper than the true deepest point, shallower by at most
 //!   `|b - a| / (2 DEPTH_SAMPLES)`, and exact when the deepest point is an end point (or any
-//!   sample). A segment that only grazes a corner between samples gets 0.
+//!   sample). It is continuous in the segment except where two stretches inside merge (the
+//!   segment sweeping over a reflex corner), where the middles jump, never across 0. A segment
+//!   that only touches the boundary gets 0.
 //!
 //! The contact's `normal` is the gradient of the signed distance with respect to the contact
 //! point on the segment (held at its parameter `s`): the direction that moves the segment out.
-//! By the envelope argument it is also the gradient with respect to a rigid motion of the
-//! segment, which is what a solver needs.
+//! Where `s` is the minimizer (apart, circles) or a fixed sample (`k / DEPTH_SAMPLES`), the
+//! envelope argument makes it also the exact gradient with respect to any motion of the
+//! segment, which is what a solver needs. At a stretch's middle, whose parameter moves with the
+//! crossings, it is the direction that pushes that point out, not the exact derivative.
 
 use crate::chain::Vec2;
 
@@ -59,12 +64,8 @@ pub fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> (Vec2, f64) {
 /// Squared distance between the segments `a0..a1` and `b0..b1`, the nearest points on each and
 /// the parameter of the one on `a`. Crossing or touching segments are at 0.
 pub fn segment_segment(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> (f64, Vec2, Vec2, f64) {
-    let (da, db) = (a1 - a0, b1 - b0);
-    let (s0, s1) = (cross(db, a0 - b0), cross(db, a1 - b0));
-    let (t0, t1) = (cross(da, b0 - a0), cross(da, b1 - a0));
-    if s0 * s1 < 0.0 && t0 * t1 < 0.0 {
-        let s = s0 / (s0 - s1);
-        let p = a0 + da * s;
+    if let Some(s) = crossing(a0, a1, b0, b1) {
+        let p = a0 + (a1 - a0) * s;
         return (0.0, p, p, s);
     }
     let mut best = {
@@ -84,6 +85,14 @@ pub fn segment_segment(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> (f64, Vec2, Ve
         }
     }
     best
+}
+
+/// Where the segment `a0..a1` properly crosses `b0..b1`, as a parameter along `a0..a1`.
+fn crossing(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> Option<f64> {
+    let (da, db) = (a1 - a0, b1 - b0);
+    let (s0, s1) = (cross(db, a0 - b0), cross(db, a1 - b0));
+    let (t0, t1) = (cross(da, b0 - a0), cross(da, b1 - a0));
+    (s0 * s1 < 0.0 && t0 * t1 < 0.0).then(|| s0 / (s0 - s1))
 }
 
 /// Whether `p` is inside the polygon by the even-odd rule (boundary points either way).
@@ -191,14 +200,27 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
         };
     }
     let mut deep = (0.0, a, a, 0.0);
-    for k in 0..=DEPTH_SAMPLES {
-        let t = k as f64 / DEPTH_SAMPLES as f64;
+    let mut consider = |t: f64| {
         let x = a + (b - a) * t;
         if inside_polygon(x, points) {
             let (d, q, _) = boundary_nearest(x, points);
             if d > deep.0 {
                 deep = (d, x, q, t);
             }
+        }
+    };
+    for k in 0..=DEPTH_SAMPLES {
+        consider(k as f64 / DEPTH_SAMPLES as f64);
+    }
+    // The middle of each stretch that begins where the segment crosses an edge.
+    let crossing = |k: usize| crossing(a, b, points[k], points[(k + 1) % n]);
+    for k in 0..n {
+        if let Some(t) = crossing(k) {
+            let next = (0..n)
+                .filter_map(crossing)
+                .filter(|&u| u > t)
+                .fold(1.0, f64::min);
+            consider(0.5 * (t + next));
         }
     }
     let (depth, x, q, t) = deep;
@@ -324,10 +346,11 @@ mod tests {
         // Through the middle: the deepest point is the centre, 0.5 deep (a sample).
         let c = segment_polygon(v(-1.0, 0.5), v(2.0, 0.5), &sq);
         assert!(c.distance_m < 0.0 && (c.distance_m + 0.5).abs() <= 3.0 / 32.0);
-        // Wholly inside, an end at the centre: exact there.
-        let c = segment_polygon(v(0.5, 0.5), v(0.6, 0.6), &sq);
-        assert!((c.distance_m + 0.4).abs() < 1e-12, "{}", c.distance_m);
-        assert!((c.normal - v(1.0, 0.0)).norm() < 1e-12 || (c.normal - v(0.0, 1.0)).norm() < 1e-12);
+        // Wholly inside, deepest at an end: exact there, pushed out through the nearest edge.
+        let c = segment_polygon(v(0.3, 0.4), v(0.35, 0.45), &sq);
+        assert!((c.distance_m + 0.35).abs() < 1e-12, "{}", c.distance_m);
+        assert_eq!(c.s, 1.0);
+        assert!((c.normal - v(-1.0, 0.0)).norm() < 1e-12, "{:?}", c.normal);
         // Ending on an edge: touching, 0.
         let c = segment_polygon(v(-1.0, 0.5), v(0.0, 0.5), &sq);
         assert_eq!(c.distance_m, 0.0);

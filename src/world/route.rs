@@ -259,9 +259,10 @@ impl World {
             1 => goal,
             _ => arcs[i - 2].p,
         };
-        // An arc node's legs never head into its own arc (a quick test before the exact one).
-        let leaves = |i: usize, to: Vec2| -> bool {
-            if i < 2 {
+        // A leg between arc nodes never heads into either's own arc (a quick test before the
+        // exact one; an end inside the margin band may lie behind an arc, so its legs skip it).
+        let leaves = |i: usize, j: usize, to: Vec2| -> bool {
+            if i < 2 || j < 2 {
                 return true;
             }
             let a = &arcs[i - 2];
@@ -298,7 +299,7 @@ impl World {
                 }
                 let pw = point(w);
                 let len = (pw - pu).norm();
-                if c + len >= cost[w] || !leaves(u, pw) || !leaves(w, pu) {
+                if c + len >= cost[w] || !leaves(u, w, pw) || !leaves(w, u, pu) {
                     continue;
                 }
                 if self.leg_clear(pu, pw, floor(u, w)) {

@@ -36,7 +36,7 @@ fn refused(obstacles: Vec<Obstacle>) -> WorldError {
 #[test]
 fn a_good_world_is_accepted_as_given() {
     let obstacles = vec![
-        circle("post", 0.3, 0.1, 0.05),
+        circle("post", 0.3, -0.5, 0.05),
         polygon("shelf", square()),
         // Clockwise and not convex.
         polygon(
@@ -49,7 +49,7 @@ fn a_good_world_is_accepted_as_given() {
     assert_eq!((w.link_radius_m(), w.clearance_m()), (0.02, 0.005));
     assert_eq!(w.find("shelf").map(|(i, _)| i), Some(1));
     assert!(w.find("nothing").is_none());
-    let (d, k) = w.point_distance(v(0.3, 0.2)).unwrap();
+    let (d, k) = w.point_distance(v(0.3, -0.4)).unwrap();
     assert_eq!(k, 0);
     assert!((d - 0.05).abs() < 1e-12);
 }
