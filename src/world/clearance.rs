@@ -117,10 +117,7 @@ impl ActivePairs {
 /// If `out.len() + 1 != points.len()` or the pair's link is not a link of the pose.
 pub fn pair_gradient(points: &[Vec2], pair: &Pair, out: &mut [f64]) {
     assert_eq!(out.len() + 1, points.len(), "one entry per joint");
-    assert!(
-        (1..points.len()).contains(&pair.link),
-        "a link of the pose"
-    );
+    assert!((1..points.len()).contains(&pair.link), "a link of the pose");
     let q = pair.contact.on_segment;
     let n = pair.contact.normal;
     for (j, g) in out.iter_mut().enumerate() {
@@ -231,7 +228,13 @@ mod tests {
                 Obstacle {
                     id: "shelf".into(),
                     shape: Shape::Polygon {
-                        points: vec![v(0.05, -0.2), v(0.35, -0.2), v(0.35, -0.12), v(0.2, -0.15), v(0.05, -0.1)],
+                        points: vec![
+                            v(0.05, -0.2),
+                            v(0.35, -0.2),
+                            v(0.35, -0.12),
+                            v(0.2, -0.15),
+                            v(0.05, -0.1),
+                        ],
                     },
                 },
             ],
@@ -250,7 +253,11 @@ mod tests {
         let p = w.pose_clearance(&c, &[0.0; 4]).unwrap();
         assert_eq!(p.id(&w), "post");
         assert_eq!(p.link, 3);
-        assert!((p.clearance_m - (0.12 - 0.04 - 0.02)).abs() < 1e-12, "{}", p.clearance_m);
+        assert!(
+            (p.clearance_m - (0.12 - 0.04 - 0.02)).abs() < 1e-12,
+            "{}",
+            p.clearance_m
+        );
         // Bent up into the post: overlapping, negative.
         let p = w.pose_clearance(&c, &[0.5, 0.0, 0.0, 0.0]).unwrap();
         assert!(p.clearance_m < -0.02, "{p:?}");
@@ -265,7 +272,12 @@ mod tests {
     #[test]
     fn the_least_clearance_is_the_least_pair() {
         let (w, c) = (world(), chain());
-        for theta in [[0.0; 4], [0.4, -0.3, 0.2, 0.9], [-0.7, 0.3, 0.3, 0.3], [0.2, 0.2, -1.5, 2.0]] {
+        for theta in [
+            [0.0; 4],
+            [0.4, -0.3, 0.2, 0.9],
+            [-0.7, 0.3, 0.3, 0.3],
+            [0.2, 0.2, -1.5, 2.0],
+        ] {
             let pts = c.points(&theta);
             let best = w.clearance(&pts).unwrap();
             for link in 1..=4 {
@@ -287,7 +299,10 @@ mod tests {
         for link in 1..=4 {
             for k in 0..2 {
                 let p = w.pair(&pts, link, k);
-                let listed = buf.pairs().iter().any(|q| q.link == link && q.obstacle == k);
+                let listed = buf
+                    .pairs()
+                    .iter()
+                    .any(|q| q.link == link && q.obstacle == k);
                 assert_eq!(listed, p.clearance_m <= 0.05, "link {link} obstacle {k}");
             }
         }
@@ -322,7 +337,13 @@ mod tests {
                     continue;
                 }
                 let fdiff = (fu - fd) / (2.0 * h);
-                assert!((fdiff - g[j]).abs() < 1e-6, "link {} obstacle {} joint {j}: {fdiff} vs {}", p.link, p.obstacle, g[j]);
+                assert!(
+                    (fdiff - g[j]).abs() < 1e-6,
+                    "link {} obstacle {} joint {j}: {fdiff} vs {}",
+                    p.link,
+                    p.obstacle,
+                    g[j]
+                );
                 checked += 1;
             }
         }
@@ -333,10 +354,40 @@ mod tests {
     fn gradients_match_finite_differences_apart_and_inside() {
         let (w, c) = (world(), chain());
         let mut checked = 0;
-        for theta in [[0.0; 4], [0.5, 0.0, 0.0, 0.0], [-0.9, 0.1, 0.2, 0.0], [0.3, -0.6, 0.9, -0.4], [-0.4, -0.4, 0.8, 0.8]] {
+        for theta in [
+            [0.0; 4],
+            [0.5, 0.0, 0.0, 0.0],
+            [-0.9, 0.1, 0.2, 0.0],
+            [0.3, -0.6, 0.9, -0.4],
+            [-0.4, -0.4, 0.8, 0.8],
+        ] {
             checked += check_gradients(&w, &c, &theta);
         }
         assert!(checked >= 40, "only {checked} derivatives were checked");
+    }
+
+    #[test]
+    fn a_link_through_a_corner_is_pushed_out_by_its_gradient() {
+        let square = Obstacle {
+            id: "box".into(),
+            shape: Shape::Polygon {
+                points: vec![v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0)],
+            },
+        };
+        let w = World::new(0.0, 0.0, vec![square]).unwrap();
+        // One long link along x + y = 1.98, cutting the corner at (1, 1) between samples.
+        let (a, b) = (v(9.3, -7.32), v(-6.72, 8.7));
+        let c = Chain::unlimited(vec![(b - a).norm()], a, 0.75 * std::f64::consts::PI).unwrap();
+        let theta = [0.0];
+        let before = w.pose_clearance(&c, &theta).unwrap();
+        assert!(before.clearance_m < -0.009, "{before:?}");
+        let mut buf = ActivePairs::new();
+        w.active_pairs(&c.points(&theta), 0.0, &mut buf);
+        assert_eq!(buf.len(), 1);
+        let g = buf.gradient(0)[0];
+        assert!(g != 0.0);
+        let after = w.pose_clearance(&c, &[1e-4 * g.signum()]).unwrap();
+        assert!(after.clearance_m > before.clearance_m, "{after:?}");
     }
 
     proptest! {

@@ -138,9 +138,7 @@ pub fn point_polygon(p: Vec2, points: &[Vec2]) -> f64 {
 /// Twice the polygon's signed area: positive when its points turn counter-clockwise.
 pub fn twice_area(points: &[Vec2]) -> f64 {
     let n = points.len();
-    (0..n)
-        .map(|k| cross(points[k], points[(k + 1) % n]))
-        .sum()
+    (0..n).map(|k| cross(points[k], points[(k + 1) % n])).sum()
 }
 
 /// The unit normal of edge `k` pointing out of the polygon.
@@ -358,6 +356,19 @@ mod tests {
         // Into the notch of the C without touching it.
         let c = segment_polygon(v(3.0, 1.0), v(1.1, 1.0), &notched());
         assert!((c.distance_m - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_long_link_cutting_a_corner_between_samples_is_inside() {
+        let sq = [v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0)];
+        // Along x + y = 1.98: inside only for 0.98 < x < 1, which no fixed sample hits.
+        let (a, b) = (v(9.3, -7.32), v(-6.72, 8.7));
+        let c = segment_polygon(a, b, &sq);
+        assert!((c.distance_m + 0.01).abs() < 1e-12, "{}", c.distance_m);
+        assert!((c.on_segment - v(0.99, 0.99)).norm() < 1e-12);
+        // Pushed out along its normal, the segment comes out.
+        let out = c.normal * 0.03;
+        assert!(segment_polygon(a + out, b + out, &sq).distance_m > 0.0);
     }
 
     #[test]

@@ -63,7 +63,9 @@ impl Shape {
     /// closest points and the direction that increases it.
     pub fn segment_contact(&self, a: Vec2, b: Vec2) -> Contact {
         match self {
-            Shape::Circle { center, radius_m } => geometry::segment_circle(a, b, *center, *radius_m),
+            Shape::Circle { center, radius_m } => {
+                geometry::segment_circle(a, b, *center, *radius_m)
+            }
             Shape::Polygon { points } => geometry::segment_polygon(a, b, points),
         }
     }

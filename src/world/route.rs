@@ -120,7 +120,11 @@ struct ArcNode {
 /// `tol` of it.
 fn turn_steps(rho: f64, tol: f64) -> usize {
     let half = (rho / (rho + tol)).acos();
-    let n = if half > 0.0 { (PI / half).ceil() } else { f64::INFINITY };
+    let n = if half > 0.0 {
+        (PI / half).ceil()
+    } else {
+        f64::INFINITY
+    };
     if n.is_finite() {
         (n as usize).clamp(MIN_TURN_STEPS, MAX_TURN_STEPS)
     } else {
@@ -136,7 +140,11 @@ fn push_arc(out: &mut Vec<ArcNode>, center: Vec2, rho: f64, from: f64, turn: f64
     let step = turn / m as f64;
     let half_step = step.abs() / 2.0;
     let radius = rho / half_step.cos() * (1.0 + OUTSIDE);
-    let count = if turn.abs() >= 2.0 * PI - 1e-12 { m } else { m + 1 };
+    let count = if turn.abs() >= 2.0 * PI - 1e-12 {
+        m
+    } else {
+        m + 1
+    };
     for k in 0..count {
         let a = from + step * k as f64;
         out.push(ArcNode {
@@ -192,14 +200,22 @@ impl World {
             match &o.shape {
                 Shape::Circle { center, radius_m } => {
                     let rho = radius_m + g;
-                    push_arc(&mut nodes, *center, rho, 0.0, 2.0 * PI, turn_steps(rho, tol));
+                    push_arc(
+                        &mut nodes,
+                        *center,
+                        rho,
+                        0.0,
+                        2.0 * PI,
+                        turn_steps(rho, tol),
+                    );
                 }
                 Shape::Polygon { points } => {
                     let n = points.len();
                     let sense = if twice_area(points) > 0.0 { 1.0 } else { -1.0 };
                     let steps = turn_steps(g, tol);
                     for k in 0..n {
-                        let (prev, v, next) = (points[(k + n - 1) % n], points[k], points[(k + 1) % n]);
+                        let (prev, v, next) =
+                            (points[(k + n - 1) % n], points[k], points[(k + 1) % n]);
                         let (e_in, e_out) = (v - prev, next - v);
                         let turn = cross(e_in, e_out).atan2(e_in.dot(&e_out));
                         if turn * sense <= 0.0 {
@@ -230,7 +246,11 @@ impl World {
             .enumerate()
         {
             if !(p.x.is_finite() && p.y.is_finite()) {
-                return Err(RouteError::NotFinite { end, x: p.x, y: p.y });
+                return Err(RouteError::NotFinite {
+                    end,
+                    x: p.x,
+                    y: p.y,
+                });
             }
             let (d, k) = self.point_distance(p).unwrap_or((f64::INFINITY, 0));
             if d < r {

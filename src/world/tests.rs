@@ -41,7 +41,13 @@ fn a_good_world_is_accepted_as_given() {
         // Clockwise and not convex.
         polygon(
             "hook",
-            vec![v(2.0, 0.0), v(2.0, 1.0), v(3.0, 1.0), v(2.5, 0.5), v(3.0, 0.0)],
+            vec![
+                v(2.0, 0.0),
+                v(2.0, 1.0),
+                v(3.0, 1.0),
+                v(2.5, 0.5),
+                v(3.0, 0.0),
+            ],
         ),
     ];
     let w = World::new(0.02, 0.005, obstacles.clone()).unwrap();
@@ -113,7 +119,10 @@ fn bad_polygons_name_the_point_or_edges() {
     let mut pts = square();
     pts[2].y = f64::NAN;
     let e = refused(vec![circle("c", 5.0, 5.0, 1.0), polygon("p", pts)]);
-    assert!(matches!(&e, WorldError::NotFinite { field, .. } if field == "obstacles[1].polygon.points[2]"), "{e:?}");
+    assert!(
+        matches!(&e, WorldError::NotFinite { field, .. } if field == "obstacles[1].polygon.points[2]"),
+        "{e:?}"
+    );
     // A zero-length edge: the same point twice in a row.
     let mut pts = square();
     pts.insert(2, v(1.0, 0.0));
@@ -127,7 +136,14 @@ fn bad_polygons_name_the_point_or_edges() {
         }
     );
     // A point visited twice, apart.
-    let pts = vec![v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 0.0), v(-1.0, 1.0), v(-1.0, 0.0)];
+    let pts = vec![
+        v(0.0, 0.0),
+        v(1.0, 0.0),
+        v(1.0, 1.0),
+        v(0.0, 0.0),
+        v(-1.0, 1.0),
+        v(-1.0, 0.0),
+    ];
     assert!(matches!(
         refused(vec![polygon("p", pts)]),
         WorldError::RepeatedPoint { first: 0, .. }
@@ -146,10 +162,20 @@ fn bad_polygons_name_the_point_or_edges() {
         }
     );
     // A point touching a non-adjacent edge.
-    let pts = vec![v(0.0, 0.0), v(2.0, 0.0), v(2.0, 2.0), v(1.0, 0.0), v(0.0, 2.0)];
+    let pts = vec![
+        v(0.0, 0.0),
+        v(2.0, 0.0),
+        v(2.0, 2.0),
+        v(1.0, 0.0),
+        v(0.0, 2.0),
+    ];
     assert!(matches!(
         refused(vec![polygon("t", pts)]),
-        WorldError::SelfIntersecting { edge_a: 0, edge_b: 2, .. }
+        WorldError::SelfIntersecting {
+            edge_a: 0,
+            edge_b: 2,
+            ..
+        }
     ));
     // A spike folding back along its own edge, and three points on a line.
     let pts = vec![v(0.0, 0.0), v(2.0, 0.0), v(1.0, 0.0), v(1.0, 1.0)];
@@ -211,7 +237,9 @@ fn the_world_is_bounded() {
             })
             .collect()
     };
-    let big: Vec<Obstacle> = (0..41).map(|i| polygon(&format!("p{i}"), ring(i))).collect();
+    let big: Vec<Obstacle> = (0..41)
+        .map(|i| polygon(&format!("p{i}"), ring(i)))
+        .collect();
     assert_eq!(
         refused(big),
         WorldError::TooManyPoints {
@@ -219,6 +247,8 @@ fn the_world_is_bounded() {
             max: MAX_POLYGON_POINTS
         }
     );
-    let fits: Vec<Obstacle> = (0..40).map(|i| polygon(&format!("p{i}"), ring(i))).collect();
+    let fits: Vec<Obstacle> = (0..40)
+        .map(|i| polygon(&format!("p{i}"), ring(i)))
+        .collect();
     assert!(World::new(0.0, 0.0, fits).is_ok());
 }

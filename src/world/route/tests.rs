@@ -99,7 +99,10 @@ fn check(w: &World, a: Vec2, b: Vec2) -> Route {
     assert!((route.length_m - length(&route.waypoints)).abs() < 1e-9);
     let keep = promised(w, a, b);
     let got = route_clearance(w, &route);
-    assert!(got >= keep - 1e-9, "route comes within {got} m, promised {keep} m");
+    assert!(
+        got >= keep - 1e-9,
+        "route comes within {got} m, promised {keep} m"
+    );
     assert!(got >= w.route_radius_m() - 1e-9);
     route
 }
@@ -120,7 +123,14 @@ fn a_clear_line_is_the_route() {
     assert_eq!(r.waypoints, vec![v(-1.0, 0.0), v(1.0, 0.0)]);
     assert!((r.length_m - 2.0).abs() < 1e-15);
     let empty = World::new(0.0, 0.0, vec![]).unwrap();
-    assert_eq!(empty.route(v(0.0, 0.0), v(1.0, 1.0)).unwrap().waypoints.len(), 2);
+    assert_eq!(
+        empty
+            .route(v(0.0, 0.0), v(1.0, 1.0))
+            .unwrap()
+            .waypoints
+            .len(),
+        2
+    );
 }
 
 #[test]
@@ -135,9 +145,17 @@ fn a_post_between_is_passed_on_its_tangents() {
     let tangent = (d * d - rho * rho).sqrt();
     let arc = rho * (PI - 2.0 * (rho / d).acos());
     let exact = 2.0 * tangent + arc;
-    assert!(r.length_m >= exact - 1e-9, "{} shorter than {exact}", r.length_m);
+    assert!(
+        r.length_m >= exact - 1e-9,
+        "{} shorter than {exact}",
+        r.length_m
+    );
     // The circumscribed polyline adds at most the chord tolerance on the way round.
-    assert!(r.length_m <= exact + 4.0 * w.route_margin_m(), "{} vs {exact}", r.length_m);
+    assert!(
+        r.length_m <= exact + 4.0 * w.route_margin_m(),
+        "{} vs {exact}",
+        r.length_m
+    );
     // A simple alternative: over the top through (0, rho + margin) grown to clear.
     let over = [a, v(-rho, rho * 1.2), v(rho, rho * 1.2), b];
     assert!(r.length_m <= length(&over));
@@ -150,8 +168,14 @@ fn a_wall_with_a_gap_is_crossed_through_the_gap() {
         0.02,
         0.01,
         vec![
-            polygon("left", &[(-2.0, -0.05), (0.5, -0.05), (0.5, 0.05), (-2.0, 0.05)]),
-            polygon("right", &[(0.8, -0.05), (2.0, -0.05), (2.0, 0.05), (0.8, 0.05)]),
+            polygon(
+                "left",
+                &[(-2.0, -0.05), (0.5, -0.05), (0.5, 0.05), (-2.0, 0.05)],
+            ),
+            polygon(
+                "right",
+                &[(0.8, -0.05), (2.0, -0.05), (2.0, 0.05), (0.8, 0.05)],
+            ),
         ],
     )
     .unwrap();
@@ -169,14 +193,12 @@ fn a_wall_with_a_gap_is_crossed_through_the_gap() {
     // No longer than going through the middle of the gap.
     assert!(r.length_m <= length(&[a, v(0.65, 0.0), b]));
     // A gap narrower than twice the grown radius is closed.
-    let narrow = World::new(
-        0.2,
-        0.01,
-        w.obstacles().to_vec(),
-    )
-    .unwrap();
+    let narrow = World::new(0.2, 0.01, w.obstacles().to_vec()).unwrap();
     let r = check(&narrow, a, b);
-    assert!(r.waypoints.iter().any(|p| p.x.abs() > 2.0), "around the wall's end");
+    assert!(
+        r.waypoints.iter().any(|p| p.x.abs() > 2.0),
+        "around the wall's end"
+    );
 }
 
 #[test]
@@ -202,13 +224,29 @@ fn a_pocket_behind_a_shelf_is_left_by_its_mouth() {
     assert!(r.waypoints.iter().any(|p| p.x > 1.0));
     // The way round above: out of the mouth, over the top corner, down the back.
     let g = w.route_radius_m() + w.route_margin_m() + 0.01;
-    let above = [a, v(1.0 + g, 0.8 + g), v(1.0 + g, 1.0 + g), v(-g, 1.0 + g), b];
-    assert!(r.length_m <= length(&above), "{} vs {}", r.length_m, length(&above));
+    let above = [
+        a,
+        v(1.0 + g, 0.8 + g),
+        v(1.0 + g, 1.0 + g),
+        v(-g, 1.0 + g),
+        b,
+    ];
+    assert!(
+        r.length_m <= length(&above),
+        "{} vs {}",
+        r.length_m,
+        length(&above)
+    );
 }
 
 #[test]
 fn ends_too_close_are_refused_with_the_obstacle() {
-    let w = World::new(0.02, 0.01, vec![circle("a", 5.0, 5.0, 0.1), circle("post", 0.0, 0.0, 0.2)]).unwrap();
+    let w = World::new(
+        0.02,
+        0.01,
+        vec![circle("a", 5.0, 5.0, 0.1), circle("post", 0.0, 0.0, 0.2)],
+    )
+    .unwrap();
     let e = w.route(v(0.0, 0.1), v(1.0, 0.0)).unwrap_err();
     assert!(
         matches!(&e, RouteError::Inside { end: RouteEnd::Start, id, distance_m, .. } if id == "post" && (*distance_m + 0.1).abs() < 1e-12),
@@ -217,14 +255,26 @@ fn ends_too_close_are_refused_with_the_obstacle() {
     assert!(e.to_string().contains("post"));
     // Outside the obstacle but inside its grown radius (0.03).
     let e = w.route(v(1.0, 0.0), v(0.0, 0.22)).unwrap_err();
-    assert!(matches!(e, RouteError::Inside { end: RouteEnd::Goal, .. }), "{e:?}");
+    assert!(
+        matches!(
+            e,
+            RouteError::Inside {
+                end: RouteEnd::Goal,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
     // Within the margin band but outside the radius: accepted.
     let start = v(-(0.2 + 0.03 + 0.0002), 0.0);
     let r = check(&w, start, v(1.0, 0.0));
     assert!(r.waypoints.len() > 2);
     assert!(matches!(
         w.route(v(f64::NAN, 0.0), v(1.0, 0.0)),
-        Err(RouteError::NotFinite { end: RouteEnd::Start, .. })
+        Err(RouteError::NotFinite {
+            end: RouteEnd::Start,
+            ..
+        })
     ));
 }
 
@@ -248,8 +298,52 @@ fn an_enclosed_goal_has_no_route() {
     check(&w, v(0.1, 0.1), v(-0.2, 0.0));
 }
 
+#[test]
+fn a_full_world_is_routed() {
+    // The most obstacles allowed: an 8 x 8 grid of posts, the route threading it diagonally.
+    let posts: Vec<Obstacle> = (0..64)
+        .map(|k| {
+            circle(
+                &format!("p{k}"),
+                (k % 8) as f64 * 0.3,
+                (k / 8) as f64 * 0.3,
+                0.08,
+            )
+        })
+        .collect();
+    let w = World::new(0.02, 0.01, posts).unwrap();
+    let r = check(&w, v(-0.3, 0.05), v(2.4, 2.0));
+    assert!(r.waypoints.len() > 2);
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(24))]
+
+    #[test]
+    fn routes_among_random_boxes_keep_their_distance(
+        boxes in proptest::collection::vec((-1.0..1.0f64, -1.0..1.0f64, 0.05..0.4f64, 0.05..0.4f64), 1..5),
+        ay in -1.0..1.0f64, by in -1.0..1.0f64,
+    ) {
+        let obstacles: Vec<Obstacle> = boxes
+            .iter()
+            .enumerate()
+            .map(|(i, &(x, y, hx, hy))| {
+                polygon(&format!("b{i}"), &[(x - hx, y - hy), (x + hx, y - hy), (x + hx, y + hy), (x - hx, y + hy)])
+            })
+            .collect();
+        let w = World::new(0.02, 0.01, obstacles).unwrap();
+        let (a, b) = (v(-1.6, ay), v(1.6, by));
+        match w.route(a, b) {
+            Ok(route) => {
+                let keep = promised(&w, a, b);
+                let got = route_clearance(&w, &route);
+                prop_assert!(got >= keep - 1e-9, "{got} < {keep}");
+                prop_assert!(route.length_m >= (b - a).norm() - 1e-12);
+            }
+            Err(RouteError::NoRoute { .. }) => {}
+            Err(e) => prop_assert!(false, "{e}"),
+        }
+    }
 
     #[test]
     fn routes_among_random_posts_keep_their_distance(
