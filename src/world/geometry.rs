@@ -425,10 +425,20 @@ mod tests {
                                                  d in arb_point()) {
             let pts = notched();
             let step = d * 1e-7;
-            let g0 = segment_polygon(a, b, &pts).distance_m;
-            let g1 = segment_polygon(a + step, b + step, &pts).distance_m;
-            // 1-Lipschitz under translation.
-            prop_assert!((g0 - g1).abs() <= step.norm() * (1.0 + 1e-6) + 1e-12, "{g0} {g1}");
+            let c0 = segment_polygon(a, b, &pts);
+            let c1 = segment_polygon(a + step, b + step, &pts);
+            let (g0, g1) = (c0.distance_m, c1.distance_m);
+            let fixed = |c: &Contact| {
+                let k = c.s * DEPTH_SAMPLES as f64;
+                c.distance_m >= 0.0 || k == k.round()
+            };
+            if fixed(&c0) && fixed(&c1) {
+                // Apart or at fixed samples: 1-Lipschitz under translation.
+                prop_assert!((g0 - g1).abs() <= step.norm() * (1.0 + 1e-6) + 1e-12, "{g0} {g1}");
+            } else {
+                // A stretch's middle moves with the crossings, faster where they are shallow.
+                prop_assert!((g0 - g1).abs() <= 1e-4, "{g0} {g1}");
+            }
         }
 
         #[test]

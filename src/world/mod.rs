@@ -70,6 +70,39 @@ impl Shape {
         }
     }
 
+    /// Whether the segment `a..b` keeps at least `floor` from the shape (and does not touch
+    /// it): the unsigned distance, with an early way out for far edges (what a route checks its
+    /// legs with).
+    pub fn segment_clears(&self, a: Vec2, b: Vec2, floor: f64) -> bool {
+        match self {
+            Shape::Circle { center, radius_m } => {
+                let (q, _) = geometry::point_segment(*center, a, b);
+                (q - center).norm() - radius_m >= floor
+            }
+            Shape::Polygon { points } => {
+                let (lo, hi) = (a.inf(&b), a.sup(&b));
+                let f2 = floor * floor;
+                let n = points.len();
+                for k in 0..n {
+                    let (u, w) = (points[k], points[(k + 1) % n]);
+                    if u.x.min(w.x) - hi.x >= floor
+                        || lo.x - u.x.max(w.x) >= floor
+                        || u.y.min(w.y) - hi.y >= floor
+                        || lo.y - u.y.max(w.y) >= floor
+                    {
+                        continue;
+                    }
+                    let d2 = geometry::segment_segment(a, b, u, w).0;
+                    if d2 < f2 || d2 == 0.0 {
+                        return false;
+                    }
+                }
+                // No edge near: either wholly outside or wholly inside.
+                !geometry::inside_polygon(a, points)
+            }
+        }
+    }
+
     /// The smallest axis-aligned box that holds the shape: `(min, max)`.
     pub fn bounds(&self) -> (Vec2, Vec2) {
         match self {

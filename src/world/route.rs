@@ -3,8 +3,8 @@
 //!
 //! The tip must stay `r = link_radius_m + clearance_m` from every obstacle; the route keeps
 //! `g = r + margin`, with `margin = max(0.5 mm, 0.1 clearance_m)` the follower's slack. A start
-//! or goal closer than `r` is refused, naming the obstacle; one between `r` and `g` is accepted,
-//! and the legs that touch it keep only its own distance. So every point of a route is at least
+//! or goal closer than `r` (or touching) is refused, naming the obstacle; one between `r` and
+//! `g` is accepted, and the legs that touch it keep only its own distance. So every point of a route is at least
 //! `min(g, d(start), d(goal)) >= r` from every obstacle.
 //!
 //! The straight leg is taken when it clears. Otherwise the route is the shortest path in a
@@ -12,9 +12,10 @@
 //! (radius + `g`) and around each convex corner of each polygon (radius `g`: the Minkowski sum of
 //! a polygon and a disc is its edges pushed out joined by such arcs; reflex corners add none,
 //! as no shortest path bends there). Each arc is replaced by a polyline that circumscribes it,
-//! so every leg stays OUTSIDE the true grown shape: with `n` steps over a turn of `a` the nodes
-//! sit at `g / cos(a / 2n)` and the polyline lies within `margin` (the chord tolerance) outside
-//! the arc; a full turn has between 8 and 64 steps. Every leg of the graph is checked against
+//! so every leg stays OUTSIDE the true grown shape: with `n` steps over a turn of `a` its `n`
+//! corners sit at `g / cos(a / 2n)` in the middle of each step and the polyline lies within
+//! `margin` (the chord tolerance) outside the arc, its end legs along the pushed-out edges; a
+//! full turn has between 8 and 64 steps. Every leg of the graph is checked against
 //! every obstacle with the exact segment distance, so the guarantee does not rest on the
 //! construction. Dijkstra runs over at most `64 x 64` arc nodes for circles plus the polygons'
 //! corner arcs, adjacency computed as nodes are settled.
@@ -73,7 +74,7 @@ pub enum RouteError {
         /// y, m.
         y: f64,
     },
-    /// An end closer to an obstacle than `link_radius_m + clearance_m` (or inside it).
+    /// An end closer to an obstacle than `link_radius_m + clearance_m`, on it or inside it.
     #[error(
         "{end} ({x}, {y}) is {distance_m} m from obstacle {id:?}; the tip must keep {needed_m} m"
     )]
@@ -132,21 +133,18 @@ fn turn_steps(rho: f64, tol: f64) -> usize {
     }
 }
 
-/// Pushes the nodes of the arc around `center` of radius `rho` from angle `from` over `turn`
-/// (signed, rad), circumscribed, ends included.
+/// Pushes the corners of the polyline that circumscribes the arc around `center` of radius `rho`
+/// from angle `from` over `turn` (signed, rad): `m` corners at the middles of `m` equal steps,
+/// at `rho / cos(step / 2)`, so its first and last legs are tangent at the arc's ends (for a
+/// polygon's corner, along its edges pushed out).
 fn push_arc(out: &mut Vec<ArcNode>, center: Vec2, rho: f64, from: f64, turn: f64, steps: usize) {
     let per_turn = 2.0 * PI / steps as f64;
     let m = ((turn.abs() / per_turn).ceil() as usize).max(1);
     let step = turn / m as f64;
     let half_step = step.abs() / 2.0;
     let radius = rho / half_step.cos() * (1.0 + OUTSIDE);
-    let count = if turn.abs() >= 2.0 * PI - 1e-12 {
-        m
-    } else {
-        m + 1
-    };
-    for k in 0..count {
-        let a = from + step * k as f64;
+    for k in 0..m {
+        let a = from + step * (k as f64 + 0.5);
         out.push(ArcNode {
             p: center + Vec2::new(a.cos(), a.sin()) * radius,
             center,
@@ -188,8 +186,7 @@ impl World {
     fn leg_clear(&self, a: Vec2, b: Vec2, floor: f64) -> bool {
         let (lo, hi) = (a.inf(&b), a.sup(&b));
         (0..self.obstacles.len()).all(|k| {
-            self.box_gap(k, lo, hi) >= floor
-                || self.obstacles[k].shape.segment_contact(a, b).distance_m >= floor
+            self.box_gap(k, lo, hi) >= floor || self.obstacles[k].shape.segment_clears(a, b, floor)
         })
     }
 
@@ -253,7 +250,7 @@ impl World {
                 });
             }
             let (d, k) = self.point_distance(p).unwrap_or((f64::INFINITY, 0));
-            if d < r {
+            if d < r || d <= 0.0 {
                 return Err(RouteError::Inside {
                     end,
                     id: self.obstacles[k].id.clone(),

@@ -371,3 +371,67 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn legs_are_checked_against_the_shapes_without_radius() {
+    // A thin box between the ends and nothing grown: the route still goes round it, and an
+    // end on its boundary is refused.
+    let w = World::new(
+        0.0,
+        0.0,
+        vec![polygon(
+            "slab",
+            &[(0.0, -1.0), (0.01, -1.0), (0.01, 1.0), (0.0, 1.0)],
+        )],
+    )
+    .unwrap();
+    let r = check(&w, v(-0.5, 0.0), v(0.5, 0.0));
+    assert!(r.waypoints.len() > 2);
+    assert!(r.waypoints.iter().any(|p| p.y.abs() > 1.0));
+    assert!(matches!(
+        w.route(v(0.0, 0.5), v(0.5, 0.0)),
+        Err(RouteError::Inside {
+            end: RouteEnd::Start,
+            ..
+        })
+    ));
+}
+
+#[test]
+fn shape_clearance_agrees_with_the_signed_distance() {
+    let shapes = [
+        circle("c", 0.0, 0.0, 0.3).shape,
+        polygon(
+            "u",
+            &[
+                (0.0, 0.0),
+                (1.0, 0.0),
+                (1.0, 0.2),
+                (0.2, 0.2),
+                (0.2, 0.8),
+                (1.0, 0.8),
+                (1.0, 1.0),
+                (0.0, 1.0),
+            ],
+        )
+        .shape,
+    ];
+    let mut seen = [0usize; 2];
+    for i in 0..40 {
+        for j in 0..40 {
+            let a = v(-1.5 + i as f64 * 0.075, -1.0 + j as f64 * 0.07);
+            let b = v(1.5 - j as f64 * 0.06, 0.3 + i as f64 * 0.03);
+            for shape in &shapes {
+                let d = shape.segment_contact(a, b).distance_m.max(0.0);
+                for floor in [0.0, 0.05, 0.2] {
+                    if (d - floor).abs() > 1e-9 {
+                        let clears = shape.segment_clears(a, b, floor);
+                        assert_eq!(clears, d >= floor && d > 0.0, "{a:?} {b:?} {floor}: {d}");
+                        seen[usize::from(clears)] += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(seen[0] > 100 && seen[1] > 100, "{seen:?}");
+}
