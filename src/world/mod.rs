@@ -14,6 +14,33 @@
 //!   a polyline of waypoints, in [`route`].
 //!
 //! Pure: no I/O, clock or threads. Everything is in metres and radians, in the arm's frame.
+//!
+//! ```
+//! use snakectl::chain::{Chain, Vec2};
+//! use snakectl::world::{ActivePairs, Obstacle, Shape, World};
+//!
+//! let post = Obstacle {
+//!     id: "post".into(),
+//!     shape: Shape::Circle { center: Vec2::new(0.2, 0.1), radius_m: 0.03 },
+//! };
+//! let world = World::new(0.01, 0.005, vec![post]).unwrap();
+//! let arm = Chain::unlimited(vec![0.1, 0.1, 0.1], Vec2::zeros(), 0.0).unwrap();
+//!
+//! // Straight along x: link 2 passes 0.1 under the post's centre.
+//! let least = world.pose_clearance(&arm, &[0.0; 3]).unwrap();
+//! assert_eq!((least.link, least.id(&world)), (2, "post"));
+//! assert!((least.clearance_m - (0.1 - 0.03 - 0.01)).abs() < 1e-12);
+//!
+//! // The pairs within 0.1 m of contact, each with d clearance / d theta.
+//! let mut pairs = ActivePairs::new();
+//! world.active_pairs(&arm.points(&[0.0; 3]), 0.1, &mut pairs);
+//! assert!(pairs.gradient(0)[0] < 0.0); // turning joint 1 up brings link 2 toward the post
+//! # assert!(pairs.gradient(0)[2] == 0.0);
+//!
+//! // The tip's route from below the post to above it goes round it.
+//! let route = world.route(Vec2::new(0.2, 0.0), Vec2::new(0.2, 0.2)).unwrap();
+//! assert!(route.waypoints.len() > 2 && route.length_m > 0.2);
+//! ```
 
 pub mod clearance;
 pub mod geometry;
