@@ -316,6 +316,30 @@ fn a_full_world_is_routed() {
     assert!(r.waypoints.len() > 2);
 }
 
+#[test]
+fn the_most_polygon_points_are_routed() {
+    // 16 round 64-gons (1024 points) in a 4 x 4 grid, the route threading it.
+    let gons: Vec<Obstacle> = (0..16)
+        .map(|k| {
+            let c = v((k % 4) as f64 * 0.4, (k / 4) as f64 * 0.4);
+            Obstacle {
+                id: format!("g{k}"),
+                shape: Shape::Polygon {
+                    points: (0..64)
+                        .map(|j| {
+                            let a = j as f64 * 2.0 * PI / 64.0;
+                            c + v(a.cos(), a.sin()) * 0.12
+                        })
+                        .collect(),
+                },
+            }
+        })
+        .collect();
+    let w = World::new(0.02, 0.01, gons).unwrap();
+    let r = check(&w, v(-0.3, 0.1), v(1.5, 1.1));
+    assert!(r.waypoints.len() > 2);
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(24))]
 
