@@ -17,8 +17,8 @@
 //! `margin` (the chord tolerance) outside the arc, its end legs along the pushed-out edges; a
 //! full turn has between 8 and 64 steps. Every leg of the graph is checked against
 //! every obstacle with the exact segment distance, so the guarantee does not rest on the
-//! construction. Dijkstra runs over at most `64 x 64` arc nodes for circles plus the polygons'
-//! corner arcs, adjacency computed as nodes are settled.
+//! construction. Dijkstra runs over at most [`MAX_ROUTE_NODES`] arc nodes (the tolerance
+//! doubles until they fit), adjacency computed as nodes are settled.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -37,6 +37,10 @@ pub const ROUTE_MARGIN_FRACTION: f64 = 0.1;
 /// Fewest and most polyline steps for a full turn of an arc.
 const MIN_TURN_STEPS: usize = 8;
 const MAX_TURN_STEPS: usize = 64;
+
+/// Most arc nodes of a route's graph: past it the chord tolerance doubles until they fit (the
+/// legs stay outside, only a little longer), which bounds the search's work.
+pub const MAX_ROUTE_NODES: usize = 2048;
 
 /// Nodes sit this fraction further out than the circumscribing radius, so round-off never
 /// brings a chord inside.
@@ -190,21 +194,35 @@ impl World {
         })
     }
 
-    /// The arc nodes of every obstacle grown by `g`, those at least `g` from all obstacles.
+    /// The arc nodes of every obstacle grown by `g` with the chord tolerance `tol`, or coarser
+    /// when there would be more than [`MAX_ROUTE_NODES`]; those at least `g` from all obstacles.
     fn arc_nodes(&self, g: f64, tol: f64) -> Vec<ArcNode> {
+        let mut tol = tol;
         let mut nodes = Vec::new();
+        // At the coarsest (8 steps a turn) 64 circles and 1024 corners make at most 2560.
+        for _ in 0..64 {
+            self.push_arc_nodes(g, tol, &mut nodes);
+            if nodes.len() <= MAX_ROUTE_NODES {
+                break;
+            }
+            tol *= 2.0;
+        }
+        nodes.retain(|a| {
+            self.obstacles
+                .iter()
+                .all(|o| o.shape.point_distance(a.p) >= g)
+        });
+        nodes
+    }
+
+    /// Fills `nodes` with the arc nodes of every obstacle grown by `g`, chord tolerance `tol`.
+    fn push_arc_nodes(&self, g: f64, tol: f64, nodes: &mut Vec<ArcNode>) {
+        nodes.clear();
         for o in &self.obstacles {
             match &o.shape {
                 Shape::Circle { center, radius_m } => {
                     let rho = radius_m + g;
-                    push_arc(
-                        &mut nodes,
-                        *center,
-                        rho,
-                        0.0,
-                        2.0 * PI,
-                        turn_steps(rho, tol),
-                    );
+                    push_arc(nodes, *center, rho, 0.0, 2.0 * PI, turn_steps(rho, tol));
                 }
                 Shape::Polygon { points } => {
                     let n = points.len();
@@ -220,17 +238,11 @@ impl World {
                         }
                         let normal_in = Vec2::new(e_in.y, -e_in.x) * sense;
                         let from = normal_in.y.atan2(normal_in.x);
-                        push_arc(&mut nodes, v, g, from, turn, steps);
+                        push_arc(nodes, v, g, from, turn, steps);
                     }
                 }
             }
         }
-        nodes.retain(|a| {
-            self.obstacles
-                .iter()
-                .all(|o| o.shape.point_distance(a.p) >= g)
-        });
-        nodes
     }
 
     /// The shortest route for the tip from `start` to `goal` (see the module doc).

@@ -317,6 +317,27 @@ fn a_full_world_is_routed() {
 }
 
 #[test]
+fn too_many_arc_nodes_are_coarsened() {
+    let posts: Vec<Obstacle> = (0..64)
+        .map(|k| {
+            circle(
+                &format!("p{k}"),
+                (k % 8) as f64 * 0.6,
+                (k / 8) as f64 * 0.6,
+                0.2,
+            )
+        })
+        .collect();
+    let w = World::new(0.02, 0.01, posts).unwrap();
+    // At the margin's tolerance the posts would make 64 x 34 nodes: coarsened to fit.
+    let g = w.route_radius_m() + w.route_margin_m();
+    assert_eq!(turn_steps(0.2 + g, w.route_margin_m()), 34);
+    let nodes = w.arc_nodes(g, w.route_margin_m());
+    assert_eq!(nodes.len(), 64 * 24);
+    check(&w, v(-0.4, 0.3), v(4.6, 4.0));
+}
+
+#[test]
 fn the_most_polygon_points_are_routed() {
     // 16 round 64-gons (1024 points) in a 4 x 4 grid, the route threading it.
     let gons: Vec<Obstacle> = (0..16)
