@@ -20,6 +20,8 @@
 //!   out of reach), joint-speed limit; the goal pose and what happened.
 //! - [`rope`]: the overall optimization of a free rope under any of the five metrics (the
 //!   paper's flexible objects; not a [`resolve::Resolver`]: nothing holds its base).
+//! - [`world`]: obstacles (circles, polygons) and the arm among them: exact link distances,
+//!   the clearance of a pose with its gradients, the tip's shortest route around them.
 //!
 //! **The paper's tooling** (flexible objects, one-shot problems; uses the math core only):
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
@@ -61,6 +63,7 @@ pub mod metrics;
 pub mod motion;
 pub mod resolve;
 pub mod rope;
+pub mod world;
 
 // The paper's tooling.
 pub mod plot;

@@ -1,5 +1,5 @@
 //! The map of the crate holds: the math core (`chain`, `metrics`, `resolve`, `motion`,
-//! `control`, and `rope` for free flexible objects) imports no I/O, time, threads, tokio, serde or tracing, and nothing of the crate
+//! `control`, `rope` for free flexible objects, and `world` for obstacles) imports no I/O, time, threads, tokio, serde or tracing, and nothing of the crate
 //! outside the math core; the simulator crate imports nothing of the controller.
 //!
 //! Production code only: a file's `#[cfg(test)]` module and files named `tests.rs` may read
@@ -10,7 +10,9 @@
 use std::path::{Path, PathBuf};
 
 /// The math core's modules, as directories under `src/`.
-const MATH_CORE: [&str; 6] = ["chain", "metrics", "resolve", "motion", "control", "rope"];
+const MATH_CORE: [&str; 7] = [
+    "chain", "metrics", "resolve", "motion", "control", "rope", "world",
+];
 
 /// What the math core must never name.
 const FORBIDDEN: [&str; 16] = [

@@ -1,0 +1,402 @@
+//! The clearance of a pose among the obstacles, and the pairs near contact with gradients.
+//!
+//! The clearance of the pair (link `i`, obstacle `k`) is the signed distance from the link's
+//! axis `p_{i-1} p_i` to the obstacle (see [`super::geometry`]) minus the world's
+//! `link_radius_m`: the gap between the capsule and the obstacle, negative when they overlap.
+//! A pose keeps the world's `clearance_m` when every pair's clearance is at least that.
+//!
+//! For a solver each pair near contact comes with the gradient of its clearance with respect
+//! to the joint angles. The contact point `q` on link `i` is carried by joints `1..=i`; turning
+//! joint `j` (at `p_{j-1}`) moves it by `perp(q - p_{j-1})` per radian, so
+//! `d clearance / d theta_j = normal . perp(q - p_{j-1}) = cross(q - p_{j-1}, normal)` for
+//! `j <= i` and 0 beyond. Away from the places where the nearest features switch, this is the
+//! exact derivative (the contact's parameter along the link may be held: envelope theorem),
+//! except for a link through a polygon whose deepest point found is a stretch's middle (see
+//! [`super::geometry`]): there it is the direction that pushes the link out.
+//!
+//! The per-tick paths take the pose's points (`Chain::points_into`) and fill the caller's
+//! buffers, so a warm loop allocates nothing; boxes around each obstacle skip far pairs.
+
+use super::geometry::{cross, Contact};
+use super::World;
+use crate::chain::{Chain, Vec2};
+
+/// The nearest approach of one link and one obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pair {
+    /// The link, 1-based from the base (link `i` runs from `p_{i-1}` to `p_i`).
+    pub link: usize,
+    /// The obstacle's index in [`World::obstacles`].
+    pub obstacle: usize,
+    /// Signed distance minus the link radius, m: negative when the capsule overlaps it.
+    pub clearance_m: f64,
+    /// Where and in which direction (on the link's axis; see [`Contact`]).
+    pub contact: Contact,
+}
+
+impl Pair {
+    /// The obstacle's id.
+    pub fn id<'w>(&self, world: &'w World) -> &'w str {
+        world
+            .obstacles()
+            .get(self.obstacle)
+            .map_or("", |o| o.id.as_str())
+    }
+}
+
+/// The pairs within a margin of contact and their gradients; a buffer the caller keeps from
+/// tick to tick (it only grows, to at most links x obstacles pairs).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ActivePairs {
+    pairs: Vec<Pair>,
+    gradients: Vec<f64>,
+    joints: usize,
+}
+
+impl ActivePairs {
+    /// An empty buffer.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A buffer that holds `pairs` pairs of a `joints`-joint chain without allocating.
+    pub fn with_capacity(pairs: usize, joints: usize) -> Self {
+        Self {
+            pairs: Vec::with_capacity(pairs),
+            gradients: Vec::with_capacity(pairs * joints),
+            joints,
+        }
+    }
+
+    /// Number of pairs found.
+    pub fn len(&self) -> usize {
+        self.pairs.len()
+    }
+
+    /// True when no pair is near contact.
+    pub fn is_empty(&self) -> bool {
+        self.pairs.is_empty()
+    }
+
+    /// Joints of the chain the gradients are for.
+    pub fn joints(&self) -> usize {
+        self.joints
+    }
+
+    /// The pairs, in order of link then obstacle.
+    pub fn pairs(&self) -> &[Pair] {
+        &self.pairs
+    }
+
+    /// Pair `k`'s gradient: `d clearance_m / d theta_j`, one entry per joint.
+    ///
+    /// # Panics
+    /// If `k >= len()`.
+    pub fn gradient(&self, k: usize) -> &[f64] {
+        &self.gradients[k * self.joints..(k + 1) * self.joints]
+    }
+
+    /// Each pair with its gradient.
+    pub fn iter(&self) -> impl Iterator<Item = (&Pair, &[f64])> {
+        self.pairs
+            .iter()
+            .zip(self.gradients.chunks_exact(self.joints.max(1)))
+    }
+
+    fn clear(&mut self, joints: usize) {
+        self.pairs.clear();
+        self.gradients.clear();
+        self.joints = joints;
+    }
+}
+
+/// Writes the gradient of `pair`'s clearance with respect to the joint angles of the pose whose
+/// points are `points` (`p_0..p_n`) into `out` (n entries).
+///
+/// # Panics
+/// If `out.len() + 1 != points.len()` or the pair's link is not a link of the pose.
+pub fn pair_gradient(points: &[Vec2], pair: &Pair, out: &mut [f64]) {
+    assert_eq!(out.len() + 1, points.len(), "one entry per joint");
+    assert!((1..points.len()).contains(&pair.link), "a link of the pose");
+    let q = pair.contact.on_segment;
+    let n = pair.contact.normal;
+    for (j, g) in out.iter_mut().enumerate() {
+        *g = if j < pair.link {
+            cross(q - points[j], n)
+        } else {
+            0.0
+        };
+    }
+}
+
+fn segment_box(a: Vec2, b: Vec2) -> (Vec2, Vec2) {
+    (a.inf(&b), a.sup(&b))
+}
+
+impl World {
+    /// The pair (link `link`, 1-based; obstacle index `obstacle`) of the pose `points`.
+    ///
+    /// # Panics
+    /// If either is out of range.
+    pub fn pair(&self, points: &[Vec2], link: usize, obstacle: usize) -> Pair {
+        let contact = self.obstacles[obstacle]
+            .shape
+            .segment_contact(points[link - 1], points[link]);
+        Pair {
+            link,
+            obstacle,
+            clearance_m: contact.distance_m - self.link_radius_m,
+            contact,
+        }
+    }
+
+    /// The pair of least clearance of the pose whose points are `points` (`p_0..p_n`), or
+    /// `None` when the world has no obstacles. Allocation-free.
+    pub fn clearance(&self, points: &[Vec2]) -> Option<Pair> {
+        let mut best: Option<Pair> = None;
+        for link in 1..points.len() {
+            let (lo, hi) = segment_box(points[link - 1], points[link]);
+            for k in 0..self.obstacles.len() {
+                if let Some(b) = &best {
+                    // The boxes' gap bounds the distance from below.
+                    if self.box_gap(k, lo, hi) - self.link_radius_m >= b.clearance_m {
+                        continue;
+                    }
+                }
+                let p = self.pair(points, link, k);
+                if best.is_none_or(|b| p.clearance_m < b.clearance_m) {
+                    best = Some(p);
+                }
+            }
+        }
+        best
+    }
+
+    /// [`World::clearance`] of the pose `theta` of `chain` (allocates the points).
+    pub fn pose_clearance(&self, chain: &Chain, theta: &[f64]) -> Option<Pair> {
+        self.clearance(&chain.points(theta))
+    }
+
+    /// Fills `out` with every pair of the pose `points` (`p_0..p_n`) whose clearance is at most
+    /// `margin_m`, each with its gradient (see the module doc). Allocation-free once `out` has
+    /// held as many pairs.
+    pub fn active_pairs(&self, points: &[Vec2], margin_m: f64, out: &mut ActivePairs) {
+        let joints = points.len().saturating_sub(1);
+        out.clear(joints);
+        for link in 1..points.len() {
+            let (lo, hi) = segment_box(points[link - 1], points[link]);
+            for k in 0..self.obstacles.len() {
+                if self.box_gap(k, lo, hi) - self.link_radius_m > margin_m {
+                    continue;
+                }
+                let p = self.pair(points, link, k);
+                if p.clearance_m <= margin_m {
+                    let at = out.gradients.len();
+                    out.gradients.resize(at + joints, 0.0);
+                    pair_gradient(points, &p, &mut out.gradients[at..]);
+                    out.pairs.push(p);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::super::geometry::DEPTH_SAMPLES;
+    use super::super::{Obstacle, Shape};
+    use super::*;
+    use proptest::prelude::*;
+
+    fn v(x: f64, y: f64) -> Vec2 {
+        Vec2::new(x, y)
+    }
+
+    fn world() -> World {
+        World::new(
+            0.02,
+            0.01,
+            vec![
+                Obstacle {
+                    id: "post".into(),
+                    shape: Shape::Circle {
+                        center: v(0.25, 0.12),
+                        radius_m: 0.04,
+                    },
+                },
+                Obstacle {
+                    id: "shelf".into(),
+                    shape: Shape::Polygon {
+                        points: vec![
+                            v(0.05, -0.2),
+                            v(0.35, -0.2),
+                            v(0.35, -0.12),
+                            v(0.2, -0.15),
+                            v(0.05, -0.1),
+                        ],
+                    },
+                },
+            ],
+        )
+        .unwrap()
+    }
+
+    fn chain() -> Chain {
+        Chain::unlimited(vec![0.1, 0.1, 0.08, 0.06], Vec2::zeros(), 0.0).unwrap()
+    }
+
+    #[test]
+    fn least_clearance_names_the_link_and_obstacle() {
+        let (w, c) = (world(), chain());
+        // Straight along x, 0.34 long: link 3 (0.2..0.28) passes 0.12 under the post's centre.
+        let p = w.pose_clearance(&c, &[0.0; 4]).unwrap();
+        assert_eq!(p.id(&w), "post");
+        assert_eq!(p.link, 3);
+        assert!(
+            (p.clearance_m - (0.12 - 0.04 - 0.02)).abs() < 1e-12,
+            "{}",
+            p.clearance_m
+        );
+        // Bent up into the post: overlapping, negative.
+        let p = w.pose_clearance(&c, &[0.5, 0.0, 0.0, 0.0]).unwrap();
+        assert!(p.clearance_m < -0.02, "{p:?}");
+        // Bent down into the shelf.
+        let p = w.pose_clearance(&c, &[-0.9, 0.0, 0.0, 0.0]).unwrap();
+        assert_eq!(p.id(&w), "shelf");
+        assert!(p.clearance_m < 0.0);
+        let empty = World::new(0.0, 0.0, vec![]).unwrap();
+        assert_eq!(empty.pose_clearance(&c, &[0.0; 4]), None);
+    }
+
+    #[test]
+    fn the_least_clearance_is_the_least_pair() {
+        let (w, c) = (world(), chain());
+        for theta in [
+            [0.0; 4],
+            [0.4, -0.3, 0.2, 0.9],
+            [-0.7, 0.3, 0.3, 0.3],
+            [0.2, 0.2, -1.5, 2.0],
+        ] {
+            let pts = c.points(&theta);
+            let best = w.clearance(&pts).unwrap();
+            for link in 1..=4 {
+                for k in 0..2 {
+                    assert!(w.pair(&pts, link, k).clearance_m >= best.clearance_m);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn active_pairs_are_those_within_the_margin() {
+        let (w, c) = (world(), chain());
+        let theta = [0.0, 0.3, 0.0, 0.0];
+        let pts = c.points(&theta);
+        let mut buf = ActivePairs::with_capacity(8, 4);
+        w.active_pairs(&pts, 0.05, &mut buf);
+        assert!(!buf.is_empty());
+        for link in 1..=4 {
+            for k in 0..2 {
+                let p = w.pair(&pts, link, k);
+                let listed = buf
+                    .pairs()
+                    .iter()
+                    .any(|q| q.link == link && q.obstacle == k);
+                assert_eq!(listed, p.clearance_m <= 0.05, "link {link} obstacle {k}");
+            }
+        }
+        // Refilled, not appended.
+        w.active_pairs(&pts, -1.0, &mut buf);
+        assert!(buf.is_empty());
+    }
+
+    fn check_gradients(w: &World, c: &Chain, theta: &[f64]) -> usize {
+        let pts = c.points(theta);
+        let mut buf = ActivePairs::new();
+        w.active_pairs(&pts, 1.0, &mut buf);
+        let mut checked = 0;
+        for (p, g) in buf.iter() {
+            // A stretch's middle moves with the crossings: a push direction, not a derivative.
+            let sample = p.contact.s * DEPTH_SAMPLES as f64;
+            if p.contact.distance_m < 0.0 && p.obstacle == 1 && sample != sample.round() {
+                continue;
+            }
+            let h = 1e-7;
+            for j in 0..theta.len() {
+                let mut up = theta.to_vec();
+                let mut down = theta.to_vec();
+                up[j] += h;
+                down[j] -= h;
+                let fu = w.pair(&c.points(&up), p.link, p.obstacle).clearance_m;
+                let fd = w.pair(&c.points(&down), p.link, p.obstacle).clearance_m;
+                let f0 = p.clearance_m;
+                // Where the nearest features switch the distance has a kink: the two one-sided
+                // slopes differ and neither is the gradient. Test the smooth places.
+                if ((fu - f0) - (f0 - fd)).abs() > 1e-9 {
+                    continue;
+                }
+                let fdiff = (fu - fd) / (2.0 * h);
+                assert!(
+                    (fdiff - g[j]).abs() < 1e-6,
+                    "link {} obstacle {} joint {j}: {fdiff} vs {}",
+                    p.link,
+                    p.obstacle,
+                    g[j]
+                );
+                checked += 1;
+            }
+        }
+        checked
+    }
+
+    #[test]
+    fn gradients_match_finite_differences_apart_and_inside() {
+        let (w, c) = (world(), chain());
+        let mut checked = 0;
+        for theta in [
+            [0.0; 4],
+            [0.5, 0.0, 0.0, 0.0],
+            [-0.9, 0.1, 0.2, 0.0],
+            [0.3, -0.6, 0.9, -0.4],
+            [-0.4, -0.4, 0.8, 0.8],
+        ] {
+            checked += check_gradients(&w, &c, &theta);
+        }
+        assert!(checked >= 40, "only {checked} derivatives were checked");
+    }
+
+    #[test]
+    fn a_link_through_a_corner_is_pushed_out_by_its_gradient() {
+        let square = Obstacle {
+            id: "box".into(),
+            shape: Shape::Polygon {
+                points: vec![v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0)],
+            },
+        };
+        let w = World::new(0.0, 0.0, vec![square]).unwrap();
+        // One long link along x + y = 1.98, cutting the corner at (1, 1) between samples.
+        let (a, b) = (v(9.3, -7.32), v(-6.72, 8.7));
+        let c = Chain::unlimited(vec![(b - a).norm()], a, 0.75 * std::f64::consts::PI).unwrap();
+        let theta = [0.0];
+        let before = w.pose_clearance(&c, &theta).unwrap();
+        assert!(before.clearance_m < -0.009, "{before:?}");
+        let mut buf = ActivePairs::new();
+        w.active_pairs(&c.points(&theta), 0.0, &mut buf);
+        assert_eq!(buf.len(), 1);
+        let g = buf.gradient(0)[0];
+        assert!(g != 0.0);
+        let after = w.pose_clearance(&c, &[1e-4 * g.signum()]).unwrap();
+        assert!(after.clearance_m > before.clearance_m, "{after:?}");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        #[test]
+        fn gradients_match_finite_differences(theta in proptest::collection::vec(-1.5..1.5f64, 4)) {
+            let (w, c) = (world(), chain());
+            // All 8 pairs are active with a 1 m margin; at most a few derivatives sit on a kink.
+            prop_assert!(check_gradients(&w, &c, &theta) >= 20);
+        }
+    }
+}

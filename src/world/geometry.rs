@@ -1,0 +1,451 @@
+//! Exact distances between a segment (a link's axis) and an obstacle, unsigned and signed.
+//!
+//! **Unsigned** (DESIGN 4.1): circle `max(0, |c - proj(c)| - r)`; polygon 0 when an end point is
+//! inside (even-odd) or the segment touches or crosses an edge, else the least segment-to-edge
+//! distance. The [`Contact`] of a shape carries the **signed** distance, whose positive part is
+//! the unsigned one:
+//!
+//! - **circle**: `|c - q| - r` with `q` the segment's point nearest the centre. Exact: inside,
+//!   it is minus the depth of the segment's deepest point.
+//! - **polygon**, when the segment meets it: minus the largest depth (distance to the boundary)
+//!   of the segment's points sampled at `s = k / DEPTH_SAMPLES`, `k = 0..=DEPTH_SAMPLES`, and at
+//!   the middle of each stretch that begins where it crosses an edge (so a segment that enters
+//!   the polygon at all is negative); points outside count 0. The depth of a point is
+//!   1-Lipschitz, so this is never deeper than the true deepest point, shallower by at most
+//!   `|b - a| / (2 DEPTH_SAMPLES)`, and exact when the deepest point is an end point (or any
+//!   sample). It is continuous in the segment except where two stretches inside merge (the
+//!   segment sweeping over a reflex corner), where the middles jump, never across 0. A segment
+//!   that only touches the boundary gets 0.
+//!
+//! The contact's `normal` is the gradient of the signed distance with respect to the contact
+//! point on the segment (held at its parameter `s`): the direction that moves the segment out.
+//! Where `s` is the minimizer (apart, circles) or a fixed sample (`k / DEPTH_SAMPLES`), the
+//! envelope argument makes it also the exact gradient with respect to any motion of the
+//! segment, which is what a solver needs. At a stretch's middle, whose parameter moves with the
+//! crossings, it is the direction that pushes that point out, not the exact derivative.
+
+use crate::chain::Vec2;
+
+/// Pieces the segment is cut into to find the depth of a polygon it enters.
+pub const DEPTH_SAMPLES: usize = 16;
+
+/// The nearest approach of a segment `a..b` and an obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Contact {
+    /// Signed distance, m: positive apart, negative inside (minus the depth).
+    pub distance_m: f64,
+    /// The segment's point that realizes it.
+    pub on_segment: Vec2,
+    /// The obstacle's boundary point nearest `on_segment`.
+    pub on_obstacle: Vec2,
+    /// Where `on_segment` sits along the segment, 0 at `a` to 1 at `b`.
+    pub s: f64,
+    /// Unit gradient of `distance_m` with respect to `on_segment`.
+    pub normal: Vec2,
+}
+
+/// The z part of the cross product.
+pub fn cross(a: Vec2, b: Vec2) -> f64 {
+    a.x * b.y - a.y * b.x
+}
+
+/// The point of the segment `a..b` nearest `p`, and its parameter (0 at `a`).
+pub fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> (Vec2, f64) {
+    let ab = b - a;
+    let l2 = ab.norm_squared();
+    let s = if l2 > 0.0 {
+        ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (a + ab * s, s)
+}
+
+/// Squared distance between the segments `a0..a1` and `b0..b1`, the nearest points on each and
+/// the parameter of the one on `a`. Crossing or touching segments are at 0.
+pub fn segment_segment(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> (f64, Vec2, Vec2, f64) {
+    if let Some(s) = crossing(a0, a1, b0, b1) {
+        let p = a0 + (a1 - a0) * s;
+        return (0.0, p, p, s);
+    }
+    let mut best = {
+        let (q, _) = point_segment(a0, b0, b1);
+        ((a0 - q).norm_squared(), a0, q, 0.0)
+    };
+    let (q, _) = point_segment(a1, b0, b1);
+    let d2 = (a1 - q).norm_squared();
+    if d2 < best.0 {
+        best = (d2, a1, q, 1.0);
+    }
+    for b in [b0, b1] {
+        let (q, s) = point_segment(b, a0, a1);
+        let d2 = (b - q).norm_squared();
+        if d2 < best.0 {
+            best = (d2, q, b, s);
+        }
+    }
+    best
+}
+
+/// Where the segment `a0..a1` properly crosses `b0..b1`, as a parameter along `a0..a1`.
+fn crossing(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> Option<f64> {
+    let (da, db) = (a1 - a0, b1 - b0);
+    let (s0, s1) = (cross(db, a0 - b0), cross(db, a1 - b0));
+    let (t0, t1) = (cross(da, b0 - a0), cross(da, b1 - a0));
+    (s0 * s1 < 0.0 && t0 * t1 < 0.0).then(|| s0 / (s0 - s1))
+}
+
+/// Whether `p` is inside the polygon by the even-odd rule (boundary points either way).
+pub fn inside_polygon(p: Vec2, points: &[Vec2]) -> bool {
+    let n = points.len();
+    let mut inside = false;
+    for k in 0..n {
+        let (u, v) = (points[k], points[(k + 1) % n]);
+        if (u.y > p.y) != (v.y > p.y) {
+            let x = u.x + (p.y - u.y) * (v.x - u.x) / (v.y - u.y);
+            if p.x < x {
+                inside = !inside;
+            }
+        }
+    }
+    inside
+}
+
+/// Distance from `p` to the polygon's boundary, the nearest boundary point and its edge.
+pub fn boundary_nearest(p: Vec2, points: &[Vec2]) -> (f64, Vec2, usize) {
+    let n = points.len();
+    let mut best = (f64::INFINITY, p, 0);
+    for k in 0..n {
+        let (q, _) = point_segment(p, points[k], points[(k + 1) % n]);
+        let d2 = (p - q).norm_squared();
+        if d2 < best.0 {
+            best = (d2, q, k);
+        }
+    }
+    (best.0.sqrt(), best.1, best.2)
+}
+
+/// Signed distance from `p` to the polygon: negative inside.
+pub fn point_polygon(p: Vec2, points: &[Vec2]) -> f64 {
+    let (d, _, _) = boundary_nearest(p, points);
+    if inside_polygon(p, points) {
+        -d
+    } else {
+        d
+    }
+}
+
+/// Twice the polygon's signed area: positive when its points turn counter-clockwise.
+pub fn twice_area(points: &[Vec2]) -> f64 {
+    let n = points.len();
+    (0..n).map(|k| cross(points[k], points[(k + 1) % n])).sum()
+}
+
+/// The unit normal of edge `k` pointing out of the polygon.
+fn outward_normal(points: &[Vec2], k: usize) -> Vec2 {
+    let e = points[(k + 1) % points.len()] - points[k];
+    let right = Vec2::new(e.y, -e.x);
+    let n = if twice_area(points) > 0.0 {
+        right
+    } else {
+        -right
+    };
+    n.try_normalize(0.0).unwrap_or(Vec2::x())
+}
+
+/// Signed distance from the segment `a..b` to the circle (`center`, `radius`), exact.
+pub fn segment_circle(a: Vec2, b: Vec2, center: Vec2, radius: f64) -> Contact {
+    let (q, s) = point_segment(center, a, b);
+    let v = q - center;
+    let d = v.norm();
+    let normal = if d > 0.0 {
+        v / d
+    } else {
+        // The centre lies on the segment: out sideways.
+        let ab = b - a;
+        Vec2::new(-ab.y, ab.x)
+            .try_normalize(0.0)
+            .unwrap_or(Vec2::x())
+    };
+    Contact {
+        distance_m: d - radius,
+        on_segment: q,
+        on_obstacle: center + normal * radius,
+        s,
+        normal,
+    }
+}
+
+/// Signed distance from the segment `a..b` to the polygon (see the module doc for the depth).
+pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
+    let n = points.len();
+    let mut best = (f64::INFINITY, a, a, 0.0, 0);
+    for k in 0..n {
+        let (d2, pa, pb, s) = segment_segment(a, b, points[k], points[(k + 1) % n]);
+        if d2 < best.0 {
+            best = (d2, pa, pb, s, k);
+        }
+    }
+    let (d2, pa, pb, s, edge) = best;
+    if d2 > 0.0 && !inside_polygon(a, points) && !inside_polygon(b, points) {
+        let d = d2.sqrt();
+        return Contact {
+            distance_m: d,
+            on_segment: pa,
+            on_obstacle: pb,
+            s,
+            normal: (pa - pb) / d,
+        };
+    }
+    let mut deep = (0.0, a, a, 0.0);
+    let mut consider = |t: f64| {
+        let x = a + (b - a) * t;
+        if inside_polygon(x, points) {
+            let (d, q, _) = boundary_nearest(x, points);
+            if d > deep.0 {
+                deep = (d, x, q, t);
+            }
+        }
+    };
+    for k in 0..=DEPTH_SAMPLES {
+        consider(k as f64 / DEPTH_SAMPLES as f64);
+    }
+    // The middle of each stretch that begins where the segment crosses an edge.
+    let crossing = |k: usize| crossing(a, b, points[k], points[(k + 1) % n]);
+    for k in 0..n {
+        if let Some(t) = crossing(k) {
+            let next = (0..n)
+                .filter_map(crossing)
+                .filter(|&u| u > t)
+                .fold(1.0, f64::min);
+            consider(0.5 * (t + next));
+        }
+    }
+    let (depth, x, q, t) = deep;
+    if depth > 0.0 {
+        Contact {
+            distance_m: -depth,
+            on_segment: x,
+            on_obstacle: q,
+            s: t,
+            normal: (q - x) / depth,
+        }
+    } else {
+        Contact {
+            distance_m: 0.0,
+            on_segment: pa,
+            on_obstacle: pb,
+            s,
+            normal: outward_normal(points, edge),
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Brute force, independent of the code above: the segment sampled densely, each sample's
+    /// signed distance to the shape from its own point test and boundary distance.
+    fn brute_min(a: Vec2, b: Vec2, f: impl Fn(Vec2) -> f64) -> f64 {
+        let n = 5_000;
+        (0..=n)
+            .map(|k| f(a + (b - a) * (k as f64 / n as f64)))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Distance from a point to the boundary of a polygon: each edge by its line when the
+    /// foot falls on it, else by its nearer end (written apart from `point_segment`).
+    fn brute_boundary(p: Vec2, pts: &[Vec2]) -> f64 {
+        let n = pts.len();
+        let mut best = f64::INFINITY;
+        for k in 0..n {
+            let (u, w) = (pts[k], pts[(k + 1) % n]);
+            let e = w - u;
+            let along = (p - u).dot(&e);
+            let d = if along > 0.0 && along < e.norm_squared() {
+                cross(e, p - u).abs() / e.norm()
+            } else {
+                (p - u).norm().min((p - w).norm())
+            };
+            best = best.min(d);
+        }
+        best
+    }
+
+    /// Point in polygon by winding number (another rule than the crossing count; equal for a
+    /// simple polygon).
+    fn winding_inside(p: Vec2, pts: &[Vec2]) -> bool {
+        let n = pts.len();
+        let mut total = 0.0;
+        for k in 0..n {
+            let (u, v) = (pts[k] - p, pts[(k + 1) % n] - p);
+            total += cross(u, v).atan2(u.dot(&v));
+        }
+        total.abs() > std::f64::consts::PI
+    }
+
+    fn brute_polygon_signed(p: Vec2, pts: &[Vec2]) -> f64 {
+        let d = brute_boundary(p, pts);
+        if winding_inside(p, pts) {
+            -d
+        } else {
+            d
+        }
+    }
+
+    fn v(x: f64, y: f64) -> Vec2 {
+        Vec2::new(x, y)
+    }
+
+    /// A non-convex "C": a square with a notch.
+    fn notched() -> Vec<Vec2> {
+        vec![
+            v(0.0, 0.0),
+            v(2.0, 0.0),
+            v(2.0, 0.8),
+            v(1.0, 0.8),
+            v(1.0, 1.2),
+            v(2.0, 1.2),
+            v(2.0, 2.0),
+            v(0.0, 2.0),
+        ]
+    }
+
+    #[test]
+    fn circle_outside_and_inside_hand_computed() {
+        let c = segment_circle(v(-1.0, 2.0), v(1.0, 2.0), v(0.0, 0.0), 0.5);
+        assert!((c.distance_m - 1.5).abs() < 1e-15);
+        assert!((c.on_segment - v(0.0, 2.0)).norm() < 1e-15);
+        assert!((c.on_obstacle - v(0.0, 0.5)).norm() < 1e-15);
+        assert!((c.normal - v(0.0, 1.0)).norm() < 1e-15);
+        // Through the circle 0.2 from the centre: the deepest point is 0.3 deep.
+        let c = segment_circle(v(-1.0, 0.2), v(1.0, 0.2), v(0.0, 0.0), 0.5);
+        assert!((c.distance_m + 0.3).abs() < 1e-15);
+        // The centre on the segment: the full radius deep, pushed sideways.
+        let c = segment_circle(v(-1.0, 0.0), v(1.0, 0.0), v(0.0, 0.0), 0.5);
+        assert!((c.distance_m + 0.5).abs() < 1e-15);
+        assert!(c.normal.x.abs() < 1e-15 && (c.normal.norm() - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn polygon_cases_hand_computed() {
+        let sq = [v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0)];
+        // Above, parallel: 0.5 away.
+        let c = segment_polygon(v(-1.0, 1.5), v(2.0, 1.5), &sq);
+        assert!((c.distance_m - 0.5).abs() < 1e-15);
+        assert!((c.normal - v(0.0, 1.0)).norm() < 1e-15);
+        // Corner to corner: a vertex against the segment's interior.
+        let c = segment_polygon(v(2.0, 1.0), v(1.0, 2.0), &sq);
+        assert!((c.distance_m - 0.5f64.sqrt()).abs() < 1e-15);
+        assert!((c.on_obstacle - v(1.0, 1.0)).norm() < 1e-15);
+        // Through the middle: the deepest point is the centre, 0.5 deep (a sample).
+        let c = segment_polygon(v(-1.0, 0.5), v(2.0, 0.5), &sq);
+        assert!(c.distance_m < 0.0 && (c.distance_m + 0.5).abs() <= 3.0 / 32.0);
+        // Wholly inside, deepest at an end: exact there, pushed out through the nearest edge.
+        let c = segment_polygon(v(0.3, 0.4), v(0.35, 0.45), &sq);
+        assert!((c.distance_m + 0.35).abs() < 1e-12, "{}", c.distance_m);
+        assert_eq!(c.s, 1.0);
+        assert!((c.normal - v(-1.0, 0.0)).norm() < 1e-12, "{:?}", c.normal);
+        // Ending on an edge: touching, 0.
+        let c = segment_polygon(v(-1.0, 0.5), v(0.0, 0.5), &sq);
+        assert_eq!(c.distance_m, 0.0);
+        assert!((c.normal - v(-1.0, 0.0)).norm() < 1e-15, "{:?}", c.normal);
+        // Into the notch of the C without touching it.
+        let c = segment_polygon(v(3.0, 1.0), v(1.1, 1.0), &notched());
+        assert!((c.distance_m - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_long_link_cutting_a_corner_between_samples_is_inside() {
+        let sq = [v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0)];
+        // Along x + y = 1.98: inside only for 0.98 < x < 1, which no fixed sample hits.
+        let (a, b) = (v(9.3, -7.32), v(-6.72, 8.7));
+        let c = segment_polygon(a, b, &sq);
+        assert!((c.distance_m + 0.01).abs() < 1e-12, "{}", c.distance_m);
+        assert!((c.on_segment - v(0.99, 0.99)).norm() < 1e-12);
+        // Pushed out along its normal, the segment comes out.
+        let out = c.normal * 0.03;
+        assert!(segment_polygon(a + out, b + out, &sq).distance_m > 0.0);
+    }
+
+    #[test]
+    fn clockwise_polygons_push_out_too() {
+        let cw = [v(0.0, 0.0), v(0.0, 1.0), v(1.0, 1.0), v(1.0, 0.0)];
+        let c = segment_polygon(v(-1.0, 0.5), v(0.0, 0.5), &cw);
+        assert_eq!(c.distance_m, 0.0);
+        assert!((c.normal - v(-1.0, 0.0)).norm() < 1e-15);
+    }
+
+    fn arb_point() -> impl Strategy<Value = Vec2> {
+        (-3.0..3.0f64, -3.0..3.0f64).prop_map(|(x, y)| v(x, y))
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn circle_matches_brute_force(a in arb_point(), b in arb_point(), c in arb_point(),
+                                      r in 0.05..1.5f64) {
+            let got = segment_circle(a, b, c, r);
+            let brute = brute_min(a, b, |p| (p - c).norm() - r);
+            // Dense sampling: within a sample spacing (at most 6e-4 m here).
+            prop_assert!((got.distance_m - brute).abs() < 1e-3, "{} vs {}", got.distance_m, brute);
+            prop_assert!(got.distance_m <= brute + 1e-12);
+            prop_assert!(((got.on_segment - c).norm() - r - got.distance_m).abs() < 1e-12);
+        }
+
+        #[test]
+        fn polygon_unsigned_and_signed_match_brute_force(a in arb_point(), b in arb_point(),
+                                                         dx in -1.0..1.0f64, dy in -1.0..1.0f64) {
+            let pts: Vec<Vec2> = notched().iter().map(|p| p + v(dx - 1.0, dy - 1.0)).collect();
+            let got = segment_polygon(a, b, &pts);
+            let brute = brute_min(a, b, |p| brute_polygon_signed(p, &pts));
+            if brute > 1e-3 {
+                // Apart: the exact distance.
+                prop_assert!((got.distance_m - brute).abs() < 2e-3, "{} vs {}", got.distance_m, brute);
+                prop_assert!(((got.on_segment - got.on_obstacle).norm() - got.distance_m).abs() < 1e-12);
+            } else if brute < -1e-3 {
+                // Inside: never deeper than the truth, and within the sampling bound.
+                let bound = (b - a).norm() / (2.0 * DEPTH_SAMPLES as f64) + 2e-3;
+                prop_assert!(got.distance_m >= brute - 2e-3, "{} vs {}", got.distance_m, brute);
+                prop_assert!(got.distance_m <= brute + bound, "{} vs {}", got.distance_m, brute);
+                prop_assert!(got.distance_m <= 0.0);
+            }
+            // Unsigned: zero exactly when the brute force says the segment meets it.
+            if brute < -1e-3 {
+                prop_assert!(got.distance_m <= 0.0);
+            }
+        }
+
+        #[test]
+        fn signed_polygon_distance_is_continuous(a in arb_point(), b in arb_point(),
+                                                 d in arb_point()) {
+            let pts = notched();
+            let step = d * 1e-7;
+            let c0 = segment_polygon(a, b, &pts);
+            let c1 = segment_polygon(a + step, b + step, &pts);
+            let (g0, g1) = (c0.distance_m, c1.distance_m);
+            let fixed = |c: &Contact| {
+                let k = c.s * DEPTH_SAMPLES as f64;
+                c.distance_m >= 0.0 || k == k.round()
+            };
+            if fixed(&c0) && fixed(&c1) {
+                // Apart or at fixed samples: 1-Lipschitz under translation.
+                prop_assert!((g0 - g1).abs() <= step.norm() * (1.0 + 1e-6) + 1e-12, "{g0} {g1}");
+            } else {
+                // A stretch's middle moves with the crossings, faster where they are shallow.
+                prop_assert!((g0 - g1).abs() <= 1e-4, "{g0} {g1}");
+            }
+        }
+
+        #[test]
+        fn crossing_count_agrees_with_winding(p in arb_point()) {
+            let pts = notched();
+            prop_assume!(brute_boundary(p, &pts) > 1e-6);
+            prop_assert_eq!(inside_polygon(p, &pts), winding_inside(p, &pts));
+        }
+    }
+}

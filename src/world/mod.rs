@@ -1,0 +1,464 @@
+//! A world of obstacles for the planar arm: circles and polygons that every link keeps clear of.
+//!
+//! Links are capsules: the segment `p_{i-1} p_i` of a pose grown by the world's
+//! `link_radius_m`. This module is the geometry the rest builds on:
+//!
+//! - [`Obstacle`], [`Shape`] and the validated [`World`] (errors name the field, e.g.
+//!   `obstacles[2].polygon.points[4]`, and carry the numbers);
+//! - exact distances from a segment to a circle or a polygon, unsigned and signed (a link
+//!   inside an obstacle has a negative distance: minus its depth), in [`geometry`];
+//! - the clearance of a pose and the pairs of (link, obstacle) near contact, each with the
+//!   gradient of its distance with respect to the joint angles, for a solver's constraints
+//!   (allocation-free with the caller's buffers), in [`clearance`];
+//! - the tip's shortest route around the obstacles grown by the link radius and the clearance,
+//!   a polyline of waypoints, in [`route`].
+//!
+//! Pure: no I/O, clock or threads. Everything is in metres and radians, in the arm's frame.
+//!
+//! ```
+//! use snakectl::chain::{Chain, Vec2};
+//! use snakectl::world::{ActivePairs, Obstacle, Shape, World};
+//!
+//! let post = Obstacle {
+//!     id: "post".into(),
+//!     shape: Shape::Circle { center: Vec2::new(0.2, 0.1), radius_m: 0.03 },
+//! };
+//! let world = World::new(0.01, 0.005, vec![post]).unwrap();
+//! let arm = Chain::unlimited(vec![0.1, 0.1, 0.1], Vec2::zeros(), 0.0).unwrap();
+//!
+//! // Straight along x: link 2 passes 0.1 under the post's centre.
+//! let least = world.pose_clearance(&arm, &[0.0; 3]).unwrap();
+//! assert_eq!((least.link, least.id(&world)), (2, "post"));
+//! assert!((least.clearance_m - (0.1 - 0.03 - 0.01)).abs() < 1e-12);
+//!
+//! // The pairs within 0.1 m of contact, each with d clearance / d theta.
+//! let mut pairs = ActivePairs::new();
+//! world.active_pairs(&arm.points(&[0.0; 3]), 0.1, &mut pairs);
+//! assert!(pairs.gradient(0)[0] < 0.0); // turning joint 1 up brings link 2 toward the post
+//! # assert!(pairs.gradient(0)[2] == 0.0);
+//!
+//! // The tip's route from below the post to above it goes round it.
+//! let route = world.route(Vec2::new(0.2, 0.0), Vec2::new(0.2, 0.2)).unwrap();
+//! assert!(route.waypoints.len() > 2 && route.length_m > 0.2);
+//! ```
+
+pub mod clearance;
+pub mod geometry;
+pub mod route;
+
+use crate::chain::{Vec2, MAX_MAGNITUDE};
+
+pub use clearance::{ActivePairs, Pair};
+pub use geometry::Contact;
+pub use route::{Route, RouteEnd, RouteError};
+
+/// Most obstacles a world may hold: bounds every per-tick loop and the route's graph.
+pub const MAX_OBSTACLES: usize = 64;
+
+/// Most polygon points a world may hold, all polygons together.
+pub const MAX_POLYGON_POINTS: usize = 1024;
+
+/// The shape of an obstacle, in the arm's frame.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Shape {
+    /// A disc.
+    Circle {
+        /// Centre, m.
+        center: Vec2,
+        /// Radius, m (positive).
+        radius_m: f64,
+    },
+    /// A closed simple polygon (convex or not), its points in either turning sense; the edge
+    /// from the last point back to the first closes it.
+    Polygon {
+        /// Vertices, m (at least 3; no repeated points, no edges that touch or cross).
+        points: Vec<Vec2>,
+    },
+}
+
+impl Shape {
+    /// Signed distance from the point `p` to the shape, m: positive outside, negative inside
+    /// (minus the distance to the boundary), 0 on the boundary.
+    pub fn point_distance(&self, p: Vec2) -> f64 {
+        match self {
+            Shape::Circle { center, radius_m } => (p - center).norm() - radius_m,
+            Shape::Polygon { points } => geometry::point_polygon(p, points),
+        }
+    }
+
+    /// Distance from the segment `a..b` to the shape, signed (see [`geometry`]), with the
+    /// closest points and the direction that increases it.
+    pub fn segment_contact(&self, a: Vec2, b: Vec2) -> Contact {
+        match self {
+            Shape::Circle { center, radius_m } => {
+                geometry::segment_circle(a, b, *center, *radius_m)
+            }
+            Shape::Polygon { points } => geometry::segment_polygon(a, b, points),
+        }
+    }
+
+    /// Whether the segment `a..b` keeps at least `floor` from the shape (and does not touch
+    /// it): the unsigned distance, with an early way out for far edges (what a route checks its
+    /// legs with).
+    pub fn segment_clears(&self, a: Vec2, b: Vec2, floor: f64) -> bool {
+        match self {
+            Shape::Circle { center, radius_m } => {
+                let (q, _) = geometry::point_segment(*center, a, b);
+                (q - center).norm() - radius_m >= floor
+            }
+            Shape::Polygon { points } => {
+                let (lo, hi) = (a.inf(&b), a.sup(&b));
+                let f2 = floor * floor;
+                let n = points.len();
+                for k in 0..n {
+                    let (u, w) = (points[k], points[(k + 1) % n]);
+                    if u.x.min(w.x) - hi.x >= floor
+                        || lo.x - u.x.max(w.x) >= floor
+                        || u.y.min(w.y) - hi.y >= floor
+                        || lo.y - u.y.max(w.y) >= floor
+                    {
+                        continue;
+                    }
+                    let d2 = geometry::segment_segment(a, b, u, w).0;
+                    if d2 < f2 || d2 == 0.0 {
+                        return false;
+                    }
+                }
+                // No edge near: either wholly outside or wholly inside.
+                !geometry::inside_polygon(a, points)
+            }
+        }
+    }
+
+    /// The smallest axis-aligned box that holds the shape: `(min, max)`.
+    pub fn bounds(&self) -> (Vec2, Vec2) {
+        match self {
+            Shape::Circle { center, radius_m } => {
+                let r = Vec2::new(*radius_m, *radius_m);
+                (center - r, center + r)
+            }
+            Shape::Polygon { points } => {
+                let mut lo = Vec2::new(f64::INFINITY, f64::INFINITY);
+                let mut hi = -lo;
+                for p in points {
+                    lo = lo.inf(p);
+                    hi = hi.sup(p);
+                }
+                (lo, hi)
+            }
+        }
+    }
+}
+
+/// One obstacle: a name the user gave it and its shape.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Obstacle {
+    /// Unique, non-empty name (how errors, replies and the clearance name it).
+    pub id: String,
+    /// Where it is.
+    pub shape: Shape,
+}
+
+/// Why a world was refused. `field` is the path of the offending value, as
+/// `obstacles[2].polygon.points[4]` (indices from 0, as in a list).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum WorldError {
+    /// A coordinate or length that is not finite or beyond [`MAX_MAGNITUDE`].
+    #[error("{field}: {value} must be finite and at most {MAX_MAGNITUDE} in magnitude")]
+    NotFinite {
+        /// Path of the value.
+        field: String,
+        /// The value given.
+        value: f64,
+    },
+    /// A length that must be positive and is not.
+    #[error("{field}: {value} m must be positive")]
+    NotPositive {
+        /// Path of the value.
+        field: String,
+        /// The value given.
+        value: f64,
+    },
+    /// A length that must not be negative and is.
+    #[error("{field}: {value} m must not be negative")]
+    Negative {
+        /// Path of the value.
+        field: String,
+        /// The value given.
+        value: f64,
+    },
+    /// An empty id.
+    #[error("{field}: an obstacle needs a non-empty id")]
+    EmptyId {
+        /// Path of the id.
+        field: String,
+    },
+    /// Two obstacles with the same id.
+    #[error("{field}: id {id:?} is already used by obstacles[{first}]")]
+    DuplicateId {
+        /// Path of the second id.
+        field: String,
+        /// The id.
+        id: String,
+        /// Index of the obstacle that has it first.
+        first: usize,
+    },
+    /// A polygon with fewer than 3 points.
+    #[error("{field}: {count} points, a polygon needs at least 3")]
+    TooFewPoints {
+        /// Path of the point list.
+        field: String,
+        /// Points given.
+        count: usize,
+    },
+    /// A point given twice (consecutive ones make a zero-length edge).
+    #[error("{field}: point ({x}, {y}) repeats points[{first}]")]
+    RepeatedPoint {
+        /// Path of the second point.
+        field: String,
+        /// Index of its first occurrence in the same polygon.
+        first: usize,
+        /// x, m.
+        x: f64,
+        /// y, m.
+        y: f64,
+    },
+    /// Two edges of a polygon that touch or cross (other than neighbours meeting at their
+    /// shared point), or neighbours that fold back onto each other. Edge `k` runs from
+    /// `points[k]` to the next point.
+    #[error("{field}: edges {edge_a} and {edge_b} touch or cross near ({x}, {y})")]
+    SelfIntersecting {
+        /// Path of the point list.
+        field: String,
+        /// The first edge (from its start point's index).
+        edge_a: usize,
+        /// The second edge.
+        edge_b: usize,
+        /// Where, x m.
+        x: f64,
+        /// Where, y m.
+        y: f64,
+    },
+    /// More obstacles than [`MAX_OBSTACLES`].
+    #[error("obstacles: {count} obstacles, at most {max} allowed")]
+    TooManyObstacles {
+        /// Obstacles given.
+        count: usize,
+        /// The limit.
+        max: usize,
+    },
+    /// More polygon points in all than [`MAX_POLYGON_POINTS`].
+    #[error("obstacles: {count} polygon points in all, at most {max} allowed")]
+    TooManyPoints {
+        /// Points given, all polygons.
+        count: usize,
+        /// The limit.
+        max: usize,
+    },
+}
+
+/// A validated world: the links' radius, the clearance every link keeps, and the obstacles.
+#[derive(Debug, Clone, PartialEq)]
+pub struct World {
+    link_radius_m: f64,
+    clearance_m: f64,
+    obstacles: Vec<Obstacle>,
+    bounds: Vec<(Vec2, Vec2)>,
+}
+
+fn finite(field: impl FnOnce() -> String, value: f64) -> Result<(), WorldError> {
+    if value.is_finite() && value.abs() <= MAX_MAGNITUDE {
+        Ok(())
+    } else {
+        Err(WorldError::NotFinite {
+            field: field(),
+            value,
+        })
+    }
+}
+
+fn non_negative(field: &str, value: f64) -> Result<(), WorldError> {
+    finite(|| field.to_string(), value)?;
+    if value < 0.0 {
+        return Err(WorldError::Negative {
+            field: field.to_string(),
+            value,
+        });
+    }
+    Ok(())
+}
+
+/// Checks one polygon's points: count, finiteness, repeats, edges that touch or cross.
+fn check_polygon(at: &str, points: &[Vec2]) -> Result<(), WorldError> {
+    let field = format!("{at}.points");
+    if points.len() < 3 {
+        return Err(WorldError::TooFewPoints {
+            field,
+            count: points.len(),
+        });
+    }
+    for (j, p) in points.iter().enumerate() {
+        for v in [p.x, p.y] {
+            finite(|| format!("{field}[{j}]"), v)?;
+        }
+    }
+    for (j, p) in points.iter().enumerate() {
+        if let Some(first) = points[..j].iter().position(|q| q == p) {
+            return Err(WorldError::RepeatedPoint {
+                field: format!("{field}[{j}]"),
+                first,
+                x: p.x,
+                y: p.y,
+            });
+        }
+    }
+    let n = points.len();
+    let edge = |k: usize| (points[k], points[(k + 1) % n]);
+    for a in 0..n {
+        let (a0, a1) = edge(a);
+        // Neighbours meet at a point; they are wrong only when they fold back onto each other.
+        let (_, a2) = edge((a + 1) % n);
+        let (u, v) = (a1 - a0, a2 - a1);
+        if geometry::cross(u, v) == 0.0 && u.dot(&v) < 0.0 {
+            return Err(WorldError::SelfIntersecting {
+                field,
+                edge_a: a,
+                edge_b: (a + 1) % n,
+                x: a1.x,
+                y: a1.y,
+            });
+        }
+        for b in a + 2..n {
+            if a == 0 && b == n - 1 {
+                continue; // neighbours through the closing point
+            }
+            let (b0, b1) = edge(b);
+            let (d2, p, _, _) = geometry::segment_segment(a0, a1, b0, b1);
+            if d2 == 0.0 {
+                return Err(WorldError::SelfIntersecting {
+                    field,
+                    edge_a: a,
+                    edge_b: b,
+                    x: p.x,
+                    y: p.y,
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+impl World {
+    /// Validates a world. Obstacles are checked in order; the first fault is reported.
+    ///
+    /// `link_radius_m`: half the width of every link (the capsule's radius), `clearance_m`: the
+    /// gap every link keeps from every obstacle, both finite and not negative.
+    pub fn new(
+        link_radius_m: f64,
+        clearance_m: f64,
+        obstacles: Vec<Obstacle>,
+    ) -> Result<Self, WorldError> {
+        non_negative("link_radius_m", link_radius_m)?;
+        non_negative("clearance_m", clearance_m)?;
+        if obstacles.len() > MAX_OBSTACLES {
+            return Err(WorldError::TooManyObstacles {
+                count: obstacles.len(),
+                max: MAX_OBSTACLES,
+            });
+        }
+        let total: usize = obstacles
+            .iter()
+            .map(|o| match &o.shape {
+                Shape::Polygon { points } => points.len(),
+                Shape::Circle { .. } => 0,
+            })
+            .sum();
+        if total > MAX_POLYGON_POINTS {
+            return Err(WorldError::TooManyPoints {
+                count: total,
+                max: MAX_POLYGON_POINTS,
+            });
+        }
+        for (i, o) in obstacles.iter().enumerate() {
+            let at = format!("obstacles[{i}]");
+            if o.id.is_empty() {
+                return Err(WorldError::EmptyId {
+                    field: format!("{at}.id"),
+                });
+            }
+            if let Some(first) = obstacles[..i].iter().position(|p| p.id == o.id) {
+                return Err(WorldError::DuplicateId {
+                    field: format!("{at}.id"),
+                    id: o.id.clone(),
+                    first,
+                });
+            }
+            match &o.shape {
+                Shape::Circle { center, radius_m } => {
+                    finite(|| format!("{at}.circle.center.x"), center.x)?;
+                    finite(|| format!("{at}.circle.center.y"), center.y)?;
+                    finite(|| format!("{at}.circle.radius_m"), *radius_m)?;
+                    if *radius_m <= 0.0 {
+                        return Err(WorldError::NotPositive {
+                            field: format!("{at}.circle.radius_m"),
+                            value: *radius_m,
+                        });
+                    }
+                }
+                Shape::Polygon { points } => check_polygon(&format!("{at}.polygon"), points)?,
+            }
+        }
+        let bounds = obstacles.iter().map(|o| o.shape.bounds()).collect();
+        Ok(Self {
+            link_radius_m,
+            clearance_m,
+            obstacles,
+            bounds,
+        })
+    }
+
+    /// Half the width of every link, m.
+    pub fn link_radius_m(&self) -> f64 {
+        self.link_radius_m
+    }
+
+    /// The gap every link keeps from every obstacle, m.
+    pub fn clearance_m(&self) -> f64 {
+        self.clearance_m
+    }
+
+    /// The obstacles, in the order given.
+    pub fn obstacles(&self) -> &[Obstacle] {
+        &self.obstacles
+    }
+
+    /// The obstacle whose id is `id`, with its index.
+    pub fn find(&self, id: &str) -> Option<(usize, &Obstacle)> {
+        self.obstacles.iter().enumerate().find(|(_, o)| o.id == id)
+    }
+
+    /// Signed distance from `p` to the nearest obstacle, m, and that obstacle's index; `None`
+    /// for an empty world.
+    pub fn point_distance(&self, p: Vec2) -> Option<(f64, usize)> {
+        let mut best: Option<(f64, usize)> = None;
+        for (k, o) in self.obstacles.iter().enumerate() {
+            let d = o.shape.point_distance(p);
+            if best.is_none_or(|(b, _)| d < b) {
+                best = Some((d, k));
+            }
+        }
+        best
+    }
+
+    /// A lower bound of the distance from the box `lo..hi` to obstacle `k`'s box.
+    fn box_gap(&self, k: usize, lo: Vec2, hi: Vec2) -> f64 {
+        let (blo, bhi) = self.bounds[k];
+        let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
+        let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
+        dx.hypot(dy)
+    }
+}
+
+#[cfg(test)]
+mod tests;
