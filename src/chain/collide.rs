@@ -23,12 +23,13 @@ use super::{Chain, Vec2};
 /// controller never sends a pose that brings two links closer than this.
 pub const SELF_CLEARANCE_M: f64 = 1e-3;
 
-fn cross(a: Vec2, b: Vec2) -> f64 {
+/// The z part of the cross product.
+pub fn cross(a: Vec2, b: Vec2) -> f64 {
     a.x * b.y - a.y * b.x
 }
 
-/// Squared distance from `p` to the segment `a..b`.
-fn point_segment_distance2(p: Vec2, a: Vec2, b: Vec2) -> f64 {
+/// The point of the segment `a..b` nearest `p`, and its parameter (0 at `a`).
+pub fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> (Vec2, f64) {
     let ab = b - a;
     let l2 = ab.norm_squared();
     let s = if l2 > 0.0 {
@@ -36,7 +37,12 @@ fn point_segment_distance2(p: Vec2, a: Vec2, b: Vec2) -> f64 {
     } else {
         0.0
     };
-    (p - (a + ab * s)).norm_squared()
+    (a + ab * s, s)
+}
+
+/// Squared distance from `p` to the segment `a..b`.
+fn point_segment_distance2(p: Vec2, a: Vec2, b: Vec2) -> f64 {
+    (p - point_segment(p, a, b).0).norm_squared()
 }
 
 /// Whether the segments `a0..a1` and `b0..b1` cross properly: each one's ends strictly on

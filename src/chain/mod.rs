@@ -16,7 +16,7 @@ use std::f64::consts::PI;
 
 use nalgebra::{Matrix2xX, Vector2};
 
-pub use collide::SELF_CLEARANCE_M;
+pub use collide::{cross, point_segment, SELF_CLEARANCE_M};
 pub use workspace::{Reachability, Workspace};
 
 /// A point or vector in the plane, in metres.

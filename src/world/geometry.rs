@@ -25,6 +25,7 @@
 //! crossings, it is the direction that pushes that point out, not the exact derivative.
 
 use crate::chain::Vec2;
+pub use crate::chain::{cross, point_segment};
 
 /// Pieces the segment is cut into to find the depth of a polygon it enters.
 pub const DEPTH_SAMPLES: usize = 16;
@@ -42,23 +43,6 @@ pub struct Contact {
     pub s: f64,
     /// Unit gradient of `distance_m` with respect to `on_segment`.
     pub normal: Vec2,
-}
-
-/// The z part of the cross product.
-pub fn cross(a: Vec2, b: Vec2) -> f64 {
-    a.x * b.y - a.y * b.x
-}
-
-/// The point of the segment `a..b` nearest `p`, and its parameter (0 at `a`).
-pub fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> (Vec2, f64) {
-    let ab = b - a;
-    let l2 = ab.norm_squared();
-    let s = if l2 > 0.0 {
-        ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (a + ab * s, s)
 }
 
 /// Squared distance between the segments `a0..a1` and `b0..b1`, the nearest points on each and
