@@ -53,6 +53,7 @@ use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
 use crate::resolve::overall::{Overall, OverallOptions};
 use crate::resolve::sequential::Sequential;
 use crate::resolve::{verdict, Resolver, Strategy};
+use crate::world::World;
 
 pub use crate::motion::{Activity, Finish, JOINT_ACCEL_TIME_S};
 
@@ -215,6 +216,39 @@ pub enum Refused {
     /// A path without points.
     #[error("a path needs at least one point")]
     EmptyPath,
+    /// A goto or path point where the tip can never be clear: inside an obstacle grown by the
+    /// link radius and the clearance.
+    #[error("the {what} ({x}, {y}) lies within {grown_m} m of obstacle \"{obstacle}\": the tip can never be clear there")]
+    InsideObstacle {
+        /// What it was ("target", "path point").
+        what: &'static str,
+        /// The point, m.
+        x: f64,
+        /// The point, m.
+        y: f64,
+        /// The obstacle's id.
+        obstacle: String,
+        /// `link_radius_m + clearance_m`, m.
+        grown_m: f64,
+    },
+    /// A joint move whose straight way in joint space passes a pose that is not clear.
+    #[error(
+        "link {link} would come within {clearance_m:.4} m of obstacle \"{obstacle}\" \
+         {percent:.0}% of the way there (the clearance to keep is {keep_m} m)",
+        percent = .fraction * 100.0
+    )]
+    NotClearOnTheWay {
+        /// The link, 1-based from the base.
+        link: usize,
+        /// The obstacle's id.
+        obstacle: String,
+        /// How far along the move, 0..=1.
+        fraction: f64,
+        /// The clearance there, m.
+        clearance_m: f64,
+        /// The clearance to keep, m.
+        keep_m: f64,
+    },
     /// A limit that is not a positive finite number.
     #[error("the limit {what} = {value} must be a positive, finite number")]
     BadLimit {
@@ -251,6 +285,40 @@ impl std::fmt::Display for SelfContact {
     }
 }
 
+/// The commanded pose is not clear of an obstacle ([`Controller::set_world`] put one onto
+/// the arm): until it is, only motion that reduces no link's clearance is carried out.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NotClear {
+    /// The link of least clearance, 1-based from the base.
+    pub link: usize,
+    /// The obstacle's id.
+    pub obstacle: String,
+    /// The link's clearance, m (negative: inside, by that depth).
+    pub clearance_m: f64,
+    /// The clearance to keep, m.
+    pub keep_m: f64,
+}
+
+impl std::fmt::Display for NotClear {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "link {} is {:.4} m from obstacle \"{}\" (the clearance to keep is {} m): the arm \
+             holds, and moves only where no link's clearance shrinks",
+            self.link, self.clearance_m, self.obstacle, self.keep_m
+        )
+    }
+}
+
+/// A tick cut short to keep the clearance: the link held back and the obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Blocked {
+    /// The link, 1-based from the base.
+    pub link: usize,
+    /// The obstacle's index in [`Controller::world`].
+    pub obstacle: usize,
+}
+
 /// What one tick did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Tick {
@@ -264,6 +332,11 @@ pub struct Tick {
     /// The step was cut short because two links would have come within [`SELF_CLEARANCE_M`]
     /// of each other (`saturated` is then set too).
     pub self_collision: bool,
+    /// The step was cut short to keep every link clear of the obstacles (or, from a pose not
+    /// clear, to shrink no link's clearance): which link and obstacle held it back.
+    pub blocked: Option<Blocked>,
+    /// The clearance of the new commanded pose, m; `None` when the world has no obstacles.
+    pub min_clearance_m: Option<f64>,
     /// The step was shortened and re-resolved to keep within the joint-speed bound.
     pub slowed: bool,
     /// The final per-joint clamp had to shorten a joint's step.
@@ -298,6 +371,8 @@ pub struct Controller {
     trial: Vec<f64>,
     /// The self-collision check, with the points of the commanded pose.
     guard: Guard,
+    /// The obstacles every link keeps clear of.
+    world: World,
 }
 
 /// The self-collision check of candidate poses against the commanded one.
@@ -490,6 +565,7 @@ impl Controller {
             cand: vec![0.0; n],
             trial: vec![0.0; n],
             guard,
+            world: World::default(),
         };
         // Size both resolvers' scratch now, so that even the first tick allocates nothing.
         let (theta, trial) = (c.theta.clone(), &mut c.trial);
@@ -616,6 +692,36 @@ impl Controller {
         &self.home
     }
 
+    /// The obstacles the arm keeps clear of.
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// Replaces the world, in force from the next tick. Returns what is wrong when the
+    /// commanded pose is not clear of it: the arm then holds, and moves only where no link's
+    /// clearance shrinks, until it is clear again.
+    pub fn set_world(&mut self, world: World) -> Option<NotClear> {
+        self.world = world;
+        let o = if self.world.obstacles().is_empty() {
+            None
+        } else {
+            Some(self.world.clone())
+        };
+        self.overall.set_world(o);
+        self.not_clear()
+    }
+
+    /// The link and obstacle of least clearance when the commanded pose is not clear.
+    pub fn not_clear(&self) -> Option<NotClear> {
+        let p = self.world.clearance(&self.guard.now)?;
+        (p.clearance_m < self.world.clearance_m()).then(|| NotClear {
+            link: p.link,
+            obstacle: p.id(&self.world).to_string(),
+            clearance_m: p.clearance_m,
+            keep_m: self.world.clearance_m(),
+        })
+    }
+
     /// The first pair of links of the commanded pose in contact, when there is one (a measured
     /// pose taken by [`Controller::new`] or [`Controller::reseed`]): the arm is tangled, and
     /// moves only as long as that gets no worse (see the module doc). Worth a warning.
@@ -649,6 +755,8 @@ impl Controller {
             self_collision: false,
             slowed: false,
             clamped: false,
+            blocked: None,
+            min_clearance_m: None,
             finished: None,
             peak_joint_speed_rad_s: 0.0,
             m3_rad2: 0.0,
@@ -693,6 +801,7 @@ impl Controller {
             reached = self.tip;
         }
         t.tip = self.tip;
+        t.min_clearance_m = self.world.clearance(&self.guard.now).map(|p| p.clearance_m);
         t.peak_joint_speed_rad_s = peak / dt;
         t.m3_rad2 = m3;
         t.finished = self.motion.follow(Achieved {

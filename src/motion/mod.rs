@@ -76,6 +76,14 @@ pub enum Finish {
     /// Goto or path: the target is out of reach; the tip stopped short of it. Joint move: a
     /// pose on the way could not be sent (it would self-intersect); the arm stopped short.
     Saturated,
+    /// Goto or path: the body could not follow the tip without losing its clearance from an
+    /// obstacle, or the tip made no headway; the arm holds, clear.
+    Blocked {
+        /// The link held back, 1-based from the base.
+        link: usize,
+        /// The obstacle's index in the world in force.
+        obstacle: usize,
+    },
     /// At rest after a stop (`deadman: false`) or after a velocity or jog lapsed (`true`).
     Stopped {
         /// The velocity or jog was not renewed within the deadman.

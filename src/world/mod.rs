@@ -55,6 +55,9 @@ pub use route::{Route, RouteEnd, RouteError};
 /// Most obstacles a world may hold: bounds every per-tick loop and the route's graph.
 pub const MAX_OBSTACLES: usize = 64;
 
+/// The clearance every link keeps when none is given, m.
+pub const DEFAULT_CLEARANCE_M: f64 = 0.005;
+
 /// Most polygon points a world may hold, all polygons together.
 pub const MAX_POLYGON_POINTS: usize = 1024;
 
@@ -347,6 +350,18 @@ fn check_polygon(at: &str, points: &[Vec2]) -> Result<(), WorldError> {
         }
     }
     Ok(())
+}
+
+impl Default for World {
+    /// No obstacles, no link radius, the default clearance ([`DEFAULT_CLEARANCE_M`]).
+    fn default() -> Self {
+        Self {
+            link_radius_m: 0.0,
+            clearance_m: DEFAULT_CLEARANCE_M,
+            obstacles: Vec::new(),
+            bounds: Vec::new(),
+        }
+    }
 }
 
 impl World {

@@ -156,7 +156,7 @@ impl Ledger {
     pub fn finish(&mut self, finish: Finish) -> Option<Ended> {
         let (outcome, ending) = match finish {
             Finish::Arrived => (Outcome::Arrived, Ending::Arrived),
-            Finish::Saturated => (Outcome::Saturated, Ending::Saturated),
+            Finish::Saturated | Finish::Blocked { .. } => (Outcome::Saturated, Ending::Saturated),
             Finish::Stopped { deadman: true } => {
                 (Outcome::Stopped, Ending::Stopped(StopReason::Deadman))
             }

@@ -558,6 +558,7 @@ pub struct Overall {
     mu: [f64; 2],
     mu_joints: usize,
     bend_sign: f64,
+    world: Option<crate::world::World>,
 }
 
 /// splitmix64: a tiny deterministic generator for the seeded cold starts.
@@ -789,6 +790,7 @@ impl Overall {
             mu: [0.0; 2],
             mu_joints: 0,
             bend_sign: 1.0,
+            world: None,
         }
     }
 
@@ -801,6 +803,16 @@ impl Overall {
     /// local solve.
     pub fn multiplier(&self) -> [f64; 2] {
         self.mu
+    }
+
+    /// Sets the obstacles every link keeps clear of (`None`: none).
+    pub fn set_world(&mut self, world: Option<crate::world::World>) {
+        self.world = world;
+    }
+
+    /// The obstacles every link keeps clear of, if any.
+    pub fn world(&self) -> Option<&crate::world::World> {
+        self.world.as_ref()
     }
 
     /// Forgets the warm-start multiplier and the tie-break history.
