@@ -53,7 +53,7 @@ use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
 use crate::resolve::overall::{Overall, OverallOptions};
 use crate::resolve::sequential::Sequential;
 use crate::resolve::{verdict, Resolver, Strategy};
-use crate::world::World;
+use crate::world::{RouteEnd, RouteError, World};
 
 pub use crate::motion::{Activity, Finish, JOINT_ACCEL_TIME_S};
 
@@ -70,6 +70,24 @@ pub const MAX_DT_S: f64 = 1.0;
 /// Margin under the exact ratio when a step is shortened, so that the re-solved step usually
 /// fits at once despite the nonlinearity.
 const SHORTEN_MARGIN: f64 = 0.98;
+
+/// Round-off a pose's clearance may lose against its floor, m: a pose whose every link keeps
+/// its floor within this counts as keeping it (a solver's constraint met to round-off).
+pub const CLEARANCE_ROUNDOFF_M: f64 = 1e-9;
+
+/// Headway of a goto or path among obstacles: the tip must advance at least this far (or half
+/// what its cruise speed covers in [`HEADWAY_S`], if less) within [`HEADWAY_S`], m...
+pub const HEADWAY_M: f64 = 1e-3;
+
+/// ...or the command ends [`Finish::Blocked`], s.
+pub const HEADWAY_S: f64 = 0.5;
+
+/// The poses of a joint move's way checked against the world are this close, m: no point of
+/// the arm moves farther between two of them.
+pub const JOINT_WAY_STEP_M: f64 = 1e-3;
+
+/// Most poses of a joint move's way checked against the world.
+const MAX_JOINT_WAY_SAMPLES: usize = 20_000;
 
 /// Relative excess over the joint-speed bound that counts as round-off, not as a clamp (the
 /// goal is still put exactly on the bound).
@@ -249,6 +267,18 @@ pub enum Refused {
         /// The clearance to keep, m.
         keep_m: f64,
     },
+    /// A goto or path point no route reaches: the obstacles, grown by the link radius and the
+    /// clearance, close it off.
+    #[error("no route keeps the tip {needed_m} m clear of the obstacles: the {what} is closed off")]
+    NoRoute {
+        /// What it was ("target", "path point").
+        what: &'static str,
+        /// The distance the tip's route keeps from the obstacles, m.
+        needed_m: f64,
+    },
+    /// Joint resolutions that are not finite and not negative, or not one per joint.
+    #[error("joint resolutions must be one finite, non-negative angle per joint")]
+    BadResolution,
     /// A limit that is not a positive finite number.
     #[error("the limit {what} = {value} must be a positive, finite number")]
     BadLimit {
@@ -311,7 +341,7 @@ impl std::fmt::Display for NotClear {
 }
 
 /// A tick cut short to keep the clearance: the link held back and the obstacle.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Blocked {
     /// The link, 1-based from the base.
     pub link: usize,
@@ -373,6 +403,14 @@ pub struct Controller {
     guard: Guard,
     /// The obstacles every link keeps clear of.
     world: World,
+    /// Each joint's resolution, rad (empty: exact): goals sent as whole servo ticks are checked
+    /// rounded to it too.
+    quanta: Vec<f64>,
+    /// How far rounding to the resolutions can move any point of the arm, m: the overall
+    /// solver keeps this much beyond the clearance.
+    rounding_m: f64,
+    /// Headway of a goto or path among obstacles: where the tip was and how long ago.
+    anchor: Option<(Vec2, f64)>,
 }
 
 /// The self-collision check of candidate poses against the commanded one.
@@ -384,6 +422,13 @@ struct Guard {
     scratch: Vec<Vec2>,
     /// Two links of the commanded pose are in contact.
     tangled: bool,
+    /// Per link, the least clearance a new pose must keep (less round-off):
+    /// [`World::link_floors`] of the commanded pose.
+    floors: Vec<f64>,
+    /// The commanded pose keeps the world's clearance on every link.
+    clear: bool,
+    /// A pose rounded to the joints' resolutions.
+    rounded: Vec<f64>,
 }
 
 impl Guard {
@@ -393,16 +438,56 @@ impl Guard {
             now: vec![Vec2::zeros(); n + 1],
             scratch: vec![Vec2::zeros(); n + 1],
             tangled: false,
+            floors: vec![f64::NEG_INFINITY; n],
+            clear: true,
+            rounded: vec![0.0; n],
         };
-        g.commit(chain, theta);
+        g.commit(chain, &World::default(), theta);
         g
     }
 
     /// The commanded pose is now `theta`; returns its tip.
-    fn commit(&mut self, chain: &Chain, theta: &[f64]) -> Vec2 {
+    fn commit(&mut self, chain: &Chain, world: &World, theta: &[f64]) -> Vec2 {
         chain.points_into(theta, &mut self.now);
         self.tangled = Chain::self_intersects(&self.now).is_some();
+        if world.obstacles().is_empty() {
+            self.clear = true;
+        } else {
+            let keep = world.clearance_m();
+            world.link_floors(&self.now, keep, &mut self.floors);
+            self.clear = self.floors.iter().all(|&f| f >= keep);
+            for f in &mut self.floors {
+                *f -= CLEARANCE_ROUNDOFF_M;
+            }
+        }
         self.now[chain.len()]
+    }
+
+    /// The first link of `pose` (and, from a clear pose, of `pose` rounded to `quanta`) below
+    /// its floor, with the obstacle: a pose that would lose clearance.
+    fn obstacle(
+        &mut self,
+        chain: &Chain,
+        world: &World,
+        quanta: &[f64],
+        pose: &[f64],
+    ) -> Option<Blocked> {
+        if world.obstacles().is_empty() {
+            return None;
+        }
+        chain.points_into(pose, &mut self.scratch);
+        let mut hit = world.below_floors(&self.scratch, &self.floors);
+        if hit.is_none() && self.clear && !quanta.is_empty() {
+            for ((r, &t), &q) in self.rounded.iter_mut().zip(pose).zip(quanta) {
+                *r = if q > 0.0 { (t / q).round() * q } else { t };
+            }
+            chain.points_into(&self.rounded, &mut self.scratch);
+            hit = world.below_floors(&self.scratch, &self.floors);
+        }
+        hit.map(|p| Blocked {
+            link: p.link,
+            obstacle: p.obstacle,
+        })
     }
 
     /// The first pair of links that `pose` brings into contact and the commanded pose does not
@@ -479,6 +564,13 @@ fn check_speed(speed: Option<f64>, max: f64) -> Result<f64, Refused> {
     }
 }
 
+/// What a pose is checked against: itself (the guard) and the world.
+struct Checks<'a> {
+    guard: &'a mut Guard,
+    world: &'a World,
+    quanta: &'a [f64],
+}
+
 /// What one resolver attempt gave.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Verdict {
@@ -488,6 +580,8 @@ enum Verdict {
     Refused,
     /// Fine but for two links in contact.
     Collides,
+    /// Fine but for a link that would lose its clearance from an obstacle.
+    Blocked(Blocked),
 }
 
 /// One resolver attempt at `target` from `theta`, the answer in `out`. Returns whether it may
@@ -495,7 +589,7 @@ enum Verdict {
 fn attempt(
     resolver: &mut dyn Resolver,
     chain: &Chain,
-    guard: &mut Guard,
+    check: &mut Checks,
     theta: &[f64],
     target: Vec2,
     out: &mut [f64],
@@ -506,8 +600,10 @@ fn attempt(
     let outcome = resolver.solve(chain, theta, target, out);
     let v = if !(out.iter().all(|t| t.is_finite()) && verdict(chain, out, outcome).is_ok()) {
         Verdict::Refused
-    } else if guard.contact(chain, out).is_some() {
+    } else if check.guard.contact(chain, out).is_some() {
         Verdict::Collides
+    } else if let Some(b) = check.guard.obstacle(chain, check.world, check.quanta, out) {
+        Verdict::Blocked(b)
     } else {
         Verdict::Sendable
     };
@@ -566,6 +662,9 @@ impl Controller {
             trial: vec![0.0; n],
             guard,
             world: World::default(),
+            quanta: Vec::new(),
+            rounding_m: 0.0,
+            anchor: None,
         };
         // Size both resolvers' scratch now, so that even the first tick allocates nothing.
         let (theta, trial) = (c.theta.clone(), &mut c.trial);
@@ -583,11 +682,16 @@ impl Controller {
     /// touch: the move then stops short and ends [`Finish::Saturated`].
     pub fn command(&mut self, cmd: Command) -> Result<(), Refused> {
         let max_speed = self.limits.max_tip_speed_m_s;
+        let among = !self.world.obstacles().is_empty();
         match cmd {
             Command::Goto { target, speed } => {
                 let target = check_point(target, "target")?;
                 let speed = check_speed(speed, max_speed)?;
-                self.motion.goto(target, speed);
+                if among {
+                    self.route(&[target], "target", speed)?;
+                } else {
+                    self.motion.goto(target, speed);
+                }
             }
             Command::Path { points, speed } => {
                 if points.is_empty() {
@@ -597,7 +701,11 @@ impl Controller {
                     check_point(p, "path point")?;
                 }
                 let speed = check_speed(speed, max_speed)?;
-                self.motion.path(points, speed);
+                if among {
+                    self.route(&points, "path point", speed)?;
+                } else {
+                    self.motion.path(points, speed);
+                }
             }
             Command::Velocity { v } => {
                 let v = check_point(v, "velocity")?;
@@ -616,10 +724,98 @@ impl Controller {
             Command::GotoJoints { theta } => {
                 check_pose(&self.chain, &theta, "joint angle")?;
                 check_clear(&self.chain, &theta)?;
+                self.check_joint_way(&theta)?;
                 self.motion.joints(&theta);
             }
-            Command::Home => self.motion.joints(&self.home),
+            Command::Home => {
+                self.check_joint_way(&self.home)?;
+                self.motion.joints(&self.home);
+            }
             Command::Stop => self.motion.stop(),
+        }
+        self.anchor = None;
+        Ok(())
+    }
+
+    /// Among obstacles: the tip's route through `points` in turn from where it is, each leg the
+    /// shortest that keeps the tip clear ([`World::route`]), at rest at each point. A point
+    /// inside a grown obstacle is refused; so is one closed off. From a tip already too near
+    /// an obstacle (a world changed under it) the first leg is the straight line, which the
+    /// clearance check in each tick still guards.
+    fn route(&mut self, points: &[Vec2], what: &'static str, speed: f64) -> Result<(), Refused> {
+        let mut way = vec![self.tip];
+        let mut rest = vec![true];
+        let mut from = self.tip;
+        for &p in points {
+            match self.world.route(from, p) {
+                Ok(r) => {
+                    let n = r.waypoints.len();
+                    for (k, w) in r.waypoints.into_iter().enumerate().skip(1) {
+                        way.push(w);
+                        rest.push(k + 1 == n);
+                    }
+                }
+                Err(RouteError::Inside {
+                    end: RouteEnd::Start,
+                    ..
+                }) => {
+                    way.push(p);
+                    rest.push(true);
+                }
+                Err(RouteError::Inside {
+                    end: RouteEnd::Goal,
+                    id,
+                    needed_m,
+                    ..
+                }) => {
+                    return Err(Refused::InsideObstacle {
+                        what,
+                        x: p.x,
+                        y: p.y,
+                        obstacle: id,
+                        grown_m: needed_m,
+                    })
+                }
+                Err(RouteError::NoRoute { needed_m }) => {
+                    return Err(Refused::NoRoute { what, needed_m })
+                }
+                Err(_) => return Err(Refused::NotFinite { what }),
+            }
+            from = p;
+        }
+        self.motion.route(way, rest, speed);
+        Ok(())
+    }
+
+    /// Among obstacles: refuses a joint move whose straight way in joint space passes a pose
+    /// that would lose clearance (checked every [`JOINT_WAY_STEP_M`] of the arm's motion).
+    fn check_joint_way(&self, goal: &[f64]) -> Result<(), Refused> {
+        if self.world.obstacles().is_empty() || goal.len() != self.theta.len() {
+            return Ok(());
+        }
+        // No point moves farther than the sum of each joint's turn times what it carries.
+        let links = self.chain.links();
+        let sweep: f64 = (0..goal.len())
+            .map(|i| (goal[i] - self.theta[i]).abs() * links[i..].iter().sum::<f64>())
+            .sum();
+        let steps = ((sweep / JOINT_WAY_STEP_M).ceil() as usize).clamp(1, MAX_JOINT_WAY_SAMPLES);
+        let mut pose = self.theta.clone();
+        let mut points = self.chain.points(&pose);
+        for k in 1..=steps {
+            let f = k as f64 / steps as f64;
+            for ((x, &a), &b) in pose.iter_mut().zip(&self.theta).zip(goal) {
+                *x = a + f * (b - a);
+            }
+            self.chain.points_into(&pose, &mut points);
+            if let Some(p) = self.world.below_floors(&points, &self.guard.floors) {
+                return Err(Refused::NotClearOnTheWay {
+                    link: p.link,
+                    obstacle: p.id(&self.world).to_string(),
+                    fraction: f,
+                    clearance_m: p.clearance_m,
+                    keep_m: self.world.clearance_m(),
+                });
+            }
         }
         Ok(())
     }
@@ -651,7 +847,7 @@ impl Controller {
     pub fn reseed(&mut self, theta: &[f64]) -> Result<(), Refused> {
         check_pose(&self.chain, theta, "measured joint angle")?;
         self.theta.copy_from_slice(theta);
-        self.tip = self.guard.commit(&self.chain, theta);
+        self.tip = self.guard.commit(&self.chain, &self.world, theta);
         self.overall.reset();
         self.motion.hold_at(self.tip, &self.theta);
         Ok(())
@@ -700,15 +896,62 @@ impl Controller {
     /// Replaces the world, in force from the next tick. Returns what is wrong when the
     /// commanded pose is not clear of it: the arm then holds, and moves only where no link's
     /// clearance shrinks, until it is clear again.
+    ///
+    /// A command under way keeps its route, planned in the old world; every tick is still
+    /// checked against the new one. When the pose is not clear the command is stopped (it
+    /// decelerates as far as no link's clearance shrinks).
     pub fn set_world(&mut self, world: World) -> Option<NotClear> {
         self.world = world;
-        let o = if self.world.obstacles().is_empty() {
-            None
+        self.overall.set_world(self.solver_world());
+        self.guard.commit(&self.chain, &self.world, &self.theta);
+        let not_clear = self.not_clear();
+        if not_clear.is_some() && self.motion.activity() == Activity::Moving {
+            self.motion.stop();
+        }
+        not_clear
+    }
+
+    /// Each joint's resolution, rad (a servo's tick; 0 for exact), one per joint: the goal
+    /// pose rounded to it (what reaches the servos) must be clear as well, and the overall
+    /// solver keeps enough beyond the clearance that it is.
+    pub fn set_joint_resolution(&mut self, quanta: &[f64]) -> Result<(), Refused> {
+        if quanta.len() != self.chain.len() || !quanta.iter().all(|q| q.is_finite() && *q >= 0.0)
+        {
+            return Err(Refused::BadResolution);
+        }
+        let links = self.chain.links();
+        // Rounding turns joint i by at most q_i / 2, moving a point by at most that times the
+        // length it carries.
+        self.rounding_m = quanta
+            .iter()
+            .enumerate()
+            .map(|(i, q)| 0.5 * q * links[i..].iter().sum::<f64>())
+            .sum();
+        self.quanta = if quanta.iter().all(|&q| q == 0.0) {
+            Vec::new()
         } else {
-            Some(self.world.clone())
+            quanta.to_vec()
         };
-        self.overall.set_world(o);
-        self.not_clear()
+        self.overall.set_world(self.solver_world());
+        Ok(())
+    }
+
+    /// The world the overall solver keeps clear of: the clearance raised by what rounding to
+    /// the joints' resolutions can take away.
+    fn solver_world(&self) -> Option<World> {
+        if self.world.obstacles().is_empty() {
+            return None;
+        }
+        if self.rounding_m == 0.0 {
+            return Some(self.world.clone());
+        }
+        World::new(
+            self.world.link_radius_m(),
+            self.world.clearance_m() + self.rounding_m,
+            self.world.obstacles().to_vec(),
+        )
+        .ok()
+        .or_else(|| Some(self.world.clone()))
     }
 
     /// The link and obstacle of least clearance when the commanded pose is not clear.
@@ -763,15 +1006,32 @@ impl Controller {
             iterations: 0,
         };
         if !(dt > 0.0 && dt.is_finite()) {
+            t.min_clearance_m = self.world.clearance(&self.guard.now).map(|p| p.clearance_m);
             return t;
         }
         let dt = dt.min(MAX_DT_S);
         let from = self.tip;
         // The point the step reached, as the resolver was asked for it (exact on the line).
         let mut reached = from;
+        let mut pushed = false;
         match self.motion.step(dt) {
             Reference::Hold => self.cand.copy_from_slice(&self.theta),
             Reference::Tip(r) => {
+                // A tip velocity (or its stop) slides along an obstacle: the part of its step
+                // into it is removed.
+                let r = match self.motion.target() {
+                    None if !self.world.obstacles().is_empty() => {
+                        let g = self.world.route_radius_m() + self.world.route_margin_m();
+                        match self.world.push_out(r, g) {
+                            Some((q, _)) => {
+                                pushed = true;
+                                q
+                            }
+                            None => r,
+                        }
+                    }
+                    _ => r,
+                };
                 t.tip_ref = r;
                 reached = self.resolve_step(from, r, dt, &mut t);
             }
@@ -782,10 +1042,13 @@ impl Controller {
             }
         }
         t.clamped = self.clamp_joint_steps(dt);
-        let cut = self.keep_clear();
+        let (cut, cut_by) = self.keep_clear();
         if cut {
             t.saturated = true;
             t.self_collision = true;
+        }
+        if cut_by.is_some() {
+            t.blocked = cut_by;
         }
         // Commit.
         let mut peak: f64 = 0.0;
@@ -796,22 +1059,63 @@ impl Controller {
             m3 += d * d;
             *goal = c;
         }
-        self.tip = self.guard.commit(&self.chain, &self.theta);
-        if t.clamped || cut {
+        self.tip = self.guard.commit(&self.chain, &self.world, &self.theta);
+        if t.clamped || cut || cut_by.is_some() {
             reached = self.tip;
         }
         t.tip = self.tip;
         t.min_clearance_m = self.world.clearance(&self.guard.now).map(|p| p.clearance_m);
         t.peak_joint_speed_rad_s = peak / dt;
         t.m3_rad2 = m3;
+        let held = t.blocked.is_some();
         t.finished = self.motion.follow(Achieved {
             tip: reached,
             theta: &self.theta,
             dt,
-            exact: !(t.saturated || t.slowed || t.clamped),
-            saturated: t.saturated,
+            exact: !(t.saturated || t.slowed || t.clamped || held || pushed),
+            saturated: t.saturated || held,
         });
+        if let (Some(Finish::Saturated), Some(b)) = (t.finished, t.blocked) {
+            t.finished = Some(Finish::Blocked {
+                link: b.link,
+                obstacle: b.obstacle,
+            });
+        }
+        self.headway(dt, &mut t);
         t
+    }
+
+    /// Among obstacles, a goto or path whose tip advances less than [`HEADWAY_M`] (or half what
+    /// its cruise speed covers, if less) in [`HEADWAY_S`] ends [`Finish::Blocked`], naming the
+    /// link that held it back or else the pair of least clearance.
+    fn headway(&mut self, dt: f64, t: &mut Tick) {
+        let speed = match self.motion.cruise_speed() {
+            Some(s) if t.finished.is_none() && !self.world.obstacles().is_empty() => s,
+            _ => {
+                self.anchor = None;
+                return;
+            }
+        };
+        let need = HEADWAY_M.min(0.5 * speed * HEADWAY_S);
+        let Some((at, since)) = self.anchor else {
+            self.anchor = Some((self.tip, 0.0));
+            return;
+        };
+        if (self.tip - at).norm() >= need {
+            self.anchor = Some((self.tip, 0.0));
+        } else if since + dt < HEADWAY_S {
+            self.anchor = Some((at, since + dt));
+        } else {
+            let nearest = self.world.clearance(&self.guard.now);
+            let (link, obstacle) = match (t.blocked, nearest) {
+                (Some(b), _) => (b.link, b.obstacle),
+                (None, Some(p)) => (p.link, p.obstacle),
+                (None, None) => (self.chain.len(), 0),
+            };
+            self.motion.hold_at(self.tip, &self.theta);
+            t.finished = Some(Finish::Blocked { link, obstacle });
+            self.anchor = None;
+        }
     }
 
     /// Resolves the tip step `from -> r` into `self.cand`: bisected when out of reach, shortened
@@ -827,27 +1131,41 @@ impl Controller {
             trial,
             limits,
             guard,
+            world,
+            quanta,
             ..
         } = self;
+        let mut check = Checks {
+            guard,
+            world,
+            quanta,
+        };
         let resolver: &mut dyn Resolver = match strategy {
             Strategy::Overall => overall,
             Strategy::Sequential => sequential,
         };
-        let (v, its) = attempt(resolver, chain, guard, theta, r, trial);
+        let (v, its) = attempt(resolver, chain, &mut check, theta, r, trial);
         t.iterations += its;
         t.self_collision |= v == Verdict::Collides;
         let mut reached = r;
         if v == Verdict::Sendable {
             cand.copy_from_slice(trial);
         } else {
-            t.saturated = true;
+            // Held back by an obstacle alone is `blocked`; anything else is `saturated`.
+            match v {
+                Verdict::Blocked(b) => t.blocked = Some(b),
+                _ => t.saturated = true,
+            }
             let (mut lo, mut hi) = (0.0, 1.0);
             for _ in 0..BISECTION_ROUNDS {
                 let mid = 0.5 * (lo + hi);
                 let target = from + (r - from) * mid;
-                let (v, its) = attempt(resolver, chain, guard, theta, target, trial);
+                let (v, its) = attempt(resolver, chain, &mut check, theta, target, trial);
                 t.iterations += its;
                 t.self_collision |= v == Verdict::Collides;
+                if let (Verdict::Blocked(b), None) = (v, t.blocked) {
+                    t.blocked = Some(b);
+                }
                 if v == Verdict::Sendable {
                     lo = mid;
                     cand.copy_from_slice(trial);
@@ -870,7 +1188,7 @@ impl Controller {
             }
             t.slowed = true;
             let shorter = from + (reached - from) * (SHORTEN_MARGIN * bound / m);
-            let (v, its) = attempt(resolver, chain, guard, theta, shorter, trial);
+            let (v, its) = attempt(resolver, chain, &mut check, theta, shorter, trial);
             t.iterations += its;
             if v != Verdict::Sendable {
                 break;
@@ -908,14 +1226,22 @@ impl Controller {
         clamped
     }
 
-    /// The last check: if the pose `cand` brings two links into contact, it is moved back
-    /// along the joint step `theta -> cand` to the farthest fraction found clear by
-    /// [`BISECTION_ROUNDS`] rounds of bisection (the commanded pose itself at worst). A
-    /// fraction of the step keeps within the joint-speed bound and the limits. Returns whether
-    /// it had to.
-    fn keep_clear(&mut self) -> bool {
-        if self.guard.contact(&self.chain, &self.cand).is_none() {
-            return false;
+    /// The last check: if the pose `cand` brings two links into contact, or a link below its
+    /// floor near an obstacle, it is moved back along the joint step `theta -> cand` to the
+    /// farthest fraction found clear by [`BISECTION_ROUNDS`] rounds of bisection (the
+    /// commanded pose itself at worst). A fraction of the step keeps within the joint-speed
+    /// bound and the limits. Returns whether it had to for a contact of links, and the link and
+    /// obstacle when a link would have lost clearance.
+    fn keep_clear(&mut self) -> (bool, Option<Blocked>) {
+        let touches = self.guard.contact(&self.chain, &self.cand).is_some();
+        let blocked = if touches {
+            None
+        } else {
+            self.guard
+                .obstacle(&self.chain, &self.world, &self.quanta, &self.cand)
+        };
+        if !touches && blocked.is_none() {
+            return (false, None);
         }
         let (mut lo, mut hi) = (0.0, 1.0);
         for _ in 0..BISECTION_ROUNDS {
@@ -923,7 +1249,12 @@ impl Controller {
             for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {
                 *x = t + mid * (c - t);
             }
-            if self.guard.contact(&self.chain, &self.trial).is_none() {
+            let ok = self.guard.contact(&self.chain, &self.trial).is_none()
+                && self
+                    .guard
+                    .obstacle(&self.chain, &self.world, &self.quanta, &self.trial)
+                    .is_none();
+            if ok {
                 lo = mid;
             } else {
                 hi = mid;
@@ -940,7 +1271,7 @@ impl Controller {
                 *c = l.clamp(*c);
             }
         }
-        true
+        (touches, blocked)
     }
 }
 

@@ -245,6 +245,8 @@ impl Axis {
 enum Pending {
     /// A path corner, at rest: on to the next one.
     Corner,
+    /// A route's stop, at rest: on to the next leg.
+    Leg,
     /// The command ends.
     Finish(Finish),
 }
@@ -267,6 +269,12 @@ enum Mode {
     /// Toward `points[next]`, stopping at each corner.
     Path {
         next: usize,
+        speed: f64,
+    },
+    /// Along the polyline `path` by arc length `s`: on segment `seg`, toward the stop `end`.
+    Route {
+        seg: usize,
+        end: usize,
         speed: f64,
     },
     Velocity {
@@ -298,6 +306,14 @@ pub struct Motion {
     /// The joint reference as angles (what [`Motion::joint_reference`] returns).
     q: Vec<f64>,
     path: Vec<Vec2>,
+    /// A route: whether the tip comes to rest at each point of `path`.
+    rest: Vec<bool>,
+    /// A route: arc length from its start to each point of `path`, m.
+    cum: Vec<f64>,
+    /// A route: the arc length reached and its rate.
+    s: Axis,
+    /// `s` before this tick's step.
+    s_before: Axis,
     /// Time since the velocity or jog was last renewed, s.
     since_renewal: f64,
     /// Where this tick's reference leads, if the arm achieves it.
@@ -329,6 +345,10 @@ impl Motion {
             share: vec![0.0; n],
             q: vec![0.0; n],
             path: Vec::new(),
+            rest: Vec::new(),
+            cum: Vec::new(),
+            s: Axis { q: 0.0, v: 0.0 },
+            s_before: Axis { q: 0.0, v: 0.0 },
             since_renewal: 0.0,
             pending: None,
             prior: theta.to_vec(),
@@ -379,6 +399,75 @@ impl Motion {
         self.path = points;
         let speed = speed.min(self.limits.tip_speed);
         self.start(Mode::Path { next: 0, speed });
+    }
+
+    /// Along the polyline `points` (moved in; the first is where the tip starts), at `speed`
+    /// along the way, coming to rest at each point whose `rest` flag is set and at the last.
+    /// One trapezoid of speed runs along the arc length of each stretch between rests, so the
+    /// tip does not slow at the polyline's other corners: for a route around obstacles, whose
+    /// corners turn by small angles. A moving tip keeps the part of its velocity along the
+    /// first segment.
+    pub fn route(&mut self, mut points: Vec<Vec2>, mut rest: Vec<bool>, speed: f64) {
+        if points.is_empty() || rest.len() != points.len() {
+            return;
+        }
+        // Merge repeated points, keeping a rest where either had one.
+        let mut kept = 0;
+        for k in 1..points.len() {
+            if (points[k] - points[kept]).norm() <= PATH_MERGE_M {
+                rest[kept] |= rest[k];
+            } else {
+                kept += 1;
+                points[kept] = points[k];
+                rest[kept] = rest[k];
+            }
+        }
+        points.truncate(kept + 1);
+        rest.truncate(kept + 1);
+        if let Some(last) = rest.last_mut() {
+            *last = true;
+        }
+        self.cum.clear();
+        let mut total = 0.0;
+        for k in 0..points.len() {
+            if k > 0 {
+                total += (points[k] - points[k - 1]).norm();
+            }
+            self.cum.push(total);
+        }
+        let along = match points.get(1) {
+            Some(&p1) if self.cum[1] > 0.0 => self.tip.v.dot(&((p1 - points[0]) / self.cum[1])),
+            _ => 0.0,
+        };
+        self.s = Axis {
+            q: 0.0,
+            v: along.max(0.0),
+        };
+        let end = (1..points.len()).find(|&k| rest[k]).unwrap_or(0);
+        self.path = points;
+        self.rest = rest;
+        let speed = speed.min(self.limits.tip_speed);
+        self.start(Mode::Route { seg: 0, end, speed });
+    }
+
+    /// The point at arc length `s` of the route and the unit tangent there, searching forward
+    /// from segment `seg` (updated) but not past `end`.
+    fn route_point(&self, seg: &mut usize, end: usize, s: f64) -> (Vec2, Vec2) {
+        while *seg + 1 < end && s > self.cum[*seg + 1] {
+            *seg += 1;
+        }
+        while *seg > 0 && s < self.cum[*seg] {
+            *seg -= 1;
+        }
+        let (Some(&a), Some(&b)) = (self.path.get(*seg), self.path.get(*seg + 1)) else {
+            return (self.tip.p, Vec2::zeros());
+        };
+        let len = self.cum[*seg + 1] - self.cum[*seg];
+        if len <= 0.0 {
+            return (b, Vec2::zeros());
+        }
+        let dir = (b - a) / len;
+        (a + dir * (s - self.cum[*seg]).clamp(0.0, len), dir)
     }
 
     /// A tip velocity (its magnitude clamped to the tip speed limit) for the deadman time.
@@ -460,7 +549,17 @@ impl Motion {
     pub fn target(&self) -> Option<Vec2> {
         match self.mode {
             Mode::Goto { target, .. } => Some(target),
-            Mode::Path { .. } => self.path.last().copied(),
+            Mode::Path { .. } | Mode::Route { .. } => self.path.last().copied(),
+            _ => None,
+        }
+    }
+
+    /// The cruise speed of a goto, path or route, m/s.
+    pub fn cruise_speed(&self) -> Option<f64> {
+        match self.mode {
+            Mode::Goto { speed, .. } | Mode::Path { speed, .. } | Mode::Route { speed, .. } => {
+                Some(speed)
+            }
             _ => None,
         }
     }
@@ -480,6 +579,7 @@ impl Motion {
         match self.mode {
             Mode::Goto { target, .. } => Some(target),
             Mode::Path { next, .. } => self.path.get(next).copied(),
+            Mode::Route { end, .. } => self.path.get(end).copied(),
             _ => None,
         }
     }
@@ -489,6 +589,7 @@ impl Motion {
         let lim = self.limits;
         self.pending = None;
         self.before = self.tip;
+        self.s_before = self.s;
         for (p, a) in self.prior.iter_mut().zip(&self.axes) {
             *p = a.q;
         }
@@ -520,6 +621,30 @@ impl Motion {
                         Pending::Finish(Finish::Arrived)
                     });
                 }
+                Reference::Tip(self.tip.p)
+            }
+            Mode::Route {
+                mut seg,
+                end,
+                speed,
+            } => {
+                let goal = self.cum.get(end).copied().unwrap_or(self.s.q);
+                let arrived = self.s.approach(goal, speed, lim.tip_accel, dt);
+                let (p, dir) = self.route_point(&mut seg, end, self.s.q);
+                self.tip.p = if arrived {
+                    self.path.get(end).copied().unwrap_or(p)
+                } else {
+                    p
+                };
+                self.tip.v = dir * self.s.v;
+                if arrived {
+                    self.pending = Some(if end + 1 < self.path.len() {
+                        Pending::Leg
+                    } else {
+                        Pending::Finish(Finish::Arrived)
+                    });
+                }
+                self.mode = Mode::Route { seg, end, speed };
                 Reference::Tip(self.tip.p)
             }
             Mode::Velocity { v } => {
@@ -658,9 +783,23 @@ impl Motion {
                 a.q = t;
             }
         }
+        // A route's arc length follows the tip along its segment.
+        if let Mode::Route { mut seg, end, speed } = self.mode {
+            if !got.exact {
+                let (_, dir) = self.route_point(&mut seg, end, self.s_before.q);
+                let along = (got.tip - self.before.p).dot(&dir).max(0.0);
+                let goal = self.cum.get(end).copied().unwrap_or(self.s_before.q);
+                self.s.q = (self.s_before.q + along).min(goal);
+                self.s.v = along / dt;
+                let (_, _) = self.route_point(&mut seg, end, self.s.q);
+                self.mode = Mode::Route { seg, end, speed };
+            }
+        }
         // A goto, path or joint move whose reference cannot be met and that cannot get closer
         // gives up.
+        let route = matches!(self.mode, Mode::Route { .. });
         let stalled = match (got.saturated, self.tip_goal()) {
+            (true, Some(_)) if route => Some(self.s.q - self.s_before.q <= 0.25 * asked),
             (true, Some(goal)) => {
                 let progress = (goal - self.before.p).norm() - (goal - got.tip).norm();
                 Some(progress <= 0.25 * asked)
@@ -685,6 +824,23 @@ impl Motion {
                 if let Mode::Path { next, speed } = self.mode {
                     self.mode = Mode::Path {
                         next: next + 1,
+                        speed,
+                    };
+                }
+                None
+            }
+            Pending::Leg => {
+                if let Mode::Route { end, speed, .. } = self.mode {
+                    let next = (end + 1..self.path.len())
+                        .find(|&k| self.rest.get(k).copied().unwrap_or(true))
+                        .unwrap_or(end);
+                    self.s = Axis {
+                        q: self.cum.get(end).copied().unwrap_or(self.s.q),
+                        v: 0.0,
+                    };
+                    self.mode = Mode::Route {
+                        seg: end,
+                        end: next,
                         speed,
                     };
                 }

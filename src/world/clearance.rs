@@ -177,6 +177,40 @@ impl World {
         self.clearance(&chain.points(theta))
     }
 
+    /// Per link, the floor a new pose must keep: `min(keep_m, link's clearance in points)` into
+    /// `out[link - 1]`, with `keep_m` for a link far from every obstacle (so a clear pose must
+    /// stay clear, and a link not clear may only get clearer). Allocation-free.
+    pub fn link_floors(&self, points: &[Vec2], keep_m: f64, out: &mut [f64]) {
+        for (link, floor) in (1..points.len()).zip(out.iter_mut()) {
+            *floor = keep_m;
+            let (lo, hi) = segment_box(points[link - 1], points[link]);
+            for k in 0..self.obstacles.len() {
+                if self.box_gap(k, lo, hi) - self.link_radius_m >= *floor {
+                    continue;
+                }
+                *floor = floor.min(self.pair(points, link, k).clearance_m);
+            }
+        }
+    }
+
+    /// The first pair of the pose `points` whose clearance is below its link's floor
+    /// (`floors[link - 1]`, see [`World::link_floors`]), or `None`. Allocation-free.
+    pub fn below_floors(&self, points: &[Vec2], floors: &[f64]) -> Option<Pair> {
+        for (link, &floor) in (1..points.len()).zip(floors) {
+            let (lo, hi) = segment_box(points[link - 1], points[link]);
+            for k in 0..self.obstacles.len() {
+                if self.box_gap(k, lo, hi) - self.link_radius_m >= floor {
+                    continue;
+                }
+                let p = self.pair(points, link, k);
+                if p.clearance_m < floor {
+                    return Some(p);
+                }
+            }
+        }
+        None
+    }
+
     /// Fills `out` with every pair of the pose `points` (`p_0..p_n`) whose clearance is at most
     /// `margin_m`, each with its gradient (see the module doc). Allocation-free once `out` has
     /// held as many pairs.

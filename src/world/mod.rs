@@ -466,6 +466,55 @@ impl World {
         best
     }
 
+    /// Moves the point `p` out to at least `radius_m` from every obstacle, each time along the
+    /// nearest one's outward normal (a few rounds, for a point between two); returns the point
+    /// and the last obstacle that pushed it, or `None` when `p` was already that far from all.
+    /// What a tip velocity slides along: the part of its step into an obstacle is removed.
+    pub fn push_out(&self, p: Vec2, radius_m: f64) -> Option<(Vec2, usize)> {
+        const ROUNDS: usize = 4;
+        let mut q = p;
+        let mut pushed = None;
+        for _ in 0..ROUNDS {
+            let Some((d, k)) = self.point_distance(q) else {
+                break;
+            };
+            if d >= radius_m {
+                break;
+            }
+            let normal = match &self.obstacles[k].shape {
+                Shape::Circle { center, .. } => {
+                    let e = q - center;
+                    let n = e.norm();
+                    if n > 0.0 {
+                        e / n
+                    } else {
+                        Vec2::new(1.0, 0.0)
+                    }
+                }
+                Shape::Polygon { points } => {
+                    let (_, b, edge) = geometry::boundary_nearest(q, points);
+                    let e = q - b;
+                    let n = e.norm();
+                    if n > 0.0 && d > 0.0 {
+                        e / n
+                    } else if n > 0.0 {
+                        -e / n
+                    } else {
+                        // On the boundary: the edge's outward normal.
+                        let m = points.len();
+                        let t = points[(edge + 1) % m] - points[edge];
+                        let sense = if geometry::twice_area(points) > 0.0 { 1.0 } else { -1.0 };
+                        Vec2::new(t.y, -t.x).normalize() * sense
+                    }
+                }
+            };
+            // Signed distance grows at unit rate along the normal, outside and (nearly) inside.
+            q += normal * (radius_m - d) * (1.0 + 1e-9);
+            pushed = Some((q, k));
+        }
+        pushed
+    }
+
     /// A lower bound of the distance from the box `lo..hi` to obstacle `k`'s box.
     fn box_gap(&self, k: usize, lo: Vec2, hi: Vec2) -> f64 {
         let (blo, bhi) = self.bounds[k];
