@@ -269,7 +269,9 @@ pub enum Refused {
     },
     /// A goto or path point no route reaches: the obstacles, grown by the link radius and the
     /// clearance, close it off.
-    #[error("no route keeps the tip {needed_m} m clear of the obstacles: the {what} is closed off")]
+    #[error(
+        "no route keeps the tip {needed_m} m clear of the obstacles: the {what} is closed off"
+    )]
     NoRoute {
         /// What it was ("target", "path point").
         what: &'static str,
@@ -915,8 +917,7 @@ impl Controller {
     /// pose rounded to it (what reaches the servos) must be clear as well, and the overall
     /// solver keeps enough beyond the clearance that it is.
     pub fn set_joint_resolution(&mut self, quanta: &[f64]) -> Result<(), Refused> {
-        if quanta.len() != self.chain.len() || !quanta.iter().all(|q| q.is_finite() && *q >= 0.0)
-        {
+        if quanta.len() != self.chain.len() || !quanta.iter().all(|q| q.is_finite() && *q >= 0.0) {
             return Err(Refused::BadResolution);
         }
         let links = self.chain.links();
@@ -1277,3 +1278,5 @@ impl Controller {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod world_tests;

@@ -784,7 +784,12 @@ impl Motion {
             }
         }
         // A route's arc length follows the tip along its segment.
-        if let Mode::Route { mut seg, end, speed } = self.mode {
+        if let Mode::Route {
+            mut seg,
+            end,
+            speed,
+        } = self.mode
+        {
             if !got.exact {
                 let (_, dir) = self.route_point(&mut seg, end, self.s_before.q);
                 let along = (got.tip - self.before.p).dot(&dir).max(0.0);

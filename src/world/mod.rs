@@ -503,7 +503,11 @@ impl World {
                         // On the boundary: the edge's outward normal.
                         let m = points.len();
                         let t = points[(edge + 1) % m] - points[edge];
-                        let sense = if geometry::twice_area(points) > 0.0 { 1.0 } else { -1.0 };
+                        let sense = if geometry::twice_area(points) > 0.0 {
+                            1.0
+                        } else {
+                            -1.0
+                        };
                         Vec2::new(t.y, -t.x).normalize() * sense
                     }
                 }

@@ -1,0 +1,403 @@
+//! Tests of the controller among obstacles, on the daemon's arm (12 links of 0.08 m, limits
+//! +-2 rad, base at the origin heading up, home 0.1 rad at every joint: the tip at about
+//! (-0.547, 0.720)). Every clearance is checked with this file's own exact distance, not the
+//! world module's.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::f64::consts::{FRAC_PI_2, PI};
+
+use super::*;
+use crate::chain::JointLimit;
+use crate::world::{Obstacle, Shape};
+
+const N: usize = 12;
+const LINK_RADIUS: f64 = 0.01;
+const KEEP: f64 = 0.005;
+/// What this file's distance and the world's may differ by (both exact, up to round-off).
+const TOL: f64 = 1e-9;
+
+fn chain() -> Chain {
+    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
+    Chain::new(vec![0.08; N], Vec2::zeros(), FRAC_PI_2, vec![lim; N]).unwrap()
+}
+
+fn limits() -> Limits {
+    Limits {
+        max_tip_speed_m_s: 0.1,
+        max_tip_accel_m_s2: 0.5,
+        max_joint_speed_rad_s: 2.0,
+        deadman_s: 0.5,
+    }
+}
+
+fn home() -> Vec<f64> {
+    vec![0.1; N]
+}
+
+fn controller(strategy: Strategy, theta: &[f64]) -> Controller {
+    Controller::new(chain(), limits(), strategy, home(), theta).unwrap()
+}
+
+fn circle(id: &str, x: f64, y: f64, r: f64) -> Obstacle {
+    Obstacle {
+        id: id.into(),
+        shape: Shape::Circle {
+            center: Vec2::new(x, y),
+            radius_m: r,
+        },
+    }
+}
+
+fn rect(id: &str, x0: f64, y0: f64, x1: f64, y1: f64) -> Obstacle {
+    Obstacle {
+        id: id.into(),
+        shape: Shape::Polygon {
+            points: vec![
+                Vec2::new(x0, y0),
+                Vec2::new(x1, y0),
+                Vec2::new(x1, y1),
+                Vec2::new(x0, y1),
+            ],
+        },
+    }
+}
+
+fn world(obstacles: Vec<Obstacle>) -> World {
+    World::new(LINK_RADIUS, KEEP, obstacles).unwrap()
+}
+
+/// Distance from `p` to the segment `a..b`.
+fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> f64 {
+    let d = b - a;
+    let t = if d.norm_squared() > 0.0 {
+        ((p - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + d * t)).norm()
+}
+
+/// Whether the segments `a..b` and `c..d` cross or touch.
+fn segments_meet(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> bool {
+    let orient = |p: Vec2, q: Vec2, r: Vec2| (q - p).perp(&(r - p));
+    let (d1, d2) = (orient(c, d, a), orient(c, d, b));
+    let (d3, d4) = (orient(a, b, c), orient(a, b, d));
+    d1 * d2 <= 0.0 && d3 * d4 <= 0.0
+}
+
+/// Even-odd inside test.
+fn inside(p: Vec2, poly: &[Vec2]) -> bool {
+    let mut odd = false;
+    for k in 0..poly.len() {
+        let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
+        if (a.y > p.y) != (b.y > p.y) && p.x < a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) {
+            odd = !odd;
+        }
+    }
+    odd
+}
+
+/// The unsigned distance from the segment `a..b` to an obstacle (0 when they meet).
+fn segment_distance(a: Vec2, b: Vec2, shape: &Shape) -> f64 {
+    match shape {
+        Shape::Circle { center, radius_m } => (point_segment(*center, a, b) - radius_m).max(0.0),
+        Shape::Polygon { points } => {
+            if inside(a, points) || inside(b, points) {
+                return 0.0;
+            }
+            let mut best = f64::INFINITY;
+            for k in 0..points.len() {
+                let (c, d) = (points[k], points[(k + 1) % points.len()]);
+                if segments_meet(a, b, c, d) {
+                    return 0.0;
+                }
+                best = best
+                    .min(point_segment(a, c, d))
+                    .min(point_segment(b, c, d))
+                    .min(point_segment(c, a, b))
+                    .min(point_segment(d, a, b));
+            }
+            best
+        }
+    }
+}
+
+/// The least clearance of the pose `theta`: every link against every obstacle, less the link
+/// radius.
+fn clearance(w: &World, theta: &[f64]) -> f64 {
+    let p = chain().points(theta);
+    let mut least = f64::INFINITY;
+    for link in 1..p.len() {
+        for o in w.obstacles() {
+            least = least.min(segment_distance(p[link - 1], p[link], &o.shape) - LINK_RADIUS);
+        }
+    }
+    least
+}
+
+/// Ticks of 10 ms until the command finishes (at most `max`), checking every goal pose's
+/// clearance; returns the finish and the least clearance seen.
+fn run_clear(c: &mut Controller, max: usize) -> (Option<Finish>, f64) {
+    let w = c.world().clone();
+    let mut least = f64::INFINITY;
+    for _ in 0..max {
+        let t = c.tick(0.01);
+        let now = clearance(&w, c.theta());
+        least = least.min(now);
+        assert!(now >= KEEP - TOL, "a goal pose {now} m from an obstacle");
+        let reported = t.min_clearance_m.unwrap();
+        assert!((reported - now).abs() < 1e-9, "{reported} vs {now}");
+        if t.finished.is_some() {
+            return (t.finished, least);
+        }
+    }
+    (None, least)
+}
+
+#[test]
+fn a_goto_behind_a_post_goes_round_it_and_every_goal_is_clear() {
+    let tip = chain().tip(&home());
+    let target = tip + Vec2::new(0.0, -0.2);
+    let w = world(vec![circle("post", tip.x, tip.y - 0.1, 0.03)]);
+    for strategy in [Strategy::Sequential, Strategy::Overall] {
+        let mut c = controller(strategy, &home());
+        assert!(c.set_world(w.clone()).is_none());
+        c.command(Command::Goto {
+            target,
+            speed: None,
+        })
+        .unwrap();
+        let (finish, least) = run_clear(&mut c, 3000);
+        match strategy {
+            Strategy::Overall => {
+                assert_eq!(finish, Some(Finish::Arrived), "{strategy:?}");
+                assert!((c.tip() - target).norm() < 1e-9, "{:?}", c.tip());
+            }
+            // The tractrix body trails the tip and may catch: then it holds, clear.
+            Strategy::Sequential => assert!(
+                matches!(finish, Some(Finish::Arrived | Finish::Blocked { .. })),
+                "{finish:?}"
+            ),
+        }
+        assert!(least >= KEEP - TOL);
+    }
+}
+
+#[test]
+fn a_target_where_the_tip_can_never_be_clear_is_refused_naming_the_obstacle() {
+    let tip = chain().tip(&home());
+    let mut c = controller(Strategy::Overall, &home());
+    c.set_world(world(vec![circle("post", tip.x, tip.y - 0.1, 0.03)]));
+    // 0.035 from the post's centre: within its radius plus the link radius and clearance.
+    let err = c
+        .command(Command::Goto {
+            target: Vec2::new(tip.x + 0.035, tip.y - 0.1),
+            speed: None,
+        })
+        .unwrap_err();
+    assert!(
+        matches!(&err, Refused::InsideObstacle { obstacle, .. } if obstacle == "post"),
+        "{err:?}"
+    );
+    assert!(err.to_string().contains("\"post\""), "{err}");
+    let err = c
+        .command(Command::Path {
+            points: vec![tip + Vec2::new(0.05, 0.0), Vec2::new(tip.x, tip.y - 0.1)],
+            speed: None,
+        })
+        .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            Refused::InsideObstacle {
+                what: "path point",
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    assert_eq!(c.activity(), Activity::Holding);
+}
+
+#[test]
+fn a_velocity_into_a_wall_slides_along_it() {
+    let tip = chain().tip(&home());
+    // A wall 0.12 under the tip; the velocity points down and to the left.
+    let top = tip.y - 0.12;
+    let w = world(vec![rect("wall", -1.0, top - 0.02, tip.x + 0.1, top)]);
+    for strategy in [Strategy::Sequential, Strategy::Overall] {
+        let mut c = controller(strategy, &home());
+        c.set_world(w.clone());
+        let v = Vec2::new(-0.03, -0.06);
+        let (mut slid, mut held) = (false, false);
+        for k in 0..400 {
+            if k % 20 == 0 {
+                c.command(Command::Velocity { v }).unwrap();
+            }
+            let t = c.tick(0.01);
+            assert!(clearance(&w, c.theta()) >= KEEP - TOL);
+            let gap = c.tip().y - top;
+            assert!(
+                gap >= w.route_radius_m() - TOL,
+                "{strategy:?} tick {k}: the tip {gap} m above the wall"
+            );
+            slid |= gap < 0.02 && c.tip().x < tip.x - 0.1;
+            held = t.blocked.is_some();
+        }
+        match strategy {
+            // The whole body keeps clear: the tip slides on.
+            Strategy::Overall => assert!(slid, "the tip ended at {:?}", c.tip()),
+            // The tractrix body trails the tip and may catch: then the tick says so.
+            Strategy::Sequential => assert!(slid || held, "the tip ended at {:?}", c.tip()),
+        }
+    }
+}
+
+#[test]
+fn an_obstacle_put_onto_the_arm_holds_it_and_no_link_gets_closer() {
+    let p = chain().points(&home());
+    let mid = (p[5] + p[6]) * 0.5;
+    let w = world(vec![circle("box", mid.x, mid.y, 0.02)]);
+    let mut c = controller(Strategy::Overall, &home());
+    c.command(Command::Velocity {
+        v: Vec2::new(0.05, 0.0),
+    })
+    .unwrap();
+    for _ in 0..10 {
+        c.tick(0.01);
+    }
+    let nc = c.set_world(w.clone()).expect("the arm is not clear");
+    assert_eq!((nc.link, nc.obstacle.as_str()), (6, "box"));
+    assert!(nc.clearance_m < 0.0, "{}", nc.clearance_m);
+    // Per link, its clearance to the box may grow but never shrink.
+    let link_clearance = |theta: &[f64]| -> Vec<f64> {
+        let q = chain().points(theta);
+        (1..q.len())
+            .map(|l| segment_distance(q[l - 1], q[l], &w.obstacles()[0].shape) - LINK_RADIUS)
+            .collect()
+    };
+    let mut before = link_clearance(c.theta());
+    for k in 0..300 {
+        if k % 20 == 0 {
+            let _ = c.command(Command::Velocity {
+                v: Vec2::new(-0.05, -0.05),
+            });
+        }
+        c.tick(0.01);
+        let now = link_clearance(c.theta());
+        for (l, (a, b)) in before.iter().zip(&now).enumerate() {
+            assert!(
+                *b >= a.min(KEEP) - 1e-6,
+                "tick {k}: link {} from {a} to {b}",
+                l + 1
+            );
+        }
+        before = now;
+    }
+}
+
+#[test]
+fn a_joint_move_through_an_obstacle_is_refused_naming_link_and_how_far() {
+    let straight = vec![0.0; N];
+    // A post where the tip passes halfway home.
+    let halfway: Vec<f64> = home().iter().map(|h| 0.5 * h).collect();
+    let at = chain().tip(&halfway);
+    let w = world(vec![circle("post", at.x, at.y, 0.02)]);
+    assert!(clearance(&w, &straight) > KEEP && clearance(&w, &home()) > KEEP);
+    let mut c = controller(Strategy::Overall, &straight);
+    assert!(c.set_world(w).is_none());
+    let err = c.command(Command::Home).unwrap_err();
+    let Refused::NotClearOnTheWay {
+        link,
+        ref obstacle,
+        fraction,
+        ..
+    } = err
+    else {
+        panic!("{err:?}");
+    };
+    assert_eq!((link, obstacle.as_str()), (N, "post"));
+    assert!(fraction > 0.2 && fraction < 0.5, "{fraction}");
+    assert!(err.to_string().contains("of the way"), "{err}");
+    assert!(c
+        .command(Command::GotoJoints {
+            theta: home().to_vec()
+        })
+        .is_err());
+    // The same move with the post out of the way is taken.
+    c.set_world(world(vec![circle("post", 2.0, 2.0, 0.02)]));
+    c.command(Command::Home).unwrap();
+}
+
+#[test]
+fn goals_rounded_to_the_servos_resolution_stay_clear() {
+    let tip = chain().tip(&home());
+    let q = 2.0 * PI / 4096.0;
+    let top = tip.y - 0.12;
+    let w = world(vec![rect("wall", -1.0, top - 0.02, tip.x + 0.1, top)]);
+    let mut c = controller(Strategy::Overall, &home());
+    c.set_joint_resolution(&[q; N]).unwrap();
+    c.set_world(w.clone());
+    for k in 0..400 {
+        if k % 20 == 0 {
+            c.command(Command::Velocity {
+                v: Vec2::new(-0.03, -0.06),
+            })
+            .unwrap();
+        }
+        c.tick(0.01);
+        let rounded: Vec<f64> = c.theta().iter().map(|t| (t / q).round() * q).collect();
+        assert!(clearance(&w, &rounded) >= KEEP - TOL, "tick {k}");
+    }
+    assert!(c.set_joint_resolution(&[q; N - 1]).is_err());
+    assert!(c.set_joint_resolution(&[f64::NAN; N]).is_err());
+}
+
+#[test]
+fn a_goto_the_arm_cannot_keep_up_with_ends_blocked_within_the_headway_time() {
+    let slow = Limits {
+        max_joint_speed_rad_s: 1e-3,
+        ..limits()
+    };
+    let mut c = Controller::new(chain(), slow, Strategy::Overall, home(), &home()).unwrap();
+    let tip = chain().tip(&home());
+    c.set_world(world(vec![circle("post", 2.0, 2.0, 0.02)]));
+    c.command(Command::Goto {
+        target: tip + Vec2::new(0.0, -0.1),
+        speed: None,
+    })
+    .unwrap();
+    let mut ended = None;
+    for k in 1..=60 {
+        if let Some(f) = c.tick(0.01).finished {
+            ended = Some((f, k));
+            break;
+        }
+    }
+    let (finish, k) = ended.expect("the goto ends");
+    assert!(matches!(finish, Finish::Blocked { .. }), "{finish:?}");
+    assert!((50..=52).contains(&k), "after {k} ticks");
+    assert_eq!(c.activity(), Activity::Holding);
+}
+
+#[test]
+fn without_obstacles_nothing_changes() {
+    let mut a = controller(Strategy::Overall, &home());
+    let mut b = controller(Strategy::Overall, &home());
+    b.set_world(World::default());
+    let target = chain().tip(&home()) + Vec2::new(0.05, -0.05);
+    for c in [&mut a, &mut b] {
+        c.command(Command::Goto {
+            target,
+            speed: None,
+        })
+        .unwrap();
+    }
+    for _ in 0..200 {
+        let (ta, tb) = (a.tick(0.01), b.tick(0.01));
+        assert_eq!(ta, tb);
+        assert_eq!(ta.min_clearance_m, None);
+    }
+    assert_eq!(a.theta(), b.theta());
+}
