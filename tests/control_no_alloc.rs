@@ -150,3 +150,73 @@ fn warm_ticks_allocate_nothing_in_any_motion() {
         assert!(seen[3], "{strategy:?}: the run never met a self-collision");
     }
 }
+
+#[test]
+fn warm_ticks_among_obstacles_allocate_nothing() {
+    use snakectl::world::{Obstacle, Shape, World};
+    let n = 12;
+    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
+    let chain = Chain::new(vec![0.08; n], Vec2::zeros(), FRAC_PI_2, vec![lim; n]).unwrap();
+    let limits = Limits {
+        max_tip_speed_m_s: 0.1,
+        max_tip_accel_m_s2: 0.5,
+        max_joint_speed_rad_s: 0.6,
+        deadman_s: 0.3,
+    };
+    let home = vec![0.1; n];
+    let tip = chain.tip(&home);
+    let top = tip.y - 0.12;
+    let world = World::new(
+        0.01,
+        0.005,
+        vec![
+            Obstacle {
+                id: "post".into(),
+                shape: Shape::Circle {
+                    center: tip + Vec2::new(0.1, -0.05),
+                    radius_m: 0.02,
+                },
+            },
+            Obstacle {
+                id: "wall".into(),
+                shape: Shape::Polygon {
+                    points: vec![
+                        Vec2::new(-1.0, top - 0.02),
+                        Vec2::new(tip.x + 0.05, top - 0.02),
+                        Vec2::new(tip.x + 0.05, top),
+                        Vec2::new(-1.0, top),
+                    ],
+                },
+            },
+        ],
+    )
+    .unwrap();
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        let mut c = Controller::new(chain.clone(), limits, strategy, home.clone(), &home).unwrap();
+        c.set_joint_resolution(&vec![std::f64::consts::TAU / 4096.0; n])
+            .unwrap();
+        c.set_world(world.clone());
+        // The first round sizes the solver's buffers for the pairs near contact; the second
+        // must allocate nothing.
+        let mut allocated = Vec::new();
+        for _ in 0..2 {
+            let mut a = 0;
+            c.command(Command::Goto {
+                target: tip + Vec2::new(0.15, -0.08),
+                speed: None,
+            })
+            .unwrap();
+            a += run(&mut c, 300, 0.01).0;
+            c.command(Command::Velocity {
+                v: Vec2::new(-0.03, -0.06),
+            })
+            .unwrap();
+            a += run(&mut c, 25, 0.01).0;
+            // Home may be refused where its way would pass the post; the ticks run either way.
+            let _ = c.command(Command::Home);
+            a += run(&mut c, 300, 0.01).0;
+            allocated.push(a);
+        }
+        assert_eq!(allocated[1], 0, "{strategy:?}: {allocated:?}");
+    }
+}

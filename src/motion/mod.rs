@@ -1078,6 +1078,59 @@ mod tests {
     }
 
     #[test]
+    fn a_route_runs_one_trapezoid_per_leg_through_its_waypoints() {
+        let lim = limits();
+        let mut m = Motion::new(lim, &[None], Vec2::zeros(), &[0.0]);
+        // Two legs: round a corner without stopping, rest at (0.02, 0.01), then back home.
+        let points = vec![
+            Vec2::zeros(),
+            Vec2::new(0.01, 0.0),
+            Vec2::new(0.02, 0.01),
+            Vec2::new(0.0, 0.01),
+            Vec2::zeros(),
+        ];
+        let rest = vec![true, false, true, false, true];
+        m.route(points.clone(), rest, 1.0);
+        assert_eq!(m.target(), Some(Vec2::zeros()));
+        let theta = [0.0];
+        let dt = 0.002;
+        let (mut rests, mut prev_v) = (Vec::new(), Vec2::zeros());
+        let mut finish = None;
+        for _ in 0..10_000 {
+            let _ = m.step(dt);
+            let (p, v) = (m.tip().p, m.tip().v);
+            // Along the polyline: on one of its segments, at no more than the speed limit.
+            let on = points.windows(2).any(|w| {
+                let (a, b) = (w[0], w[1]);
+                let t = ((p - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
+                (a + (b - a) * t - p).norm() < 1e-12
+            });
+            assert!(on, "{p:?} off the route");
+            assert!(v.norm() <= lim.tip_speed * (1.0 + 1e-12));
+            // The speed along the way changes by at most the acceleration limit.
+            assert!((v.norm() - prev_v.norm()).abs() <= lim.tip_accel * dt * (1.0 + 1e-9));
+            prev_v = v;
+            if v == Vec2::zeros() && rests.last() != Some(&p) {
+                rests.push(p);
+            }
+            let got = Achieved {
+                tip: p,
+                theta: &theta,
+                dt,
+                exact: true,
+                saturated: false,
+            };
+            if let Some(f) = m.follow(got) {
+                finish = Some(f);
+                break;
+            }
+        }
+        assert_eq!(finish, Some(Finish::Arrived));
+        // At rest only at the leg ends: the corners in between are passed moving.
+        assert_eq!(rests, vec![Vec2::new(0.02, 0.01), Vec2::zeros()]);
+    }
+
+    #[test]
     fn a_reference_out_of_reach_gives_up_after_the_stall_ticks() {
         let mut m = Motion::new(limits(), &[None], Vec2::zeros(), &[0.0]);
         m.goto(Vec2::new(1.0, 0.0), 0.1);
