@@ -34,7 +34,26 @@
 //!    are checked: links are joined end to end, so two that begin to cross within a tick
 //!    still cross at its end and are caught then, unless the arm's two free ends (the tip and
 //!    the base end of link 1) slip past each other within one tick's travel.
-//! 5. The motion **follows** what was achieved: a shortened step moves the reference back onto
+//! 5. **Obstacles** ([`Controller::set_world`]). No goal pose loses clearance: each link keeps
+//!    its floor, the world's `clearance_m` (or, for a link not clear when the world was set,
+//!    its clearance then, so that it may only get clearer), to [`CLEARANCE_ROUNDOFF_M`]; with
+//!    the joints' resolutions set ([`Controller::set_joint_resolution`]) the pose rounded to
+//!    them (what the servos receive, in whole ticks) keeps it too. The check runs on every
+//!    resolver answer (a step that fails it is bisected like one out of reach) and on the
+//!    final pose (cut back along its joint step, like a self-collision), and the tick reports
+//!    the link and obstacle that held it back (`blocked`). The overall solver keeps the
+//!    clearance itself (plus what rounding can take away), so it goes round; the sequential
+//!    strategy's tractrix body does not look ahead, and is cut short where it would touch.
+//!    Goto and path run the tip along the world's route ([`World::route`]: the straight line
+//!    when clear, else the shortest way round the obstacles grown by the link radius and the
+//!    clearance), one speed trapezoid per leg; a target the tip can never reach clear is
+//!    refused ([`Refused::InsideObstacle`], [`Refused::NoRoute`]). A tip velocity slides:
+//!    its reference is pushed out of the grown obstacles, which removes the part of the step
+//!    into them. A joint move whose straight way passes a pose that would lose clearance is
+//!    refused ([`Refused::NotClearOnTheWay`]). A goto, path or joint move that stalls against
+//!    an obstacle, or whose tip advances less than [`HEADWAY_M`] in [`HEADWAY_S`], ends
+//!    [`Finish::Blocked`].
+//! 6. The motion **follows** what was achieved: a shortened step moves the reference back onto
 //!    the arm, with the velocity the arm really had, so it never runs ahead. A goto, path or
 //!    joint move that makes no progress for [`crate::motion::STALL_TICKS`] saturated ticks
 //!    ends with one [`Finish::Saturated`].
@@ -1278,5 +1297,3 @@ impl Controller {
 
 #[cfg(test)]
 mod tests;
-#[cfg(test)]
-mod world_tests;

@@ -1,20 +1,29 @@
 //! Tests of the controller among obstacles, on the daemon's arm (12 links of 0.08 m, limits
 //! +-2 rad, base at the origin heading up, home 0.1 rad at every joint: the tip at about
-//! (-0.547, 0.720)). Every clearance is checked with this file's own exact distance, not the
-//! world module's.
+//! (-0.547, 0.720)). Every clearance is checked with the tests' own exact distance
+//! (`world_support`), not the world module's.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod world_support;
+
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use super::*;
-use crate::chain::JointLimit;
-use crate::world::{Obstacle, Shape};
+use snakectl::chain::{Chain, JointLimit, Vec2};
+use snakectl::control::{Activity, Command, Controller, Finish, Limits, Refused};
+use snakectl::resolve::Strategy;
+use snakectl::world::{Obstacle, Shape, World};
+use world_support::segment_distance;
+
+/// The least clearance of the pose `theta` of the arm.
+fn clearance(w: &World, theta: &[f64]) -> f64 {
+    world_support::clearance(&chain(), w, theta)
+}
 
 const N: usize = 12;
 const LINK_RADIUS: f64 = 0.01;
 const KEEP: f64 = 0.005;
-/// What this file's distance and the world's may differ by (both exact, up to round-off).
+/// What the test's distance and the world's may differ by (both exact, up to round-off).
 const TOL: f64 = 1e-9;
 
 fn chain() -> Chain {
@@ -65,75 +74,6 @@ fn rect(id: &str, x0: f64, y0: f64, x1: f64, y1: f64) -> Obstacle {
 
 fn world(obstacles: Vec<Obstacle>) -> World {
     World::new(LINK_RADIUS, KEEP, obstacles).unwrap()
-}
-
-/// Distance from `p` to the segment `a..b`.
-fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> f64 {
-    let d = b - a;
-    let t = if d.norm_squared() > 0.0 {
-        ((p - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + d * t)).norm()
-}
-
-/// Whether the segments `a..b` and `c..d` cross or touch.
-fn segments_meet(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> bool {
-    let orient = |p: Vec2, q: Vec2, r: Vec2| (q - p).perp(&(r - p));
-    let (d1, d2) = (orient(c, d, a), orient(c, d, b));
-    let (d3, d4) = (orient(a, b, c), orient(a, b, d));
-    d1 * d2 <= 0.0 && d3 * d4 <= 0.0
-}
-
-/// Even-odd inside test.
-fn inside(p: Vec2, poly: &[Vec2]) -> bool {
-    let mut odd = false;
-    for k in 0..poly.len() {
-        let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
-        if (a.y > p.y) != (b.y > p.y) && p.x < a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) {
-            odd = !odd;
-        }
-    }
-    odd
-}
-
-/// The unsigned distance from the segment `a..b` to an obstacle (0 when they meet).
-fn segment_distance(a: Vec2, b: Vec2, shape: &Shape) -> f64 {
-    match shape {
-        Shape::Circle { center, radius_m } => (point_segment(*center, a, b) - radius_m).max(0.0),
-        Shape::Polygon { points } => {
-            if inside(a, points) || inside(b, points) {
-                return 0.0;
-            }
-            let mut best = f64::INFINITY;
-            for k in 0..points.len() {
-                let (c, d) = (points[k], points[(k + 1) % points.len()]);
-                if segments_meet(a, b, c, d) {
-                    return 0.0;
-                }
-                best = best
-                    .min(point_segment(a, c, d))
-                    .min(point_segment(b, c, d))
-                    .min(point_segment(c, a, b))
-                    .min(point_segment(d, a, b));
-            }
-            best
-        }
-    }
-}
-
-/// The least clearance of the pose `theta`: every link against every obstacle, less the link
-/// radius.
-fn clearance(w: &World, theta: &[f64]) -> f64 {
-    let p = chain().points(theta);
-    let mut least = f64::INFINITY;
-    for link in 1..p.len() {
-        for o in w.obstacles() {
-            least = least.min(segment_distance(p[link - 1], p[link], &o.shape) - LINK_RADIUS);
-        }
-    }
-    least
 }
 
 /// Ticks of 10 ms until the command finishes (at most `max`), checking every goal pose's

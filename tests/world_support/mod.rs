@@ -1,0 +1,75 @@
+//! An exact distance from the arm's links to the obstacles written apart from the library's
+//! own, so that the tests among obstacles check the controller against an independent measure.
+#![allow(dead_code)]
+
+use snakectl::chain::{Chain, Vec2};
+use snakectl::world::{Shape, World};
+
+/// Distance from `p` to the segment `a..b`.
+pub fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> f64 {
+    let d = b - a;
+    let t = if d.norm_squared() > 0.0 {
+        ((p - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + d * t)).norm()
+}
+
+/// Whether the segments `a..b` and `c..d` cross or touch.
+pub fn segments_meet(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> bool {
+    let orient = |p: Vec2, q: Vec2, r: Vec2| (q - p).perp(&(r - p));
+    let (d1, d2) = (orient(c, d, a), orient(c, d, b));
+    let (d3, d4) = (orient(a, b, c), orient(a, b, d));
+    d1 * d2 <= 0.0 && d3 * d4 <= 0.0
+}
+
+/// Even-odd inside test.
+pub fn inside(p: Vec2, poly: &[Vec2]) -> bool {
+    let mut odd = false;
+    for k in 0..poly.len() {
+        let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
+        if (a.y > p.y) != (b.y > p.y) && p.x < a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) {
+            odd = !odd;
+        }
+    }
+    odd
+}
+
+/// The unsigned distance from the segment `a..b` to an obstacle (0 when they meet).
+pub fn segment_distance(a: Vec2, b: Vec2, shape: &Shape) -> f64 {
+    match shape {
+        Shape::Circle { center, radius_m } => (point_segment(*center, a, b) - radius_m).max(0.0),
+        Shape::Polygon { points } => {
+            if inside(a, points) || inside(b, points) {
+                return 0.0;
+            }
+            let mut best = f64::INFINITY;
+            for k in 0..points.len() {
+                let (c, d) = (points[k], points[(k + 1) % points.len()]);
+                if segments_meet(a, b, c, d) {
+                    return 0.0;
+                }
+                best = best
+                    .min(point_segment(a, c, d))
+                    .min(point_segment(b, c, d))
+                    .min(point_segment(c, a, b))
+                    .min(point_segment(d, a, b));
+            }
+            best
+        }
+    }
+}
+
+/// The least clearance of the pose `theta` of `chain`: every link against every obstacle, less
+/// the world's link radius (infinite with no obstacles).
+pub fn clearance(chain: &Chain, w: &World, theta: &[f64]) -> f64 {
+    let p = chain.points(theta);
+    let mut least = f64::INFINITY;
+    for link in 1..p.len() {
+        for o in w.obstacles() {
+            least = least.min(segment_distance(p[link - 1], p[link], &o.shape) - w.link_radius_m());
+        }
+    }
+    least
+}
