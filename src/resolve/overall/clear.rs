@@ -670,7 +670,17 @@ impl ClearWork {
                 ControlFlow::Continue(full) => {
                     newton_ready = full || at.cn < super::NEWTON_RANGE * p.scale
                 }
-                ControlFlow::Break(()) => return stop(round_off(&at), false, iterations),
+                ControlFlow::Break(()) => {
+                    // With the multipliers of the last subproblem (no step left: optimal up
+                    // to round-off when the conditions hold with them).
+                    let last = self.eval(p, world, theta, lo, hi, *mu);
+                    return ClearLocal {
+                        converged: round_off(&last),
+                        joined_best: false,
+                        tip_error: last.cn,
+                        iterations,
+                    };
+                }
             }
         }
     }
@@ -1307,7 +1317,30 @@ impl Overall {
             return self.judge(world, chain, out, o);
         };
         self.w.theta.copy_from_slice(&self.clear.best);
-        let o = self.finish(&p, b.mu, total, b.on_target, out);
+        let mut mu = b.mu;
+        if b.on_target {
+            // Once more from the answer (a step or two): its pairs' multipliers, which the
+            // next local solve continues from.
+            let max_iterations = self.opts.max_iterations;
+            let Overall { w, clear, .. } = &mut *self;
+            let l = clear.local(
+                &p,
+                world,
+                &w.lo,
+                &w.hi,
+                &mut w.theta,
+                &mut mu,
+                p.tol,
+                max_iterations,
+            );
+            total += l.iterations;
+            if !l.converged || half_metric(&w.theta, p.theta0) > b.half_metric * (1.0 + 1e-12) {
+                w.theta.copy_from_slice(&clear.best);
+                mu = b.mu;
+                clear.forget();
+            }
+        }
+        let o = self.finish(&p, mu, total, b.on_target, out);
         self.judge(world, chain, out, o)
     }
 
@@ -1360,3 +1393,6 @@ impl Overall {
         iterations
     }
 }
+
+#[cfg(test)]
+mod tests;
