@@ -190,3 +190,39 @@ fn the_optimum_without_obstacles_collides_where_the_reference_says_it_does() {
         assert!(expected.metric3 > m3, "{name}");
     }
 }
+
+#[test]
+fn the_cold_solve_among_the_obstacles_reaches_every_reference_optimum() {
+    let mut solver = Overall::new(OverallOptions::default());
+    let mut failures = Vec::new();
+    for path in problems() {
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let (problem, expected) = load(&path);
+        let (chain, world) = chain_and_world(&problem);
+        let cm = world.clearance_m();
+        let target = Vec2::new(problem.target[0], problem.target[1]);
+        solver.set_world(Some(world.clone()));
+        let mut out = vec![0.0; chain.len()];
+        let t = std::time::Instant::now();
+        let outcome = solver.solve_cold(&chain, &problem.theta0, target, &mut out);
+        let elapsed = t.elapsed();
+        let m3 = metric3(&out, &problem.theta0);
+        let rel = (m3 - expected.metric3) / expected.metric3;
+        // Independent of the solver's own report: the exact clearance and the tip.
+        let least = world.pose_clearance(&chain, &out).unwrap().clearance_m;
+        let tip = (chain.tip(&out) - target).norm();
+        println!(
+            "{name}: metric 3 {m3:.12e} (reference {:.12e}, rel {rel:+.1e}), clearance {least:.3e}, \
+             tip {tip:.1e}, {} iterations, {elapsed:?}",
+            expected.metric3, outcome.iterations
+        );
+        assert_eq!(solver.last_clearance(), Some(least), "{name}");
+        let ok = outcome.converged && tip <= 1e-9 && least >= cm - 1e-9 && rel <= 1e-6;
+        if !ok {
+            failures.push(format!(
+                "{name}: {outcome:?}, rel {rel:.2e}, clearance {least:.3e}"
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}

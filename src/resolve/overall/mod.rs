@@ -59,6 +59,7 @@
 //! best optimum on target so far (tip within 1e-6 of the scale) stops there, as it would only
 //! find that optimum again.
 
+mod clear;
 mod dual;
 mod hessian;
 
@@ -66,6 +67,9 @@ use std::ops::ControlFlow;
 
 use crate::chain::{nearest_representative, wrap_angle, Chain, Reachability, Vec2};
 use crate::resolve::{check_input, Outcome, Resolver, Strategy};
+use crate::world::World;
+
+pub use clear::{CLEAR_SLACK, MAX_PAIRS, NEWTON_MAX_JOINTS};
 
 use dual::Dual;
 
@@ -558,7 +562,12 @@ pub struct Overall {
     mu: [f64; 2],
     mu_joints: usize,
     bend_sign: f64,
-    world: Option<crate::world::World>,
+    /// The obstacles every answer keeps clear of.
+    world: Option<World>,
+    /// Scratch and warm state of the solve among obstacles.
+    clear: clear::ClearWork,
+    /// Least clearance of the last answer among obstacles.
+    last_clearance: Option<f64>,
 }
 
 /// splitmix64: a tiny deterministic generator for the seeded cold starts.
@@ -791,6 +800,8 @@ impl Overall {
             mu_joints: 0,
             bend_sign: 1.0,
             world: None,
+            clear: clear::ClearWork::default(),
+            last_clearance: None,
         }
     }
 
@@ -803,16 +814,6 @@ impl Overall {
     /// local solve.
     pub fn multiplier(&self) -> [f64; 2] {
         self.mu
-    }
-
-    /// Sets the obstacles every link keeps clear of (`None`: none).
-    pub fn set_world(&mut self, world: Option<crate::world::World>) {
-        self.world = world;
-    }
-
-    /// The obstacles every link keeps clear of, if any.
-    pub fn world(&self) -> Option<&crate::world::World> {
-        self.world.as_ref()
     }
 
     /// Forgets the warm-start multiplier and the tie-break history.
@@ -869,8 +870,27 @@ impl Overall {
         }
     }
 
-    /// Best effort from the current pose `theta0` and the stored multiplier (one control tick).
+    /// Best effort from the current pose `theta0` and the stored multipliers (one control
+    /// tick). Among obstacles ([`Overall::set_world`]) the answer also keeps every link clear
+    /// (`converged` only when it is: tip on target, within limits and clear), and a start that
+    /// is not clear is moved out where the solve can ([`Overall::last_clearance`] says whether
+    /// it did).
     pub fn solve_local(
+        &mut self,
+        chain: &Chain,
+        theta0: &[f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Outcome {
+        if self.among_obstacles() {
+            self.local_among(chain, theta0, target, out)
+        } else {
+            self.free_local(chain, theta0, target, out)
+        }
+    }
+
+    /// [`Overall::solve_local`] without obstacles.
+    fn free_local(
         &mut self,
         chain: &Chain,
         theta0: &[f64],
@@ -955,7 +975,30 @@ impl Overall {
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
     /// `iterations` in the outcome is the sum over all starts.
+    ///
+    /// Among obstacles ([`Overall::set_world`]): the best optimum without them, when it is
+    /// clear, is the answer (the clear poses are a part of all poses). Otherwise the best clear
+    /// optimum over the starts `clip(theta0)`, the optimum without obstacles (which the solve
+    /// pushes out of the obstacles to the nearer side), the two continuations, the mirror images
+    /// of the two best clear optima and of the optimum without obstacles, and three times
+    /// [`OverallOptions::random_starts`] seeded random poses (within `sqrt(metric 3)` of
+    /// `theta0` of the best so far, which they stop at when they run into it, as above).
     pub fn solve_cold(
+        &mut self,
+        chain: &Chain,
+        theta0: &[f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Outcome {
+        if self.among_obstacles() {
+            self.cold_among(chain, theta0, target, out)
+        } else {
+            self.free_cold(chain, theta0, target, out)
+        }
+    }
+
+    /// [`Overall::solve_cold`] without obstacles.
+    fn free_cold(
         &mut self,
         chain: &Chain,
         theta0: &[f64],

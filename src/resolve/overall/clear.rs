@@ -1,0 +1,1398 @@
+//! The overall problem among obstacles: metric 3 with every link kept clear.
+//!
+//! ```text
+//! minimize   1/2 |theta - theta0|^2
+//! subject to tip(theta) = target,   lo <= theta <= hi,
+//!            c_j(theta) >= clearance_m   for every (link, obstacle) pair j
+//! ```
+//!
+//! `c_j` is the exact capsule clearance of [`World`] (the signed distance from the link's axis to
+//! the obstacle minus the link radius). Only the pairs near contact enter (`select`): those
+//! whose clearance is within a margin of `clearance_m`, the margin three times the larger of the
+//! tip correction wanted and the last step's largest point move (plus a small floor), at most
+//! [`MAX_PAIRS`] of them, least clearance first; a pair whose contact point and obstacle repeat
+//! one already taken (a joint touching an obstacle is the end of one link and the start of the
+//! next) is the same constraint and is left out. Pairs further away are checked by the line
+//! search's merit, which measures the exact least clearance of every trial pose.
+//!
+//! Method, one local solve (`ClearWork::local`):
+//! - **SQP step**. The subproblem `min 1/2 |x - theta0|^2` subject to `J (x - theta) = c`, the
+//!   box, and `g_j . (x - theta) >= clearance_m - c_j` for the selected pairs (with `g_j` the
+//!   pair's gradient) is solved through its dual: `x(lambda) = clip(theta0 + A^T lambda)`, with
+//!   `A` the rows `J` and `g_j`, `lambda` = the tip multiplier (free) and one `nu_j >= 0` per
+//!   pair, maximized by projected Newton (`Qp::solve`: the working set is the pairs held at
+//!   `nu_j = 0` by their gradient, the Newton matrix `A_F A_F^T` over the joints not clipped,
+//!   projected Armijo backtracking). When the linearized constraints cannot all be met inside
+//!   the box (the dual runs away), the elastic form penalizes their violation quadratically
+//!   instead (the stiffest of a few weights whose dual settles). The step is globalized by an
+//!   Armijo line search on the merit `1/2 |theta - theta0|^2 + nu_t |tip - target| + nu_c
+//!   max(0, clearance_m - clearance)`, the weights kept above the multipliers' norms (tip:
+//!   Euclidean, pairs: the sum, the dual of the max). A start that is not clear is handled the
+//!   same way: the linearized constraints ask every pair in contact to move out.
+//! - **Newton step** (`ClearWork::try_newton`), once an exact SQP step is taken whole or the
+//!   tip is near: Newton on the optimality conditions with the active set the multipliers
+//!   predict (joints held at a bound where `theta0 + A^T lambda` lies beyond it; pairs with
+//!   `nu_j > 0` or not clear as equalities), a dense KKT system with the Lagrangian Hessian
+//!   `I + G - sum nu_j H_j`: `G` the tip's (module `hessian`), `H_j` each active pair's by
+//!   central differences of its gradient. Kept only when the optimality residual at least
+//!   halves and no pair's multiplier turns negative. Dense: used up to [`NEWTON_MAX_JOINTS`]
+//!   joints, beyond which the SQP steps alone finish (linear convergence).
+//! - **Stop**: converged when the tip is within the tolerance, the least clearance within the
+//!   tip tolerance of `clearance_m`, and stationarity and complementarity (`nu_j` times the
+//!   pair's slack) within the stationarity tolerance; not converged at the iteration cap, when
+//!   no step decreases the merit, or when elastic steps stall (as without obstacles).
+//!
+//! The answer a caller gets is checked once more with [`World::clearance`] (exact, all pairs):
+//! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
+//! of a distance on an arm of some metres.
+
+use std::ops::ControlFlow;
+
+use super::{half_metric, max_abs_diff, mirror_pose, ElasticStall, Overall, Problem, SplitMix};
+use crate::chain::{Chain, Vec2};
+use crate::resolve::Outcome;
+use crate::world::clearance::pair_gradient;
+use crate::world::{ActivePairs, World};
+
+/// Most (link, obstacle) pairs entering one subproblem: the pairs of least clearance are kept.
+/// Bounds the dual's size (and the Newton system's) whatever the world.
+pub const MAX_PAIRS: usize = 32;
+/// Largest chain for the dense Newton phase; longer chains finish with SQP steps alone.
+pub const NEWTON_MAX_JOINTS: usize = 96;
+/// An answer counts as clear when its least clearance is at least `clearance_m` less this, m:
+/// the round-off of an exact distance on an arm of some metres.
+pub const CLEAR_SLACK: f64 = 1e-9;
+
+/// The pair margin is this multiple of the expected move (tip correction or last step).
+const MARGIN_MOVES: f64 = 3.0;
+/// ...plus this fraction of the mean link length.
+const MARGIN_FLOOR: f64 = 0.05;
+/// Two selected pairs with the same obstacle whose contact points are this close (relative to
+/// the scale) are the same constraint.
+const SAME_CONTACT: f64 = 1e-9;
+/// Most projected Newton steps of one dual solve.
+const DUAL_STEPS: usize = 80;
+/// Halvings of the dual's line search.
+const DUAL_HALVINGS: usize = 40;
+/// Relative diagonal shift of the dual's Newton matrix (parallel rows).
+const DUAL_REGULARIZATION: f64 = 1e-13;
+/// Elastic form: a dual whose optimality is within this fraction of the correction wanted has
+/// settled (its multipliers can be huge, which puts a round-off floor under it).
+const ELASTIC_SETTLED: f64 = 1e-6;
+/// Armijo fraction (the customary value).
+const ARMIJO: f64 = 1e-4;
+/// Halvings before the outer line search gives up.
+const MAX_HALVINGS: usize = 50;
+/// Central-difference step for the pairs' Hessians, rad.
+const FD_STEP: f64 = 1e-6;
+/// A KKT pivot below this fraction of the matrix's largest entry is singular.
+const PIVOT_FLOOR: f64 = 1e-13;
+/// A Newton multiplier of a pair below `-this * (1 + |nu|)` means the active set is wrong.
+const NEGATIVE_NU: f64 = 1e-9;
+/// Cold solves: random starts among obstacles, in multiples of `random_starts`.
+const RANDOM_FACTOR: usize = 3;
+
+/// Scratch and warm state of the solver among obstacles, sized once per joint count and world.
+#[derive(Debug, Default)]
+pub(super) struct ClearWork {
+    n: usize,
+    obstacles: usize,
+    pts: Vec<Vec2>,
+    trial_pts: Vec<Vec2>,
+    fd_pts: Vec<Vec2>,
+    jx: Vec<f64>,
+    jy: Vec<f64>,
+    trial: Vec<f64>,
+    fd_theta: Vec<f64>,
+    qp_x: Vec<f64>,
+    all: ActivePairs,
+    order: Vec<usize>,
+    /// Selected pairs: count, keys (link, obstacle), clearance, contact point, gradient rows.
+    k: usize,
+    key: Vec<(usize, usize)>,
+    clr: Vec<f64>,
+    contact: Vec<Vec2>,
+    grad: Vec<f64>,
+    /// The current multipliers of the selected pairs.
+    nu: Vec<f64>,
+    /// Multipliers carried by key to the next selection (and the next tick).
+    prev_k: usize,
+    prev_key: Vec<(usize, usize)>,
+    prev_nu: Vec<f64>,
+    /// The carried multipliers saved while a Newton step is judged.
+    backup_k: usize,
+    backup_key: Vec<(usize, usize)>,
+    backup_nu: Vec<f64>,
+    /// Subproblem right-hand side and dual scratch.
+    r: Vec<f64>,
+    lam: Vec<f64>,
+    ds: DualScratch,
+    /// Newton scratch.
+    hess: Vec<f64>,
+    kkt: Vec<f64>,
+    rhs: Vec<f64>,
+    free: Vec<usize>,
+    held_move: Vec<f64>,
+    active: Vec<usize>,
+    gp: Vec<f64>,
+    gm: Vec<f64>,
+    /// Largest point move of the last accepted step, m.
+    last_move: f64,
+    /// Cold solves: watch for the best optimum so far (`best`), and the optima's poses.
+    pub watch_best: bool,
+    pub best: Vec<f64>,
+    pub second: Vec<f64>,
+    pub free_opt: Vec<f64>,
+    /// The last answer leaned on an obstacle (some pair's multiplier positive): the next local
+    /// solve goes straight to the constrained form.
+    pub engaged: bool,
+}
+
+#[derive(Debug, Default)]
+struct DualScratch {
+    lam_t: Vec<f64>,
+    f: Vec<f64>,
+    f_t: Vec<f64>,
+    dir: Vec<f64>,
+    mat: Vec<f64>,
+    idx: Vec<usize>,
+    clipped: Vec<bool>,
+    u: Vec<f64>,
+}
+
+/// How one local solve among obstacles ended.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ClearLocal {
+    pub converged: bool,
+    pub joined_best: bool,
+    pub tip_error: f64,
+    pub iterations: usize,
+}
+
+/// An evaluated iterate.
+#[derive(Debug, Clone, Copy)]
+struct At {
+    c: Vec2,
+    cn: f64,
+    /// Stationarity residual with the current multipliers, rad.
+    s: f64,
+    /// `max(0, clearance_m - least clearance)`, m.
+    viol: f64,
+    /// Largest `nu_j * (c_j - clearance_m)` over pairs with positive slack, rad.
+    comp: f64,
+}
+
+impl At {
+    fn residual(&self, scale: f64) -> f64 {
+        (self.cn + self.viol) / scale + self.s + self.comp
+    }
+}
+
+/// The linearized subproblem's data (rows: the two of `J`, then one per selected pair).
+struct Qp<'a> {
+    n: usize,
+    k2: usize,
+    jx: &'a [f64],
+    jy: &'a [f64],
+    grad: &'a [f64],
+    theta0: &'a [f64],
+    theta: &'a [f64],
+    lo: &'a [f64],
+    hi: &'a [f64],
+    r: &'a [f64],
+    rho_inv: f64,
+}
+
+impl Qp<'_> {
+    fn row(&self, i: usize) -> &[f64] {
+        match i {
+            0 => self.jx,
+            1 => self.jy,
+            _ => &self.grad[(i - 2) * self.n..(i - 1) * self.n],
+        }
+    }
+
+    /// `x(lambda)`, which joints are clipped, `F = A (x - theta) - r + rho_inv lambda` (the
+    /// negative dual gradient) and the dual value.
+    fn eval(&self, lam: &[f64], x: &mut [f64], s: &mut DualScratch, trial: bool) -> f64 {
+        let n = self.n;
+        s.u[..n].copy_from_slice(&self.theta0[..n]);
+        for i in 0..self.k2 {
+            let l = lam[i];
+            if l != 0.0 {
+                for (u, a) in s.u[..n].iter_mut().zip(self.row(i)) {
+                    *u += a * l;
+                }
+            }
+        }
+        let mut q = 0.0;
+        for a in 0..n {
+            let u = s.u[a];
+            let v = u.clamp(self.lo[a], self.hi[a]);
+            s.clipped[a] = v != u;
+            x[a] = v;
+            let dz = v - self.theta0[a];
+            q += 0.5 * dz * dz;
+            s.u[a] = v - self.theta[a];
+        }
+        let f = if trial { &mut s.f_t } else { &mut s.f };
+        for i in 0..self.k2 {
+            let ad: f64 = self.row(i).iter().zip(&s.u[..n]).map(|(a, d)| a * d).sum();
+            let lin = ad - self.r[i];
+            q -= lam[i] * lin + 0.5 * self.rho_inv * lam[i] * lam[i];
+            f[i] = lin + self.rho_inv * lam[i];
+        }
+        q
+    }
+
+    /// Projected Newton on the dual from `lam` (updated in place); `x` holds the primal answer
+    /// on success. Fails when the dual does not settle or runs beyond `cap`.
+    fn solve(
+        &self,
+        lam: &mut [f64],
+        x: &mut [f64],
+        s: &mut DualScratch,
+        tol: f64,
+        cap: f64,
+    ) -> bool {
+        let k2 = self.k2;
+        for l in lam[2..k2].iter_mut() {
+            *l = l.max(0.0);
+        }
+        let r_norm = self.r[..k2].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        let settled =
+            |worst: f64| worst <= tol || (self.rho_inv > 0.0 && worst <= ELASTIC_SETTLED * r_norm);
+        let mut q = self.eval(lam, x, s, false);
+        for _ in 0..DUAL_STEPS {
+            let mut worst: f64 = 0.0;
+            s.idx.clear();
+            for i in 0..k2 {
+                let fi = s.f[i];
+                if i >= 2 && lam[i] <= 0.0 && fi >= 0.0 {
+                    continue;
+                }
+                worst = worst.max(fi.abs());
+                s.idx.push(i);
+            }
+            if worst <= tol {
+                return true;
+            }
+            let m = s.idx.len();
+            // Newton matrix over the working set and the unclipped joints.
+            let mut trace = 0.0;
+            for r in 0..m {
+                let ri = self.row(s.idx[r]);
+                for c in 0..=r {
+                    let ci = self.row(s.idx[c]);
+                    let mut v = 0.0;
+                    for a in 0..self.n {
+                        if !s.clipped[a] {
+                            v += ri[a] * ci[a];
+                        }
+                    }
+                    if r == c {
+                        v += self.rho_inv;
+                        trace += v;
+                    }
+                    s.mat[r * m + c] = v;
+                    s.mat[c * m + r] = v;
+                }
+            }
+            if trace.is_nan() || trace <= 0.0 {
+                return false;
+            }
+            let reg = DUAL_REGULARIZATION * trace;
+            for r in 0..m {
+                s.mat[r * m + r] += reg;
+                s.dir[r] = -s.f[s.idx[r]];
+            }
+            if !cholesky_solve(&mut s.mat[..m * m], &mut s.dir[..m], m) {
+                return false;
+            }
+            let mut alpha = 1.0;
+            let mut accepted = false;
+            for _ in 0..DUAL_HALVINGS {
+                s.lam_t[..k2].copy_from_slice(&lam[..k2]);
+                for r in 0..m {
+                    let i = s.idx[r];
+                    let v = lam[i] + alpha * s.dir[r];
+                    s.lam_t[i] = if i >= 2 { v.max(0.0) } else { v };
+                }
+                let lam_t = std::mem::take(&mut s.lam_t);
+                let q_t = self.eval(&lam_t, x, s, true);
+                s.lam_t = lam_t;
+                let dec: f64 = (0..k2).map(|i| s.f[i] * (s.lam_t[i] - lam[i])).sum();
+                if q_t >= q - ARMIJO * dec && q_t >= q {
+                    accepted = s.lam_t[..k2] != lam[..k2];
+                    if accepted {
+                        q = q_t;
+                    }
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !accepted {
+                self.eval(lam, x, s, false);
+                return settled(worst);
+            }
+            lam[..k2].copy_from_slice(&s.lam_t[..k2]);
+            std::mem::swap(&mut s.f, &mut s.f_t);
+            if lam[..k2].iter().any(|l| !(l.abs() <= cap)) {
+                return false;
+            }
+        }
+        let worst = (0..k2)
+            .filter(|&i| !(i >= 2 && lam[i] <= 0.0 && s.f[i] >= 0.0))
+            .fold(0.0_f64, |m, i| m.max(s.f[i].abs()));
+        settled(worst)
+    }
+}
+
+/// Solves `M x = b` in place for the symmetric positive definite `M` (m x m, row-major);
+/// false when it is not (numerically) positive definite.
+fn cholesky_solve(mat: &mut [f64], b: &mut [f64], m: usize) -> bool {
+    for j in 0..m {
+        let mut d = mat[j * m + j];
+        for k in 0..j {
+            d -= mat[j * m + k] * mat[j * m + k];
+        }
+        if d.is_nan() || d <= 0.0 {
+            return false;
+        }
+        let d = d.sqrt();
+        mat[j * m + j] = d;
+        for i in j + 1..m {
+            let mut v = mat[i * m + j];
+            for k in 0..j {
+                v -= mat[i * m + k] * mat[j * m + k];
+            }
+            mat[i * m + j] = v / d;
+        }
+    }
+    for i in 0..m {
+        let mut v = b[i];
+        for k in 0..i {
+            v -= mat[i * m + k] * b[k];
+        }
+        b[i] = v / mat[i * m + i];
+    }
+    for i in (0..m).rev() {
+        let mut v = b[i];
+        for k in i + 1..m {
+            v -= mat[k * m + i] * b[k];
+        }
+        b[i] = v / mat[i * m + i];
+    }
+    true
+}
+
+/// Solves `M x = b` in place (N x N, row-major) by Gaussian elimination with partial pivoting;
+/// false when a pivot is below [`PIVOT_FLOOR`] of the largest entry.
+fn lu_solve(mat: &mut [f64], b: &mut [f64], size: usize) -> bool {
+    let big = mat[..size * size]
+        .iter()
+        .fold(0.0_f64, |m, v| m.max(v.abs()));
+    if !(big > 0.0 && big.is_finite()) {
+        return false;
+    }
+    for col in 0..size {
+        let mut piv = col;
+        for r in col + 1..size {
+            if mat[r * size + col].abs() > mat[piv * size + col].abs() {
+                piv = r;
+            }
+        }
+        if mat[piv * size + col].abs() <= PIVOT_FLOOR * big {
+            return false;
+        }
+        if piv != col {
+            for c in 0..size {
+                mat.swap(piv * size + c, col * size + c);
+            }
+            b.swap(piv, col);
+        }
+        let p = mat[col * size + col];
+        for r in col + 1..size {
+            let f = mat[r * size + col] / p;
+            if f != 0.0 {
+                for c in col..size {
+                    mat[r * size + c] -= f * mat[col * size + c];
+                }
+                b[r] -= f * b[col];
+            }
+        }
+    }
+    for r in (0..size).rev() {
+        let mut v = b[r];
+        for c in r + 1..size {
+            v -= mat[r * size + c] * b[c];
+        }
+        b[r] = v / mat[r * size + r];
+    }
+    b[..size].iter().all(|v| v.is_finite())
+}
+
+/// The merit's weight for a multiplier of norm `norm`, from the current weight `w` (as
+/// without obstacles: raised below the exact penalty's bound, lowered after an exact step when
+/// far above it).
+fn weight(w: f64, norm: f64, elastic: bool, scale: f64) -> f64 {
+    let wanted = 2.0 * norm + 1e-6 / scale;
+    if w < 1.1 * norm || (!elastic && w > 10.0 * wanted) {
+        wanted
+    } else {
+        w
+    }
+}
+
+impl ClearWork {
+    /// Sizes the buffers for `n` joints among `obstacles` obstacles.
+    pub fn resize(&mut self, n: usize, obstacles: usize) {
+        if self.n == n && self.obstacles == obstacles && self.pts.len() == n + 1 {
+            return;
+        }
+        self.n = n;
+        self.obstacles = obstacles;
+        for v in [&mut self.pts, &mut self.trial_pts, &mut self.fd_pts] {
+            *v = vec![Vec2::zeros(); n + 1];
+        }
+        for v in [
+            &mut self.jx,
+            &mut self.jy,
+            &mut self.trial,
+            &mut self.fd_theta,
+            &mut self.qp_x,
+            &mut self.held_move,
+            &mut self.gp,
+            &mut self.gm,
+            &mut self.best,
+            &mut self.second,
+            &mut self.free_opt,
+        ] {
+            *v = vec![0.0; n];
+        }
+        let pairs = (n * obstacles).max(1);
+        self.all = ActivePairs::with_capacity(pairs, n);
+        self.order = Vec::with_capacity(pairs);
+        self.key = vec![(0, 0); MAX_PAIRS];
+        self.prev_key = vec![(0, 0); MAX_PAIRS];
+        self.clr = vec![0.0; MAX_PAIRS];
+        self.contact = vec![Vec2::zeros(); MAX_PAIRS];
+        self.grad = vec![0.0; MAX_PAIRS * n];
+        self.nu = vec![0.0; MAX_PAIRS];
+        self.prev_nu = vec![0.0; MAX_PAIRS];
+        self.backup_key = vec![(0, 0); MAX_PAIRS];
+        self.backup_nu = vec![0.0; MAX_PAIRS];
+        self.prev_k = 0;
+        let k2 = MAX_PAIRS + 2;
+        self.r = vec![0.0; k2];
+        self.lam = vec![0.0; k2];
+        self.ds = DualScratch {
+            lam_t: vec![0.0; k2],
+            f: vec![0.0; k2],
+            f_t: vec![0.0; k2],
+            dir: vec![0.0; k2],
+            mat: vec![0.0; k2 * k2],
+            idx: Vec::with_capacity(k2),
+            clipped: vec![false; n],
+            u: vec![0.0; n],
+        };
+        let dense = if n <= NEWTON_MAX_JOINTS { n } else { 0 };
+        self.hess = vec![0.0; dense * dense];
+        let big = dense + k2;
+        self.kkt = vec![0.0; if dense > 0 { big * big } else { 0 }];
+        self.rhs = vec![0.0; big];
+        self.free = Vec::with_capacity(n);
+        self.active = Vec::with_capacity(MAX_PAIRS);
+        self.engaged = false;
+    }
+
+    /// Forgets the pairs' multipliers (a new problem, or a start of a cold solve).
+    pub fn forget(&mut self) {
+        self.prev_k = 0;
+    }
+
+    /// Whether some pair carried a positive multiplier out of the last solve.
+    fn leaning(&self) -> bool {
+        self.prev_nu[..self.prev_k].iter().any(|&v| v > 0.0)
+    }
+
+    /// Keeps the selected pairs' multipliers `nu[..k]` for the next selection.
+    fn remember(&mut self) {
+        self.prev_k = self.k;
+        self.prev_key[..self.k].copy_from_slice(&self.key[..self.k]);
+        self.prev_nu[..self.k].copy_from_slice(&self.nu[..self.k]);
+    }
+
+    /// Evaluates `theta`: points, tip Jacobian, the selected pairs with their multipliers
+    /// (carried by key), and the residuals for the tip multiplier `mu`.
+    fn eval(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        theta: &[f64],
+        lo: &[f64],
+        hi: &[f64],
+        mu: [f64; 2],
+    ) -> At {
+        let n = self.n;
+        p.chain.points_into(theta, &mut self.pts);
+        let tip = self.pts[n];
+        for a in 0..n {
+            let r = tip - self.pts[a];
+            self.jx[a] = -r.y;
+            self.jy[a] = r.x;
+        }
+        let c = p.target - tip;
+        let cm = world.clearance_m();
+        let mean_link = p.chain.reach() / n.max(1) as f64;
+        let margin = cm + MARGIN_MOVES * c.norm().max(self.last_move) + MARGIN_FLOOR * mean_link;
+        world.active_pairs(&self.pts, margin, &mut self.all);
+        let least = self
+            .all
+            .pairs()
+            .iter()
+            .fold(f64::INFINITY, |m, q| m.min(q.clearance_m));
+        self.select(p.scale);
+        // Multipliers by key.
+        for j in 0..self.k {
+            self.nu[j] = (0..self.prev_k)
+                .find(|&i| self.prev_key[i] == self.key[j])
+                .map_or(0.0, |i| self.prev_nu[i]);
+        }
+        let mut s: f64 = 0.0;
+        for a in 0..n {
+            let mut u = p.theta0[a] + self.jx[a] * mu[0] + self.jy[a] * mu[1];
+            for j in 0..self.k {
+                u += self.nu[j] * self.grad[j * n + a];
+            }
+            s = s.max((theta[a] - u.clamp(lo[a], hi[a])).abs());
+        }
+        let comp = (0..self.k).fold(0.0_f64, |m, j| {
+            m.max(self.nu[j] * (self.clr[j] - cm).max(0.0))
+        });
+        At {
+            c,
+            cn: c.norm(),
+            s,
+            viol: (cm - least).max(0.0),
+            comp,
+        }
+    }
+
+    /// Picks the pairs of `all` that enter the subproblem (see the module doc).
+    fn select(&mut self, scale: f64) {
+        let n = self.n;
+        self.order.clear();
+        self.order.extend(0..self.all.len());
+        let pairs = self.all.pairs();
+        if self.order.len() > MAX_PAIRS {
+            self.order.select_nth_unstable_by(MAX_PAIRS - 1, |&a, &b| {
+                pairs[a].clearance_m.total_cmp(&pairs[b].clearance_m)
+            });
+            self.order.truncate(MAX_PAIRS);
+        }
+        self.k = 0;
+        for &i in &self.order {
+            let q = &pairs[i];
+            let same = (0..self.k).any(|j| {
+                self.key[j].1 == q.obstacle
+                    && (self.contact[j] - q.contact.on_segment).norm() <= SAME_CONTACT * scale
+            });
+            if same {
+                continue;
+            }
+            let j = self.k;
+            self.key[j] = (q.link, q.obstacle);
+            self.clr[j] = q.clearance_m;
+            self.contact[j] = q.contact.on_segment;
+            self.grad[j * n..(j + 1) * n].copy_from_slice(self.all.gradient(i));
+            self.k += 1;
+        }
+    }
+
+    /// One local solve from `theta` (updated in place) with the tip multiplier `mu` and the
+    /// pairs' multipliers remembered by key.
+    #[allow(clippy::too_many_arguments)]
+    pub fn local(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        lo: &[f64],
+        hi: &[f64],
+        theta: &mut [f64],
+        mu: &mut [f64; 2],
+        tol: f64,
+        max_iterations: usize,
+    ) -> ClearLocal {
+        let mut iterations = 0;
+        let mut newton_ready = false;
+        let mut stall = ElasticStall::default();
+        let (mut nu_t, mut nu_c) = (0.0, 0.0);
+        self.last_move = 0.0;
+        loop {
+            let at = self.eval(p, world, theta, lo, hi, *mu);
+            let ctol = tol;
+            let converged = at.cn <= tol && at.viol <= ctol && at.s <= p.stol && at.comp <= p.stol;
+            let stop = |converged: bool, joined: bool, iterations: usize| ClearLocal {
+                converged,
+                joined_best: joined,
+                tip_error: at.cn,
+                iterations,
+            };
+            if self.watch_best
+                && at.cn <= super::JOIN_BEST_TIP * p.scale
+                && at.viol <= super::JOIN_BEST_TIP * p.scale
+                && max_abs_diff(theta, &self.best) <= super::JOIN_BEST_POSE
+            {
+                return stop(false, true, iterations);
+            }
+            if converged {
+                return stop(true, false, iterations);
+            }
+            if iterations >= max_iterations {
+                return stop(false, false, iterations);
+            }
+            iterations += 1;
+            if newton_ready && self.n <= NEWTON_MAX_JOINTS {
+                if self.try_newton(p, world, lo, hi, theta, mu, &at, tol) {
+                    continue;
+                }
+                self.eval(p, world, theta, lo, hi, *mu);
+            }
+            let round_off = |at: &At| {
+                at.cn <= tol
+                    && at.viol <= ctol
+                    && at.s.max(at.comp) <= p.stol.max(super::ROUND_OFF_STATIONARITY)
+            };
+            match self.sqp_step(
+                p, world, lo, hi, theta, mu, &at, tol, &mut stall, &mut nu_t, &mut nu_c,
+            ) {
+                ControlFlow::Continue(full) => {
+                    newton_ready = full || at.cn < super::NEWTON_RANGE * p.scale
+                }
+                ControlFlow::Break(()) => {
+                    // With the multipliers of the last subproblem (no step left: optimal up
+                    // to round-off when the conditions hold with them).
+                    let last = self.eval(p, world, theta, lo, hi, *mu);
+                    return ClearLocal {
+                        converged: round_off(&last),
+                        joined_best: false,
+                        tip_error: last.cn,
+                        iterations,
+                    };
+                }
+            }
+        }
+    }
+
+    /// One SQP iteration; `Continue(true)` after an exact step taken whole, `Break` when no
+    /// step is left or none decreases the merit.
+    #[allow(clippy::too_many_arguments)]
+    fn sqp_step(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        lo: &[f64],
+        hi: &[f64],
+        theta: &mut [f64],
+        mu: &mut [f64; 2],
+        at: &At,
+        tol: f64,
+        stall: &mut ElasticStall,
+        nu_t: &mut f64,
+        nu_c: &mut f64,
+    ) -> ControlFlow<(), bool> {
+        let n = self.n;
+        let k2 = self.k + 2;
+        let cm = world.clearance_m();
+        self.r[0] = at.c.x;
+        self.r[1] = at.c.y;
+        for j in 0..self.k {
+            self.r[2 + j] = cm - self.clr[j];
+        }
+        let qp_tol = (super::QP_TOLERANCE * tol).max(super::QP_TOLERANCE_FLOOR * p.scale);
+        let mut elastic = false;
+        let mut solved = false;
+        for (attempt, rho) in [0.0]
+            .iter()
+            .chain(super::ELASTIC_WEIGHTS.iter())
+            .enumerate()
+        {
+            if attempt == 0 {
+                self.lam[0] = mu[0];
+                self.lam[1] = mu[1];
+                self.lam[2..k2].copy_from_slice(&self.nu[..self.k]);
+            } else {
+                if attempt == 1 && stall.elastic(at.cn + at.viol) {
+                    return ControlFlow::Break(());
+                }
+                self.lam[..k2].iter_mut().for_each(|l| *l = 0.0);
+            }
+            let qp = Qp {
+                n,
+                k2,
+                jx: &self.jx,
+                jy: &self.jy,
+                grad: &self.grad,
+                theta0: p.theta0,
+                theta,
+                lo,
+                hi,
+                r: &self.r,
+                rho_inv: rho * p.scale * p.scale,
+            };
+            let cap = if attempt == 0 {
+                super::MU_CAP / p.scale
+            } else {
+                f64::MAX
+            };
+            if qp.solve(&mut self.lam, &mut self.qp_x, &mut self.ds, qp_tol, cap) {
+                elastic = attempt > 0;
+                solved = true;
+                break;
+            }
+        }
+        if !solved {
+            return ControlFlow::Break(());
+        }
+        if !elastic {
+            stall.exact();
+        }
+        // Direction and its predicted effects.
+        let mut largest: f64 = 0.0;
+        let mut metric_slope = 0.0;
+        let mut tip_move = Vec2::zeros();
+        for a in 0..n {
+            let d = self.qp_x[a] - theta[a];
+            largest = largest.max(d.abs());
+            metric_slope += (theta[a] - p.theta0[a]) * d;
+            tip_move.x += self.jx[a] * d;
+            tip_move.y += self.jy[a] * d;
+        }
+        let pose_size = 1.0 + theta.iter().fold(0.0_f64, |m, t| m.max(t.abs()));
+        if largest <= super::STEP_FLOOR * pose_size {
+            *mu = [self.lam[0], self.lam[1]];
+            self.nu[..self.k].copy_from_slice(&self.lam[2..k2]);
+            self.remember();
+            return ControlFlow::Break(());
+        }
+        let mut lin_least = f64::INFINITY;
+        for j in 0..self.k {
+            let g = &self.grad[j * n..(j + 1) * n];
+            let gd: f64 = g
+                .iter()
+                .zip(&self.qp_x)
+                .zip(theta.iter())
+                .map(|((g, x), t)| g * (x - t))
+                .sum();
+            lin_least = lin_least.min(self.clr[j] + gd);
+        }
+        let lin_viol = (cm - lin_least).max(0.0);
+        let nu_sum: f64 = self.lam[2..k2].iter().sum();
+        *nu_t = weight(*nu_t, self.lam[0].hypot(self.lam[1]), elastic, p.scale);
+        *nu_c = weight(*nu_c, nu_sum, elastic, p.scale);
+        let slope = metric_slope
+            + *nu_t * ((at.c - tip_move).norm() - at.cn)
+            + *nu_c * (lin_viol - at.viol);
+        let merit0 = half_metric(theta, p.theta0) + *nu_t * at.cn + *nu_c * at.viol;
+        let mut alpha = 1.0;
+        let mut accepted = false;
+        for _ in 0..MAX_HALVINGS {
+            for a in 0..n {
+                self.trial[a] = if alpha == 1.0 {
+                    self.qp_x[a]
+                } else {
+                    theta[a] + alpha * (self.qp_x[a] - theta[a])
+                };
+            }
+            p.chain.points_into(&self.trial, &mut self.trial_pts);
+            let tip_err = (self.trial_pts[n] - p.target).norm();
+            let least = world
+                .clearance(&self.trial_pts)
+                .map_or(f64::INFINITY, |q| q.clearance_m);
+            let m = half_metric(&self.trial, p.theta0)
+                + *nu_t * tip_err
+                + *nu_c * (cm - least).max(0.0);
+            if m <= merit0 + ARMIJO * alpha * slope.min(0.0) {
+                accepted = true;
+                break;
+            }
+            alpha *= 0.5;
+        }
+        if !accepted {
+            return ControlFlow::Break(());
+        }
+        self.last_move = self
+            .pts
+            .iter()
+            .zip(&self.trial_pts)
+            .fold(0.0_f64, |m, (a, b)| m.max((a - b).norm()));
+        theta.copy_from_slice(&self.trial);
+        *mu = [self.lam[0], self.lam[1]];
+        self.nu[..self.k].copy_from_slice(&self.lam[2..k2]);
+        self.remember();
+        ControlFlow::Continue(!elastic && alpha == 1.0)
+    }
+
+    /// The Newton step on the optimality conditions (see the module doc); true when taken,
+    /// with `theta`, `mu` and the pairs' multipliers updated.
+    #[allow(clippy::too_many_arguments)]
+    fn try_newton(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        lo: &[f64],
+        hi: &[f64],
+        theta: &mut [f64],
+        mu: &mut [f64; 2],
+        at: &At,
+        tol: f64,
+    ) -> bool {
+        let n = self.n;
+        let cm = world.clearance_m();
+        // Active set: joints held at bounds, pairs leaning or not clear.
+        self.free.clear();
+        for a in 0..n {
+            let mut u = p.theta0[a] + self.jx[a] * mu[0] + self.jy[a] * mu[1];
+            for j in 0..self.k {
+                u += self.nu[j] * self.grad[j * n + a];
+            }
+            self.held_move[a] = if u <= lo[a] {
+                lo[a] - theta[a]
+            } else if u >= hi[a] {
+                hi[a] - theta[a]
+            } else {
+                self.free.push(a);
+                0.0
+            };
+        }
+        self.active.clear();
+        for j in 0..self.k {
+            if self.nu[j] > 0.0 || self.clr[j] < cm {
+                self.active.push(j);
+            }
+        }
+        let m = self.free.len();
+        let ka = self.active.len();
+        if m < 2 {
+            return false;
+        }
+        // Lagrangian Hessian: I + G (tip) - sum nu_j H_j (pairs, central differences).
+        let tip = self.pts[n];
+        for a in 0..n {
+            for b in 0..n {
+                let r = tip - self.pts[a.max(b)];
+                self.hess[a * n + b] = f64::from(u8::from(a == b)) + mu[0] * r.x + mu[1] * r.y;
+            }
+        }
+        for &j in &self.active {
+            let (link, obstacle) = self.key[j];
+            let nu = self.nu[j];
+            if nu == 0.0 {
+                continue;
+            }
+            self.fd_theta.copy_from_slice(theta);
+            for a in 0..link {
+                for (sign, out) in [(1.0, 0), (-1.0, 1)] {
+                    self.fd_theta[a] = theta[a] + sign * FD_STEP;
+                    p.chain.points_into(&self.fd_theta, &mut self.fd_pts);
+                    let pair = world.pair(&self.fd_pts, link, obstacle);
+                    let g = if out == 0 { &mut self.gp } else { &mut self.gm };
+                    pair_gradient(&self.fd_pts, &pair, g);
+                }
+                self.fd_theta[a] = theta[a];
+                for b in 0..link {
+                    let h = (self.gp[b] - self.gm[b]) / (2.0 * FD_STEP);
+                    // Symmetrized: half from each of the two columns.
+                    self.hess[b * n + a] -= 0.5 * nu * h;
+                    self.hess[a * n + b] -= 0.5 * nu * h;
+                }
+            }
+        }
+        // KKT system over the free joints and the active constraints.
+        let size = m + 2 + ka;
+        let kkt = &mut self.kkt[..size * size];
+        kkt.iter_mut().for_each(|v| *v = 0.0);
+        for (r, &a) in self.free.iter().enumerate() {
+            for (c, &b) in self.free.iter().enumerate() {
+                kkt[r * size + c] = self.hess[a * n + b];
+            }
+            let mut v = -(theta[a] - p.theta0[a]);
+            for b in 0..n {
+                v -= self.hess[a * n + b] * self.held_move[b];
+            }
+            self.rhs[r] = v;
+            kkt[r * size + m] = -self.jx[a];
+            kkt[r * size + m + 1] = -self.jy[a];
+            kkt[m * size + r] = self.jx[a];
+            kkt[(m + 1) * size + r] = self.jy[a];
+            for (i, &j) in self.active.iter().enumerate() {
+                let g = self.grad[j * n + a];
+                kkt[r * size + m + 2 + i] = -g;
+                kkt[(m + 2 + i) * size + r] = g;
+            }
+        }
+        let (mut hx, mut hy) = (0.0, 0.0);
+        for b in 0..n {
+            hx += self.jx[b] * self.held_move[b];
+            hy += self.jy[b] * self.held_move[b];
+        }
+        self.rhs[m] = at.c.x - hx;
+        self.rhs[m + 1] = at.c.y - hy;
+        for (i, &j) in self.active.iter().enumerate() {
+            let g = &self.grad[j * n..(j + 1) * n];
+            let gh: f64 = g.iter().zip(&self.held_move).map(|(g, d)| g * d).sum();
+            self.rhs[m + 2 + i] = cm - self.clr[j] - gh;
+        }
+        if !lu_solve(kkt, &mut self.rhs[..size], size) {
+            return false;
+        }
+        // New multipliers: none of a pair may turn negative.
+        for (i, &j) in self.active.iter().enumerate() {
+            let v = self.rhs[m + 2 + i];
+            if v < -NEGATIVE_NU * (1.0 + self.nu[j].abs()) {
+                return false;
+            }
+        }
+        let mut largest: f64 = 0.0;
+        for a in 0..n {
+            largest = largest.max(self.held_move[a].abs());
+            self.trial[a] = theta[a] + self.held_move[a];
+        }
+        for (r, &a) in self.free.iter().enumerate() {
+            let d = self.rhs[r];
+            largest = largest.max(d.abs());
+            self.trial[a] = (theta[a] + d).clamp(lo[a], hi[a]);
+        }
+        if largest.is_nan() || largest > super::NEWTON_MAX_MOVE {
+            return false;
+        }
+        let mu_n = [self.rhs[m], self.rhs[m + 1]];
+        // Carry the new multipliers by key (the old ones kept to restore), then judge the step
+        // at the new pose.
+        self.backup_k = self.prev_k;
+        self.backup_key[..self.prev_k].copy_from_slice(&self.prev_key[..self.prev_k]);
+        self.backup_nu[..self.prev_k].copy_from_slice(&self.prev_nu[..self.prev_k]);
+        self.nu[..self.k].iter_mut().for_each(|v| *v = 0.0);
+        for (i, &j) in self.active.iter().enumerate() {
+            self.nu[j] = self.rhs[m + 2 + i].max(0.0);
+        }
+        self.remember();
+        self.fd_theta.copy_from_slice(theta);
+        theta.copy_from_slice(&self.trial);
+        let next = self.eval(p, world, theta, lo, hi, mu_n);
+        let converged =
+            next.cn <= tol && next.viol <= tol && next.s <= p.stol && next.comp <= p.stol;
+        if converged || next.residual(p.scale) <= super::NEWTON_CONTRACTION * at.residual(p.scale) {
+            *mu = mu_n;
+            return true;
+        }
+        theta.copy_from_slice(&self.fd_theta);
+        self.prev_k = self.backup_k;
+        self.prev_key[..self.prev_k].copy_from_slice(&self.backup_key[..self.prev_k]);
+        self.prev_nu[..self.prev_k].copy_from_slice(&self.backup_nu[..self.prev_k]);
+        false
+    }
+}
+
+/// What a start of a cold solve among obstacles produced (its pose in the scratch).
+#[derive(Debug, Clone, Copy)]
+struct Found {
+    half_metric: f64,
+    /// Tip error plus the clearance missing, m (ranks answers that are not on target).
+    miss: f64,
+    /// Converged, on target and clear.
+    on_target: bool,
+    mu: [f64; 2],
+}
+
+impl Found {
+    fn beats(&self, other: Option<&Found>) -> bool {
+        match other {
+            None => true,
+            Some(o) if self.on_target != o.on_target => self.on_target,
+            Some(o) if self.on_target => self.half_metric < o.half_metric,
+            Some(o) => self.miss < o.miss,
+        }
+    }
+}
+
+/// The kinds of start of a cold solve among obstacles, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ClearStart {
+    Clipped,
+    FreeOptimum,
+    StraightPath,
+    PolarPath,
+    Mirror(usize),
+    MirrorFree,
+    Random,
+}
+
+impl ClearStart {
+    fn at(index: usize) -> Self {
+        match index {
+            0 => Self::Clipped,
+            1 => Self::FreeOptimum,
+            2 => Self::StraightPath,
+            3 => Self::PolarPath,
+            4 => Self::Mirror(0),
+            5 => Self::Mirror(1),
+            6 => Self::MirrorFree,
+            _ => Self::Random,
+        }
+    }
+    const FIXED: usize = 7;
+}
+
+impl Overall {
+    /// Sets the obstacles every answer keeps clear of (`None`, or a world without obstacles:
+    /// none, and every solve is exactly the one without a world). Forgets the pairs'
+    /// multipliers carried from tick to tick.
+    pub fn set_world(&mut self, world: Option<World>) {
+        self.world = world;
+        self.clear.forget();
+        self.clear.engaged = false;
+        self.last_clearance = None;
+    }
+
+    /// The world in use, if any.
+    pub fn world(&self) -> Option<&World> {
+        self.world.as_ref()
+    }
+
+    /// The least clearance of the last answer (m; see [`World::clearance`]), or `None` when
+    /// the world in use has no obstacles. Says whether a start that was not clear got out.
+    pub fn last_clearance(&self) -> Option<f64> {
+        self.last_clearance
+    }
+
+    /// Whether a world with obstacles is in use.
+    pub(super) fn among_obstacles(&self) -> bool {
+        self.world
+            .as_ref()
+            .is_some_and(|w| !w.obstacles().is_empty())
+    }
+
+    /// The exact least clearance of `pose` (obstacles present).
+    fn least_clearance(&mut self, world: &World, chain: &Chain, pose: &[f64]) -> f64 {
+        chain.points_into(pose, &mut self.clear.pts);
+        world
+            .clearance(&self.clear.pts)
+            .map_or(f64::INFINITY, |q| q.clearance_m)
+    }
+
+    /// Records the answer's clearance and takes `converged` back unless it is clear.
+    fn judge(&mut self, world: &World, chain: &Chain, out: &[f64], mut o: Outcome) -> Outcome {
+        let least = self.least_clearance(world, chain, out);
+        self.last_clearance = Some(least);
+        o.converged &= least >= world.clearance_m() - CLEAR_SLACK;
+        o
+    }
+
+    /// [`Overall::solve_local`] among obstacles.
+    pub(super) fn local_among(
+        &mut self,
+        chain: &Chain,
+        theta0: &[f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Outcome {
+        let Some(world) = self.world.take() else {
+            return self.free_local(chain, theta0, target, out);
+        };
+        let o = self.local_with(&world, chain, theta0, target, out);
+        self.world = Some(world);
+        o
+    }
+
+    fn local_with(
+        &mut self,
+        world: &World,
+        chain: &Chain,
+        theta0: &[f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Outcome {
+        let mut spent = 0;
+        if !self.clear.engaged {
+            // Nothing leaned on an obstacle last time: the answer without obstacles stands when
+            // it is clear (a local optimum that is feasible is one of the constrained problem).
+            let o = self.free_local(chain, theta0, target, out);
+            if out.len() == chain.len() && theta0.len() == chain.len() {
+                self.clear.resize(chain.len(), world.obstacles().len());
+                let least = self.least_clearance(world, chain, out);
+                if o.converged && least >= world.clearance_m() {
+                    self.last_clearance = Some(least);
+                    return o;
+                }
+            }
+            spent = o.iterations;
+        }
+        let p = match self.begin(chain, theta0, target, out) {
+            Ok(p) => p,
+            Err(o) => return self.judge_checked(world, chain, out, o),
+        };
+        self.clear.resize(chain.len(), world.obstacles().len());
+        self.start_clipped(&p);
+        let mut mu = self.mu;
+        let max_iterations = self.opts.max_iterations;
+        let Overall { w, clear, .. } = self;
+        let l = clear.local(
+            &p,
+            world,
+            &w.lo,
+            &w.hi,
+            &mut w.theta,
+            &mut mu,
+            p.tol,
+            max_iterations,
+        );
+        clear.engaged = clear.leaning();
+        let o = self.finish(&p, mu, spent + l.iterations, l.converged, out);
+        self.judge(world, chain, out, o)
+    }
+
+    /// [`Self::judge`] for an answer that may be bad input (of the wrong length).
+    fn judge_checked(&mut self, world: &World, chain: &Chain, out: &[f64], o: Outcome) -> Outcome {
+        if out.len() == chain.len() && out.iter().all(|t| t.is_finite()) {
+            self.clear.resize(chain.len(), world.obstacles().len());
+            self.judge(world, chain, out, o)
+        } else {
+            self.last_clearance = None;
+            o
+        }
+    }
+
+    /// [`Overall::solve_cold`] among obstacles.
+    pub(super) fn cold_among(
+        &mut self,
+        chain: &Chain,
+        theta0: &[f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Outcome {
+        let Some(world) = self.world.take() else {
+            return self.free_cold(chain, theta0, target, out);
+        };
+        let o = self.cold_with(&world, chain, theta0, target, out);
+        self.world = Some(world);
+        o
+    }
+
+    fn cold_with(
+        &mut self,
+        world: &World,
+        chain: &Chain,
+        theta0: &[f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Outcome {
+        // The best optimum without obstacles, when clear, is the best among them.
+        let free = self.free_cold(chain, theta0, target, out);
+        if out.len() != chain.len() || theta0.len() != chain.len() {
+            return self.judge_checked(world, chain, out, free);
+        }
+        self.clear.resize(chain.len(), world.obstacles().len());
+        self.clear.engaged = true;
+        self.clear.forget();
+        let least = self.least_clearance(world, chain, out);
+        if free.converged && least >= world.clearance_m() {
+            self.last_clearance = Some(least);
+            return free;
+        }
+        let p = match self.begin(chain, theta0, target, out) {
+            Ok(p) => p,
+            Err(o) => return self.judge_checked(world, chain, out, o),
+        };
+        self.clear.free_opt.copy_from_slice(out);
+        let free_on_target = free.reachable;
+        let mut total = free.iterations;
+        let (mut best, mut second): (Option<Found>, Option<Found>) = (None, None);
+        let mut rng = SplitMix(self.opts.seed);
+        let randoms = RANDOM_FACTOR * self.opts.random_starts;
+        for index in 0..ClearStart::FIXED + randoms {
+            let start = ClearStart::at(index);
+            let mut mu = [0.0; 2];
+            self.clear.forget();
+            match start {
+                ClearStart::Clipped => self.start_clipped(&p),
+                ClearStart::FreeOptimum => {
+                    if !free_on_target {
+                        continue;
+                    }
+                    self.w.theta.copy_from_slice(&self.clear.free_opt);
+                }
+                ClearStart::StraightPath | ClearStart::PolarPath => {
+                    if self.opts.continuation_stages == 0 {
+                        continue;
+                    }
+                    self.start_clipped(&p);
+                    total +=
+                        self.clear_continuation(world, &p, start == ClearStart::PolarPath, &mut mu);
+                }
+                ClearStart::Mirror(rank) => {
+                    let source = if rank == 0 { best } else { second };
+                    if !source.is_some_and(|s| s.on_target) {
+                        continue;
+                    }
+                    let src = if rank == 0 {
+                        &self.clear.best
+                    } else {
+                        &self.clear.second
+                    };
+                    mirror_pose(&p, src, &self.w.lo, &self.w.hi, &mut self.w.theta);
+                }
+                ClearStart::MirrorFree => {
+                    if !free_on_target {
+                        continue;
+                    }
+                    mirror_pose(
+                        &p,
+                        &self.clear.free_opt,
+                        &self.w.lo,
+                        &self.w.hi,
+                        &mut self.w.theta,
+                    );
+                }
+                ClearStart::Random => match best.filter(|b| b.on_target) {
+                    Some(b) => self.start_in_ball(&p, (2.0 * b.half_metric).sqrt(), &mut rng),
+                    None => self.start_in_box(&p, &mut rng),
+                },
+            }
+            self.clear.watch_best =
+                start == ClearStart::Random && best.is_some_and(|b| b.on_target);
+            let max_iterations = self.opts.max_iterations;
+            let Overall { w, clear, .. } = &mut *self;
+            let l = clear.local(
+                &p,
+                world,
+                &w.lo,
+                &w.hi,
+                &mut w.theta,
+                &mut mu,
+                p.tol,
+                max_iterations,
+            );
+            clear.watch_best = false;
+            total += l.iterations;
+            if l.joined_best {
+                continue;
+            }
+            let theta = std::mem::take(&mut self.w.theta);
+            let least = self.least_clearance(world, chain, &theta);
+            self.w.theta = theta;
+            let clear_enough = least >= world.clearance_m() - CLEAR_SLACK;
+            let found = Found {
+                half_metric: half_metric(&self.w.theta, p.theta0),
+                miss: l.tip_error + (world.clearance_m() - least).max(0.0),
+                on_target: l.converged && l.tip_error <= p.tol && clear_enough,
+                mu,
+            };
+            let same_as_best = best.is_some_and(|b| {
+                (b.half_metric - found.half_metric).abs()
+                    <= super::SAME_OPTIMUM_METRIC * (1.0 + found.half_metric)
+                    && max_abs_diff(&self.clear.best, &self.w.theta) < super::SAME_OPTIMUM_POSE
+            });
+            if same_as_best {
+                continue;
+            }
+            if found.beats(best.as_ref()) {
+                if best.is_some() {
+                    let (b, s) = (&self.clear.best, &mut self.clear.second);
+                    s.copy_from_slice(b);
+                    second = best;
+                }
+                self.clear.best.copy_from_slice(&self.w.theta);
+                best = Some(found);
+            } else if found.beats(second.as_ref()) {
+                self.clear.second.copy_from_slice(&self.w.theta);
+                second = Some(found);
+            }
+        }
+        self.clear.forget();
+        let Some(b) = best else {
+            self.w.theta.copy_from_slice(&self.clear.free_opt);
+            let o = self.finish(&p, [0.0; 2], total, false, out);
+            return self.judge(world, chain, out, o);
+        };
+        self.w.theta.copy_from_slice(&self.clear.best);
+        let mut mu = b.mu;
+        if b.on_target {
+            // Once more from the answer (a step or two): its pairs' multipliers, which the
+            // next local solve continues from.
+            let max_iterations = self.opts.max_iterations;
+            let Overall { w, clear, .. } = &mut *self;
+            let l = clear.local(
+                &p,
+                world,
+                &w.lo,
+                &w.hi,
+                &mut w.theta,
+                &mut mu,
+                p.tol,
+                max_iterations,
+            );
+            total += l.iterations;
+            if !l.converged || half_metric(&w.theta, p.theta0) > b.half_metric * (1.0 + 1e-12) {
+                w.theta.copy_from_slice(&clear.best);
+                mu = b.mu;
+                clear.forget();
+            }
+        }
+        let o = self.finish(&p, mu, total, b.on_target, out);
+        self.judge(world, chain, out, o)
+    }
+
+    /// A continuation start among obstacles from `w.theta` (see the cold solve without
+    /// obstacles): the intermediate targets solved with the obstacles, loosely.
+    fn clear_continuation(
+        &mut self,
+        world: &World,
+        p: &Problem,
+        polar: bool,
+        mu: &mut [f64; 2],
+    ) -> usize {
+        let stages = self.opts.continuation_stages;
+        let tip0 = p.chain.tip(&self.w.theta);
+        let b = p.chain.base();
+        let (r0, a0) = ((tip0 - b).norm(), super::bearing(tip0 - b));
+        let (r1, a1) = ((p.target - b).norm(), super::bearing(p.target - b));
+        let da = crate::chain::wrap_angle(a1 - a0);
+        let mut iterations = 0;
+        let max_iterations = self.opts.max_iterations;
+        for k in 1..=stages {
+            let s = k as f64 / (stages + 1) as f64;
+            let t = if polar {
+                let r = r0 + (r1 - r0) * s;
+                let a = a0 + da * s;
+                b + Vec2::new(r * a.cos(), r * a.sin())
+            } else {
+                tip0 + (p.target - tip0) * s
+            };
+            let sub = Problem {
+                target: t,
+                tol: super::STAGE_TIP_TOLERANCE * p.scale,
+                stol: super::STAGE_STATIONARITY_TOLERANCE,
+                ..*p
+            };
+            let Overall { w, clear, .. } = &mut *self;
+            iterations += clear
+                .local(
+                    &sub,
+                    world,
+                    &w.lo,
+                    &w.hi,
+                    &mut w.theta,
+                    mu,
+                    sub.tol,
+                    max_iterations,
+                )
+                .iterations;
+        }
+        iterations
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,388 @@
+//! Unit tests of the overall solver among obstacles: optimality at the answer, every answer
+//! clear, the control-loop contract on failure, getting out of a start that is not clear, and
+//! a world without obstacles changing nothing.
+
+#![allow(clippy::unwrap_used, clippy::needless_range_loop)]
+
+use super::*;
+use crate::chain::JointLimit;
+use crate::resolve::overall::OverallOptions;
+use crate::resolve::{ResolveError, Resolver};
+use crate::world::{Obstacle, Shape};
+use proptest::prelude::*;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+fn disc(id: &str, x: f64, y: f64, r: f64) -> Obstacle {
+    Obstacle {
+        id: id.into(),
+        shape: Shape::Circle {
+            center: Vec2::new(x, y),
+            radius_m: r,
+        },
+    }
+}
+
+fn arm(n: usize) -> Chain {
+    Chain::unlimited(vec![1.0 / n as f64; n], Vec2::zeros(), 0.0).unwrap()
+}
+
+/// A 10-joint arm bent up a little, a target left of its tip, and a post right where the
+/// optimum without obstacles puts link 6: the answer must lean on the post.
+fn leaning_case() -> (Chain, Vec<f64>, Vec2, World) {
+    let chain = arm(10);
+    let theta0: Vec<f64> = (0..10).map(|i| 0.12 + 0.01 * i as f64).collect();
+    let target = chain.tip(&theta0) + Vec2::new(-0.15, 0.05);
+    let mut free = Overall::new(OverallOptions::default());
+    let mut out = vec![0.0; 10];
+    assert!(
+        free.solve_local(&chain, &theta0, target, &mut out)
+            .converged
+    );
+    let pts = chain.points(&out);
+    let mid = (pts[5] + pts[6]) * 0.5;
+    let world = World::new(0.01, 0.005, vec![disc("post", mid.x, mid.y + 0.02, 0.02)]).unwrap();
+    (chain, theta0, target, world)
+}
+
+/// Worst violation of the optimality conditions at the solver's last answer `theta`:
+/// stationarity `theta = clip(theta0 + J^T mu + sum nu_j g_j)`, `nu_j >= 0`, and
+/// complementarity (a pair with a positive multiplier is at the clearance).
+fn kkt_residual(s: &Overall, chain: &Chain, world: &World, theta0: &[f64], theta: &[f64]) -> f64 {
+    let n = theta.len();
+    let pts = chain.points(theta);
+    let j = chain.jacobian(theta);
+    let mu = s.multiplier();
+    let mut u: Vec<f64> = (0..n)
+        .map(|a| theta0[a] + j[(0, a)] * mu[0] + j[(1, a)] * mu[1])
+        .collect();
+    let mut worst: f64 = 0.0;
+    let c = &s.clear;
+    let mut g = vec![0.0; n];
+    for i in 0..c.prev_k {
+        let (link, obstacle) = c.prev_key[i];
+        let nu = c.prev_nu[i];
+        worst = worst.max(-nu);
+        let pair = world.pair(&pts, link, obstacle);
+        pair_gradient(&pts, &pair, &mut g);
+        for a in 0..n {
+            u[a] += nu * g[a];
+        }
+        worst = worst.max(nu * (pair.clearance_m - world.clearance_m()).abs());
+    }
+    for a in 0..n {
+        let v = match chain.limits().get(a).copied().flatten() {
+            Some(l) => l.clamp(u[a]),
+            None => u[a],
+        };
+        worst = worst.max((theta[a] - v).abs());
+    }
+    worst
+}
+
+#[test]
+fn the_answer_leaning_on_an_obstacle_is_optimal_and_clear() {
+    let (chain, theta0, target, world) = leaning_case();
+    let mut free_out = vec![0.0; 10];
+    Overall::new(OverallOptions::default()).solve_local(&chain, &theta0, target, &mut free_out);
+    assert!(world.pose_clearance(&chain, &free_out).unwrap().clearance_m < 0.0);
+    for cold in [false, true] {
+        let mut s = Overall::new(OverallOptions::default());
+        s.set_world(Some(world.clone()));
+        let mut out = vec![0.0; 10];
+        let o = if cold {
+            s.solve_cold(&chain, &theta0, target, &mut out)
+        } else {
+            s.solve_local(&chain, &theta0, target, &mut out)
+        };
+        assert!(o.converged && o.reachable, "cold {cold}: {o:?}");
+        assert!((chain.tip(&out) - target).norm() <= 1e-11);
+        let least = world.pose_clearance(&chain, &out).unwrap().clearance_m;
+        assert!((least - 0.005).abs() < 1e-9, "leans on the post: {least}");
+        assert_eq!(s.last_clearance(), Some(least));
+        // A pair carries a positive multiplier and the conditions hold.
+        assert!(s.clear.prev_nu[..s.clear.prev_k].iter().any(|&v| v > 0.0));
+        let r = kkt_residual(&s, &chain, &world, &theta0, &out);
+        assert!(r <= 1e-8, "cold {cold}: KKT residual {r:e}");
+        // The post costs something over the answer without it.
+        let m = half_metric(&out, &theta0);
+        assert!(m > half_metric(&free_out, &theta0));
+        // Nearby clear poses on target are no better (local optimality, sampled).
+        let mut rng = StdRng::seed_from_u64(3);
+        let mut probe = Overall::new(OverallOptions::default());
+        for _ in 0..20 {
+            let nudged: Vec<f64> = out.iter().map(|t| t + rng.gen_range(-0.02..0.02)).collect();
+            // Back onto the target from the nudged pose, then compare if clear.
+            let mut back = vec![0.0; 10];
+            probe.reset();
+            if probe
+                .solve_local(&chain, &nudged, target, &mut back)
+                .converged
+            {
+                let clear = world.pose_clearance(&chain, &back).unwrap().clearance_m >= 0.005;
+                if clear && max_abs_diff(&back, &out) < 0.05 {
+                    assert!(half_metric(&back, &theta0) >= m - 1e-12);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn a_start_that_is_not_clear_gets_out() {
+    let chain = arm(8);
+    let theta0 = vec![0.1; 8];
+    let pts = chain.points(&theta0);
+    let mid = (pts[3] + pts[4]) * 0.5;
+    // A disc on link 4, 5 mm deep.
+    let world = World::new(0.0, 0.002, vec![disc("rock", mid.x, mid.y + 0.01, 0.015)]).unwrap();
+    assert!(world.pose_clearance(&chain, &theta0).unwrap().clearance_m < -0.004);
+    let target = chain.tip(&theta0);
+    let mut s = Overall::new(OverallOptions::default());
+    s.set_world(Some(world.clone()));
+    let mut out = vec![0.0; 8];
+    let o = s.solve_local(&chain, &theta0, target, &mut out);
+    assert!(o.converged, "{o:?}");
+    let least = world.pose_clearance(&chain, &out).unwrap().clearance_m;
+    assert!(least >= 0.002 - 1e-9, "{least}");
+    assert_eq!(s.last_clearance(), Some(least));
+    // Out of the nearest side, not through: a small move.
+    assert!(max_abs_diff(&out, &theta0) < 0.3);
+}
+
+#[test]
+fn a_start_that_cannot_get_out_says_so() {
+    // Link 1 lies inside a disc around the base's first link that no motion of the tip's
+    // target allows leaving (the base is fixed inside it): not converged, clearance reported.
+    let chain = arm(4);
+    let theta0 = vec![0.2; 4];
+    let world = World::new(0.0, 0.0, vec![disc("trap", 0.1, 0.0, 0.2)]).unwrap();
+    let mut s = Overall::new(OverallOptions::default());
+    s.set_world(Some(world.clone()));
+    let mut out = vec![0.0; 4];
+    let o = s.solve_local(&chain, &theta0, chain.tip(&theta0), &mut out);
+    assert!(!o.converged, "{o:?}");
+    let least = s.last_clearance().unwrap();
+    assert!(least < 0.0);
+    assert_eq!(
+        least,
+        world.pose_clearance(&chain, &out).unwrap().clearance_m
+    );
+}
+
+#[test]
+fn resolve_leaves_theta_untouched_when_no_clear_answer_exists() {
+    let chain = arm(6);
+    let mut theta = vec![0.15; 6];
+    let before = theta.clone();
+    let tip = chain.tip(&theta);
+    // A post around a point 5 cm beyond the tip: the target at its centre cannot be reached
+    // clear.
+    let goal = tip + Vec2::new(0.05, 0.0);
+    let world = World::new(0.01, 0.005, vec![disc("post", goal.x, goal.y, 0.03)]).unwrap();
+    let mut s = Overall::new(OverallOptions::default());
+    s.set_world(Some(world));
+    let err = s.resolve(&chain, &mut theta, goal).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            ResolveError::NotConverged { .. } | ResolveError::Unreachable { .. }
+        ),
+        "{err:?}"
+    );
+    assert_eq!(theta, before);
+    // And a reachable clear target is taken.
+    let ok = tip + Vec2::new(-0.02, 0.01);
+    s.resolve(&chain, &mut theta, ok).unwrap();
+    assert!((chain.tip(&theta) - ok).norm() < 1e-10);
+}
+
+#[test]
+fn a_world_without_obstacles_changes_nothing() {
+    let mut rng = StdRng::seed_from_u64(5);
+    let chain = Chain::new(
+        vec![0.1; 9],
+        Vec2::new(0.1, -0.2),
+        0.3,
+        vec![Some(JointLimit { lo: -0.4, hi: 0.4 }); 9],
+    )
+    .unwrap();
+    let empty = World::new(0.01, 0.005, vec![]).unwrap();
+    for _ in 0..10 {
+        let theta0: Vec<f64> = (0..9).map(|_| rng.gen_range(-0.3..0.3)).collect();
+        let goal: Vec<f64> = (0..9).map(|_| rng.gen_range(-0.35..0.35)).collect();
+        let target = chain.tip(&goal);
+        for cold in [false, true] {
+            let mut plain = Overall::new(OverallOptions::default());
+            let mut with = Overall::new(OverallOptions::default());
+            with.set_world(Some(empty.clone()));
+            let (mut a, mut b) = (vec![0.0; 9], vec![0.0; 9]);
+            let (oa, ob) = if cold {
+                (
+                    plain.solve_cold(&chain, &theta0, target, &mut a),
+                    with.solve_cold(&chain, &theta0, target, &mut b),
+                )
+            } else {
+                (
+                    plain.solve_local(&chain, &theta0, target, &mut a),
+                    with.solve_local(&chain, &theta0, target, &mut b),
+                )
+            };
+            assert_eq!(oa, ob);
+            assert_eq!(a, b);
+            assert_eq!(with.last_clearance(), None);
+        }
+    }
+}
+
+#[test]
+fn warm_ticks_along_a_post_stay_clear_and_on_target() {
+    let (chain, theta0, target, world) = leaning_case();
+    let mut s = Overall::new(OverallOptions::default());
+    s.set_world(Some(world.clone()));
+    let mut theta = theta0.clone();
+    let start = chain.tip(&theta0);
+    let mut out = vec![0.0; 10];
+    let mut leaned = 0;
+    for k in 1..=150 {
+        // To the target, 1 mm a tick.
+        let t = start + (target - start) * (k as f64 / 150.0);
+        let o = s.solve_local(&chain, &theta, t, &mut out);
+        assert!(o.converged, "tick {k}: {o:?}");
+        let least = world.pose_clearance(&chain, &out).unwrap().clearance_m;
+        assert!(least >= 0.005 - 1e-9, "tick {k}: {least}");
+        assert!((chain.tip(&out) - t).norm() < 1e-10);
+        leaned += usize::from(least < 0.005 + 1e-9);
+        theta.copy_from_slice(&out);
+    }
+    assert!(leaned > 10, "the arm leaned on the post in {leaned} ticks");
+    // Further on the body is caught on the post: the ticks stop converging, and resolve then
+    // leaves the pose where it was, clear.
+    let mut caught = false;
+    for k in 151..=300 {
+        let t = start + (target - start) * (k as f64 / 150.0);
+        let before = theta.clone();
+        match s.resolve(&chain, &mut theta, t) {
+            Ok(_) => {}
+            Err(_) => {
+                assert_eq!(theta, before);
+                caught = true;
+                break;
+            }
+        }
+        let least = world.pose_clearance(&chain, &theta).unwrap().clearance_m;
+        assert!(least >= 0.005 - 1e-9, "tick {k}: {least}");
+    }
+    assert!(caught);
+}
+
+/// A random small world near a random pose, and a target near the pose's tip.
+fn random_problem(seed: u64, n: usize, count: usize) -> (Chain, Vec<f64>, Vec2, World) {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.5..1.5) / n as f64).collect();
+    let limits = if rng.gen_bool(0.5) {
+        vec![Some(JointLimit { lo: -1.0, hi: 1.0 }); n]
+    } else {
+        Vec::new()
+    };
+    let chain = Chain::new(links, Vec2::zeros(), rng.gen_range(-3.0..3.0), limits).unwrap();
+    let spread = 2.0 / n as f64;
+    let theta0: Vec<f64> = (0..n).map(|_| rng.gen_range(-spread..spread)).collect();
+    let pts = chain.points(&theta0);
+    let obstacles = (0..count)
+        .map(|k| {
+            let link = rng.gen_range(1..=n);
+            let p = pts[link - 1] + (pts[link] - pts[link - 1]) * rng.gen_range(0.0..1.0);
+            let off = Vec2::new(rng.gen_range(-0.1..0.1), rng.gen_range(-0.1..0.1));
+            if rng.gen_bool(0.7) {
+                disc(
+                    &format!("d{k}"),
+                    p.x + off.x,
+                    p.y + off.y,
+                    rng.gen_range(0.005..0.04),
+                )
+            } else {
+                let (c, h) = (p + off, rng.gen_range(0.005..0.03));
+                Obstacle {
+                    id: format!("p{k}"),
+                    shape: Shape::Polygon {
+                        points: vec![
+                            c + Vec2::new(-h, -h),
+                            c + Vec2::new(h, -h),
+                            c + Vec2::new(0.0, 0.0),
+                            c + Vec2::new(h, h),
+                            c + Vec2::new(-h, h),
+                        ],
+                    },
+                }
+            }
+        })
+        .collect();
+    let world = World::new(
+        rng.gen_range(0.0..0.01),
+        rng.gen_range(0.0..0.005),
+        obstacles,
+    )
+    .unwrap();
+    // The tip of a pose nearby: reachable within the limits (obstacles aside).
+    let goal: Vec<f64> = theta0
+        .iter()
+        .map(|t| (t + rng.gen_range(-0.15..0.15)).clamp(-1.0, 1.0))
+        .collect();
+    let target = chain.tip(&goal);
+    (chain, theta0, target, world)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(96))]
+
+    #[test]
+    fn every_answer_that_converged_is_clear_on_target_and_within_limits(
+        seed in 0u64..1_000_000,
+        n in 2usize..=14,
+        count in 1usize..=6,
+        cold in proptest::bool::ANY,
+    ) {
+        let (chain, theta0, target, world) = random_problem(seed, n, count);
+        let mut s = Overall::new(OverallOptions::default());
+        s.set_world(Some(world.clone()));
+        let mut out = vec![0.0; n];
+        let o = if cold {
+            s.solve_cold(&chain, &theta0, target, &mut out)
+        } else {
+            s.solve_local(&chain, &theta0, target, &mut out)
+        };
+        prop_assert!(out.iter().all(|t| t.is_finite()));
+        chain.check_limits(&out).unwrap();
+        let least = world.pose_clearance(&chain, &out).unwrap().clearance_m;
+        prop_assert_eq!(s.last_clearance(), Some(least));
+        if o.converged {
+            prop_assert!(least >= world.clearance_m() - CLEAR_SLACK, "{}", least);
+            prop_assert!((chain.tip(&out) - target).norm() <= 1e-11 * (1.0 + chain.reach()));
+        }
+        // A clear start with a target a little way off converges (nothing in the way that a
+        // body of these sizes cannot go round) in most cases; checked in aggregate below.
+    }
+}
+
+#[test]
+fn most_random_problems_with_a_clear_start_converge() {
+    let (mut tried, mut converged) = (0, 0);
+    for seed in 0..200u64 {
+        let (chain, theta0, target, world) = random_problem(seed, 8, 3);
+        let clear_start =
+            world.pose_clearance(&chain, &theta0).unwrap().clearance_m >= world.clearance_m();
+        let tip_clear = world.point_distance(target).unwrap().0
+            >= world.link_radius_m() + world.clearance_m() + 0.01;
+        if !(clear_start && tip_clear) {
+            continue;
+        }
+        tried += 1;
+        let mut s = Overall::new(OverallOptions::default());
+        s.set_world(Some(world));
+        let mut out = vec![0.0; 8];
+        converged += usize::from(s.solve_cold(&chain, &theta0, target, &mut out).converged);
+    }
+    assert!(tried >= 50, "{tried}");
+    assert!(converged * 10 >= tried * 9, "{converged} of {tried}");
+}
