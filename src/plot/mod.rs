@@ -17,6 +17,7 @@ use crate::chain::Vec2;
 use crate::scenario::{rotations as joint_rotations, Run, Scenario};
 
 pub mod demo;
+pub mod outline;
 
 /// Why a figure could not be produced.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
