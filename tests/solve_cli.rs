@@ -196,7 +196,10 @@ fn the_sequential_answer_among_obstacles_tells_its_clearance_honestly() {
     let least = after["min_clearance_m"].as_f64().unwrap();
     assert!((least - clearance(&answer)).abs() < 1e-12, "{least}");
     assert!(least < 0.0);
-    assert_eq!(after["nearest"], serde_json::json!({"link": 3, "obstacle": "post"}));
+    assert_eq!(
+        after["nearest"],
+        serde_json::json!({"link": 3, "obstacle": "post"})
+    );
     // The start, worked out from the angles.
     let (mut x, mut y, mut heading) = (0.0, 0.0, 0.0);
     let mut start = vec![[0.0, 0.0]];
@@ -208,6 +211,42 @@ fn the_sequential_answer_among_obstacles_tells_its_clearance_honestly() {
     }
     let got = after["start_min_clearance_m"].as_f64().unwrap();
     assert!((got - clearance(&start)).abs() < 1e-12, "{got}");
+}
+
+#[test]
+fn the_chapters_example_among_obstacles_is_answered_with_its_clearance() {
+    let chapter = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/SOLVE.md"),
+    )
+    .unwrap();
+    let after = chapter.split("<!-- example: obstacles -->").nth(1).unwrap();
+    let problem = after
+        .split("```json")
+        .nth(1)
+        .unwrap()
+        .split("```")
+        .next()
+        .unwrap();
+    let out = snakectl(&["solve", "-"], problem);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let a = json(&out);
+    assert!(a["tip_error"].as_f64().unwrap() < 1e-9);
+    let least = a["min_clearance_m"].as_f64().unwrap();
+    assert_eq!(a["collision_free"], least >= 0.005);
+    // No more than the post's own, worked out here.
+    let pose = points(&a["points"]);
+    let post = (1..pose.len())
+        .map(|i| to_segment([0.43, -0.03], pose[i - 1], pose[i]) - 0.04 - 0.01)
+        .fold(f64::INFINITY, f64::min);
+    assert!(least <= post + 1e-12, "{least} vs {post}");
+    let nearest = a["nearest"]["obstacle"].as_str().unwrap();
+    assert!(["post", "shelf"].contains(&nearest), "{nearest}");
+    assert!(a["start_min_clearance_m"].as_f64().unwrap() > 0.005);
 }
 
 #[test]

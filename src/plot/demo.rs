@@ -887,7 +887,11 @@ mod tests {
             post.iter().map(|p| p.0).sum::<f64>() / n,
             post.iter().map(|p| p.1).sum::<f64>() / n,
         );
-        let r_px = post.iter().map(|p| (p.0 - c.0).hypot(p.1 - c.1)).sum::<f64>() / n;
+        let r_px = post
+            .iter()
+            .map(|p| (p.0 - c.0).hypot(p.1 - c.1))
+            .sum::<f64>()
+            / n;
         assert!(r_px > 5.0, "{r_px}");
         for p in post {
             assert!(((p.0 - c.0).hypot(p.1 - c.1) - r_px).abs() < 1.0, "{p:?}");

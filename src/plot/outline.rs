@@ -137,7 +137,12 @@ fn runs(walk: &[Vec2], keep: &[bool]) -> Vec<Vec<Vec2>> {
 /// edges, which fills the same area). Empty when nothing is inside.
 pub fn clip_polygon(points: &[Vec2], lo: Vec2, hi: Vec2) -> Vec<Vec2> {
     // Each side of the box: inside when `f(p) >= 0`.
-    let sides: [(usize, f64, f64); 4] = [(0, lo.x, 1.0), (0, hi.x, -1.0), (1, lo.y, 1.0), (1, hi.y, -1.0)];
+    let sides: [(usize, f64, f64); 4] = [
+        (0, lo.x, 1.0),
+        (0, hi.x, -1.0),
+        (1, lo.y, 1.0),
+        (1, hi.y, -1.0),
+    ];
     let mut poly = points.to_vec();
     for (axis, at, sign) in sides {
         if poly.is_empty() {
@@ -315,7 +320,13 @@ mod tests {
         assert!(clipped.iter().all(|p| p.x <= 1.0 && p.y <= 1.0));
         assert!((twice_area(&clipped) / 2.0 - 0.25).abs() < 1e-12);
         assert!(clip_polygon(&[v(2.0, 2.0), v(3.0, 2.0), v(3.0, 3.0)], lo, hi).is_empty());
-        let line = [v(-1.0, 0.5), v(0.5, 0.5), v(0.5, 3.0), v(0.7, 3.0), v(0.7, 0.2)];
+        let line = [
+            v(-1.0, 0.5),
+            v(0.5, 0.5),
+            v(0.5, 3.0),
+            v(0.7, 3.0),
+            v(0.7, 0.2),
+        ];
         let parts = clip_polyline(&line, lo, hi);
         assert_eq!(
             parts,

@@ -336,13 +336,12 @@ fn parse_world(
                 ))
             }
             (None, None) => {
-                return Err(ProblemError::new(
-                    at,
-                    "needs a \"circle\" or a \"polygon\"",
-                ))
+                return Err(ProblemError::new(at, "needs a \"circle\" or a \"polygon\""))
             }
         };
-        let id = o.id.clone().unwrap_or_else(|| format!("obstacle_{}", i + 1));
+        let id =
+            o.id.clone()
+                .unwrap_or_else(|| format!("obstacle_{}", i + 1));
         obstacles.push(Obstacle { id, shape });
     }
     World::new(link_radius_m, clearance_m, obstacles).map_err(world_error)
@@ -820,7 +819,9 @@ mod tests {
             (with(r#""clearance_m":2e6"#), "clearance_m"),
             (with(r#""obstacles":[{"id":"a"}]"#), "obstacles[0]"),
             (
-                with(r#""obstacles":[{"circle":{"center":[0,0],"radius":1},"polygon":{"points":[]}}]"#),
+                with(
+                    r#""obstacles":[{"circle":{"center":[0,0],"radius":1},"polygon":{"points":[]}}]"#,
+                ),
                 "obstacles[0]",
             ),
             (
@@ -897,7 +898,10 @@ mod tests {
     fn disc_clearance(points: &[[f64; 2]], c: [f64; 2], r: f64, link_r: f64) -> (f64, usize) {
         (1..points.len())
             .map(|i| (to_segment(c, points[i - 1], points[i]) - r - link_r, i))
-            .fold((f64::INFINITY, 0), |best, x| if x.0 < best.0 { x } else { best })
+            .fold(
+                (f64::INFINITY, 0),
+                |best, x| if x.0 < best.0 { x } else { best },
+            )
     }
 
     /// A world of a disc `post` at `c` of radius `r` and a far square without an id.
@@ -915,7 +919,10 @@ mod tests {
         let p = Problem::from_json(&with(&world_keys([0.5, 0.5], 0.1))).unwrap();
         let ids: Vec<&str> = p.world.obstacles().iter().map(|o| o.id.as_str()).collect();
         assert_eq!(ids, ["post", "obstacle_2"]);
-        assert_eq!((p.world.link_radius_m(), p.world.clearance_m()), (0.02, 0.01));
+        assert_eq!(
+            (p.world.link_radius_m(), p.world.clearance_m()),
+            (0.02, 0.01)
+        );
         assert_eq!(
             p.world.obstacles()[0].shape,
             Shape::Circle {
@@ -966,7 +973,12 @@ mod tests {
             assert!(!answer.collision_free, "{extra}");
             let nearest = answer.nearest.unwrap();
             assert_eq!((nearest.link, nearest.obstacle.as_str()), (link, "post"));
-            let start: Vec<[f64; 2]> = p.chain.points(&p.theta0).iter().map(|q| [q.x, q.y]).collect();
+            let start: Vec<[f64; 2]> = p
+                .chain
+                .points(&p.theta0)
+                .iter()
+                .map(|q| [q.x, q.y])
+                .collect();
             let (least, _) = disc_clearance(&start, post, 0.1, 0.02);
             let got = answer.start_min_clearance_m.unwrap();
             assert!((got - least).abs() < 1e-12, "{extra}: {got} vs {least}");
@@ -986,7 +998,12 @@ mod tests {
             assert!((got - least).abs() < 1e-12, "{got} vs {least}");
             assert_eq!(a.collision_free, got >= 0.01);
             assert_eq!(a.nearest.unwrap().link, link);
-            let start: Vec<[f64; 2]> = p.chain.points(&p.theta0).iter().map(|q| [q.x, q.y]).collect();
+            let start: Vec<[f64; 2]> = p
+                .chain
+                .points(&p.theta0)
+                .iter()
+                .map(|q| [q.x, q.y])
+                .collect();
             let (least, _) = disc_clearance(&start, post, 0.1, 0.02);
             assert!((a.start_min_clearance_m.unwrap() - least).abs() < 1e-12);
         }
@@ -1004,8 +1021,16 @@ mod tests {
         let (a, b) = (free.points[1], free.points[2]);
         let post = [(a[0] + b[0]) / 2.0 + 0.05, (a[1] + b[1]) / 2.0];
         let p = Problem::from_json(&with(&world_keys(post, 0.1))).unwrap();
-        let start: Vec<[f64; 2]> = p.chain.points(&p.theta0).iter().map(|q| [q.x, q.y]).collect();
-        assert!(disc_clearance(&start, post, 0.1, 0.02).0 > 0.01, "a clear start");
+        let start: Vec<[f64; 2]> = p
+            .chain
+            .points(&p.theta0)
+            .iter()
+            .map(|q| [q.x, q.y])
+            .collect();
+        assert!(
+            disc_clearance(&start, post, 0.1, 0.02).0 > 0.01,
+            "a clear start"
+        );
         assert!(disc_clearance(&free.points, post, 0.1, 0.02).0 < 0.01);
         let a = p.solve();
         assert!(a.collision_free && a.converged && a.reachable);

@@ -513,7 +513,13 @@ fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
         if view.status.scene.shows(&pair) {
             ctx.layer();
             let (a, b) = (pair.contact.on_segment, pair.contact.on_obstacle);
-            ctx.draw(&Segment::new(a.x, a.y, b.x, b.y, pair_colour(&view.status.scene, &pair)));
+            ctx.draw(&Segment::new(
+                a.x,
+                a.y,
+                b.x,
+                b.y,
+                pair_colour(&view.status.scene, &pair),
+            ));
         }
     }
     if let Some([tx, ty]) = snapshot.target {
@@ -589,12 +595,7 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     lines.push(row("link", link.to_owned(), link_style));
     match view.snapshot {
         None => lines.push(Line::from("waiting for telemetry")),
-        Some(s) => {
-            snapshot_lines(view.arm, s, &mut lines);
-            if let Some(line) = view.arm.and_then(|arm| clearance_line(&status.scene, arm, s)) {
-                lines.push(line);
-            }
-        }
+        Some(s) => snapshot_lines(view.arm, &status.scene, s, &mut lines),
     }
     lines.push(row("speed", format!("{:.3} m/s", status.speed_m_s), plain));
     lines.push(row(
@@ -647,7 +648,12 @@ fn clearance_line(scene: &Scene, arm: &ArmInfo, s: &Snapshot) -> Option<Line<'st
     ))
 }
 
-fn snapshot_lines(arm: Option<&ArmInfo>, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
+fn snapshot_lines(
+    arm: Option<&ArmInfo>,
+    scene: &Scene,
+    s: &Snapshot,
+    lines: &mut Vec<Line<'static>>,
+) {
     let plain = Style::default();
     let signed = |p: [f64; 2]| format!("{:+.3}  {:+.3} m", p[0], p[1]);
     lines.push(row("state", s.state.to_string(), state_style(s.state)));
@@ -702,6 +708,9 @@ fn snapshot_lines(arm: Option<&ArmInfo>, s: &Snapshot, lines: &mut Vec<Line<'sta
             flags.join(", "),
             Style::default().fg(Color::Yellow),
         ));
+    }
+    if let Some(line) = arm.and_then(|arm| clearance_line(scene, arm, s)) {
+        lines.push(line);
     }
     let (torque, torque_style) = if s.torque {
         ("on", Style::default().fg(Color::Green))

@@ -379,17 +379,26 @@ fn an_obstacle_is_shaded_outlined_and_ringed_by_its_margin_where_it_is() {
     let buffer = render_arm(&arm, Some(&snapshot), &panel);
     let text = lines(&buffer).join("\n");
     let centre = dot_cell_of(&arm, [0.5, -0.4]);
-    assert!(is_braille(buffer[centre].symbol()), "no shade at {centre:?}\n{text}");
+    assert!(
+        is_braille(buffer[centre].symbol()),
+        "no shade at {centre:?}\n{text}"
+    );
     assert_eq!(buffer[centre].fg, Color::DarkGray);
     for edge in [[0.56, -0.4], [0.44, -0.4]] {
         let cell = dot_cell_of(&arm, edge);
-        assert!(is_braille(buffer[cell].symbol()), "no outline at {cell:?}\n{text}");
+        assert!(
+            is_braille(buffer[cell].symbol()),
+            "no outline at {cell:?}\n{text}"
+        );
         assert_eq!(buffer[cell].fg, Color::Gray);
     }
     // The margin, 0.06 + 0.07 from the centre, beside the outline and apart from it.
     for side in [[0.63, -0.4], [0.37, -0.4]] {
         let cell = dot_cell_of(&arm, side);
-        assert!(is_braille(buffer[cell].symbol()), "no margin at {cell:?}\n{text}");
+        assert!(
+            is_braille(buffer[cell].symbol()),
+            "no margin at {cell:?}\n{text}"
+        );
         assert_eq!(buffer[cell].fg, Color::Gray);
     }
     let outside = dot_cell_of(&arm, [0.5, -0.62]);
@@ -415,7 +424,10 @@ fn the_nearest_pair_is_drawn_only_within_twice_the_clearance() {
     let out = [(b[1] - a[1]) / len, -(b[0] - a[0]) / len];
     let (radius, clearance) = (0.04, 0.05);
     let panel_at = |gap: f64| {
-        let c = [mid[0] + out[0] * (gap + radius), mid[1] + out[1] * (gap + radius)];
+        let c = [
+            mid[0] + out[0] * (gap + radius),
+            mid[1] + out[1] * (gap + radius),
+        ];
         among_post(c, radius, 0.0, clearance)
     };
     let halfway = |gap: f64| [mid[0] + out[0] * gap / 2.0, mid[1] + out[1] * gap / 2.0];
@@ -424,7 +436,11 @@ fn the_nearest_pair_is_drawn_only_within_twice_the_clearance() {
     let panel = panel_at(0.08);
     let pair = panel.scene.nearest(&arm, &snapshot).unwrap();
     assert_eq!((pair.link, pair.id(panel.scene.world())), (6, "post"));
-    assert!((pair.clearance_m - 0.08).abs() < 1e-9, "{}", pair.clearance_m);
+    assert!(
+        (pair.clearance_m - 0.08).abs() < 1e-9,
+        "{}",
+        pair.clearance_m
+    );
     let buffer = render_arm(&arm, Some(&snapshot), &panel);
     let text = lines(&buffer).join("\n");
     let cell = dot_cell_of(&arm, halfway(0.08));
