@@ -497,7 +497,12 @@ fn draw_world(
                 if !named.1 {
                     named.1 = true;
                     series.label("clearance margin").legend(|(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 18, y)], MARGIN.stroke_width(1))
+                        plotters::element::DashedPathElement::new(
+                            vec![(x, y), (x + 18, y)].into_iter(),
+                            4,
+                            3,
+                            MARGIN.stroke_width(1),
+                        )
                     });
                 }
             }
