@@ -498,7 +498,7 @@ fn draw_world(
                     named.1 = true;
                     series.label("clearance margin").legend(|(x, y)| {
                         plotters::element::DashedPathElement::new(
-                            vec![(x, y), (x + 18, y)].into_iter(),
+                            vec![(x, y), (x + 18, y)],
                             4,
                             3,
                             MARGIN.stroke_width(1),
