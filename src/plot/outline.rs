@@ -17,6 +17,8 @@ use crate::world::Shape;
 const MAX_CIRCLE_POINTS: usize = 720;
 /// Fewest points a circle is drawn with.
 const MIN_CIRCLE_POINTS: usize = 24;
+/// About the most points a grown polygon's walk takes (a longer walk is sampled more coarsely).
+const MAX_WALK_POINTS: f64 = 20_000.0;
 
 /// Points on the circle (`center`, `radius`) at most about `step_m` apart, counter-clockwise
 /// from angle 0, not repeating the first.
@@ -70,7 +72,13 @@ fn polygon_walk(points: &[Vec2], by_m: f64, step_m: f64) -> Vec<Vec2> {
     if n < 3 {
         return Vec::new();
     }
-    let step = step_m.max(f64::MIN_POSITIVE);
+    let perimeter: f64 = (0..n)
+        .map(|k| (points[(k + 1) % n] - points[k]).norm())
+        .sum::<f64>()
+        + std::f64::consts::TAU * by_m;
+    let step = step_m
+        .max(perimeter / MAX_WALK_POINTS)
+        .max(f64::MIN_POSITIVE);
     // Counter-clockwise order: the outward normal is the edge's right-hand side.
     let ccw: Vec<Vec2> = if twice_area(points) >= 0.0 {
         points.to_vec()
@@ -310,6 +318,16 @@ mod tests {
             .filter(|p| (*p - v(1.1, 1.1)).norm() < 0.011)
             .count();
         assert!(near >= 2, "{near}");
+    }
+
+    #[test]
+    fn a_huge_polygon_is_walked_in_a_bounded_number_of_points() {
+        let big = Shape::Polygon {
+            points: vec![v(-1e6, -1e6), v(1e6, -1e6), v(0.0, 1e6)],
+        };
+        let runs = grown(&big, 0.01, 0.001);
+        let count: usize = runs.iter().map(Vec::len).sum();
+        assert!((1000..=21_000).contains(&count), "{count}");
     }
 
     #[test]
