@@ -346,8 +346,8 @@ fn draw_canvas(frame: &mut Frame<'_>, area: Rect, view: &View<'_>) {
     let dots = Dots {
         x0: x_bounds[0],
         y0: y_bounds[0],
-        step: (x_bounds[1] - x_bounds[0]) / f64::from((2 * inner.width).max(2) - 1),
-        step_y: (y_bounds[1] - y_bounds[0]) / f64::from((4 * inner.height).max(2) - 1),
+        step: (x_bounds[1] - x_bounds[0]) / f64::from((2 * u32::from(inner.width)).max(2) - 1),
+        step_y: (y_bounds[1] - y_bounds[0]) / f64::from((4 * u32::from(inner.height)).max(2) - 1),
         across: 2 * usize::from(inner.width),
         down: 4 * usize::from(inner.height),
     };
