@@ -298,7 +298,7 @@ fn json_and_toml_examples_parse() {
             *seen.entry(block.lang).or_insert(0) += 1;
         }
     }
-    assert_eq!(seen.get("json"), Some(&1), "{seen:?}");
+    assert_eq!(seen.get("json"), Some(&2), "{seen:?}");
     assert_eq!(seen.get("toml"), Some(&3), "{seen:?}");
 }
 

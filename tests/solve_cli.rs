@@ -37,8 +37,14 @@ fn a_reachable_target_is_solved_from_stdin() {
         "iterations",
         "metrics",
         "solve_us",
+        "collision_free",
     ] {
         assert!(a.get(key).is_some(), "missing {key}");
+    }
+    // No obstacles: nothing in the way, no clearance to tell.
+    assert_eq!(a["collision_free"], true);
+    for key in ["min_clearance_m", "nearest", "start_min_clearance_m"] {
+        assert_eq!(a[key], serde_json::Value::Null, "{key}");
     }
     assert_eq!(a["points"].as_array().unwrap().len(), 5);
     assert!(a["tip_error"].as_f64().unwrap() < 1e-9);
@@ -104,6 +110,27 @@ fn bad_input_exits_two_with_one_line_naming_the_field() {
             "strategy",
         ),
         (&*ARM.replacen('{', r#"{"steps":0,"#, 1), "steps"),
+        (
+            &*ARM.replacen(
+                '{',
+                r#"{"obstacles":[{"circle":{"center":[1,1],"radius":0}}],"#,
+                1,
+            ),
+            "obstacles[0].circle.radius",
+        ),
+        (
+            &*ARM.replacen(
+                '{',
+                r#"{"obstacles":[{"id":"post","circle":{"center":[1,1],"radius":0.1}},
+                {"id":"shelf","polygon":{"points":[[0,0],[1,1],[1,0],[0,1]]}}],"#,
+                1,
+            ),
+            "obstacles[1].polygon.points",
+        ),
+        (
+            &*ARM.replacen('{', r#"{"clearance_m":-0.01,"#, 1),
+            "clearance_m",
+        ),
     ];
     for (text, needle) in cases {
         let out = snakectl(&["solve", "-"], text);
@@ -114,6 +141,112 @@ fn bad_input_exits_two_with_one_line_naming_the_field() {
         assert!(err.contains(needle), "{text}: {err}");
         assert!(!err.contains("panicked"));
     }
+}
+
+/// Distance from `c` to the segment `a..b`.
+fn to_segment(c: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let t = (((c[0] - a[0]) * dx + (c[1] - a[1]) * dy) / (dx * dx + dy * dy)).clamp(0.0, 1.0);
+    (c[0] - a[0] - t * dx).hypot(c[1] - a[1] - t * dy)
+}
+
+fn points(value: &serde_json::Value) -> Vec<[f64; 2]> {
+    value
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| [p[0].as_f64().unwrap(), p[1].as_f64().unwrap()])
+        .collect()
+}
+
+#[test]
+fn the_sequential_answer_among_obstacles_tells_its_clearance_honestly() {
+    let plain = ARM.replacen('{', r#"{"strategy":"sequential","#, 1);
+    let before = json(&snakectl(&["solve", "-"], &plain));
+    // A post on the answer's third link, and an unnamed shelf far away.
+    let answer = points(&before["points"]);
+    let (a, b) = (answer[2], answer[3]);
+    let post = [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0];
+    let text = plain.replacen(
+        '{',
+        &format!(
+            r#"{{"link_radius_m":0.01,"clearance_m":0.005,"obstacles":[
+            {{"id":"post","circle":{{"center":[{},{}],"radius":0.03}}}},
+            {{"polygon":{{"points":[[3,3],[4,3],[4,4]]}}}}],"#,
+            post[0], post[1]
+        ),
+        1,
+    );
+    let out = snakectl(&["solve", "-"], &text);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let after = json(&out);
+    // The tractrix does not know of obstacles: the same answer, said not to be clear.
+    assert_eq!(after["theta"], before["theta"]);
+    assert_eq!(after["collision_free"], false);
+    let clearance = |pose: &[[f64; 2]]| {
+        (1..pose.len())
+            .map(|i| to_segment(post, pose[i - 1], pose[i]) - 0.03 - 0.01)
+            .fold(f64::INFINITY, f64::min)
+    };
+    let least = after["min_clearance_m"].as_f64().unwrap();
+    assert!((least - clearance(&answer)).abs() < 1e-12, "{least}");
+    assert!(least < 0.0);
+    assert_eq!(
+        after["nearest"],
+        serde_json::json!({"link": 3, "obstacle": "post"})
+    );
+    // The start, worked out from the angles.
+    let (mut x, mut y, mut heading) = (0.0, 0.0, 0.0);
+    let mut start = vec![[0.0, 0.0]];
+    for (len, t) in [0.3, 0.3, 0.2, 0.2].iter().zip([0.2; 4]) {
+        heading += t;
+        x += len * f64::cos(heading);
+        y += len * f64::sin(heading);
+        start.push([x, y]);
+    }
+    let got = after["start_min_clearance_m"].as_f64().unwrap();
+    assert!((got - clearance(&start)).abs() < 1e-12, "{got}");
+}
+
+#[test]
+fn the_chapters_example_among_obstacles_is_answered_with_its_clearance() {
+    let chapter = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/SOLVE.md"),
+    )
+    .unwrap();
+    let after = chapter.split("<!-- example: obstacles -->").nth(1).unwrap();
+    let problem = after
+        .split("```json")
+        .nth(1)
+        .unwrap()
+        .split("```")
+        .next()
+        .unwrap();
+    let out = snakectl(&["solve", "-"], problem);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let a = json(&out);
+    assert!(a["tip_error"].as_f64().unwrap() < 1e-9);
+    let least = a["min_clearance_m"].as_f64().unwrap();
+    assert_eq!(a["collision_free"], least >= 0.005);
+    // No more than the post's own, worked out here.
+    let pose = points(&a["points"]);
+    let post = (1..pose.len())
+        .map(|i| to_segment([0.43, -0.03], pose[i - 1], pose[i]) - 0.04 - 0.01)
+        .fold(f64::INFINITY, f64::min);
+    assert!(least <= post + 1e-12, "{least} vs {post}");
+    let nearest = a["nearest"]["obstacle"].as_str().unwrap();
+    assert!(["post", "shelf"].contains(&nearest), "{nearest}");
+    assert!(a["start_min_clearance_m"].as_f64().unwrap() > 0.005);
 }
 
 #[test]

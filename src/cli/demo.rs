@@ -582,6 +582,7 @@ impl Recorder<'_> {
             t1: t,
             reference,
             pictured,
+            world: None,
         });
     }
 

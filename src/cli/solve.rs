@@ -7,6 +7,7 @@ use clap::Args;
 
 use snakectl::config::Config;
 use snakectl::problem::{self, Problem, ProblemError};
+use snakectl::world::World;
 
 use super::{outln, Failure};
 
@@ -118,6 +119,7 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
             )?,
             steps: problem::parse_steps(args.steps)?,
             objective: problem::parse_objective(None, None, strategy, base_mode)?,
+            world: World::default(),
         })
     };
     build().map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", path.display())))

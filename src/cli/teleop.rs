@@ -322,6 +322,7 @@ impl App {
                 speed_m_s: DEFAULT_SPEED_M_S,
                 joystick,
                 notice: None,
+                scene: ui::Scene::default(),
             },
             addr,
             token_file,

@@ -6,13 +6,19 @@
 //!   against the measured tip.
 //! - [`joints`]: every joint angle and the tracking error against time over the whole run, the
 //!   phases shaded and the events (estop, reset) marked.
+//!
+//! A phase run among obstacles ([`Phase::world`]) has them drawn in both its panels: each
+//! obstacle filled light grey with a dark outline, and dashed around it the line the links'
+//! axes keep behind (the obstacle grown by `link_radius_m + clearance_m`).
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
+use super::outline;
 use super::{draw_err, PlotError};
-use crate::chain::Chain;
+use crate::chain::{Chain, Vec2};
+use crate::world::World;
 
 /// One telemetry sample.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -42,6 +48,9 @@ pub struct Phase {
     pub reference: Vec<[f64; 2]>,
     /// Whether it gets a column of its own in [`motion`] and a shade in [`joints`].
     pub pictured: bool,
+    /// The obstacles in force during the phase, drawn in its panels of [`motion`] (`None`:
+    /// none).
+    pub world: Option<World>,
 }
 
 /// Something that happened at one moment (an estop, a reset).
@@ -104,6 +113,9 @@ const PHASE_COLOURS: [RGBColor; 4] = [
     RGBColor(140, 60, 170),
 ];
 const EVENT: RGBColor = RGBColor(210, 30, 30);
+const OBSTACLE_FILL: RGBColor = RGBColor(214, 214, 214);
+const OBSTACLE_EDGE: RGBColor = RGBColor(90, 90, 90);
+const MARGIN: RGBColor = RGBColor(130, 130, 130);
 const REFERENCE: RGBColor = RGBColor(40, 40, 40);
 const FONT: &str = "sans-serif";
 
@@ -168,6 +180,24 @@ pub fn motion(record: &Record, title: &str) -> Result<String, PlotError> {
             arm_points.extend(record.points(&s.theta));
         }
     }
+    // The obstacles near the arm in view too: those far away only as far as half the arm's
+    // span beyond it.
+    let (x0, x1, y0, y1) = bbox(&arm_points);
+    let reach = 0.5 * (x1 - x0).max(y1 - y0);
+    let mut seen = Vec::new();
+    for world in phases.iter().filter_map(|p| p.world.as_ref()) {
+        let grow = world.link_radius_m() + world.clearance_m();
+        for o in world.obstacles() {
+            let (lo, hi) = o.shape.bounds();
+            for (x, y) in [(lo.x - grow, lo.y - grow), (hi.x + grow, hi.y + grow)] {
+                seen.push((
+                    x.clamp(x0 - reach, x1 + reach),
+                    y.clamp(y0 - reach, y1 + reach),
+                ));
+            }
+        }
+    }
+    arm_points.extend(seen);
     let plot_w = f64::from(COL_W - CHART_EXTRA.0);
     let arm_view = equal_ranges(
         bbox(&arm_points),
@@ -230,6 +260,7 @@ fn arm_panel(
     colour: RGBColor,
     (xr, yr): (std::ops::Range<f64>, std::ops::Range<f64>),
 ) -> Result<(), PlotError> {
+    let (xr_view, yr_view) = (xr.clone(), yr.clone());
     let mut chart = ChartBuilder::on(area)
         .caption(format!("{}: the arm", phase.label), (FONT, 17))
         .margin(10)
@@ -247,6 +278,9 @@ fn arm_panel(
         .y_labels(6)
         .draw()
         .map_err(draw_err)?;
+    if let Some(world) = &phase.world {
+        draw_world(&mut chart, world, (&xr_view, &yr_view))?;
+    }
     let picks = spread(samples.len(), SNAPSHOTS);
     for (k, &i) in picks.iter().enumerate() {
         // Early poses pale, the last one full.
@@ -354,7 +388,7 @@ fn zoom_panel(
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(56)
-        .build_cartesian_2d(view.0, view.1)
+        .build_cartesian_2d(view.0.clone(), view.1.clone())
         .map_err(draw_err)?;
     chart
         .configure_mesh()
@@ -366,6 +400,9 @@ fn zoom_panel(
         .y_labels(5)
         .draw()
         .map_err(draw_err)?;
+    if let Some(world) = &phase.world {
+        draw_world(&mut chart, world, (&view.0, &view.1))?;
+    }
     if !reference.is_empty() {
         // A pale band under the measured line, so that both show where they agree.
         chart
@@ -399,6 +436,78 @@ fn zoom_panel(
     }
     mark_events(&mut chart, events, true)?;
     legend_box(&mut chart, SeriesLabelPosition::UpperRight)?;
+    Ok(())
+}
+
+/// Draws the obstacles of `world` clipped to the view `(xr, yr)`: each filled and outlined,
+/// and dashed around it the obstacle grown by `link_radius_m + clearance_m`; named once in
+/// the legend.
+fn draw_world(
+    chart: &mut Chart<'_, '_>,
+    world: &World,
+    (xr, yr): (&std::ops::Range<f64>, &std::ops::Range<f64>),
+) -> Result<(), PlotError> {
+    let (lo, hi) = (Vec2::new(xr.start, yr.start), Vec2::new(xr.end, yr.end));
+    // About a pixel and a half: fine enough for round shapes, few points.
+    let step = (hi.x - lo.x).max(hi.y - lo.y) / 300.0;
+    let grow = world.link_radius_m() + world.clearance_m();
+    let xy = |p: &Vec2| (p.x, p.y);
+    let mut named = (false, false);
+    for o in world.obstacles() {
+        let mut ring = outline::boundary(&o.shape, step);
+        let fill = outline::clip_polygon(&ring, lo, hi);
+        if !fill.is_empty() {
+            let series = chart
+                .draw_series(std::iter::once(Polygon::new(
+                    fill.iter().map(xy).collect::<Vec<_>>(),
+                    OBSTACLE_FILL.filled(),
+                )))
+                .map_err(draw_err)?;
+            if !named.0 {
+                named.0 = true;
+                series.label("obstacle").legend(|(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 18, y + 5)], OBSTACLE_FILL.filled())
+                });
+            }
+        }
+        if let Some(&first) = ring.first() {
+            ring.push(first);
+        }
+        for piece in outline::clip_polyline(&ring, lo, hi) {
+            chart
+                .draw_series(LineSeries::new(
+                    piece.iter().map(xy),
+                    OBSTACLE_EDGE.stroke_width(1),
+                ))
+                .map_err(draw_err)?;
+        }
+        if grow <= 0.0 {
+            continue;
+        }
+        for run in outline::grown(&o.shape, grow, step) {
+            for piece in outline::clip_polyline(&run, lo, hi) {
+                let series = chart
+                    .draw_series(DashedLineSeries::new(
+                        piece.iter().map(xy),
+                        4,
+                        3,
+                        MARGIN.stroke_width(1),
+                    ))
+                    .map_err(draw_err)?;
+                if !named.1 {
+                    named.1 = true;
+                    series.label("clearance margin").legend(|(x, y)| {
+                        plotters::element::DashedPathElement::new(
+                            vec![(x, y), (x + 18, y)],
+                            4,
+                            3,
+                            MARGIN.stroke_width(1),
+                        )
+                    });
+                }
+            }
+        }
+    }
     Ok(())
 }
 
@@ -695,6 +804,122 @@ mod tests {
             vec![1.0, 1.0, 1.0, 1.0, 1.0, 2.0, 2.0]
         );
         assert!(rolling_median(&[], 3).is_empty());
+    }
+
+    use crate::world::{Obstacle, Shape};
+
+    /// A three-link arm swinging up once, in one pictured phase, among `world`.
+    fn swing(world: Option<World>) -> Record {
+        let chain = Chain::unlimited(vec![0.2, 0.15, 0.1], Vec2::zeros(), 0.0).unwrap();
+        let samples: Vec<Sample> = (0..=20)
+            .map(|k| {
+                let theta = vec![0.05 * k as f64, 0.3, 0.2];
+                let tip = chain.tip(&theta);
+                Sample {
+                    t_s: 0.1 * k as f64,
+                    theta,
+                    tip_ref: [tip.x, tip.y],
+                    tip_meas: [tip.x, tip.y],
+                    tracking_error_m: 0.0,
+                }
+            })
+            .collect();
+        Record {
+            chain: Some(chain),
+            phases: vec![Phase {
+                label: "among obstacles".into(),
+                t0: 0.0,
+                t1: 2.0,
+                reference: Vec::new(),
+                pictured: true,
+                world,
+            }],
+            samples,
+            events: Vec::new(),
+        }
+    }
+
+    /// The point lists of the SVG's polygons filled with `colour`, in pixels, in order.
+    fn filled_polygons(svg: &str, colour: RGBColor) -> Vec<Vec<(f64, f64)>> {
+        let fill = format!("fill=\"#{:02X}{:02X}{:02X}\"", colour.0, colour.1, colour.2);
+        svg.split("<polygon")
+            .skip(1)
+            .filter(|tag| tag.split("/>").next().unwrap().contains(&fill))
+            .map(|tag| {
+                let points = tag.split("points=\"").nth(1).unwrap();
+                points[..points.find('"').unwrap()]
+                    .split_whitespace()
+                    .map(|xy| {
+                        let (x, y) = xy.split_once(',').unwrap();
+                        (x.parse().unwrap(), y.parse().unwrap())
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_obstacles_of_a_phase_are_drawn_where_they_are() {
+        let (center, radius) = ((0.05, 0.3), 0.04);
+        let shelf = [(-0.15, 0.1), (-0.05, 0.1), (-0.05, 0.13), (-0.15, 0.13)];
+        let world = World::new(
+            0.01,
+            0.005,
+            vec![
+                Obstacle {
+                    id: "post".into(),
+                    shape: Shape::Circle {
+                        center: Vec2::new(center.0, center.1),
+                        radius_m: radius,
+                    },
+                },
+                Obstacle {
+                    id: "shelf".into(),
+                    shape: Shape::Polygon {
+                        points: shelf.iter().map(|&(x, y)| Vec2::new(x, y)).collect(),
+                    },
+                },
+            ],
+        )
+        .unwrap();
+        let svg = motion(&swing(Some(world)), "t").unwrap();
+        let shapes = filled_polygons(&svg, OBSTACLE_FILL);
+        assert!(shapes.len() >= 2, "{} obstacle fills", shapes.len());
+        // The arm's panel first: the post, a ring of pixels round its centre.
+        let post = &shapes[0];
+        let n = post.len() as f64;
+        let c = (
+            post.iter().map(|p| p.0).sum::<f64>() / n,
+            post.iter().map(|p| p.1).sum::<f64>() / n,
+        );
+        let r_px = post
+            .iter()
+            .map(|p| (p.0 - c.0).hypot(p.1 - c.1))
+            .sum::<f64>()
+            / n;
+        assert!(r_px > 5.0, "{r_px}");
+        for p in post {
+            assert!(((p.0 - c.0).hypot(p.1 - c.1) - r_px).abs() < 1.0, "{p:?}");
+        }
+        // One scale on both axes: the shelf's corners lie where the post's pixels say.
+        let scale = r_px / radius;
+        let drawn = &shapes[1];
+        assert_eq!(drawn.len(), shelf.len());
+        for (&(x, y), &(px, py)) in shelf.iter().zip(drawn) {
+            let want = (c.0 + scale * (x - center.0), c.1 - scale * (y - center.1));
+            assert!(
+                (px - want.0).abs() < 1.5 && (py - want.1).abs() < 1.5,
+                "({x}, {y}) at ({px}, {py}), expected {want:?}"
+            );
+        }
+        // The clearance margin is drawn dashed, and named in the legend.
+        assert!(svg.contains("clearance margin") && svg.contains("obstacle"));
+        let margin = format!("#{:02X}{:02X}{:02X}", MARGIN.0, MARGIN.1, MARGIN.2);
+        assert!(svg.matches(&margin).count() > 10);
+        // Without a world, none of it.
+        let plain = motion(&swing(None), "t").unwrap();
+        assert!(filled_polygons(&plain, OBSTACLE_FILL).is_empty());
+        assert!(!plain.contains(&margin) && !plain.contains("clearance margin"));
     }
 
     #[test]

@@ -9,6 +9,8 @@
 //! - [`rotations`]: the paper's Fig. 6: the length-weighted joint rotations `sigma_i |dtheta_i|`
 //!   along the curve (`sigma_i` the arc length from the pulled end), one panel per step count,
 //!   one line per strategy.
+//! - [`demo`]: the figures of `snakectl demo`, obstacles included; [`outline`]: obstacles as
+//!   lines to draw (boundaries, clearance margins, clipping to a view).
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -17,6 +19,7 @@ use crate::chain::Vec2;
 use crate::scenario::{rotations as joint_rotations, Run, Scenario};
 
 pub mod demo;
+pub mod outline;
 
 /// Why a figure could not be produced.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

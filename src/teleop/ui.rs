@@ -4,6 +4,12 @@
 //! The canvas is in world coordinates with the same scale on both axes (a terminal cell is
 //! about twice as tall as wide, a braille cell 2x4 dots), so the arm keeps its shape and a
 //! click on the canvas maps back to the point under it ([`click_to_world`]).
+//!
+//! Among obstacles ([`Scene`], set with [`Panel::set_world`]) the canvas shades each obstacle,
+//! outlines it, dots the clearance margin (the obstacle grown by `link_radius_m +
+//! clearance_m`: where the links' axes keep behind), and, when the commanded pose comes within
+//! twice `clearance_m` of an obstacle, draws the nearest link-obstacle pair as a line between
+//! their closest points (yellow, red when the pose is not clear).
 
 use std::collections::VecDeque;
 
@@ -15,7 +21,10 @@ use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as Segment, Points}
 use ratatui::widgets::{Block, Borders, Paragraph, Wrap};
 use ratatui::Frame;
 
+use crate::chain::Vec2;
 use crate::client::{ArmInfo, State, Status as Snapshot};
+use crate::plot::outline;
+use crate::world::{Pair, World};
 
 /// Width of the state panel, columns (less on a narrow terminal).
 const PANEL_WIDTH: u16 = 44;
@@ -87,6 +96,86 @@ impl Trail {
     }
 }
 
+/// Spacing of the points kept for an obstacle's outline and margin, m (the canvas thins them
+/// to its dots).
+const OUTLINE_STEP_M: f64 = 0.002;
+
+/// The obstacles as the canvas draws them: the world, with each obstacle's outline and
+/// clearance margin worked out once, when the world changes.
+#[derive(Debug, Clone, Default)]
+pub struct Scene {
+    world: World,
+    /// Each obstacle's boundary, closed (the first point repeated last), m.
+    outlines: Vec<Vec<(f64, f64)>>,
+    /// The pieces of the obstacles' boundaries grown by `link_radius_m + clearance_m`, m.
+    margins: Vec<Vec<(f64, f64)>>,
+}
+
+impl Scene {
+    /// The scene of `world`.
+    pub fn new(world: World) -> Self {
+        let grow = world.link_radius_m() + world.clearance_m();
+        let pair = |p: &Vec2| (p.x, p.y);
+        let mut outlines = Vec::with_capacity(world.obstacles().len());
+        let mut margins = Vec::new();
+        for o in world.obstacles() {
+            let mut ring: Vec<(f64, f64)> = outline::boundary(&o.shape, OUTLINE_STEP_M)
+                .iter()
+                .map(pair)
+                .collect();
+            if let Some(&first) = ring.first() {
+                ring.push(first);
+            }
+            outlines.push(ring);
+            if grow > 0.0 {
+                margins.extend(
+                    outline::grown(&o.shape, grow, OUTLINE_STEP_M)
+                        .iter()
+                        .map(|run| run.iter().map(pair).collect()),
+                );
+            }
+        }
+        Self {
+            world,
+            outlines,
+            margins,
+        }
+    }
+
+    /// The world drawn.
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// The pair of least clearance of the arm's commanded pose (`theta_cmd`; the measured one
+    /// when telemetry has no commanded pose of the arm's size); `None` without obstacles.
+    pub fn nearest(&self, arm: &ArmInfo, snapshot: &Snapshot) -> Option<Pair> {
+        if self.world.obstacles().is_empty() {
+            return None;
+        }
+        let joints = arm.chain().len();
+        let theta = if snapshot.theta_cmd.len() == joints {
+            &snapshot.theta_cmd
+        } else {
+            &snapshot.theta_meas
+        };
+        let points: Vec<Vec2> = arm
+            .points(theta)
+            .iter()
+            .map(|p| Vec2::new(p[0], p[1]))
+            .collect();
+        if points.len() != joints + 1 {
+            return None;
+        }
+        self.world.clearance(&points)
+    }
+
+    /// Whether the pair is near enough to be shown: within twice the world's clearance.
+    pub fn shows(&self, pair: &Pair) -> bool {
+        pair.clearance_m <= 2.0 * self.world.clearance_m()
+    }
+}
+
 /// The connection to the daemon, as the panel shows it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Contact {
@@ -111,6 +200,15 @@ pub struct Panel {
     pub joystick: Option<String>,
     /// The last thing worth telling (a refusal, the daemon gone).
     pub notice: Option<String>,
+    /// The obstacles the daemon keeps the arm clear of (none until it tells).
+    pub scene: Scene,
+}
+
+impl Panel {
+    /// Takes the daemon's world: from the next frame on, the canvas draws it.
+    pub fn set_world(&mut self, world: World) {
+        self.scene = Scene::new(world);
+    }
 }
 
 /// Everything one frame shows.
@@ -241,15 +339,100 @@ pub fn draw(frame: &mut Frame<'_>, view: &View<'_>) {
 
 fn draw_canvas(frame: &mut Frame<'_>, area: Rect, view: &View<'_>) {
     let block = Block::default().borders(Borders::ALL).title(" arm ");
-    let (x_bounds, y_bounds) = world_bounds(view.arm, block.inner(area));
+    let inner = block.inner(area);
+    let (x_bounds, y_bounds) = world_bounds(view.arm, inner);
     let trail: Vec<(f64, f64)> = view.trail.points().map(|[x, y]| (x, y)).collect();
+    // Braille: 2 dots a column, 4 a row; the canvas spreads them over the bounds.
+    let dots = Dots {
+        x0: x_bounds[0],
+        y0: y_bounds[0],
+        step: (x_bounds[1] - x_bounds[0]) / f64::from((2 * u32::from(inner.width)).max(2) - 1),
+        step_y: (y_bounds[1] - y_bounds[0]) / f64::from((4 * u32::from(inner.height)).max(2) - 1),
+        across: 2 * usize::from(inner.width),
+        down: 4 * usize::from(inner.height),
+    };
     let canvas = Canvas::default()
         .block(block)
         .marker(Marker::Braille)
         .x_bounds(x_bounds)
         .y_bounds(y_bounds)
-        .paint(|ctx| paint_arm(ctx, view, &trail));
+        .paint(|ctx| {
+            paint_scene(ctx, &view.status.scene, &dots);
+            paint_arm(ctx, view, &trail);
+        });
     frame.render_widget(canvas, area);
+}
+
+/// Where the canvas's dots fall, in the world.
+struct Dots {
+    /// The world point of dot (0, 0) (bottom left), m.
+    x0: f64,
+    y0: f64,
+    /// From one dot to the next across and up, m.
+    step: f64,
+    step_y: f64,
+    /// Dots across and up.
+    across: usize,
+    down: usize,
+}
+
+/// The obstacles, under everything else: each shaded (every other dot inside) and outlined,
+/// then its clearance margin dotted.
+fn paint_scene(ctx: &mut Context<'_>, scene: &Scene, dots: &Dots) {
+    if scene.world.obstacles().is_empty() || dots.step <= 0.0 || dots.step_y <= 0.0 {
+        return;
+    }
+    let mut shade = Vec::new();
+    for o in scene.world.obstacles() {
+        let (lo, hi) = o.shape.bounds();
+        let range = |lo: f64, hi: f64, origin: f64, step: f64, count: usize| {
+            let first = ((lo - origin) / step).ceil().max(0.0) as usize;
+            let last = (((hi - origin) / step).floor().max(-1.0) + 1.0) as usize;
+            first..last.min(count)
+        };
+        for j in range(lo.y, hi.y, dots.y0, dots.step_y, dots.down) {
+            for i in range(lo.x, hi.x, dots.x0, dots.step, dots.across) {
+                let p = Vec2::new(
+                    dots.x0 + i as f64 * dots.step,
+                    dots.y0 + j as f64 * dots.step_y,
+                );
+                if (i + j) % 2 == 0 && o.shape.point_distance(p) < 0.0 {
+                    shade.push((p.x, p.y));
+                }
+            }
+        }
+    }
+    ctx.draw(&Points {
+        coords: &shade,
+        color: Color::DarkGray,
+    });
+    ctx.layer();
+    for ring in &scene.outlines {
+        for w in ring.windows(2) {
+            ctx.draw(&Segment::new(w[0].0, w[0].1, w[1].0, w[1].1, Color::Gray));
+        }
+    }
+    // The margin dotted: a point every second dot along it.
+    let mut dotted = Vec::new();
+    for run in &scene.margins {
+        let mut since = f64::INFINITY;
+        let mut last: Option<(f64, f64)> = None;
+        for &p in run {
+            if let Some(q) = last {
+                since += (p.0 - q.0).hypot(p.1 - q.1);
+            }
+            last = Some(p);
+            if since >= 2.0 * dots.step {
+                dotted.push(p);
+                since = 0.0;
+            }
+        }
+    }
+    ctx.draw(&Points {
+        coords: &dotted,
+        color: Color::Gray,
+    });
+    ctx.layer();
 }
 
 fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
@@ -326,6 +509,19 @@ fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
             ),
         );
     }
+    if let Some(pair) = view.status.scene.nearest(arm, snapshot) {
+        if view.status.scene.shows(&pair) {
+            ctx.layer();
+            let (a, b) = (pair.contact.on_segment, pair.contact.on_obstacle);
+            ctx.draw(&Segment::new(
+                a.x,
+                a.y,
+                b.x,
+                b.y,
+                pair_colour(&view.status.scene, &pair),
+            ));
+        }
+    }
     if let Some([tx, ty]) = snapshot.target {
         ctx.print(
             tx,
@@ -346,6 +542,16 @@ fn paint_arm(ctx: &mut Context<'_>, view: &View<'_>, trail: &[(f64, f64)]) {
                 .add_modifier(Modifier::BOLD),
         ),
     );
+}
+
+/// The nearest pair's colour: red when the pose is not clear, yellow when it is (but within
+/// twice the clearance).
+fn pair_colour(scene: &Scene, pair: &Pair) -> Color {
+    if pair.clearance_m < scene.world.clearance_m() {
+        Color::Red
+    } else {
+        Color::Yellow
+    }
 }
 
 /// The joints of the measured pose near a limit.
@@ -389,7 +595,7 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     lines.push(row("link", link.to_owned(), link_style));
     match view.snapshot {
         None => lines.push(Line::from("waiting for telemetry")),
-        Some(s) => snapshot_lines(view.arm, s, &mut lines),
+        Some(s) => snapshot_lines(view.arm, &status.scene, s, &mut lines),
     }
     lines.push(row("speed", format!("{:.3} m/s", status.speed_m_s), plain));
     lines.push(row(
@@ -420,7 +626,34 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     lines
 }
 
-fn snapshot_lines(arm: Option<&ArmInfo>, s: &Snapshot, lines: &mut Vec<Line<'static>>) {
+/// The commanded pose's clearance among obstacles (`clear  12.3 mm  link 5, post`): green
+/// beyond twice `clearance_m`, yellow within it, red below `clearance_m`; `None` without
+/// obstacles.
+fn clearance_line(scene: &Scene, arm: &ArmInfo, s: &Snapshot) -> Option<Line<'static>> {
+    let pair = scene.nearest(arm, s)?;
+    let colour = if scene.shows(&pair) {
+        pair_colour(scene, &pair)
+    } else {
+        Color::Green
+    };
+    Some(row(
+        "clearance",
+        format!(
+            "{:.1} mm  link {}, {}",
+            pair.clearance_m * 1000.0,
+            pair.link,
+            pair.id(&scene.world)
+        ),
+        Style::default().fg(colour),
+    ))
+}
+
+fn snapshot_lines(
+    arm: Option<&ArmInfo>,
+    scene: &Scene,
+    s: &Snapshot,
+    lines: &mut Vec<Line<'static>>,
+) {
     let plain = Style::default();
     let signed = |p: [f64; 2]| format!("{:+.3}  {:+.3} m", p[0], p[1]);
     lines.push(row("state", s.state.to_string(), state_style(s.state)));
@@ -475,6 +708,9 @@ fn snapshot_lines(arm: Option<&ArmInfo>, s: &Snapshot, lines: &mut Vec<Line<'sta
             flags.join(", "),
             Style::default().fg(Color::Yellow),
         ));
+    }
+    if let Some(line) = arm.and_then(|arm| clearance_line(scene, arm, s)) {
+        lines.push(line);
     }
     let (torque, torque_style) = if s.torque {
         ("on", Style::default().fg(Color::Green))

@@ -10,6 +10,7 @@ use super::*;
 use crate::client::{Describe, FaultInfo, FaultKind, Telemetry};
 use crate::protocol::STRATEGIES;
 use crate::resolve::Strategy;
+use crate::world::{Obstacle, Shape, World};
 
 const COLS: u16 = 120;
 const ROWS: u16 = 40;
@@ -61,6 +62,7 @@ fn status() -> Panel {
         speed_m_s: 0.05,
         joystick: None,
         notice: None,
+        scene: Scene::default(),
     }
 }
 
@@ -338,4 +340,122 @@ fn a_click_on_the_canvas_maps_back_to_the_point_drawn_there() {
     assert_eq!(click_to_world(&arm, screen(), 0, 5), None);
     assert_eq!(click_to_world(&arm, screen(), parts.panel.x + 3, 5), None);
     assert_eq!(click_to_world(&arm, screen(), 10, parts.help.y), None);
+}
+
+/// A panel whose world is one disc `post` at `center`, radius `radius_m`.
+fn among_post(center: [f64; 2], radius_m: f64, link_radius_m: f64, clearance_m: f64) -> Panel {
+    let mut panel = status();
+    let post = Obstacle {
+        id: "post".into(),
+        shape: Shape::Circle {
+            center: Vec2::new(center[0], center[1]),
+            radius_m,
+        },
+    };
+    panel.set_world(World::new(link_radius_m, clearance_m, vec![post]).unwrap());
+    panel
+}
+
+/// The canvas's braille cells drawn in `colour`.
+fn braille_cells(buffer: &Buffer, colour: Color) -> Vec<(u16, u16)> {
+    let inner = canvas_inner(areas(screen()).canvas);
+    let mut cells = Vec::new();
+    for y in inner.y..inner.y + inner.height {
+        for x in inner.x..inner.x + inner.width {
+            if is_braille(buffer[(x, y)].symbol()) && buffer[(x, y)].fg == colour {
+                cells.push((x, y));
+            }
+        }
+    }
+    cells
+}
+
+#[test]
+fn an_obstacle_is_shaded_outlined_and_ringed_by_its_margin_where_it_is() {
+    let arm = sim_arm();
+    let snapshot = snapshot_at(&arm, &arm.home_rad);
+    // Away from the arm, which curls up and to the left.
+    let panel = among_post([0.5, -0.4], 0.06, 0.02, 0.05);
+    let buffer = render_arm(&arm, Some(&snapshot), &panel);
+    let text = lines(&buffer).join("\n");
+    let centre = dot_cell_of(&arm, [0.5, -0.4]);
+    assert!(
+        is_braille(buffer[centre].symbol()),
+        "no shade at {centre:?}\n{text}"
+    );
+    assert_eq!(buffer[centre].fg, Color::DarkGray);
+    for edge in [[0.56, -0.4], [0.44, -0.4]] {
+        let cell = dot_cell_of(&arm, edge);
+        assert!(
+            is_braille(buffer[cell].symbol()),
+            "no outline at {cell:?}\n{text}"
+        );
+        assert_eq!(buffer[cell].fg, Color::Gray);
+    }
+    // The margin, 0.06 + 0.07 from the centre, beside the outline and apart from it.
+    for side in [[0.63, -0.4], [0.37, -0.4]] {
+        let cell = dot_cell_of(&arm, side);
+        assert!(
+            is_braille(buffer[cell].symbol()),
+            "no margin at {cell:?}\n{text}"
+        );
+        assert_eq!(buffer[cell].fg, Color::Gray);
+    }
+    let outside = dot_cell_of(&arm, [0.5, -0.62]);
+    assert_eq!(buffer[outside].symbol(), " ", "{outside:?}\n{text}");
+    // Far from the arm: its clearance shown in green, and no nearest-pair line.
+    assert!(text.contains("mm  link 1, post"), "{text}");
+    assert!(braille_cells(&buffer, Color::Yellow).is_empty());
+    // Without a world, nothing there.
+    let buffer = render_arm(&arm, Some(&snapshot), &status());
+    assert_eq!(buffer[centre].symbol(), " ");
+    assert!(!lines(&buffer).join("\n").contains("clearance"));
+}
+
+#[test]
+fn the_nearest_pair_is_drawn_only_within_twice_the_clearance() {
+    let arm = sim_arm();
+    let snapshot = snapshot_at(&arm, &arm.home_rad);
+    let points = arm.points(&arm.home_rad);
+    // A post on the outer side of link 6, `gap` from its middle; the clearance is 0.05.
+    let (a, b) = (points[5], points[6]);
+    let mid = [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0];
+    let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+    let out = [(b[1] - a[1]) / len, -(b[0] - a[0]) / len];
+    let (radius, clearance) = (0.04, 0.05);
+    let panel_at = |gap: f64| {
+        let c = [
+            mid[0] + out[0] * (gap + radius),
+            mid[1] + out[1] * (gap + radius),
+        ];
+        among_post(c, radius, 0.0, clearance)
+    };
+    let halfway = |gap: f64| [mid[0] + out[0] * gap / 2.0, mid[1] + out[1] * gap / 2.0];
+
+    // 0.08: clear, within twice the clearance: a yellow line from the link to the post.
+    let panel = panel_at(0.08);
+    let pair = panel.scene.nearest(&arm, &snapshot).unwrap();
+    assert_eq!((pair.link, pair.id(panel.scene.world())), (6, "post"));
+    assert!(
+        (pair.clearance_m - 0.08).abs() < 1e-9,
+        "{}",
+        pair.clearance_m
+    );
+    let buffer = render_arm(&arm, Some(&snapshot), &panel);
+    let text = lines(&buffer).join("\n");
+    let cell = dot_cell_of(&arm, halfway(0.08));
+    assert_eq!(buffer[cell].fg, Color::Yellow, "{cell:?}\n{text}");
+    assert!(text.contains("clearance 80.0 mm  link 6, post"), "{text}");
+
+    // 0.03: not clear: the line turns red.
+    let buffer = render_arm(&arm, Some(&snapshot), &panel_at(0.03));
+    assert!(!braille_cells(&buffer, Color::Red).is_empty());
+    assert!(braille_cells(&buffer, Color::Yellow).is_empty());
+
+    // 0.12, beyond twice the clearance: no line.
+    let buffer = render_arm(&arm, Some(&snapshot), &panel_at(0.12));
+    let text = lines(&buffer).join("\n");
+    assert!(braille_cells(&buffer, Color::Yellow).is_empty(), "{text}");
+    assert!(braille_cells(&buffer, Color::Red).is_empty(), "{text}");
+    assert!(text.contains("clearance 120.0 mm  link 6, post"), "{text}");
 }
