@@ -1,11 +1,13 @@
 //! Joint health, pure: each servo's error budget (a time, the same at every loop rate), the
-//! fault that holds it, and its temperature and voltage warnings with hysteresis. Readings and
-//! times go in, [`Change`]s come out; the cycle turns them into events and log lines, and does
-//! the bus work (reading Hardware Error Status, recovering) itself.
+//! fault that holds it, its temperature and voltage warnings with hysteresis, and contact
+//! detection (a load above its threshold for long enough). Readings and times go in,
+//! [`Change`]s come out; the cycle turns them into events and log lines, and does the bus work
+//! (reading Hardware Error Status, recovering) and the stops itself.
 
 use std::time::{Duration, Instant};
 
-use crate::protocol::{FaultChange, FaultInfo, FaultKind};
+use crate::config::Contact;
+use crate::protocol::{FaultChange, FaultInfo, FaultKind, LoadUnit};
 use crate::servo::HardwareErrors;
 
 /// A temperature warning this close below the servo's Temperature Limit, °C.
@@ -114,6 +116,19 @@ struct Joint {
     /// Active warnings: since which tick, and why.
     temperature: Option<(u64, String)>,
     voltage: Option<(u64, String)>,
+    /// The health tick since which its load has stayed above its contact threshold.
+    over: Option<u64>,
+    /// A contact latched: since which tick, and why.
+    contact: Option<(u64, String)>,
+}
+
+/// Contact detection as the loop counts it: thresholds per joint, and how many ticks a load
+/// must stay above one.
+#[derive(Debug, Clone, PartialEq)]
+struct ContactRule {
+    load: Vec<f64>,
+    hold: Duration,
+    hold_ticks: u64,
 }
 
 /// Every joint's health.
@@ -123,6 +138,7 @@ pub struct Health {
     budget: Budget,
     /// The port the servos are on, for the reports.
     port: Option<String>,
+    contact: Option<ContactRule>,
 }
 
 impl Health {
@@ -146,6 +162,29 @@ impl Health {
             joints,
             budget,
             port,
+            contact: None,
+        }
+    }
+
+    /// Contact detection on (`contact`) or off (`None`), on a loop whose ticks are `period`
+    /// apart: a load must stay above its threshold from one health read to one at least
+    /// `contact.hold` later (in ticks, rounded up).
+    pub fn set_contact(&mut self, contact: Option<&Contact>, period: Duration) {
+        self.contact = contact.map(|c| {
+            let period = period.as_secs_f64();
+            let ticks = if period > 0.0 {
+                (c.hold.as_secs_f64() / period - 1e-9).ceil().max(0.0)
+            } else {
+                0.0
+            };
+            ContactRule {
+                load: c.load.clone(),
+                hold: c.hold,
+                hold_ticks: ticks as u64,
+            }
+        });
+        for j in &mut self.joints {
+            j.over = None;
         }
     }
 
@@ -398,6 +437,65 @@ impl Health {
         changes
     }
 
+    /// Contact detection on joint `i`'s fresh load `load` (in `unit`), read at `tick`: a
+    /// `contact` raised once its |load| has stayed above the joint's threshold on every health
+    /// read for the rule's time (counted in ticks from the first read above), `None` otherwise
+    /// or while a contact is latched. A contact is not a fault of [`Health::any_fault`]: the
+    /// cycle latches the arm for it, and [`Health::release_contacts`] clears it with the latch.
+    pub fn judge_load(&mut self, i: usize, load: f64, unit: LoadUnit, tick: u64) -> Option<Change> {
+        let rule = self.contact.as_ref()?;
+        let threshold = rule.load.get(i).copied()?;
+        let j = self.joints.get_mut(i)?;
+        if j.contact.is_some() {
+            return None;
+        }
+        if load.abs() <= threshold {
+            j.over = None;
+            return None;
+        }
+        let since = *j.over.get_or_insert(tick);
+        let ticks = tick.saturating_sub(since);
+        if ticks < rule.hold_ticks {
+            return None;
+        }
+        let unit = match unit {
+            LoadUnit::Percent => "%",
+            LoadUnit::Amps => "A",
+        };
+        let detail = format!(
+            "load {load:.2} {unit} beyond contact_load = {threshold} {unit} on every read for \
+             {ticks} ticks (contact_ms = {}): the arm met something; goals := the measured \
+             pose, the arm latched as by an estop until `reset`",
+            rule.hold.as_millis()
+        );
+        j.over = None;
+        j.contact = Some((since, detail.clone()));
+        Some(Change::raised(self.info(i, FaultKind::Contact, since, detail)))
+    }
+
+    /// Whether a contact is latched on any joint.
+    pub fn in_contact(&self) -> bool {
+        self.joints.iter().any(|j| j.contact.is_some())
+    }
+
+    /// Every latched contact cleared (the latch that held the arm for them was released), with
+    /// its report; detection starts afresh.
+    pub fn release_contacts(&mut self, detail: &str) -> Vec<Change> {
+        let mut changes = Vec::new();
+        for i in 0..self.joints.len() {
+            self.joints[i].over = None;
+            if let Some((since, _)) = self.joints[i].contact.take() {
+                changes.push(Change::cleared(self.info(
+                    i,
+                    FaultKind::Contact,
+                    since,
+                    detail.to_owned(),
+                )));
+            }
+        }
+        changes
+    }
+
     /// Raise (`detail`) or clear (`None`) joint `i`'s warning of `kind`.
     fn warn(
         &mut self,
@@ -431,6 +529,9 @@ impl Health {
         for (i, j) in self.joints.iter().enumerate() {
             if let Some(h) = &j.fault {
                 faults.push(self.info(i, h.fault.kind(), h.since, h.detail.clone()));
+            }
+            if let Some((since, detail)) = &j.contact {
+                faults.push(self.info(i, FaultKind::Contact, *since, detail.clone()));
             }
             for (kind, slot) in [
                 (FaultKind::Temperature, &j.temperature),
