@@ -739,7 +739,8 @@ impl Servo {
         let cap = self.get(addr::PWM_LIMIT) as f64;
         let pwm = match self.get(addr::OPERATING_MODE) {
             3..=5 => {
-                let error = self.get(addr::GOAL_POSITION) as f64 - self.pos;
+                // On the encoder's reading, whole ticks, as the servo's own loop sees it.
+                let error = self.get(addr::GOAL_POSITION) as f64 - self.pos.round();
                 self.get(addr::POSITION_P_GAIN) as f64 / 128.0 * error
             }
             1 => (self.get(addr::GOAL_VELOCITY) as f64).signum() * cap,

@@ -495,6 +495,7 @@ fn a_blocked_servo_holds_its_shaft_and_its_load_rises_with_the_error_to_a_stall(
     goal(&mut s, 2, 3048);
     clock.advance(ms(100));
     let (held, _) = position_and_load(&mut s, 2);
+    assert_eq!(position_and_load(&mut s, 1).0, held, "both alike until the block");
     assert!(held > 2100 && held < 3000, "on its way when blocked: {held}");
     assert!(s.servo(2).unwrap().is_blocked());
     clock.advance(ms(200));
@@ -524,6 +525,7 @@ fn a_blocked_servo_holds_its_shaft_and_its_load_rises_with_the_error_to_a_stall(
     goal(&mut s, 2, 2500);
     // The window closes at 1 s: the shaft follows its goal again and comes to rest there.
     clock.advance(ms(1000));
+    s.advance();
     assert!(!s.servo(2).unwrap().is_blocked());
     clock.advance(ms(500));
     assert_eq!(position_and_load(&mut s, 2), (2500, 0));

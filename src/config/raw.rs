@@ -412,6 +412,7 @@ pub struct RawObstacle {
 #[serde(deny_unknown_fields)]
 pub struct RawCircle {
     /// Centre `[x, y]`, metres.
+    #[serde(deserialize_with = "pair")]
     pub center_m: [f64; 2],
     /// Radius, metres.
     pub radius_m: f64,
@@ -422,7 +423,28 @@ pub struct RawCircle {
 #[serde(deny_unknown_fields)]
 pub struct RawPolygon {
     /// Vertices `[x, y]` in order (either turning sense), metres; the last joins the first.
+    #[serde(deserialize_with = "pairs")]
     pub points_m: Vec<[f64; 2]>,
+}
+
+/// Exactly two numbers `[x, y]` (a longer or shorter array is refused, not cut).
+fn pair<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+    to_pair::<D::Error>(Vec::<f64>::deserialize(d)?)
+}
+
+/// A list of `[x, y]` pairs, each exactly two numbers.
+fn pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<[f64; 2]>, D::Error> {
+    Vec::<Vec<f64>>::deserialize(d)?
+        .into_iter()
+        .map(to_pair::<D::Error>)
+        .collect()
+}
+
+fn to_pair<E: serde::de::Error>(v: Vec<f64>) -> Result<[f64; 2], E> {
+    match v[..] {
+        [x, y] => Ok([x, y]),
+        _ => Err(E::invalid_length(v.len(), &"a point [x, y] in metres")),
+    }
 }
 
 /// `contact_load`: one threshold for every joint, or one per joint.

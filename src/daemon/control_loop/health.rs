@@ -732,6 +732,84 @@ mod tests {
         assert_eq!(h.index_of(2), Some(1));
     }
 
+    fn contact(h: &mut Health, hold_ms: u64) {
+        let rule = Contact {
+            load: vec![50.0, 1.0],
+            hold: Duration::from_millis(hold_ms),
+        };
+        h.set_contact(Some(&rule), 10 * MS);
+    }
+
+    #[test]
+    fn a_contact_is_raised_once_the_load_stays_above_its_threshold_for_its_time() {
+        let mut h = health(10);
+        contact(&mut h, 200);
+        // Health reads every 10 ticks of 10 ms: above at ticks 10, 20 and 30 is 200 ms.
+        assert_eq!(h.judge_load(0, 60.0, LoadUnit::Percent, 10), None);
+        assert_eq!(h.judge_load(0, 60.0, LoadUnit::Percent, 20), None);
+        assert!(!h.in_contact());
+        let raised = h.judge_load(0, 60.0, LoadUnit::Percent, 30).unwrap();
+        assert_eq!(raised.change, FaultChange::Raised);
+        let f = &raised.info;
+        assert!(
+            f.kind == FaultKind::Contact
+                && f.id == Some(1)
+                && f.joint == Some(1)
+                && f.port.as_deref() == Some("/dev/ttyUSB0")
+                && f.since_tick == 10,
+            "{f:?}"
+        );
+        assert!(
+            f.detail.contains("load 60.00 %") && f.detail.contains("contact_load = 50 %"),
+            "{}",
+            f.detail
+        );
+        // Latched: listed as a fault, not raised again, not a fault that holds by itself.
+        assert!(h.in_contact() && !h.any_fault());
+        assert_eq!(h.judge_load(0, 90.0, LoadUnit::Percent, 40), None);
+        let (faults, _) = h.lists(None);
+        assert_eq!(faults.len(), 1);
+        assert_eq!(faults[0].kind, FaultKind::Contact);
+        let cleared = h.release_contacts("released");
+        assert_eq!(cleared.len(), 1);
+        assert_eq!(cleared[0].change, FaultChange::Cleared);
+        assert!(cleared[0].info.since_tick == 10 && cleared[0].info.detail == "released");
+        assert!(!h.in_contact() && h.lists(None).0.is_empty());
+        assert!(h.release_contacts("again").is_empty());
+    }
+
+    #[test]
+    fn a_load_that_dips_below_its_threshold_starts_the_count_again() {
+        let mut h = health(10);
+        contact(&mut h, 200);
+        assert_eq!(h.judge_load(1, -1.5, LoadUnit::Amps, 10), None);
+        assert_eq!(h.judge_load(1, -1.5, LoadUnit::Amps, 20), None);
+        assert_eq!(h.judge_load(1, 0.4, LoadUnit::Amps, 30), None);
+        assert_eq!(h.judge_load(1, -1.5, LoadUnit::Amps, 40), None);
+        assert_eq!(h.judge_load(1, 1.5, LoadUnit::Amps, 50), None);
+        // Either sign counts: the magnitude is what pushes.
+        let raised = h.judge_load(1, -1.5, LoadUnit::Amps, 60).unwrap();
+        assert_eq!((raised.info.joint, raised.info.since_tick), (Some(2), 40));
+        assert!(raised.info.detail.contains("-1.50 A"), "{}", raised.info.detail);
+        // At the threshold is not above it.
+        let mut h = health(10);
+        contact(&mut h, 0);
+        assert_eq!(h.judge_load(0, 50.0, LoadUnit::Percent, 1), None);
+        assert!(h.judge_load(0, 50.1, LoadUnit::Percent, 2).is_some(), "0 ms: the first read");
+    }
+
+    #[test]
+    fn without_thresholds_no_load_is_a_contact() {
+        let mut h = health(10);
+        for tick in 0..100 {
+            assert_eq!(h.judge_load(0, 100.0, LoadUnit::Percent, tick), None);
+        }
+        contact(&mut h, 100);
+        h.set_contact(None, 10 * MS);
+        assert_eq!(h.judge_load(0, 100.0, LoadUnit::Percent, 200), None);
+        assert_eq!(h.judge_load(0, 100.0, LoadUnit::Percent, 300), None);
+    }
+
     #[test]
     fn the_lists_put_the_port_first() {
         let mut h = health(10);
