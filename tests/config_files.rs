@@ -65,7 +65,10 @@ fn shipped_examples_are_what_the_docs_say() {
     assert_eq!((w.link_radius_m(), w.clearance_m()), (0.012, 0.005));
     let least = w.pose_clearance(world.chain(), world.home()).unwrap();
     assert!(least.clearance_m > 0.05, "{least:?}");
-    assert!(world.contact().is_none(), "contact detection is commented out");
+    assert!(
+        world.contact().is_none(),
+        "contact detection is commented out"
+    );
 }
 
 /// The commented fault examples in `sim.toml` are valid when uncommented.

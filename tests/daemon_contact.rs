@@ -70,7 +70,11 @@ fn a_joint_pushing_past_its_contact_load_stops_the_arm_until_reset() {
     let raised = events.last().unwrap();
     println!("contact: {raised}");
     let f = &raised["fault"];
-    assert_eq!((f["joint"].clone(), f["id"].clone()), (json!(1), json!(1)), "{raised}");
+    assert_eq!(
+        (f["joint"].clone(), f["id"].clone()),
+        (json!(1), json!(1)),
+        "{raised}"
+    );
     assert!(f["port"].is_string(), "{raised}");
     let detail = f["detail"].as_str().unwrap();
     assert!(
@@ -88,7 +92,11 @@ fn a_joint_pushing_past_its_contact_load_stops_the_arm_until_reset() {
     let at = c.telemetry_until(|t| t["tick"].as_u64().unwrap() >= tick);
     let at = at.last().unwrap();
     assert_eq!(at["health_tick"], json!(tick), "{at}");
-    assert_eq!(floats(&at["load"])[0], named, "telemetry's load of joint 1: {at}");
+    assert_eq!(
+        floats(&at["load"])[0],
+        named,
+        "telemetry's load of joint 1: {at}"
+    );
     // 200 ms above 40 % at 100 Hz with health reads every 10 ticks: three reads, 20 ticks.
     let held = tick - f["since_tick"].as_u64().unwrap();
     assert_eq!(held, 20, "{raised}");
@@ -121,12 +129,20 @@ fn a_joint_pushing_past_its_contact_load_stops_the_arm_until_reset() {
     assert!(d.torque(1));
     // It stopped pushing: goals := the measured pose, so joint 1's load falls, and nothing
     // moves while the latch holds.
-    let calm = c.telemetry_until(|t| t["health_tick"].as_u64().unwrap() > s["tick"].as_u64().unwrap() + 10);
+    let calm = c
+        .telemetry_until(|t| t["health_tick"].as_u64().unwrap() > s["tick"].as_u64().unwrap() + 10);
     let cmd0 = floats(&calm[0]["theta_cmd"]);
     for t in &calm {
-        assert_eq!(floats(&t["theta_cmd"]), cmd0, "the goals moved under the latch: {t}");
+        assert_eq!(
+            floats(&t["theta_cmd"]),
+            cmd0,
+            "the goals moved under the latch: {t}"
+        );
     }
-    assert!((cmd0[0] - t0).abs() <= TICK_RAD, "joint 1's goal is where its shaft is");
+    assert!(
+        (cmd0[0] - t0).abs() <= TICK_RAD,
+        "joint 1's goal is where its shaft is"
+    );
     let after = floats(&calm.last().unwrap()["load"])[0];
     assert!(after.abs() < 5.0, "joint 1 still pushes: {after} %");
     assert_eq!(
@@ -182,7 +198,9 @@ fn without_contact_load_the_same_push_raises_nothing() {
     );
     assert!(longest >= 20, "joint 1 never pushed for long: {reads:?}");
     assert!(
-        events.iter().all(|e| e["event"] != "fault" && e["event"] != "estop"),
+        events
+            .iter()
+            .all(|e| e["event"] != "fault" && e["event"] != "estop"),
         "{events:?}"
     );
     let s = c.status();

@@ -495,15 +495,28 @@ fn a_blocked_servo_holds_its_shaft_and_its_load_rises_with_the_error_to_a_stall(
     goal(&mut s, 2, 3048);
     clock.advance(ms(100));
     let (held, _) = position_and_load(&mut s, 2);
-    assert_eq!(position_and_load(&mut s, 1).0, held, "both alike until the block");
-    assert!(held > 2100 && held < 3000, "on its way when blocked: {held}");
+    assert_eq!(
+        position_and_load(&mut s, 1).0,
+        held,
+        "both alike until the block"
+    );
+    assert!(
+        held > 2100 && held < 3000,
+        "on its way when blocked: {held}"
+    );
     assert!(s.servo(2).unwrap().is_blocked());
     clock.advance(ms(200));
     let (p1, _) = position_and_load(&mut s, 1);
     let (p2, load) = position_and_load(&mut s, 2);
     assert!(p1 > held, "the free servo moves on: {p1}");
-    assert_eq!(p2, held, "the blocked shaft stays where the block caught it");
-    assert_eq!(load, 1000, "hundreds of ticks short of its goal: stalled at full load");
+    assert_eq!(
+        p2, held,
+        "the blocked shaft stays where the block caught it"
+    );
+    assert_eq!(
+        load, 1000,
+        "hundreds of ticks short of its goal: stalled at full load"
+    );
     // Proportional below the stall: Position P Gain 640 / 128 = 5 PWM units per tick of
     // error, out of 885 for full load.
     let expect = |error: i64| (5.0 * error as f64 / 885.0 * 1000.0).round() as i64;
@@ -517,11 +530,25 @@ fn a_blocked_servo_holds_its_shaft_and_its_load_rises_with_the_error_to_a_stall(
     assert_eq!(expect(170), 960);
     goal(&mut s, 2, (held - 400) as i32);
     clock.advance(ms(10));
-    assert_eq!(position_and_load(&mut s, 2).1, -1000, "stalled the other way");
+    assert_eq!(
+        position_and_load(&mut s, 2).1,
+        -1000,
+        "stalled the other way"
+    );
     // Torque off: no effort however far the goal.
-    send(&mut s, 2, ins::WRITE, &write_params(addr::TORQUE_ENABLE, &[0]));
+    send(
+        &mut s,
+        2,
+        ins::WRITE,
+        &write_params(addr::TORQUE_ENABLE, &[0]),
+    );
     assert_eq!(position_and_load(&mut s, 2).1, 0);
-    send(&mut s, 2, ins::WRITE, &write_params(addr::TORQUE_ENABLE, &[1]));
+    send(
+        &mut s,
+        2,
+        ins::WRITE,
+        &write_params(addr::TORQUE_ENABLE, &[1]),
+    );
     goal(&mut s, 2, 2500);
     // The window closes at 1 s: the shaft follows its goal again and comes to rest there.
     clock.advance(ms(1000));

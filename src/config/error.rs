@@ -328,8 +328,9 @@ pub enum FieldProblem {
     },
     /// The home pose is not clear of an obstacle.
     #[error(
-        "obstacle {id:?} is {clearance_m:.4} m from link {link} in the home pose (arm.home_rad), \
-         less than clearance_m = {keep_m} m: move the obstacle or the home pose"
+        "link {link} of the home pose (arm.home_rad) keeps {clearance_m:.4} m from obstacle \
+         {id:?} (negative: it overlaps), less than clearance_m = {keep_m} m: move the obstacle \
+         or the home pose"
     )]
     HomeNotClear {
         /// The obstacle's id.

@@ -32,8 +32,8 @@ use std::time::Duration;
 use crate::chain::{Chain, JointLimit, Vec2, MAX_MAGNITUDE};
 use crate::resolve::Strategy;
 use crate::servo::arm::{Arm, JointServo, OnExit, Settings};
-use crate::servo::units::{self, Calibration};
 use crate::servo::units::CurrentUnit;
+use crate::servo::units::{self, Calibration};
 use crate::servo::{model::model_names, ServoModel, BAUD_RATES, MAX_ID};
 use crate::world::{Obstacle, Shape, World, WorldError};
 use raw::{

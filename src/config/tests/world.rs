@@ -134,7 +134,10 @@ fn every_bad_obstacle_field_is_named_as_in_the_file() {
     };
     refused(
         &circle("{ center_m = [0.5, 0.5], radius_m = 0.0 }"),
-        &["world.obstacle[1].circle.radius_m", "0 must be finite and positive"],
+        &[
+            "world.obstacle[1].circle.radius_m",
+            "0 must be finite and positive",
+        ],
     );
     refused(
         &circle("{ center_m = [0.5, 0.5], radius_m = -0.1 }"),
@@ -150,7 +153,11 @@ fn every_bad_obstacle_field_is_named_as_in_the_file() {
     );
     refused(
         &polygon("[[0.5, 0.5], [0.6, 0.5]]"),
-        &["world.obstacle[1].polygon.points_m:", "2 points", "at least 3"],
+        &[
+            "world.obstacle[1].polygon.points_m:",
+            "2 points",
+            "at least 3",
+        ],
     );
     refused(
         &polygon("[[0.5, 0.5], [0.6, 0.5], [0.6, 0.6], [0.5, 0.5]]"),
@@ -180,12 +187,12 @@ fn every_bad_obstacle_field_is_named_as_in_the_file() {
     assert!(load(&two("b")).is_ok());
     refused(
         &two("a"),
-        &["world.obstacle[2].id", "\"a\" is already the id of world.obstacle[1]"],
+        &[
+            "world.obstacle[2].id",
+            "\"a\" is already the id of world.obstacle[1]",
+        ],
     );
-    refused(
-        &two(""),
-        &["world.obstacle[2].id", "needs a non-empty id"],
-    );
+    refused(&two(""), &["world.obstacle[2].id", "needs a non-empty id"]);
     refused(
         &with_world("[world]\nlink_radius_m = -0.01"),
         &["world.link_radius_m", "-0.01", "not negative"],
@@ -203,7 +210,10 @@ fn an_obstacle_has_exactly_one_shape() {
             "[[world.obstacle]]\nid = \"o\"\ncircle = { center_m = [0.5, 0.5], radius_m = 0.1 }\n\
              polygon = { points_m = [[0.5, 0.5], [0.6, 0.5], [0.6, 0.6]] }",
         ),
-        &["world.obstacle[1]:", "exactly one of circle and polygon (both"],
+        &[
+            "world.obstacle[1]:",
+            "exactly one of circle and polygon (both",
+        ],
     );
     refused(
         &with_world("[[world.obstacle]]\nid = \"o\""),
@@ -254,7 +264,10 @@ fn too_many_obstacles_are_refused() {
             k as f64 * 0.1
         ));
     }
-    refused(&with_world(&table), &["world.obstacle:", "65 obstacles, at most 64"]);
+    refused(
+        &with_world(&table),
+        &["world.obstacle:", "65 obstacles, at most 64"],
+    );
 }
 
 #[test]
@@ -329,11 +342,26 @@ fn a_home_pose_that_is_not_clear_is_refused_naming_the_link_and_the_obstacle() {
 fn world_fields_map_to_the_files_names() {
     for (from, to) in [
         ("obstacles[0].id", "world.obstacle[1].id"),
-        ("obstacles[2].circle.center.x", "world.obstacle[3].circle.center_m[1]"),
-        ("obstacles[2].circle.center.y", "world.obstacle[3].circle.center_m[2]"),
-        ("obstacles[2].circle.radius_m", "world.obstacle[3].circle.radius_m"),
-        ("obstacles[2].polygon.points", "world.obstacle[3].polygon.points_m"),
-        ("obstacles[2].polygon.points[4]", "world.obstacle[3].polygon.points_m[5]"),
+        (
+            "obstacles[2].circle.center.x",
+            "world.obstacle[3].circle.center_m[1]",
+        ),
+        (
+            "obstacles[2].circle.center.y",
+            "world.obstacle[3].circle.center_m[2]",
+        ),
+        (
+            "obstacles[2].circle.radius_m",
+            "world.obstacle[3].circle.radius_m",
+        ),
+        (
+            "obstacles[2].polygon.points",
+            "world.obstacle[3].polygon.points_m",
+        ),
+        (
+            "obstacles[2].polygon.points[4]",
+            "world.obstacle[3].polygon.points_m[5]",
+        ),
         ("obstacles", "world.obstacle"),
         ("link_radius_m", "world.link_radius_m"),
         ("clearance_m", "world.clearance_m"),

@@ -470,7 +470,12 @@ impl Health {
         );
         j.over = None;
         j.contact = Some((since, detail.clone()));
-        Some(Change::raised(self.info(i, FaultKind::Contact, since, detail)))
+        Some(Change::raised(self.info(
+            i,
+            FaultKind::Contact,
+            since,
+            detail,
+        )))
     }
 
     /// Whether a contact is latched on any joint.
@@ -790,12 +795,19 @@ mod tests {
         // Either sign counts: the magnitude is what pushes.
         let raised = h.judge_load(1, -1.5, LoadUnit::Amps, 60).unwrap();
         assert_eq!((raised.info.joint, raised.info.since_tick), (Some(2), 40));
-        assert!(raised.info.detail.contains("-1.50 A"), "{}", raised.info.detail);
+        assert!(
+            raised.info.detail.contains("-1.50 A"),
+            "{}",
+            raised.info.detail
+        );
         // At the threshold is not above it.
         let mut h = health(10);
         contact(&mut h, 0);
         assert_eq!(h.judge_load(0, 50.0, LoadUnit::Percent, 1), None);
-        assert!(h.judge_load(0, 50.1, LoadUnit::Percent, 2).is_some(), "0 ms: the first read");
+        assert!(
+            h.judge_load(0, 50.1, LoadUnit::Percent, 2).is_some(),
+            "0 ms: the first read"
+        );
     }
 
     #[test]
