@@ -77,7 +77,7 @@ impl HardwareErrorKind {
 /// A fault to inject. Random faults draw from the simulator's seeded generator, so a run with
 /// the same seed and the same traffic (at the same clock times) fails the same way.
 ///
-/// Drop, corrupt, latency and silent faults stand for the whole run unless wrapped in
+/// Drop, corrupt, latency, silent and blocked faults stand for the whole run unless wrapped in
 /// [`Fault::During`] (see [`Fault::during`]), which limits them to a time window.
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
