@@ -53,6 +53,22 @@ fn shipped_examples_are_what_the_docs_say() {
     let ids: Vec<Option<u8>> = sim.joints().iter().map(|j| j.id).collect();
     assert_eq!(ids, (1..=12).map(Some).collect::<Vec<_>>());
     assert!(sim.sim().unwrap().faults.is_empty());
+    assert!(sim.world().obstacles().is_empty());
+
+    // The simulated arm among a post and a shelf, its home pose clear of both.
+    let world = Config::load(dir.join("world.toml")).unwrap();
+    assert_eq!(world.chain(), sim.chain());
+    assert_eq!(world.home(), sim.home());
+    let w = world.world();
+    let ids: Vec<&str> = w.obstacles().iter().map(|o| o.id.as_str()).collect();
+    assert_eq!(ids, ["post", "shelf"]);
+    assert_eq!((w.link_radius_m(), w.clearance_m()), (0.012, 0.005));
+    let least = w.pose_clearance(world.chain(), world.home()).unwrap();
+    assert!(least.clearance_m > 0.05, "{least:?}");
+    assert!(
+        world.contact().is_none(),
+        "contact detection is commented out"
+    );
 }
 
 /// The commented fault examples in `sim.toml` are valid when uncommented.
@@ -72,7 +88,10 @@ fn commented_sim_faults_parse() {
     let edited = format!("{}\n{}\n{}", &text[..at], uncommented, &text[at..]);
     let config = Config::from_str(&edited, &path).unwrap_or_else(|e| panic!("{e}"));
     let faults = &config.sim().unwrap().faults;
-    assert_eq!(faults.len(), 6);
+    assert_eq!(faults.len(), 7);
+    assert!(faults
+        .iter()
+        .any(|f| f.kind == snakectl::config::FaultKind::Blocked && f.id == Some(3)));
     assert!(faults
         .iter()
         .any(|f| f.kind == snakectl::config::FaultKind::Disconnect && f.id.is_none()));
@@ -146,4 +165,21 @@ fn commented_zenoh_tables_show_the_defaults() {
         assert_eq!(with_table.zenoh(), without.zenoh(), "{name}");
         assert!(!without.zenoh().enabled);
     }
+}
+
+/// The commented contact detection of `world.toml`, uncommented, turns it on as it says.
+#[test]
+fn commented_contact_detection_parses() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/world.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let mut edited = text.clone();
+    for key in ["contact_load", "contact_ms"] {
+        let commented = format!("# {key} = ");
+        assert!(edited.contains(&commented), "no `{commented}` line");
+        edited = edited.replacen(&commented, &format!("{key} = "), 1);
+    }
+    let config = Config::from_str(&edited, &path).unwrap_or_else(|e| panic!("{e}"));
+    let contact = config.contact().unwrap();
+    assert_eq!(contact.load, vec![60.0; 12]);
+    assert_eq!(contact.hold, std::time::Duration::from_millis(200));
 }

@@ -77,7 +77,7 @@ impl HardwareErrorKind {
 /// A fault to inject. Random faults draw from the simulator's seeded generator, so a run with
 /// the same seed and the same traffic (at the same clock times) fails the same way.
 ///
-/// Drop, corrupt, latency and silent faults stand for the whole run unless wrapped in
+/// Drop, corrupt, latency, silent and blocked faults stand for the whole run unless wrapped in
 /// [`Fault::During`] (see [`Fault::during`]), which limits them to a time window.
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
@@ -119,6 +119,17 @@ pub enum Fault {
         at: Duration,
         /// Which error.
         kind: HardwareErrorKind,
+    },
+    /// From `at` after start, servo `id`'s shaft is blocked (an obstacle in its way): it stays
+    /// where it was when the block began, whatever the goal, and with torque on the servo
+    /// pushes, its Present Load or Current rising with the position error to a stall (see
+    /// [`Servo::set_blocked`]). It still hears and answers. A window closing at `end` lets the
+    /// shaft go again.
+    Blocked {
+        /// The servo.
+        id: u8,
+        /// Time after the simulator's start.
+        at: Duration,
     },
     /// The serial adapter is unplugged: while this fault is active (wrap it in
     /// [`Fault::During`] for a window) the pseudo-terminal of [`crate::pty`] is gone, its master
@@ -286,7 +297,9 @@ impl SimConfig {
                     }
                     (*id, None)
                 }
-                Fault::Silent { id, .. } | Fault::HardwareError { id, .. } => (Some(*id), None),
+                Fault::Silent { id, .. }
+                | Fault::HardwareError { id, .. }
+                | Fault::Blocked { id, .. } => (Some(*id), None),
                 Fault::Disconnect | Fault::During { .. } => (None, None),
             };
             if let Some(id) = id {
@@ -342,6 +355,9 @@ enum Event {
     Silence(u8),
     /// The servo (configured id) latches a hardware error.
     Hardware(u8, HardwareErrorKind),
+    /// A blocked window of this servo (configured id) opens or closes: whether it is blocked
+    /// is recomputed from all its blocked faults.
+    Block(u8),
 }
 
 #[derive(Debug, Clone)]
@@ -403,6 +419,15 @@ impl Simulator {
                         at(on, Event::Silence(id));
                         if let Some(end) = window.end {
                             at(end, Event::Silence(id));
+                        }
+                    }
+                }
+                (window, &Fault::Blocked { id, at: from }) => {
+                    let on = window.start.max(from);
+                    if window.end.is_none_or(|end| on < end) {
+                        at(on, Event::Block(id));
+                        if let Some(end) = window.end {
+                            at(end, Event::Block(id));
                         }
                     }
                 }
@@ -513,6 +538,16 @@ impl Simulator {
         })
     }
 
+    /// Whether a blocked fault holds servo `id`'s shaft (configured id) `elapsed` after start.
+    fn blocked_at(&self, id: u8, elapsed: Duration) -> bool {
+        self.config.faults.iter().any(|f| match f.window() {
+            (window, &Fault::Blocked { id: fid, at }) => {
+                fid == id && elapsed >= at && window.contains(elapsed)
+            }
+            _ => false,
+        })
+    }
+
     /// Whether a [`Fault::Disconnect`] has the line unplugged at the clock's now.
     pub fn disconnected(&self) -> bool {
         let elapsed = self.elapsed(self.clock.now());
@@ -574,6 +609,15 @@ impl Simulator {
                     if let Some(s) = self.servo_mut(id) {
                         tracing::debug!(id, ?kind, "fault: hardware error");
                         s.raise_hardware_error(kind.bit(), at);
+                    }
+                }
+                Event::Block(id) => {
+                    let blocked = self.blocked_at(id, self.elapsed(at));
+                    if let Some(s) = self.servo_mut(id) {
+                        if s.is_blocked() != blocked {
+                            tracing::debug!(id, blocked, "fault: servo blocked or let go");
+                            s.set_blocked(blocked, at);
+                        }
                     }
                 }
             }

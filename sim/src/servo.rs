@@ -26,6 +26,8 @@ pub const ACCEL_UNIT_TICKS_S2: f64 = 214.577 * 4096.0 / 3600.0;
 const MAX_STEP: Duration = Duration::from_millis(1);
 /// Time the unloaded motor takes to reach its top speed when no profile acceleration is set.
 const PHYSICAL_RISE_S: f64 = 0.05;
+/// Present PWM at full effort (100 %), PWM units (0.113 %).
+const FULL_PWM: f64 = 885.0;
 /// Multi-turn range of Goal Position in extended position modes.
 const MULTI_TURN_LIMIT: i64 = 1_048_575;
 
@@ -75,6 +77,8 @@ pub struct Servo {
     last_rx: Instant,
     boot: Instant,
     silent: bool,
+    /// Held by an obstacle (a blocked fault): the shaft stays where it is whatever the goal.
+    blocked: bool,
 }
 
 fn encode_le(value: i64, size: u8) -> [u8; 4] {
@@ -116,6 +120,7 @@ impl Servo {
             last_rx: now,
             boot: now,
             silent: false,
+            blocked: false,
         };
         servo.load_defaults(true, true);
         servo.put(addr::ID, i64::from(spec.id));
@@ -270,6 +275,26 @@ impl Servo {
     /// Take the servo off the bus (it neither hears nor answers) or put it back.
     pub fn set_silent(&mut self, silent: bool) {
         self.silent = silent;
+    }
+
+    /// True while a "blocked" fault holds the shaft.
+    pub fn is_blocked(&self) -> bool {
+        self.blocked
+    }
+
+    /// Hold the shaft where it is (something in its way stops it, in either direction), or let
+    /// it go; the motor model is advanced to `now` first. Blocked, the shaft stands still, and
+    /// with torque on the servo pushes: in a position mode its effort grows with the position
+    /// error as the Position P Gain makes it (PWM = gain / 128 per tick of error, capped by PWM
+    /// Limit), in velocity mode it is at full effort toward a non-zero Goal Velocity.
+    pub fn set_blocked(&mut self, blocked: bool, now: Instant) {
+        self.update(now);
+        self.blocked = blocked;
+        if blocked {
+            self.vel = 0.0;
+            self.acc = 0.0;
+        }
+        self.refresh(self.last_update);
     }
 
     /// The servo loses its power: off the bus (it neither hears nor answers) and limp, until
@@ -592,7 +617,7 @@ impl Servo {
     }
 
     fn step(&mut self, dt: Duration) {
-        if !self.torque_enabled() {
+        if !self.torque_enabled() || self.blocked {
             self.vel = 0.0;
             self.acc = 0.0;
             return;
@@ -663,10 +688,13 @@ impl Servo {
         let profiling = torque && (self.vel != 0.0 || ((3..=5).contains(&mode) && goal != present));
         let moving = profiling || vel_units.abs() > self.get(addr::MOVING_THRESHOLD);
         // Effort: a share for speed (friction) plus one for acceleration; nothing at rest.
-        let effort = if torque {
-            (0.15 * self.vel / physical_v + 0.35 * self.acc / physical_a).clamp(-1.0, 1.0)
-        } else {
+        // Blocked, the stall effort of the position or velocity loop instead.
+        let effort = if !torque {
             0.0
+        } else if self.blocked {
+            self.stall_effort()
+        } else {
+            (0.15 * self.vel / physical_v + 0.35 * self.acc / physical_a).clamp(-1.0, 1.0)
         };
         self.put(addr::PRESENT_POSITION, present);
         self.put(addr::POSITION_TRAJECTORY, present);
@@ -685,7 +713,7 @@ impl Servo {
         };
         let status = i64::from(in_position) | (i64::from(profiling) << 1) | (profile_type << 4);
         self.put(addr::MOVING_STATUS, status);
-        self.put(addr::PRESENT_PWM, (effort * 885.0).round() as i64);
+        self.put(addr::PRESENT_PWM, (effort * FULL_PWM).round() as i64);
         let load_or_current = if self.table.has_current {
             let ma = if torque {
                 self.table.idle_current_ma + effort.abs() * 900.0
@@ -701,6 +729,24 @@ impl Servo {
         self.put(addr::PRESENT_TEMPERATURE, self.temperature_c.round() as i64);
         let tick = now.saturating_duration_since(self.boot).as_millis() % 32768;
         self.put(addr::REALTIME_TICK, tick as i64);
+    }
+
+    /// The effort (share of full PWM, -1..=1) of a blocked shaft: in a position mode the
+    /// position loop's P term on the error from the held shaft to Goal Position (Position P
+    /// Gain / 128 PWM units per tick), capped by PWM Limit; in velocity mode full effort toward
+    /// Goal Velocity; in current and PWM modes nothing (the shaft holds still there anyway).
+    fn stall_effort(&self) -> f64 {
+        let cap = self.get(addr::PWM_LIMIT) as f64;
+        let pwm = match self.get(addr::OPERATING_MODE) {
+            3..=5 => {
+                // On the encoder's reading, whole ticks, as the servo's own loop sees it.
+                let error = self.get(addr::GOAL_POSITION) as f64 - self.pos.round();
+                self.get(addr::POSITION_P_GAIN) as f64 / 128.0 * error
+            }
+            1 => (self.get(addr::GOAL_VELOCITY) as f64).signum() * cap,
+            _ => 0.0,
+        };
+        pwm.clamp(-cap, cap) / FULL_PWM
     }
 
     /// Set the supply voltage the servo measures (0.1 V units), e.g. a sagging supply.

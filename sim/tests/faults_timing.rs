@@ -459,3 +459,110 @@ fn fault_windows_are_validated() {
         }
     );
 }
+
+/// Servo `id`'s Present Position and Present Load (XL430: 0.1 % units), advanced to now.
+fn position_and_load(s: &mut snakectl_sim::Simulator, id: u8) -> (i64, i64) {
+    s.advance();
+    let servo = s.servo(id).unwrap();
+    (
+        servo.value(addr::PRESENT_POSITION).unwrap(),
+        servo.value(addr::PRESENT_LOAD_OR_CURRENT).unwrap(),
+    )
+}
+
+fn goal(s: &mut snakectl_sim::Simulator, id: u8, ticks: i32) {
+    send(
+        s,
+        id,
+        ins::WRITE,
+        &write_params(addr::GOAL_POSITION, &ticks.to_le_bytes()),
+    );
+}
+
+#[test]
+fn a_blocked_servo_holds_its_shaft_and_its_load_rises_with_the_error_to_a_stall() {
+    let (mut s, clock) = sim_with(config(
+        &[1, 2],
+        vec![Fault::Blocked { id: 2, at: ms(100) }.during(Duration::ZERO, Some(ms(1000)))],
+    ));
+    send(
+        &mut s,
+        BROADCAST_ID,
+        ins::WRITE,
+        &write_params(addr::TORQUE_ENABLE, &[1]),
+    );
+    goal(&mut s, 1, 3048);
+    goal(&mut s, 2, 3048);
+    clock.advance(ms(100));
+    let (held, _) = position_and_load(&mut s, 2);
+    assert_eq!(
+        position_and_load(&mut s, 1).0,
+        held,
+        "both alike until the block"
+    );
+    assert!(
+        held > 2100 && held < 3000,
+        "on its way when blocked: {held}"
+    );
+    assert!(s.servo(2).unwrap().is_blocked());
+    clock.advance(ms(200));
+    let (p1, _) = position_and_load(&mut s, 1);
+    let (p2, load) = position_and_load(&mut s, 2);
+    assert!(p1 > held, "the free servo moves on: {p1}");
+    assert_eq!(
+        p2, held,
+        "the blocked shaft stays where the block caught it"
+    );
+    assert_eq!(
+        load, 1000,
+        "hundreds of ticks short of its goal: stalled at full load"
+    );
+    // Proportional below the stall: Position P Gain 640 / 128 = 5 PWM units per tick of
+    // error, out of 885 for full load.
+    let expect = |error: i64| (5.0 * error as f64 / 885.0 * 1000.0).round() as i64;
+    for error in [0, 20, 100, -100, 170] {
+        goal(&mut s, 2, (held + error) as i32);
+        clock.advance(ms(10));
+        let (p, load) = position_and_load(&mut s, 2);
+        assert_eq!(p, held);
+        assert_eq!(load, expect(error), "error {error} ticks");
+    }
+    assert_eq!(expect(170), 960);
+    goal(&mut s, 2, (held - 400) as i32);
+    clock.advance(ms(10));
+    assert_eq!(
+        position_and_load(&mut s, 2).1,
+        -1000,
+        "stalled the other way"
+    );
+    // Torque off: no effort however far the goal.
+    send(
+        &mut s,
+        2,
+        ins::WRITE,
+        &write_params(addr::TORQUE_ENABLE, &[0]),
+    );
+    assert_eq!(position_and_load(&mut s, 2).1, 0);
+    send(
+        &mut s,
+        2,
+        ins::WRITE,
+        &write_params(addr::TORQUE_ENABLE, &[1]),
+    );
+    goal(&mut s, 2, 2500);
+    // The window closes at 1 s: the shaft follows its goal again and comes to rest there.
+    clock.advance(ms(1000));
+    s.advance();
+    assert!(!s.servo(2).unwrap().is_blocked());
+    clock.advance(ms(500));
+    assert_eq!(position_and_load(&mut s, 2), (2500, 0));
+}
+
+#[test]
+fn a_blocked_fault_names_a_servo_on_the_bus() {
+    let result = snakectl_sim::Simulator::new(
+        config(&[1], vec![Fault::Blocked { id: 4, at: ms(0) }]),
+        std::sync::Arc::new(snakectl_sim::RealClock),
+    );
+    assert!(matches!(result.err(), Some(SimError::FaultId(4))));
+}

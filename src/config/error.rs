@@ -254,4 +254,92 @@ pub enum FieldProblem {
         /// What opens the session to other hosts (an endpoint, or multicast scouting).
         exposure: String,
     },
+    /// An obstacle with both shapes or neither.
+    #[error("give exactly one of circle and polygon ({given})")]
+    OneShape {
+        /// What was given: "both" or "neither".
+        given: &'static str,
+    },
+    /// An obstacle with an empty id.
+    #[error("an obstacle needs a non-empty id")]
+    EmptyId,
+    /// Two obstacles with one id.
+    #[error("{id:?} is already the id of world.obstacle[{other}]")]
+    DuplicateObstacle {
+        /// The id.
+        id: String,
+        /// 1-based obstacle that has it first.
+        other: usize,
+    },
+    /// A polygon with fewer than 3 points.
+    #[error("{count} points: a polygon needs at least 3")]
+    TooFewPoints {
+        /// Points given.
+        count: usize,
+    },
+    /// A polygon point given twice.
+    #[error("({x}, {y}) repeats points_m[{first}]")]
+    RepeatedPoint {
+        /// x, m.
+        x: f64,
+        /// y, m.
+        y: f64,
+        /// 1-based point that is the same.
+        first: usize,
+    },
+    /// A polygon whose edges touch or cross. Edge `k` runs from `points_m[k]` to the next
+    /// point (from the last back to the first for the closing edge).
+    #[error(
+        "edges {edge_a} and {edge_b} touch or cross near ({x}, {y}): a polygon must not \
+         intersect itself (edge k runs from points_m[k] to the next point)"
+    )]
+    SelfIntersecting {
+        /// 1-based first edge.
+        edge_a: usize,
+        /// 1-based second edge.
+        edge_b: usize,
+        /// Where, x m.
+        x: f64,
+        /// Where, y m.
+        y: f64,
+    },
+    /// More of something than the world may hold.
+    #[error("{count} {what}, at most {max} allowed")]
+    TooMany {
+        /// What is counted.
+        what: &'static str,
+        /// How many were given.
+        count: usize,
+        /// The limit.
+        max: usize,
+    },
+    /// An obstacle within reach of the base, where link 1 starts whatever the pose.
+    #[error(
+        "obstacle {id:?} is {distance_m:.4} m from the base point, where link 1 starts, closer \
+         than link_radius_m + clearance_m = {keep_m} m: no pose of the arm is clear of it"
+    )]
+    TouchesBase {
+        /// The obstacle's id.
+        id: String,
+        /// Signed distance from the base point to the obstacle, m (negative: inside).
+        distance_m: f64,
+        /// `link_radius_m + clearance_m`, m.
+        keep_m: f64,
+    },
+    /// The home pose is not clear of an obstacle.
+    #[error(
+        "link {link} of the home pose (arm.home_rad) keeps {clearance_m:.4} m from obstacle \
+         {id:?} (negative: it overlaps), less than clearance_m = {keep_m} m: move the obstacle \
+         or the home pose"
+    )]
+    HomeNotClear {
+        /// The obstacle's id.
+        id: String,
+        /// 1-based link of least clearance.
+        link: usize,
+        /// The link's clearance, m (negative: inside the obstacle, by that depth).
+        clearance_m: f64,
+        /// `clearance_m`, m.
+        keep_m: f64,
+    },
 }

@@ -10,8 +10,10 @@
 //!
 //! The tables: `[arm]` and `[[joint]]` (geometry, limits, home pose and per-joint servo
 //! settings), `[bus]` (serial bus), `[sim]` with `[[sim.fault]]` (the simulated servo chain),
-//! `[control]` (the loop), `[server]` (the socket) and `[zenoh]` (the daemon on a Zenoh
-//! network, in [`zenoh_table`]). Geometry is checked in full; the other tables get the cheap
+//! `[control]` (the loop), `[server]` (the socket), `[zenoh]` (the daemon on a Zenoh
+//! network, in [`zenoh_table`]) and `[world]` with `[[world.obstacle]]` (the obstacles every
+//! link keeps clear of, and contact detection). Geometry is checked in full, the world against
+//! the arm too (no obstacle at the base, the home pose clear); the other tables get the cheap
 //! checks (signs, ranges, known names, ids that exist, endpoint syntax).
 
 mod error;
@@ -30,11 +32,13 @@ use std::time::Duration;
 use crate::chain::{Chain, JointLimit, Vec2, MAX_MAGNITUDE};
 use crate::resolve::Strategy;
 use crate::servo::arm::{Arm, JointServo, OnExit, Settings};
+use crate::servo::units::CurrentUnit;
 use crate::servo::units::{self, Calibration};
 use crate::servo::{model::model_names, ServoModel, BAUD_RATES, MAX_ID};
+use crate::world::{Obstacle, Shape, World, WorldError};
 use raw::{
-    RawArm, RawBus, RawConfig, RawControl, RawJoint, RawServer, RawSim, StrategyName,
-    DEFAULT_MAX_SILENCE_MS,
+    ContactLoad, RawArm, RawBus, RawConfig, RawControl, RawJoint, RawObstacle, RawServer, RawSim,
+    RawWorld, StrategyName, DEFAULT_CONTACT_MS, DEFAULT_MAX_SILENCE_MS,
 };
 
 /// Lowest servo id a joint may use (0 is reserved by convention).
@@ -99,6 +103,8 @@ pub enum FaultKind {
     HardwareError(HardwareError),
     /// The whole bus is unplugged (the simulator's port goes away); never has an `id`.
     Disconnect,
+    /// The servo's shaft is blocked: it stays put and pushes, its load rising.
+    Blocked,
 }
 
 /// The validated `[sim]`.
@@ -139,6 +145,18 @@ pub struct Control {
     pub health_every: u32,
 }
 
+/// Contact detection (`[world] contact_load` and `contact_ms`): a joint whose |Present Load or
+/// Current| stays above its threshold this long is in contact with something.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Contact {
+    /// Per joint, base to tip: the threshold, positive, in the unit telemetry's `load` reports
+    /// for the joint's servo (percent of the maximum torque for a Present Load, amperes for a
+    /// Present Current).
+    pub load: Vec<f64>,
+    /// How long the load must stay above it.
+    pub hold: Duration,
+}
+
 /// The fastest control rate accepted, Hz.
 pub const MAX_RATE_HZ: f64 = 2000.0;
 
@@ -166,6 +184,8 @@ pub struct Config {
     control: Control,
     server: Server,
     zenoh: Zenoh,
+    world: World,
+    contact: Option<Contact>,
 }
 
 impl Config {
@@ -238,6 +258,46 @@ impl Config {
     pub fn zenoh(&self) -> &Zenoh {
         &self.zenoh
     }
+
+    /// The obstacles the arm keeps clear of (an empty world with the default clearance when
+    /// the file has no `[world]`). Its home pose is clear of them.
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// Contact detection, when `[world] contact_load` turns it on.
+    pub fn contact(&self) -> Option<&Contact> {
+        self.contact.as_ref()
+    }
+}
+
+/// A field path of [`World::new`] (`obstacles[2].polygon.points[4]`, indices from 0) as the
+/// file names it (`world.obstacle[3].polygon.points_m[5]`, counted from 1 as every list of the
+/// config is).
+fn world_field(field: &str) -> String {
+    /// `NAME[i]rest` -> (i, rest).
+    fn index<'a>(s: &'a str, name: &str) -> Option<(usize, &'a str)> {
+        let s = s.strip_prefix(name)?.strip_prefix('[')?;
+        let (i, rest) = s.split_once(']')?;
+        Some((i.parse().ok()?, rest))
+    }
+    let Some((i, rest)) = index(field, "obstacles") else {
+        return format!("world.{}", field.replace("obstacles", "obstacle"));
+    };
+    let at = format!("world.obstacle[{}]", i + 1);
+    let rest = match rest {
+        ".circle.center.x" => ".circle.center_m[1]".to_owned(),
+        ".circle.center.y" => ".circle.center_m[2]".to_owned(),
+        ".polygon.points" => ".polygon.points_m".to_owned(),
+        other => match other
+            .strip_prefix(".polygon.")
+            .and_then(|p| index(p, "points"))
+        {
+            Some((j, tail)) => format!(".polygon.points_m[{}]{tail}", j + 1),
+            None => other.to_owned(),
+        },
+    };
+    format!("{at}{rest}")
 }
 
 /// Turns a TOML error into one naming the file, line and column.
@@ -348,6 +408,10 @@ impl Checker<'_> {
         let control = self.control(&raw.control.unwrap_or_default())?;
         let server = self.server(raw.server.unwrap_or_default())?;
         let zenoh = self.zenoh(raw.zenoh.unwrap_or_default(), control.rate_hz)?;
+        let (world, contact) = match raw.world {
+            Some(w) => self.world(w, &chain, &home, &joints)?,
+            None => (World::default(), None),
+        };
         Ok(Config {
             path: self.path.to_path_buf(),
             chain,
@@ -359,6 +423,8 @@ impl Checker<'_> {
             control,
             server,
             zenoh,
+            world,
+            contact,
         })
     }
 
@@ -681,6 +747,7 @@ impl Checker<'_> {
                 (FaultKind::HardwareError(error), Some(id), at_s, None)
             }
             F::Disconnect { at_s, until_s } => (FaultKind::Disconnect, None, at_s, until_s),
+            F::Blocked { id, at_s, until_s } => (FaultKind::Blocked, Some(id), at_s, until_s),
         };
         if let Some(id) = id {
             if !joints.iter().any(|j| j.id == Some(id)) {
@@ -716,6 +783,200 @@ impl Checker<'_> {
             from,
             until,
         })
+    }
+
+    /// `[world]`: the obstacles (through [`World::new`], its field paths turned into the file's
+    /// names), checked against the arm (none at the base, the home pose clear), and contact
+    /// detection.
+    fn world(
+        &self,
+        raw: RawWorld,
+        chain: &Chain,
+        home: &[f64],
+        joints: &[Joint],
+    ) -> Result<(World, Option<Contact>), ConfigError> {
+        let contact = self.contact(&raw, joints)?;
+        let obstacles = raw
+            .obstacles
+            .into_iter()
+            .enumerate()
+            .map(|(i, o)| self.obstacle(i + 1, o))
+            .collect::<Result<Vec<_>, _>>()?;
+        let world = World::new(raw.link_radius_m, raw.clearance_m, obstacles)
+            .map_err(|e| self.world_error(e))?;
+        let keep_m = world.link_radius_m() + world.clearance_m();
+        if let Some((distance_m, k)) = world.point_distance(chain.base()) {
+            if distance_m < keep_m {
+                return Err(self.invalid(
+                    format!("world.obstacle[{}]", k + 1),
+                    FieldProblem::TouchesBase {
+                        id: world.obstacles()[k].id.clone(),
+                        distance_m,
+                        keep_m,
+                    },
+                ));
+            }
+        }
+        if let Some(pair) = world.clearance(&chain.points(home)) {
+            if pair.clearance_m < world.clearance_m() {
+                return Err(self.invalid(
+                    format!("world.obstacle[{}]", pair.obstacle + 1),
+                    FieldProblem::HomeNotClear {
+                        id: pair.id(&world).to_owned(),
+                        link: pair.link,
+                        clearance_m: pair.clearance_m,
+                        keep_m: world.clearance_m(),
+                    },
+                ));
+            }
+        }
+        Ok((world, contact))
+    }
+
+    /// `[[world.obstacle]]` number `n` (from 1) with exactly one shape; the numbers are
+    /// checked by [`World::new`].
+    fn obstacle(&self, n: usize, raw: RawObstacle) -> Result<Obstacle, ConfigError> {
+        let shape = match (raw.circle, raw.polygon) {
+            (Some(c), None) => Shape::Circle {
+                center: Vec2::new(c.center_m[0], c.center_m[1]),
+                radius_m: c.radius_m,
+            },
+            (None, Some(p)) => Shape::Polygon {
+                points: p.points_m.iter().map(|&[x, y]| Vec2::new(x, y)).collect(),
+            },
+            (c, _) => {
+                return Err(self.invalid(
+                    format!("world.obstacle[{n}]"),
+                    FieldProblem::OneShape {
+                        given: if c.is_some() { "both" } else { "neither" },
+                    },
+                ))
+            }
+        };
+        Ok(Obstacle { id: raw.id, shape })
+    }
+
+    /// A refusal of [`World::new`], its field named as in the file (`world.obstacle[3]...`,
+    /// counted from 1).
+    fn world_error(&self, e: WorldError) -> ConfigError {
+        let (field, problem) = match e {
+            WorldError::NotFinite { field, value } => (field, FieldProblem::NotFinite { value }),
+            WorldError::NotPositive { field, value } => {
+                (field, FieldProblem::NotPositive { value })
+            }
+            WorldError::Negative { field, value } => (field, FieldProblem::Negative { value }),
+            WorldError::EmptyId { field } => (field, FieldProblem::EmptyId),
+            WorldError::DuplicateId { field, id, first } => (
+                field,
+                FieldProblem::DuplicateObstacle {
+                    id,
+                    other: first + 1,
+                },
+            ),
+            WorldError::TooFewPoints { field, count } => {
+                (field, FieldProblem::TooFewPoints { count })
+            }
+            WorldError::RepeatedPoint { field, first, x, y } => (
+                field,
+                FieldProblem::RepeatedPoint {
+                    x,
+                    y,
+                    first: first + 1,
+                },
+            ),
+            WorldError::SelfIntersecting {
+                field,
+                edge_a,
+                edge_b,
+                x,
+                y,
+            } => (
+                field,
+                FieldProblem::SelfIntersecting {
+                    edge_a: edge_a + 1,
+                    edge_b: edge_b + 1,
+                    x,
+                    y,
+                },
+            ),
+            WorldError::TooManyObstacles { count, max } => (
+                "obstacles".to_owned(),
+                FieldProblem::TooMany {
+                    what: "obstacles",
+                    count,
+                    max,
+                },
+            ),
+            WorldError::TooManyPoints { count, max } => (
+                "obstacles".to_owned(),
+                FieldProblem::TooMany {
+                    what: "polygon points in all",
+                    count,
+                    max,
+                },
+            ),
+        };
+        self.invalid(world_field(&field), problem)
+    }
+
+    /// `contact_load` (one number for every joint, or one per joint) and `contact_ms`.
+    fn contact(&self, raw: &RawWorld, joints: &[Joint]) -> Result<Option<Contact>, ConfigError> {
+        let load = match &raw.contact_load {
+            None if raw.contact_ms.is_some() => {
+                return Err(self.invalid(
+                    "world.contact_load",
+                    FieldProblem::Missing {
+                        why: "contact_ms is given, but contact detection needs its threshold \
+                              (one number for every joint, or one per joint)",
+                    },
+                ))
+            }
+            None => return Ok(None),
+            Some(ContactLoad::All(v)) => {
+                let v = self.positive("world.contact_load", *v)?;
+                vec![v; joints.len()]
+            }
+            Some(ContactLoad::PerJoint(list)) => {
+                if list.len() != joints.len() {
+                    return Err(self.invalid(
+                        "world.contact_load",
+                        FieldProblem::Count {
+                            got: list.len(),
+                            expected: joints.len(),
+                        },
+                    ));
+                }
+                list.iter()
+                    .enumerate()
+                    .map(|(i, &v)| self.positive(format!("world.contact_load[{}]", i + 1), v))
+                    .collect::<Result<Vec<_>, _>>()?
+            }
+        };
+        // A Present Load reads at most 100 %: a threshold above it would never fire.
+        for (i, (&v, j)) in load.iter().zip(joints).enumerate() {
+            let percent = j
+                .model
+                .is_some_and(|m| m.current_unit() == CurrentUnit::LoadPermille);
+            if percent && v > 100.0 {
+                let field = match raw.contact_load {
+                    Some(ContactLoad::PerJoint(_)) => format!("world.contact_load[{}]", i + 1),
+                    _ => "world.contact_load".to_owned(),
+                };
+                return Err(self.invalid(
+                    field,
+                    FieldProblem::Outside {
+                        value: v,
+                        lo: 0.0,
+                        hi: 100.0,
+                    },
+                ));
+            }
+        }
+        let ms = raw.contact_ms.unwrap_or(DEFAULT_CONTACT_MS);
+        Ok(Some(Contact {
+            load,
+            hold: Duration::from_millis(ms.into()),
+        }))
     }
 
     fn control(&self, raw: &RawControl) -> Result<Control, ConfigError> {

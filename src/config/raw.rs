@@ -2,10 +2,11 @@
 //!
 //! Every table refuses keys it does not know (`deny_unknown_fields`), so a misspelt key is an
 //! error rather than a silently ignored setting. Field names carry their units (`_m`, `_rad`,
-//! `_hz`, `_ms`, `_us`, `_s`, `_rad_s`, ...). Enumerations (bus kind, exit policy, strategy,
-//! fault kind) are checked by serde itself; numbers that serde cannot judge (signs, ranges,
-//! uniqueness) are checked afterwards by [`super::Config`]. Integers a user may plausibly get
-//! wrong (servo ids) are read wide here so that the validated error can quote the bad value.
+//! `_hz`, `_ms`, `_us`, `_s`, `_rad_s`, ...; `contact_load` alone takes the unit of its servo's
+//! load reading). Enumerations (bus kind, exit policy, strategy, fault kind) are checked by
+//! serde itself; numbers that serde cannot judge (signs, ranges, uniqueness) are checked
+//! afterwards by [`super::Config`]. Integers a user may plausibly get wrong (servo ids) are read
+//! wide here so that the validated error can quote the bad value.
 //!
 //! Defaults live in the `default_*` functions below, one place for the table in
 //! `docs/CONFIG.md` to cite.
@@ -38,6 +39,10 @@ pub struct RawConfig {
     /// `[zenoh]`: the daemon on a Zenoh network; off when absent.
     #[serde(default)]
     pub zenoh: Option<RawZenoh>,
+    /// `[world]`: the obstacles the arm keeps clear of, and contact detection; none when
+    /// absent.
+    #[serde(default)]
+    pub world: Option<RawWorld>,
 }
 
 /// `[arm]`: where the chain is mounted and where it starts.
@@ -232,6 +237,18 @@ pub enum Fault {
         /// Which error.
         error: HardwareError,
     },
+    /// One servo's shaft is blocked (something in its way): it stays where it was when the block
+    /// began while the servo pushes toward its goal, its load rising as a stalled servo's.
+    Blocked {
+        /// Servo affected.
+        id: u8,
+        /// Start, seconds.
+        #[serde(default)]
+        at_s: f64,
+        /// End, seconds.
+        #[serde(default)]
+        until_s: Option<f64>,
+    },
     /// The serial adapter is unplugged: the port goes away for the window and comes back as a
     /// new device behind the simulator's link. Concerns the whole bus, so it takes no `id`.
     Disconnect {
@@ -354,6 +371,128 @@ pub struct RawZenoh {
     pub config_file: Option<PathBuf>,
 }
 
+/// `[world]`: the obstacles every link keeps clear of, and contact detection.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawWorld {
+    /// Half the width of every link (the capsule's radius), metres.
+    #[serde(default)]
+    pub link_radius_m: f64,
+    /// The least gap every link keeps from every obstacle, metres.
+    #[serde(default = "default_clearance_m")]
+    pub clearance_m: f64,
+    /// `[[world.obstacle]]`: the obstacles.
+    #[serde(default, rename = "obstacle")]
+    pub obstacles: Vec<RawObstacle>,
+    /// Contact detection: the |Present Load or Current| above which a joint is in contact, in
+    /// the unit telemetry's `load` reports for its servo (percent, or amperes); off when absent.
+    #[serde(default)]
+    pub contact_load: Option<ContactLoad>,
+    /// How long a load must stay above its threshold before the arm stops, milliseconds.
+    #[serde(default)]
+    pub contact_ms: Option<u32>,
+}
+
+/// `[[world.obstacle]]`: one obstacle, with exactly one of `circle` and `polygon`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawObstacle {
+    /// Its name, unique in the file.
+    pub id: String,
+    /// A disc.
+    #[serde(default)]
+    pub circle: Option<RawCircle>,
+    /// A closed simple polygon.
+    #[serde(default)]
+    pub polygon: Option<RawPolygon>,
+}
+
+/// `circle = { center_m = [x, y], radius_m = r }`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawCircle {
+    /// Centre `[x, y]`, metres.
+    #[serde(deserialize_with = "pair")]
+    pub center_m: [f64; 2],
+    /// Radius, metres.
+    pub radius_m: f64,
+}
+
+/// `polygon = { points_m = [[x, y], ...] }`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPolygon {
+    /// Vertices `[x, y]` in order (either turning sense), metres; the last joins the first.
+    #[serde(deserialize_with = "pairs")]
+    pub points_m: Vec<[f64; 2]>,
+}
+
+/// Exactly two numbers `[x, y]` (a longer or shorter array is refused, not cut).
+fn pair<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+    to_pair::<D::Error>(Vec::<f64>::deserialize(d)?)
+}
+
+/// A list of `[x, y]` pairs, each exactly two numbers.
+fn pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<[f64; 2]>, D::Error> {
+    Vec::<Vec<f64>>::deserialize(d)?
+        .into_iter()
+        .map(to_pair::<D::Error>)
+        .collect()
+}
+
+fn to_pair<E: serde::de::Error>(v: Vec<f64>) -> Result<[f64; 2], E> {
+    match v[..] {
+        [x, y] => Ok([x, y]),
+        _ => Err(E::invalid_length(v.len(), &"a point [x, y] in metres")),
+    }
+}
+
+/// `contact_load`: one threshold for every joint, or one per joint.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ContactLoad {
+    /// The same threshold for every joint.
+    All(f64),
+    /// One threshold per `[[joint]]`, base to tip.
+    PerJoint(Vec<f64>),
+}
+
+impl<'de> Deserialize<'de> for ContactLoad {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = ContactLoad;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a number (every joint) or an array of numbers (one per joint)")
+            }
+
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<ContactLoad, E> {
+                Ok(ContactLoad::All(v))
+            }
+
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<ContactLoad, E> {
+                Ok(ContactLoad::All(v as f64))
+            }
+
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<ContactLoad, E> {
+                Ok(ContactLoad::All(v as f64))
+            }
+
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<ContactLoad, A::Error> {
+                let mut out = Vec::with_capacity(seq.size_hint().unwrap_or(0).min(256));
+                while let Some(v) = seq.next_element::<f64>()? {
+                    out.push(v);
+                }
+                Ok(ContactLoad::PerJoint(out))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
+}
+
 /// Factory baud rate of X-series servos.
 pub fn default_baud() -> u32 {
     57_600
@@ -436,6 +575,14 @@ pub fn default_listen() -> String {
 pub fn default_max_clients() -> u32 {
     8
 }
+
+/// The clearance every link keeps, m: the world's own default.
+pub fn default_clearance_m() -> f64 {
+    crate::world::DEFAULT_CLEARANCE_M
+}
+
+/// How long a load must stay above its threshold when `contact_ms` is not given, ms.
+pub const DEFAULT_CONTACT_MS: u32 = 100;
 
 /// Zenoh mode: a peer, which needs no router.
 pub fn default_zenoh_mode() -> ZenohMode {

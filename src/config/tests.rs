@@ -1006,3 +1006,5 @@ fn an_enabled_zenoh_must_be_reachable() {
         &["config/test.toml:", "router"],
     );
 }
+
+mod world;

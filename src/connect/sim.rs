@@ -56,6 +56,17 @@ fn fault(f: &Fault) -> SimFault {
                 None => silent,
             };
         }
+        // Blocked from `from`; a window closing at `until` lets the shaft go.
+        FaultKind::Blocked => {
+            let blocked = SimFault::Blocked {
+                id: f.id.unwrap_or_default(),
+                at: f.from,
+            };
+            return match f.until {
+                Some(_) => blocked.during(std::time::Duration::ZERO, f.until),
+                None => blocked,
+            };
+        }
         // The adapter unplugged: always windowed, even from 0 to the end of the run.
         FaultKind::Disconnect => return SimFault::Disconnect.during(f.from, f.until),
         FaultKind::HardwareError(e) => {

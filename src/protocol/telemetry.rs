@@ -122,6 +122,10 @@ pub enum FaultKind {
     /// The servo answered again with its RAM reset to the defaults (it lost power): its
     /// settings were written again, torque left off, the arm latched until `reset`.
     PowerLoss,
+    /// A joint's load stayed above its `[world] contact_load` threshold for `contact_ms`: the
+    /// arm met something (`detail` names the load and the threshold); latched as an estop
+    /// until `reset`.
+    Contact,
     /// A warning: the temperature is near the servo's limit.
     Temperature,
     /// A warning: the input voltage is near the servo's limits.
@@ -137,6 +141,7 @@ impl FaultKind {
             FaultKind::Port => "port",
             FaultKind::Watchdog => "watchdog",
             FaultKind::PowerLoss => "power_loss",
+            FaultKind::Contact => "contact",
             FaultKind::Temperature => "temperature",
             FaultKind::Voltage => "voltage",
         }
@@ -150,7 +155,8 @@ impl FaultKind {
             | FaultKind::HardwareError
             | FaultKind::Port
             | FaultKind::Watchdog
-            | FaultKind::PowerLoss => false,
+            | FaultKind::PowerLoss
+            | FaultKind::Contact => false,
         }
     }
 }

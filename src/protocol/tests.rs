@@ -516,6 +516,7 @@ fn closed_sets_are_written_as_the_strings_they_always_were() {
         (FaultKind::Port, "port"),
         (FaultKind::Watchdog, "watchdog"),
         (FaultKind::PowerLoss, "power_loss"),
+        (FaultKind::Contact, "contact"),
         (FaultKind::Temperature, "temperature"),
         (FaultKind::Voltage, "voltage"),
     ] {

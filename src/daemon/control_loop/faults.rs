@@ -1,6 +1,7 @@
 //! The loop's fault path: reading the servos, judging what the read showed (through
-//! [`Health`](super::health::Health)), holding the arm through the supervisor, recovering, and
-//! keeping the port (reopening it, recovering from a stall past the Bus Watchdog).
+//! [`Health`](super::health::Health)), holding the arm through the supervisor, recovering,
+//! keeping the port (reopening it, recovering from a stall past the Bus Watchdog), and the
+//! contact stop (a load that stayed above its `[world] contact_load`).
 
 use std::time::{Duration, Instant};
 
@@ -365,9 +366,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         Ok(())
     }
 
-    /// Before the tick's work: a lost port reopened when due, else a stall past the Bus
-    /// Watchdog recovered.
+    /// Before the tick's work: contacts whose latch a `reset` released are cleared, a lost
+    /// port reopened when due, else a stall past the Bus Watchdog recovered.
     pub(super) fn tend_port(&mut self) {
+        if self.health.in_contact() && !self.supervisor.estopped() {
+            for change in self
+                .health
+                .release_contacts("reset: the latch released, holding the measured pose")
+            {
+                self.report(change);
+            }
+        }
         if self.port.is_lost() {
             self.retry_port();
         } else {
@@ -477,8 +486,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// Health warnings from this tick's temperature and voltage readings, before the servo's
-    /// own thresholds switch it off.
+    /// own thresholds switch it off; contact detection on its loads (a contact stops the arm).
     fn check_health(&mut self) {
+        let mut contacts = Vec::new();
         for i in 0..self.health.len() {
             if !self.measured.fresh.get(i).copied().unwrap_or(false) {
                 continue;
@@ -487,7 +497,41 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             for change in self.health.judge(i, t, v, self.tick) {
                 self.report(change);
             }
+            let (load, unit) = (self.measured.load[i], self.measured.load_unit[i]);
+            contacts.extend(self.health.judge_load(i, load, unit, self.tick));
         }
+        if !contacts.is_empty() {
+            self.contact_stop();
+            for change in contacts {
+                self.report(change);
+            }
+        }
+    }
+
+    /// A joint met something: the arm stops as for a fault (the command ends `fault`), stops
+    /// pushing (goals := the measured pose, clamped into the limits) and is latched as by an
+    /// estop, torque kept on, until `reset`. Nothing more when the latch is already set.
+    fn contact_stop(&mut self) {
+        if self.supervisor.estopped() {
+            return;
+        }
+        self.controller.freeze();
+        let ended = self.ledger.interrupt(StopReason::Fault);
+        self.owe(ended);
+        let limits = self.controller.chain().limits();
+        let pose: Vec<f64> = self
+            .measured
+            .theta
+            .iter()
+            .zip(limits)
+            .map(|(&t, l)| l.map_or(t, |l| l.clamp(t)))
+            .collect();
+        if let Err(r) = self.controller.reseed(&pose) {
+            tracing::warn!("contact: holding the goals, not the measured pose: {r}");
+        }
+        self.supervisor.estop(false);
+        tracing::warn!("contact: the arm stops and holds the measured pose until `reset`");
+        self.event(None, None, |tip| What::Estop { tip });
     }
 }
 

@@ -1,11 +1,13 @@
 //! Joint health, pure: each servo's error budget (a time, the same at every loop rate), the
-//! fault that holds it, and its temperature and voltage warnings with hysteresis. Readings and
-//! times go in, [`Change`]s come out; the cycle turns them into events and log lines, and does
-//! the bus work (reading Hardware Error Status, recovering) itself.
+//! fault that holds it, its temperature and voltage warnings with hysteresis, and contact
+//! detection (a load above its threshold for long enough). Readings and times go in,
+//! [`Change`]s come out; the cycle turns them into events and log lines, and does the bus work
+//! (reading Hardware Error Status, recovering) and the stops itself.
 
 use std::time::{Duration, Instant};
 
-use crate::protocol::{FaultChange, FaultInfo, FaultKind};
+use crate::config::Contact;
+use crate::protocol::{FaultChange, FaultInfo, FaultKind, LoadUnit};
 use crate::servo::HardwareErrors;
 
 /// A temperature warning this close below the servo's Temperature Limit, °C.
@@ -114,6 +116,19 @@ struct Joint {
     /// Active warnings: since which tick, and why.
     temperature: Option<(u64, String)>,
     voltage: Option<(u64, String)>,
+    /// The health tick since which its load has stayed above its contact threshold.
+    over: Option<u64>,
+    /// A contact latched: since which tick, and why.
+    contact: Option<(u64, String)>,
+}
+
+/// Contact detection as the loop counts it: thresholds per joint, and how many ticks a load
+/// must stay above one.
+#[derive(Debug, Clone, PartialEq)]
+struct ContactRule {
+    load: Vec<f64>,
+    hold: Duration,
+    hold_ticks: u64,
 }
 
 /// Every joint's health.
@@ -123,6 +138,7 @@ pub struct Health {
     budget: Budget,
     /// The port the servos are on, for the reports.
     port: Option<String>,
+    contact: Option<ContactRule>,
 }
 
 impl Health {
@@ -146,6 +162,29 @@ impl Health {
             joints,
             budget,
             port,
+            contact: None,
+        }
+    }
+
+    /// Contact detection on (`contact`) or off (`None`), on a loop whose ticks are `period`
+    /// apart: a load must stay above its threshold from one health read to one at least
+    /// `contact.hold` later (in ticks, rounded up).
+    pub fn set_contact(&mut self, contact: Option<&Contact>, period: Duration) {
+        self.contact = contact.map(|c| {
+            let period = period.as_secs_f64();
+            let ticks = if period > 0.0 {
+                (c.hold.as_secs_f64() / period - 1e-9).ceil().max(0.0)
+            } else {
+                0.0
+            };
+            ContactRule {
+                load: c.load.clone(),
+                hold: c.hold,
+                hold_ticks: ticks as u64,
+            }
+        });
+        for j in &mut self.joints {
+            j.over = None;
         }
     }
 
@@ -398,6 +437,70 @@ impl Health {
         changes
     }
 
+    /// Contact detection on joint `i`'s fresh load `load` (in `unit`), read at `tick`: a
+    /// `contact` raised once its |load| has stayed above the joint's threshold on every health
+    /// read for the rule's time (counted in ticks from the first read above), `None` otherwise
+    /// or while a contact is latched. A contact is not a fault of [`Health::any_fault`]: the
+    /// cycle latches the arm for it, and [`Health::release_contacts`] clears it with the latch.
+    pub fn judge_load(&mut self, i: usize, load: f64, unit: LoadUnit, tick: u64) -> Option<Change> {
+        let rule = self.contact.as_ref()?;
+        let threshold = rule.load.get(i).copied()?;
+        let j = self.joints.get_mut(i)?;
+        if j.contact.is_some() {
+            return None;
+        }
+        if load.abs() <= threshold {
+            j.over = None;
+            return None;
+        }
+        let since = *j.over.get_or_insert(tick);
+        let ticks = tick.saturating_sub(since);
+        if ticks < rule.hold_ticks {
+            return None;
+        }
+        let unit = match unit {
+            LoadUnit::Percent => "%",
+            LoadUnit::Amps => "A",
+        };
+        let detail = format!(
+            "load {load:.2} {unit} beyond contact_load = {threshold} {unit} on every read for \
+             {ticks} ticks (contact_ms = {}): the arm met something; goals := the measured \
+             pose, the arm latched as by an estop until `reset`",
+            rule.hold.as_millis()
+        );
+        j.over = None;
+        j.contact = Some((since, detail.clone()));
+        Some(Change::raised(self.info(
+            i,
+            FaultKind::Contact,
+            since,
+            detail,
+        )))
+    }
+
+    /// Whether a contact is latched on any joint.
+    pub fn in_contact(&self) -> bool {
+        self.joints.iter().any(|j| j.contact.is_some())
+    }
+
+    /// Every latched contact cleared (the latch that held the arm for them was released), with
+    /// its report; detection starts afresh.
+    pub fn release_contacts(&mut self, detail: &str) -> Vec<Change> {
+        let mut changes = Vec::new();
+        for i in 0..self.joints.len() {
+            self.joints[i].over = None;
+            if let Some((since, _)) = self.joints[i].contact.take() {
+                changes.push(Change::cleared(self.info(
+                    i,
+                    FaultKind::Contact,
+                    since,
+                    detail.to_owned(),
+                )));
+            }
+        }
+        changes
+    }
+
     /// Raise (`detail`) or clear (`None`) joint `i`'s warning of `kind`.
     fn warn(
         &mut self,
@@ -431,6 +534,9 @@ impl Health {
         for (i, j) in self.joints.iter().enumerate() {
             if let Some(h) = &j.fault {
                 faults.push(self.info(i, h.fault.kind(), h.since, h.detail.clone()));
+            }
+            if let Some((since, detail)) = &j.contact {
+                faults.push(self.info(i, FaultKind::Contact, *since, detail.clone()));
             }
             for (kind, slot) in [
                 (FaultKind::Temperature, &j.temperature),
@@ -629,6 +735,91 @@ mod tests {
             "a servo back from a power loss answers"
         );
         assert_eq!(h.index_of(2), Some(1));
+    }
+
+    fn contact(h: &mut Health, hold_ms: u64) {
+        let rule = Contact {
+            load: vec![50.0, 1.0],
+            hold: Duration::from_millis(hold_ms),
+        };
+        h.set_contact(Some(&rule), 10 * MS);
+    }
+
+    #[test]
+    fn a_contact_is_raised_once_the_load_stays_above_its_threshold_for_its_time() {
+        let mut h = health(10);
+        contact(&mut h, 200);
+        // Health reads every 10 ticks of 10 ms: above at ticks 10, 20 and 30 is 200 ms.
+        assert_eq!(h.judge_load(0, 60.0, LoadUnit::Percent, 10), None);
+        assert_eq!(h.judge_load(0, 60.0, LoadUnit::Percent, 20), None);
+        assert!(!h.in_contact());
+        let raised = h.judge_load(0, 60.0, LoadUnit::Percent, 30).unwrap();
+        assert_eq!(raised.change, FaultChange::Raised);
+        let f = &raised.info;
+        assert!(
+            f.kind == FaultKind::Contact
+                && f.id == Some(1)
+                && f.joint == Some(1)
+                && f.port.as_deref() == Some("/dev/ttyUSB0")
+                && f.since_tick == 10,
+            "{f:?}"
+        );
+        assert!(
+            f.detail.contains("load 60.00 %") && f.detail.contains("contact_load = 50 %"),
+            "{}",
+            f.detail
+        );
+        // Latched: listed as a fault, not raised again, not a fault that holds by itself.
+        assert!(h.in_contact() && !h.any_fault());
+        assert_eq!(h.judge_load(0, 90.0, LoadUnit::Percent, 40), None);
+        let (faults, _) = h.lists(None);
+        assert_eq!(faults.len(), 1);
+        assert_eq!(faults[0].kind, FaultKind::Contact);
+        let cleared = h.release_contacts("released");
+        assert_eq!(cleared.len(), 1);
+        assert_eq!(cleared[0].change, FaultChange::Cleared);
+        assert!(cleared[0].info.since_tick == 10 && cleared[0].info.detail == "released");
+        assert!(!h.in_contact() && h.lists(None).0.is_empty());
+        assert!(h.release_contacts("again").is_empty());
+    }
+
+    #[test]
+    fn a_load_that_dips_below_its_threshold_starts_the_count_again() {
+        let mut h = health(10);
+        contact(&mut h, 200);
+        assert_eq!(h.judge_load(1, -1.5, LoadUnit::Amps, 10), None);
+        assert_eq!(h.judge_load(1, -1.5, LoadUnit::Amps, 20), None);
+        assert_eq!(h.judge_load(1, 0.4, LoadUnit::Amps, 30), None);
+        assert_eq!(h.judge_load(1, -1.5, LoadUnit::Amps, 40), None);
+        assert_eq!(h.judge_load(1, 1.5, LoadUnit::Amps, 50), None);
+        // Either sign counts: the magnitude is what pushes.
+        let raised = h.judge_load(1, -1.5, LoadUnit::Amps, 60).unwrap();
+        assert_eq!((raised.info.joint, raised.info.since_tick), (Some(2), 40));
+        assert!(
+            raised.info.detail.contains("-1.50 A"),
+            "{}",
+            raised.info.detail
+        );
+        // At the threshold is not above it.
+        let mut h = health(10);
+        contact(&mut h, 0);
+        assert_eq!(h.judge_load(0, 50.0, LoadUnit::Percent, 1), None);
+        assert!(
+            h.judge_load(0, 50.1, LoadUnit::Percent, 2).is_some(),
+            "0 ms: the first read"
+        );
+    }
+
+    #[test]
+    fn without_thresholds_no_load_is_a_contact() {
+        let mut h = health(10);
+        for tick in 0..100 {
+            assert_eq!(h.judge_load(0, 100.0, LoadUnit::Percent, tick), None);
+        }
+        contact(&mut h, 100);
+        h.set_contact(None, 10 * MS);
+        assert_eq!(h.judge_load(0, 100.0, LoadUnit::Percent, 200), None);
+        assert_eq!(h.judge_load(0, 100.0, LoadUnit::Percent, 300), None);
     }
 
     #[test]

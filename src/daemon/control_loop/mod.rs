@@ -35,7 +35,10 @@
 //!   that fired are cleared, goals := the measured pose, re-armed (`watchdog`, recovered at
 //!   once);
 //! - a servo back from silence with its RAM at the defaults (it lost power): `power_loss`, the
-//!   arm latched as by an estop, its RAM written again, torque only on `reset`.
+//!   arm latched as by an estop, its RAM written again, torque only on `reset`;
+//! - a joint's load above its `[world] contact_load` on every health read for `contact_ms`:
+//!   `contact`, the command ended `fault`, goals := the measured pose (it stops pushing), the
+//!   arm latched as by an estop with torque on; `reset` releases it and clears the fault.
 //!
 //! The fault path never holds the tick longer than a period: its exchanges wait at most to the
 //! end of the tick and are not sent again past it, and servos known silent are not waited on
@@ -288,7 +291,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             deadman_s: c.deadman.as_secs_f64(),
         };
         let home = config.home().to_vec();
-        let controller = Controller::new(
+        let mut controller = Controller::new(
             config.chain().clone(),
             limits,
             c.strategy,
@@ -298,6 +301,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         .map_err(DaemonError::Controller)?;
         if let Some(contact) = controller.self_contact() {
             tracing::warn!("{contact}");
+        }
+        // The config's world: its home pose is clear, but the arm starts where it stands.
+        if let Some(not_clear) = controller.set_world(config.world().clone()) {
+            tracing::warn!("the measured start pose is not clear: {not_clear}");
         }
         // The channel's first value is never seen: tick 0 publishes a measured snapshot
         // before `ready` hands the handle to anyone who could read it.
@@ -316,12 +323,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             max_silence: c.max_silence,
             read_interval: period * c.read_every.max(1),
         };
-        let health = Health::new(
+        let mut health = Health::new(
             &ids,
             &faults::health_limits(&arm, &mut bus),
             budget,
             port.clone(),
         );
+        health.set_contact(config.contact(), period);
         let now = clock.now();
         let watchdog = units::watchdog_period(arm.settings().watchdog_ms);
         let mut stats = Stats::new(now);

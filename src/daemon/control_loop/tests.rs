@@ -237,11 +237,16 @@ struct Rig {
 
 impl Rig {
     fn new(rate_hz: f64, control: &str) -> Rig {
+        Self::with_tables(rate_hz, control, "")
+    }
+
+    /// [`Rig::new`] with `tables` (such as a `[world]`) added at the end of the file.
+    fn with_tables(rate_hz: f64, control: &str, tables: &str) -> Rig {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
         let text = std::fs::read_to_string(path).unwrap().replace(
             "rate_hz = 100.0",
             &format!("rate_hz = {rate_hz:?}\n{control}"),
-        );
+        ) + tables;
         let config = Config::from_str(&text, path).unwrap();
         let arm = config.arm().unwrap().clone();
         let bus = MemoryBus::default();
@@ -1019,4 +1024,18 @@ fn a_velocity_older_than_the_deadman_is_refused_stale_and_never_moves_the_arm() 
     rig.ticks(10);
     assert!(answer.try_recv().unwrap().is_ok());
     assert!(rig.status().tip_ref[0] > tip[0]);
+}
+
+#[test]
+fn the_config_files_world_is_in_force_from_start_up() {
+    let world = "\n[world]\nlink_radius_m = 0.01\n\n[[world.obstacle]]\nid = \"post\"\n\
+                 circle = { center_m = [0.5, 0.3], radius_m = 0.05 }\n";
+    let rig = Rig::with_tables(100.0, "", world);
+    let w = rig.cycle.controller.world();
+    assert_eq!(w.link_radius_m(), 0.01);
+    assert_eq!(w.obstacles().len(), 1);
+    assert_eq!(w.obstacles()[0].id, "post");
+    // Without a [world], none.
+    let rig = Rig::new(100.0, "");
+    assert!(rig.cycle.controller.world().obstacles().is_empty());
 }
