@@ -7,7 +7,6 @@ use clap::Args;
 
 use snakectl::config::Config;
 use snakectl::problem::{self, Problem, ProblemError};
-use snakectl::world::World;
 
 use super::{outln, Failure};
 
@@ -119,7 +118,7 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
             )?,
             steps: problem::parse_steps(args.steps)?,
             objective: problem::parse_objective(None, None, strategy, base_mode)?,
-            world: World::default(),
+            world: config.world().clone(),
         })
     };
     build().map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", path.display())))

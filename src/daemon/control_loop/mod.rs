@@ -302,6 +302,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if let Some(contact) = controller.self_contact() {
             tracing::warn!("{contact}");
         }
+        // Goals reach the servos in whole ticks: the rounded pose must keep clear too.
+        let tick_rad = std::f64::consts::TAU / crate::servo::units::TICKS_PER_TURN;
+        controller
+            .set_joint_resolution(&vec![tick_rad; arm.joints().len()])
+            .map_err(DaemonError::Controller)?;
         // The config's world: its home pose is clear, but the arm starts where it stands.
         if let Some(not_clear) = controller.set_world(config.world().clone()) {
             tracing::warn!("the measured start pose is not clear: {not_clear}");
