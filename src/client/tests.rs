@@ -64,6 +64,7 @@ fn sim_describe() -> Describe {
         rate_hz: 100.0,
         strategies: protocol::STRATEGIES.to_vec(),
         protocol_version: protocol::PROTOCOL_VERSION,
+        ..Describe::default()
     }
 }
 
