@@ -52,11 +52,12 @@ pub fn obstacle(field: &str, value: &Value) -> Result<Obstacle, Rejection> {
         (None, Some(p)) => {
             let at = format!("{field}.polygon");
             let p = object(&at, p, &["points"])?;
+            let list = required(&at, p, "points")?;
             let at = format!("{at}.points");
-            let Value::Array(items) = required(&at, p, "points")? else {
+            let Value::Array(items) = list else {
                 return Err(bad(format_args!(
                     "`{at}`: expected an array of [x, y] points, got {}",
-                    Shown(&p["points"])
+                    Shown(list)
                 )));
             };
             let points = items

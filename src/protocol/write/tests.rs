@@ -190,6 +190,8 @@ fn telemetry_line_is_tagged_and_status_fields_name_the_same() {
         "tracking_error_m",
         "saturated",
         "self_collision",
+        "min_clearance_m",
+        "blocked",
         "command",
         "solve_us",
         "loop_hz",
