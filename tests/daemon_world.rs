@@ -38,7 +38,10 @@ fn far_post() -> Value {
 }
 
 fn far_shelf() -> Value {
-    polygon("shelf", &[[-2.0, 1.5], [-1.8, 1.5], [-1.8, 1.55], [-2.0, 1.55]])
+    polygon(
+        "shelf",
+        &[[-2.0, 1.5], [-1.8, 1.5], [-1.8, 1.55], [-2.0, 1.55]],
+    )
 }
 
 /// The joint points of the commanded pose in `status` (or a telemetry line).
@@ -85,14 +88,21 @@ fn the_world_is_set_added_to_and_removed_from_and_every_client_is_told() {
     // The other client is told the whole new world, and who changed it.
     let event = b.event("world", Some(id));
     assert_eq!(event["by"], json!(me), "{event}");
-    assert_eq!(event["obstacles"], json!([far_post(), far_shelf()]), "{event}");
+    assert_eq!(
+        event["obstacles"],
+        json!([far_post(), far_shelf()]),
+        "{event}"
+    );
     assert_eq!(event["link_radius_m"], w["link_radius_m"]);
     assert_eq!(event["clearance_m"], w["clearance_m"]);
     // The sender is told too, and reads the same world back.
     a.event("world", Some(id));
     let now = b.ok(json!({"cmd": "world"}));
     assert_eq!(now["obstacles"], json!([far_post(), far_shelf()]), "{now}");
-    assert_eq!(now["link_radius_m"], w["link_radius_m"], "the link radius stays");
+    assert_eq!(
+        now["link_radius_m"], w["link_radius_m"],
+        "the link radius stays"
+    );
 
     let disc = circle("disc", [1.5, -1.5], 0.1);
     let id = a.send(json!({"cmd": "add_obstacle", "obstacle": disc}));
@@ -187,7 +197,10 @@ fn an_obstacle_put_onto_the_arm_is_told_to_everyone_and_the_arm_holds() {
     assert_eq!(told["link"], json!(5), "{told}");
     assert_eq!(told["obstacle"], json!("onto"), "{told}");
     let depth = told["clearance_m"].as_f64().unwrap();
-    assert!(depth < -0.01 + 1e-9, "inside by its radius at least: {told}");
+    assert!(
+        depth < -0.01 + 1e-9,
+        "inside by its radius at least: {told}"
+    );
     let world = world_of(&a.ok(json!({"cmd": "world"})));
     assert_eq!(told["keep_m"].as_f64().unwrap(), world.clearance_m());
     assert_eq!(told["cmd_id"], json!(id), "the change that caused it");
@@ -230,13 +243,18 @@ fn every_bad_world_command_gets_its_code() {
     // What the parser refuses.
     refused(
         &mut a,
-        set(vec![far_post(), json!({"id": "x", "circle": {"center": [0, 1], "radius": 0.1, "r": 1}})]),
+        set(vec![
+            far_post(),
+            json!({"id": "x", "circle": {"center": [0, 1], "radius": 0.1, "r": 1}}),
+        ]),
         "bad_arg",
         &["`obstacles[1].circle.r`", "unknown key"],
     );
     refused(
         &mut a,
-        set(vec![json!({"id": "x", "circle": {"center": [0, 2e6], "radius": 0.1}})]),
+        set(vec![
+            json!({"id": "x", "circle": {"center": [0, 2e6], "radius": 0.1}}),
+        ]),
         "bad_arg",
         &["`obstacles[0].circle.center[1]`"],
     );
@@ -261,7 +279,11 @@ fn every_bad_world_command_gets_its_code() {
     );
     refused(
         &mut a,
-        set(vec![far_post(), far_shelf(), circle("post", [0.5, 0.5], 0.1)]),
+        set(vec![
+            far_post(),
+            far_shelf(),
+            circle("post", [0.5, 0.5], 0.1),
+        ]),
         "bad_arg",
         &["`obstacles[2].id`", "\"post\"", "obstacles[0]"],
     );
@@ -273,7 +295,10 @@ fn every_bad_world_command_gets_its_code() {
     );
     refused(
         &mut a,
-        set(vec![polygon("bow", &[[1.0, 1.0], [1.2, 1.2], [1.2, 1.0], [1.0, 1.2]])]),
+        set(vec![polygon(
+            "bow",
+            &[[1.0, 1.0], [1.2, 1.2], [1.2, 1.0], [1.0, 1.2]],
+        )]),
         "bad_arg",
         &["`obstacles[0].polygon.points`", "cross"],
     );
@@ -362,7 +387,10 @@ fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
     .unwrap();
     let (code, out, err) = snakectl(&addr, &["world", "set", json_file.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
-    assert!(out.starts_with("ok: set_world with 2 obstacles at tick "), "{out}");
+    assert!(
+        out.starts_with("ok: set_world with 2 obstacles at tick "),
+        "{out}"
+    );
     assert_eq!(
         c.ok(json!({"cmd": "world"}))["obstacles"],
         json!([far_post(), far_shelf()])
@@ -371,8 +399,14 @@ fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
     assert_eq!(code, 0);
     let lines: Vec<&str> = out.lines().collect();
     assert!(lines[0].ends_with(", 2 obstacles"), "{out}");
-    assert!(lines[2].starts_with("post   circle   center (2.0000, 2.0000), radius 0.0500"), "{out}");
-    assert!(lines[3].starts_with("shelf  polygon  4 points: (-2.0000, 1.5000)"), "{out}");
+    assert!(
+        lines[2].starts_with("post   circle   center (2.0000, 2.0000), radius 0.0500"),
+        "{out}"
+    );
+    assert!(
+        lines[3].starts_with("shelf  polygon  4 points: (-2.0000, 1.5000)"),
+        "{out}"
+    );
     // `--json` prints what `world set` reads back.
     let (code, out, _) = snakectl(&addr, &["world", "--json"]);
     assert_eq!(code, 0);
@@ -382,7 +416,10 @@ fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
     std::fs::write(&again, &out).unwrap();
     let (code, _, err) = snakectl(&addr, &["world", "set", again.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
-    assert!(err.is_empty(), "the same radius and clearance: no note: {err}");
+    assert!(
+        err.is_empty(),
+        "the same radius and clearance: no note: {err}"
+    );
 
     // TOML in the config's shape, other tables ignored.
     let toml_file = dir.path().join("w.toml");
@@ -403,7 +440,10 @@ fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
         w["obstacles"],
         json!([
             circle("pillar", [1.5, 1.5], 0.04),
-            polygon("ledge", &[[-1.6, 0.3], [-1.4, 0.3], [-1.4, 0.34], [-1.6, 0.34]])
+            polygon(
+                "ledge",
+                &[[-1.6, 0.3], [-1.4, 0.3], [-1.4, 0.34], [-1.6, 0.34]]
+            )
         ])
     );
     assert_ne!(w["clearance_m"], json!(0.25));

@@ -150,7 +150,10 @@ fn table(world: &WorldInfo) -> Vec<String> {
         let (shape, at) = match &o.shape {
             Shape::Circle { center, radius_m } => (
                 "circle",
-                format!("center ({:.4}, {:.4}), radius {radius_m:.4}", center.x, center.y),
+                format!(
+                    "center ({:.4}, {:.4}), radius {radius_m:.4}",
+                    center.x, center.y
+                ),
             ),
             Shape::Polygon { points } => {
                 let corners: Vec<String> = points
@@ -461,13 +464,13 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.starts_with("world.obstacle[1].circle.radius_m: "), "{e}");
-        let e = toml_of(
-            "[[world.obstacle]]\nid = \"a\"\npolygon = { points_m = [[0, 0], [1, 0]] }\n",
-        )
-        .unwrap_err();
+        let e =
+            toml_of("[[world.obstacle]]\nid = \"a\"\npolygon = { points_m = [[0, 0], [1, 0]] }\n")
+                .unwrap_err();
         assert!(e.starts_with("world.obstacle[0].polygon.points_m: "), "{e}");
-        let e = toml_of("[[world.obstacle]]\nid = \"a\"\ncircle = { center = [0, 0], radius_m = 1 }\n")
-            .unwrap_err();
+        let e =
+            toml_of("[[world.obstacle]]\nid = \"a\"\ncircle = { center = [0, 0], radius_m = 1 }\n")
+                .unwrap_err();
         assert!(e.contains("unknown field `center`"), "{e}");
         let e = toml_of("[[world.obstacles]]\nid = \"a\"\n").unwrap_err();
         assert!(e.contains("unknown field `obstacles`"), "{e}");
@@ -491,7 +494,10 @@ mod tests {
         let e = bad(r#"{"obstacles": [{"id": "p", "circle": {"center": [0, 0], "radius": 0}}]}"#);
         assert!(e.starts_with("`obstacles[0].circle.radius`: "), "{e}");
         let e = bad(r#"{"obstacles": [{"id": "p", "circle": {"center": [0, 0]}}]}"#);
-        assert!(e.starts_with("`obstacles[0].circle.radius`: missing"), "{e}");
+        assert!(
+            e.starts_with("`obstacles[0].circle.radius`: missing"),
+            "{e}"
+        );
         let e = bad(r#"{"obstacle": []}"#);
         assert!(e.starts_with("`obstacle`: unknown key"), "{e}");
         let e = bad(r#"{}"#);
@@ -514,13 +520,20 @@ mod tests {
                 Obstacle {
                     id: "tri".into(),
                     shape: Shape::Polygon {
-                        points: vec![Vec2::new(0.0, 0.0), Vec2::new(1.0, 0.0), Vec2::new(0.0, 1.0)],
+                        points: vec![
+                            Vec2::new(0.0, 0.0),
+                            Vec2::new(1.0, 0.0),
+                            Vec2::new(0.0, 1.0),
+                        ],
                     },
                 },
             ],
         };
         let lines = table(&world);
-        assert_eq!(lines[0], "link radius 0.012 m, clearance 0.005 m, 2 obstacles");
+        assert_eq!(
+            lines[0],
+            "link radius 0.012 m, clearance 0.005 m, 2 obstacles"
+        );
         assert!(lines[2].starts_with("post  circle "), "{}", lines[2]);
         assert!(lines[2].contains("center (0.1500, 0.6000), radius 0.0400"));
         assert!(lines[3].contains("3 points: (0.0000, 0.0000) (1.0000, 0.0000) (0.0000, 1.0000)"));

@@ -448,7 +448,12 @@ fn the_world_commands_are_sent_in_the_sockets_shape_and_the_reply_is_typed() {
             .to_string(),
         );
         let r = daemon.request();
-        assert_eq!(r.cmd, Cmd::SetWorld { obstacles: vec![sent.clone()] });
+        assert_eq!(
+            r.cmd,
+            Cmd::SetWorld {
+                obstacles: vec![sent.clone()]
+            }
+        );
         daemon.send(&json!({"id": r.id.as_deref().unwrap(), "ok": true, "tick": 3}).to_string());
         let r = daemon.request();
         assert_eq!(r.cmd, Cmd::AddObstacle { obstacle: sent });

@@ -664,7 +664,11 @@ fn a_description_gives_back_the_chain_it_was_made_from() {
         vec![0.1, 0.2, 0.3],
         250.0,
     );
-    assert_eq!((d.link_radius_m, d.clearance_m), (0.0, 0.0), "no world given");
+    assert_eq!(
+        (d.link_radius_m, d.clearance_m),
+        (0.0, 0.0),
+        "no world given"
+    );
     let world = crate::world::World::new(0.012, 0.004, vec![]).unwrap();
     let d = d.with_world(&world);
     assert_eq!(d, describe());

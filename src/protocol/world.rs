@@ -157,7 +157,9 @@ impl Serialize for Wire<'_> {
 /// calls `obstacle` (the request's argument).
 pub fn world_rejection(err: &WorldError, added: Option<usize>) -> Rejection {
     let text = err.to_string();
-    let (field, rest) = text.split_once(": ").unwrap_or(("obstacles", text.as_str()));
+    let (field, rest) = text
+        .split_once(": ")
+        .unwrap_or(("obstacles", text.as_str()));
     let mut field = field
         .replace(".circle.radius_m", ".circle.radius")
         .replace(".circle.center.x", ".circle.center[0]")

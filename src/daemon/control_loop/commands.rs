@@ -8,10 +8,10 @@ use crate::protocol::{
     world_rejection, Answer, Applied, Code, LoopCmd, Motion, Rebooted, Rejection, Reply, Status,
     StopReason, What, WorldInfo,
 };
-use crate::world::{Obstacle, World};
 use crate::servo::arm::{self, BringUpOptions, OnExit, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::ServoBus;
+use crate::world::{Obstacle, World};
 
 use super::ledger::Renewal;
 use super::link::{Envelope, COMMAND_QUEUE, STOP_QUEUE};
@@ -113,7 +113,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     fn apply(&mut self, e: &Envelope) -> Pending {
-        let stops = matches!(e.cmd, LoopCmd::Status | LoopCmd::Stop | LoopCmd::Estop);
+        let stops = matches!(
+            e.cmd,
+            LoopCmd::Status | LoopCmd::Stop | LoopCmd::Estop | LoopCmd::World
+        );
         if self.supervisor.exiting() && !stops {
             return refuse(Code::ShuttingDown, "the daemon is stopping");
         }

@@ -655,7 +655,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn now_clear(&mut self) {
         self.not_clear = false;
         let min_clearance_m = self.decided.min_clearance_m;
-        tracing::info!(?min_clearance_m, "the arm's pose is clear of the obstacles again");
+        tracing::info!(
+            ?min_clearance_m,
+            "the arm's pose is clear of the obstacles again"
+        );
         self.event(None, None, |tip| What::Clear {
             tip,
             min_clearance_m,

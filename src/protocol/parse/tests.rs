@@ -727,7 +727,10 @@ mod world {
     fn every_world_command_and_shape_parses() {
         assert_eq!(ok(r#"{"cmd": "world"}"#).cmd, Cmd::World);
         assert_eq!(
-            ok(&format!(r#"{{"cmd": "set_world", "obstacles": [{POST}, {SHELF}]}}"#)).cmd,
+            ok(&format!(
+                r#"{{"cmd": "set_world", "obstacles": [{POST}, {SHELF}]}}"#
+            ))
+            .cmd,
             Cmd::SetWorld {
                 obstacles: vec![post(), shelf()]
             }
@@ -737,7 +740,10 @@ mod world {
             Cmd::SetWorld { obstacles: vec![] }
         );
         assert_eq!(
-            ok(&format!(r#"{{"cmd": "add_obstacle", "obstacle": {SHELF}}}"#)).cmd,
+            ok(&format!(
+                r#"{{"cmd": "add_obstacle", "obstacle": {SHELF}}}"#
+            ))
+            .cmd,
             Cmd::AddObstacle { obstacle: shelf() }
         );
         // The request's `id` is its own; the obstacle's id is `obstacle`.
@@ -752,32 +758,85 @@ mod world {
 
     #[test]
     fn a_bad_obstacle_is_bad_arg_naming_its_field() {
-        let set = |obstacle: &str| format!(r#"{{"cmd": "set_world", "obstacles": [{POST}, {obstacle}]}}"#);
+        let set = |obstacle: &str| {
+            format!(r#"{{"cmd": "set_world", "obstacles": [{POST}, {obstacle}]}}"#)
+        };
         let add = |obstacle: &str| format!(r#"{{"cmd": "add_obstacle", "obstacle": {obstacle}}}"#);
         let cases: &[(&str, &str)] = &[
             // Not an object, no id, an id of the wrong type.
             ("7", "`obstacles[1]`: expected an object, got 7"),
-            (r#"{"circle": {"center": [0, 0], "radius": 1}}"#, "`obstacles[1].id`: missing"),
-            (r#"{"id": 5, "circle": {"center": [0, 0], "radius": 1}}"#, "`obstacles[1].id`: expected a string"),
+            (
+                r#"{"circle": {"center": [0, 0], "radius": 1}}"#,
+                "`obstacles[1].id`: missing",
+            ),
+            (
+                r#"{"id": 5, "circle": {"center": [0, 0], "radius": 1}}"#,
+                "`obstacles[1].id`: expected a string",
+            ),
             // The shape: neither, both, unknown keys at each level.
             (r#"{"id": "a"}"#, "`obstacles[1]`: missing its shape"),
-            (r#"{"id": "a", "circle": {"center": [0, 0], "radius": 1}, "polygon": {"points": []}}"#, "`obstacles[1]`: give `circle` or `polygon`, not both"),
-            (r#"{"id": "a", "disc": {}}"#, "`obstacles[1].disc`: unknown key"),
-            (r#"{"id": "a", "circle": {"centre": [0, 0], "radius": 1}}"#, "`obstacles[1].circle.centre`: unknown key"),
-            (r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, 1]], "closed": true}}"#, "`obstacles[1].polygon.closed`: unknown key"),
-            (r#"{"id": "a", "circle": 3}"#, "`obstacles[1].circle`: expected an object"),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 0], "radius": 1}, "polygon": {"points": []}}"#,
+                "`obstacles[1]`: give `circle` or `polygon`, not both",
+            ),
+            (
+                r#"{"id": "a", "disc": {}}"#,
+                "`obstacles[1].disc`: unknown key",
+            ),
+            (
+                r#"{"id": "a", "circle": {"centre": [0, 0], "radius": 1}}"#,
+                "`obstacles[1].circle.centre`: unknown key",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, 1]], "closed": true}}"#,
+                "`obstacles[1].polygon.closed`: unknown key",
+            ),
+            (
+                r#"{"id": "a", "circle": 3}"#,
+                "`obstacles[1].circle`: expected an object",
+            ),
             // A circle's fields.
-            (r#"{"id": "a", "circle": {"radius": 1}}"#, "`obstacles[1].circle.center`: missing"),
-            (r#"{"id": "a", "circle": {"center": [0, 0]}}"#, "`obstacles[1].circle.radius`: missing"),
-            (r#"{"id": "a", "circle": {"center": [0], "radius": 1}}"#, "`obstacles[1].circle.center`: expected 2 entries"),
-            (r#"{"id": "a", "circle": {"center": [0, "y"], "radius": 1}}"#, "`obstacles[1].circle.center[1]`: expected a number"),
-            (r#"{"id": "a", "circle": {"center": [0, 2e6], "radius": 1}}"#, "`obstacles[1].circle.center[1]`: 2000000 is over"),
-            (r#"{"id": "a", "circle": {"center": [0, 0], "radius": "1"}}"#, "`obstacles[1].circle.radius`: expected a number"),
+            (
+                r#"{"id": "a", "circle": {"radius": 1}}"#,
+                "`obstacles[1].circle.center`: missing",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 0]}}"#,
+                "`obstacles[1].circle.radius`: missing",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0], "radius": 1}}"#,
+                "`obstacles[1].circle.center`: expected 2 entries",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, "y"], "radius": 1}}"#,
+                "`obstacles[1].circle.center[1]`: expected a number",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 2e6], "radius": 1}}"#,
+                "`obstacles[1].circle.center[1]`: 2000000 is over",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 0], "radius": "1"}}"#,
+                "`obstacles[1].circle.radius`: expected a number",
+            ),
             // A polygon's fields.
-            (r#"{"id": "a", "polygon": {}}"#, "`obstacles[1].polygon.points`: missing"),
-            (r#"{"id": "a", "polygon": {"points": 4}}"#, "`obstacles[1].polygon.points`: expected an array"),
-            (r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, -1e7]]}}"#, "`obstacles[1].polygon.points[2][1]`: -10000000 is over"),
-            (r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, 1, 2]]}}"#, "`obstacles[1].polygon.points[2]`: expected 2 entries"),
+            (
+                r#"{"id": "a", "polygon": {}}"#,
+                "`obstacles[1].polygon.points`: missing",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": 4}}"#,
+                "`obstacles[1].polygon.points`: expected an array",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, -1e7]]}}"#,
+                "`obstacles[1].polygon.points[2][1]`: -10000000 is over",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, 1, 2]]}}"#,
+                "`obstacles[1].polygon.points[2]`: expected 2 entries",
+            ),
         ];
         for (obstacle, message) in cases {
             let (_, why) = refused(&set(obstacle));
@@ -787,12 +846,36 @@ mod world {
             let message = message.replacen("obstacles[1]", "obstacle", 1);
             assert!(why.message.starts_with(&message), "{obstacle}: {why}");
         }
-        refused_with(r#"{"cmd": "set_world"}"#, Code::BadArg, &["`obstacles`: missing"]);
-        refused_with(r#"{"cmd": "set_world", "obstacles": {}}"#, Code::BadArg, &["`obstacles`: expected an array"]);
-        refused_with(r#"{"cmd": "set_world", "obstacles": [], "link_radius_m": 1}"#, Code::BadArg, &["`link_radius_m`: unknown argument of set_world"]);
-        refused_with(r#"{"cmd": "remove_obstacle", "obstacle": 4}"#, Code::BadArg, &["`obstacle`: expected a string"]);
-        refused_with(r#"{"cmd": "remove_obstacle"}"#, Code::BadArg, &["`obstacle`: missing"]);
-        refused_with(r#"{"cmd": "world", "obstacles": []}"#, Code::BadArg, &["`obstacles`: unknown argument of world"]);
+        refused_with(
+            r#"{"cmd": "set_world"}"#,
+            Code::BadArg,
+            &["`obstacles`: missing"],
+        );
+        refused_with(
+            r#"{"cmd": "set_world", "obstacles": {}}"#,
+            Code::BadArg,
+            &["`obstacles`: expected an array"],
+        );
+        refused_with(
+            r#"{"cmd": "set_world", "obstacles": [], "link_radius_m": 1}"#,
+            Code::BadArg,
+            &["`link_radius_m`: unknown argument of set_world"],
+        );
+        refused_with(
+            r#"{"cmd": "remove_obstacle", "obstacle": 4}"#,
+            Code::BadArg,
+            &["`obstacle`: expected a string"],
+        );
+        refused_with(
+            r#"{"cmd": "remove_obstacle"}"#,
+            Code::BadArg,
+            &["`obstacle`: missing"],
+        );
+        refused_with(
+            r#"{"cmd": "world", "obstacles": []}"#,
+            Code::BadArg,
+            &["`obstacles`: unknown argument of world"],
+        );
     }
 
     /// What the parser lets through and the loop's [`World::new`] refuses, worded for the wire.
@@ -816,16 +899,70 @@ mod world {
             },
         };
         let cases = [
-            (vec![post(), circle("a", 0.0)], None, "`obstacles[1].circle.radius`: 0 m must be positive"),
-            (vec![post(), circle("a", -1.0)], Some(1), "`obstacle.circle.radius`: -1 m must be positive"),
-            (vec![post(), circle("post", 1.0)], None, "`obstacles[1].id`: id \"post\" is already used by obstacles[0]"),
-            (vec![post(), circle("post", 1.0)], Some(1), "`obstacle.id`: id \"post\" is already used by obstacles[0]"),
-            (vec![circle("", 1.0)], None, "`obstacles[0].id`: an obstacle needs a non-empty id"),
-            (vec![polygon("p", &[[0.0, 0.0], [1.0, 0.0]])], None, "`obstacles[0].polygon.points`: 2 points, a polygon needs at least 3"),
-            (vec![post(), polygon("bow", &[[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]])], None, "`obstacles[1].polygon.points`: edges 0 and 2 touch or cross"),
-            (vec![polygon("p", &[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])], None, "`obstacles[0].polygon.points[3]`: point (1, 0) repeats points[1]"),
-            ((0..65).map(|i| circle(&format!("c{i}"), 0.1)).collect(), None, "`obstacles`: 65 obstacles, at most 64 allowed"),
-            (vec![polygon("big", &(0..1025).map(|k| { let a = k as f64 / 1025.0 * std::f64::consts::TAU; [a.cos(), a.sin()] }).collect::<Vec<_>>())], None, "`obstacles`: 1025 polygon points in all, at most 1024 allowed"),
+            (
+                vec![post(), circle("a", 0.0)],
+                None,
+                "`obstacles[1].circle.radius`: 0 m must be positive",
+            ),
+            (
+                vec![post(), circle("a", -1.0)],
+                Some(1),
+                "`obstacle.circle.radius`: -1 m must be positive",
+            ),
+            (
+                vec![post(), circle("post", 1.0)],
+                None,
+                "`obstacles[1].id`: id \"post\" is already used by obstacles[0]",
+            ),
+            (
+                vec![post(), circle("post", 1.0)],
+                Some(1),
+                "`obstacle.id`: id \"post\" is already used by obstacles[0]",
+            ),
+            (
+                vec![circle("", 1.0)],
+                None,
+                "`obstacles[0].id`: an obstacle needs a non-empty id",
+            ),
+            (
+                vec![polygon("p", &[[0.0, 0.0], [1.0, 0.0]])],
+                None,
+                "`obstacles[0].polygon.points`: 2 points, a polygon needs at least 3",
+            ),
+            (
+                vec![
+                    post(),
+                    polygon("bow", &[[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]),
+                ],
+                None,
+                "`obstacles[1].polygon.points`: edges 0 and 2 touch or cross",
+            ),
+            (
+                vec![polygon(
+                    "p",
+                    &[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 0.0]],
+                )],
+                None,
+                "`obstacles[0].polygon.points[3]`: point (1, 0) repeats points[1]",
+            ),
+            (
+                (0..65).map(|i| circle(&format!("c{i}"), 0.1)).collect(),
+                None,
+                "`obstacles`: 65 obstacles, at most 64 allowed",
+            ),
+            (
+                vec![polygon(
+                    "big",
+                    &(0..1025)
+                        .map(|k| {
+                            let a = k as f64 / 1025.0 * std::f64::consts::TAU;
+                            [a.cos(), a.sin()]
+                        })
+                        .collect::<Vec<_>>(),
+                )],
+                None,
+                "`obstacles`: 1025 polygon points in all, at most 1024 allowed",
+            ),
         ];
         for (obstacles, added, message) in cases {
             let why = refusal(obstacles, added);
