@@ -455,6 +455,40 @@ fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
     );
     assert_eq!(code, 0, "{err}");
     assert!(out.starts_with("ok: added obstacle"), "{out}");
+    let (code, _, err) = snakectl(
+        &addr,
+        &[
+            "world",
+            "add",
+            "tri",
+            "--polygon",
+            "1.5",
+            "-1",
+            "1.7",
+            "-1",
+            "1.6",
+            "-0.8",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = snakectl(
+        &addr,
+        &[
+            "world",
+            "add",
+            "odd",
+            "--polygon",
+            "1",
+            "2",
+            "3",
+            "4",
+            "5",
+            "6",
+            "7",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("7 numbers"), "{err}");
     let (code, _, err) = snakectl(&addr, &["world", "remove", "pillar"]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(
@@ -464,7 +498,11 @@ fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
             .iter()
             .map(|o| o["id"].as_str().unwrap())
             .collect::<Vec<_>>(),
-        ["ledge", "dot"]
+        ["ledge", "dot", "tri"]
+    );
+    assert_eq!(
+        c.ok(json!({"cmd": "world"}))["obstacles"][2],
+        polygon("tri", &[[1.5, -1.0], [1.7, -1.0], [1.6, -0.8]])
     );
 
     // Bad input is found before connecting (exit 2, the field named); the daemon's refusals

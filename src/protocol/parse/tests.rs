@@ -508,8 +508,22 @@ fn json_value() -> impl proptest::strategy::Strategy<Value = Value> {
 /// An object with a known `cmd` and keys a request may carry, holding arbitrary values.
 fn request_like() -> impl proptest::strategy::Strategy<Value = (String, Value)> {
     let keys = prop::sample::select(vec![
-        "target", "speed", "theta", "points", "v", "joint", "rad_s", "name", "rate_hz", "id",
-        "extra", "token", "on", "ids",
+        "target",
+        "speed",
+        "theta",
+        "points",
+        "v",
+        "joint",
+        "rad_s",
+        "name",
+        "rate_hz",
+        "id",
+        "extra",
+        "token",
+        "on",
+        "ids",
+        "obstacles",
+        "obstacle",
     ]);
     (
         prop::sample::select(COMMANDS.to_vec()),
@@ -569,7 +583,50 @@ fn valid_cmd(joints: usize) -> impl proptest::strategy::Strategy<Value = Cmd> {
             prop::sample::subsequence((0..=252u8).collect::<Vec<_>>(), 1..=253).prop_shuffle()
         )
         .prop_map(|ids| Cmd::Reboot { ids }),
+        Just(Cmd::World),
+        prop::collection::vec(obstacle(), 0..5).prop_map(|obstacles| Cmd::SetWorld { obstacles }),
+        obstacle().prop_map(|obstacle| Cmd::AddObstacle { obstacle }),
+        any::<String>().prop_map(|id| Cmd::RemoveObstacle { id }),
     ]
+}
+
+/// An obstacle as the parser takes it: any id, a circle or a polygon of any numbers in range
+/// (whether it makes a world is the loop's to say).
+fn obstacle() -> impl proptest::strategy::Strategy<Value = crate::world::Obstacle> {
+    use crate::chain::Vec2;
+    use crate::world::{Obstacle, Shape};
+    let point = || (number_arg(), number_arg()).prop_map(|(x, y)| Vec2::new(x, y));
+    let shape = prop_oneof![
+        (point(), number_arg()).prop_map(|(center, radius_m)| Shape::Circle { center, radius_m }),
+        prop::collection::vec(point(), 0..8).prop_map(|points| Shape::Polygon { points }),
+    ];
+    (any::<String>(), shape).prop_map(|(id, shape)| Obstacle { id, shape })
+}
+
+/// The same obstacles, numbers within an ulp (see [`close`]).
+fn same_obstacles(a: &[crate::world::Obstacle], b: &[crate::world::Obstacle]) -> bool {
+    use crate::world::Shape;
+    let p = |a: &crate::chain::Vec2, b: &crate::chain::Vec2| close(a.x, b.x) && close(a.y, b.y);
+    a.len() == b.len()
+        && a.iter().zip(b).all(|(a, b)| {
+            a.id == b.id
+                && match (&a.shape, &b.shape) {
+                    (
+                        Shape::Circle {
+                            center: c,
+                            radius_m: r,
+                        },
+                        Shape::Circle {
+                            center: d,
+                            radius_m: s,
+                        },
+                    ) => p(c, d) && close(*r, *s),
+                    (Shape::Polygon { points: u }, Shape::Polygon { points: v }) => {
+                        u.len() == v.len() && u.iter().zip(v).all(|(u, v)| p(u, v))
+                    }
+                    _ => false,
+                }
+        })
 }
 
 /// serde_json reads floats back to within an ulp without its `float_roundtrip` feature
@@ -614,6 +671,10 @@ fn same_cmd(a: &Cmd, b: &Cmd) -> bool {
             j == k && close(*r, *s)
         }
         (Cmd::Subscribe { rate_hz: r }, Cmd::Subscribe { rate_hz: s }) => close(*r, *s),
+        (Cmd::SetWorld { obstacles: o }, Cmd::SetWorld { obstacles: q }) => same_obstacles(o, q),
+        (Cmd::AddObstacle { obstacle: o }, Cmd::AddObstacle { obstacle: q }) => {
+            same_obstacles(std::slice::from_ref(o), std::slice::from_ref(q))
+        }
         _ => a == b,
     }
 }
