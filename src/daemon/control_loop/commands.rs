@@ -267,13 +267,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         };
         let info = Box::new(WorldInfo::of(&world));
         let not_clear = self.controller.set_world(world);
-        let c = self.controller.world();
-        self.decided.min_clearance_m = c
-            .pose_clearance(self.controller.chain(), self.controller.theta())
-            .map(|p| p.clearance_m);
+        self.decided.min_clearance_m = self.pose_clearance();
         tracing::info!(
             client = e.client,
-            obstacles = c.obstacles().len(),
+            obstacles = self.controller.world().obstacles().len(),
             min_clearance_m = ?self.decided.min_clearance_m,
             "the world changed"
         );

@@ -197,12 +197,11 @@ struct Decided {
 }
 
 impl Decided {
-    /// A tick in which the controller did not run: the reference and the pose's clearance
-    /// stay, nothing else happened.
+    /// A tick in which the controller did not run: the reference stays, nothing else happened
+    /// (the pose's clearance is looked at again: a reseed or a world change may have moved it).
     fn frozen(self) -> Decided {
         Decided {
             tip_ref: self.tip_ref,
-            min_clearance_m: self.min_clearance_m,
             ..Decided::default()
         }
     }
@@ -269,6 +268,9 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     /// The commanded pose was not clear of an obstacle when last looked at (a `not_clear`
     /// event went out; a `clear` one is owed once it is).
     not_clear: bool,
+    /// The joint points of the commanded pose, for its clearance in a tick the controller did
+    /// not run.
+    points: Vec<Vec2>,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -347,6 +349,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                     .map(|p| p.clearance_m),
                 ..Decided::default()
             },
+            points: vec![Vec2::zeros(); controller.chain().len() + 1],
             goals: vec![Goal { id: 0, ticks: 0 }; ids.len()],
             on_exit: arm.settings().on_exit,
             arm,
@@ -443,6 +446,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             // Nothing to write to: hold the goals until the port is back.
             self.received.clear();
             self.decided = self.decided.frozen();
+            self.decided.min_clearance_m = self.pose_clearance();
         } else {
             self.decide();
             self.write();
@@ -460,6 +464,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn decide(&mut self) {
         if !self.supervisor.moves() {
             self.decided = self.decided.frozen();
+            self.decided.min_clearance_m = self.pose_clearance();
             return;
         }
         let t0 = self.clock.now();
@@ -623,6 +628,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             let world = self.controller.world();
             self.event(Some(e.owner), e.id, |tip| e.ending.what(tip, world));
         }
+    }
+
+    /// The clearance of the commanded pose among the obstacles, m (`None`: no obstacles);
+    /// allocation-free.
+    fn pose_clearance(&mut self) -> Option<f64> {
+        let world = self.controller.world();
+        if world.obstacles().is_empty() {
+            return None;
+        }
+        let chain = self.controller.chain();
+        self.points.resize(chain.len() + 1, Vec2::zeros());
+        chain.points_into(self.controller.theta(), &mut self.points);
+        world.clearance(&self.points).map(|p| p.clearance_m)
     }
 
     /// Whether the commanded pose is clear of the world (at start, or after the world
