@@ -174,6 +174,28 @@ fn telemetry_reports_the_clearance_of_the_commanded_pose() {
         assert!((got - want).abs() < 1e-12, "{got} vs {want}");
     }
 
+    // While the estop latch freezes the controller, the clearance is still that of the pose
+    // (here after the world moved), and after `reset` of the measured pose it holds.
+    let same = |c: &mut Client, world: &World| {
+        let s = c.status();
+        let got = s["min_clearance_m"].as_f64().unwrap();
+        let want = world.clearance(&points(&d, &s)).unwrap().clearance_m;
+        assert!((got - want).abs() < 1e-12, "{got} vs {want}: {s}");
+        s
+    };
+    c.ok(json!({"cmd": "estop"}));
+    let nearer = circle(
+        "post",
+        [center.x - side.x * 0.01, center.y - side.y * 0.01],
+        0.02,
+    );
+    c.ok(json!({"cmd": "set_world", "obstacles": [nearer]}));
+    let world = world_of(&c.ok(json!({"cmd": "world"})));
+    let s = same(&mut c, &world);
+    assert_eq!(s["state"], "estop", "{s}");
+    c.ok(json!({"cmd": "reset"}));
+    same(&mut c, &world);
+
     // No obstacles again: null again.
     c.ok(json!({"cmd": "set_world", "obstacles": []}));
     assert_eq!(c.status()["min_clearance_m"], Value::Null);
