@@ -57,6 +57,8 @@ enum Command {
     Strategy(cli::client::StrategyArgs),
     /// Telemetry as JSON lines until Ctrl-C.
     Watch(cli::client::WatchArgs),
+    /// The obstacles the arm keeps clear of: print them, or set, add, remove or clear them.
+    World(cli::world::WorldArgs),
     /// The arms on a Zenoh network, one line each: state, measured tip, strategy, controller
     /// (a build with `--features zenoh`).
     Fleet(cli::fleet::FleetArgs),
@@ -87,6 +89,7 @@ fn main() -> ExitCode {
         Command::Home(args) => cli::client::home(args),
         Command::Strategy(args) => cli::client::strategy(args),
         Command::Watch(args) => cli::client::watch(args),
+        Command::World(args) => cli::world::run(args),
         Command::Fleet(args) => cli::fleet::run(args),
     };
     match result {

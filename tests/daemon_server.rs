@@ -48,6 +48,7 @@ fn describe(joints: usize) -> Describe {
         rate_hz: LOOP_HZ,
         strategies: STRATEGIES.to_vec(),
         protocol_version: PROTOCOL_VERSION,
+        ..Describe::default()
     }
 }
 
@@ -658,6 +659,26 @@ fn event(owner: Option<u64>, kind: EventKind, tick: u64) -> Event {
             previous: None,
         },
         EventKind::ShuttingDown => What::ShuttingDown { tip },
+        EventKind::World => What::World {
+            by: 1,
+            world: Box::default(),
+        },
+        EventKind::NotClear => What::NotClear {
+            tip,
+            link: 2,
+            obstacle: "post".into(),
+            clearance_m: -0.01,
+            keep_m: 0.005,
+        },
+        EventKind::Clear => What::Clear {
+            tip,
+            min_clearance_m: None,
+        },
+        EventKind::Blocked => What::Blocked {
+            tip,
+            link: 2,
+            obstacle: "post".into(),
+        },
     };
     Event {
         owner,

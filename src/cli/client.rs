@@ -1,5 +1,5 @@
 //! The one-shot clients: `status`, `describe`, `goto`, `path`, `stop`, `estop`, `reset`, `home`,
-//! `strategy`, `watch`. Each connects to the daemon's socket, does one thing and exits: 0 when
+//! `strategy`, `watch` (and `world`, in its own module). Each connects to the daemon's socket, does one thing and exits: 0 when
 //! it was done, 2 for bad input found before connecting, 1 for anything the daemon refused or
 //! that ended a motion short of its target (estop, fault, preemption, the daemon gone).
 //!
@@ -241,12 +241,12 @@ const POLL: Duration = Duration::from_millis(100);
 const FOREVER: Duration = Duration::MAX;
 
 /// Connects as `args` say.
-fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
+pub(super) fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
     Client::connect_with(&args.connect, args.token_file.as_deref()).map_err(refused)
 }
 
 /// Exit code 1 with the client's error; a missing token gets a hint.
-fn refused(e: ClientError) -> Failure {
+pub(super) fn refused(e: ClientError) -> Failure {
     let unauthorized = e.code() == Some(Code::Unauthorized);
     let error = anyhow::Error::new(e);
     Failure::other(if unauthorized {

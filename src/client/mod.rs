@@ -31,8 +31,9 @@ use crate::chain::{Chain, ChainError};
 use crate::protocol::{self, ClientId, ReadError, ReplyLine, RequestId, ServerLine};
 pub use crate::protocol::{
     Cmd, CmdName, Code, CommandInfo, Describe, Event, EventKind, FaultChange, FaultInfo, FaultKind,
-    Fields, Rejection, Reply, State, Status, StopReason, Telemetry, TookControl, What,
+    Fields, Rejection, Reply, State, Status, StopReason, Telemetry, TookControl, What, WorldInfo,
 };
+pub use crate::world::{Obstacle, Shape};
 
 /// Where the daemon listens unless told otherwise (`[server] listen` of the shipped configs).
 pub const DEFAULT_ADDR: &str = "127.0.0.1:7878";
@@ -310,8 +311,8 @@ pub struct Motion {
 }
 
 impl Motion {
-    /// Whether `event` ends this command, and how: an `arrived`, `saturated`, `preempted` or
-    /// `stopped` about its own request id; an `estop`, or a `fault` raised, from its tick on.
+    /// Whether `event` ends this command, and how: an `arrived`, `saturated`, `blocked`,
+    /// `preempted` or `stopped` about its own request id; an `estop`, or a `fault` raised, from its tick on.
     pub fn ending(&self, event: &Event) -> Option<Ending> {
         let ours = event.cmd_id.as_deref().and_then(Value::as_u64) == Some(self.id);
         let since = event.tick >= self.accepted;
@@ -328,6 +329,16 @@ impl Motion {
                 tick,
                 tip: *tip,
                 reason: *reason,
+            }),
+            What::Blocked {
+                tip,
+                link,
+                obstacle,
+            } if ours => Some(Ending::Blocked {
+                tick,
+                tip: *tip,
+                link: *link,
+                obstacle: obstacle.clone(),
             }),
             What::Estop { tip } if since => Some(Ending::Estop { tick, tip: *tip }),
             What::Fault {
@@ -379,6 +390,17 @@ pub enum Ending {
         /// Why.
         reason: StopReason,
     },
+    /// It was caught on an obstacle (or made no headway); the arm holds, clear.
+    Blocked {
+        /// The tick.
+        tick: u64,
+        /// The commanded tip, m.
+        tip: [f64; 2],
+        /// The link held back, from 1 at the base.
+        link: usize,
+        /// The obstacle's id.
+        obstacle: String,
+    },
     /// An estop.
     Estop {
         /// The tick.
@@ -405,6 +427,7 @@ impl Ending {
             | Ending::Saturated { tick, .. }
             | Ending::Preempted { tick, .. }
             | Ending::Stopped { tick, .. }
+            | Ending::Blocked { tick, .. }
             | Ending::Estop { tick, .. }
             | Ending::Fault { tick, .. } => *tick,
         }
@@ -417,6 +440,7 @@ impl Ending {
             | Ending::Saturated { tip, .. }
             | Ending::Preempted { tip, .. }
             | Ending::Stopped { tip, .. }
+            | Ending::Blocked { tip, .. }
             | Ending::Estop { tip, .. }
             | Ending::Fault { tip, .. } => *tip,
         }
@@ -435,6 +459,11 @@ impl fmt::Display for Ending {
             ),
             Ending::Preempted { by, .. } => write!(f, "preempted by `{by}` at {at}"),
             Ending::Stopped { reason, .. } => write!(f, "stopped ({reason}) at {at}"),
+            Ending::Blocked { link, obstacle, .. } => write!(
+                f,
+                "blocked: link {link} cannot follow past obstacle \"{obstacle}\" without losing \
+                 its clearance; the arm holds at {at}"
+            ),
             Ending::Estop { .. } => write!(f, "estop: emergency stop at {at}"),
             Ending::Fault { fault, .. } => write!(f, "fault: {fault}, at {at}"),
         }
@@ -658,6 +687,41 @@ impl Client {
                 cmd: CmdName::TakeControl,
             }),
         }
+    }
+
+    /// `world`: the obstacles the arm keeps clear of, with the link radius and the clearance.
+    pub fn world(&mut self) -> Result<WorldInfo, ClientError> {
+        let fields = self.request(&Cmd::World)?;
+        match fields.reply {
+            Reply::World(world) => Ok(*world),
+            _ => Err(ClientError::WrongReply {
+                cmd: CmdName::World,
+            }),
+        }
+    }
+
+    /// `set_world`: replaces every obstacle (needs control); the tick it was applied in.
+    pub fn set_world(&mut self, obstacles: Vec<Obstacle>) -> Result<u64, ClientError> {
+        self.applied(&Cmd::SetWorld { obstacles })
+    }
+
+    /// `add_obstacle` (needs control); the tick it was applied in.
+    pub fn add_obstacle(&mut self, obstacle: Obstacle) -> Result<u64, ClientError> {
+        self.applied(&Cmd::AddObstacle { obstacle })
+    }
+
+    /// `remove_obstacle` of the obstacle `id` (needs control); the tick it was applied in.
+    pub fn remove_obstacle(&mut self, id: &str) -> Result<u64, ClientError> {
+        self.applied(&Cmd::RemoveObstacle { id: id.to_owned() })
+    }
+
+    /// Sends `cmd`, answered with the tick the loop applied it in.
+    fn applied(&mut self, cmd: &Cmd) -> Result<u64, ClientError> {
+        let fields = self.request(cmd)?;
+        fields
+            .reply
+            .tick()
+            .ok_or(ClientError::WrongReply { cmd: cmd.name() })
     }
 
     /// Sends a motion command and waits for its reply: the command, accepted, to wait on with

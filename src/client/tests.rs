@@ -64,6 +64,7 @@ fn sim_describe() -> Describe {
         rate_hz: 100.0,
         strategies: protocol::STRATEGIES.to_vec(),
         protocol_version: protocol::PROTOCOL_VERSION,
+        ..Describe::default()
     }
 }
 
@@ -344,6 +345,12 @@ fn a_motion_ends_by_its_own_events_and_by_estops_and_faults_after_it() {
             Some("fault: servo 3 (joint 3): silent (no reply), at (0.1000, 0.2000) m, tick 101"),
         ),
         (event(None, 101, What::Fault { tip, reason: FaultChange::Cleared, fault }), None),
+        (
+            event(Some(7), 140, What::Blocked { tip, link: 4, obstacle: "post".into() }),
+            Some("blocked: link 4 cannot follow past obstacle \"post\" without losing its clearance; the arm holds at (0.1000, 0.2000) m, tick 140"),
+        ),
+        (event(Some(8), 140, What::Blocked { tip, link: 4, obstacle: "post".into() }), None),
+        (event(None, 140, What::NotClear { tip, link: 4, obstacle: "post".into(), clearance_m: -0.01, keep_m: 0.005 }), None),
         (event(Some(7), 130, What::Reset { tip }), None),
         (event(Some(7), 130, What::Other { name: "new".into() }), None),
     ];
@@ -416,4 +423,63 @@ fn a_closed_connection_names_the_last_refusal() {
     assert!(err.is_closed());
     assert_eq!(err.code(), Some(Code::TooManyClients));
     assert!(err.to_string().contains("too_many_clients: full"), "{err}");
+}
+
+#[test]
+fn the_world_commands_are_sent_in_the_sockets_shape_and_the_reply_is_typed() {
+    use crate::chain::Vec2;
+
+    let post = Obstacle {
+        id: "post".into(),
+        shape: Shape::Circle {
+            center: Vec2::new(0.15, 0.6),
+            radius_m: 0.04,
+        },
+    };
+    let (mut client, mut daemon) = Scripted::start();
+    let sent = post.clone();
+    let worker = std::thread::spawn(move || {
+        let r = daemon.request();
+        assert_eq!(r.cmd, Cmd::World);
+        let id = r.id.as_deref().unwrap().clone();
+        daemon.send(
+            &json!({"id": id, "ok": true, "link_radius_m": 0.012, "clearance_m": 0.005,
+                    "obstacles": [{"id": "post", "circle": {"center": [0.15, 0.6], "radius": 0.04}}]})
+            .to_string(),
+        );
+        let r = daemon.request();
+        assert_eq!(
+            r.cmd,
+            Cmd::SetWorld {
+                obstacles: vec![sent.clone()]
+            }
+        );
+        daemon.send(&json!({"id": r.id.as_deref().unwrap(), "ok": true, "tick": 3}).to_string());
+        let r = daemon.request();
+        assert_eq!(r.cmd, Cmd::AddObstacle { obstacle: sent });
+        daemon.send(&json!({"id": r.id.as_deref().unwrap(), "ok": true, "tick": 4}).to_string());
+        let r = daemon.request();
+        assert_eq!(r.cmd, Cmd::RemoveObstacle { id: "post".into() });
+        let id = r.id.as_deref().unwrap().clone();
+        daemon.send(
+            &json!({"id": id, "ok": false,
+                    "error": {"code": "bad_arg", "message": "`obstacle`: no obstacle has the id \"post\""}})
+            .to_string(),
+        );
+        daemon
+    });
+    let world = client.world().unwrap();
+    assert_eq!(
+        world,
+        WorldInfo {
+            link_radius_m: 0.012,
+            clearance_m: 0.005,
+            obstacles: vec![post.clone()],
+        }
+    );
+    assert_eq!(client.set_world(vec![post.clone()]).unwrap(), 3);
+    assert_eq!(client.add_obstacle(post).unwrap(), 4);
+    let err = client.remove_obstacle("post").unwrap_err();
+    assert_eq!(err.code(), Some(Code::BadArg));
+    worker.join().unwrap();
 }

@@ -200,6 +200,17 @@ mod tests {
             Cmd::Reset,
             Cmd::Torque { on: true },
             Cmd::Reboot { ids: None },
+            Cmd::SetWorld { obstacles: vec![] },
+            Cmd::AddObstacle {
+                obstacle: crate::world::Obstacle {
+                    id: "post".into(),
+                    shape: crate::world::Shape::Circle {
+                        center: crate::chain::Vec2::new(1.0, 1.0),
+                        radius_m: 0.1,
+                    },
+                },
+            },
+            Cmd::RemoveObstacle { id: "post".into() },
         ];
         let nothing = [
             Cmd::Describe,
@@ -210,6 +221,7 @@ mod tests {
             Cmd::TakeControl,
             Cmd::Release,
             Cmd::Auth { token: "t".into() },
+            Cmd::World,
         ];
         for cmd in &control {
             assert_eq!(Need::of(cmd), Need::Control, "{cmd:?}");

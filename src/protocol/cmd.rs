@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::RequestId;
 use crate::resolve::Strategy;
+use crate::world::Obstacle;
 
 /// Declares [`CmdName`], its table [`CmdName::ALL`] and [`COMMANDS`] from one list, so that
 /// the enum, the names it is written as and the names it is read from cannot disagree.
@@ -84,6 +85,14 @@ command_names! {
     Torque = "torque",
     /// `reboot`.
     Reboot = "reboot",
+    /// `world`.
+    World = "world",
+    /// `set_world`.
+    SetWorld = "set_world",
+    /// `add_obstacle`.
+    AddObstacle = "add_obstacle",
+    /// `remove_obstacle`.
+    RemoveObstacle = "remove_obstacle",
 }
 
 impl CmdName {
@@ -104,7 +113,10 @@ impl CmdName {
             | CmdName::Strategy
             | CmdName::Reset
             | CmdName::Torque
-            | CmdName::Reboot => Need::Control,
+            | CmdName::Reboot
+            | CmdName::SetWorld
+            | CmdName::AddObstacle
+            | CmdName::RemoveObstacle => Need::Control,
             CmdName::Stop | CmdName::Estop => Need::Stop,
             CmdName::Describe
             | CmdName::Status
@@ -113,7 +125,8 @@ impl CmdName {
             | CmdName::ResetStats
             | CmdName::TakeControl
             | CmdName::Release
-            | CmdName::Auth => Need::Nothing,
+            | CmdName::Auth
+            | CmdName::World => Need::Nothing,
         }
     }
 }
@@ -234,6 +247,23 @@ pub enum Cmd {
         /// Servo ids.
         ids: Option<Vec<u8>>,
     },
+    /// The obstacles the arm keeps clear of, with the link radius and the clearance.
+    World,
+    /// Replace every obstacle (the link radius and the clearance stay as configured).
+    SetWorld {
+        /// The new obstacles.
+        obstacles: Vec<Obstacle>,
+    },
+    /// Add one obstacle.
+    AddObstacle {
+        /// The obstacle.
+        obstacle: Obstacle,
+    },
+    /// Remove the obstacle of this id (the request's `obstacle`).
+    RemoveObstacle {
+        /// Its id.
+        id: String,
+    },
 }
 
 impl Cmd {
@@ -260,6 +290,10 @@ impl Cmd {
             Cmd::Auth { .. } => CmdName::Auth,
             Cmd::Torque { .. } => CmdName::Torque,
             Cmd::Reboot { .. } => CmdName::Reboot,
+            Cmd::World => CmdName::World,
+            Cmd::SetWorld { .. } => CmdName::SetWorld,
+            Cmd::AddObstacle { .. } => CmdName::AddObstacle,
+            Cmd::RemoveObstacle { .. } => CmdName::RemoveObstacle,
         }
     }
 
@@ -285,6 +319,10 @@ impl Cmd {
             Cmd::ResetStats => Route::Loop(LoopCmd::ResetStats),
             Cmd::Torque { on } => Route::Loop(LoopCmd::Torque { on }),
             Cmd::Reboot { ids } => Route::Loop(LoopCmd::Reboot { ids }),
+            Cmd::World => Route::Loop(LoopCmd::World),
+            Cmd::SetWorld { obstacles } => Route::Loop(LoopCmd::SetWorld { obstacles }),
+            Cmd::AddObstacle { obstacle } => Route::Loop(LoopCmd::AddObstacle { obstacle }),
+            Cmd::RemoveObstacle { id } => Route::Loop(LoopCmd::RemoveObstacle { id }),
             Cmd::Goto { target, speed } => {
                 Route::Loop(LoopCmd::Motion(Motion::Goto { target, speed }))
             }
@@ -379,6 +417,23 @@ pub enum LoopCmd {
         /// Servo ids (`None`: those in hardware error, else all).
         ids: Option<Vec<u8>>,
     },
+    /// `world`: the world in force.
+    World,
+    /// `set_world`.
+    SetWorld {
+        /// The new obstacles, not yet validated as a world.
+        obstacles: Vec<Obstacle>,
+    },
+    /// `add_obstacle`.
+    AddObstacle {
+        /// The obstacle, not yet validated.
+        obstacle: Obstacle,
+    },
+    /// `remove_obstacle`.
+    RemoveObstacle {
+        /// Its id.
+        id: String,
+    },
     /// A command that moves the arm.
     Motion(Motion),
 }
@@ -395,6 +450,10 @@ impl LoopCmd {
             LoopCmd::ResetStats => CmdName::ResetStats,
             LoopCmd::Torque { .. } => CmdName::Torque,
             LoopCmd::Reboot { .. } => CmdName::Reboot,
+            LoopCmd::World => CmdName::World,
+            LoopCmd::SetWorld { .. } => CmdName::SetWorld,
+            LoopCmd::AddObstacle { .. } => CmdName::AddObstacle,
+            LoopCmd::RemoveObstacle { .. } => CmdName::RemoveObstacle,
             LoopCmd::Motion(motion) => motion.name(),
         }
     }
@@ -417,6 +476,10 @@ impl From<LoopCmd> for Cmd {
             LoopCmd::ResetStats => Cmd::ResetStats,
             LoopCmd::Torque { on } => Cmd::Torque { on },
             LoopCmd::Reboot { ids } => Cmd::Reboot { ids },
+            LoopCmd::World => Cmd::World,
+            LoopCmd::SetWorld { obstacles } => Cmd::SetWorld { obstacles },
+            LoopCmd::AddObstacle { obstacle } => Cmd::AddObstacle { obstacle },
+            LoopCmd::RemoveObstacle { id } => Cmd::RemoveObstacle { id },
             LoopCmd::Motion(motion) => motion.into(),
         }
     }

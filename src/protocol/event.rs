@@ -12,7 +12,7 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use serde_json::{Map, Value};
 
 use super::values;
-use super::{ClientId, CmdName, FaultInfo, RequestId};
+use super::{ClientId, CmdName, FaultInfo, RequestId, WorldInfo};
 
 /// An event's name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -39,11 +39,19 @@ pub enum EventKind {
     Control,
     /// The daemon is shutting down: the connection closes once the loop has ended.
     ShuttingDown,
+    /// The world changed (`set_world`, `add_obstacle`, `remove_obstacle`): the whole new world.
+    World,
+    /// The commanded pose is not clear of an obstacle (one was put onto the arm).
+    NotClear,
+    /// The commanded pose is clear again.
+    Clear,
+    /// A goto or path ended caught on an obstacle, or without headway.
+    Blocked,
 }
 
 impl EventKind {
     /// Every event name.
-    pub const ALL: [EventKind; 10] = [
+    pub const ALL: [EventKind; 14] = [
         EventKind::Arrived,
         EventKind::Saturated,
         EventKind::Preempted,
@@ -54,6 +62,10 @@ impl EventKind {
         EventKind::Warning,
         EventKind::Control,
         EventKind::ShuttingDown,
+        EventKind::World,
+        EventKind::NotClear,
+        EventKind::Clear,
+        EventKind::Blocked,
     ];
 
     /// The name as the wire writes it.
@@ -69,6 +81,10 @@ impl EventKind {
             EventKind::Warning => "warning",
             EventKind::Control => "control",
             EventKind::ShuttingDown => "shutting_down",
+            EventKind::World => "world",
+            EventKind::NotClear => "not_clear",
+            EventKind::Clear => "clear",
+            EventKind::Blocked => "blocked",
         }
     }
 
@@ -228,6 +244,50 @@ pub enum What {
         #[serde(deserialize_with = "values::point::deserialize")]
         tip: [f64; 2],
     },
+    /// The world changed: the whole new world, so that every client can draw it.
+    World {
+        /// The client whose command changed it.
+        by: ClientId,
+        /// The world now in force.
+        #[serde(flatten)]
+        world: Box<WorldInfo>,
+    },
+    /// The commanded pose is not clear of an obstacle (a world change put one onto the arm):
+    /// the arm holds, and moves only where no link's clearance shrinks, until a `clear`.
+    NotClear {
+        /// The commanded tip, m.
+        #[serde(deserialize_with = "values::point::deserialize")]
+        tip: [f64; 2],
+        /// The link of least clearance, from 1 at the base.
+        link: usize,
+        /// The obstacle's id.
+        obstacle: String,
+        /// That link's clearance, m (negative: inside the obstacle by that depth).
+        #[serde(deserialize_with = "values::number::deserialize")]
+        clearance_m: f64,
+        /// The clearance to keep, m.
+        #[serde(deserialize_with = "values::number::deserialize")]
+        keep_m: f64,
+    },
+    /// The commanded pose is clear again after a `not_clear`.
+    Clear {
+        /// The commanded tip, m.
+        #[serde(deserialize_with = "values::point::deserialize")]
+        tip: [f64; 2],
+        /// The pose's clearance now, m (`null`: no obstacles are left).
+        #[serde(default)]
+        min_clearance_m: Option<f64>,
+    },
+    /// The command ended caught on an obstacle (or without headway); the arm holds, clear.
+    Blocked {
+        /// The commanded tip, m.
+        #[serde(deserialize_with = "values::point::deserialize")]
+        tip: [f64; 2],
+        /// The link held back, from 1 at the base.
+        link: usize,
+        /// The obstacle's id.
+        obstacle: String,
+    },
     /// An event this version does not know, by its name (a newer daemon's).
     #[serde(skip)]
     Other {
@@ -259,6 +319,10 @@ impl What {
             What::Warning { .. } => EventKind::Warning,
             What::Control { .. } => EventKind::Control,
             What::ShuttingDown { .. } => EventKind::ShuttingDown,
+            What::World { .. } => EventKind::World,
+            What::NotClear { .. } => EventKind::NotClear,
+            What::Clear { .. } => EventKind::Clear,
+            What::Blocked { .. } => EventKind::Blocked,
             What::Other { .. } => return None,
         })
     }
@@ -282,8 +346,11 @@ impl What {
             | What::Reset { tip }
             | What::Fault { tip, .. }
             | What::Warning { tip, .. }
-            | What::ShuttingDown { tip } => Some(*tip),
-            What::Control { .. } | What::Other { .. } => None,
+            | What::ShuttingDown { tip }
+            | What::NotClear { tip, .. }
+            | What::Clear { tip, .. }
+            | What::Blocked { tip, .. } => Some(*tip),
+            What::Control { .. } | What::World { .. } | What::Other { .. } => None,
         }
     }
 }

@@ -22,6 +22,7 @@ mod read;
 mod reply;
 mod telemetry;
 mod values;
+mod world;
 mod write;
 
 use std::fmt;
@@ -32,7 +33,7 @@ use serde_json::Value;
 
 pub use cmd::{Cmd, CmdName, LoopCmd, Motion, Need, Request, Route, SessionCmd, COMMANDS};
 pub use event::{Event, EventKind, FaultChange, StopReason, What};
-pub use parse::{checked_point, parse, MAX_PATH_POINTS};
+pub use parse::{checked_point, parse, parse_obstacles, MAX_PATH_POINTS};
 pub use read::{read_line, ReadError, ServerLine};
 pub use reply::{
     Admitted, Answer, Applied, Fields, Rebooted, Released, Reply, ReplyLine, Subscribed,
@@ -43,6 +44,7 @@ pub use telemetry::{
     Telemetry,
 };
 pub use values::{strategy_named, STRATEGIES};
+pub use world::{world_ids, world_rejection, Wire, WorldInfo};
 pub use write::{error_line, event_line, ok_line, reply_line, request_line, telemetry_line};
 
 /// The version of this wire format, reported by `describe`.

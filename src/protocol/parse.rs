@@ -11,6 +11,7 @@ use super::{
 };
 use crate::resolve::Strategy;
 
+mod obstacle;
 mod strict;
 
 /// The most corner points one `path` may have.
@@ -154,6 +155,22 @@ fn command(mut map: Map<String, Value>, joints: usize) -> Result<Cmd, Rejection>
             let name = strategy(Field::new("name"), &args.required("name")?)?;
             Cmd::Strategy { name }
         }
+        CmdName::World => no_args(map, Cmd::World)?,
+        CmdName::SetWorld => {
+            let mut args = Args::new(map, known, &["obstacles"])?;
+            let obstacles = obstacle::obstacles("obstacles", &args.required("obstacles")?)?;
+            Cmd::SetWorld { obstacles }
+        }
+        CmdName::AddObstacle => {
+            let mut args = Args::new(map, known, &["obstacle"])?;
+            let obstacle = obstacle::obstacle("obstacle", &args.required("obstacle")?)?;
+            Cmd::AddObstacle { obstacle }
+        }
+        CmdName::RemoveObstacle => {
+            let mut args = Args::new(map, known, &["obstacle"])?;
+            let id = string(Field::new("obstacle"), args.required("obstacle")?)?;
+            Cmd::RemoveObstacle { id }
+        }
         CmdName::Subscribe => {
             let mut args = Args::new(map, known, &["rate_hz"])?;
             let rate_hz = positive(Field::new("rate_hz"), &args.required("rate_hz")?)?;
@@ -282,6 +299,26 @@ fn in_range(field: Field, x: f64) -> Result<f64, Rejection> {
 pub fn checked_point(field: &'static str, p: [f64; 2]) -> Result<[f64; 2], Rejection> {
     let field = Field::new(field);
     Ok([in_range(field.at(0), p[0])?, in_range(field.at(1), p[1])?])
+}
+
+/// Obstacles in the socket's shape (what `set_world` takes as `obstacles`), read as strictly
+/// as a request's: for a client that reads them from elsewhere (a file) and wants the same
+/// refusals, naming `obstacles[i]...`.
+///
+/// # Example
+/// ```
+/// use snakectl::protocol::{parse_obstacles, Code};
+///
+/// let post = serde_json::json!([{"id": "post", "circle": {"center": [0.1, 0.2], "radius": 0.03}}]);
+/// assert_eq!(parse_obstacles(&post).unwrap()[0].id, "post");
+///
+/// let bad = serde_json::json!([{"id": "post", "circle": {"center": [0.1, 0.2], "r": 0.03}}]);
+/// let why = parse_obstacles(&bad).unwrap_err();
+/// assert_eq!(why.code, Code::BadArg);
+/// assert!(why.message.starts_with("`obstacles[0].circle.r`"));
+/// ```
+pub fn parse_obstacles(value: &Value) -> Result<Vec<crate::world::Obstacle>, Rejection> {
+    obstacle::obstacles("obstacles", value)
 }
 
 /// A [`number`] above zero.

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::{ClientId, CmdName, Describe, Rejection, Status};
+use super::{ClientId, CmdName, Describe, Rejection, Status, WorldInfo};
 
 /// `subscribe`: the rate granted (at most the loop's).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -88,6 +88,8 @@ pub enum Reply {
     Applied(Applied),
     /// `reboot`.
     Rebooted(Rebooted),
+    /// `world`.
+    World(Box<WorldInfo>),
 }
 
 impl Reply {
@@ -106,6 +108,7 @@ impl Reply {
             CmdName::Release => Reply::Released(from(fields)?),
             CmdName::Auth => Reply::Admitted(from(fields)?),
             CmdName::Reboot => Reply::Rebooted(from(fields)?),
+            CmdName::World => Reply::World(Box::new(from(fields)?)),
             CmdName::Goto
             | CmdName::GotoJoints
             | CmdName::Path
@@ -117,7 +120,10 @@ impl Reply {
             | CmdName::Home
             | CmdName::Strategy
             | CmdName::ResetStats
-            | CmdName::Torque => Reply::Applied(from(fields)?),
+            | CmdName::Torque
+            | CmdName::SetWorld
+            | CmdName::AddObstacle
+            | CmdName::RemoveObstacle => Reply::Applied(from(fields)?),
         })
     }
 
@@ -133,7 +139,8 @@ impl Reply {
             | Reply::Unsubscribed(_)
             | Reply::TookControl(_)
             | Reply::Released(_)
-            | Reply::Admitted(_) => None,
+            | Reply::Admitted(_)
+            | Reply::World(_) => None,
         }
     }
 
@@ -148,7 +155,8 @@ impl Reply {
             | Reply::Subscribed(_)
             | Reply::Unsubscribed(_)
             | Reply::Applied(_)
-            | Reply::Rebooted(_) => None,
+            | Reply::Rebooted(_)
+            | Reply::World(_) => None,
         }
     }
 }

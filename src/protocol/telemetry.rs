@@ -87,6 +87,10 @@ pub enum Outcome {
     Estop,
     /// A fault ended it.
     Fault,
+    /// A goto or path whose body could not follow the tip without losing its clearance from
+    /// an obstacle, or whose tip made no headway: it ended, the arm holding clear (a `blocked`
+    /// event names the link and the obstacle).
+    Blocked,
 }
 
 /// The active or last motion command, as telemetry reports it: accumulated per tick.
@@ -307,6 +311,13 @@ pub struct Telemetry {
     pub saturated: bool,
     /// Whether this tick's step was cut short because the links would have crossed.
     pub self_collision: bool,
+    /// The clearance of the commanded pose (`theta_cmd`) among the obstacles: the least gap
+    /// between a link's capsule and an obstacle, m, negative when one overlaps; `None`
+    /// (`null`) when the world has no obstacles.
+    pub min_clearance_m: Option<f64>,
+    /// Whether this tick's step was cut short to keep every link clear of the obstacles (or,
+    /// from a pose not clear, to shrink no link's clearance).
+    pub blocked: bool,
     /// The active or last motion command.
     pub command: Option<CommandInfo>,
     /// This tick's resolve time, µs.
@@ -370,6 +381,8 @@ impl Default for Telemetry {
             tracking_error_m: 0.0,
             saturated: false,
             self_collision: false,
+            min_clearance_m: None,
+            blocked: false,
             command: None,
             solve_us: 0.0,
             loop_hz: 0.0,
@@ -467,6 +480,10 @@ pub struct Describe {
     pub strategies: Vec<Strategy>,
     /// [`PROTOCOL_VERSION`].
     pub protocol_version: u32,
+    /// Half the width of every link (the radius of the capsule each link is), m.
+    pub link_radius_m: f64,
+    /// The gap every link keeps from every obstacle, m.
+    pub clearance_m: f64,
 }
 
 impl Describe {
@@ -476,7 +493,8 @@ impl Describe {
     }
 
     /// The description of `chain` (its links, base and limits; a joint without limits as the
-    /// lowest and highest `f64`) with the rest as given.
+    /// lowest and highest `f64`) with the rest as given, and no world (link radius and
+    /// clearance 0; [`Describe::with_world`] sets them).
     pub fn of_chain(
         chain: &Chain,
         ids: Vec<u8>,
@@ -501,6 +519,17 @@ impl Describe {
             rate_hz,
             strategies: values::STRATEGIES.to_vec(),
             protocol_version: PROTOCOL_VERSION,
+            link_radius_m: 0.0,
+            clearance_m: 0.0,
+        }
+    }
+
+    /// The description with the link radius and clearance of `world`.
+    pub fn with_world(self, world: &crate::world::World) -> Describe {
+        Describe {
+            link_radius_m: world.link_radius_m(),
+            clearance_m: world.clearance_m(),
+            ..self
         }
     }
 

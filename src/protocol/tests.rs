@@ -51,6 +51,49 @@ fn example(name: CmdName) -> Cmd {
         CmdName::Reboot => Cmd::Reboot {
             ids: Some(vec![3, 1]),
         },
+        CmdName::World => Cmd::World,
+        CmdName::SetWorld => Cmd::SetWorld {
+            obstacles: obstacles(),
+        },
+        CmdName::AddObstacle => Cmd::AddObstacle {
+            obstacle: obstacles().remove(1),
+        },
+        CmdName::RemoveObstacle => Cmd::RemoveObstacle {
+            id: "post \"2\"".into(),
+        },
+    }
+}
+
+/// A circle and a polygon.
+fn obstacles() -> Vec<crate::world::Obstacle> {
+    use crate::world::{Obstacle, Shape};
+    vec![
+        Obstacle {
+            id: "post".into(),
+            shape: Shape::Circle {
+                center: Vec2::new(0.15, -0.6),
+                radius_m: 0.04,
+            },
+        },
+        Obstacle {
+            id: "shelf".into(),
+            shape: Shape::Polygon {
+                points: vec![
+                    Vec2::new(-0.6, 0.3),
+                    Vec2::new(-0.4, 0.3),
+                    Vec2::new(-0.4, 0.34),
+                    Vec2::new(-0.6, 0.34),
+                ],
+            },
+        },
+    ]
+}
+
+fn world_info() -> WorldInfo {
+    WorldInfo {
+        link_radius_m: 0.012,
+        clearance_m: 0.005,
+        obstacles: obstacles(),
     }
 }
 
@@ -79,6 +122,7 @@ fn reply_to(name: CmdName) -> Reply {
             tick: 99,
             rebooted: vec![1, 9],
         }),
+        CmdName::World => Reply::World(Box::new(world_info())),
         CmdName::Goto
         | CmdName::GotoJoints
         | CmdName::Path
@@ -90,7 +134,10 @@ fn reply_to(name: CmdName) -> Reply {
         | CmdName::Home
         | CmdName::Strategy
         | CmdName::ResetStats
-        | CmdName::Torque => Reply::Applied(Applied { tick: 61 }),
+        | CmdName::Torque
+        | CmdName::SetWorld
+        | CmdName::AddObstacle
+        | CmdName::RemoveObstacle => Reply::Applied(Applied { tick: 61 }),
     }
 }
 
@@ -110,6 +157,8 @@ fn describe() -> Describe {
         rate_hz: 250.0,
         strategies: STRATEGIES.to_vec(),
         protocol_version: PROTOCOL_VERSION,
+        link_radius_m: 0.012,
+        clearance_m: 0.004,
     }
 }
 
@@ -158,6 +207,26 @@ fn event_of(kind: EventKind) -> What {
             previous: Some(3),
         },
         EventKind::ShuttingDown => What::ShuttingDown { tip },
+        EventKind::World => What::World {
+            by: 4,
+            world: Box::new(world_info()),
+        },
+        EventKind::NotClear => What::NotClear {
+            tip,
+            link: 7,
+            obstacle: "post".into(),
+            clearance_m: -0.02,
+            keep_m: 0.005,
+        },
+        EventKind::Clear => What::Clear {
+            tip,
+            min_clearance_m: Some(0.0125),
+        },
+        EventKind::Blocked => What::Blocked {
+            tip,
+            link: 3,
+            obstacle: "shelf".into(),
+        },
     }
 }
 
@@ -596,6 +665,13 @@ fn a_description_gives_back_the_chain_it_was_made_from() {
         vec![0.1, 0.2, 0.3],
         250.0,
     );
+    assert_eq!(
+        (d.link_radius_m, d.clearance_m),
+        (0.0, 0.0),
+        "no world given"
+    );
+    let world = crate::world::World::new(0.012, 0.004, vec![]).unwrap();
+    let d = d.with_world(&world);
     assert_eq!(d, describe());
     assert_eq!(d.chain().unwrap(), chain);
     let unlimited = Describe {

@@ -10,7 +10,7 @@ use std::borrow::Borrow;
 use serde::Serialize;
 use serde_json::{Map, Value};
 
-use super::{Answer, Cmd, Event, Fields, Rejection, Status, Telemetry};
+use super::{Answer, Cmd, Event, Fields, Rejection, Status, Telemetry, Wire};
 
 /// An ok reply: `{"id": ID, "ok": true, ...fields}` (`"id": null` without an id).
 pub fn ok_line(id: Option<&Value>, fields: &Fields) -> String {
@@ -115,7 +115,14 @@ pub fn request_line(id: Option<&Value>, cmd: &Cmd) -> String {
         }
         Cmd::Strategy { name } => line.field("name", name.name()),
         Cmd::Subscribe { rate_hz } => line.field("rate_hz", rate_hz),
-        Cmd::Describe
+        Cmd::SetWorld { obstacles } => {
+            let list: Vec<Wire<'_>> = obstacles.iter().map(Wire).collect();
+            line.field("obstacles", &list);
+        }
+        Cmd::AddObstacle { obstacle } => line.field("obstacle", &Wire(obstacle)),
+        Cmd::RemoveObstacle { id } => line.field("obstacle", id),
+        Cmd::World
+        | Cmd::Describe
         | Cmd::Status
         | Cmd::Stop
         | Cmd::Estop

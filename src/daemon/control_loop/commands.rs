@@ -5,11 +5,13 @@
 use crate::chain::Vec2;
 use crate::control::{self, Refused};
 use crate::protocol::{
-    Answer, Applied, Code, LoopCmd, Motion, Rebooted, Rejection, Reply, Status, StopReason, What,
+    world_rejection, Answer, Applied, Code, LoopCmd, Motion, Rebooted, Rejection, Reply, Status,
+    StopReason, What, WorldInfo,
 };
 use crate::servo::arm::{self, BringUpOptions, OnExit, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::ServoBus;
+use crate::world::{Obstacle, World};
 
 use super::ledger::Renewal;
 use super::link::{Envelope, COMMAND_QUEUE, STOP_QUEUE};
@@ -111,7 +113,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     fn apply(&mut self, e: &Envelope) -> Pending {
-        let stops = matches!(e.cmd, LoopCmd::Status | LoopCmd::Stop | LoopCmd::Estop);
+        let stops = matches!(
+            e.cmd,
+            LoopCmd::Status | LoopCmd::Stop | LoopCmd::Estop | LoopCmd::World
+        );
         if self.supervisor.exiting() && !stops {
             return refuse(Code::ShuttingDown, "the daemon is stopping");
         }
@@ -134,6 +139,32 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             LoopCmd::Torque { on } => self.torque(*on),
             LoopCmd::Reboot { ids } => self.reboot(ids.as_deref()),
+            LoopCmd::World => Pending::Ready(Ok(Reply::World(Box::new(WorldInfo::of(
+                self.controller.world(),
+            )))
+            .into())),
+            LoopCmd::SetWorld { obstacles } => self.change_world(e, obstacles.clone(), None),
+            LoopCmd::AddObstacle { obstacle } => {
+                let mut obstacles = self.controller.world().obstacles().to_vec();
+                let added = obstacles.len();
+                obstacles.push(obstacle.clone());
+                self.change_world(e, obstacles, Some(added))
+            }
+            LoopCmd::RemoveObstacle { id } => {
+                let world = self.controller.world();
+                let Some((k, _)) = world.find(id) else {
+                    return refuse(
+                        Code::BadArg,
+                        format!(
+                            "`obstacle`: no obstacle has the id {id:?} (the obstacles: {})",
+                            crate::protocol::world_ids(world)
+                        ),
+                    );
+                };
+                let mut obstacles = world.obstacles().to_vec();
+                obstacles.remove(k);
+                self.change_world(e, obstacles, None)
+            }
             LoopCmd::Motion(Motion::Velocity { .. }) if self.stale(e) => refuse(
                 Code::Stale,
                 format!(
@@ -209,11 +240,44 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 self.begin(e);
                 self.ok()
             }
-            Err(r @ (Refused::OutsideLimits { .. } | Refused::SelfCollision { .. })) => {
-                refuse(Code::Unreachable, r.to_string())
-            }
+            Err(
+                r @ (Refused::OutsideLimits { .. }
+                | Refused::SelfCollision { .. }
+                | Refused::InsideObstacle { .. }
+                | Refused::NotClearOnTheWay { .. }),
+            ) => refuse(Code::Unreachable, r.to_string()),
             Err(r) => refuse(Code::BadArg, r.to_string()),
         }
+    }
+
+    /// `set_world`, `add_obstacle`, `remove_obstacle`: `obstacles` with the link radius and
+    /// the clearance in force, validated as a world (refused `bad_arg` naming the field; for
+    /// `add_obstacle`, `added` is the new one's index), in force from the next tick. Every
+    /// client is told the new world, and whether the commanded pose is clear of it.
+    fn change_world(
+        &mut self,
+        e: &Envelope,
+        obstacles: Vec<Obstacle>,
+        added: Option<usize>,
+    ) -> Pending {
+        let now = self.controller.world();
+        let world = match World::new(now.link_radius_m(), now.clearance_m(), obstacles) {
+            Ok(world) => world,
+            Err(err) => return Pending::Ready(Err(world_rejection(&err, added))),
+        };
+        let info = Box::new(WorldInfo::of(&world));
+        let not_clear = self.controller.set_world(world);
+        self.decided.min_clearance_m = self.pose_clearance();
+        tracing::info!(
+            client = e.client,
+            obstacles = self.controller.world().obstacles().len(),
+            min_clearance_m = ?self.decided.min_clearance_m,
+            "the world changed"
+        );
+        let by = e.client;
+        self.event(None, e.id.clone(), |_| What::World { by, world: info });
+        self.look_clear_after(e.id.clone(), not_clear);
+        self.ok()
     }
 
     /// A command accepted by the controller becomes the active one (a velocity, or the same

@@ -4,6 +4,7 @@
 
 use crate::control::Finish;
 use crate::protocol::{ClientId, CmdName, CommandInfo, Outcome, RequestId, StopReason, What};
+use crate::world::World;
 
 /// What a command's ending owes its sender: the event, once the tick's tip is known.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -16,12 +17,29 @@ pub enum Ending {
     Preempted(CmdName),
     /// `stopped`, and why.
     Stopped(StopReason),
+    /// `blocked`: the link held back (from 1) and the obstacle (its index in the world in
+    /// force).
+    Blocked {
+        /// The link, from 1 at the base.
+        link: usize,
+        /// The obstacle's index in the world.
+        obstacle: usize,
+    },
 }
 
 impl Ending {
-    /// The event, with the commanded tip at its tick.
-    pub fn what(self, tip: [f64; 2]) -> What {
+    /// The event, with the commanded tip at its tick; `world` (the one in force) names a
+    /// blocking obstacle by its id.
+    pub fn what(self, tip: [f64; 2], world: &World) -> What {
         match self {
+            Ending::Blocked { link, obstacle } => What::Blocked {
+                tip,
+                link,
+                obstacle: world
+                    .obstacles()
+                    .get(obstacle)
+                    .map_or_else(String::new, |o| o.id.clone()),
+            },
             Ending::Arrived => What::Arrived { tip },
             Ending::Saturated => What::Saturated { tip },
             Ending::Preempted(reason) => What::Preempted { tip, reason },
@@ -156,7 +174,10 @@ impl Ledger {
     pub fn finish(&mut self, finish: Finish) -> Option<Ended> {
         let (outcome, ending) = match finish {
             Finish::Arrived => (Outcome::Arrived, Ending::Arrived),
-            Finish::Saturated | Finish::Blocked { .. } => (Outcome::Saturated, Ending::Saturated),
+            Finish::Saturated => (Outcome::Saturated, Ending::Saturated),
+            Finish::Blocked { link, obstacle } => {
+                (Outcome::Blocked, Ending::Blocked { link, obstacle })
+            }
             Finish::Stopped { deadman: true } => {
                 (Outcome::Stopped, Ending::Stopped(StopReason::Deadman))
             }
@@ -262,5 +283,38 @@ mod tests {
         l.estop();
         let info = l.info().unwrap();
         assert_eq!((info.kind, info.outcome), (CmdName::Goto, Outcome::Estop));
+    }
+
+    #[test]
+    fn a_blocked_ending_names_its_link_and_the_obstacle_by_id() {
+        use crate::chain::Vec2;
+        use crate::world::{Obstacle, Shape};
+
+        let post = |id: &str, x: f64| Obstacle {
+            id: id.into(),
+            shape: Shape::Circle {
+                center: Vec2::new(x, 0.5),
+                radius_m: 0.05,
+            },
+        };
+        let world = World::new(0.01, 0.005, vec![post("a", 0.0), post("post", 0.3)]).unwrap();
+        let mut l = Ledger::new();
+        l.begin(3, id(5), CmdName::Path, Renewal::None);
+        let e = l
+            .finish(Finish::Blocked {
+                link: 4,
+                obstacle: 1,
+            })
+            .unwrap();
+        assert_eq!((e.owner, e.id.clone()), (3, id(5)));
+        assert_eq!(l.info().unwrap().outcome, Outcome::Blocked);
+        assert_eq!(
+            e.ending.what([0.1, 0.2], &world),
+            What::Blocked {
+                tip: [0.1, 0.2],
+                link: 4,
+                obstacle: "post".into()
+            }
+        );
     }
 }

@@ -72,7 +72,7 @@ use tokio::sync::oneshot;
 use crate::chain::Vec2;
 use crate::config::Config;
 use crate::connect::{self, Connection};
-use crate::control::{self, Activity, Controller};
+use crate::control::{self, Activity, Controller, NotClear};
 use crate::protocol::{
     Answer, ClientId, Describe, Event, FaultChange, FaultInfo, RequestId, Telemetry, What,
 };
@@ -192,11 +192,16 @@ struct Decided {
     tip_ref: Vec2,
     saturated: bool,
     self_collision: bool,
+    /// The step was cut short to keep clear of the obstacles.
+    blocked: bool,
+    /// The clearance of the commanded pose, m (`None`: no obstacles).
+    min_clearance_m: Option<f64>,
     solve_us: f64,
 }
 
 impl Decided {
-    /// A tick in which the controller did not run: the reference stays, nothing else happened.
+    /// A tick in which the controller did not run: the reference stays, nothing else happened
+    /// (the pose's clearance is looked at again: a reseed or a world change may have moved it).
     fn frozen(self) -> Decided {
         Decided {
             tip_ref: self.tip_ref,
@@ -263,6 +268,12 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     fault_until: Instant,
     /// Servos a torque off did not reach: switched off once they answer a read.
     torque_off_pending: Vec<u8>,
+    /// The commanded pose was not clear of an obstacle when last looked at (a `not_clear`
+    /// event went out; a `clear` one is owed once it is).
+    not_clear: bool,
+    /// The joint points of the commanded pose, for its clearance in a tick the controller did
+    /// not run.
+    points: Vec<Vec2>,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -313,7 +324,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         // The channel's first value is never seen: tick 0 publishes a measured snapshot
         // before `ready` hands the handle to anyone who could read it.
-        let (handle, ends) = link::channel(describe(config, &arm), Telemetry::default());
+        let describe = describe(config, &arm).with_world(controller.world());
+        let (handle, ends) = link::channel(describe, Telemetry::default());
         let period = Duration::from_secs_f64(1.0 / c.rate_hz);
         let schedule = Schedule {
             period,
@@ -344,8 +356,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             measured: Measured::new(&arm, &brought.pose),
             decided: Decided {
                 tip_ref: controller.chain().tip(&brought.pose),
+                min_clearance_m: controller
+                    .world()
+                    .pose_clearance(controller.chain(), controller.theta())
+                    .map(|p| p.clearance_m),
                 ..Decided::default()
             },
+            points: vec![Vec2::zeros(); controller.chain().len() + 1],
             goals: vec![Goal { id: 0, ticks: 0 }; ids.len()],
             on_exit: arm.settings().on_exit,
             arm,
@@ -369,12 +386,14 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             recover_after: None,
             fault_until: now,
             torque_off_pending: Vec::new(),
+            not_clear: false,
         };
         Ok((cycle, handle))
     }
 
     /// Ticks until `stop` is set and the arm has come to rest.
     fn run(&mut self, stop: &AtomicBool) {
+        self.look_clear();
         let mut pace = Pace {
             deadline: self.clock.now(),
             stop_since: None,
@@ -440,6 +459,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             // Nothing to write to: hold the goals until the port is back.
             self.received.clear();
             self.decided = self.decided.frozen();
+            self.decided.min_clearance_m = self.pose_clearance();
         } else {
             self.decide();
             self.write();
@@ -457,6 +477,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn decide(&mut self) {
         if !self.supervisor.moves() {
             self.decided = self.decided.frozen();
+            self.decided.min_clearance_m = self.pose_clearance();
             return;
         }
         let t0 = self.clock.now();
@@ -468,8 +489,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             tip_ref: tick.tip_ref,
             saturated: tick.saturated,
             self_collision: tick.self_collision,
+            blocked: tick.blocked.is_some(),
+            min_clearance_m: tick.min_clearance_m,
             solve_us: solve.as_secs_f64() * 1e6,
         };
+        if self.not_clear {
+            let keep = self.controller.world().clearance_m();
+            if tick.min_clearance_m.is_none_or(|c| c >= keep) {
+                self.now_clear();
+            }
+        }
         if tick.clamped {
             self.stats.counters.clamped += 1;
         }
@@ -561,6 +590,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             t.tracking_error_m = tracking;
             t.saturated = d.saturated;
             t.self_collision = d.self_collision;
+            t.min_clearance_m = d.min_clearance_m;
+            t.blocked = d.blocked;
             t.command = command;
             t.solve_us = d.solve_us;
             t.loop_hz = loop_hz;
@@ -607,8 +638,62 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The event a command's ending owes its sender, sent.
     fn owe(&self, ended: Option<Ended>) {
         if let Some(e) = ended {
-            self.event(Some(e.owner), e.id, |tip| e.ending.what(tip));
+            let world = self.controller.world();
+            self.event(Some(e.owner), e.id, |tip| e.ending.what(tip, world));
         }
+    }
+
+    /// The clearance of the commanded pose among the obstacles, m (`None`: no obstacles);
+    /// allocation-free.
+    fn pose_clearance(&mut self) -> Option<f64> {
+        let world = self.controller.world();
+        if world.obstacles().is_empty() {
+            return None;
+        }
+        let chain = self.controller.chain();
+        self.points.resize(chain.len() + 1, Vec2::zeros());
+        chain.points_into(self.controller.theta(), &mut self.points);
+        world.clearance(&self.points).map(|p| p.clearance_m)
+    }
+
+    /// Whether the commanded pose is clear of the world (at start, or after the world
+    /// changed): a `not_clear` event to everyone when it is not, a `clear` one when it is
+    /// again after one. `cmd_id`: the request that changed the world.
+    fn look_clear(&mut self) {
+        self.look_clear_after(None, self.controller.not_clear());
+    }
+
+    /// [`Cycle::look_clear`] with what the controller said of the pose.
+    fn look_clear_after(&mut self, cmd_id: Option<RequestId>, not_clear: Option<NotClear>) {
+        match not_clear {
+            Some(nc) => {
+                tracing::warn!("{nc}");
+                self.not_clear = true;
+                self.event(None, cmd_id, |tip| What::NotClear {
+                    tip,
+                    link: nc.link,
+                    obstacle: nc.obstacle,
+                    clearance_m: nc.clearance_m,
+                    keep_m: nc.keep_m,
+                });
+            }
+            None if self.not_clear => self.now_clear(),
+            None => {}
+        }
+    }
+
+    /// The commanded pose is clear again: a `clear` event to everyone.
+    fn now_clear(&mut self) {
+        self.not_clear = false;
+        let min_clearance_m = self.decided.min_clearance_m;
+        tracing::info!(
+            ?min_clearance_m,
+            "the arm's pose is clear of the obstacles again"
+        );
+        self.event(None, None, |tip| What::Clear {
+            tip,
+            min_clearance_m,
+        });
     }
 
     /// A fault or warning change: logged, sent to everyone, the lists rebuilt.

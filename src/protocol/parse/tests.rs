@@ -508,8 +508,22 @@ fn json_value() -> impl proptest::strategy::Strategy<Value = Value> {
 /// An object with a known `cmd` and keys a request may carry, holding arbitrary values.
 fn request_like() -> impl proptest::strategy::Strategy<Value = (String, Value)> {
     let keys = prop::sample::select(vec![
-        "target", "speed", "theta", "points", "v", "joint", "rad_s", "name", "rate_hz", "id",
-        "extra", "token", "on", "ids",
+        "target",
+        "speed",
+        "theta",
+        "points",
+        "v",
+        "joint",
+        "rad_s",
+        "name",
+        "rate_hz",
+        "id",
+        "extra",
+        "token",
+        "on",
+        "ids",
+        "obstacles",
+        "obstacle",
     ]);
     (
         prop::sample::select(COMMANDS.to_vec()),
@@ -569,7 +583,50 @@ fn valid_cmd(joints: usize) -> impl proptest::strategy::Strategy<Value = Cmd> {
             prop::sample::subsequence((0..=252u8).collect::<Vec<_>>(), 1..=253).prop_shuffle()
         )
         .prop_map(|ids| Cmd::Reboot { ids }),
+        Just(Cmd::World),
+        prop::collection::vec(obstacle(), 0..5).prop_map(|obstacles| Cmd::SetWorld { obstacles }),
+        obstacle().prop_map(|obstacle| Cmd::AddObstacle { obstacle }),
+        any::<String>().prop_map(|id| Cmd::RemoveObstacle { id }),
     ]
+}
+
+/// An obstacle as the parser takes it: any id, a circle or a polygon of any numbers in range
+/// (whether it makes a world is the loop's to say).
+fn obstacle() -> impl proptest::strategy::Strategy<Value = crate::world::Obstacle> {
+    use crate::chain::Vec2;
+    use crate::world::{Obstacle, Shape};
+    let point = || (number_arg(), number_arg()).prop_map(|(x, y)| Vec2::new(x, y));
+    let shape = prop_oneof![
+        (point(), number_arg()).prop_map(|(center, radius_m)| Shape::Circle { center, radius_m }),
+        prop::collection::vec(point(), 0..8).prop_map(|points| Shape::Polygon { points }),
+    ];
+    (any::<String>(), shape).prop_map(|(id, shape)| Obstacle { id, shape })
+}
+
+/// The same obstacles, numbers within an ulp (see [`close`]).
+fn same_obstacles(a: &[crate::world::Obstacle], b: &[crate::world::Obstacle]) -> bool {
+    use crate::world::Shape;
+    let p = |a: &crate::chain::Vec2, b: &crate::chain::Vec2| close(a.x, b.x) && close(a.y, b.y);
+    a.len() == b.len()
+        && a.iter().zip(b).all(|(a, b)| {
+            a.id == b.id
+                && match (&a.shape, &b.shape) {
+                    (
+                        Shape::Circle {
+                            center: c,
+                            radius_m: r,
+                        },
+                        Shape::Circle {
+                            center: d,
+                            radius_m: s,
+                        },
+                    ) => p(c, d) && close(*r, *s),
+                    (Shape::Polygon { points: u }, Shape::Polygon { points: v }) => {
+                        u.len() == v.len() && u.iter().zip(v).all(|(u, v)| p(u, v))
+                    }
+                    _ => false,
+                }
+        })
 }
 
 /// serde_json reads floats back to within an ulp without its `float_roundtrip` feature
@@ -614,6 +671,10 @@ fn same_cmd(a: &Cmd, b: &Cmd) -> bool {
             j == k && close(*r, *s)
         }
         (Cmd::Subscribe { rate_hz: r }, Cmd::Subscribe { rate_hz: s }) => close(*r, *s),
+        (Cmd::SetWorld { obstacles: o }, Cmd::SetWorld { obstacles: q }) => same_obstacles(o, q),
+        (Cmd::AddObstacle { obstacle: o }, Cmd::AddObstacle { obstacle: q }) => {
+            same_obstacles(std::slice::from_ref(o), std::slice::from_ref(q))
+        }
         _ => a == b,
     }
 }
@@ -686,6 +747,288 @@ proptest! {
         match (req.id.as_deref(), id.as_ref()) {
             (Some(back), Some(sent)) => prop_assert!(same_json(back, sent), "{} read back as {}", sent, back),
             (back, sent) => prop_assert_eq!(back, sent),
+        }
+    }
+}
+
+mod world {
+    use super::*;
+    use crate::chain::Vec2;
+    use crate::protocol::world_rejection;
+    use crate::world::{Obstacle, Shape, World};
+
+    fn post() -> Obstacle {
+        Obstacle {
+            id: "post".into(),
+            shape: Shape::Circle {
+                center: Vec2::new(0.15, 0.6),
+                radius_m: 0.04,
+            },
+        }
+    }
+
+    fn shelf() -> Obstacle {
+        Obstacle {
+            id: "shelf".into(),
+            shape: Shape::Polygon {
+                points: vec![
+                    Vec2::new(-0.6, 0.3),
+                    Vec2::new(-0.4, 0.3),
+                    Vec2::new(-0.4, 0.34),
+                ],
+            },
+        }
+    }
+
+    const POST: &str = r#"{"id": "post", "circle": {"center": [0.15, 0.6], "radius": 0.04}}"#;
+    const SHELF: &str =
+        r#"{"id": "shelf", "polygon": {"points": [[-0.6, 0.3], [-0.4, 0.3], [-0.4, 0.34]]}}"#;
+
+    #[test]
+    fn every_world_command_and_shape_parses() {
+        assert_eq!(ok(r#"{"cmd": "world"}"#).cmd, Cmd::World);
+        assert_eq!(
+            ok(&format!(
+                r#"{{"cmd": "set_world", "obstacles": [{POST}, {SHELF}]}}"#
+            ))
+            .cmd,
+            Cmd::SetWorld {
+                obstacles: vec![post(), shelf()]
+            }
+        );
+        assert_eq!(
+            ok(r#"{"cmd": "set_world", "obstacles": []}"#).cmd,
+            Cmd::SetWorld { obstacles: vec![] }
+        );
+        assert_eq!(
+            ok(&format!(
+                r#"{{"cmd": "add_obstacle", "obstacle": {SHELF}}}"#
+            ))
+            .cmd,
+            Cmd::AddObstacle { obstacle: shelf() }
+        );
+        // The request's `id` is its own; the obstacle's id is `obstacle`.
+        let req = ok(r#"{"cmd": "remove_obstacle", "id": 3, "obstacle": "post"}"#);
+        assert_eq!(req.cmd, Cmd::RemoveObstacle { id: "post".into() });
+        assert_eq!(req.id.as_deref(), Some(&json!(3)));
+        // An optional shape given as null counts as absent.
+        let line = r#"{"cmd": "add_obstacle", "obstacle": {"id": "p", "polygon": null,
+            "circle": {"center": [0, 0], "radius": 1}}}"#;
+        assert!(matches!(ok(line).cmd, Cmd::AddObstacle { .. }));
+    }
+
+    #[test]
+    fn a_bad_obstacle_is_bad_arg_naming_its_field() {
+        let set = |obstacle: &str| {
+            format!(r#"{{"cmd": "set_world", "obstacles": [{POST}, {obstacle}]}}"#)
+        };
+        let add = |obstacle: &str| format!(r#"{{"cmd": "add_obstacle", "obstacle": {obstacle}}}"#);
+        let cases: &[(&str, &str)] = &[
+            // Not an object, no id, an id of the wrong type.
+            ("7", "`obstacles[1]`: expected an object, got 7"),
+            (
+                r#"{"circle": {"center": [0, 0], "radius": 1}}"#,
+                "`obstacles[1].id`: missing",
+            ),
+            (
+                r#"{"id": 5, "circle": {"center": [0, 0], "radius": 1}}"#,
+                "`obstacles[1].id`: expected a string",
+            ),
+            // The shape: neither, both, unknown keys at each level.
+            (r#"{"id": "a"}"#, "`obstacles[1]`: missing its shape"),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 0], "radius": 1}, "polygon": {"points": []}}"#,
+                "`obstacles[1]`: give `circle` or `polygon`, not both",
+            ),
+            (
+                r#"{"id": "a", "disc": {}}"#,
+                "`obstacles[1].disc`: unknown key",
+            ),
+            (
+                r#"{"id": "a", "circle": {"centre": [0, 0], "radius": 1}}"#,
+                "`obstacles[1].circle.centre`: unknown key",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, 1]], "closed": true}}"#,
+                "`obstacles[1].polygon.closed`: unknown key",
+            ),
+            (
+                r#"{"id": "a", "circle": 3}"#,
+                "`obstacles[1].circle`: expected an object",
+            ),
+            // A circle's fields.
+            (
+                r#"{"id": "a", "circle": {"radius": 1}}"#,
+                "`obstacles[1].circle.center`: missing",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 0]}}"#,
+                "`obstacles[1].circle.radius`: missing",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0], "radius": 1}}"#,
+                "`obstacles[1].circle.center`: expected 2 entries",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, "y"], "radius": 1}}"#,
+                "`obstacles[1].circle.center[1]`: expected a number",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 2e6], "radius": 1}}"#,
+                "`obstacles[1].circle.center[1]`: 2000000 is over",
+            ),
+            (
+                r#"{"id": "a", "circle": {"center": [0, 0], "radius": "1"}}"#,
+                "`obstacles[1].circle.radius`: expected a number",
+            ),
+            // A polygon's fields.
+            (
+                r#"{"id": "a", "polygon": {}}"#,
+                "`obstacles[1].polygon.points`: missing",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": 4}}"#,
+                "`obstacles[1].polygon.points`: expected an array",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, -1e7]]}}"#,
+                "`obstacles[1].polygon.points[2][1]`: -10000000 is over",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, 1, 2]]}}"#,
+                "`obstacles[1].polygon.points[2]`: expected 2 entries",
+            ),
+        ];
+        for (obstacle, message) in cases {
+            let (_, why) = refused(&set(obstacle));
+            assert_eq!(why.code, Code::BadArg, "{obstacle}: {why}");
+            assert!(why.message.starts_with(message), "{obstacle}: {why}");
+            let (_, why) = refused(&add(obstacle));
+            let message = message.replacen("obstacles[1]", "obstacle", 1);
+            assert!(why.message.starts_with(&message), "{obstacle}: {why}");
+        }
+        refused_with(
+            r#"{"cmd": "set_world"}"#,
+            Code::BadArg,
+            &["`obstacles`: missing"],
+        );
+        refused_with(
+            r#"{"cmd": "set_world", "obstacles": {}}"#,
+            Code::BadArg,
+            &["`obstacles`: expected an array"],
+        );
+        refused_with(
+            r#"{"cmd": "set_world", "obstacles": [], "link_radius_m": 1}"#,
+            Code::BadArg,
+            &["`link_radius_m`: unknown argument of set_world"],
+        );
+        refused_with(
+            r#"{"cmd": "remove_obstacle", "obstacle": 4}"#,
+            Code::BadArg,
+            &["`obstacle`: expected a string"],
+        );
+        refused_with(
+            r#"{"cmd": "remove_obstacle"}"#,
+            Code::BadArg,
+            &["`obstacle`: missing"],
+        );
+        refused_with(
+            r#"{"cmd": "world", "obstacles": []}"#,
+            Code::BadArg,
+            &["`obstacles`: unknown argument of world"],
+        );
+    }
+
+    /// What the parser lets through and the loop's [`World::new`] refuses, worded for the wire.
+    #[test]
+    fn a_world_that_is_not_one_is_refused_naming_the_field_as_the_request_spells_it() {
+        let refusal = |obstacles: Vec<Obstacle>, added: Option<usize>| {
+            let e = World::new(0.01, 0.005, obstacles).unwrap_err();
+            world_rejection(&e, added)
+        };
+        let circle = |id: &str, r: f64| Obstacle {
+            id: id.into(),
+            shape: Shape::Circle {
+                center: Vec2::new(1.0, 1.0),
+                radius_m: r,
+            },
+        };
+        let polygon = |id: &str, points: &[[f64; 2]]| Obstacle {
+            id: id.into(),
+            shape: Shape::Polygon {
+                points: points.iter().map(|p| Vec2::new(p[0], p[1])).collect(),
+            },
+        };
+        let cases = [
+            (
+                vec![post(), circle("a", 0.0)],
+                None,
+                "`obstacles[1].circle.radius`: 0 m must be positive",
+            ),
+            (
+                vec![post(), circle("a", -1.0)],
+                Some(1),
+                "`obstacle.circle.radius`: -1 m must be positive",
+            ),
+            (
+                vec![post(), circle("post", 1.0)],
+                None,
+                "`obstacles[1].id`: id \"post\" is already used by obstacles[0]",
+            ),
+            (
+                vec![post(), circle("post", 1.0)],
+                Some(1),
+                "`obstacle.id`: id \"post\" is already used by obstacles[0]",
+            ),
+            (
+                vec![circle("", 1.0)],
+                None,
+                "`obstacles[0].id`: an obstacle needs a non-empty id",
+            ),
+            (
+                vec![polygon("p", &[[0.0, 0.0], [1.0, 0.0]])],
+                None,
+                "`obstacles[0].polygon.points`: 2 points, a polygon needs at least 3",
+            ),
+            (
+                vec![
+                    post(),
+                    polygon("bow", &[[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]),
+                ],
+                None,
+                "`obstacles[1].polygon.points`: edges 0 and 2 touch or cross",
+            ),
+            (
+                vec![polygon(
+                    "p",
+                    &[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 0.0]],
+                )],
+                None,
+                "`obstacles[0].polygon.points[3]`: point (1, 0) repeats points[1]",
+            ),
+            (
+                (0..65).map(|i| circle(&format!("c{i}"), 0.1)).collect(),
+                None,
+                "`obstacles`: 65 obstacles, at most 64 allowed",
+            ),
+            (
+                vec![polygon(
+                    "big",
+                    &(0..1025)
+                        .map(|k| {
+                            let a = k as f64 / 1025.0 * std::f64::consts::TAU;
+                            [a.cos(), a.sin()]
+                        })
+                        .collect::<Vec<_>>(),
+                )],
+                None,
+                "`obstacles`: 1025 polygon points in all, at most 1024 allowed",
+            ),
+        ];
+        for (obstacles, added, message) in cases {
+            let why = refusal(obstacles, added);
+            assert_eq!(why.code, Code::BadArg);
+            assert!(why.message.starts_with(message), "{why}");
         }
     }
 }

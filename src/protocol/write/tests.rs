@@ -39,6 +39,8 @@ pub(crate) fn telemetry() -> Telemetry {
         tracking_error_m: 0.01,
         saturated: true,
         self_collision: true,
+        min_clearance_m: Some(-0.0125),
+        blocked: true,
         command: Some(CommandInfo {
             kind: CmdName::Goto,
             id: Some(Arc::new(json!("g1"))),
@@ -188,6 +190,8 @@ fn telemetry_line_is_tagged_and_status_fields_name_the_same() {
         "tracking_error_m",
         "saturated",
         "self_collision",
+        "min_clearance_m",
+        "blocked",
         "command",
         "solve_us",
         "loop_hz",
@@ -243,13 +247,16 @@ fn describe_fields_name_every_field() {
         rate_hz: 100.0,
         strategies: STRATEGIES.to_vec(),
         protocol_version: PROTOCOL_VERSION,
+        link_radius_m: 0.012,
+        clearance_m: 0.005,
     };
     assert_eq!(
         Value::Object(d.to_fields()),
         json!({"links_m": [0.1, 0.2], "base": [0.0, 0.0, 1.5], "min_rad": [-1.0, -2.0],
                "max_rad": [1.0, 2.0], "ids": [1, 2], "models": ["XL430-W250", "XL330-M288"],
                "home_rad": [0.0, 0.1], "rate_hz": 100.0,
-               "strategies": ["overall", "sequential"], "protocol_version": PROTOCOL_VERSION})
+               "strategies": ["overall", "sequential"], "protocol_version": PROTOCOL_VERSION,
+               "link_radius_m": 0.012, "clearance_m": 0.005})
     );
 }
 

@@ -28,6 +28,7 @@ fn sim_arm() -> ArmInfo {
         rate_hz: 100.0,
         strategies: STRATEGIES.to_vec(),
         protocol_version: 1,
+        ..Describe::default()
     })
     .unwrap()
 }

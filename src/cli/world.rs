@@ -1,0 +1,541 @@
+//! `snakectl world`: the obstacles the arm keeps clear of. Without a subcommand it prints the
+//! daemon's world (a table, or with `--json` the `world` reply as one JSON object); `set FILE`
+//! replaces every obstacle with a file's, `add ID --circle X Y R | --polygon X Y X Y X Y ...`
+//! adds one, `remove ID` removes one, `clear` removes them all.
+//!
+//! A file is JSON in the socket's shape (`{"obstacles": [...]}`, what `world --json` prints)
+//! or TOML in the config's (`[[world.obstacle]]` tables with `circle = { center_m, radius_m }`
+//! or `polygon = { points_m }`), told apart by its extension (`.json`, `.toml`) or, failing
+//! that, by whether it opens with `{`. In TOML, tables other than `[world]` are ignored, so a
+//! daemon's whole config file may be given; in either, `link_radius_m` and `clearance_m` are
+//! read but not sent (the daemon keeps its own; a note says so when they differ). The
+//! obstacles are checked here first as the daemon would (exit code 2, naming the file and the
+//! field), then sent. Exit codes as the other clients': 0 done, 2 bad input, 1 refused.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::anyhow;
+use clap::{Args, Subcommand};
+use serde::Deserialize;
+use serde_json::Value;
+use snakectl::chain::Vec2;
+use snakectl::client::{Client, WorldInfo};
+use snakectl::protocol::{parse_obstacles, world_rejection, Cmd, Wire};
+use snakectl::world::{Obstacle, Shape, World, WorldError};
+
+use super::client::{connect, refused, ConnectArgs};
+use super::{outln, Failure};
+
+/// `world`.
+#[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct WorldArgs {
+    #[command(subcommand)]
+    pub action: Option<Action>,
+    /// Print the `world` reply as one JSON object (what `world set` reads back).
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub connect: ConnectArgs,
+}
+
+/// What to do with the world.
+#[derive(Debug, Subcommand)]
+pub enum Action {
+    /// Replace every obstacle with those of FILE (JSON in the socket's shape, or TOML in the
+    /// config's).
+    Set(SetArgs),
+    /// Add one obstacle: a circle or a polygon.
+    Add(AddArgs),
+    /// Remove the obstacle ID.
+    Remove(RemoveArgs),
+    /// Remove every obstacle.
+    Clear(ClearArgs),
+}
+
+/// `world set FILE`.
+#[derive(Debug, Args)]
+pub struct SetArgs {
+    /// `.json` (`{"obstacles": [...]}`) or `.toml` (`[[world.obstacle]]` tables).
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub connect: ConnectArgs,
+}
+
+/// `world add ID --circle X Y R` or `--polygon X Y X Y X Y ...`.
+#[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
+pub struct AddArgs {
+    /// The obstacle's id.
+    pub id: String,
+    /// A circle: centre x, y and radius, m.
+    #[arg(long, num_args = 3, value_names = ["X", "Y", "R"], conflicts_with = "polygon", required_unless_present = "polygon")]
+    pub circle: Option<Vec<f64>>,
+    /// A polygon: its corners' x and y in turn, m (at least three corners).
+    #[arg(long, num_args = 6.., value_name = "X Y")]
+    pub polygon: Option<Vec<f64>>,
+    #[command(flatten)]
+    pub connect: ConnectArgs,
+}
+
+/// `world remove ID`.
+#[derive(Debug, Args)]
+pub struct RemoveArgs {
+    /// The obstacle's id.
+    pub id: String,
+    #[command(flatten)]
+    pub connect: ConnectArgs,
+}
+
+/// `world clear`.
+#[derive(Debug, Args)]
+pub struct ClearArgs {
+    #[command(flatten)]
+    pub connect: ConnectArgs,
+}
+
+/// `snakectl world`.
+pub fn run(args: WorldArgs) -> Result<(), Failure> {
+    match args.action {
+        None => show(&args.connect, args.json),
+        Some(Action::Set(a)) => set(a),
+        Some(Action::Add(a)) => add(a),
+        Some(Action::Remove(a)) => {
+            let cmd = Cmd::RemoveObstacle { id: a.id.clone() };
+            send(&a.connect, &cmd, &format!("removed obstacle {:?}", a.id))
+        }
+        Some(Action::Clear(a)) => {
+            let cmd = Cmd::SetWorld { obstacles: vec![] };
+            send(&a.connect, &cmd, "cleared every obstacle")
+        }
+    }
+}
+
+/// Prints the daemon's world.
+fn show(connect_args: &ConnectArgs, json: bool) -> Result<(), Failure> {
+    let mut client = connect(connect_args)?;
+    let world = client.world().map_err(refused)?;
+    if json {
+        let value = serde_json::to_value(&world)
+            .map_err(|e| Failure::other(anyhow!("writing the world as JSON: {e}")))?;
+        return outln!("{value}");
+    }
+    for line in table(&world) {
+        outln!("{line}")?;
+    }
+    Ok(())
+}
+
+/// The world as a table for a person: a heading line, then one line per obstacle.
+fn table(world: &WorldInfo) -> Vec<String> {
+    let n = world.obstacles.len();
+    let mut lines = vec![format!(
+        "link radius {} m, clearance {} m, {n} obstacle{}",
+        world.link_radius_m,
+        world.clearance_m,
+        if n == 1 { "" } else { "s" }
+    )];
+    if n == 0 {
+        return lines;
+    }
+    let width = world
+        .obstacles
+        .iter()
+        .map(|o| o.id.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(2);
+    lines.push(format!("{:<width$}  {:<7}  where (m)", "id", "shape"));
+    for o in &world.obstacles {
+        let (shape, at) = match &o.shape {
+            Shape::Circle { center, radius_m } => (
+                "circle",
+                format!(
+                    "center ({:.4}, {:.4}), radius {radius_m:.4}",
+                    center.x, center.y
+                ),
+            ),
+            Shape::Polygon { points } => {
+                let corners: Vec<String> = points
+                    .iter()
+                    .map(|p| format!("({:.4}, {:.4})", p.x, p.y))
+                    .collect();
+                (
+                    "polygon",
+                    format!("{} points: {}", points.len(), corners.join(" ")),
+                )
+            }
+        };
+        lines.push(format!("{:<width$}  {shape:<7}  {at}", o.id));
+    }
+    lines
+}
+
+/// `world set FILE`.
+fn set(args: SetArgs) -> Result<(), Failure> {
+    let file = &args.file;
+    let text = std::fs::read_to_string(file)
+        .map_err(|e| Failure::bad_input(anyhow!("{}: cannot read it: {e}", file.display())))?;
+    let read = read_file(file, &text)
+        .map_err(|e| Failure::bad_input(anyhow!("{}: {e}", file.display())))?;
+    let mut client = connect(&args.connect)?;
+    note_fixed(&mut client, file, &read)?;
+    let n = read.obstacles.len();
+    let cmd = Cmd::SetWorld {
+        obstacles: read.obstacles,
+    };
+    let fields = client.request(&cmd).map_err(refused)?;
+    outln!(
+        "ok: set_world with {n} obstacle{} at tick {}",
+        if n == 1 { "" } else { "s" },
+        fields.reply.tick().unwrap_or(0)
+    )
+}
+
+/// A note on stderr when the file's link radius or clearance differ from the daemon's, which
+/// stay.
+fn note_fixed(client: &mut Client, file: &Path, read: &FileWorld) -> Result<(), Failure> {
+    if read.link_radius_m.is_none() && read.clearance_m.is_none() {
+        return Ok(());
+    }
+    let daemon = client.world().map_err(refused)?;
+    for (name, given, kept) in [
+        ("link_radius_m", read.link_radius_m, daemon.link_radius_m),
+        ("clearance_m", read.clearance_m, daemon.clearance_m),
+    ] {
+        if let Some(given) = given.filter(|&g| g != kept) {
+            eprintln!(
+                "snakectl: note: {}: {name} = {given} is not sent: the daemon keeps its own, {kept}",
+                file.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `world add`.
+fn add(args: AddArgs) -> Result<(), Failure> {
+    let shape = match (&args.circle, &args.polygon) {
+        (Some(c), _) => Shape::Circle {
+            center: Vec2::new(c[0], c[1]),
+            radius_m: c[2],
+        },
+        (None, Some(p)) => {
+            if p.len() % 2 != 0 {
+                return Err(Failure::bad_input(anyhow!(
+                    "--polygon takes x and y of each corner in turn: {} numbers is not pairs",
+                    p.len()
+                )));
+            }
+            Shape::Polygon {
+                points: p.chunks_exact(2).map(|q| Vec2::new(q[0], q[1])).collect(),
+            }
+        }
+        (None, None) => {
+            return Err(Failure::bad_input(anyhow!(
+                "give the shape: --circle X Y R or --polygon X Y X Y X Y ..."
+            )))
+        }
+    };
+    let obstacle = Obstacle { id: args.id, shape };
+    if let Err(e) = World::new(0.0, 0.0, vec![obstacle.clone()]) {
+        return Err(Failure::bad_input(anyhow!(
+            "{}",
+            world_rejection(&e, Some(0)).message
+        )));
+    }
+    let done = format!(
+        "added obstacle {}",
+        serde_json::to_string(&Wire(&obstacle)).unwrap_or_default()
+    );
+    send(&args.connect, &Cmd::AddObstacle { obstacle }, &done)
+}
+
+/// Sends `cmd`, prints `ok: DONE at tick N`.
+fn send(connect_args: &ConnectArgs, cmd: &Cmd, done: &str) -> Result<(), Failure> {
+    let mut client = connect(connect_args)?;
+    let fields = client.request(cmd).map_err(refused)?;
+    outln!("ok: {done} at tick {}", fields.reply.tick().unwrap_or(0))
+}
+
+/// What a file says: the obstacles, and the link radius and clearance when it gives them.
+#[derive(Debug, PartialEq)]
+struct FileWorld {
+    obstacles: Vec<Obstacle>,
+    link_radius_m: Option<f64>,
+    clearance_m: Option<f64>,
+}
+
+/// Reads a world file, JSON or TOML (by the extension, else by a leading `{`), its obstacles
+/// checked as the daemon checks them. The error names the field.
+fn read_file(path: &Path, text: &str) -> Result<FileWorld, String> {
+    let json = match path.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("json") => true,
+        Some(e) if e.eq_ignore_ascii_case("toml") => false,
+        _ => text.trim_start().starts_with('{'),
+    };
+    if json {
+        read_json(text)
+    } else {
+        read_toml(text)
+    }
+}
+
+/// `{"obstacles": [...], "link_radius_m"?: r, "clearance_m"?: c}`, the obstacles in the
+/// socket's shape.
+fn read_json(text: &str) -> Result<FileWorld, String> {
+    let value: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    let Value::Object(map) = value else {
+        return Err(r#"expected a JSON object {"obstacles": [...]}"#.into());
+    };
+    if let Some(key) = map
+        .keys()
+        .find(|k| !matches!(k.as_str(), "obstacles" | "link_radius_m" | "clearance_m"))
+    {
+        return Err(format!(
+            "`{key}`: unknown key (a world file has obstacles, link_radius_m, clearance_m)"
+        ));
+    }
+    let number = |key: &str| -> Result<Option<f64>, String> {
+        match map.get(key) {
+            None | Some(Value::Null) => Ok(None),
+            Some(v) => v
+                .as_f64()
+                .map(Some)
+                .ok_or_else(|| format!("`{key}`: expected a number of metres, got {v}")),
+        }
+    };
+    let (link_radius_m, clearance_m) = (number("link_radius_m")?, number("clearance_m")?);
+    let list = map
+        .get("obstacles")
+        .ok_or("`obstacles`: missing (an empty world is `{\"obstacles\": []}`)")?;
+    let obstacles = parse_obstacles(list).map_err(|r| r.message)?;
+    World::new(0.0, 0.0, obstacles.clone()).map_err(|e| world_rejection(&e, None).message)?;
+    Ok(FileWorld {
+        obstacles,
+        link_radius_m,
+        clearance_m,
+    })
+}
+
+/// A TOML file in the config's shape: only `[world]` is read.
+#[derive(Debug, Deserialize)]
+struct TomlFile {
+    world: Option<TomlWorld>,
+}
+
+/// `[world]`: the obstacles; the other keys the config takes are accepted, not sent.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlWorld {
+    #[serde(default)]
+    obstacle: Vec<TomlObstacle>,
+    link_radius_m: Option<f64>,
+    clearance_m: Option<f64>,
+    #[allow(dead_code)]
+    contact_load: Option<toml::Value>,
+    #[allow(dead_code)]
+    contact_ms: Option<toml::Value>,
+}
+
+/// `[[world.obstacle]]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlObstacle {
+    id: String,
+    circle: Option<TomlCircle>,
+    polygon: Option<TomlPolygon>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlCircle {
+    center_m: [f64; 2],
+    radius_m: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlPolygon {
+    points_m: Vec<[f64; 2]>,
+}
+
+/// `[[world.obstacle]]` tables, as the config writes them.
+fn read_toml(text: &str) -> Result<FileWorld, String> {
+    let file: TomlFile = toml::from_str(text).map_err(|e| format!("not a world: {e}"))?;
+    let world = file
+        .world
+        .ok_or("no [world] table: obstacles are [[world.obstacle]] tables")?;
+    let mut obstacles = Vec::with_capacity(world.obstacle.len());
+    for (i, o) in world.obstacle.into_iter().enumerate() {
+        let at = format!("world.obstacle[{i}]");
+        let shape = match (o.circle, o.polygon) {
+            (Some(c), None) => Shape::Circle {
+                center: Vec2::new(c.center_m[0], c.center_m[1]),
+                radius_m: c.radius_m,
+            },
+            (None, Some(p)) => Shape::Polygon {
+                points: p.points_m.iter().map(|q| Vec2::new(q[0], q[1])).collect(),
+            },
+            (Some(_), Some(_)) => return Err(format!("{at}: give circle or polygon, not both")),
+            (None, None) => return Err(format!("{at}: missing its shape: circle or polygon")),
+        };
+        obstacles.push(Obstacle { id: o.id, shape });
+    }
+    World::new(0.0, 0.0, obstacles.clone()).map_err(|e| toml_error(&e))?;
+    Ok(FileWorld {
+        obstacles,
+        link_radius_m: world.link_radius_m,
+        clearance_m: world.clearance_m,
+    })
+}
+
+/// A world's refusal with the field as the config spells it (`world.obstacle[1].circle.radius_m`).
+fn toml_error(e: &WorldError) -> String {
+    let text = e.to_string();
+    let (field, rest) = text.split_once(": ").unwrap_or(("", text.as_str()));
+    let field = field
+        .replacen("obstacles[", "world.obstacle[", 1)
+        .replace(".circle.center.x", ".circle.center_m[0]")
+        .replace(".circle.center.y", ".circle.center_m[1]")
+        .replace(".polygon.points", ".polygon.points_m");
+    let field = if field == "obstacles" {
+        "world.obstacle".to_owned()
+    } else {
+        field
+    };
+    format!("{field}: {rest}")
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    fn toml_of(body: &str) -> Result<FileWorld, String> {
+        read_file(Path::new("w.toml"), body)
+    }
+
+    #[test]
+    fn a_toml_world_reads_as_the_config_writes_it() {
+        let read = toml_of(
+            r#"
+            [bus]
+            port = "/dev/null"
+
+            [world]
+            link_radius_m = 0.012
+            contact_ms = 100
+
+            [[world.obstacle]]
+            id = "post"
+            circle = { center_m = [0.15, 0.60], radius_m = 0.04 }
+
+            [[world.obstacle]]
+            id = "shelf"
+            polygon = { points_m = [[-0.6, 0.3], [-0.4, 0.3], [-0.4, 0.34], [-0.6, 0.34]] }
+            "#,
+        )
+        .unwrap();
+        assert_eq!(read.link_radius_m, Some(0.012));
+        assert_eq!(read.clearance_m, None);
+        assert_eq!(read.obstacles.len(), 2);
+        assert_eq!(
+            read.obstacles[0],
+            Obstacle {
+                id: "post".into(),
+                shape: Shape::Circle {
+                    center: Vec2::new(0.15, 0.60),
+                    radius_m: 0.04
+                }
+            }
+        );
+        match &read.obstacles[1].shape {
+            Shape::Polygon { points } => assert_eq!(points[2], Vec2::new(-0.4, 0.34)),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_bad_toml_world_names_the_field_as_the_config_spells_it() {
+        let e = toml_of(
+            "[[world.obstacle]]\nid = \"a\"\ncircle = { center_m = [0, 0], radius_m = 0.1 }\n\
+             [[world.obstacle]]\nid = \"b\"\ncircle = { center_m = [1, 0], radius_m = -0.1 }\n",
+        )
+        .unwrap_err();
+        assert!(e.starts_with("world.obstacle[1].circle.radius_m: "), "{e}");
+        let e =
+            toml_of("[[world.obstacle]]\nid = \"a\"\npolygon = { points_m = [[0, 0], [1, 0]] }\n")
+                .unwrap_err();
+        assert!(e.starts_with("world.obstacle[0].polygon.points_m: "), "{e}");
+        let e =
+            toml_of("[[world.obstacle]]\nid = \"a\"\ncircle = { center = [0, 0], radius_m = 1 }\n")
+                .unwrap_err();
+        assert!(e.contains("unknown field `center`"), "{e}");
+        let e = toml_of("[[world.obstacles]]\nid = \"a\"\n").unwrap_err();
+        assert!(e.contains("unknown field `obstacles`"), "{e}");
+        let e = toml_of("[bus]\nport = \"x\"\n").unwrap_err();
+        assert!(e.contains("no [world] table"), "{e}");
+        let e = toml_of("[[world.obstacle]]\nid = \"a\"\n").unwrap_err();
+        assert!(e.starts_with("world.obstacle[0]: missing its shape"), "{e}");
+    }
+
+    #[test]
+    fn a_json_world_reads_in_the_sockets_shape_and_names_the_field() {
+        let read = read_file(
+            Path::new("w"),
+            r#"{"link_radius_m": 0.01, "clearance_m": 0.005, "obstacles": [
+                {"id": "post", "circle": {"center": [0.15, 0.6], "radius": 0.04}}]}"#,
+        )
+        .unwrap();
+        assert_eq!(read.obstacles[0].id, "post");
+        assert_eq!(read.clearance_m, Some(0.005));
+        let bad = |body: &str| read_file(Path::new("w.json"), body).unwrap_err();
+        let e = bad(r#"{"obstacles": [{"id": "p", "circle": {"center": [0, 0], "radius": 0}}]}"#);
+        assert!(e.starts_with("`obstacles[0].circle.radius`: "), "{e}");
+        let e = bad(r#"{"obstacles": [{"id": "p", "circle": {"center": [0, 0]}}]}"#);
+        assert!(
+            e.starts_with("`obstacles[0].circle.radius`: missing"),
+            "{e}"
+        );
+        let e = bad(r#"{"obstacle": []}"#);
+        assert!(e.starts_with("`obstacle`: unknown key"), "{e}");
+        let e = bad(r#"{}"#);
+        assert!(e.starts_with("`obstacles`: missing"), "{e}");
+    }
+
+    #[test]
+    fn the_table_names_every_obstacle_and_its_shape() {
+        let world = WorldInfo {
+            link_radius_m: 0.012,
+            clearance_m: 0.005,
+            obstacles: vec![
+                Obstacle {
+                    id: "post".into(),
+                    shape: Shape::Circle {
+                        center: Vec2::new(0.15, 0.6),
+                        radius_m: 0.04,
+                    },
+                },
+                Obstacle {
+                    id: "tri".into(),
+                    shape: Shape::Polygon {
+                        points: vec![
+                            Vec2::new(0.0, 0.0),
+                            Vec2::new(1.0, 0.0),
+                            Vec2::new(0.0, 1.0),
+                        ],
+                    },
+                },
+            ],
+        };
+        let lines = table(&world);
+        assert_eq!(
+            lines[0],
+            "link radius 0.012 m, clearance 0.005 m, 2 obstacles"
+        );
+        assert!(lines[2].starts_with("post  circle "), "{}", lines[2]);
+        assert!(lines[2].contains("center (0.1500, 0.6000), radius 0.0400"));
+        assert!(lines[3].contains("3 points: (0.0000, 0.0000) (1.0000, 0.0000) (0.0000, 1.0000)"));
+    }
+}

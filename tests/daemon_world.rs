@@ -1,0 +1,547 @@
+//! The world through the socket, end to end on the simulator: `world`, `set_world`,
+//! `add_obstacle` and `remove_obstacle`, the `world`, `not_clear` and `clear` events reaching
+//! every client, the clearance in telemetry checked against the world's own exact distance,
+//! every bad world command refused with its code, and `snakectl world` as a user runs it.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod daemon_support;
+
+use std::process::Command;
+use std::time::Duration;
+
+use daemon_support::{floats, sim_config, Client, Daemon};
+use serde_json::{json, Value};
+use snakectl::chain::Vec2;
+use snakectl::protocol::parse_obstacles;
+use snakectl::world::World;
+
+/// The tests of this file run one at a time: each has its own daemon and simulator, and a
+/// loaded machine keeps their loops on time better one by one.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A circle obstacle in the socket's shape.
+fn circle(id: &str, center: [f64; 2], radius: f64) -> Value {
+    json!({"id": id, "circle": {"center": center, "radius": radius}})
+}
+
+/// A polygon obstacle in the socket's shape.
+fn polygon(id: &str, points: &[[f64; 2]]) -> Value {
+    json!({"id": id, "polygon": {"points": points}})
+}
+
+/// Far from the shipped arm (base at the origin, reach 0.96 m).
+fn far_post() -> Value {
+    circle("post", [2.0, 2.0], 0.05)
+}
+
+fn far_shelf() -> Value {
+    polygon(
+        "shelf",
+        &[[-2.0, 1.5], [-1.8, 1.5], [-1.8, 1.55], [-2.0, 1.55]],
+    )
+}
+
+/// The joint points of the commanded pose in `status` (or a telemetry line).
+fn points(d: &Daemon, s: &Value) -> Vec<Vec2> {
+    d.config.chain().points(&floats(&s["theta_cmd"]))
+}
+
+/// The world the `world` reply describes, built by the world's own validation.
+fn world_of(reply: &Value) -> World {
+    World::new(
+        reply["link_radius_m"].as_f64().unwrap(),
+        reply["clearance_m"].as_f64().unwrap(),
+        parse_obstacles(&reply["obstacles"]).unwrap(),
+    )
+    .unwrap()
+}
+
+/// This client's id, from `take_control`.
+fn take_control(c: &mut Client) -> u64 {
+    c.ok(json!({"cmd": "take_control"}))["client"]
+        .as_u64()
+        .unwrap()
+}
+
+#[test]
+fn the_world_is_set_added_to_and_removed_from_and_every_client_is_told() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut a = d.client();
+    let mut b = d.client();
+    let w = a.ok(json!({"cmd": "world"}));
+    assert_eq!(w["obstacles"], json!([]), "{w}");
+    let describe = b.ok(json!({"cmd": "describe"}));
+    assert_eq!(describe["link_radius_m"], w["link_radius_m"], "{describe}");
+    assert_eq!(describe["clearance_m"], w["clearance_m"], "{describe}");
+    assert!(w["link_radius_m"].as_f64().unwrap() >= 0.0);
+    assert!(w["clearance_m"].as_f64().unwrap() >= 0.0);
+
+    let me = take_control(&mut a);
+    let id = a.send(json!({"cmd": "set_world", "obstacles": [far_post(), far_shelf()]}));
+    let reply = a.reply(&json!(id));
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert!(reply["tick"].as_u64().is_some(), "{reply}");
+    // The other client is told the whole new world, and who changed it.
+    let event = b.event("world", Some(id));
+    assert_eq!(event["by"], json!(me), "{event}");
+    assert_eq!(
+        event["obstacles"],
+        json!([far_post(), far_shelf()]),
+        "{event}"
+    );
+    assert_eq!(event["link_radius_m"], w["link_radius_m"]);
+    assert_eq!(event["clearance_m"], w["clearance_m"]);
+    // The sender is told too, and reads the same world back.
+    a.event("world", Some(id));
+    let now = b.ok(json!({"cmd": "world"}));
+    assert_eq!(now["obstacles"], json!([far_post(), far_shelf()]), "{now}");
+    assert_eq!(
+        now["link_radius_m"], w["link_radius_m"],
+        "the link radius stays"
+    );
+
+    let disc = circle("disc", [1.5, -1.5], 0.1);
+    let id = a.send(json!({"cmd": "add_obstacle", "obstacle": disc}));
+    assert_eq!(a.reply(&json!(id))["ok"], json!(true));
+    let event = b.event("world", Some(id));
+    assert_eq!(event["obstacles"], json!([far_post(), far_shelf(), disc]));
+
+    let id = a.send(json!({"cmd": "remove_obstacle", "obstacle": "post"}));
+    assert_eq!(a.reply(&json!(id))["ok"], json!(true));
+    let event = b.event("world", Some(id));
+    assert_eq!(event["obstacles"], json!([far_shelf(), disc]));
+    assert_eq!(
+        b.ok(json!({"cmd": "world"}))["obstacles"],
+        json!([far_shelf(), disc])
+    );
+
+    // Far obstacles leave the arm clear: no `not_clear` came.
+    let events = b.drain_events(Duration::from_millis(100));
+    assert!(
+        events.iter().all(|e| e["event"] != "not_clear"),
+        "{events:?}"
+    );
+    a.ok(json!({"cmd": "set_world", "obstacles": []}));
+    assert_eq!(b.ok(json!({"cmd": "world"}))["obstacles"], json!([]));
+}
+
+#[test]
+fn telemetry_reports_the_clearance_of_the_commanded_pose() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    let s = c.status();
+    assert_eq!(s["min_clearance_m"], Value::Null, "no obstacles: {s}");
+    assert_eq!(s["blocked"], json!(false), "{s}");
+
+    // A post 6 cm to the side of link 6's middle.
+    let p = points(&d, &s);
+    let (a, b) = (p[5], p[6]);
+    let mid = (a + b) / 2.0;
+    let along = (b - a).normalize();
+    let side = Vec2::new(-along.y, along.x);
+    let center = mid + side * 0.06;
+    let post = circle("post", [center.x, center.y], 0.02);
+    c.ok(json!({"cmd": "set_world", "obstacles": [post]}));
+    let world = world_of(&c.ok(json!({"cmd": "world"})));
+
+    let s = c.status();
+    let got = s["min_clearance_m"].as_f64().unwrap();
+    let want = world.clearance(&points(&d, &s)).unwrap();
+    assert!((got - want.clearance_m).abs() < 1e-12, "{got} vs {want:?}");
+    assert!(
+        (got - (0.06 - 0.02 - world.link_radius_m())).abs() < 0.01,
+        "about the gap placed: {got}"
+    );
+    assert_eq!(want.link, 6);
+    assert_eq!(s["blocked"], json!(false), "{s}");
+
+    // Telemetry lines carry the same, each of its own pose.
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 50.0}));
+    for t in c.telemetry_until({
+        let mut n = 0;
+        move |_| {
+            n += 1;
+            n == 3
+        }
+    }) {
+        let got = t["min_clearance_m"].as_f64().unwrap();
+        let want = world.clearance(&points(&d, &t)).unwrap().clearance_m;
+        assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+    }
+
+    // While the estop latch freezes the controller, the clearance is still that of the pose
+    // (here after the world moved), and after `reset` of the measured pose it holds.
+    let same = |c: &mut Client, world: &World| {
+        let s = c.status();
+        let got = s["min_clearance_m"].as_f64().unwrap();
+        let want = world.clearance(&points(&d, &s)).unwrap().clearance_m;
+        assert!((got - want).abs() < 1e-12, "{got} vs {want}: {s}");
+        s
+    };
+    c.ok(json!({"cmd": "estop"}));
+    let nearer = circle(
+        "post",
+        [center.x - side.x * 0.01, center.y - side.y * 0.01],
+        0.02,
+    );
+    c.ok(json!({"cmd": "set_world", "obstacles": [nearer]}));
+    let world = world_of(&c.ok(json!({"cmd": "world"})));
+    let s = same(&mut c, &world);
+    assert_eq!(s["state"], "estop", "{s}");
+    c.ok(json!({"cmd": "reset"}));
+    same(&mut c, &world);
+
+    // No obstacles again: null again.
+    c.ok(json!({"cmd": "set_world", "obstacles": []}));
+    assert_eq!(c.status()["min_clearance_m"], Value::Null);
+}
+
+#[test]
+fn an_obstacle_put_onto_the_arm_is_told_to_everyone_and_the_arm_holds() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut a = d.client();
+    let mut b = d.client();
+    let before = a.status();
+    b.status();
+    let p = points(&d, &before);
+    let mid = (p[4] + p[5]) / 2.0;
+    let onto = circle("onto", [mid.x, mid.y], 0.01);
+    let id = a.send(json!({"cmd": "set_world", "obstacles": [far_post(), onto]}));
+    assert_eq!(a.reply(&json!(id))["ok"], json!(true));
+
+    let told = b.event("not_clear", None);
+    assert_eq!(told["link"], json!(5), "{told}");
+    assert_eq!(told["obstacle"], json!("onto"), "{told}");
+    let depth = told["clearance_m"].as_f64().unwrap();
+    assert!(
+        depth < -0.01 + 1e-9,
+        "inside by its radius at least: {told}"
+    );
+    let world = world_of(&a.ok(json!({"cmd": "world"})));
+    assert_eq!(told["keep_m"].as_f64().unwrap(), world.clearance_m());
+    assert_eq!(told["cmd_id"], json!(id), "the change that caused it");
+    a.event("not_clear", None);
+
+    // The arm holds where it was, and telemetry says how deep.
+    let s = a.status();
+    assert_eq!(s["state"], "holding", "{s}");
+    assert_eq!(s["theta_cmd"], before["theta_cmd"]);
+    let got = s["min_clearance_m"].as_f64().unwrap();
+    assert!((got - depth).abs() < 1e-12, "{got} vs {depth}");
+
+    // Taken away: clear again, told to everyone.
+    a.ok(json!({"cmd": "remove_obstacle", "obstacle": "onto"}));
+    let clear = b.event("clear", None);
+    let left = clear["min_clearance_m"].as_f64().unwrap();
+    assert!(left >= world.clearance_m(), "{clear}");
+    a.event("clear", None);
+}
+
+#[test]
+fn every_bad_world_command_gets_its_code() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut a = d.client();
+    let mut b = d.client();
+    take_control(&mut a);
+    a.ok(json!({"cmd": "set_world", "obstacles": [far_post()]}));
+
+    let refused = |c: &mut Client, request: Value, code: &str, words: &[&str]| {
+        let reply = c.request(request.clone());
+        assert_eq!(reply["ok"], json!(false), "{request} -> {reply}");
+        assert_eq!(reply["error"]["code"], json!(code), "{request} -> {reply}");
+        let message = reply["error"]["message"].as_str().unwrap();
+        for w in words {
+            assert!(message.contains(w), "{request} -> {message} lacks {w:?}");
+        }
+    };
+    let set = |list: Vec<Value>| json!({"cmd": "set_world", "obstacles": list});
+    // What the parser refuses.
+    refused(
+        &mut a,
+        set(vec![
+            far_post(),
+            json!({"id": "x", "circle": {"center": [0, 1], "radius": 0.1, "r": 1}}),
+        ]),
+        "bad_arg",
+        &["`obstacles[1].circle.r`", "unknown key"],
+    );
+    refused(
+        &mut a,
+        set(vec![
+            json!({"id": "x", "circle": {"center": [0, 2e6], "radius": 0.1}}),
+        ]),
+        "bad_arg",
+        &["`obstacles[0].circle.center[1]`"],
+    );
+    refused(
+        &mut a,
+        set(vec![json!({"id": "x"})]),
+        "bad_arg",
+        &["`obstacles[0]`", "circle", "polygon"],
+    );
+    refused(
+        &mut a,
+        json!({"cmd": "add_obstacle", "obstacle": {"id": "x", "polygon": {"points": [[0, 1], "a"]}}}),
+        "bad_arg",
+        &["`obstacle.polygon.points[1]`"],
+    );
+    // What the loop's world refuses.
+    refused(
+        &mut a,
+        set(vec![far_post(), circle("x", [0.5, 0.5], 0.0)]),
+        "bad_arg",
+        &["`obstacles[1].circle.radius`", "positive"],
+    );
+    refused(
+        &mut a,
+        set(vec![
+            far_post(),
+            far_shelf(),
+            circle("post", [0.5, 0.5], 0.1),
+        ]),
+        "bad_arg",
+        &["`obstacles[2].id`", "\"post\"", "obstacles[0]"],
+    );
+    refused(
+        &mut a,
+        set(vec![polygon("two", &[[1.0, 1.0], [1.2, 1.0]])]),
+        "bad_arg",
+        &["`obstacles[0].polygon.points`", "at least 3"],
+    );
+    refused(
+        &mut a,
+        set(vec![polygon(
+            "bow",
+            &[[1.0, 1.0], [1.2, 1.2], [1.2, 1.0], [1.0, 1.2]],
+        )]),
+        "bad_arg",
+        &["`obstacles[0].polygon.points`", "cross"],
+    );
+    let many: Vec<Value> = (0..65)
+        .map(|i| circle(&format!("c{i}"), [2.0 + f64::from(i), 2.0], 0.1))
+        .collect();
+    refused(&mut a, set(many), "bad_arg", &["65 obstacles", "64"]);
+    let big: Vec<[f64; 2]> = (0..1025)
+        .map(|k| {
+            let t = f64::from(k) / 1025.0 * std::f64::consts::TAU;
+            [3.0 + t.cos(), 3.0 + t.sin()]
+        })
+        .collect();
+    refused(
+        &mut a,
+        set(vec![polygon("big", &big)]),
+        "bad_arg",
+        &["1025 polygon points", "1024"],
+    );
+    refused(
+        &mut a,
+        json!({"cmd": "add_obstacle", "obstacle": circle("post", [1.0, -1.0], 0.1)}),
+        "bad_arg",
+        &["`obstacle.id`", "\"post\""],
+    );
+    refused(
+        &mut a,
+        json!({"cmd": "remove_obstacle", "obstacle": "nope"}),
+        "bad_arg",
+        &["`obstacle`", "\"nope\"", "\"post\""],
+    );
+    // JSON cannot hold a non-finite number: the line is refused as such (its id unread).
+    a.write_raw(
+        b"{\"id\": 99, \"cmd\": \"add_obstacle\", \"obstacle\": {\"id\": \"x\", \"circle\": {\"center\": [0, 1e999], \"radius\": 1}}}\n",
+    );
+    assert_eq!(a.reply(&Value::Null)["error"]["code"], json!("bad_json"));
+    // Not in control: refused whatever the world.
+    for request in [
+        set(vec![]),
+        json!({"cmd": "add_obstacle", "obstacle": circle("x", [1.0, -1.0], 0.1)}),
+        json!({"cmd": "remove_obstacle", "obstacle": "post"}),
+    ] {
+        refused(&mut b, request, "not_in_control", &[]);
+    }
+    // Reading it needs nothing, and nothing above changed it.
+    assert_eq!(
+        b.ok(json!({"cmd": "world"}))["obstacles"],
+        json!([far_post()])
+    );
+}
+
+/// `snakectl ARGS` against the daemon at `addr`, run to its end: exit code, stdout, stderr.
+fn snakectl(addr: &str, args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(args)
+        .args(["--connect", addr])
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap(),
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8(out.stderr).unwrap(),
+    )
+}
+
+#[test]
+fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let addr = d.addr.to_string();
+    let mut c = d.client();
+    c.status();
+    let dir = tempfile::tempdir().unwrap();
+
+    let (code, out, err) = snakectl(&addr, &["world"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.starts_with("link radius "), "{out}");
+    assert!(out.contains(", 0 obstacles"), "{out}");
+
+    // JSON in the socket's shape.
+    let json_file = dir.path().join("w.json");
+    std::fs::write(
+        &json_file,
+        json!({"obstacles": [far_post(), far_shelf()]}).to_string(),
+    )
+    .unwrap();
+    let (code, out, err) = snakectl(&addr, &["world", "set", json_file.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.starts_with("ok: set_world with 2 obstacles at tick "),
+        "{out}"
+    );
+    assert_eq!(
+        c.ok(json!({"cmd": "world"}))["obstacles"],
+        json!([far_post(), far_shelf()])
+    );
+    let (code, out, _) = snakectl(&addr, &["world"]);
+    assert_eq!(code, 0);
+    let lines: Vec<&str> = out.lines().collect();
+    assert!(lines[0].ends_with(", 2 obstacles"), "{out}");
+    assert!(
+        lines[2].starts_with("post   circle   center (2.0000, 2.0000), radius 0.0500"),
+        "{out}"
+    );
+    assert!(
+        lines[3].starts_with("shelf  polygon  4 points: (-2.0000, 1.5000)"),
+        "{out}"
+    );
+    // `--json` prints what `world set` reads back.
+    let (code, out, _) = snakectl(&addr, &["world", "--json"]);
+    assert_eq!(code, 0);
+    let printed: Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(printed["obstacles"], json!([far_post(), far_shelf()]));
+    let again = dir.path().join("again.json");
+    std::fs::write(&again, &out).unwrap();
+    let (code, _, err) = snakectl(&addr, &["world", "set", again.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.is_empty(),
+        "the same radius and clearance: no note: {err}"
+    );
+
+    // TOML in the config's shape, other tables ignored.
+    let toml_file = dir.path().join("w.toml");
+    std::fs::write(
+        &toml_file,
+        "[control]\nrate_hz = 100.0\n\n[world]\nclearance_m = 0.25\n\n\
+         [[world.obstacle]]\nid = \"pillar\"\ncircle = { center_m = [1.5, 1.5], radius_m = 0.04 }\n\n\
+         [[world.obstacle]]\nid = \"ledge\"\n\
+         polygon = { points_m = [[-1.6, 0.3], [-1.4, 0.3], [-1.4, 0.34], [-1.6, 0.34]] }\n",
+    )
+    .unwrap();
+    let (code, out, err) = snakectl(&addr, &["world", "set", toml_file.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.starts_with("ok: set_world with 2 obstacles"), "{out}");
+    assert!(err.contains("clearance_m = 0.25 is not sent"), "{err}");
+    let w = c.ok(json!({"cmd": "world"}));
+    assert_eq!(
+        w["obstacles"],
+        json!([
+            circle("pillar", [1.5, 1.5], 0.04),
+            polygon(
+                "ledge",
+                &[[-1.6, 0.3], [-1.4, 0.3], [-1.4, 0.34], [-1.6, 0.34]]
+            )
+        ])
+    );
+    assert_ne!(w["clearance_m"], json!(0.25));
+
+    // Add and remove one.
+    let (code, out, err) = snakectl(
+        &addr,
+        &["world", "add", "dot", "--circle", "-1.5", "-1.5", "0.05"],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(out.starts_with("ok: added obstacle"), "{out}");
+    let (code, _, err) = snakectl(
+        &addr,
+        &[
+            "world",
+            "add",
+            "tri",
+            "--polygon",
+            "1.5",
+            "-1",
+            "1.7",
+            "-1",
+            "1.6",
+            "-0.8",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = snakectl(
+        &addr,
+        &[
+            "world",
+            "add",
+            "odd",
+            "--polygon",
+            "1",
+            "2",
+            "3",
+            "4",
+            "5",
+            "6",
+            "7",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("7 numbers"), "{err}");
+    let (code, _, err) = snakectl(&addr, &["world", "remove", "pillar"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        c.ok(json!({"cmd": "world"}))["obstacles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["id"].as_str().unwrap())
+            .collect::<Vec<_>>(),
+        ["ledge", "dot", "tri"]
+    );
+    assert_eq!(
+        c.ok(json!({"cmd": "world"}))["obstacles"][2],
+        polygon("tri", &[[1.5, -1.0], [1.7, -1.0], [1.6, -0.8]])
+    );
+
+    // Bad input is found before connecting (exit 2, the field named); the daemon's refusals
+    // exit 1.
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[[world.obstacle]]\nid = \"p\"\ncircle = { center_m = [1.5, 1.5], radius_m = 0 }\n",
+    )
+    .unwrap();
+    let (code, _, err) = snakectl(&addr, &["world", "set", bad.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("world.obstacle[0].circle.radius_m"), "{err}");
+    let (code, _, err) = snakectl(&addr, &["world", "remove", "nope"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("bad_arg") && err.contains("\"nope\""), "{err}");
+    let (code, _, _) = snakectl(&addr, &["world", "clear"]);
+    assert_eq!(code, 0);
+    assert_eq!(c.ok(json!({"cmd": "world"}))["obstacles"], json!([]));
+}
