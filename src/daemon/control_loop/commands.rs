@@ -244,7 +244,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 r @ (Refused::OutsideLimits { .. }
                 | Refused::SelfCollision { .. }
                 | Refused::InsideObstacle { .. }
-                | Refused::NotClearOnTheWay { .. }),
+                | Refused::NotClearOnTheWay { .. }
+                | Refused::NoRoute { .. }),
             ) => refuse(Code::Unreachable, r.to_string()),
             Err(r) => refuse(Code::BadArg, r.to_string()),
         }
