@@ -17,6 +17,7 @@ use clap::Args;
 use serde::Serialize;
 use serde_json::Value;
 
+use snakectl::chain::Vec2;
 use snakectl::client::{ArmInfo, Client, ClientError, Ending, Motion, Seen, Status as Snapshot};
 use snakectl::config::Config;
 use snakectl::connect;
@@ -27,6 +28,7 @@ use snakectl::protocol::{
     Cmd, CmdName, Event as ProtocolEvent, EventKind, FaultChange, State, What,
 };
 use snakectl::resolve::Strategy;
+use snakectl::world::{Obstacle, Shape, World};
 use snakectl_sim::RealClock;
 
 use super::{outln, Failure};
@@ -49,6 +51,9 @@ const COMMAND_SHARE: f64 = 0.8;
 const GAIN: f64 = 3.0;
 /// About how long one loop of the eight takes, s.
 const LOOP_S: f64 = 7.5;
+/// The phase among obstacles moves the tip at this share of `max_tip_speed_m_s`: the links that
+/// follow it round the post turn at about the speed over the route's radius.
+const POCKET_SPEED_SHARE: f64 = 0.6;
 /// Waits for the daemon beyond a motion's own duration; reached only when something is wrong.
 const SLACK: Duration = Duration::from_secs(15);
 
@@ -330,6 +335,8 @@ struct Rec {
     tick: u64,
     solve_us: f64,
     saturated: bool,
+    /// The commanded pose's clearance, m (`None` with no obstacles).
+    min_clearance_m: Option<f64>,
     sample: Sample,
 }
 
@@ -383,7 +390,57 @@ struct Summary {
     strategies: Vec<StrategyFigures>,
     eight: EightShape,
     path: PathFigures,
+    world: WorldFigures,
     config: String,
+}
+
+/// What the phase among obstacles measured.
+#[derive(Debug, Clone, Serialize)]
+struct WorldFigures {
+    /// Where the tip went in, m.
+    pocket: [f64; 2],
+    /// The obstacles' ids.
+    obstacles: Vec<String>,
+    /// The least clearance of any commanded pose in the phase, m.
+    min_clearance_m: f64,
+    /// The clearance kept, m.
+    clearance_m: f64,
+    /// The measured tip's way into the pocket, m...
+    route_in_m: f64,
+    /// ...against the straight line, m.
+    straight_m: f64,
+    /// Both ways arrived.
+    arrived: bool,
+    /// How the way in ended (`arrived`, or `blocked` naming the link and obstacle).
+    way_in: String,
+    /// How the way back ended.
+    way_back: String,
+}
+
+/// The phase among obstacles: a pocket beside the eight's centre along its long axis, a post
+/// halfway there on the straight line, and a shelf over the pocket's outer side, so that the
+/// tip must go round the post.
+fn pocket(eight: &Eight, reach: f64) -> ([f64; 2], Vec<Obstacle>) {
+    let (c, t, u) = (eight.centre, eight.along, eight.across);
+    let at = |p: f64, q: f64| Vec2::new(c[0] + p * t[0] + q * u[0], c[1] + p * t[1] + q * u[1]);
+    let d = 0.2 * reach;
+    let target = at(d, 0.0);
+    let post = Obstacle {
+        id: "post".into(),
+        shape: Shape::Circle {
+            center: at(0.5 * d, 0.0),
+            radius_m: 0.03 * reach,
+        },
+    };
+    let (x0, x1) = (0.75 * d, 1.25 * d);
+    let (y0, y1) = (0.08 * reach, 0.1 * reach);
+    let shelf = Obstacle {
+        id: "shelf".into(),
+        shape: Shape::Polygon {
+            points: vec![at(x0, y0), at(x1, y0), at(x1, y1), at(x0, y1)],
+        },
+    };
+    ([target.x, target.y], vec![post, shelf])
 }
 
 /// A finished run: its figures and its record.
@@ -461,6 +518,7 @@ fn drive(
         strategies.push(s.figure_eight(strategy, &eight, cap_speed)?);
     }
     let path = s.path_with_estop(&eight, control.max_tip_speed_m_s)?;
+    let world = s.among_obstacles(&eight, control.max_tip_speed_m_s)?;
     s.rec.progress.line("done: the arm holds");
 
     let rec = &s.rec;
@@ -506,6 +564,7 @@ fn drive(
             seconds,
         },
         path,
+        world,
         config: config.path().display().to_string(),
     };
     Ok(Demo { summary, record })
@@ -543,6 +602,7 @@ impl Recorder<'_> {
                 tick: snap.tick,
                 solve_us: snap.solve_us,
                 saturated: snap.saturated,
+                min_clearance_m: snap.min_clearance_m,
                 sample: Sample {
                     t_s: snap.t_s,
                     theta: snap.theta_meas.clone(),
@@ -981,6 +1041,107 @@ impl Session<'_> {
     }
 }
 
+impl Session<'_> {
+    /// Under overall: a world set (a post and a shelf between the tip and a pocket), the tip
+    /// into the pocket and back along the daemon's routes, and the world cleared. An arm that
+    /// cannot get in is reported, not failed: the ending says where it was held.
+    fn among_obstacles(
+        &mut self,
+        eight: &Eight,
+        max_tip_speed: f64,
+    ) -> anyhow::Result<WorldFigures> {
+        self.client.request(&Cmd::Strategy {
+            name: Strategy::Overall,
+        })?;
+        // From home to the eight's centre first: the overall answer depends on the way the
+        // arm came, and this way is the one the tests check.
+        self.rec
+            .begin_phase("home, to the centre", false, Vec::new());
+        self.rec.activity = "home".into();
+        self.run_motion(&Cmd::Home, |e| matches!(e, Ending::Arrived { .. }), SLACK)?;
+        self.goto(eight.centre, max_tip_speed)?;
+        self.rec.end_phase();
+        let start = eight.centre;
+        let (target, obstacles) = pocket(eight, self.rec.arm.reach());
+        let ids: Vec<String> = obstacles.iter().map(|o| o.id.clone()).collect();
+        self.client.set_world(obstacles.clone())?;
+        let info = self.client.world()?;
+        let world = info.to_world()?;
+        self.rec.progress.line(format!(
+            "among obstacles (overall): {} set; the tip into the pocket at ({:+.3}, {:+.3}) m and back",
+            ids.join(" and "),
+            target[0],
+            target[1]
+        ));
+        self.rec
+            .begin_phase("among obstacles", true, vec![start, target, start]);
+        if let Some(p) = self.rec.phases.last_mut() {
+            p.world = Some(world.clone());
+        }
+        let first = self.rec.recs.len();
+        let straight = (target[0] - start[0]).hypot(target[1] - start[1]);
+        // A route round the obstacles is longer than the straight line: twice it is ample.
+        let speed = POCKET_SPEED_SHARE * max_tip_speed;
+        let budget = secs(2.0 * straight / speed) + SLACK;
+        let any = |_: &Ending| true;
+        self.rec.activity = "into the pocket".into();
+        let (_, way_in) = self.run_motion(
+            &Cmd::Goto {
+                target,
+                speed: Some(speed),
+            },
+            any,
+            budget,
+        )?;
+        let inside = self.rec.recs.len();
+        self.rec.activity = "out of the pocket".into();
+        let (_, way_back) = self.run_motion(
+            &Cmd::Goto {
+                target: start,
+                speed: Some(speed),
+            },
+            any,
+            budget,
+        )?;
+        self.rec.end_phase();
+        self.client.set_world(Vec::new())?;
+        let recs = &self.rec.recs[first..];
+        let route_in_m = self.rec.recs[first..inside]
+            .windows(2)
+            .map(|w| {
+                let (a, b) = (w[0].sample.tip_meas, w[1].sample.tip_meas);
+                (b[0] - a[0]).hypot(b[1] - a[1])
+            })
+            .sum();
+        let min_clearance_m = recs
+            .iter()
+            .filter_map(|r| r.min_clearance_m)
+            .fold(f64::INFINITY, f64::min);
+        let figures = WorldFigures {
+            pocket: target,
+            obstacles: ids,
+            min_clearance_m,
+            clearance_m: world.clearance_m(),
+            route_in_m,
+            straight_m: straight,
+            arrived: matches!(way_in, Ending::Arrived { .. })
+                && matches!(way_back, Ending::Arrived { .. }),
+            way_in: way_in.to_string(),
+            way_back: way_back.to_string(),
+        };
+        self.rec.progress.line(format!(
+            "among obstacles: in {}, back {}; route {:.3} m against {:.3} m straight; least clearance {:.2} mm (kept {:.1} mm); world cleared",
+            figures.way_in,
+            figures.way_back,
+            figures.route_in_m,
+            figures.straight_m,
+            figures.min_clearance_m * 1e3,
+            figures.clearance_m * 1e3
+        ));
+        Ok(figures)
+    }
+}
+
 fn secs(s: f64) -> Duration {
     Duration::from_secs_f64(s.clamp(0.0, 3600.0))
 }
@@ -1044,6 +1205,17 @@ fn report(demo: &Demo, out: &Path) -> Result<(), Failure> {
         s.path.refused_while_latched,
         s.path.reset_tick,
         s.path.arrived_tick
+    )?;
+
+    outln!(
+        "among obstacles (overall): into the pocket {}, back {}; the tip's way in {:.3} m \
+         against {:.3} m straight; least clearance {:.2} mm (kept: {:.1} mm)",
+        s.world.way_in,
+        s.world.way_back,
+        s.world.route_in_m,
+        s.world.straight_m,
+        s.world.min_clearance_m * 1e3,
+        s.world.clearance_m * 1e3
     )?;
 
     let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, Failure> {
@@ -1147,6 +1319,76 @@ mod tests {
             );
             assert!(farthest < 0.9 * arm.reach(), "{seconds} s: {farthest} m");
         }
+    }
+
+    /// The phase among obstacles, run on the controller alone from the eight's centre: the
+    /// straight line is blocked, and overall takes the tip in and back out, clear throughout.
+    #[test]
+    fn the_pocket_is_reached_round_the_post_under_overall() {
+        use snakectl::control::{Command, Controller, Finish, Limits};
+        let arm = sim_arm();
+        let eight = Eight::new(&arm, 15.0, 0.1);
+        let (target, obstacles) = pocket(&eight, arm.reach());
+        let world = World::new(0.0, 0.005, obstacles).unwrap();
+        let (c, t) = (
+            Vec2::new(eight.centre[0], eight.centre[1]),
+            Vec2::new(target[0], target[1]),
+        );
+        assert!(
+            world.route(c, t).unwrap().waypoints.len() > 2,
+            "the straight line is clear"
+        );
+        let limits = Limits {
+            max_tip_speed_m_s: 0.1,
+            max_tip_accel_m_s2: 0.5,
+            max_joint_speed_rad_s: 2.0,
+            deadman_s: 0.5,
+        };
+        let home = arm.home_rad.clone();
+        let mut ctl = Controller::new(
+            arm.chain().clone(),
+            limits,
+            Strategy::Overall,
+            home.clone(),
+            &home,
+        )
+        .unwrap();
+        // As the daemon does: goals go out in whole servo ticks.
+        ctl.set_joint_resolution(&[std::f64::consts::TAU / 4096.0; 12])
+            .unwrap();
+        let mut run = |ctl: &mut Controller, to: Vec2| {
+            ctl.command(Command::Goto {
+                target: to,
+                speed: None,
+            })
+            .unwrap();
+            (0..5000).find_map(|_| ctl.tick(0.01).finished)
+        };
+        assert_eq!(run(&mut ctl, c), Some(Finish::Arrived));
+        assert!(
+            ctl.set_world(world.clone()).is_none(),
+            "the centre pose is clear"
+        );
+        let mut least = f64::INFINITY;
+        for to in [t, c] {
+            ctl.command(Command::Goto {
+                target: to,
+                speed: Some(POCKET_SPEED_SHARE * 0.1),
+            })
+            .unwrap();
+            let mut finish = None;
+            for _ in 0..5000 {
+                let tick = ctl.tick(0.01);
+                least = least.min(tick.min_clearance_m.unwrap());
+                if tick.finished.is_some() {
+                    finish = tick.finished;
+                    break;
+                }
+            }
+            assert_eq!(finish, Some(Finish::Arrived), "to {to:?}");
+        }
+        assert!(least >= 0.005 - 1e-9, "{least}");
+        drop(run);
     }
 
     #[test]

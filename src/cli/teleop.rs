@@ -33,6 +33,7 @@ use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
 use snakectl::teleop::joystick::{self, Device, Stick, StickEvent};
 use snakectl::teleop::ui::{self, Contact, Panel, Trail, View};
+use snakectl::world::World;
 use snakectl_sim::RealClock;
 
 use super::Failure;
@@ -245,8 +246,8 @@ impl Drop for Screen {
     }
 }
 
-/// A connection being made on its own thread: the client, subscribed, and the arm.
-type Connecting = Receiver<Result<(Client, ArmInfo), ClientError>>;
+/// A connection being made on its own thread: the client, subscribed, the arm and its world.
+type Connecting = Receiver<Result<(Client, ArmInfo, World), ClientError>>;
 
 /// Connects, describes and subscribes on a thread, so that the loop never waits for it.
 fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
@@ -257,13 +258,15 @@ fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
         .spawn({
             let tx = tx.clone();
             move || {
-                let attempt = || -> Result<(Client, ArmInfo), ClientError> {
+                let attempt = || -> Result<(Client, ArmInfo, World), ClientError> {
                     let mut client = Client::connect_with(&addr, token_file.as_deref())?;
                     let arm = client.describe()?;
+                    // A world the daemon sends is valid; one that is not is drawn as none.
+                    let world = client.world()?.to_world().unwrap_or_default();
                     client.request(&Cmd::Subscribe {
                         rate_hz: TELEMETRY_HZ,
                     })?;
-                    Ok((client, arm))
+                    Ok((client, arm, world))
                 };
                 let _ = tx.send(attempt());
             }
@@ -598,9 +601,10 @@ impl App {
             };
             self.connecting = None;
             match result {
-                Ok((client, arm)) => {
+                Ok((client, arm, world)) => {
                     self.client = Some(client);
                     self.arm = Some(arm);
+                    self.status.set_world(world);
                     self.was_connected = true;
                     self.status.link = Contact::Connected;
                     self.status.notice = None;
@@ -714,6 +718,17 @@ impl App {
                     }
                 }
                 What::Estop { .. } => self.notice("estop: press r to reset".to_owned()),
+                What::World { world, .. } => {
+                    self.status.set_world(world.to_world().unwrap_or_default());
+                    self.dirty = true;
+                }
+                What::NotClear { link, obstacle, .. } => self.notice(format!(
+                    "link {link} is not clear of \"{obstacle}\": moves that bring no link \
+                     closer only"
+                )),
+                What::Blocked { link, obstacle, .. } => {
+                    self.notice(format!("blocked: link {link} against \"{obstacle}\""));
+                }
                 What::Fault { reason, fault, .. } => {
                     self.notice(format!("fault {reason}: {fault}"));
                 }

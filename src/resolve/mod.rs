@@ -113,6 +113,13 @@ pub trait Resolver {
         result
     }
 
+    /// Whether the last solve failed for want of clearance: it ended with a link at the
+    /// clearance it must keep from an obstacle (the body caught), not for the target's reach.
+    /// Only a resolver that keeps clear of obstacles says so.
+    fn held_by_obstacle(&self) -> bool {
+        false
+    }
+
     /// Where [`Resolver::resolve`] keeps the candidate pose between ticks, so a control loop
     /// allocates nothing once warmed up.
     fn scratch_pose(&mut self) -> &mut Vec<f64>;

@@ -163,6 +163,10 @@ const KICK_REGULARIZATION: f64 = 1e-12;
 /// 1e-10 apart, relative).
 const RANK_LOSS: f64 = 1e-20;
 
+/// A failed solve among obstacles whose answer has a link within this of the clearance it
+/// keeps, m, was held back by that obstacle ([`Resolver::held_by_obstacle`]).
+const HELD_MARGIN_M: f64 = 1e-4;
+
 // The closest-tip search.
 
 /// Initial Levenberg-Marquardt damping relative to `scale^2`: a cautious first step.
@@ -1902,6 +1906,13 @@ impl Resolver for Overall {
         match self.opts.mode {
             OverallMode::Local => self.solve_local(chain, theta0, target, out),
             OverallMode::Cold => self.solve_cold(chain, theta0, target, out),
+        }
+    }
+
+    fn held_by_obstacle(&self) -> bool {
+        match (&self.world, self.last_clearance) {
+            (Some(w), Some(c)) => !w.obstacles().is_empty() && c <= w.clearance_m() + HELD_MARGIN_M,
+            _ => false,
         }
     }
 
