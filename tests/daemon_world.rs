@@ -9,7 +9,7 @@ mod daemon_support;
 use std::process::Command;
 use std::time::Duration;
 
-use daemon_support::{floats, sim_config, Client, Daemon};
+use daemon_support::{dist, floats, sim_config, xy, Client, Daemon};
 use serde_json::{json, Value};
 use snakectl::chain::Vec2;
 use snakectl::protocol::parse_obstacles;
@@ -241,6 +241,105 @@ fn an_obstacle_put_onto_the_arm_is_told_to_everyone_and_the_arm_holds() {
     let left = clear["min_clearance_m"].as_f64().unwrap();
     assert!(left >= world.clearance_m(), "{clear}");
     a.event("clear", None);
+}
+
+/// The measured pose's clearance in a telemetry line, by the world's exact distance.
+fn measured_clearance(d: &Daemon, world: &World, t: &Value) -> f64 {
+    let p = d.config.chain().points(&floats(&t["theta_meas"]));
+    world.clearance(&p).unwrap().clearance_m
+}
+
+#[test]
+fn a_goto_behind_a_post_goes_round_it_and_arrives_clear() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    take_control(&mut c);
+    let s = c.status();
+    let tip = xy(&s["tip"]);
+    // The post stands on the straight line from the tip to the target.
+    let target = [tip[0], tip[1] - 0.2];
+    let post = circle("post", [tip[0], tip[1] - 0.1], 0.055);
+    c.ok(json!({"cmd": "set_world", "obstacles": [post]}));
+    let world = world_of(&c.ok(json!({"cmd": "world"})));
+    assert!(
+        world
+            .route(Vec2::new(tip[0], tip[1]), Vec2::new(target[0], target[1]))
+            .unwrap()
+            .waypoints
+            .len()
+            > 2
+    );
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let id = c.send(json!({"cmd": "goto", "target": target, "speed": 0.05}));
+    assert_eq!(c.reply(&json!(id))["ok"], json!(true));
+    let mut least = f64::INFINITY;
+    let mut farthest: f64 = 0.0;
+    let lines = c.telemetry_until(|t| {
+        t["command"]["outcome"] != "active" && t["command"]["id"] == json!(id)
+    });
+    for t in &lines {
+        let measured = measured_clearance(&d, &world, t);
+        let tracking = t["tracking_error_m"].as_f64().unwrap();
+        // The measured pose keeps the clearance but for the tracking error.
+        assert!(
+            measured >= world.clearance_m() - tracking - 1e-4,
+            "measured {measured} m with a tracking error of {tracking} m: {t}"
+        );
+        least = least.min(t["min_clearance_m"].as_f64().unwrap());
+        farthest = farthest.max(dist(xy(&t["tip"]), [tip[0], tip[1] - 0.1]));
+    }
+    let last = lines.last().unwrap();
+    assert_eq!(last["command"]["outcome"], "arrived", "{last}");
+    assert!(least >= world.clearance_m() - 1e-9, "{least}");
+    // Once at rest, the measured tip is on the target within what whole ticks allow.
+    let s = c.wait_status("at rest", |s| s["state"] == "holding");
+    let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
+    let off = dist(xy(&s["tip_meas"]), target);
+    assert!(
+        off <= bound,
+        "the tip {off} m from the target (ticks allow {bound})"
+    );
+}
+
+#[test]
+fn a_velocity_into_a_wall_slides_along_it() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    take_control(&mut c);
+    let s = c.status();
+    let tip = xy(&s["tip"]);
+    let top = tip[1] - 0.12;
+    let wall = polygon(
+        "wall",
+        &[
+            [-1.0, top - 0.02],
+            [tip[0] + 0.03, top - 0.02],
+            [tip[0] + 0.03, top],
+            [-1.0, top],
+        ],
+    );
+    c.ok(json!({"cmd": "set_world", "obstacles": [wall]}));
+    let world = world_of(&c.ok(json!({"cmd": "world"})));
+    // Down and to the left, renewed at 20 Hz for 4 s.
+    for _ in 0..80 {
+        c.send(json!({"cmd": "velocity", "v": [-0.03, -0.06]}));
+        std::thread::sleep(Duration::from_millis(50));
+        let s = c.status();
+        let p = xy(&s["tip"]);
+        assert!(
+            p[1] - top >= world.route_radius_m() - 1e-9,
+            "the commanded tip {} m above the wall: {s}",
+            p[1] - top
+        );
+        assert!(s["min_clearance_m"].as_f64().unwrap() >= world.clearance_m() - 1e-9);
+    }
+    let s = c.status();
+    let p = xy(&s["tip"]);
+    // On the wall (within a centimetre of its top) and well to the left of where it met it.
+    assert!(p[1] - top < 0.03, "{s}");
+    assert!(p[0] < tip[0] - 0.08, "slid only to {p:?} from {tip:?}");
 }
 
 #[test]
