@@ -4,6 +4,10 @@
 //!
 //! `cargo run --release --example loop_rate [-- SECONDS]` (default 5 s per rate).
 //!
+//! `cargo run --release --example loop_rate -- SECONDS --obstacles` instead runs the fixed rates
+//! without wire timing twice, with no obstacles and with 16 small discs near the arm (each
+//! link's middle, 5 cm to alternate sides), one after the other.
+//!
 //! `cargo run --release --features zenoh --example loop_rate -- SECONDS --zenoh` instead runs
 //! each fixed rate twice, without and with the daemon on a Zenoh network (publishing at the
 //! default rate to a peer subscribed to every key), one after the other.
@@ -18,6 +22,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use snakectl::chain::Vec2;
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions, Summary};
@@ -25,8 +30,37 @@ use snakectl::daemon::{Embedded, RunOptions, Summary};
 const WARM_UP: Duration = Duration::from_millis(500);
 
 fn config(rate_hz: f64, wire_timing: bool, zenoh_port: Option<u16>) -> Result<Config> {
+    config_with(rate_hz, wire_timing, zenoh_port, 0)
+}
+
+/// [`config`], with `obstacles` small discs near the arm's home pose.
+fn config_with(
+    rate_hz: f64,
+    wire_timing: bool,
+    zenoh_port: Option<u16>,
+    obstacles: usize,
+) -> Result<Config> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
     let mut text = std::fs::read_to_string(path)?;
+    if obstacles > 0 {
+        let plain = Config::from_str(&text, path)?;
+        let p = plain.chain().points(plain.home());
+        let links = p.len() - 1;
+        text.push_str("\n[world]\n");
+        for k in 0..obstacles {
+            // Link by link, then again further out: 5 cm, then 8 cm, to alternate sides.
+            let link = k % links;
+            let (a, b) = (p[link], p[link + 1]);
+            let along = (b - a).normalize();
+            let side = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let off = if k < links { 0.05 } else { 0.08 };
+            let c = (a + b) / 2.0 + Vec2::new(-along.y, along.x) * (side * off);
+            text.push_str(&format!(
+                "[[world.obstacle]]\nid = \"disc{k}\"\ncircle = {{ center_m = [{:.6}, {:.6}], radius_m = 0.01 }}\n",
+                c.x, c.y
+            ));
+        }
+    }
     if let Some(port) = zenoh_port {
         text.push_str(&format!(
             "\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\n"
@@ -84,7 +118,11 @@ fn run_with(
     seconds: f64,
     zenoh_port: Option<u16>,
 ) -> Result<Measured> {
-    let config = config(rate_hz, wire_timing, zenoh_port)?;
+    run_config(config(rate_hz, wire_timing, zenoh_port)?, rate_hz, seconds)
+}
+
+/// Runs the daemon of `config` (at `rate_hz`) for `seconds` under a streamed figure eight.
+fn run_config(config: Config, rate_hz: f64, seconds: f64) -> Result<Measured> {
     let sim = connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock))?;
     let options = RunOptions {
         port: Some(sim.path().to_path_buf()),
@@ -158,6 +196,19 @@ fn main() -> Result<()> {
     };
     if std::env::args().nth(2).as_deref() == Some("--zenoh") {
         return with_zenoh::table(seconds);
+    }
+    if std::env::args().nth(2).as_deref() == Some("--obstacles") {
+        println!("Without wire timing, {seconds} s per rate, with 0 and 16 obstacles:\n");
+        println!("| rate, Hz | obstacles | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
+        println!("|---|---|---|---|---|---|---|");
+        for rate in [100.0, 500.0, 1000.0] {
+            for obstacles in [0, 16] {
+                let config = config_with(rate, false, None, obstacles)?;
+                let m = run_config(config, rate, seconds)?;
+                println!("| {rate:.0} | {obstacles} | {}", cells(&m));
+            }
+        }
+        return Ok(());
     }
     println!("Without wire timing, {seconds} s per rate:\n");
     println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
