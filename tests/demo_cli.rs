@@ -141,6 +141,16 @@ fn the_short_demo_drives_both_strategies_and_writes_its_figures() {
     // Metric 3 is what `overall` minimizes.
     assert!(number(&strategies[0], "m3_rad2") < number(&strategies[1], "m3_rad2"));
     assert_eq!(summary["path"]["refused_while_latched"], "estopped");
+    // Among obstacles: in and back round the post, never closer than the clearance.
+    let world = &summary["world"];
+    assert_eq!(world["arrived"], true, "{world}");
+    assert_eq!(world["obstacles"], serde_json::json!(["post", "shelf"]));
+    let kept = number(world, "clearance_m");
+    assert!(number(world, "min_clearance_m") >= kept - 1e-9, "{world}");
+    assert!(
+        number(world, "route_in_m") > number(world, "straight_m"),
+        "the straight way is blocked: {world}"
+    );
 
     for name in ["motion", "joints"] {
         assert_png(&out.join(format!("{name}.png")));
