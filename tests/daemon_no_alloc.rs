@@ -13,6 +13,13 @@ use serde_json::json;
 #[global_allocator]
 static GLOBAL: alloc_support::Counting = alloc_support::Counting;
 
+/// The tests of this file run one at a time: the count is of every thread named
+/// `snakectl-loop`, and each test has a daemon of its own.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// Telemetry lines until `ticks` more ticks have run; no request is sent meanwhile.
 fn watch_ticks(c: &mut daemon_support::Client, ticks: u64) -> serde_json::Value {
     let mut first = None;
@@ -27,6 +34,7 @@ fn watch_ticks(c: &mut daemon_support::Client, ticks: u64) -> serde_json::Value 
 
 #[test]
 fn warm_ticks_of_the_loop_thread_allocate_nothing() {
+    let _one = one_at_a_time();
     let d = Daemon::start(sim_config(&[]));
     let mut c = d.client();
     let s = c.status();
@@ -57,4 +65,37 @@ fn warm_ticks_of_the_loop_thread_allocate_nothing() {
     let before = alloc_support::loop_thread();
     c.status();
     assert!(alloc_support::loop_thread() > before);
+}
+
+#[test]
+fn warm_ticks_among_obstacles_allocate_nothing() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    c.ok(json!({"cmd": "take_control"}));
+    let s = c.status();
+    let tip = xy(&s["tip"]);
+    // A wall 5 cm under the tip and a post beside the way: a goto along the wall keeps the
+    // pairs near contact in the solve.
+    let top = tip[1] - 0.05;
+    let wall = json!({"id": "wall", "polygon": {"points": [
+        [-1.0, top - 0.02], [tip[0] + 0.03, top - 0.02], [tip[0] + 0.03, top], [-1.0, top]]}});
+    let post = json!({"id": "post", "circle": {"center": [tip[0] - 0.03, tip[1] + 0.06], "radius": 0.015}});
+    c.ok(json!({"cmd": "set_world", "obstacles": [wall, post]}));
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    c.ok(json!({"cmd": "goto", "target": [tip[0] - 0.08, top + 0.025], "speed": 0.02}));
+    let t = watch_ticks(&mut c, 30);
+    assert_eq!(t["state"], "moving");
+    let before = alloc_support::loop_thread();
+    let t = watch_ticks(&mut c, 150);
+    let moving = alloc_support::loop_thread() - before;
+    assert_eq!(
+        t["state"], "moving",
+        "the goto ended inside the window: {t}"
+    );
+    assert!(
+        t["min_clearance_m"].as_f64().unwrap() < 0.04,
+        "near the wall: {t}"
+    );
+    assert_eq!(moving, 0, "allocations on the loop thread among obstacles");
 }
