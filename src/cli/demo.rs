@@ -28,7 +28,7 @@ use snakectl::protocol::{
     Cmd, CmdName, Event as ProtocolEvent, EventKind, FaultChange, State, What,
 };
 use snakectl::resolve::Strategy;
-use snakectl::world::{Obstacle, Shape, World};
+use snakectl::world::{Obstacle, Shape};
 use snakectl_sim::RealClock;
 
 use super::{outln, Failure};
@@ -1326,6 +1326,7 @@ mod tests {
     #[test]
     fn the_pocket_is_reached_round_the_post_under_overall() {
         use snakectl::control::{Command, Controller, Finish, Limits};
+        use snakectl::world::World;
         let arm = sim_arm();
         let eight = Eight::new(&arm, 15.0, 0.1);
         let (target, obstacles) = pocket(&eight, arm.reach());

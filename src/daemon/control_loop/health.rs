@@ -97,6 +97,11 @@ struct Held {
     detail: String,
 }
 
+/// Reads missed in a row after which a servo counts as not answering for a shut-down (not
+/// waited on): one or two lost replies are what a noisy line loses, and such a servo still
+/// confirms its torque off.
+const SILENT_READS: u32 = 3;
+
 /// The first read of a run of reads that missed a servo's reply.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Streak {
@@ -210,12 +215,13 @@ impl Health {
         }
     }
 
-    /// The servos not to wait on: those held silent, and those that missed their latest read.
+    /// The servos not to wait on: those held silent, and those that missed their latest
+    /// [`SILENT_READS`] reads in a row.
     pub fn unanswering(&self) -> Vec<u8> {
         self.joints
             .iter()
             .filter(|j| {
-                j.streak.is_some()
+                j.streak.is_some_and(|s| s.reads >= SILENT_READS)
                     || matches!(
                         j.fault,
                         Some(Held {
