@@ -9,7 +9,8 @@
 //! `c_j` is the exact capsule clearance of [`World`] (the signed distance from the link's axis to
 //! the obstacle minus the link radius). Only the pairs near contact enter (`select`): those
 //! whose clearance is within a margin of `clearance_m`, the margin three times the larger of the
-//! tip correction wanted and the last step's largest point move (plus a small floor), at most
+//! tip correction wanted and the last step's largest point move, that at most a mean link
+//! length (plus a floor of a twentieth of it), at most
 //! [`MAX_PAIRS`] of them, least clearance first; a pair whose contact point and obstacle repeat
 //! one already taken (a joint touching an obstacle is the end of one link and the start of the
 //! next) is the same constraint and is left out. Pairs further away are checked by the line
@@ -601,7 +602,8 @@ impl ClearWork {
         let c = p.target - tip;
         let cm = world.clearance_m();
         let mean_link = p.chain.reach() / n.max(1) as f64;
-        let margin = cm + MARGIN_MOVES * c.norm().max(self.last_move) + MARGIN_FLOOR * mean_link;
+        let moves = c.norm().max(self.last_move).min(mean_link);
+        let margin = cm + MARGIN_MOVES * moves + MARGIN_FLOOR * mean_link;
         world.active_pairs(&self.pts, margin, &mut self.all);
         let least = self
             .all
