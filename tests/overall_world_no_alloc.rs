@@ -47,7 +47,7 @@ fn warm_ticks_among_obstacles_allocate_nothing() {
             centre + Vec2::new(0.02 * a.cos(), 0.02 * a.sin())
         };
         let mut leaned = 0;
-        let mut tick = |theta: &mut Vec<f64>, k: usize, overall: &mut Overall| {
+        let tick = |theta: &mut Vec<f64>, k: usize, overall: &mut Overall| {
             let ok = overall.resolve(&chain, theta, target(k)).is_ok();
             ok && overall.last_clearance().unwrap() < 0.005 + 1e-9
         };

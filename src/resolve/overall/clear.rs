@@ -47,6 +47,9 @@
 //! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
 //! of a distance on an arm of some metres.
 
+// The loops walk several per-joint (or per-row) arrays in step; indices read best there.
+#![allow(clippy::needless_range_loop)]
+
 use std::ops::ControlFlow;
 
 use super::{half_metric, max_abs_diff, mirror_pose, ElasticStall, Overall, Problem, SplitMix};
@@ -388,7 +391,7 @@ impl Qp<'_> {
             lam[..k2].copy_from_slice(&s.lam_t[..k2]);
             std::mem::swap(&mut s.f, &mut s.f_t);
             s.clipped_base[..self.n].copy_from_slice(&s.clipped[..self.n]);
-            if lam[..k2].iter().any(|l| !(l.abs() <= cap)) {
+            if lam[..k2].iter().any(|l| l.is_nan() || l.abs() > cap) {
                 return false;
             }
         }
