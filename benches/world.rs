@@ -3,9 +3,9 @@
 //! Setup: a 1 m arm of n equal links (n = 12 and 24), base at the origin, relative angles
 //! uniform in +-(pi/n) (seeded); links of radius 12 mm keeping 5 mm of clearance. "Obstacles
 //! near the arm" (0, 4 or 16): discs of radius 10..30 mm, each beside a link of the start pose
-//! (spread along the arm, sides alternating), its gap to the link's capsule 2..10 mm beyond the
+//! (spread along the arm, sides alternating), its gap to the link's capsule 2..40 mm beyond the
 //! clearance; a world whose start pose is not clear is drawn again.
-//! - `warm_tick`: local mode, continuing: the tip goes round a circle of 30 mm radius through
+//! - `warm_tick`: local mode, continuing: the tip goes round a circle of 20 mm radius through
 //!   its start position, 1 mm per tick, each answer the next pose (so the links sweep toward
 //!   the discs and lean on them). A tick that does not converge (a target the body cannot
 //!   follow to) keeps the pose; how many did is printed.
@@ -34,6 +34,8 @@ const SIZES: [usize; 2] = [12, 24];
 const OBSTACLES: [usize; 3] = [0, 4, 16];
 const LINK_RADIUS: f64 = 0.012;
 const CLEARANCE: f64 = 0.005;
+/// Radius of the warm ticks' circle, m.
+const RADIUS: f64 = 0.02;
 
 fn arm(n: usize, rng: &mut StdRng) -> (Chain, Vec<f64>) {
     let chain = Chain::unlimited(vec![1.0 / n as f64; n], Vec2::zeros(), 0.0).unwrap();
@@ -60,7 +62,7 @@ fn world_near(chain: &Chain, theta: &[f64], count: usize, rng: &mut StdRng) -> O
                 let side = if k % 2 == 0 { 1.0 } else { -1.0 };
                 let normal = Vec2::new(-dir.y, dir.x) * side;
                 let radius = rng.gen_range(0.01..0.03);
-                let gap = LINK_RADIUS + CLEARANCE + rng.gen_range(0.002..0.01);
+                let gap = LINK_RADIUS + CLEARANCE + rng.gen_range(0.002..0.04);
                 Obstacle {
                     id: format!("d{k}"),
                     shape: Shape::Circle {
@@ -78,7 +80,7 @@ fn world_near(chain: &Chain, theta: &[f64], count: usize, rng: &mut StdRng) -> O
     }
 }
 
-/// The tip going round a 30 mm circle, 1 mm per tick.
+/// The tip going round a 20 mm circle, 1 mm per tick.
 struct Walk {
     chain: Chain,
     theta: Vec<f64>,
@@ -94,7 +96,7 @@ impl Walk {
         let (chain, theta) = arm(n, &mut rng);
         let mut solver = Overall::new(OverallOptions::default());
         solver.set_world(world_near(&chain, &theta, obstacles, &mut rng));
-        let centre = chain.tip(&theta) - Vec2::new(0.03, 0.0);
+        let centre = chain.tip(&theta) - Vec2::new(RADIUS, 0.0);
         Self {
             out: vec![0.0; n],
             chain,
@@ -108,8 +110,8 @@ impl Walk {
     /// One tick; returns the iterations and whether it converged.
     fn tick(&mut self) -> (usize, bool) {
         self.k += 1;
-        let a = self.k as f64 * (0.001 / 0.03);
-        let target = self.centre + Vec2::new(a.cos(), a.sin()) * 0.03;
+        let a = self.k as f64 * (0.001 / RADIUS);
+        let target = self.centre + Vec2::new(a.cos(), a.sin()) * RADIUS;
         let o = self
             .solver
             .solve_local(&self.chain, &self.theta, target, &mut self.out);

@@ -5,7 +5,8 @@
 //!   of its head ([`tractrix`]), propagated from the tip to the base; a fixed base is restored by
 //!   a correction scheme.
 //! - `overall`: one optimization over the whole arm minimizing metric 3, the sum of squared joint
-//!   rotations, subject to the tip on target and the joint limits.
+//!   rotations, subject to the tip on target and the joint limits, and, given a world of
+//!   obstacles ([`overall::Overall::set_world`]), every link keeping its clearance from them.
 //!
 //! Both implement [`Resolver`], which a control loop calls every tick with the current pose and
 //! the next tip target. [`solve_steps`] splits a long move into straight sub-moves for either.

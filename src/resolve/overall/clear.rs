@@ -9,7 +9,8 @@
 //! `c_j` is the exact capsule clearance of [`World`] (the signed distance from the link's axis to
 //! the obstacle minus the link radius). Only the pairs near contact enter (`select`): those
 //! whose clearance is within a margin of `clearance_m`, the margin three times the larger of the
-//! tip correction wanted and the last step's largest point move (plus a small floor), at most
+//! tip correction wanted and the last step's largest point move, that at most a mean link
+//! length (plus a floor of a twentieth of it), at most
 //! [`MAX_PAIRS`] of them, least clearance first; a pair whose contact point and obstacle repeat
 //! one already taken (a joint touching an obstacle is the end of one link and the start of the
 //! next) is the same constraint and is left out. Pairs further away are checked by the line
@@ -46,6 +47,9 @@
 //! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
 //! of a distance on an arm of some metres.
 
+// The loops walk several per-joint (or per-row) arrays in step; indices read best there.
+#![allow(clippy::needless_range_loop)]
+
 use std::ops::ControlFlow;
 
 use super::{half_metric, max_abs_diff, mirror_pose, ElasticStall, Overall, Problem, SplitMix};
@@ -79,6 +83,9 @@ const DUAL_REGULARIZATION: f64 = 1e-13;
 /// Elastic form: a dual whose optimality is within this fraction of the correction wanted has
 /// settled (its multipliers can be huge, which puts a round-off floor under it).
 const ELASTIC_SETTLED: f64 = 1e-6;
+/// A full step that keeps the clipping pattern has solved the dual once its residual fell by
+/// this factor (what is left is round-off).
+const FULL_STEP_SOLVED: f64 = 1e-9;
 /// Armijo fraction (the customary value).
 const ARMIJO: f64 = 1e-4;
 /// Halvings before the outer line search gives up.
@@ -157,6 +164,7 @@ struct DualScratch {
     mat: Vec<f64>,
     idx: Vec<usize>,
     clipped: Vec<bool>,
+    clipped_base: Vec<bool>,
     u: Vec<f64>,
 }
 
@@ -263,19 +271,29 @@ impl Qp<'_> {
         let settled =
             |worst: f64| worst <= tol || (self.rho_inv > 0.0 && worst <= ELASTIC_SETTLED * r_norm);
         let mut q = self.eval(lam, x, s, false);
+        s.clipped_base[..self.n].copy_from_slice(&s.clipped[..self.n]);
         for _ in 0..DUAL_STEPS {
-            let mut worst: f64 = 0.0;
-            s.idx.clear();
-            for i in 0..k2 {
-                let fi = s.f[i];
-                if i >= 2 && lam[i] <= 0.0 && fi >= 0.0 {
-                    continue;
-                }
-                worst = worst.max(fi.abs());
-                s.idx.push(i);
-            }
+            // Optimality: the projected gradient; pairs within it of 0 and pushed there are
+            // held (Bertsekas' epsilon-active set), and go to 0 by a scaled gradient step.
+            let worst = (0..k2).fold(0.0_f64, |w, i| {
+                let pg = if i >= 2 {
+                    lam[i] - (lam[i] - s.f[i]).max(0.0)
+                } else {
+                    s.f[i]
+                };
+                w.max(pg.abs())
+            });
             if worst <= tol {
                 return true;
+            }
+            s.idx.clear();
+            let mut held_positive = false;
+            for i in 0..k2 {
+                if i >= 2 && lam[i] <= worst && s.f[i] > 0.0 {
+                    held_positive |= lam[i] > 0.0;
+                    continue;
+                }
+                s.idx.push(i);
             }
             let m = s.idx.len();
             // Newton matrix over the working set and the unclipped joints.
@@ -313,6 +331,22 @@ impl Qp<'_> {
             let mut accepted = false;
             for _ in 0..DUAL_HALVINGS {
                 s.lam_t[..k2].copy_from_slice(&lam[..k2]);
+                if held_positive {
+                    for i in 2..k2 {
+                        if lam[i] > 0.0 && lam[i] <= worst && s.f[i] > 0.0 {
+                            let diag: f64 = self
+                                .row(i)
+                                .iter()
+                                .zip(&s.clipped_base[..self.n])
+                                .filter(|(_, &c)| !c)
+                                .map(|(g, _)| g * g)
+                                .sum::<f64>()
+                                + self.rho_inv;
+                            let step = if diag > 0.0 { s.f[i] / diag } else { lam[i] };
+                            s.lam_t[i] = (lam[i] - alpha * step).max(0.0);
+                        }
+                    }
+                }
                 for r in 0..m {
                     let i = s.idx[r];
                     let v = lam[i] + alpha * s.dir[r];
@@ -322,6 +356,25 @@ impl Qp<'_> {
                 let q_t = self.eval(&lam_t, x, s, true);
                 s.lam_t = lam_t;
                 let dec: f64 = (0..k2).map(|i| s.f[i] * (s.lam_t[i] - lam[i])).sum();
+                // A full step that kept every joint's clipping and no multiplier at 0 solved
+                // the dual there (a quadratic) up to round-off.
+                let projected = (0..m).any(|r| {
+                    let i = s.idx[r];
+                    i >= 2 && lam[i] + s.dir[r] < 0.0
+                });
+                let same = alpha == 1.0
+                    && !projected
+                    && !held_positive
+                    && s.clipped[..self.n] == s.clipped_base[..self.n];
+                if same {
+                    let f_t = s.idx.iter().fold(0.0_f64, |a, &i| a.max(s.f_t[i].abs()));
+                    let held_ok = (2..k2).all(|i| s.idx.contains(&i) || s.f_t[i] >= -tol);
+                    if held_ok && (f_t <= tol || f_t <= FULL_STEP_SOLVED * worst) {
+                        lam[..k2].copy_from_slice(&s.lam_t[..k2]);
+                        std::mem::swap(&mut s.f, &mut s.f_t);
+                        return lam[..k2].iter().all(|l| l.abs() <= cap);
+                    }
+                }
                 if q_t >= q - ARMIJO * dec && q_t >= q {
                     accepted = s.lam_t[..k2] != lam[..k2];
                     if accepted {
@@ -337,13 +390,19 @@ impl Qp<'_> {
             }
             lam[..k2].copy_from_slice(&s.lam_t[..k2]);
             std::mem::swap(&mut s.f, &mut s.f_t);
-            if lam[..k2].iter().any(|l| !(l.abs() <= cap)) {
+            s.clipped_base[..self.n].copy_from_slice(&s.clipped[..self.n]);
+            if lam[..k2].iter().any(|l| l.is_nan() || l.abs() > cap) {
                 return false;
             }
         }
-        let worst = (0..k2)
-            .filter(|&i| !(i >= 2 && lam[i] <= 0.0 && s.f[i] >= 0.0))
-            .fold(0.0_f64, |m, i| m.max(s.f[i].abs()));
+        let worst = (0..k2).fold(0.0_f64, |w, i| {
+            let pg = if i >= 2 {
+                lam[i] - (lam[i] - s.f[i]).max(0.0)
+            } else {
+                s.f[i]
+            };
+            w.max(pg.abs())
+        });
         settled(worst)
     }
 }
@@ -494,6 +553,7 @@ impl ClearWork {
             mat: vec![0.0; k2 * k2],
             idx: Vec::with_capacity(k2),
             clipped: vec![false; n],
+            clipped_base: vec![false; n],
             u: vec![0.0; n],
         };
         let dense = if n <= NEWTON_MAX_JOINTS { n } else { 0 };
@@ -545,7 +605,8 @@ impl ClearWork {
         let c = p.target - tip;
         let cm = world.clearance_m();
         let mean_link = p.chain.reach() / n.max(1) as f64;
-        let margin = cm + MARGIN_MOVES * c.norm().max(self.last_move) + MARGIN_FLOOR * mean_link;
+        let moves = c.norm().max(self.last_move).min(mean_link);
+        let margin = cm + MARGIN_MOVES * moves + MARGIN_FLOOR * mean_link;
         world.active_pairs(&self.pts, margin, &mut self.all);
         let least = self
             .all
@@ -891,16 +952,24 @@ impl ClearWork {
             if nu == 0.0 {
                 continue;
             }
-            self.fd_theta.copy_from_slice(theta);
+            let (sh, ch) = FD_STEP.sin_cos();
             for a in 0..link {
                 for (sign, out) in [(1.0, 0), (-1.0, 1)] {
-                    self.fd_theta[a] = theta[a] + sign * FD_STEP;
-                    p.chain.points_into(&self.fd_theta, &mut self.fd_pts);
+                    // Turning joint a by +-h turns every later point about p_a.
+                    let pivot = self.pts[a];
+                    for i in 0..=n {
+                        let v = self.pts[i] - pivot;
+                        self.fd_pts[i] = if i > a {
+                            pivot
+                                + Vec2::new(ch * v.x - sign * sh * v.y, sign * sh * v.x + ch * v.y)
+                        } else {
+                            self.pts[i]
+                        };
+                    }
                     let pair = world.pair(&self.fd_pts, link, obstacle);
                     let g = if out == 0 { &mut self.gp } else { &mut self.gm };
                     pair_gradient(&self.fd_pts, &pair, g);
                 }
-                self.fd_theta[a] = theta[a];
                 for b in 0..link {
                     let h = (self.gp[b] - self.gm[b]) / (2.0 * FD_STEP);
                     // Symmetrized: half from each of the two columns.

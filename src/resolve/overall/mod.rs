@@ -58,6 +58,28 @@
 //! optimum by metric 3 (`Podium`); a random start whose iterate comes within 1e-4 rad of the
 //! best optimum on target so far (tip within 1e-6 of the scale) stops there, as it would only
 //! find that optimum again.
+//!
+//! **Among obstacles** ([`Overall::set_world`] with a [`World`] that has obstacles) every link
+//! also keeps `clearance_m` from every obstacle, by the world's exact capsule distance:
+//!
+//! ```text
+//! minimize 1/2 |theta - theta0|^2  s.t.  tip = target, lo <= theta <= hi,
+//!                                        clearance(link i, obstacle k) >= clearance_m
+//! ```
+//!
+//! solved by module `clear` (its doc has the method: SQP whose subproblem adds the pairs near
+//! contact as linearized inequalities, solved through its dual by projected Newton, elastic
+//! when infeasible, an exact-penalty line search that measures the exact least clearance, then
+//! dense Newton on the KKT system with the active pairs as equalities). A local solve first
+//! tries the solve without obstacles when the last answer leaned on none, and keeps it when it
+//! is clear (a clear local optimum of the problem without obstacles is one with them); a cold
+//! solve keeps the best optimum without obstacles when it is clear, else searches its own
+//! starts (see [`Overall::solve_cold`]). `converged` is true only for an answer on target,
+//! within limits and clear (least clearance at least `clearance_m` less [`CLEAR_SLACK`], the
+//! round-off of a distance), and [`Overall::last_clearance`] reports that least clearance: a
+//! start that is not clear is allowed, and the caller sees whether the answer got out. A
+//! failed solve's answer is its last iterate, which need not be clear. `None`, or a world
+//! without obstacles, leaves every solve exactly as without a world.
 
 mod clear;
 mod dual;
