@@ -1357,7 +1357,7 @@ mod tests {
         // As the daemon does: goals go out in whole servo ticks.
         ctl.set_joint_resolution(&[std::f64::consts::TAU / 4096.0; 12])
             .unwrap();
-        let mut run = |ctl: &mut Controller, to: Vec2| {
+        let run = |ctl: &mut Controller, to: Vec2| {
             ctl.command(Command::Goto {
                 target: to,
                 speed: None,
@@ -1389,7 +1389,6 @@ mod tests {
             assert_eq!(finish, Some(Finish::Arrived), "to {to:?}");
         }
         assert!(least >= 0.005 - 1e-9, "{least}");
-        drop(run);
     }
 
     #[test]
