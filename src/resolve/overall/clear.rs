@@ -78,6 +78,11 @@ const SAME_CONTACT: f64 = 1e-9;
 const DUAL_STEPS: usize = 80;
 /// Halvings of the dual's line search.
 const DUAL_HALVINGS: usize = 40;
+/// Local solves (control ticks): most steps and halvings of an elastic dual solve, whose
+/// direction only guides the line search (a failing tick then stays cheap).
+const QUICK_ELASTIC_STEPS: usize = 15;
+/// See [`QUICK_ELASTIC_STEPS`].
+const QUICK_ELASTIC_HALVINGS: usize = 20;
 /// Relative diagonal shift of the dual's Newton matrix (parallel rows).
 const DUAL_REGULARIZATION: f64 = 1e-13;
 /// Elastic form: a dual whose optimality is within this fraction of the correction wanted has
@@ -150,6 +155,8 @@ pub(super) struct ClearWork {
     pub best: Vec<f64>,
     pub second: Vec<f64>,
     pub free_opt: Vec<f64>,
+    /// A local solve (control tick), not a cold one: elastic subproblems solved loosely.
+    pub quick: bool,
     /// The last answer leaned on an obstacle (some pair's multiplier positive): the next local
     /// solve goes straight to the constrained form.
     pub engaged: bool,
@@ -209,6 +216,8 @@ struct Qp<'a> {
     hi: &'a [f64],
     r: &'a [f64],
     rho_inv: f64,
+    /// A local solve (control tick): the elastic form is solved loosely.
+    quick: bool,
 }
 
 impl Qp<'_> {
@@ -272,7 +281,12 @@ impl Qp<'_> {
             |worst: f64| worst <= tol || (self.rho_inv > 0.0 && worst <= ELASTIC_SETTLED * r_norm);
         let mut q = self.eval(lam, x, s, false);
         s.clipped_base[..self.n].copy_from_slice(&s.clipped[..self.n]);
-        for _ in 0..DUAL_STEPS {
+        let (steps, halvings) = if self.quick && self.rho_inv > 0.0 {
+            (QUICK_ELASTIC_STEPS, QUICK_ELASTIC_HALVINGS)
+        } else {
+            (DUAL_STEPS, DUAL_HALVINGS)
+        };
+        for _ in 0..steps {
             // Optimality: the projected gradient; pairs within it of 0 and pushed there are
             // held (Bertsekas' epsilon-active set), and go to 0 by a scaled gradient step.
             let worst = (0..k2).fold(0.0_f64, |w, i| {
@@ -329,7 +343,7 @@ impl Qp<'_> {
             }
             let mut alpha = 1.0;
             let mut accepted = false;
-            for _ in 0..DUAL_HALVINGS {
+            for _ in 0..halvings {
                 s.lam_t[..k2].copy_from_slice(&lam[..k2]);
                 if held_positive {
                     for i in 2..k2 {
@@ -801,6 +815,7 @@ impl ClearWork {
                 hi,
                 r: &self.r,
                 rho_inv: rho * p.scale * p.scale,
+                quick: self.quick,
             };
             let cap = if attempt == 0 {
                 super::MU_CAP / p.scale
@@ -1207,6 +1222,7 @@ impl Overall {
         let mut mu = self.mu;
         let max_iterations = self.opts.max_iterations;
         let Overall { w, clear, .. } = self;
+        clear.quick = true;
         let l = clear.local(
             &p,
             world,
@@ -1217,6 +1233,7 @@ impl Overall {
             p.tol,
             max_iterations,
         );
+        clear.quick = false;
         clear.engaged = clear.leaning();
         let o = self.finish(&p, mu, spent + l.iterations, l.converged, out);
         self.judge(world, chain, out, o)
