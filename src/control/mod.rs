@@ -607,6 +607,8 @@ enum Verdict {
     Collides,
     /// Fine but for a link that would lose its clearance from an obstacle.
     Blocked(Blocked),
+    /// The resolver found no clear pose on target: the body is caught on an obstacle.
+    Caught(Blocked),
 }
 
 /// One resolver attempt at `target` from `theta`, the answer in `out`. Returns whether it may
@@ -626,7 +628,7 @@ fn attempt(
     let v = if !(out.iter().all(|t| t.is_finite()) && verdict(chain, out, outcome).is_ok()) {
         // A solve that failed with the body caught on an obstacle is held by it.
         match check.world.clearance(&check.guard.now) {
-            Some(p) if resolver.held_by_obstacle() => Verdict::Blocked(Blocked {
+            Some(p) if resolver.held_by_obstacle() => Verdict::Caught(Blocked {
                 link: p.link,
                 obstacle: p.obstacle,
             }),
@@ -1184,6 +1186,13 @@ impl Controller {
         t.iterations += its;
         t.self_collision |= v == Verdict::Collides;
         let mut reached = r;
+        if let Verdict::Caught(b) = v {
+            // A failed solve among obstacles is the dearest there is, and one at a shorter step
+            // would fail the same way: the arm holds this tick.
+            t.blocked = Some(b);
+            cand.copy_from_slice(theta);
+            return from;
+        }
         if v == Verdict::Sendable {
             cand.copy_from_slice(trial);
         } else {
@@ -1199,7 +1208,7 @@ impl Controller {
                 let (v, its) = attempt(resolver, chain, &mut check, theta, target, trial);
                 t.iterations += its;
                 t.self_collision |= v == Verdict::Collides;
-                if let (Verdict::Blocked(b), None) = (v, t.blocked) {
+                if let (Verdict::Blocked(b) | Verdict::Caught(b), None) = (v, t.blocked) {
                     t.blocked = Some(b);
                 }
                 if v == Verdict::Sendable {
