@@ -7,9 +7,9 @@
 
 mod world_support;
 
-use std::f64::consts::{FRAC_PI_2, PI};
+use std::f64::consts::PI;
 
-use snakectl::chain::{Chain, JointLimit, Vec2};
+use snakectl::chain::{Chain, Vec2};
 use snakectl::control::{Activity, Command, Controller, Finish, Limits, Refused};
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape, World};
@@ -27,8 +27,7 @@ const KEEP: f64 = 0.005;
 const TOL: f64 = 1e-9;
 
 fn chain() -> Chain {
-    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
-    Chain::new(vec![0.08; N], Vec2::zeros(), FRAC_PI_2, vec![lim; N]).unwrap()
+    world_support::arm()
 }
 
 fn limits() -> Limits {

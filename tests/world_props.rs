@@ -6,10 +6,10 @@
 
 mod world_support;
 
-use std::f64::consts::{FRAC_PI_2, TAU};
+use std::f64::consts::TAU;
 
 use proptest::prelude::*;
-use snakectl::chain::{Chain, JointLimit, Vec2};
+use snakectl::chain::{Chain, Vec2};
 use snakectl::control::{Command, Controller, Limits};
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape, World};
@@ -22,8 +22,7 @@ const TICK: f64 = TAU / 4096.0;
 const TOL: f64 = 1e-9;
 
 fn chain() -> Chain {
-    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
-    Chain::new(vec![0.08; N], Vec2::zeros(), FRAC_PI_2, vec![lim; N]).unwrap()
+    world_support::arm()
 }
 
 fn limits() -> Limits {

@@ -2,8 +2,17 @@
 //! own, so that the tests among obstacles check the controller against an independent measure.
 #![allow(dead_code)]
 
-use snakectl::chain::{Chain, Vec2};
+use std::f64::consts::FRAC_PI_2;
+
+use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::world::{Shape, World};
+
+/// The daemon's arm: 12 links of 0.08 m, limits +-2 rad, base at the origin heading up.
+pub fn arm() -> Chain {
+    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
+    Chain::new(vec![0.08; 12], Vec2::zeros(), FRAC_PI_2, vec![lim; 12])
+        .unwrap_or_else(|e| panic!("{e}"))
+}
 
 /// Distance from `p` to the segment `a..b`.
 pub fn point_segment(p: Vec2, a: Vec2, b: Vec2) -> f64 {

@@ -52,11 +52,19 @@
 
 use std::ops::ControlFlow;
 
-use super::{half_metric, max_abs_diff, mirror_pose, ElasticStall, Overall, Problem, SplitMix};
+use super::{
+    half_metric, max_abs_diff, mirror_pose, ElasticStall, Overall, Problem, SplitMix, ARMIJO,
+    MAX_HALVINGS,
+};
 use crate::chain::{Chain, Vec2};
 use crate::resolve::Outcome;
 use crate::world::clearance::pair_gradient;
 use crate::world::{ActivePairs, World};
+
+/// A solve without obstacles: local or cold.
+type FreeSolve = fn(&mut Overall, &Chain, &[f64], Vec2, &mut [f64]) -> Outcome;
+/// The same among the obstacles of a world.
+type WorldSolve = fn(&mut Overall, &World, &Chain, &[f64], Vec2, &mut [f64]) -> Outcome;
 
 /// Most (link, obstacle) pairs entering one subproblem: the pairs of least clearance are kept.
 /// Bounds the dual's size (and the Newton system's) whatever the world.
@@ -91,10 +99,6 @@ const ELASTIC_SETTLED: f64 = 1e-6;
 /// A full step that keeps the clipping pattern has solved the dual once its residual fell by
 /// this factor (what is left is round-off).
 const FULL_STEP_SOLVED: f64 = 1e-9;
-/// Armijo fraction (the customary value).
-const ARMIJO: f64 = 1e-4;
-/// Halvings before the outer line search gives up.
-const MAX_HALVINGS: usize = 50;
 /// Central-difference step for the pairs' Hessians, rad.
 const FD_STEP: f64 = 1e-6;
 /// A KKT pivot below this fraction of the matrix's largest entry is singular.
@@ -1182,10 +1186,30 @@ impl Overall {
         target: Vec2,
         out: &mut [f64],
     ) -> Outcome {
+        self.among(
+            Self::free_local,
+            Self::local_with,
+            chain,
+            theta0,
+            target,
+            out,
+        )
+    }
+
+    /// Runs `with` on the world in use (lent out for the call), or `free` without one.
+    fn among(
+        &mut self,
+        free: FreeSolve,
+        with: WorldSolve,
+        chain: &Chain,
+        theta0: &[f64],
+        target: Vec2,
+        out: &mut [f64],
+    ) -> Outcome {
         let Some(world) = self.world.take() else {
-            return self.free_local(chain, theta0, target, out);
+            return free(self, chain, theta0, target, out);
         };
-        let o = self.local_with(&world, chain, theta0, target, out);
+        let o = with(self, &world, chain, theta0, target, out);
         self.world = Some(world);
         o
     }
@@ -1258,12 +1282,7 @@ impl Overall {
         target: Vec2,
         out: &mut [f64],
     ) -> Outcome {
-        let Some(world) = self.world.take() else {
-            return self.free_cold(chain, theta0, target, out);
-        };
-        let o = self.cold_with(&world, chain, theta0, target, out);
-        self.world = Some(world);
-        o
+        self.among(Self::free_cold, Self::cold_with, chain, theta0, target, out)
     }
 
     fn cold_with(
