@@ -722,12 +722,17 @@ mod tests {
     }
 
     #[test]
-    fn the_servos_not_to_wait_on_are_the_silent_and_those_that_missed_their_last_read() {
+    fn the_servos_not_to_wait_on_are_the_silent_and_those_that_missed_their_last_reads() {
         let mut h = health(10);
         let t0 = Instant::now();
         assert!(h.unanswering().is_empty());
-        assert!(!h.missed(1, 1, t0));
-        assert_eq!(h.unanswering(), vec![2], "missed its latest read");
+        // One or two lost replies are a noisy line: such a servo is still waited on.
+        for tick in 1..SILENT_READS {
+            assert!(!h.missed(1, u64::from(tick), t0));
+            assert!(h.unanswering().is_empty(), "after {tick} missed reads");
+        }
+        assert!(!h.missed(1, u64::from(SILENT_READS), t0));
+        assert_eq!(h.unanswering(), vec![2], "missed its latest reads in a row");
         assert!(!h.answered(1, false));
         assert!(h.unanswering().is_empty());
         h.raise(0, JointFault::Silent, 3, "quiet".into());
