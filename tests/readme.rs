@@ -55,6 +55,7 @@ const DOCS: &[Doc] = &[
     doc("docs/STRATEGIES.md", 0, 3, 0),
     doc("docs/TELEOP.md", 2, 6, 1),
     doc("docs/TESTING.md", 0, 8, 2),
+    doc("docs/WORLD.md", 2, 9, 7),
     doc("docs/ZENOH.md", 5, 13, 5),
 ];
 

@@ -237,7 +237,8 @@ fn the_chapters_example_among_obstacles_is_answered_with_its_clearance() {
     let a = json(&out);
     assert!(a["tip_error"].as_f64().unwrap() < 1e-9);
     let least = a["min_clearance_m"].as_f64().unwrap();
-    assert_eq!(a["collision_free"], least >= 0.005);
+    // Clear to the round-off of a distance, as the solver counts it.
+    assert_eq!(a["collision_free"], least >= 0.005 - 1e-9);
     // No more than the post's own, worked out here.
     let pose = points(&a["points"]);
     let post = (1..pose.len())
