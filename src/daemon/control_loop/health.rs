@@ -216,7 +216,7 @@ impl Health {
     }
 
     /// The servos not to wait on: those held silent, and those that missed their latest
-    /// [`SILENT_READS`] reads in a row.
+    /// `SILENT_READS` reads in a row.
     pub fn unanswering(&self) -> Vec<u8> {
         self.joints
             .iter()
