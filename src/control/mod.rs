@@ -992,6 +992,12 @@ impl Controller {
         .unwrap_or_else(|_| self.world.clone())
     }
 
+    /// The clearance of the commanded pose, m (from its points, kept by the controller);
+    /// `None` when the world has no obstacles. Allocation-free.
+    pub fn min_clearance(&self) -> Option<f64> {
+        self.world.clearance(&self.guard.now).map(|p| p.clearance_m)
+    }
+
     /// The link and obstacle of least clearance when the commanded pose is not clear.
     pub fn not_clear(&self) -> Option<NotClear> {
         let p = self.world.clearance(&self.guard.now)?;
@@ -1044,7 +1050,7 @@ impl Controller {
             iterations: 0,
         };
         if !(dt > 0.0 && dt.is_finite()) {
-            t.min_clearance_m = self.world.clearance(&self.guard.now).map(|p| p.clearance_m);
+            t.min_clearance_m = self.min_clearance();
             return t;
         }
         let dt = dt.min(MAX_DT_S);
@@ -1102,7 +1108,7 @@ impl Controller {
             reached = self.tip;
         }
         t.tip = self.tip;
-        t.min_clearance_m = self.world.clearance(&self.guard.now).map(|p| p.clearance_m);
+        t.min_clearance_m = self.min_clearance();
         t.peak_joint_speed_rad_s = peak / dt;
         t.m3_rad2 = m3;
         let held = t.blocked.is_some();

@@ -268,7 +268,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         };
         let info = Box::new(WorldInfo::of(&world));
         let not_clear = self.controller.set_world(world);
-        self.decided.min_clearance_m = self.pose_clearance();
+        self.decided.min_clearance_m = self.controller.min_clearance();
         tracing::info!(
             client = e.client,
             obstacles = self.controller.world().obstacles().len(),

@@ -271,9 +271,6 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     /// The commanded pose was not clear of an obstacle when last looked at (a `not_clear`
     /// event went out; a `clear` one is owed once it is).
     not_clear: bool,
-    /// The joint points of the commanded pose, for its clearance in a tick the controller did
-    /// not run.
-    points: Vec<Vec2>,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -356,13 +353,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             measured: Measured::new(&arm, &brought.pose),
             decided: Decided {
                 tip_ref: controller.chain().tip(&brought.pose),
-                min_clearance_m: controller
-                    .world()
-                    .pose_clearance(controller.chain(), controller.theta())
-                    .map(|p| p.clearance_m),
+                min_clearance_m: controller.min_clearance(),
                 ..Decided::default()
             },
-            points: vec![Vec2::zeros(); controller.chain().len() + 1],
             goals: vec![Goal { id: 0, ticks: 0 }; ids.len()],
             on_exit: arm.settings().on_exit,
             arm,
@@ -459,7 +452,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             // Nothing to write to: hold the goals until the port is back.
             self.received.clear();
             self.decided = self.decided.frozen();
-            self.decided.min_clearance_m = self.pose_clearance();
+            self.decided.min_clearance_m = self.controller.min_clearance();
         } else {
             self.decide();
             self.write();
@@ -477,7 +470,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn decide(&mut self) {
         if !self.supervisor.moves() {
             self.decided = self.decided.frozen();
-            self.decided.min_clearance_m = self.pose_clearance();
+            self.decided.min_clearance_m = self.controller.min_clearance();
             return;
         }
         let t0 = self.clock.now();
@@ -641,19 +634,6 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             let world = self.controller.world();
             self.event(Some(e.owner), e.id, |tip| e.ending.what(tip, world));
         }
-    }
-
-    /// The clearance of the commanded pose among the obstacles, m (`None`: no obstacles);
-    /// allocation-free.
-    fn pose_clearance(&mut self) -> Option<f64> {
-        let world = self.controller.world();
-        if world.obstacles().is_empty() {
-            return None;
-        }
-        let chain = self.controller.chain();
-        self.points.resize(chain.len() + 1, Vec2::zeros());
-        chain.points_into(self.controller.theta(), &mut self.points);
-        world.clearance(&self.points).map(|p| p.clearance_m)
     }
 
     /// Whether the commanded pose is clear of the world (at start, or after the world
