@@ -159,7 +159,7 @@ impl World {
             for k in 0..self.obstacles.len() {
                 if let Some(b) = &best {
                     // The boxes' gap bounds the distance from below.
-                    if self.box_gap(k, lo, hi) - self.link_radius_m >= b.clearance_m {
+                    if self.box_clear_of(k, lo, hi, b.clearance_m + self.link_radius_m) {
                         continue;
                     }
                 }
@@ -185,7 +185,7 @@ impl World {
             *floor = keep_m;
             let (lo, hi) = segment_box(points[link - 1], points[link]);
             for k in 0..self.obstacles.len() {
-                if self.box_gap(k, lo, hi) - self.link_radius_m >= *floor {
+                if self.box_clear_of(k, lo, hi, *floor + self.link_radius_m) {
                     continue;
                 }
                 *floor = floor.min(self.pair(points, link, k).clearance_m);
@@ -199,7 +199,7 @@ impl World {
         for (link, &floor) in (1..points.len()).zip(floors) {
             let (lo, hi) = segment_box(points[link - 1], points[link]);
             for k in 0..self.obstacles.len() {
-                if self.box_gap(k, lo, hi) - self.link_radius_m >= floor {
+                if self.box_clear_of(k, lo, hi, floor + self.link_radius_m) {
                     continue;
                 }
                 let p = self.pair(points, link, k);
@@ -220,7 +220,7 @@ impl World {
         for link in 1..points.len() {
             let (lo, hi) = segment_box(points[link - 1], points[link]);
             for k in 0..self.obstacles.len() {
-                if self.box_gap(k, lo, hi) - self.link_radius_m > margin_m {
+                if self.box_beyond(k, lo, hi, margin_m + self.link_radius_m) {
                     continue;
                 }
                 let p = self.pair(points, link, k);

@@ -519,12 +519,21 @@ impl World {
         pushed
     }
 
-    /// A lower bound of the distance from the box `lo..hi` to obstacle `k`'s box.
-    fn box_gap(&self, k: usize, lo: Vec2, hi: Vec2) -> f64 {
+    /// Whether the gap between the box `lo..hi` and obstacle `k`'s box (a lower bound of
+    /// their distance) is at least `d`; compared squared, no root taken.
+    fn box_clear_of(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
         let (blo, bhi) = self.bounds[k];
         let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
         let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
-        dx.hypot(dy)
+        d <= 0.0 || dx * dx + dy * dy >= d * d
+    }
+
+    /// Whether that gap is more than `d`.
+    fn box_beyond(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
+        let (blo, bhi) = self.bounds[k];
+        let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
+        let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
+        d < 0.0 || dx * dx + dy * dy > d * d
     }
 }
 

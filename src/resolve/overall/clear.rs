@@ -19,13 +19,12 @@
 //! Method, one local solve (`ClearWork::local`):
 //! - **SQP step**. The subproblem `min 1/2 |x - theta0|^2` subject to `J (x - theta) = c`, the
 //!   box, and `g_j . (x - theta) >= clearance_m - c_j` for the selected pairs (with `g_j` the
-//!   pair's gradient) is solved through its dual: `x(lambda) = clip(theta0 + A^T lambda)`, with
-//!   `A` the rows `J` and `g_j`, `lambda` = the tip multiplier (free) and one `nu_j >= 0` per
-//!   pair, maximized by projected Newton (`Qp::solve`: the working set is the pairs held at
-//!   `nu_j = 0` by their gradient, the Newton matrix `A_F A_F^T` over the joints not clipped,
-//!   projected Armijo backtracking). When the linearized constraints cannot all be met inside
-//!   the box (the dual runs away), the elastic form penalizes their violation quadratically
-//!   instead (the stiffest of a few weights whose dual settles). The step is globalized by an
+//!   pair's gradient) is solved by a dual active-set method (module `active`: from the
+//!   unconstrained minimum, the most violated constraint taken one at a time, a constraint
+//!   whose multiplier would turn negative dropped), which gives the tip multiplier and one
+//!   `nu_j >= 0` per pair. When the linearized constraints cannot all be met inside the box
+//!   (the method proves it), the elastic form penalizes their violation quadratically
+//!   instead (the stiffest of a few weights that solves). The step is globalized by an
 //!   Armijo line search on the merit `1/2 |theta - theta0|^2 + nu_t |tip - target| + nu_c
 //!   max(0, clearance_m - clearance)`, the weights kept above the multipliers' norms (tip:
 //!   Euclidean, pairs: the sum, the dual of the max). A start that is not clear is handled the
@@ -35,7 +34,7 @@
 //!   predict (joints held at a bound where `theta0 + A^T lambda` lies beyond it; pairs with
 //!   `nu_j > 0` or not clear as equalities), a dense KKT system with the Lagrangian Hessian
 //!   `I + G - sum nu_j H_j`: `G` the tip's (module `hessian`), `H_j` each active pair's by
-//!   central differences of its gradient. Kept only when the optimality residual at least
+//!   forward differences of its gradient. Kept only when the optimality residual at least
 //!   halves and no pair's multiplier turns negative. Dense: used up to [`NEWTON_MAX_JOINTS`]
 //!   joints, beyond which the SQP steps alone finish (linear convergence).
 //! - **Stop**: converged when the tip is within the tolerance, the least clearance within the
@@ -82,25 +81,8 @@ const MARGIN_FLOOR: f64 = 0.05;
 /// Two selected pairs with the same obstacle whose contact points are this close (relative to
 /// the scale) are the same constraint.
 const SAME_CONTACT: f64 = 1e-9;
-/// Most projected Newton steps of one dual solve.
-const DUAL_STEPS: usize = 80;
-/// Halvings of the dual's line search.
-const DUAL_HALVINGS: usize = 40;
-/// Local solves (control ticks): most steps and halvings of an elastic dual solve, whose
-/// direction only guides the line search (a failing tick then stays cheap).
-const QUICK_ELASTIC_STEPS: usize = 15;
-/// See [`QUICK_ELASTIC_STEPS`].
-const QUICK_ELASTIC_HALVINGS: usize = 20;
-/// Relative diagonal shift of the dual's Newton matrix (parallel rows).
-const DUAL_REGULARIZATION: f64 = 1e-13;
-/// Elastic form: a dual whose optimality is within this fraction of the correction wanted has
-/// settled (its multipliers can be huge, which puts a round-off floor under it).
-const ELASTIC_SETTLED: f64 = 1e-6;
-/// A full step that keeps the clipping pattern has solved the dual once its residual fell by
-/// this factor (what is left is round-off).
-const FULL_STEP_SOLVED: f64 = 1e-9;
-/// Central-difference step for the pairs' Hessians, rad.
-const FD_STEP: f64 = 1e-6;
+/// Forward-difference step for the pairs' Hessians, rad.
+const FD_STEP: f64 = 1e-7;
 /// A KKT pivot below this fraction of the matrix's largest entry is singular.
 const PIVOT_FLOOR: f64 = 1e-13;
 /// A Newton multiplier of a pair below `-this * (1 + |nu|)` means the active set is wrong.
@@ -142,7 +124,7 @@ pub(super) struct ClearWork {
     /// Subproblem right-hand side and dual scratch.
     r: Vec<f64>,
     lam: Vec<f64>,
-    ds: DualScratch,
+    ds: active::ActiveScratch,
     /// Newton scratch.
     hess: Vec<f64>,
     kkt: Vec<f64>,
@@ -151,7 +133,6 @@ pub(super) struct ClearWork {
     held_move: Vec<f64>,
     active: Vec<usize>,
     gp: Vec<f64>,
-    gm: Vec<f64>,
     /// Largest point move of the last accepted step, m.
     last_move: f64,
     /// Cold solves: watch for the best optimum so far (`best`), and the optima's poses.
@@ -159,24 +140,9 @@ pub(super) struct ClearWork {
     pub best: Vec<f64>,
     pub second: Vec<f64>,
     pub free_opt: Vec<f64>,
-    /// A local solve (control tick), not a cold one: elastic subproblems solved loosely.
-    pub quick: bool,
     /// The last answer leaned on an obstacle (some pair's multiplier positive): the next local
     /// solve goes straight to the constrained form.
     pub engaged: bool,
-}
-
-#[derive(Debug, Default)]
-struct DualScratch {
-    lam_t: Vec<f64>,
-    f: Vec<f64>,
-    f_t: Vec<f64>,
-    dir: Vec<f64>,
-    mat: Vec<f64>,
-    idx: Vec<usize>,
-    clipped: Vec<bool>,
-    clipped_base: Vec<bool>,
-    u: Vec<f64>,
 }
 
 /// How one local solve among obstacles ended.
@@ -220,8 +186,6 @@ struct Qp<'a> {
     hi: &'a [f64],
     r: &'a [f64],
     rho_inv: f64,
-    /// A local solve (control tick): the elastic form is solved loosely.
-    quick: bool,
 }
 
 impl Qp<'_> {
@@ -232,235 +196,6 @@ impl Qp<'_> {
             _ => &self.grad[(i - 2) * self.n..(i - 1) * self.n],
         }
     }
-
-    /// `x(lambda)`, which joints are clipped, `F = A (x - theta) - r + rho_inv lambda` (the
-    /// negative dual gradient) and the dual value.
-    fn eval(&self, lam: &[f64], x: &mut [f64], s: &mut DualScratch, trial: bool) -> f64 {
-        let n = self.n;
-        s.u[..n].copy_from_slice(&self.theta0[..n]);
-        for i in 0..self.k2 {
-            let l = lam[i];
-            if l != 0.0 {
-                for (u, a) in s.u[..n].iter_mut().zip(self.row(i)) {
-                    *u += a * l;
-                }
-            }
-        }
-        let mut q = 0.0;
-        for a in 0..n {
-            let u = s.u[a];
-            let v = u.clamp(self.lo[a], self.hi[a]);
-            s.clipped[a] = v != u;
-            x[a] = v;
-            let dz = v - self.theta0[a];
-            q += 0.5 * dz * dz;
-            s.u[a] = v - self.theta[a];
-        }
-        let f = if trial { &mut s.f_t } else { &mut s.f };
-        for i in 0..self.k2 {
-            let ad: f64 = self.row(i).iter().zip(&s.u[..n]).map(|(a, d)| a * d).sum();
-            let lin = ad - self.r[i];
-            q -= lam[i] * lin + 0.5 * self.rho_inv * lam[i] * lam[i];
-            f[i] = lin + self.rho_inv * lam[i];
-        }
-        q
-    }
-
-    /// Projected Newton on the dual from `lam` (updated in place); `x` holds the primal answer
-    /// on success. Fails when the dual does not settle or runs beyond `cap`.
-    fn solve(
-        &self,
-        lam: &mut [f64],
-        x: &mut [f64],
-        s: &mut DualScratch,
-        tol: f64,
-        cap: f64,
-    ) -> bool {
-        let k2 = self.k2;
-        for l in lam[2..k2].iter_mut() {
-            *l = l.max(0.0);
-        }
-        let r_norm = self.r[..k2].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
-        let settled =
-            |worst: f64| worst <= tol || (self.rho_inv > 0.0 && worst <= ELASTIC_SETTLED * r_norm);
-        let mut q = self.eval(lam, x, s, false);
-        s.clipped_base[..self.n].copy_from_slice(&s.clipped[..self.n]);
-        let (steps, halvings) = if self.quick && self.rho_inv > 0.0 {
-            (QUICK_ELASTIC_STEPS, QUICK_ELASTIC_HALVINGS)
-        } else {
-            (DUAL_STEPS, DUAL_HALVINGS)
-        };
-        for _ in 0..steps {
-            // Optimality: the projected gradient; pairs within it of 0 and pushed there are
-            // held (Bertsekas' epsilon-active set), and go to 0 by a scaled gradient step.
-            let worst = (0..k2).fold(0.0_f64, |w, i| {
-                let pg = if i >= 2 {
-                    lam[i] - (lam[i] - s.f[i]).max(0.0)
-                } else {
-                    s.f[i]
-                };
-                w.max(pg.abs())
-            });
-            if worst <= tol {
-                return true;
-            }
-            s.idx.clear();
-            let mut held_positive = false;
-            for i in 0..k2 {
-                if i >= 2 && lam[i] <= worst && s.f[i] > 0.0 {
-                    held_positive |= lam[i] > 0.0;
-                    continue;
-                }
-                s.idx.push(i);
-            }
-            let m = s.idx.len();
-            // Newton matrix over the working set and the unclipped joints.
-            let mut trace = 0.0;
-            for r in 0..m {
-                let ri = self.row(s.idx[r]);
-                for c in 0..=r {
-                    let ci = self.row(s.idx[c]);
-                    let mut v = 0.0;
-                    for a in 0..self.n {
-                        if !s.clipped[a] {
-                            v += ri[a] * ci[a];
-                        }
-                    }
-                    if r == c {
-                        v += self.rho_inv;
-                        trace += v;
-                    }
-                    s.mat[r * m + c] = v;
-                    s.mat[c * m + r] = v;
-                }
-            }
-            if trace.is_nan() || trace <= 0.0 {
-                return false;
-            }
-            let reg = DUAL_REGULARIZATION * trace;
-            for r in 0..m {
-                s.mat[r * m + r] += reg;
-                s.dir[r] = -s.f[s.idx[r]];
-            }
-            if !cholesky_solve(&mut s.mat[..m * m], &mut s.dir[..m], m) {
-                return false;
-            }
-            let mut alpha = 1.0;
-            let mut accepted = false;
-            for _ in 0..halvings {
-                s.lam_t[..k2].copy_from_slice(&lam[..k2]);
-                if held_positive {
-                    for i in 2..k2 {
-                        if lam[i] > 0.0 && lam[i] <= worst && s.f[i] > 0.0 {
-                            let diag: f64 = self
-                                .row(i)
-                                .iter()
-                                .zip(&s.clipped_base[..self.n])
-                                .filter(|(_, &c)| !c)
-                                .map(|(g, _)| g * g)
-                                .sum::<f64>()
-                                + self.rho_inv;
-                            let step = if diag > 0.0 { s.f[i] / diag } else { lam[i] };
-                            s.lam_t[i] = (lam[i] - alpha * step).max(0.0);
-                        }
-                    }
-                }
-                for r in 0..m {
-                    let i = s.idx[r];
-                    let v = lam[i] + alpha * s.dir[r];
-                    s.lam_t[i] = if i >= 2 { v.max(0.0) } else { v };
-                }
-                let lam_t = std::mem::take(&mut s.lam_t);
-                let q_t = self.eval(&lam_t, x, s, true);
-                s.lam_t = lam_t;
-                let dec: f64 = (0..k2).map(|i| s.f[i] * (s.lam_t[i] - lam[i])).sum();
-                // A full step that kept every joint's clipping and no multiplier at 0 solved
-                // the dual there (a quadratic) up to round-off.
-                let projected = (0..m).any(|r| {
-                    let i = s.idx[r];
-                    i >= 2 && lam[i] + s.dir[r] < 0.0
-                });
-                let same = alpha == 1.0
-                    && !projected
-                    && !held_positive
-                    && s.clipped[..self.n] == s.clipped_base[..self.n];
-                if same {
-                    let f_t = s.idx.iter().fold(0.0_f64, |a, &i| a.max(s.f_t[i].abs()));
-                    let held_ok = (2..k2).all(|i| s.idx.contains(&i) || s.f_t[i] >= -tol);
-                    if held_ok && (f_t <= tol || f_t <= FULL_STEP_SOLVED * worst) {
-                        lam[..k2].copy_from_slice(&s.lam_t[..k2]);
-                        std::mem::swap(&mut s.f, &mut s.f_t);
-                        return lam[..k2].iter().all(|l| l.abs() <= cap);
-                    }
-                }
-                if q_t >= q - ARMIJO * dec && q_t >= q {
-                    accepted = s.lam_t[..k2] != lam[..k2];
-                    if accepted {
-                        q = q_t;
-                    }
-                    break;
-                }
-                alpha *= 0.5;
-            }
-            if !accepted {
-                self.eval(lam, x, s, false);
-                return settled(worst);
-            }
-            lam[..k2].copy_from_slice(&s.lam_t[..k2]);
-            std::mem::swap(&mut s.f, &mut s.f_t);
-            s.clipped_base[..self.n].copy_from_slice(&s.clipped[..self.n]);
-            if lam[..k2].iter().any(|l| l.is_nan() || l.abs() > cap) {
-                return false;
-            }
-        }
-        let worst = (0..k2).fold(0.0_f64, |w, i| {
-            let pg = if i >= 2 {
-                lam[i] - (lam[i] - s.f[i]).max(0.0)
-            } else {
-                s.f[i]
-            };
-            w.max(pg.abs())
-        });
-        settled(worst)
-    }
-}
-
-/// Solves `M x = b` in place for the symmetric positive definite `M` (m x m, row-major);
-/// false when it is not (numerically) positive definite.
-fn cholesky_solve(mat: &mut [f64], b: &mut [f64], m: usize) -> bool {
-    for j in 0..m {
-        let mut d = mat[j * m + j];
-        for k in 0..j {
-            d -= mat[j * m + k] * mat[j * m + k];
-        }
-        if d.is_nan() || d <= 0.0 {
-            return false;
-        }
-        let d = d.sqrt();
-        mat[j * m + j] = d;
-        for i in j + 1..m {
-            let mut v = mat[i * m + j];
-            for k in 0..j {
-                v -= mat[i * m + k] * mat[j * m + k];
-            }
-            mat[i * m + j] = v / d;
-        }
-    }
-    for i in 0..m {
-        let mut v = b[i];
-        for k in 0..i {
-            v -= mat[i * m + k] * b[k];
-        }
-        b[i] = v / mat[i * m + i];
-    }
-    for i in (0..m).rev() {
-        let mut v = b[i];
-        for k in i + 1..m {
-            v -= mat[k * m + i] * b[k];
-        }
-        b[i] = v / mat[i * m + i];
-    }
-    true
 }
 
 /// Solves `M x = b` in place (N x N, row-major) by Gaussian elimination with partial pivoting;
@@ -540,7 +275,6 @@ impl ClearWork {
             &mut self.qp_x,
             &mut self.held_move,
             &mut self.gp,
-            &mut self.gm,
             &mut self.best,
             &mut self.second,
             &mut self.free_opt,
@@ -563,17 +297,7 @@ impl ClearWork {
         let k2 = MAX_PAIRS + 2;
         self.r = vec![0.0; k2];
         self.lam = vec![0.0; k2];
-        self.ds = DualScratch {
-            lam_t: vec![0.0; k2],
-            f: vec![0.0; k2],
-            f_t: vec![0.0; k2],
-            dir: vec![0.0; k2],
-            mat: vec![0.0; k2 * k2],
-            idx: Vec::with_capacity(k2),
-            clipped: vec![false; n],
-            clipped_base: vec![false; n],
-            u: vec![0.0; n],
-        };
+        self.ds = active::ActiveScratch::new(n, k2);
         let dense = if n <= NEWTON_MAX_JOINTS { n } else { 0 };
         self.hess = vec![0.0; dense * dense];
         let big = dense + k2;
@@ -819,14 +543,13 @@ impl ClearWork {
                 hi,
                 r: &self.r,
                 rho_inv: rho * p.scale * p.scale,
-                quick: self.quick,
             };
             let cap = if attempt == 0 {
                 super::MU_CAP / p.scale
             } else {
                 f64::MAX
             };
-            if qp.solve(&mut self.lam, &mut self.qp_x, &mut self.ds, qp_tol, cap) {
+            if qp.solve_active(&mut self.lam, &mut self.qp_x, &mut self.ds, qp_tol, cap) {
                 elastic = attempt > 0;
                 solved = true;
                 break;
@@ -971,26 +694,26 @@ impl ClearWork {
             if nu == 0.0 {
                 continue;
             }
+            // Forward differences of the gradient (the gradient at the pose is the pair's
+            // row): turning joint a by h turns the points after it about p_a; the pair needs
+            // the points up to its link's end.
             let (sh, ch) = FD_STEP.sin_cos();
+            let row = j * n;
             for a in 0..link {
-                for (sign, out) in [(1.0, 0), (-1.0, 1)] {
-                    // Turning joint a by +-h turns every later point about p_a.
-                    let pivot = self.pts[a];
-                    for i in 0..=n {
-                        let v = self.pts[i] - pivot;
-                        self.fd_pts[i] = if i > a {
-                            pivot
-                                + Vec2::new(ch * v.x - sign * sh * v.y, sign * sh * v.x + ch * v.y)
-                        } else {
-                            self.pts[i]
-                        };
-                    }
-                    let pair = world.pair(&self.fd_pts, link, obstacle);
-                    let g = if out == 0 { &mut self.gp } else { &mut self.gm };
-                    pair_gradient(&self.fd_pts, &pair, g);
+                let pivot = self.pts[a];
+                for i in 0..=link {
+                    let v = self.pts[i] - pivot;
+                    self.fd_pts[i] = if i > a {
+                        pivot + Vec2::new(ch * v.x - sh * v.y, sh * v.x + ch * v.y)
+                    } else {
+                        self.pts[i]
+                    };
                 }
+                let pts = &self.fd_pts[..=link];
+                let pair = world.pair(pts, link, obstacle);
+                pair_gradient(pts, &pair, &mut self.gp[..link]);
                 for b in 0..link {
-                    let h = (self.gp[b] - self.gm[b]) / (2.0 * FD_STEP);
+                    let h = (self.gp[b] - self.grad[row + b]) / FD_STEP;
                     // Symmetrized: half from each of the two columns.
                     self.hess[b * n + a] -= 0.5 * nu * h;
                     self.hess[a * n + b] -= 0.5 * nu * h;
@@ -1246,7 +969,6 @@ impl Overall {
         let mut mu = self.mu;
         let max_iterations = self.opts.max_iterations;
         let Overall { w, clear, .. } = self;
-        clear.quick = true;
         let l = clear.local(
             &p,
             world,
@@ -1257,7 +979,6 @@ impl Overall {
             p.tol,
             max_iterations,
         );
-        clear.quick = false;
         clear.engaged = clear.leaning();
         let o = self.finish(&p, mu, spent + l.iterations, l.converged, out);
         self.judge(world, chain, out, o)
@@ -1499,5 +1220,6 @@ impl Overall {
     }
 }
 
+mod active;
 #[cfg(test)]
 mod tests;
