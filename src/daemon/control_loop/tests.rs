@@ -20,7 +20,10 @@ use crate::protocol::{
 };
 use crate::servo::clock::{Clock, ManualClock};
 use crate::servo::limits::LimitPolicy;
-use crate::servo::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
+use crate::servo::{
+    Ack, Goal, PingInfo, Register, ServoBus, ServoError, ServoModel, SyncReadBuf, Value,
+    INDIRECT_ADDRESS_1,
+};
 
 const MS: Duration = Duration::from_millis(1);
 
@@ -43,6 +46,25 @@ impl Servo {
     }
     fn alert(&self) -> bool {
         self.get(Register::HardwareErrorStatus) != 0
+    }
+    /// The byte at `address`, Indirect Data read through its Indirect Address (0, the reset
+    /// value here, stands for the Indirect Data itself, which reads 0).
+    fn byte(&self, address: usize) -> u8 {
+        let model = ServoModel::from_number(self.get(Register::ModelNumber) as u16);
+        let data = model.and_then(ServoModel::indirect_data).map(usize::from);
+        match data {
+            Some(d) if (d..d + 20).contains(&address) => {
+                let slot = usize::from(INDIRECT_ADDRESS_1) + 2 * (address - d);
+                let target =
+                    usize::from(u16::from_le_bytes([self.table[slot], self.table[slot + 1]]));
+                if target == 0 {
+                    0
+                } else {
+                    self.table[target]
+                }
+            }
+            _ => self.table[address],
+        }
     }
 }
 
@@ -110,6 +132,9 @@ impl MemoryBus {
                 Register::HardwareErrorStatus,
             ] {
                 s.set(r, 0);
+            }
+            for n in 1..=20 {
+                s.set(Register::IndirectAddress(n), 0);
             }
             let present = s.get(Register::PresentPosition);
             s.set(Register::GoalPosition, present);
@@ -182,7 +207,8 @@ impl ServoBus for MemoryBus {
         for (i, id) in ids.iter().enumerate() {
             if let Some(s) = w.servos.get(id).filter(|s| !s.silent) {
                 let a = usize::from(address);
-                out.set(i, &s.table[a..a + usize::from(len)], s.alert());
+                let data: Vec<u8> = (a..a + usize::from(len)).map(|k| s.byte(k)).collect();
+                out.set(i, &data, s.alert());
             } else {
                 missing = true;
             }
