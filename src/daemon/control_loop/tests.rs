@@ -1065,3 +1065,74 @@ fn the_config_files_world_is_in_force_from_start_up() {
     let rig = Rig::new(100.0, "");
     assert!(rig.cycle.controller.world().obstacles().is_empty());
 }
+
+#[test]
+fn every_read_carries_the_health_registers_through_indirect_address() {
+    let mut rig = Rig::new(100.0, "");
+    // Bring-up mapped Indirect Address 1..13 onto Present Load/Current .. Temperature.
+    for id in 1..=12 {
+        let s = &rig.bus.wire().servos[&id];
+        let mapped: Vec<i64> = (1..=13)
+            .map(|n| s.get(Register::IndirectAddress(n)))
+            .collect();
+        assert_eq!(
+            mapped,
+            [126, 127, 128, 129, 130, 131, 132, 133, 134, 135, 144, 145, 146],
+            "servo {id}"
+        );
+    }
+    rig.bus
+        .servo(4, |s| s.set(Register::PresentInputVoltage, 115));
+    rig.bus
+        .servo(7, |s| s.set(Register::PresentTemperature, 41));
+    for _ in 0..12 {
+        rig.ticks(1);
+        let s = rig.status();
+        assert_eq!(s.health_tick, s.tick, "a read without the health registers");
+    }
+    let s = rig.status();
+    assert!((s.voltage_v[3] - 11.5).abs() < 1e-9, "{:?}", s.voltage_v);
+    assert!(
+        (s.temperature_c[6] - 41.0).abs() < 1e-9,
+        "{:?}",
+        s.temperature_c
+    );
+    assert_eq!(s.overruns, 0);
+}
+
+#[test]
+fn a_power_loss_shorter_than_the_silence_budget_is_told_by_the_unmapped_block() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(3);
+    rig.bus.lose_power(5);
+    // Two lost reads: far inside the 300 ms budget, so no `silent` fault is raised.
+    rig.ticks(2);
+    assert_eq!(rig.status().state, State::Holding);
+    rig.events();
+    rig.bus.power_back(5);
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.state, State::Estop, "latched as for a power loss");
+    let power: Vec<_> = s
+        .faults
+        .iter()
+        .filter(|f| f.kind == FaultKind::PowerLoss)
+        .collect();
+    assert_eq!(power.len(), 1, "{:?}", s.faults);
+    assert_eq!(power[0].id, Some(5));
+    assert!(
+        power[0].detail.contains("Indirect Address 1"),
+        "{}",
+        power[0].detail
+    );
+    // Its mapping written again with the rest of its RAM: the next reads are whole.
+    assert_eq!(
+        rig.bus.wire().servos[&5].get(Register::IndirectAddress(1)),
+        126
+    );
+    let before = s.tick;
+    rig.ticks(3);
+    let s = rig.status();
+    assert!(s.health_tick > before);
+    assert!(s.voltage_v[4] > 10.0, "{:?}", s.voltage_v);
+}
