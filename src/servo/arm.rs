@@ -1198,8 +1198,23 @@ impl Arm {
         )?;
         write(Register::BusWatchdog, 0)?;
         if matches!(self.layout(), Layout::Indirect { .. }) {
+            // Thirteen writes without replies, then one read to check them.
             for (n, target) in indirect_slots() {
-                write(Register::IndirectAddress(n), i64::from(target))?;
+                bus.sync_write(Register::IndirectAddress(n), &[(id, i64::from(target))])?;
+            }
+            let len = 2 * INDIRECT_BYTES;
+            let read = retry.within(within, id, |w| {
+                bus.sync_read(&[id], INDIRECT_ADDRESS_1, len, w)
+            })?;
+            match read.into_iter().next() {
+                Some(Ok(block)) if mapped(&block.data) => {}
+                Some(Err(e)) => return Err(e),
+                _ => {
+                    return Err(ServoError::Malformed {
+                        id,
+                        what: "its Indirect Addresses do not read back as written".into(),
+                    })
+                }
             }
         }
         let present = retry

@@ -163,8 +163,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.raise(i, JointFault::Silent, since, detail);
         }
         let mut back = self.health.back_from_silence();
+        let power_lost = self.health.power_lost();
         for i in std::mem::take(&mut self.unmapped) {
-            if !back.contains(&i) && !self.health.power_lost().contains(&self.ids[i]) {
+            let held = self.ids.get(i).is_some_and(|id| power_lost.contains(id));
+            if !back.contains(&i) && !held {
                 back.push(i);
             }
         }

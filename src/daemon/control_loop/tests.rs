@@ -72,6 +72,8 @@ impl Servo {
 struct Wire {
     servos: BTreeMap<u8, Servo>,
     port_gone: bool,
+    /// The (address, length) of every Sync Read, in order.
+    reads: Vec<(u16, u16)>,
     /// When set, a wait for a reply that never comes costs its timeout on this clock, as on a
     /// real port.
     clock: Option<ManualClock>,
@@ -202,7 +204,8 @@ impl ServoBus for MemoryBus {
     ) -> Result<(), ServoError> {
         self.port()?;
         out.reset(ids, len, timeout);
-        let w = self.wire();
+        let mut w = self.wire();
+        w.reads.push((address, len));
         let mut missing = false;
         for (i, id) in ids.iter().enumerate() {
             if let Some(s) = w.servos.get(id).filter(|s| !s.silent) {
@@ -1085,11 +1088,16 @@ fn every_read_carries_the_health_registers_through_indirect_address() {
         .servo(4, |s| s.set(Register::PresentInputVoltage, 115));
     rig.bus
         .servo(7, |s| s.set(Register::PresentTemperature, 41));
-    for _ in 0..12 {
+    rig.bus.wire().reads.clear();
+    for _ in 0..25 {
         rig.ticks(1);
         let s = rig.status();
         assert_eq!(s.health_tick, s.tick, "a read without the health registers");
     }
+    // Every tick's read is the same: 13 bytes of Indirect Data from 224 (the XL430's), never
+    // a longer one every `health_every` ticks.
+    let reads = std::mem::take(&mut rig.bus.wire().reads);
+    assert_eq!(reads, vec![(224, 13); 25]);
     let s = rig.status();
     assert!((s.voltage_v[3] - 11.5).abs() < 1e-9, "{:?}", s.voltage_v);
     assert!(
