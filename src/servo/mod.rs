@@ -868,6 +868,53 @@ mod tests {
     }
 
     #[test]
+    fn the_indirect_block_is_thirteen_bytes_of_five_registers() {
+        let targets: Vec<u16> = (1..=13).filter_map(Layout::indirect_target).collect();
+        assert_eq!(
+            targets,
+            [126, 127, 128, 129, 130, 131, 132, 133, 134, 135, 144, 145, 146]
+        );
+        assert_eq!(Layout::indirect_target(0), None);
+        assert_eq!(Layout::indirect_target(14), None);
+        assert_eq!(Register::IndirectAddress(1).address(), 168);
+        assert_eq!(Register::IndirectAddress(13).address(), 192);
+        let layout = Layout::Indirect { data: 224 };
+        assert_eq!(layout.span(), (224, 13));
+        assert_eq!(layout.fields(), Fields::ALL);
+        // Load -5, velocity 300, position -7, 12.0 V, 41 °C.
+        let mut data = Vec::new();
+        data.extend_from_slice(&(-5i16).to_le_bytes());
+        data.extend_from_slice(&300i32.to_le_bytes());
+        data.extend_from_slice(&(-7i32).to_le_bytes());
+        data.extend_from_slice(&120u16.to_le_bytes());
+        data.push(41);
+        let s = layout
+            .decode(3, &data, true)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            (s.current, s.velocity, s.position_ticks),
+            (Some(-5), Some(300), -7)
+        );
+        assert_eq!(
+            (s.voltage_dv, s.temperature_c, s.alert),
+            (Some(120), Some(41), true)
+        );
+        // A servo whose RAM was reset reads its Indirect Data as 0: not a pose at -180°.
+        assert!(matches!(
+            layout.decode(3, &[0; 13], false),
+            Err(ServoError::Unmapped { id: 3 })
+        ));
+        assert!(matches!(
+            layout.decode(3, &data[..12], false),
+            Err(ServoError::Malformed { id: 3, .. })
+        ));
+        // Every known model maps its Indirect Data where the e-manual puts it.
+        let data_of = |name| ServoModel::from_name(name).and_then(ServoModel::indirect_data);
+        assert_eq!(data_of("XM430-W350"), Some(224));
+        assert_eq!(data_of("XL330-M288"), Some(208));
+    }
+
+    #[test]
     fn field_spans_are_contiguous() {
         assert_eq!(Fields::POSITION.span(), (132, 4));
         let with_velocity = Fields {
