@@ -4,6 +4,10 @@
 //!
 //! `cargo run --release --example loop_rate [-- SECONDS]` (default 5 s per rate).
 //!
+//! `cargo run --release --example loop_rate -- SECONDS --wire [--ftdi MS]` runs only the rates
+//! with wire timing, with `--ftdi` through the simulator's FTDI adapter model (`[sim] adapter =
+//! "ftdi"`, its latency timer MS ms: 1 as snakectl sets it on Linux, 16 as the chip comes).
+//!
 //! `cargo run --release --example loop_rate -- SECONDS --obstacles` instead runs the fixed rates
 //! without wire timing twice, with no obstacles and with 16 small discs near the arm (each
 //! link's middle, 5 cm to alternate sides), one after the other.
@@ -31,6 +35,20 @@ const WARM_UP: Duration = Duration::from_millis(500);
 
 fn config(rate_hz: f64, wire_timing: bool, zenoh_port: Option<u16>) -> Result<Config> {
     config_with(rate_hz, wire_timing, zenoh_port, 0)
+}
+
+/// The FTDI adapter model's latency timer, ms, when `--ftdi MS` is given.
+fn ftdi_ms() -> Result<Option<u32>> {
+    let args: Vec<String> = std::env::args().collect();
+    match args.iter().position(|a| a == "--ftdi") {
+        Some(i) => Ok(Some(
+            args.get(i + 1)
+                .context("--ftdi needs the latency timer, ms")?
+                .parse()
+                .context("--ftdi MS")?,
+        )),
+        None => Ok(None),
+    }
 }
 
 /// [`config`], with `obstacles` small discs near the arm's home pose.
@@ -66,11 +84,15 @@ fn config_with(
             "\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\n"
         ));
     }
+    let adapter = match ftdi_ms()? {
+        Some(ms) if wire_timing => format!("\nadapter = \"ftdi\"\nlatency_timer_ms = {ms}"),
+        _ => String::new(),
+    };
     let text = text
         .replace("rate_hz = 100.0", &format!("rate_hz = {rate_hz:.1}"))
         .replace(
             "wire_timing = false",
-            &format!("wire_timing = {wire_timing}"),
+            &format!("wire_timing = {wire_timing}{adapter}"),
         );
     Ok(Config::from_str(&text, path)?)
 }
@@ -210,27 +232,52 @@ fn main() -> Result<()> {
         }
         return Ok(());
     }
-    println!("Without wire timing, {seconds} s per rate:\n");
-    println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
-    println!("|---|---|---|---|---|---|");
-    for rate in [100.0, 500.0, 1000.0] {
-        row(rate, &run(rate, false, seconds)?);
+    let wire_only = std::env::args().any(|a| a == "--wire");
+    if !wire_only {
+        println!("Without wire timing, {seconds} s per rate:\n");
+        println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
+        println!("|---|---|---|---|---|---|");
+        for rate in [100.0, 500.0, 1000.0] {
+            row(rate, &run(rate, false, seconds)?);
+        }
     }
 
+    // Every tick: a Sync Write of N goals (14 + 5N bytes), a Sync Read instruction (14 + N)
+    // and N replies of 11 + 13 bytes (load, velocity, position, voltage and temperature
+    // through Indirect Address).
     let n = 12.0;
     let baud = 1e6;
-    let bound_s = (28.0 + 21.0 * n) * 10.0 / baud;
+    let bound_s = (28.0 + 30.0 * n) * 10.0 / baud;
+    let adapter = match ftdi_ms()? {
+        Some(ms) => format!(", through the FTDI adapter model with a {ms} ms latency timer"),
+        None => String::new(),
+    };
     println!(
-        "\nWith wire timing at 1 Mbps (wire bound {:.2} ms per cycle = {:.0} Hz):\n",
+        "\nWith wire timing at 1 Mbps{adapter} (wire bound {:.2} ms per cycle = {:.0} Hz):\n",
         bound_s * 1e3,
         1.0 / bound_s
     );
-    println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
+    println!("| rate, Hz | achieved, Hz | tick p50 / p99 / max, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
     println!("|---|---|---|---|---|---|");
     let (mut strict, mut sustained) = (None, None);
-    for rate in [100.0, 150.0, 200.0, 225.0, 250.0, 275.0, 300.0, 350.0] {
-        let m = run(rate, true, seconds)?;
-        row(rate, &m);
+    for rate in [
+        100.0, 150.0, 200.0, 210.0, 220.0, 230.0, 240.0, 250.0, 260.0, 275.0, 300.0,
+    ] {
+        let m = match run(rate, true, seconds) {
+            Ok(m) => m,
+            // A rate far beyond what the bus carries may end with servos not answering.
+            Err(e) => {
+                println!("| {rate:.0} | {e:#} |");
+                continue;
+            }
+        };
+        let t = &m.summary.tick;
+        let cells = cells(&m).replacen(
+            &format!("{:.0} / {:.0} |", t.p50_us, t.p99_us),
+            &format!("{:.0} / {:.0} / {:.0} |", t.p50_us, t.p99_us, t.max_us),
+            1,
+        );
+        println!("| {rate:.0} | {cells}");
         let s = &m.summary;
         if m.fault {
             continue;
@@ -238,7 +285,7 @@ fn main() -> Result<()> {
         if s.overruns == 0 {
             strict = Some(rate);
         }
-        if (s.overruns as f64) <= 1e-3 * s.ticks as f64 {
+        if (s.overruns as f64) < 5e-3 * s.ticks as f64 {
             sustained = Some(rate);
         }
     }
@@ -252,7 +299,7 @@ fn main() -> Result<()> {
     println!();
     say("Highest rate without a single overrun", strict);
     say(
-        "Highest rate with overruns under 0.1% of the ticks",
+        "Highest rate with overruns under 0.5% of the ticks",
         sustained,
     );
     Ok(())

@@ -97,7 +97,7 @@ fn a_joint_pushing_past_its_contact_load_stops_the_arm_until_reset() {
         named,
         "telemetry's load of joint 1: {at}"
     );
-    // 200 ms above 40 % at 100 Hz with health reads every 10 ticks: three reads, 20 ticks.
+    // 200 ms above 40 % at 100 Hz with the health registers in every read: 21 reads, 20 ticks.
     let held = tick - f["since_tick"].as_u64().unwrap();
     assert_eq!(held, 20, "{raised}");
     // Before the contact, joint 1's goal ran away from its shaft, which stayed put.

@@ -11,9 +11,12 @@ use std::time::{Duration, Instant};
 
 use servo_support::{rig, sim_rig, xl430, TIMEOUT};
 use snakectl::chain::JointLimit;
-use snakectl::servo::arm::{Arm, JointServo, Settings};
+use snakectl::servo::arm::{reboot_and_wait, Arm, JointServo, Retry, Settings};
+use snakectl::servo::clock::RealClock;
 use snakectl::servo::units::{Calibration, TICKS_PER_TURN};
-use snakectl::servo::{Fields, Goal, HardwareErrors, Register, ServoBus, ServoError, ServoModel};
+use snakectl::servo::{
+    Fields, Goal, HardwareErrors, Layout, Register, ServoBus, ServoError, ServoModel, States,
+};
 use snakectl_sim::{Fault, HardwareErrorKind};
 
 #[test]
@@ -527,4 +530,55 @@ fn sixty_four_servos_fit_one_sync_write_and_one_sync_read() {
             Some(i64::from(g.ticks))
         );
     }
+}
+
+/// Through Indirect Address one read of 13 bytes a servo brings what the registers themselves
+/// hold; a servo that lost its RAM (here, rebooted) reads unmapped until mapped again.
+#[test]
+fn the_indirect_block_reads_the_registers_and_a_reboot_unmaps_it() {
+    let mut rig = rig();
+    let ids = rig.ids.clone();
+    let joints = ids
+        .iter()
+        .enumerate()
+        .map(|(i, &id)| {
+            JointServo::new(
+                i + 1,
+                id,
+                ServoModel::from_name("XL430-W250").unwrap(),
+                Calibration::default(),
+                JointLimit { lo: -1.5, hi: 1.5 },
+            )
+        })
+        .collect();
+    let arm = Arm::new(joints, Settings::default());
+    let layout = arm.layout();
+    assert_eq!(layout, Layout::Indirect { data: 224 });
+    let bus = &mut rig.bus;
+    let mut retry = Retry::default();
+    arm.map_indirect(bus, &ids, TIMEOUT, &mut retry).unwrap();
+    let mut block = States::new();
+    bus.read_block_into(&ids, layout, TIMEOUT, &mut block)
+        .unwrap();
+    let direct = bus.read_states(&ids, Fields::ALL, TIMEOUT).unwrap();
+    for (indirect, direct) in block.readings().iter().zip(&direct) {
+        let (indirect, direct) = (indirect.as_ref().unwrap(), direct.as_ref().unwrap());
+        assert_eq!(indirect, direct);
+        assert!(indirect.voltage_dv.is_some_and(|v| v > 0), "{indirect:?}");
+    }
+    let first = ids[0];
+    reboot_and_wait(bus, first, TIMEOUT, &RealClock, &mut retry).unwrap();
+    bus.read_block_into(&ids, layout, TIMEOUT, &mut block)
+        .unwrap();
+    assert!(
+        matches!(block.readings()[0], Err(ServoError::Unmapped { id }) if id == first),
+        "{:?}",
+        block.readings()[0]
+    );
+    assert!(block.readings()[1..].iter().all(Result::is_ok));
+    arm.map_indirect(bus, &[first], TIMEOUT, &mut retry)
+        .unwrap();
+    bus.read_block_into(&ids, layout, TIMEOUT, &mut block)
+        .unwrap();
+    assert!(block.readings().iter().all(Result::is_ok));
 }

@@ -6,6 +6,7 @@
 
 use std::time::{Duration, Instant};
 
+use crate::adapter::Adapter;
 use crate::clock::SharedClock;
 use crate::protocol::{self, error, instruction as ins, Frame, Packet, Parser, BROADCAST_ID};
 use crate::rng::SplitMix64;
@@ -219,6 +220,10 @@ pub struct SimConfig {
     pub return_delay_us: u32,
     /// Delay each reply by its wire time at `baud` plus the Return Delay Time.
     pub wire_timing: bool,
+    /// What hands the replies to the host: nothing (default), or an FTDI chip that holds them
+    /// as its USB packets and latency timer do (the pty layer applies it; see
+    /// [`crate::adapter`]).
+    pub adapter: Adapter,
     /// Seed of the fault generator.
     pub seed: u64,
     /// Faults to inject.
@@ -232,6 +237,7 @@ impl Default for SimConfig {
             baud: 1_000_000,
             return_delay_us: 0,
             wire_timing: false,
+            adapter: Adapter::Direct,
             seed: 1,
             faults: Vec::new(),
         }

@@ -10,6 +10,8 @@
 //! - [`table`]: the per-model control tables (address, size, access, range, initial value);
 //! - [`servo`]: one servo: memory, write rules, hardware errors, watchdog, motor model;
 //! - [`chain`]: the bus: dispatch, reply order, Status Return Level, wire timing, faults;
+//! - [`adapter`]: the USB-serial adapter between bus and host (an FTDI chip's USB packets and
+//!   latency timer), pure;
 //! - [`clock`]: the injectable time source ([`RealClock`], [`ManualClock`]);
 //! - [`rng`]: the seeded generator behind the random faults;
 //! - [`pty`]: serving a [`Simulator`] on a pseudo-terminal, on its own thread, with an optional
@@ -31,6 +33,7 @@
 
 #![forbid(unsafe_code)]
 
+pub mod adapter;
 pub mod chain;
 pub mod clock;
 pub mod protocol;
@@ -39,6 +42,7 @@ pub mod rng;
 pub mod servo;
 pub mod table;
 
+pub use adapter::{Adapter, FtdiReceiver, FTDI_DEFAULT_LATENCY, FTDI_PACKET_DATA};
 pub use chain::{
     Fault, HardwareErrorKind, Reply, SimConfig, Simulator, Stats, UnknownHardwareError, Window,
     BAUD_RATES,

@@ -11,6 +11,10 @@
 //! selects that rate hear and answer, as on a real bus. Where the rate cannot be read, the line
 //! is assumed to run at the configured `baud` (logged once at debug level).
 //!
+//! With `adapter` set to an FTDI chip ([`Adapter::Ftdi`]) the replies are not written as they
+//! leave the bus but as the chip would hand them to the host: in USB packets of 62 data bytes,
+//! or when its latency timer runs out (see [`crate::adapter`]).
+//!
 //! [`spawn_pty_linked`] also keeps a symlink ([`Link`]) pointing at the pseudo-terminal: the one
 //! stable path while a [`Fault::Disconnect`](crate::Fault::Disconnect) unplugs the line. When
 //! such a window opens, the thread closes both ends of the pty (a client's reads and writes then
@@ -29,6 +33,7 @@ use std::time::{Duration, Instant};
 
 use serialport::{SerialPort, TTYPort};
 
+use crate::adapter::{Adapter, FtdiReceiver};
 use crate::chain::{Reply, Simulator};
 use crate::servo::Servo;
 use crate::SimError;
@@ -331,9 +336,12 @@ fn serve(
     let mut line = Some(line);
     // The pseudo-terminal opened when the line went away, served when it comes back.
     let mut spare: Option<Line> = None;
-    // Replies waiting for their deadline, earliest first. Bounded by what one instruction can
-    // ask for (one reply per servo); a client that stops reading only makes writes time out.
-    let mut pending: VecDeque<Reply> = VecDeque::new();
+    // Replies waiting for their deadline. Bounded by what one instruction can ask for (one
+    // reply per servo); a client that stops reading only makes writes time out.
+    let mut pending = {
+        let sim = lock(sim);
+        Outbox::new(sim.config().adapter, clock.now())
+    };
     let mut buf = [0u8; 4096];
     let mut baud_unreadable_logged = false;
     while !stop.load(Ordering::Relaxed) {
@@ -374,14 +382,12 @@ fn serve(
             continue;
         };
         let now = clock.now();
-        while pending.front().is_some_and(|r| r.at <= now) {
-            if let Some(reply) = pending.pop_front() {
-                send(master, &reply);
-            }
+        for (id, bytes) in pending.due(now) {
+            send(master, id, &bytes);
         }
         let wait = match pending
-            .front()
-            .map(|r| (r.at, r.at.saturating_duration_since(now)))
+            .next_at()
+            .map(|at| (at, at.saturating_duration_since(now)))
         {
             None => IDLE_WAIT,
             Some((at, left)) if left <= SPIN_WINDOW => {
@@ -406,10 +412,14 @@ fn serve(
                 let mut sim = lock(sim);
                 sim.set_line_baud(baud);
                 let replies = sim.handle_bytes(bytes);
+                let byte_time = if sim.config().wire_timing {
+                    sim.byte_time()
+                } else {
+                    Duration::ZERO
+                };
                 drop(sim);
                 for reply in replies {
-                    let at = pending.partition_point(|r| r.at <= reply.at);
-                    pending.insert(at, reply);
+                    pending.push(reply, byte_time);
                 }
             }
             Err(e) if e.kind() == ErrorKind::TimedOut || e.kind() == ErrorKind::Interrupted => {
@@ -421,13 +431,77 @@ fn serve(
     Ok(())
 }
 
-fn send(port: &mut TTYPort, reply: &Reply) {
-    tracing::debug!(id = reply.id, "tx {:02X?}", reply.bytes);
+/// Bytes on their way to the host: the replies themselves, or an FTDI chip's packets.
+enum Outbox {
+    /// Replies waiting for their deadline, earliest first.
+    Direct(VecDeque<Reply>),
+    /// The chip that holds them.
+    Ftdi(FtdiReceiver),
+}
+
+impl Outbox {
+    fn new(adapter: Adapter, now: Instant) -> Self {
+        match adapter {
+            Adapter::Direct => Outbox::Direct(VecDeque::new()),
+            Adapter::Ftdi { latency_timer } => Outbox::Ftdi(FtdiReceiver::new(latency_timer, now)),
+        }
+    }
+
+    /// A reply of the bus, its bytes `byte_time` apart on the wire.
+    fn push(&mut self, reply: Reply, byte_time: Duration) {
+        match self {
+            Outbox::Direct(pending) => {
+                let at = pending.partition_point(|r| r.at <= reply.at);
+                pending.insert(at, reply);
+            }
+            Outbox::Ftdi(chip) => chip.receive(&reply.bytes, reply.at, byte_time),
+        }
+    }
+
+    /// What reaches the host by `now` (the replying servo's id, or 0xFE for an adapter's
+    /// packet), in order.
+    fn due(&mut self, now: Instant) -> Vec<(u8, Vec<u8>)> {
+        match self {
+            Outbox::Direct(pending) => {
+                let mut out = Vec::new();
+                while pending.front().is_some_and(|r| r.at <= now) {
+                    if let Some(reply) = pending.pop_front() {
+                        out.push((reply.id, reply.bytes));
+                    }
+                }
+                out
+            }
+            Outbox::Ftdi(chip) => chip
+                .deliver(now)
+                .into_iter()
+                .map(|(_, bytes)| (crate::protocol::BROADCAST_ID, bytes))
+                .collect(),
+        }
+    }
+
+    /// When the next bytes are due.
+    fn next_at(&self) -> Option<Instant> {
+        match self {
+            Outbox::Direct(pending) => pending.front().map(|r| r.at),
+            Outbox::Ftdi(chip) => chip.next_delivery(),
+        }
+    }
+
+    fn clear(&mut self) {
+        match self {
+            Outbox::Direct(pending) => pending.clear(),
+            Outbox::Ftdi(chip) => chip.clear(),
+        }
+    }
+}
+
+fn send(port: &mut TTYPort, id: u8, bytes: &[u8]) {
+    tracing::debug!(id, "tx {:02X?}", bytes);
     if port.set_timeout(Duration::from_millis(50)).is_err() {
         return;
     }
-    if let Err(e) = port.write_all(&reply.bytes) {
+    if let Err(e) = port.write_all(bytes) {
         // Nobody reads (the pty buffer is full): the reply is lost, as on a dead bus.
-        tracing::debug!(id = reply.id, error = %e, "reply not written");
+        tracing::debug!(id, error = %e, "reply not written");
     }
 }

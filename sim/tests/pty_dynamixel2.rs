@@ -387,3 +387,30 @@ fn wire_timing_in_real_time() {
         assert!(took >= expected, "{took:?} < {expected:?}");
     }
 }
+
+#[test]
+fn an_ftdi_adapter_holds_a_reply_until_its_latency_timer_runs_out() {
+    // The simulator's clock stands still: the chip's first timer expiry is 16 ms of it away,
+    // so the reply stays in the chip however long the client waits in real time.
+    let config = SimConfig {
+        adapter: snakectl_sim::Adapter::Ftdi {
+            latency_timer: Duration::from_millis(16),
+        },
+        ..chain(&[1])
+    };
+    let (handle, clock) = serve(config);
+    let mut bus = open(&handle);
+    bus.write_instruction(1, dynamixel2::instructions::instruction_id::PING, 0, |_| {})
+        .expect("ping sent");
+    let early = bus.read_status_response_deadline(Instant::now() + Duration::from_millis(60));
+    assert!(early.is_err(), "a reply before the latency timer ran out");
+    clock.advance(Duration::from_millis(15));
+    let early = bus.read_status_response_deadline(Instant::now() + Duration::from_millis(60));
+    assert!(early.is_err(), "a reply before the latency timer ran out");
+    clock.advance(Duration::from_millis(1));
+    let reply = bus
+        .read_status_response_deadline(Instant::now() + Duration::from_secs(2))
+        .expect("the reply, once the timer ran out");
+    assert_eq!(reply.packet_id(), 1);
+    assert_eq!(reply.parameters(), [0x24, 0x04, 48]);
+}

@@ -487,3 +487,42 @@ fn a_servo_that_loses_power_answers_again_with_its_ram_reset_and_its_eeprom_kept
     assert_eq!(read(&mut s, 1, addr::MAX_POSITION_LIMIT, 4), (0, 3000));
     assert!(!s.lose_power(9) && !s.restore_power(9), "no servo 9");
 }
+
+#[test]
+fn indirect_addresses_take_ram_targets_with_torque_on_and_reset_on_reboot() {
+    // XL330-M288: Indirect Address 1..20 at 168, Indirect Data 1..20 at 208, range 64..=227.
+    let (mut s, _) = sim(vec![ServoSpec::new(1, Model::Xl330M288)]);
+    let slot = addr::INDIRECT_ADDRESS_1;
+    assert_eq!(
+        read(&mut s, 1, slot, 2),
+        (0, 208),
+        "the default: Data 1 itself"
+    );
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    // RAM: written with torque on; an EEPROM target or one past the table is refused.
+    assert_eq!(
+        write(&mut s, 1, slot, &63u16.to_le_bytes()),
+        error::DATA_RANGE
+    );
+    assert_eq!(
+        write(&mut s, 1, slot, &228u16.to_le_bytes()),
+        error::DATA_RANGE
+    );
+    assert_eq!(write(&mut s, 1, slot, &227u16.to_le_bytes()), 0);
+    // Present Position (132..135) and Input Voltage (144, 145) read as one block of 6.
+    for (k, target) in [132u16, 133, 134, 135, 144, 145].iter().enumerate() {
+        assert_eq!(
+            write(&mut s, 1, slot + 2 * k as u16, &target.to_le_bytes()),
+            0
+        );
+    }
+    let position = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    assert_eq!(read(&mut s, 1, 208, 4), (0, position));
+    assert_eq!(read(&mut s, 1, 212, 2), (0, 50), "5.0 V");
+    // A read-only target stays read-only through its Indirect Data.
+    assert_eq!(write(&mut s, 1, 208, &[0, 0, 0, 0]), error::ACCESS);
+    // Reboot: the mapping is RAM, back at its defaults; the Data reads 0.
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    assert_eq!(read(&mut s, 1, slot, 2), (0, 208));
+    assert_eq!(read(&mut s, 1, 208, 4), (0, 0));
+}

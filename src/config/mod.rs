@@ -112,6 +112,9 @@ pub enum FaultKind {
 pub struct Sim {
     /// Sleep for the wire time of every packet.
     pub wire_timing: bool,
+    /// An FTDI adapter's latency timer when `adapter = "ftdi"` (the replies reach the host in
+    /// its USB packets); `None`: no adapter model.
+    pub ftdi_latency: Option<Duration>,
     /// Seed of the random faults.
     pub seed: u64,
     /// Faults to inject; every id names a joint's servo, fractions lie in [0, 1], windows are
@@ -693,8 +696,34 @@ impl Checker<'_> {
             .enumerate()
             .map(|(i, f)| self.fault(i + 1, f, joints))
             .collect::<Result<_, _>>()?;
+        let ftdi_latency = match (raw.adapter, raw.latency_timer_ms) {
+            (raw::RawAdapter::None, None) => None,
+            (raw::RawAdapter::None, Some(ms)) => {
+                return Err(self.invalid(
+                    "sim.latency_timer_ms",
+                    FieldProblem::OutOfRange {
+                        value: ms.into(),
+                        expected: "is an FTDI adapter's: give it with adapter = \"ftdi\"",
+                    },
+                ))
+            }
+            (raw::RawAdapter::Ftdi, ms) => {
+                let ms = ms.unwrap_or(raw::default_latency_timer_ms());
+                if !(1..=255).contains(&ms) {
+                    return Err(self.invalid(
+                        "sim.latency_timer_ms",
+                        FieldProblem::OutOfRange {
+                            value: ms.into(),
+                            expected: "must lie in 1..=255, the FTDI chip's range",
+                        },
+                    ));
+                }
+                Some(Duration::from_millis(ms.into()))
+            }
+        };
         Ok(Sim {
             wire_timing: raw.wire_timing,
+            ftdi_latency,
             seed: raw.seed,
             faults,
         })

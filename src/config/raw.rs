@@ -147,12 +147,31 @@ pub struct RawSim {
     /// Sleep for the wire time of every packet, as a real bus would take.
     #[serde(default)]
     pub wire_timing: bool,
+    /// What hands the replies to the host: `"none"` (the pseudo-terminal alone, default) or
+    /// `"ftdi"` (an FTDI chip's USB packets and latency timer, as in a U2D2).
+    #[serde(default)]
+    pub adapter: RawAdapter,
+    /// The FTDI chip's latency timer, ms (1..=255; 16 as the chip comes). Only with
+    /// `adapter = "ftdi"`.
+    #[serde(default)]
+    pub latency_timer_ms: Option<u32>,
     /// Seed of the simulator's random faults.
     #[serde(default = "default_seed")]
     pub seed: u64,
     /// `[[sim.fault]]`: faults to inject.
     #[serde(default, rename = "fault")]
     pub faults: Vec<Fault>,
+}
+
+/// `[sim] adapter`: what stands between the simulated bus and the host.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RawAdapter {
+    /// The pseudo-terminal hands every reply over as it leaves the bus.
+    #[default]
+    None,
+    /// An FTDI USB-serial chip (a U2D2's): 62-byte USB packets, a latency timer.
+    Ftdi,
 }
 
 /// A hardware error a simulated servo can raise (bits of Hardware Error Status, address 70).
@@ -516,6 +535,11 @@ pub fn default_reply_timeout_ms() -> u32 {
 /// Simulator seed.
 pub fn default_seed() -> u64 {
     1
+}
+
+/// An FTDI chip's latency timer as it comes, ms.
+pub fn default_latency_timer_ms() -> u32 {
+    16
 }
 
 /// Control rate, Hz.

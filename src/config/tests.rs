@@ -1008,3 +1008,42 @@ fn an_enabled_zenoh_must_be_reachable() {
 }
 
 mod world;
+
+#[test]
+fn the_ftdi_adapter_model_takes_a_latency_timer_of_the_chip_s_range() {
+    let sim = |text: &str| load(text).unwrap().sim().cloned().unwrap();
+    assert_eq!(sim(&base_text()).ftdi_latency, None);
+    let ftdi = sim(&with("seed = 7", "seed = 7\nadapter = \"ftdi\""));
+    assert_eq!(
+        ftdi.ftdi_latency,
+        Some(Duration::from_millis(16)),
+        "the chip's default"
+    );
+    let one = sim(&with(
+        "seed = 7",
+        "seed = 7\nadapter = \"ftdi\"\nlatency_timer_ms = 1",
+    ));
+    assert_eq!(one.ftdi_latency, Some(Duration::from_millis(1)));
+    refused(
+        &with(
+            "seed = 7",
+            "seed = 7\nadapter = \"ftdi\"\nlatency_timer_ms = 0",
+        ),
+        &["sim.latency_timer_ms", "0", "1..=255"],
+    );
+    refused(
+        &with(
+            "seed = 7",
+            "seed = 7\nadapter = \"ftdi\"\nlatency_timer_ms = 256",
+        ),
+        &["sim.latency_timer_ms", "256"],
+    );
+    refused(
+        &with("seed = 7", "seed = 7\nlatency_timer_ms = 1"),
+        &["sim.latency_timer_ms", "adapter = \"ftdi\""],
+    );
+    refused(
+        &with("seed = 7", "seed = 7\nadapter = \"u2d2\""),
+        &["u2d2", "ftdi"],
+    );
+}

@@ -126,6 +126,9 @@ pub fn sim_config(config: &Config) -> Result<SimConfig, SimBusError> {
     out.return_delay_us = arm.settings().return_delay_us;
     if let Some(sim) = config.sim() {
         out.wire_timing = sim.wire_timing;
+        if let Some(latency_timer) = sim.ftdi_latency {
+            out.adapter = snakectl_sim::Adapter::Ftdi { latency_timer };
+        }
         out.seed = sim.seed;
         out.faults = sim.faults.iter().map(fault).collect();
     }

@@ -12,6 +12,10 @@
 //!    Operating Mode 3 (position), Return Delay Time and Min/Max Position Limit (EEPROM:
 //!    torque off first if it was on; the protected ones through [`Limited::configure`]);
 //!    Profile Velocity and Acceleration;
+//!    where every servo has Indirect Data at the same address ([`Arm::layout`]), Indirect
+//!    Address 1..13 mapped onto Present Current/Load, Velocity, Position, Input Voltage and
+//!    Temperature (13 Sync Writes, checked by one Sync Read), so that one read of 13 bytes
+//!    brings every present value the loop uses;
 //! 4. clear the Bus Watchdog (0: a watchdog that fired refuses goals until then);
 //! 5. Goal Position = present position;
 //! 6. arm the Bus Watchdog (`[bus] watchdog_ms`);
@@ -41,8 +45,8 @@ use super::limits::{LimitPolicy, Limited, Setting, TickLimits, POSITION_MODE};
 use super::model::ServoModel;
 use super::units::{self, Calibration};
 use super::{
-    ErrorClass, Fields, Goal, HardwareErrors, PingInfo, Reading, Register, ServoBus, ServoError,
-    States, DRIVE_MODE_REVERSE,
+    ErrorClass, Fields, Goal, HardwareErrors, Layout, PingInfo, Reading, Register, ServoBus,
+    ServoError, States, DRIVE_MODE_REVERSE, INDIRECT_ADDRESS_1, INDIRECT_BYTES,
 };
 
 /// How far past a joint's limit, ticks, a servo may read at bring-up and still be brought up
@@ -411,6 +415,53 @@ impl Arm {
         self.joints.iter().map(|j| j.id).collect()
     }
 
+    /// Where the loop reads its servos' present values: through Indirect Address
+    /// ([`Layout::Indirect`]) where every joint's model has Indirect Data at the same address
+    /// (X430/X540 at 224, XL330 at 208), so that every read carries the health registers;
+    /// otherwise (XL330s mixed with X430s, or a model without indirect addressing) the
+    /// registers themselves, the health ones in a longer read of their own.
+    pub fn layout(&self) -> Layout {
+        let mut data = self.joints.iter().map(|j| j.model.indirect_data());
+        match data.next().flatten() {
+            Some(first) if data.all(|d| d == Some(first)) => Layout::Indirect { data: first },
+            _ => Layout::Direct(Fields::ALL),
+        }
+    }
+
+    /// Map Indirect Address 1.. of every servo in `ids` onto the registers of
+    /// [`Layout::Indirect`]: one Sync Write per address, then one Sync Read of the whole
+    /// range to check; a servo that does not read back its mapping gets its addresses written
+    /// one by one (acknowledged, each `retry`ed). Nothing to do for [`Layout::Direct`].
+    pub fn map_indirect<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        ids: &[u8],
+        timeout: Duration,
+        retry: &mut Retry,
+    ) -> Result<(), ServoError> {
+        if !matches!(self.layout(), Layout::Indirect { .. }) || ids.is_empty() {
+            return Ok(());
+        }
+        let slots = indirect_slots();
+        for &(n, target) in &slots {
+            let values: Vec<(u8, i64)> = ids.iter().map(|&id| (id, i64::from(target))).collect();
+            bus.sync_write(Register::IndirectAddress(n), &values)?;
+        }
+        let blocks =
+            retry.run(|| bus.sync_read(ids, INDIRECT_ADDRESS_1, 2 * INDIRECT_BYTES, timeout))?;
+        for (&id, block) in ids.iter().zip(blocks) {
+            if block.is_ok_and(|b| mapped(&b.data)) {
+                continue;
+            }
+            for &(n, target) in &slots {
+                retry.run(|| {
+                    bus.write(id, Register::IndirectAddress(n), i64::from(target), timeout)
+                })?;
+            }
+        }
+        Ok(())
+    }
+
     /// Each servo's Goal Position limits.
     pub fn tick_limits(&self) -> Vec<(u8, TickLimits)> {
         self.joints.iter().map(|j| (j.id, j.ticks)).collect()
@@ -560,6 +611,8 @@ impl Arm {
             self.prepare(bus, j, &mut retry)
                 .map_err(step("writing the servo settings"))?;
         }
+        self.map_indirect(bus, &self.ids(), t, &mut retry)
+            .map_err(step("mapping the Indirect Addresses"))?;
         // A watchdog that fired refuses Goal Position writes until 0 is written to it.
         for j in &self.joints {
             retry
@@ -1065,7 +1118,8 @@ impl Arm {
 
     /// What of the RAM bring-up wrote servo `id` no longer holds, `None` when it all does: a
     /// servo that lost power answers again with its RAM at the defaults (Bus Watchdog 0 where
-    /// it was armed, profiles 0, Torque Enable 0 where `torque` was on). A Bus Watchdog that
+    /// it was armed, profiles 0, Torque Enable 0 where `torque` was on, Indirect Address 1 at
+    /// its default where it was mapped). A Bus Watchdog that
     /// fired (-1) is a powered servo's. Within `within`.
     pub fn ram_reset<B: ServoBus>(
         &self,
@@ -1105,12 +1159,22 @@ impl Arm {
         if torque && read(Register::TorqueEnable)? == 0 {
             reset.push("Torque Enable 0".into());
         }
+        if let (Layout::Indirect { data }, Some(&(n, target))) =
+            (self.layout(), indirect_slots().first())
+        {
+            let value = read(Register::IndirectAddress(n))?;
+            if value != i64::from(target) {
+                reset.push(format!(
+                    "Indirect Address {n} {value} (mapped {target}; default {data})"
+                ));
+            }
+        }
         Ok((!reset.is_empty()).then(|| reset.join(", ")))
     }
 
     /// The RAM part of bring-up again for servo `id` (after it lost power): acknowledgements
-    /// on, the profiles, the Bus Watchdog cleared, goal := present position, the watchdog
-    /// armed. Torque stays off. Within `within`.
+    /// on, the profiles, the Bus Watchdog cleared, the Indirect Addresses mapped, goal :=
+    /// present position, the watchdog armed. Torque stays off. Within `within`.
     pub fn restore_ram<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,
@@ -1133,6 +1197,26 @@ impl Arm {
             units::profile_velocity(self.settings.profile_velocity_rad_s),
         )?;
         write(Register::BusWatchdog, 0)?;
+        if matches!(self.layout(), Layout::Indirect { .. }) {
+            // Thirteen writes without replies, then one read to check them.
+            for (n, target) in indirect_slots() {
+                bus.sync_write(Register::IndirectAddress(n), &[(id, i64::from(target))])?;
+            }
+            let len = 2 * INDIRECT_BYTES;
+            let read = retry.within(within, id, |w| {
+                bus.sync_read(&[id], INDIRECT_ADDRESS_1, len, w)
+            })?;
+            match read.into_iter().next() {
+                Some(Ok(block)) if mapped(&block.data) => {}
+                Some(Err(e)) => return Err(e),
+                _ => {
+                    return Err(ServoError::Malformed {
+                        id,
+                        what: "its Indirect Addresses do not read back as written".into(),
+                    })
+                }
+            }
+        }
         let present = retry
             .within(within, id, |w| bus.read(id, Register::PresentPosition, w))?
             .value;
@@ -1320,6 +1404,23 @@ impl JointServo {
 
 /// How long a rebooted servo may take to answer again.
 pub const REBOOT_WAIT: Duration = Duration::from_secs(3);
+
+/// The Indirect Addresses of [`Layout::Indirect`]: (slot from 1, the address it maps).
+fn indirect_slots() -> Vec<(u8, u16)> {
+    (1..=u8::try_from(INDIRECT_BYTES).unwrap_or(u8::MAX))
+        .filter_map(|n| Layout::indirect_target(n).map(|t| (n, t)))
+        .collect()
+}
+
+/// Whether `data`, the Indirect Addresses read from 168 on, hold the mapping.
+fn mapped(data: &[u8]) -> bool {
+    let slots = indirect_slots();
+    data.len() == 2 * slots.len()
+        && data
+            .chunks_exact(2)
+            .zip(&slots)
+            .all(|(b, &(_, t))| u16::from_le_bytes([b[0], b[1]]) == t)
+}
 
 /// Reboot `id` and wait on `clock` until it answers a ping again (at most [`REBOOT_WAIT`]);
 /// the reboot instruction itself is retried on a transient error.

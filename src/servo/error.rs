@@ -257,6 +257,13 @@ pub enum ServoError {
     /// Reading from or writing to the serial port failed.
     #[error("serial port i/o: {0}")]
     Io(#[from] std::io::Error),
+    /// The servo answered, but its Indirect Addresses are back at their defaults (it lost its
+    /// RAM: a power loss or a reboot), so the indirect block reads zeros.
+    #[error("servo {id}: its Indirect Address mapping is reset (the servo lost its RAM)")]
+    Unmapped {
+        /// The servo.
+        id: u8,
+    },
 }
 
 impl ServoError {
@@ -273,7 +280,8 @@ impl ServoError {
             | Self::Protected { id, .. }
             | Self::UnknownServo { id }
             | Self::NotFinite { id, .. }
-            | Self::BadId { id, .. } => Some(*id),
+            | Self::BadId { id, .. }
+            | Self::Unmapped { id } => Some(*id),
             _ => None,
         }
     }
@@ -290,7 +298,8 @@ impl ServoError {
             Self::Timeout { .. }
             | Self::Checksum { .. }
             | Self::Malformed { .. }
-            | Self::WrongId { .. } => ErrorClass::Transient,
+            | Self::WrongId { .. }
+            | Self::Unmapped { .. } => ErrorClass::Transient,
             Self::Status { alert: true, .. } => ErrorClass::Hardware,
             Self::Status { .. }
             | Self::ValueRange { .. }

@@ -115,6 +115,9 @@ pub enum Register {
     PresentInputVoltage,
     /// Present Temperature (146, 1): °C.
     PresentTemperature,
+    /// Indirect Address `n` (from 1; 168 + 2(n - 1), 2 bytes; RAM): the control-table address
+    /// Indirect Data `n` stands for.
+    IndirectAddress(u8),
 }
 
 impl Register {
@@ -150,6 +153,7 @@ impl Register {
             Self::PresentPosition => 132,
             Self::PresentInputVoltage => 144,
             Self::PresentTemperature => 146,
+            Self::IndirectAddress(n) => INDIRECT_ADDRESS_1 + 2 * u16::from(n.saturating_sub(1)),
         }
     }
 
@@ -160,7 +164,8 @@ impl Register {
             | Self::MaxVoltageLimit
             | Self::MinVoltageLimit
             | Self::PresentCurrent
-            | Self::PresentInputVoltage => 2,
+            | Self::PresentInputVoltage
+            | Self::IndirectAddress(_) => 2,
             Self::HomingOffset
             | Self::VelocityLimit
             | Self::MaxPositionLimit
@@ -317,6 +322,117 @@ impl Fields {
             }
         }
         (start, end - start)
+    }
+}
+
+/// Address of Indirect Address 1 on every X-series model (RAM: it resets at power-on and
+/// reboot, and can be written with torque on).
+pub const INDIRECT_ADDRESS_1: u16 = 168;
+
+/// The registers [`Layout::Indirect`] gathers, in order: every byte of each is mapped to one
+/// Indirect Address, so one read of [`INDIRECT_BYTES`] bytes of Indirect Data returns them all.
+pub const INDIRECT_REGISTERS: [Register; 5] = [
+    Register::PresentCurrent,
+    Register::PresentVelocity,
+    Register::PresentPosition,
+    Register::PresentInputVoltage,
+    Register::PresentTemperature,
+];
+
+/// Bytes of the indirect block: load/current 2, velocity 4, position 4, voltage 2,
+/// temperature 1.
+pub const INDIRECT_BYTES: u16 = 13;
+
+/// Where a read finds a servo's present values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// The present registers themselves: the contiguous span of these fields (position and
+    /// velocity are 8 bytes, everything 21).
+    Direct(Fields),
+    /// Every field, gathered through Indirect Address 1.. into 13 contiguous bytes of Indirect
+    /// Data from this address (224 on X430/X540, 208 on XL330): the registers
+    /// [`INDIRECT_REGISTERS`] mapped, in order. A servo that lost its RAM (power, reboot)
+    /// reads zeros there until mapped again: [`ServoError::Unmapped`].
+    Indirect {
+        /// Indirect Data 1's address.
+        data: u16,
+    },
+}
+
+impl Layout {
+    /// The block (address, length) one read covers.
+    pub fn span(self) -> (u16, u16) {
+        match self {
+            Layout::Direct(fields) => fields.span(),
+            Layout::Indirect { data } => (data, INDIRECT_BYTES),
+        }
+    }
+
+    /// The fields a read brings.
+    pub fn fields(self) -> Fields {
+        match self {
+            Layout::Direct(fields) => fields,
+            Layout::Indirect { .. } => Fields::ALL,
+        }
+    }
+
+    /// The value of Indirect Address `n` (1-based) in the indirect layout: the control-table
+    /// address of the block's `n`-th byte. `None` past the block.
+    pub fn indirect_target(n: u8) -> Option<u16> {
+        let mut k = u16::from(n).checked_sub(1)?;
+        for r in INDIRECT_REGISTERS {
+            if k < r.size() {
+                return Some(r.address() + k);
+            }
+            k -= r.size();
+        }
+        None
+    }
+
+    /// Decode servo `id`'s bytes of this layout.
+    pub fn decode(self, id: u8, data: &[u8], alert: bool) -> Result<ServoState, ServoError> {
+        match self {
+            Layout::Direct(fields) => ServoState::decode(id, data, alert, fields),
+            Layout::Indirect { .. } => {
+                if data.len() != usize::from(INDIRECT_BYTES) {
+                    return Err(ServoError::Malformed {
+                        id,
+                        what: format!("{} data bytes, expected {INDIRECT_BYTES}", data.len()),
+                    });
+                }
+                let mut at = 0;
+                let mut values = [0i64; 5];
+                for (value, r) in values.iter_mut().zip(INDIRECT_REGISTERS) {
+                    let size = usize::from(r.size());
+                    *value = data
+                        .get(at..at + size)
+                        .and_then(|b| r.decode(b))
+                        .unwrap_or(0);
+                    at += size;
+                }
+                let [current, velocity, position, voltage, temperature] = values;
+                // A powered servo never reads 0 V: its Indirect Addresses are back at their
+                // defaults (each Indirect Data reads itself, 0).
+                if voltage == 0 && temperature == 0 {
+                    return Err(ServoError::Unmapped { id });
+                }
+                Ok(ServoState {
+                    id,
+                    position_ticks: i32::try_from(position).unwrap_or_default(),
+                    velocity: i32::try_from(velocity).ok(),
+                    current: i16::try_from(current).ok(),
+                    voltage_dv: u16::try_from(voltage).ok(),
+                    temperature_c: u8::try_from(temperature).ok(),
+                    alert,
+                })
+            }
+        }
+    }
+}
+
+impl From<Fields> for Layout {
+    fn from(fields: Fields) -> Self {
+        Layout::Direct(fields)
     }
 }
 
@@ -580,14 +696,26 @@ pub trait ServoBus {
         timeout: Duration,
         out: &mut States,
     ) -> Result<(), ServoError> {
-        let (address, len) = fields.span();
+        self.read_block_into(ids, Layout::Direct(fields), timeout, out)
+    }
+
+    /// The present values `layout` says where to find, of every servo in `ids`, in one Sync
+    /// Read, into `out` (see [`States::readings`]).
+    fn read_block_into(
+        &mut self,
+        ids: &[u8],
+        layout: Layout,
+        timeout: Duration,
+        out: &mut States,
+    ) -> Result<(), ServoError> {
+        let (address, len) = layout.span();
         out.readings.clear();
         self.sync_read_into(ids, address, len, timeout, &mut out.raw)?;
         for (i, &id) in ids.iter().enumerate() {
             let reading = match out.raw.take_error(i) {
                 Some(e) => Err(e),
                 None => match out.raw.get(i) {
-                    Ok((data, alert)) => ServoState::decode(id, data, alert, fields),
+                    Ok((data, alert)) => layout.decode(id, data, alert),
                     Err(_) => Err(ServoError::Timeout {
                         id,
                         waited: timeout,
@@ -703,6 +831,15 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     ) -> Result<Vec<Reading>, ServoError> {
         (**self).read_states(ids, fields, timeout)
     }
+    fn read_block_into(
+        &mut self,
+        ids: &[u8],
+        layout: Layout,
+        timeout: Duration,
+        out: &mut States,
+    ) -> Result<(), ServoError> {
+        (**self).read_block_into(ids, layout, timeout, out)
+    }
     fn set_torque(&mut self, id: u8, on: bool, timeout: Duration) -> Result<Ack, ServoError> {
         (**self).set_torque(id, on, timeout)
     }
@@ -728,6 +865,53 @@ mod tests {
         assert!(Register::ReturnDelayTime.fits(254) && !Register::ReturnDelayTime.fits(256));
         assert!(Register::BusWatchdog.fits(-1) && !Register::BusWatchdog.fits(128));
         assert!(!Register::TorqueEnable.fits(-1));
+    }
+
+    #[test]
+    fn the_indirect_block_is_thirteen_bytes_of_five_registers() {
+        let targets: Vec<u16> = (1..=13).filter_map(Layout::indirect_target).collect();
+        assert_eq!(
+            targets,
+            [126, 127, 128, 129, 130, 131, 132, 133, 134, 135, 144, 145, 146]
+        );
+        assert_eq!(Layout::indirect_target(0), None);
+        assert_eq!(Layout::indirect_target(14), None);
+        assert_eq!(Register::IndirectAddress(1).address(), 168);
+        assert_eq!(Register::IndirectAddress(13).address(), 192);
+        let layout = Layout::Indirect { data: 224 };
+        assert_eq!(layout.span(), (224, 13));
+        assert_eq!(layout.fields(), Fields::ALL);
+        // Load -5, velocity 300, position -7, 12.0 V, 41 °C.
+        let mut data = Vec::new();
+        data.extend_from_slice(&(-5i16).to_le_bytes());
+        data.extend_from_slice(&300i32.to_le_bytes());
+        data.extend_from_slice(&(-7i32).to_le_bytes());
+        data.extend_from_slice(&120u16.to_le_bytes());
+        data.push(41);
+        let s = layout
+            .decode(3, &data, true)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            (s.current, s.velocity, s.position_ticks),
+            (Some(-5), Some(300), -7)
+        );
+        assert_eq!(
+            (s.voltage_dv, s.temperature_c, s.alert),
+            (Some(120), Some(41), true)
+        );
+        // A servo whose RAM was reset reads its Indirect Data as 0: not a pose at -180°.
+        assert!(matches!(
+            layout.decode(3, &[0; 13], false),
+            Err(ServoError::Unmapped { id: 3 })
+        ));
+        assert!(matches!(
+            layout.decode(3, &data[..12], false),
+            Err(ServoError::Malformed { id: 3, .. })
+        ));
+        // Every known model maps its Indirect Data where the e-manual puts it.
+        let data_of = |name| ServoModel::from_name(name).and_then(ServoModel::indirect_data);
+        assert_eq!(data_of("XM430-W350"), Some(224));
+        assert_eq!(data_of("XL330-M288"), Some(208));
     }
 
     #[test]

@@ -10,34 +10,46 @@ pub struct ServoModel {
     name: &'static str,
     number: u16,
     current: CurrentUnit,
+    indirect_data: Option<u16>,
 }
 
-const fn model(name: &'static str, number: u16, current: CurrentUnit) -> ServoModel {
+const fn model(
+    name: &'static str,
+    number: u16,
+    current: CurrentUnit,
+    indirect_data: Option<u16>,
+) -> ServoModel {
     ServoModel {
         name,
         number,
         current,
+        indirect_data,
     }
 }
 
 const LOAD: CurrentUnit = CurrentUnit::LoadPermille;
 const MA_2_69: CurrentUnit = CurrentUnit::MilliAmps(2.69);
 const MA_1: CurrentUnit = CurrentUnit::MilliAmps(1.0);
+/// Indirect Data 1 of the X430/X540 models (28 slots from Indirect Address 1 at 168).
+const X430_DATA: Option<u16> = Some(224);
+/// Indirect Data 1 of the XL330 models (20 slots from Indirect Address 1 at 168).
+const X330_DATA: Option<u16> = Some(208);
 
-/// Every known model: e-manual name, Model Number (register 0), Present Current's unit.
+/// Every known model: e-manual name, Model Number (register 0), Present Current's unit, the
+/// address of Indirect Data 1 (every one of them has Indirect Address 1 at 168).
 pub const MODELS: [ServoModel; 12] = [
-    model("XH430-W210", 1000, MA_2_69),
-    model("XH430-W350", 1010, MA_2_69),
-    model("XM430-W350", 1020, MA_2_69),
-    model("XM430-W210", 1030, MA_2_69),
-    model("XL430-W250", 1060, LOAD),
-    model("XC430-W150", 1070, LOAD),
-    model("XC430-W240", 1080, LOAD),
-    model("2XL430-W250", 1090, LOAD),
-    model("XM540-W270", 1120, MA_2_69),
-    model("XM540-W150", 1130, MA_2_69),
-    model("XL330-M077", 1190, MA_1),
-    model("XL330-M288", 1200, MA_1),
+    model("XH430-W210", 1000, MA_2_69, X430_DATA),
+    model("XH430-W350", 1010, MA_2_69, X430_DATA),
+    model("XM430-W350", 1020, MA_2_69, X430_DATA),
+    model("XM430-W210", 1030, MA_2_69, X430_DATA),
+    model("XL430-W250", 1060, LOAD, X430_DATA),
+    model("XC430-W150", 1070, LOAD, X430_DATA),
+    model("XC430-W240", 1080, LOAD, X430_DATA),
+    model("2XL430-W250", 1090, LOAD, X430_DATA),
+    model("XM540-W270", 1120, MA_2_69, X430_DATA),
+    model("XM540-W150", 1130, MA_2_69, X430_DATA),
+    model("XL330-M077", 1190, MA_1, X330_DATA),
+    model("XL330-M288", 1200, MA_1, X330_DATA),
 ];
 
 impl ServoModel {
@@ -64,6 +76,12 @@ impl ServoModel {
     /// What one unit of Present Current (or Present Load) means on this model.
     pub fn current_unit(self) -> CurrentUnit {
         self.current
+    }
+
+    /// The address of Indirect Data 1, where the registers mapped by Indirect Address 1
+    /// onward (from 168) are read; `None` for a model without indirect addressing.
+    pub fn indirect_data(self) -> Option<u16> {
+        self.indirect_data
     }
 }
 

@@ -273,6 +273,16 @@ mod tests {
             self.0.push("read_states_into");
             Ok(())
         }
+        fn read_block_into(
+            &mut self,
+            _: &[u8],
+            _: crate::servo::Layout,
+            _: Duration,
+            _: &mut crate::servo::States,
+        ) -> Result<(), ServoError> {
+            self.0.push("read_block_into");
+            Ok(())
+        }
         fn read_states(
             &mut self,
             _: &[u8],
@@ -303,6 +313,9 @@ mod tests {
         bus.read_states_into(&[1], Fields::POSITION, t, &mut crate::servo::States::new())
             .unwrap();
         bus.read_states(&[1], Fields::POSITION, t).unwrap();
+        let layout = crate::servo::Layout::Indirect { data: 224 };
+        bus.read_block_into(&[1], layout, t, &mut crate::servo::States::new())
+            .unwrap();
         bus.set_torque(1, true, t).unwrap();
         bus.hardware_errors(1, t).unwrap();
     }
@@ -317,6 +330,7 @@ mod tests {
             "sync_read",
             "read_states_into",
             "read_states",
+            "read_block_into",
             "set_torque",
             "hardware_errors",
         ];

@@ -9,7 +9,9 @@ use crate::protocol::{FaultChange, FaultKind, What};
 use crate::servo::arm::{self, Arm, OnExit, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::limits::Limited;
-use crate::servo::{units, ErrorClass, Fields, HardwareErrors, Register, ServoBus, ServoError};
+use crate::servo::{
+    units, ErrorClass, Fields, HardwareErrors, Layout, Register, ServoBus, ServoError,
+};
 
 use super::health::{JointFault, Limits};
 use super::port::{ReopenError, RETRY_EVERY};
@@ -25,25 +27,30 @@ pub(super) const READ_TAIL: Duration = Duration::from_micros(500);
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The read of the tick scheduled at `scheduled`, its wait capped short of `deadline`;
-    /// with `health`, Present Current/Load, Input Voltage and Temperature too.
+    /// with `health` (always, through Indirect Address), Present Current/Load, Input Voltage
+    /// and Temperature too.
     pub(super) fn read(&mut self, scheduled: Instant, deadline: Instant, health: bool) {
         let left = deadline
             .saturating_duration_since(self.clock.now())
             .saturating_sub(READ_TAIL);
         let timeout = self.schedule.reply_timeout.min(left).max(MIN_READ_WAIT);
-        let fields = if health {
-            self.measured.begin_health();
-            Fields::ALL
-        } else {
-            Fields {
+        // Through Indirect Address every read is a health read.
+        let health = health || matches!(self.layout, Layout::Indirect { .. });
+        let layout = match self.layout {
+            Layout::Indirect { .. } => self.layout,
+            Layout::Direct(_) if health => Layout::Direct(Fields::ALL),
+            Layout::Direct(_) => Layout::Direct(Fields {
                 velocity: true,
                 ..Fields::POSITION
-            }
+            }),
         };
+        if health {
+            self.measured.begin_health();
+        }
         let read = self
             .port
             .bus()
-            .read_states_into(&self.ids, fields, timeout, &mut self.states);
+            .read_block_into(&self.ids, layout, timeout, &mut self.states);
         let mut attention = false;
         match read {
             Err(e) if e.class() == ErrorClass::Bus => {
@@ -80,6 +87,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             Some(Ok(s)) => {
                 self.measured.record(i, s);
                 self.health.answered(i, s.alert)
+            }
+            Some(Err(ServoError::Unmapped { .. })) => {
+                // It answers, with its RAM reset: the fault path looks at it as at a servo
+                // back from a power loss (nothing it read is recorded).
+                self.health.answered(i, false);
+                if !self.unmapped.contains(&i) {
+                    self.unmapped.push(i);
+                }
+                true
             }
             missing => {
                 if matches!(missing, Some(Err(e)) if !e.is_timeout()) {
@@ -146,7 +162,14 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         for (i, since, detail) in self.health.exhausted(scheduled) {
             self.raise(i, JointFault::Silent, since, detail);
         }
-        let back = self.health.back_from_silence();
+        let mut back = self.health.back_from_silence();
+        let power_lost = self.health.power_lost();
+        for i in std::mem::take(&mut self.unmapped) {
+            let held = self.ids.get(i).is_some_and(|id| power_lost.contains(id));
+            if !back.contains(&i) && !held {
+                back.push(i);
+            }
+        }
         if back.is_empty() {
             return;
         }

@@ -46,10 +46,13 @@
 //!
 //! While a fault holds, the controller is frozen and motion commands are refused (`fault`);
 //! once every fault has cleared, goals := the measured pose (tripped watchdogs cleared first)
-//! and the arm holds: it never resumes the command the fault interrupted. At tick 0, before
-//! any client is served, and every `control.health_every`-th tick after, the read extends to
-//! Present Current/Load, Input Voltage and Temperature (one contiguous Sync Read), and a
-//! `warning` event comes before the servo's own temperature and voltage limits.
+//! and the arm holds: it never resumes the command the fault interrupted. Present
+//! Current/Load, Input Voltage and Temperature ride along in every read: bring-up maps them
+//! with Velocity and Position through Indirect Address into one block of 13 bytes
+//! ([`Layout::Indirect`]), so every tick costs the same. Where the servos' models do not
+//! share an Indirect Data address, the read extends to them (one contiguous Sync Read of 21
+//! bytes) at tick 0, before any client is served, and every `control.health_every`-th tick
+//! after. A `warning` event comes before the servo's own temperature and voltage limits.
 
 mod commands;
 mod faults;
@@ -80,7 +83,7 @@ use crate::servo::arm::{Arm, BringUpOptions, OnExit, Within};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
 use crate::servo::limits::{LimitPolicy, Limited};
-use crate::servo::{units, Goal, ServoBus, States};
+use crate::servo::{units, Goal, Layout, ServoBus, States};
 
 use self::health::{Budget, Change, Health};
 use self::ledger::{Ended, Ledger};
@@ -253,6 +256,12 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     schedule: Schedule,
     goals: Vec<Goal>,
     states: States,
+    /// Where the servos' present values are read: through Indirect Address, every read
+    /// carries the health registers.
+    layout: Layout,
+    /// Joints whose read showed their Indirect Address mapping reset (their RAM was lost):
+    /// looked at by the fault path as servos back from a power loss.
+    unmapped: Vec<usize>,
     pending: Vec<(oneshot::Sender<Answer>, Pending)>,
     /// This tick's `stop`s and `estop`s, merged with the other commands by arrival.
     stops: VecDeque<link::Envelope>,
@@ -333,6 +342,18 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             deadman: c.deadman,
         };
         let ids = arm.ids();
+        let layout = arm.layout();
+        match layout {
+            Layout::Indirect { data } => tracing::info!(
+                indirect_data = data,
+                "every read carries load, voltage and temperature (Indirect Address)"
+            ),
+            Layout::Direct(_) => tracing::info!(
+                health_every = c.health_every,
+                "the servos' models do not share an Indirect Data address: load, voltage and \
+                 temperature are read every `control.health_every`-th tick"
+            ),
+        }
         let budget = Budget {
             max_silence: c.max_silence,
             read_interval: period * c.read_every.max(1),
@@ -370,6 +391,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             lists: Lists::default(),
             schedule,
             states: States::new(),
+            layout,
+            unmapped: Vec::new(),
             pending: Vec::with_capacity(COMMAND_QUEUE + STOP_QUEUE),
             stops: VecDeque::with_capacity(STOP_QUEUE),
             received: Vec::with_capacity(COMMAND_QUEUE + STOP_QUEUE),
@@ -457,8 +480,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.decide();
             self.write();
             let s = self.schedule;
-            let health = self.tick % s.health_every == 0;
-            if !self.port.is_lost() && (health || self.tick % s.read_every == 0) {
+            let read = self.tick % s.read_every == 0;
+            let health = match self.layout {
+                // The health registers ride along in every read's block.
+                Layout::Indirect { .. } => read,
+                Layout::Direct(_) => self.tick % s.health_every == 0,
+            };
+            if !self.port.is_lost() && (health || read) {
                 self.read(scheduled, deadline, health);
             }
         }

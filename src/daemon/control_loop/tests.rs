@@ -20,7 +20,10 @@ use crate::protocol::{
 };
 use crate::servo::clock::{Clock, ManualClock};
 use crate::servo::limits::LimitPolicy;
-use crate::servo::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
+use crate::servo::{
+    Ack, Goal, PingInfo, Register, ServoBus, ServoError, ServoModel, SyncReadBuf, Value,
+    INDIRECT_ADDRESS_1,
+};
 
 const MS: Duration = Duration::from_millis(1);
 
@@ -44,12 +47,33 @@ impl Servo {
     fn alert(&self) -> bool {
         self.get(Register::HardwareErrorStatus) != 0
     }
+    /// The byte at `address`, Indirect Data read through its Indirect Address (0, the reset
+    /// value here, stands for the Indirect Data itself, which reads 0).
+    fn byte(&self, address: usize) -> u8 {
+        let model = ServoModel::from_number(self.get(Register::ModelNumber) as u16);
+        let data = model.and_then(ServoModel::indirect_data).map(usize::from);
+        match data {
+            Some(d) if (d..d + 20).contains(&address) => {
+                let slot = usize::from(INDIRECT_ADDRESS_1) + 2 * (address - d);
+                let target =
+                    usize::from(u16::from_le_bytes([self.table[slot], self.table[slot + 1]]));
+                if target == 0 {
+                    0
+                } else {
+                    self.table[target]
+                }
+            }
+            _ => self.table[address],
+        }
+    }
 }
 
 #[derive(Debug, Default)]
 struct Wire {
     servos: BTreeMap<u8, Servo>,
     port_gone: bool,
+    /// The (address, length) of every Sync Read, in order.
+    reads: Vec<(u16, u16)>,
     /// When set, a wait for a reply that never comes costs its timeout on this clock, as on a
     /// real port.
     clock: Option<ManualClock>,
@@ -110,6 +134,9 @@ impl MemoryBus {
                 Register::HardwareErrorStatus,
             ] {
                 s.set(r, 0);
+            }
+            for n in 1..=20 {
+                s.set(Register::IndirectAddress(n), 0);
             }
             let present = s.get(Register::PresentPosition);
             s.set(Register::GoalPosition, present);
@@ -177,12 +204,14 @@ impl ServoBus for MemoryBus {
     ) -> Result<(), ServoError> {
         self.port()?;
         out.reset(ids, len, timeout);
-        let w = self.wire();
+        let mut w = self.wire();
+        w.reads.push((address, len));
         let mut missing = false;
         for (i, id) in ids.iter().enumerate() {
             if let Some(s) = w.servos.get(id).filter(|s| !s.silent) {
                 let a = usize::from(address);
-                out.set(i, &s.table[a..a + usize::from(len)], s.alert());
+                let data: Vec<u8> = (a..a + usize::from(len)).map(|k| s.byte(k)).collect();
+                out.set(i, &data, s.alert());
             } else {
                 missing = true;
             }
@@ -1038,4 +1067,80 @@ fn the_config_files_world_is_in_force_from_start_up() {
     // Without a [world], none.
     let rig = Rig::new(100.0, "");
     assert!(rig.cycle.controller.world().obstacles().is_empty());
+}
+
+#[test]
+fn every_read_carries_the_health_registers_through_indirect_address() {
+    let mut rig = Rig::new(100.0, "");
+    // Bring-up mapped Indirect Address 1..13 onto Present Load/Current .. Temperature.
+    for id in 1..=12 {
+        let s = &rig.bus.wire().servos[&id];
+        let mapped: Vec<i64> = (1..=13)
+            .map(|n| s.get(Register::IndirectAddress(n)))
+            .collect();
+        assert_eq!(
+            mapped,
+            [126, 127, 128, 129, 130, 131, 132, 133, 134, 135, 144, 145, 146],
+            "servo {id}"
+        );
+    }
+    rig.bus
+        .servo(4, |s| s.set(Register::PresentInputVoltage, 115));
+    rig.bus
+        .servo(7, |s| s.set(Register::PresentTemperature, 41));
+    rig.bus.wire().reads.clear();
+    for _ in 0..25 {
+        rig.ticks(1);
+        let s = rig.status();
+        assert_eq!(s.health_tick, s.tick, "a read without the health registers");
+    }
+    // Every tick's read is the same: 13 bytes of Indirect Data from 224 (the XL430's), never
+    // a longer one every `health_every` ticks.
+    let reads = std::mem::take(&mut rig.bus.wire().reads);
+    assert_eq!(reads, vec![(224, 13); 25]);
+    let s = rig.status();
+    assert!((s.voltage_v[3] - 11.5).abs() < 1e-9, "{:?}", s.voltage_v);
+    assert!(
+        (s.temperature_c[6] - 41.0).abs() < 1e-9,
+        "{:?}",
+        s.temperature_c
+    );
+    assert_eq!(s.overruns, 0);
+}
+
+#[test]
+fn a_power_loss_shorter_than_the_silence_budget_is_told_by_the_unmapped_block() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(3);
+    rig.bus.lose_power(5);
+    // Two lost reads: far inside the 300 ms budget, so no `silent` fault is raised.
+    rig.ticks(2);
+    assert_eq!(rig.status().state, State::Holding);
+    rig.events();
+    rig.bus.power_back(5);
+    rig.ticks(1);
+    let s = rig.status();
+    assert_eq!(s.state, State::Estop, "latched as for a power loss");
+    let power: Vec<_> = s
+        .faults
+        .iter()
+        .filter(|f| f.kind == FaultKind::PowerLoss)
+        .collect();
+    assert_eq!(power.len(), 1, "{:?}", s.faults);
+    assert_eq!(power[0].id, Some(5));
+    assert!(
+        power[0].detail.contains("Indirect Address 1"),
+        "{}",
+        power[0].detail
+    );
+    // Its mapping written again with the rest of its RAM: the next reads are whole.
+    assert_eq!(
+        rig.bus.wire().servos[&5].get(Register::IndirectAddress(1)),
+        126
+    );
+    let before = s.tick;
+    rig.ticks(3);
+    let s = rig.status();
+    assert!(s.health_tick > before);
+    assert!(s.voltage_v[4] > 10.0, "{:?}", s.voltage_v);
 }
