@@ -40,7 +40,9 @@
 //! - **Stop**: converged when the tip is within the tolerance, the least clearance within the
 //!   tip tolerance of `clearance_m`, and stationarity and complementarity (`nu_j` times the
 //!   pair's slack) within the stationarity tolerance; not converged at the iteration cap, when
-//!   no step decreases the merit, or when elastic steps stall (as without obstacles).
+//!   no step decreases the merit, when elastic steps stall (as without obstacles), or when
+//!   the optimality residual has not fallen by 1% in [`STALL_STEPS`] iterations (a body
+//!   caught on an obstacle, whose exact and elastic steps alternate, each tiny).
 //!
 //! The answer a caller gets is checked once more with [`World::clearance`] (exact, all pairs):
 //! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
@@ -81,6 +83,9 @@ const MARGIN_FLOOR: f64 = 0.05;
 /// Two selected pairs with the same obstacle whose contact points are this close (relative to
 /// the scale) are the same constraint.
 const SAME_CONTACT: f64 = 1e-9;
+/// A local solve whose optimality residual has not fallen by 1% in this many iterations is
+/// stuck (a body caught on an obstacle: exact and elastic steps alternating, each tiny).
+pub const STALL_STEPS: usize = 10;
 /// Forward-difference step for the pairs' Hessians, rad.
 const FD_STEP: f64 = 1e-7;
 /// A KKT pivot below this fraction of the matrix's largest entry is singular.
@@ -432,8 +437,16 @@ impl ClearWork {
         let mut stall = ElasticStall::default();
         let (mut nu_t, mut nu_c) = (0.0, 0.0);
         self.last_move = 0.0;
+        // The least optimality residual so far and the iterations since it last fell by 1%.
+        let (mut best_residual, mut since) = (f64::INFINITY, 0);
         loop {
             let at = self.eval(p, world, theta, lo, hi, *mu);
+            let residual = at.residual(p.scale);
+            if residual < super::ELASTIC_STALL_RATIO * best_residual {
+                (best_residual, since) = (residual, 0);
+            } else {
+                since += 1;
+            }
             let ctol = tol;
             let converged = at.cn <= tol && at.viol <= ctol && at.s <= p.stol && at.comp <= p.stol;
             let stop = |converged: bool, joined: bool, iterations: usize| ClearLocal {
@@ -452,7 +465,7 @@ impl ClearWork {
             if converged {
                 return stop(true, false, iterations);
             }
-            if iterations >= max_iterations {
+            if iterations >= max_iterations || since > STALL_STEPS {
                 return stop(false, false, iterations);
             }
             iterations += 1;
