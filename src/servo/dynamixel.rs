@@ -15,17 +15,27 @@
 //! be in flight when the next instruction goes out: a single exchange skips replies from other
 //! servos and replies of the wrong length (the same servo's answer to an earlier instruction);
 //! a sync read counts the servos listed before a reply's id as missing.
+//!
+//! Fast Sync Read (0x8A), which the crate does not know, is framed here: the instruction goes
+//! out through `write_instruction` (it is laid out as Sync Read), and its one status packet
+//! (not byte-stuffed, see [`FastReply`]) is read raw from a second handle on the same port,
+//! with its own deadline. A reply cut short or damaged at servo k keeps the blocks before k;
+//! servo k is reported as a missing or damaged Sync Read reply would be, and the servos after
+//! it are asked again in the same call with a Sync Read, so that one silent servo costs no
+//! other servo its reading.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use dynamixel2::checksum::calculate_checksum;
 use dynamixel2::instructions::instruction_id as ins;
+use dynamixel2::serial2::SerialPort;
 use dynamixel2::{Bus, InvalidMessage, ReadError, WriteError};
 
 use super::lock::PortLock;
 use super::sysfs::{Latency, Sysfs};
 use super::{
-    baud_index, Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value,
+    baud_index, Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value,
     BROADCAST_ID, MAX_ID,
 };
 
@@ -41,6 +51,23 @@ const STATUS_OVERHEAD: usize = 11;
 /// Bytes of an instruction packet without parameters: header 4, id, length 2, instruction,
 /// CRC 2.
 const INSTRUCTION_OVERHEAD: usize = 10;
+/// Fast Sync Read's instruction byte (Protocol 2.0; X430/X540 firmware 45+, X330 46+).
+pub const FAST_SYNC_READ: u8 = 0x8A;
+/// Status packet instruction byte.
+const STATUS: u8 = 0x55;
+/// The header every packet opens with.
+const HEADER: [u8; 4] = [0xFF, 0xFF, 0xFD, 0x00];
+/// Bytes of a Fast Sync Read reply before the first servo's block: header 4, id, length 2,
+/// instruction.
+const FAST_HEAD: usize = 8;
+/// Bytes of one servo's block besides its data: error, id, CRC 2.
+const FAST_BLOCK_OVERHEAD: usize = 4;
+
+/// Bytes of a Fast Sync Read reply for `servos` servos of `len` data bytes each:
+/// `8 + servos × (len + 4)` (a Sync Read's replies take `servos × (11 + len)`).
+pub fn fast_reply_bytes(servos: usize, len: usize) -> usize {
+    FAST_HEAD + servos * (len + FAST_BLOCK_OVERHEAD)
+}
 
 /// A Dynamixel Protocol 2.0 bus on a serial port, which it holds the lock of (see
 /// [`super::lock`]) until dropped or closed.
@@ -51,6 +78,12 @@ pub struct DynamixelBus {
     baud: u32,
     port: PathBuf,
     latency: Latency,
+    /// What [`ServoBus::sync_read_into`] sends.
+    read_kind: ReadKind,
+    /// The bytes of a Fast Sync Read reply, reused from read to read.
+    fast: Vec<u8>,
+    /// The Sync Read that asks again the servos after a break in a Fast reply, reused.
+    rest: SyncReadBuf,
 }
 
 /// A port open, and the lock that makes this process its one owner. The fields drop in this
@@ -58,6 +91,9 @@ pub struct DynamixelBus {
 #[derive(Debug)]
 struct Open {
     bus: Bus<Vec<u8>, Vec<u8>>,
+    /// A second handle on the same device, with its own read timeout: Fast Sync Read replies
+    /// are read through it, past the crate's parser (which would unstuff them).
+    raw: SerialPort,
     lock: PortLock,
 }
 
@@ -149,6 +185,13 @@ impl DynamixelBus {
                 port: port.clone(),
                 source,
             })?;
+        let raw = bus
+            .serial_port()
+            .try_clone()
+            .map_err(|source| ServoError::Open {
+                port: port.clone(),
+                source,
+            })?;
         let latency = sysfs.ensure_low_latency(&port);
         match &latency {
             Latency::Lowered { from_ms } => {
@@ -165,10 +208,13 @@ impl DynamixelBus {
             Latency::NotApplicable | Latency::Low => {}
         }
         Ok(Self {
-            open: Some(Open { bus, lock }),
+            open: Some(Open { bus, raw, lock }),
             baud,
             port,
             latency,
+            read_kind: ReadKind::Sync,
+            fast: Vec::with_capacity(READ_BUFFER),
+            rest: SyncReadBuf::new(),
         })
     }
 
@@ -348,6 +394,330 @@ fn check_sync_write(
     Ok(n)
 }
 
+impl DynamixelBus {
+    /// One Sync Read (0x82): each reply read with its own deadline and matched by id.
+    pub fn plain_sync_read_into(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        let data_len = usize::from(len);
+        let per_reply = self.reply_wait(data_len, timeout);
+        out.reset(ids, len, per_reply);
+        if ids.is_empty() {
+            return Ok(());
+        }
+        check_read_ids(ids)?;
+        let n = ids.len();
+        self.wire()?
+            .write_instruction(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
+                buf[..2].copy_from_slice(&address.to_le_bytes());
+                buf[2..4].copy_from_slice(&len.to_le_bytes());
+                buf[4..].copy_from_slice(ids);
+            })
+            .map_err(write_error)?;
+        // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
+        let mut next = 0;
+        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud) + per_reply;
+        // Bounds the loop if stray packets keep arriving.
+        let mut budget = 2 * n + 8;
+        while next < n && budget > 0 {
+            budget -= 1;
+            let deadline = Instant::now() + wait;
+            match self
+                .wire()?
+                .read_status_response_deadline(poll_deadline(deadline))
+            {
+                Ok(p) => {
+                    let id = p.packet_id();
+                    let Some(k) = ids[next..].iter().position(|&x| x == id) else {
+                        tracing::debug!(id, "sync read: reply from a servo not expected now");
+                        continue;
+                    };
+                    // The servos listed before this one stay marked as missing.
+                    let data = p.parameters();
+                    if data.len() == data_len {
+                        out.set(next + k, data, p.alert());
+                    } else {
+                        out.fail(
+                            next + k,
+                            ServoError::Malformed {
+                                id,
+                                what: format!("{} data bytes, expected {data_len}", data.len()),
+                            },
+                        );
+                    }
+                    next += k + 1;
+                }
+                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
+                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
+                Err(e) => {
+                    out.fail(next, read_error(ids[next], wait, e));
+                    next += 1;
+                }
+            }
+            wait = per_reply;
+        }
+        Ok(())
+    }
+
+
+    /// One Fast Sync Read (0x8A) of `len` bytes at `address` from every servo in `ids`, into
+    /// `out`, whatever [`ServoBus::read_kind`] says. The whole reply is waited for until its
+    /// wire time plus `timeout`. Where it breaks off or fails its CRC (at servo k), the servos
+    /// before k keep their data, servo k gets the error a Sync Read would give it (a timeout,
+    /// a damaged reply), and the servos after k are asked again with one Sync Read.
+    pub fn fast_sync_read_into(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        let data_len = usize::from(len);
+        out.reset(ids, len, self.reply_wait(data_len, timeout));
+        if ids.is_empty() {
+            return Ok(());
+        }
+        check_read_ids(ids)?;
+        let n = ids.len();
+        let total = fast_reply_bytes(n, data_len);
+        if total > READ_BUFFER {
+            return Err(ServoError::BufferTooSmall {
+                needed: total,
+                have: READ_BUFFER,
+            });
+        }
+        self.wire()?
+            .write_instruction(BROADCAST_ID, FAST_SYNC_READ, 4 + n, |buf| {
+                buf[..2].copy_from_slice(&address.to_le_bytes());
+                buf[2..4].copy_from_slice(&len.to_le_bytes());
+                buf[4..].copy_from_slice(ids);
+            })
+            .map_err(write_error)?;
+        let waited = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud)
+            + wire_time(total, self.baud)
+            + timeout;
+        let end = poll_deadline(Instant::now() + waited);
+        let Some(open) = self.open.as_mut() else {
+            return Err(closed());
+        };
+        let buf = &mut self.fast;
+        buf.resize(READ_BUFFER, 0);
+        let mut got = 0;
+        let mut reply = FastReply::new(ids, data_len);
+        let broken = loop {
+            match reply.advance(&buf[..got], out) {
+                FastState::Pending => {}
+                FastState::Complete => return Ok(()),
+                FastState::Broken { index, error } => break (index, error),
+            }
+            let Some(left) = end.checked_duration_since(Instant::now()).filter(|d| !d.is_zero())
+            else {
+                let index = reply.intact();
+                break (index, ServoError::Timeout { id: ids[index], waited });
+            };
+            if got == buf.len() {
+                let index = reply.intact();
+                let what = "more bytes than a Fast Sync Read reply holds".to_string();
+                break (index, ServoError::Malformed { id: ids[index], what });
+            }
+            // The timeout has whole-millisecond resolution: never ask for 0 (no wait at all).
+            open.raw
+                .set_read_timeout(left.max(Duration::from_millis(1)))
+                .map_err(ServoError::Io)?;
+            match open.raw.read(&mut buf[got..]) {
+                Ok(k) => got += k,
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                Err(e) => return Err(ServoError::Io(e)),
+            }
+        };
+        let (index, error) = broken;
+        tracing::debug!(%error, intact = index, "fast sync read broke off");
+        out.fail(index, error);
+        let rest = ids.get(index + 1..).unwrap_or_default();
+        if rest.is_empty() {
+            return Ok(());
+        }
+        // The servos after the break are asked again, as a Sync Read would have.
+        let mut again = std::mem::take(&mut self.rest);
+        let result = self.plain_sync_read_into(rest, address, len, timeout, &mut again);
+        if result.is_ok() {
+            for j in 0..rest.len() {
+                match again.take_error(j) {
+                    Some(e) => out.fail(index + 1 + j, e),
+                    None => {
+                        if let Ok((data, alert)) = again.get(j) {
+                            out.set(index + 1 + j, data, alert);
+                        }
+                    }
+                }
+            }
+        }
+        self.rest = again;
+        result
+    }
+}
+
+/// Checks a sync read's ids before anything is sent: each in range, none twice.
+fn check_read_ids(ids: &[u8]) -> Result<(), ServoError> {
+    for (i, &id) in ids.iter().enumerate() {
+        check_id(id)?;
+        if ids[..i].contains(&id) {
+            return Err(ServoError::BadId {
+                id,
+                what: "listed twice in one sync read",
+            });
+        }
+    }
+    if ids.len() > MAX_SERVOS {
+        return Err(ServoError::BufferTooSmall {
+            needed: ids.len(),
+            have: MAX_SERVOS,
+        });
+    }
+    Ok(())
+}
+
+/// Where a [`FastReply`] stands after the bytes received so far.
+#[derive(Debug)]
+pub enum FastState {
+    /// Every block so far checked; more bytes are needed.
+    Pending,
+    /// Every servo's block checked.
+    Complete,
+    /// The reply cannot be trusted from servo `index` (of the ids) on: the header was wrong
+    /// (index 0), or that servo's block failed its CRC or named another servo.
+    Broken {
+        /// The servo (index into the ids) whose block is damaged.
+        index: usize,
+        /// What its reading is: the error a Sync Read would give for that reply.
+        error: ServoError,
+    },
+}
+
+/// The reader of one Fast Sync Read status packet, fed the bytes received so far.
+///
+/// Layout (Protocol 2.0, not byte-stuffed): `FF FF FD 00 | FE | LEN (2) | 55 |` then per servo,
+/// in the order of the instruction's ids, `ERR ID DATA CRC (2)`: the first ERR sits where a
+/// status packet's error byte does, `LEN = 1 + N × (X + 4)`, and each block's CRC is the
+/// CRC-16 of the whole packet from its header to that block's last data byte (the last block's
+/// CRC is the packet's). So each block is checked as soon as it is in, and a reply cut short
+/// or damaged at block k still yields the blocks before k. Bytes before the header (noise on
+/// the line) are skipped; bytes after the last block are ignored.
+#[derive(Debug)]
+pub struct FastReply<'a> {
+    ids: &'a [u8],
+    len: usize,
+    /// Where the header starts in the bytes, once found.
+    start: Option<usize>,
+    /// Blocks checked.
+    done: usize,
+    /// CRC of the bytes up to `crc_end`.
+    crc: u16,
+    crc_end: usize,
+}
+
+impl<'a> FastReply<'a> {
+    /// The reader of a reply to a Fast Sync Read of `len` bytes from `ids`.
+    pub fn new(ids: &'a [u8], len: usize) -> Self {
+        Self {
+            ids,
+            len,
+            start: None,
+            done: 0,
+            crc: 0,
+            crc_end: 0,
+        }
+    }
+
+    /// Servos whose blocks checked so far (the index of the next one).
+    pub fn intact(&self) -> usize {
+        self.done
+    }
+
+    /// Check the blocks `bytes` (everything received so far, from its first byte) holds beyond
+    /// those already checked; each servo's block that checks goes into `out` at its index
+    /// (its data and alert flag, or a status error it reported).
+    pub fn advance(&mut self, bytes: &[u8], out: &mut SyncReadBuf) -> FastState {
+        let n = self.ids.len();
+        let Some(first) = self.ids.first().copied() else {
+            return FastState::Complete;
+        };
+        let start = match self.start {
+            Some(start) => start,
+            None => match bytes.windows(HEADER.len()).position(|w| w == HEADER) {
+                Some(start) => {
+                    self.start = Some(start);
+                    self.crc_end = start;
+                    start
+                }
+                None => return FastState::Pending,
+            },
+        };
+        if self.done == 0 {
+            let Some(head) = bytes.get(start..start + FAST_HEAD) else {
+                return FastState::Pending;
+            };
+            let length = usize::from(u16::from_le_bytes([head[5], head[6]]));
+            let expected = fast_reply_bytes(n, self.len) - 7;
+            if head[4] != BROADCAST_ID || head[7] != STATUS || length != expected {
+                let what = format!(
+                    "not a Fast Sync Read reply (id {}, instruction 0x{:02X}, length {length}, \
+                     expected id 254, 0x55, {expected})",
+                    head[4], head[7]
+                );
+                return FastState::Broken {
+                    index: 0,
+                    error: ServoError::Malformed { id: first, what },
+                };
+            }
+        }
+        let block = self.len + FAST_BLOCK_OVERHEAD;
+        while let Some(&id) = self.ids.get(self.done) {
+            let from = start + FAST_HEAD + self.done * block;
+            let Some(b) = bytes.get(from..from + block) else {
+                return FastState::Pending;
+            };
+            let crc_at = from + block - 2;
+            let computed = calculate_checksum(self.crc, &bytes[self.crc_end..crc_at]);
+            let received = u16::from_le_bytes([b[block - 2], b[block - 1]]);
+            if computed != received {
+                return FastState::Broken {
+                    index: self.done,
+                    error: ServoError::Checksum {
+                        id,
+                        received,
+                        computed,
+                    },
+                };
+            }
+            if b[1] != id {
+                let what = format!("the Fast Sync Read block of servo {id} names servo {}", b[1]);
+                return FastState::Broken {
+                    index: self.done,
+                    error: ServoError::Malformed { id, what },
+                };
+            }
+            self.crc = calculate_checksum(computed, &b[block - 2..]);
+            self.crc_end = from + block;
+            let (code, alert) = (b[0] & 0x7F, b[0] & 0x80 != 0);
+            if code == 0 {
+                out.set(self.done, &b[2..block - 2], alert);
+            } else {
+                out.fail(self.done, ServoError::Status { id, code, alert });
+            }
+            self.done += 1;
+        }
+        debug_assert_eq!(self.done, n);
+        FastState::Complete
+    }
+}
+
 impl ServoBus for DynamixelBus {
     fn baud(&self) -> u32 {
         self.baud
@@ -457,71 +827,18 @@ impl ServoBus for DynamixelBus {
         timeout: Duration,
         out: &mut SyncReadBuf,
     ) -> Result<(), ServoError> {
-        let data_len = usize::from(len);
-        let per_reply = self.reply_wait(data_len, timeout);
-        out.reset(ids, len, per_reply);
-        if ids.is_empty() {
-            return Ok(());
+        match self.read_kind {
+            ReadKind::Sync => self.plain_sync_read_into(ids, address, len, timeout, out),
+            ReadKind::Fast => self.fast_sync_read_into(ids, address, len, timeout, out),
         }
-        for (i, &id) in ids.iter().enumerate() {
-            check_id(id)?;
-            if ids[..i].contains(&id) {
-                return Err(ServoError::BadId {
-                    id,
-                    what: "listed twice in one sync read",
-                });
-            }
-        }
-        let n = ids.len();
-        self.wire()?
-            .write_instruction(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
-                buf[..2].copy_from_slice(&address.to_le_bytes());
-                buf[2..4].copy_from_slice(&len.to_le_bytes());
-                buf[4..].copy_from_slice(ids);
-            })
-            .map_err(write_error)?;
-        // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
-        let mut next = 0;
-        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud) + per_reply;
-        // Bounds the loop if stray packets keep arriving.
-        let mut budget = 2 * n + 8;
-        while next < n && budget > 0 {
-            budget -= 1;
-            let deadline = Instant::now() + wait;
-            match self
-                .wire()?
-                .read_status_response_deadline(poll_deadline(deadline))
-            {
-                Ok(p) => {
-                    let id = p.packet_id();
-                    let Some(k) = ids[next..].iter().position(|&x| x == id) else {
-                        tracing::debug!(id, "sync read: reply from a servo not expected now");
-                        continue;
-                    };
-                    // The servos listed before this one stay marked as missing.
-                    let data = p.parameters();
-                    if data.len() == data_len {
-                        out.set(next + k, data, p.alert());
-                    } else {
-                        out.fail(
-                            next + k,
-                            ServoError::Malformed {
-                                id,
-                                what: format!("{} data bytes, expected {data_len}", data.len()),
-                            },
-                        );
-                    }
-                    next += k + 1;
-                }
-                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
-                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
-                Err(e) => {
-                    out.fail(next, read_error(ids[next], wait, e));
-                    next += 1;
-                }
-            }
-            wait = per_reply;
-        }
+    }
+
+    fn read_kind(&self) -> ReadKind {
+        self.read_kind
+    }
+
+    fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
+        self.read_kind = kind;
         Ok(())
     }
 

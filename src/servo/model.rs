@@ -1,6 +1,7 @@
 //! The servo models this program knows: one table, read by the config (model names), bring-up
-//! (model numbers), `scan` (names of what answers) and the units (what Present Current counts).
-//! Adding a model is one row here (and, to simulate it, one in the simulator's own table).
+//! (model numbers), `scan` (names of what answers), the units (what Present Current counts) and
+//! which firmware speaks Fast Sync Read. Adding a model is one row here (and, to simulate it, one
+//! in the simulator's own table).
 
 use super::units::CurrentUnit;
 
@@ -10,13 +11,20 @@ pub struct ServoModel {
     name: &'static str,
     number: u16,
     current: CurrentUnit,
+    fast_read: Option<u8>,
 }
 
-const fn model(name: &'static str, number: u16, current: CurrentUnit) -> ServoModel {
+const fn model(
+    name: &'static str,
+    number: u16,
+    current: CurrentUnit,
+    fast_read: Option<u8>,
+) -> ServoModel {
     ServoModel {
         name,
         number,
         current,
+        fast_read,
     }
 }
 
@@ -24,20 +32,28 @@ const LOAD: CurrentUnit = CurrentUnit::LoadPermille;
 const MA_2_69: CurrentUnit = CurrentUnit::MilliAmps(2.69);
 const MA_1: CurrentUnit = CurrentUnit::MilliAmps(1.0);
 
-/// Every known model: e-manual name, Model Number (register 0), Present Current's unit.
+/// Fast Sync Read (0x8A), per the e-manual's Protocol 2.0 page: X430 and X540 from firmware 45
+/// (never the dual 2XL/2XC), X330 from firmware 46.
+const X430_FAST: Option<u8> = Some(45);
+const X540_FAST: Option<u8> = Some(45);
+const X330_FAST: Option<u8> = Some(46);
+const NO_FAST: Option<u8> = None;
+
+/// Every known model: e-manual name, Model Number (register 0), Present Current's unit, the
+/// first firmware that answers Fast Sync Read.
 pub const MODELS: [ServoModel; 12] = [
-    model("XH430-W210", 1000, MA_2_69),
-    model("XH430-W350", 1010, MA_2_69),
-    model("XM430-W350", 1020, MA_2_69),
-    model("XM430-W210", 1030, MA_2_69),
-    model("XL430-W250", 1060, LOAD),
-    model("XC430-W150", 1070, LOAD),
-    model("XC430-W240", 1080, LOAD),
-    model("2XL430-W250", 1090, LOAD),
-    model("XM540-W270", 1120, MA_2_69),
-    model("XM540-W150", 1130, MA_2_69),
-    model("XL330-M077", 1190, MA_1),
-    model("XL330-M288", 1200, MA_1),
+    model("XH430-W210", 1000, MA_2_69, X430_FAST),
+    model("XH430-W350", 1010, MA_2_69, X430_FAST),
+    model("XM430-W350", 1020, MA_2_69, X430_FAST),
+    model("XM430-W210", 1030, MA_2_69, X430_FAST),
+    model("XL430-W250", 1060, LOAD, X430_FAST),
+    model("XC430-W150", 1070, LOAD, X430_FAST),
+    model("XC430-W240", 1080, LOAD, X430_FAST),
+    model("2XL430-W250", 1090, LOAD, NO_FAST),
+    model("XM540-W270", 1120, MA_2_69, X540_FAST),
+    model("XM540-W150", 1130, MA_2_69, X540_FAST),
+    model("XL330-M077", 1190, MA_1, X330_FAST),
+    model("XL330-M288", 1200, MA_1, X330_FAST),
 ];
 
 impl ServoModel {
@@ -64,6 +80,17 @@ impl ServoModel {
     /// What one unit of Present Current (or Present Load) means on this model.
     pub fn current_unit(self) -> CurrentUnit {
         self.current
+    }
+
+    /// The first Firmware Version (register 6) that answers Fast Sync Read; `None` when no
+    /// firmware of this model does.
+    pub fn fast_read_firmware(self) -> Option<u8> {
+        self.fast_read
+    }
+
+    /// Whether this model at `firmware` answers Fast Sync Read.
+    pub fn supports_fast_read(self, firmware: u8) -> bool {
+        self.fast_read.is_some_and(|first| firmware >= first)
     }
 }
 
@@ -112,5 +139,14 @@ mod tests {
         assert_eq!(unit(1020), Some(CurrentUnit::MilliAmps(2.69)));
         assert_eq!(unit(1200), Some(CurrentUnit::MilliAmps(1.0)));
         assert!(ServoModel::from_name("xl430-w250").is_none());
+    }
+
+    #[test]
+    fn fast_sync_read_follows_the_emanual_firmware_rule() {
+        let supports = |name, fw| ServoModel::from_name(name).is_some_and(|m| m.supports_fast_read(fw));
+        assert!(supports("XL430-W250", 45) && !supports("XL430-W250", 44));
+        assert!(supports("XM540-W270", 45) && !supports("XM540-W270", 44));
+        assert!(supports("XL330-M288", 46) && !supports("XL330-M288", 45));
+        assert!(!supports("2XL430-W250", 255));
     }
 }
