@@ -464,7 +464,6 @@ impl DynamixelBus {
         Ok(())
     }
 
-
     /// One Fast Sync Read (0x8A) of `len` bytes at `address` from every servo in `ids`, into
     /// `out`, whatever [`ServoBus::read_kind`] says. The whole reply is waited for until its
     /// wire time plus `timeout`. Where it breaks off or fails its CRC (at servo k), the servos
@@ -516,15 +515,29 @@ impl DynamixelBus {
                 FastState::Complete => return Ok(()),
                 FastState::Broken { index, error } => break (index, error),
             }
-            let Some(left) = end.checked_duration_since(Instant::now()).filter(|d| !d.is_zero())
+            let Some(left) = end
+                .checked_duration_since(Instant::now())
+                .filter(|d| !d.is_zero())
             else {
                 let index = reply.intact();
-                break (index, ServoError::Timeout { id: ids[index], waited });
+                break (
+                    index,
+                    ServoError::Timeout {
+                        id: ids[index],
+                        waited,
+                    },
+                );
             };
             if got == buf.len() {
                 let index = reply.intact();
                 let what = "more bytes than a Fast Sync Read reply holds".to_string();
-                break (index, ServoError::Malformed { id: ids[index], what });
+                break (
+                    index,
+                    ServoError::Malformed {
+                        id: ids[index],
+                        what,
+                    },
+                );
             }
             // The timeout has whole-millisecond resolution: never ask for 0 (no wait at all).
             open.raw
@@ -697,7 +710,10 @@ impl<'a> FastReply<'a> {
                 };
             }
             if b[1] != id {
-                let what = format!("the Fast Sync Read block of servo {id} names servo {}", b[1]);
+                let what = format!(
+                    "the Fast Sync Read block of servo {id} names servo {}",
+                    b[1]
+                );
                 return FastState::Broken {
                     index: self.done,
                     error: ServoError::Malformed { id, what },
@@ -862,5 +878,227 @@ impl ServoBus for DynamixelBus {
         if self.open.take().is_some() {
             tracing::debug!(port = %self.port.display(), "port closed, lock released");
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// The e-manual's Fast Sync Read example (Protocol 2.0 page): Present Position (132, 4
+    /// bytes) of servos 3, 7 and 4, reading 166, 2079 and 1023.
+    const EMANUAL_INSTRUCTION: [u8; 17] = [
+        0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x0A, 0x00, 0x8A, 0x84, 0x00, 0x04, 0x00, 0x03, 0x07, 0x04,
+        0x20, 0xF2,
+    ];
+    const EMANUAL_REPLY: [u8; 32] = [
+        0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x19, 0x00, 0x55, // header, id, LEN 25, status
+        0x00, 0x03, 0xA6, 0x00, 0x00, 0x00, 0x84, 0x08, // servo 3: 166, CRC 0x0884
+        0x00, 0x07, 0x1F, 0x08, 0x00, 0x00, 0x16, 0xCA, // servo 7: 2079, CRC 0xCA16
+        0x00, 0x04, 0xFF, 0x03, 0x00, 0x00, 0xD1, 0x9E, // servo 4: 1023, CRC 0x9ED1
+    ];
+    const IDS: [u8; 3] = [3, 7, 4];
+
+    fn parse(bytes: &[u8]) -> (FastState, SyncReadBuf, usize) {
+        let mut out = SyncReadBuf::new();
+        out.reset(&IDS, 4, Duration::from_millis(1));
+        let mut reply = FastReply::new(&IDS, 4);
+        let state = reply.advance(bytes, &mut out);
+        (state, out, reply.intact())
+    }
+
+    fn position(out: &SyncReadBuf, i: usize) -> Option<i64> {
+        out.get(i)
+            .ok()
+            .and_then(|(d, _)| Register::PresentPosition.decode(d))
+    }
+
+    #[test]
+    fn the_emanual_example_instruction_is_laid_out_as_sync_read() {
+        let crc = calculate_checksum(0, &EMANUAL_INSTRUCTION[..15]);
+        assert_eq!(crc, 0xF220);
+        assert_eq!(
+            EMANUAL_INSTRUCTION[5],
+            (4 + IDS.len() + 3) as u8,
+            "LEN = params + 3"
+        );
+        assert_eq!(EMANUAL_INSTRUCTION[7], FAST_SYNC_READ);
+        assert_eq!(fast_reply_bytes(3, 4), EMANUAL_REPLY.len());
+    }
+
+    #[test]
+    fn the_emanual_example_reply_reads_all_three_servos() {
+        let (state, out, intact) = parse(&EMANUAL_REPLY);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(intact, 3);
+        assert_eq!(
+            (0..3).map(|i| position(&out, i)).collect::<Vec<_>>(),
+            [Some(166), Some(2079), Some(1023)]
+        );
+    }
+
+    #[test]
+    fn the_reply_is_read_as_it_arrives_byte_by_byte() {
+        let mut out = SyncReadBuf::new();
+        out.reset(&IDS, 4, Duration::from_millis(1));
+        let mut reply = FastReply::new(&IDS, 4);
+        let mut intact = Vec::new();
+        for end in 0..EMANUAL_REPLY.len() {
+            let state = reply.advance(&EMANUAL_REPLY[..end], &mut out);
+            assert!(matches!(state, FastState::Pending), "{end}: {state:?}");
+            intact.push(reply.intact());
+        }
+        // Each block counts once its CRC is in: after bytes 16, 24 (and 32).
+        assert_eq!(intact[16], 1);
+        assert_eq!(intact[15], 0);
+        assert_eq!(intact[24], 2);
+        assert!(matches!(
+            reply.advance(&EMANUAL_REPLY, &mut out),
+            FastState::Complete
+        ));
+        assert_eq!(position(&out, 2), Some(1023));
+    }
+
+    #[test]
+    fn a_reply_cut_short_keeps_the_blocks_that_arrived_whole() {
+        for (cut, whole) in [
+            (0, 0),
+            (3, 0),
+            (7, 0),
+            (8, 0),
+            (12, 0),
+            (15, 0),
+            (16, 1),
+            (23, 1),
+            (31, 2),
+        ] {
+            let (state, out, intact) = parse(&EMANUAL_REPLY[..cut]);
+            assert!(
+                matches!(state, FastState::Pending),
+                "cut at {cut}: {state:?}"
+            );
+            assert_eq!(intact, whole, "cut at {cut}");
+            for i in 0..3 {
+                assert_eq!(out.get(i).is_ok(), i < whole, "cut at {cut}, servo {i}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_damaged_byte_breaks_the_reply_from_its_block_on() {
+        for (byte, broken) in [
+            (10, 0),
+            (14, 0),
+            (15, 0),
+            (19, 1),
+            (22, 1),
+            (26, 2),
+            (31, 2),
+        ] {
+            let mut bytes = EMANUAL_REPLY;
+            bytes[byte] ^= 0x10;
+            let (state, out, intact) = parse(&bytes);
+            match state {
+                FastState::Broken {
+                    index,
+                    error: ServoError::Checksum { id, .. },
+                } => {
+                    assert_eq!((index, id), (broken, IDS[broken]), "byte {byte}");
+                }
+                other => panic!("byte {byte}: {other:?}"),
+            }
+            assert_eq!(intact, broken);
+            assert_eq!(position(&out, 0).is_some(), broken > 0);
+        }
+    }
+
+    #[test]
+    fn a_wrong_header_or_length_blames_the_first_servo() {
+        for (byte, value) in [(4, 0x03), (5, 0x18), (6, 0x01), (7, 0x56)] {
+            let mut bytes = EMANUAL_REPLY;
+            bytes[byte] = value;
+            let (state, _, intact) = parse(&bytes);
+            assert!(
+                matches!(
+                    state,
+                    FastState::Broken {
+                        index: 0,
+                        error: ServoError::Malformed { id: 3, .. }
+                    }
+                ),
+                "byte {byte}: {state:?}"
+            );
+            assert_eq!(intact, 0);
+        }
+    }
+
+    #[test]
+    fn a_block_of_another_servo_is_refused_even_with_a_good_crc() {
+        let mut bytes = EMANUAL_REPLY.to_vec();
+        bytes[17] = 9;
+        // Recompute the running CRCs as a chain with servo 9 second would have sent them.
+        for end in [22, 30] {
+            let crc = calculate_checksum(0, &bytes[..end]);
+            bytes[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+        }
+        let (state, _, intact) = parse(&bytes);
+        assert!(
+            matches!(
+                state,
+                FastState::Broken {
+                    index: 1,
+                    error: ServoError::Malformed { id: 7, .. }
+                }
+            ),
+            "{state:?}"
+        );
+        assert_eq!(intact, 1);
+    }
+
+    #[test]
+    fn noise_before_the_header_and_garbage_after_the_reply_are_ignored() {
+        let mut bytes = vec![0x00, 0xFF, 0x13, 0xFF, 0xFF];
+        bytes.extend_from_slice(&EMANUAL_REPLY);
+        bytes.extend_from_slice(&[0xFF, 0xFF, 0xFD, 0x00, 0x42, 0x42]);
+        let (state, out, _) = parse(&bytes);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(position(&out, 1), Some(2079));
+    }
+
+    #[test]
+    fn a_status_error_in_a_block_names_that_servo_and_keeps_the_others() {
+        let mut bytes = EMANUAL_REPLY.to_vec();
+        bytes[16] = 0x87; // servo 7: access error, alert
+        for end in [22, 30] {
+            let crc = calculate_checksum(0, &bytes[..end]);
+            bytes[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+        }
+        let (state, out, _) = parse(&bytes);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert!(matches!(
+            out.get(1),
+            Err(ServoError::Status {
+                id: 7,
+                code: 7,
+                alert: true
+            })
+        ));
+        assert_eq!(position(&out, 0), Some(166));
+        assert_eq!(position(&out, 2), Some(1023));
+    }
+
+    #[test]
+    fn the_alert_bit_is_a_flag_beside_the_data() {
+        let mut bytes = EMANUAL_REPLY.to_vec();
+        bytes[8] = 0x80;
+        for end in [14, 22, 30] {
+            let crc = calculate_checksum(0, &bytes[..end]);
+            bytes[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+        }
+        let (state, out, _) = parse(&bytes);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(out.get(0).map(|(_, alert)| alert).ok(), Some(true));
+        assert_eq!(position(&out, 0), Some(166));
     }
 }

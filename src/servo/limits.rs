@@ -16,9 +16,7 @@
 use std::collections::HashMap;
 use std::time::Duration;
 
-use super::{
-    Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value,
-};
+use super::{Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value};
 
 /// What to do with a goal outside the limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -143,7 +143,8 @@ mod tests {
 
     #[test]
     fn fast_sync_read_follows_the_emanual_firmware_rule() {
-        let supports = |name, fw| ServoModel::from_name(name).is_some_and(|m| m.supports_fast_read(fw));
+        let supports =
+            |name, fw| ServoModel::from_name(name).is_some_and(|m| m.supports_fast_read(fw));
         assert!(supports("XL430-W250", 45) && !supports("XL430-W250", 44));
         assert!(supports("XM540-W270", 45) && !supports("XM540-W270", 44));
         assert!(supports("XL330-M288", 46) && !supports("XL330-M288", 45));

@@ -6,9 +6,7 @@
 
 use std::time::Duration;
 
-use super::{
-    Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value,
-};
+use super::{Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value};
 
 /// One instruction as sent.
 #[derive(Debug, Clone, PartialEq, Eq)]
