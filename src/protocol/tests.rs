@@ -159,6 +159,7 @@ fn describe() -> Describe {
         protocol_version: PROTOCOL_VERSION,
         link_radius_m: 0.012,
         clearance_m: 0.004,
+        read: "fast".into(),
     }
 }
 

@@ -336,8 +336,7 @@ pub fn choose_read(
     let cannot: Vec<Refusal> = servos
         .iter()
         .filter(|(_, info)| {
-            ServoModel::from_number(info.model)
-                .is_none_or(|m| !m.supports_fast_read(info.firmware))
+            ServoModel::from_number(info.model).is_none_or(|m| !m.supports_fast_read(info.firmware))
         })
         .map(|(j, info)| Refusal::NoFastRead {
             joint: j.joint,
@@ -658,11 +657,14 @@ impl Arm {
         bus: &mut B,
         servos: &[PingInfo],
     ) -> Result<ReadKind, BringUpError> {
-        let paired: Vec<(&JointServo, PingInfo)> = self.joints.iter().zip(servos.iter().copied()).collect();
+        let paired: Vec<(&JointServo, PingInfo)> =
+            self.joints.iter().zip(servos.iter().copied()).collect();
         let mut kind = choose_read(self.settings.read, &paired).map_err(BringUpError::Refused)?;
         if let Err(source) = bus.set_read_kind(kind) {
             if self.settings.read == ReadChoice::Fast {
-                return Err(BringUpError::Refused(vec![Refusal::FastReadUnsupported { source }]));
+                return Err(BringUpError::Refused(vec![Refusal::FastReadUnsupported {
+                    source,
+                }]));
             }
             tracing::debug!(%source, "keeping Sync Read");
             kind = ReadKind::Sync;
@@ -670,7 +672,8 @@ impl Arm {
         }
         if kind == ReadKind::Sync && self.settings.read == ReadChoice::Auto {
             if let Some((j, info)) = paired.iter().find(|(_, info)| {
-                ServoModel::from_number(info.model).is_none_or(|m| !m.supports_fast_read(info.firmware))
+                ServoModel::from_number(info.model)
+                    .is_none_or(|m| !m.supports_fast_read(info.firmware))
             }) {
                 tracing::info!(
                     id = j.id,
