@@ -20,9 +20,10 @@
 //! out through `write_instruction` (it is laid out as Sync Read), and its one status packet
 //! (not byte-stuffed, see [`FastReply`]) is read raw from a second handle on the same port,
 //! with its own deadline. A reply cut short or damaged at servo k keeps the blocks before k;
-//! servo k is reported as a missing or damaged Sync Read reply would be, and the servos after
-//! it are asked again in the same call with a Sync Read, so that one silent servo costs no
-//! other servo its reading.
+//! a damaged block is reported as a damaged Sync Read reply would be, and the servos from where
+//! the reply can no longer be used are asked again in the same call with a Sync Read (which
+//! names a silent servo as it always does), so that one silent servo costs no other servo its
+//! reading.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -51,6 +52,10 @@ const STATUS_OVERHEAD: usize = 11;
 /// Bytes of an instruction packet without parameters: header 4, id, length 2, instruction,
 /// CRC 2.
 const INSTRUCTION_OVERHEAD: usize = 10;
+/// How long a Fast Sync Read reply may pause (beyond a block's wire time) before the chain is
+/// taken to have broken there: a chain sends its blocks back to back, and a USB adapter with its
+/// latency timer at 1 ms passes bytes on at least every millisecond.
+pub const FAST_STALL: Duration = Duration::from_millis(2);
 /// Fast Sync Read's instruction byte (Protocol 2.0; X430/X540 firmware 45+, X330 46+).
 pub const FAST_SYNC_READ: u8 = 0x8A;
 /// Status packet instruction byte.
@@ -465,10 +470,12 @@ impl DynamixelBus {
     }
 
     /// One Fast Sync Read (0x8A) of `len` bytes at `address` from every servo in `ids`, into
-    /// `out`, whatever [`ServoBus::read_kind`] says. The whole reply is waited for until its
-    /// wire time plus `timeout`. Where it breaks off or fails its CRC (at servo k), the servos
-    /// before k keep their data, servo k gets the error a Sync Read would give it (a timeout,
-    /// a damaged reply), and the servos after k are asked again with one Sync Read.
+    /// `out`, whatever [`ServoBus::read_kind`] says. The servos whose blocks arrive whole keep
+    /// their data. Where a block fails its CRC (servo k), servo k gets the error a Sync Read
+    /// gives a damaged reply and the servos after it are asked again with one Sync Read; where
+    /// the reply stops (no byte for a block's wire time plus [`FAST_STALL`], or `timeout` if
+    /// shorter), the servos from there on are asked again with one Sync Read, which finds and
+    /// names the silent one as it always does (a timeout of `timeout`).
     pub fn fast_sync_read_into(
         &mut self,
         ids: &[u8],
@@ -498,10 +505,13 @@ impl DynamixelBus {
                 buf[4..].copy_from_slice(ids);
             })
             .map_err(write_error)?;
-        let waited = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud)
-            + wire_time(total, self.baud)
-            + timeout;
-        let end = poll_deadline(Instant::now() + waited);
+        // A chain sends its blocks back to back: once the bytes stop for longer than a block's
+        // wire time plus [`FAST_STALL`] (or `timeout`, if shorter), the chain broke there.
+        let stall = timeout.min(FAST_STALL);
+        let block = data_len + FAST_BLOCK_OVERHEAD;
+        let first = wire_time(INSTRUCTION_OVERHEAD + 4 + n + FAST_HEAD + block, self.baud) + stall;
+        let next = wire_time(block, self.baud) + stall;
+        let mut end = poll_deadline(Instant::now() + first);
         let Some(open) = self.open.as_mut() else {
             return Err(closed());
         };
@@ -509,50 +519,53 @@ impl DynamixelBus {
         buf.resize(READ_BUFFER, 0);
         let mut got = 0;
         let mut reply = FastReply::new(ids, data_len);
-        let broken = loop {
+        // Where the reply can no longer be used, and the damaged block's error if it was one
+        // (a stall has none: the servos from there on are asked again).
+        let (index, damaged) = loop {
             match reply.advance(&buf[..got], out) {
                 FastState::Pending => {}
                 FastState::Complete => return Ok(()),
-                FastState::Broken { index, error } => break (index, error),
+                FastState::Broken { index, error } => break (index, Some(error)),
             }
             let Some(left) = end
                 .checked_duration_since(Instant::now())
                 .filter(|d| !d.is_zero())
             else {
-                let index = reply.intact();
-                break (
-                    index,
-                    ServoError::Timeout {
-                        id: ids[index],
-                        waited,
-                    },
-                );
+                break (reply.intact(), None);
             };
             if got == buf.len() {
                 let index = reply.intact();
                 let what = "more bytes than a Fast Sync Read reply holds".to_string();
-                break (
-                    index,
-                    ServoError::Malformed {
-                        id: ids[index],
-                        what,
-                    },
-                );
+                let id = ids[index];
+                break (index, Some(ServoError::Malformed { id, what }));
             }
             // The timeout has whole-millisecond resolution: never ask for 0 (no wait at all).
             open.raw
                 .set_read_timeout(left.max(Duration::from_millis(1)))
                 .map_err(ServoError::Io)?;
             match open.raw.read(&mut buf[got..]) {
-                Ok(k) => got += k,
+                Ok(k) => {
+                    if k > 0 {
+                        end = poll_deadline(Instant::now() + next);
+                    }
+                    got += k;
+                }
                 Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
                 Err(e) => return Err(ServoError::Io(e)),
             }
         };
-        let (index, error) = broken;
-        tracing::debug!(%error, intact = index, "fast sync read broke off");
-        out.fail(index, error);
-        let rest = ids.get(index + 1..).unwrap_or_default();
+        let from = match damaged {
+            Some(error) => {
+                tracing::debug!(%error, intact = index, "fast sync read damaged");
+                out.fail(index, error);
+                index + 1
+            }
+            None => {
+                tracing::debug!(intact = index, "fast sync read stalled");
+                index
+            }
+        };
+        let rest = ids.get(from..).unwrap_or_default();
         if rest.is_empty() {
             return Ok(());
         }
@@ -562,10 +575,10 @@ impl DynamixelBus {
         if result.is_ok() {
             for j in 0..rest.len() {
                 match again.take_error(j) {
-                    Some(e) => out.fail(index + 1 + j, e),
+                    Some(e) => out.fail(from + j, e),
                     None => {
                         if let Ok((data, alert)) = again.get(j) {
-                            out.set(index + 1 + j, data, alert);
+                            out.set(from + j, data, alert);
                         }
                     }
                 }
