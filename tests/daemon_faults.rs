@@ -218,12 +218,22 @@ fn drops_and_corruption(read: &str) {
         last["loop_hz"].as_f64().unwrap()
     );
     // Every reply the simulator lost or damaged is counted (the snapshots are a few reads
-    // apart at most); a damaged reply may count as lost when it came too late.
+    // apart at most); a damaged reply may count as lost when it came too late. With Fast Sync
+    // Read a block lost breaks the chain there, and the servos from there on are asked again
+    // by Sync Read in the same read: a lost block costs a reading only when that reply is lost
+    // too, so fewer are counted lost than the simulator dropped, never more.
     assert!(sim_dropped > 0 && sim_corrupted > 0, "{sim1:?}");
-    assert!(
-        dropped + corrupted + 24 >= sim_dropped + sim_corrupted,
-        "counted {dropped} + {corrupted}, the simulator {sim_dropped} + {sim_corrupted}"
-    );
+    if read == "sync" {
+        assert!(
+            dropped + corrupted + 24 >= sim_dropped + sim_corrupted,
+            "counted {dropped} + {corrupted}, the simulator {sim_dropped} + {sim_corrupted}"
+        );
+    } else {
+        assert!(
+            dropped <= sim_dropped + 24 && corrupted + 24 >= sim_corrupted,
+            "counted {dropped} + {corrupted}, the simulator {sim_dropped} + {sim_corrupted}"
+        );
+    }
     assert!(corrupted > 0 && corrupted <= sim_corrupted + 24);
     // About 2 % of the replies, not more than twice that.
     assert!(
