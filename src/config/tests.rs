@@ -1054,6 +1054,6 @@ fn the_bus_read_and_the_simulated_firmware() {
     );
     refused(
         &with("seed = 7", "seed = 7\nfirmware = 300\n"),
-        &["firmware", "300"],
+        &["300", "u8"],
     );
 }

@@ -673,6 +673,11 @@ fn a_description_gives_back_the_chain_it_was_made_from() {
     );
     let world = crate::world::World::new(0.012, 0.004, vec![]).unwrap();
     let d = d.with_world(&world);
+    assert_eq!(d.read, "", "the read is the daemon's to say");
+    let d = Describe {
+        read: "fast".into(),
+        ..d
+    };
     assert_eq!(d, describe());
     assert_eq!(d.chain().unwrap(), chain);
     let unlimited = Describe {
