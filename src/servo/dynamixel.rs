@@ -52,7 +52,7 @@ const STATUS_OVERHEAD: usize = 11;
 /// Bytes of an instruction packet without parameters: header 4, id, length 2, instruction,
 /// CRC 2.
 const INSTRUCTION_OVERHEAD: usize = 10;
-/// How long a Fast Sync Read reply may pause (beyond a block's wire time) before the chain is
+/// How long a Fast Sync Read reply may pause (beyond the wire time of what is missing) before the chain is
 /// taken to have broken there: a chain sends its blocks back to back, and a USB adapter with its
 /// latency timer at 1 ms passes bytes on at least every millisecond.
 pub const FAST_STALL: Duration = Duration::from_millis(2);
@@ -473,9 +473,9 @@ impl DynamixelBus {
     /// `out`, whatever [`ServoBus::read_kind`] says. The servos whose blocks arrive whole keep
     /// their data. Where a block fails its CRC (servo k), servo k gets the error a Sync Read
     /// gives a damaged reply and the servos after it are asked again with one Sync Read; where
-    /// the reply stops (no byte for a block's wire time plus [`FAST_STALL`], or `timeout` if
-    /// shorter), the servos from there on are asked again with one Sync Read, which finds and
-    /// names the silent one as it always does (a timeout of `timeout`).
+    /// the reply stops (no byte for the wire time of what is missing plus [`FAST_STALL`], or
+    /// `timeout` if shorter), the servos from there on are asked again with one Sync Read,
+    /// which finds and names the silent one as it always does (a timeout of `timeout`).
     pub fn fast_sync_read_into(
         &mut self,
         ids: &[u8],
@@ -505,13 +505,15 @@ impl DynamixelBus {
                 buf[4..].copy_from_slice(ids);
             })
             .map_err(write_error)?;
-        // A chain sends its blocks back to back: once the bytes stop for longer than a block's
-        // wire time plus [`FAST_STALL`] (or `timeout`, if shorter), the chain broke there.
+        // A chain sends its blocks back to back: the reply is waited for until the wire time of
+        // what is still missing plus [`FAST_STALL`] (or `timeout`, if shorter) from the last
+        // byte received (an adapter may hand the bytes on in bursts, or all at the end). Once
+        // the bytes stop that long, the chain broke there.
         let stall = timeout.min(FAST_STALL);
-        let block = data_len + FAST_BLOCK_OVERHEAD;
-        let first = wire_time(INSTRUCTION_OVERHEAD + 4 + n + FAST_HEAD + block, self.baud) + stall;
-        let next = wire_time(block, self.baud) + stall;
-        let mut end = poll_deadline(Instant::now() + first);
+        let baud = self.baud;
+        let mut end = poll_deadline(
+            Instant::now() + wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud) + stall,
+        );
         let Some(open) = self.open.as_mut() else {
             return Err(closed());
         };
@@ -545,10 +547,11 @@ impl DynamixelBus {
                 .map_err(ServoError::Io)?;
             match open.raw.read(&mut buf[got..]) {
                 Ok(k) => {
-                    if k > 0 {
-                        end = poll_deadline(Instant::now() + next);
-                    }
                     got += k;
+                    if k > 0 {
+                        let missing = total.saturating_sub(got);
+                        end = poll_deadline(Instant::now() + wire_time(missing, baud) + stall);
+                    }
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
                 Err(e) => return Err(ServoError::Io(e)),
