@@ -52,9 +52,10 @@ const STATUS_OVERHEAD: usize = 11;
 /// Bytes of an instruction packet without parameters: header 4, id, length 2, instruction,
 /// CRC 2.
 const INSTRUCTION_OVERHEAD: usize = 10;
-/// How long a Fast Sync Read reply may pause (beyond the wire time of what is missing) before the chain is
-/// taken to have broken there: a chain sends its blocks back to back, and a USB adapter with its
-/// latency timer at 1 ms passes bytes on at least every millisecond.
+/// How long a Fast Sync Read reply may pause (beyond the wire time of what is missing) before
+/// the chain is taken to have broken there: a chain sends its blocks back to back, and a USB
+/// adapter with its latency timer at 1 ms passes bytes on at least every millisecond (behind a
+/// latency timer that could not be lowered, the pause allowed is that timer plus 1 ms).
 pub const FAST_STALL: Duration = Duration::from_millis(2);
 /// Fast Sync Read's instruction byte (Protocol 2.0; X430/X540 firmware 45+, X330 46+).
 pub const FAST_SYNC_READ: u8 = 0x8A;
@@ -85,6 +86,9 @@ pub struct DynamixelBus {
     latency: Latency,
     /// What [`ServoBus::sync_read_into`] sends.
     read_kind: ReadKind,
+    /// How long a Fast Sync Read reply may pause before the chain is taken to have broken:
+    /// [`FAST_STALL`], or longer behind an FTDI latency timer that could not be lowered.
+    stall: Duration,
     /// The bytes of a Fast Sync Read reply, reused from read to read.
     fast: Vec<u8>,
     /// The Sync Read that asks again the servos after a break in a Fast reply, reused.
@@ -212,12 +216,20 @@ impl DynamixelBus {
             }
             Latency::NotApplicable | Latency::Low => {}
         }
+        // An adapter holds received bytes up to its latency timer: a reply may pause that long.
+        let stall = match &latency {
+            Latency::TooHigh { ms, .. } => {
+                FAST_STALL.max(Duration::from_millis(u64::from(*ms) + 1))
+            }
+            _ => FAST_STALL,
+        };
         Ok(Self {
             open: Some(Open { bus, raw, lock }),
             baud,
             port,
             latency,
             read_kind: ReadKind::Sync,
+            stall,
             fast: Vec::with_capacity(READ_BUFFER),
             rest: SyncReadBuf::new(),
         })
@@ -509,7 +521,7 @@ impl DynamixelBus {
         // what is still missing plus [`FAST_STALL`] (or `timeout`, if shorter) from the last
         // byte received (an adapter may hand the bytes on in bursts, or all at the end). Once
         // the bytes stop that long, the chain broke there.
-        let stall = timeout.min(FAST_STALL);
+        let stall = timeout.min(self.stall);
         let baud = self.baud;
         let mut end = poll_deadline(
             Instant::now() + wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud) + stall,
