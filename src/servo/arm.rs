@@ -325,6 +325,12 @@ fn fast_read_needs(model: ServoModel) -> String {
     }
 }
 
+/// Whether the servo that answered this ping (its model number and firmware) answers Fast Sync
+/// Read.
+fn answers_fast(info: &PingInfo) -> bool {
+    ServoModel::from_number(info.model).is_some_and(|m| m.supports_fast_read(info.firmware))
+}
+
 /// The read the bus is to use, from `[bus] read` and every servo's ping (model number and
 /// firmware), each paired with its joint: Fast Sync Read where every servo answers it and the
 /// choice allows it, Sync Read otherwise. `fast` with a servo that cannot: refused, naming
@@ -335,9 +341,7 @@ pub fn choose_read(
 ) -> Result<ReadKind, Vec<Refusal>> {
     let cannot: Vec<Refusal> = servos
         .iter()
-        .filter(|(_, info)| {
-            ServoModel::from_number(info.model).is_none_or(|m| !m.supports_fast_read(info.firmware))
-        })
+        .filter(|(_, info)| !answers_fast(info))
         .map(|(j, info)| Refusal::NoFastRead {
             joint: j.joint,
             id: j.id,
@@ -671,10 +675,7 @@ impl Arm {
             bus.set_read_kind(kind).map_err(step("choosing the read"))?;
         }
         if kind == ReadKind::Sync && self.settings.read == ReadChoice::Auto {
-            if let Some((j, info)) = paired.iter().find(|(_, info)| {
-                ServoModel::from_number(info.model)
-                    .is_none_or(|m| !m.supports_fast_read(info.firmware))
-            }) {
+            if let Some((j, info)) = paired.iter().find(|(_, info)| !answers_fast(info)) {
                 tracing::info!(
                     id = j.id,
                     firmware = info.firmware,

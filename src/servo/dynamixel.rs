@@ -631,8 +631,8 @@ pub enum FastState {
     Pending,
     /// Every servo's block checked.
     Complete,
-    /// The reply cannot be trusted from servo `index` (of the ids) on: the header was wrong
-    /// (index 0), or that servo's block failed its CRC or named another servo.
+    /// The reply cannot be trusted from servo `index` (of the ids) on: that servo's block
+    /// failed its CRC or named another servo.
     Broken {
         /// The servo (index into the ids) whose block is damaged.
         index: usize,
@@ -649,13 +649,19 @@ pub enum FastState {
 /// CRC-16 of the whole packet from its header to that block's last data byte (the last block's
 /// CRC is the packet's). So each block is checked as soon as it is in, and a reply cut short
 /// or damaged at block k still yields the blocks before k. Bytes before the header (noise on
-/// the line) are skipped; bytes after the last block are ignored.
+/// the line) are skipped, and so is a packet whose header does not fit this reply (a late
+/// reply to an earlier read, or a header damaged on the way: the read then waits for the real
+/// one, and if none comes the servos are asked again); bytes after the last block are ignored.
 #[derive(Debug)]
 pub struct FastReply<'a> {
     ids: &'a [u8],
     len: usize,
     /// Where the header starts in the bytes, once found.
     start: Option<usize>,
+    /// Where to look for the header next (past packets that were not this reply).
+    search_from: usize,
+    /// Packets passed over before the reply.
+    skipped: usize,
     /// Blocks checked.
     done: usize,
     /// CRC of the bytes up to `crc_end`.
@@ -670,6 +676,8 @@ impl<'a> FastReply<'a> {
             ids,
             len,
             start: None,
+            search_from: 0,
+            skipped: 0,
             done: 0,
             crc: 0,
             crc_end: 0,
@@ -681,43 +689,49 @@ impl<'a> FastReply<'a> {
         self.done
     }
 
+    /// Headers passed over because they did not open this reply (wrong id, instruction or
+    /// length for these servos and this block length).
+    pub fn skipped(&self) -> usize {
+        self.skipped
+    }
+
     /// Check the blocks `bytes` (everything received so far, from its first byte) holds beyond
     /// those already checked; each servo's block that checks goes into `out` at its index
     /// (its data and alert flag, or a status error it reported).
     pub fn advance(&mut self, bytes: &[u8], out: &mut SyncReadBuf) -> FastState {
         let n = self.ids.len();
-        let Some(first) = self.ids.first().copied() else {
+        if n == 0 {
             return FastState::Complete;
-        };
-        let start = match self.start {
-            Some(start) => start,
-            None => match bytes.windows(HEADER.len()).position(|w| w == HEADER) {
-                Some(start) => {
-                    self.start = Some(start);
-                    self.crc_end = start;
-                    start
-                }
-                None => return FastState::Pending,
-            },
-        };
-        if self.done == 0 {
+        }
+        let start = loop {
+            if let Some(start) = self.start {
+                break start;
+            }
+            let from = self.search_from.min(bytes.len());
+            let Some(at) = bytes[from..]
+                .windows(HEADER.len())
+                .position(|w| w == HEADER)
+            else {
+                return FastState::Pending;
+            };
+            let start = from + at;
             let Some(head) = bytes.get(start..start + FAST_HEAD) else {
                 return FastState::Pending;
             };
             let length = usize::from(u16::from_le_bytes([head[5], head[6]]));
-            let expected = fast_reply_bytes(n, self.len) - 7;
-            if head[4] != BROADCAST_ID || head[7] != STATUS || length != expected {
-                let what = format!(
-                    "not a Fast Sync Read reply (id {}, instruction 0x{:02X}, length {length}, \
-                     expected id 254, 0x55, {expected})",
-                    head[4], head[7]
-                );
-                return FastState::Broken {
-                    index: 0,
-                    error: ServoError::Malformed { id: first, what },
-                };
+            if head[4] == BROADCAST_ID
+                && head[7] == STATUS
+                && length == fast_reply_bytes(n, self.len) - 7
+            {
+                self.start = Some(start);
+                self.crc_end = start;
+            } else {
+                // Not this read's reply: a late one to an earlier instruction, another
+                // servo's packet, or a header damaged on the way. Look further on.
+                self.skipped += 1;
+                self.search_from = start + 1;
             }
-        }
+        };
         let block = self.len + FAST_BLOCK_OVERHEAD;
         while let Some(&id) = self.ids.get(self.done) {
             let from = start + FAST_HEAD + self.done * block;
@@ -1042,23 +1056,47 @@ mod tests {
     }
 
     #[test]
-    fn a_wrong_header_or_length_blames_the_first_servo() {
+    fn a_header_that_does_not_fit_is_passed_over_and_the_reply_waited_for() {
         for (byte, value) in [(4, 0x03), (5, 0x18), (6, 0x01), (7, 0x56)] {
             let mut bytes = EMANUAL_REPLY;
             bytes[byte] = value;
-            let (state, _, intact) = parse(&bytes);
+            let mut out = SyncReadBuf::new();
+            out.reset(&IDS, 4, Duration::from_millis(1));
+            let mut reply = FastReply::new(&IDS, 4);
+            let state = reply.advance(&bytes, &mut out);
             assert!(
-                matches!(
-                    state,
-                    FastState::Broken {
-                        index: 0,
-                        error: ServoError::Malformed { id: 3, .. }
-                    }
-                ),
+                matches!(state, FastState::Pending),
                 "byte {byte}: {state:?}"
             );
-            assert_eq!(intact, 0);
+            assert_eq!((reply.intact(), reply.skipped()), (0, 1), "byte {byte}");
+            // Nothing taken from it; if the real reply follows, it is read.
+            assert!(out.get(0).is_err());
+            let mut both = bytes.to_vec();
+            both.extend_from_slice(&EMANUAL_REPLY);
+            assert!(matches!(
+                reply.advance(&both, &mut out),
+                FastState::Complete
+            ));
+            assert_eq!(position(&out, 2), Some(1023));
         }
+    }
+
+    #[test]
+    fn a_late_reply_to_an_earlier_read_is_passed_over() {
+        // A Fast reply of 8 bytes a servo (an earlier read's), then this read's.
+        let mut late = vec![0xFF, 0xFF, 0xFD, 0x00, 0xFE];
+        late.extend_from_slice(&((1 + 3 * 12) as u16).to_le_bytes());
+        late.push(0x55);
+        for (i, &id) in IDS.iter().enumerate() {
+            late.extend_from_slice(&[0, id]);
+            late.extend_from_slice(&[i as u8; 8]);
+            let crc = calculate_checksum(0, &late);
+            late.extend_from_slice(&crc.to_le_bytes());
+        }
+        late.extend_from_slice(&EMANUAL_REPLY);
+        let (state, out, _) = parse(&late);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(position(&out, 0), Some(166));
     }
 
     #[test]
