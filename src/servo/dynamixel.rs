@@ -498,6 +498,9 @@ impl DynamixelBus {
     ) -> Result<(), ServoError> {
         let data_len = usize::from(len);
         out.reset(ids, len, self.reply_wait(data_len, timeout));
+        // The buffers of the Sync Read that may follow a break, sized now: a break later on
+        // then allocates nothing (the loop's reads never do once warm).
+        self.rest.reset(ids, len, Duration::ZERO);
         if ids.is_empty() {
             return Ok(());
         }
