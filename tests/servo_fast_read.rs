@@ -129,7 +129,7 @@ fn the_last_servo_silent_is_named_after_the_others_arrive() {
         at: Duration::ZERO,
     }]));
     let got = fast_positions(&mut rig);
-    assert_eq!(got.iter().filter(|v| v.is_ok()).count(), 11);
+    assert_eq!(got.iter().filter(|v| v.is_ok()).count(), 11, "{got:?}");
     assert!(matches!(got[11], Err(ServoError::Timeout { id: 12, .. })));
     // Nobody after it to ask again: the one Fast reply was all.
     assert_eq!(rig.sim().with_sim(|s| s.stats().replies), 1);
