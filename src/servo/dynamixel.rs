@@ -485,9 +485,10 @@ impl DynamixelBus {
     /// `out`, whatever [`ServoBus::read_kind`] says. The servos whose blocks arrive whole keep
     /// their data. Where a block fails its CRC (servo k), servo k gets the error a Sync Read
     /// gives a damaged reply and the servos after it are asked again with one Sync Read; where
-    /// the reply stops (no byte for the wire time of what is missing plus [`FAST_STALL`], or
-    /// `timeout` if shorter), the servos from there on are asked again with one Sync Read,
-    /// which finds and names the silent one as it always does (a timeout of `timeout`).
+    /// the reply stops (nothing within its wire time plus `timeout`; once it has begun, no byte
+    /// for the wire time of what is missing plus [`FAST_STALL`], or `timeout` if shorter), the
+    /// servos from there on are asked again with one Sync Read, which finds and names the
+    /// silent one as it always does.
     pub fn fast_sync_read_into(
         &mut self,
         ids: &[u8],
@@ -520,14 +521,15 @@ impl DynamixelBus {
                 buf[4..].copy_from_slice(ids);
             })
             .map_err(write_error)?;
-        // A chain sends its blocks back to back: the reply is waited for until the wire time of
-        // what is still missing plus [`FAST_STALL`] (or `timeout`, if shorter) from the last
-        // byte received (an adapter may hand the bytes on in bursts, or all at the end). Once
-        // the bytes stop that long, the chain broke there.
+        // The first byte is waited for as a Sync Read waits for its first reply: the wire time
+        // plus `timeout`. From then on a chain sends its blocks back to back: the rest is
+        // waited for until the wire time of what is still missing plus [`FAST_STALL`] (or
+        // `timeout`, if shorter) from the last byte received (an adapter may hand the bytes on
+        // in bursts, or all at the end). Once the bytes stop that long, the chain broke there.
         let stall = timeout.min(self.stall);
         let baud = self.baud;
         let mut end = poll_deadline(
-            Instant::now() + wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud) + stall,
+            Instant::now() + wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud) + timeout,
         );
         let Some(open) = self.open.as_mut() else {
             return Err(closed());
