@@ -8,7 +8,9 @@ use std::time::{Duration, Instant};
 
 use crate::adapter::Adapter;
 use crate::clock::SharedClock;
-use crate::protocol::{self, error, instruction as ins, Frame, Packet, Parser, BROADCAST_ID};
+use crate::protocol::{
+    self, error, instruction as ins, FastBlock, Frame, Packet, Parser, BROADCAST_ID,
+};
 use crate::rng::SplitMix64;
 use crate::servo::{Servo, ServoSpec};
 use crate::table::hw;
@@ -329,7 +331,8 @@ pub struct Reply {
     /// When the last byte would have left the servo (wire timing), or when the instruction was
     /// handled (no wire timing), plus any injected latency.
     pub at: Instant,
-    /// The id of the servo that answers.
+    /// The id of the servo that answers ([`BROADCAST_ID`] for a Fast Sync Read's one packet
+    /// from the whole chain).
     pub id: u8,
     /// The status packet as transmitted (possibly corrupted by a fault).
     pub bytes: Vec<u8>,
@@ -650,6 +653,11 @@ impl Simulator {
                 self.line_free = self.line_free.max(done);
             }
             let outgoing = match p.frame {
+                Frame::Packet(packet) if packet.instruction == ins::FAST_SYNC_READ => {
+                    self.stats.packets += 1;
+                    replies.extend(self.fast_sync_read(&packet, now, done));
+                    Vec::new()
+                }
                 Frame::Packet(packet) => {
                     self.stats.packets += 1;
                     self.dispatch(&packet, now)
@@ -678,32 +686,10 @@ impl Simulator {
     fn schedule(&mut self, out: Outgoing, now: Instant, done: Instant) -> Option<Reply> {
         let elapsed = self.elapsed(now);
         let servo = self.servos.get(out.index)?;
-        let id = servo.id();
+        let (id, rdt) = (servo.id(), servo.return_delay());
         let config_id = self.config.servos.get(out.index).map(|s| s.id);
-        let applies = |fid: &Option<u8>| fid.is_none() || *fid == config_id;
-        let mut latency = Duration::ZERO;
-        let mut drop = false;
-        let mut corrupt = false;
-        for fault in &self.config.faults {
-            let (window, fault) = fault.window();
-            // Outside its window a fault draws nothing: the generator's sequence only depends
-            // on the replies the fault could touch.
-            if !window.contains(elapsed) {
-                continue;
-            }
-            match fault {
-                Fault::DropReplies { id, fraction } if applies(id) => {
-                    drop |= self.rng.chance(*fraction);
-                }
-                Fault::CorruptReplies { id, fraction } if applies(id) => {
-                    corrupt |= self.rng.chance(*fraction);
-                }
-                Fault::ExtraLatency { id, latency: l } if applies(id) => latency += *l,
-                _ => {}
-            }
-        }
+        let (latency, drop, corrupt) = self.reply_faults(config_id, elapsed);
         let mut bytes = out.bytes;
-        let rdt = servo.return_delay();
         let at = if self.config.wire_timing {
             // Each servo waits its Return Delay Time once the line is quiet (after the
             // instruction, or after the previous servo's reply in a sync/bulk read).
@@ -731,6 +717,117 @@ impl Simulator {
         Some(Reply { at, id, bytes })
     }
 
+    /// What the reply faults active `elapsed` after start do to a reply of the servo configured
+    /// as `config_id`: extra latency, dropped, corrupted. Outside its window a fault draws
+    /// nothing: the generator's sequence only depends on the replies the fault could touch.
+    fn reply_faults(&mut self, config_id: Option<u8>, elapsed: Duration) -> (Duration, bool, bool) {
+        let applies = |fid: &Option<u8>| fid.is_none() || *fid == config_id;
+        let mut latency = Duration::ZERO;
+        let mut drop = false;
+        let mut corrupt = false;
+        for fault in &self.config.faults {
+            let (window, fault) = fault.window();
+            if !window.contains(elapsed) {
+                continue;
+            }
+            match fault {
+                Fault::DropReplies { id, fraction } if applies(id) => {
+                    drop |= self.rng.chance(*fraction);
+                }
+                Fault::CorruptReplies { id, fraction } if applies(id) => {
+                    corrupt |= self.rng.chance(*fraction);
+                }
+                Fault::ExtraLatency { id, latency: l } if applies(id) => latency += *l,
+                _ => {}
+            }
+        }
+        (latency, drop, corrupt)
+    }
+
+    /// A Fast Sync Read (received whole at `done`): one status packet from the chain, each
+    /// listed servo appending its block in the order of the ids. A servo that does not hear,
+    /// does not answer reads (Status Return Level 0), has a firmware too old for the
+    /// instruction (to which it is an unknown broadcast: no answer) or whose block a drop fault
+    /// takes, breaks the chain there: the servos after it, waiting for its block, stay silent
+    /// too, and the packet ends after the last block sent (nothing at all when the first servo
+    /// is missing). A corrupt fault flips one bit of that servo's block, so the packet's running
+    /// CRC fails from it on. The packet leaves after the first servo's Return Delay Time and
+    /// the largest extra latency among the servos that sent a block.
+    fn fast_sync_read(&mut self, p: &Packet, now: Instant, done: Instant) -> Option<Reply> {
+        if p.id != BROADCAST_ID || p.params.len() < 5 {
+            return None;
+        }
+        let address = u16::from_le_bytes([p.params[0], p.params[1]]);
+        let len = u16::from_le_bytes([p.params[2], p.params[3]]);
+        let ids = &p.params[4..];
+        let elapsed = self.elapsed(now);
+        let mut heard = Vec::with_capacity(ids.len());
+        for &id in ids {
+            if let Some(i) = self.find(id) {
+                self.servos[i].touch(now);
+                heard.push((id, Some(i)));
+            } else {
+                heard.push((id, None));
+            }
+        }
+        let mut blocks = Vec::with_capacity(ids.len());
+        let mut corrupt_blocks = Vec::new();
+        let mut latency = Duration::ZERO;
+        let mut first = None;
+        for (id, index) in heard {
+            let Some(i) = index else { break };
+            let servo = &self.servos[i];
+            if !servo.knows_fast_read() || !Self::answers(servo, ins::FAST_SYNC_READ) {
+                break;
+            }
+            let (error, data) = match servo.read(address, len) {
+                Ok(data) => (servo.status_error(error::NONE), data),
+                Err(code) => (servo.status_error(code), Vec::new()),
+            };
+            let config_id = self.config.servos.get(i).map(|s| s.id);
+            let (extra, drop, corrupt) = self.reply_faults(config_id, elapsed);
+            if drop {
+                self.stats.dropped += 1;
+                tracing::debug!(id, "fault: fast sync read block dropped");
+                break;
+            }
+            if corrupt {
+                corrupt_blocks.push(blocks.len());
+            }
+            latency = latency.max(extra);
+            first.get_or_insert(i);
+            blocks.push(FastBlock { error, id, data });
+        }
+        let len = usize::from(len);
+        let mut bytes = protocol::encode_fast_status(ids.len(), len, &blocks);
+        let first = first?;
+        for k in corrupt_blocks {
+            // A bit of block k (error byte to CRC) flipped on the wire.
+            let from = 8 + k * (len + 4);
+            let at = from + self.rng.below(len + 4);
+            if let Some(byte) = bytes.get_mut(at) {
+                *byte ^= 1u8 << self.rng.below(8);
+                self.stats.corrupted += 1;
+                tracing::debug!(byte = at, "fault: fast sync read block corrupted");
+            }
+        }
+        let rdt = self.servos[first].return_delay();
+        let at = if self.config.wire_timing {
+            let start = done.max(self.line_free) + rdt + latency;
+            let end = start + self.byte_time() * bytes.len() as u32;
+            self.line_free = end;
+            end
+        } else {
+            done + latency
+        };
+        self.stats.replies += 1;
+        Some(Reply {
+            at,
+            id: BROADCAST_ID,
+            bytes,
+        })
+    }
+
     /// Indices of the servos on the bus that hear a packet for `id` (broadcast: all).
     fn listeners(&self, id: u8) -> Vec<usize> {
         (0..self.servos.len())
@@ -756,7 +853,9 @@ impl Simulator {
     fn answers(servo: &Servo, instruction: u8) -> bool {
         match instruction {
             ins::PING => true,
-            ins::READ | ins::SYNC_READ | ins::BULK_READ => servo.status_return_level() >= 1,
+            ins::READ | ins::SYNC_READ | ins::FAST_SYNC_READ | ins::BULK_READ => {
+                servo.status_return_level() >= 1
+            }
             _ => servo.status_return_level() >= 2,
         }
     }
@@ -830,9 +929,8 @@ impl Simulator {
         let ok_or = |r: Result<(), u8>| r.err().unwrap_or(error::NONE);
         Some(match p.instruction {
             ins::PING => {
-                let t = servo.table();
-                let [lo, hi] = t.model_number.to_le_bytes();
-                (error::NONE, vec![lo, hi, t.firmware_version], nothing)
+                let [lo, hi] = servo.table().model_number.to_le_bytes();
+                (error::NONE, vec![lo, hi, servo.firmware()], nothing)
             }
             ins::READ => {
                 if params.len() != 4 {

@@ -44,7 +44,15 @@ pub struct ServoSpec {
     pub max_position_ticks: Option<u32>,
     /// Physical position at power-on (default 2048, the middle).
     pub initial_position_ticks: Option<i32>,
+    /// Firmware Version (address 6, and the ping's third byte); the model's table value
+    /// ([`DEFAULT_FIRMWARE`]) when `None`. Below [`Model::fast_read_firmware`] the servo does not
+    /// know Fast Sync Read.
+    pub firmware: Option<u8>,
 }
+
+/// The firmware version a simulated servo reports unless its spec says otherwise: one that
+/// answers Fast Sync Read on every simulated model.
+pub const DEFAULT_FIRMWARE: u8 = 48;
 
 impl ServoSpec {
     /// A servo with factory limits, starting at the middle position.
@@ -55,6 +63,7 @@ impl ServoSpec {
             min_position_ticks: None,
             max_position_ticks: None,
             initial_position_ticks: None,
+            firmware: None,
         }
     }
 }
@@ -79,6 +88,8 @@ pub struct Servo {
     silent: bool,
     /// Held by an obstacle (a blocked fault): the shaft stays where it is whatever the goal.
     blocked: bool,
+    /// Firmware Version.
+    firmware: u8,
 }
 
 fn encode_le(value: i64, size: u8) -> [u8; 4] {
@@ -107,6 +118,7 @@ impl Servo {
     /// written into EEPROM so the servo talks at the bus settings.
     pub fn new(spec: &ServoSpec, baud_index: u8, return_delay: u8, now: Instant) -> Self {
         let table = Arc::new(ControlTable::for_model(spec.model));
+        let firmware = spec.firmware.unwrap_or(table.firmware_version);
         let mut servo = Self {
             mem: vec![0; usize::from(table.memory_size)],
             table,
@@ -121,6 +133,7 @@ impl Servo {
             boot: now,
             silent: false,
             blocked: false,
+            firmware,
         };
         servo.load_defaults(true, true);
         servo.put(addr::ID, i64::from(spec.id));
@@ -150,10 +163,7 @@ impl Servo {
             self.put(item.address, item.initial);
         }
         self.put(addr::MODEL_NUMBER, i64::from(self.table.model_number));
-        self.put(
-            addr::FIRMWARE_VERSION,
-            i64::from(self.table.firmware_version),
-        );
+        self.put(addr::FIRMWARE_VERSION, i64::from(self.firmware));
     }
 
     /// RAM to initial values, as after power-on or reboot.
@@ -180,6 +190,16 @@ impl Servo {
     /// The model.
     pub fn model(&self) -> Model {
         self.table.model
+    }
+
+    /// Firmware Version (address 6).
+    pub fn firmware(&self) -> u8 {
+        self.firmware
+    }
+
+    /// Whether this servo's firmware answers Fast Sync Read.
+    pub fn knows_fast_read(&self) -> bool {
+        self.firmware >= self.table.model.fast_read_firmware()
     }
 
     /// The current bus id (address 7; it changes when a client writes it).

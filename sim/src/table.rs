@@ -43,6 +43,17 @@ impl FromStr for Model {
     }
 }
 
+impl Model {
+    /// The first firmware version of this model that answers Fast Sync Read (the e-manual: X430
+    /// from 45, X330 from 46).
+    pub fn fast_read_firmware(self) -> u8 {
+        match self {
+            Self::Xl430W250 | Self::Xm430W350 => 45,
+            Self::Xl330M288 => 46,
+        }
+    }
+}
+
 impl fmt::Display for Model {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
@@ -596,7 +607,7 @@ fn build(model: Model) -> ControlTable {
     ControlTable {
         model,
         model_number: f.number,
-        firmware_version: 48,
+        firmware_version: crate::servo::DEFAULT_FIRMWARE,
         items,
         memory_size,
         indirect_blocks: f.indirect.to_vec(),

@@ -149,6 +149,12 @@ pub enum FieldProblem {
         /// The id given.
         value: i64,
     },
+    /// A table key that should be a servo id and is not a number.
+    #[error("\"{key}\" is not a servo id: each key is one, e.g. `3 = 44`")]
+    NotAnId {
+        /// The key given.
+        key: String,
+    },
     /// Two joints with one servo id.
     #[error("{id} is already the id of joint[{other}]")]
     DuplicateId {

@@ -34,7 +34,7 @@ use crate::resolve::Strategy;
 use crate::servo::arm::{Arm, JointServo, OnExit, Settings};
 use crate::servo::units::CurrentUnit;
 use crate::servo::units::{self, Calibration};
-use crate::servo::{model::model_names, ServoModel, BAUD_RATES, MAX_ID};
+use crate::servo::{model::model_names, ReadChoice, ServoModel, BAUD_RATES, MAX_ID};
 use crate::world::{Obstacle, Shape, World, WorldError};
 use raw::{
     ContactLoad, RawArm, RawBus, RawConfig, RawControl, RawJoint, RawObstacle, RawServer, RawSim,
@@ -120,6 +120,12 @@ pub struct Sim {
     /// Faults to inject; every id names a joint's servo, fractions lie in [0, 1], windows are
     /// ordered.
     pub faults: Vec<Fault>,
+    /// Firmware Version of every simulated servo; the simulator's default (one that answers
+    /// Fast Sync Read) when `None`.
+    pub firmware: Option<u8>,
+    /// Per-servo Firmware Version (servo id, version), over `firmware`; every id names a
+    /// joint's servo.
+    pub firmware_by_id: Vec<(u8, u8)>,
 }
 
 /// The validated `[control]` (defaults when the table is absent).
@@ -649,6 +655,11 @@ impl Checker<'_> {
                 raw::OnExit::Hold => OnExit::Hold,
             },
             reply_timeout: Duration::from_millis(u64::from(raw.reply_timeout_ms)),
+            read: match raw.read {
+                raw::ReadChoice::Auto => ReadChoice::Auto,
+                raw::ReadChoice::Fast => ReadChoice::Fast,
+                raw::ReadChoice::Sync => ReadChoice::Sync,
+            },
         };
         let bus = Bus {
             kind: raw.kind,
@@ -721,11 +732,25 @@ impl Checker<'_> {
                 Some(Duration::from_millis(ms.into()))
             }
         };
+        let mut firmware_by_id = Vec::with_capacity(raw.firmware_by_id.len());
+        for (key, &version) in &raw.firmware_by_id {
+            let field = format!("sim.firmware_by_id.{key}");
+            let id = match key.trim().parse::<u8>() {
+                Ok(id) if joints.iter().any(|j| j.id == Some(id)) => id,
+                Ok(id) => return Err(self.invalid(field, FieldProblem::UnknownId { id })),
+                Err(_) => {
+                    return Err(self.invalid(field, FieldProblem::NotAnId { key: key.clone() }))
+                }
+            };
+            firmware_by_id.push((id, version));
+        }
         Ok(Sim {
             wire_timing: raw.wire_timing,
             ftdi_latency,
             seed: raw.seed,
             faults,
+            firmware: raw.firmware,
+            firmware_by_id,
         })
     }
 

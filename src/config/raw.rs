@@ -138,6 +138,25 @@ pub struct RawBus {
     /// How long to wait for one status reply before counting it missing, milliseconds.
     #[serde(default = "default_reply_timeout_ms")]
     pub reply_timeout_ms: u32,
+    /// `"auto"` (Fast Sync Read where every servo supports it), `"fast"` or `"sync"`.
+    #[serde(default = "default_read")]
+    pub read: ReadChoice,
+}
+
+/// `[bus] read`: how the loop reads every servo in one exchange.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReadChoice {
+    /// Fast Sync Read where every servo's model and firmware support it, else Sync Read.
+    Auto,
+    /// Fast Sync Read; a servo that cannot do it is refused at start-up.
+    Fast,
+    /// Sync Read.
+    Sync,
+}
+
+fn default_read() -> ReadChoice {
+    ReadChoice::Auto
 }
 
 /// `[sim]`: the simulated servo chain.
@@ -161,6 +180,13 @@ pub struct RawSim {
     /// `[[sim.fault]]`: faults to inject.
     #[serde(default, rename = "fault")]
     pub faults: Vec<Fault>,
+    /// Firmware Version every simulated servo reports (default 48: one that answers Fast Sync
+    /// Read).
+    #[serde(default)]
+    pub firmware: Option<u8>,
+    /// `[sim.firmware_by_id]`: per-servo Firmware Version, servo id = version.
+    #[serde(default)]
+    pub firmware_by_id: std::collections::BTreeMap<String, u8>,
 }
 
 /// `[sim] adapter`: what stands between the simulated bus and the host.

@@ -1047,3 +1047,52 @@ fn the_ftdi_adapter_model_takes_a_latency_timer_of_the_chip_s_range() {
         &["u2d2", "ftdi"],
     );
 }
+
+#[test]
+fn the_bus_read_and_the_simulated_firmware() {
+    use crate::servo::ReadChoice;
+    let c = load(&base_text()).unwrap();
+    assert_eq!(c.arm().unwrap().settings().read, ReadChoice::Auto);
+    let sim = c.sim().unwrap();
+    assert_eq!(
+        (sim.firmware, sim.firmware_by_id.clone()),
+        (None, Vec::new())
+    );
+    for (text, read) in [
+        ("\"fast\"", ReadChoice::Fast),
+        ("\"sync\"", ReadChoice::Sync),
+    ] {
+        let c = load(&with(
+            "watchdog_ms = 100",
+            &format!("watchdog_ms = 100\nread = {text}"),
+        ))
+        .unwrap();
+        assert_eq!(c.arm().unwrap().settings().read, read);
+    }
+    refused(
+        &with("watchdog_ms = 100", "watchdog_ms = 100\nread = \"bulk\""),
+        &["bulk", "auto", "fast", "sync"],
+    );
+    let c = load(&with(
+        "seed = 7",
+        "seed = 7\nfirmware = 44\n[sim.firmware_by_id]\n2 = 46\n",
+    ))
+    .unwrap();
+    let sim = c.sim().unwrap();
+    assert_eq!(
+        (sim.firmware, sim.firmware_by_id.clone()),
+        (Some(44), vec![(2, 46)])
+    );
+    refused(
+        &with("seed = 7", "seed = 7\n[sim.firmware_by_id]\n9 = 46\n"),
+        &["sim.firmware_by_id.9", "9"],
+    );
+    refused(
+        &with("seed = 7", "seed = 7\n[sim.firmware_by_id]\nthree = 46\n"),
+        &["sim.firmware_by_id.three", "not a servo id"],
+    );
+    refused(
+        &with("seed = 7", "seed = 7\nfirmware = 300\n"),
+        &["300", "u8"],
+    );
+}

@@ -114,6 +114,14 @@ pub fn sim_config(config: &Config) -> Result<SimConfig, SimBusError> {
         spec.min_position_ticks = u32::try_from(joint.ticks.min).ok();
         spec.max_position_ticks = u32::try_from(joint.ticks.max).ok();
         spec.initial_position_ticks = joint.position_ticks(*home);
+        if let Some(sim) = config.sim() {
+            spec.firmware = sim
+                .firmware_by_id
+                .iter()
+                .find(|(id, _)| *id == joint.id)
+                .map(|&(_, version)| version)
+                .or(sim.firmware);
+        }
         servos.push(spec);
     }
     let mut out = SimConfig {

@@ -484,6 +484,9 @@ pub struct Describe {
     pub link_radius_m: f64,
     /// The gap every link keeps from every obstacle, m.
     pub clearance_m: f64,
+    /// How the loop reads the servos: `"fast"` (Fast Sync Read) or `"sync"` (Sync Read), as
+    /// bring-up chose from `[bus] read` and the servos' firmware; empty when not known.
+    pub read: String,
 }
 
 impl Describe {
@@ -521,6 +524,7 @@ impl Describe {
             protocol_version: PROTOCOL_VERSION,
             link_radius_m: 0.0,
             clearance_m: 0.0,
+            read: String::new(),
         }
     }
 

@@ -159,6 +159,7 @@ fn describe() -> Describe {
         protocol_version: PROTOCOL_VERSION,
         link_radius_m: 0.012,
         clearance_m: 0.004,
+        read: "fast".into(),
     }
 }
 
@@ -672,6 +673,11 @@ fn a_description_gives_back_the_chain_it_was_made_from() {
     );
     let world = crate::world::World::new(0.012, 0.004, vec![]).unwrap();
     let d = d.with_world(&world);
+    assert_eq!(d.read, "", "the read is the daemon's to say");
+    let d = Describe {
+        read: "fast".into(),
+        ..d
+    };
     assert_eq!(d, describe());
     assert_eq!(d.chain().unwrap(), chain);
     let unlimited = Describe {

@@ -6,7 +6,9 @@
 //!    servo first if asked to); Homing Offset must read 0 and Drive Mode's reverse bit 0
 //!    (calibration is applied here, in software: a servo reconfigured elsewhere would shift
 //!    every angle). Any servo missing, of the wrong model, in hardware error or with such an
-//!    offset: refuse, naming each one and the register;
+//!    offset: refuse, naming each one and the register. From every servo's model and firmware
+//!    (the ping's), choose the bus's read ([`choose_read`]: Fast Sync Read where every servo
+//!    speaks it, as `[bus] read` allows) and set it on the bus: every read from here on uses it;
 //! 2. read the present pose; a joint outside its limits: refuse (move it by hand);
 //! 3. Status Return Level 2 (every instruction acknowledged); then, only where they differ,
 //!    Operating Mode 3 (position), Return Delay Time and Min/Max Position Limit (EEPROM:
@@ -45,8 +47,8 @@ use super::limits::{LimitPolicy, Limited, Setting, TickLimits, POSITION_MODE};
 use super::model::ServoModel;
 use super::units::{self, Calibration};
 use super::{
-    ErrorClass, Fields, Goal, HardwareErrors, Layout, PingInfo, Reading, Register, ServoBus,
-    ServoError, States, DRIVE_MODE_REVERSE, INDIRECT_ADDRESS_1, INDIRECT_BYTES,
+    ErrorClass, Fields, Goal, HardwareErrors, Layout, PingInfo, ReadChoice, ReadKind, Reading,
+    Register, ServoBus, ServoError, States, DRIVE_MODE_REVERSE, INDIRECT_ADDRESS_1, INDIRECT_BYTES,
 };
 
 /// How far past a joint's limit, ticks, a servo may read at bring-up and still be brought up
@@ -188,11 +190,14 @@ pub struct Settings {
     pub on_exit: OnExit,
     /// Wait for one reply.
     pub reply_timeout: Duration,
+    /// Sync Read or Fast Sync Read (`[bus] read`).
+    pub read: ReadChoice,
 }
 
 impl Default for Settings {
     fn default() -> Self {
         Self {
+            read: ReadChoice::Auto,
             return_delay_us: 0,
             profile_velocity_rad_s: 0.0,
             profile_acceleration_rad_s2: 0.0,
@@ -254,6 +259,25 @@ pub enum Refusal {
         /// What it must read (Drive Mode: its reverse bit clear).
         expected: i64,
     },
+    /// `[bus] read = "fast"`, and this servo's model or firmware does not answer Fast Sync
+    /// Read.
+    #[error("joint {joint}: servo {id} is a {model} with firmware {firmware}, which does not answer Fast Sync Read ({}): set [bus] read = \"auto\" or \"sync\"", fast_read_needs(*model))]
+    NoFastRead {
+        /// 1-based joint index.
+        joint: usize,
+        /// Servo id.
+        id: u8,
+        /// Its model.
+        model: ServoModel,
+        /// Its Firmware Version.
+        firmware: u8,
+    },
+    /// `[bus] read = "fast"` on a bus that cannot frame Fast Sync Read.
+    #[error("[bus] read = \"fast\": {source}")]
+    FastReadUnsupported {
+        /// What the bus said.
+        source: ServoError,
+    },
     /// The joint sits outside its limits: torque on would drive it there at full speed.
     #[error("joint {joint}: servo {id} is at {angle_rad:.3} rad, outside its limits [{lo}, {hi}] rad: move it inside by hand")]
     OutsideLimits {
@@ -297,6 +321,47 @@ pub struct ShutDownError {
     pub unreached: Vec<Unreached>,
 }
 
+/// What a model needs for Fast Sync Read, for [`Refusal::NoFastRead`].
+fn fast_read_needs(model: ServoModel) -> String {
+    match model.fast_read_firmware() {
+        Some(first) => format!("it needs firmware {first} or later"),
+        None => "no firmware of this model does".into(),
+    }
+}
+
+/// Whether the servo that answered this ping (its model number and firmware) answers Fast Sync
+/// Read.
+fn answers_fast(info: &PingInfo) -> bool {
+    ServoModel::from_number(info.model).is_some_and(|m| m.supports_fast_read(info.firmware))
+}
+
+/// The read the bus is to use, from `[bus] read` and every servo's ping (model number and
+/// firmware), each paired with its joint: Fast Sync Read where every servo answers it and the
+/// choice allows it, Sync Read otherwise. `fast` with a servo that cannot: refused, naming
+/// every such servo.
+pub fn choose_read(
+    choice: ReadChoice,
+    servos: &[(&JointServo, PingInfo)],
+) -> Result<ReadKind, Vec<Refusal>> {
+    let cannot: Vec<Refusal> = servos
+        .iter()
+        .filter(|(_, info)| !answers_fast(info))
+        .map(|(j, info)| Refusal::NoFastRead {
+            joint: j.joint,
+            id: j.id,
+            model: ServoModel::from_number(info.model).unwrap_or(j.model),
+            firmware: info.firmware,
+        })
+        .collect();
+    match choice {
+        ReadChoice::Sync => Ok(ReadKind::Sync),
+        ReadChoice::Auto if cannot.is_empty() => Ok(ReadKind::Fast),
+        ReadChoice::Auto => Ok(ReadKind::Sync),
+        ReadChoice::Fast if cannot.is_empty() => Ok(ReadKind::Fast),
+        ReadChoice::Fast => Err(cannot),
+    }
+}
+
 fn join<T: std::fmt::Display>(items: &[T]) -> String {
     items
         .iter()
@@ -316,6 +381,8 @@ pub struct BringUp {
     pub rebooted: Vec<u8>,
     /// Exchanges sent again after a transient error.
     pub retries: u32,
+    /// The read set on the bus, from `[bus] read` and the servos' firmware.
+    pub read: ReadKind,
 }
 
 /// Options of [`Arm::bring_up`].
@@ -579,6 +646,7 @@ impl Arm {
         let t = self.settings.reply_timeout;
         let mut retry = Retry::default();
         let (servos, rebooted) = self.check_counting(bus, options, clock, &mut retry)?;
+        let read = self.set_read(bus, &servos)?;
 
         // The present pose, before anything moves. A servo set exactly on a limit may read one
         // tick past it: that pose is held on the limit itself.
@@ -635,7 +703,44 @@ impl Arm {
             pose,
             rebooted,
             retries: retry.retries,
+            read,
         })
+    }
+
+    /// Choose the read from the servos' pings ([`choose_read`]) and set it on the bus. Under
+    /// `auto`, a bus that cannot frame Fast Sync Read keeps Sync Read.
+    fn set_read<B: ServoBus>(
+        &self,
+        bus: &mut B,
+        servos: &[PingInfo],
+    ) -> Result<ReadKind, BringUpError> {
+        let paired: Vec<(&JointServo, PingInfo)> =
+            self.joints.iter().zip(servos.iter().copied()).collect();
+        let mut kind = choose_read(self.settings.read, &paired).map_err(BringUpError::Refused)?;
+        if let Err(source) = bus.set_read_kind(kind) {
+            if self.settings.read == ReadChoice::Fast {
+                return Err(BringUpError::Refused(vec![Refusal::FastReadUnsupported {
+                    source,
+                }]));
+            }
+            tracing::debug!(%source, "keeping Sync Read");
+            kind = ReadKind::Sync;
+            bus.set_read_kind(kind).map_err(step("choosing the read"))?;
+        }
+        if kind == ReadKind::Sync && self.settings.read == ReadChoice::Auto {
+            if let Some((j, info)) = paired.iter().find(|(_, info)| !answers_fast(info)) {
+                tracing::info!(
+                    id = j.id,
+                    firmware = info.firmware,
+                    "Sync Read: servo {} ({}, firmware {}) does not answer Fast Sync Read",
+                    j.id,
+                    j.model,
+                    info.firmware
+                );
+            }
+        }
+        tracing::info!(read = %kind, servos = servos.len(), "bus read chosen");
+        Ok(kind)
     }
 
     /// The present position of every joint, ticks: one Sync Read, sent again (up to

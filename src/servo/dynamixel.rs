@@ -15,17 +15,28 @@
 //! be in flight when the next instruction goes out: a single exchange skips replies from other
 //! servos and replies of the wrong length (the same servo's answer to an earlier instruction);
 //! a sync read counts the servos listed before a reply's id as missing.
+//!
+//! Fast Sync Read (0x8A), which the crate does not know, is framed here: the instruction goes
+//! out through `write_instruction` (it is laid out as Sync Read), and its one status packet
+//! (not byte-stuffed, see [`FastReply`]) is read raw from a second handle on the same port,
+//! with its own deadline. A reply cut short or damaged at servo k keeps the blocks before k;
+//! a damaged block is reported as a damaged Sync Read reply would be, and the servos from where
+//! the reply can no longer be used are asked again in the same call with a Sync Read (which
+//! names a silent servo as it always does), so that one silent servo costs no other servo its
+//! reading.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use dynamixel2::checksum::calculate_checksum;
 use dynamixel2::instructions::instruction_id as ins;
+use dynamixel2::serial2::SerialPort;
 use dynamixel2::{Bus, InvalidMessage, ReadError, WriteError};
 
 use super::lock::PortLock;
 use super::sysfs::{Latency, Sysfs};
 use super::{
-    baud_index, Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value,
+    baud_index, Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value,
     BROADCAST_ID, MAX_ID,
 };
 
@@ -41,6 +52,28 @@ const STATUS_OVERHEAD: usize = 11;
 /// Bytes of an instruction packet without parameters: header 4, id, length 2, instruction,
 /// CRC 2.
 const INSTRUCTION_OVERHEAD: usize = 10;
+/// How long a Fast Sync Read reply may pause (beyond the wire time of what is missing) before
+/// the chain is taken to have broken there: a chain sends its blocks back to back, and a USB
+/// adapter with its latency timer at 1 ms passes bytes on at least every millisecond (behind a
+/// latency timer that could not be lowered, the pause allowed is that timer plus 1 ms).
+pub const FAST_STALL: Duration = Duration::from_millis(2);
+/// Fast Sync Read's instruction byte (Protocol 2.0; X430/X540 firmware 45+, X330 46+).
+pub const FAST_SYNC_READ: u8 = 0x8A;
+/// Status packet instruction byte.
+const STATUS: u8 = 0x55;
+/// The header every packet opens with.
+const HEADER: [u8; 4] = [0xFF, 0xFF, 0xFD, 0x00];
+/// Bytes of a Fast Sync Read reply before the first servo's block: header 4, id, length 2,
+/// instruction.
+const FAST_HEAD: usize = 8;
+/// Bytes of one servo's block besides its data: error, id, CRC 2.
+const FAST_BLOCK_OVERHEAD: usize = 4;
+
+/// Bytes of a Fast Sync Read reply for `servos` servos of `len` data bytes each:
+/// `8 + servos × (len + 4)` (a Sync Read's replies take `servos × (11 + len)`).
+pub fn fast_reply_bytes(servos: usize, len: usize) -> usize {
+    FAST_HEAD + servos * (len + FAST_BLOCK_OVERHEAD)
+}
 
 /// A Dynamixel Protocol 2.0 bus on a serial port, which it holds the lock of (see
 /// [`super::lock`]) until dropped or closed.
@@ -51,6 +84,15 @@ pub struct DynamixelBus {
     baud: u32,
     port: PathBuf,
     latency: Latency,
+    /// What [`ServoBus::sync_read_into`] sends.
+    read_kind: ReadKind,
+    /// How long a Fast Sync Read reply may pause before the chain is taken to have broken:
+    /// [`FAST_STALL`], or longer behind an FTDI latency timer that could not be lowered.
+    stall: Duration,
+    /// The bytes of a Fast Sync Read reply, reused from read to read.
+    fast: Vec<u8>,
+    /// The Sync Read that asks again the servos after a break in a Fast reply, reused.
+    rest: SyncReadBuf,
 }
 
 /// A port open, and the lock that makes this process its one owner. The fields drop in this
@@ -58,6 +100,9 @@ pub struct DynamixelBus {
 #[derive(Debug)]
 struct Open {
     bus: Bus<Vec<u8>, Vec<u8>>,
+    /// A second handle on the same device, with its own read timeout: Fast Sync Read replies
+    /// are read through it, past the crate's parser (which would unstuff them).
+    raw: SerialPort,
     lock: PortLock,
 }
 
@@ -149,6 +194,13 @@ impl DynamixelBus {
                 port: port.clone(),
                 source,
             })?;
+        let raw = bus
+            .serial_port()
+            .try_clone()
+            .map_err(|source| ServoError::Open {
+                port: port.clone(),
+                source,
+            })?;
         let latency = sysfs.ensure_low_latency(&port);
         match &latency {
             Latency::Lowered { from_ms } => {
@@ -164,11 +216,22 @@ impl DynamixelBus {
             }
             Latency::NotApplicable | Latency::Low => {}
         }
+        // An adapter holds received bytes up to its latency timer: a reply may pause that long.
+        let stall = match &latency {
+            Latency::TooHigh { ms, .. } => {
+                FAST_STALL.max(Duration::from_millis(u64::from(*ms) + 1))
+            }
+            _ => FAST_STALL,
+        };
         Ok(Self {
-            open: Some(Open { bus, lock }),
+            open: Some(Open { bus, raw, lock }),
             baud,
             port,
             latency,
+            read_kind: ReadKind::Sync,
+            stall,
+            fast: Vec::with_capacity(READ_BUFFER),
+            rest: SyncReadBuf::new(),
         })
     }
 
@@ -348,6 +411,376 @@ fn check_sync_write(
     Ok(n)
 }
 
+impl DynamixelBus {
+    /// One Sync Read (0x82): each reply read with its own deadline and matched by id.
+    pub fn plain_sync_read_into(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        let data_len = usize::from(len);
+        let per_reply = self.reply_wait(data_len, timeout);
+        out.reset(ids, len, per_reply);
+        if ids.is_empty() {
+            return Ok(());
+        }
+        check_read_ids(ids)?;
+        let n = ids.len();
+        self.wire()?
+            .write_instruction(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
+                buf[..2].copy_from_slice(&address.to_le_bytes());
+                buf[2..4].copy_from_slice(&len.to_le_bytes());
+                buf[4..].copy_from_slice(ids);
+            })
+            .map_err(write_error)?;
+        // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
+        let mut next = 0;
+        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud) + per_reply;
+        // Bounds the loop if stray packets keep arriving.
+        let mut budget = 2 * n + 8;
+        while next < n && budget > 0 {
+            budget -= 1;
+            let deadline = Instant::now() + wait;
+            match self
+                .wire()?
+                .read_status_response_deadline(poll_deadline(deadline))
+            {
+                Ok(p) => {
+                    let id = p.packet_id();
+                    let Some(k) = ids[next..].iter().position(|&x| x == id) else {
+                        tracing::debug!(id, "sync read: reply from a servo not expected now");
+                        continue;
+                    };
+                    // The servos listed before this one stay marked as missing.
+                    let data = p.parameters();
+                    if data.len() == data_len {
+                        out.set(next + k, data, p.alert());
+                    } else {
+                        out.fail(
+                            next + k,
+                            ServoError::Malformed {
+                                id,
+                                what: format!("{} data bytes, expected {data_len}", data.len()),
+                            },
+                        );
+                    }
+                    next += k + 1;
+                }
+                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
+                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
+                Err(e) => {
+                    out.fail(next, read_error(ids[next], wait, e));
+                    next += 1;
+                }
+            }
+            wait = per_reply;
+        }
+        Ok(())
+    }
+
+    /// One Fast Sync Read (0x8A) of `len` bytes at `address` from every servo in `ids`, into
+    /// `out`, whatever [`ServoBus::read_kind`] says. The servos whose blocks arrive whole keep
+    /// their data. Where a block fails its CRC (servo k), servo k gets the error a Sync Read
+    /// gives a damaged reply and the servos after it are asked again with one Sync Read; where
+    /// the reply stops (nothing within its wire time plus `timeout`; once it has begun, no byte
+    /// for the wire time of what is missing plus [`FAST_STALL`], or `timeout` if shorter), the
+    /// servos from there on are asked again with one Sync Read, which finds and names the
+    /// silent one as it always does.
+    pub fn fast_sync_read_into(
+        &mut self,
+        ids: &[u8],
+        address: u16,
+        len: u16,
+        timeout: Duration,
+        out: &mut SyncReadBuf,
+    ) -> Result<(), ServoError> {
+        let data_len = usize::from(len);
+        out.reset(ids, len, self.reply_wait(data_len, timeout));
+        // The buffers of the Sync Read that may follow a break, sized now: a break later on
+        // then allocates nothing (the loop's reads never do once warm).
+        self.rest.reset(ids, len, Duration::ZERO);
+        if ids.is_empty() {
+            return Ok(());
+        }
+        check_read_ids(ids)?;
+        let n = ids.len();
+        let total = fast_reply_bytes(n, data_len);
+        if total > READ_BUFFER {
+            return Err(ServoError::BufferTooSmall {
+                needed: total,
+                have: READ_BUFFER,
+            });
+        }
+        self.wire()?
+            .write_instruction(BROADCAST_ID, FAST_SYNC_READ, 4 + n, |buf| {
+                buf[..2].copy_from_slice(&address.to_le_bytes());
+                buf[2..4].copy_from_slice(&len.to_le_bytes());
+                buf[4..].copy_from_slice(ids);
+            })
+            .map_err(write_error)?;
+        // The first byte is waited for as a Sync Read waits for its first reply: the wire time
+        // plus `timeout`. From then on a chain sends its blocks back to back: the rest is
+        // waited for until the wire time of what is still missing plus [`FAST_STALL`] (or
+        // `timeout`, if shorter) from the last byte received (an adapter may hand the bytes on
+        // in bursts, or all at the end). Once the bytes stop that long, the chain broke there.
+        let stall = timeout.min(self.stall);
+        let baud = self.baud;
+        let mut end = poll_deadline(
+            Instant::now() + wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud) + timeout,
+        );
+        let Some(open) = self.open.as_mut() else {
+            return Err(closed());
+        };
+        let buf = &mut self.fast;
+        buf.resize(READ_BUFFER, 0);
+        let mut got = 0;
+        let mut reply = FastReply::new(ids, data_len);
+        // Where the reply can no longer be used, and the damaged block's error if it was one
+        // (a stall has none: the servos from there on are asked again).
+        let (index, damaged) = loop {
+            match reply.advance(&buf[..got], out) {
+                FastState::Pending => {}
+                FastState::Complete => return Ok(()),
+                FastState::Broken { index, error } => break (index, Some(error)),
+            }
+            let Some(left) = end
+                .checked_duration_since(Instant::now())
+                .filter(|d| !d.is_zero())
+            else {
+                break (reply.intact(), None);
+            };
+            if got == buf.len() {
+                let index = reply.intact();
+                let what = "more bytes than a Fast Sync Read reply holds".to_string();
+                let id = ids[index];
+                break (index, Some(ServoError::Malformed { id, what }));
+            }
+            // The timeout has whole-millisecond resolution: never ask for 0 (no wait at all).
+            open.raw
+                .set_read_timeout(left.max(Duration::from_millis(1)))
+                .map_err(ServoError::Io)?;
+            match open.raw.read(&mut buf[got..]) {
+                Ok(k) => {
+                    got += k;
+                    if k > 0 {
+                        let missing = total.saturating_sub(got);
+                        end = poll_deadline(Instant::now() + wire_time(missing, baud) + stall);
+                    }
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                Err(e) => return Err(ServoError::Io(e)),
+            }
+        };
+        let from = match damaged {
+            Some(error) => {
+                tracing::debug!(%error, intact = index, "fast sync read damaged");
+                out.fail(index, error);
+                index + 1
+            }
+            None => {
+                tracing::debug!(intact = index, "fast sync read stalled");
+                index
+            }
+        };
+        let rest = ids.get(from..).unwrap_or_default();
+        if rest.is_empty() {
+            return Ok(());
+        }
+        // The servos after the break are asked again, as a Sync Read would have.
+        let mut again = std::mem::take(&mut self.rest);
+        let result = self.plain_sync_read_into(rest, address, len, timeout, &mut again);
+        if result.is_ok() {
+            for j in 0..rest.len() {
+                match again.take_error(j) {
+                    Some(e) => out.fail(from + j, e),
+                    None => {
+                        if let Ok((data, alert)) = again.get(j) {
+                            out.set(from + j, data, alert);
+                        }
+                    }
+                }
+            }
+        }
+        self.rest = again;
+        result
+    }
+}
+
+/// Checks a sync read's ids before anything is sent: each in range, none twice.
+fn check_read_ids(ids: &[u8]) -> Result<(), ServoError> {
+    for (i, &id) in ids.iter().enumerate() {
+        check_id(id)?;
+        if ids[..i].contains(&id) {
+            return Err(ServoError::BadId {
+                id,
+                what: "listed twice in one sync read",
+            });
+        }
+    }
+    if ids.len() > MAX_SERVOS {
+        return Err(ServoError::BufferTooSmall {
+            needed: ids.len(),
+            have: MAX_SERVOS,
+        });
+    }
+    Ok(())
+}
+
+/// Where a [`FastReply`] stands after the bytes received so far.
+#[derive(Debug)]
+pub enum FastState {
+    /// Every block so far checked; more bytes are needed.
+    Pending,
+    /// Every servo's block checked.
+    Complete,
+    /// The reply cannot be trusted from servo `index` (of the ids) on: that servo's block
+    /// failed its CRC or named another servo.
+    Broken {
+        /// The servo (index into the ids) whose block is damaged.
+        index: usize,
+        /// What its reading is: the error a Sync Read would give for that reply.
+        error: ServoError,
+    },
+}
+
+/// The reader of one Fast Sync Read status packet, fed the bytes received so far.
+///
+/// Layout (Protocol 2.0, not byte-stuffed): `FF FF FD 00 | FE | LEN (2) | 55 |` then per servo,
+/// in the order of the instruction's ids, `ERR ID DATA CRC (2)`: the first ERR sits where a
+/// status packet's error byte does, `LEN = 1 + N × (X + 4)`, and each block's CRC is the
+/// CRC-16 of the whole packet from its header to that block's last data byte (the last block's
+/// CRC is the packet's). So each block is checked as soon as it is in, and a reply cut short
+/// or damaged at block k still yields the blocks before k. Bytes before the header (noise on
+/// the line) are skipped, and so is a packet whose header does not fit this reply (a late
+/// reply to an earlier read, or a header damaged on the way: the read then waits for the real
+/// one, and if none comes the servos are asked again); bytes after the last block are ignored.
+#[derive(Debug)]
+pub struct FastReply<'a> {
+    ids: &'a [u8],
+    len: usize,
+    /// Where the header starts in the bytes, once found.
+    start: Option<usize>,
+    /// Where to look for the header next (past packets that were not this reply).
+    search_from: usize,
+    /// Packets passed over before the reply.
+    skipped: usize,
+    /// Blocks checked.
+    done: usize,
+    /// CRC of the bytes up to `crc_end`.
+    crc: u16,
+    crc_end: usize,
+}
+
+impl<'a> FastReply<'a> {
+    /// The reader of a reply to a Fast Sync Read of `len` bytes from `ids`.
+    pub fn new(ids: &'a [u8], len: usize) -> Self {
+        Self {
+            ids,
+            len,
+            start: None,
+            search_from: 0,
+            skipped: 0,
+            done: 0,
+            crc: 0,
+            crc_end: 0,
+        }
+    }
+
+    /// Servos whose blocks checked so far (the index of the next one).
+    pub fn intact(&self) -> usize {
+        self.done
+    }
+
+    /// Headers passed over because they did not open this reply (wrong id, instruction or
+    /// length for these servos and this block length).
+    pub fn skipped(&self) -> usize {
+        self.skipped
+    }
+
+    /// Check the blocks `bytes` (everything received so far, from its first byte) holds beyond
+    /// those already checked; each servo's block that checks goes into `out` at its index
+    /// (its data and alert flag, or a status error it reported).
+    pub fn advance(&mut self, bytes: &[u8], out: &mut SyncReadBuf) -> FastState {
+        let n = self.ids.len();
+        if n == 0 {
+            return FastState::Complete;
+        }
+        let start = loop {
+            if let Some(start) = self.start {
+                break start;
+            }
+            let from = self.search_from.min(bytes.len());
+            let Some(at) = bytes[from..]
+                .windows(HEADER.len())
+                .position(|w| w == HEADER)
+            else {
+                return FastState::Pending;
+            };
+            let start = from + at;
+            let Some(head) = bytes.get(start..start + FAST_HEAD) else {
+                return FastState::Pending;
+            };
+            let length = usize::from(u16::from_le_bytes([head[5], head[6]]));
+            if head[4] == BROADCAST_ID
+                && head[7] == STATUS
+                && length == fast_reply_bytes(n, self.len) - 7
+            {
+                self.start = Some(start);
+                self.crc_end = start;
+            } else {
+                // Not this read's reply: a late one to an earlier instruction, another
+                // servo's packet, or a header damaged on the way. Look further on.
+                self.skipped += 1;
+                self.search_from = start + 1;
+            }
+        };
+        let block = self.len + FAST_BLOCK_OVERHEAD;
+        while let Some(&id) = self.ids.get(self.done) {
+            let from = start + FAST_HEAD + self.done * block;
+            let Some(b) = bytes.get(from..from + block) else {
+                return FastState::Pending;
+            };
+            let crc_at = from + block - 2;
+            let computed = calculate_checksum(self.crc, &bytes[self.crc_end..crc_at]);
+            let received = u16::from_le_bytes([b[block - 2], b[block - 1]]);
+            if computed != received {
+                return FastState::Broken {
+                    index: self.done,
+                    error: ServoError::Checksum {
+                        id,
+                        received,
+                        computed,
+                    },
+                };
+            }
+            if b[1] != id {
+                let what = format!(
+                    "the Fast Sync Read block of servo {id} names servo {}",
+                    b[1]
+                );
+                return FastState::Broken {
+                    index: self.done,
+                    error: ServoError::Malformed { id, what },
+                };
+            }
+            self.crc = calculate_checksum(computed, &b[block - 2..]);
+            self.crc_end = from + block;
+            let (code, alert) = (b[0] & 0x7F, b[0] & 0x80 != 0);
+            if code == 0 {
+                out.set(self.done, &b[2..block - 2], alert);
+            } else {
+                out.fail(self.done, ServoError::Status { id, code, alert });
+            }
+            self.done += 1;
+        }
+        debug_assert_eq!(self.done, n);
+        FastState::Complete
+    }
+}
+
 impl ServoBus for DynamixelBus {
     fn baud(&self) -> u32 {
         self.baud
@@ -457,71 +890,18 @@ impl ServoBus for DynamixelBus {
         timeout: Duration,
         out: &mut SyncReadBuf,
     ) -> Result<(), ServoError> {
-        let data_len = usize::from(len);
-        let per_reply = self.reply_wait(data_len, timeout);
-        out.reset(ids, len, per_reply);
-        if ids.is_empty() {
-            return Ok(());
+        match self.read_kind {
+            ReadKind::Sync => self.plain_sync_read_into(ids, address, len, timeout, out),
+            ReadKind::Fast => self.fast_sync_read_into(ids, address, len, timeout, out),
         }
-        for (i, &id) in ids.iter().enumerate() {
-            check_id(id)?;
-            if ids[..i].contains(&id) {
-                return Err(ServoError::BadId {
-                    id,
-                    what: "listed twice in one sync read",
-                });
-            }
-        }
-        let n = ids.len();
-        self.wire()?
-            .write_instruction(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
-                buf[..2].copy_from_slice(&address.to_le_bytes());
-                buf[2..4].copy_from_slice(&len.to_le_bytes());
-                buf[4..].copy_from_slice(ids);
-            })
-            .map_err(write_error)?;
-        // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
-        let mut next = 0;
-        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud) + per_reply;
-        // Bounds the loop if stray packets keep arriving.
-        let mut budget = 2 * n + 8;
-        while next < n && budget > 0 {
-            budget -= 1;
-            let deadline = Instant::now() + wait;
-            match self
-                .wire()?
-                .read_status_response_deadline(poll_deadline(deadline))
-            {
-                Ok(p) => {
-                    let id = p.packet_id();
-                    let Some(k) = ids[next..].iter().position(|&x| x == id) else {
-                        tracing::debug!(id, "sync read: reply from a servo not expected now");
-                        continue;
-                    };
-                    // The servos listed before this one stay marked as missing.
-                    let data = p.parameters();
-                    if data.len() == data_len {
-                        out.set(next + k, data, p.alert());
-                    } else {
-                        out.fail(
-                            next + k,
-                            ServoError::Malformed {
-                                id,
-                                what: format!("{} data bytes, expected {data_len}", data.len()),
-                            },
-                        );
-                    }
-                    next += k + 1;
-                }
-                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
-                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
-                Err(e) => {
-                    out.fail(next, read_error(ids[next], wait, e));
-                    next += 1;
-                }
-            }
-            wait = per_reply;
-        }
+    }
+
+    fn read_kind(&self) -> ReadKind {
+        self.read_kind
+    }
+
+    fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
+        self.read_kind = kind;
         Ok(())
     }
 
@@ -545,5 +925,251 @@ impl ServoBus for DynamixelBus {
         if self.open.take().is_some() {
             tracing::debug!(port = %self.port.display(), "port closed, lock released");
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// The e-manual's Fast Sync Read example (Protocol 2.0 page): Present Position (132, 4
+    /// bytes) of servos 3, 7 and 4, reading 166, 2079 and 1023.
+    const EMANUAL_INSTRUCTION: [u8; 17] = [
+        0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x0A, 0x00, 0x8A, 0x84, 0x00, 0x04, 0x00, 0x03, 0x07, 0x04,
+        0x20, 0xF2,
+    ];
+    const EMANUAL_REPLY: [u8; 32] = [
+        0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x19, 0x00, 0x55, // header, id, LEN 25, status
+        0x00, 0x03, 0xA6, 0x00, 0x00, 0x00, 0x84, 0x08, // servo 3: 166, CRC 0x0884
+        0x00, 0x07, 0x1F, 0x08, 0x00, 0x00, 0x16, 0xCA, // servo 7: 2079, CRC 0xCA16
+        0x00, 0x04, 0xFF, 0x03, 0x00, 0x00, 0xD1, 0x9E, // servo 4: 1023, CRC 0x9ED1
+    ];
+    const IDS: [u8; 3] = [3, 7, 4];
+
+    fn parse(bytes: &[u8]) -> (FastState, SyncReadBuf, usize) {
+        let mut out = SyncReadBuf::new();
+        out.reset(&IDS, 4, Duration::from_millis(1));
+        let mut reply = FastReply::new(&IDS, 4);
+        let state = reply.advance(bytes, &mut out);
+        (state, out, reply.intact())
+    }
+
+    fn position(out: &SyncReadBuf, i: usize) -> Option<i64> {
+        out.get(i)
+            .ok()
+            .and_then(|(d, _)| Register::PresentPosition.decode(d))
+    }
+
+    #[test]
+    fn the_emanual_example_instruction_is_laid_out_as_sync_read() {
+        let crc = calculate_checksum(0, &EMANUAL_INSTRUCTION[..15]);
+        assert_eq!(crc, 0xF220);
+        assert_eq!(
+            EMANUAL_INSTRUCTION[5],
+            (4 + IDS.len() + 3) as u8,
+            "LEN = params + 3"
+        );
+        assert_eq!(EMANUAL_INSTRUCTION[7], FAST_SYNC_READ);
+        assert_eq!(fast_reply_bytes(3, 4), EMANUAL_REPLY.len());
+    }
+
+    #[test]
+    fn the_emanual_example_reply_reads_all_three_servos() {
+        let (state, out, intact) = parse(&EMANUAL_REPLY);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(intact, 3);
+        assert_eq!(
+            (0..3).map(|i| position(&out, i)).collect::<Vec<_>>(),
+            [Some(166), Some(2079), Some(1023)]
+        );
+    }
+
+    #[test]
+    fn the_reply_is_read_as_it_arrives_byte_by_byte() {
+        let mut out = SyncReadBuf::new();
+        out.reset(&IDS, 4, Duration::from_millis(1));
+        let mut reply = FastReply::new(&IDS, 4);
+        let mut intact = Vec::new();
+        for end in 0..EMANUAL_REPLY.len() {
+            let state = reply.advance(&EMANUAL_REPLY[..end], &mut out);
+            assert!(matches!(state, FastState::Pending), "{end}: {state:?}");
+            intact.push(reply.intact());
+        }
+        // Each block counts once its CRC is in: after bytes 16, 24 (and 32).
+        assert_eq!(intact[16], 1);
+        assert_eq!(intact[15], 0);
+        assert_eq!(intact[24], 2);
+        assert!(matches!(
+            reply.advance(&EMANUAL_REPLY, &mut out),
+            FastState::Complete
+        ));
+        assert_eq!(position(&out, 2), Some(1023));
+    }
+
+    #[test]
+    fn a_reply_cut_short_keeps_the_blocks_that_arrived_whole() {
+        for (cut, whole) in [
+            (0, 0),
+            (3, 0),
+            (7, 0),
+            (8, 0),
+            (12, 0),
+            (15, 0),
+            (16, 1),
+            (23, 1),
+            (31, 2),
+        ] {
+            let (state, out, intact) = parse(&EMANUAL_REPLY[..cut]);
+            assert!(
+                matches!(state, FastState::Pending),
+                "cut at {cut}: {state:?}"
+            );
+            assert_eq!(intact, whole, "cut at {cut}");
+            for i in 0..3 {
+                assert_eq!(out.get(i).is_ok(), i < whole, "cut at {cut}, servo {i}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_damaged_byte_breaks_the_reply_from_its_block_on() {
+        for (byte, broken) in [
+            (10, 0),
+            (14, 0),
+            (15, 0),
+            (19, 1),
+            (22, 1),
+            (26, 2),
+            (31, 2),
+        ] {
+            let mut bytes = EMANUAL_REPLY;
+            bytes[byte] ^= 0x10;
+            let (state, out, intact) = parse(&bytes);
+            match state {
+                FastState::Broken {
+                    index,
+                    error: ServoError::Checksum { id, .. },
+                } => {
+                    assert_eq!((index, id), (broken, IDS[broken]), "byte {byte}");
+                }
+                other => panic!("byte {byte}: {other:?}"),
+            }
+            assert_eq!(intact, broken);
+            assert_eq!(position(&out, 0).is_some(), broken > 0);
+        }
+    }
+
+    #[test]
+    fn a_header_that_does_not_fit_is_passed_over_and_the_reply_waited_for() {
+        for (byte, value) in [(4, 0x03), (5, 0x18), (6, 0x01), (7, 0x56)] {
+            let mut bytes = EMANUAL_REPLY;
+            bytes[byte] = value;
+            let mut out = SyncReadBuf::new();
+            out.reset(&IDS, 4, Duration::from_millis(1));
+            let mut reply = FastReply::new(&IDS, 4);
+            let state = reply.advance(&bytes, &mut out);
+            assert!(
+                matches!(state, FastState::Pending),
+                "byte {byte}: {state:?}"
+            );
+            assert_eq!((reply.intact(), reply.skipped()), (0, 1), "byte {byte}");
+            // Nothing taken from it; if the real reply follows, it is read.
+            assert!(out.get(0).is_err());
+            let mut both = bytes.to_vec();
+            both.extend_from_slice(&EMANUAL_REPLY);
+            assert!(matches!(
+                reply.advance(&both, &mut out),
+                FastState::Complete
+            ));
+            assert_eq!(position(&out, 2), Some(1023));
+        }
+    }
+
+    #[test]
+    fn a_late_reply_to_an_earlier_read_is_passed_over() {
+        // A Fast reply of 8 bytes a servo (an earlier read's), then this read's.
+        let mut late = vec![0xFF, 0xFF, 0xFD, 0x00, 0xFE];
+        late.extend_from_slice(&((1 + 3 * 12) as u16).to_le_bytes());
+        late.push(0x55);
+        for (i, &id) in IDS.iter().enumerate() {
+            late.extend_from_slice(&[0, id]);
+            late.extend_from_slice(&[i as u8; 8]);
+            let crc = calculate_checksum(0, &late);
+            late.extend_from_slice(&crc.to_le_bytes());
+        }
+        late.extend_from_slice(&EMANUAL_REPLY);
+        let (state, out, _) = parse(&late);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(position(&out, 0), Some(166));
+    }
+
+    #[test]
+    fn a_block_of_another_servo_is_refused_even_with_a_good_crc() {
+        let mut bytes = EMANUAL_REPLY.to_vec();
+        bytes[17] = 9;
+        // Recompute the running CRCs as a chain with servo 9 second would have sent them.
+        for end in [22, 30] {
+            let crc = calculate_checksum(0, &bytes[..end]);
+            bytes[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+        }
+        let (state, _, intact) = parse(&bytes);
+        assert!(
+            matches!(
+                state,
+                FastState::Broken {
+                    index: 1,
+                    error: ServoError::Malformed { id: 7, .. }
+                }
+            ),
+            "{state:?}"
+        );
+        assert_eq!(intact, 1);
+    }
+
+    #[test]
+    fn noise_before_the_header_and_garbage_after_the_reply_are_ignored() {
+        let mut bytes = vec![0x00, 0xFF, 0x13, 0xFF, 0xFF];
+        bytes.extend_from_slice(&EMANUAL_REPLY);
+        bytes.extend_from_slice(&[0xFF, 0xFF, 0xFD, 0x00, 0x42, 0x42]);
+        let (state, out, _) = parse(&bytes);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(position(&out, 1), Some(2079));
+    }
+
+    #[test]
+    fn a_status_error_in_a_block_names_that_servo_and_keeps_the_others() {
+        let mut bytes = EMANUAL_REPLY.to_vec();
+        bytes[16] = 0x87; // servo 7: access error, alert
+        for end in [22, 30] {
+            let crc = calculate_checksum(0, &bytes[..end]);
+            bytes[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+        }
+        let (state, out, _) = parse(&bytes);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert!(matches!(
+            out.get(1),
+            Err(ServoError::Status {
+                id: 7,
+                code: 7,
+                alert: true
+            })
+        ));
+        assert_eq!(position(&out, 0), Some(166));
+        assert_eq!(position(&out, 2), Some(1023));
+    }
+
+    #[test]
+    fn the_alert_bit_is_a_flag_beside_the_data() {
+        let mut bytes = EMANUAL_REPLY.to_vec();
+        bytes[8] = 0x80;
+        for end in [14, 22, 30] {
+            let crc = calculate_checksum(0, &bytes[..end]);
+            bytes[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+        }
+        let (state, out, _) = parse(&bytes);
+        assert!(matches!(state, FastState::Complete), "{state:?}");
+        assert_eq!(out.get(0).map(|(_, alert)| alert).ok(), Some(true));
+        assert_eq!(position(&out, 0), Some(166));
     }
 }

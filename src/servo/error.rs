@@ -235,6 +235,12 @@ pub enum ServoError {
     /// A baud rate no X-series servo can use.
     #[error("baud rate {0} is not a Dynamixel baud rate")]
     Baud(u32),
+    /// Something this bus cannot do (e.g. Fast Sync Read on a bus that does not frame it).
+    #[error("unsupported: {what}")]
+    Unsupported {
+        /// What is not supported.
+        what: &'static str,
+    },
     /// Opening the serial port failed.
     #[error("opening {}: {source}", port.display())]
     Open {
@@ -309,7 +315,8 @@ impl ServoError {
             | Self::NotFinite { .. }
             | Self::PoseLength { .. }
             | Self::BadId { .. }
-            | Self::Baud(_) => ErrorClass::Refused,
+            | Self::Baud(_)
+            | Self::Unsupported { .. } => ErrorClass::Refused,
             Self::BufferTooSmall { .. } | Self::Open { .. } | Self::InUse { .. } | Self::Io(_) => {
                 ErrorClass::Bus
             }

@@ -16,7 +16,7 @@
 use std::collections::HashMap;
 use std::time::Duration;
 
-use super::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
+use super::{Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value};
 
 /// What to do with a goal outside the limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -253,6 +253,14 @@ impl<B: ServoBus> ServoBus for Limited<B> {
 
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
         self.inner.reboot(id, timeout)
+    }
+
+    fn read_kind(&self) -> ReadKind {
+        self.inner.read_kind()
+    }
+
+    fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
+        self.inner.set_read_kind(kind)
     }
 }
 

@@ -2,7 +2,8 @@
 //! and what is built on it.
 //!
 //! - [`ServoBus`]: ping, scan, register read/write, sync read/write, reboot, each call with its
-//!   own timeout; provided on top: [`ServoBus::read_states`] (present position and, when asked,
+//!   own timeout; a sync read goes out as Sync Read or, on a bus set to it ([`ReadKind`]), as
+//!   Fast Sync Read; provided on top: [`ServoBus::read_states`] (present position and, when asked,
 //!   velocity, current/load, voltage, temperature), [`ServoBus::write_goals`] (one Sync Write),
 //!   torque, Hardware Error Status.
 //! - [`dynamixel`]: the implementation over a serial port (`dynamixel2`; the only file that
@@ -224,6 +225,45 @@ impl Register {
             unsigned
         })
     }
+}
+
+/// Which instruction reads a block from many servos in one exchange ([`ServoBus::sync_read_into`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum ReadKind {
+    /// Sync Read (0x82): every servo answers with its own status packet.
+    #[default]
+    Sync,
+    /// Fast Sync Read (0x8A): one status packet carries every servo's block, one turnaround
+    /// instead of one per servo (X430/X540 firmware 45 and later, X330 46 and later).
+    Fast,
+}
+
+impl ReadKind {
+    /// `"sync"` or `"fast"`, as in the config and the protocol.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Sync => "sync",
+            Self::Fast => "fast",
+        }
+    }
+}
+
+impl std::fmt::Display for ReadKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// `[bus] read`: the read kind bring-up is to set on each port.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum ReadChoice {
+    /// Fast Sync Read where every servo of the port supports it, Sync Read otherwise.
+    #[default]
+    Auto,
+    /// Fast Sync Read; bring-up refuses a servo that cannot do it, naming it.
+    Fast,
+    /// Sync Read always.
+    Sync,
 }
 
 /// A servo's answer to a ping.
@@ -631,10 +671,10 @@ pub trait ServoBus {
         timeout: Duration,
     ) -> Result<Ack, ServoError>;
 
-    /// One Sync Read of `len` bytes at `address` from every servo in `ids` (no repeats), into
-    /// `out`. The error is the bus's (the instruction could not be sent); each servo's own
-    /// outcome is in `out`, in the order of `ids`: a silent servo costs its `timeout`, the
-    /// others' data still arrive.
+    /// One Sync Read (or Fast Sync Read, see [`ServoBus::read_kind`]) of `len` bytes at
+    /// `address` from every servo in `ids` (no repeats), into `out`. The error is the bus's (the
+    /// instruction could not be sent); each servo's own outcome is in `out`, in the order of
+    /// `ids`: a silent servo costs its `timeout`, the others' data still arrive.
     fn sync_read_into(
         &mut self,
         ids: &[u8],
@@ -652,6 +692,24 @@ pub trait ServoBus {
 
     /// Reboot one servo (clears a latched hardware error; torque comes back off).
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError>;
+
+    /// The instruction [`ServoBus::sync_read_into`] sends: Sync Read unless the bus was set to
+    /// Fast Sync Read.
+    fn read_kind(&self) -> ReadKind {
+        ReadKind::Sync
+    }
+
+    /// Make [`ServoBus::sync_read_into`] send `kind` from now on (bring-up decides, from every
+    /// servo's model and firmware). A bus that cannot frame Fast Sync Read refuses it with
+    /// [`ServoError::Unsupported`] (the default).
+    fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
+        match kind {
+            ReadKind::Sync => Ok(()),
+            ReadKind::Fast => Err(ServoError::Unsupported {
+                what: "this bus does not speak Fast Sync Read",
+            }),
+        }
+    }
 
     /// [`ServoBus::sync_read_into`] into fresh buffers: one result per servo of `ids`.
     fn sync_read(
@@ -804,6 +862,12 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     }
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
         (**self).reboot(id, timeout)
+    }
+    fn read_kind(&self) -> ReadKind {
+        (**self).read_kind()
+    }
+    fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
+        (**self).set_read_kind(kind)
     }
     fn sync_read(
         &mut self,

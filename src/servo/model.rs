@@ -1,6 +1,7 @@
 //! The servo models this program knows: one table, read by the config (model names), bring-up
-//! (model numbers), `scan` (names of what answers) and the units (what Present Current counts).
-//! Adding a model is one row here (and, to simulate it, one in the simulator's own table).
+//! (model numbers), `scan` (names of what answers), the units (what Present Current counts) and
+//! which firmware speaks Fast Sync Read. Adding a model is one row here (and, to simulate it, one
+//! in the simulator's own table).
 
 use super::units::CurrentUnit;
 
@@ -11,6 +12,7 @@ pub struct ServoModel {
     number: u16,
     current: CurrentUnit,
     indirect_data: Option<u16>,
+    fast_read: Option<u8>,
 }
 
 const fn model(
@@ -18,12 +20,14 @@ const fn model(
     number: u16,
     current: CurrentUnit,
     indirect_data: Option<u16>,
+    fast_read: Option<u8>,
 ) -> ServoModel {
     ServoModel {
         name,
         number,
         current,
         indirect_data,
+        fast_read,
     }
 }
 
@@ -35,21 +39,29 @@ const X430_DATA: Option<u16> = Some(224);
 /// Indirect Data 1 of the XL330 models (20 slots from Indirect Address 1 at 168).
 const X330_DATA: Option<u16> = Some(208);
 
+/// Fast Sync Read (0x8A), per the e-manual's Protocol 2.0 page: X430 and X540 from firmware 45
+/// (never the dual 2XL/2XC), X330 from firmware 46.
+const X430_FAST: Option<u8> = Some(45);
+const X540_FAST: Option<u8> = Some(45);
+const X330_FAST: Option<u8> = Some(46);
+const NO_FAST: Option<u8> = None;
+
 /// Every known model: e-manual name, Model Number (register 0), Present Current's unit, the
-/// address of Indirect Data 1 (every one of them has Indirect Address 1 at 168).
+/// address of Indirect Data 1 (every one of them has Indirect Address 1 at 168), the first
+/// firmware that answers Fast Sync Read.
 pub const MODELS: [ServoModel; 12] = [
-    model("XH430-W210", 1000, MA_2_69, X430_DATA),
-    model("XH430-W350", 1010, MA_2_69, X430_DATA),
-    model("XM430-W350", 1020, MA_2_69, X430_DATA),
-    model("XM430-W210", 1030, MA_2_69, X430_DATA),
-    model("XL430-W250", 1060, LOAD, X430_DATA),
-    model("XC430-W150", 1070, LOAD, X430_DATA),
-    model("XC430-W240", 1080, LOAD, X430_DATA),
-    model("2XL430-W250", 1090, LOAD, X430_DATA),
-    model("XM540-W270", 1120, MA_2_69, X430_DATA),
-    model("XM540-W150", 1130, MA_2_69, X430_DATA),
-    model("XL330-M077", 1190, MA_1, X330_DATA),
-    model("XL330-M288", 1200, MA_1, X330_DATA),
+    model("XH430-W210", 1000, MA_2_69, X430_DATA, X430_FAST),
+    model("XH430-W350", 1010, MA_2_69, X430_DATA, X430_FAST),
+    model("XM430-W350", 1020, MA_2_69, X430_DATA, X430_FAST),
+    model("XM430-W210", 1030, MA_2_69, X430_DATA, X430_FAST),
+    model("XL430-W250", 1060, LOAD, X430_DATA, X430_FAST),
+    model("XC430-W150", 1070, LOAD, X430_DATA, X430_FAST),
+    model("XC430-W240", 1080, LOAD, X430_DATA, X430_FAST),
+    model("2XL430-W250", 1090, LOAD, X430_DATA, NO_FAST),
+    model("XM540-W270", 1120, MA_2_69, X430_DATA, X540_FAST),
+    model("XM540-W150", 1130, MA_2_69, X430_DATA, X540_FAST),
+    model("XL330-M077", 1190, MA_1, X330_DATA, X330_FAST),
+    model("XL330-M288", 1200, MA_1, X330_DATA, X330_FAST),
 ];
 
 impl ServoModel {
@@ -82,6 +94,17 @@ impl ServoModel {
     /// onward (from 168) are read; `None` for a model without indirect addressing.
     pub fn indirect_data(self) -> Option<u16> {
         self.indirect_data
+    }
+
+    /// The first Firmware Version (register 6) that answers Fast Sync Read; `None` when no
+    /// firmware of this model does.
+    pub fn fast_read_firmware(self) -> Option<u8> {
+        self.fast_read
+    }
+
+    /// Whether this model at `firmware` answers Fast Sync Read.
+    pub fn supports_fast_read(self, firmware: u8) -> bool {
+        self.fast_read.is_some_and(|first| firmware >= first)
     }
 }
 
@@ -130,5 +153,15 @@ mod tests {
         assert_eq!(unit(1020), Some(CurrentUnit::MilliAmps(2.69)));
         assert_eq!(unit(1200), Some(CurrentUnit::MilliAmps(1.0)));
         assert!(ServoModel::from_name("xl430-w250").is_none());
+    }
+
+    #[test]
+    fn fast_sync_read_follows_the_emanual_firmware_rule() {
+        let supports =
+            |name, fw| ServoModel::from_name(name).is_some_and(|m| m.supports_fast_read(fw));
+        assert!(supports("XL430-W250", 45) && !supports("XL430-W250", 44));
+        assert!(supports("XM540-W270", 45) && !supports("XM540-W270", 44));
+        assert!(supports("XL330-M288", 46) && !supports("XL330-M288", 45));
+        assert!(!supports("2XL430-W250", 255));
     }
 }

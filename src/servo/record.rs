@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use super::{Ack, Goal, PingInfo, Register, ServoBus, ServoError, SyncReadBuf, Value};
+use super::{Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value};
 
 /// One instruction as sent.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -131,6 +131,12 @@ impl<B: ServoBus> ServoBus for Recording<B> {
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
         self.log.push(Instruction::Reboot(id));
         self.inner.reboot(id, timeout)
+    }
+    fn read_kind(&self) -> ReadKind {
+        self.inner.read_kind()
+    }
+    fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
+        self.inner.set_read_kind(kind)
     }
 }
 

@@ -298,6 +298,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         tracing::info!(
             servos = brought.servos.len(),
             retries = brought.retries,
+            read = %brought.read,
             "arm up, holding its present pose"
         );
         let c = config.control();
@@ -330,7 +331,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         // The channel's first value is never seen: tick 0 publishes a measured snapshot
         // before `ready` hands the handle to anyone who could read it.
-        let describe = describe(config, &arm).with_world(controller.world());
+        let describe = Describe {
+            read: brought.read.as_str().to_owned(),
+            ..describe(config, &arm).with_world(controller.world())
+        };
         let (handle, ends) = link::channel(describe, Telemetry::default());
         let period = Duration::from_secs_f64(1.0 / c.rate_hz);
         let schedule = Schedule {

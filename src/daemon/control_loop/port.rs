@@ -127,10 +127,15 @@ impl<B: ServoBus> Port<B> {
     }
 
     /// Open the port again (the arm still to recover on it). The failed one is closed first,
-    /// so its lock is free for this process to take again.
+    /// so its lock is free for this process to take again. The new bus reads as the old one
+    /// did (the read bring-up chose from the same servos).
     pub fn reopen(&mut self, arm: &Arm) -> Result<(), ReopenError> {
+        let read = self.bus.read_kind();
         self.bus.close();
         self.bus = (self.opener)(arm)?;
+        if let Err(e) = self.bus.set_read_kind(read) {
+            tracing::warn!(%read, "the reopened port keeps Sync Read: {e}");
+        }
         Ok(())
     }
 

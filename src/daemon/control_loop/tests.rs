@@ -21,7 +21,7 @@ use crate::protocol::{
 use crate::servo::clock::{Clock, ManualClock};
 use crate::servo::limits::LimitPolicy;
 use crate::servo::{
-    Ack, Goal, PingInfo, Register, ServoBus, ServoError, ServoModel, SyncReadBuf, Value,
+    Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, ServoModel, SyncReadBuf, Value,
     INDIRECT_ADDRESS_1,
 };
 
@@ -79,9 +79,10 @@ struct Wire {
     clock: Option<ManualClock>,
 }
 
-/// An in-memory chain of servos whose motors reach every goal at once. Clones share it.
+/// An in-memory chain of servos whose motors reach every goal at once. Clones share it; the
+/// read kind is each handle's own, as each opened port's is.
 #[derive(Debug, Clone, Default)]
-struct MemoryBus(Arc<Mutex<Wire>>);
+struct MemoryBus(Arc<Mutex<Wire>>, ReadKind);
 
 impl MemoryBus {
     fn wire(&self) -> MutexGuard<'_, Wire> {
@@ -249,6 +250,13 @@ impl ServoBus for MemoryBus {
             s.set(Register::TorqueEnable, 0);
         });
         Ok(Ack { id, alert: false })
+    }
+    fn read_kind(&self) -> ReadKind {
+        self.1
+    }
+    fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
+        self.1 = kind;
+        Ok(())
     }
 }
 
@@ -542,6 +550,20 @@ fn an_estop_while_the_port_is_lost_stays_latched_when_the_port_comes_back() {
     rig.command(LoopCmd::Reset).unwrap();
     assert_eq!(rig.status().state, State::Holding);
     assert!(rig.status().torque);
+}
+
+#[test]
+fn a_reopened_port_reads_as_bring_up_chose() {
+    // The shipped config reads `auto`; these servos ping firmware 46.
+    let mut rig = Rig::new(100.0, "");
+    assert_eq!(rig.cycle.port.bus().read_kind(), ReadKind::Fast);
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    assert_eq!(rig.status().faults[0].kind, FaultKind::Port);
+    rig.bus.wire().port_gone = false;
+    rig.ticks(150);
+    assert!(rig.status().faults.is_empty());
+    assert_eq!(rig.cycle.port.bus().read_kind(), ReadKind::Fast);
 }
 
 #[test]

@@ -249,6 +249,7 @@ fn describe_fields_name_every_field() {
         protocol_version: PROTOCOL_VERSION,
         link_radius_m: 0.012,
         clearance_m: 0.005,
+        read: "sync".into(),
     };
     assert_eq!(
         Value::Object(d.to_fields()),
@@ -256,7 +257,7 @@ fn describe_fields_name_every_field() {
                "max_rad": [1.0, 2.0], "ids": [1, 2], "models": ["XL430-W250", "XL330-M288"],
                "home_rad": [0.0, 0.1], "rate_hz": 100.0,
                "strategies": ["overall", "sequential"], "protocol_version": PROTOCOL_VERSION,
-               "link_radius_m": 0.012, "clearance_m": 0.005})
+               "link_radius_m": 0.012, "clearance_m": 0.005, "read": "sync"})
     );
 }
 
