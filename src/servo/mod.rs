@@ -14,6 +14,7 @@
 //! - [`arm`]: the configured joints on a bus: bring-up, pose read/write in radians, shut-down.
 //! - [`lock`]: one owner per serial port: the exclusive lock taken before a port is opened.
 //! - [`sysfs`]: the FTDI latency timer and the list of serial ports, read from sysfs.
+//! - [`wire`]: the wire bound: a tick's bytes and time on the wire, the best rate.
 //! - [`error`]: the typed errors.
 
 pub mod admin;
@@ -27,6 +28,7 @@ pub mod model;
 pub mod record;
 pub mod sysfs;
 pub mod units;
+pub mod wire;
 
 use std::time::Duration;
 
