@@ -124,9 +124,7 @@ fn run_with(
 /// Runs the daemon of `config` (at `rate_hz`) for `seconds` under a streamed figure eight.
 fn run_config(config: Config, rate_hz: f64, seconds: f64) -> Result<Measured> {
     let sim = connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock))?;
-    let options = RunOptions {
-        port: Some(sim.path().to_path_buf()),
-    };
+    let options = RunOptions::port(sim.path().to_path_buf());
     let daemon = Embedded::start(config, ([127, 0, 0, 1], 0).into(), options)?;
     let addr = daemon.addr();
 

@@ -138,6 +138,21 @@ pub struct RawBus {
     /// How long to wait for one status reply before counting it missing, milliseconds.
     #[serde(default = "default_reply_timeout_ms")]
     pub reply_timeout_ms: u32,
+    /// `[[bus.ports]]`: several serial ports, each with its servos; absent, one port
+    /// (`port`) carries every joint's servo.
+    #[serde(default)]
+    pub ports: Vec<RawPort>,
+}
+
+/// `[[bus.ports]]`: one serial port and the servos on it.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPort {
+    /// The servo ids on this port; read wide so a bad value can be quoted.
+    pub ids: Vec<i64>,
+    /// Serial device; required for `"dynamixel"`, ignored for `"sim"`.
+    #[serde(default)]
+    pub port: Option<String>,
 }
 
 /// `[sim]`: the simulated servo chain.
@@ -250,8 +265,11 @@ pub enum Fault {
         until_s: Option<f64>,
     },
     /// The serial adapter is unplugged: the port goes away for the window and comes back as a
-    /// new device behind the simulator's link. Concerns the whole bus, so it takes no `id`.
+    /// new device behind the simulator's link. Concerns a whole port, so it takes no `id`.
     Disconnect {
+        /// Which of `[[bus.ports]]` is unplugged (from 1); every port when absent.
+        #[serde(default)]
+        port: Option<i64>,
         /// Start, seconds.
         at_s: f64,
         /// End, seconds; the bus never comes back when absent.

@@ -132,6 +132,37 @@ pub fn sim_config(config: &Config) -> Result<SimConfig, SimBusError> {
     Ok(out)
 }
 
+/// The simulators of `config`'s bus, one per port in order: each serves that port's servos,
+/// the faults that name one of them or none, and the `disconnect`s of that port or of every
+/// port. One port: [`sim_config`] alone.
+pub fn sim_configs(config: &Config) -> Result<Vec<SimConfig>, SimBusError> {
+    let whole = sim_config(config)?;
+    let Some(bus) = config.bus() else {
+        return Ok(vec![whole]);
+    };
+    if bus.ports.len() <= 1 {
+        return Ok(vec![whole]);
+    }
+    let faults: &[Fault] = config.sim().map_or(&[], |s| s.faults.as_slice());
+    Ok(bus
+        .ports
+        .iter()
+        .enumerate()
+        .map(|(k, port)| {
+            let mut one = whole.clone();
+            one.servos.retain(|s| port.ids.contains(&s.id));
+            one.seed = whole.seed.wrapping_add(k as u64);
+            one.faults = faults
+                .iter()
+                .filter(|f| f.id.is_none_or(|id| port.ids.contains(&id)))
+                .filter(|f| f.port.is_none_or(|p| p == k))
+                .map(fault)
+                .collect();
+            one
+        })
+        .collect())
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {

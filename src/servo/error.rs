@@ -257,6 +257,15 @@ pub enum ServoError {
     /// Reading from or writing to the serial port failed.
     #[error("serial port i/o: {0}")]
     Io(#[from] std::io::Error),
+    /// One port of a bus of several failed (an error of class [`ErrorClass::Bus`]): which, and
+    /// how.
+    #[error("port {port}: {source}")]
+    OnPort {
+        /// The port's path.
+        port: String,
+        /// What failed on it.
+        source: Box<ServoError>,
+    },
 }
 
 impl ServoError {
@@ -304,6 +313,15 @@ impl ServoError {
             Self::BufferTooSmall { .. } | Self::Open { .. } | Self::InUse { .. } | Self::Io(_) => {
                 ErrorClass::Bus
             }
+            Self::OnPort { source, .. } => source.class(),
+        }
+    }
+
+    /// The port a bus of several names in its error ([`ServoError::OnPort`]).
+    pub fn port(&self) -> Option<&str> {
+        match self {
+            Self::OnPort { port, .. } => Some(port),
+            _ => None,
         }
     }
 

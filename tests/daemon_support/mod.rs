@@ -59,9 +59,7 @@ impl Daemon {
     /// first reply then waits for bring-up).
     pub fn start(config: Config) -> Self {
         let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
-        let options = RunOptions {
-            port: Some(sim.path().to_path_buf()),
-        };
+        let options = RunOptions::port(sim.path().to_path_buf());
         let localhost = SocketAddr::from(([127, 0, 0, 1], 0));
         let daemon = Embedded::start(config.clone(), localhost, options).unwrap();
         Self {

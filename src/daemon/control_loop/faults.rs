@@ -441,7 +441,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// The serial port failed: hold, report, reopen every [`RETRY_EVERY`].
     pub(super) fn lose_port(&mut self, e: &ServoError) {
-        let Some(info) = self.port.lose(self.tick, self.clock.now(), e) else {
+        let Some(info) = self.port.lose(self.tick, self.clock.now(), e.port(), e) else {
             return;
         };
         self.sync_faulted();
