@@ -27,9 +27,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The read of the tick scheduled at `scheduled`, its wait capped short of `deadline`;
     /// with `health`, Present Current/Load, Input Voltage and Temperature too.
     pub(super) fn read(&mut self, scheduled: Instant, deadline: Instant, health: bool) {
-        let left = deadline
+        let mut left = deadline
             .saturating_duration_since(self.clock.now())
             .saturating_sub(READ_TAIL);
+        if self.late_start {
+            // Back to back, the work is longer than the period: the read waits for its replies
+            // as long as any exchange does. Cut short, it would send the next instruction while
+            // servos still answer the last (a collision on a real bus), and take their late
+            // replies for the next exchange's.
+            left = self.schedule.reply_timeout;
+        }
         let timeout = self.schedule.reply_timeout.min(left).max(MIN_READ_WAIT);
         let fields = if health {
             self.measured.begin_health();

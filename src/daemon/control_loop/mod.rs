@@ -293,6 +293,8 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     not_clear: bool,
     /// The loop ran behind its configured rate when last looked at (see [`Stats::behind`]).
     behind: bool,
+    /// The last tick ran past its period: this one starts at once, back to back.
+    late_start: bool,
     /// The highest rate the wire allows this arm, Hz, for the log lines.
     wire_bound_hz: f64,
 }
@@ -432,6 +434,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             torque_off_pending: Vec::new(),
             not_clear: false,
             behind: false,
+            late_start: false,
             wire_bound_hz,
         };
         Ok((cycle, handle))
@@ -461,6 +464,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.step(scheduled, pace.deadline);
         let now = self.clock.now();
         let late = now > pace.deadline;
+        self.late_start = late;
         self.stats
             .record_tick(start, now.saturating_duration_since(start), late);
         if let Some(since) = pace.stop_since {
@@ -809,6 +813,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         } else {
             self.health.unanswering()
         };
+        if self.late_start {
+            // The loop ran back to back: replies its last read gave up on may still be on
+            // their way; once in, the next instruction's send discards them instead of taking
+            // them for its answer.
+            self.clock
+                .sleep(self.schedule.reply_timeout.min(SHUT_DOWN_WITHIN / 10));
+        }
         let until = self.clock.now() + SHUT_DOWN_WITHIN;
         let within = Self::within(&self.clock, until, self.schedule.reply_timeout);
         let shut = self.arm.shut_down(self.port.bus(), &silent, &within);
