@@ -229,9 +229,7 @@ fn a_silent_servo_on_one_of_two_ports_holds_the_arm_named_with_its_port() {
 fn silent_servo_holds_the_arm(ports: &str) {
     let d = Daemon::start(sim_config_with(
         &[],
-        &format!(
-            "[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 2.5\nuntil_s = 4.0\n{ports}"
-        ),
+        &format!("[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 2.5\nuntil_s = 4.0\n{ports}"),
     ));
     // The budget is a time: at this rate, the reads it spans on schedule.
     let control = d.config.control();
@@ -512,9 +510,7 @@ fn vanished_port_holds_the_arm(ports: &str, k: usize) {
     };
     let d = Daemon::start(sim_config_with(
         &[],
-        &format!(
-            "[[sim.fault]]\nkind = \"disconnect\"\n{which}at_s = 2.0\nuntil_s = 3.5\n{ports}"
-        ),
+        &format!("[[sim.fault]]\nkind = \"disconnect\"\n{which}at_s = 2.0\nuntil_s = 3.5\n{ports}"),
     ));
     let (mut c, (lo, hi), start) = watching(&d);
     let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.01}));

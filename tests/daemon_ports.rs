@@ -22,7 +22,13 @@ fn on_two_ports_of_the_embedded_simulator_the_arm_moves_as_one() {
     let mut c = Client::connect(daemon.addr());
     let s = c.status();
     let joints = 12;
-    for key in ["theta_meas", "omega_meas", "temperature_c", "voltage_v", "load"] {
+    for key in [
+        "theta_meas",
+        "omega_meas",
+        "temperature_c",
+        "voltage_v",
+        "load",
+    ] {
         assert_eq!(floats(&s[key]).len(), joints, "{key}: {s}");
     }
     assert_eq!(s["faults"], json!([]), "{s}");

@@ -277,8 +277,7 @@ impl Config {
             ..Fields::POSITION
         }
         .span();
-        let return_delay =
-            Duration::from_micros(u64::from(arm.settings().return_delay_us));
+        let return_delay = Duration::from_micros(u64::from(arm.settings().return_delay_us));
         bus.ports
             .iter()
             .map(|p| Wire {

@@ -475,7 +475,10 @@ fn several_ports_each_with_its_servos() {
     assert_eq!(bus.ports[0].ids, [2, 1]);
     assert_eq!(bus.ports[1].port.as_deref(), Some("/dev/ttyUSB1"));
     assert_eq!(bus.port(), None, "no single port");
-    assert_eq!(c.wire().iter().map(|w| w.servos).collect::<Vec<_>>(), [2, 1]);
+    assert_eq!(
+        c.wire().iter().map(|w| w.servos).collect::<Vec<_>>(),
+        [2, 1]
+    );
     // Simulated ports need no path.
     let c = load(&with_ports(
         "kind = \"sim\"\n",
@@ -529,7 +532,10 @@ fn several_ports_refusals_name_the_field() {
             real,
             "[[bus.ports]]\nids = [1]\nport = \"/dev/ttyUSB0\"\n\
              [[bus.ports]]\nids = [2, 3]\nport = \"/dev/ttyUSB0\"\n",
-            &["bus.ports[2].port", "\"/dev/ttyUSB0\" is already the port of bus.ports[1]"],
+            &[
+                "bus.ports[2].port",
+                "\"/dev/ttyUSB0\" is already the port of bus.ports[1]",
+            ],
         ),
         (
             "kind = \"dynamixel\"\nport = \"/dev/ttyUSB0\"\n",

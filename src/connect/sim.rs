@@ -186,6 +186,37 @@ mod tests {
     }
 
     #[test]
+    fn two_ports_make_two_simulators_each_with_its_servos_and_faults() {
+        let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"))
+            .unwrap()
+            + "\n[[sim.fault]]\nkind = \"silent\"\nid = 9\nat_s = 1.0\n"
+            + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.1\n"
+            + "\n[[sim.fault]]\nkind = \"disconnect\"\nport = 1\nat_s = 2.0\n"
+            + "\n[[bus.ports]]\nids = [1, 2, 3, 4, 5, 6]\n"
+            + "\n[[bus.ports]]\nids = [7, 8, 9, 10, 11, 12]\n";
+        let config = Config::from_str(&text, "sim.toml").unwrap();
+        let sims = sim_configs(&config).unwrap();
+        assert_eq!(sims.len(), 2);
+        let ids = |k: usize| sims[k].servos.iter().map(|s| s.id).collect::<Vec<_>>();
+        assert_eq!(ids(0), [1, 2, 3, 4, 5, 6]);
+        assert_eq!(ids(1), [7, 8, 9, 10, 11, 12]);
+        let s = std::time::Duration::from_secs_f64;
+        let drop = SimFault::DropReplies {
+            id: None,
+            fraction: 0.1,
+        };
+        assert_eq!(
+            sims[0].faults,
+            [drop.clone(), SimFault::Disconnect.during(s(2.0), None)]
+        );
+        assert_eq!(sims[1].faults, [SimFault::Silent { id: 9, at: s(1.0) }, drop]);
+        // One port: the whole chain, as `sim_config` makes it.
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+        let one = Config::load(path).unwrap();
+        assert_eq!(sim_configs(&one).unwrap(), [sim_config(&one).unwrap()]);
+    }
+
+    #[test]
     fn fault_windows_map_onto_the_simulator() {
         let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"))
             .unwrap()

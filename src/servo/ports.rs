@@ -431,10 +431,16 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
             w.ids.clear();
             w.slots.clear();
         }
-        Self::split(&self.route, workers, ids, |&id| id, |w, i, id| {
-            w.ids.push(id);
-            w.slots.push(i);
-        })?;
+        Self::split(
+            &self.route,
+            workers,
+            ids,
+            |&id| id,
+            |w, i, id| {
+                w.ids.push(id);
+                w.slots.push(i);
+            },
+        )?;
         let mut first_error = None;
         for w in workers.iter_mut().filter(|w| !w.ids.is_empty()) {
             let job = Job::Read {
@@ -502,9 +508,9 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
                         pending.push(None);
                         continue;
                     }
-                    pending.push(Some(w.start(move |bus: &mut B| {
-                        bus.sync_write(register, &part)
-                    })?));
+                    pending.push(Some(
+                        w.start(move |bus: &mut B| bus.sync_write(register, &part))?,
+                    ));
                 }
                 let mut first_error = None;
                 for (w, rx) in workers.iter_mut().zip(pending) {
@@ -529,9 +535,15 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
         for w in workers.iter_mut() {
             w.goals.clear();
         }
-        Self::split(&self.route, workers, goals, |g| g.id, |w, _, g| {
-            w.goals.push(g);
-        })?;
+        Self::split(
+            &self.route,
+            workers,
+            goals,
+            |g| g.id,
+            |w, _, g| {
+                w.goals.push(g);
+            },
+        )?;
         let mut first_error = None;
         for w in workers.iter_mut().filter(|w| !w.goals.is_empty()) {
             let goals = std::mem::take(&mut w.goals);
@@ -603,7 +615,10 @@ mod tests {
         fn with(ids: &[u8]) -> Self {
             let m = Memory::default();
             for &id in ids {
-                m.0.lock().unwrap().positions.insert(id, 1000 + i32::from(id));
+                m.0.lock()
+                    .unwrap()
+                    .positions
+                    .insert(id, 1000 + i32::from(id));
             }
             m
         }
@@ -643,7 +658,10 @@ mod tests {
         }
         fn scan(&mut self, t: Duration) -> Result<Vec<PingInfo>, ServoError> {
             let ids: Vec<u8> = self.0.lock().unwrap().positions.keys().copied().collect();
-            Ok(ids.into_iter().filter_map(|id| self.ping(id, t).ok()).collect())
+            Ok(ids
+                .into_iter()
+                .filter_map(|id| self.ping(id, t).ok())
+                .collect())
         }
         fn read(&mut self, id: u8, _: Register, t: Duration) -> Result<Value, ServoError> {
             self.ping(id, t)?;
@@ -685,7 +703,11 @@ mod tests {
             let mut w = self.0.lock().unwrap();
             w.goal_writes += 1;
             for g in goals {
-                assert!(w.positions.contains_key(&g.id), "goal of {} sent to the wrong port", g.id);
+                assert!(
+                    w.positions.contains_key(&g.id),
+                    "goal of {} sent to the wrong port",
+                    g.id
+                );
                 w.positions.insert(g.id, g.ticks);
             }
             Ok(())

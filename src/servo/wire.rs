@@ -218,7 +218,10 @@ mod tests {
         assert_eq!(w.reply_bytes(), 8 + 12 * 12);
         // The e-manual's example: three servos, 4 data bytes each, LEN 0x19 = 25 (the
         // packet less header, id and length).
-        assert_eq!(wire(3, 1_000_000, ReadKind::Fast, 4).reply_bytes() - 7, 0x19);
+        assert_eq!(
+            wire(3, 1_000_000, ReadKind::Fast, 4).reply_bytes() - 7,
+            0x19
+        );
         let b = w.bound();
         assert_eq!(b.bytes(), 74 + 26 + 152);
         assert_eq!(b.tick, Duration::from_micros(2520));

@@ -132,7 +132,11 @@ impl Daemon {
 
     /// The link of port `k` (from 0), as fault reports name it.
     pub fn port_path(&self, k: usize) -> String {
-        let sim = if k == 0 { &self.sim } else { &self.more_sims[k - 1] };
+        let sim = if k == 0 {
+            &self.sim
+        } else {
+            &self.more_sims[k - 1]
+        };
         sim.path().display().to_string()
     }
 }

@@ -162,9 +162,8 @@ fn open(
         Vec::new()
     };
     let baud = bus.baud();
-    let opener: Opener<Ports<DynamixelBus>> = Box::new(move |arm: &Arm| {
-        Ok(connect::reopen_arm(&ports, baud, arm, LimitPolicy::Clamp)?)
-    });
+    let opener: Opener<Ports<DynamixelBus>> =
+        Box::new(move |arm: &Arm| Ok(connect::reopen_arm(&ports, baud, arm, LimitPolicy::Clamp)?));
     Ok(Parts {
         bus,
         port,
