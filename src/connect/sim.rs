@@ -209,7 +209,10 @@ mod tests {
             sims[0].faults,
             [drop.clone(), SimFault::Disconnect.during(s(2.0), None)]
         );
-        assert_eq!(sims[1].faults, [SimFault::Silent { id: 9, at: s(1.0) }, drop]);
+        assert_eq!(
+            sims[1].faults,
+            [SimFault::Silent { id: 9, at: s(1.0) }, drop]
+        );
         // One port: the whole chain, as `sim_config` makes it.
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
         let one = Config::load(path).unwrap();

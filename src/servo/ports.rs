@@ -9,7 +9,7 @@
 //! place), so nothing queues; the buffers of the control loop's calls travel to the port's
 //! thread and back, and a warm tick allocates nothing.
 //!
-//! An error of the port itself ([`ErrorClass::Bus`](super::ErrorClass::Bus)) names it
+//! An error of the port itself ([`ErrorClass::Bus`]) names it
 //! ([`ServoError::OnPort`]); every servo's own outcome stays its own.
 
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
