@@ -291,9 +291,7 @@ fn main() -> Result<()> {
     };
     let config = config()?;
     let sim = connect::spawn_sim(&config, Arc::new(snakectl_sim::RealClock))?;
-    let options = RunOptions {
-        port: Some(sim.path().to_path_buf()),
-    };
+    let options = RunOptions::port(sim.path().to_path_buf());
     let daemon = Embedded::start(config, ([127, 0, 0, 1], 0).into(), options)?;
     let addr = daemon.addr();
 

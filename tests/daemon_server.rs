@@ -1298,9 +1298,7 @@ async fn refused_at_start(config: Config, listener: TcpListener) -> DaemonError 
     let run = daemon::run(
         config,
         listener,
-        RunOptions {
-            port: Some("/nonexistent/port/never/opened".into()),
-        },
+        RunOptions::port("/nonexistent/port/never/opened"),
         std::future::pending(),
     );
     match time::timeout(DEADLINE, run).await.expect("refused at once") {

@@ -86,6 +86,52 @@ fn sim_serves_the_config_chain_on_a_linked_pty_and_stops_on_sigterm() {
 }
 
 #[test]
+fn sim_serves_one_pty_per_port_each_with_its_servos() {
+    let _one_at_a_time = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("two-ports.toml");
+    let shipped = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"));
+    std::fs::write(
+        &config,
+        shipped.unwrap()
+            + "\n[[bus.ports]]\nids = [1, 2, 3, 4, 5, 6]\n"
+            + "\n[[bus.ports]]\nids = [7, 8, 9, 10, 11, 12]\n",
+    )
+    .unwrap();
+    let links = [dir.path().join("bus-1"), dir.path().join("bus-2")];
+    let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["sim", "--config"])
+        .arg(&config)
+        .arg("--link")
+        .arg(&links[0])
+        .arg("--link")
+        .arg(&links[1])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut ptys = Vec::new();
+    for _ in 0..2 {
+        let mut line = String::new();
+        std::io::BufRead::read_line(&mut stdout, &mut line).unwrap();
+        ptys.push(line.trim().to_string());
+    }
+    for (link, pty) in links.iter().zip(&ptys) {
+        assert!(pty.starts_with("/dev/pts/"), "{pty}");
+        assert_eq!(std::fs::read_link(link).unwrap(), Path::new(pty));
+    }
+    // Each port answers for its own servos only (the other port's servo, asked first, is
+    // silent here).
+    let answered =
+        |k: usize, ids: &[u8]| -> Vec<u8> { pings(&links[k], ids).iter().map(|p| p.id).collect() };
+    assert_eq!(answered(0, &[9, 3]), [3]);
+    assert_eq!(answered(1, &[3, 9]), [9]);
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+#[test]
 fn sim_refuses_a_config_without_servos_naming_the_joint() {
     let _one_at_a_time = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();

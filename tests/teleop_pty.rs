@@ -570,9 +570,7 @@ impl LocalDaemon {
     fn start(config: &Path, listen: SocketAddr) -> LocalDaemon {
         let config = Config::load(config).unwrap();
         let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
-        let options = RunOptions {
-            port: Some(sim.path().to_path_buf()),
-        };
+        let options = RunOptions::port(sim.path().to_path_buf());
         let daemon = Embedded::start(config, listen, options).unwrap();
         LocalDaemon { daemon, _sim: sim }
     }

@@ -420,9 +420,7 @@ fn start_up_stops_before_the_arm_moves_when_the_zenoh_endpoint_is_taken() {
     let config = config_with(&zenoh_table("snakectl", port, false));
     let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
         .unwrap();
-    let options = RunOptions {
-        port: Some(sim.path().to_path_buf()),
-    };
+    let options = RunOptions::port(sim.path().to_path_buf());
     let daemon = Embedded::start(config, SocketAddr::from(([127, 0, 0, 1], 0)), options).unwrap();
     let e = daemon.stop().unwrap_err();
     assert!(matches!(e, DaemonError::Zenoh { .. }), "{e}");

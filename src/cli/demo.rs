@@ -110,9 +110,7 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         config.chain().len()
     ));
     let sim = connect::spawn_sim(&config, Arc::new(RealClock)).map_err(Failure::bad_input)?;
-    let options = RunOptions {
-        port: Some(sim.path().to_path_buf()),
-    };
+    let options = RunOptions::port(sim.path().to_path_buf());
     let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
     let daemon = Embedded::start(config.clone(), loopback, options).map_err(Failure::other)?;
     progress.line(format!(

@@ -28,9 +28,10 @@ pub struct RunArgs {
     /// Config file: the arm, `[bus]`, `[control]`, `[server]`.
     #[arg(long)]
     config: PathBuf,
-    /// Open this serial port whatever `[bus] kind` says (a real adapter or a simulator's link).
+    /// Open this serial port whatever `[bus] kind` says (a real adapter or a simulator's link);
+    /// once per port of `[bus]`, in order, for a bus of several ports.
     #[arg(long)]
-    port: Option<PathBuf>,
+    port: Vec<PathBuf>,
     /// Listen here instead of `[server] listen` (`host:port`; port 0 picks a free one).
     #[arg(long)]
     listen: Option<std::net::SocketAddr>,
@@ -65,7 +66,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         // Connections are taken from here on, but answered only once the arm is up (the loop
         // logs that it is serving).
         tracing::info!("listening on {local} (bringing the arm up first)");
-        let options = RunOptions { port: args.port };
+        let options = RunOptions { ports: args.port };
         let summary = daemon::run(config, listener, options, shutdown)
             .await
             .map_err(failure)?;

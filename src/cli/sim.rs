@@ -1,4 +1,5 @@
-//! `snakectl sim`: the config's servo chain, simulated, served on a pseudo-terminal.
+//! `snakectl sim`: the config's servo chain, simulated, served on a pseudo-terminal (one per
+//! port of a bus of several).
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -17,9 +18,10 @@ pub struct SimArgs {
     #[arg(long)]
     config: PathBuf,
     /// Also make this path a symlink to the pseudo-terminal (replacing an old symlink), kept
-    /// pointing at it across `disconnect` faults and removed on exit.
+    /// pointing at it across `disconnect` faults and removed on exit. For a bus of several
+    /// ports (`[[bus.ports]]`), once per port, in order: one simulator per port.
     #[arg(long)]
-    link: Option<PathBuf>,
+    link: Vec<PathBuf>,
     /// Log every packet (debug level); `RUST_LOG` overrides.
     #[arg(short, long)]
     verbose: bool,
@@ -30,11 +32,13 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
     super::init_logs(args.verbose);
     let other = Failure::other;
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
-    let link = match &args.link {
-        Some(path) => connect::Link::At(path.clone()),
-        None => connect::Link::None,
+    let ports = config.bus().map_or(1, |b| b.ports.len());
+    let links: Vec<connect::Link> = if args.link.is_empty() {
+        (0..ports).map(|_| connect::Link::None).collect()
+    } else {
+        args.link.iter().cloned().map(connect::Link::At).collect()
     };
-    let handle = connect::spawn_sim_linked(&config, Arc::new(snakectl_sim::RealClock), link)
+    let handles = connect::spawn_sims_linked(&config, Arc::new(snakectl_sim::RealClock), links)
         .map_err(|e| match e {
             ConnectError::Sim {
                 source: snakectl_sim::SimError::Pty(_) | snakectl_sim::SimError::Io(_),
@@ -42,11 +46,13 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
             } => other(e.into()),
             _ => Failure::bad_input(e),
         })?;
-    // Printed once the link exists: a script reading this line may use either at once. (A
-    // disconnect fault from the start has already unplugged it: the link is what comes back.)
-    let pty = handle
-        .pty_path()
-        .unwrap_or_else(|| handle.path().to_path_buf());
+    // Printed once the links exist, one line per port in order: a script reading them may use
+    // either at once. (A disconnect fault from the start has already unplugged a port: its
+    // link is what comes back.)
+    let ptys: Vec<PathBuf> = handles
+        .iter()
+        .map(|h| h.pty_path().unwrap_or_else(|| h.path().to_path_buf()))
+        .collect();
     // The handlers go in before the line is printed: a script that signals as soon as it has
     // read it must find them installed, not the default action that kills the process.
     let stop = Arc::new(AtomicBool::new(false));
@@ -54,11 +60,19 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
         signal_hook::flag::register(signal, Arc::clone(&stop))
             .map_err(|e| other(anyhow::anyhow!("installing the signal handler: {e}")))?;
     }
-    outln!("{}", pty.display())?;
-    while !stop.load(Ordering::Relaxed) && handle.is_running() {
+    for pty in &ptys {
+        outln!("{}", pty.display())?;
+    }
+    while !stop.load(Ordering::Relaxed) && handles.iter().all(|h| h.is_running()) {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    // Stopping the handle removes the link.
+    // Stopping a handle removes its link.
     tracing::info!("stopping");
-    handle.stop().map_err(|e| other(e.into()))
+    let mut stopped = Ok(());
+    for h in handles {
+        if let Err(e) = h.stop() {
+            stopped = stopped.and(Err(other(e.into())));
+        }
+    }
+    stopped
 }

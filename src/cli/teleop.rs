@@ -98,9 +98,7 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
                 .token_file
                 .clone()
                 .or_else(|| config.server().token_file.clone());
-            let options = RunOptions {
-                port: Some(sim.path().to_path_buf()),
-            };
+            let options = RunOptions::port(sim.path().to_path_buf());
             let embedded = Embedded::start(config, listen, options)
                 .with_context(|| format!("starting the daemon on {listen}"))
                 .map_err(Failure::other)?;

@@ -163,6 +163,31 @@ pub enum FieldProblem {
         /// 1-based joint that has it first.
         other: usize,
     },
+    /// A servo id listed on two ports, or twice on one.
+    #[error("{id} is already on bus.ports[{other}]")]
+    IdOnTwoPorts {
+        /// The id.
+        id: u8,
+        /// 1-based port that lists it first.
+        other: usize,
+    },
+    /// A joint's servo on none of the `[[bus.ports]]`.
+    #[error("{id} is on none of the [[bus.ports]]: list it in the ids of the port it is wired to")]
+    IdOnNoPort {
+        /// The id.
+        id: u8,
+    },
+    /// A `[[bus.ports]]` without servos.
+    #[error("no servo ids: a port carries at least one servo")]
+    EmptyPort,
+    /// Two `[[bus.ports]]` naming one serial device.
+    #[error("{path:?} is already the port of bus.ports[{other}]")]
+    DuplicatePort {
+        /// The path.
+        path: String,
+        /// 1-based port that names it first.
+        other: usize,
+    },
     /// A servo id that no joint has.
     #[error("{id} is not the id of any [[joint]]")]
     UnknownId {

@@ -34,7 +34,10 @@ use crate::resolve::Strategy;
 use crate::servo::arm::{Arm, JointServo, OnExit, Settings};
 use crate::servo::units::CurrentUnit;
 use crate::servo::units::{self, Calibration};
-use crate::servo::{model::model_names, ReadChoice, ServoModel, BAUD_RATES, MAX_ID};
+use crate::servo::wire::{Adapter, ReadKind, Wire};
+use crate::servo::{
+    model::model_names, Fields, Layout, ReadChoice, ServoModel, BAUD_RATES, MAX_ID,
+};
 use crate::world::{Obstacle, Shape, World, WorldError};
 use raw::{
     ContactLoad, RawArm, RawBus, RawConfig, RawControl, RawJoint, RawObstacle, RawServer, RawSim,
@@ -69,10 +72,32 @@ pub struct Joint {
 pub struct Bus {
     /// Simulated or real servos.
     pub kind: BusKind,
+    /// Baud rate, one of [`BAUD_RATES`], shared by every port.
+    pub baud: u32,
+    /// The serial ports, each with its servos: one unless the file has `[[bus.ports]]`. Every
+    /// joint's servo is on exactly one of them.
+    pub ports: Vec<BusPort>,
+}
+
+impl Bus {
+    /// The one port's path when the bus has a single port (`None` for a simulated one without
+    /// a path, or several ports).
+    pub fn port(&self) -> Option<&str> {
+        match self.ports.as_slice() {
+            [one] => one.port.as_deref(),
+            _ => None,
+        }
+    }
+}
+
+/// One serial port of the bus and the servos wired to it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BusPort {
     /// Serial device; always present for [`BusKind::Dynamixel`].
     pub port: Option<String>,
-    /// Baud rate, one of [`BAUD_RATES`].
-    pub baud: u32,
+    /// Its servo ids, as listed (the joints' order for the single port of a file without
+    /// `[[bus.ports]]`).
+    pub ids: Vec<u8>,
 }
 
 /// One validated `[[sim.fault]]`: what goes wrong, on which servo, when.
@@ -82,6 +107,9 @@ pub struct Fault {
     pub kind: FaultKind,
     /// The servo; every servo when `None`.
     pub id: Option<u8>,
+    /// The port a `disconnect` unplugs (index into [`Bus::ports`]); every port when `None`,
+    /// and always `None` for the other kinds.
+    pub port: Option<usize>,
     /// From this long after the simulator starts.
     pub from: Duration,
     /// Until this long after the start; for good when `None`.
@@ -246,6 +274,47 @@ impl Config {
     /// settings bring-up applies), when the file has a `[bus]`.
     pub fn arm(&self) -> Option<&Arm> {
         self.arm.as_ref()
+    }
+
+    /// Each port's tick on the wire, for the wire bound ([`crate::servo::wire`]), read with
+    /// `read` (what bring-up chose): its servos, the baud rate and Return Delay Time, the block
+    /// the loop reads (the 13 bytes of the indirect block, health included, where every
+    /// joint's model shares its address; else Present Velocity and Position) and, for a
+    /// simulated bus, the FTDI adapter model when `[sim] adapter` names it. Empty without a
+    /// `[bus]`.
+    pub fn wire(&self, read: ReadKind) -> Vec<Wire> {
+        let (Some(bus), Some(arm)) = (&self.bus, &self.arm) else {
+            return Vec::new();
+        };
+        let data_bytes = match arm.layout() {
+            Layout::Indirect { .. } => arm.layout().span().1,
+            Layout::Direct(_) => {
+                Fields {
+                    velocity: true,
+                    ..Fields::POSITION
+                }
+                .span()
+                .1
+            }
+        };
+        let adapter = self
+            .sim
+            .as_ref()
+            .and_then(|s| s.ftdi_latency)
+            .filter(|_| bus.kind == BusKind::Sim)
+            .map(Adapter::ftdi);
+        let return_delay = Duration::from_micros(u64::from(arm.settings().return_delay_us));
+        bus.ports
+            .iter()
+            .map(|p| Wire {
+                servos: p.ids.len(),
+                baud: bus.baud,
+                read,
+                data_bytes: usize::from(data_bytes),
+                return_delay,
+                adapter,
+            })
+            .collect()
     }
 
     /// The simulator settings, if the file has a `[sim]` table.
@@ -413,7 +482,8 @@ impl Checker<'_> {
             }
             None => (None, None),
         };
-        let sim = raw.sim.map(|s| self.sim(s, &joints)).transpose()?;
+        let ports = bus.as_ref().map_or(1, |b: &Bus| b.ports.len());
+        let sim = raw.sim.map(|s| self.sim(s, &joints, ports)).transpose()?;
         let control = self.control(&raw.control.unwrap_or_default())?;
         let server = self.server(raw.server.unwrap_or_default())?;
         let zenoh = self.zenoh(raw.zenoh.unwrap_or_default(), control.rate_hz)?;
@@ -589,17 +659,7 @@ impl Checker<'_> {
             self.tick_limits(i + 1, calibration, j.limit)?;
             servos.push(JointServo::new(i + 1, id, model, calibration, j.limit));
         }
-        let port = match (raw.kind, &raw.port) {
-            (BusKind::Dynamixel, None) => {
-                return Err(self.invalid(
-                    "bus.port",
-                    FieldProblem::Missing {
-                        why: "kind = \"dynamixel\" needs the serial device, e.g. /dev/ttyUSB0",
-                    },
-                ))
-            }
-            (_, port) => port.clone(),
-        };
+        let ports = self.ports(raw, &servos)?;
         if !BAUD_RATES.contains(&raw.baud) {
             return Err(self.invalid(
                 "bus.baud",
@@ -663,10 +723,91 @@ impl Checker<'_> {
         };
         let bus = Bus {
             kind: raw.kind,
-            port,
             baud: raw.baud,
+            ports,
         };
         Ok((bus, Arm::new(servos, settings)))
+    }
+
+    /// The bus's ports: `[[bus.ports]]`, each path given once (for real servos), each joint's
+    /// servo on exactly one port, no port empty; absent, one port of every joint's servo.
+    fn ports(&self, raw: &RawBus, servos: &[JointServo]) -> Result<Vec<BusPort>, ConfigError> {
+        const NEEDS_PATH: &str = "kind = \"dynamixel\" needs the serial device, e.g. /dev/ttyUSB0";
+        if raw.ports.is_empty() {
+            if raw.kind == BusKind::Dynamixel && raw.port.is_none() {
+                return Err(self.invalid("bus.port", FieldProblem::Missing { why: NEEDS_PATH }));
+            }
+            return Ok(vec![BusPort {
+                port: raw.port.clone(),
+                ids: servos.iter().map(|s| s.id).collect(),
+            }]);
+        }
+        if raw.port.is_some() {
+            return Err(self.invalid(
+                "bus.port",
+                FieldProblem::Replaced {
+                    other: "the port of each [[bus.ports]]",
+                },
+            ));
+        }
+        // Which port (1-based) each id is on, and which port each path names.
+        let mut on_port: std::collections::BTreeMap<u8, usize> = Default::default();
+        let mut paths: Vec<&str> = Vec::new();
+        let mut ports = Vec::with_capacity(raw.ports.len());
+        for (k, p) in raw.ports.iter().enumerate() {
+            let n = k + 1;
+            if p.ids.is_empty() {
+                return Err(self.invalid(format!("bus.ports[{n}].ids"), FieldProblem::EmptyPort));
+            }
+            let mut ids = Vec::with_capacity(p.ids.len());
+            for (j, &wide) in p.ids.iter().enumerate() {
+                let field = || format!("bus.ports[{n}].ids[{}]", j + 1);
+                let id = u8::try_from(wide)
+                    .ok()
+                    .filter(|id| (MIN_SERVO_ID..=MAX_ID).contains(id))
+                    .ok_or_else(|| self.invalid(field(), FieldProblem::BadId { value: wide }))?;
+                if let Some(&other) = on_port.get(&id) {
+                    return Err(self.invalid(field(), FieldProblem::IdOnTwoPorts { id, other }));
+                }
+                if !servos.iter().any(|s| s.id == id) {
+                    return Err(self.invalid(field(), FieldProblem::UnknownId { id }));
+                }
+                on_port.insert(id, n);
+                ids.push(id);
+            }
+            match (&p.port, raw.kind) {
+                (None, BusKind::Dynamixel) => {
+                    return Err(self.invalid(
+                        format!("bus.ports[{n}].port"),
+                        FieldProblem::Missing { why: NEEDS_PATH },
+                    ))
+                }
+                (Some(path), _) => {
+                    if let Some(other) = paths.iter().position(|q| q == path) {
+                        return Err(self.invalid(
+                            format!("bus.ports[{n}].port"),
+                            FieldProblem::DuplicatePort {
+                                path: path.clone(),
+                                other: other + 1,
+                            },
+                        ));
+                    }
+                    paths.push(path);
+                }
+                (None, BusKind::Sim) => {}
+            }
+            ports.push(BusPort {
+                port: p.port.clone(),
+                ids,
+            });
+        }
+        if let Some(s) = servos.iter().find(|s| !on_port.contains_key(&s.id)) {
+            return Err(self.invalid(
+                format!("joint[{}].id", s.joint),
+                FieldProblem::IdOnNoPort { id: s.id },
+            ));
+        }
+        Ok(ports)
     }
 
     /// Joint `n`'s limits as servo ticks: within the servo's one turn, and at least one whole
@@ -700,12 +841,12 @@ impl Checker<'_> {
         Ok(())
     }
 
-    fn sim(&self, raw: RawSim, joints: &[Joint]) -> Result<Sim, ConfigError> {
+    fn sim(&self, raw: RawSim, joints: &[Joint], ports: usize) -> Result<Sim, ConfigError> {
         let faults = raw
             .faults
             .iter()
             .enumerate()
-            .map(|(i, f)| self.fault(i + 1, f, joints))
+            .map(|(i, f)| self.fault(i + 1, f, joints, ports))
             .collect::<Result<_, _>>()?;
         let ftdi_latency = match (raw.adapter, raw.latency_timer_ms) {
             (raw::RawAdapter::None, None) => None,
@@ -769,7 +910,13 @@ impl Checker<'_> {
         })
     }
 
-    fn fault(&self, n: usize, fault: &raw::Fault, joints: &[Joint]) -> Result<Fault, ConfigError> {
+    fn fault(
+        &self,
+        n: usize,
+        fault: &raw::Fault,
+        joints: &[Joint],
+        ports: usize,
+    ) -> Result<Fault, ConfigError> {
         use raw::Fault as F;
         let field = |name: &str| format!("sim.fault[{n}].{name}");
         let (kind, id, at_s, until_s) = match *fault {
@@ -800,7 +947,7 @@ impl Checker<'_> {
             F::HardwareError { id, at_s, error } => {
                 (FaultKind::HardwareError(error), Some(id), at_s, None)
             }
-            F::Disconnect { at_s, until_s } => (FaultKind::Disconnect, None, at_s, until_s),
+            F::Disconnect { at_s, until_s, .. } => (FaultKind::Disconnect, None, at_s, until_s),
             F::Blocked { id, at_s, until_s } => (FaultKind::Blocked, Some(id), at_s, until_s),
         };
         if let Some(id) = id {
@@ -831,9 +978,27 @@ impl Checker<'_> {
                 ));
             }
         }
+        let port = match *fault {
+            F::Disconnect {
+                port: Some(wide), ..
+            } => match usize::try_from(wide) {
+                Ok(n @ 1..) if n <= ports => Some(n - 1),
+                _ => {
+                    return Err(self.invalid(
+                        field("port"),
+                        FieldProblem::OutOfRange {
+                            value: wide,
+                            expected: "must be the number of one of the bus's ports, from 1",
+                        },
+                    ))
+                }
+            },
+            _ => None,
+        };
         Ok(Fault {
             kind,
             id,
+            port,
             from,
             until,
         })

@@ -141,6 +141,10 @@ pub struct RawBus {
     /// `"auto"` (Fast Sync Read where every servo supports it), `"fast"` or `"sync"`.
     #[serde(default = "default_read")]
     pub read: ReadChoice,
+    /// `[[bus.ports]]`: several serial ports, each with its servos; absent, one port
+    /// (`port`) carries every joint's servo.
+    #[serde(default)]
+    pub ports: Vec<RawPort>,
 }
 
 /// `[bus] read`: how the loop reads every servo in one exchange.
@@ -157,6 +161,17 @@ pub enum ReadChoice {
 
 fn default_read() -> ReadChoice {
     ReadChoice::Auto
+}
+
+/// `[[bus.ports]]`: one serial port and the servos on it.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPort {
+    /// The servo ids on this port; read wide so a bad value can be quoted.
+    pub ids: Vec<i64>,
+    /// Serial device; required for `"dynamixel"`, ignored for `"sim"`.
+    #[serde(default)]
+    pub port: Option<String>,
 }
 
 /// `[sim]`: the simulated servo chain.
@@ -295,8 +310,11 @@ pub enum Fault {
         until_s: Option<f64>,
     },
     /// The serial adapter is unplugged: the port goes away for the window and comes back as a
-    /// new device behind the simulator's link. Concerns the whole bus, so it takes no `id`.
+    /// new device behind the simulator's link. Concerns a whole port, so it takes no `id`.
     Disconnect {
+        /// Which of `[[bus.ports]]` is unplugged (from 1); every port when absent.
+        #[serde(default)]
+        port: Option<i64>,
         /// Start, seconds.
         at_s: f64,
         /// End, seconds; the bus never comes back when absent.

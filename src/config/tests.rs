@@ -443,7 +443,133 @@ fn dynamixel_needs_a_port() {
         "kind = \"dynamixel\"\nport = \"/dev/ttyUSB0\"",
     ))
     .unwrap();
-    assert_eq!(c.bus().unwrap().port.as_deref(), Some("/dev/ttyUSB0"));
+    assert_eq!(c.bus().unwrap().port(), Some("/dev/ttyUSB0"));
+    assert_eq!(
+        c.bus().unwrap().ports,
+        [BusPort {
+            port: Some("/dev/ttyUSB0".into()),
+            ids: vec![1, 2, 3],
+        }]
+    );
+}
+
+/// The base file with `[[bus.ports]]` tables `ports` appended to its `[bus]`.
+fn with_ports(kind: &str, ports: &str) -> String {
+    with(
+        "watchdog_ms = 100\n",
+        &format!("watchdog_ms = 100\n{}{ports}", kind),
+    )
+    .replacen("kind = \"sim\"\n", "", 1)
+}
+
+#[test]
+fn several_ports_each_with_its_servos() {
+    let c = load(&with_ports(
+        "kind = \"dynamixel\"\n",
+        "[[bus.ports]]\nids = [2, 1]\nport = \"/dev/ttyUSB0\"\n\
+         [[bus.ports]]\nids = [3]\nport = \"/dev/ttyUSB1\"\n",
+    ))
+    .unwrap();
+    let bus = c.bus().unwrap();
+    assert_eq!(bus.ports.len(), 2);
+    assert_eq!(bus.ports[0].ids, [2, 1]);
+    assert_eq!(bus.ports[1].port.as_deref(), Some("/dev/ttyUSB1"));
+    assert_eq!(bus.port(), None, "no single port");
+    assert_eq!(
+        c.wire(crate::servo::ReadKind::Sync)
+            .iter()
+            .map(|w| w.servos)
+            .collect::<Vec<_>>(),
+        [2, 1]
+    );
+    // Simulated ports need no path.
+    let c = load(&with_ports(
+        "kind = \"sim\"\n",
+        "[[bus.ports]]\nids = [1]\n[[bus.ports]]\nids = [2, 3]\n",
+    ))
+    .unwrap();
+    assert_eq!(c.bus().unwrap().ports[1].ids, [2, 3]);
+}
+
+#[test]
+fn several_ports_refusals_name_the_field() {
+    let sim = "kind = \"sim\"\n";
+    let real = "kind = \"dynamixel\"\n";
+    for (kind, ports, parts) in [
+        (
+            sim,
+            "[[bus.ports]]\nids = [1, 2]\n[[bus.ports]]\nids = [3, 2]\n",
+            &["bus.ports[2].ids[2]", "2 is already on bus.ports[1]"][..],
+        ),
+        (
+            sim,
+            "[[bus.ports]]\nids = [1, 1, 2, 3]\n",
+            &["bus.ports[1].ids[2]", "already on bus.ports[1]"],
+        ),
+        (
+            sim,
+            "[[bus.ports]]\nids = [1]\n[[bus.ports]]\nids = [2]\n",
+            &["joint[3].id", "3 is on none of the [[bus.ports]]"],
+        ),
+        (
+            sim,
+            "[[bus.ports]]\nids = [1, 2, 3]\n[[bus.ports]]\nids = []\n",
+            &["bus.ports[2].ids", "no servo ids"],
+        ),
+        (
+            sim,
+            "[[bus.ports]]\nids = [1, 2, 3, 9]\n",
+            &["bus.ports[1].ids[4]", "9 is not the id of any [[joint]]"],
+        ),
+        (
+            sim,
+            "[[bus.ports]]\nids = [1, 2, 300]\n",
+            &["bus.ports[1].ids[3]", "300"],
+        ),
+        (
+            real,
+            "[[bus.ports]]\nids = [1]\nport = \"/dev/ttyUSB0\"\n[[bus.ports]]\nids = [2, 3]\n",
+            &["bus.ports[2].port", "missing"],
+        ),
+        (
+            real,
+            "[[bus.ports]]\nids = [1]\nport = \"/dev/ttyUSB0\"\n\
+             [[bus.ports]]\nids = [2, 3]\nport = \"/dev/ttyUSB0\"\n",
+            &[
+                "bus.ports[2].port",
+                "\"/dev/ttyUSB0\" is already the port of bus.ports[1]",
+            ],
+        ),
+        (
+            "kind = \"dynamixel\"\nport = \"/dev/ttyUSB0\"\n",
+            "[[bus.ports]]\nids = [1, 2, 3]\nport = \"/dev/ttyUSB1\"\n",
+            &["bus.port", "[[bus.ports]]"],
+        ),
+        (
+            sim,
+            "[[bus.ports]]\nids = [1, 2, 3]\nspeed = 3\n",
+            &["unknown field", "speed"],
+        ),
+    ] {
+        refused(&with_ports(kind, ports), parts);
+    }
+}
+
+#[test]
+fn a_disconnect_names_one_of_the_ports() {
+    let two = with_ports(
+        "kind = \"sim\"\n",
+        "[[bus.ports]]\nids = [1]\n[[bus.ports]]\nids = [2, 3]\n",
+    );
+    let c = load(&format!(
+        "{two}\n[[sim.fault]]\nkind = \"disconnect\"\nport = 2\nat_s = 1.0\n"
+    ))
+    .unwrap();
+    assert_eq!(c.sim().unwrap().faults[0].port, Some(1));
+    refused(
+        &format!("{two}\n[[sim.fault]]\nkind = \"disconnect\"\nport = 3\nat_s = 1.0\n"),
+        &["sim.fault[1].port", "3"],
+    );
 }
 
 #[test]
@@ -533,6 +659,7 @@ error = "overload""#,
         Fault {
             kind: FaultKind::Silent,
             id: Some(3),
+            port: None,
             from: Duration::from_secs(2),
             until: None
         }
@@ -542,6 +669,7 @@ error = "overload""#,
         Fault {
             kind: FaultKind::HardwareError(HardwareError::Overload),
             id: Some(1),
+            port: None,
             from: Duration::from_millis(4500),
             until: None
         }
@@ -559,6 +687,7 @@ fn a_disconnect_fault_parses_with_its_window_and_no_servo() {
         [Fault {
             kind: FaultKind::Disconnect,
             id: None,
+            port: None,
             from: Duration::from_secs(2),
             until: Some(Duration::from_millis(3500)),
         }]

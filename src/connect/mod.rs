@@ -41,9 +41,10 @@ use crate::config::{BusKind, Config};
 use crate::servo::arm::Arm;
 use crate::servo::dynamixel::DynamixelBus;
 use crate::servo::limits::{LimitPolicy, Limited};
+use crate::servo::ports::Ports;
 use crate::servo::ServoError;
 
-pub use sim::{sim_config, SimBusError};
+pub use sim::{sim_config, sim_configs, SimBusError};
 pub use snakectl_sim::Link;
 
 /// Why a config could not be turned into a running bus.
@@ -78,6 +79,25 @@ pub enum ConnectError {
         /// The servo layer's error, naming the port.
         source: ServoError,
     },
+    /// The file names several ports and the caller drives one (the administrative commands):
+    /// give the port with `--port`.
+    #[error("{}: [[bus.ports]] names {ports} ports; this drives one: give it with --port", path.display())]
+    SeveralPorts {
+        /// The config file.
+        path: PathBuf,
+        /// Ports in the file.
+        ports: usize,
+    },
+    /// Explicit ports given, but not one per port of the file.
+    #[error("{}: {given} ports given for the {expected} of [bus]: give one per port, in order", path.display())]
+    PortCount {
+        /// The config file.
+        path: PathBuf,
+        /// Ports given.
+        given: usize,
+        /// Ports in the file.
+        expected: usize,
+    },
     /// Another program has the serial port ([`ServoError::InUse`]: the port, the device and the
     /// process that holds it): nothing was written to it.
     #[error(transparent)]
@@ -89,6 +109,10 @@ pub enum ConnectError {
 pub struct Options {
     /// Open this port whatever `[bus] kind` says.
     pub port: Option<PathBuf>,
+    /// For [`open_arm`]: open these ports, one per port of `[bus]` in order, whatever
+    /// `[bus] kind` says (empty: as the file says; [`Options::port`] stands for a one-port
+    /// list).
+    pub ports: Vec<PathBuf>,
     /// The clock of a simulator started here (wall time unless a test advances its own).
     pub clock: Arc<dyn Clock>,
     /// What the limits wrapper does with a goal outside the joint limits.
@@ -99,6 +123,7 @@ impl Default for Options {
     fn default() -> Self {
         Self {
             port: None,
+            ports: Vec::new(),
             clock: Arc::new(RealClock),
             strategy: LimitPolicy::Clamp,
         }
@@ -109,6 +134,7 @@ impl std::fmt::Debug for Options {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Options")
             .field("port", &self.port)
+            .field("ports", &self.ports)
             .field("strategy", &self.strategy)
             .finish_non_exhaustive()
     }
@@ -135,8 +161,14 @@ pub fn open(config: &Config, options: Options) -> Result<Connection, ConnectErro
             })
         }
     };
+    if bus_config.ports.len() > 1 && options.port.is_none() {
+        return Err(ConnectError::SeveralPorts {
+            path: config.path().to_path_buf(),
+            ports: bus_config.ports.len(),
+        });
+    }
     let external = options.port.is_some()
-        || (bus_config.kind == BusKind::Dynamixel && bus_config.port.is_some());
+        || (bus_config.kind == BusKind::Dynamixel && bus_config.port().is_some());
     let sim = if external {
         None
     } else {
@@ -155,7 +187,7 @@ pub fn open(config: &Config, options: Options) -> Result<Connection, ConnectErro
 /// simulated bus without its handle.
 pub fn port_path(config: &Config, options: &Options, sim: Option<&SimHandle>) -> Option<PathBuf> {
     let bus = config.bus()?;
-    match (&options.port, bus.kind, &bus.port) {
+    match (&options.port, bus.kind, bus.port()) {
         (Some(port), _, _) => Some(port.clone()),
         (None, BusKind::Dynamixel, Some(port)) => Some(PathBuf::from(port)),
         (None, _, _) => sim.map(|s| s.path().to_path_buf()),
@@ -173,6 +205,136 @@ pub fn reopen(
     strategy: LimitPolicy,
 ) -> Result<Limited<DynamixelBus>, ConnectError> {
     Ok(arm.limited(open_port(port, baud)?, strategy))
+}
+
+/// The whole arm opened, on every port of `[bus]`: one bus of [`Ports`], limited to the
+/// joint limits, what it drives, the simulators started for it, and what to reopen.
+#[derive(Debug)]
+pub struct ArmConnection {
+    /// The bus of every port: the only way to the servos.
+    pub bus: Limited<Ports<DynamixelBus>>,
+    /// The configured joints and bus settings.
+    pub arm: Arm,
+    /// The in-process simulators, one per port, when `[bus] kind = "sim"` and no port was
+    /// given.
+    pub sims: Vec<SimHandle>,
+    /// Each port's path (a simulator's link) and its servo ids, in the order of `[bus]`: what
+    /// [`reopen_arm`] opens again.
+    pub ports: Vec<(PathBuf, Vec<u8>)>,
+}
+
+/// Open every port of the bus `config` describes, as one bus: the explicit ports of `options`
+/// (one per port, in order), else `[bus]`'s paths for real servos, else one simulator per port
+/// serving that port's servos. Each port is locked as [`open_port`] does.
+pub fn open_arm(config: &Config, options: Options) -> Result<ArmConnection, ConnectError> {
+    let path = || config.path().to_path_buf();
+    let (bus_config, arm) = match (config.bus(), config.arm()) {
+        (Some(b), Some(a)) => (b, a.clone()),
+        _ => return Err(ConnectError::NoBus { path: path() }),
+    };
+    let mut given = options.ports.clone();
+    if given.is_empty() {
+        given.extend(options.port.clone());
+    }
+    let expected = bus_config.ports.len();
+    if !given.is_empty() && given.len() != expected {
+        return Err(ConnectError::PortCount {
+            path: path(),
+            given: given.len(),
+            expected,
+        });
+    }
+    let real = bus_config.kind == BusKind::Dynamixel;
+    let mut sims = Vec::new();
+    let paths: Vec<PathBuf> = if !given.is_empty() {
+        given
+    } else if real {
+        bus_config
+            .ports
+            .iter()
+            .map(|p| p.port.as_deref().map(PathBuf::from))
+            .collect::<Option<_>>()
+            .ok_or_else(|| ConnectError::NoBus { path: path() })?
+    } else {
+        sims = spawn_sims(config, options.clock.clone())?;
+        sims.iter().map(|s| s.path().to_path_buf()).collect()
+    };
+    let ports: Vec<(PathBuf, Vec<u8>)> = paths
+        .into_iter()
+        .zip(bus_config.ports.iter().map(|p| p.ids.clone()))
+        .collect();
+    let bus = reopen_arm(&ports, bus_config.baud, &arm, options.strategy)?;
+    Ok(ArmConnection {
+        bus,
+        arm,
+        sims,
+        ports,
+    })
+}
+
+/// Open every port of `ports` (path and servo ids) at `baud` as one bus, limited to `arm`'s
+/// joint limits with `strategy`: [`open_arm`]'s bus, and how a caller gets it back after a
+/// port vanished (every port is opened again; the ones still open must be closed first, so
+/// that their locks are free).
+pub fn reopen_arm(
+    ports: &[(PathBuf, Vec<u8>)],
+    baud: u32,
+    arm: &Arm,
+    strategy: LimitPolicy,
+) -> Result<Limited<Ports<DynamixelBus>>, ConnectError> {
+    let mut buses = Vec::with_capacity(ports.len());
+    for (path, ids) in ports {
+        let bus = open_port(path, baud).map_err(|e| match e {
+            ConnectError::Open { source } => ConnectError::Open {
+                source: ServoError::OnPort {
+                    port: path.display().to_string(),
+                    source: Box::new(source),
+                },
+            },
+            e => e,
+        })?;
+        buses.push((path.display().to_string(), bus, ids.clone()));
+    }
+    let bus = Ports::new(buses).map_err(|source| ConnectError::Open { source })?;
+    Ok(arm.limited(bus, strategy))
+}
+
+/// One simulator per port of `config`'s bus, each serving that port's servos (and the faults
+/// that concern them), on `clock`, each with a link in a private temporary directory.
+pub fn spawn_sims(config: &Config, clock: Arc<dyn Clock>) -> Result<Vec<SimHandle>, ConnectError> {
+    let n = config.bus().map_or(1, |b| b.ports.len());
+    spawn_sims_linked(config, clock, (0..n).map(|_| Link::Private).collect())
+}
+
+/// [`spawn_sims`] with a link of the caller's choice per port, in order (`snakectl sim` with
+/// one `--link` per port).
+pub fn spawn_sims_linked(
+    config: &Config,
+    clock: Arc<dyn Clock>,
+    links: Vec<Link>,
+) -> Result<Vec<SimHandle>, ConnectError> {
+    let path = || config.path().to_path_buf();
+    let configs = sim::sim_configs(config).map_err(|source| ConnectError::SimConfig {
+        path: path(),
+        source,
+    })?;
+    if links.len() != configs.len() {
+        return Err(ConnectError::PortCount {
+            path: path(),
+            given: links.len(),
+            expected: configs.len(),
+        });
+    }
+    configs
+        .into_iter()
+        .zip(links)
+        .map(|(c, link)| {
+            serve_linked(c, clock.clone(), link).map_err(|source| ConnectError::Sim {
+                path: path(),
+                source,
+            })
+        })
+        .collect()
 }
 
 /// Start the config's servo chain, simulated, on a pseudo-terminal, on `clock`, with a link in

@@ -143,6 +143,37 @@ pub fn sim_config(config: &Config) -> Result<SimConfig, SimBusError> {
     Ok(out)
 }
 
+/// The simulators of `config`'s bus, one per port in order: each serves that port's servos,
+/// the faults that name one of them or none, and the `disconnect`s of that port or of every
+/// port. One port: [`sim_config`] alone.
+pub fn sim_configs(config: &Config) -> Result<Vec<SimConfig>, SimBusError> {
+    let whole = sim_config(config)?;
+    let Some(bus) = config.bus() else {
+        return Ok(vec![whole]);
+    };
+    if bus.ports.len() <= 1 {
+        return Ok(vec![whole]);
+    }
+    let faults: &[Fault] = config.sim().map_or(&[], |s| s.faults.as_slice());
+    Ok(bus
+        .ports
+        .iter()
+        .enumerate()
+        .map(|(k, port)| {
+            let mut one = whole.clone();
+            one.servos.retain(|s| port.ids.contains(&s.id));
+            one.seed = whole.seed.wrapping_add(k as u64);
+            one.faults = faults
+                .iter()
+                .filter(|f| f.id.is_none_or(|id| port.ids.contains(&id)))
+                .filter(|f| f.port.is_none_or(|p| p == k))
+                .map(fault)
+                .collect();
+            one
+        })
+        .collect())
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
@@ -163,6 +194,40 @@ mod tests {
             let home = s.initial_position_ticks.unwrap();
             assert!(lo < hi && (lo as i32) <= home && home <= hi as i32);
         }
+    }
+
+    #[test]
+    fn two_ports_make_two_simulators_each_with_its_servos_and_faults() {
+        let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"))
+            .unwrap()
+            + "\n[[sim.fault]]\nkind = \"silent\"\nid = 9\nat_s = 1.0\n"
+            + "\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.1\n"
+            + "\n[[sim.fault]]\nkind = \"disconnect\"\nport = 1\nat_s = 2.0\n"
+            + "\n[[bus.ports]]\nids = [1, 2, 3, 4, 5, 6]\n"
+            + "\n[[bus.ports]]\nids = [7, 8, 9, 10, 11, 12]\n";
+        let config = Config::from_str(&text, "sim.toml").unwrap();
+        let sims = sim_configs(&config).unwrap();
+        assert_eq!(sims.len(), 2);
+        let ids = |k: usize| sims[k].servos.iter().map(|s| s.id).collect::<Vec<_>>();
+        assert_eq!(ids(0), [1, 2, 3, 4, 5, 6]);
+        assert_eq!(ids(1), [7, 8, 9, 10, 11, 12]);
+        let s = std::time::Duration::from_secs_f64;
+        let drop = SimFault::DropReplies {
+            id: None,
+            fraction: 0.1,
+        };
+        assert_eq!(
+            sims[0].faults,
+            [drop.clone(), SimFault::Disconnect.during(s(2.0), None)]
+        );
+        assert_eq!(
+            sims[1].faults,
+            [SimFault::Silent { id: 9, at: s(1.0) }, drop]
+        );
+        // One port: the whole chain, as `sim_config` makes it.
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+        let one = Config::load(path).unwrap();
+        assert_eq!(sim_configs(&one).unwrap(), [sim_config(&one).unwrap()]);
     }
 
     #[test]

@@ -48,9 +48,18 @@ use crate::servo::arm::{BringUpError, ShutDownError};
 /// How [`run`] reaches the servos, beyond what the config says.
 #[derive(Debug, Clone, Default)]
 pub struct RunOptions {
-    /// Open this port whatever `[bus] kind` says (a real adapter, or an external simulator's
-    /// link).
-    pub port: Option<PathBuf>,
+    /// Open these ports whatever `[bus] kind` says (real adapters, or external simulators'
+    /// links), one per port of `[bus]`, in order; empty: as the file says.
+    pub ports: Vec<PathBuf>,
+}
+
+impl RunOptions {
+    /// The one port of a one-port bus.
+    pub fn port(path: impl Into<PathBuf>) -> Self {
+        Self {
+            ports: vec![path.into()],
+        }
+    }
 }
 
 /// What a daemon that stopped cleanly did (since start, or since the last `reset_stats`).

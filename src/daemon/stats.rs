@@ -136,6 +136,10 @@ impl Histogram {
 struct Window {
     starts: Vec<Instant>,
     work_us: Vec<f64>,
+    /// Per tick, whether it ran past its period.
+    late: Vec<bool>,
+    /// How many of the window's ticks ran late.
+    late_count: usize,
     scratch: Vec<f64>,
     next: usize,
     filled: usize,
@@ -147,6 +151,8 @@ impl Window {
         Self {
             starts: vec![now; WINDOW],
             work_us: vec![0.0; WINDOW],
+            late: vec![false; WINDOW],
+            late_count: 0,
             scratch: vec![0.0; WINDOW],
             next: 0,
             filled: 0,
@@ -154,9 +160,14 @@ impl Window {
         }
     }
 
-    fn record(&mut self, start: Instant, work_us: f64) {
+    fn record(&mut self, start: Instant, work_us: f64, late: bool) {
         self.starts[self.next] = start;
         self.work_us[self.next] = work_us;
+        if self.filled == WINDOW && self.late[self.next] {
+            self.late_count -= 1;
+        }
+        self.late[self.next] = late;
+        self.late_count += usize::from(late);
         self.next = (self.next + 1) % WINDOW;
         self.filled = (self.filled + 1).min(WINDOW);
         // The percentile is refreshed every tenth tick: a selection over 1000 values.
@@ -189,9 +200,17 @@ impl Window {
         }
     }
 
+    /// More than half the window's ticks ran late: the loop runs back to back, below its
+    /// configured rate.
+    fn behind(&self) -> bool {
+        self.filled > 0 && 2 * self.late_count > self.filled
+    }
+
     fn clear(&mut self) {
         self.next = 0;
         self.filled = 0;
+        self.late_count = 0;
+        self.late.iter_mut().for_each(|l| *l = false);
         self.p99_us = 0.0;
     }
 }
@@ -252,9 +271,10 @@ impl Stats {
         self.overruns_before = self.overruns;
     }
 
-    /// A tick that started at `start` and worked for `work`.
-    pub fn record_tick(&mut self, start: Instant, work: Duration) {
-        self.window.record(start, work.as_secs_f64() * 1e6);
+    /// A tick that started at `start`, worked for `work`, and ended past its period when
+    /// `late`.
+    pub fn record_tick(&mut self, start: Instant, work: Duration, late: bool) {
+        self.window.record(start, work.as_secs_f64() * 1e6, late);
         self.tick.record(work);
     }
 
@@ -268,6 +288,12 @@ impl Stats {
     /// From a command's line read to the write of the tick that applied it.
     pub fn record_latency(&mut self, latency: Duration) {
         self.latency.record(latency);
+    }
+
+    /// More than half the last [`WINDOW`] ticks ran past their period: the loop runs back to
+    /// back at the rate its work allows ([`Stats::rate_hz`]), below the configured one.
+    pub fn behind(&self) -> bool {
+        self.window.behind()
     }
 
     /// `missed` periods skipped at `now`; the count to log, at most once a second.
@@ -362,6 +388,29 @@ mod tests {
     }
 
     #[test]
+    fn behind_once_most_of_the_window_ran_late_and_no_longer_after_it_slides_past() {
+        let t0 = Instant::now();
+        let mut s = Stats::new(t0);
+        let tick = |s: &mut Stats, k: u32, late: bool| {
+            s.record_tick(t0 + k * Duration::from_millis(10), Duration::ZERO, late);
+        };
+        for k in 0..10 {
+            tick(&mut s, k, k % 2 == 0);
+        }
+        assert!(!s.behind(), "half the ticks late is not behind");
+        tick(&mut s, 10, true);
+        assert!(s.behind(), "6 of 11 late");
+        // A whole window on time slides the late ones out.
+        for k in 11..11 + WINDOW as u32 {
+            tick(&mut s, k, false);
+        }
+        assert!(!s.behind());
+        s.reset(t0, 0);
+        tick(&mut s, 0, true);
+        assert!(s.behind(), "after a reset, the window starts again");
+    }
+
+    #[test]
     fn one_reset_starts_every_statistic_again_but_the_counters() {
         let t0 = Instant::now();
         let mut s = Stats::new(t0);
@@ -370,6 +419,7 @@ mod tests {
             s.record_tick(
                 t0 + k * Duration::from_millis(10),
                 Duration::from_micros(200),
+                k % 2 == 0,
             );
         }
         s.record_solve(Duration::from_micros(50), 1.5, 0.25);

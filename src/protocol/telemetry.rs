@@ -329,8 +329,11 @@ pub struct Telemetry {
     /// 99th percentile of the tick's working time over the last 1000 ticks, µs.
     #[serde(deserialize_with = "values::number::deserialize")]
     pub tick_p99_us: f64,
-    /// Ticks skipped because the previous one ran late, since start.
+    /// Periods missed because a tick ran past its own, since start.
     pub overruns: u64,
+    /// The loop cannot hold its configured rate: more than half the last 1000 ticks ran past
+    /// their period, and it runs back to back at `loop_hz`, the rate its work allows.
+    pub behind: bool,
     /// Fastest joint speed commanded since start or `reset_stats`, rad/s.
     #[serde(deserialize_with = "values::number::deserialize")]
     pub peak_joint_speed_rad_s: f64,
@@ -388,6 +391,7 @@ impl Default for Telemetry {
             loop_hz: 0.0,
             tick_p99_us: 0.0,
             overruns: 0,
+            behind: false,
             peak_joint_speed_rad_s: 0.0,
             m3_total_rad2: 0.0,
             faults: Vec::new(),

@@ -270,6 +270,15 @@ pub enum ServoError {
         /// The servo.
         id: u8,
     },
+    /// One port of a bus of several failed (an error of class [`ErrorClass::Bus`]): which, and
+    /// how.
+    #[error("port {port}: {source}")]
+    OnPort {
+        /// The port's path.
+        port: String,
+        /// What failed on it.
+        source: Box<ServoError>,
+    },
 }
 
 impl ServoError {
@@ -320,6 +329,15 @@ impl ServoError {
             Self::BufferTooSmall { .. } | Self::Open { .. } | Self::InUse { .. } | Self::Io(_) => {
                 ErrorClass::Bus
             }
+            Self::OnPort { source, .. } => source.class(),
+        }
+    }
+
+    /// The port a bus of several names in its error ([`ServoError::OnPort`]).
+    pub fn port(&self) -> Option<&str> {
+        match self {
+            Self::OnPort { port, .. } => Some(port),
+            _ => None,
         }
     }
 

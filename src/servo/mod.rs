@@ -15,6 +15,8 @@
 //! - [`arm`]: the configured joints on a bus: bring-up, pose read/write in radians, shut-down.
 //! - [`lock`]: one owner per serial port: the exclusive lock taken before a port is opened.
 //! - [`sysfs`]: the FTDI latency timer and the list of serial ports, read from sysfs.
+//! - [`ports`]: several serial ports as one bus, each port's exchanges on its own thread.
+//! - [`wire`]: the wire bound: a tick's bytes and time on the wire, the best rate.
 //! - [`error`]: the typed errors.
 
 pub mod admin;
@@ -25,9 +27,11 @@ pub mod error;
 pub mod limits;
 pub mod lock;
 pub mod model;
+pub mod ports;
 pub mod record;
 pub mod sysfs;
 pub mod units;
+pub mod wire;
 
 use std::time::Duration;
 

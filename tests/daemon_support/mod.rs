@@ -45,10 +45,19 @@ pub fn sim_config_with(edits: &[(&str, &str)], sim_tables: &str) -> Config {
     Config::from_str(&text, path).unwrap()
 }
 
-/// A daemon running on its own thread and runtime, on a simulator this process serves.
+/// `[[bus.ports]]` tables splitting the shipped 12-servo arm over two ports, servos 1 to 6 and
+/// 7 to 12 (to append to the `[sim]` tables of [`sim_config_with`]).
+pub const TWO_PORTS: &str = "[[bus.ports]]\nids = [1, 2, 3, 4, 5, 6]\n\
+                             [[bus.ports]]\nids = [7, 8, 9, 10, 11, 12]\n";
+
+/// A daemon running on its own thread and runtime, on a simulator this process serves (one per
+/// port).
 pub struct Daemon {
     pub addr: SocketAddr,
+    /// The simulator of the (first) port.
     pub sim: SimHandle,
+    /// The simulators of the other ports, in order, for a bus of several.
+    pub more_sims: Vec<SimHandle>,
     pub config: Config,
     /// Stopped (and joined) when dropped.
     daemon: Option<Embedded>,
@@ -58,15 +67,17 @@ impl Daemon {
     /// Starts the simulator and the daemon on `config`; returns once the socket listens (the
     /// first reply then waits for bring-up).
     pub fn start(config: Config) -> Self {
-        let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
+        let mut sims = connect::spawn_sims(&config, Arc::new(RealClock)).unwrap();
         let options = RunOptions {
-            port: Some(sim.path().to_path_buf()),
+            ports: sims.iter().map(|s| s.path().to_path_buf()).collect(),
         };
         let localhost = SocketAddr::from(([127, 0, 0, 1], 0));
         let daemon = Embedded::start(config.clone(), localhost, options).unwrap();
+        let sim = sims.remove(0);
         Self {
             addr: daemon.addr(),
             sim,
+            more_sims: sims,
             config,
             daemon: Some(daemon),
         }
@@ -90,18 +101,43 @@ impl Daemon {
     /// Enable in the simulator.
     pub fn stop_and_torques(mut self) -> (Result<Summary, DaemonError>, Vec<(u8, bool)>) {
         let result = self.finish();
-        let torques = self.sim.with_sim(|s| {
-            s.servos()
-                .iter()
-                .map(|s| (s.id(), s.torque_enabled()))
-                .collect()
-        });
+        let torques = std::iter::once(&self.sim)
+            .chain(&self.more_sims)
+            .flat_map(|sim| {
+                sim.with_sim(|s| {
+                    s.servos()
+                        .iter()
+                        .map(|s| (s.id(), s.torque_enabled()))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
         (result, torques)
     }
 
     /// Servo `id`'s Torque Enable in the simulator.
     pub fn torque(&self, id: u8) -> bool {
-        self.sim.with_servo(id, |s| s.torque_enabled()).unwrap()
+        self.sim_of(id)
+            .with_servo(id, |s| s.torque_enabled())
+            .unwrap()
+    }
+
+    /// The simulator of servo `id`'s port.
+    pub fn sim_of(&self, id: u8) -> &SimHandle {
+        std::iter::once(&self.sim)
+            .chain(&self.more_sims)
+            .find(|s| s.with_servo(id, |_| ()).is_some())
+            .expect("a simulator serves the servo")
+    }
+
+    /// The link of port `k` (from 0), as fault reports name it.
+    pub fn port_path(&self, k: usize) -> String {
+        let sim = if k == 0 {
+            &self.sim
+        } else {
+            &self.more_sims[k - 1]
+        };
+        sim.path().display().to_string()
     }
 }
 

@@ -381,6 +381,7 @@ fn a_blocked_fault_parses_and_names_a_servo_of_the_arm() {
         [Fault {
             kind: FaultKind::Blocked,
             id: Some(2),
+            port: None,
             from: Duration::from_millis(500),
             until: Some(Duration::from_secs(2)),
         }]

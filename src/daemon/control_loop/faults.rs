@@ -30,9 +30,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// with `health` (always, through Indirect Address), Present Current/Load, Input Voltage
     /// and Temperature too.
     pub(super) fn read(&mut self, scheduled: Instant, deadline: Instant, health: bool) {
-        let left = deadline
+        let mut left = deadline
             .saturating_duration_since(self.clock.now())
             .saturating_sub(READ_TAIL);
+        if self.late_start {
+            // Back to back, the work is longer than the period: the read waits for its replies
+            // as long as any exchange does. Cut short, it would send the next instruction while
+            // servos still answer the last (a collision on a real bus), and take their late
+            // replies for the next exchange's.
+            left = self.schedule.reply_timeout;
+        }
         let timeout = self.schedule.reply_timeout.min(left).max(MIN_READ_WAIT);
         // Through Indirect Address every read is a health read.
         let health = health || matches!(self.layout, Layout::Indirect { .. });
@@ -464,7 +471,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// The serial port failed: hold, report, reopen every [`RETRY_EVERY`].
     pub(super) fn lose_port(&mut self, e: &ServoError) {
-        let Some(info) = self.port.lose(self.tick, self.clock.now(), e) else {
+        let Some(info) = self.port.lose(self.tick, self.clock.now(), e.port(), e) else {
             return;
         };
         self.sync_faulted();

@@ -143,6 +143,8 @@ pub struct Health {
     budget: Budget,
     /// The port the servos are on, for the reports.
     port: Option<String>,
+    /// With several ports, each joint's (index as `joints`), for the reports.
+    ports: Vec<Option<String>>,
     contact: Option<ContactRule>,
 }
 
@@ -167,8 +169,23 @@ impl Health {
             joints,
             budget,
             port,
+            ports: Vec::new(),
             contact: None,
         }
+    }
+
+    /// Each servo's port, `(id, path)`, for a bus of several: a joint's report names its own.
+    pub fn set_ports(&mut self, ports: &[(u8, String)]) {
+        self.ports = self
+            .joints
+            .iter()
+            .map(|j| {
+                ports
+                    .iter()
+                    .find(|(id, _)| *id == j.id)
+                    .map(|(_, p)| p.clone())
+            })
+            .collect();
     }
 
     /// Contact detection on (`contact`) or off (`None`), on a loop whose ticks are `period`
@@ -208,7 +225,12 @@ impl Health {
         FaultInfo {
             id: self.joints.get(i).map(|j| j.id),
             joint: Some(i + 1),
-            port: self.port.clone(),
+            port: self
+                .ports
+                .get(i)
+                .cloned()
+                .flatten()
+                .or_else(|| self.port.clone()),
             kind,
             since_tick: since,
             detail,

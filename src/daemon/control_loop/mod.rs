@@ -74,7 +74,7 @@ use tokio::sync::oneshot;
 
 use crate::chain::Vec2;
 use crate::config::Config;
-use crate::connect::{self, Connection};
+use crate::connect::{self, ArmConnection};
 use crate::control::{self, Activity, Controller, NotClear};
 use crate::protocol::{
     Answer, ClientId, Describe, Event, FaultChange, FaultInfo, RequestId, Telemetry, What,
@@ -83,12 +83,13 @@ use crate::servo::arm::{Arm, BringUpOptions, OnExit, Within};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
 use crate::servo::limits::{LimitPolicy, Limited};
+use crate::servo::ports::Ports;
 use crate::servo::{units, Goal, Layout, ServoBus, States};
 
 use self::health::{Budget, Change, Health};
 use self::ledger::{Ended, Ledger};
 use self::measure::Measured;
-use self::port::{Opener, Port, ReopenError};
+use self::port::{Opener, Port};
 use self::supervisor::Supervisor;
 use super::link::{self, Handle, LoopEnds, COMMAND_QUEUE, STOP_QUEUE};
 use super::stats::Stats;
@@ -132,32 +133,48 @@ pub(super) fn main(
     cycle.shut_down(outcome.is_err())
 }
 
-/// The real port the config names, on the wall clock, reopened the same way when it vanishes.
+/// The real ports the config names, on the wall clock, reopened the same way when one
+/// vanishes.
 fn open(
     config: &Config,
     options: RunOptions,
-) -> Result<Parts<DynamixelBus, RealClock>, DaemonError> {
+) -> Result<Parts<Ports<DynamixelBus>, RealClock>, DaemonError> {
     let options = connect::Options {
-        port: options.port.clone(),
+        ports: options.ports,
         ..connect::Options::default()
     };
-    let Connection { bus, arm, sim } = connect::open(config, options.clone())?;
-    // What to reopen if the port vanishes: the given port, `[bus] port`, or the in-process
-    // simulator's link, which survives a disconnect as a USB adapter's by-id link does.
-    let path = connect::port_path(config, &options, sim.as_ref());
-    let name = path.as_ref().map(|p| p.display().to_string());
+    // What to reopen if a port vanishes: the given ports, `[bus]`'s, or the in-process
+    // simulators' links, which survive a disconnect as a USB adapter's by-id link does.
+    let ArmConnection {
+        bus,
+        arm,
+        sims,
+        ports,
+    } = connect::open_arm(config, options)?;
+    let name = |p: &std::path::Path| p.display().to_string();
+    let port = match ports.as_slice() {
+        [(one, _)] => Some(name(one)),
+        _ => None,
+    };
+    let servo_ports = if ports.len() > 1 {
+        ports
+            .iter()
+            .flat_map(|(path, ids)| ids.iter().map(move |&id| (id, name(path))))
+            .collect()
+    } else {
+        Vec::new()
+    };
     let baud = bus.baud();
-    let opener: Opener<DynamixelBus> = Box::new(move |arm: &Arm| {
-        let path = path.as_deref().ok_or(ReopenError::NoPath)?;
-        Ok(connect::reopen(path, baud, arm, LimitPolicy::Clamp)?)
-    });
+    let opener: Opener<Ports<DynamixelBus>> =
+        Box::new(move |arm: &Arm| Ok(connect::reopen_arm(&ports, baud, arm, LimitPolicy::Clamp)?));
     Ok(Parts {
         bus,
-        port: name,
+        port,
+        servo_ports,
         arm,
         opener,
         clock: RealClock,
-        sim,
+        sims,
     })
 }
 
@@ -165,16 +182,18 @@ fn open(
 pub(crate) struct Parts<B: ServoBus, C: Clock> {
     /// The bus, limited to the joint limits, not yet brought up.
     pub bus: Limited<B>,
-    /// The port's path, for the fault reports (`None`: not known).
+    /// The port's path, for the fault reports (`None`: not known, or several ports).
     pub port: Option<String>,
+    /// With several ports, each servo's port (id, path), for the fault reports; empty with one.
+    pub servo_ports: Vec<(u8, String)>,
     /// The joints and bus settings.
     pub arm: Arm,
     /// Opens the bus again after the port vanished.
     pub opener: Opener<B>,
     /// Where time comes from.
     pub clock: C,
-    /// An in-process simulator to keep alive as long as the loop.
-    pub sim: Option<snakectl_sim::SimHandle>,
+    /// The in-process simulators to keep alive as long as the loop.
+    pub sims: Vec<snakectl_sim::SimHandle>,
 }
 
 /// The loop's fixed timing.
@@ -242,8 +261,8 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     port: Port<B>,
     arm: Arm,
     clock: C,
-    /// Keeps an in-process simulator alive as long as the loop.
-    _sim: Option<snakectl_sim::SimHandle>,
+    /// Keeps the in-process simulators alive as long as the loop.
+    _sims: Vec<snakectl_sim::SimHandle>,
     controller: Controller,
     ends: LoopEnds,
     health: Health,
@@ -280,6 +299,12 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     /// The commanded pose was not clear of an obstacle when last looked at (a `not_clear`
     /// event went out; a `clear` one is owed once it is).
     not_clear: bool,
+    /// The loop ran behind its configured rate when last looked at (see [`Stats::behind`]).
+    behind: bool,
+    /// The last tick ran past its period: this one starts at once, back to back.
+    late_start: bool,
+    /// The highest rate the wire allows this arm, Hz, for the log lines.
+    wire_bound_hz: f64,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -289,10 +314,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let Parts {
             mut bus,
             port,
+            servo_ports,
             arm,
             opener,
             clock,
-            sim,
+            sims,
         } = parts;
         let brought = arm.bring_up_with_clock(&mut bus, BringUpOptions::default(), &clock)?;
         tracing::info!(
@@ -369,6 +395,34 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             port.clone(),
         );
         health.set_contact(config.contact(), period);
+        if !servo_ports.is_empty() {
+            health.set_ports(&servo_ports);
+        }
+        let wires = config.wire(brought.read);
+        let wire = crate::servo::wire::bound_of_ports(&wires);
+        let wire_bound_hz = wire.map_or(f64::INFINITY, |b| b.rate_hz());
+        if let Some(b) = wire {
+            tracing::info!(
+                rate_hz = c.rate_hz,
+                wire_bound_hz = b.rate_hz(),
+                wire_tick_us = b.tick.as_secs_f64() * 1e6,
+                ports = wires.len(),
+                read = %brought.read,
+                "control loop at {:.0} Hz; the wire allows this arm at most {:.0} Hz \
+                 ({} bytes a tick on its busiest port)",
+                c.rate_hz,
+                b.rate_hz(),
+                b.bytes(),
+            );
+            if c.rate_hz > b.rate_hz() {
+                tracing::warn!(
+                    "control.rate_hz = {:.0} is above the wire bound of {:.0} Hz: the loop will \
+                     run back to back at the rate its exchanges allow",
+                    c.rate_hz,
+                    b.rate_hz()
+                );
+            }
+        }
         let now = clock.now();
         let watchdog = units::watchdog_period(arm.settings().watchdog_ms);
         let mut stats = Stats::new(now);
@@ -385,7 +439,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             on_exit: arm.settings().on_exit,
             arm,
             clock,
-            _sim: sim,
+            _sims: sims,
             controller,
             ends,
             health,
@@ -407,6 +461,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             fault_until: now,
             torque_off_pending: Vec::new(),
             not_clear: false,
+            behind: false,
+            late_start: false,
+            wire_bound_hz,
         };
         Ok((cycle, handle))
     }
@@ -434,8 +491,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         self.step(scheduled, pace.deadline);
         let now = self.clock.now();
+        let late = now > pace.deadline;
+        self.late_start = late;
         self.stats
-            .record_tick(start, now.saturating_duration_since(start));
+            .record_tick(start, now.saturating_duration_since(start), late);
         if let Some(since) = pace.stop_since {
             // Held by the latch or a fault, the arm is at rest already: nothing moves it.
             let at_rest =
@@ -444,18 +503,44 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 return false;
             }
         }
-        if now > pace.deadline {
-            // Late: skip the periods missed instead of running them back to back.
-            let late = now.duration_since(pace.deadline).as_nanos();
-            let missed = (late / self.schedule.period.as_nanos().max(1)) as u64 + 1;
-            pace.deadline += self.schedule.period * missed as u32;
+        if late {
+            // Late: the periods missed are counted, never run in a catch-up burst; the next
+            // tick starts at once and the schedule is anchored on it. Past the rate the work
+            // allows, the loop so runs back to back at that rate rather than waiting for the
+            // next whole period (which would halve it).
+            let behind = now.duration_since(pace.deadline).as_nanos();
+            let missed = (behind / self.schedule.period.as_nanos().max(1)) as u64 + 1;
+            pace.deadline = now;
             if let Some((overruns, total)) = self.stats.overrun(missed, now) {
                 tracing::warn!(overruns, total, "control loop overran its period");
             }
         }
+        self.say_behind();
         self.clock
             .sleep(pace.deadline.saturating_duration_since(self.clock.now()));
         true
+    }
+
+    /// Logs when the loop falls behind its configured rate (more than half the last ticks ran
+    /// late) and when it holds it again.
+    fn say_behind(&mut self) {
+        let behind = self.stats.behind();
+        if behind == self.behind {
+            return;
+        }
+        self.behind = behind;
+        let rate_hz = 1.0 / self.schedule.period.as_secs_f64();
+        let loop_hz = self.stats.rate_hz();
+        if behind {
+            tracing::warn!(
+                rate_hz,
+                loop_hz,
+                wire_bound_hz = self.wire_bound_hz,
+                "the loop cannot hold its rate: it runs back to back at the rate its work allows"
+            );
+        } else {
+            tracing::info!(rate_hz, loop_hz, "the loop holds its rate again");
+        }
     }
 
     /// The shut-down began: decelerate to rest before letting go.
@@ -598,6 +683,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.stats.counters,
         );
         let torque = self.supervisor.torque();
+        let behind = self.behind;
         let lists = std::mem::take(&mut self.lists.changed)
             .then_some((&self.lists.faults, &self.lists.warnings));
         self.ends.telemetry.send_modify(|t| {
@@ -622,6 +708,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             t.loop_hz = loop_hz;
             t.tick_p99_us = p99;
             t.overruns = overruns;
+            t.behind = behind;
             t.peak_joint_speed_rad_s = peak;
             t.m3_total_rad2 = m3;
             t.counters = counters;
@@ -759,6 +846,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         } else {
             self.health.unanswering()
         };
+        if self.late_start {
+            // The loop ran back to back: replies its last read gave up on may still be on
+            // their way; once in, the next instruction's send discards them instead of taking
+            // them for its answer.
+            self.clock
+                .sleep(self.schedule.reply_timeout.min(SHUT_DOWN_WITHIN / 10));
+        }
         let until = self.clock.now() + SHUT_DOWN_WITHIN;
         let within = Self::within(&self.clock, until, self.schedule.reply_timeout);
         let shut = self.arm.shut_down(self.port.bus(), &silent, &within);

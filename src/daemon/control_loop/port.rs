@@ -34,6 +34,8 @@ pub enum ReopenError {
 #[derive(Debug, Clone)]
 struct Lost {
     since: u64,
+    /// The port that failed, when the bus has several (`None`: the one port, [`Port::name`]).
+    which: Option<String>,
     next_try: Instant,
     detail: String,
 }
@@ -95,19 +97,29 @@ impl<B: ServoBus> Port<B> {
         self.last_contact = now;
     }
 
-    /// The port failed with `why` at `tick`: the fault to report, `None` if it already was.
+    /// The port failed with `why` at `tick` (`which` of several, when the error says): the
+    /// fault to report, `None` if it already was. A bus of several ports is one arm: every
+    /// port is closed and reopened together.
     pub fn lose(
         &mut self,
         tick: u64,
         now: Instant,
+        which: Option<&str>,
         why: &dyn std::fmt::Display,
     ) -> Option<FaultInfo> {
         if self.lost.is_some() {
             return None;
         }
-        let detail = format!("the serial port failed ({why}); reopening it every second");
+        let detail = match which {
+            Some(port) => format!(
+                "the serial port {port} failed ({why}); the arm holds, every port reopened every \
+                 second"
+            ),
+            None => format!("the serial port failed ({why}); reopening it every second"),
+        };
         self.lost = Some(Lost {
             since: tick,
+            which: which.map(str::to_owned),
             next_try: now + RETRY_EVERY,
             detail,
         });
@@ -116,9 +128,10 @@ impl<B: ServoBus> Port<B> {
 
     /// The port's fault as listed, while lost.
     pub fn fault(&self) -> Option<FaultInfo> {
-        self.lost
-            .as_ref()
-            .map(|l| FaultInfo::port(self.name.clone(), l.since, l.detail.clone()))
+        self.lost.as_ref().map(|l| {
+            let name = l.which.clone().or_else(|| self.name.clone());
+            FaultInfo::port(name, l.since, l.detail.clone())
+        })
     }
 
     /// A lost port whose next try is due at `now`.
@@ -143,7 +156,7 @@ impl<B: ServoBus> Port<B> {
     pub fn found(&mut self) -> Option<FaultInfo> {
         let lost = self.lost.take()?;
         Some(FaultInfo::port(
-            self.name.clone(),
+            lost.which.or_else(|| self.name.clone()),
             lost.since,
             "the port is open again; goals := measured pose".into(),
         ))

@@ -77,6 +77,8 @@ struct Wire {
     /// When set, a wait for a reply that never comes costs its timeout on this clock, as on a
     /// real port.
     clock: Option<ManualClock>,
+    /// What a Sync Read costs on that clock, as the wire time of a real port.
+    read_cost: Duration,
 }
 
 /// An in-memory chain of servos whose motors reach every goal at once. Clones share it; the
@@ -220,6 +222,9 @@ impl ServoBus for MemoryBus {
         if let (true, Some(c)) = (missing, &w.clock) {
             c.advance(timeout);
         }
+        if let Some(c) = &w.clock {
+            c.advance(w.read_cost);
+        }
         Ok(())
     }
     fn sync_write(&mut self, r: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
@@ -306,6 +311,7 @@ impl Rig {
         let parts = Parts {
             bus: arm.limited(bus.clone(), LimitPolicy::Clamp),
             port: Some("/dev/memory".into()),
+            servo_ports: Vec::new(),
             arm,
             opener: Box::new(move |arm| {
                 if reopen.wire().port_gone {
@@ -314,7 +320,7 @@ impl Rig {
                 Ok(arm.limited(reopen.clone(), LimitPolicy::Clamp))
             }),
             clock: ManualClock::new(),
-            sim: None,
+            sims: Vec::new(),
         };
         let clock = parts.clock.clone();
         let (mut cycle, handle) = Cycle::new(&config, parts).unwrap();
@@ -606,7 +612,8 @@ fn overruns_count_the_periods_a_late_tick_skipped() {
     rig.ticks(10);
     assert_eq!(rig.status().overruns, 0);
     let tick = rig.status().tick;
-    // The next tick starts 35 ms late: the periods due at +10, +20 and +30 ms are skipped.
+    // The next tick starts 35 ms late: the periods due at +10, +20 and +30 ms are missed, and
+    // the next tick starts as soon as this one ends.
     rig.clock.advance(35 * MS);
     rig.ticks(1);
     assert_eq!(
@@ -620,6 +627,33 @@ fn overruns_count_the_periods_a_late_tick_skipped() {
     assert_eq!((s.tick, s.overruns), (tick + 2, 3));
     rig.ticks(10);
     assert_eq!(rig.status().overruns, 3, "back on schedule");
+}
+
+#[test]
+fn past_the_rate_its_work_allows_the_loop_runs_back_to_back_not_at_half_rate() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(5);
+    assert!(!rig.status().behind);
+    // Each read now takes 15 ms of a 10 ms period.
+    rig.bus.wire().read_cost = 15 * MS;
+    let start = rig.clock.now();
+    rig.ticks(40);
+    assert_eq!(
+        rig.clock.now() - start,
+        40 * 15 * MS,
+        "each tick as long as its work: none waits for the next whole period"
+    );
+    let s = rig.status();
+    assert!(s.behind, "telemetry says the loop is behind its rate");
+    assert!(s.overruns >= 39, "every late tick counted: {}", s.overruns);
+    // The work fits again: the schedule is anchored on the last late tick, no catch-up burst.
+    rig.bus.wire().read_cost = Duration::ZERO;
+    let start = rig.clock.now();
+    rig.ticks(10);
+    assert_eq!(rig.clock.now() - start, 10 * 10 * MS);
+    let overruns = rig.status().overruns;
+    rig.ticks(10);
+    assert_eq!(rig.status().overruns, overruns, "on schedule again");
 }
 
 #[test]

@@ -52,6 +52,7 @@ pub(crate) fn telemetry() -> Telemetry {
         loop_hz: 99.9,
         tick_p99_us: 80.0,
         overruns: 3,
+        behind: true,
         peak_joint_speed_rad_s: 2.0,
         m3_total_rad2: 0.5,
         faults: vec![FaultInfo {
@@ -197,6 +198,7 @@ fn telemetry_line_is_tagged_and_status_fields_name_the_same() {
         "loop_hz",
         "tick_p99_us",
         "overruns",
+        "behind",
         "peak_joint_speed_rad_s",
         "m3_total_rad2",
         "faults",
