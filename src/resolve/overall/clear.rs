@@ -32,9 +32,10 @@
 //! - **Newton step** (`ClearWork::try_newton`), once an exact SQP step is taken whole or the
 //!   tip is near: Newton on the optimality conditions with the active set the multipliers
 //!   predict (joints held at a bound where `theta0 + A^T lambda` lies beyond it; pairs with
-//!   `nu_j > 0` or not clear as equalities), a dense KKT system with the Lagrangian Hessian
-//!   `I + G - sum nu_j H_j`: `G` the tip's (module `hessian`), `H_j` each active pair's by
-//!   forward differences of its gradient. Kept only when the optimality residual at least
+//!   `nu_j > 0` or not clear as equalities), with the Lagrangian Hessian `I + G - sum nu_j
+//!   H_j`: `G` the tip's (module `hessian`), `H_j` each active pair's from its link's two
+//!   ends (module `newton`, which also solves the KKT system through that structure in
+//!   O(n) per constraint). Kept only when the optimality residual at least
 //!   halves and no pair's multiplier turns negative. Dense: used up to [`NEWTON_MAX_JOINTS`]
 //!   joints, beyond which the SQP steps alone finish (linear convergence).
 //! - **Stop**: converged when the tip is within the tolerance, the least clearance within the
@@ -59,7 +60,6 @@ use super::{
 };
 use crate::chain::{Chain, Vec2};
 use crate::resolve::Outcome;
-use crate::world::clearance::pair_gradient;
 use crate::world::{ActivePairs, World};
 
 /// A solve without obstacles: local or cold.
@@ -86,7 +86,7 @@ const SAME_CONTACT: f64 = 1e-9;
 /// A local solve whose optimality residual has not fallen by 1% in this many iterations is
 /// stuck (a body caught on an obstacle: exact and elastic steps alternating, each tiny).
 pub const STALL_STEPS: usize = 10;
-/// Forward-difference step for the pairs' Hessians, rad.
+/// Forward-difference step for the pairs' Hessians, as a fraction of the problem's scale.
 const FD_STEP: f64 = 1e-7;
 /// A KKT pivot below this fraction of the matrix's largest entry is singular.
 const PIVOT_FLOOR: f64 = 1e-13;
@@ -102,7 +102,6 @@ pub(super) struct ClearWork {
     obstacles: usize,
     pts: Vec<Vec2>,
     trial_pts: Vec<Vec2>,
-    fd_pts: Vec<Vec2>,
     jx: Vec<f64>,
     jy: Vec<f64>,
     trial: Vec<f64>,
@@ -130,8 +129,8 @@ pub(super) struct ClearWork {
     r: Vec<f64>,
     lam: Vec<f64>,
     ds: active::ActiveScratch,
-    /// Newton scratch.
-    hess: Vec<f64>,
+    /// Newton scratch: the structured Hessian, the dense KKT matrix where it is needed.
+    newton: newton::Newton,
     kkt: Vec<f64>,
     rhs: Vec<f64>,
     free: Vec<usize>,
@@ -269,7 +268,7 @@ impl ClearWork {
         }
         self.n = n;
         self.obstacles = obstacles;
-        for v in [&mut self.pts, &mut self.trial_pts, &mut self.fd_pts] {
+        for v in [&mut self.pts, &mut self.trial_pts] {
             *v = vec![Vec2::zeros(); n + 1];
         }
         for v in [
@@ -304,7 +303,6 @@ impl ClearWork {
         self.lam = vec![0.0; k2];
         self.ds = active::ActiveScratch::new(n, k2);
         let dense = if n <= NEWTON_MAX_JOINTS { n } else { 0 };
-        self.hess = vec![0.0; dense * dense];
         let big = dense + k2;
         self.kkt = vec![0.0; if dense > 0 { big * big } else { 0 }];
         self.rhs = vec![0.0; big];
@@ -693,68 +691,25 @@ impl ClearWork {
         if m < 2 {
             return false;
         }
-        // Lagrangian Hessian: I + G (tip) - sum nu_j H_j (pairs, central differences).
-        let tip = self.pts[n];
-        for a in 0..n {
-            for b in 0..n {
-                let r = tip - self.pts[a.max(b)];
-                self.hess[a * n + b] = f64::from(u8::from(a == b)) + mu[0] * r.x + mu[1] * r.y;
-            }
-        }
+        // Lagrangian Hessian I + G - sum nu_j H_j in structured form (module `newton`).
+        let pts = &self.pts[..=n];
+        self.newton.begin(pts, *mu);
         for &j in &self.active {
             let (link, obstacle) = self.key[j];
-            let nu = self.nu[j];
-            if nu == 0.0 {
-                continue;
-            }
-            // Forward differences of the gradient (the gradient at the pose is the pair's
-            // row): turning joint a by h turns the points after it about p_a; the pair needs
-            // the points up to its link's end.
-            let (sh, ch) = FD_STEP.sin_cos();
-            let row = j * n;
-            for a in 0..link {
-                let pivot = self.pts[a];
-                for i in 0..=link {
-                    let v = self.pts[i] - pivot;
-                    self.fd_pts[i] = if i > a {
-                        pivot + Vec2::new(ch * v.x - sh * v.y, sh * v.x + ch * v.y)
-                    } else {
-                        self.pts[i]
-                    };
-                }
-                let pts = &self.fd_pts[..=link];
-                let pair = world.pair(pts, link, obstacle);
-                pair_gradient(pts, &pair, &mut self.gp[..link]);
-                for b in 0..link {
-                    let h = (self.gp[b] - self.grad[row + b]) / FD_STEP;
-                    // Symmetrized: half from each of the two columns.
-                    self.hess[b * n + a] -= 0.5 * nu * h;
-                    self.hess[a * n + b] -= 0.5 * nu * h;
-                }
+            if self.nu[j] != 0.0 {
+                let h = FD_STEP * p.scale;
+                self.newton.add_pair(world, pts, link, obstacle, self.nu[j], h);
             }
         }
-        // KKT system over the free joints and the active constraints.
+        // Right-hand side: the free rows, then the tip's two and one per active pair.
         let size = m + 2 + ka;
-        let kkt = &mut self.kkt[..size * size];
-        kkt.iter_mut().for_each(|v| *v = 0.0);
+        if self.held_move.iter().any(|&v| v != 0.0) {
+            self.newton.apply(&self.held_move, &mut self.gp);
+        } else {
+            self.gp.iter_mut().for_each(|v| *v = 0.0);
+        }
         for (r, &a) in self.free.iter().enumerate() {
-            for (c, &b) in self.free.iter().enumerate() {
-                kkt[r * size + c] = self.hess[a * n + b];
-            }
-            let mut v = -(theta[a] - p.theta0[a]);
-            for b in 0..n {
-                v -= self.hess[a * n + b] * self.held_move[b];
-            }
-            self.rhs[r] = v;
-            kkt[r * size + m] = -self.jx[a];
-            kkt[r * size + m + 1] = -self.jy[a];
-            kkt[m * size + r] = self.jx[a];
-            kkt[(m + 1) * size + r] = self.jy[a];
-            for (i, &j) in self.active.iter().enumerate() {
-                let g = self.grad[j * n + a];
-                kkt[r * size + m + 2 + i] = -g;
-                kkt[(m + 2 + i) * size + r] = g;
-            }
+            self.rhs[r] = -(theta[a] - p.theta0[a]) - self.gp[a];
         }
         let (mut hx, mut hy) = (0.0, 0.0);
         for b in 0..n {
@@ -768,8 +723,36 @@ impl ClearWork {
             let gh: f64 = g.iter().zip(&self.held_move).map(|(g, d)| g * d).sum();
             self.rhs[m + 2 + i] = cm - self.clr[j] - gh;
         }
-        if !lu_solve(kkt, &mut self.rhs[..size], size) {
-            return false;
+        let (jx, jy, grad, active) = (&self.jx, &self.jy, &self.grad, &self.active);
+        let row = |i: usize, a: usize| match i {
+            0 => jx[a],
+            1 => jy[a],
+            _ => grad[active[i - 2] * n + a],
+        };
+        match self
+            .newton
+            .solve_kkt(&self.free, 2 + ka, row, &mut self.rhs[..size])
+        {
+            Some(true) => {}
+            Some(false) => return false,
+            None => {
+                // The same system assembled dense.
+                let kkt = &mut self.kkt[..size * size];
+                kkt.iter_mut().for_each(|v| *v = 0.0);
+                for (r, &a) in self.free.iter().enumerate() {
+                    for (c, &b) in self.free.iter().enumerate() {
+                        kkt[r * size + c] = self.newton.entry(a, b);
+                    }
+                    for i in 0..2 + ka {
+                        let g = row(i, a);
+                        kkt[r * size + m + i] = -g;
+                        kkt[(m + i) * size + r] = g;
+                    }
+                }
+                if !lu_solve(kkt, &mut self.rhs[..size], size) {
+                    return false;
+                }
+            }
         }
         // New multipliers: none of a pair may turn negative.
         for (i, &j) in self.active.iter().enumerate() {
@@ -1234,5 +1217,6 @@ impl Overall {
 }
 
 mod active;
+mod newton;
 #[cfg(test)]
 mod tests;

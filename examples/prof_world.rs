@@ -1,0 +1,210 @@
+//! The overall strategy among obstacles: `cargo bench --bench world`.
+//!
+//! Setup: a 1 m arm of n equal links (n = 12 and 24), base at the origin, relative angles
+//! uniform in +-(pi/n) (seeded); links of radius 12 mm keeping 5 mm of clearance. "Obstacles
+//! near the arm" (0, 4 or 16): discs of radius 10..30 mm, each beside a link of the start pose
+//! (spread along the arm, sides alternating), its gap to the link's capsule 2..40 mm beyond the
+//! clearance; a world whose start pose is not clear is drawn again.
+//! - `warm_tick`: local mode, continuing: the tip goes round a circle of 20 mm radius through
+//!   its start position, 1 mm per tick, each answer the next pose (so the links sweep toward
+//!   the discs and lean on them). A tick that does not converge (a target the body cannot
+//!   follow to) keeps the pose; how many did is printed.
+//! - `cold`: the cold solve (all its starts) to a target 20% of the reach away from the start
+//!   pose's tip, 16 seeded cases cycled, each case's discs drawn around its own start pose and
+//!   its target kept 3 cm from every disc.
+//!
+//! Before each group a probe times every tick (warm, 2000 ticks) or case (cold, median of 3
+//! runs each) on its own and prints the median, its ratio to the same n without obstacles,
+//! the mean iterations and how many did not converge.
+#![allow(missing_docs, clippy::unwrap_used, dead_code)]
+
+use std::f64::consts::PI;
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+use snakectl::chain::{Chain, Vec2};
+use snakectl::resolve::overall::{Overall, OverallOptions};
+use snakectl::world::{Obstacle, Shape, World};
+
+const SIZES: [usize; 2] = [12, 24];
+const OBSTACLES: [usize; 3] = [0, 4, 16];
+const LINK_RADIUS: f64 = 0.012;
+const CLEARANCE: f64 = 0.005;
+/// Radius of the warm ticks' circle, m.
+const RADIUS: f64 = 0.02;
+
+fn arm(n: usize, rng: &mut StdRng) -> (Chain, Vec<f64>) {
+    let chain = Chain::unlimited(vec![1.0 / n as f64; n], Vec2::zeros(), 0.0).unwrap();
+    let spread = PI / n as f64;
+    let theta = (0..n).map(|_| rng.gen_range(-spread..spread)).collect();
+    (chain, theta)
+}
+
+/// `count` discs beside the links of `theta` (see the module doc); `None` for no obstacles.
+fn world_near(chain: &Chain, theta: &[f64], count: usize, rng: &mut StdRng) -> Option<World> {
+    if count == 0 {
+        return None;
+    }
+    let pts = chain.points(theta);
+    let n = chain.len();
+    loop {
+        let obstacles: Vec<Obstacle> = (0..count)
+            .map(|k| {
+                let link = 1 + (k * n) / count + rng.gen_range(0..(n / count).max(1));
+                let link = link.min(n);
+                let (a, b) = (pts[link - 1], pts[link]);
+                let along = a + (b - a) * rng.gen_range(0.2..0.8);
+                let dir = (b - a).normalize();
+                let side = if k % 2 == 0 { 1.0 } else { -1.0 };
+                let normal = Vec2::new(-dir.y, dir.x) * side;
+                let radius = rng.gen_range(0.01..0.03);
+                let gap = LINK_RADIUS + CLEARANCE + rng.gen_range(0.002..0.04);
+                Obstacle {
+                    id: format!("d{k}"),
+                    shape: Shape::Circle {
+                        center: along + normal * (radius + gap),
+                        radius_m: radius,
+                    },
+                }
+            })
+            .collect();
+        let world = World::new(LINK_RADIUS, CLEARANCE, obstacles).unwrap();
+        let least = world.pose_clearance(chain, theta).unwrap().clearance_m;
+        if least >= CLEARANCE + 0.001 {
+            return Some(world);
+        }
+    }
+}
+
+/// The tip going round a 20 mm circle, 1 mm per tick.
+struct Walk {
+    chain: Chain,
+    theta: Vec<f64>,
+    out: Vec<f64>,
+    solver: Overall,
+    centre: Vec2,
+    k: usize,
+}
+
+impl Walk {
+    fn new(n: usize, obstacles: usize, seed: u64) -> Self {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let (chain, theta) = arm(n, &mut rng);
+        let mut solver = Overall::new(OverallOptions::default());
+        solver.set_world(world_near(&chain, &theta, obstacles, &mut rng));
+        let centre = chain.tip(&theta) - Vec2::new(RADIUS, 0.0);
+        Self {
+            out: vec![0.0; n],
+            chain,
+            theta,
+            solver,
+            centre,
+            k: 0,
+        }
+    }
+
+    /// One tick; returns the iterations and whether it converged.
+    fn tick(&mut self) -> (usize, bool) {
+        self.k += 1;
+        let a = self.k as f64 * (0.001 / RADIUS);
+        let target = self.centre + Vec2::new(a.cos(), a.sin()) * RADIUS;
+        let o = self
+            .solver
+            .solve_local(&self.chain, &self.theta, target, &mut self.out);
+        if o.converged {
+            self.theta.copy_from_slice(&self.out);
+        }
+        (o.iterations, o.converged)
+    }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+struct Case {
+    chain: Chain,
+    theta0: Vec<f64>,
+    target: Vec2,
+    world: Option<World>,
+}
+
+fn cold_cases(n: usize, count: usize, seed: u64) -> Vec<Case> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut cases = Vec::new();
+    while cases.len() < 16 {
+        let (chain, theta0) = arm(n, &mut rng);
+        let tip = chain.tip(&theta0);
+        let a: f64 = rng.gen_range(-PI..PI);
+        let target = tip + Vec2::new(a.cos(), a.sin()) * (0.2 * chain.reach());
+        if target.norm() > 0.95 * chain.reach() {
+            continue;
+        }
+        // The same discs as with 16 obstacles, `count` of them spread along the arm, so that
+        // the cases differ only in the obstacles.
+        let world = world_near(&chain, &theta0, 16, &mut rng).unwrap();
+        let far = world.point_distance(target).is_some_and(|(d, _)| d >= 0.03);
+        if !far {
+            continue;
+        }
+        let world = (count > 0).then(|| {
+            let some = (0..count)
+                .map(|k| world.obstacles()[k * 16 / count].clone())
+                .collect();
+            World::new(LINK_RADIUS, CLEARANCE, some).unwrap()
+        });
+        cases.push(Case {
+            chain,
+            theta0,
+            target,
+            world,
+        });
+    }
+    cases
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let n: usize = args.get(1).map_or(12, |s| s.parse().unwrap());
+    let count: usize = args.get(2).map_or(16, |s| s.parse().unwrap());
+    let reps: usize = args.get(3).map_or(1, |s| s.parse().unwrap());
+    let rs: usize = args.get(4).map_or(8, |s| s.parse().unwrap());
+    if args.get(5).is_some() {
+        let mut w = Walk::new(n, count, 500 + n as u64);
+        let mut times = Vec::new();
+        let (mut its, mut missed) = (0, 0);
+        for _ in 0..reps {
+            let t = Instant::now();
+            let (i, ok) = w.tick();
+            times.push(t.elapsed().as_secs_f64());
+            its += i;
+            missed += usize::from(!ok);
+        }
+        println!("warm median {:.2} us its {} missed {}", median(&mut times) * 1e6, its as f64 / reps as f64, missed);
+        return;
+    }
+    let cases = cold_cases(n, count, 700 + n as u64);
+    let mut out = vec![0.0; n];
+    let mut times = Vec::new();
+    let mut metrics = Vec::new();
+    for (i, case) in cases.iter().enumerate() {
+        let mut s = Overall::new(OverallOptions { random_starts: rs, ..OverallOptions::default() });
+        s.set_world(case.world.clone());
+        let t = Instant::now();
+        let mut o = None;
+        for _ in 0..reps {
+            o = Some(s.solve_cold(&case.chain, &case.theta0, case.target, &mut out));
+        }
+        let dt = t.elapsed().as_secs_f64() / reps as f64;
+        let o = o.unwrap();
+        let m = out.iter().zip(&case.theta0).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
+        println!("case {i}: {:.1} us, it {}, conv {}, metric {:.6}", dt * 1e6, o.iterations, o.converged, m); metrics.push(m);
+        times.push(dt);
+    }
+    println!("median {:.1} us metrics {:?}", median(&mut times) * 1e6, metrics.iter().map(|m| (m * 1e4).round() / 1e4).collect::<Vec<_>>());
+}

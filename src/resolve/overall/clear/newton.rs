@@ -1,0 +1,543 @@
+//! The Newton step's linear algebra among obstacles: the Lagrangian Hessian in structured form,
+//! and the KKT system solved through it.
+//!
+//! A pair's clearance depends on the pose only through its link's two ends `P = p_{L-1}` and
+//! `Q = p_L`: `c(theta) = phi(P(theta), Q(theta))`. By the chain rule its Hessian is
+//!
+//! ```text
+//! H_c = J_X^T (d2 phi / dX2) J_X + sum_i (d phi / dX_i) d2 X_i / dtheta2,   X = (P, Q) in R^4.
+//! ```
+//!
+//! The second term has the tip's shape (module `hessian`): a point `X` moved by joints `a, b`
+//! has `d2 X / dtheta_a dtheta_b = -(X - p_max(a,b))`, and `d phi / dP = (1 - s) n`,
+//! `d phi / dQ = s n` (the contact's unit normal `n`, at `s` along the link), so together the
+//! entry is `g_max(a,b)` with `g_m = -n . (q - p_m)` for `m < L` (`q` the contact point) and 0
+//! beyond. The first term has rank at most 4: the columns of `J_X` (how `P` and `Q` move with
+//! each joint) and the 4 x 4 Hessian of `phi`, which forward differences of `(1 - s) n, s n`
+//! give from four contact evaluations. The Lagrangian's Hessian is then
+//!
+//! ```text
+//! H = I + G(g) + V C V^T
+//! ```
+//!
+//! with `g` the tip's term plus `nu_j` times each pair's, `V` the pairs' `J_X^T` columns and
+//! `C` block diagonal (`-nu_j` times each pair's 4 x 4). `I + G(g)` restricted to the free
+//! joints solves in O(n) (module `hessian`); the low-rank part enters by the Woodbury identity
+//! in the form that needs no inverse of `C`:
+//!
+//! ```text
+//! H^-1 = H0^-1 - H0^-1 V (I + C V^T H0^-1 V)^-1 C V^T H0^-1,   H0 = I + G(g),
+//! ```
+//!
+//! and the KKT system `H d - A^T lambda = r1`, `A d = r2` by its Schur complement
+//! `A H^-1 A^T lambda = r2 - A H^-1 r1`. Where `H0` is too near singular for its solve, or the
+//! low-rank part is more than twice as wide as the free joints, the same `H` is assembled dense instead.
+
+use super::super::hessian;
+use crate::chain::Vec2;
+use crate::world::World;
+
+/// Columns of `V` one pair brings (how `P` and `Q` move, x and y of each).
+pub(super) const RANK: usize = 4;
+
+/// A pivot below this fraction of the largest entry ends a dense solve.
+const PIVOT_FLOOR: f64 = 1e-13;
+
+/// The structured Lagrangian Hessian and the scratch of its solves, grown on demand.
+#[derive(Debug, Default)]
+pub(super) struct Newton {
+    n: usize,
+    /// `g` of `G(g)`, one entry per joint.
+    pub g: Vec<f64>,
+    /// Low-rank columns: `cols` of them, `n` entries each.
+    v: Vec<f64>,
+    cols: usize,
+    /// `C`, `RANK x RANK` per pair, row-major, the blocks one after the other.
+    c: Vec<f64>,
+    // Scratch of the structured solve (sized for `m` free joints and `rows` constraints).
+    g_free: Vec<f64>,
+    piv: Vec<f64>,
+    sol: Vec<f64>,
+    tmp: Vec<f64>,
+    v_free: Vec<f64>,
+    w: Vec<f64>,
+    s_mat: Vec<f64>,
+    s_perm: Vec<usize>,
+    t: Vec<f64>,
+    z: Vec<f64>,
+    k_mat: Vec<f64>,
+    k_perm: Vec<usize>,
+    lam: Vec<f64>,
+}
+
+fn grow<T: Clone + Default>(v: &mut Vec<T>, len: usize) {
+    if v.len() < len {
+        v.resize(len, T::default());
+    }
+}
+
+impl Newton {
+    /// Starts `H = I + G(g)` with the tip's term: `g_m = mu . (tip - p_m)`.
+    pub fn begin(&mut self, pts: &[Vec2], mu: [f64; 2]) {
+        let n = pts.len() - 1;
+        self.n = n;
+        grow(&mut self.g, n);
+        let tip = pts[n];
+        for m in 0..n {
+            let r = tip - pts[m];
+            self.g[m] = mu[0] * r.x + mu[1] * r.y;
+        }
+        self.cols = 0;
+    }
+
+    /// Adds `-nu` times the Hessian of the clearance of (`link`, `obstacle`) at `pts`; `h` is
+    /// the forward-difference step of the contact's end points, m.
+    pub fn add_pair(
+        &mut self,
+        world: &World,
+        pts: &[Vec2],
+        link: usize,
+        obstacle: usize,
+        nu: f64,
+        h: f64,
+    ) {
+        let n = self.n;
+        let shape = &world.obstacles()[obstacle].shape;
+        let (p, q_end) = (pts[link - 1], pts[link]);
+        let base = shape.segment_contact(p, q_end);
+        let q = base.on_segment;
+        let nrm = base.normal;
+        for m in 0..link {
+            let r = q - pts[m];
+            self.g[m] += nu * (nrm.x * r.x + nrm.y * r.y);
+        }
+        // d phi / dX at the contact, and its forward differences along each coordinate.
+        let grad = |s: f64, nrm: Vec2| [(1.0 - s) * nrm.x, (1.0 - s) * nrm.y, s * nrm.x, s * nrm.y];
+        let g0 = grad(base.s, nrm);
+        let mut hess = [[0.0; RANK]; RANK];
+        for (k, column) in hess.iter_mut().enumerate() {
+            let (mut a, mut b) = (p, q_end);
+            match k {
+                0 => a.x += h,
+                1 => a.y += h,
+                2 => b.x += h,
+                _ => b.y += h,
+            }
+            let moved = shape.segment_contact(a, b);
+            let gk = grad(moved.s, moved.normal);
+            for i in 0..RANK {
+                column[i] = (gk[i] - g0[i]) / h;
+            }
+        }
+        let block = self.cols / RANK;
+        grow(&mut self.c, (block + 1) * RANK * RANK);
+        for i in 0..RANK {
+            for k in 0..RANK {
+                self.c[block * RANK * RANK + i * RANK + k] = -nu * 0.5 * (hess[i][k] + hess[k][i]);
+            }
+        }
+        // The columns of J_X^T: P moves with joints before link - 1, Q with those before link.
+        grow(&mut self.v, (self.cols + RANK) * n);
+        for (k, (end, moved_by)) in [(p, link - 1), (q_end, link)].into_iter().enumerate() {
+            let (cx, cy) = (self.cols + 2 * k, self.cols + 2 * k + 1);
+            for a in 0..n {
+                let (x, y) = if a < moved_by {
+                    let r = end - pts[a];
+                    (-r.y, r.x)
+                } else {
+                    (0.0, 0.0)
+                };
+                self.v[cx * n + a] = x;
+                self.v[cy * n + a] = y;
+            }
+        }
+        self.cols += RANK;
+    }
+
+    /// Columns of the low-rank part.
+    pub fn rank(&self) -> usize {
+        self.cols
+    }
+
+    /// `out = H x` over all joints.
+    pub fn apply(&self, x: &[f64], out: &mut [f64]) {
+        let n = self.n;
+        // G(g) x: g_a times the prefix sum through a, plus the suffix sum of g_b x_b after a.
+        let mut suffix = 0.0;
+        for a in (0..n).rev() {
+            out[a] = x[a] + suffix;
+            suffix += self.g[a] * x[a];
+        }
+        let mut prefix = 0.0;
+        for a in 0..n {
+            prefix += x[a];
+            out[a] += self.g[a] * prefix;
+        }
+        self.add_low_rank(x, out, n, |i| i, n);
+    }
+
+    /// Adds `V C V^T x` to `out`, `V` read at the joints `at(0..len)` (of the `stride` rows).
+    fn add_low_rank(
+        &self,
+        x: &[f64],
+        out: &mut [f64],
+        len: usize,
+        at: impl Fn(usize) -> usize,
+        stride: usize,
+    ) {
+        for block in 0..self.cols / RANK {
+            let mut vx = [0.0; RANK];
+            for (k, s) in vx.iter_mut().enumerate() {
+                let col = &self.v[(block * RANK + k) * stride..];
+                *s = (0..len).map(|i| col[at(i)] * x[i]).sum();
+            }
+            let c = &self.c[block * RANK * RANK..(block + 1) * RANK * RANK];
+            for k in 0..RANK {
+                let ck: f64 = (0..RANK).map(|e| c[k * RANK + e] * vx[e]).sum();
+                if ck != 0.0 {
+                    let col = &self.v[(block * RANK + k) * stride..];
+                    for i in 0..len {
+                        out[i] += col[at(i)] * ck;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Entry `(a, b)` of `H`.
+    pub fn entry(&self, a: usize, b: usize) -> f64 {
+        let n = self.n;
+        let mut h = f64::from(u8::from(a == b)) + self.g[a.max(b)];
+        for block in 0..self.cols / RANK {
+            let c = &self.c[block * RANK * RANK..(block + 1) * RANK * RANK];
+            for i in 0..RANK {
+                let va = self.v[(block * RANK + i) * n + a];
+                if va == 0.0 {
+                    continue;
+                }
+                for k in 0..RANK {
+                    h += va * c[i * RANK + k] * self.v[(block * RANK + k) * n + b];
+                }
+            }
+        }
+        h
+    }
+
+    /// Solves the KKT system over the free joints `free` (increasing) by the structure:
+    /// `H_ff d - A^T lambda = r1`, `A d = r2`, the rows of `A` given by `row(i, joint)` for
+    /// `i < rows`. On success `out[..m]` holds `d` and `out[m..m + rows]` holds `lambda`;
+    /// `None` when the structure cannot be used (`H0` near singular, or the low-rank part
+    /// more than twice as wide as the free joints), `Some(false)` when the system is singular.
+    pub fn solve_kkt(
+        &mut self,
+        free: &[usize],
+        rows: usize,
+        row: impl Fn(usize, usize) -> f64,
+        out: &mut [f64],
+    ) -> Option<bool> {
+        let m = free.len();
+        let r = self.cols;
+        if r > 2 * m {
+            return None;
+        }
+        grow(&mut self.g_free, m);
+        grow(&mut self.piv, m);
+        for (i, &a) in free.iter().enumerate() {
+            self.g_free[i] = self.g[a];
+        }
+        hessian::factor(&self.g_free[..m], &mut self.piv[..m])?;
+        // V restricted to the free joints, and W = H0^-1 V.
+        grow(&mut self.v_free, r * m);
+        grow(&mut self.w, r * m);
+        grow(&mut self.sol, m);
+        for col in 0..r {
+            for (i, &a) in free.iter().enumerate() {
+                self.v_free[col * m + i] = self.v[col * self.n + a];
+            }
+            hessian::solve(
+                &self.piv[..m],
+                &self.v_free[col * m..(col + 1) * m],
+                &mut self.sol[..m],
+                &mut self.w[col * m..(col + 1) * m],
+            );
+        }
+        // S = I + C (V^T W), factorized once; V^T W first (in `z`, free until the next step).
+        grow(&mut self.s_mat, r * r);
+        grow(&mut self.s_perm, r);
+        grow(&mut self.tmp, r.max(m));
+        grow(&mut self.z, r * r);
+        for e in 0..r {
+            let ve = &self.v_free[e * m..(e + 1) * m];
+            for b in 0..r {
+                let wb = &self.w[b * m..(b + 1) * m];
+                self.z[e * r + b] = ve.iter().zip(wb).map(|(v, w)| v * w).sum();
+            }
+        }
+        for a in 0..r {
+            let block = a / RANK;
+            let c = &self.c[block * RANK * RANK + (a % RANK) * RANK..][..RANK];
+            for b in 0..r {
+                let mut s = f64::from(u8::from(a == b));
+                for (k, &ck) in c.iter().enumerate() {
+                    s += ck * self.z[(block * RANK + k) * r + b];
+                }
+                self.s_mat[a * r + b] = s;
+            }
+        }
+        if !lu_factor(&mut self.s_mat[..r * r], &mut self.s_perm[..r], r) {
+            return None;
+        }
+        // Z = H^-1 [A^T, r1]: the constraint columns first, r1 (in out[..m]) last.
+        let cols = rows + 1;
+        grow(&mut self.z, cols * m);
+        for l in 0..cols {
+            for (i, &a) in free.iter().enumerate() {
+                self.tmp[i] = if l < rows { row(l, a) } else { out[i] };
+            }
+            self.apply_inverse(l, m);
+        }
+        // K lambda = r2 - A z1, K = A Z.
+        grow(&mut self.k_mat, rows * rows);
+        grow(&mut self.k_perm, rows);
+        grow(&mut self.lam, rows);
+        let z1 = rows * m;
+        for i in 0..rows {
+            let mut a_z1 = 0.0;
+            for (e, &a) in free.iter().enumerate() {
+                a_z1 += row(i, a) * self.z[z1 + e];
+            }
+            self.lam[i] = out[m + i] - a_z1;
+            for l in 0..rows {
+                let mut k = 0.0;
+                for (e, &a) in free.iter().enumerate() {
+                    k += row(i, a) * self.z[l * m + e];
+                }
+                self.k_mat[i * rows + l] = k;
+            }
+        }
+        if !lu_factor(&mut self.k_mat[..rows * rows], &mut self.k_perm[..rows], rows) {
+            return Some(false);
+        }
+        lu_apply(
+            &self.k_mat[..rows * rows],
+            &self.k_perm[..rows],
+            rows,
+            &mut self.lam[..rows],
+        );
+        for e in 0..m {
+            let mut d = self.z[z1 + e];
+            for l in 0..rows {
+                d += self.lam[l] * self.z[l * m + e];
+            }
+            out[e] = d;
+        }
+        out[m..m + rows].copy_from_slice(&self.lam[..rows]);
+        Some(out[..m + rows].iter().all(|v| v.is_finite()))
+    }
+
+    /// `z[l] = H_ff^-1 tmp[..m]` by Woodbury, with the factors of `solve_kkt`.
+    fn apply_inverse(&mut self, l: usize, m: usize) {
+        let r = self.cols;
+        let (piv, sol) = (&self.piv[..m], &mut self.sol[..m]);
+        let z = &mut self.z[l * m..(l + 1) * m];
+        hessian::solve(piv, &self.tmp[..m], sol, z);
+        if r == 0 {
+            return;
+        }
+        // t = C V^T z, then S u = t, then z -= W u.
+        grow(&mut self.t, 2 * r);
+        let (t, vz) = self.t.split_at_mut(r);
+        for col in 0..r {
+            vz[col] = (0..m).map(|i| self.v_free[col * m + i] * z[i]).sum();
+        }
+        for a in 0..r {
+            let block = a / RANK;
+            t[a] = (block * RANK..(block + 1) * RANK)
+                .map(|e| self.c[block * RANK * RANK + (a % RANK) * RANK + e % RANK] * vz[e])
+                .sum();
+        }
+        lu_apply(&self.s_mat[..r * r], &self.s_perm[..r], r, t);
+        for col in 0..r {
+            let u = t[col];
+            for i in 0..m {
+                z[i] -= self.w[col * m + i] * u;
+            }
+        }
+    }
+}
+
+/// LU factorization with partial pivoting in place (row-major, `size x size`), the row
+/// permutation in `perm`; false when a pivot is below [`PIVOT_FLOOR`] of the largest entry.
+fn lu_factor(mat: &mut [f64], perm: &mut [usize], size: usize) -> bool {
+    let big = mat.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    if !(big > 0.0 && big.is_finite()) {
+        return false;
+    }
+    for col in 0..size {
+        let mut piv = col;
+        for r in col + 1..size {
+            if mat[r * size + col].abs() > mat[piv * size + col].abs() {
+                piv = r;
+            }
+        }
+        perm[col] = piv;
+        if mat[piv * size + col].abs() <= PIVOT_FLOOR * big {
+            return false;
+        }
+        if piv != col {
+            for c in 0..size {
+                mat.swap(piv * size + c, col * size + c);
+            }
+        }
+        let p = mat[col * size + col];
+        for r in col + 1..size {
+            let f = mat[r * size + col] / p;
+            mat[r * size + col] = f;
+            if f != 0.0 {
+                for c in col + 1..size {
+                    mat[r * size + c] -= f * mat[col * size + c];
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Solves with the factors of [`lu_factor`], `b` in place.
+fn lu_apply(lu: &[f64], perm: &[usize], size: usize, b: &mut [f64]) {
+    // The rows were swapped whole while factoring: all the swaps first, then L.
+    for col in 0..size {
+        b.swap(col, perm[col]);
+    }
+    for col in 0..size {
+        let v = b[col];
+        for r in col + 1..size {
+            b[r] -= lu[r * size + col] * v;
+        }
+    }
+    for r in (0..size).rev() {
+        let mut v = b[r];
+        for c in r + 1..size {
+            v -= lu[r * size + c] * b[c];
+        }
+        b[r] = v / lu[r * size + r];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use crate::chain::Chain;
+    use crate::world::clearance::pair_gradient;
+    use crate::world::{Obstacle, Shape};
+    use nalgebra::{DMatrix, DVector};
+
+    fn world() -> World {
+        let obstacles = vec![
+            Obstacle {
+                id: "disc".into(),
+                shape: Shape::Circle {
+                    center: Vec2::new(0.35, 0.45),
+                    radius_m: 0.05,
+                },
+            },
+            Obstacle {
+                id: "box".into(),
+                shape: Shape::Polygon {
+                    points: vec![
+                        Vec2::new(0.55, -0.2),
+                        Vec2::new(0.7, -0.2),
+                        Vec2::new(0.7, -0.05),
+                        Vec2::new(0.55, -0.05),
+                    ],
+                },
+            },
+        ];
+        World::new(0.01, 0.005, obstacles).unwrap()
+    }
+
+    /// The clearance gradient of (link, obstacle) at `theta`.
+    fn gradient(world: &World, chain: &Chain, theta: &[f64], link: usize, obs: usize) -> Vec<f64> {
+        let mut pts = vec![Vec2::zeros(); theta.len() + 1];
+        chain.points_into(theta, &mut pts);
+        let pair = world.pair(&pts, link, obs);
+        let mut g = vec![0.0; theta.len()];
+        pair_gradient(&pts, &pair, &mut g);
+        g
+    }
+
+    #[test]
+    fn pair_hessian_matches_differences_of_the_gradient() {
+        let world = world();
+        let n = 8;
+        let chain = Chain::unlimited(vec![0.125; n], Vec2::zeros(), 0.0).unwrap();
+        let theta = [0.9, -0.2, -0.25, -0.3, -0.2, -0.3, -0.35, -0.4];
+        let mut pts = vec![Vec2::zeros(); n + 1];
+        chain.points_into(&theta, &mut pts);
+        for (link, obs) in [(4, 0), (5, 0), (7, 1), (8, 1)] {
+            let pair = world.pair(&pts, link, obs);
+            assert!(pair.contact.distance_m > 0.0, "link {link} apart from {obs}");
+            let mut newton = Newton::default();
+            newton.begin(&pts, [0.0, 0.0]);
+            newton.add_pair(&world, &pts, link, obs, -1.0, 1e-7);
+            // With mu = 0 and nu = -1, H - I is the pair's Hessian.
+            let g0 = gradient(&world, &chain, &theta, link, obs);
+            let step = 1e-6;
+            for b in 0..n {
+                let mut moved = theta.to_vec();
+                moved[b] += step;
+                let gb = gradient(&world, &chain, &moved, link, obs);
+                for a in 0..n {
+                    let fd = (gb[a] - g0[a]) / step;
+                    let h = newton.entry(a, b) - f64::from(u8::from(a == b));
+                    assert!(
+                        (h - fd).abs() < 1e-4 * (1.0 + fd.abs()),
+                        "link {link}, obstacle {obs}, ({a}, {b}): {h} against {fd}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn structured_kkt_solve_matches_the_dense_one() {
+        let world = world();
+        let n = 8;
+        let chain = Chain::unlimited(vec![0.125; n], Vec2::zeros(), 0.0).unwrap();
+        let theta = [0.9, -0.2, -0.25, -0.3, -0.2, -0.3, -0.35, -0.4];
+        let mut pts = vec![Vec2::zeros(); n + 1];
+        chain.points_into(&theta, &mut pts);
+        let mut newton = Newton::default();
+        newton.begin(&pts, [0.3, -0.2]);
+        newton.add_pair(&world, &pts, 4, 0, 0.7, 1e-7);
+        newton.add_pair(&world, &pts, 8, 1, 0.2, 1e-7);
+        let free = [0, 1, 2, 4, 5, 6, 7];
+        let m = free.len();
+        let rows = 3;
+        let a_row = |i: usize, j: usize| ((i * 7 + j * 3) % 5) as f64 - 2.0 + 0.1 * j as f64;
+        let rhs: Vec<f64> = (0..m + rows).map(|i| (i as f64 * 0.37).sin()).collect();
+        let mut out = rhs.clone();
+        assert_eq!(newton.solve_kkt(&free, rows, a_row, &mut out), Some(true));
+        let size = m + rows;
+        let dense = DMatrix::from_fn(size, size, |r, c| match (r < m, c < m) {
+            (true, true) => newton.entry(free[r], free[c]),
+            (true, false) => -a_row(c - m, free[r]),
+            (false, true) => a_row(r - m, free[c]),
+            (false, false) => 0.0,
+        });
+        let want = dense.lu().solve(&DVector::from_vec(rhs)).unwrap();
+        for i in 0..size {
+            assert!((out[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()), "{i}");
+        }
+        // H x by the structure against the entries.
+        let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.7).cos()).collect();
+        let mut hx = vec![0.0; n];
+        newton.apply(&x, &mut hx);
+        for a in 0..n {
+            let want: f64 = (0..n).map(|b| newton.entry(a, b) * x[b]).sum();
+            assert!((hx[a] - want).abs() < 1e-12 * (1.0 + want.abs()), "{a}");
+        }
+    }
+}
