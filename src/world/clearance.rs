@@ -129,6 +129,9 @@ pub fn pair_gradient(points: &[Vec2], pair: &Pair, out: &mut [f64]) {
     }
 }
 
+/// Links whose common box [`World::near_pairs`] checks an obstacle against first.
+pub const LINK_GROUP: usize = 4;
+
 fn segment_box(a: Vec2, b: Vec2) -> (Vec2, Vec2) {
     (a.inf(&b), a.sup(&b))
 }
@@ -168,6 +171,43 @@ impl World {
                     best = Some(p);
                 }
             }
+        }
+        best
+    }
+
+    /// The pair of least clearance of the pose `points` when that clearance is below `floor_m`,
+    /// else `None`: what a caller that only needs `min(floor_m, clearance)` asks, with every
+    /// link group and link whose box is `floor_m` or more from an obstacle's box skipped (as
+    /// in [`World::near_pairs`]). Allocation-free.
+    pub fn clearance_below(&self, points: &[Vec2], floor_m: f64) -> Option<Pair> {
+        let mut best: Option<Pair> = None;
+        let links = points.len().saturating_sub(1);
+        let mut first = 1;
+        while first <= links {
+            let last = (first + LINK_GROUP - 1).min(links);
+            let (mut glo, mut ghi) = (points[first - 1], points[first - 1]);
+            for p in &points[first..=last] {
+                glo = glo.inf(p);
+                ghi = ghi.sup(p);
+            }
+            for k in 0..self.obstacles.len() {
+                let bound = best.map_or(floor_m, |b| b.clearance_m) + self.link_radius_m;
+                if self.box_not_below(k, glo, ghi, bound) {
+                    continue;
+                }
+                for link in first..=last {
+                    let bound = best.map_or(floor_m, |b| b.clearance_m) + self.link_radius_m;
+                    let (lo, hi) = segment_box(points[link - 1], points[link]);
+                    if self.box_not_below(k, lo, hi, bound) {
+                        continue;
+                    }
+                    let p = self.pair(points, link, k);
+                    if p.clearance_m < best.map_or(floor_m, |b| b.clearance_m) {
+                        best = Some(p);
+                    }
+                }
+            }
+            first = last + 1;
         }
         best
     }
@@ -217,21 +257,52 @@ impl World {
     pub fn active_pairs(&self, points: &[Vec2], margin_m: f64, out: &mut ActivePairs) {
         let joints = points.len().saturating_sub(1);
         out.clear(joints);
-        for link in 1..points.len() {
-            let (lo, hi) = segment_box(points[link - 1], points[link]);
+        self.near_pairs(points, margin_m, &mut out.pairs);
+        out.gradients.resize(out.pairs.len() * joints, 0.0);
+        for (p, g) in out
+            .pairs
+            .iter()
+            .zip(out.gradients.chunks_exact_mut(joints.max(1)))
+        {
+            pair_gradient(points, p, g);
+        }
+    }
+
+    /// Fills `out` with every pair of the pose `points` whose clearance is at most `margin_m`,
+    /// in order of link then obstacle, without their gradients. Links are first taken
+    /// [`LINK_GROUP`] at a time: an obstacle whose box is beyond the margin from the group's
+    /// box is beyond it from each of the group's links.
+    pub fn near_pairs(&self, points: &[Vec2], margin_m: f64, out: &mut Vec<Pair>) {
+        out.clear();
+        let reach = margin_m + self.link_radius_m;
+        let links = points.len().saturating_sub(1);
+        let mut first = 1;
+        while first <= links {
+            let last = (first + LINK_GROUP - 1).min(links);
+            let (mut glo, mut ghi) = (points[first - 1], points[first - 1]);
+            for p in &points[first..=last] {
+                glo = glo.inf(p);
+                ghi = ghi.sup(p);
+            }
             for k in 0..self.obstacles.len() {
-                if self.box_beyond(k, lo, hi, margin_m + self.link_radius_m) {
+                if self.box_beyond(k, glo, ghi, reach) {
                     continue;
                 }
-                let p = self.pair(points, link, k);
-                if p.clearance_m <= margin_m {
-                    let at = out.gradients.len();
-                    out.gradients.resize(at + joints, 0.0);
-                    pair_gradient(points, &p, &mut out.gradients[at..]);
-                    out.pairs.push(p);
+                for link in first..=last {
+                    let (lo, hi) = segment_box(points[link - 1], points[link]);
+                    if self.box_beyond(k, lo, hi, reach) {
+                        continue;
+                    }
+                    let p = self.pair(points, link, k);
+                    if p.clearance_m <= margin_m {
+                        out.push(p);
+                    }
                 }
             }
+            first = last + 1;
         }
+        // Link then obstacle, as one pass over the links would give.
+        out.sort_unstable_by_key(|p| (p.link, p.obstacle));
     }
 }
 

@@ -528,6 +528,20 @@ impl World {
         d <= 0.0 || dx * dx + dy * dy >= d * d
     }
 
+    /// Whether no point of the box `lo..hi` can be nearer than `d` to obstacle `k` (signed:
+    /// with `d <= 0`, only a box apart from the obstacle's is).
+    fn box_not_below(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
+        let (blo, bhi) = self.bounds[k];
+        let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
+        let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
+        let gap2 = dx * dx + dy * dy;
+        if d > 0.0 {
+            gap2 >= d * d
+        } else {
+            gap2 > 0.0
+        }
+    }
+
     /// Whether that gap is more than `d`.
     fn box_beyond(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
         let (blo, bhi) = self.bounds[k];

@@ -60,7 +60,8 @@ use super::{
 };
 use crate::chain::{Chain, Vec2};
 use crate::resolve::Outcome;
-use crate::world::{ActivePairs, World};
+use crate::world::clearance::pair_gradient;
+use crate::world::{Pair, World};
 
 /// A solve without obstacles: local or cold.
 type FreeSolve = fn(&mut Overall, &Chain, &[f64], Vec2, &mut [f64]) -> Outcome;
@@ -107,7 +108,7 @@ pub(super) struct ClearWork {
     trial: Vec<f64>,
     fd_theta: Vec<f64>,
     qp_x: Vec<f64>,
-    all: ActivePairs,
+    all: Vec<Pair>,
     order: Vec<usize>,
     /// Selected pairs: count, keys (link, obstacle), clearance, contact point, gradient rows.
     k: usize,
@@ -286,7 +287,7 @@ impl ClearWork {
             *v = vec![0.0; n];
         }
         let pairs = (n * obstacles).max(1);
-        self.all = ActivePairs::with_capacity(pairs, n);
+        self.all = Vec::with_capacity(pairs);
         self.order = Vec::with_capacity(pairs);
         self.key = vec![(0, 0); MAX_PAIRS];
         self.prev_key = vec![(0, 0); MAX_PAIRS];
@@ -306,6 +307,7 @@ impl ClearWork {
         let big = dense + k2;
         self.kkt = vec![0.0; if dense > 0 { big * big } else { 0 }];
         self.rhs = vec![0.0; big];
+        self.newton.reserve(n, MAX_PAIRS);
         self.free = Vec::with_capacity(n);
         self.active = Vec::with_capacity(MAX_PAIRS);
         self.engaged = false;
@@ -352,10 +354,9 @@ impl ClearWork {
         let mean_link = p.chain.reach() / n.max(1) as f64;
         let moves = c.norm().max(self.last_move).min(mean_link);
         let margin = cm + MARGIN_MOVES * moves + MARGIN_FLOOR * mean_link;
-        world.active_pairs(&self.pts, margin, &mut self.all);
+        world.near_pairs(&self.pts, margin, &mut self.all);
         let least = self
             .all
-            .pairs()
             .iter()
             .fold(f64::INFINITY, |m, q| m.min(q.clearance_m));
         self.select(p.scale);
@@ -390,7 +391,7 @@ impl ClearWork {
         let n = self.n;
         self.order.clear();
         self.order.extend(0..self.all.len());
-        let pairs = self.all.pairs();
+        let pairs = &self.all;
         if self.order.len() > MAX_PAIRS {
             self.order.select_nth_unstable_by(MAX_PAIRS - 1, |&a, &b| {
                 pairs[a].clearance_m.total_cmp(&pairs[b].clearance_m)
@@ -411,7 +412,7 @@ impl ClearWork {
             self.key[j] = (q.link, q.obstacle);
             self.clr[j] = q.clearance_m;
             self.contact[j] = q.contact.on_segment;
-            self.grad[j * n..(j + 1) * n].copy_from_slice(self.all.gradient(i));
+            pair_gradient(&self.pts, q, &mut self.grad[j * n..(j + 1) * n]);
             self.k += 1;
         }
     }
@@ -621,8 +622,9 @@ impl ClearWork {
             }
             p.chain.points_into(&self.trial, &mut self.trial_pts);
             let tip_err = (self.trial_pts[n] - p.target).norm();
+            // Only a clearance below `clearance_m` counts in the merit.
             let least = world
-                .clearance(&self.trial_pts)
+                .clearance_below(&self.trial_pts, cm)
                 .map_or(f64::INFINITY, |q| q.clearance_m);
             let m = half_metric(&self.trial, p.theta0)
                 + *nu_t * tip_err
@@ -698,7 +700,8 @@ impl ClearWork {
             let (link, obstacle) = self.key[j];
             if self.nu[j] != 0.0 {
                 let h = FD_STEP * p.scale;
-                self.newton.add_pair(world, pts, link, obstacle, self.nu[j], h);
+                self.newton
+                    .add_pair(world, pts, link, obstacle, self.nu[j], h);
             }
         }
         // Right-hand side: the free rows, then the tip's two and one per active pair.

@@ -77,6 +77,28 @@ fn grow<T: Clone + Default>(v: &mut Vec<T>, len: usize) {
 }
 
 impl Newton {
+    /// Sizes every buffer for `n` joints and up to `pairs` pairs, so that no solve allocates.
+    pub fn reserve(&mut self, n: usize, pairs: usize) {
+        let r = (RANK * pairs).min(2 * n);
+        let rows = pairs + 2;
+        grow(&mut self.g, n);
+        grow(&mut self.v, RANK * pairs * n);
+        grow(&mut self.c, RANK * RANK * pairs);
+        for v in [&mut self.g_free, &mut self.piv, &mut self.sol] {
+            grow(v, n);
+        }
+        grow(&mut self.tmp, r.max(n));
+        grow(&mut self.v_free, r * n);
+        grow(&mut self.w, r * n);
+        grow(&mut self.s_mat, r * r);
+        grow(&mut self.s_perm, r);
+        grow(&mut self.t, 2 * r);
+        grow(&mut self.z, (r * r).max((rows + 1) * n));
+        grow(&mut self.k_mat, rows * rows);
+        grow(&mut self.k_perm, rows);
+        grow(&mut self.lam, rows);
+    }
+
     /// Starts `H = I + G(g)` with the tip's term: `g_m = mu . (tip - p_m)`.
     pub fn begin(&mut self, pts: &[Vec2], mu: [f64; 2]) {
         let n = pts.len() - 1;
@@ -152,11 +174,6 @@ impl Newton {
             }
         }
         self.cols += RANK;
-    }
-
-    /// Columns of the low-rank part.
-    pub fn rank(&self) -> usize {
-        self.cols
     }
 
     /// `out = H x` over all joints.
@@ -315,7 +332,11 @@ impl Newton {
                 self.k_mat[i * rows + l] = k;
             }
         }
-        if !lu_factor(&mut self.k_mat[..rows * rows], &mut self.k_perm[..rows], rows) {
+        if !lu_factor(
+            &mut self.k_mat[..rows * rows],
+            &mut self.k_perm[..rows],
+            rows,
+        ) {
             return Some(false);
         }
         lu_apply(
@@ -478,7 +499,10 @@ mod tests {
         chain.points_into(&theta, &mut pts);
         for (link, obs) in [(4, 0), (5, 0), (7, 1), (8, 1)] {
             let pair = world.pair(&pts, link, obs);
-            assert!(pair.contact.distance_m > 0.0, "link {link} apart from {obs}");
+            assert!(
+                pair.contact.distance_m > 0.0,
+                "link {link} apart from {obs}"
+            );
             let mut newton = Newton::default();
             newton.begin(&pts, [0.0, 0.0]);
             newton.add_pair(&world, &pts, link, obs, -1.0, 1e-7);
@@ -529,7 +553,10 @@ mod tests {
         });
         let want = dense.lu().solve(&DVector::from_vec(rhs)).unwrap();
         for i in 0..size {
-            assert!((out[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()), "{i}");
+            assert!(
+                (out[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()),
+                "{i}"
+            );
         }
         // H x by the structure against the entries.
         let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.7).cos()).collect();

@@ -8,7 +8,6 @@ use super::*;
 use crate::chain::JointLimit;
 use crate::resolve::overall::OverallOptions;
 use crate::resolve::{ResolveError, Resolver};
-use crate::world::clearance::pair_gradient;
 use crate::world::{Obstacle, Shape};
 use proptest::prelude::*;
 use rand::rngs::StdRng;
