@@ -258,6 +258,7 @@ impl World {
         let joints = points.len().saturating_sub(1);
         out.clear(joints);
         self.near_pairs(points, margin_m, &mut out.pairs);
+        out.pairs.sort_unstable_by_key(|p| (p.link, p.obstacle));
         out.gradients.resize(out.pairs.len() * joints, 0.0);
         for (p, g) in out
             .pairs
@@ -269,7 +270,7 @@ impl World {
     }
 
     /// Fills `out` with every pair of the pose `points` whose clearance is at most `margin_m`,
-    /// in order of link then obstacle, without their gradients. Links are first taken
+    /// without their gradients, a group of links at a time (obstacle by obstacle within it). Links are first taken
     /// [`LINK_GROUP`] at a time: an obstacle whose box is beyond the margin from the group's
     /// box is beyond it from each of the group's links.
     pub fn near_pairs(&self, points: &[Vec2], margin_m: f64, out: &mut Vec<Pair>) {
@@ -301,8 +302,6 @@ impl World {
             }
             first = last + 1;
         }
-        // Link then obstacle, as one pass over the links would give.
-        out.sort_unstable_by_key(|p| (p.link, p.obstacle));
     }
 }
 

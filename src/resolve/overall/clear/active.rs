@@ -54,6 +54,11 @@ pub(super) struct ActiveScratch {
     /// The primal direction.
     zx: Vec<f64>,
     zt: Vec<f64>,
+    /// Inner products of the rows' normals (without the elastic term), computed on first use
+    /// in each solve (NaN until then), and each row's length.
+    gram: Vec<f64>,
+    norm: Vec<f64>,
+    k2: usize,
     cap: usize,
 }
 
@@ -72,6 +77,9 @@ impl ActiveScratch {
             t: vec![0.0; k2],
             zx: vec![0.0; n],
             zt: vec![0.0; k2],
+            gram: vec![f64::NAN; k2 * k2],
+            norm: vec![0.0; k2],
+            k2,
             cap,
         }
     }
@@ -96,16 +104,22 @@ impl Qp<'_> {
         }
     }
 
-    /// The inner product of two constraints' normals (with their signs).
-    fn dot(&self, a: usize, sa: f64, b: usize, sb: f64) -> f64 {
+    /// The inner product of two constraints' normals (with their signs); the rows' products
+    /// are kept in `gram` (stride `stride`) for the rest of the solve.
+    fn dot(&self, gram: &mut [f64], stride: usize, a: usize, sa: f64, b: usize, sb: f64) -> f64 {
         let v = match (self.con(a), self.con(b)) {
             (Con::Row(i), Con::Row(j)) => {
-                let d: f64 = self
-                    .row(i)
-                    .iter()
-                    .zip(self.row(j))
-                    .map(|(p, q)| p * q)
-                    .sum();
+                let mut d = gram[i * stride + j];
+                if d.is_nan() {
+                    d = self
+                        .row(i)
+                        .iter()
+                        .zip(self.row(j))
+                        .map(|(p, q)| p * q)
+                        .sum();
+                    gram[i * stride + j] = d;
+                    gram[j * stride + i] = d;
+                }
                 if i == j {
                     d + self.rho_inv
                 } else {
@@ -162,7 +176,7 @@ impl Qp<'_> {
         let (m, cap) = (s.act.len(), s.cap);
         for i in 0..m {
             for j in 0..=i {
-                let mut v = self.dot(s.act[i], s.sign[i], s.act[j], s.sign[j]);
+                let mut v = self.dot(&mut s.gram, s.k2, s.act[i], s.sign[i], s.act[j], s.sign[j]);
                 for k in 0..j {
                     v -= s.chol[i * cap + k] * s.chol[j * cap + k];
                 }
@@ -199,6 +213,10 @@ impl Qp<'_> {
         s.u.clear();
         s.x.copy_from_slice(&self.theta0[..n]);
         s.t[..k2].iter_mut().for_each(|t| *t = 0.0);
+        s.gram[..s.k2 * s.k2].iter_mut().for_each(|g| *g = f64::NAN);
+        for i in 0..k2 {
+            s.norm[i] = (self.dot(&mut s.gram, s.k2, i, 1.0, i, 1.0)).sqrt();
+        }
         let max_steps = 4 * total + 16;
         let mut steps = 0;
         // A tip row that depends on the other (a stretched-out arm) and already holds.
@@ -222,7 +240,7 @@ impl Qp<'_> {
                     }
                     let v = self.slack(c, s, sigma);
                     let (norm, limit) = match self.con(c) {
-                        Con::Row(_) => (self.dot(c, 1.0, c, 1.0).sqrt(), tol),
+                        Con::Row(i) => (s.norm[i], tol),
                         Con::Lower(k) => (1.0, BOUND_TOL * (1.0 + self.lo[k].abs())),
                         Con::Upper(k) => (1.0, BOUND_TOL * (1.0 + self.hi[k].abs())),
                     };
@@ -235,7 +253,7 @@ impl Qp<'_> {
             let Some((p, sp_sign, mut sp)) = pick else {
                 break;
             };
-            let np2 = self.dot(p, sp_sign, p, sp_sign);
+            let np2 = self.dot(&mut s.gram, s.k2, p, sp_sign, p, sp_sign);
             let mut up = 0.0;
             // Take `p`: steps until it holds, dropping constraints on the way.
             loop {
@@ -245,7 +263,7 @@ impl Qp<'_> {
                 }
                 let (m, stride) = (s.act.len(), s.cap);
                 for j in 0..m {
-                    s.w[j] = self.dot(s.act[j], s.sign[j], p, sp_sign);
+                    s.w[j] = self.dot(&mut s.gram, s.k2, s.act[j], s.sign[j], p, sp_sign);
                 }
                 // Forward: L l = w (kept in w); back: L^T r = l.
                 for i in 0..m {
