@@ -36,7 +36,10 @@ struct Robot {
 fn numbers<const N: usize>(text: &str) -> [f64; N] {
     let v: Vec<f64> = text
         .split_whitespace()
-        .map(|t| t.parse::<f64>().unwrap_or_else(|_| panic!("{t:?} is not a number")))
+        .map(|t| {
+            t.parse::<f64>()
+                .unwrap_or_else(|_| panic!("{t:?} is not a number"))
+        })
         .collect();
     v.try_into()
         .unwrap_or_else(|v: Vec<f64>| panic!("{} numbers, not {N}: {text:?}", v.len()))
@@ -59,7 +62,11 @@ fn parse(text: &str) -> Robot {
                         .find(|n| n.has_tag_name("geometry"))
                         .unwrap_or_else(|| panic!("a {} without geometry", part.tag_name().name()));
                     let shape = geometry.children().find(|n| n.is_element()).unwrap();
-                    shapes.push(format!("{}:{}", part.tag_name().name(), shape.tag_name().name()));
+                    shapes.push(format!(
+                        "{}:{}",
+                        part.tag_name().name(),
+                        shape.tag_name().name()
+                    ));
                 }
                 links.push((node.attribute("name").unwrap().to_owned(), shapes));
             }
@@ -73,8 +80,16 @@ fn parse(text: &str) -> Robot {
                 joints.push(Joint {
                     name: node.attribute("name").unwrap().to_owned(),
                     kind: node.attribute("type").unwrap().to_owned(),
-                    parent: child("parent").unwrap().attribute("link").unwrap().to_owned(),
-                    child: child("child").unwrap().attribute("link").unwrap().to_owned(),
+                    parent: child("parent")
+                        .unwrap()
+                        .attribute("link")
+                        .unwrap()
+                        .to_owned(),
+                    child: child("child")
+                        .unwrap()
+                        .attribute("link")
+                        .unwrap()
+                        .to_owned(),
                     xyz: numbers(origin.attribute("xyz").unwrap()),
                     rpy: numbers(origin.attribute("rpy").unwrap()),
                     axis: child("axis").map(|a| numbers(a.attribute("xyz").unwrap())),
@@ -166,7 +181,11 @@ fn its_forward_kinematics_at_the_measured_angles_is_the_daemons_tip_meas() {
     let points = daemon.config.chain().points(&theta);
     for (i, p) in points[..points.len() - 1].iter().enumerate() {
         let frame = forward(&robot, &angles, &format!("link_{}", i + 1));
-        assert!((frame[0] - p.x).hypot(frame[1] - p.y) < 1e-12, "link_{}", i + 1);
+        assert!(
+            (frame[0] - p.x).hypot(frame[1] - p.y) < 1e-12,
+            "link_{}",
+            i + 1
+        );
     }
     daemon.stop().unwrap();
 }
@@ -175,7 +194,11 @@ fn its_forward_kinematics_at_the_measured_angles_is_the_daemons_tip_meas() {
 fn names_limits_and_shapes_are_the_configs() {
     let config = Config::load(shipped("sim.toml")).unwrap();
     let robot = parse(&snakectl_urdf(&shipped("sim.toml")));
-    let revolute: Vec<&Joint> = robot.joints.iter().filter(|j| j.kind == "revolute").collect();
+    let revolute: Vec<&Joint> = robot
+        .joints
+        .iter()
+        .filter(|j| j.kind == "revolute")
+        .collect();
     let names: Vec<&str> = revolute.iter().map(|j| j.name.as_str()).collect();
     let expected: Vec<String> = (1..=12).map(|i| format!("joint_{i}")).collect();
     assert_eq!(names, expected, "the names JointState carries, base to tip");

@@ -35,7 +35,10 @@ fn free_port() -> u16 {
 
 /// The `[zenoh]` table of a ROS 2 node in `domain` (as well as the plain keys).
 fn ros2_table(prefix: &str, port: u16, domain: u32) -> String {
-    format!("{}ros2 = true\ndomain_id = {domain}\n", zenoh_table(prefix, port, true))
+    format!(
+        "{}ros2 = true\ndomain_id = {domain}\n",
+        zenoh_table(prefix, port, true)
+    )
 }
 
 /// The `[zenoh]` table text: listening on `port` of loopback, under `prefix`.
@@ -447,7 +450,10 @@ fn next_ros_sample(sub: &Subscription, what: &str) -> (Vec<u8>, Attachment, usiz
     let mut dropped = 0;
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
-        assert!(!left.is_zero(), "no `{what}` with an attachment within {DEADLINE:?}");
+        assert!(
+            !left.is_zero(),
+            "no `{what}` with an attachment within {DEADLINE:?}"
+        );
         let Some(sample) = sub.recv_timeout(left) else {
             continue;
         };
@@ -483,12 +489,8 @@ fn a_ros2_node_on_rmw_zenohs_keys_with_its_graph_and_attachments() {
     let zid = nodes[0].split('/').nth(2).unwrap();
     let node = rmw::Node::snakectl(domain, zid, "snakectl");
     let qos = Qos::DEFAULT;
-    let joint_states_token = node.entity_token::<JointState>(
-        1,
-        EntityKind::Publisher,
-        "/snakectl/joint_states",
-        &qos,
-    );
+    let joint_states_token =
+        node.entity_token::<JointState>(1, EntityKind::Publisher, "/snakectl/joint_states", &qos);
     let mut expected = vec![
         node.token(),
         joint_states_token.clone(),
@@ -515,7 +517,10 @@ fn a_ros2_node_on_rmw_zenohs_keys_with_its_graph_and_attachments() {
     );
     let joint_states = peer.subscribe(&key).unwrap();
     let (payload, first, dropped) = next_ros_sample(&joint_states, "joint_states");
-    assert_eq!(dropped, 0, "a joint_states sample without rmw_zenoh's attachment");
+    assert_eq!(
+        dropped, 0,
+        "a joint_states sample without rmw_zenoh's attachment"
+    );
     let message: JointState = ros::decode(&payload).unwrap();
     let names: Vec<String> = (1..=12).map(|i| format!("joint_{i}")).collect();
     assert_eq!(message.name, names);
@@ -528,7 +533,10 @@ fn a_ros2_node_on_rmw_zenohs_keys_with_its_graph_and_attachments() {
     );
     let (_, second, dropped) = next_ros_sample(&joint_states, "joint_states");
     assert_eq!(dropped, 0);
-    assert!(second.sequence > first.sequence, "{second:?} after {first:?}");
+    assert!(
+        second.sequence > first.sequence,
+        "{second:?} after {first:?}"
+    );
 
     // The measured tip, in the frame the URDF calls base.
     let tips = peer
@@ -599,7 +607,8 @@ fn a_sample_on_a_ros2_key_without_the_attachment_is_refused_and_said_so() {
     let mut keyed = vec![15u8];
     keyed.extend_from_slice(b"sequence_number");
     keyed.extend_from_slice(&[0; 40]);
-    peer.put_attached(&cmd_vel, twist(0.05, 0.0), keyed).unwrap();
+    peer.put_attached(&cmd_vel, twist(0.05, 0.0), keyed)
+        .unwrap();
     next_json(&events, "a refusal", |e| e["ok"] == json!(false));
     let end = client.status();
     assert_eq!(end["tip_ref"], start["tip_ref"], "the arm moved");
@@ -608,6 +617,9 @@ fn a_sample_on_a_ros2_key_without_the_attachment_is_refused_and_said_so() {
     // The plain key takes plain samples.
     stream_cmd_vel(&peer, "snakectl", [0.04, 0.0], 1.0);
     let moved = client.status();
-    assert_ne!(moved["tip_ref"], start["tip_ref"], "the plain cmd_vel did not move the arm");
+    assert_ne!(
+        moved["tip_ref"], start["tip_ref"],
+        "the plain cmd_vel did not move the arm"
+    );
     daemon.stop().unwrap();
 }

@@ -1053,12 +1053,18 @@ fn zenoh_ros2_needs_a_ros_namespace_and_a_domain_id_in_range() {
     let c = load(&with_zenoh("")).unwrap();
     assert!(!c.zenoh().ros2);
     assert_eq!(c.zenoh().domain_id, 0);
-    let c = load(&with_zenoh("ros2 = true\ndomain_id = 232\nprefix = \"lab/arm_1\"")).unwrap();
+    let c = load(&with_zenoh(
+        "ros2 = true\ndomain_id = 232\nprefix = \"lab/arm_1\"",
+    ))
+    .unwrap();
     assert!(c.zenoh().ros2);
     assert_eq!(c.zenoh().domain_id, 232);
     // A key prefix Zenoh takes, but not a ROS 2 namespace: refused only with ros2 on.
     let table = "prefix = \"fleet/row-2\"";
-    assert_eq!(load(&with_zenoh(table)).unwrap().zenoh().prefix, "fleet/row-2");
+    assert_eq!(
+        load(&with_zenoh(table)).unwrap().zenoh().prefix,
+        "fleet/row-2"
+    );
     refused(
         &with_zenoh(&format!("ros2 = true\n{table}")),
         &["zenoh.prefix", "\"fleet/row-2\"", "letters, digits and _"],

@@ -427,10 +427,13 @@ impl RosNode {
         let (cmd_vel, goal) = if settings.accept_commands {
             let cmd_vel_name = rmw::topic_name(&settings.prefix, "cmd_vel");
             let goal_name = rmw::topic_name(&settings.prefix, "goal");
-            let cmd_vel = subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel_name))
-                .await?;
-            let goal =
-                subscribe(session, rmw::data_key::<ros::PointStamped>(domain, &goal_name)).await?;
+            let cmd_vel =
+                subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel_name)).await?;
+            let goal = subscribe(
+                session,
+                rmw::data_key::<ros::PointStamped>(domain, &goal_name),
+            )
+            .await?;
             subscription_tokens.push(
                 token(node.entity_token::<ros::Twist>(
                     5,

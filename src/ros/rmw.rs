@@ -79,7 +79,10 @@ pub fn namespace_problem(prefix: &str) -> Option<&'static str> {
         if chunk.is_empty() {
             return Some("an empty chunk");
         }
-        if !chunk.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_') {
+        if !chunk
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_')
+        {
             return Some("a ROS 2 name has only letters, digits and _ in each chunk");
         }
         if chunk.as_bytes()[0].is_ascii_digit() {

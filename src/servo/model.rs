@@ -69,6 +69,7 @@ const NO_FAST: Option<u8> = None;
 /// address of Indirect Data 1 (every one of them has Indirect Address 1 at 168), the first
 /// firmware that answers Fast Sync Read, and stall torque and no-load speed at the recommended
 /// voltage (12 V for XH/XM/XC, 11.1 V for XL430 and 2XL430, 5 V for XL330).
+#[rustfmt::skip]
 pub const MODELS: [ServoModel; 12] = [
     model("XH430-W210", 1000, MA_2_69, X430_DATA, X430_FAST, rated(2.5, 50.0)),
     model("XH430-W350", 1010, MA_2_69, X430_DATA, X430_FAST, rated(3.4, 30.0)),

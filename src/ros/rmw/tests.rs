@@ -158,12 +158,13 @@ fn gids_are_xxh3_128_of_the_token() {
         ]
     );
     // 257 bytes: low 0x783dedd3e88ead49, high 0x2cc93bdf5fcadb04.
-    let long = Node::snakectl(7, ZID, "lab/left_arm_of_the_bench_rig").entity_token::<PointStamped>(
-        3,
-        EntityKind::Publisher,
-        "/lab/left_arm_of_the_bench_rig/tip_meas",
-        &Qos::DEFAULT,
-    );
+    let long = Node::snakectl(7, ZID, "lab/left_arm_of_the_bench_rig")
+        .entity_token::<PointStamped>(
+            3,
+            EntityKind::Publisher,
+            "/lab/left_arm_of_the_bench_rig/tip_meas",
+            &Qos::DEFAULT,
+        );
     assert_eq!(long.len(), 257);
     assert_eq!(
         gid(&long),
@@ -187,7 +188,7 @@ fn the_attachment_bytes() {
     };
     let bytes = attachment.encode();
     let golden: Vec<u8> = [
-        &[1, 0, 0, 0, 0, 0, 0, 0][..],          // sequence number 1, i64 LE
+        &[1, 0, 0, 0, 0, 0, 0, 0][..],         // sequence number 1, i64 LE
         &[0x00, 0x2F, 0x68, 0x59, 0, 0, 0, 0], // 1_500_000_000 ns, i64 LE
         &[0x10],                               // the GID's length, 16
         &[
@@ -205,10 +206,13 @@ fn the_attachment_bytes() {
         source_timestamp_ns: -1,
         gid: [0xAB; 16],
     };
-    assert_eq!(&odd.encode()[..16], &[
-        0xFE, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, // -2
-        0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, // -1
-    ]);
+    assert_eq!(
+        &odd.encode()[..16],
+        &[
+            0xFE, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, // -2
+            0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, // -1
+        ]
+    );
     assert_eq!(Attachment::decode(&odd.encode()), Ok(odd));
 }
 
