@@ -4,12 +4,12 @@
 //! The tree, root first:
 //! - `base`: the config's own frame, the one the daemon's points (`tip_meas`, `target`, the
 //!   ROS 2 topics' `frame_id`) are given in; RViz's fixed frame;
-//! - `mount`, fixed to `base` at the config's base pose (x, y, heading about z): the arm's
-//!   base, where joint 1 sits;
+//! - `mount`, fixed to `base` (by `mount_joint`) at the config's base pose (x, y, heading
+//!   about z): the arm's base, where joint 1 sits;
 //! - `link_1` .. `link_n`, each turned by the revolute joint `joint_1` .. `joint_n` about z
 //!   (the names `JointState` carries). Link i's frame sits at joint i with x along the link;
 //!   joint i+1 sits at x = `link_m` of link i;
-//! - `tip`, fixed at the end of the last link.
+//! - `tip`, fixed (by `tip_joint`) at the end of the last link.
 //!
 //! Geometry, both visual and collision: where `[world] link_radius_m` is positive, each link
 //! is the capsule the obstacle checks use (a cylinder of that radius along the link, and a
@@ -59,7 +59,7 @@ pub fn urdf(config: &Config) -> String {
     );
     let _ = writeln!(out, "  <link name=\"{BASE_FRAME}\"/>");
     let _ = writeln!(out, "  <link name=\"mount\"/>");
-    let _ = writeln!(out, "  <joint name=\"mount\" type=\"fixed\">");
+    let _ = writeln!(out, "  <joint name=\"mount_joint\" type=\"fixed\">");
     let _ = writeln!(out, "    <parent link=\"{BASE_FRAME}\"/>");
     let _ = writeln!(out, "    <child link=\"mount\"/>");
     let _ = writeln!(
@@ -126,7 +126,7 @@ pub fn urdf(config: &Config) -> String {
         offset = length;
     }
     let _ = writeln!(out, "  <link name=\"tip\"/>");
-    let _ = writeln!(out, "  <joint name=\"tip\" type=\"fixed\">");
+    let _ = writeln!(out, "  <joint name=\"tip_joint\" type=\"fixed\">");
     let _ = writeln!(out, "    <parent link=\"{parent}\"/>");
     let _ = writeln!(out, "    <child link=\"tip\"/>");
     let _ = writeln!(out, "    <origin xyz=\"{offset} 0 0\" rpy=\"0 0 0\"/>");

@@ -214,6 +214,13 @@ fn names_limits_and_shapes_are_the_configs() {
             joint.name
         );
     }
+    let fixed: Vec<&str> = robot
+        .joints
+        .iter()
+        .filter(|j| j.kind == "fixed")
+        .map(|j| j.name.as_str())
+        .collect();
+    assert_eq!(fixed, ["mount_joint", "tip_joint"]);
     // The chain: base -> mount -> link_1 -> ... -> link_12 -> tip.
     let links: Vec<&str> = robot.links.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(links[..2], ["base", "mount"]);
@@ -228,9 +235,9 @@ fn names_limits_and_shapes_are_the_configs() {
 
 #[test]
 fn a_shifted_base_and_capsule_links() {
-    // The shipped world config has link_radius_m = 0.012; move and turn its base too.
-    let text = std::fs::read_to_string(shipped("world.toml")).unwrap();
-    let text = text
+    // The shipped simulator arm, its base moved and turned, with links 12 mm in radius.
+    let text = std::fs::read_to_string(shipped("sim.toml")).unwrap();
+    let text = format!("{text}\n[world]\nlink_radius_m = 0.012\n")
         .replace("base_x_m = 0.0", "base_x_m = 0.125")
         .replace("base_y_m = 0.0", "base_y_m = -0.0625")
         .replace(
@@ -242,9 +249,23 @@ fn a_shifted_base_and_capsule_links() {
     std::fs::write(&path, &text).unwrap();
     let config = Config::load(&path).unwrap();
     assert_eq!(config.chain().heading(), 2.0);
-    let robot = parse(&snakectl_urdf(path.to_str().unwrap()));
+    assert_eq!(config.world().link_radius_m(), 0.012);
+    let text = snakectl_urdf(path.to_str().unwrap());
+    let robot = parse(&text);
+    // Every link's cylinder is 80 mm long (sim.toml's links) and 12 mm in radius, seen and
+    // collided with; its spheres are 12 mm too.
+    assert_eq!(
+        text.matches("<cylinder radius=\"0.012\" length=\"0.08\"/>")
+            .count(),
+        24
+    );
+    assert_eq!(text.matches("<sphere radius=\"0.012\"/>").count(), 48);
 
-    let mount = robot.joints.iter().find(|j| j.name == "mount").unwrap();
+    let mount = robot
+        .joints
+        .iter()
+        .find(|j| j.name == "mount_joint")
+        .unwrap();
     assert_eq!(mount.xyz, [0.125, -0.0625, 0.0]);
     assert_eq!(mount.rpy, [0.0, 0.0, 2.0]);
     // Capsules: a cylinder and a sphere at each end, seen and collided with.

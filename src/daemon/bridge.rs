@@ -370,88 +370,28 @@ impl RosNode {
         domain: u32,
     ) -> Result<RosNode, NetError> {
         let node = rmw::Node::snakectl(domain, &session.zid().to_string(), &settings.prefix);
-        let qos = rmw::Qos::DEFAULT;
-        let token = |key: String| async move {
-            session
-                .liveliness()
-                .declare_token(key.clone())
-                .await
-                .map_err(|e| NetError::Declare {
-                    key,
-                    message: e.to_string(),
-                })
-        };
-        let node_token = token(node.token()).await?;
-        async fn publisher<T: rmw::Typed>(
-            session: &Session,
-            node: &rmw::Node,
-            qos: &rmw::Qos,
-            id: u64,
-            topic: &str,
-        ) -> Result<RosPublisher, NetError> {
-            let name = rmw::topic_name(&node.namespace[1..], topic);
-            let key = rmw::data_key::<T>(node.domain, &name);
-            let token = node.entity_token::<T>(id, rmw::EntityKind::Publisher, &name, qos);
-            let publisher = session
-                .declare_publisher(key.clone())
-                .encoding(Encoding::APPLICATION_CDR)
-                // A congested link drops a sample rather than hold the bridge up.
-                .congestion_control(CongestionControl::Drop)
-                .await
-                .map_err(|e| NetError::Declare {
-                    key,
-                    message: e.to_string(),
-                })?;
-            let gid = rmw::gid(&token);
-            let live = session
-                .liveliness()
-                .declare_token(token.clone())
-                .await
-                .map_err(|e| NetError::Declare {
-                    key: token,
-                    message: e.to_string(),
-                })?;
-            Ok(RosPublisher {
-                publisher,
-                gid,
-                sequence: Cell::new(0),
-                _token: live,
-            })
-        }
+        let topic = |name: &str| rmw::topic_name(&settings.prefix, name);
+        let node_token = live_token(session, node.token()).await?;
         let joint_states =
-            publisher::<ros::JointState>(session, &node, &qos, 1, "joint_states").await?;
-        let tip_cmd = publisher::<ros::PointStamped>(session, &node, &qos, 2, "tip_cmd").await?;
-        let tip_meas = publisher::<ros::PointStamped>(session, &node, &qos, 3, "tip_meas").await?;
-        let target = publisher::<ros::PointStamped>(session, &node, &qos, 4, "target").await?;
+            ros_publisher::<ros::JointState>(session, &node, 1, &topic("joint_states")).await?;
+        let tip_cmd = ros_publisher::<ros::PointStamped>(session, &node, 2, &topic("tip_cmd"));
+        let tip_cmd = tip_cmd.await?;
+        let tip_meas = ros_publisher::<ros::PointStamped>(session, &node, 3, &topic("tip_meas"));
+        let tip_meas = tip_meas.await?;
+        let target = ros_publisher::<ros::PointStamped>(session, &node, 4, &topic("target"));
+        let target = target.await?;
         let mut subscription_tokens = Vec::new();
         let (cmd_vel, goal) = if settings.accept_commands {
-            let cmd_vel_name = rmw::topic_name(&settings.prefix, "cmd_vel");
-            let goal_name = rmw::topic_name(&settings.prefix, "goal");
-            let cmd_vel =
-                subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel_name)).await?;
-            let goal = subscribe(
-                session,
-                rmw::data_key::<ros::PointStamped>(domain, &goal_name),
-            )
-            .await?;
-            subscription_tokens.push(
-                token(node.entity_token::<ros::Twist>(
-                    5,
-                    rmw::EntityKind::Subscription,
-                    &cmd_vel_name,
-                    &qos,
-                ))
-                .await?,
-            );
-            subscription_tokens.push(
-                token(node.entity_token::<ros::PointStamped>(
-                    6,
-                    rmw::EntityKind::Subscription,
-                    &goal_name,
-                    &qos,
-                ))
-                .await?,
-            );
+            let (cmd_vel, goal) = (topic("cmd_vel"), topic("goal"));
+            let subscription = rmw::EntityKind::Subscription;
+            let qos = &rmw::Qos::DEFAULT;
+            let cmd_vel_token = node.entity_token::<ros::Twist>(5, subscription, &cmd_vel, qos);
+            let goal_token = node.entity_token::<ros::PointStamped>(6, subscription, &goal, qos);
+            let cmd_vel = subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel)).await?;
+            let goal = subscribe(session, rmw::data_key::<ros::PointStamped>(domain, &goal));
+            let goal = goal.await?;
+            subscription_tokens.push(live_token(session, cmd_vel_token).await?);
+            subscription_tokens.push(live_token(session, goal_token).await?);
             (Some(cmd_vel), Some(goal))
         } else {
             (None, None)
@@ -467,6 +407,48 @@ impl RosNode {
             _subscription_tokens: subscription_tokens,
         })
     }
+}
+
+/// A liveliness token on `key`.
+async fn live_token(
+    session: &Session,
+    key: String,
+) -> Result<zenoh::liveliness::LivelinessToken, NetError> {
+    session
+        .liveliness()
+        .declare_token(key.clone())
+        .await
+        .map_err(|e| NetError::Declare {
+            key,
+            message: e.to_string(),
+        })
+}
+
+/// Publisher `id` of `node` on the full topic name `topic`, of type `T`, with its token.
+async fn ros_publisher<T: rmw::Typed>(
+    session: &Session,
+    node: &rmw::Node,
+    id: u64,
+    topic: &str,
+) -> Result<RosPublisher, NetError> {
+    let key = rmw::data_key::<T>(node.domain, topic);
+    let token = node.entity_token::<T>(id, rmw::EntityKind::Publisher, topic, &rmw::Qos::DEFAULT);
+    let publisher = session
+        .declare_publisher(key.clone())
+        .encoding(Encoding::APPLICATION_CDR)
+        // A congested link drops a sample rather than hold the bridge up.
+        .congestion_control(CongestionControl::Drop)
+        .await
+        .map_err(|e| NetError::Declare {
+            key,
+            message: e.to_string(),
+        })?;
+    Ok(RosPublisher {
+        publisher,
+        gid: rmw::gid(&token),
+        sequence: Cell::new(0),
+        _token: live_token(session, token).await?,
+    })
 }
 
 /// A subscriber on `key` whose samples wait in a ring of [`COMMAND_RING`].
