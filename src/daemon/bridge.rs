@@ -372,14 +372,11 @@ impl RosNode {
         let node = rmw::Node::snakectl(domain, &session.zid().to_string(), &settings.prefix);
         let topic = |name: &str| rmw::topic_name(&settings.prefix, name);
         let node_token = live_token(session, node.token()).await?;
-        let joint_states =
-            ros_publisher::<ros::JointState>(session, &node, 1, &topic("joint_states")).await?;
-        let tip_cmd = ros_publisher::<ros::PointStamped>(session, &node, 2, &topic("tip_cmd"));
-        let tip_cmd = tip_cmd.await?;
-        let tip_meas = ros_publisher::<ros::PointStamped>(session, &node, 3, &topic("tip_meas"));
-        let tip_meas = tip_meas.await?;
-        let target = ros_publisher::<ros::PointStamped>(session, &node, 4, &topic("target"));
-        let target = target.await?;
+        let names = ["joint_states", "tip_cmd", "tip_meas", "target"].map(topic);
+        let joint_states = ros_publisher::<ros::JointState>(session, &node, 1, &names[0]).await?;
+        let tip_cmd = ros_publisher::<ros::PointStamped>(session, &node, 2, &names[1]).await?;
+        let tip_meas = ros_publisher::<ros::PointStamped>(session, &node, 3, &names[2]).await?;
+        let target = ros_publisher::<ros::PointStamped>(session, &node, 4, &names[3]).await?;
         let mut subscription_tokens = Vec::new();
         let (cmd_vel, goal) = if settings.accept_commands {
             let (cmd_vel, goal) = (topic("cmd_vel"), topic("goal"));
@@ -388,8 +385,8 @@ impl RosNode {
             let cmd_vel_token = node.entity_token::<ros::Twist>(5, subscription, &cmd_vel, qos);
             let goal_token = node.entity_token::<ros::PointStamped>(6, subscription, &goal, qos);
             let cmd_vel = subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel)).await?;
-            let goal = subscribe(session, rmw::data_key::<ros::PointStamped>(domain, &goal));
-            let goal = goal.await?;
+            let goal_key = rmw::data_key::<ros::PointStamped>(domain, &goal);
+            let goal = subscribe(session, goal_key).await?;
             subscription_tokens.push(live_token(session, cmd_vel_token).await?);
             subscription_tokens.push(live_token(session, goal_token).await?);
             (Some(cmd_vel), Some(goal))

@@ -188,6 +188,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::unwrap_used)]
     fn rated_figures_from_the_emanual() {
         let m = |name| ServoModel::from_name(name).unwrap();
         // XL430-W250 at 11.1 V: 1.4 N·m, 57 rev/min = 57 * 2 pi / 60 rad/s.
