@@ -14,7 +14,8 @@
 //!
 //! `cargo run --release --features zenoh --example loop_rate -- SECONDS --zenoh` instead runs
 //! each fixed rate twice, without and with the daemon on a Zenoh network (publishing at the
-//! default rate to a peer subscribed to every key), one after the other.
+//! default rate on the plain keys and, as a ROS 2 node, on rmw_zenoh's, to a peer subscribed
+//! to every key), one after the other.
 //!
 //! A client streams `velocity` commands at 20 Hz (a figure eight, as a joystick would) while
 //! the loop runs; the first half second of each run is left out of the figures
@@ -68,7 +69,7 @@ fn config_with(
     }
     if let Some(port) = zenoh_port {
         text.push_str(&format!(
-            "\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\n"
+            "\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\nros2 = true\n"
         ));
     }
     let text = text
@@ -444,7 +445,7 @@ mod with_zenoh {
             let port = std::net::TcpListener::bind("127.0.0.1:0")?
                 .local_addr()?
                 .port();
-            // A watcher on every key, as a ROS 2 bridge or a dashboard would be.
+            // A watcher on every key, plain and ROS 2, as a dashboard or ROS 2 nodes would be.
             let stop = Arc::new(AtomicBool::new(false));
             let count = Arc::new(AtomicU64::new(0));
             let watcher = {
@@ -453,7 +454,7 @@ mod with_zenoh {
                     let endpoint = Endpoint::parse(&format!("tcp/127.0.0.1:{port}"))
                         .map_err(anyhow::Error::msg)?;
                     let peer = Peer::open(&[endpoint], &[])?;
-                    let all = peer.subscribe("snakectl/**")?;
+                    let all = peer.subscribe("**")?;
                     while !stop.load(Ordering::Relaxed) {
                         if all.recv_timeout(Duration::from_millis(100)).is_some() {
                             count.fetch_add(1, Ordering::Relaxed);

@@ -46,7 +46,9 @@
 //!   telemetry, events, each written and read by the same type, shared by the daemon and its
 //!   clients; and where each command goes (who may send it, the socket side or the loop).
 //! - [`ros`]: the ROS 2 messages the arm speaks on a Zenoh network (`JointState`,
-//!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in.
+//!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in;
+//!   and rmw_zenoh's keys, graph tokens and attachments ([`ros::rmw`]), as pure formatting.
+//! - [`urdf`]: the configured arm as a URDF robot description (`snakectl urdf`).
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread (held as parts: port,
 //!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
 //!   between them.
@@ -83,3 +85,4 @@ pub mod daemon;
 pub mod protocol;
 pub mod ros;
 pub mod teleop;
+pub mod urdf;

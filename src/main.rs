@@ -59,6 +59,8 @@ enum Command {
     Watch(cli::client::WatchArgs),
     /// The obstacles the arm keeps clear of: print them, or set, add, remove or clear them.
     World(cli::world::WorldArgs),
+    /// The configured arm as a URDF on stdout (for robot_state_publisher and RViz).
+    Urdf(cli::urdf::UrdfArgs),
     /// The arms on a Zenoh network, one line each: state, measured tip, strategy, controller
     /// (a build with `--features zenoh`).
     Fleet(cli::fleet::FleetArgs),
@@ -90,6 +92,7 @@ fn main() -> ExitCode {
         Command::Strategy(args) => cli::client::strategy(args),
         Command::Watch(args) => cli::client::watch(args),
         Command::World(args) => cli::world::run(args),
+        Command::Urdf(args) => cli::urdf::run(args),
         Command::Fleet(args) => cli::fleet::run(args),
     };
     match result {

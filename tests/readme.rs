@@ -50,6 +50,7 @@ const DOCS: &[Doc] = &[
     doc("docs/FLEXIBLE-OBJECTS.md", 2, 6, 10),
     doc("docs/HARDWARE.md", 4, 14, 0),
     doc("docs/PROTOCOL.md", 2, 2, 3),
+    doc("docs/ROS2.md", 5, 5, 3),
     doc("docs/SIMULATOR.md", 2, 6, 2),
     doc("docs/SOLVE.md", 3, 5, 3),
     doc("docs/STRATEGIES.md", 0, 3, 0),
@@ -307,7 +308,7 @@ fn json_and_toml_examples_parse() {
         }
     }
     assert_eq!(seen.get("json"), Some(&2), "{seen:?}");
-    assert_eq!(seen.get("toml"), Some(&4), "{seen:?}");
+    assert_eq!(seen.get("toml"), Some(&5), "{seen:?}");
 }
 
 /// A command the documentation shows: the file it is in, and its words.

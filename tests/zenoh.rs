@@ -16,6 +16,7 @@ use serde_json::{json, Value};
 use snakectl::config::{Config, Endpoint};
 use snakectl::daemon::bridge::{self, Peer, Subscription};
 use snakectl::daemon::{DaemonError, Embedded, RunOptions};
+use snakectl::ros::rmw::{self, Attachment, EntityKind, Qos};
 use snakectl::ros::{self, JointState, PointStamped, Twist, Vector3};
 
 /// The shipped simulator config's limits.
@@ -30,6 +31,14 @@ fn free_port() -> u16 {
         .local_addr()
         .unwrap()
         .port()
+}
+
+/// The `[zenoh]` table of a ROS 2 node in `domain` (as well as the plain keys).
+fn ros2_table(prefix: &str, port: u16, domain: u32) -> String {
+    format!(
+        "{}ros2 = true\ndomain_id = {domain}\n",
+        zenoh_table(prefix, port, true)
+    )
 }
 
 /// The `[zenoh]` table text: listening on `port` of loopback, under `prefix`.
@@ -432,4 +441,185 @@ fn start_up_stops_before_the_arm_moves_when_the_zenoh_endpoint_is_taken() {
         sim.with_sim(|s| s.servos().iter().map(|s| s.torque_enabled()).collect());
     assert!(torques.iter().all(|on| !on), "{torques:?}");
     drop(taken);
+}
+
+/// A subscriber as rmw_zenoh's: a sample whose attachment is not rmw_zenoh's is dropped.
+/// Returns the next kept sample's payload and attachment, and how many were dropped before it.
+fn next_ros_sample(sub: &Subscription, what: &str) -> (Vec<u8>, Attachment, usize) {
+    let deadline = Instant::now() + DEADLINE;
+    let mut dropped = 0;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        assert!(
+            !left.is_zero(),
+            "no `{what}` with an attachment within {DEADLINE:?}"
+        );
+        let Some(sample) = sub.recv_timeout(left) else {
+            continue;
+        };
+        match Attachment::decode(sample.attachment.as_deref().unwrap_or_default()) {
+            Ok(attachment) => return (sample.payload, attachment, dropped),
+            Err(_) => dropped += 1,
+        }
+    }
+}
+
+fn ns_now() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as i64
+}
+
+#[test]
+fn a_ros2_node_on_rmw_zenohs_keys_with_its_graph_and_attachments() {
+    let port = free_port();
+    let domain = 7;
+    let daemon = Daemon::start(config_with(&ros2_table("snakectl", port, domain)));
+    let mut client = daemon.client();
+    let start = at_rest(&mut client);
+    let peer = peer(port);
+
+    // The graph: one node token, whose session id names every other token.
+    let tokens = peer
+        .alive(&format!("@ros2_lv/{domain}/**"), Duration::from_secs(2))
+        .unwrap();
+    let nodes: Vec<&String> = tokens.iter().filter(|t| t.contains("/NN/")).collect();
+    assert_eq!(nodes.len(), 1, "{tokens:#?}");
+    let zid = nodes[0].split('/').nth(2).unwrap();
+    let node = rmw::Node::snakectl(domain, zid, "snakectl");
+    let qos = Qos::DEFAULT;
+    let joint_states_token =
+        node.entity_token::<JointState>(1, EntityKind::Publisher, "/snakectl/joint_states", &qos);
+    let mut expected = vec![
+        node.token(),
+        joint_states_token.clone(),
+        node.entity_token::<PointStamped>(2, EntityKind::Publisher, "/snakectl/tip_cmd", &qos),
+        node.entity_token::<PointStamped>(3, EntityKind::Publisher, "/snakectl/tip_meas", &qos),
+        node.entity_token::<PointStamped>(4, EntityKind::Publisher, "/snakectl/target", &qos),
+        node.entity_token::<Twist>(5, EntityKind::Subscription, "/snakectl/cmd_vel", &qos),
+        node.entity_token::<PointStamped>(6, EntityKind::Subscription, "/snakectl/goal", &qos),
+    ];
+    expected.sort();
+    assert_eq!(tokens, expected);
+    assert_eq!(
+        node.token(),
+        format!("@ros2_lv/7/{zid}/0/0/NN/%/%snakectl/snakectl")
+    );
+
+    // joint_states on the ROS 2 key, every sample attached: the publisher's GID, a sequence
+    // that counts up, the wall clock.
+    let key = rmw::data_key::<JointState>(domain, "/snakectl/joint_states");
+    assert_eq!(
+        key,
+        "7/snakectl/joint_states/sensor_msgs::msg::dds_::JointState_/\
+         RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"
+    );
+    let joint_states = peer.subscribe(&key).unwrap();
+    let (payload, first, dropped) = next_ros_sample(&joint_states, "joint_states");
+    assert_eq!(
+        dropped, 0,
+        "a joint_states sample without rmw_zenoh's attachment"
+    );
+    let message: JointState = ros::decode(&payload).unwrap();
+    let names: Vec<String> = (1..=12).map(|i| format!("joint_{i}")).collect();
+    assert_eq!(message.name, names);
+    assert_eq!(message.position.len(), 12);
+    assert_eq!(first.gid, rmw::gid(&joint_states_token));
+    assert!(
+        (ns_now() - first.source_timestamp_ns).abs() < 60_000_000_000,
+        "the source timestamp {} ns is not the wall clock",
+        first.source_timestamp_ns
+    );
+    let (_, second, dropped) = next_ros_sample(&joint_states, "joint_states");
+    assert_eq!(dropped, 0);
+    assert!(
+        second.sequence > first.sequence,
+        "{second:?} after {first:?}"
+    );
+
+    // The measured tip, in the frame the URDF calls base.
+    let tips = peer
+        .subscribe(&rmw::data_key::<PointStamped>(domain, "/snakectl/tip_meas"))
+        .unwrap();
+    let (payload, _, dropped) = next_ros_sample(&tips, "tip_meas");
+    assert_eq!(dropped, 0);
+    let tip: PointStamped = ros::decode(&payload).unwrap();
+    assert_eq!(tip.header.frame_id, "base");
+
+    // A Twist with rmw_zenoh's attachment on the ROS 2 cmd_vel key moves the tip.
+    let cmd_vel = rmw::data_key::<Twist>(domain, "/snakectl/cmd_vel");
+    let teleop = rmw::Node {
+        domain,
+        zid: "1234abcd".into(),
+        id: 0,
+        enclave: "/".into(),
+        namespace: "/".into(),
+        name: "teleop_twist_keyboard".into(),
+    };
+    let teleop_gid = rmw::gid(&teleop.entity_token::<Twist>(
+        1,
+        EntityKind::Publisher,
+        "/snakectl/cmd_vel",
+        &qos,
+    ));
+    let v = [0.04, 0.0];
+    for sequence in 1..=30 {
+        let attachment = Attachment {
+            sequence,
+            source_timestamp_ns: ns_now(),
+            gid: teleop_gid,
+        };
+        peer.put_attached(&cmd_vel, twist(v[0], v[1]), attachment.encode().to_vec())
+            .unwrap();
+        // The stream's own pace (20 Hz), not a wait for anything.
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let moved = client.status();
+    assert!(
+        xy(&moved["tip"])[0] - xy(&start["tip"])[0] > 0.5 * v[0] * 1.0,
+        "1.5 s of cmd_vel at {v:?} moved the tip from {} to {}",
+        start["tip"],
+        moved["tip"]
+    );
+    assert_eq!(moved["controller"], json!(1), "the network holds control");
+    daemon.stop().unwrap();
+}
+
+#[test]
+fn a_sample_on_a_ros2_key_without_the_attachment_is_refused_and_said_so() {
+    let port = free_port();
+    let daemon = Daemon::start(config_with(&ros2_table("snakectl", port, 0)));
+    let mut client = daemon.client();
+    let start = at_rest(&mut client);
+    let peer = peer(port);
+    let events = peer.subscribe("snakectl/events").unwrap();
+
+    // What rmw_zenoh would drop: refused, naming the attachment and the plain key.
+    let cmd_vel = rmw::data_key::<Twist>(0, "/snakectl/cmd_vel");
+    peer.put(&cmd_vel, twist(0.05, 0.0)).unwrap();
+    let refused = next_json(&events, "a refusal", |e| e["ok"] == json!(false));
+    assert_eq!(refused["error"]["code"], json!("bad_arg"), "{refused}");
+    let message = refused["error"]["message"].as_str().unwrap();
+    assert!(message.contains("attachment"), "{message}");
+    assert!(message.contains("snakectl/cmd_vel"), "{message}");
+    // A keyed attachment of rmw_zenoh before 0.2.4 is not this one either.
+    let mut keyed = vec![15u8];
+    keyed.extend_from_slice(b"sequence_number");
+    keyed.extend_from_slice(&[0; 40]);
+    peer.put_attached(&cmd_vel, twist(0.05, 0.0), keyed)
+        .unwrap();
+    next_json(&events, "a refusal", |e| e["ok"] == json!(false));
+    let end = client.status();
+    assert_eq!(end["tip_ref"], start["tip_ref"], "the arm moved");
+    assert_eq!(end["controller"], Value::Null);
+
+    // The plain key takes plain samples.
+    stream_cmd_vel(&peer, "snakectl", [0.04, 0.0], 1.0);
+    let moved = client.status();
+    assert_ne!(
+        moved["tip_ref"], start["tip_ref"],
+        "the plain cmd_vel did not move the arm"
+    );
+    daemon.stop().unwrap();
 }

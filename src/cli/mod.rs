@@ -9,6 +9,7 @@ pub mod sim;
 pub mod simulate;
 pub mod solve;
 pub mod teleop;
+pub mod urdf;
 pub mod world;
 
 /// `println!` for the subcommands: a closed pipe (`snakectl ... | head`) ends the command quietly

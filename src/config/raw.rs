@@ -432,6 +432,12 @@ pub struct RawZenoh {
     /// relative to the config file's directory.
     #[serde(default)]
     pub config_file: Option<PathBuf>,
+    /// Also be a ROS 2 node as rmw_zenoh sees one (its keys, attachments and graph tokens).
+    #[serde(default)]
+    pub ros2: bool,
+    /// The ROS 2 domain id of those keys and tokens.
+    #[serde(default)]
+    pub domain_id: u32,
 }
 
 /// `[world]`: the obstacles every link keeps clear of, and contact detection.
@@ -695,6 +701,8 @@ impl Default for RawZenoh {
             publish_hz: None,
             accept_commands: false,
             config_file: None,
+            ros2: false,
+            domain_id: 0,
         }
     }
 }

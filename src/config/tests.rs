@@ -1049,6 +1049,37 @@ fn zenoh_prefix_is_a_plain_key_expression() {
 }
 
 #[test]
+fn zenoh_ros2_needs_a_ros_namespace_and_a_domain_id_in_range() {
+    let c = load(&with_zenoh("")).unwrap();
+    assert!(!c.zenoh().ros2);
+    assert_eq!(c.zenoh().domain_id, 0);
+    let c = load(&with_zenoh(
+        "ros2 = true\ndomain_id = 232\nprefix = \"lab/arm_1\"",
+    ))
+    .unwrap();
+    assert!(c.zenoh().ros2);
+    assert_eq!(c.zenoh().domain_id, 232);
+    // A key prefix Zenoh takes, but not a ROS 2 namespace: refused only with ros2 on.
+    let table = "prefix = \"fleet/row-2\"";
+    assert_eq!(
+        load(&with_zenoh(table)).unwrap().zenoh().prefix,
+        "fleet/row-2"
+    );
+    refused(
+        &with_zenoh(&format!("ros2 = true\n{table}")),
+        &["zenoh.prefix", "\"fleet/row-2\"", "letters, digits and _"],
+    );
+    refused(
+        &with_zenoh("ros2 = true\nprefix = \"lab/2nd_arm\""),
+        &["zenoh.prefix", "may not start with a digit"],
+    );
+    refused(
+        &with_zenoh("domain_id = 233"),
+        &["zenoh.domain_id", "233", "0..=232"],
+    );
+}
+
+#[test]
 fn zenoh_publish_hz_is_positive_and_at_most_the_loop_rate() {
     for value in ["0.0", "-5.0", "100.5", "nan", "inf"] {
         let table = format!("publish_hz = {value}");

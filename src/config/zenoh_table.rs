@@ -39,6 +39,11 @@ pub struct Zenoh {
     /// A Zenoh json5 config file for the session, resolved against the config file's
     /// directory (not read here).
     pub config_file: Option<PathBuf>,
+    /// Whether the daemon is also a ROS 2 node on rmw_zenoh's keys (then `prefix` is a ROS 2
+    /// namespace: letters, digits and `_` in each chunk, none starting with a digit).
+    pub ros2: bool,
+    /// The ROS 2 domain id, 0..=232.
+    pub domain_id: u32,
 }
 
 impl Zenoh {
@@ -55,6 +60,8 @@ impl Zenoh {
             publish_hz: DEFAULT_ZENOH_PUBLISH_HZ,
             accept_commands: false,
             config_file: None,
+            ros2: false,
+            domain_id: 0,
         }
     }
 
@@ -63,6 +70,10 @@ impl Zenoh {
         format!("{}/{name}", self.prefix)
     }
 }
+
+/// The largest ROS 2 domain id (ROS 2's own bound, from DDS's port arithmetic; rmw_zenoh
+/// keeps it).
+pub const MAX_DOMAIN_ID: u32 = 232;
 
 /// A host of a Zenoh endpoint.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -226,6 +237,26 @@ impl Checker<'_> {
                 },
             ));
         }
+        if raw.ros2 {
+            if let Some(reason) = crate::ros::rmw::namespace_problem(&raw.prefix) {
+                return Err(self.invalid(
+                    "zenoh.prefix",
+                    FieldProblem::BadPrefix {
+                        value: raw.prefix,
+                        reason,
+                    },
+                ));
+            }
+        }
+        if raw.domain_id > MAX_DOMAIN_ID {
+            return Err(self.invalid(
+                "zenoh.domain_id",
+                FieldProblem::OutOfRange {
+                    value: i64::from(raw.domain_id),
+                    expected: "is not a ROS 2 domain id: 0..=232",
+                },
+            ));
+        }
         let publish_hz = match raw.publish_hz {
             None => DEFAULT_ZENOH_PUBLISH_HZ.min(rate_hz),
             Some(value) if finite_within(value) && value > 0.0 && value <= rate_hz => value,
@@ -288,6 +319,8 @@ impl Checker<'_> {
             publish_hz,
             accept_commands: raw.accept_commands,
             config_file,
+            ros2: raw.ros2,
+            domain_id: raw.domain_id,
         })
     }
 }

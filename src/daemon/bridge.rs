@@ -14,9 +14,18 @@
 //! network, put to the same arbiter and the same bounded queue as a socket client's commands,
 //! and let go of after the deadman's silence.
 //!
+//! With `ros2`, the daemon is also a ROS 2 node as rmw_zenoh sees one: node `snakectl` in
+//! the namespace `/<prefix>`, publishing `joint_states`, `tip_cmd`, `tip_meas` and `target` on
+//! rmw_zenoh's data keys with its attachment, subscribing `cmd_vel` and `goal` there when
+//! commands are accepted, and holding a graph token for the node and for each of those; the
+//! names and bytes come from [`crate::ros::rmw`]. Both key layouts may be served at once. A
+//! sample on a ROS 2 key without rmw_zenoh's attachment is refused (`bad_arg`, on the events
+//! key), as rmw_zenoh itself drops one; the plain keys take samples with or without one.
+//!
 //! [`Peer`] is a plain, blocking session for tools and tests (`snakectl fleet`), and [`fleet`]
 //! lists the arms a peer can see.
 
+use std::cell::Cell;
 use std::path::PathBuf;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -36,7 +45,7 @@ use crate::config::{Config, Endpoint, Zenoh, ZenohMode};
 use crate::protocol::{
     self, Cmd, CmdName, Code, Fields, Rejection, Reply, ReplyLine, ServerLine, Status, Telemetry,
 };
-use crate::ros;
+use crate::ros::{self, rmw};
 
 /// Network commands held for the bridge between two of its turns; the newest win (a newer
 /// `cmd_vel` replaces an older one anyway).
@@ -140,6 +149,14 @@ fn set(config: &mut zenoh::Config, key: &'static str, value: &Value) -> Result<(
         })
 }
 
+/// Nanoseconds since the Unix epoch now, for rmw_zenoh's attachment.
+fn wall_clock_ns() -> i64 {
+    match SystemTime::now().duration_since(UNIX_EPOCH) {
+        Ok(d) => i64::try_from(d.as_nanos()).unwrap_or(i64::MAX),
+        Err(e) => i64::try_from(e.duration().as_nanos()).map_or(i64::MIN, |ns| -ns),
+    }
+}
+
 /// Seconds since the Unix epoch now: ROS stamps are wall-clock time.
 fn wall_clock_s() -> f64 {
     match SystemTime::now().duration_since(UNIX_EPOCH) {
@@ -155,6 +172,8 @@ struct Settings {
     publish_period: Duration,
     accept_commands: bool,
     deadman: Duration,
+    /// The ROS 2 domain, when the daemon is a ROS 2 node too.
+    ros2: Option<u32>,
 }
 
 impl Settings {
@@ -186,6 +205,7 @@ impl Bridge {
                 .max(Duration::from_micros(100)),
             accept_commands: table.accept_commands,
             deadman: config.control().deadman,
+            ros2: table.ros2.then_some(table.domain_id),
         };
         let (opened_tx, opened_rx) = oneshot::channel();
         let (start_tx, start_rx) = oneshot::channel();
@@ -306,10 +326,138 @@ struct Served<'a> {
     events_key: String,
     status: Queryable,
     describe: Queryable,
-    cmd_vel: Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
-    goal: Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
+    cmd_vel: Option<Subscriber>,
+    goal: Option<Subscriber>,
     _token: zenoh::liveliness::LivelinessToken,
     frame_id: String,
+    /// The ROS 2 node's side, with `ros2`.
+    ros: Option<RosNode>,
+}
+
+/// A subscriber whose samples wait in a ring: the newest are kept.
+type Subscriber = zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>;
+
+/// The frame of the points on the ROS 2 topics: the config's own frame, which the URDF
+/// (`snakectl urdf`) names `base`.
+const ROS_FRAME: &str = "base";
+
+/// A publisher on an rmw_zenoh data key: its graph token, its GID and its count of samples.
+struct RosPublisher {
+    publisher: zenoh::pubsub::Publisher<'static>,
+    gid: [u8; 16],
+    sequence: Cell<i64>,
+    _token: zenoh::liveliness::LivelinessToken,
+}
+
+/// The ROS 2 node: its token, publishers and (with `accept_commands`) subscriptions.
+struct RosNode {
+    _token: zenoh::liveliness::LivelinessToken,
+    joint_states: RosPublisher,
+    tip_cmd: RosPublisher,
+    tip_meas: RosPublisher,
+    target: RosPublisher,
+    cmd_vel: Option<Subscriber>,
+    goal: Option<Subscriber>,
+    _subscription_tokens: Vec<zenoh::liveliness::LivelinessToken>,
+}
+
+impl RosNode {
+    /// Declares node `snakectl` in `/<prefix>` of `domain`, with ids 0 (the node), 1-4 (the
+    /// publishers) and 5-6 (the subscriptions).
+    async fn declare(
+        session: &Session,
+        settings: &Settings,
+        domain: u32,
+    ) -> Result<RosNode, NetError> {
+        let node = rmw::Node::snakectl(domain, &session.zid().to_string(), &settings.prefix);
+        let topic = |name: &str| rmw::topic_name(&settings.prefix, name);
+        let node_token = live_token(session, node.token()).await?;
+        let names = ["joint_states", "tip_cmd", "tip_meas", "target"].map(topic);
+        let joint_states = ros_publisher::<ros::JointState>(session, &node, 1, &names[0]).await?;
+        let tip_cmd = ros_publisher::<ros::PointStamped>(session, &node, 2, &names[1]).await?;
+        let tip_meas = ros_publisher::<ros::PointStamped>(session, &node, 3, &names[2]).await?;
+        let target = ros_publisher::<ros::PointStamped>(session, &node, 4, &names[3]).await?;
+        let mut subscription_tokens = Vec::new();
+        let (cmd_vel, goal) = if settings.accept_commands {
+            let (cmd_vel, goal) = (topic("cmd_vel"), topic("goal"));
+            let subscription = rmw::EntityKind::Subscription;
+            let qos = &rmw::Qos::DEFAULT;
+            let cmd_vel_token = node.entity_token::<ros::Twist>(5, subscription, &cmd_vel, qos);
+            let goal_token = node.entity_token::<ros::PointStamped>(6, subscription, &goal, qos);
+            let cmd_vel = subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel)).await?;
+            let goal_key = rmw::data_key::<ros::PointStamped>(domain, &goal);
+            let goal = subscribe(session, goal_key).await?;
+            subscription_tokens.push(live_token(session, cmd_vel_token).await?);
+            subscription_tokens.push(live_token(session, goal_token).await?);
+            (Some(cmd_vel), Some(goal))
+        } else {
+            (None, None)
+        };
+        Ok(RosNode {
+            _token: node_token,
+            joint_states,
+            tip_cmd,
+            tip_meas,
+            target,
+            cmd_vel,
+            goal,
+            _subscription_tokens: subscription_tokens,
+        })
+    }
+}
+
+/// A liveliness token on `key`.
+async fn live_token(
+    session: &Session,
+    key: String,
+) -> Result<zenoh::liveliness::LivelinessToken, NetError> {
+    session
+        .liveliness()
+        .declare_token(key.clone())
+        .await
+        .map_err(|e| NetError::Declare {
+            key,
+            message: e.to_string(),
+        })
+}
+
+/// Publisher `id` of `node` on the full topic name `topic`, of type `T`, with its token.
+async fn ros_publisher<T: rmw::Typed>(
+    session: &Session,
+    node: &rmw::Node,
+    id: u64,
+    topic: &str,
+) -> Result<RosPublisher, NetError> {
+    let key = rmw::data_key::<T>(node.domain, topic);
+    let token = node.entity_token::<T>(id, rmw::EntityKind::Publisher, topic, &rmw::Qos::DEFAULT);
+    let publisher = session
+        .declare_publisher(key.clone())
+        .encoding(Encoding::APPLICATION_CDR)
+        // A congested link drops a sample rather than hold the bridge up.
+        .congestion_control(CongestionControl::Drop)
+        .await
+        .map_err(|e| NetError::Declare {
+            key,
+            message: e.to_string(),
+        })?;
+    Ok(RosPublisher {
+        publisher,
+        gid: rmw::gid(&token),
+        sequence: Cell::new(0),
+        _token: live_token(session, token).await?,
+    })
+}
+
+/// A subscriber on `key` whose samples wait in a ring of [`COMMAND_RING`].
+async fn subscribe(session: &Session, key: String) -> Result<Subscriber, NetError> {
+    session
+        .declare_subscriber(key.clone())
+        .with(RingChannel::new(COMMAND_RING))
+        .await
+        .map_err(|e| NetError::Declare {
+            key,
+            message: e.to_string(),
+        })
 }
 
 impl<'a> Served<'a> {
@@ -347,16 +495,7 @@ impl<'a> Served<'a> {
                     .map_err(declare_err(&key))
             }
         };
-        let subscriber = |name: &'static str| {
-            let key = settings.key(name);
-            async move {
-                session
-                    .declare_subscriber(key.clone())
-                    .with(RingChannel::new(COMMAND_RING))
-                    .await
-                    .map_err(declare_err(&key))
-            }
-        };
+        let subscriber = |name: &'static str| subscribe(session, settings.key(name));
         let joint_states = publisher("joint_states", Encoding::APPLICATION_CDR).await?;
         let tip = publisher("tip", Encoding::APPLICATION_CDR).await?;
         let target = publisher("target", Encoding::APPLICATION_CDR).await?;
@@ -376,10 +515,15 @@ impl<'a> Served<'a> {
             .declare_token(settings.prefix.clone())
             .await
             .map_err(declare_err(&settings.prefix))?;
+        let ros = match settings.ros2 {
+            Some(domain) => Some(RosNode::declare(session, settings, domain).await?),
+            None => None,
+        };
         info!(
             prefix = %settings.prefix,
             controller = door.id(),
             accept_commands = settings.accept_commands,
+            ros2_domain = settings.ros2,
             "on the Zenoh network"
         );
         Ok(Served {
@@ -397,6 +541,7 @@ impl<'a> Served<'a> {
             goal,
             _token: token,
             frame_id: format!("{}/world", settings.prefix),
+            ros,
         })
     }
 
@@ -439,14 +584,28 @@ impl<'a> Served<'a> {
                 query = next_query(&self.describe) => {
                     self.answer(&query, "describe", self.door.describe_line()).await;
                 }
-                sample = recv(&self.cmd_vel) => {
+                sample = recv(self.cmd_vel.as_ref()) => {
                     let cmd = velocity(&sample);
                     if self.command(cmd, &answers_tx, &mut refusals).await {
                         last_command = Some(time::Instant::now());
                     }
                 }
-                sample = recv(&self.goal) => {
+                sample = recv(self.goal.as_ref()) => {
                     let cmd = goto(&sample);
+                    if self.command(cmd, &answers_tx, &mut refusals).await {
+                        last_command = Some(time::Instant::now());
+                    }
+                }
+                sample = recv(self.ros.as_ref().and_then(|r| r.cmd_vel.as_ref())) => {
+                    let cmd = from_ros(&sample, &self.settings.key("cmd_vel"))
+                        .and_then(|()| velocity(&sample));
+                    if self.command(cmd, &answers_tx, &mut refusals).await {
+                        last_command = Some(time::Instant::now());
+                    }
+                }
+                sample = recv(self.ros.as_ref().and_then(|r| r.goal.as_ref())) => {
+                    let cmd = from_ros(&sample, &self.settings.key("goal"))
+                        .and_then(|()| goto(&sample));
                     if self.command(cmd, &answers_tx, &mut refusals).await {
                         last_command = Some(time::Instant::now());
                     }
@@ -491,6 +650,42 @@ impl<'a> Served<'a> {
         let line = self.door.telemetry_line(t);
         self.put(&self.telemetry, line.trim_end().as_bytes().to_vec())
             .await;
+        if let Some(node) = &self.ros {
+            if let Some(bytes) = cdr(ros::encode(&ros::joint_state(t, stamp))) {
+                self.put_ros(&node.joint_states, bytes).await;
+            }
+            for (publisher, point) in [
+                (&node.tip_cmd, Some(t.tip)),
+                (&node.tip_meas, Some(t.tip_meas)),
+                (&node.target, t.target),
+            ] {
+                let Some(point) = point else { continue };
+                if let Some(bytes) = cdr(ros::encode(&ros::point_stamped(point, stamp, ROS_FRAME)))
+                {
+                    self.put_ros(publisher, bytes).await;
+                }
+            }
+        }
+    }
+
+    /// Puts `bytes` on an rmw_zenoh key with the attachment: the publisher's next sequence
+    /// number, now, its GID.
+    async fn put_ros(&self, publisher: &RosPublisher, bytes: Vec<u8>) {
+        let sequence = publisher.sequence.get().saturating_add(1);
+        publisher.sequence.set(sequence);
+        let attachment = rmw::Attachment {
+            sequence,
+            source_timestamp_ns: wall_clock_ns(),
+            gid: publisher.gid,
+        };
+        let sent = publisher
+            .publisher
+            .put(bytes)
+            .attachment(attachment.encode().to_vec())
+            .await;
+        if let Err(e) = sent {
+            debug!(key = %publisher.publisher.key_expr(), error = %e, "a Zenoh put failed");
+        }
     }
 
     async fn put(&self, publisher: &zenoh::pubsub::Publisher<'static>, bytes: Vec<u8>) {
@@ -568,9 +763,7 @@ struct Refusals {
 }
 
 /// The next sample of `subscriber`; never, without one.
-async fn recv(
-    subscriber: &Option<zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>>,
-) -> Sample {
+async fn recv(subscriber: Option<&Subscriber>) -> Sample {
     match subscriber {
         Some(subscriber) => match subscriber.recv_async().await {
             Ok(sample) => sample,
@@ -597,6 +790,25 @@ async fn sleep_until(deadline: Option<time::Instant>) {
 
 fn bad(what: &str, e: impl std::fmt::Display) -> Rejection {
     Rejection::new(Code::BadArg, format!("{what}: {e}"))
+}
+
+/// Whether a sample on an rmw_zenoh key carries rmw_zenoh's attachment, as every ROS 2
+/// publisher's does; `plain_key` is where a sample without one belongs.
+fn from_ros(sample: &Sample, plain_key: &str) -> Result<(), Rejection> {
+    let bytes = sample
+        .attachment()
+        .map(|a| a.to_bytes().into_owned())
+        .unwrap_or_default();
+    rmw::Attachment::decode(&bytes).map(|_| ()).map_err(|e| {
+        bad(
+            &format!(
+                "a sample on the ROS 2 key {} without rmw_zenoh's attachment (ROS 2 drops \
+                 it; put plain samples on {plain_key})",
+                sample.key_expr()
+            ),
+            e,
+        )
+    })
 }
 
 /// A `cmd_vel` sample as `velocity`: `linear.x`, `linear.y`, m/s; the rest is ignored.
@@ -631,6 +843,18 @@ pub struct Received {
     pub key: String,
     /// Its payload.
     pub payload: Vec<u8>,
+    /// Its attachment, if it had one.
+    pub attachment: Option<Vec<u8>>,
+}
+
+impl Received {
+    fn from_sample(sample: &Sample) -> Received {
+        Received {
+            key: sample.key_expr().to_string(),
+            payload: sample.payload().to_bytes().into_owned(),
+            attachment: sample.attachment().map(|a| a.to_bytes().into_owned()),
+        }
+    }
 }
 
 /// A subscription of a [`Peer`]: the newest [`SUBSCRIPTION_RING`] samples are kept.
@@ -642,10 +866,9 @@ impl Subscription {
     /// The next sample, waiting up to `timeout`.
     pub fn recv_timeout(&self, timeout: Duration) -> Option<Received> {
         match self.inner.recv_timeout(timeout) {
-            Ok(Some(sample)) if sample.kind() == SampleKind::Put => Some(Received {
-                key: sample.key_expr().to_string(),
-                payload: sample.payload().to_bytes().into_owned(),
-            }),
+            Ok(Some(sample)) if sample.kind() == SampleKind::Put => {
+                Some(Received::from_sample(&sample))
+            }
             _ => None,
         }
     }
@@ -692,6 +915,23 @@ impl Peer {
             })
     }
 
+    /// Puts `payload` on `key` with `attachment` (as a ROS 2 publisher on rmw_zenoh does).
+    pub fn put_attached(
+        &self,
+        key: &str,
+        payload: Vec<u8>,
+        attachment: Vec<u8>,
+    ) -> Result<(), NetError> {
+        self.session
+            .put(key.to_owned(), payload)
+            .attachment(attachment)
+            .wait()
+            .map_err(|e| NetError::Io {
+                key: key.to_owned(),
+                message: e.to_string(),
+            })
+    }
+
     /// Asks `selector` and gathers the answers that arrive within `timeout`.
     pub fn get(&self, selector: &str, timeout: Duration) -> Result<Vec<Received>, NetError> {
         let replies = self
@@ -707,10 +947,7 @@ impl Peer {
         let mut out = Vec::new();
         while let Ok(Some(reply)) = replies.recv_deadline(deadline) {
             if let Ok(sample) = reply.result() {
-                out.push(Received {
-                    key: sample.key_expr().to_string(),
-                    payload: sample.payload().to_bytes().into_owned(),
-                });
+                out.push(Received::from_sample(sample));
             }
         }
         Ok(out)

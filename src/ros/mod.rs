@@ -9,13 +9,16 @@
 //! (header `00 00`), which a big-endian ROS 2 host may send.
 //!
 //! [`joint_state`] and [`point_stamped`] turn the daemon's telemetry into messages; time comes
-//! in as an argument, so they are pure.
+//! in as an argument, so they are pure. [`rmw`] names the keys, graph tokens and attachments
+//! with which rmw_zenoh, ROS 2's Zenoh middleware, carries them.
 
 use byteorder::{BigEndian, LittleEndian};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::protocol::Telemetry;
+
+pub mod rmw;
 
 /// The encapsulation header [`encode`] writes: plain CDR, little-endian, no options.
 pub const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];

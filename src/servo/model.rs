@@ -13,6 +13,23 @@ pub struct ServoModel {
     current: CurrentUnit,
     indirect_data: Option<u16>,
     fast_read: Option<u8>,
+    rated: Rated,
+}
+
+/// Stall torque, N·m, and no-load speed, rev/min, at the model's recommended input voltage,
+/// from the e-manual's X-series specification tables.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Rated {
+    stall_torque_nm: f64,
+    no_load_rpm: f64,
+}
+
+/// [`Rated`] at the recommended voltage.
+const fn rated(stall_torque_nm: f64, no_load_rpm: f64) -> Rated {
+    Rated {
+        stall_torque_nm,
+        no_load_rpm,
+    }
 }
 
 const fn model(
@@ -21,6 +38,7 @@ const fn model(
     current: CurrentUnit,
     indirect_data: Option<u16>,
     fast_read: Option<u8>,
+    rated: Rated,
 ) -> ServoModel {
     ServoModel {
         name,
@@ -28,6 +46,7 @@ const fn model(
         current,
         indirect_data,
         fast_read,
+        rated,
     }
 }
 
@@ -48,20 +67,22 @@ const NO_FAST: Option<u8> = None;
 
 /// Every known model: e-manual name, Model Number (register 0), Present Current's unit, the
 /// address of Indirect Data 1 (every one of them has Indirect Address 1 at 168), the first
-/// firmware that answers Fast Sync Read.
+/// firmware that answers Fast Sync Read, and stall torque and no-load speed at the recommended
+/// voltage (12 V for XH/XM/XC, 11.1 V for XL430 and 2XL430, 5 V for XL330).
+#[rustfmt::skip]
 pub const MODELS: [ServoModel; 12] = [
-    model("XH430-W210", 1000, MA_2_69, X430_DATA, X430_FAST),
-    model("XH430-W350", 1010, MA_2_69, X430_DATA, X430_FAST),
-    model("XM430-W350", 1020, MA_2_69, X430_DATA, X430_FAST),
-    model("XM430-W210", 1030, MA_2_69, X430_DATA, X430_FAST),
-    model("XL430-W250", 1060, LOAD, X430_DATA, X430_FAST),
-    model("XC430-W150", 1070, LOAD, X430_DATA, X430_FAST),
-    model("XC430-W240", 1080, LOAD, X430_DATA, X430_FAST),
-    model("2XL430-W250", 1090, LOAD, X430_DATA, NO_FAST),
-    model("XM540-W270", 1120, MA_2_69, X430_DATA, X540_FAST),
-    model("XM540-W150", 1130, MA_2_69, X430_DATA, X540_FAST),
-    model("XL330-M077", 1190, MA_1, X330_DATA, X330_FAST),
-    model("XL330-M288", 1200, MA_1, X330_DATA, X330_FAST),
+    model("XH430-W210", 1000, MA_2_69, X430_DATA, X430_FAST, rated(2.5, 50.0)),
+    model("XH430-W350", 1010, MA_2_69, X430_DATA, X430_FAST, rated(3.4, 30.0)),
+    model("XM430-W350", 1020, MA_2_69, X430_DATA, X430_FAST, rated(4.1, 46.0)),
+    model("XM430-W210", 1030, MA_2_69, X430_DATA, X430_FAST, rated(3.0, 77.0)),
+    model("XL430-W250", 1060, LOAD, X430_DATA, X430_FAST, rated(1.4, 57.0)),
+    model("XC430-W150", 1070, LOAD, X430_DATA, X430_FAST, rated(1.6, 106.0)),
+    model("XC430-W240", 1080, LOAD, X430_DATA, X430_FAST, rated(1.9, 70.0)),
+    model("2XL430-W250", 1090, LOAD, X430_DATA, NO_FAST, rated(1.4, 57.0)),
+    model("XM540-W270", 1120, MA_2_69, X430_DATA, X540_FAST, rated(10.6, 30.0)),
+    model("XM540-W150", 1130, MA_2_69, X430_DATA, X540_FAST, rated(7.3, 53.0)),
+    model("XL330-M077", 1190, MA_1, X330_DATA, X330_FAST, rated(0.215, 383.0)),
+    model("XL330-M288", 1200, MA_1, X330_DATA, X330_FAST, rated(0.52, 103.0)),
 ];
 
 impl ServoModel {
@@ -102,6 +123,16 @@ impl ServoModel {
         self.fast_read
     }
 
+    /// Stall torque at the recommended input voltage, N·m (the e-manual's figure).
+    pub fn stall_torque_nm(self) -> f64 {
+        self.rated.stall_torque_nm
+    }
+
+    /// No-load speed at the recommended input voltage, rad/s (the e-manual's rev/min).
+    pub fn no_load_speed_rad_s(self) -> f64 {
+        self.rated.no_load_rpm * std::f64::consts::TAU / 60.0
+    }
+
     /// Whether this model at `firmware` answers Fast Sync Read.
     pub fn supports_fast_read(self, firmware: u8) -> bool {
         self.fast_read.is_some_and(|first| firmware >= first)
@@ -127,6 +158,7 @@ pub fn model_names() -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::TAU;
 
     #[test]
     fn names_and_numbers_are_unique_and_round_trip() {
@@ -153,6 +185,21 @@ mod tests {
         assert_eq!(unit(1020), Some(CurrentUnit::MilliAmps(2.69)));
         assert_eq!(unit(1200), Some(CurrentUnit::MilliAmps(1.0)));
         assert!(ServoModel::from_name("xl430-w250").is_none());
+    }
+
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn rated_figures_from_the_emanual() {
+        let m = |name| ServoModel::from_name(name).unwrap();
+        // XL430-W250 at 11.1 V: 1.4 N·m, 57 rev/min = 57 * 2 pi / 60 rad/s.
+        assert_eq!(m("XL430-W250").stall_torque_nm(), 1.4);
+        assert!((m("XL430-W250").no_load_speed_rad_s() - 5.969026041820607).abs() < 1e-12);
+        // XM430-W350 at 12 V: 4.1 N·m, 46 rev/min.
+        assert_eq!(m("XM430-W350").stall_torque_nm(), 4.1);
+        assert!((m("XM430-W350").no_load_speed_rad_s() - 46.0 * TAU / 60.0).abs() < 1e-12);
+        for model in MODELS {
+            assert!(model.stall_torque_nm() > 0.0 && model.no_load_speed_rad_s() > 0.0);
+        }
     }
 
     #[test]
