@@ -47,6 +47,8 @@
 //!   clients; and where each command goes (who may send it, the socket side or the loop).
 //! - [`ros`]: the ROS 2 messages the arm speaks on a Zenoh network (`JointState`,
 //!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in.
+//! - [`view`]: the channels a Foxglove view and a recording share (topics, schemas, the
+//!   messages) and the arm as a Foxglove 3-D scene; pure, time passed in.
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread (held as parts: port,
 //!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
 //!   between them.
@@ -83,3 +85,4 @@ pub mod daemon;
 pub mod protocol;
 pub mod ros;
 pub mod teleop;
+pub mod view;
