@@ -42,7 +42,7 @@ fn config(port: u16, accept_commands: bool) -> Config {
 }
 
 /// A daemon with the view on, brought up, and the view's port.
-fn daemon(accept_commands: bool) -> (Daemon, u16) {
+fn start_daemon(accept_commands: bool) -> (Daemon, u16) {
     let port = free_port();
     let daemon = Daemon::start(config(port, accept_commands));
     // The first reply waits for bring-up, after which the view serves.
@@ -101,7 +101,7 @@ impl Fox {
         let ws = &mut self.ws;
         match self
             .runtime
-            .block_on(tokio::time::timeout(left, ws.next()))
+            .block_on(async { tokio::time::timeout(left, ws.next()).await })
         {
             Ok(Some(Ok(message))) => message,
             Ok(other) => panic!("the connection ended: {other:?}"),
@@ -214,7 +214,7 @@ const TOPICS: [&str; 8] = [
 
 #[test]
 fn a_foxglove_client_sees_every_channel_and_the_arm() {
-    let (daemon, port) = daemon(false);
+    let (daemon, port) = start_daemon(false);
     let mut fox = Fox::connect(port);
     let info = fox.next_op("serverInfo");
     let capabilities = info["capabilities"].as_array().unwrap();
@@ -305,7 +305,7 @@ fn drive(daemon: &Daemon, fox: &mut Fox, v: [f64; 2], by: f64, within: Duration)
 #[test]
 fn a_twist_from_foxglove_moves_the_tip_only_with_accept_commands() {
     // Without: nothing to publish to, and nothing moves.
-    let (daemon, port) = daemon(false);
+    let (daemon, port) = start_daemon(false);
     let mut fox = Fox::connect(port);
     fox.next_op("serverInfo");
     fox.advertise_twist("/snakectl/cmd_vel");
@@ -316,7 +316,7 @@ fn a_twist_from_foxglove_moves_the_tip_only_with_accept_commands() {
     daemon.stop().unwrap();
 
     // With: the Twist becomes `velocity` through the arbiter, and the tip moves along +x.
-    let (daemon, port) = daemon(true);
+    let (daemon, port) = start_daemon(true);
     let mut fox = Fox::connect(port);
     let info = fox.next_op("serverInfo");
     assert!(
