@@ -151,10 +151,15 @@ impl Fox {
 
     /// Subscribes to `topics`, subscription ids from 1 in their order.
     fn subscribe(&mut self, topics: &[&str]) {
+        self.subscribe_from(1, topics);
+    }
+
+    /// Subscribes to `topics`, subscription ids from `first` in their order.
+    fn subscribe_from(&mut self, first: usize, topics: &[&str]) {
         let subscriptions: Vec<Value> = topics
             .iter()
             .enumerate()
-            .map(|(i, t)| json!({"id": i + 1, "channelId": self.channels[*t]["id"]}))
+            .map(|(i, t)| json!({"id": first + i, "channelId": self.channels[*t]["id"]}))
             .collect();
         self.send_json(json!({"op": "subscribe", "subscriptions": subscriptions}));
     }
@@ -279,6 +284,38 @@ fn a_foxglove_client_sees_every_channel_and_the_arm() {
     let d = late.data();
     let scene = SceneUpdate::decode(&d.payload[..]).unwrap();
     assert!(scene.entities.iter().any(|e| e.id == "arm_meas"));
+
+    // Events: as the socket writes them, and as log lines.
+    fox.subscribe_from(4, &["/snakectl/events", "/snakectl/log"]);
+    // Subscribed once the server has read the request: a status round trip on the socket is
+    // not enough to know that, so the move is asked for after the first scene that follows.
+    while fox.data().subscription != 3 {}
+    let mut client = daemon.client();
+    let target = [tip[0] - 0.01, tip[1]];
+    client.ok(json!({"cmd": "goto", "target": target}));
+    let (mut event, mut log) = (None, None);
+    let deadline = Instant::now() + DEADLINE;
+    while event.is_none() || log.is_none() {
+        assert!(Instant::now() < deadline, "no arrived event and log line");
+        let d = fox.data();
+        match d.subscription {
+            4 => {
+                let v: Value = serde_json::from_slice(&d.payload).unwrap();
+                if v["event"] == "arrived" {
+                    event = Some(v);
+                }
+            }
+            5 => {
+                let l = foxglove::schemas::Log::decode(&d.payload[..]).unwrap();
+                if l.message.contains("\"arrived\"") {
+                    log = Some(l);
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(event.unwrap()["tick"].is_u64());
+    assert_eq!(log.unwrap().name, "snakectl");
 
     // An old client's subprotocol alone is refused by the handshake.
     assert!(Fox::try_connect(port, "foxglove.websocket.v1").is_err());
