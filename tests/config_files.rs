@@ -207,9 +207,17 @@ fn commented_foxglove_tables_serve_on_loopback() {
         let edited = format!("{text}\n{uncommented}\n");
         let config = Config::from_str(&edited, &path).unwrap_or_else(|e| panic!("{e}"));
         let view = config.foxglove();
-        assert_eq!(view.listen, Some("127.0.0.1:8765".parse().unwrap()), "{name}");
+        assert_eq!(
+            view.listen,
+            Some("127.0.0.1:8765".parse().unwrap()),
+            "{name}"
+        );
         assert_eq!(view.publish_hz, 30.0, "{name}");
         assert!(!view.accept_commands, "{name}");
-        assert_eq!(Config::load(&path).unwrap().foxglove().listen, None, "{name}: off as shipped");
+        assert_eq!(
+            Config::load(&path).unwrap().foxglove().listen,
+            None,
+            "{name}: off as shipped"
+        );
     }
 }

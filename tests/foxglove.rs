@@ -35,9 +35,8 @@ fn free_port() -> u16 {
 
 /// The shipped simulator config with a `[foxglove]` table on `port`.
 fn config(port: u16, accept_commands: bool) -> Config {
-    let table = format!(
-        "[foxglove]\nlisten = \"127.0.0.1:{port}\"\naccept_commands = {accept_commands}\n"
-    );
+    let table =
+        format!("[foxglove]\nlisten = \"127.0.0.1:{port}\"\naccept_commands = {accept_commands}\n");
     sim_config(&[("max_clients = 4", &format!("max_clients = 4\n\n{table}"))])
 }
 
@@ -74,7 +73,9 @@ impl Fox {
             .enable_all()
             .build()
             .unwrap();
-        let mut request = format!("ws://127.0.0.1:{port}").into_client_request().unwrap();
+        let mut request = format!("ws://127.0.0.1:{port}")
+            .into_client_request()
+            .unwrap();
         request.headers_mut().insert(
             "sec-websocket-protocol",
             HeaderValue::from_str(subprotocol).unwrap(),
@@ -169,14 +170,12 @@ impl Fox {
         let deadline = Instant::now() + DEADLINE;
         loop {
             match self.next(deadline) {
-                Message::Binary(bytes) => {
-                    if bytes.first() == Some(&1) {
-                        return Data {
-                            subscription: u32::from_le_bytes(bytes[1..5].try_into().unwrap()),
-                            log_time: u64::from_le_bytes(bytes[5..13].try_into().unwrap()),
-                            payload: bytes[13..].to_vec(),
-                        };
-                    }
+                Message::Binary(bytes) if bytes.first() == Some(&1) => {
+                    return Data {
+                        subscription: u32::from_le_bytes(bytes[1..5].try_into().unwrap()),
+                        log_time: u64::from_le_bytes(bytes[5..13].try_into().unwrap()),
+                        payload: bytes[13..].to_vec(),
+                    };
                 }
                 Message::Text(text) => {
                     let v: Value = serde_json::from_str(text.as_str()).unwrap();
@@ -229,13 +228,38 @@ fn a_foxglove_client_sees_every_channel_and_the_arm() {
     );
     fox.advertised(&TOPICS);
     let expect = [
-        ("/snakectl/joint_states", "cdr", "sensor_msgs/msg/JointState", "ros2msg"),
-        ("/snakectl/tip_meas", "cdr", "geometry_msgs/msg/PointStamped", "ros2msg"),
-        ("/snakectl/target", "cdr", "geometry_msgs/msg/PointStamped", "ros2msg"),
-        ("/snakectl/telemetry", "json", "snakectl.Telemetry", "jsonschema"),
+        (
+            "/snakectl/joint_states",
+            "cdr",
+            "sensor_msgs/msg/JointState",
+            "ros2msg",
+        ),
+        (
+            "/snakectl/tip_meas",
+            "cdr",
+            "geometry_msgs/msg/PointStamped",
+            "ros2msg",
+        ),
+        (
+            "/snakectl/target",
+            "cdr",
+            "geometry_msgs/msg/PointStamped",
+            "ros2msg",
+        ),
+        (
+            "/snakectl/telemetry",
+            "json",
+            "snakectl.Telemetry",
+            "jsonschema",
+        ),
         ("/snakectl/events", "json", "snakectl.Event", "jsonschema"),
         ("/snakectl/log", "protobuf", "foxglove.Log", "protobuf"),
-        ("/snakectl/scene", "protobuf", "foxglove.SceneUpdate", "protobuf"),
+        (
+            "/snakectl/scene",
+            "protobuf",
+            "foxglove.SceneUpdate",
+            "protobuf",
+        ),
     ];
     for (topic, encoding, schema_name, schema_encoding) in expect {
         let c = &fox.channels[topic];
@@ -243,10 +267,19 @@ fn a_foxglove_client_sees_every_channel_and_the_arm() {
         assert_eq!(c["schemaName"], schema_name, "{c}");
         assert_eq!(c["schemaEncoding"], schema_encoding, "{c}");
     }
-    let js_schema = fox.channels["/snakectl/joint_states"]["schema"].as_str().unwrap();
-    assert!(js_schema.contains("MSG: builtin_interfaces/msg/Time"), "{js_schema}");
+    let js_schema = fox.channels["/snakectl/joint_states"]["schema"]
+        .as_str()
+        .unwrap();
+    assert!(
+        js_schema.contains("MSG: builtin_interfaces/msg/Time"),
+        "{js_schema}"
+    );
 
-    fox.subscribe(&["/snakectl/joint_states", "/snakectl/telemetry", "/snakectl/scene"]);
+    fox.subscribe(&[
+        "/snakectl/joint_states",
+        "/snakectl/telemetry",
+        "/snakectl/scene",
+    ]);
     // One publish sends the three from one snapshot, under one log time.
     let mut by_time: BTreeMap<u64, [Option<Vec<u8>>; 3]> = BTreeMap::new();
     let (joints, telemetry, scene) = loop {
@@ -262,7 +295,10 @@ fn a_foxglove_client_sees_every_channel_and_the_arm() {
     let telemetry: Value = serde_json::from_slice(&telemetry).unwrap();
     assert_eq!(telemetry["type"], "telemetry");
     let theta = floats(&telemetry["theta_meas"]);
-    assert_eq!(joints.position, theta, "the JointState is the telemetry's angles");
+    assert_eq!(
+        joints.position, theta,
+        "the JointState is the telemetry's angles"
+    );
     assert_eq!(joints.name.len(), daemon.config.chain().len());
     assert_eq!(joints.name[0], "joint_1");
 
@@ -273,7 +309,14 @@ fn a_foxglove_client_sees_every_channel_and_the_arm() {
     let end = arm.lines[0].points.last().unwrap();
     let tip = xy(&telemetry["tip_meas"]);
     assert!(dist([end.x, end.y], tip) < 1e-9, "{end:?} vs {tip:?}");
-    for id in ["arm_cmd", "tip_cmd", "tip_meas", "trail", "reach", "obstacles"] {
+    for id in [
+        "arm_cmd",
+        "tip_cmd",
+        "tip_meas",
+        "trail",
+        "reach",
+        "obstacles",
+    ] {
         assert!(scene.entities.iter().any(|e| e.id == id), "no {id}");
     }
 
@@ -357,11 +400,19 @@ fn a_twist_from_foxglove_moves_the_tip_only_with_accept_commands() {
     let mut fox = Fox::connect(port);
     let info = fox.next_op("serverInfo");
     assert!(
-        info["capabilities"].as_array().unwrap().iter().any(|c| c == "clientPublish"),
+        info["capabilities"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|c| c == "clientPublish"),
         "{info}"
     );
     assert!(
-        info["supportedEncodings"].as_array().unwrap().iter().any(|e| e == "json"),
+        info["supportedEncodings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e == "json"),
         "{info}"
     );
     let mut client = daemon.client();
@@ -372,7 +423,10 @@ fn a_twist_from_foxglove_moves_the_tip_only_with_accept_commands() {
     let status = client.status();
     let now = xy(&status["tip_meas"]);
     assert!(now[0] - start[0] > 0.009, "along +x: {start:?} -> {now:?}");
-    assert!(status["controller"].is_u64(), "the view holds control: {status}");
+    assert!(
+        status["controller"].is_u64(),
+        "the view holds control: {status}"
+    );
     // A socket client is refused while the view holds control, as with any other client.
     let refused = client.error_code(json!({"cmd": "velocity", "v": [0.0, 0.01]}));
     assert_eq!(refused, "not_in_control");

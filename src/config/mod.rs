@@ -25,8 +25,8 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 pub use error::{ConfigError, FieldProblem};
-pub use raw::{BusKind, HardwareError};
 pub use foxglove_table::Foxglove;
+pub use raw::{BusKind, HardwareError};
 pub use zenoh_table::{Endpoint, Host, Zenoh, ZenohMode};
 
 use std::time::Duration;

@@ -1249,8 +1249,15 @@ fn foxglove_is_off_unless_it_listens_and_defaults_follow_the_loop() {
         .replacen("publish_hz = 25.0\n", "", 1);
     let c = load(&slow).unwrap();
     assert_eq!(c.foxglove().publish_hz, 20.0, "at most the loop's rate");
-    let c = load(&with_foxglove("listen = \"127.0.0.1:0\"\npublish_hz = 10.0\naccept_commands = true", true)).unwrap();
-    assert_eq!((c.foxglove().publish_hz, c.foxglove().accept_commands), (10.0, true));
+    let c = load(&with_foxglove(
+        "listen = \"127.0.0.1:0\"\npublish_hz = 10.0\naccept_commands = true",
+        true,
+    ))
+    .unwrap();
+    assert_eq!(
+        (c.foxglove().publish_hz, c.foxglove().accept_commands),
+        (10.0, true)
+    );
 }
 
 #[test]
@@ -1262,13 +1269,21 @@ fn foxglove_refusals_name_the_field() {
     for exposed in ["0.0.0.0:8765", "192.168.1.5:8765", "[::]:8765"] {
         let msg = refused(
             &with_foxglove(&format!("listen = \"{exposed}\""), false),
-            &["foxglove.listen", exposed, "loopback", "ssh -L 8765:127.0.0.1:8765"],
+            &[
+                "foxglove.listen",
+                exposed,
+                "loopback",
+                "ssh -L 8765:127.0.0.1:8765",
+            ],
         );
         assert!(msg.contains("token"), "{msg}");
     }
     for rate in ["0.0", "-1.0", "200.0", "nan"] {
         refused(
-            &with_foxglove(&format!("listen = \"127.0.0.1:8765\"\npublish_hz = {rate}"), false),
+            &with_foxglove(
+                &format!("listen = \"127.0.0.1:8765\"\npublish_hz = {rate}"),
+                false,
+            ),
             &["foxglove.publish_hz", "control.rate_hz = 100"],
         );
     }
@@ -1276,5 +1291,8 @@ fn foxglove_refusals_name_the_field() {
         &with_foxglove("listen = \"127.0.0.1:8765\"\naccept_commands = true", false),
         &["foxglove.accept_commands", "token_file"],
     );
-    refused(&with_foxglove("listen_port = 8765", false), &["listen_port"]);
+    refused(
+        &with_foxglove("listen_port = 8765", false),
+        &["listen_port"],
+    );
 }

@@ -159,7 +159,9 @@ fn entity(id: &str, stamp: Timestamp) -> SceneEntity {
 /// Points of an arc of radius `r` about `c` from bearing `lo` to `hi` (rad), both ends
 /// included.
 fn arc(c: [f64; 2], r: f64, lo: f64, hi: f64) -> Vec<Point3> {
-    let steps = ((hi - lo).abs() / TAU * CIRCLE_SEGMENTS as f64).ceil().max(1.0) as usize;
+    let steps = ((hi - lo).abs() / TAU * CIRCLE_SEGMENTS as f64)
+        .ceil()
+        .max(1.0) as usize;
     (0..=steps)
         .map(|i| {
             let a = lo + (hi - lo) * i as f64 / steps as f64;
@@ -220,8 +222,7 @@ fn reach(chain: &Chain, width: f64, stamp: Timestamp) -> SceneEntity {
             } else {
                 points.push(p3(c[0], c[1]));
             }
-            e.lines
-                .push(line(LineType::LineLoop, points, thin, REACH));
+            e.lines.push(line(LineType::LineLoop, points, thin, REACH));
         }
         None => {
             e.lines
@@ -262,7 +263,9 @@ fn obstacles(world: &World, width: f64, stamp: Timestamp) -> SceneEntity {
                     OBSTACLE,
                 ));
                 let n = points.len().max(1) as f64;
-                let (sx, sy) = points.iter().fold((0.0, 0.0), |(x, y), p| (x + p.x, y + p.y));
+                let (sx, sy) = points
+                    .iter()
+                    .fold((0.0, 0.0), |(x, y), p| (x + p.x, y + p.y));
                 [sx / n, sy / n]
             }
         };
@@ -298,7 +301,14 @@ pub fn scene(
         _ => 0.015 * chain.reach(),
     };
     let mut entities = Vec::with_capacity(8);
-    entities.extend(arm("arm_cmd", chain, &telemetry.theta_cmd, width, CMD, stamp));
+    entities.extend(arm(
+        "arm_cmd",
+        chain,
+        &telemetry.theta_cmd,
+        width,
+        CMD,
+        stamp,
+    ));
     entities.extend(arm(
         "arm_meas",
         chain,

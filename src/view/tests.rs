@@ -44,20 +44,32 @@ fn every_channel_is_under_the_prefix_with_its_encodings() {
     let by = |t: Topic| t.channel("snakectl");
     let js = by(Topic::JointStates);
     assert_eq!(
-        (js.message_encoding, js.schema.name.as_str(), js.schema.encoding.as_str()),
+        (
+            js.message_encoding,
+            js.schema.name.as_str(),
+            js.schema.encoding.as_str()
+        ),
         ("cdr", "sensor_msgs/msg/JointState", "ros2msg")
     );
     let tip = by(Topic::TipMeas);
     assert_eq!(tip.schema.name, "geometry_msgs/msg/PointStamped");
     let tel = by(Topic::Telemetry);
     assert_eq!(
-        (tel.message_encoding, tel.schema.name.as_str(), tel.schema.encoding.as_str()),
+        (
+            tel.message_encoding,
+            tel.schema.name.as_str(),
+            tel.schema.encoding.as_str()
+        ),
         ("json", "snakectl.Telemetry", "jsonschema")
     );
     assert_eq!(by(Topic::Events).schema.name, "snakectl.Event");
     let scene = by(Topic::Scene);
     assert_eq!(
-        (scene.message_encoding, scene.schema.name.as_str(), scene.schema.encoding.as_str()),
+        (
+            scene.message_encoding,
+            scene.schema.name.as_str(),
+            scene.schema.encoding.as_str()
+        ),
         ("protobuf", "foxglove.SceneUpdate", "protobuf")
     );
     assert!(!scene.schema.data.is_empty(), "the descriptor set");
@@ -73,12 +85,28 @@ fn every_channel_is_under_the_prefix_with_its_encodings() {
 fn ros2msg_schemas_carry_their_dependencies_as_rosbag2_writes_them() {
     let bar = "=".repeat(80);
     let js = joint_state_schema();
-    assert!(js.starts_with("std_msgs/Header header\nstring[] name\n"), "{js}");
-    assert!(js.contains(&format!("\n{bar}\nMSG: std_msgs/msg/Header\n")), "{js}");
-    assert!(js.contains(&format!("\n{bar}\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n")));
+    assert!(
+        js.starts_with("std_msgs/Header header\nstring[] name\n"),
+        "{js}"
+    );
+    assert!(
+        js.contains(&format!("\n{bar}\nMSG: std_msgs/msg/Header\n")),
+        "{js}"
+    );
+    assert!(js.contains(&format!(
+        "\n{bar}\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n"
+    )));
     let ps = point_stamped_schema();
-    for dep in ["std_msgs/msg/Header", "builtin_interfaces/msg/Time", "geometry_msgs/msg/Point"] {
-        assert_eq!(ps.matches(&format!("{bar}\nMSG: {dep}\n")).count(), 1, "{dep}: {ps}");
+    for dep in [
+        "std_msgs/msg/Header",
+        "builtin_interfaces/msg/Time",
+        "geometry_msgs/msg/Point",
+    ] {
+        assert_eq!(
+            ps.matches(&format!("{bar}\nMSG: {dep}\n")).count(),
+            1,
+            "{dep}: {ps}"
+        );
     }
 }
 
@@ -89,7 +117,13 @@ fn messages_decode_to_what_they_were_made_of() {
     let js: ros::JointState = ros::decode(&joint_states(&t, 12.5).unwrap()).unwrap();
     assert_eq!(js.position, t.theta_meas);
     assert_eq!(js.name, ["joint_1", "joint_2", "joint_3"]);
-    assert_eq!(js.header.stamp, ros::Time { sec: 12, nanosec: 500_000_000 });
+    assert_eq!(
+        js.header.stamp,
+        ros::Time {
+            sec: 12,
+            nanosec: 500_000_000
+        }
+    );
     let p: ros::PointStamped = ros::decode(&point([1.5, -2.0], 3.0).unwrap()).unwrap();
     assert_eq!((p.point.x, p.point.y, p.point.z), (1.5, -2.0, 0.0));
     assert_eq!(p.header.frame_id, FRAME_ID);
@@ -108,12 +142,19 @@ fn events_go_to_the_log_at_their_level() {
     };
     let estop = log(&event(What::Estop { tip: [0.1, 0.2] }), 1.0);
     assert_eq!(estop.level, Level::Error as i32);
-    assert!(estop.message.contains("\"event\":\"estop\""), "{}", estop.message);
+    assert!(
+        estop.message.contains("\"event\":\"estop\""),
+        "{}",
+        estop.message
+    );
     let arrived = log(&event(What::Arrived { tip: [0.1, 0.2] }), 1.0);
     assert_eq!(arrived.level, Level::Info as i32);
     let line: serde_json::Value =
         serde_json::from_slice(&super::event(&event(What::Arrived { tip: [0.1, 0.2] }))).unwrap();
-    assert_eq!((line["event"].as_str(), line["tick"].as_u64()), (Some("arrived"), Some(7)));
+    assert_eq!(
+        (line["event"].as_str(), line["tick"].as_u64()),
+        (Some("arrived"), Some(7))
+    );
 }
 
 fn entity<'a>(scene: &'a SceneUpdate, id: &str) -> Option<&'a foxglove::schemas::SceneEntity> {
@@ -141,14 +182,25 @@ fn the_scene_draws_the_arm_where_the_chain_puts_it() {
             Obstacle {
                 id: "shelf".into(),
                 shape: Shape::Polygon {
-                    points: vec![Vec2::new(-0.5, 0.5), Vec2::new(-0.3, 0.5), Vec2::new(-0.3, 0.7)],
+                    points: vec![
+                        Vec2::new(-0.5, 0.5),
+                        Vec2::new(-0.3, 0.5),
+                        Vec2::new(-0.3, 0.7),
+                    ],
                 },
             },
         ],
     )
     .unwrap();
     let mut trail = Trail::new(4);
-    for p in [[0.0, 0.0], [0.1, 0.0], [0.1, 0.0], [0.2, 0.0], [0.3, 0.0], [0.4, 0.0]] {
+    for p in [
+        [0.0, 0.0],
+        [0.1, 0.0],
+        [0.1, 0.0],
+        [0.2, 0.0],
+        [0.3, 0.0],
+        [0.4, 0.0],
+    ] {
         trail.push(p);
     }
     assert_eq!(trail.len(), 4, "bounded, a repeated point not added");
@@ -166,7 +218,10 @@ fn the_scene_draws_the_arm_where_the_chain_puts_it() {
     assert_eq!(meas.spheres.len(), 3, "one per joint");
     let cmd = entity(&scene, "arm_cmd").unwrap();
     let last = cmd.lines[0].points.last().unwrap();
-    assert!((last.x - 1.1).abs() < 1e-12 && (last.y + 0.25).abs() < 1e-12, "straight: {last:?}");
+    assert!(
+        (last.x - 1.1).abs() < 1e-12 && (last.y + 0.25).abs() < 1e-12,
+        "straight: {last:?}"
+    );
     assert_eq!(cmd.lines[0].thickness, 0.04, "the links' width");
     let target = entity(&scene, "target").unwrap();
     let at = target.spheres[0].pose.unwrap().position.unwrap();
@@ -197,7 +252,13 @@ fn without_a_target_or_angles_the_scene_says_so() {
     let mut t = telemetry(&chain, &[0.0; 3]);
     t.theta_cmd.clear();
     t.theta_meas.clear();
-    let scene = scene(&chain, &World::default(), &t, &Trail::default(), timestamp(1.0));
+    let scene = scene(
+        &chain,
+        &World::default(),
+        &t,
+        &Trail::default(),
+        timestamp(1.0),
+    );
     assert!(entity(&scene, "arm_cmd").is_none());
     assert!(entity(&scene, "arm_meas").is_none());
     assert!(entity(&scene, "tip_meas").is_some());
