@@ -10,7 +10,7 @@
 //! | `telemetry` | the socket's telemetry line ([`TELEMETRY_SCHEMA_NAME`]) | `json`, schema `jsonschema` |
 //! | `events` | the socket's event lines ([`EVENT_SCHEMA_NAME`]) | `json`, schema `jsonschema` |
 //! | `log` | the same events as `foxglove.Log`, for a Log panel | `protobuf` |
-//! | `scene` | `foxglove.SceneUpdate` ([`scene`]) | `protobuf` |
+//! | `scene` | `foxglove.SceneUpdate` ([`scene()`]) | `protobuf` |
 //!
 //! The `ros2msg` schemas are the `.msg` texts with their dependencies concatenated, as MCAP's
 //! ROS 2 profile and rosbag2 write them, so a recording reads with the ROS 2 tools. Points and
