@@ -49,8 +49,9 @@ const COMMAND_QUEUE: usize = 8;
 const REFUSAL_QUEUE: usize = 16;
 
 /// Messages each Foxglove client's queue in the server holds before its oldest are dropped:
-/// a few seconds of every channel at the default rate.
-const CLIENT_BACKLOG: usize = 1024;
+/// under two seconds of every channel at the default rate (about 150 messages a second, a
+/// scene of a full trail about 25 kB), so a stalled client holds a few MB at most.
+const CLIENT_BACKLOG: usize = 256;
 
 /// Why the view could not start.
 #[derive(Debug, thiserror::Error)]
