@@ -360,6 +360,26 @@ fn a_foxglove_client_sees_every_channel_and_the_arm() {
     assert!(event.unwrap()["tick"].is_u64());
     assert_eq!(log.unwrap().name, "snakectl");
 
+    // A world change reaches the scene.
+    client.ok(json!({"cmd": "set_world", "obstacles": [
+        {"id": "far_post", "circle": {"center": [3.0, 3.0], "radius": 0.05}},
+    ]}));
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        assert!(Instant::now() < deadline, "no scene with the new obstacle");
+        let d = fox.data();
+        if d.subscription != 3 {
+            continue;
+        }
+        let scene = SceneUpdate::decode(&d.payload[..]).unwrap();
+        let obstacles = scene.entities.iter().find(|e| e.id == "obstacles").unwrap();
+        if obstacles.texts.iter().any(|t| t.text == "far_post") {
+            let disc = obstacles.cylinders[0].pose.unwrap().position.unwrap();
+            assert_eq!((disc.x, disc.y), (3.0, 3.0));
+            break;
+        }
+    }
+
     // An old client's subprotocol alone is refused by the handshake.
     assert!(Fox::try_connect(port, "foxglove.websocket.v1").is_err());
     drop(fox);
