@@ -17,6 +17,10 @@
 //! default rate on the plain keys and, as a ROS 2 node, on rmw_zenoh's, to a peer subscribed
 //! to every key), one after the other.
 //!
+//! `cargo run --release --example loop_rate -- SECONDS --foxglove` instead runs each fixed
+//! rate twice, without and with the Foxglove view on (at its default rate), one Foxglove client
+//! reading every channel and another subscribed to every channel that never reads.
+//!
 //! A client streams `velocity` commands at 20 Hz (a figure eight, as a joystick would) while
 //! the loop runs; the first half second of each run is left out of the figures
 //! (`reset_stats`).
@@ -202,6 +206,9 @@ fn main() -> Result<()> {
     };
     if std::env::args().nth(2).as_deref() == Some("--zenoh") {
         return with_zenoh::table(seconds);
+    }
+    if std::env::args().nth(2).as_deref() == Some("--foxglove") {
+        return with_foxglove::table(seconds);
     }
     if std::env::args().nth(2).as_deref() == Some("--obstacles") {
         println!("Without wire timing, {seconds} s per rate, with 0 and 16 obstacles:\n");
@@ -477,5 +484,130 @@ mod with_zenoh {
 mod with_zenoh {
     pub fn table(_seconds: f64) -> anyhow::Result<()> {
         anyhow::bail!("--zenoh needs the zenoh feature: cargo run --release --features zenoh --example loop_rate -- 5 --zenoh")
+    }
+}
+
+/// The fixed rates without and with the Foxglove view and two clients on it.
+mod with_foxglove {
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use anyhow::{Context, Result};
+    use futures_util::{SinkExt, StreamExt};
+    use serde_json::{json, Value};
+    use snakectl::config::Config;
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    use tokio_tungstenite::tungstenite::http::HeaderValue;
+    use tokio_tungstenite::tungstenite::Message;
+
+    use super::{cells, config, run_config};
+
+    /// A Foxglove client on `port`, subscribed to every channel: counting what it reads into
+    /// `count`, or (`stalled`) reading nothing once subscribed, until `stop`.
+    fn client(
+        port: u16,
+        stalled: bool,
+        stop: Arc<AtomicBool>,
+        count: Arc<AtomicU64>,
+    ) -> Result<()> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        runtime.block_on(async move {
+            let mut request = format!("ws://127.0.0.1:{port}").into_client_request()?;
+            request.headers_mut().insert(
+                "sec-websocket-protocol",
+                HeaderValue::from_static("foxglove.sdk.v1"),
+            );
+            let (mut ws, _) = tokio_tungstenite::connect_async(request).await?;
+            let mut ids = Vec::new();
+            while ids.len() < 8 {
+                let Some(message) = ws.next().await else {
+                    anyhow::bail!("the view closed the connection");
+                };
+                if let Message::Text(text) = message? {
+                    let v: Value = serde_json::from_str(text.as_str())?;
+                    if v["op"] == "advertise" {
+                        for c in v["channels"].as_array().context("channels")? {
+                            ids.push(c["id"].clone());
+                        }
+                    }
+                }
+            }
+            let subscriptions: Vec<Value> = ids
+                .iter()
+                .enumerate()
+                .map(|(i, id)| json!({"id": i + 1, "channelId": id}))
+                .collect();
+            let subscribe = json!({"op": "subscribe", "subscriptions": subscriptions});
+            ws.send(Message::text(subscribe.to_string())).await?;
+            while !stop.load(Ordering::Relaxed) {
+                if stalled {
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                    continue;
+                }
+                match tokio::time::timeout(Duration::from_millis(100), ws.next()).await {
+                    Ok(Some(Ok(Message::Binary(_)))) => {
+                        count.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Ok(Some(Ok(_))) | Err(_) => {}
+                    Ok(Some(Err(e))) => return Err(e.into()),
+                    Ok(None) => break,
+                }
+            }
+            Ok(())
+        })
+    }
+
+    pub fn table(seconds: f64) -> Result<()> {
+        println!("Without wire timing, {seconds} s per rate, the Foxglove view off then on (one client reading, one stalled):\n");
+        println!("| rate, Hz | Foxglove | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs | messages read |");
+        println!("|---|---|---|---|---|---|---|---|");
+        for rate in [100.0, 500.0, 1000.0] {
+            let off = run_config(config(rate, false, None)?, rate, seconds)?;
+            println!("| {rate:.0} | off | {} 0 |", cells(&off));
+            let port = std::net::TcpListener::bind("127.0.0.1:0")?
+                .local_addr()?
+                .port();
+            let plain = config(rate, false, None)?;
+            let path = plain.path().to_path_buf();
+            let text = std::fs::read_to_string(&path)?
+                .replace("rate_hz = 100.0", &format!("rate_hz = {rate:.1}"));
+            let on = Config::from_str(
+                &format!("{text}\n[foxglove]\nlisten = \"127.0.0.1:{port}\"\n"),
+                &path,
+            )?;
+            let stop = Arc::new(AtomicBool::new(false));
+            let count = Arc::new(AtomicU64::new(0));
+            let clients: Vec<_> = [false, true]
+                .into_iter()
+                .map(|stalled| {
+                    let (stop, count) = (stop.clone(), count.clone());
+                    std::thread::spawn(move || {
+                        // The view binds during start-up: try until it listens.
+                        for _ in 0..200 {
+                            match client(port, stalled, stop.clone(), count.clone()) {
+                                Err(_) if !stop.load(Ordering::Relaxed) => {
+                                    std::thread::sleep(Duration::from_millis(25))
+                                }
+                                _ => return,
+                            }
+                        }
+                    })
+                })
+                .collect();
+            let m = run_config(on, rate, seconds);
+            stop.store(true, Ordering::Relaxed);
+            for c in clients {
+                let _ = c.join();
+            }
+            println!(
+                "| {rate:.0} | on | {} {} |",
+                cells(&m?),
+                count.load(Ordering::Relaxed)
+            );
+        }
+        Ok(())
     }
 }

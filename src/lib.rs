@@ -49,6 +49,8 @@
 //!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in;
 //!   and rmw_zenoh's keys, graph tokens and attachments ([`ros::rmw`]), as pure formatting.
 //! - [`urdf`]: the configured arm as a URDF robot description (`snakectl urdf`).
+//! - [`view`]: the channels a Foxglove view and a recording share (topics, schemas, the
+//!   messages) and the arm as a Foxglove 3-D scene; pure, time passed in.
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread (held as parts: port,
 //!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
 //!   between them.
@@ -86,3 +88,4 @@ pub mod protocol;
 pub mod ros;
 pub mod teleop;
 pub mod urdf;
+pub mod view;

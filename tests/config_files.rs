@@ -183,3 +183,41 @@ fn commented_contact_detection_parses() {
     assert_eq!(contact.load, vec![60.0; 12]);
     assert_eq!(contact.hold, std::time::Duration::from_millis(200));
 }
+
+/// The commented `[foxglove]` table of each shipped file, uncommented, is valid: the view on
+/// loopback port 8765 at the default rate, taking no commands.
+#[test]
+fn commented_foxglove_tables_serve_on_loopback() {
+    for name in ["sim.toml", "arm.toml"] {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("config")
+            .join(name);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let start = text
+            .find("\n# [foxglove]\n")
+            .unwrap_or_else(|| panic!("{name}: no [foxglove]"));
+        let end = text[start + 1..]
+            .find("\n\n")
+            .map_or(text.len(), |n| start + 1 + n);
+        let uncommented: String = text[start..end]
+            .lines()
+            .map(|l| l.strip_prefix("# ").unwrap_or(l))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let edited = format!("{text}\n{uncommented}\n");
+        let config = Config::from_str(&edited, &path).unwrap_or_else(|e| panic!("{e}"));
+        let view = config.foxglove();
+        assert_eq!(
+            view.listen,
+            Some("127.0.0.1:8765".parse().unwrap()),
+            "{name}"
+        );
+        assert_eq!(view.publish_hz, 30.0, "{name}");
+        assert!(!view.accept_commands, "{name}");
+        assert_eq!(
+            Config::load(&path).unwrap().foxglove().listen,
+            None,
+            "{name}: off as shipped"
+        );
+    }
+}

@@ -3,8 +3,8 @@
 //! it lives.
 //!
 //! - The problem and the error of `snakectl solve` run as shown.
-//! - Every JSON and TOML example parses; a `[zenoh]` table is a valid config table, and a
-//!   scenario is a valid scenario that runs.
+//! - Every JSON and TOML example parses; a `[zenoh]` or `[foxglove]` table is a valid config
+//!   table, and a scenario is a valid scenario that runs.
 //! - Every `snakectl` command shown (in a code block, or inline) names a real subcommand and only
 //!   options that subcommand has; every `cargo` command names tests, benches, examples and
 //!   features that exist.
@@ -48,6 +48,7 @@ const DOCS: &[Doc] = &[
     doc("docs/DEMO.md", 1, 6, 2),
     doc("docs/FAULTS.md", 0, 1, 1),
     doc("docs/FLEXIBLE-OBJECTS.md", 2, 6, 10),
+    doc("docs/FOXGLOVE.md", 4, 6, 3),
     doc("docs/HARDWARE.md", 4, 14, 0),
     doc("docs/PROTOCOL.md", 2, 2, 3),
     doc("docs/ROS2.md", 5, 5, 3),
@@ -279,8 +280,9 @@ fn json_and_toml_examples_parse() {
                 "toml" => {
                     let table: toml::Table =
                         toml::from_str(&block.text).unwrap_or_else(|e| panic!("{what}: {e}"));
-                    if table.contains_key("zenoh") {
-                        // A `[zenoh]` table, checked as part of a whole config file.
+                    if table.contains_key("zenoh") || table.contains_key("foxglove") {
+                        // A `[zenoh]` or `[foxglove]` table, checked as part of a whole config
+                        // file.
                         let config = format!("{sim}\n{}", block.text);
                         Config::from_str(&config, root().join("config/sim.toml"))
                             .unwrap_or_else(|e| panic!("{what}: {e}"));
@@ -298,7 +300,8 @@ fn json_and_toml_examples_parse() {
                         assert!(!scenario.run().is_empty(), "{what}: no runs");
                     } else {
                         panic!(
-                            "{what}: neither a [zenoh] table nor a scenario; say how to check it"
+                            "{what}: neither a [zenoh] or [foxglove] table nor a scenario; say how \
+                             to check it"
                         );
                     }
                 }

@@ -11,12 +11,13 @@
 //! The tables: `[arm]` and `[[joint]]` (geometry, limits, home pose and per-joint servo
 //! settings), `[bus]` (serial bus), `[sim]` with `[[sim.fault]]` (the simulated servo chain),
 //! `[control]` (the loop), `[server]` (the socket), `[zenoh]` (the daemon on a Zenoh
-//! network, in [`zenoh_table`]) and `[world]` with `[[world.obstacle]]` (the obstacles every
+//! network, in [`zenoh_table`]), `[foxglove]` (the live view, in [`foxglove_table`]) and `[world]` with `[[world.obstacle]]` (the obstacles every
 //! link keeps clear of, and contact detection). Geometry is checked in full, the world against
 //! the arm too (no obstacle at the base, the home pose clear); the other tables get the cheap
 //! checks (signs, ranges, known names, ids that exist, endpoint syntax).
 
 mod error;
+pub mod foxglove_table;
 pub mod raw;
 pub mod zenoh_table;
 
@@ -24,6 +25,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 pub use error::{ConfigError, FieldProblem};
+pub use foxglove_table::Foxglove;
 pub use raw::{BusKind, HardwareError};
 pub use zenoh_table::{Endpoint, Host, Zenoh, ZenohMode};
 
@@ -221,6 +223,7 @@ pub struct Config {
     control: Control,
     server: Server,
     zenoh: Zenoh,
+    foxglove: Foxglove,
     world: World,
     contact: Option<Contact>,
 }
@@ -335,6 +338,12 @@ impl Config {
     /// The Zenoh settings (`enabled = false` when the file has no `[zenoh]`).
     pub fn zenoh(&self) -> &Zenoh {
         &self.zenoh
+    }
+
+    /// The Foxglove view's settings (no server, `listen = None`, when the file has no
+    /// `[foxglove]`).
+    pub fn foxglove(&self) -> &Foxglove {
+        &self.foxglove
     }
 
     /// The obstacles the arm keeps clear of (an empty world with the default clearance when
@@ -487,6 +496,7 @@ impl Checker<'_> {
         let control = self.control(&raw.control.unwrap_or_default())?;
         let server = self.server(raw.server.unwrap_or_default())?;
         let zenoh = self.zenoh(raw.zenoh.unwrap_or_default(), control.rate_hz)?;
+        let foxglove = self.foxglove(raw.foxglove.unwrap_or_default(), control.rate_hz, &server)?;
         let (world, contact) = match raw.world {
             Some(w) => self.world(w, &chain, &home, &joints)?,
             None => (World::default(), None),
@@ -502,6 +512,7 @@ impl Checker<'_> {
             control,
             server,
             zenoh,
+            foxglove,
             world,
             contact,
         })

@@ -39,6 +39,9 @@ pub struct RawConfig {
     /// `[zenoh]`: the daemon on a Zenoh network; off when absent.
     #[serde(default)]
     pub zenoh: Option<RawZenoh>,
+    /// `[foxglove]`: the live view for Foxglove; no server when absent.
+    #[serde(default)]
+    pub foxglove: Option<RawFoxglove>,
     /// `[world]`: the obstacles the arm keeps clear of, and contact detection; none when
     /// absent.
     #[serde(default)]
@@ -440,6 +443,21 @@ pub struct RawZenoh {
     pub domain_id: u32,
 }
 
+/// `[foxglove]`: the live view a Foxglove app connects to over WebSocket.
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct RawFoxglove {
+    /// Address to serve on, `HOST:PORT`; no server when absent.
+    #[serde(default)]
+    pub listen: Option<String>,
+    /// Publishing rate, Hz; the smaller of 30 and `control.rate_hz` when absent.
+    #[serde(default)]
+    pub publish_hz: Option<f64>,
+    /// Take `cmd_vel` (a Teleop panel's `Twist`) from Foxglove.
+    #[serde(default)]
+    pub accept_commands: bool,
+}
+
 /// `[world]`: the obstacles every link keeps clear of, and contact detection.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -667,6 +685,9 @@ pub fn default_zenoh_mode() -> ZenohMode {
 pub fn default_zenoh_prefix() -> String {
     "snakectl".to_owned()
 }
+
+/// Foxglove publishing rate, Hz, when the loop runs at least this fast.
+pub const DEFAULT_FOXGLOVE_PUBLISH_HZ: f64 = 30.0;
 
 /// Zenoh publishing rate, Hz, when the loop runs at least this fast.
 pub const DEFAULT_ZENOH_PUBLISH_HZ: f64 = 50.0;

@@ -1256,3 +1256,74 @@ fn the_bus_read_and_the_simulated_firmware() {
         &["300", "u8"],
     );
 }
+
+/// `base_text` with a `[foxglove]` table of `table` added (the base text has a token file
+/// unless `no_token`).
+fn with_foxglove(table: &str, no_token: bool) -> String {
+    let mut text = base_text();
+    if no_token {
+        text = text.replacen("token_file = \"token.txt\"\n", "", 1);
+    }
+    format!("{text}\n[foxglove]\n{table}\n")
+}
+
+#[test]
+fn foxglove_is_off_unless_it_listens_and_defaults_follow_the_loop() {
+    let c = load(&base_text()).unwrap();
+    assert_eq!(c.foxglove().listen, None);
+    assert!(!c.foxglove().accept_commands);
+    assert_eq!(c.foxglove().publish_hz, 30.0);
+    let c = load(&with_foxglove("listen = \"127.0.0.1:8765\"", false)).unwrap();
+    assert_eq!(c.foxglove().listen, Some("127.0.0.1:8765".parse().unwrap()));
+    let slow = with_foxglove("listen = \"[::1]:0\"", false)
+        .replacen("rate_hz = 100.0", "rate_hz = 20.0", 1)
+        .replacen("publish_hz = 25.0\n", "", 1);
+    let c = load(&slow).unwrap();
+    assert_eq!(c.foxglove().publish_hz, 20.0, "at most the loop's rate");
+    let c = load(&with_foxglove(
+        "listen = \"127.0.0.1:0\"\npublish_hz = 10.0\naccept_commands = true",
+        true,
+    ))
+    .unwrap();
+    assert_eq!(
+        (c.foxglove().publish_hz, c.foxglove().accept_commands),
+        (10.0, true)
+    );
+}
+
+#[test]
+fn foxglove_refusals_name_the_field() {
+    refused(
+        &with_foxglove("listen = \"localhost:8765\"", false),
+        &["foxglove.listen", "localhost:8765", "not an address"],
+    );
+    for exposed in ["0.0.0.0:8765", "192.168.1.5:8765", "[::]:8765"] {
+        let msg = refused(
+            &with_foxglove(&format!("listen = \"{exposed}\""), false),
+            &[
+                "foxglove.listen",
+                exposed,
+                "loopback",
+                "ssh -L 8765:127.0.0.1:8765",
+            ],
+        );
+        assert!(msg.contains("token"), "{msg}");
+    }
+    for rate in ["0.0", "-1.0", "200.0", "nan"] {
+        refused(
+            &with_foxglove(
+                &format!("listen = \"127.0.0.1:8765\"\npublish_hz = {rate}"),
+                false,
+            ),
+            &["foxglove.publish_hz", "control.rate_hz = 100"],
+        );
+    }
+    refused(
+        &with_foxglove("listen = \"127.0.0.1:8765\"\naccept_commands = true", false),
+        &["foxglove.accept_commands", "token_file"],
+    );
+    refused(
+        &with_foxglove("listen_port = 8765", false),
+        &["listen_port"],
+    );
+}

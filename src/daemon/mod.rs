@@ -19,6 +19,7 @@
 //!   latest-wins telemetry, broadcast events).
 //! - [`server`]: the JSON-lines TCP server on the socket side.
 //! - [`stats`]: fixed-size histograms for the run summary.
+//! - [`view`]: the live Foxglove view (`[foxglove]`): a WebSocket server on its own thread.
 
 pub mod access;
 pub mod arbiter;
@@ -29,6 +30,7 @@ pub mod embedded;
 pub mod link;
 pub mod server;
 pub mod stats;
+pub mod view;
 
 use std::future::Future;
 use std::path::PathBuf;
@@ -133,6 +135,14 @@ pub enum DaemonError {
         /// The config file.
         path: PathBuf,
     },
+    /// The Foxglove view could not start.
+    #[error("{}: [foxglove]: {source}", path.display())]
+    Foxglove {
+        /// The config file.
+        path: PathBuf,
+        /// Why.
+        source: view::ViewError,
+    },
     /// The Zenoh session could not be opened or set up.
     #[cfg(feature = "zenoh")]
     #[error("{}: [zenoh]: {source}", path.display())]
@@ -161,7 +171,8 @@ pub fn check_zenoh_built(config: &Config) -> Result<(), DaemonError> {
 /// Before anything moves, `[zenoh] enabled = true` in a build without Zenoh is refused
 /// ([`DaemonError::ZenohNotBuilt`]), the `[server] token_file` is read and a `listener` on an
 /// address other than loopback without one is refused ([`DaemonError::Access`]), and, with
-/// the `zenoh` feature and the table enabled, the Zenoh session is opened.
+/// the `zenoh` feature and the table enabled, the Zenoh session is opened; with a
+/// `[foxglove] listen`, the Foxglove server is bound.
 pub async fn run(
     config: Config,
     listener: TcpListener,
@@ -186,6 +197,12 @@ pub async fn run(
         ),
         false => None,
     };
+    let mut foxglove = view::View::open(&config)
+        .await
+        .map_err(|source| DaemonError::Foxglove {
+            path: config.path().to_path_buf(),
+            source,
+        })?;
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = oneshot::channel();
     let (done_tx, done_rx) = oneshot::channel();
@@ -232,8 +249,14 @@ pub async fn run(
         if let Some(bridge) = bridge.as_mut() {
             bridge.start(server.door());
         }
+        if let Some(foxglove) = foxglove.as_mut() {
+            foxglove.start(server.door());
+        }
         server.serve(listener, shutdown).await
     };
+    if let Some(foxglove) = foxglove.take() {
+        foxglove.stop().await;
+    }
     #[cfg(feature = "zenoh")]
     if let Some(bridge) = bridge.take() {
         bridge.stop().await;

@@ -1,0 +1,76 @@
+//! The validated `[foxglove]` table: where the live view serves, how often it publishes, and
+//! whether it takes commands.
+//!
+//! The table is checked in every build. The Foxglove WebSocket server cannot ask a client for
+//! the `[server]` token, so the view follows the socket's rule the only way it can: it serves
+//! loopback only (other hosts reach it through an SSH tunnel), and a daemon whose socket asks
+//! for a token takes no commands from Foxglove.
+
+use std::net::SocketAddr;
+
+use super::raw::{RawFoxglove, DEFAULT_FOXGLOVE_PUBLISH_HZ};
+use super::{finite_within, Checker, ConfigError, FieldProblem, Server};
+
+/// The validated `[foxglove]` (no server when the table is absent).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Foxglove {
+    /// Where the WebSocket server listens (a loopback address; port 0 picks a free one);
+    /// `None`: no server.
+    pub listen: Option<SocketAddr>,
+    /// Publishing rate, Hz, positive and at most `control.rate_hz`.
+    pub publish_hz: f64,
+    /// Whether a Foxglove client's `Twist` on `cmd_vel` becomes `velocity` (never with a
+    /// `[server] token_file`).
+    pub accept_commands: bool,
+}
+
+impl Checker<'_> {
+    /// Checks `[foxglove]`; `rate_hz` is the validated loop rate, `server` the validated
+    /// `[server]` (its token rule applies).
+    pub(super) fn foxglove(
+        &self,
+        raw: RawFoxglove,
+        rate_hz: f64,
+        server: &Server,
+    ) -> Result<Foxglove, ConfigError> {
+        let listen = match raw.listen {
+            None => None,
+            Some(text) => {
+                let addr = text.parse::<SocketAddr>().map_err(|e| {
+                    self.invalid(
+                        "foxglove.listen",
+                        FieldProblem::BadAddress {
+                            value: text.clone(),
+                            reason: e.to_string(),
+                        },
+                    )
+                })?;
+                if !addr.ip().to_canonical().is_loopback() {
+                    return Err(self.invalid("foxglove.listen", FieldProblem::NotLoopback { addr }));
+                }
+                Some(addr)
+            }
+        };
+        let publish_hz = match raw.publish_hz {
+            None => DEFAULT_FOXGLOVE_PUBLISH_HZ.min(rate_hz),
+            Some(value) if finite_within(value) && value > 0.0 && value <= rate_hz => value,
+            Some(value) => {
+                return Err(self.invalid(
+                    "foxglove.publish_hz",
+                    FieldProblem::AboveLoopRate { value, rate_hz },
+                ))
+            }
+        };
+        if raw.accept_commands && server.token_file.is_some() {
+            return Err(self.invalid(
+                "foxglove.accept_commands",
+                FieldProblem::CommandsWithoutToken,
+            ));
+        }
+        Ok(Foxglove {
+            listen,
+            publish_hz,
+            accept_commands: raw.accept_commands,
+        })
+    }
+}

@@ -1,0 +1,554 @@
+//! The live Foxglove view: a Foxglove WebSocket server (the `foxglove` crate) on a thread of
+//! its own, publishing the channels of [`crate::view`] from what the loop publishes.
+//!
+//! [`View::open`] binds the server before anything moves (a taken port stops start-up);
+//! [`View::start`] hands it a [`Door`]; [`View::stop`] closes it. Its thread runs its own
+//! runtime and never holds the loop up: at `publish_hz` it clones the latest telemetry from
+//! the loop's `watch` (latest wins: a skipped sample is never queued) and sends the joints,
+//! the tips, the target, the telemetry line and the whole scene again (so a client that joins
+//! late sees the arm at rest); events come from the loop's broadcast, and what it misses
+//! when behind is counted ([`View::stop`] logs the count). Each Foxglove client has a bounded
+//! queue of its own in the server, which drops its oldest messages when the client stalls.
+//!
+//! With `accept_commands`, the server offers client publishing (`json` and `cdr`), and a
+//! `Twist` published on `/<prefix>/cmd_vel` becomes `velocity` (`linear.x`, `linear.y`, m/s)
+//! through the door: the same arbiter and bounded queue as a socket client's commands, one
+//! controller id for every Foxglove client, control let go of after the deadman's silence.
+//! Without it the server offers no publishing and nothing a Foxglove client sends moves the
+//! arm.
+
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use foxglove::websocket::{Capability, Client, ClientChannel, ServerListener};
+use foxglove::{Context, PartialMetadata, RawChannel, WebSocketServer};
+use serde::Deserialize;
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::time::{self, MissedTickBehavior};
+use tracing::{debug, info, warn};
+
+use super::server::Door;
+use crate::chain::Chain;
+use crate::config::Config;
+use crate::protocol::{self, Cmd, Code, Event, Rejection, What};
+use crate::ros;
+use crate::view::{self, Topic, Trail};
+use crate::world::World;
+
+/// The topic a Teleop panel publishes to, under the prefix.
+pub const CMD_VEL: &str = "cmd_vel";
+
+/// `Twist`s held between two turns of the view's task; when full the newest is dropped (the
+/// next one replaces it anyway) and counted.
+const COMMAND_QUEUE: usize = 8;
+
+/// Refusals of Foxglove commands held before they are logged.
+const REFUSAL_QUEUE: usize = 16;
+
+/// Messages each Foxglove client's queue in the server holds before its oldest are dropped:
+/// under two seconds of every channel at the default rate (about 150 messages a second, a
+/// scene of a full trail about 25 kB), so a stalled client holds a few MB at most.
+const CLIENT_BACKLOG: usize = 256;
+
+/// Why the view could not start.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ViewError {
+    /// The server could not listen (the port taken, the address not this host's).
+    #[error("the Foxglove server on {addr}: {message}")]
+    Listen {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        message: String,
+    },
+    /// Its thread could not be started, or ended before it said why.
+    #[error("the Foxglove server's thread: {0}")]
+    Thread(String),
+}
+
+/// What the view needs of the config, taken before the loop's thread owns it.
+#[derive(Debug, Clone)]
+struct Settings {
+    listen: SocketAddr,
+    prefix: String,
+    publish_period: Duration,
+    accept_commands: bool,
+    deadman: Duration,
+    chain: Chain,
+    world: World,
+}
+
+/// The Foxglove server on its own thread: bound by [`View::open`], serving once
+/// [`View::start`] hands it the way in, closed by [`View::stop`].
+#[derive(Debug)]
+pub struct View {
+    addr: SocketAddr,
+    start: Option<oneshot::Sender<Door>>,
+    stop: Option<oneshot::Sender<()>>,
+    done: Option<oneshot::Receiver<()>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl View {
+    /// Binds the server `config`'s `[foxglove]` table describes; `None` when it sets no
+    /// `listen`.
+    pub async fn open(config: &Config) -> Result<Option<View>, ViewError> {
+        let table = config.foxglove();
+        let Some(listen) = table.listen else {
+            return Ok(None);
+        };
+        let settings = Settings {
+            listen,
+            prefix: config.zenoh().prefix.clone(),
+            publish_period: Duration::try_from_secs_f64(1.0 / table.publish_hz)
+                .unwrap_or(Duration::from_secs(1))
+                .max(Duration::from_micros(100)),
+            accept_commands: table.accept_commands,
+            deadman: config.control().deadman,
+            chain: config.chain().clone(),
+            world: config.world().clone(),
+        };
+        let (opened_tx, opened_rx) = oneshot::channel();
+        let (start_tx, start_rx) = oneshot::channel();
+        let (stop_tx, stop_rx) = oneshot::channel();
+        let (done_tx, done_rx) = oneshot::channel();
+        let thread = std::thread::Builder::new()
+            .name("snakectl-foxglove".into())
+            .spawn(move || {
+                view_thread(settings, opened_tx, start_rx, stop_rx);
+                let _ = done_tx.send(());
+            })
+            .map_err(|e| ViewError::Thread(e.to_string()))?;
+        match opened_rx.await {
+            Ok(Ok(addr)) => Ok(Some(View {
+                addr,
+                start: Some(start_tx),
+                stop: Some(stop_tx),
+                done: Some(done_rx),
+                thread: Some(thread),
+            })),
+            Ok(Err(e)) => {
+                let _ = thread.join();
+                Err(e)
+            }
+            Err(_) => {
+                let _ = thread.join();
+                Err(ViewError::Thread("it ended while binding".into()))
+            }
+        }
+    }
+
+    /// Where it listens (the port chosen when the config said 0).
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Starts publishing and (with `accept_commands`) commanding through `door`.
+    pub fn start(&mut self, door: Door) {
+        if let Some(start) = self.start.take() {
+            let _ = start.send(door);
+        }
+    }
+
+    /// Closes the server and waits for its thread.
+    pub async fn stop(mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        if let Some(done) = self.done.take() {
+            let _ = done.await;
+        }
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+impl Drop for View {
+    fn drop(&mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+    }
+}
+
+/// A `Twist` as a Foxglove client sends it in JSON; missing fields are 0.
+#[derive(Debug, Default, Deserialize)]
+struct JsonTwist {
+    #[serde(default)]
+    linear: JsonVector,
+}
+
+#[derive(Debug, Default, Deserialize)]
+struct JsonVector {
+    #[serde(default)]
+    x: f64,
+    #[serde(default)]
+    y: f64,
+}
+
+/// Hands what Foxglove clients publish on `cmd_vel` to the view's task, never waiting.
+struct Commands {
+    topic: String,
+    tx: mpsc::Sender<Result<[f64; 2], Rejection>>,
+    dropped: Arc<AtomicU64>,
+}
+
+impl ServerListener for Commands {
+    fn on_message_data(&self, _client: Client, channel: &ClientChannel, payload: &[u8]) {
+        if channel.topic != self.topic {
+            return;
+        }
+        let v = twist(&channel.encoding, payload);
+        if self.tx.try_send(v).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    fn on_client_advertise(&self, _client: Client, channel: &ClientChannel) {
+        debug!(topic = %channel.topic, encoding = %channel.encoding, schema = %channel.schema_name, "a Foxglove client advertised");
+    }
+}
+
+/// The planar velocity of a `Twist` in `encoding` (`json` or `cdr`): `linear.x`, `linear.y`.
+fn twist(encoding: &str, payload: &[u8]) -> Result<[f64; 2], Rejection> {
+    let bad = |e: &dyn std::fmt::Display| {
+        Rejection::new(
+            Code::BadArg,
+            format!("cmd_vel is not a geometry_msgs/msg/Twist in {encoding}: {e}"),
+        )
+    };
+    let v = match encoding {
+        "json" => {
+            let t: JsonTwist = serde_json::from_slice(payload).map_err(|e| bad(&e))?;
+            [t.linear.x, t.linear.y]
+        }
+        "cdr" => {
+            let t: ros::Twist = ros::decode(payload).map_err(|e| bad(&e))?;
+            [t.linear.x, t.linear.y]
+        }
+        other => {
+            return Err(Rejection::new(
+                Code::BadArg,
+                format!("cmd_vel in {other:?}: only json and cdr are taken"),
+            ))
+        }
+    };
+    protocol::checked_point("v", v)
+}
+
+/// Seconds since the Unix epoch now: the stamps of what the view sends.
+fn wall_clock_s() -> f64 {
+    match SystemTime::now().duration_since(UNIX_EPOCH) {
+        Ok(d) => d.as_secs_f64(),
+        Err(e) => -e.duration().as_secs_f64(),
+    }
+}
+
+fn view_thread(
+    settings: Settings,
+    opened: oneshot::Sender<Result<SocketAddr, ViewError>>,
+    start: oneshot::Receiver<Door>,
+    mut stop: oneshot::Receiver<()>,
+) {
+    let runtime = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(runtime) => runtime,
+        Err(e) => {
+            let _ = opened.send(Err(ViewError::Thread(e.to_string())));
+            return;
+        }
+    };
+    runtime.block_on(async move {
+        // A context of its own: several daemons in one process keep their channels apart.
+        let context = Context::new();
+        let (commands_tx, commands_rx) = mpsc::channel(COMMAND_QUEUE);
+        let dropped = Arc::new(AtomicU64::new(0));
+        let mut server = WebSocketServer::new()
+            .name(settings.prefix.clone())
+            .bind(settings.listen.ip().to_string(), settings.listen.port())
+            .context(&context)
+            .message_backlog_size(CLIENT_BACKLOG);
+        if settings.accept_commands {
+            server = server
+                .capabilities([Capability::ClientPublish])
+                .supported_encodings(["json", "cdr"])
+                .listener(Arc::new(Commands {
+                    topic: format!("/{}/{CMD_VEL}", settings.prefix),
+                    tx: commands_tx,
+                    dropped: Arc::clone(&dropped),
+                }));
+        }
+        let handle = match server.start().await {
+            Ok(handle) => handle,
+            Err(e) => {
+                let _ = opened.send(Err(ViewError::Listen {
+                    addr: settings.listen,
+                    message: e.to_string(),
+                }));
+                return;
+            }
+        };
+        let addr = SocketAddr::new(settings.listen.ip(), handle.port());
+        let _ = opened.send(Ok(addr));
+        let door = tokio::select! {
+            door = start => door.ok(),
+            _ = &mut stop => None,
+        };
+        if let Some(door) = door {
+            match Channels::declare(&context, &settings.prefix) {
+                Ok(channels) => {
+                    info!(
+                        url = %format!("ws://{addr}"),
+                        accept_commands = settings.accept_commands,
+                        "the Foxglove view serves"
+                    );
+                    let served = Served {
+                        settings: &settings,
+                        door,
+                        channels,
+                        trail: Trail::default(),
+                        world: settings.world.clone(),
+                        lost_events: 0,
+                        dropped_commands: dropped,
+                    };
+                    served.run(commands_rx, &mut stop).await;
+                }
+                Err(e) => warn!(error = %e, "the Foxglove channels could not be declared"),
+            }
+        }
+        handle.stop().wait().await;
+    });
+}
+
+/// The server's channels, one per [`Topic`].
+struct Channels {
+    channels: Vec<(Topic, Arc<RawChannel>)>,
+}
+
+impl Channels {
+    fn declare(context: &Arc<Context>, prefix: &str) -> Result<Channels, foxglove::FoxgloveError> {
+        let channels = Topic::ALL
+            .iter()
+            .map(|&topic| {
+                let spec = topic.channel(prefix);
+                context
+                    .channel_builder(spec.topic)
+                    .message_encoding(spec.message_encoding)
+                    .schema(spec.schema)
+                    .build_raw()
+                    .map(|channel| (topic, channel))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Channels { channels })
+    }
+
+    fn log(&self, topic: Topic, bytes: &[u8], log_time: u64) {
+        if let Some((_, channel)) = self.channels.iter().find(|(t, _)| *t == topic) {
+            channel.log_with_meta(
+                bytes,
+                PartialMetadata {
+                    log_time: Some(log_time),
+                },
+            );
+        }
+    }
+}
+
+/// The view while it serves.
+struct Served<'a> {
+    settings: &'a Settings,
+    door: Door,
+    channels: Channels,
+    trail: Trail,
+    world: World,
+    lost_events: u64,
+    dropped_commands: Arc<AtomicU64>,
+}
+
+impl Served<'_> {
+    async fn run(
+        mut self,
+        mut commands: mpsc::Receiver<Result<[f64; 2], Rejection>>,
+        stop: &mut oneshot::Receiver<()>,
+    ) {
+        let mut ticker = time::interval(self.settings.publish_period);
+        ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
+        let mut telemetry = self.door.telemetry();
+        let mut events = self.door.events();
+        let mut events_open = true;
+        let mut last_command: Option<time::Instant> = None;
+        let mut last_refusal: Option<Code> = None;
+        let (refusals_tx, mut refusals) = mpsc::channel::<Rejection>(REFUSAL_QUEUE);
+        loop {
+            let silence = last_command.map(|t| t + self.settings.deadman);
+            tokio::select! {
+                _ = &mut *stop => break,
+                _ = ticker.tick() => {
+                    // Cloned, then the snapshot is let go: building never holds the loop.
+                    let t = telemetry.borrow_and_update().clone();
+                    self.publish(&t);
+                }
+                event = events.recv(), if events_open => match event {
+                    Ok(event) => self.event(&event),
+                    Err(broadcast::error::RecvError::Lagged(missed)) => {
+                        self.lost_events += missed;
+                        debug!(missed, "the Foxglove view fell behind the events");
+                    }
+                    Err(broadcast::error::RecvError::Closed) => events_open = false,
+                },
+                Some(v) = commands.recv() => {
+                    let sent = v.and_then(|v| self.door.send(Cmd::Velocity { v }));
+                    match sent {
+                        Ok(answer) => {
+                            last_command = Some(time::Instant::now());
+                            last_refusal = None;
+                            let refusals = refusals_tx.clone();
+                            tokio::spawn(async move {
+                                if let Ok(Err(why)) = answer.await {
+                                    // Full: this refusal is not logged; the next one is.
+                                    let _ = refusals.try_send(why);
+                                }
+                            });
+                        }
+                        Err(why) => refused(why, &mut last_refusal),
+                    }
+                }
+                Some(why) = refusals.recv() => refused(why, &mut last_refusal),
+                () = sleep_until(silence), if silence.is_some() => {
+                    last_command = None;
+                    if self.door.release() {
+                        info!("no Foxglove command for the deadman: control released");
+                    }
+                }
+            }
+        }
+        let dropped = self.dropped_commands.load(Ordering::Relaxed);
+        if self.lost_events > 0 || dropped > 0 {
+            warn!(
+                lost_events = self.lost_events,
+                dropped_commands = dropped,
+                "the Foxglove view fell behind"
+            );
+        }
+    }
+
+    /// Sends one snapshot on every channel, and the scene.
+    fn publish(&mut self, t: &protocol::Telemetry) {
+        let now = wall_clock_s();
+        let log_time = view::nanos(now);
+        let cdr = |result: Result<Vec<u8>, ros::RosError>| match result {
+            Ok(bytes) => Some(bytes),
+            Err(e) => {
+                warn!(error = %e, "a ROS message could not be encoded");
+                None
+            }
+        };
+        if !t.theta_meas.is_empty() {
+            if let Some(bytes) = cdr(view::joint_states(t, now)) {
+                self.channels.log(Topic::JointStates, &bytes, log_time);
+            }
+        }
+        for (topic, p) in [(Topic::TipCmd, t.tip), (Topic::TipMeas, t.tip_meas)] {
+            if let Some(bytes) = cdr(view::point(p, now)) {
+                self.channels.log(topic, &bytes, log_time);
+            }
+        }
+        if let Some(target) = t.target {
+            if let Some(bytes) = cdr(view::point(target, now)) {
+                self.channels.log(Topic::Target, &bytes, log_time);
+            }
+        }
+        let line = self.door.telemetry_line(t);
+        self.channels
+            .log(Topic::Telemetry, &view::json_line(&line), log_time);
+        if t.theta_meas.len() == self.settings.chain.len() {
+            self.trail.push(t.tip_meas);
+        }
+        let scene = view::scene(
+            &self.settings.chain,
+            &self.world,
+            t,
+            &self.trail,
+            view::timestamp(now),
+        );
+        match view::encode(&scene) {
+            Ok(bytes) => self.channels.log(Topic::Scene, &bytes, log_time),
+            Err(e) => warn!(error = %e, "the scene could not be encoded"),
+        }
+    }
+
+    /// Sends `event` on `events` and `log`; a `world` event changes the scene's obstacles.
+    fn event(&mut self, event: &Event) {
+        if let What::World { world, .. } = &event.what {
+            match world.to_world() {
+                Ok(w) => self.world = w,
+                Err(e) => warn!(error = %e, "a world event the scene cannot draw"),
+            }
+        }
+        let now = wall_clock_s();
+        let log_time = view::nanos(now);
+        self.channels
+            .log(Topic::Events, &view::event(event), log_time);
+        match view::encode(&view::log(event, now)) {
+            Ok(bytes) => self.channels.log(Topic::Log, &bytes, log_time),
+            Err(e) => warn!(error = %e, "a log message could not be encoded"),
+        }
+    }
+}
+
+/// Logs a refused Foxglove command, once per run of the same refusal.
+fn refused(why: Rejection, last: &mut Option<Code>) {
+    if *last != Some(why.code) {
+        warn!(code = ?why.code, reason = %why.message, "a Foxglove command was refused");
+        *last = Some(why.code);
+    }
+}
+
+async fn sleep_until(deadline: Option<time::Instant>) {
+    match deadline {
+        Some(deadline) => time::sleep_until(deadline).await,
+        None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    #[test]
+    fn a_twist_reads_from_json_and_cdr() {
+        let json = br#"{"linear":{"x":0.1,"y":-0.2,"z":0},"angular":{"x":0,"y":0,"z":0.5}}"#;
+        assert_eq!(twist("json", json).unwrap(), [0.1, -0.2]);
+        let cdr = ros::encode(&ros::Twist {
+            linear: ros::Vector3 {
+                x: 0.03,
+                y: 0.04,
+                z: 9.0,
+            },
+            angular: ros::Vector3::default(),
+        })
+        .unwrap();
+        assert_eq!(twist("cdr", &cdr).unwrap(), [0.03, 0.04]);
+        for (encoding, payload) in [
+            ("json", &b"{\"linear\": 3}"[..]),
+            ("json", b"not json"),
+            ("cdr", b"\x00\x01"),
+            ("protobuf", b""),
+        ] {
+            let e = twist(encoding, payload).unwrap_err();
+            assert_eq!(e.code, Code::BadArg, "{encoding}: {}", e.message);
+        }
+        // Out of the protocol's range, refused as a socket client's would be.
+        let huge = br#"{"linear":{"x":1e300,"y":0}}"#;
+        assert_eq!(twist("json", huge).unwrap_err().code, Code::BadArg);
+    }
+}

@@ -1,0 +1,326 @@
+//! The arm as the tools of the field show it: the channels a live Foxglove view and a
+//! recording share (topic names, encodings, schemas) and the messages they carry.
+//!
+//! Every channel lives under `/<prefix>/` (the `[zenoh] prefix`, `snakectl` by default):
+//!
+//! | topic | message | encoding |
+//! |---|---|---|
+//! | `joint_states` | `sensor_msgs/msg/JointState` | `cdr`, schema `ros2msg` |
+//! | `tip_cmd`, `tip_meas`, `target` | `geometry_msgs/msg/PointStamped` | `cdr`, schema `ros2msg` |
+//! | `telemetry` | the socket's telemetry line ([`TELEMETRY_SCHEMA_NAME`]) | `json`, schema `jsonschema` |
+//! | `events` | the socket's event lines ([`EVENT_SCHEMA_NAME`]) | `json`, schema `jsonschema` |
+//! | `log` | the same events as `foxglove.Log`, for a Log panel | `protobuf` |
+//! | `scene` | `foxglove.SceneUpdate` ([`scene()`]) | `protobuf` |
+//!
+//! The `ros2msg` schemas are the `.msg` texts with their dependencies concatenated, as MCAP's
+//! ROS 2 profile and rosbag2 write them, so a recording reads with the ROS 2 tools. Points and
+//! the scene are in the frame [`FRAME_ID`]: the coordinates telemetry reports, in which
+//! `[arm]` places the base.
+//!
+//! Everything here is pure: time comes in as an argument; the live server
+//! (`crate::daemon::view`) and a recorder do the I/O.
+
+pub mod scene;
+
+use foxglove::schemas::log::Level;
+use foxglove::schemas::{Log, Timestamp};
+use foxglove::Encode;
+
+use crate::protocol::{self, Event, EventKind, Telemetry};
+use crate::ros::{self, RosError};
+
+pub use scene::{scene, Trail};
+
+/// The frame every point and the scene is in: the coordinates of telemetry (the config's
+/// frame, in which `[arm]` places the base).
+pub const FRAME_ID: &str = "base";
+
+/// The prefix of the topics when the config names none.
+pub const DEFAULT_PREFIX: &str = "snakectl";
+
+/// The message encoding of ROS 2 messages.
+pub const CDR: &str = "cdr";
+/// The schema encoding of ROS 2 messages: `.msg` text, dependencies concatenated.
+pub const ROS2MSG: &str = "ros2msg";
+/// The message encoding of the telemetry and events.
+pub const JSON: &str = "json";
+/// The schema encoding of the telemetry and events.
+pub const JSONSCHEMA: &str = "jsonschema";
+/// The message and schema encoding of Foxglove's own schemas.
+pub const PROTOBUF: &str = "protobuf";
+
+/// The schema name of the telemetry channel.
+pub const TELEMETRY_SCHEMA_NAME: &str = "snakectl.Telemetry";
+/// The schema name of the events channel.
+pub const EVENT_SCHEMA_NAME: &str = "snakectl.Event";
+
+/// The line that separates a `ros2msg` schema from each dependency's text.
+const DEPENDENCY: &str =
+    "================================================================================\nMSG: ";
+
+const TIME_MSG: &str = "int32 sec\nuint32 nanosec\n";
+const HEADER_MSG: &str = "builtin_interfaces/Time stamp\nstring frame_id\n";
+const POINT_MSG: &str = "float64 x\nfloat64 y\nfloat64 z\n";
+
+/// `sensor_msgs/msg/JointState` as `ros2msg`: its `.msg` text, then `Header` and `Time`.
+pub fn joint_state_schema() -> String {
+    format!(
+        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n\
+         float64[] effort\n{DEPENDENCY}std_msgs/msg/Header\n{HEADER_MSG}\
+         {DEPENDENCY}builtin_interfaces/msg/Time\n{TIME_MSG}"
+    )
+}
+
+/// `geometry_msgs/msg/PointStamped` as `ros2msg`: its `.msg` text, then `Header`, `Time` and
+/// `Point`.
+pub fn point_stamped_schema() -> String {
+    format!(
+        "std_msgs/Header header\nPoint point\n{DEPENDENCY}std_msgs/msg/Header\n{HEADER_MSG}\
+         {DEPENDENCY}builtin_interfaces/msg/Time\n{TIME_MSG}\
+         {DEPENDENCY}geometry_msgs/msg/Point\n{POINT_MSG}"
+    )
+}
+
+/// The JSON schema of the telemetry channel: the fields a plot wants, typed (a number the
+/// daemon cannot write finite is `null`); fields it does not list are allowed.
+pub const TELEMETRY_SCHEMA: &str = r#"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "snakectl.Telemetry",
+  "description": "One snapshot of the control loop, as the daemon's socket writes it.",
+  "type": "object",
+  "properties": {
+    "type": {"const": "telemetry"},
+    "tick": {"type": "integer", "description": "ticks since start"},
+    "t_s": {"type": ["number", "null"], "description": "tick times the nominal period, s"},
+    "state": {"type": "string", "enum": ["moving", "holding", "stopping", "estop", "fault", "torque_off"]},
+    "strategy": {"type": "string"},
+    "tip_ref": {"type": "array", "items": {"type": ["number", "null"]}, "description": "the tick's motion reference for the tip, m"},
+    "tip": {"type": "array", "items": {"type": ["number", "null"]}, "description": "tip of the commanded pose, m"},
+    "tip_meas": {"type": "array", "items": {"type": ["number", "null"]}, "description": "tip of the measured pose, m"},
+    "target": {"type": ["array", "null"], "items": {"type": ["number", "null"]}, "description": "where the active command goes, m"},
+    "theta_cmd": {"type": "array", "items": {"type": ["number", "null"]}, "description": "commanded joint angles, rad"},
+    "theta_meas": {"type": "array", "items": {"type": ["number", "null"]}, "description": "measured joint angles, rad"},
+    "omega_meas": {"type": "array", "items": {"type": ["number", "null"]}, "description": "measured joint velocities, rad/s"},
+    "tracking_error_m": {"type": ["number", "null"], "description": "|tip_ref - tip_meas|, m"},
+    "saturated": {"type": "boolean"},
+    "self_collision": {"type": "boolean"},
+    "min_clearance_m": {"type": ["number", "null"], "description": "least gap to an obstacle, m"},
+    "blocked": {"type": "boolean"},
+    "solve_us": {"type": ["number", "null"], "description": "this tick's resolve time, us"},
+    "loop_hz": {"type": ["number", "null"]},
+    "tick_p99_us": {"type": ["number", "null"]},
+    "overruns": {"type": "integer"},
+    "behind": {"type": "boolean"},
+    "peak_joint_speed_rad_s": {"type": ["number", "null"]},
+    "m3_total_rad2": {"type": ["number", "null"]},
+    "torque": {"type": "boolean"},
+    "temperature_c": {"type": "array", "items": {"type": ["number", "null"]}},
+    "voltage_v": {"type": "array", "items": {"type": ["number", "null"]}},
+    "load": {"type": "array", "items": {"type": ["number", "null"]}},
+    "controller": {"type": ["integer", "null"], "description": "the client in control"},
+    "in_control": {"type": "boolean"}
+  },
+  "required": ["tick", "state", "tip", "tip_meas", "theta_cmd", "theta_meas"]
+}"#;
+
+/// The JSON schema of the events channel: every event carries these; each kind adds its own
+/// fields (see the protocol's events).
+pub const EVENT_SCHEMA: &str = r#"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "snakectl.Event",
+  "description": "An event line of the daemon's socket.",
+  "type": "object",
+  "properties": {
+    "type": {"const": "event"},
+    "event": {"type": "string", "description": "the event's name: arrived, stopped, estop, fault, control, world, ..."},
+    "cmd_id": {"description": "the request id of the command it concerns"},
+    "tick": {"type": "integer", "description": "the tick it happened in"},
+    "tip": {"type": "array", "items": {"type": ["number", "null"]}, "description": "the commanded tip, m"},
+    "reason": {"type": "string"}
+  },
+  "required": ["event", "tick"]
+}"#;
+
+/// One of the channels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Topic {
+    /// `sensor_msgs/msg/JointState`: the measured joints.
+    JointStates,
+    /// `geometry_msgs/msg/PointStamped`: the tip of the commanded pose.
+    TipCmd,
+    /// `geometry_msgs/msg/PointStamped`: the tip of the measured pose.
+    TipMeas,
+    /// `geometry_msgs/msg/PointStamped`: where the active command goes (only while there is
+    /// one).
+    Target,
+    /// The telemetry line, JSON.
+    Telemetry,
+    /// The event lines, JSON.
+    Events,
+    /// The events as `foxglove.Log`.
+    Log,
+    /// `foxglove.SceneUpdate`: the arm, the tips, the trail, the target, the reachable ring,
+    /// the obstacles.
+    Scene,
+}
+
+impl Topic {
+    /// Every channel, in the order a writer declares them.
+    pub const ALL: [Topic; 8] = [
+        Topic::JointStates,
+        Topic::TipCmd,
+        Topic::TipMeas,
+        Topic::Target,
+        Topic::Telemetry,
+        Topic::Events,
+        Topic::Log,
+        Topic::Scene,
+    ];
+
+    /// The last part of its topic name.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Topic::JointStates => "joint_states",
+            Topic::TipCmd => "tip_cmd",
+            Topic::TipMeas => "tip_meas",
+            Topic::Target => "target",
+            Topic::Telemetry => "telemetry",
+            Topic::Events => "events",
+            Topic::Log => "log",
+            Topic::Scene => "scene",
+        }
+    }
+
+    /// Its topic under `prefix`: `/<prefix>/<name>`.
+    pub fn topic(self, prefix: &str) -> String {
+        format!("/{prefix}/{}", self.name())
+    }
+
+    /// Its channel under `prefix`: topic, encodings and schema.
+    pub fn channel(self, prefix: &str) -> ChannelSpec {
+        let (message_encoding, schema) = match self {
+            Topic::JointStates => (
+                CDR,
+                foxglove::Schema::new(
+                    <ros::JointState as ros::Message>::TYPE_NAME,
+                    ROS2MSG,
+                    joint_state_schema().into_bytes(),
+                ),
+            ),
+            Topic::TipCmd | Topic::TipMeas | Topic::Target => (
+                CDR,
+                foxglove::Schema::new(
+                    <ros::PointStamped as ros::Message>::TYPE_NAME,
+                    ROS2MSG,
+                    point_stamped_schema().into_bytes(),
+                ),
+            ),
+            Topic::Telemetry => (
+                JSON,
+                foxglove::Schema::new(
+                    TELEMETRY_SCHEMA_NAME,
+                    JSONSCHEMA,
+                    TELEMETRY_SCHEMA.as_bytes(),
+                ),
+            ),
+            Topic::Events => (
+                JSON,
+                foxglove::Schema::new(EVENT_SCHEMA_NAME, JSONSCHEMA, EVENT_SCHEMA.as_bytes()),
+            ),
+            Topic::Log => (PROTOBUF, protobuf_schema::<Log>("foxglove.Log")),
+            Topic::Scene => (
+                PROTOBUF,
+                protobuf_schema::<foxglove::schemas::SceneUpdate>("foxglove.SceneUpdate"),
+            ),
+        };
+        ChannelSpec {
+            topic: self.topic(prefix),
+            message_encoding,
+            schema,
+        }
+    }
+}
+
+/// Foxglove's own schema of `T` (its protobuf descriptor set).
+fn protobuf_schema<T: Encode>(name: &str) -> foxglove::Schema {
+    // Every schema of the `foxglove` crate has one; an empty one would still name the type.
+    T::get_schema().unwrap_or_else(|| foxglove::Schema::new(name, PROTOBUF, Vec::new()))
+}
+
+/// A channel as a writer declares it: an MCAP channel and schema, or a Foxglove server's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelSpec {
+    /// Its topic, `/<prefix>/<name>`.
+    pub topic: String,
+    /// How each message is encoded: [`CDR`], [`JSON`] or [`PROTOBUF`].
+    pub message_encoding: &'static str,
+    /// Its schema: `name`, `encoding` ([`ROS2MSG`], [`JSONSCHEMA`], [`PROTOBUF`]) and `data`.
+    pub schema: foxglove::Schema,
+}
+
+/// Every channel under `prefix`, in [`Topic::ALL`]'s order.
+pub fn channels(prefix: &str) -> Vec<ChannelSpec> {
+    Topic::ALL.iter().map(|t| t.channel(prefix)).collect()
+}
+
+/// The `joint_states` message of `telemetry` at `t_s` (seconds since the Unix epoch): CDR.
+pub fn joint_states(telemetry: &Telemetry, t_s: f64) -> Result<Vec<u8>, RosError> {
+    ros::encode(&ros::joint_state(telemetry, t_s))
+}
+
+/// A `tip_cmd`, `tip_meas` or `target` message: `point` at `t_s` in [`FRAME_ID`], CDR.
+pub fn point(point: [f64; 2], t_s: f64) -> Result<Vec<u8>, RosError> {
+    ros::encode(&ros::point_stamped(point, t_s, FRAME_ID))
+}
+
+/// A `telemetry` or `events` message from the socket's line (its newline dropped).
+pub fn json_line(line: &str) -> Vec<u8> {
+    line.trim_end().as_bytes().to_vec()
+}
+
+/// The `events` message of `event`.
+pub fn event(event: &Event) -> Vec<u8> {
+    json_line(&protocol::event_line(event))
+}
+
+/// The `log` message of `event` at `t_s`: the event line as the text, at a level by its kind
+/// (faults and the estop are errors; warnings, refusals by an obstacle and a lost clearance
+/// are warnings; the rest is information).
+pub fn log(event: &Event, t_s: f64) -> Log {
+    let level = match event.what.kind() {
+        Some(EventKind::Estop | EventKind::Fault) => Level::Error,
+        Some(EventKind::Warning | EventKind::Blocked | EventKind::NotClear) => Level::Warning,
+        _ => Level::Info,
+    };
+    Log {
+        timestamp: Some(timestamp(t_s)),
+        level: level as i32,
+        message: protocol::event_line(event).trim_end().to_owned(),
+        name: DEFAULT_PREFIX.to_owned(),
+        file: String::new(),
+        line: 0,
+    }
+}
+
+/// Encodes one of Foxglove's messages (the scene, a log line) as its channel carries it.
+pub fn encode<T: Encode>(message: &T) -> Result<Vec<u8>, T::Error> {
+    let mut buf = Vec::with_capacity(message.encoded_len().unwrap_or(256));
+    message.encode(&mut buf)?;
+    Ok(buf)
+}
+
+/// `t_s` seconds since the Unix epoch as Foxglove's timestamp (saturating; before the epoch
+/// is the epoch).
+pub fn timestamp(t_s: f64) -> Timestamp {
+    Timestamp::saturating_from_epoch_secs_f64(t_s)
+}
+
+/// `t_s` seconds since the Unix epoch in nanoseconds, as log times are written (0 before the
+/// epoch, saturating far after it).
+pub fn nanos(t_s: f64) -> u64 {
+    // `as` saturates and maps NaN to 0.
+    (t_s * 1e9).round().max(0.0) as u64
+}
+
+#[cfg(test)]
+mod tests;

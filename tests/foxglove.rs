@@ -1,0 +1,455 @@
+//! The live Foxglove view, against the simulator on a real pseudo-terminal: a WebSocket client
+//! speaking Foxglove's protocol (subprotocol `foxglove.sdk.v1`, JSON control messages, binary
+//! message data) sees the server's info and every channel's advertisement, subscribes, and
+//! reads the arm; a `Twist` it publishes moves the tip only with `accept_commands`.
+//! Timing is bounded by deadlines, never asserted in wall-clock speed.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod daemon_support;
+
+use std::collections::BTreeMap;
+use std::net::TcpListener;
+use std::time::{Duration, Instant};
+
+use daemon_support::{dist, floats, sim_config, xy, Daemon, DEADLINE};
+use foxglove::schemas::SceneUpdate;
+use foxglove::Decode;
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{json, Value};
+use snakectl::config::Config;
+use snakectl::ros::{self, JointState};
+use tokio::net::TcpStream;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::http::HeaderValue;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+
+/// A port nobody listens on now (the system's pick for port 0, released).
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The shipped simulator config with a `[foxglove]` table on `port`.
+fn config(port: u16, accept_commands: bool) -> Config {
+    let table =
+        format!("[foxglove]\nlisten = \"127.0.0.1:{port}\"\naccept_commands = {accept_commands}\n");
+    sim_config(&[("max_clients = 4", &format!("max_clients = 4\n\n{table}"))])
+}
+
+/// A daemon with the view on, brought up, and the view's port.
+fn start_daemon(accept_commands: bool) -> (Daemon, u16) {
+    let port = free_port();
+    let daemon = Daemon::start(config(port, accept_commands));
+    // The first reply waits for bring-up, after which the view serves.
+    daemon.client().status();
+    (daemon, port)
+}
+
+/// One message the server sent on a subscription.
+struct Data {
+    subscription: u32,
+    log_time: u64,
+    payload: Vec<u8>,
+}
+
+/// A blocking Foxglove client: a WebSocket on a runtime of its own.
+struct Fox {
+    runtime: tokio::runtime::Runtime,
+    ws: WebSocketStream<MaybeTlsStream<TcpStream>>,
+    /// Channels advertised: topic -> the advertisement.
+    channels: BTreeMap<String, Value>,
+    /// Control messages read while waiting for something else.
+    control: Vec<Value>,
+}
+
+impl Fox {
+    /// Connects asking for `subprotocol`; `Err` with the server's refusal.
+    fn try_connect(port: u16, subprotocol: &str) -> Result<Fox, String> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let mut request = format!("ws://127.0.0.1:{port}")
+            .into_client_request()
+            .unwrap();
+        request.headers_mut().insert(
+            "sec-websocket-protocol",
+            HeaderValue::from_str(subprotocol).unwrap(),
+        );
+        let ws = runtime
+            .block_on(tokio_tungstenite::connect_async(request))
+            .map_err(|e| e.to_string())?
+            .0;
+        Ok(Fox {
+            runtime,
+            ws,
+            channels: BTreeMap::new(),
+            control: Vec::new(),
+        })
+    }
+
+    fn connect(port: u16) -> Fox {
+        Fox::try_connect(port, "foxglove.sdk.v1").unwrap()
+    }
+
+    /// The next frame within the deadline.
+    fn next(&mut self, deadline: Instant) -> Message {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let ws = &mut self.ws;
+        match self
+            .runtime
+            .block_on(async { tokio::time::timeout(left, ws.next()).await })
+        {
+            Ok(Some(Ok(message))) => message,
+            Ok(other) => panic!("the connection ended: {other:?}"),
+            Err(_) => panic!("nothing from the server within the deadline"),
+        }
+    }
+
+    /// Reads until a control message with `op` (advertisements are kept as they pass).
+    fn next_op(&mut self, op: &str) -> Value {
+        let deadline = Instant::now() + DEADLINE;
+        loop {
+            if let Message::Text(text) = self.next(deadline) {
+                let v: Value = serde_json::from_str(text.as_str()).unwrap();
+                self.note(&v);
+                if v["op"] == op {
+                    return v;
+                }
+                self.control.push(v);
+            }
+        }
+    }
+
+    fn note(&mut self, v: &Value) {
+        if v["op"] == "advertise" {
+            for c in v["channels"].as_array().unwrap() {
+                self.channels
+                    .insert(c["topic"].as_str().unwrap().to_owned(), c.clone());
+            }
+        }
+    }
+
+    /// Reads until every topic of `topics` has been advertised.
+    fn advertised(&mut self, topics: &[&str]) {
+        while !topics.iter().all(|t| self.channels.contains_key(*t)) {
+            self.next_op("advertise");
+        }
+    }
+
+    fn send(&mut self, message: Message) {
+        let ws = &mut self.ws;
+        self.runtime.block_on(ws.send(message)).unwrap();
+    }
+
+    fn send_json(&mut self, v: Value) {
+        self.send(Message::text(v.to_string()));
+    }
+
+    /// Subscribes to `topics`, subscription ids from 1 in their order.
+    fn subscribe(&mut self, topics: &[&str]) {
+        self.subscribe_from(1, topics);
+    }
+
+    /// Subscribes to `topics`, subscription ids from `first` in their order.
+    fn subscribe_from(&mut self, first: usize, topics: &[&str]) {
+        let subscriptions: Vec<Value> = topics
+            .iter()
+            .enumerate()
+            .map(|(i, t)| json!({"id": first + i, "channelId": self.channels[*t]["id"]}))
+            .collect();
+        self.send_json(json!({"op": "subscribe", "subscriptions": subscriptions}));
+    }
+
+    /// The next message data frame (op 1: subscription id, log time, payload).
+    fn data(&mut self) -> Data {
+        let deadline = Instant::now() + DEADLINE;
+        loop {
+            match self.next(deadline) {
+                Message::Binary(bytes) if bytes.first() == Some(&1) => {
+                    return Data {
+                        subscription: u32::from_le_bytes(bytes[1..5].try_into().unwrap()),
+                        log_time: u64::from_le_bytes(bytes[5..13].try_into().unwrap()),
+                        payload: bytes[13..].to_vec(),
+                    };
+                }
+                Message::Text(text) => {
+                    let v: Value = serde_json::from_str(text.as_str()).unwrap();
+                    self.note(&v);
+                    self.control.push(v);
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Advertises a `Twist` channel on `topic` (client channel 1) in JSON.
+    fn advertise_twist(&mut self, topic: &str) {
+        self.send_json(json!({"op": "advertise", "channels": [{
+            "id": 1, "topic": topic, "encoding": "json", "schemaName": "geometry_msgs/msg/Twist",
+        }]}));
+    }
+
+    /// Publishes a `Twist` of linear velocity `v` on client channel 1, as Teleop does.
+    fn publish_twist(&mut self, v: [f64; 2]) {
+        let twist = json!({"linear": {"x": v[0], "y": v[1], "z": 0.0},
+                           "angular": {"x": 0.0, "y": 0.0, "z": 0.0}});
+        let mut frame = vec![1u8];
+        frame.extend_from_slice(&1u32.to_le_bytes());
+        frame.extend_from_slice(twist.to_string().as_bytes());
+        self.send(Message::binary(frame));
+    }
+}
+
+const TOPICS: [&str; 8] = [
+    "/snakectl/joint_states",
+    "/snakectl/tip_cmd",
+    "/snakectl/tip_meas",
+    "/snakectl/target",
+    "/snakectl/telemetry",
+    "/snakectl/events",
+    "/snakectl/log",
+    "/snakectl/scene",
+];
+
+#[test]
+fn a_foxglove_client_sees_every_channel_and_the_arm() {
+    let (daemon, port) = start_daemon(false);
+    let mut fox = Fox::connect(port);
+    let info = fox.next_op("serverInfo");
+    let capabilities = info["capabilities"].as_array().unwrap();
+    assert!(
+        !capabilities.iter().any(|c| c == "clientPublish"),
+        "no publishing without accept_commands: {info}"
+    );
+    fox.advertised(&TOPICS);
+    let expect = [
+        (
+            "/snakectl/joint_states",
+            "cdr",
+            "sensor_msgs/msg/JointState",
+            "ros2msg",
+        ),
+        (
+            "/snakectl/tip_meas",
+            "cdr",
+            "geometry_msgs/msg/PointStamped",
+            "ros2msg",
+        ),
+        (
+            "/snakectl/target",
+            "cdr",
+            "geometry_msgs/msg/PointStamped",
+            "ros2msg",
+        ),
+        (
+            "/snakectl/telemetry",
+            "json",
+            "snakectl.Telemetry",
+            "jsonschema",
+        ),
+        ("/snakectl/events", "json", "snakectl.Event", "jsonschema"),
+        ("/snakectl/log", "protobuf", "foxglove.Log", "protobuf"),
+        (
+            "/snakectl/scene",
+            "protobuf",
+            "foxglove.SceneUpdate",
+            "protobuf",
+        ),
+    ];
+    for (topic, encoding, schema_name, schema_encoding) in expect {
+        let c = &fox.channels[topic];
+        assert_eq!(c["encoding"], encoding, "{c}");
+        assert_eq!(c["schemaName"], schema_name, "{c}");
+        assert_eq!(c["schemaEncoding"], schema_encoding, "{c}");
+    }
+    let js_schema = fox.channels["/snakectl/joint_states"]["schema"]
+        .as_str()
+        .unwrap();
+    assert!(
+        js_schema.contains("MSG: builtin_interfaces/msg/Time"),
+        "{js_schema}"
+    );
+
+    fox.subscribe(&[
+        "/snakectl/joint_states",
+        "/snakectl/telemetry",
+        "/snakectl/scene",
+    ]);
+    // One publish sends the three from one snapshot, under one log time.
+    let mut by_time: BTreeMap<u64, [Option<Vec<u8>>; 3]> = BTreeMap::new();
+    let (joints, telemetry, scene) = loop {
+        let d = fox.data();
+        let slot = (d.subscription - 1) as usize;
+        let entry = by_time.entry(d.log_time).or_default();
+        entry[slot] = Some(d.payload);
+        if let [Some(j), Some(t), Some(s)] = entry {
+            break (j.clone(), t.clone(), s.clone());
+        }
+    };
+    let joints: JointState = ros::decode(&joints).unwrap();
+    let telemetry: Value = serde_json::from_slice(&telemetry).unwrap();
+    assert_eq!(telemetry["type"], "telemetry");
+    let theta = floats(&telemetry["theta_meas"]);
+    assert_eq!(
+        joints.position, theta,
+        "the JointState is the telemetry's angles"
+    );
+    assert_eq!(joints.name.len(), daemon.config.chain().len());
+    assert_eq!(joints.name[0], "joint_1");
+
+    // The scene's measured arm ends at the telemetry's measured tip.
+    let scene = SceneUpdate::decode(&scene[..]).unwrap();
+    let arm = scene.entities.iter().find(|e| e.id == "arm_meas").unwrap();
+    assert_eq!(arm.frame_id, "base");
+    let end = arm.lines[0].points.last().unwrap();
+    let tip = xy(&telemetry["tip_meas"]);
+    assert!(dist([end.x, end.y], tip) < 1e-9, "{end:?} vs {tip:?}");
+    for id in [
+        "arm_cmd",
+        "tip_cmd",
+        "tip_meas",
+        "trail",
+        "reach",
+        "obstacles",
+    ] {
+        assert!(scene.entities.iter().any(|e| e.id == id), "no {id}");
+    }
+
+    // At rest, the scene keeps coming: a client that joins late sees the arm.
+    let mut late = Fox::connect(port);
+    late.advertised(&["/snakectl/scene"]);
+    late.subscribe(&["/snakectl/scene"]);
+    let d = late.data();
+    let scene = SceneUpdate::decode(&d.payload[..]).unwrap();
+    assert!(scene.entities.iter().any(|e| e.id == "arm_meas"));
+
+    // Events: as the socket writes them, and as log lines.
+    fox.subscribe_from(4, &["/snakectl/events", "/snakectl/log"]);
+    // Subscribed once the server has read the request: a status round trip on the socket is
+    // not enough to know that, so the move is asked for after the first scene that follows.
+    while fox.data().subscription != 3 {}
+    let mut client = daemon.client();
+    let target = [tip[0] - 0.01, tip[1]];
+    client.ok(json!({"cmd": "goto", "target": target}));
+    let (mut event, mut log) = (None, None);
+    let deadline = Instant::now() + DEADLINE;
+    while event.is_none() || log.is_none() {
+        assert!(Instant::now() < deadline, "no arrived event and log line");
+        let d = fox.data();
+        match d.subscription {
+            4 => {
+                let v: Value = serde_json::from_slice(&d.payload).unwrap();
+                if v["event"] == "arrived" {
+                    event = Some(v);
+                }
+            }
+            5 => {
+                let l = foxglove::schemas::Log::decode(&d.payload[..]).unwrap();
+                if l.message.contains("\"arrived\"") {
+                    log = Some(l);
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(event.unwrap()["tick"].is_u64());
+    assert_eq!(log.unwrap().name, "snakectl");
+
+    // A world change reaches the scene.
+    client.ok(json!({"cmd": "set_world", "obstacles": [
+        {"id": "far_post", "circle": {"center": [3.0, 3.0], "radius": 0.05}},
+    ]}));
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        assert!(Instant::now() < deadline, "no scene with the new obstacle");
+        let d = fox.data();
+        if d.subscription != 3 {
+            continue;
+        }
+        let scene = SceneUpdate::decode(&d.payload[..]).unwrap();
+        let obstacles = scene.entities.iter().find(|e| e.id == "obstacles").unwrap();
+        if obstacles.texts.iter().any(|t| t.text == "far_post") {
+            let disc = obstacles.cylinders[0].pose.unwrap().position.unwrap();
+            assert_eq!((disc.x, disc.y), (3.0, 3.0));
+            break;
+        }
+    }
+
+    // An old client's subprotocol alone is refused by the handshake.
+    assert!(Fox::try_connect(port, "foxglove.websocket.v1").is_err());
+    drop(fox);
+    drop(late);
+    daemon.stop().unwrap();
+}
+
+/// Publishes `v` every 20 ms until the socket's measured tip has moved `by` m, or the
+/// deadline; returns the distance moved.
+fn drive(daemon: &Daemon, fox: &mut Fox, v: [f64; 2], by: f64, within: Duration) -> f64 {
+    let mut client = daemon.client();
+    let start = xy(&client.status()["tip_meas"]);
+    let deadline = Instant::now() + within;
+    let mut moved = 0.0;
+    while Instant::now() < deadline && moved < by {
+        fox.publish_twist(v);
+        std::thread::sleep(Duration::from_millis(20));
+        moved = dist(xy(&client.status()["tip_meas"]), start);
+    }
+    moved
+}
+
+#[test]
+fn a_twist_from_foxglove_moves_the_tip_only_with_accept_commands() {
+    // Without: nothing to publish to, and nothing moves.
+    let (daemon, port) = start_daemon(false);
+    let mut fox = Fox::connect(port);
+    fox.next_op("serverInfo");
+    fox.advertise_twist("/snakectl/cmd_vel");
+    let moved = drive(&daemon, &mut fox, [0.05, 0.0], 0.01, Duration::from_secs(2));
+    assert!(moved < 1e-3, "the tip moved {moved} m");
+    assert_eq!(daemon.client().status()["state"], "holding");
+    drop(fox);
+    daemon.stop().unwrap();
+
+    // With: the Twist becomes `velocity` through the arbiter, and the tip moves along +x.
+    let (daemon, port) = start_daemon(true);
+    let mut fox = Fox::connect(port);
+    let info = fox.next_op("serverInfo");
+    assert!(
+        info["capabilities"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|c| c == "clientPublish"),
+        "{info}"
+    );
+    assert!(
+        info["supportedEncodings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e == "json"),
+        "{info}"
+    );
+    let mut client = daemon.client();
+    let start = xy(&client.status()["tip_meas"]);
+    fox.advertise_twist("/snakectl/cmd_vel");
+    let moved = drive(&daemon, &mut fox, [0.05, 0.0], 0.01, DEADLINE);
+    assert!(moved >= 0.01, "the tip moved only {moved} m");
+    let status = client.status();
+    let now = xy(&status["tip_meas"]);
+    assert!(now[0] - start[0] > 0.009, "along +x: {start:?} -> {now:?}");
+    assert!(
+        status["controller"].is_u64(),
+        "the view holds control: {status}"
+    );
+    // A socket client is refused while the view holds control, as with any other client.
+    let refused = client.error_code(json!({"cmd": "velocity", "v": [0.0, 0.01]}));
+    assert_eq!(refused, "not_in_control");
+    drop(fox);
+    daemon.stop().unwrap();
+}
