@@ -70,6 +70,7 @@ impl Daemon {
         let mut sims = connect::spawn_sims(&config, Arc::new(RealClock)).unwrap();
         let options = RunOptions {
             ports: sims.iter().map(|s| s.path().to_path_buf()).collect(),
+            record: None,
         };
         let localhost = SocketAddr::from(([127, 0, 0, 1], 0));
         let daemon = Embedded::start(config.clone(), localhost, options).unwrap();
