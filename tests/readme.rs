@@ -50,6 +50,7 @@ const DOCS: &[Doc] = &[
     doc("docs/FLEXIBLE-OBJECTS.md", 2, 6, 10),
     doc("docs/HARDWARE.md", 4, 14, 0),
     doc("docs/PROTOCOL.md", 2, 2, 3),
+    doc("docs/RECORDING.md", 4, 5, 3),
     doc("docs/SIMULATOR.md", 2, 6, 2),
     doc("docs/SOLVE.md", 3, 5, 3),
     doc("docs/STRATEGIES.md", 0, 3, 0),

@@ -17,7 +17,8 @@
 //! joint-speed limit, [`Controller::tick`]; frozen while the supervisor holds the arm), write
 //! the goals (one Sync Write through the limits wrapper), read (one Sync Read of Present
 //! Velocity and Position every `read_every`-th tick, its wait capped at the end of the tick;
-//! the next tick decides on it), publish the telemetry (latest wins), then answer the commands
+//! the next tick decides on it), publish the telemetry (latest wins; and, when the run is
+//! recorded, hand a copy to the recorder, [`crate::record::tap`]), then answer the commands
 //! applied in this tick. A tick that runs late makes the loop skip the periods it missed
 //! (counted as overruns), never catch up in a burst. Once warm a tick allocates nothing unless a
 //! command or an event needs it.
