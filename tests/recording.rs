@@ -17,8 +17,12 @@ use snakectl::ros::{self, JointState, PointStamped};
 
 /// Per topic: (log time, bytes) in the file's order.
 type Messages = BTreeMap<String, Vec<(u64, Vec<u8>)>>;
+/// Metadata records by name.
+type Metadata = BTreeMap<String, BTreeMap<String, String>>;
+/// Per topic: schema name, schema encoding, message encoding.
+type Kinds = BTreeMap<String, (String, String, String)>;
 
-fn read(bytes: &[u8]) -> (Messages, BTreeMap<String, BTreeMap<String, String>>, BTreeMap<String, (String, String, String)>) {
+fn read(bytes: &[u8]) -> (Messages, Metadata, Kinds) {
     let mut messages: Messages = BTreeMap::new();
     let mut kinds = BTreeMap::new();
     for m in mcap::MessageStream::new(bytes).unwrap() {
@@ -72,7 +76,10 @@ fn a_recorded_run_reads_back_whole_and_plots() {
 
     // The channels, as the ROS 2 profile and the JSON schemas name them.
     let cdr = |name: &str| (name.to_owned(), "ros2msg".to_owned(), "cdr".to_owned());
-    assert_eq!(kinds["/snakectl/joint_states"], cdr("sensor_msgs/msg/JointState"));
+    assert_eq!(
+        kinds["/snakectl/joint_states"],
+        cdr("sensor_msgs/msg/JointState")
+    );
     for topic in ["tip_cmd", "tip_meas", "target"] {
         assert_eq!(
             kinds[&format!("/snakectl/{topic}")],
@@ -80,7 +87,10 @@ fn a_recorded_run_reads_back_whole_and_plots() {
         );
     }
     let json_kind = |name: &str| (name.to_owned(), "jsonschema".to_owned(), "json".to_owned());
-    assert_eq!(kinds["/snakectl/telemetry"], json_kind("snakectl.Telemetry"));
+    assert_eq!(
+        kinds["/snakectl/telemetry"],
+        json_kind("snakectl.Telemetry")
+    );
     assert_eq!(kinds["/snakectl/events"], json_kind("snakectl.Event"));
 
     // Every tick was offered (tick 0 and each tick run), and what was not dropped is there.
@@ -95,7 +105,12 @@ fn a_recorded_run_reads_back_whole_and_plots() {
         assert_eq!(list.len() as u64, written, "{topic}");
         assert_eq!(written, offered - dropped, "{topic}: {row}");
         if topic != "/snakectl/target" && topic != "/snakectl/events" {
-            assert_eq!(offered, summary.ticks + 1, "{topic}: the loop ran {} ticks", summary.ticks);
+            assert_eq!(
+                offered,
+                summary.ticks + 1,
+                "{topic}: the loop ran {} ticks",
+                summary.ticks
+            );
         }
         // Times increase with the ticks (events of one tick share its time).
         let strictly = topic != "/snakectl/events";
@@ -114,14 +129,18 @@ fn a_recorded_run_reads_back_whole_and_plots() {
         .map(|(_, b)| serde_json::from_slice(b).unwrap())
         .collect();
     assert!(events.iter().any(|e| e["event"] == "arrived"), "{events:?}");
-    assert!(events.iter().any(|e| e["event"] == "shutting_down"), "{events:?}");
+    assert!(
+        events.iter().any(|e| e["event"] == "shutting_down"),
+        "{events:?}"
+    );
 
     // A JointState decodes to the angles of the telemetry logged at its time.
     let telemetry: BTreeMap<u64, Value> = messages["/snakectl/telemetry"]
         .iter()
         .map(|(t, b)| (*t, serde_json::from_slice(b).unwrap()))
         .collect();
-    let (t, bytes) = &messages["/snakectl/joint_states"][messages["/snakectl/joint_states"].len() / 2];
+    let (t, bytes) =
+        &messages["/snakectl/joint_states"][messages["/snakectl/joint_states"].len() / 2];
     let joints: JointState = ros::decode(bytes).unwrap();
     let line = &telemetry[t];
     let theta: Vec<f64> = line["theta_meas"]
@@ -173,9 +192,6 @@ fn a_recording_that_cannot_be_created_refuses_start_up_before_the_arm_moves() {
     let path = dir.path().join("no/such/dir/run.mcap");
     let d = Daemon::start_with(sim_config(&[]), Some(RecordOptions::to(&path)));
     let e = d.stop().unwrap_err();
-    assert!(
-        matches!(e, snakectl::daemon::DaemonError::Record(_)),
-        "{e}"
-    );
+    assert!(matches!(e, snakectl::daemon::DaemonError::Record(_)), "{e}");
     assert!(e.to_string().contains("run.mcap"), "{e}");
 }

@@ -25,11 +25,11 @@ use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{DaemonError, Embedded, RunOptions};
 use snakectl::plot::demo::{Phase, Sample};
-use snakectl::record::read::phase_note;
-use snakectl::record::{Notes, RecordOptions, Recording};
 use snakectl::protocol::{
     Cmd, CmdName, Event as ProtocolEvent, EventKind, FaultChange, State, What,
 };
+use snakectl::record::read::phase_note;
+use snakectl::record::{Notes, RecordOptions, Recording};
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape};
 use snakectl_sim::RealClock;

@@ -36,10 +36,10 @@ pub fn run(args: PlotArgs) -> Result<(), Failure> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))
         .map_err(Failure::other)?;
-    let name = args
-        .file
-        .file_name()
-        .map_or_else(|| "the recording".into(), |n| n.to_string_lossy().into_owned());
+    let name = args.file.file_name().map_or_else(
+        || "the recording".into(),
+        |n| n.to_string_lossy().into_owned(),
+    );
     let written = figures(
         &record,
         &args.out,

@@ -29,12 +29,12 @@ use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
 use snakectl::protocol::{Cmd, CmdName, What};
+use snakectl::record::RecordOptions;
 use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
 use snakectl::teleop::joystick::{self, Device, Stick, StickEvent};
 use snakectl::teleop::ui::{self, Contact, Panel, Trail, View};
 use snakectl::world::World;
-use snakectl::record::RecordOptions;
 use snakectl_sim::RealClock;
 
 use super::Failure;

@@ -75,7 +75,11 @@ impl Recording {
             let c = &message.channel;
             let channel = channels.entry(c.topic.clone()).or_insert_with(|| Channel {
                 topic: c.topic.clone(),
-                schema_name: c.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default(),
+                schema_name: c
+                    .schema
+                    .as_ref()
+                    .map(|s| s.name.clone())
+                    .unwrap_or_default(),
                 schema_encoding: c
                     .schema
                     .as_ref()
@@ -158,9 +162,7 @@ impl Recording {
             let config = self.metadata("snakectl.config")?;
             let text = config.get("toml")?;
             let path = config.get("path").map_or("recording", String::as_str);
-            Config::from_str(text, path)
-                .ok()
-                .map(|c| c.chain().clone())
+            Config::from_str(text, path).ok().map(|c| c.chain().clone())
         })
     }
 
@@ -298,7 +300,8 @@ fn moving_phases(telemetry: &[Telemetry], t0: f64) -> Vec<Phase> {
         // Merge the pair with the shortest pause between them.
         let k = (0..stretches.len() - 1)
             .min_by(|&a, &b| {
-                let gap = |k: usize| telemetry[stretches[k + 1].0].t_s - telemetry[stretches[k].1].t_s;
+                let gap =
+                    |k: usize| telemetry[stretches[k + 1].0].t_s - telemetry[stretches[k].1].t_s;
                 gap(a).total_cmp(&gap(b))
             })
             .unwrap_or(0);

@@ -107,7 +107,10 @@ fn stamp(ns: u64) -> ros::Time {
 /// Metadata records to write when the recording closes (what the program around the daemon
 /// knows of the run: the arm's description, a demo's phases). Cloned handles share them.
 #[derive(Debug, Clone, Default)]
-pub struct Notes(Arc<Mutex<Vec<(String, BTreeMap<String, String>)>>>);
+pub struct Notes(Arc<Mutex<Vec<Note>>>);
+
+/// A metadata record: its name and entries.
+pub type Note = (String, BTreeMap<String, String>);
 
 impl Notes {
     /// No notes yet.
@@ -123,7 +126,7 @@ impl Notes {
             .push((name.to_owned(), entries));
     }
 
-    fn take(&self) -> Vec<(String, BTreeMap<String, String>)> {
+    fn take(&self) -> Vec<Note> {
         std::mem::take(&mut *self.0.lock().unwrap_or_else(|e| e.into_inner()))
     }
 }
@@ -374,7 +377,11 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
 }
 
 /// The channels added and the config written.
-fn begin(sink: &mut dyn Sink, specs: &[ChannelSpec], setup: &Setup) -> Result<Channels, RecordError> {
+fn begin(
+    sink: &mut dyn Sink,
+    specs: &[ChannelSpec],
+    setup: &Setup,
+) -> Result<Channels, RecordError> {
     let mut ids = Vec::with_capacity(specs.len());
     for spec in specs {
         ids.push(sink.add_channel(spec)?);

@@ -283,8 +283,7 @@ mod tests {
             command: None,
             ..Default::default()
         };
-        let line =
-            crate::protocol::telemetry_line(&crate::protocol::Status::of(&t)).to_string();
+        let line = crate::protocol::telemetry_line(&crate::protocol::Status::of(&t)).to_string();
         let value: serde_json::Value = serde_json::from_str(&line).unwrap();
         for key in value.as_object().unwrap().keys() {
             assert!(properties.contains_key(key), "the schema lacks `{key}`");

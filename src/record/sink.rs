@@ -117,12 +117,7 @@ impl<W: Write + Seek + Send> Sink for McapSink<W> {
     fn add_channel(&mut self, spec: &ChannelSpec) -> Result<u16, RecordError> {
         let writer = self.writer.as_mut().ok_or(RecordError::Finished)?;
         let schema = writer.add_schema(&spec.schema_name, &spec.schema_encoding, &spec.schema)?;
-        let id = writer.add_channel(
-            schema,
-            &spec.topic,
-            &spec.message_encoding,
-            &spec.metadata,
-        )?;
+        let id = writer.add_channel(schema, &spec.topic, &spec.message_encoding, &spec.metadata)?;
         self.sequences.entry(id).or_insert(0);
         Ok(id)
     }

@@ -53,7 +53,9 @@ pub enum Item {
 struct Queue {
     items: VecDeque<Item>,
     capacity: usize,
-    /// Buffers for snapshots, made up front.
+    /// Buffers for snapshots, made up front; boxed, so that they move between the queue, the
+    /// spares and the recorder as a pointer, not as the snapshot's hundreds of bytes.
+    #[allow(clippy::vec_box)]
     spare: Vec<Box<Telemetry>>,
     counts: Counts,
     /// The recorder takes nothing more: everything offered from now on is dropped.
@@ -93,9 +95,7 @@ pub struct Drain {
 pub fn channel(capacity: usize, joints: usize) -> (Tap, Drain) {
     let capacity = capacity.max(1);
     // The queue's worth, one the recorder holds, one to spare.
-    let spare = (0..capacity + 2)
-        .map(|_| Box::new(sized(joints)))
-        .collect();
+    let spare = (0..capacity + 2).map(|_| Box::new(sized(joints))).collect();
     let shared = Arc::new(Shared {
         queue: Mutex::new(Queue {
             items: VecDeque::with_capacity(capacity),
@@ -437,9 +437,27 @@ mod tests {
         }
         tap.offer_event(&event(10));
         let counts = tap.counts();
-        assert_eq!(counts.ticks, Count { offered: 10, dropped: 7 });
-        assert_eq!(counts.targets, Count { offered: 5, dropped: 4 });
-        assert_eq!(counts.events, Count { offered: 1, dropped: 0 });
+        assert_eq!(
+            counts.ticks,
+            Count {
+                offered: 10,
+                dropped: 7
+            }
+        );
+        assert_eq!(
+            counts.targets,
+            Count {
+                offered: 5,
+                dropped: 4
+            }
+        );
+        assert_eq!(
+            counts.events,
+            Count {
+                offered: 1,
+                dropped: 0
+            }
+        );
         // The newest are kept, oldest first.
         let mut kept = Vec::new();
         while let Some(item) = drain.next(Duration::ZERO) {
@@ -462,9 +480,27 @@ mod tests {
         tap.offer_tick(&snapshot(1, true));
         tap.offer_event(&event(1));
         let counts = tap.counts();
-        assert_eq!(counts.ticks, Count { offered: 2, dropped: 2 });
-        assert_eq!(counts.targets, Count { offered: 1, dropped: 1 });
-        assert_eq!(counts.events, Count { offered: 1, dropped: 1 });
+        assert_eq!(
+            counts.ticks,
+            Count {
+                offered: 2,
+                dropped: 2
+            }
+        );
+        assert_eq!(
+            counts.targets,
+            Count {
+                offered: 1,
+                dropped: 1
+            }
+        );
+        assert_eq!(
+            counts.events,
+            Count {
+                offered: 1,
+                dropped: 1
+            }
+        );
         assert!(drain.next(Duration::ZERO).is_none());
     }
 }

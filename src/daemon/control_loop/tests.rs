@@ -1303,7 +1303,11 @@ fn a_stalled_recording_does_not_stall_the_loop_and_its_drops_are_counted() {
     for (k, channel) in summary.channels.iter().enumerate() {
         let in_sink = written.get(&(k as u16 + 1)).copied().unwrap_or(0);
         assert_eq!(in_sink, channel.written, "{channel:?}");
-        assert_eq!(channel.written + channel.dropped, channel.offered, "{channel:?}");
+        assert_eq!(
+            channel.written + channel.dropped,
+            channel.offered,
+            "{channel:?}"
+        );
     }
     drop(rescue);
 }
