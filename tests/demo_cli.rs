@@ -168,7 +168,12 @@ fn the_short_demo_drives_both_strategies_and_writes_its_figures() {
         .collect();
     assert_eq!(
         pictured,
-        ["overall: eight", "sequential: eight", "path, estop", "among obstacles"]
+        [
+            "overall: eight",
+            "sequential: eight",
+            "path, estop",
+            "among obstacles"
+        ]
     );
     let marks: Vec<&str> = record.events.iter().map(|e| e.label.as_str()).collect();
     assert_eq!(marks, ["estop", "reset"]);
@@ -176,7 +181,11 @@ fn the_short_demo_drives_both_strategies_and_writes_its_figures() {
         record.phases.last().unwrap().world.is_some(),
         "the obstacles of the last phase"
     );
-    assert!(record.samples.len() > 500, "{} samples", record.samples.len());
+    assert!(
+        record.samples.len() > 500,
+        "{} samples",
+        record.samples.len()
+    );
 }
 
 #[test]

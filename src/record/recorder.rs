@@ -281,24 +281,16 @@ struct Channels {
     events: u16,
 }
 
-/// Messages written per channel.
-#[derive(Debug, Default, Clone, Copy)]
-struct Written {
-    joint_states: u64,
-    tip_cmd: u64,
-    tip_meas: u64,
-    target: u64,
-    telemetry: u64,
-    events: u64,
-}
+/// Per channel, in the order of [`channel_specs`]: a count of messages.
+type PerChannel = [u64; 6];
 
-/// What the recorder took from the hand-over but could not write (the write failed).
-#[derive(Debug, Default, Clone, Copy)]
-struct Lost {
-    ticks: u64,
-    targets: u64,
-    events: u64,
-}
+/// The index of each channel in [`channel_specs`].
+const JOINT_STATES: usize = 0;
+const TIP_CMD: usize = 1;
+const TIP_MEAS: usize = 2;
+const TARGET: usize = 3;
+const TELEMETRY: usize = 4;
+const EVENTS: usize = 5;
 
 /// The channels a recording of `prefix` holds, in order.
 pub fn channel_specs(prefix: &str) -> Vec<ChannelSpec> {
@@ -315,8 +307,9 @@ pub fn channel_specs(prefix: &str) -> Vec<ChannelSpec> {
 /// The recorder's thread: set up, write until closed, account.
 fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> RecordSummary {
     let specs = channel_specs(&setup.prefix);
-    let mut written = Written::default();
-    let mut lost = Lost::default();
+    // Messages written, and messages taken but not written (their write failed).
+    let mut written: PerChannel = [0; 6];
+    let mut lost: PerChannel = [0; 6];
     let mut epoch = Epoch::default();
     let begun = begin(sink.as_mut(), &specs, setup);
     let mut error = None;
@@ -342,10 +335,16 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
         let result = match item {
             Item::Tick(t) => {
                 let ns = epoch.time_ns(setup, t.tick);
+                let before = written;
                 let r = write_tick(sink.as_mut(), ch, ns, &t, &mut written);
                 if r.is_err() {
-                    lost.ticks += 1;
-                    lost.targets += u64::from(t.target.is_some());
+                    // The tick's messages that did not get out.
+                    for k in [JOINT_STATES, TIP_CMD, TIP_MEAS, TARGET, TELEMETRY] {
+                        let owed = k != TARGET || t.target.is_some();
+                        if owed && written[k] == before[k] {
+                            lost[k] += 1;
+                        }
+                    }
                 }
                 drain.recycle(t);
                 r
@@ -353,7 +352,7 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
             Item::Event(e) => {
                 let ns = epoch.time_ns(setup, e.tick);
                 let r = write_event(sink.as_mut(), ch, ns, &e, &mut written);
-                lost.events += u64::from(r.is_err());
+                lost[EVENTS] += u64::from(r.is_err());
                 r
             }
         };
@@ -412,7 +411,7 @@ fn write_tick(
     ch: &Channels,
     ns: u64,
     t: &Telemetry,
-    written: &mut Written,
+    written: &mut PerChannel,
 ) -> Result<(), RecordError> {
     let cdr = |bytes: Result<Vec<u8>, ros::RosError>| {
         bytes.map_err(|e| RecordError::Write(format!("a ROS message: {e}")))
@@ -420,23 +419,23 @@ fn write_tick(
     let mut joints = ros::joint_state(t, 0.0);
     joints.header.stamp = stamp(ns);
     sink.write(ch.joint_states, ns, &cdr(ros::encode(&joints))?)?;
-    written.joint_states += 1;
+    written[JOINT_STATES] += 1;
     let point = |p: [f64; 2]| {
         let mut point = ros::point_stamped(p, 0.0, FRAME_ID);
         point.header.stamp = stamp(ns);
         cdr(ros::encode(&point))
     };
     sink.write(ch.tip_cmd, ns, &point(t.tip)?)?;
-    written.tip_cmd += 1;
+    written[TIP_CMD] += 1;
     sink.write(ch.tip_meas, ns, &point(t.tip_meas)?)?;
-    written.tip_meas += 1;
+    written[TIP_MEAS] += 1;
     if let Some(target) = t.target {
         sink.write(ch.target, ns, &point(target)?)?;
-        written.target += 1;
+        written[TARGET] += 1;
     }
     let line = protocol::telemetry_line(&Status::of(t));
     sink.write(ch.telemetry, ns, line.trim_end().as_bytes())?;
-    written.telemetry += 1;
+    written[TELEMETRY] += 1;
     // Further channels built from the same snapshot (the 3-D scene) are written here, through
     // `Sink::add_channel` in `begin` and `Sink::write`.
     Ok(())
@@ -448,35 +447,34 @@ fn write_event(
     ch: &Channels,
     ns: u64,
     e: &Event,
-    written: &mut Written,
+    written: &mut PerChannel,
 ) -> Result<(), RecordError> {
     let line = protocol::event_line(e);
     sink.write(ch.events, ns, line.trim_end().as_bytes())?;
-    written.events += 1;
+    written[EVENTS] += 1;
     Ok(())
 }
 
-/// Per channel: offered, written, dropped.
-fn account(specs: &[ChannelSpec], c: Counts, w: Written, lost: Lost) -> Vec<ChannelCount> {
-    let ticks = (c.ticks.offered, c.ticks.dropped + lost.ticks);
-    let targets = (c.targets.offered, c.targets.dropped + lost.targets);
-    let events = (c.events.offered, c.events.dropped + lost.events);
-    let rows = [
-        (ticks, w.joint_states),
-        (ticks, w.tip_cmd),
-        (ticks, w.tip_meas),
-        (targets, w.target),
-        (ticks, w.telemetry),
-        (events, w.events),
-    ];
+/// Per channel: offered, written, dropped (by the hand-over, or taken and not written).
+fn account(
+    specs: &[ChannelSpec],
+    c: Counts,
+    written: PerChannel,
+    lost: PerChannel,
+) -> Vec<ChannelCount> {
+    let of_kind = |k: usize| match k {
+        TARGET => c.targets,
+        EVENTS => c.events,
+        _ => c.ticks,
+    };
     specs
         .iter()
-        .zip(rows)
-        .map(|(spec, ((offered, dropped), written))| ChannelCount {
+        .enumerate()
+        .map(|(k, spec)| ChannelCount {
             topic: spec.topic.clone(),
-            offered,
-            written,
-            dropped,
+            offered: of_kind(k).offered,
+            written: written[k],
+            dropped: of_kind(k).dropped + lost[k],
         })
         .collect()
 }
@@ -500,4 +498,105 @@ fn end(sink: &mut dyn Sink, notes: &Notes, channels: &[ChannelCount]) -> Result<
     }
     sink.metadata("snakectl.recording", &entries)?;
     sink.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// A disk that fills up: writes fail after `room` messages.
+    struct Filling {
+        room: usize,
+        channels: u16,
+    }
+
+    impl Sink for Filling {
+        fn add_channel(&mut self, _: &ChannelSpec) -> Result<u16, RecordError> {
+            self.channels += 1;
+            Ok(self.channels)
+        }
+
+        fn write(&mut self, _: u16, _: u64, _: &[u8]) -> Result<(), RecordError> {
+            if self.room == 0 {
+                return Err(RecordError::Write("No space left on device".into()));
+            }
+            self.room -= 1;
+            Ok(())
+        }
+
+        fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), RecordError> {
+            Ok(())
+        }
+
+        fn finish(&mut self) -> Result<(), RecordError> {
+            Ok(())
+        }
+    }
+
+    fn setup() -> Setup {
+        Setup {
+            prefix: "arm7".into(),
+            period: Duration::from_millis(10),
+            config_path: "arm.toml".into(),
+            config_text: String::new(),
+            joints: 2,
+            queue: 4096,
+        }
+    }
+
+    #[test]
+    fn a_full_disk_stops_the_recording_says_why_and_counts_the_rest_as_dropped() {
+        let sink = Filling {
+            room: 4 * 100 + 2,
+            channels: 0,
+        };
+        let (recorder, tap) =
+            Recorder::start(Box::new(sink), setup(), Notes::new(), "full".into()).unwrap();
+        for tick in 0..1000 {
+            let t = Telemetry {
+                tick,
+                theta_meas: vec![0.1, 0.2],
+                ..Telemetry::default()
+            };
+            tap.offer_tick(&t);
+        }
+        let summary = recorder.close();
+        assert!(
+            summary
+                .error
+                .as_ref()
+                .is_some_and(|e| e.to_string().contains("No space left")),
+            "{:?}",
+            summary.error
+        );
+        let joint_states = &summary.channels[0];
+        assert_eq!(joint_states.topic, "/arm7/joint_states");
+        assert_eq!(joint_states.offered, 1000);
+        // 100 whole ticks, then one whose tip_meas found the disk full.
+        assert_eq!(joint_states.written, 101, "{joint_states:?}");
+        assert_eq!(joint_states.dropped, 899, "{joint_states:?}");
+        for c in &summary.channels {
+            assert_eq!(c.written + c.dropped, c.offered, "{c:?}");
+        }
+        assert_eq!(summary.channels[2].written, 100, "tip_meas");
+        // The offers after the failure are taken, counted and dropped.
+        tap.offer_tick(&Telemetry::default());
+        assert_eq!(tap.counts().ticks.dropped, 900);
+    }
+
+    #[test]
+    fn ticks_are_logged_whole_periods_after_tick_0() {
+        let setup = setup();
+        let mut epoch = Epoch::default();
+        let t0 = epoch.time_ns(&setup, 0);
+        assert_eq!(epoch.time_ns(&setup, 250) - t0, 2_500_000_000);
+        assert_eq!(
+            stamp(1_700_000_000_123_456_789),
+            ros::Time {
+                sec: 1_700_000_000,
+                nanosec: 123_456_789
+            }
+        );
+    }
 }
