@@ -21,6 +21,11 @@
 //! rate twice, without and with the Foxglove view on (at its default rate), one Foxglove client
 //! reading every channel and another subscribed to every channel that never reads.
 //!
+//! `cargo run --release --example loop_rate -- SECONDS --record` instead runs each fixed rate
+//! twice, without and with the run recorded to an MCAP file (every tick's `JointState`, tips
+//! and telemetry, in a temporary directory), one after the other, and says what the recording
+//! wrote and dropped.
+//!
 //! A client streams `velocity` commands at 20 Hz (a figure eight, as a joystick would) while
 //! the loop runs; the first half second of each run is left out of the figures
 //! (`reset_stats`).
@@ -35,6 +40,7 @@ use snakectl::chain::Vec2;
 use snakectl::config::{Config, MAX_RATE_HZ};
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions, Summary};
+use snakectl::record::{RecordOptions, Recording};
 use snakectl::servo::wire::{bound_of_ports, Adapter, Bound, ReadKind};
 
 const WARM_UP: Duration = Duration::from_millis(500);
@@ -133,9 +139,20 @@ fn run_with(
 
 /// Runs the daemon of `config` (at `rate_hz`) for `seconds` under a streamed figure eight.
 fn run_config(config: Config, rate_hz: f64, seconds: f64) -> Result<Measured> {
+    run_recorded(config, rate_hz, seconds, None)
+}
+
+/// [`run_config`], the run recorded as `record` says.
+fn run_recorded(
+    config: Config,
+    rate_hz: f64,
+    seconds: f64,
+    record: Option<RecordOptions>,
+) -> Result<Measured> {
     let sims = connect::spawn_sims(&config, Arc::new(snakectl_sim::RealClock))?;
     let options = RunOptions {
         ports: sims.iter().map(|s| s.path().to_path_buf()).collect(),
+        record,
     };
     let daemon = Embedded::start(config, ([127, 0, 0, 1], 0).into(), options)?;
     let addr = daemon.addr();
@@ -226,6 +243,9 @@ fn main() -> Result<()> {
     if std::env::args().nth(2).as_deref() == Some("--wire") {
         return wire_table(&ROWS_READ, &ROWS_ADAPTER);
     }
+    if std::env::args().nth(2).as_deref() == Some("--record") {
+        return record_table(seconds);
+    }
     println!("Without wire timing, {seconds} s per rate:\n");
     println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
     println!("|---|---|---|---|---|---|");
@@ -234,6 +254,45 @@ fn main() -> Result<()> {
     }
 
     wire_table(&ROWS_READ, &ROWS_ADAPTER)
+}
+
+/// Each fixed rate without and with a recording: the loop's figures, and what the recording
+/// holds (messages per tick run) and dropped.
+fn record_table(seconds: f64) -> Result<()> {
+    println!("Without wire timing, {seconds} s per rate, without and with a recording:\n");
+    println!("| rate, Hz | recording | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs | messages written / dropped | file, MB |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let dir = std::env::temp_dir().join(format!("snakectl-loop-rate-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    for rate in [100.0, 500.0, 1000.0] {
+        for recorded in [false, true] {
+            let path = dir.join(format!("run-{rate:.0}.mcap"));
+            let record = recorded.then(|| RecordOptions::to(&path));
+            let m = run_recorded(config(rate, false, None)?, rate, seconds, record)?;
+            let tail = if recorded {
+                let recording = Recording::open(&path)?;
+                let written: usize = recording.channels.values().map(|c| c.messages.len()).sum();
+                let dropped: u64 = recording
+                    .metadata("snakectl.recording")
+                    .into_iter()
+                    .flat_map(|m| m.values())
+                    .filter_map(|v| serde_json::from_str::<serde_json::Value>(v).ok())
+                    .filter_map(|v| v["dropped"].as_u64())
+                    .sum();
+                let mb = std::fs::metadata(&path)?.len() as f64 / 1e6;
+                format!(" {written} / {dropped} | {mb:.1} |")
+            } else {
+                " | |".to_owned()
+            };
+            println!(
+                "| {rate:.0} | {} | {}{tail}",
+                if recorded { "on" } else { "off" },
+                cells(&m)
+            );
+        }
+    }
+    std::fs::remove_dir_all(&dir)?;
+    Ok(())
 }
 
 /// How the read kinds and adapter models of the wire table's rows are spelled in a config,

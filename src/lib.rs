@@ -54,6 +54,8 @@
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread (held as parts: port,
 //!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
 //!   between them.
+//! - [`record`]: recordings of a run as MCAP (ROS 2 messages, telemetry and events as JSON,
+//!   the config): the loop's bounded hand-over, the recorder's thread, reading one back.
 //! - [`client`]: a blocking client of the daemon's socket (requests, typed replies, events, the
 //!   latest telemetry, a motion command run to its end; the arm drawn by its chain), for the
 //!   one-shot commands, teleop and the demo.
@@ -85,6 +87,7 @@ pub mod connect;
 pub mod client;
 pub mod daemon;
 pub mod protocol;
+pub mod record;
 pub mod ros;
 pub mod teleop;
 pub mod urdf;

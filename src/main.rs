@@ -35,6 +35,8 @@ enum Command {
     /// The whole product in one command: simulator, daemon, a client driving them; a summary
     /// table, `summary.json` and figures (what `cargo run --release` runs).
     Demo(cli::demo::DemoArgs),
+    /// Draw the demo's figures (motion, joint angles, tracking error) from a recording (MCAP).
+    Plot(cli::plot::PlotArgs),
     /// Steer the tip from the keyboard or a joystick in a terminal UI, the arm drawn live.
     Teleop(cli::teleop::TeleopArgs),
     /// The daemon's latest telemetry, one JSON object.
@@ -81,6 +83,7 @@ fn main() -> ExitCode {
         Command::Servo(args) => cli::servo::run(args),
         Command::Demo(args) => cli::demo::run(args),
         Command::Teleop(args) => cli::teleop::run(args),
+        Command::Plot(args) => cli::plot::run(args),
         Command::Status(args) => cli::client::status(args),
         Command::Describe(args) => cli::client::describe(args),
         Command::Goto(args) => cli::client::goto(args),

@@ -99,3 +99,48 @@ fn warm_ticks_among_obstacles_allocate_nothing() {
     );
     assert_eq!(moving, 0, "allocations on the loop thread among obstacles");
 }
+
+#[test]
+fn warm_ticks_of_a_recorded_run_allocate_nothing_on_the_loop_thread() {
+    let _one = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let record = snakectl::record::RecordOptions::to(dir.path().join("run.mcap"));
+    let d = Daemon::start_with(sim_config(&[]), Some(record));
+    let mut c = d.client();
+    let s = c.status();
+    let tip = xy(&s["tip"]);
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+
+    watch_ticks(&mut c, 50);
+    let before = alloc_support::loop_thread();
+    watch_ticks(&mut c, 100);
+    let holding = alloc_support::loop_thread() - before;
+
+    c.ok(json!({"cmd": "goto", "target": [tip[0] + 0.06, tip[1] - 0.02], "speed": 0.02}));
+    let t = watch_ticks(&mut c, 30);
+    assert_eq!(t["state"], "moving");
+    let before = alloc_support::loop_thread();
+    let t = watch_ticks(&mut c, 150);
+    let moving = alloc_support::loop_thread() - before;
+    assert_eq!(
+        t["state"], "moving",
+        "the goto ended inside the window: {t}"
+    );
+
+    assert_eq!(
+        holding, 0,
+        "allocations on the loop thread while holding, recorded"
+    );
+    assert_eq!(
+        moving, 0,
+        "allocations on the loop thread while moving, recorded"
+    );
+    drop(c);
+    let summary = d.stop().unwrap();
+    let recording = snakectl::record::Recording::open(&dir.path().join("run.mcap")).unwrap();
+    assert_eq!(
+        recording.channels["/snakectl/joint_states"].messages.len() as u64,
+        summary.ticks + 1,
+        "every tick recorded"
+    );
+}

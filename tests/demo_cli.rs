@@ -156,6 +156,36 @@ fn the_short_demo_drives_both_strategies_and_writes_its_figures() {
         assert_png(&out.join(format!("{name}.png")));
         assert_svg(&out.join(format!("{name}.svg")));
     }
+
+    // The run is recorded, with the demo's phases; the figures are drawn from it.
+    let recording = snakectl::record::Recording::open(&out.join("run.mcap")).unwrap();
+    let record = recording.plot_record();
+    let pictured: Vec<&str> = record
+        .phases
+        .iter()
+        .filter(|p| p.pictured)
+        .map(|p| p.label.as_str())
+        .collect();
+    assert_eq!(
+        pictured,
+        [
+            "overall: eight",
+            "sequential: eight",
+            "path, estop",
+            "among obstacles"
+        ]
+    );
+    let marks: Vec<&str> = record.events.iter().map(|e| e.label.as_str()).collect();
+    assert_eq!(marks, ["estop", "reset"]);
+    assert!(
+        record.phases.last().unwrap().world.is_some(),
+        "the obstacles of the last phase"
+    );
+    assert!(
+        record.samples.len() > 500,
+        "{} samples",
+        record.samples.len()
+    );
 }
 
 #[test]

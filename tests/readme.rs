@@ -52,6 +52,7 @@ const DOCS: &[Doc] = &[
     doc("docs/HARDWARE.md", 4, 14, 0),
     doc("docs/PROTOCOL.md", 2, 2, 3),
     doc("docs/ROS2.md", 5, 5, 3),
+    doc("docs/RECORDING.md", 4, 5, 3),
     doc("docs/SIMULATOR.md", 2, 6, 2),
     doc("docs/SOLVE.md", 3, 5, 3),
     doc("docs/STRATEGIES.md", 0, 3, 0),

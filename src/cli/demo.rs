@@ -4,7 +4,9 @@
 //! The simulator and the daemon start in this process (a real pseudo-terminal, a real socket on
 //! a free loopback port); a [`Client`] then steers the tip around a figure eight once per
 //! strategy, as a joystick would (`velocity` at 50 Hz), and along a path interrupted by an
-//! estop. What telemetry said becomes a summary table, `summary.json` and two figures.
+//! estop. What telemetry said becomes a summary table and `summary.json`; the daemon records
+//! the run (`run.mcap`), and the two figures are drawn from that recording, as
+//! `snakectl plot` draws them.
 
 use std::io::{IsTerminal, Write};
 use std::net::SocketAddr;
@@ -22,11 +24,12 @@ use snakectl::client::{ArmInfo, Client, ClientError, Ending, Motion, Seen, Statu
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{DaemonError, Embedded, RunOptions};
-use snakectl::plot;
-use snakectl::plot::demo::{Event, Phase, Record, Sample};
+use snakectl::plot::demo::{Phase, Sample};
 use snakectl::protocol::{
     Cmd, CmdName, Event as ProtocolEvent, EventKind, FaultChange, State, What,
 };
+use snakectl::record::read::phase_note;
+use snakectl::record::{Notes, RecordOptions, Recording};
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape};
 use snakectl_sim::RealClock;
@@ -37,6 +40,8 @@ use super::{outln, Failure};
 const SHIPPED: &str = include_str!("../../config/sim.toml");
 const SHIPPED_PATH: &str = "config/sim.toml";
 const DEFAULT_OUT: &str = "snakectl-demo";
+/// The recording of the run, in the output directory; the figures are drawn from it.
+const RECORDING: &str = "run.mcap";
 /// Each figure eight's duration unless `--seconds` says otherwise, s.
 const DEFAULT_SECONDS: f64 = 15.0;
 const MIN_SECONDS: f64 = 2.0;
@@ -110,7 +115,12 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         config.chain().len()
     ));
     let sim = connect::spawn_sim(&config, Arc::new(RealClock)).map_err(Failure::bad_input)?;
-    let options = RunOptions::port(sim.path().to_path_buf());
+    let recording = out.join(RECORDING);
+    let notes = Notes::new();
+    let options = RunOptions::port(sim.path().to_path_buf()).recorded(Some(RecordOptions {
+        path: recording.clone(),
+        notes: notes.clone(),
+    }));
     let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
     let daemon = Embedded::start(config.clone(), loopback, options).map_err(Failure::other)?;
     progress.line(format!(
@@ -120,6 +130,12 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     ));
     let driven = drive(&config, daemon.addr(), seconds, &mut progress);
     progress.clear();
+    if let Ok(demo) = &driven {
+        // The phases go into the recording, which the figures are drawn from.
+        for phase in &demo.phases {
+            notes.add("snakectl.phase", phase_note(phase));
+        }
+    }
     let stopped = daemon.stop();
     drop(sim);
     let demo = match (driven, stopped) {
@@ -147,7 +163,7 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
             ))
         }
     };
-    report(&demo, &out)
+    report(&demo, &out, &recording)
 }
 
 /// Warnings and errors only: the progress lines tell the rest. `RUST_LOG` overrides.
@@ -441,10 +457,10 @@ fn pocket(eight: &Eight, reach: f64) -> ([f64; 2], Vec<Obstacle>) {
     ([target.x, target.y], vec![post, shelf])
 }
 
-/// A finished run: its figures and its record.
+/// A finished run: its figures and its phases (in the daemon's time).
 struct Demo {
     summary: Summary,
-    record: Record,
+    phases: Vec<Phase>,
 }
 
 /// The session on the socket: the client, and what it has seen and recorded so far.
@@ -461,7 +477,6 @@ struct Recorder<'p> {
     recs: Vec<Rec>,
     latest: Option<Snapshot>,
     phases: Vec<Phase>,
-    events: Vec<Event>,
     /// What the live line says is going on.
     activity: String,
     /// Samples kept at most (a run of [`MAX_SECONDS`] eights stays within it).
@@ -492,7 +507,6 @@ fn drive(
             recs: Vec::new(),
             latest: None,
             phases: Vec::new(),
-            events: Vec::new(),
             activity: "holding".into(),
             cap,
         },
@@ -519,37 +533,7 @@ fn drive(
     let world = s.among_obstacles(&eight, control.max_tip_speed_m_s)?;
     s.rec.progress.line("done: the arm holds");
 
-    let rec = &s.rec;
-    let t0 = rec.recs.first().map_or(0.0, |r| r.sample.t_s);
-    let shift = |t: f64| t - t0;
-    let record = Record {
-        chain: Some(rec.arm.chain().clone()),
-        samples: rec
-            .recs
-            .iter()
-            .map(|r| Sample {
-                t_s: shift(r.sample.t_s),
-                ..r.sample.clone()
-            })
-            .collect(),
-        phases: rec
-            .phases
-            .iter()
-            .map(|p| Phase {
-                t0: shift(p.t0),
-                t1: shift(p.t1),
-                ..p.clone()
-            })
-            .collect(),
-        events: rec
-            .events
-            .iter()
-            .map(|e| Event {
-                t_s: shift(e.t_s),
-                ..e.clone()
-            })
-            .collect(),
-    };
+    let phases = s.rec.phases.clone();
     let summary = Summary {
         max_joint_speed_rad_s: control.max_joint_speed_rad_s,
         max_tip_speed_m_s: control.max_tip_speed_m_s,
@@ -565,7 +549,7 @@ fn drive(
         world,
         config: config.path().display().to_string(),
     };
-    Ok(Demo { summary, record })
+    Ok(Demo { summary, phases })
 }
 
 impl Recorder<'_> {
@@ -967,11 +951,6 @@ impl Session<'_> {
             .latest
             .as_ref()
             .map_or(estop.what.tip().unwrap_or_default(), |s| s.tip_meas);
-        self.rec.events.push(Event {
-            label: "estop".into(),
-            t_s: estop.tick as f64 / self.rec.arm.rate_hz,
-            tip: estop_tip,
-        });
         self.rec.progress.line(format!(
             "ESTOP at tick {} with the tip at ({:+.3}, {:+.3}) m: goals frozen, latched",
             estop.tick, estop_tip[0], estop_tip[1]
@@ -994,16 +973,6 @@ impl Session<'_> {
 
         self.client.request(&Cmd::Reset)?;
         let reset = self.wait_event(EventKind::Reset, SLACK)?;
-        let reset_tip = self
-            .rec
-            .latest
-            .as_ref()
-            .map_or(reset.what.tip().unwrap_or_default(), |s| s.tip_meas);
-        self.rec.events.push(Event {
-            label: "reset".into(),
-            t_s: reset.tick as f64 / self.rec.arm.rate_hz,
-            tip: reset_tip,
-        });
         self.wait_for(
             |s| s.state == State::Holding,
             SLACK,
@@ -1154,8 +1123,8 @@ fn percentile(values: &mut [f64], p: f64) -> f64 {
     values[rank.clamp(1, values.len()) - 1]
 }
 
-/// The table, `summary.json` and the figures.
-fn report(demo: &Demo, out: &Path) -> Result<(), Failure> {
+/// The table, `summary.json` and the figures (drawn from the recording).
+fn report(demo: &Demo, out: &Path, recording: &Path) -> Result<(), Failure> {
     let s = &demo.summary;
     outln!("")?;
     outln!(
@@ -1225,33 +1194,16 @@ fn report(demo: &Demo, out: &Path) -> Result<(), Failure> {
     };
     let json = serde_json::to_string_pretty(s).map_err(Failure::other)?;
     let mut written = vec![write("summary.json", format!("{json}\n").as_bytes())?];
-    let figures = [
-        (
-            "motion",
-            plot::demo::motion(
-                &demo.record,
-                "snakectl demo: the tip steered over the socket, as a joystick would",
-            ),
-        ),
-        (
-            "joints",
-            plot::demo::joints(
-                &demo.record,
-                "snakectl demo: joint angles and tracking error over the run",
-            ),
-        ),
-    ];
-    let mut fonts = true;
-    for (name, svg) in figures {
-        let svg = svg.map_err(Failure::other)?;
-        written.push(write(&format!("{name}.svg"), svg.as_bytes())?);
-        let (png, found) = plot::png(&svg).map_err(Failure::other)?;
-        fonts &= found;
-        written.push(write(&format!("{name}.png"), &png)?);
-    }
-    if !fonts {
-        eprintln!("snakectl: no system font found: the PNG figures have no text");
-    }
+    let record = Recording::open(recording)
+        .map_err(|e| Failure::other(anyhow::Error::new(e).context("the demo's recording")))?
+        .plot_record();
+    written.extend(super::plot::figures(
+        &record,
+        out,
+        "snakectl demo: the tip steered over the socket, as a joystick would",
+        "snakectl demo: joint angles and tracking error over the run",
+    )?);
+    written.push(recording.to_path_buf());
     outln!("")?;
     outln!("written to {}:", out.display())?;
     for path in written {

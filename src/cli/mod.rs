@@ -3,6 +3,7 @@
 pub mod client;
 pub mod demo;
 pub mod fleet;
+pub mod plot;
 pub mod run;
 pub mod servo;
 pub mod sim;

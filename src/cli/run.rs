@@ -9,6 +9,7 @@ use clap::Args;
 
 use snakectl::config::Config;
 use snakectl::daemon::{self, DaemonError, RunOptions};
+use snakectl::record::RecordOptions;
 
 use super::Failure;
 
@@ -16,7 +17,7 @@ use super::Failure;
 /// after it as far as they could be.
 pub const EXIT_FAILED: u8 = 1;
 /// Start-up refused before the arm was brought up, or during bring-up: a bad config or token
-/// file, a port that cannot be opened, a servo missing, of the wrong model, in hardware error or
+/// file, a recording that cannot be created, a port that cannot be opened, a servo missing, of the wrong model, in hardware error or
 /// outside its limits. The log names the cause.
 pub const EXIT_REFUSED: u8 = 2;
 /// Shut down, but servos could not be reached (silent, or the port lost): their state is
@@ -35,6 +36,10 @@ pub struct RunArgs {
     /// Listen here instead of `[server] listen` (`host:port`; port 0 picks a free one).
     #[arg(long)]
     listen: Option<std::net::SocketAddr>,
+    /// Record the run to this MCAP file (JointState, tips, target, telemetry, events, the
+    /// config); see docs/RECORDING.md.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
     /// More log lines (debug level); `RUST_LOG` overrides.
     #[arg(short, long)]
     verbose: bool,
@@ -66,7 +71,10 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         // Connections are taken from here on, but answered only once the arm is up (the loop
         // logs that it is serving).
         tracing::info!("listening on {local} (bringing the arm up first)");
-        let options = RunOptions { ports: args.port };
+        let options = RunOptions {
+            ports: args.port,
+            record: args.record.map(RecordOptions::to),
+        };
         let summary = daemon::run(config, listener, options, shutdown)
             .await
             .map_err(failure)?;
@@ -86,6 +94,7 @@ fn failure(e: DaemonError) -> Failure {
         | DaemonError::Connect(_)
         | DaemonError::Controller(_)
         | DaemonError::Access(_)
+        | DaemonError::Record(_)
         | DaemonError::ZenohNotBuilt { .. } => EXIT_REFUSED,
         DaemonError::ShutDown(_) => EXIT_UNREACHED,
         _ => EXIT_FAILED,

@@ -29,6 +29,7 @@ use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
 use snakectl::protocol::{Cmd, CmdName, What};
+use snakectl::record::RecordOptions;
 use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
 use snakectl::teleop::joystick::{self, Device, Stick, StickEvent};
@@ -58,6 +59,9 @@ pub struct TeleopArgs {
     /// A file whose first line is the daemon's token (`[server] token_file`).
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
+    /// With `--sim`: record the run to this MCAP file (see docs/RECORDING.md).
+    #[arg(long, value_name = "FILE.mcap", requires = "sim")]
+    pub record: Option<PathBuf>,
 }
 
 /// Telemetry lines a second the UI asks for.
@@ -98,7 +102,12 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
                 .token_file
                 .clone()
                 .or_else(|| config.server().token_file.clone());
-            let options = RunOptions::port(sim.path().to_path_buf());
+            if let Some(path) = &args.record {
+                // Said here, before the screen takes the terminal.
+                snakectl::record::McapSink::create(path).map_err(Failure::bad_input)?;
+            }
+            let options = RunOptions::port(sim.path().to_path_buf())
+                .recorded(args.record.clone().map(RecordOptions::to));
             let embedded = Embedded::start(config, listen, options)
                 .with_context(|| format!("starting the daemon on {listen}"))
                 .map_err(Failure::other)?;

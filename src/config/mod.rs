@@ -226,6 +226,8 @@ pub struct Config {
     foxglove: Foxglove,
     world: World,
     contact: Option<Contact>,
+    /// The TOML text the config was read from (recordings keep it).
+    text: String,
 }
 
 impl Config {
@@ -245,12 +247,19 @@ impl Config {
     pub fn from_str(text: &str, path: impl AsRef<Path>) -> Result<Config, ConfigError> {
         let path = path.as_ref();
         let raw: RawConfig = toml::from_str(text).map_err(|e| syntax_error(text, path, &e))?;
-        Checker { path }.config(raw)
+        let mut config = Checker { path }.config(raw)?;
+        config.text = text.to_owned();
+        Ok(config)
     }
 
     /// The file this came from.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The TOML text this was read from, as it was (a recording keeps it beside the run).
+    pub fn text(&self) -> &str {
+        &self.text
     }
 
     /// The arm's chain: links, base pose and joint limits.
@@ -515,6 +524,7 @@ impl Checker<'_> {
             foxglove,
             world,
             contact,
+            text: String::new(),
         })
     }
 

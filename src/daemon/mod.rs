@@ -45,6 +45,7 @@ pub use embedded::Embedded;
 use crate::config::Config;
 use crate::connect::ConnectError;
 use crate::control::Refused;
+use crate::record::{RecordError, RecordOptions, Recorder, Setup};
 use crate::servo::arm::{BringUpError, ShutDownError};
 
 /// How [`run`] reaches the servos, beyond what the config says.
@@ -53,6 +54,8 @@ pub struct RunOptions {
     /// Open these ports whatever `[bus] kind` says (real adapters, or external simulators'
     /// links), one per port of `[bus]`, in order; empty: as the file says.
     pub ports: Vec<PathBuf>,
+    /// Record the run to this MCAP file ([`crate::record`]); `None`: no recording.
+    pub record: Option<RecordOptions>,
 }
 
 impl RunOptions {
@@ -60,7 +63,13 @@ impl RunOptions {
     pub fn port(path: impl Into<PathBuf>) -> Self {
         Self {
             ports: vec![path.into()],
+            record: None,
         }
+    }
+
+    /// These options, the run recorded as `record` says.
+    pub fn recorded(self, record: Option<RecordOptions>) -> Self {
+        Self { record, ..self }
     }
 }
 
@@ -122,6 +131,10 @@ pub enum DaemonError {
     /// The token file cannot be used, or the address is open to other hosts without a token.
     #[error(transparent)]
     Access(#[from] access::AccessError),
+    /// The recording's file could not be created (a recording that fails later stops, the arm
+    /// does not).
+    #[error(transparent)]
+    Record(RecordError),
     /// Start-up failed and its error went to the waiting [`run`].
     #[error("start-up failed")]
     StartUpReported,
@@ -172,7 +185,8 @@ pub fn check_zenoh_built(config: &Config) -> Result<(), DaemonError> {
 /// ([`DaemonError::ZenohNotBuilt`]), the `[server] token_file` is read and a `listener` on an
 /// address other than loopback without one is refused ([`DaemonError::Access`]), and, with
 /// the `zenoh` feature and the table enabled, the Zenoh session is opened; with a
-/// `[foxglove] listen`, the Foxglove server is bound.
+/// `[foxglove] listen`, the Foxglove server is bound; with [`RunOptions::record`] the
+/// recording's file is created.
 pub async fn run(
     config: Config,
     listener: TcpListener,
@@ -203,6 +217,16 @@ pub async fn run(
             path: config.path().to_path_buf(),
             source,
         })?;
+    // Created before anything moves: a file that cannot be made stops start-up here.
+    let (recorder, tap) = match &options.record {
+        Some(r) => {
+            let (recorder, tap) = Recorder::create(&r.path, Setup::of(&config), r.notes.clone())
+                .map_err(DaemonError::Record)?;
+            tracing::info!("recording to {}", r.path.display());
+            (Some(recorder), Some(tap))
+        }
+        None => (None, None),
+    };
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = oneshot::channel();
     let (done_tx, done_rx) = oneshot::channel();
@@ -210,7 +234,7 @@ pub async fn run(
     std::thread::Builder::new()
         .name("snakectl-loop".into())
         .spawn(move || {
-            let result = control_loop::main(config, options, loop_stop, ready_tx);
+            let result = control_loop::main(config, options, loop_stop, ready_tx, tap);
             let _ = done_tx.send(result);
         })
         .map_err(DaemonError::Thread)?;
@@ -227,6 +251,12 @@ pub async fn run(
         }
     };
 
+    if let (Some(recorder), Ok(describe)) = (&recorder, serde_json::to_string(&*handle.describe)) {
+        recorder.note(
+            "snakectl.describe",
+            std::collections::BTreeMap::from([("describe".to_owned(), describe)]),
+        );
+    }
     let mut done_rx = done_rx;
     let mut ended = None;
     let served = {
@@ -267,6 +297,10 @@ pub async fn run(
         Some(r) => r,
         None => done_rx.await.unwrap_or(Err(DaemonError::LoopPanicked)),
     };
+    // The loop offers nothing more: what is queued is written, then the account.
+    if let Some(recorder) = recorder {
+        recorder.close();
+    }
     served.map_err(DaemonError::Socket)?;
     result
 }

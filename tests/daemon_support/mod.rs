@@ -15,6 +15,7 @@ use serde_json::{json, Value};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{DaemonError, Embedded, RunOptions, Summary};
+use snakectl::record::RecordOptions;
 use snakectl_sim::{RealClock, SimHandle};
 
 /// Bound on waiting for anything; reached only when a test fails.
@@ -67,9 +68,15 @@ impl Daemon {
     /// Starts the simulator and the daemon on `config`; returns once the socket listens (the
     /// first reply then waits for bring-up).
     pub fn start(config: Config) -> Self {
+        Self::start_with(config, None)
+    }
+
+    /// [`Daemon::start`], the run recorded as `record` says.
+    pub fn start_with(config: Config, record: Option<RecordOptions>) -> Self {
         let mut sims = connect::spawn_sims(&config, Arc::new(RealClock)).unwrap();
         let options = RunOptions {
             ports: sims.iter().map(|s| s.path().to_path_buf()).collect(),
+            record,
         };
         let localhost = SocketAddr::from(([127, 0, 0, 1], 0));
         let daemon = Embedded::start(config.clone(), localhost, options).unwrap();

@@ -17,7 +17,8 @@
 //! joint-speed limit, [`Controller::tick`]; frozen while the supervisor holds the arm), write
 //! the goals (one Sync Write through the limits wrapper), read (one Sync Read of Present
 //! Velocity and Position every `read_every`-th tick, its wait capped at the end of the tick;
-//! the next tick decides on it), publish the telemetry (latest wins), then answer the commands
+//! the next tick decides on it), publish the telemetry (latest wins; and, when the run is
+//! recorded, hand a copy to the recorder, [`crate::record::tap`]), then answer the commands
 //! applied in this tick. A tick that runs late makes the loop skip the periods it missed
 //! (counted as overruns), never catch up in a burst. Once warm a tick allocates nothing unless a
 //! command or an event needs it.
@@ -79,6 +80,7 @@ use crate::control::{self, Activity, Controller, NotClear};
 use crate::protocol::{
     Answer, ClientId, Describe, Event, FaultChange, FaultInfo, RequestId, Telemetry, What,
 };
+use crate::record::Tap;
 use crate::servo::arm::{Arm, BringUpOptions, OnExit, Within};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
@@ -111,6 +113,7 @@ pub(super) fn main(
     options: RunOptions,
     stop: Arc<AtomicBool>,
     ready: oneshot::Sender<Result<Handle, DaemonError>>,
+    tap: Option<Tap>,
 ) -> Result<Summary, DaemonError> {
     let started = open(&config, options).and_then(|parts| Cycle::new(&config, parts));
     let (mut cycle, handle) = match started {
@@ -120,6 +123,9 @@ pub(super) fn main(
             return Err(DaemonError::StartUpReported);
         }
     };
+    if let Some(tap) = tap {
+        cycle.set_tap(tap);
+    }
     let outcome = catch_unwind(AssertUnwindSafe(|| {
         // Tick 0: one full read, so the first snapshot a client sees is measured, health
         // included, never the placeholder the channel was made with.
@@ -305,6 +311,8 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     late_start: bool,
     /// The highest rate the wire allows this arm, Hz, for the log lines.
     wire_bound_hz: f64,
+    /// The recorder's hand-over: every tick's snapshot and every event are offered to it.
+    tap: Option<Tap>,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -464,8 +472,14 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             behind: false,
             late_start: false,
             wire_bound_hz,
+            tap: None,
         };
         Ok((cycle, handle))
+    }
+
+    /// Hands every tick's snapshot and every event from now on to a recorder.
+    pub(crate) fn set_tap(&mut self, tap: Tap) {
+        self.tap = Some(tap);
     }
 
     /// Ticks until `stop` is set and the arm has come to rest.
@@ -723,6 +737,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 t.warnings.clone_from(warnings);
             }
         });
+        if let Some(tap) = &self.tap {
+            tap.offer_tick(&self.ends.telemetry.borrow());
+        }
     }
 
     /// An event at this tick, with the commanded tip, to `owner` (`None`: everyone).
@@ -732,13 +749,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         cmd_id: Option<RequestId>,
         what: impl FnOnce([f64; 2]) -> What,
     ) {
-        // No subscriber is not an error: nobody is listening.
-        let _ = self.ends.events.send(Event {
+        let event = Event {
             owner,
             cmd_id,
             tick: self.tick,
             what: what(self.tip()),
-        });
+        };
+        if let Some(tap) = &self.tap {
+            tap.offer_event(&event);
+        }
+        // No subscriber is not an error: nobody is listening.
+        let _ = self.ends.events.send(event);
     }
 
     /// The commanded tip, for events.

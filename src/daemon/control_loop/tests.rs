@@ -1200,3 +1200,114 @@ fn a_power_loss_shorter_than_the_silence_budget_is_told_by_the_unmapped_block() 
     assert!(s.health_tick > before);
     assert!(s.voltage_v[4] > 10.0, "{:?}", s.voltage_v);
 }
+
+/// A recording whose writes block until a gate opens: a disk that has stalled.
+struct StalledSink {
+    gate: Arc<(Mutex<bool>, std::sync::Condvar)>,
+    /// Messages written per channel id.
+    written: Arc<Mutex<BTreeMap<u16, u64>>>,
+    next: u16,
+}
+
+impl crate::record::Sink for StalledSink {
+    fn add_channel(
+        &mut self,
+        _: &crate::record::schema::ChannelSpec,
+    ) -> Result<u16, crate::record::RecordError> {
+        self.next += 1;
+        Ok(self.next)
+    }
+
+    fn write(&mut self, channel: u16, _: u64, _: &[u8]) -> Result<(), crate::record::RecordError> {
+        let (open, opened) = &*self.gate;
+        let mut open = open.lock().unwrap();
+        while !*open {
+            open = opened.wait(open).unwrap();
+        }
+        *self.written.lock().unwrap().entry(channel).or_insert(0) += 1;
+        Ok(())
+    }
+
+    fn metadata(
+        &mut self,
+        _: &str,
+        _: &BTreeMap<String, String>,
+    ) -> Result<(), crate::record::RecordError> {
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), crate::record::RecordError> {
+        Ok(())
+    }
+}
+
+#[test]
+fn a_stalled_recording_does_not_stall_the_loop_and_its_drops_are_counted() {
+    use crate::record::{Notes, Recorder, Setup};
+    const QUEUE: usize = 16;
+    const TICKS: u64 = 300;
+    let mut rig = Rig::new(100.0, "");
+    let gate = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
+    let written = Arc::new(Mutex::new(BTreeMap::new()));
+    let sink = StalledSink {
+        gate: Arc::clone(&gate),
+        written: Arc::clone(&written),
+        next: 0,
+    };
+    let setup = Setup {
+        prefix: "snakectl".into(),
+        period: 10 * MS,
+        config_path: "config/sim.toml".into(),
+        config_text: String::new(),
+        joints: 12,
+        queue: QUEUE,
+    };
+    let (recorder, tap) =
+        Recorder::start(Box::new(sink), setup, Notes::new(), "stalled".into()).unwrap();
+    rig.cycle.set_tap(tap);
+    // Should the loop wait on the writer, this opens the gate after a while: the ticks then
+    // end, and the check below fails instead of the test hanging.
+    let rescue = {
+        let gate = Arc::clone(&gate);
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_secs(20));
+            let (open, opened) = &*gate;
+            let was = std::mem::replace(&mut *open.lock().unwrap(), true);
+            opened.notify_all();
+            !was
+        })
+    };
+    rig.slow_goto();
+    rig.ticks(TICKS as usize - 1);
+    assert!(
+        !*gate.0.lock().unwrap(),
+        "the ticks ended only once the writer was released"
+    );
+    assert_eq!(rig.status().overruns, 0);
+    assert_eq!(rig.status().state, State::Moving);
+
+    *gate.0.lock().unwrap() = true;
+    gate.1.notify_all();
+    let summary = recorder.close();
+    assert!(summary.error.is_none(), "{:?}", summary.error);
+    let joint_states = &summary.channels[0];
+    assert_eq!(joint_states.topic, "/snakectl/joint_states");
+    assert_eq!(joint_states.offered, TICKS);
+    // The queue's worth was kept, and the one item the writer stalled on.
+    assert!(
+        joint_states.dropped >= TICKS - QUEUE as u64 - 1,
+        "{joint_states:?}"
+    );
+    assert_eq!(joint_states.written + joint_states.dropped, TICKS);
+    let written = written.lock().unwrap();
+    for (k, channel) in summary.channels.iter().enumerate() {
+        let in_sink = written.get(&(k as u16 + 1)).copied().unwrap_or(0);
+        assert_eq!(in_sink, channel.written, "{channel:?}");
+        assert_eq!(
+            channel.written + channel.dropped,
+            channel.offered,
+            "{channel:?}"
+        );
+    }
+    drop(rescue);
+}

@@ -1,0 +1,602 @@
+//! The recorder: a thread of its own that takes what the loop hands over ([`super::tap`]) and
+//! writes it to a [`Sink`], so that a slow disk costs the loop nothing.
+//!
+//! Each tick's snapshot becomes, at the tick's time, a `JointState` (`joint_states`), the
+//! commanded and the measured tip (`tip_cmd`, `tip_meas`, `PointStamped` in the frame `base`),
+//! the target while there is one (`target`), and the telemetry object (`telemetry`); each
+//! event becomes an event object (`events`). Times are the loop's: tick `n` is logged at tick
+//! 0's time on the wall clock (ns since the Unix epoch) plus `n` nominal periods, so they
+//! increase with the ticks and match the telemetry's `t_s`.
+//!
+//! The config the run used is a metadata record (`snakectl.config`: `path`, `toml`) at the
+//! start. On close the recorder writes the notes it was given (such as the arm's description,
+//! `snakectl.describe`), then `snakectl.recording`: per channel, what the loop offered, what
+//! was written and what was dropped; and it says the same in a log line. A write that fails
+//! stops the recording (the rest is dropped, counted), never the loop.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use super::schema::{self, ChannelSpec};
+use super::sink::{McapSink, RecordError, Sink};
+use super::tap::{self, Closer, Counts, Drain, Item, Tap};
+use crate::config::Config;
+use crate::protocol::{self, Event, Status, Telemetry};
+use crate::ros;
+
+/// How long the recorder waits for an item before it looks whether it is to close.
+const WAIT: Duration = Duration::from_millis(100);
+
+/// The frame the tips and the target are in: the arm's base frame.
+pub const FRAME_ID: &str = "base";
+
+/// What a recording needs to know of the run.
+#[derive(Debug, Clone)]
+pub struct Setup {
+    /// The topics' prefix (`[zenoh] prefix`, `snakectl` by default).
+    pub prefix: String,
+    /// The loop's nominal period: tick `n` is logged `n` periods after tick 0.
+    pub period: Duration,
+    /// The config file's path.
+    pub config_path: PathBuf,
+    /// The config's TOML text.
+    pub config_text: String,
+    /// Joints, to size the hand-over's buffers.
+    pub joints: usize,
+    /// Items the hand-over holds.
+    pub queue: usize,
+}
+
+impl Setup {
+    /// The recording of a run of `config`, starting now.
+    pub fn of(config: &Config) -> Setup {
+        Setup {
+            prefix: config.zenoh().prefix.clone(),
+            period: Duration::from_secs_f64(1.0 / config.control().rate_hz),
+            config_path: config.path().to_path_buf(),
+            config_text: config.text().to_owned(),
+            joints: config.chain().len(),
+            queue: tap::RECORD_QUEUE,
+        }
+    }
+
+    /// Tick `tick`'s time after tick 0, ns.
+    fn since_start_ns(&self, tick: u64) -> u64 {
+        let period = u64::try_from(self.period.as_nanos()).unwrap_or(u64::MAX);
+        tick.saturating_mul(period)
+    }
+}
+
+/// The loop's time base on the wall clock: tick 0's time, fixed when the recorder takes its
+/// first item (within a few milliseconds of its tick).
+#[derive(Debug, Clone, Copy, Default)]
+struct Epoch {
+    tick0_ns: Option<u64>,
+}
+
+impl Epoch {
+    /// When `tick` ran, ns since the Unix epoch.
+    fn time_ns(&mut self, setup: &Setup, tick: u64) -> u64 {
+        let since = setup.since_start_ns(tick);
+        let tick0 = *self
+            .tick0_ns
+            .get_or_insert_with(|| now_ns().saturating_sub(since));
+        tick0.saturating_add(since)
+    }
+}
+
+/// Now, ns since the Unix epoch (0 before it).
+fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+}
+
+/// A ROS time from ns since the epoch (seconds saturate past 2038).
+fn stamp(ns: u64) -> ros::Time {
+    ros::Time {
+        sec: i32::try_from(ns / 1_000_000_000).unwrap_or(i32::MAX),
+        // Below 10^9, which fits.
+        nanosec: (ns % 1_000_000_000) as u32,
+    }
+}
+
+/// Metadata records to write when the recording closes (what the program around the daemon
+/// knows of the run: the arm's description, a demo's phases). Cloned handles share them.
+#[derive(Debug, Clone, Default)]
+pub struct Notes(Arc<Mutex<Vec<Note>>>);
+
+/// A metadata record: its name and entries.
+pub type Note = (String, BTreeMap<String, String>);
+
+impl Notes {
+    /// No notes yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A metadata record `name` with `entries`, written on close.
+    pub fn add(&self, name: &str, entries: BTreeMap<String, String>) {
+        self.0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push((name.to_owned(), entries));
+    }
+
+    fn take(&self) -> Vec<Note> {
+        std::mem::take(&mut *self.0.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+}
+
+/// Where and how a daemon records its run.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    /// The MCAP file to write.
+    pub path: PathBuf,
+    /// Metadata records to add on close.
+    pub notes: Notes,
+}
+
+impl RecordOptions {
+    /// A recording to `path`, with no notes yet.
+    pub fn to(path: impl Into<PathBuf>) -> Self {
+        Self {
+            path: path.into(),
+            notes: Notes::new(),
+        }
+    }
+}
+
+/// One channel's account.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChannelCount {
+    /// Its topic.
+    pub topic: String,
+    /// Messages the loop offered.
+    pub offered: u64,
+    /// Messages written.
+    pub written: u64,
+    /// Messages dropped (the queue was full, or the recording had stopped).
+    pub dropped: u64,
+}
+
+/// What a recording wrote.
+#[derive(Debug)]
+pub struct RecordSummary {
+    /// Per channel, in the order they were added.
+    pub channels: Vec<ChannelCount>,
+    /// Why the recording stopped early, if it did.
+    pub error: Option<RecordError>,
+}
+
+impl RecordSummary {
+    /// Messages dropped, all channels.
+    pub fn dropped(&self) -> u64 {
+        self.channels.iter().map(|c| c.dropped).sum()
+    }
+
+    /// Messages written, all channels.
+    pub fn written(&self) -> u64 {
+        self.channels.iter().map(|c| c.written).sum()
+    }
+}
+
+/// A recording in progress: the thread that writes it.
+#[derive(Debug)]
+pub struct Recorder {
+    closer: Closer,
+    notes: Notes,
+    thread: Option<JoinHandle<RecordSummary>>,
+    what: String,
+}
+
+impl Recorder {
+    /// Creates the MCAP file at `path` and starts recording into it; the loop's end of the
+    /// hand-over.
+    pub fn create(path: &Path, setup: Setup, notes: Notes) -> Result<(Recorder, Tap), RecordError> {
+        let sink = McapSink::create(path)?;
+        Self::start(Box::new(sink), setup, notes, path.display().to_string())
+    }
+
+    /// Starts recording into `sink` (`what` names it in the log).
+    pub fn start(
+        sink: Box<dyn Sink>,
+        setup: Setup,
+        notes: Notes,
+        what: String,
+    ) -> Result<(Recorder, Tap), RecordError> {
+        let (tap, drain) = tap::channel(setup.queue, setup.joints);
+        let closer = drain.closer();
+        let thread_notes = notes.clone();
+        let thread = std::thread::Builder::new()
+            .name("snakectl-record".into())
+            .spawn(move || record(sink, &drain, &setup, &thread_notes))
+            .map_err(|e| RecordError::Thread(e.to_string()))?;
+        Ok((
+            Recorder {
+                closer,
+                notes,
+                thread: Some(thread),
+                what,
+            },
+            tap,
+        ))
+    }
+
+    /// A metadata record written on close.
+    pub fn note(&self, name: &str, entries: BTreeMap<String, String>) {
+        self.notes.add(name, entries);
+    }
+
+    /// Writes what is still queued, the notes and the account, ends the file, and says in the
+    /// log what was written and dropped. Call it once the loop offers nothing more.
+    pub fn close(mut self) -> RecordSummary {
+        self.closer.close();
+        let summary = match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(summary)) => summary,
+            _ => RecordSummary {
+                channels: Vec::new(),
+                error: Some(RecordError::Thread("it panicked".into())),
+            },
+        };
+        match &summary.error {
+            None => tracing::info!(
+                file = %self.what,
+                written = summary.written(),
+                dropped = summary.dropped(),
+                "recording closed: {} messages written, {} dropped",
+                summary.written(),
+                summary.dropped()
+            ),
+            Some(e) => tracing::error!(
+                file = %self.what,
+                written = summary.written(),
+                dropped = summary.dropped(),
+                "recording stopped early: {e}"
+            ),
+        }
+        summary
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        if let Some(thread) = self.thread.take() {
+            self.closer.close();
+            let _ = thread.join();
+        }
+    }
+}
+
+/// The channels the recorder writes, by their ids in the sink.
+struct Channels {
+    joint_states: u16,
+    tip_cmd: u16,
+    tip_meas: u16,
+    target: u16,
+    telemetry: u16,
+    events: u16,
+}
+
+/// Per channel, in the order of [`channel_specs`]: a count of messages.
+type PerChannel = [u64; 6];
+
+/// The index of each channel in [`channel_specs`].
+const JOINT_STATES: usize = 0;
+const TIP_CMD: usize = 1;
+const TIP_MEAS: usize = 2;
+const TARGET: usize = 3;
+const TELEMETRY: usize = 4;
+const EVENTS: usize = 5;
+
+/// The channels a recording of `prefix` holds, in order.
+pub fn channel_specs(prefix: &str) -> Vec<ChannelSpec> {
+    vec![
+        schema::joint_states(prefix),
+        schema::point(prefix, "tip_cmd"),
+        schema::point(prefix, "tip_meas"),
+        schema::point(prefix, "target"),
+        schema::telemetry(prefix),
+        schema::events(prefix),
+    ]
+}
+
+/// The recorder's thread: set up, write until closed, account.
+fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> RecordSummary {
+    let specs = channel_specs(&setup.prefix);
+    // Messages written, and messages taken but not written (their write failed).
+    let mut written: PerChannel = [0; 6];
+    let mut lost: PerChannel = [0; 6];
+    let mut epoch = Epoch::default();
+    let begun = begin(sink.as_mut(), &specs, setup);
+    let mut error = None;
+    let channels = match begun {
+        Ok(channels) => Some(channels),
+        Err(e) => {
+            tracing::error!("recording: {e}");
+            error = Some(e);
+            drain.stop();
+            None
+        }
+    };
+    while !drain.is_done() {
+        let Some(item) = drain.next(WAIT) else {
+            continue;
+        };
+        let Some(ch) = channels.as_ref().filter(|_| error.is_none()) else {
+            if let Item::Tick(buffer) = item {
+                drain.recycle(buffer);
+            }
+            continue;
+        };
+        let result = match item {
+            Item::Tick(t) => {
+                let ns = epoch.time_ns(setup, t.tick);
+                let before = written;
+                let r = write_tick(sink.as_mut(), ch, ns, &t, &mut written);
+                if r.is_err() {
+                    // The tick's messages that did not get out.
+                    for k in [JOINT_STATES, TIP_CMD, TIP_MEAS, TARGET, TELEMETRY] {
+                        let owed = k != TARGET || t.target.is_some();
+                        if owed && written[k] == before[k] {
+                            lost[k] += 1;
+                        }
+                    }
+                }
+                drain.recycle(t);
+                r
+            }
+            Item::Event(e) => {
+                let ns = epoch.time_ns(setup, e.tick);
+                let r = write_event(sink.as_mut(), ch, ns, &e, &mut written);
+                lost[EVENTS] += u64::from(r.is_err());
+                r
+            }
+        };
+        if let Err(e) = result {
+            tracing::error!("recording stopped: {e}; the arm goes on, the rest is dropped");
+            error = Some(e);
+            drain.stop();
+        }
+    }
+    let counts = drain.counts();
+    let summary = account(&specs, counts, written, lost);
+    if error.is_none() {
+        if let Err(e) = end(sink.as_mut(), notes, &summary) {
+            error = Some(e);
+        }
+    }
+    RecordSummary {
+        channels: summary,
+        error,
+    }
+}
+
+/// The channels added and the config written.
+fn begin(
+    sink: &mut dyn Sink,
+    specs: &[ChannelSpec],
+    setup: &Setup,
+) -> Result<Channels, RecordError> {
+    let mut ids = Vec::with_capacity(specs.len());
+    for spec in specs {
+        ids.push(sink.add_channel(spec)?);
+    }
+    let [joint_states, tip_cmd, tip_meas, target, telemetry, events] = ids[..] else {
+        return Err(RecordError::Write("the recorder's channels".into()));
+    };
+    sink.metadata(
+        "snakectl.config",
+        &BTreeMap::from([
+            ("path".to_owned(), setup.config_path.display().to_string()),
+            ("toml".to_owned(), setup.config_text.clone()),
+        ]),
+    )?;
+    Ok(Channels {
+        joint_states,
+        tip_cmd,
+        tip_meas,
+        target,
+        telemetry,
+        events,
+    })
+}
+
+/// One tick's messages.
+fn write_tick(
+    sink: &mut dyn Sink,
+    ch: &Channels,
+    ns: u64,
+    t: &Telemetry,
+    written: &mut PerChannel,
+) -> Result<(), RecordError> {
+    let cdr = |bytes: Result<Vec<u8>, ros::RosError>| {
+        bytes.map_err(|e| RecordError::Write(format!("a ROS message: {e}")))
+    };
+    let mut joints = ros::joint_state(t, 0.0);
+    joints.header.stamp = stamp(ns);
+    sink.write(ch.joint_states, ns, &cdr(ros::encode(&joints))?)?;
+    written[JOINT_STATES] += 1;
+    let point = |p: [f64; 2]| {
+        let mut point = ros::point_stamped(p, 0.0, FRAME_ID);
+        point.header.stamp = stamp(ns);
+        cdr(ros::encode(&point))
+    };
+    sink.write(ch.tip_cmd, ns, &point(t.tip)?)?;
+    written[TIP_CMD] += 1;
+    sink.write(ch.tip_meas, ns, &point(t.tip_meas)?)?;
+    written[TIP_MEAS] += 1;
+    if let Some(target) = t.target {
+        sink.write(ch.target, ns, &point(target)?)?;
+        written[TARGET] += 1;
+    }
+    let line = protocol::telemetry_line(&Status::of(t));
+    sink.write(ch.telemetry, ns, line.trim_end().as_bytes())?;
+    written[TELEMETRY] += 1;
+    // Further channels built from the same snapshot (the 3-D scene) are written here, through
+    // `Sink::add_channel` in `begin` and `Sink::write`.
+    Ok(())
+}
+
+/// One event's message.
+fn write_event(
+    sink: &mut dyn Sink,
+    ch: &Channels,
+    ns: u64,
+    e: &Event,
+    written: &mut PerChannel,
+) -> Result<(), RecordError> {
+    let line = protocol::event_line(e);
+    sink.write(ch.events, ns, line.trim_end().as_bytes())?;
+    written[EVENTS] += 1;
+    Ok(())
+}
+
+/// Per channel: offered, written, dropped (by the hand-over, or taken and not written).
+fn account(
+    specs: &[ChannelSpec],
+    c: Counts,
+    written: PerChannel,
+    lost: PerChannel,
+) -> Vec<ChannelCount> {
+    let of_kind = |k: usize| match k {
+        TARGET => c.targets,
+        EVENTS => c.events,
+        _ => c.ticks,
+    };
+    specs
+        .iter()
+        .enumerate()
+        .map(|(k, spec)| ChannelCount {
+            topic: spec.topic.clone(),
+            offered: of_kind(k).offered,
+            written: written[k],
+            dropped: of_kind(k).dropped + lost[k],
+        })
+        .collect()
+}
+
+/// The notes, the account, the end of the file.
+fn end(sink: &mut dyn Sink, notes: &Notes, channels: &[ChannelCount]) -> Result<(), RecordError> {
+    for (name, entries) in notes.take() {
+        sink.metadata(&name, &entries)?;
+    }
+    let mut entries = BTreeMap::new();
+    for c in channels {
+        entries.insert(
+            c.topic.clone(),
+            serde_json::json!({
+                "offered": c.offered,
+                "written": c.written,
+                "dropped": c.dropped,
+            })
+            .to_string(),
+        );
+    }
+    sink.metadata("snakectl.recording", &entries)?;
+    sink.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// A disk that fills up: writes fail after `room` messages.
+    struct Filling {
+        room: usize,
+        channels: u16,
+    }
+
+    impl Sink for Filling {
+        fn add_channel(&mut self, _: &ChannelSpec) -> Result<u16, RecordError> {
+            self.channels += 1;
+            Ok(self.channels)
+        }
+
+        fn write(&mut self, _: u16, _: u64, _: &[u8]) -> Result<(), RecordError> {
+            if self.room == 0 {
+                return Err(RecordError::Write("No space left on device".into()));
+            }
+            self.room -= 1;
+            Ok(())
+        }
+
+        fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), RecordError> {
+            Ok(())
+        }
+
+        fn finish(&mut self) -> Result<(), RecordError> {
+            Ok(())
+        }
+    }
+
+    fn setup() -> Setup {
+        Setup {
+            prefix: "arm7".into(),
+            period: Duration::from_millis(10),
+            config_path: "arm.toml".into(),
+            config_text: String::new(),
+            joints: 2,
+            queue: 4096,
+        }
+    }
+
+    #[test]
+    fn a_full_disk_stops_the_recording_says_why_and_counts_the_rest_as_dropped() {
+        let sink = Filling {
+            room: 4 * 100 + 2,
+            channels: 0,
+        };
+        let (recorder, tap) =
+            Recorder::start(Box::new(sink), setup(), Notes::new(), "full".into()).unwrap();
+        for tick in 0..1000 {
+            let t = Telemetry {
+                tick,
+                theta_meas: vec![0.1, 0.2],
+                ..Telemetry::default()
+            };
+            tap.offer_tick(&t);
+        }
+        let summary = recorder.close();
+        assert!(
+            summary
+                .error
+                .as_ref()
+                .is_some_and(|e| e.to_string().contains("No space left")),
+            "{:?}",
+            summary.error
+        );
+        let joint_states = &summary.channels[0];
+        assert_eq!(joint_states.topic, "/arm7/joint_states");
+        assert_eq!(joint_states.offered, 1000);
+        // 100 whole ticks, then one whose tip_meas found the disk full.
+        assert_eq!(joint_states.written, 101, "{joint_states:?}");
+        assert_eq!(joint_states.dropped, 899, "{joint_states:?}");
+        for c in &summary.channels {
+            assert_eq!(c.written + c.dropped, c.offered, "{c:?}");
+        }
+        assert_eq!(summary.channels[2].written, 100, "tip_meas");
+        // The offers after the failure are taken, counted and dropped.
+        tap.offer_tick(&Telemetry::default());
+        assert_eq!(tap.counts().ticks.dropped, 900);
+    }
+
+    #[test]
+    fn ticks_are_logged_whole_periods_after_tick_0() {
+        let setup = setup();
+        let mut epoch = Epoch::default();
+        let t0 = epoch.time_ns(&setup, 0);
+        assert_eq!(epoch.time_ns(&setup, 250) - t0, 2_500_000_000);
+        assert_eq!(
+            stamp(1_700_000_000_123_456_789),
+            ros::Time {
+                sec: 1_700_000_000,
+                nanosec: 123_456_789
+            }
+        );
+    }
+}

@@ -1,0 +1,197 @@
+//! A recorded run read back: a daemon on the simulator records while a client moves the arm
+//! (a goto, then `velocity`), then shuts down; the file is read with the `mcap` crate alone.
+//! Each channel holds what the loop offered minus what was dropped, its times increase, a
+//! `JointState` decodes to the angles of the telemetry logged with it, the metadata holds the
+//! config and the account, and `snakectl plot` draws the figures from it.
+#![allow(clippy::unwrap_used)]
+
+mod daemon_support;
+
+use std::collections::BTreeMap;
+use std::process::Command;
+
+use daemon_support::{sim_config, xy, Daemon};
+use serde_json::{json, Value};
+use snakectl::record::RecordOptions;
+use snakectl::ros::{self, JointState, PointStamped};
+
+/// Per topic: (log time, bytes) in the file's order.
+type Messages = BTreeMap<String, Vec<(u64, Vec<u8>)>>;
+/// Metadata records by name.
+type Metadata = BTreeMap<String, BTreeMap<String, String>>;
+/// Per topic: schema name, schema encoding, message encoding.
+type Kinds = BTreeMap<String, (String, String, String)>;
+
+fn read(bytes: &[u8]) -> (Messages, Metadata, Kinds) {
+    let mut messages: Messages = BTreeMap::new();
+    let mut kinds = BTreeMap::new();
+    for m in mcap::MessageStream::new(bytes).unwrap() {
+        let m = m.unwrap();
+        let schema = m.channel.schema.as_ref().unwrap();
+        kinds.insert(
+            m.channel.topic.clone(),
+            (
+                schema.name.clone(),
+                schema.encoding.clone(),
+                m.channel.message_encoding.clone(),
+            ),
+        );
+        messages
+            .entry(m.channel.topic.clone())
+            .or_default()
+            .push((m.log_time, m.data.into_owned()));
+    }
+    let mut metadata = BTreeMap::new();
+    for record in mcap::read::LinearReader::new(bytes).unwrap() {
+        if let mcap::records::Record::Metadata(m) = record.unwrap() {
+            metadata.insert(m.name, m.metadata);
+        }
+    }
+    (messages, metadata, kinds)
+}
+
+#[test]
+fn a_recorded_run_reads_back_whole_and_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    let config = sim_config(&[]);
+    let d = Daemon::start_with(config.clone(), Some(RecordOptions::to(&path)));
+    let mut c = d.client();
+    c.ok(json!({"cmd": "take_control"}));
+    let tip = xy(&c.status()["tip"]);
+    let target = [tip[0] + 0.03, tip[1] - 0.02];
+    let id = c.send(json!({"cmd": "goto", "target": target}));
+    c.event("arrived", Some(id));
+    for _ in 0..20 {
+        c.ok(json!({"cmd": "velocity", "v": [0.02, 0.0]}));
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    c.ok(json!({"cmd": "stop"}));
+    c.wait_status("holding", |s| s["state"] == "holding");
+    drop(c);
+    let summary = d.stop().unwrap();
+
+    let bytes = std::fs::read(&path).unwrap();
+    let (messages, metadata, kinds) = read(&bytes);
+
+    // The channels, as the ROS 2 profile and the JSON schemas name them.
+    let cdr = |name: &str| (name.to_owned(), "ros2msg".to_owned(), "cdr".to_owned());
+    assert_eq!(
+        kinds["/snakectl/joint_states"],
+        cdr("sensor_msgs/msg/JointState")
+    );
+    for topic in ["tip_cmd", "tip_meas", "target"] {
+        assert_eq!(
+            kinds[&format!("/snakectl/{topic}")],
+            cdr("geometry_msgs/msg/PointStamped")
+        );
+    }
+    let json_kind = |name: &str| (name.to_owned(), "jsonschema".to_owned(), "json".to_owned());
+    assert_eq!(
+        kinds["/snakectl/telemetry"],
+        json_kind("snakectl.Telemetry")
+    );
+    assert_eq!(kinds["/snakectl/events"], json_kind("snakectl.Event"));
+
+    // Every tick was offered (tick 0 and each tick run), and what was not dropped is there.
+    let account = &metadata["snakectl.recording"];
+    for (topic, list) in &messages {
+        let row: Value = serde_json::from_str(&account[topic]).unwrap();
+        let (offered, written, dropped) = (
+            row["offered"].as_u64().unwrap(),
+            row["written"].as_u64().unwrap(),
+            row["dropped"].as_u64().unwrap(),
+        );
+        assert_eq!(list.len() as u64, written, "{topic}");
+        assert_eq!(written, offered - dropped, "{topic}: {row}");
+        if topic != "/snakectl/target" && topic != "/snakectl/events" {
+            assert_eq!(
+                offered,
+                summary.ticks + 1,
+                "{topic}: the loop ran {} ticks",
+                summary.ticks
+            );
+        }
+        // Times increase with the ticks (events of one tick share its time).
+        let strictly = topic != "/snakectl/events";
+        for w in list.windows(2) {
+            assert!(
+                w[1].0 > w[0].0 || (!strictly && w[1].0 == w[0].0),
+                "{topic}: {} then {}",
+                w[0].0,
+                w[1].0
+            );
+        }
+    }
+    assert!(messages["/snakectl/target"].len() > 10, "the goto's target");
+    let events: Vec<Value> = messages["/snakectl/events"]
+        .iter()
+        .map(|(_, b)| serde_json::from_slice(b).unwrap())
+        .collect();
+    assert!(events.iter().any(|e| e["event"] == "arrived"), "{events:?}");
+    assert!(
+        events.iter().any(|e| e["event"] == "shutting_down"),
+        "{events:?}"
+    );
+
+    // A JointState decodes to the angles of the telemetry logged at its time.
+    let telemetry: BTreeMap<u64, Value> = messages["/snakectl/telemetry"]
+        .iter()
+        .map(|(t, b)| (*t, serde_json::from_slice(b).unwrap()))
+        .collect();
+    let (t, bytes) =
+        &messages["/snakectl/joint_states"][messages["/snakectl/joint_states"].len() / 2];
+    let joints: JointState = ros::decode(bytes).unwrap();
+    let line = &telemetry[t];
+    let theta: Vec<f64> = line["theta_meas"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(joints.position, theta);
+    assert_eq!(joints.name, ros::joint_names(theta.len()));
+    let stamp_ns = u64::try_from(joints.header.stamp.sec).unwrap() * 1_000_000_000
+        + u64::from(joints.header.stamp.nanosec);
+    assert_eq!(stamp_ns, *t, "the header's stamp is the log time");
+    let (_, tip) = messages["/snakectl/tip_meas"]
+        .iter()
+        .find(|(time, _)| time == t)
+        .unwrap();
+    let tip: PointStamped = ros::decode(tip).unwrap();
+    assert_eq!([tip.point.x, tip.point.y], xy(&line["tip_meas"]));
+    assert_eq!(tip.header.frame_id, "base");
+
+    // The config the run used, as its text and path.
+    let recorded = &metadata["snakectl.config"];
+    assert_eq!(recorded["toml"], config.text());
+    assert_eq!(recorded["path"], config.path().display().to_string());
+    assert!(metadata.contains_key("snakectl.describe"));
+
+    // `snakectl plot` draws the figures from it.
+    let out = dir.path().join("figures");
+    let plotted = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .arg("plot")
+        .arg(&path)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(plotted.status.success(), "{plotted:?}");
+    for name in ["motion", "joints"] {
+        let svg = std::fs::read_to_string(out.join(format!("{name}.svg"))).unwrap();
+        assert!(svg.contains("<svg"), "{name}.svg");
+        let png = std::fs::read(out.join(format!("{name}.png"))).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "{name}.png");
+    }
+}
+
+#[test]
+fn a_recording_that_cannot_be_created_refuses_start_up_before_the_arm_moves() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("no/such/dir/run.mcap");
+    let d = Daemon::start_with(sim_config(&[]), Some(RecordOptions::to(&path)));
+    let e = d.stop().unwrap_err();
+    assert!(matches!(e, snakectl::daemon::DaemonError::Record(_)), "{e}");
+    assert!(e.to_string().contains("run.mcap"), "{e}");
+}
