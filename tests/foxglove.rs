@@ -271,7 +271,7 @@ fn a_foxglove_client_sees_every_channel_and_the_arm() {
         .as_str()
         .unwrap();
     assert!(
-        js_schema.contains("MSG: builtin_interfaces/msg/Time"),
+        js_schema.contains("MSG: builtin_interfaces/Time"),
         "{js_schema}"
     );
 

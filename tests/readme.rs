@@ -312,7 +312,7 @@ fn json_and_toml_examples_parse() {
         }
     }
     assert_eq!(seen.get("json"), Some(&2), "{seen:?}");
-    assert_eq!(seen.get("toml"), Some(&5), "{seen:?}");
+    assert_eq!(seen.get("toml"), Some(&6), "{seen:?}");
 }
 
 /// A command the documentation shows: the file it is in, and its words.

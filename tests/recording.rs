@@ -11,7 +11,10 @@ use std::collections::BTreeMap;
 use std::process::Command;
 
 use daemon_support::{sim_config, xy, Daemon};
+use foxglove::schemas::SceneUpdate;
+use foxglove::Decode;
 use serde_json::{json, Value};
+use snakectl::record::recorder::SCENE_HZ;
 use snakectl::record::RecordOptions;
 use snakectl::ros::{self, JointState, PointStamped};
 
@@ -92,6 +95,15 @@ fn a_recorded_run_reads_back_whole_and_plots() {
         json_kind("snakectl.Telemetry")
     );
     assert_eq!(kinds["/snakectl/events"], json_kind("snakectl.Event"));
+    let protobuf = "protobuf".to_owned();
+    assert_eq!(
+        kinds["/snakectl/scene"],
+        (
+            "foxglove.SceneUpdate".to_owned(),
+            protobuf.clone(),
+            protobuf
+        )
+    );
 
     // Every tick was offered (tick 0 and each tick run), and what was not dropped is there.
     let account = &metadata["snakectl.recording"];
@@ -104,7 +116,11 @@ fn a_recorded_run_reads_back_whole_and_plots() {
         );
         assert_eq!(list.len() as u64, written, "{topic}");
         assert_eq!(written, offered - dropped, "{topic}: {row}");
-        if topic != "/snakectl/target" && topic != "/snakectl/events" {
+        if topic == "/snakectl/scene" {
+            // Every `every`th tick of those taken (none was dropped at this rate).
+            let every = (config.control().rate_hz / SCENE_HZ).ceil() as u64;
+            assert_eq!(offered, summary.ticks / every + 1, "{topic}: {row}");
+        } else if topic != "/snakectl/target" && topic != "/snakectl/events" {
             assert_eq!(
                 offered,
                 summary.ticks + 1,
@@ -124,6 +140,21 @@ fn a_recorded_run_reads_back_whole_and_plots() {
         }
     }
     assert!(messages["/snakectl/target"].len() > 10, "the goto's target");
+    // The last scene draws the measured arm ending at its tick's measured tip.
+    let (at, last_scene) = messages["/snakectl/scene"].last().unwrap();
+    let scene = SceneUpdate::decode(&last_scene[..]).unwrap();
+    let arm = scene.entities.iter().find(|e| e.id == "arm_meas").unwrap();
+    let end = arm.lines[0].points.last().unwrap();
+    let (_, same_tick) = messages["/snakectl/telemetry"]
+        .iter()
+        .find(|(t, _)| t == at)
+        .unwrap();
+    let same_tick: Value = serde_json::from_slice(same_tick).unwrap();
+    let tip = xy(&same_tick["tip_meas"]);
+    assert!(
+        (end.x - tip[0]).hypot(end.y - tip[1]) < 1e-9,
+        "{end:?} vs {tip:?}"
+    );
     let events: Vec<Value> = messages["/snakectl/events"]
         .iter()
         .map(|(_, b)| serde_json::from_slice(b).unwrap())

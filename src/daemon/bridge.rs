@@ -27,7 +27,6 @@
 
 use std::cell::Cell;
 use std::path::PathBuf;
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde_json::Value;
@@ -41,6 +40,7 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 
 use super::server::Door;
+use super::side::{Side, SideEnds};
 use crate::config::{Config, Endpoint, Zenoh, ZenohMode};
 use crate::protocol::{
     self, Cmd, CmdName, Code, Fields, Rejection, Reply, ReplyLine, ServerLine, Status, Telemetry,
@@ -186,10 +186,7 @@ impl Settings {
 /// moves, serving once [`Bridge::start`] hands it the way in, closed by [`Bridge::stop`].
 #[derive(Debug)]
 pub struct Bridge {
-    start: Option<oneshot::Sender<Door>>,
-    stop: Option<oneshot::Sender<()>>,
-    done: Option<oneshot::Receiver<()>>,
-    thread: Option<JoinHandle<()>>,
+    side: Side,
 }
 
 impl Bridge {
@@ -207,64 +204,21 @@ impl Bridge {
             deadman: config.control().deadman,
             ros2: table.ros2.then_some(table.domain_id),
         };
-        let (opened_tx, opened_rx) = oneshot::channel();
-        let (start_tx, start_rx) = oneshot::channel();
-        let (stop_tx, stop_rx) = oneshot::channel();
-        let (done_tx, done_rx) = oneshot::channel();
-        let thread = std::thread::Builder::new()
-            .name("snakectl-zenoh".into())
-            .spawn(move || {
-                bridge_thread(zenoh_config, settings, opened_tx, start_rx, stop_rx);
-                let _ = done_tx.send(());
-            })
-            .map_err(|e| NetError::Thread(e.to_string()))?;
-        match opened_rx.await {
-            Ok(Ok(())) => Ok(Bridge {
-                start: Some(start_tx),
-                stop: Some(stop_tx),
-                done: Some(done_rx),
-                thread: Some(thread),
-            }),
-            Ok(Err(e)) => {
-                let _ = thread.join();
-                Err(e)
-            }
-            Err(_) => {
-                let _ = thread.join();
-                Err(NetError::Thread(
-                    "it ended while opening the session".into(),
-                ))
-            }
-        }
+        let body = move |ends: SideEnds<(), NetError>| {
+            bridge_thread(zenoh_config, settings, ends.opened, ends.start, ends.stop);
+        };
+        let (side, ()) = Side::open("snakectl-zenoh", body, NetError::Thread).await?;
+        Ok(Bridge { side })
     }
 
     /// Starts publishing, answering and (with `accept_commands`) commanding through `door`.
     pub fn start(&mut self, door: Door) {
-        if let Some(start) = self.start.take() {
-            let _ = start.send(door);
-        }
+        self.side.start(door);
     }
 
     /// Withdraws the token, closes the session and waits for the thread.
-    pub async fn stop(mut self) {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-        if let Some(done) = self.done.take() {
-            let _ = done.await;
-        }
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
-        }
-    }
-}
-
-impl Drop for Bridge {
-    fn drop(&mut self) {
-        // Told to stop; the thread closes its session by itself.
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
+    pub async fn stop(self) {
+        self.side.stop().await;
     }
 }
 

@@ -18,6 +18,7 @@
 //! - [`link`]: the seam between the loop's thread and the socket side (bounded command queue,
 //!   latest-wins telemetry, broadcast events).
 //! - [`server`]: the JSON-lines TCP server on the socket side.
+//! - [`side`]: a thread beside the loop serving another network (the view, the bridge).
 //! - [`stats`]: fixed-size histograms for the run summary.
 //! - [`view`]: the live Foxglove view (`[foxglove]`): a WebSocket server on its own thread.
 
@@ -29,6 +30,7 @@ pub mod control_loop;
 pub mod embedded;
 pub mod link;
 pub mod server;
+pub mod side;
 pub mod stats;
 pub mod view;
 

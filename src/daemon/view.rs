@@ -20,7 +20,6 @@
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
-use std::thread::JoinHandle;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use foxglove::websocket::{Capability, Client, ClientChannel, ServerListener};
@@ -31,6 +30,7 @@ use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
 use super::server::Door;
+use super::side::{Side, SideEnds};
 use crate::chain::Chain;
 use crate::config::Config;
 use crate::protocol::{self, Cmd, Code, Event, Rejection, What};
@@ -87,10 +87,7 @@ struct Settings {
 #[derive(Debug)]
 pub struct View {
     addr: SocketAddr,
-    start: Option<oneshot::Sender<Door>>,
-    stop: Option<oneshot::Sender<()>>,
-    done: Option<oneshot::Receiver<()>>,
-    thread: Option<JoinHandle<()>>,
+    side: Side,
 }
 
 impl View {
@@ -112,34 +109,11 @@ impl View {
             chain: config.chain().clone(),
             world: config.world().clone(),
         };
-        let (opened_tx, opened_rx) = oneshot::channel();
-        let (start_tx, start_rx) = oneshot::channel();
-        let (stop_tx, stop_rx) = oneshot::channel();
-        let (done_tx, done_rx) = oneshot::channel();
-        let thread = std::thread::Builder::new()
-            .name("snakectl-foxglove".into())
-            .spawn(move || {
-                view_thread(settings, opened_tx, start_rx, stop_rx);
-                let _ = done_tx.send(());
-            })
-            .map_err(|e| ViewError::Thread(e.to_string()))?;
-        match opened_rx.await {
-            Ok(Ok(addr)) => Ok(Some(View {
-                addr,
-                start: Some(start_tx),
-                stop: Some(stop_tx),
-                done: Some(done_rx),
-                thread: Some(thread),
-            })),
-            Ok(Err(e)) => {
-                let _ = thread.join();
-                Err(e)
-            }
-            Err(_) => {
-                let _ = thread.join();
-                Err(ViewError::Thread("it ended while binding".into()))
-            }
-        }
+        let body = move |ends: SideEnds<SocketAddr, ViewError>| {
+            view_thread(settings, ends.opened, ends.start, ends.stop);
+        };
+        let (side, addr) = Side::open("snakectl-foxglove", body, ViewError::Thread).await?;
+        Ok(Some(View { addr, side }))
     }
 
     /// Where it listens (the port chosen when the config said 0).
@@ -149,30 +123,12 @@ impl View {
 
     /// Starts publishing and (with `accept_commands`) commanding through `door`.
     pub fn start(&mut self, door: Door) {
-        if let Some(start) = self.start.take() {
-            let _ = start.send(door);
-        }
+        self.side.start(door);
     }
 
     /// Closes the server and waits for its thread.
-    pub async fn stop(mut self) {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-        if let Some(done) = self.done.take() {
-            let _ = done.await;
-        }
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
-        }
-    }
-}
-
-impl Drop for View {
-    fn drop(&mut self) {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
+    pub async fn stop(self) {
+        self.side.stop().await;
     }
 }
 

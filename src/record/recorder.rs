@@ -4,7 +4,9 @@
 //! Each tick's snapshot becomes, at the tick's time, a `JointState` (`joint_states`), the
 //! commanded and the measured tip (`tip_cmd`, `tip_meas`, `PointStamped` in the frame `base`),
 //! the target while there is one (`target`), and the telemetry object (`telemetry`); each
-//! event becomes an event object (`events`). Times are the loop's: tick `n` is logged at tick
+//! event becomes an event object (`events`). The 3-D scene of the live view (`scene`, see
+//! [`crate::view`]) is drawn from the ticks taken, at most [`SCENE_HZ`] a second, its world
+//! following the `world` events. Times are the loop's: tick `n` is logged at tick
 //! 0's time on the wall clock (ns since the Unix epoch) plus `n` nominal periods, so they
 //! increase with the ticks and match the telemetry's `t_s`.
 //!
@@ -23,9 +25,16 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use super::schema::{self, ChannelSpec};
 use super::sink::{McapSink, RecordError, Sink};
 use super::tap::{self, Closer, Counts, Drain, Item, Tap};
+use crate::chain::Chain;
 use crate::config::Config;
-use crate::protocol::{self, Event, Status, Telemetry};
+use crate::protocol::{self, Event, Status, Telemetry, What};
 use crate::ros;
+use crate::view::{self, Topic, Trail};
+use crate::world::World;
+
+/// Most scenes a second a recording holds: the 3-D scene is written every
+/// `ceil(rate_hz / SCENE_HZ)` ticks.
+pub const SCENE_HZ: f64 = 30.0;
 
 /// How long the recorder waits for an item before it looks whether it is to close.
 const WAIT: Duration = Duration::from_millis(100);
@@ -48,6 +57,12 @@ pub struct Setup {
     pub joints: usize,
     /// Items the hand-over holds.
     pub queue: usize,
+    /// The arm, for the 3-D scene.
+    pub chain: Chain,
+    /// The world at start (the scene follows the `world` events after it).
+    pub world: World,
+    /// The scene is written on ticks that are a multiple of this.
+    pub scene_every: u64,
 }
 
 impl Setup {
@@ -60,6 +75,9 @@ impl Setup {
             config_text: config.text().to_owned(),
             joints: config.chain().len(),
             queue: tap::RECORD_QUEUE,
+            chain: config.chain().clone(),
+            world: config.world().clone(),
+            scene_every: (config.control().rate_hz / SCENE_HZ).ceil().max(1.0) as u64,
         }
     }
 
@@ -279,10 +297,11 @@ struct Channels {
     target: u16,
     telemetry: u16,
     events: u16,
+    scene: u16,
 }
 
 /// Per channel, in the order of [`channel_specs`]: a count of messages.
-type PerChannel = [u64; 6];
+type PerChannel = [u64; 7];
 
 /// The index of each channel in [`channel_specs`].
 const JOINT_STATES: usize = 0;
@@ -291,6 +310,7 @@ const TIP_MEAS: usize = 2;
 const TARGET: usize = 3;
 const TELEMETRY: usize = 4;
 const EVENTS: usize = 5;
+const SCENE: usize = 6;
 
 /// The channels a recording of `prefix` holds, in order.
 pub fn channel_specs(prefix: &str) -> Vec<ChannelSpec> {
@@ -301,15 +321,39 @@ pub fn channel_specs(prefix: &str) -> Vec<ChannelSpec> {
         schema::point(prefix, "target"),
         schema::telemetry(prefix),
         schema::events(prefix),
+        scene_spec(prefix),
     ]
+}
+
+/// The 3-D scene's channel, as the live view declares it.
+fn scene_spec(prefix: &str) -> ChannelSpec {
+    let spec = Topic::Scene.channel(prefix);
+    ChannelSpec {
+        topic: spec.topic,
+        schema_name: spec.schema.name.clone(),
+        schema_encoding: spec.schema.encoding.clone(),
+        schema: spec.schema.data.to_vec(),
+        message_encoding: spec.message_encoding.to_owned(),
+        metadata: BTreeMap::new(),
+    }
+}
+
+/// What the recorder keeps to draw the scene: the tip's trail and the world in force.
+struct SceneState {
+    trail: Trail,
+    world: World,
 }
 
 /// The recorder's thread: set up, write until closed, account.
 fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> RecordSummary {
     let specs = channel_specs(&setup.prefix);
     // Messages written, and messages taken but not written (their write failed).
-    let mut written: PerChannel = [0; 6];
-    let mut lost: PerChannel = [0; 6];
+    let mut written: PerChannel = [0; 7];
+    let mut lost: PerChannel = [0; 7];
+    let mut scene = SceneState {
+        trail: Trail::new(view::scene::TRAIL_POINTS),
+        world: setup.world.clone(),
+    };
     let mut epoch = Epoch::default();
     let begun = begin(sink.as_mut(), &specs, setup);
     let mut error = None;
@@ -337,10 +381,17 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
                 let ns = epoch.time_ns(setup, t.tick);
                 let before = written;
                 let r = write_tick(sink.as_mut(), ch, ns, &t, &mut written);
+                let r = r.and_then(|()| {
+                    write_scene(sink.as_mut(), ch, setup, &mut scene, ns, &t, &mut written)
+                });
                 if r.is_err() {
                     // The tick's messages that did not get out.
-                    for k in [JOINT_STATES, TIP_CMD, TIP_MEAS, TARGET, TELEMETRY] {
-                        let owed = k != TARGET || t.target.is_some();
+                    for k in [JOINT_STATES, TIP_CMD, TIP_MEAS, TARGET, TELEMETRY, SCENE] {
+                        let owed = match k {
+                            TARGET => t.target.is_some(),
+                            SCENE => t.tick % setup.scene_every == 0,
+                            _ => true,
+                        };
                         if owed && written[k] == before[k] {
                             lost[k] += 1;
                         }
@@ -350,6 +401,12 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
                 r
             }
             Item::Event(e) => {
+                if let What::World { world, .. } = &e.what {
+                    match world.to_world() {
+                        Ok(w) => scene.world = w,
+                        Err(e) => tracing::warn!("a world event the scene cannot draw: {e}"),
+                    }
+                }
                 let ns = epoch.time_ns(setup, e.tick);
                 let r = write_event(sink.as_mut(), ch, ns, &e, &mut written);
                 lost[EVENTS] += u64::from(r.is_err());
@@ -385,7 +442,7 @@ fn begin(
     for spec in specs {
         ids.push(sink.add_channel(spec)?);
     }
-    let [joint_states, tip_cmd, tip_meas, target, telemetry, events] = ids[..] else {
+    let [joint_states, tip_cmd, tip_meas, target, telemetry, events, scene] = ids[..] else {
         return Err(RecordError::Write("the recorder's channels".into()));
     };
     sink.metadata(
@@ -402,6 +459,7 @@ fn begin(
         target,
         telemetry,
         events,
+        scene,
     })
 }
 
@@ -441,6 +499,30 @@ fn write_tick(
     Ok(())
 }
 
+/// The 3-D scene of a tick, on every `scene_every`th tick (the trail takes every tick).
+fn write_scene(
+    sink: &mut dyn Sink,
+    ch: &Channels,
+    setup: &Setup,
+    scene: &mut SceneState,
+    ns: u64,
+    t: &Telemetry,
+    written: &mut PerChannel,
+) -> Result<(), RecordError> {
+    if t.theta_meas.len() == setup.chain.len() {
+        scene.trail.push(t.tip_meas);
+    }
+    if t.tick % setup.scene_every != 0 {
+        return Ok(());
+    }
+    let stamp = view::timestamp(ns as f64 * 1e-9);
+    let update = view::scene(&setup.chain, &scene.world, t, &scene.trail, stamp);
+    let bytes = view::encode(&update).map_err(|e| RecordError::Write(format!("the scene: {e}")))?;
+    sink.write(ch.scene, ns, &bytes)?;
+    written[SCENE] += 1;
+    Ok(())
+}
+
 /// One event's message.
 fn write_event(
     sink: &mut dyn Sink,
@@ -467,14 +549,21 @@ fn account(
         EVENTS => c.events,
         _ => c.ticks,
     };
+    // The scene is made here, not offered by the loop: what was made is what was written or
+    // lost.
+    let scene = |k: usize| (k == SCENE).then(|| written[k] + lost[k]);
     specs
         .iter()
         .enumerate()
         .map(|(k, spec)| ChannelCount {
             topic: spec.topic.clone(),
-            offered: of_kind(k).offered,
+            offered: scene(k).unwrap_or(of_kind(k).offered),
             written: written[k],
-            dropped: of_kind(k).dropped + lost[k],
+            dropped: if k == SCENE {
+                lost[k]
+            } else {
+                of_kind(k).dropped + lost[k]
+            },
         })
         .collect()
 }
@@ -542,6 +631,10 @@ mod tests {
             config_text: String::new(),
             joints: 2,
             queue: 4096,
+            chain: Chain::unlimited(vec![0.5, 0.5], crate::chain::Vec2::zeros(), 0.0).unwrap(),
+            world: World::default(),
+            // A scene at tick 0 only.
+            scene_every: u64::MAX,
         }
     }
 

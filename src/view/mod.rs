@@ -54,92 +54,11 @@ pub const TELEMETRY_SCHEMA_NAME: &str = "snakectl.Telemetry";
 /// The schema name of the events channel.
 pub const EVENT_SCHEMA_NAME: &str = "snakectl.Event";
 
-/// The line that separates a `ros2msg` schema from each dependency's text.
-const DEPENDENCY: &str =
-    "================================================================================\nMSG: ";
-
-const TIME_MSG: &str = "int32 sec\nuint32 nanosec\n";
-const HEADER_MSG: &str = "builtin_interfaces/Time stamp\nstring frame_id\n";
-const POINT_MSG: &str = "float64 x\nfloat64 y\nfloat64 z\n";
-
-/// `sensor_msgs/msg/JointState` as `ros2msg`: its `.msg` text, then `Header` and `Time`.
-pub fn joint_state_schema() -> String {
-    format!(
-        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n\
-         float64[] effort\n{DEPENDENCY}std_msgs/msg/Header\n{HEADER_MSG}\
-         {DEPENDENCY}builtin_interfaces/msg/Time\n{TIME_MSG}"
-    )
-}
-
-/// `geometry_msgs/msg/PointStamped` as `ros2msg`: its `.msg` text, then `Header`, `Time` and
-/// `Point`.
-pub fn point_stamped_schema() -> String {
-    format!(
-        "std_msgs/Header header\nPoint point\n{DEPENDENCY}std_msgs/msg/Header\n{HEADER_MSG}\
-         {DEPENDENCY}builtin_interfaces/msg/Time\n{TIME_MSG}\
-         {DEPENDENCY}geometry_msgs/msg/Point\n{POINT_MSG}"
-    )
-}
-
-/// The JSON schema of the telemetry channel: the fields a plot wants, typed (a number the
-/// daemon cannot write finite is `null`); fields it does not list are allowed.
-pub const TELEMETRY_SCHEMA: &str = r#"{
-  "$schema": "https://json-schema.org/draft/2020-12/schema",
-  "title": "snakectl.Telemetry",
-  "description": "One snapshot of the control loop, as the daemon's socket writes it.",
-  "type": "object",
-  "properties": {
-    "type": {"const": "telemetry"},
-    "tick": {"type": "integer", "description": "ticks since start"},
-    "t_s": {"type": ["number", "null"], "description": "tick times the nominal period, s"},
-    "state": {"type": "string", "enum": ["moving", "holding", "stopping", "estop", "fault", "torque_off"]},
-    "strategy": {"type": "string"},
-    "tip_ref": {"type": "array", "items": {"type": ["number", "null"]}, "description": "the tick's motion reference for the tip, m"},
-    "tip": {"type": "array", "items": {"type": ["number", "null"]}, "description": "tip of the commanded pose, m"},
-    "tip_meas": {"type": "array", "items": {"type": ["number", "null"]}, "description": "tip of the measured pose, m"},
-    "target": {"type": ["array", "null"], "items": {"type": ["number", "null"]}, "description": "where the active command goes, m"},
-    "theta_cmd": {"type": "array", "items": {"type": ["number", "null"]}, "description": "commanded joint angles, rad"},
-    "theta_meas": {"type": "array", "items": {"type": ["number", "null"]}, "description": "measured joint angles, rad"},
-    "omega_meas": {"type": "array", "items": {"type": ["number", "null"]}, "description": "measured joint velocities, rad/s"},
-    "tracking_error_m": {"type": ["number", "null"], "description": "|tip_ref - tip_meas|, m"},
-    "saturated": {"type": "boolean"},
-    "self_collision": {"type": "boolean"},
-    "min_clearance_m": {"type": ["number", "null"], "description": "least gap to an obstacle, m"},
-    "blocked": {"type": "boolean"},
-    "solve_us": {"type": ["number", "null"], "description": "this tick's resolve time, us"},
-    "loop_hz": {"type": ["number", "null"]},
-    "tick_p99_us": {"type": ["number", "null"]},
-    "overruns": {"type": "integer"},
-    "behind": {"type": "boolean"},
-    "peak_joint_speed_rad_s": {"type": ["number", "null"]},
-    "m3_total_rad2": {"type": ["number", "null"]},
-    "torque": {"type": "boolean"},
-    "temperature_c": {"type": "array", "items": {"type": ["number", "null"]}},
-    "voltage_v": {"type": "array", "items": {"type": ["number", "null"]}},
-    "load": {"type": "array", "items": {"type": ["number", "null"]}},
-    "controller": {"type": ["integer", "null"], "description": "the client in control"},
-    "in_control": {"type": "boolean"}
-  },
-  "required": ["tick", "state", "tip", "tip_meas", "theta_cmd", "theta_meas"]
-}"#;
-
-/// The JSON schema of the events channel: every event carries these; each kind adds its own
-/// fields (see the protocol's events).
-pub const EVENT_SCHEMA: &str = r#"{
-  "$schema": "https://json-schema.org/draft/2020-12/schema",
-  "title": "snakectl.Event",
-  "description": "An event line of the daemon's socket.",
-  "type": "object",
-  "properties": {
-    "type": {"const": "event"},
-    "event": {"type": "string", "description": "the event's name: arrived, stopped, estop, fault, control, world, ..."},
-    "cmd_id": {"description": "the request id of the command it concerns"},
-    "tick": {"type": "integer", "description": "the tick it happened in"},
-    "tip": {"type": "array", "items": {"type": ["number", "null"]}, "description": "the commanded tip, m"},
-    "reason": {"type": "string"}
-  },
-  "required": ["event", "tick"]
-}"#;
+// The schemas are written once, with the recordings' channels (the `.msg` texts as rosbag2
+// stores them, and the JSON Schemas of the socket's telemetry and events).
+pub use crate::record::schema::{
+    joint_state_schema, point_stamped_schema, EVENT_SCHEMA, TELEMETRY_SCHEMA,
+};
 
 /// One of the channels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -204,7 +123,7 @@ impl Topic {
                 foxglove::Schema::new(
                     <ros::JointState as ros::Message>::TYPE_NAME,
                     ROS2MSG,
-                    joint_state_schema().into_bytes(),
+                    joint_state_schema(),
                 ),
             ),
             Topic::TipCmd | Topic::TipMeas | Topic::Target => (
@@ -212,7 +131,7 @@ impl Topic {
                 foxglove::Schema::new(
                     <ros::PointStamped as ros::Message>::TYPE_NAME,
                     ROS2MSG,
-                    point_stamped_schema().into_bytes(),
+                    point_stamped_schema(),
                 ),
             ),
             Topic::Telemetry => (

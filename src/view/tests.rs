@@ -84,23 +84,23 @@ fn every_channel_is_under_the_prefix_with_its_encodings() {
 #[test]
 fn ros2msg_schemas_carry_their_dependencies_as_rosbag2_writes_them() {
     let bar = "=".repeat(80);
-    let js = joint_state_schema();
+    let js = String::from_utf8(joint_state_schema()).unwrap();
     assert!(
         js.starts_with("std_msgs/Header header\nstring[] name\n"),
         "{js}"
     );
     assert!(
-        js.contains(&format!("\n{bar}\nMSG: std_msgs/msg/Header\n")),
+        js.contains(&format!("\n{bar}\nMSG: std_msgs/Header\n")),
         "{js}"
     );
     assert!(js.contains(&format!(
-        "\n{bar}\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n"
+        "\n{bar}\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
     )));
-    let ps = point_stamped_schema();
+    let ps = String::from_utf8(point_stamped_schema()).unwrap();
     for dep in [
-        "std_msgs/msg/Header",
-        "builtin_interfaces/msg/Time",
-        "geometry_msgs/msg/Point",
+        "std_msgs/Header",
+        "builtin_interfaces/Time",
+        "geometry_msgs/Point",
     ] {
         assert_eq!(
             ps.matches(&format!("{bar}\nMSG: {dep}\n")).count(),

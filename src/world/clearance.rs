@@ -132,6 +132,13 @@ pub fn pair_gradient(points: &[Vec2], pair: &Pair, out: &mut [f64]) {
 /// Links whose common box [`World::near_pairs`] checks an obstacle against first.
 pub const LINK_GROUP: usize = 4;
 
+/// The box of a run of points (a group of links).
+fn group_box(points: &[Vec2]) -> (Vec2, Vec2) {
+    points
+        .iter()
+        .fold((points[0], points[0]), |(lo, hi), p| (lo.inf(p), hi.sup(p)))
+}
+
 fn segment_box(a: Vec2, b: Vec2) -> (Vec2, Vec2) {
     (a.inf(&b), a.sup(&b))
 }
@@ -185,11 +192,7 @@ impl World {
         let mut first = 1;
         while first <= links {
             let last = (first + LINK_GROUP - 1).min(links);
-            let (mut glo, mut ghi) = (points[first - 1], points[first - 1]);
-            for p in &points[first..=last] {
-                glo = glo.inf(p);
-                ghi = ghi.sup(p);
-            }
+            let (glo, ghi) = group_box(&points[first - 1..=last]);
             for k in 0..self.obstacles.len() {
                 let bound = best.map_or(floor_m, |b| b.clearance_m) + self.link_radius_m;
                 if self.box_not_below(k, glo, ghi, bound) {
@@ -280,11 +283,7 @@ impl World {
         let mut first = 1;
         while first <= links {
             let last = (first + LINK_GROUP - 1).min(links);
-            let (mut glo, mut ghi) = (points[first - 1], points[first - 1]);
-            for p in &points[first..=last] {
-                glo = glo.inf(p);
-                ghi = ghi.sup(p);
-            }
+            let (glo, ghi) = group_box(&points[first - 1..=last]);
             for k in 0..self.obstacles.len() {
                 if self.box_beyond(k, glo, ghi, reach) {
                     continue;

@@ -1261,6 +1261,10 @@ fn a_stalled_recording_does_not_stall_the_loop_and_its_drops_are_counted() {
         config_text: String::new(),
         joints: 12,
         queue: QUEUE,
+        chain: crate::chain::Chain::unlimited(vec![0.1; 12], crate::chain::Vec2::zeros(), 0.0)
+            .unwrap(),
+        world: crate::world::World::default(),
+        scene_every: 10,
     };
     let (recorder, tap) =
         Recorder::start(Box::new(sink), setup, Notes::new(), "stalled".into()).unwrap();

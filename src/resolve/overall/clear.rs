@@ -89,8 +89,6 @@ const SAME_CONTACT: f64 = 1e-9;
 pub const STALL_STEPS: usize = 10;
 /// Forward-difference step for the pairs' Hessians, as a fraction of the problem's scale.
 const FD_STEP: f64 = 1e-7;
-/// A KKT pivot below this fraction of the matrix's largest entry is singular.
-const PIVOT_FLOOR: f64 = 1e-13;
 /// A Newton multiplier of a pair below `-this * (1 + |nu|)` means the active set is wrong.
 const NEGATIVE_NU: f64 = 1e-9;
 /// Cold solves: random starts among obstacles, in multiples of `random_starts`.
@@ -133,6 +131,7 @@ pub(super) struct ClearWork {
     /// Newton scratch: the structured Hessian, the dense KKT matrix where it is needed.
     newton: newton::Newton,
     kkt: Vec<f64>,
+    kkt_perm: Vec<usize>,
     rhs: Vec<f64>,
     free: Vec<usize>,
     held_move: Vec<f64>,
@@ -203,52 +202,6 @@ impl Qp<'_> {
     }
 }
 
-/// Solves `M x = b` in place (N x N, row-major) by Gaussian elimination with partial pivoting;
-/// false when a pivot is below [`PIVOT_FLOOR`] of the largest entry.
-fn lu_solve(mat: &mut [f64], b: &mut [f64], size: usize) -> bool {
-    let big = mat[..size * size]
-        .iter()
-        .fold(0.0_f64, |m, v| m.max(v.abs()));
-    if !(big > 0.0 && big.is_finite()) {
-        return false;
-    }
-    for col in 0..size {
-        let mut piv = col;
-        for r in col + 1..size {
-            if mat[r * size + col].abs() > mat[piv * size + col].abs() {
-                piv = r;
-            }
-        }
-        if mat[piv * size + col].abs() <= PIVOT_FLOOR * big {
-            return false;
-        }
-        if piv != col {
-            for c in 0..size {
-                mat.swap(piv * size + c, col * size + c);
-            }
-            b.swap(piv, col);
-        }
-        let p = mat[col * size + col];
-        for r in col + 1..size {
-            let f = mat[r * size + col] / p;
-            if f != 0.0 {
-                for c in col..size {
-                    mat[r * size + c] -= f * mat[col * size + c];
-                }
-                b[r] -= f * b[col];
-            }
-        }
-    }
-    for r in (0..size).rev() {
-        let mut v = b[r];
-        for c in r + 1..size {
-            v -= mat[r * size + c] * b[c];
-        }
-        b[r] = v / mat[r * size + r];
-    }
-    b[..size].iter().all(|v| v.is_finite())
-}
-
 /// The merit's weight for a multiplier of norm `norm`, from the current weight `w` (as
 /// without obstacles: raised below the exact penalty's bound, lowered after an exact step when
 /// far above it).
@@ -307,6 +260,7 @@ impl ClearWork {
         let big = dense + k2;
         self.kkt = vec![0.0; if dense > 0 { big * big } else { 0 }];
         self.rhs = vec![0.0; big];
+        self.kkt_perm = vec![0; big];
         self.newton.reserve(n, MAX_PAIRS);
         self.free = Vec::with_capacity(n);
         self.active = Vec::with_capacity(MAX_PAIRS);
@@ -752,7 +706,12 @@ impl ClearWork {
                         kkt[(m + i) * size + r] = g;
                     }
                 }
-                if !lu_solve(kkt, &mut self.rhs[..size], size) {
+                let perm = &mut self.kkt_perm[..size];
+                if !newton::lu_factor(kkt, perm, size) {
+                    return false;
+                }
+                newton::lu_apply(kkt, perm, size, &mut self.rhs[..size]);
+                if !self.rhs[..size].iter().all(|v| v.is_finite()) {
                     return false;
                 }
             }

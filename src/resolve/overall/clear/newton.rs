@@ -389,7 +389,7 @@ impl Newton {
 
 /// LU factorization with partial pivoting in place (row-major, `size x size`), the row
 /// permutation in `perm`; false when a pivot is below [`PIVOT_FLOOR`] of the largest entry.
-fn lu_factor(mat: &mut [f64], perm: &mut [usize], size: usize) -> bool {
+pub(super) fn lu_factor(mat: &mut [f64], perm: &mut [usize], size: usize) -> bool {
     let big = mat.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
     if !(big > 0.0 && big.is_finite()) {
         return false;
@@ -425,7 +425,7 @@ fn lu_factor(mat: &mut [f64], perm: &mut [usize], size: usize) -> bool {
 }
 
 /// Solves with the factors of [`lu_factor`], `b` in place.
-fn lu_apply(lu: &[f64], perm: &[usize], size: usize, b: &mut [f64]) {
+pub(super) fn lu_apply(lu: &[f64], perm: &[usize], size: usize, b: &mut [f64]) {
     // The rows were swapped whole while factoring: all the swaps first, then L.
     for col in 0..size {
         b.swap(col, perm[col]);
