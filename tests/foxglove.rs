@@ -69,13 +69,16 @@ struct Fox {
 impl Fox {
     /// Connects asking for `subprotocol`; `Err` with the server's refusal.
     fn try_connect(port: u16, subprotocol: &str) -> Result<Fox, String> {
+        Fox::try_url(&format!("ws://127.0.0.1:{port}"), subprotocol)
+    }
+
+    /// Connects to `url` asking for `subprotocol`; `Err` with the server's refusal.
+    fn try_url(url: &str, subprotocol: &str) -> Result<Fox, String> {
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
             .unwrap();
-        let mut request = format!("ws://127.0.0.1:{port}")
-            .into_client_request()
-            .unwrap();
+        let mut request = url.into_client_request().unwrap();
         request.headers_mut().insert(
             "sec-websocket-protocol",
             HeaderValue::from_str(subprotocol).unwrap(),
@@ -452,4 +455,38 @@ fn a_twist_from_foxglove_moves_the_tip_only_with_accept_commands() {
     assert_eq!(refused, "not_in_control");
     drop(fox);
     daemon.stop().unwrap();
+}
+
+#[test]
+fn behind_the_token_only_a_client_that_presents_it_gets_in() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("token");
+    std::fs::write(&file, "correct horse\n").unwrap();
+    let port = free_port();
+    let line = format!(
+        "max_clients = 4\ntoken_file = {:?}\n\n[foxglove]\nlisten = \"127.0.0.1:{port}\"\n",
+        file.to_str().unwrap()
+    );
+    let daemon = Daemon::start(sim_config(&[("max_clients = 4", &line)]));
+    let mut owner = daemon.client();
+    owner.ok(json!({"cmd": "auth", "token": "correct horse"}));
+    owner.status();
+    for url in [
+        format!("ws://127.0.0.1:{port}"),
+        format!("ws://127.0.0.1:{port}/?token=correct"),
+        format!("ws://127.0.0.1:{port}/?token=correct%20horse%20"),
+    ] {
+        let refused = Fox::try_url(&url, "foxglove.sdk.v1").err();
+        assert!(
+            refused.as_deref().is_some_and(|e| e.contains("401")),
+            "{url}: {refused:?}"
+        );
+    }
+    let mut fox = Fox::try_url(
+        &format!("ws://127.0.0.1:{port}/?token=correct%20horse"),
+        "foxglove.sdk.v1",
+    )
+    .unwrap();
+    let info = fox.next_op("serverInfo");
+    assert_eq!(info["name"], "snakectl", "{info}");
 }

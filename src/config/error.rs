@@ -285,24 +285,18 @@ pub enum FieldProblem {
         /// What opens the session to other hosts (an endpoint, or multicast scouting).
         exposure: String,
     },
-    /// A Foxglove address other hosts can reach: the Foxglove server cannot ask for the token.
+    /// A Foxglove address other hosts can reach, and no token to ask its clients for.
     #[error(
-        "{addr} is not a loopback address: Foxglove clients cannot present the [server] token, \
-         so the view serves this host only; listen on 127.0.0.1 and reach it from elsewhere \
-         through an SSH tunnel (ssh -L {port}:127.0.0.1:{port} HOST)",
+        "{addr} is not a loopback address, and [server] token_file is not set: any host that \
+         reaches it could watch (and with accept_commands move) the arm; set token_file (clients \
+         then open ws://HOST:{port}/?token=...), listen on 127.0.0.1, or reach it through an SSH \
+         tunnel (ssh -L {port}:127.0.0.1:{port} HOST)",
         port = addr.port()
     )]
     NotLoopback {
         /// The address given.
         addr: std::net::SocketAddr,
     },
-    /// Foxglove commands on a daemon whose socket asks for a token.
-    #[error(
-        "true, but [server] token_file is set: Foxglove clients cannot present the token, so \
-         they could move an arm the token guards; keep accept_commands = false (the view still \
-         shows everything), or command through the socket"
-    )]
-    CommandsWithoutToken,
     /// An obstacle with both shapes or neither.
     #[error("give exactly one of circle and polygon ({given})")]
     OneShape {

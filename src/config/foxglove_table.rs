@@ -1,10 +1,10 @@
 //! The validated `[foxglove]` table: where the live view serves, how often it publishes, and
 //! whether it takes commands.
 //!
-//! The table is checked in every build. The Foxglove WebSocket server cannot ask a client for
-//! the `[server]` token, so the view follows the socket's rule the only way it can: it serves
-//! loopback only (other hosts reach it through an SSH tunnel), and a daemon whose socket asks
-//! for a token takes no commands from Foxglove.
+//! The table is checked in every build. The view follows the socket's rule: it listens beyond
+//! loopback only with a `[server] token_file`, and with one every Foxglove client presents the
+//! token in its URL (`ws://HOST:PORT/?token=...`; the daemon checks it before the WebSocket
+//! handshake).
 
 use std::net::SocketAddr;
 
@@ -14,13 +14,12 @@ use super::{finite_within, Checker, ConfigError, FieldProblem, Server};
 /// The validated `[foxglove]` (no server when the table is absent).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Foxglove {
-    /// Where the WebSocket server listens (a loopback address; port 0 picks a free one);
-    /// `None`: no server.
+    /// Where the WebSocket server listens (beyond loopback only with a token; port 0 picks a
+    /// free one); `None`: no server.
     pub listen: Option<SocketAddr>,
     /// Publishing rate, Hz, positive and at most `control.rate_hz`.
     pub publish_hz: f64,
-    /// Whether a Foxglove client's `Twist` on `cmd_vel` becomes `velocity` (never with a
-    /// `[server] token_file`).
+    /// Whether a Foxglove client's `Twist` on `cmd_vel` becomes `velocity`.
     pub accept_commands: bool,
 }
 
@@ -45,7 +44,7 @@ impl Checker<'_> {
                         },
                     )
                 })?;
-                if !addr.ip().to_canonical().is_loopback() {
+                if !addr.ip().to_canonical().is_loopback() && server.token_file.is_none() {
                     return Err(self.invalid("foxglove.listen", FieldProblem::NotLoopback { addr }));
                 }
                 Some(addr)
@@ -61,12 +60,6 @@ impl Checker<'_> {
                 ))
             }
         };
-        if raw.accept_commands && server.token_file.is_some() {
-            return Err(self.invalid(
-                "foxglove.accept_commands",
-                FieldProblem::CommandsWithoutToken,
-            ));
-        }
         Ok(Foxglove {
             listen,
             publish_hz,

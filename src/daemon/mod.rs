@@ -213,7 +213,7 @@ pub async fn run(
         ),
         false => None,
     };
-    let mut foxglove = view::View::open(&config)
+    let mut foxglove = view::View::open(&config, access.token.clone())
         .await
         .map_err(|source| DaemonError::Foxglove {
             path: config.path().to_path_buf(),

@@ -16,6 +16,10 @@
 //! controller id for every Foxglove client, control let go of after the deadman's silence.
 //! Without it the server offers no publishing and nothing a Foxglove client sends moves the
 //! arm.
+//!
+//! With a `[server]` token, the address asked for is a gate: the server listens on loopback
+//! behind it, and a client is let through only when the URL it opens carries `?token=<token>`
+//! (percent-encoded), checked in constant time before the handshake; others get `401`.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -25,10 +29,13 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use foxglove::websocket::{Capability, Client, ClientChannel, ServerListener};
 use foxglove::{Context, PartialMetadata, RawChannel, WebSocketServer};
 use serde::Deserialize;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
+use super::access::Token;
 use super::server::Door;
 use super::side::{Side, SideEnds};
 use crate::chain::Chain;
@@ -80,6 +87,8 @@ struct Settings {
     deadman: Duration,
     chain: Chain,
     world: World,
+    /// The `[server]` token every client presents in its URL; `None`: no gate.
+    token: Option<Token>,
 }
 
 /// The Foxglove server on its own thread: bound by [`View::open`], serving once
@@ -92,8 +101,9 @@ pub struct View {
 
 impl View {
     /// Binds the server `config`'s `[foxglove]` table describes; `None` when it sets no
-    /// `listen`.
-    pub async fn open(config: &Config) -> Result<Option<View>, ViewError> {
+    /// `listen`. With a `token` (the `[server]` token), the address is a gate that lets a
+    /// client through to the server only with `?token=<token>` in its URL.
+    pub async fn open(config: &Config, token: Option<Token>) -> Result<Option<View>, ViewError> {
         let table = config.foxglove();
         let Some(listen) = table.listen else {
             return Ok(None);
@@ -108,6 +118,7 @@ impl View {
             deadman: config.control().deadman,
             chain: config.chain().clone(),
             world: config.world().clone(),
+            token,
         };
         let body = move |ends: SideEnds<SocketAddr, ViewError>| {
             view_thread(settings, ends.opened, ends.start, ends.stop);
@@ -130,6 +141,85 @@ impl View {
     pub async fn stop(self) {
         self.side.stop().await;
     }
+}
+
+/// Longest HTTP request head the gate reads before it refuses a client.
+const GATE_HEAD: usize = 8192;
+
+/// How long a client has to send its request head through the gate.
+const GATE_WAIT: Duration = Duration::from_secs(5);
+
+/// Lets through to the server at `inner` each client whose request asks for `?token=<token>`;
+/// answers the others `401` and closes.
+async fn gatekeeper(listener: TcpListener, token: Token, inner: SocketAddr) {
+    loop {
+        let Ok((client, peer)) = listener.accept().await else {
+            continue;
+        };
+        let token = token.clone();
+        tokio::spawn(async move {
+            if let Err(e) = pass(client, &token, inner).await {
+                debug!(%peer, error = %e, "a Foxglove client turned away");
+            }
+        });
+    }
+}
+
+/// One client through the gate: its request head read and checked, then the bytes both ways.
+async fn pass(mut client: TcpStream, token: &Token, inner: SocketAddr) -> std::io::Result<()> {
+    let mut head = Vec::with_capacity(1024);
+    let mut buf = [0u8; 1024];
+    let read_head = async {
+        while !head.windows(4).any(|w| w == b"\r\n\r\n") {
+            if head.len() > GATE_HEAD {
+                return Err(std::io::Error::other("a request head too long"));
+            }
+            let got = client.read(&mut buf).await?;
+            if got == 0 {
+                return Err(std::io::Error::other("closed before its request"));
+            }
+            head.extend_from_slice(&buf[..got]);
+        }
+        Ok(())
+    };
+    time::timeout(GATE_WAIT, read_head)
+        .await
+        .map_err(|_| std::io::Error::other("no request in time"))??;
+    if !url_token(&head).is_some_and(|given| token.matches(&given)) {
+        client
+            .write_all(
+                b"HTTP/1.1 401 Unauthorized\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+            )
+            .await?;
+        return Err(std::io::Error::other("no token, or the wrong one"));
+    }
+    let mut server = TcpStream::connect(inner).await?;
+    server.write_all(&head).await?;
+    tokio::io::copy_bidirectional(&mut client, &mut server).await?;
+    Ok(())
+}
+
+/// The `token` of the query of a request head's target (`GET /?token=... HTTP/1.1`),
+/// percent-decoded; `None` without one, or with a broken escape.
+fn url_token(head: &[u8]) -> Option<Vec<u8>> {
+    let line = head.split(|&b| b == b'\r').next()?;
+    let target = line.split(|&b| b == b' ').nth(1)?;
+    let query = target.splitn(2, |&b| b == b'?').nth(1)?;
+    let raw = query
+        .split(|&b| b == b'&')
+        .find_map(|pair| pair.strip_prefix(b"token="))?;
+    let mut out = Vec::with_capacity(raw.len());
+    let mut bytes = raw.iter();
+    while let Some(&b) = bytes.next() {
+        if b == b'%' {
+            let hex = [*bytes.next()?, *bytes.next()?];
+            let hex = std::str::from_utf8(&hex).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+        } else {
+            out.push(b);
+        }
+    }
+    Some(out)
 }
 
 /// A `Twist` as a Foxglove client sends it in JSON; missing fields are 0.
@@ -226,9 +316,27 @@ fn view_thread(
         let context = Context::new();
         let (commands_tx, commands_rx) = mpsc::channel(COMMAND_QUEUE);
         let dropped = Arc::new(AtomicU64::new(0));
+        // Behind a gate the server listens on loopback, the gate on the address asked for.
+        let gate = match &settings.token {
+            Some(token) => match TcpListener::bind(settings.listen).await {
+                Ok(listener) => Some((listener, token.clone())),
+                Err(e) => {
+                    let _ = opened.send(Err(ViewError::Listen {
+                        addr: settings.listen,
+                        message: e.to_string(),
+                    }));
+                    return;
+                }
+            },
+            None => None,
+        };
+        let server_addr = match gate {
+            Some(_) => SocketAddr::from(([127, 0, 0, 1], 0)),
+            None => settings.listen,
+        };
         let mut server = WebSocketServer::new()
             .name(settings.prefix.clone())
-            .bind(settings.listen.ip().to_string(), settings.listen.port())
+            .bind(server_addr.ip().to_string(), server_addr.port())
             .context(&context)
             .message_backlog_size(CLIENT_BACKLOG);
         if settings.accept_commands {
@@ -251,7 +359,15 @@ fn view_thread(
                 return;
             }
         };
-        let addr = SocketAddr::new(settings.listen.ip(), handle.port());
+        let inner = SocketAddr::new(server_addr.ip(), handle.port());
+        let addr = match gate {
+            Some((listener, token)) => {
+                let addr = listener.local_addr().unwrap_or(settings.listen);
+                tokio::spawn(gatekeeper(listener, token, inner));
+                addr
+            }
+            None => inner,
+        };
         let _ = opened.send(Ok(addr));
         let door = tokio::select! {
             door = start => door.ok(),
@@ -479,6 +595,21 @@ mod tests {
     #![allow(clippy::unwrap_used)]
 
     use super::*;
+
+    #[test]
+    fn the_gate_reads_the_token_of_the_url_percent_decoded() {
+        let head = |target: &str| format!("GET {target} HTTP/1.1\r\nHost: x\r\n\r\n");
+        let token = |target: &str| url_token(head(target).as_bytes());
+        assert_eq!(token("/?token=s3cret"), Some(b"s3cret".to_vec()));
+        assert_eq!(
+            token("/?a=1&token=correct%20horse&b=2"),
+            Some(b"correct horse".to_vec())
+        );
+        assert_eq!(token("/"), None);
+        assert_eq!(token("/?tok=s3cret"), None);
+        assert_eq!(token("/?token=bad%2"), None, "a cut escape");
+        assert_eq!(token("/?token=bad%zz"), None, "not hex");
+    }
 
     #[test]
     fn a_twist_reads_from_json_and_cdr() {
