@@ -225,7 +225,9 @@ fn main() -> Result<()> {
         return with_zenoh::table(seconds);
     }
     if std::env::args().nth(2).as_deref() == Some("--foxglove") {
-        return with_foxglove::table(seconds);
+        // `--foxglove --record`: the view on and the run recorded at once.
+        let record = std::env::args().nth(3).as_deref() == Some("--record");
+        return with_foxglove::table(seconds, record);
     }
     if std::env::args().nth(2).as_deref() == Some("--obstacles") {
         println!("Without wire timing, {seconds} s per rate, with 0 and 16 obstacles:\n");
@@ -560,7 +562,9 @@ mod with_foxglove {
     use tokio_tungstenite::tungstenite::http::HeaderValue;
     use tokio_tungstenite::tungstenite::Message;
 
-    use super::{cells, config, run_config};
+    use snakectl::record::RecordOptions;
+
+    use super::{cells, config, run_config, run_recorded};
 
     /// A Foxglove client on `port`, subscribed to every channel: counting what it reads into
     /// `count`, or (`stalled`) reading nothing once subscribed, until `stop`.
@@ -619,8 +623,9 @@ mod with_foxglove {
         })
     }
 
-    pub fn table(seconds: f64) -> Result<()> {
-        println!("Without wire timing, {seconds} s per rate, the Foxglove view off then on (one client reading, one stalled):\n");
+    pub fn table(seconds: f64, record: bool) -> Result<()> {
+        let also = if record { ", the run recorded" } else { "" };
+        println!("Without wire timing, {seconds} s per rate, the Foxglove view off then on (one client reading, one stalled){also}:\n");
         println!("| rate, Hz | Foxglove | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs | messages read |");
         println!("|---|---|---|---|---|---|---|---|");
         for rate in [100.0, 500.0, 1000.0] {
@@ -656,7 +661,12 @@ mod with_foxglove {
                     })
                 })
                 .collect();
-            let m = run_config(on, rate, seconds);
+            let dir = std::env::temp_dir();
+            let file = dir.join(format!("snakectl-loop-rate-{}.mcap", std::process::id()));
+            let m = run_recorded(on, rate, seconds, record.then(|| RecordOptions::to(&file)));
+            if record {
+                let _ = std::fs::remove_file(&file);
+            }
             stop.store(true, Ordering::Relaxed);
             for c in clients {
                 let _ = c.join();
