@@ -1185,15 +1185,13 @@ fn report(demo: &Demo, out: &Path, recording: &Path) -> Result<(), Failure> {
         s.world.clearance_m * 1e3
     )?;
 
-    let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, Failure> {
-        let path = out.join(name);
-        std::fs::write(&path, bytes)
-            .with_context(|| format!("writing {}", path.display()))
-            .map_err(Failure::other)?;
-        Ok(path)
-    };
     let json = serde_json::to_string_pretty(s).map_err(Failure::other)?;
-    let mut written = vec![write("summary.json", format!("{json}\n").as_bytes())?];
+    let summary = format!("{json}\n");
+    let mut written = vec![super::plot::write_file(
+        out,
+        "summary.json",
+        summary.as_bytes(),
+    )?];
     let record = Recording::open(recording)
         .map_err(|e| Failure::other(anyhow::Error::new(e).context("the demo's recording")))?
         .plot_record();

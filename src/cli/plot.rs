@@ -59,6 +59,15 @@ pub fn run(args: PlotArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Writes `bytes` to the file `name` in `out`; its path.
+pub fn write_file(out: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf, Failure> {
+    let path = out.join(name);
+    std::fs::write(&path, bytes)
+        .with_context(|| format!("writing {}", path.display()))
+        .map_err(Failure::other)?;
+    Ok(path)
+}
+
 /// Writes `motion` and `joints`, each as SVG and PNG, into `out`; the files written. Warns on
 /// stderr when no font was found for the PNGs' text.
 pub fn figures(
@@ -67,13 +76,7 @@ pub fn figures(
     motion_title: &str,
     joints_title: &str,
 ) -> Result<Vec<PathBuf>, Failure> {
-    let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, Failure> {
-        let path = out.join(name);
-        std::fs::write(&path, bytes)
-            .with_context(|| format!("writing {}", path.display()))
-            .map_err(Failure::other)?;
-        Ok(path)
-    };
+    let write = |name: &str, bytes: &[u8]| write_file(out, name, bytes);
     let drawn = [
         ("motion", plot::demo::motion(record, motion_title)),
         ("joints", plot::demo::joints(record, joints_title)),

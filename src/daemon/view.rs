@@ -146,6 +146,9 @@ impl View {
 /// Longest HTTP request head the gate reads before it refuses a client.
 const GATE_HEAD: usize = 8192;
 
+/// How long the gate waits after a failed accept before the next.
+const GATE_RETRY: Duration = Duration::from_millis(100);
+
 /// How long a client has to send its request head through the gate.
 const GATE_WAIT: Duration = Duration::from_secs(5);
 
@@ -153,8 +156,14 @@ const GATE_WAIT: Duration = Duration::from_secs(5);
 /// answers the others `401` and closes.
 async fn gatekeeper(listener: TcpListener, token: Token, inner: SocketAddr) {
     loop {
-        let Ok((client, peer)) = listener.accept().await else {
-            continue;
+        let (client, peer) = match listener.accept().await {
+            Ok(accepted) => accepted,
+            Err(e) => {
+                // Out of descriptors, say: wait before trying again rather than spin.
+                warn!(error = %e, "the Foxglove gate could not accept a client");
+                time::sleep(GATE_RETRY).await;
+                continue;
+            }
         };
         let token = token.clone();
         tokio::spawn(async move {
