@@ -8,6 +8,13 @@
 //!
 //! `cargo run --release --example loop_rate -- SECONDS --wire` runs the wire table alone.
 //!
+//! `cargo run --release --example loop_rate -- SECONDS --wire-row 12 1000000 1 fast none` runs
+//! one row of it (servos, baud, ports, `sync` or `fast`, adapter `none` or `ftdi`), and each
+//! rate it tries on stderr.
+//!
+//! `cargo run --release --example loop_rate -- SECONDS --jitter` measures how late this machine
+//! wakes a sleeping thread, which the held rates of the wire table are to be read against.
+//!
 //! `cargo run --release --example loop_rate -- SECONDS --obstacles` instead runs the fixed rates
 //! without wire timing twice, with no obstacles and with 16 small discs near the arm (each
 //! link's middle, 5 cm to alternate sides), one after the other.
@@ -248,6 +255,14 @@ fn main() -> Result<()> {
     if std::env::args().nth(2).as_deref() == Some("--record") {
         return record_table(seconds);
     }
+    if std::env::args().nth(2).as_deref() == Some("--jitter") {
+        jitter(seconds);
+        return Ok(());
+    }
+    if std::env::args().nth(2).as_deref() == Some("--wire-row") {
+        let row = Row::parse(&std::env::args().skip(3).collect::<Vec<_>>())?;
+        return wire_row(&row);
+    }
     println!("Without wire timing, {seconds} s per rate:\n");
     println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
     println!("|---|---|---|---|---|---|");
@@ -257,6 +272,40 @@ fn main() -> Result<()> {
 
     wire_table(&ROWS_READ, &ROWS_ADAPTER)
 }
+
+/// How late this machine wakes a thread: for `seconds`, a thread asks to sleep [`JITTER_NAP`] and
+/// measures how much longer it slept. A tick of a wire-timed loop waits on a dozen such
+/// wake-ups (the simulator's replies, the loop's reads), so this bounds how close to the wire
+/// bound a rate can hold with under 0.5% of its ticks late.
+fn jitter(seconds: f64) {
+    let mut late_us = Vec::new();
+    let end = Instant::now() + Duration::from_secs_f64(seconds);
+    while Instant::now() < end {
+        let t = Instant::now();
+        std::thread::sleep(JITTER_NAP);
+        late_us.push(t.elapsed().saturating_sub(JITTER_NAP).as_secs_f64() * 1e6);
+    }
+    late_us.sort_by(f64::total_cmp);
+    let n = late_us.len();
+    let q = |f: f64| late_us[((n as f64 * f) as usize).min(n - 1)];
+    let over = |us: f64| late_us.iter().filter(|&&l| l > us).count();
+    println!(
+        "{n} sleeps of {} µs: late by p50 {:.0} / p99 {:.0} / p99.5 {:.0} / p99.9 {:.0} / max {:.0} µs; \
+         over 0.5 ms: {}, over 1 ms: {}, over 2 ms: {}",
+        JITTER_NAP.as_micros(),
+        q(0.5),
+        q(0.99),
+        q(0.995),
+        q(0.999),
+        late_us[n - 1],
+        over(500.0),
+        over(1000.0),
+        over(2000.0),
+    );
+}
+
+/// The sleep [`jitter`] asks for.
+const JITTER_NAP: Duration = Duration::from_micros(500);
 
 /// Each fixed rate without and with a recording: the loop's figures, and what the recording
 /// holds (messages per tick run) and dropped.
@@ -363,6 +412,28 @@ impl Row {
         Ok(Config::from_str(&text, path)?)
     }
 
+    /// A row from `SERVOS BAUD PORTS sync|fast none|ftdi` (the `--wire-row` arguments).
+    fn parse(args: &[String]) -> Result<Self> {
+        let [servos, baud, ports, read, adapter] = args else {
+            bail!("--wire-row takes SERVOS BAUD PORTS sync|fast none|ftdi");
+        };
+        Ok(Self {
+            servos: servos.parse().context("servos")?,
+            baud: baud.parse().context("baud")?,
+            ports: ports.parse().context("ports")?,
+            read: match read.as_str() {
+                "sync" => ReadKind::Sync,
+                "fast" => ReadKind::Fast,
+                other => bail!("read: `sync` or `fast`, not `{other}`"),
+            },
+            adapter: match adapter.as_str() {
+                "none" => None,
+                "ftdi" => Some(Adapter::FTDI_1MS),
+                other => bail!("adapter: `none` or `ftdi`, not `{other}`"),
+            },
+        })
+    }
+
     /// The wire bound of this row's configuration.
     fn bound(&self) -> Result<Bound> {
         let mut wires = self.config(100.0)?.wire(self.read);
@@ -467,6 +538,15 @@ fn wire_row(row: &Row) -> Result<()> {
         // A run that faulted (replies lost past the error budget) did not hold its rate.
         if let Ok(m) = run_config(row.config(rate)?, rate, HOLD.as_secs_f64()) {
             let s = &m.summary;
+            eprintln!(
+                "  {rate:.0} Hz: {} overruns in {} ticks, tick p50 / p99 / max {:.0} / {:.0} / {:.0} µs{}",
+                s.overruns,
+                s.ticks,
+                s.tick.p50_us,
+                s.tick.p99_us,
+                s.tick.max_us,
+                if m.fault { ", fault" } else { "" }
+            );
             if !m.fault && (s.overruns as f64) <= HELD_OVERRUNS * s.ticks as f64 {
                 held = Some((rate, s.overruns, s.ticks));
                 break;

@@ -3,7 +3,7 @@
 //! whatever the kind says, and the errors a user sees for a file that cannot drive servos.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod cli_support;
+use crate::cli_support;
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -4,16 +4,13 @@
 //! switches, a step cut short where the arm would fold onto itself). A counting global allocator checks it, per thread.
 #![allow(clippy::unwrap_used)]
 
-mod alloc_support;
+use crate::alloc_support;
 
 use std::f64::consts::FRAC_PI_2;
 
 use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::control::{Command, Controller, Limits, Tick};
 use snakectl::resolve::Strategy;
-
-#[global_allocator]
-static GLOBAL: alloc_support::Counting = alloc_support::Counting;
 
 use alloc_support::this_thread as allocations;
 

@@ -5,7 +5,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod world_support;
+use crate::world_support;
 
 use std::f64::consts::PI;
 

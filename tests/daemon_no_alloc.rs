@@ -3,15 +3,12 @@
 //! A counting allocator counts the allocations made on the thread named `snakectl-loop` only.
 #![allow(clippy::unwrap_used)]
 
-mod daemon_support;
+use crate::daemon_support;
 
-mod alloc_support;
+use crate::alloc_support;
 
 use daemon_support::{sim_config, xy, Daemon};
 use serde_json::json;
-
-#[global_allocator]
-static GLOBAL: alloc_support::Counting = alloc_support::Counting;
 
 /// The tests of this file run one at a time: the count is of every thread named
 /// `snakectl-loop`, and each test has a daemon of its own.

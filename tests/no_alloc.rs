@@ -4,16 +4,13 @@
 //! thread allocates as it likes).
 #![allow(clippy::unwrap_used)]
 
-mod alloc_support;
+use crate::alloc_support;
 
 use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::resolve::overall::{Overall, OverallOptions};
 use snakectl::resolve::sequential::Sequential;
 use snakectl::resolve::Resolver;
 use std::time::Duration;
-
-#[global_allocator]
-static GLOBAL: alloc_support::Counting = alloc_support::Counting;
 
 use alloc_support::during as allocations;
 

@@ -3,15 +3,12 @@
 //! with a counting global allocator).
 #![allow(clippy::unwrap_used)]
 
-mod alloc_support;
+use crate::alloc_support;
 
 use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::resolve::overall::{Overall, OverallOptions};
 use snakectl::resolve::Resolver;
 use snakectl::world::{Obstacle, Shape, World};
-
-#[global_allocator]
-static GLOBAL: alloc_support::Counting = alloc_support::Counting;
 
 #[test]
 fn warm_ticks_among_obstacles_allocate_nothing() {

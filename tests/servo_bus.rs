@@ -5,7 +5,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod servo_support;
+use crate::servo_support;
 
 use std::time::{Duration, Instant};
 

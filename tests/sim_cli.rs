@@ -2,7 +2,7 @@
 //! 2.0 there (also after the client closes and reopens the port), and stops cleanly on SIGTERM.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod cli_support;
+use crate::cli_support;
 
 use std::io::{Read, Write};
 use std::path::Path;

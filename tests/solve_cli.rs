@@ -2,7 +2,7 @@
 //! naming the field on stderr.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod cli_support;
+use crate::cli_support;
 
 use std::process::Output;
 

@@ -4,7 +4,7 @@
 //! ticks; the joint limits and the joint-speed bound hold; nothing is non-finite.
 #![allow(clippy::unwrap_used)]
 
-mod world_support;
+use crate::world_support;
 
 use std::f64::consts::TAU;
 

@@ -36,9 +36,6 @@ use crate::world::World;
 /// `ceil(rate_hz / SCENE_HZ)` ticks.
 pub const SCENE_HZ: f64 = 30.0;
 
-/// How long the recorder waits for an item before it looks whether it is to close.
-const WAIT: Duration = Duration::from_millis(100);
-
 /// The frame the tips and the target are in: the arm's base frame.
 pub const FRAME_ID: &str = "base";
 
@@ -367,7 +364,7 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
         }
     };
     while !drain.is_done() {
-        let Some(item) = drain.next(WAIT) else {
+        let Some(item) = drain.next(tap::BATCH) else {
             continue;
         };
         let Some(ch) = channels.as_ref().filter(|_| error.is_none()) else {
