@@ -490,3 +490,43 @@ fn behind_the_token_only_a_client_that_presents_it_gets_in() {
     let info = fox.next_op("serverInfo");
     assert_eq!(info["name"], "snakectl", "{info}");
 }
+
+#[test]
+fn beyond_max_clients_a_client_is_answered_503_until_one_leaves() {
+    let port = free_port();
+    let table = format!("[foxglove]\nlisten = \"127.0.0.1:{port}\"\nmax_clients = 2\n");
+    let daemon = Daemon::start(sim_config(&[(
+        "max_clients = 4",
+        &format!("max_clients = 4\n\n{table}"),
+    )]));
+    daemon.client().status();
+    let mut first = Fox::connect(port);
+    assert_eq!(first.next_op("serverInfo")["name"], "snakectl");
+    let mut second = Fox::connect(port);
+    second.next_op("serverInfo");
+    let refused = Fox::try_connect(port, "foxglove.sdk.v1").err();
+    assert!(
+        refused.as_deref().is_some_and(|e| e.contains("503")),
+        "a third client: {refused:?}"
+    );
+    drop(second);
+    // Its seat is free once the gate has seen the connection end.
+    let deadline = Instant::now() + DEADLINE;
+    let mut third = loop {
+        match Fox::try_connect(port, "foxglove.sdk.v1") {
+            Ok(fox) => break fox,
+            Err(e) if e.contains("503") && Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            Err(e) => panic!("the seat did not come free: {e}"),
+        }
+    };
+    assert_eq!(third.next_op("serverInfo")["name"], "snakectl");
+    // The clients let in are served all along.
+    let joints = "/snakectl/joint_states";
+    first.advertised(&[joints]);
+    first.subscribe(&[joints]);
+    assert_eq!(first.data().subscription, 1);
+    drop((first, third));
+    daemon.stop().unwrap();
+}

@@ -8,7 +8,7 @@
 
 use std::net::SocketAddr;
 
-use super::raw::{RawFoxglove, DEFAULT_FOXGLOVE_PUBLISH_HZ};
+use super::raw::{RawFoxglove, DEFAULT_FOXGLOVE_MAX_CLIENTS, DEFAULT_FOXGLOVE_PUBLISH_HZ};
 use super::{finite_within, Checker, ConfigError, FieldProblem, Server};
 
 /// The validated `[foxglove]` (no server when the table is absent).
@@ -21,6 +21,8 @@ pub struct Foxglove {
     pub publish_hz: f64,
     /// Whether a Foxglove client's `Twist` on `cmd_vel` becomes `velocity`.
     pub accept_commands: bool,
+    /// Most clients connected at once (at least 1); the next is answered `503` and closed.
+    pub max_clients: u32,
 }
 
 impl Checker<'_> {
@@ -60,10 +62,21 @@ impl Checker<'_> {
                 ))
             }
         };
+        let max_clients = raw.max_clients.unwrap_or(DEFAULT_FOXGLOVE_MAX_CLIENTS);
+        if max_clients == 0 {
+            return Err(self.invalid(
+                "foxglove.max_clients",
+                FieldProblem::OutOfRange {
+                    value: 0,
+                    expected: "must be at least 1",
+                },
+            ));
+        }
         Ok(Foxglove {
             listen,
             publish_hz,
             accept_commands: raw.accept_commands,
+            max_clients,
         })
     }
 }

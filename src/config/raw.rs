@@ -456,6 +456,9 @@ pub struct RawFoxglove {
     /// Take `cmd_vel` (a Teleop panel's `Twist`) from Foxglove.
     #[serde(default)]
     pub accept_commands: bool,
+    /// Most Foxglove clients connected at once; [`DEFAULT_FOXGLOVE_MAX_CLIENTS`] when absent.
+    #[serde(default)]
+    pub max_clients: Option<u32>,
 }
 
 /// `[world]`: the obstacles every link keeps clear of, and contact detection.
@@ -688,6 +691,9 @@ pub fn default_zenoh_prefix() -> String {
 
 /// Foxglove publishing rate, Hz, when the loop runs at least this fast.
 pub const DEFAULT_FOXGLOVE_PUBLISH_HZ: f64 = 30.0;
+
+/// Most Foxglove clients connected at once, by default.
+pub const DEFAULT_FOXGLOVE_MAX_CLIENTS: u32 = 8;
 
 /// Zenoh publishing rate, Hz, when the loop runs at least this fast.
 pub const DEFAULT_ZENOH_PUBLISH_HZ: f64 = 50.0;

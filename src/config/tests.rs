@@ -1273,6 +1273,13 @@ fn foxglove_is_off_unless_it_listens_and_defaults_follow_the_loop() {
     assert_eq!(c.foxglove().listen, None);
     assert!(!c.foxglove().accept_commands);
     assert_eq!(c.foxglove().publish_hz, 30.0);
+    assert_eq!(c.foxglove().max_clients, 8);
+    let c = load(&with_foxglove(
+        "listen = \"127.0.0.1:8765\"\nmax_clients = 2",
+        false,
+    ))
+    .unwrap();
+    assert_eq!(c.foxglove().max_clients, 2);
     let c = load(&with_foxglove("listen = \"127.0.0.1:8765\"", false)).unwrap();
     assert_eq!(c.foxglove().listen, Some("127.0.0.1:8765".parse().unwrap()));
     let slow = with_foxglove("listen = \"[::1]:0\"", false)
@@ -1312,6 +1319,10 @@ fn foxglove_refusals_name_the_field() {
         );
         assert!(msg.contains("token"), "{msg}");
     }
+    refused(
+        &with_foxglove("listen = \"127.0.0.1:8765\"\nmax_clients = 0", false),
+        &["foxglove.max_clients", "0", "at least 1"],
+    );
     for rate in ["0.0", "-1.0", "200.0", "nan"] {
         refused(
             &with_foxglove(

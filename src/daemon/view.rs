@@ -17,8 +17,9 @@
 //! Without it the server offers no publishing and nothing a Foxglove client sends moves the
 //! arm.
 //!
-//! With a `[server]` token, the address asked for is a gate: the server listens on loopback
-//! behind it, and a client is let through only when the URL it opens carries `?token=<token>`
+//! The address asked for is a gate: the server listens on loopback behind it. A client is let
+//! through while fewer than `[foxglove] max_clients` are connected (the next gets `503`), and,
+//! with a `[server]` token, only when the URL it opens carries `?token=<token>`
 //! (percent-encoded), checked in constant time before the handshake; others get `401`.
 
 use std::net::SocketAddr;
@@ -31,7 +32,7 @@ use foxglove::{Context, PartialMetadata, RawChannel, WebSocketServer};
 use serde::Deserialize;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{broadcast, mpsc, oneshot, Semaphore};
 use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
@@ -87,8 +88,10 @@ struct Settings {
     deadman: Duration,
     chain: Chain,
     world: World,
-    /// The `[server]` token every client presents in its URL; `None`: no gate.
+    /// The `[server]` token every client presents in its URL; `None`: none asked for.
     token: Option<Token>,
+    /// Most clients connected at once.
+    max_clients: u32,
 }
 
 /// The Foxglove server on its own thread: bound by [`View::open`], serving once
@@ -119,6 +122,7 @@ impl View {
             chain: config.chain().clone(),
             world: config.world().clone(),
             token,
+            max_clients: table.max_clients,
         };
         let body = move |ends: SideEnds<SocketAddr, ViewError>| {
             view_thread(settings, ends.opened, ends.start, ends.stop);
@@ -152,9 +156,17 @@ const GATE_RETRY: Duration = Duration::from_millis(100);
 /// How long a client has to send its request head through the gate.
 const GATE_WAIT: Duration = Duration::from_secs(5);
 
-/// Lets through to the server at `inner` each client whose request asks for `?token=<token>`;
-/// answers the others `401` and closes.
-async fn gatekeeper(listener: TcpListener, token: Token, inner: SocketAddr) {
+/// The address clients connect to, in front of the server: each client's request head is read
+/// (within [`GATE_WAIT`]), then it is let through to the server at `inner`, or answered and
+/// closed: `503` beyond `max_clients` connected at once, `401` without `?token=<token>` when a
+/// token is asked for.
+async fn gatekeeper(
+    listener: TcpListener,
+    token: Option<Token>,
+    max_clients: u32,
+    inner: SocketAddr,
+) {
+    let seats = Arc::new(Semaphore::new(max_clients as usize));
     loop {
         let (client, peer) = match listener.accept().await {
             Ok(accepted) => accepted,
@@ -165,17 +177,26 @@ async fn gatekeeper(listener: TcpListener, token: Token, inner: SocketAddr) {
                 continue;
             }
         };
+        // Taken before the head is read, so that clients that never send one count too.
+        let seat = Arc::clone(&seats).try_acquire_owned().ok();
         let token = token.clone();
         tokio::spawn(async move {
-            if let Err(e) = pass(client, &token, inner).await {
+            if let Err(e) = pass(client, seat.is_some(), token.as_ref(), inner).await {
                 debug!(%peer, error = %e, "a Foxglove client turned away");
             }
+            drop(seat);
         });
     }
 }
 
 /// One client through the gate: its request head read and checked, then the bytes both ways.
-async fn pass(mut client: TcpStream, token: &Token, inner: SocketAddr) -> std::io::Result<()> {
+/// `seated`: a place among `max_clients` was free for it.
+async fn pass(
+    mut client: TcpStream,
+    seated: bool,
+    token: Option<&Token>,
+    inner: SocketAddr,
+) -> std::io::Result<()> {
     let mut head = Vec::with_capacity(1024);
     let mut buf = [0u8; 1024];
     let read_head = async {
@@ -194,13 +215,25 @@ async fn pass(mut client: TcpStream, token: &Token, inner: SocketAddr) -> std::i
     time::timeout(GATE_WAIT, read_head)
         .await
         .map_err(|_| std::io::Error::other("no request in time"))??;
-    if !url_token(&head).is_some_and(|given| token.matches(&given)) {
+    if !seated {
         client
             .write_all(
-                b"HTTP/1.1 401 Unauthorized\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+                b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
             )
             .await?;
-        return Err(std::io::Error::other("no token, or the wrong one"));
+        return Err(std::io::Error::other(
+            "[foxglove] max_clients are connected already",
+        ));
+    }
+    if let Some(token) = token {
+        if !url_token(&head).is_some_and(|given| token.matches(&given)) {
+            client
+                .write_all(
+                    b"HTTP/1.1 401 Unauthorized\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+                )
+                .await?;
+            return Err(std::io::Error::other("no token, or the wrong one"));
+        }
     }
     let mut server = TcpStream::connect(inner).await?;
     server.write_all(&head).await?;
@@ -325,24 +358,18 @@ fn view_thread(
         let context = Context::new();
         let (commands_tx, commands_rx) = mpsc::channel(COMMAND_QUEUE);
         let dropped = Arc::new(AtomicU64::new(0));
-        // Behind a gate the server listens on loopback, the gate on the address asked for.
-        let gate = match &settings.token {
-            Some(token) => match TcpListener::bind(settings.listen).await {
-                Ok(listener) => Some((listener, token.clone())),
-                Err(e) => {
-                    let _ = opened.send(Err(ViewError::Listen {
-                        addr: settings.listen,
-                        message: e.to_string(),
-                    }));
-                    return;
-                }
-            },
-            None => None,
+        // The server listens on loopback, behind the gate on the address asked for.
+        let gate = match TcpListener::bind(settings.listen).await {
+            Ok(listener) => listener,
+            Err(e) => {
+                let _ = opened.send(Err(ViewError::Listen {
+                    addr: settings.listen,
+                    message: e.to_string(),
+                }));
+                return;
+            }
         };
-        let server_addr = match gate {
-            Some(_) => SocketAddr::from(([127, 0, 0, 1], 0)),
-            None => settings.listen,
-        };
+        let server_addr = SocketAddr::from(([127, 0, 0, 1], 0));
         let mut server = WebSocketServer::new()
             .name(settings.prefix.clone())
             .bind(server_addr.ip().to_string(), server_addr.port())
@@ -369,14 +396,13 @@ fn view_thread(
             }
         };
         let inner = SocketAddr::new(server_addr.ip(), handle.port());
-        let addr = match gate {
-            Some((listener, token)) => {
-                let addr = listener.local_addr().unwrap_or(settings.listen);
-                tokio::spawn(gatekeeper(listener, token, inner));
-                addr
-            }
-            None => inner,
-        };
+        let addr = gate.local_addr().unwrap_or(settings.listen);
+        tokio::spawn(gatekeeper(
+            gate,
+            settings.token.clone(),
+            settings.max_clients,
+            inner,
+        ));
         let _ = opened.send(Ok(addr));
         let door = tokio::select! {
             door = start => door.ok(),
