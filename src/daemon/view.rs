@@ -78,6 +78,16 @@ pub enum ViewError {
     Thread(String),
 }
 
+impl ViewError {
+    /// The server on `addr` could not listen, for `why`.
+    fn listen(addr: SocketAddr, why: impl std::fmt::Display) -> Self {
+        ViewError::Listen {
+            addr,
+            message: why.to_string(),
+        }
+    }
+}
+
 /// What the view needs of the config, taken before the loop's thread owns it.
 #[derive(Debug, Clone)]
 struct Settings {
@@ -216,29 +226,27 @@ async fn pass(
         .await
         .map_err(|_| std::io::Error::other("no request in time"))??;
     if !seated {
-        client
-            .write_all(
-                b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
-            )
-            .await?;
-        return Err(std::io::Error::other(
+        return refuse(
+            client,
+            "503 Service Unavailable",
             "[foxglove] max_clients are connected already",
-        ));
+        )
+        .await;
     }
-    if let Some(token) = token {
-        if !url_token(&head).is_some_and(|given| token.matches(&given)) {
-            client
-                .write_all(
-                    b"HTTP/1.1 401 Unauthorized\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
-                )
-                .await?;
-            return Err(std::io::Error::other("no token, or the wrong one"));
-        }
+    if token.is_some_and(|token| !url_token(&head).is_some_and(|given| token.matches(&given))) {
+        return refuse(client, "401 Unauthorized", "no token, or the wrong one").await;
     }
     let mut server = TcpStream::connect(inner).await?;
     server.write_all(&head).await?;
     tokio::io::copy_bidirectional(&mut client, &mut server).await?;
     Ok(())
+}
+
+/// Answers `client` an empty response of `status` and closes; the error says `why`.
+async fn refuse(mut client: TcpStream, status: &str, why: &str) -> std::io::Result<()> {
+    let head = format!("HTTP/1.1 {status}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
+    client.write_all(head.as_bytes()).await?;
+    Err(std::io::Error::other(why.to_owned()))
 }
 
 /// The `token` of the query of a request head's target (`GET /?token=... HTTP/1.1`),
@@ -362,10 +370,7 @@ fn view_thread(
         let gate = match TcpListener::bind(settings.listen).await {
             Ok(listener) => listener,
             Err(e) => {
-                let _ = opened.send(Err(ViewError::Listen {
-                    addr: settings.listen,
-                    message: e.to_string(),
-                }));
+                let _ = opened.send(Err(ViewError::listen(settings.listen, e)));
                 return;
             }
         };
@@ -388,10 +393,7 @@ fn view_thread(
         let handle = match server.start().await {
             Ok(handle) => handle,
             Err(e) => {
-                let _ = opened.send(Err(ViewError::Listen {
-                    addr: settings.listen,
-                    message: e.to_string(),
-                }));
+                let _ = opened.send(Err(ViewError::listen(settings.listen, e)));
                 return;
             }
         };
