@@ -128,10 +128,8 @@ pub(super) struct ClearWork {
     r: Vec<f64>,
     lam: Vec<f64>,
     ds: active::ActiveScratch,
-    /// Newton scratch: the structured Hessian, the dense KKT matrix where it is needed.
+    /// Newton scratch: the structured Hessian and its KKT solves.
     newton: newton::Newton,
-    kkt: Vec<f64>,
-    kkt_perm: Vec<usize>,
     rhs: Vec<f64>,
     free: Vec<usize>,
     held_move: Vec<f64>,
@@ -256,12 +254,10 @@ impl ClearWork {
         self.r = vec![0.0; k2];
         self.lam = vec![0.0; k2];
         self.ds = active::ActiveScratch::new(n, k2);
-        let dense = if n <= NEWTON_MAX_JOINTS { n } else { 0 };
-        let big = dense + k2;
-        self.kkt = vec![0.0; if dense > 0 { big * big } else { 0 }];
-        self.rhs = vec![0.0; big];
-        self.kkt_perm = vec![0; big];
-        self.newton.reserve(n, MAX_PAIRS);
+        self.rhs = vec![0.0; n + k2];
+        if n <= NEWTON_MAX_JOINTS {
+            self.newton.reserve(n, MAX_PAIRS);
+        }
         self.free = Vec::with_capacity(n);
         self.active = Vec::with_capacity(MAX_PAIRS);
         self.engaged = false;
@@ -392,8 +388,13 @@ impl ClearWork {
         self.last_move = 0.0;
         // The least optimality residual so far and the iterations since it last fell by 1%.
         let (mut best_residual, mut since) = (f64::INFINITY, 0);
+        // The evaluation a taken Newton step already made of the pose it reached.
+        let mut evaluated: Option<At> = None;
         loop {
-            let at = self.eval(p, world, theta, lo, hi, *mu);
+            let at = match evaluated.take() {
+                Some(at) => at,
+                None => self.eval(p, world, theta, lo, hi, *mu),
+            };
             let residual = at.residual(p.scale);
             if residual < super::ELASTIC_STALL_RATIO * best_residual {
                 (best_residual, since) = (residual, 0);
@@ -423,7 +424,8 @@ impl ClearWork {
             }
             iterations += 1;
             if newton_ready && self.n <= NEWTON_MAX_JOINTS {
-                if self.try_newton(p, world, lo, hi, theta, mu, &at, tol) {
+                if let Some(next) = self.try_newton(p, world, lo, hi, theta, mu, &at, tol) {
+                    evaluated = Some(next);
                     continue;
                 }
                 self.eval(p, world, theta, lo, hi, *mu);
@@ -604,8 +606,9 @@ impl ClearWork {
         ControlFlow::Continue(!elastic && alpha == 1.0)
     }
 
-    /// The Newton step on the optimality conditions (see the module doc); true when taken,
-    /// with `theta`, `mu` and the pairs' multipliers updated.
+    /// The Newton step on the optimality conditions (see the module doc); when taken, the
+    /// evaluation of the pose it reached, with `theta`, `mu` and the pairs' multipliers
+    /// updated (the scratch holds that pose).
     #[allow(clippy::too_many_arguments)]
     fn try_newton(
         &mut self,
@@ -617,7 +620,7 @@ impl ClearWork {
         mu: &mut [f64; 2],
         at: &At,
         tol: f64,
-    ) -> bool {
+    ) -> Option<At> {
         let n = self.n;
         let cm = world.clearance_m();
         // Active set: joints held at bounds, pairs leaning or not clear.
@@ -645,7 +648,7 @@ impl ClearWork {
         let m = self.free.len();
         let ka = self.active.len();
         if m < 2 {
-            return false;
+            return None;
         }
         // Lagrangian Hessian I + G - sum nu_j H_j in structured form (module `newton`).
         let pts = &self.pts[..=n];
@@ -686,41 +689,17 @@ impl ClearWork {
             1 => jy[a],
             _ => grad[active[i - 2] * n + a],
         };
-        match self
+        if !self
             .newton
             .solve_kkt(&self.free, 2 + ka, row, &mut self.rhs[..size])
         {
-            Some(true) => {}
-            Some(false) => return false,
-            None => {
-                // The same system assembled dense.
-                let kkt = &mut self.kkt[..size * size];
-                kkt.iter_mut().for_each(|v| *v = 0.0);
-                for (r, &a) in self.free.iter().enumerate() {
-                    for (c, &b) in self.free.iter().enumerate() {
-                        kkt[r * size + c] = self.newton.entry(a, b);
-                    }
-                    for i in 0..2 + ka {
-                        let g = row(i, a);
-                        kkt[r * size + m + i] = -g;
-                        kkt[(m + i) * size + r] = g;
-                    }
-                }
-                let perm = &mut self.kkt_perm[..size];
-                if !newton::lu_factor(kkt, perm, size) {
-                    return false;
-                }
-                newton::lu_apply(kkt, perm, size, &mut self.rhs[..size]);
-                if !self.rhs[..size].iter().all(|v| v.is_finite()) {
-                    return false;
-                }
-            }
+            return None;
         }
         // New multipliers: none of a pair may turn negative.
         for (i, &j) in self.active.iter().enumerate() {
             let v = self.rhs[m + 2 + i];
             if v < -NEGATIVE_NU * (1.0 + self.nu[j].abs()) {
-                return false;
+                return None;
             }
         }
         let mut largest: f64 = 0.0;
@@ -734,7 +713,7 @@ impl ClearWork {
             self.trial[a] = (theta[a] + d).clamp(lo[a], hi[a]);
         }
         if largest.is_nan() || largest > super::NEWTON_MAX_MOVE {
-            return false;
+            return None;
         }
         let mu_n = [self.rhs[m], self.rhs[m + 1]];
         // Carry the new multipliers by key (the old ones kept to restore), then judge the step
@@ -754,13 +733,13 @@ impl ClearWork {
             next.cn <= tol && next.viol <= tol && next.s <= p.stol && next.comp <= p.stol;
         if converged || next.residual(p.scale) <= super::NEWTON_CONTRACTION * at.residual(p.scale) {
             *mu = mu_n;
-            return true;
+            return Some(next);
         }
         theta.copy_from_slice(&self.fd_theta);
         self.prev_k = self.backup_k;
         self.prev_key[..self.prev_k].copy_from_slice(&self.backup_key[..self.prev_k]);
         self.prev_nu[..self.prev_k].copy_from_slice(&self.backup_nu[..self.prev_k]);
-        false
+        None
     }
 }
 

@@ -33,7 +33,8 @@ pub(crate) struct Factor {
     pub negative: usize,
 }
 
-/// Factorizes `T` for `g` (one entry per free joint) into `piv` (same length).
+/// Factorizes `T` for `g` (one entry per free joint) into `piv` (same length), which holds
+/// the pivots' reciprocals: the solves multiply where they would divide.
 ///
 /// Returns `None` when a pivot is too small for the solve to be trusted (`H` near singular).
 pub(crate) fn factor(g: &[f64], piv: &mut [f64]) -> Option<Factor> {
@@ -46,7 +47,7 @@ pub(crate) fn factor(g: &[f64], piv: &mut [f64]) -> Option<Factor> {
         } else {
             1.0 + g[a]
         };
-        let p = if a == 0 { diag } else { diag - 1.0 / prev };
+        let p = if a == 0 { diag } else { diag - prev };
         let scale = 2.0 + g[a].abs() + if a + 1 < m { g[a + 1].abs() } else { 0.0 };
         if !p.is_finite() || p.abs() <= PIVOT_FLOOR * scale {
             return None;
@@ -54,8 +55,8 @@ pub(crate) fn factor(g: &[f64], piv: &mut [f64]) -> Option<Factor> {
         if p < 0.0 {
             negative += 1;
         }
-        piv[a] = p;
-        prev = p;
+        piv[a] = 1.0 / p;
+        prev = piv[a];
     }
     Some(Factor { negative })
 }
@@ -73,7 +74,7 @@ pub(crate) fn solve(piv: &[f64], y: &[f64], s: &mut [f64], x: &mut [f64]) {
         let z = if a == 0 {
             rhs
         } else {
-            rhs + z_prev / piv[a - 1]
+            rhs + z_prev * piv[a - 1]
         };
         s[a] = z;
         z_prev = z;
@@ -81,8 +82,11 @@ pub(crate) fn solve(piv: &[f64], y: &[f64], s: &mut [f64], x: &mut [f64]) {
     // Backward: L^T S = D^{-1} z.
     let mut next = 0.0;
     for a in (0..m).rev() {
-        let w = s[a] / piv[a];
-        let v = if a + 1 < m { w + next / piv[a] } else { w };
+        let v = if a + 1 < m {
+            (s[a] + next) * piv[a]
+        } else {
+            s[a] * piv[a]
+        };
         s[a] = v;
         next = v;
     }

@@ -30,8 +30,12 @@
 //! ```
 //!
 //! and the KKT system `H d - A^T lambda = r1`, `A d = r2` by its Schur complement
-//! `A H^-1 A^T lambda = r2 - A H^-1 r1`. Where `H0` is too near singular for its solve, or the
-//! low-rank part is more than twice as wide as the free joints, the same `H` is assembled dense instead.
+//! `A H^-1 A^T lambda = r2 - A H^-1 r1`. That route costs about `r^2 m` operations for `r`
+//! low-rank columns and `m` free joints, against `(m + rows)^3 / 3` for the whole KKT matrix
+//! assembled dense and factorized: a short chain leaning on a few obstacles is cheaper dense, a
+//! long one structured. `solve_kkt` takes the cheaper by that count (an operation of the
+//! structured route weighed as two, for its shorter loops), and the dense one where `H0` is too
+//! near singular for its solve.
 
 use super::super::hessian;
 use crate::chain::Vec2;
@@ -39,6 +43,10 @@ use crate::world::World;
 
 /// Columns of `V` one pair brings (how `P` and `Q` move, x and y of each).
 pub(super) const RANK: usize = 4;
+
+/// One operation of the structured route costs about this many of the dense one (shorter loops,
+/// more of them): measured on warm ticks of 12 and 24 joints.
+const STRUCTURED_WEIGHT: usize = 2;
 
 /// A pivot below this fraction of the largest entry ends a dense solve.
 const PIVOT_FLOOR: f64 = 1e-13;
@@ -68,6 +76,12 @@ pub(super) struct Newton {
     k_mat: Vec<f64>,
     k_perm: Vec<usize>,
     lam: Vec<f64>,
+    /// The dense KKT matrix, its pivots, and `V C` over the free joints (`RANK` per block).
+    dense: Vec<f64>,
+    dense_perm: Vec<usize>,
+    vc: Vec<f64>,
+    /// The constraint rows on the free joints (structured route).
+    a_free: Vec<f64>,
 }
 
 fn grow<T: Clone + Default>(v: &mut Vec<T>, len: usize) {
@@ -97,6 +111,11 @@ impl Newton {
         grow(&mut self.k_mat, rows * rows);
         grow(&mut self.k_perm, rows);
         grow(&mut self.lam, rows);
+        let size = n + rows;
+        grow(&mut self.dense, size * size);
+        grow(&mut self.dense_perm, size);
+        grow(&mut self.vc, RANK * n);
+        grow(&mut self.a_free, rows * n);
     }
 
     /// Starts `H = I + G(g)` with the tip's term: `g_m = mu . (tip - p_m)`.
@@ -221,7 +240,8 @@ impl Newton {
         }
     }
 
-    /// Entry `(a, b)` of `H`.
+    /// Entry `(a, b)` of `H` (the tests' reference).
+    #[cfg(test)]
     pub fn entry(&self, a: usize, b: usize) -> f64 {
         let n = self.n;
         let mut h = f64::from(u8::from(a == b)) + self.g[a.max(b)];
@@ -240,12 +260,97 @@ impl Newton {
         h
     }
 
-    /// Solves the KKT system over the free joints `free` (increasing) by the structure:
-    /// `H_ff d - A^T lambda = r1`, `A d = r2`, the rows of `A` given by `row(i, joint)` for
-    /// `i < rows`. On success `out[..m]` holds `d` and `out[m..m + rows]` holds `lambda`;
-    /// `None` when the structure cannot be used (`H0` near singular, or the low-rank part
-    /// more than twice as wide as the free joints), `Some(false)` when the system is singular.
+    /// Solves the KKT system over the free joints `free` (increasing): `H_ff d - A^T lambda =
+    /// r1`, `A d = r2`, the rows of `A` given by `row(i, joint)` for `i < rows`, `out[..m]`
+    /// holding `r1` and `out[m..m + rows]` `r2` on entry. On success (true) `out[..m]` holds
+    /// `d` and `out[m..m + rows]` `lambda`; false when the system is singular. Takes the route
+    /// of fewer operations (see the module doc).
     pub fn solve_kkt(
+        &mut self,
+        free: &[usize],
+        rows: usize,
+        row: impl Fn(usize, usize) -> f64 + Copy,
+        out: &mut [f64],
+    ) -> bool {
+        let (m, r) = (free.len(), self.cols);
+        let size = m + rows;
+        let structured =
+            r * r * m + r * r * r / 3 + (rows + 1) * (2 * r * m + r * r) + rows * rows * m;
+        let dense = size * size * size / 3 + m * m * (r + 1);
+        if r <= 2 * m && STRUCTURED_WEIGHT * structured < dense {
+            if let Some(ok) = self.solve_structured(free, rows, row, out) {
+                return ok;
+            }
+        }
+        self.solve_dense(free, rows, row, out)
+    }
+
+    /// [`Newton::solve_kkt`] with the whole KKT matrix assembled and factorized.
+    pub(super) fn solve_dense(
+        &mut self,
+        free: &[usize],
+        rows: usize,
+        row: impl Fn(usize, usize) -> f64,
+        out: &mut [f64],
+    ) -> bool {
+        let (m, n) = (free.len(), self.n);
+        let size = m + rows;
+        grow(&mut self.dense, size * size);
+        grow(&mut self.dense_perm, size);
+        grow(&mut self.vc, RANK * m);
+        let kkt = &mut self.dense[..size * size];
+        // I + G(g) on the free joints, then the constraint borders.
+        for (i, &a) in free.iter().enumerate() {
+            for (j, &b) in free.iter().enumerate() {
+                kkt[i * size + j] = f64::from(u8::from(i == j)) + self.g[a.max(b)];
+            }
+            for l in 0..rows {
+                let g = row(l, a);
+                kkt[i * size + m + l] = -g;
+                kkt[(m + l) * size + i] = g;
+            }
+        }
+        for i in m..size {
+            kkt[i * size + m..(i + 1) * size]
+                .iter_mut()
+                .for_each(|v| *v = 0.0);
+        }
+        // V C V^T a block at a time: the block's four columns of V on the free joints, then
+        // row by row (V C)_i times them.
+        for block in 0..self.cols / RANK {
+            let c = &self.c[block * RANK * RANK..(block + 1) * RANK * RANK];
+            for k in 0..RANK {
+                let col = &self.v[(block * RANK + k) * n..(block * RANK + k + 1) * n];
+                for (dst, &b) in self.vc[k * m..(k + 1) * m].iter_mut().zip(free) {
+                    *dst = col[b];
+                }
+            }
+            let (v0, rest) = self.vc[..RANK * m].split_at(m);
+            let (v1, rest) = rest.split_at(m);
+            let (v2, v3) = rest.split_at(m);
+            for (i, row) in kkt.chunks_exact_mut(size).take(m).enumerate() {
+                let vi = [v0[i], v1[i], v2[i], v3[i]];
+                let w: [f64; RANK] =
+                    std::array::from_fn(|k| (0..RANK).map(|e| vi[e] * c[e * RANK + k]).sum());
+                if w.iter().all(|&x| x == 0.0) {
+                    continue;
+                }
+                for ((((h, a), b), cc), d) in row[..m].iter_mut().zip(v0).zip(v1).zip(v2).zip(v3) {
+                    *h += w[0] * a + w[1] * b + w[2] * cc + w[3] * d;
+                }
+            }
+        }
+        let perm = &mut self.dense_perm[..size];
+        if !lu_factor(kkt, perm, size) {
+            return false;
+        }
+        lu_apply(kkt, perm, size, &mut out[..size]);
+        out[..size].iter().all(|v| v.is_finite())
+    }
+
+    /// [`Newton::solve_kkt`] by the structure; `None` when it cannot be used (`H0` near
+    /// singular, or the low-rank part more than twice as wide as the free joints).
+    pub(super) fn solve_structured(
         &mut self,
         free: &[usize],
         rows: usize,
@@ -283,11 +388,14 @@ impl Newton {
         grow(&mut self.s_perm, r);
         grow(&mut self.tmp, r.max(m));
         grow(&mut self.z, r * r);
+        // (symmetric, as H0 is: the upper triangle mirrored)
         for e in 0..r {
             let ve = &self.v_free[e * m..(e + 1) * m];
-            for b in 0..r {
+            for b in e..r {
                 let wb = &self.w[b * m..(b + 1) * m];
-                self.z[e * r + b] = ve.iter().zip(wb).map(|(v, w)| v * w).sum();
+                let d = ve.iter().zip(wb).map(|(v, w)| v * w).sum();
+                self.z[e * r + b] = d;
+                self.z[b * r + e] = d;
             }
         }
         for a in 0..r {
@@ -304,13 +412,23 @@ impl Newton {
         if !lu_factor(&mut self.s_mat[..r * r], &mut self.s_perm[..r], r) {
             return None;
         }
+        // A on the free joints, a row at a time.
+        grow(&mut self.a_free, rows * m);
+        for (l, dst) in self.a_free.chunks_exact_mut(m).take(rows).enumerate() {
+            for (d, &a) in dst.iter_mut().zip(free) {
+                *d = row(l, a);
+            }
+        }
         // Z = H^-1 [A^T, r1]: the constraint columns first, r1 (in out[..m]) last.
         let cols = rows + 1;
         grow(&mut self.z, cols * m);
         for l in 0..cols {
-            for (i, &a) in free.iter().enumerate() {
-                self.tmp[i] = if l < rows { row(l, a) } else { out[i] };
-            }
+            let src = if l < rows {
+                &self.a_free[l * m..(l + 1) * m]
+            } else {
+                &out[..m]
+            };
+            self.tmp[..m].copy_from_slice(src);
             self.apply_inverse(l, m);
         }
         // K lambda = r2 - A z1, K = A Z.
@@ -318,18 +436,12 @@ impl Newton {
         grow(&mut self.k_perm, rows);
         grow(&mut self.lam, rows);
         let z1 = rows * m;
+        let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
         for i in 0..rows {
-            let mut a_z1 = 0.0;
-            for (e, &a) in free.iter().enumerate() {
-                a_z1 += row(i, a) * self.z[z1 + e];
-            }
-            self.lam[i] = out[m + i] - a_z1;
+            let ai = &self.a_free[i * m..(i + 1) * m];
+            self.lam[i] = out[m + i] - dot(ai, &self.z[z1..z1 + m]);
             for l in 0..rows {
-                let mut k = 0.0;
-                for (e, &a) in free.iter().enumerate() {
-                    k += row(i, a) * self.z[l * m + e];
-                }
-                self.k_mat[i * rows + l] = k;
+                self.k_mat[i * rows + l] = dot(ai, &self.z[l * m..(l + 1) * m]);
             }
         }
         if !lu_factor(
@@ -368,8 +480,8 @@ impl Newton {
         // t = C V^T z, then S u = t, then z -= W u.
         grow(&mut self.t, 2 * r);
         let (t, vz) = self.t.split_at_mut(r);
-        for col in 0..r {
-            vz[col] = (0..m).map(|i| self.v_free[col * m + i] * z[i]).sum();
+        for (v, col) in vz[..r].iter_mut().zip(self.v_free[..r * m].chunks_exact(m)) {
+            *v = col.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
         }
         for a in 0..r {
             let block = a / RANK;
@@ -378,10 +490,9 @@ impl Newton {
                 .sum();
         }
         lu_apply(&self.s_mat[..r * r], &self.s_perm[..r], r, t);
-        for col in 0..r {
-            let u = t[col];
-            for i in 0..m {
-                z[i] -= self.w[col * m + i] * u;
+        for (&u, col) in t.iter().zip(self.w[..r * m].chunks_exact(m)) {
+            for (x, w) in z.iter_mut().zip(col) {
+                *x -= w * u;
             }
         }
     }
@@ -390,33 +501,37 @@ impl Newton {
 /// LU factorization with partial pivoting in place (row-major, `size x size`), the row
 /// permutation in `perm`; false when a pivot is below [`PIVOT_FLOOR`] of the largest entry.
 pub(super) fn lu_factor(mat: &mut [f64], perm: &mut [usize], size: usize) -> bool {
+    let mat = &mut mat[..size * size];
     let big = mat.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
     if !(big > 0.0 && big.is_finite()) {
         return false;
     }
     for col in 0..size {
-        let mut piv = col;
-        for r in col + 1..size {
-            if mat[r * size + col].abs() > mat[piv * size + col].abs() {
-                piv = r;
+        let piv = (col..size).fold(col, |p, r| {
+            if mat[r * size + col].abs() > mat[p * size + col].abs() {
+                r
+            } else {
+                p
             }
-        }
+        });
         perm[col] = piv;
         if mat[piv * size + col].abs() <= PIVOT_FLOOR * big {
             return false;
         }
         if piv != col {
-            for c in 0..size {
-                mat.swap(piv * size + c, col * size + c);
-            }
+            let (upper, lower) = mat.split_at_mut(piv * size);
+            upper[col * size..(col + 1) * size].swap_with_slice(&mut lower[..size]);
         }
-        let p = mat[col * size + col];
-        for r in col + 1..size {
-            let f = mat[r * size + col] / p;
-            mat[r * size + col] = f;
+        // Eliminate below the pivot, a row slice at a time (no index checks in the loop).
+        let (upper, lower) = mat.split_at_mut((col + 1) * size);
+        let pivot_row = &upper[col * size + col..(col + 1) * size];
+        let (p, right) = (pivot_row[0], &pivot_row[1..]);
+        for row in lower.chunks_exact_mut(size) {
+            let f = row[col] / p;
+            row[col] = f;
             if f != 0.0 {
-                for c in col + 1..size {
-                    mat[r * size + c] -= f * mat[col * size + c];
+                for (x, &y) in row[col + 1..].iter_mut().zip(right) {
+                    *x -= f * y;
                 }
             }
         }
@@ -426,22 +541,22 @@ pub(super) fn lu_factor(mat: &mut [f64], perm: &mut [usize], size: usize) -> boo
 
 /// Solves with the factors of [`lu_factor`], `b` in place.
 pub(super) fn lu_apply(lu: &[f64], perm: &[usize], size: usize, b: &mut [f64]) {
+    let (lu, b) = (&lu[..size * size], &mut b[..size]);
     // The rows were swapped whole while factoring: all the swaps first, then L.
     for col in 0..size {
         b.swap(col, perm[col]);
     }
-    for col in 0..size {
-        let v = b[col];
-        for r in col + 1..size {
-            b[r] -= lu[r * size + col] * v;
-        }
+    for (r, row) in lu.chunks_exact(size).enumerate() {
+        let v: f64 = row[..r].iter().zip(&b[..r]).map(|(l, x)| l * x).sum();
+        b[r] -= v;
     }
-    for r in (0..size).rev() {
-        let mut v = b[r];
-        for c in r + 1..size {
-            v -= lu[r * size + c] * b[c];
-        }
-        b[r] = v / lu[r * size + r];
+    for (r, row) in lu.chunks_exact(size).enumerate().rev() {
+        let v: f64 = row[r + 1..]
+            .iter()
+            .zip(&b[r + 1..])
+            .map(|(u, x)| u * x)
+            .sum();
+        b[r] = (b[r] - v) / row[r];
     }
 }
 
@@ -526,7 +641,7 @@ mod tests {
     }
 
     #[test]
-    fn structured_kkt_solve_matches_the_dense_one() {
+    fn both_kkt_routes_match_a_reference_solve() {
         let world = world();
         let n = 8;
         let chain = Chain::unlimited(vec![0.125; n], Vec2::zeros(), 0.0).unwrap();
@@ -542,8 +657,15 @@ mod tests {
         let rows = 3;
         let a_row = |i: usize, j: usize| ((i * 7 + j * 3) % 5) as f64 - 2.0 + 0.1 * j as f64;
         let rhs: Vec<f64> = (0..m + rows).map(|i| (i as f64 * 0.37).sin()).collect();
-        let mut out = rhs.clone();
-        assert_eq!(newton.solve_kkt(&free, rows, a_row, &mut out), Some(true));
+        let mut structured = rhs.clone();
+        assert_eq!(
+            newton.solve_structured(&free, rows, a_row, &mut structured),
+            Some(true)
+        );
+        let mut dense_out = rhs.clone();
+        assert!(newton.solve_dense(&free, rows, a_row, &mut dense_out));
+        let mut picked = rhs.clone();
+        assert!(newton.solve_kkt(&free, rows, a_row, &mut picked));
         let size = m + rows;
         let dense = DMatrix::from_fn(size, size, |r, c| match (r < m, c < m) {
             (true, true) => newton.entry(free[r], free[c]),
@@ -552,11 +674,13 @@ mod tests {
             (false, false) => 0.0,
         });
         let want = dense.lu().solve(&DVector::from_vec(rhs)).unwrap();
-        for i in 0..size {
-            assert!(
-                (out[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()),
-                "{i}"
-            );
+        for out in [&structured, &dense_out, &picked] {
+            for i in 0..size {
+                assert!(
+                    (out[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()),
+                    "{i}"
+                );
+            }
         }
         // H x by the structure against the entries.
         let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.7).cos()).collect();
