@@ -14,7 +14,10 @@
 //! [`MAX_PAIRS`] of them, least clearance first; a pair whose contact point and obstacle repeat
 //! one already taken (a joint touching an obstacle is the end of one link and the start of the
 //! next) is the same constraint and is left out. Pairs further away are checked by the line
-//! search's merit, which measures the exact least clearance of every trial pose.
+//! search's merit, which measures the exact least clearance of every trial pose. Both searches
+//! read a list of candidate pairs found with some slack and kept while the pose stays within
+//! it (`Candidates`: exact, as a link's clearance moves no more than its ends), so that most
+//! iterations, and most ticks of a warm run, search the whole world only once in a while.
 //!
 //! Method, one local solve (`ClearWork::local`):
 //! - **SQP step**. The subproblem `min 1/2 |x - theta0|^2` subject to `J (x - theta) = c`, the
@@ -108,6 +111,8 @@ pub(super) struct ClearWork {
     qp_x: Vec<f64>,
     all: Vec<Pair>,
     order: Vec<usize>,
+    /// Candidate pairs (see `Candidates`), kept across iterations and ticks.
+    cand: Candidates,
     /// Selected pairs: count, keys (link, obstacle), clearance, contact point, gradient rows.
     k: usize,
     key: Vec<(usize, usize)>,
@@ -212,6 +217,96 @@ fn weight(w: f64, norm: f64, elastic: bool, scale: f64) -> f64 {
     }
 }
 
+/// The (link, obstacle) pairs that can be near contact while the pose stays near the one they
+/// were found at: every pair whose clearance was at most `reach` at the points `pts`. A link's
+/// clearance moves by at most the largest move of its two ends, so while every point is within
+/// `d` of `pts`, a pair whose clearance is now at most `reach - d` is among them: a search of a
+/// margin `m` with `m + d <= reach` reads the candidates alone, exactly, and only a pose that
+/// strayed further searches the world again (with [`CANDIDATE_SLACK`] to spare).
+#[derive(Debug, Default)]
+struct Candidates {
+    /// Link, obstacle, and the pair's clearance at `pts`.
+    keys: Vec<(usize, usize, f64)>,
+    pts: Vec<Vec2>,
+    reach: f64,
+}
+
+/// The candidates are found with this fraction of the mean link length beyond the margin asked.
+const CANDIDATE_SLACK: f64 = 0.1;
+
+impl Candidates {
+    /// Largest move of a point of `pts` from where the candidates were found.
+    fn strayed(&self, pts: &[Vec2]) -> f64 {
+        self.pts
+            .iter()
+            .zip(pts)
+            .fold(0.0_f64, |m, (a, b)| m.max((a - b).norm()))
+    }
+
+    /// [`World::near_pairs`] of `pts` for `margin_m`, in the same order, through the candidates
+    /// (found again first when `pts` strayed too far).
+    fn near_pairs(
+        &mut self,
+        world: &World,
+        pts: &[Vec2],
+        margin_m: f64,
+        mean_link: f64,
+        out: &mut Vec<Pair>,
+    ) {
+        // (written so that a NaN searches the world)
+        let strayed = if pts.len() == self.pts.len() {
+            self.strayed(pts)
+        } else {
+            f64::INFINITY
+        };
+        if !(margin_m + strayed <= self.reach) {
+            self.reach = margin_m + CANDIDATE_SLACK * mean_link;
+            world.near_pairs(pts, self.reach, out);
+            self.keys.clear();
+            self.keys
+                .extend(out.iter().map(|q| (q.link, q.obstacle, q.clearance_m)));
+            self.pts.clone_from_slice(pts);
+        } else {
+            out.clear();
+            // A pair farther than the margin by more than the pose strayed stays beyond it.
+            out.extend(
+                self.keys
+                    .iter()
+                    .filter(|&&(_, _, was)| was - strayed <= margin_m)
+                    .map(|&(link, k, _)| world.pair(pts, link, k)),
+            );
+        }
+        out.retain(|q| q.clearance_m <= margin_m);
+    }
+
+    /// The least clearance of `pts` when below `floor_m`, else infinity: through the candidates
+    /// when they cover it, else [`World::clearance_below`].
+    fn least_below(&self, world: &World, pts: &[Vec2], floor_m: f64) -> f64 {
+        let strayed = if pts.len() == self.pts.len() {
+            self.strayed(pts)
+        } else {
+            f64::INFINITY
+        };
+        if floor_m + strayed <= self.reach {
+            let least = self
+                .keys
+                .iter()
+                .filter(|&&(_, _, was)| was - strayed < floor_m)
+                .map(|&(link, k, _)| world.pair(pts, link, k).clearance_m)
+                .fold(f64::INFINITY, f64::min);
+            if least < floor_m {
+                least
+            } else {
+                f64::INFINITY
+            }
+        } else {
+            world
+                .clearance_below(pts, floor_m)
+                .map_or(f64::INFINITY, |q| q.clearance_m)
+        }
+    }
+}
+
 impl ClearWork {
     /// Sizes the buffers for `n` joints among `obstacles` obstacles.
     pub fn resize(&mut self, n: usize, obstacles: usize) {
@@ -240,6 +335,11 @@ impl ClearWork {
         let pairs = (n * obstacles).max(1);
         self.all = Vec::with_capacity(pairs);
         self.order = Vec::with_capacity(pairs);
+        self.cand = Candidates {
+            keys: Vec::with_capacity(pairs),
+            pts: vec![Vec2::zeros(); n + 1],
+            reach: f64::NEG_INFINITY,
+        };
         self.key = vec![(0, 0); MAX_PAIRS];
         self.prev_key = vec![(0, 0); MAX_PAIRS];
         self.clr = vec![0.0; MAX_PAIRS];
@@ -304,7 +404,8 @@ impl ClearWork {
         let mean_link = p.chain.reach() / n.max(1) as f64;
         let moves = c.norm().max(self.last_move).min(mean_link);
         let margin = cm + MARGIN_MOVES * moves + MARGIN_FLOOR * mean_link;
-        world.near_pairs(&self.pts, margin, &mut self.all);
+        self.cand
+            .near_pairs(world, &self.pts, margin, mean_link, &mut self.all);
         let least = self
             .all
             .iter()
@@ -579,9 +680,7 @@ impl ClearWork {
             p.chain.points_into(&self.trial, &mut self.trial_pts);
             let tip_err = (self.trial_pts[n] - p.target).norm();
             // Only a clearance below `clearance_m` counts in the merit.
-            let least = world
-                .clearance_below(&self.trial_pts, cm)
-                .map_or(f64::INFINITY, |q| q.clearance_m);
+            let least = self.cand.least_below(world, &self.trial_pts, cm);
             let m = half_metric(&self.trial, p.theta0)
                 + *nu_t * tip_err
                 + *nu_c * (cm - least).max(0.0);
@@ -800,6 +899,7 @@ impl Overall {
     pub fn set_world(&mut self, world: Option<World>) {
         self.world = world;
         self.clear.forget();
+        self.clear.cand.reach = f64::NEG_INFINITY;
         self.clear.engaged = false;
         self.last_clearance = None;
     }

@@ -386,3 +386,44 @@ fn most_random_problems_with_a_clear_start_converge() {
     assert!(tried >= 50, "{tried}");
     assert!(converged * 10 >= tried * 9, "{converged} of {tried}");
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The candidate pairs answer what a search of the whole world answers, pair for pair and
+    /// in the same order, along a random walk of poses (small steps reusing them, large ones
+    /// straying beyond them), and the line search's least clearance is the world's.
+    #[test]
+    fn candidates_answer_as_the_whole_world_does(
+        seed in 0u64..1000,
+        steps in proptest::collection::vec((0.0..0.04f64, 0.0..0.03f64), 1..24),
+    ) {
+        let (chain, mut theta, _, world) = random_problem(seed, 10, 12);
+        let mean_link = chain.reach() / chain.len() as f64;
+        let mut rng = StdRng::seed_from_u64(seed);
+        let mut cand = Candidates {
+            pts: vec![Vec2::zeros(); chain.len() + 1],
+            reach: f64::NEG_INFINITY,
+            ..Candidates::default()
+        };
+        let (mut got, mut want) = (Vec::new(), Vec::new());
+        for (step, margin) in steps {
+            for t in theta.iter_mut() {
+                *t += rng.gen_range(-step..=step);
+            }
+            let pts = chain.points(&theta);
+            cand.near_pairs(&world, &pts, margin, mean_link, &mut got);
+            world.near_pairs(&pts, margin, &mut want);
+            let key = |q: &Pair| (q.link, q.obstacle, q.clearance_m);
+            prop_assert_eq!(
+                got.iter().map(key).collect::<Vec<_>>(),
+                want.iter().map(key).collect::<Vec<_>>()
+            );
+            let floor = world.clearance_m();
+            let least = world
+                .clearance_below(&pts, floor)
+                .map_or(f64::INFINITY, |q| q.clearance_m);
+            prop_assert_eq!(cand.least_below(&world, &pts, floor), least);
+        }
+    }
+}
