@@ -253,13 +253,14 @@ impl Candidates {
         mean_link: f64,
         out: &mut Vec<Pair>,
     ) {
-        // (written so that a NaN searches the world)
         let strayed = if pts.len() == self.pts.len() {
             self.strayed(pts)
         } else {
             f64::INFINITY
         };
-        if !(margin_m + strayed <= self.reach) {
+        // False for a NaN too: the world is then searched.
+        let covered = margin_m + strayed <= self.reach;
+        if !covered {
             self.reach = margin_m + CANDIDATE_SLACK * mean_link;
             world.near_pairs(pts, self.reach, out);
             self.keys.clear();
