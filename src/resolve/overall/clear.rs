@@ -235,8 +235,12 @@ struct Candidates {
 const CANDIDATE_SLACK: f64 = 0.1;
 
 impl Candidates {
-    /// Largest move of a point of `pts` from where the candidates were found.
+    /// Largest move of a point of `pts` from where the candidates were found; infinite for
+    /// points of another chain.
     fn strayed(&self, pts: &[Vec2]) -> f64 {
+        if pts.len() != self.pts.len() {
+            return f64::INFINITY;
+        }
         self.pts
             .iter()
             .zip(pts)
@@ -253,11 +257,7 @@ impl Candidates {
         mean_link: f64,
         out: &mut Vec<Pair>,
     ) {
-        let strayed = if pts.len() == self.pts.len() {
-            self.strayed(pts)
-        } else {
-            f64::INFINITY
-        };
+        let strayed = self.strayed(pts);
         // False for a NaN too: the world is then searched.
         let covered = margin_m + strayed <= self.reach;
         if !covered {
@@ -283,11 +283,7 @@ impl Candidates {
     /// The least clearance of `pts` when below `floor_m`, else infinity: through the candidates
     /// when they cover it, else [`World::clearance_below`].
     fn least_below(&self, world: &World, pts: &[Vec2], floor_m: f64) -> f64 {
-        let strayed = if pts.len() == self.pts.len() {
-            self.strayed(pts)
-        } else {
-            f64::INFINITY
-        };
+        let strayed = self.strayed(pts);
         if floor_m + strayed <= self.reach {
             let least = self
                 .keys
