@@ -331,7 +331,9 @@ fn silent_servo(read: &str, ports: &str) {
     );
     c.ok(json!({"cmd": "stop"}));
     // Held: the goals do not move until it answers again.
-    let (held, cleared) = watch_until_event(&mut c, fault_event("cleared", "silent"));
+    let mut between = Vec::new();
+    let (held, cleared) =
+        watch_until_event_keeping(&mut c, fault_event("cleared", "silent"), &mut between);
     let faulted: Vec<&Value> = held.iter().filter(|t| t["state"] == "fault").collect();
     assert!(faulted.len() > 10, "{} samples in fault", faulted.len());
     for t in &faulted {
@@ -341,9 +343,17 @@ fn silent_servo(read: &str, ports: &str) {
         );
     }
     assert_eq!(cleared["fault"]["id"], json!(5));
-    // Silent for 1.5 s with torque on: its watchdog fired and was cleared.
+    // Silent for 1.5 s with torque on: its watchdog fired and was cleared, by this recovery
+    // (with others if the loop itself stalled past the watchdog on a loaded machine) or by a
+    // stall's recovery just before it, which reports it on its own.
     let detail = cleared["fault"]["detail"].as_str().unwrap();
-    assert!(detail.contains("[5]"), "{detail}");
+    let by_a_stall = between
+        .iter()
+        .any(|e| fault_event("recovered", "watchdog")(e) && e["fault"]["id"] == json!(5));
+    assert!(
+        fired_watchdogs(detail).contains(&5) || by_a_stall,
+        "{detail}; before it: {between:?}"
+    );
     println!("silent servo 5: cleared on its first answer: {detail}");
     samples.extend(held);
     let s = c.status();
@@ -359,6 +369,15 @@ fn silent_servo(read: &str, ports: &str) {
     let reseeds = check_goals(&samples, &lo, &hi);
     assert!(reseeds <= 1, "{reseeds} jumps to the measured pose");
     stop_torque_off(d);
+}
+
+/// The servos a recovery's detail names as those whose Bus Watchdog had fired.
+fn fired_watchdogs(detail: &str) -> Vec<u8> {
+    let Some((_, list)) = detail.split_once("the Bus Watchdog of servos [") else {
+        return Vec::new();
+    };
+    let list = list.split(']').next().unwrap_or_default();
+    list.split(", ").filter_map(|id| id.parse().ok()).collect()
 }
 
 #[test]

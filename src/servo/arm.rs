@@ -1136,12 +1136,18 @@ impl Arm {
     /// goal), arm it again, each step one Sync Write to all of them; one Sync Read of the
     /// watchdog and the goal confirms it, and the servos it does not confirm go through it
     /// again while `within` allows. Returns the servos recovered.
+    ///
+    /// `unarmed` keeps, across calls, the servos whose watchdog this cleared and has not yet
+    /// seen armed again (a recovery cut short leaves them at 0, by this daemon's doing: see
+    /// [`Arm::ram_reset`]); each leaves it once its watchdog reads armed.
     pub fn recover_watchdog<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,
         within: &Within<'_>,
+        unarmed: &mut Vec<u8>,
     ) -> Result<Vec<u8>, BringUpError> {
         let tripped = self.tripped_watchdogs(bus, within)?;
+        unarmed.retain(|id| tripped.contains(id));
         let armed = units::watchdog_units(self.settings.watchdog_ms);
         // Bus Watchdog (98) to Goal Position (116..119) in one read.
         let (first, goal_at) = (Register::BusWatchdog.address(), 18usize);
@@ -1153,6 +1159,11 @@ impl Arm {
                 break;
             }
             let zeros: Vec<(u8, i64)> = pending.iter().map(|&id| (id, 0)).collect();
+            for &id in &pending {
+                if !unarmed.contains(&id) {
+                    unarmed.push(id);
+                }
+            }
             bus.sync_write(Register::BusWatchdog, &zeros)
                 .map_err(step("clearing the bus watchdog"))?;
             let present = self
@@ -1185,7 +1196,7 @@ impl Arm {
                     watchdog == Some(armed) && goal_now == Some(goal.1)
                 });
                 match held {
-                    Ok(true) => {}
+                    Ok(true) => unarmed.retain(|&x| x != id),
                     Ok(false) => {
                         last = Some(ServoError::Malformed {
                             id,
@@ -1224,13 +1235,16 @@ impl Arm {
     /// What of the RAM bring-up wrote servo `id` no longer holds, `None` when it all does: a
     /// servo that lost power answers again with its RAM at the defaults (Bus Watchdog 0 where
     /// it was armed, profiles 0, Torque Enable 0 where `torque` was on, Indirect Address 1 at
-    /// its default where it was mapped). A Bus Watchdog that
-    /// fired (-1) is a powered servo's. Within `within`.
+    /// its default where it was mapped). A Bus Watchdog that fired (-1) is a powered servo's,
+    /// and so is a 0 where a recovery cut short left it (`id` in `unarmed`, as
+    /// [`Arm::recover_watchdog`] keeps it; the other registers still tell a power loss).
+    /// Within `within`.
     pub fn ram_reset<B: ServoBus>(
         &self,
         bus: &mut B,
         id: u8,
         torque: bool,
+        unarmed: &[u8],
         within: &Within<'_>,
     ) -> Result<Option<String>, ServoError> {
         let mut retry = Retry::default();
@@ -1241,7 +1255,7 @@ impl Arm {
         };
         let mut reset = Vec::new();
         let armed = units::watchdog_units(self.settings.watchdog_ms);
-        if armed > 0 && read(Register::BusWatchdog)? == 0 {
+        if armed > 0 && !unarmed.contains(&id) && read(Register::BusWatchdog)? == 0 {
             reset.push(format!("Bus Watchdog 0 (armed at {armed})"));
         }
         for (register, expected) in [

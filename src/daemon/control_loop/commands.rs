@@ -353,7 +353,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             return refuse(Code::Fault, format!("reset: {why}; the latch stays"));
         }
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
-        if let Err(err) = self.arm.recover_watchdog(self.port.bus(), &within) {
+        if let Err(err) = self
+            .arm
+            .recover_watchdog(self.port.bus(), &within, &mut self.unarmed)
+        {
             return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
         }
         if let Err(err) = self.measure_pose() {

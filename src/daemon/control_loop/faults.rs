@@ -226,7 +226,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         for &i in back {
             let id = self.ids.get(i).copied()?;
             let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
-            match self.arm.ram_reset(self.port.bus(), id, torque, &within) {
+            match self
+                .arm
+                .ram_reset(self.port.bus(), id, torque, &self.unarmed, &within)
+            {
                 Ok(Some(what)) => lost.push((i, what)),
                 Ok(None) => {}
                 Err(e) => {
@@ -327,7 +330,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         let watchdogs = self
             .arm
-            .recover_watchdog(self.port.bus(), &within)
+            .recover_watchdog(self.port.bus(), &within, &mut self.unarmed)
             .map_err(|e| e.to_string())?;
         self.measure_pose()?;
         if self.supervisor.torque() {

@@ -298,6 +298,9 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     tick: u64,
     /// No recovery is tried before this instant, after one failed.
     recover_after: Option<Instant>,
+    /// Servos whose Bus Watchdog a recovery cut short left cleared (see
+    /// [`Arm::recover_watchdog`]): a 0 there is not taken for a power loss.
+    unarmed: Vec<u8>,
     /// Until when the fault path of this tick may wait on the bus (see [`Cycle::within`]).
     fault_until: Instant,
     /// Servos a torque off did not reach: switched off once they answer a read.
@@ -466,6 +469,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             ids,
             tick: 0,
             recover_after: None,
+            unarmed: Vec::new(),
             fault_until: now,
             torque_off_pending: Vec::new(),
             not_clear: false,

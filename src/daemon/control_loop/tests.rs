@@ -79,6 +79,9 @@ struct Wire {
     clock: Option<ManualClock>,
     /// What a Sync Read costs on that clock, as the wire time of a real port.
     read_cost: Duration,
+    /// A Sync Write of this register with this value silences this servo once it has taken
+    /// it: a servo that drops off the bus in the middle of a sequence of writes.
+    mute_on: Option<(Register, i64, u8)>,
 }
 
 /// An in-memory chain of servos whose motors reach every goal at once. Clones share it; the
@@ -230,9 +233,13 @@ impl ServoBus for MemoryBus {
     fn sync_write(&mut self, r: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
         self.port()?;
         let mut w = self.wire();
+        let mute_on = w.mute_on;
         for &(id, v) in values {
             if let Some(s) = w.servos.get_mut(&id).filter(|s| !s.silent) {
                 s.set(r, v);
+                if mute_on == Some((r, v, id)) {
+                    s.silent = true;
+                }
             }
         }
         Ok(())
@@ -494,6 +501,68 @@ fn a_fault_during_a_move_holds_the_arm_ends_the_move_and_clears_when_the_servo_a
     rig.slow_goto();
     rig.ticks(1);
     assert_eq!(rig.status().state, State::Moving);
+}
+
+/// Servo 5 silent long enough for its Bus Watchdog to fire, then answering, and dropping off
+/// the bus again right after the recovery cleared its watchdog, before it could arm it again.
+/// Returns the armed value.
+fn cut_short_watchdog_recovery(rig: &mut Rig) -> i64 {
+    let armed = rig.bus.wire().servos[&1].get(Register::BusWatchdog);
+    assert!(armed > 0, "bring-up armed the Bus Watchdog");
+    declare_silent(rig, 5);
+    rig.bus.servo(5, |s| {
+        s.set(Register::BusWatchdog, -1);
+        s.silent = false;
+    });
+    rig.bus.wire().mute_on = Some((Register::BusWatchdog, 0, 5));
+    rig.ticks(1);
+    assert_eq!(rig.bus.wire().servos[&5].get(Register::BusWatchdog), 0);
+    assert_eq!(rig.status().state, State::Fault, "the recovery failed");
+    rig.bus.wire().mute_on = None;
+    rig.events();
+    armed
+}
+
+#[test]
+fn a_servo_whose_watchdog_recovery_was_cut_short_is_not_taken_for_a_power_loss() {
+    let mut rig = Rig::new(100.0, "");
+    let armed = cut_short_watchdog_recovery(&mut rig);
+    // Back again, its RAM as the cut recovery left it (powered all along): not a power loss,
+    // and the next try of the recovery arms the watchdog.
+    rig.bus.servo(5, |s| s.silent = false);
+    rig.ticks(200);
+    let events = rig.events();
+    let raised = fault_events(&events, FaultChange::Raised);
+    assert!(
+        raised.iter().all(|r| r.1 != FaultKind::PowerLoss),
+        "{events:?}"
+    );
+    let s = rig.status();
+    assert_eq!(
+        (s.state, s.torque),
+        (State::Holding, true),
+        "{:?}",
+        s.faults
+    );
+    assert_eq!(rig.bus.wire().servos[&5].get(Register::BusWatchdog), armed);
+}
+
+#[test]
+fn a_power_loss_after_a_watchdog_recovery_cut_short_is_still_told_by_the_other_registers() {
+    let mut rig = Rig::new(100.0, "");
+    cut_short_watchdog_recovery(&mut rig);
+    rig.bus.lose_power(5);
+    rig.ticks(3);
+    rig.bus.power_back(5);
+    rig.ticks(1);
+    let raised = fault_events(&rig.events(), FaultChange::Raised);
+    assert_eq!(raised.len(), 1, "{raised:?}");
+    assert_eq!((raised[0].0, raised[0].1), (Some(5), FaultKind::PowerLoss));
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Estop, false));
+    let detail = &s.faults[0].detail;
+    assert!(detail.contains("Torque Enable 0"), "{detail}");
+    assert!(!detail.contains("Bus Watchdog 0"), "{detail}");
 }
 
 #[test]
