@@ -332,8 +332,14 @@ fn silent_servo(read: &str, ports: &str) {
     c.ok(json!({"cmd": "stop"}));
     // Held: the goals do not move until it answers again.
     let mut between = Vec::new();
-    let (held, cleared) =
-        watch_until_event_keeping(&mut c, fault_event("cleared", "silent"), &mut between);
+    // Servo 5's: on a loaded machine another servo's reply can come late enough to be held
+    // silent a moment too.
+    let mut cleared_5 = fault_event("cleared", "silent");
+    let (held, cleared) = watch_until_event_keeping(
+        &mut c,
+        |e| cleared_5(e) && e["fault"]["id"] == json!(5),
+        &mut between,
+    );
     let faulted: Vec<&Value> = held.iter().filter(|t| t["state"] == "fault").collect();
     assert!(faulted.len() > 10, "{} samples in fault", faulted.len());
     for t in &faulted {
@@ -627,12 +633,17 @@ fn vanished_port(read: &str, ports: &str, k: usize) {
             "goals moved while the port was gone"
         );
     }
-    let gone = cleared["tick"].as_u64().unwrap() - raised["tick"].as_u64().unwrap();
+    // Periods of the loop, not ticks: on a loaded machine a late tick stands for the periods
+    // it overran, and the window is wall-clock time.
+    let overruns = |t: Option<&Value>| t.map_or(0, |t| t["overruns"].as_u64().unwrap());
+    let overran = overruns(held.last()).saturating_sub(overruns(samples.last()));
+    let gone = cleared["tick"].as_u64().unwrap() - raised["tick"].as_u64().unwrap() + overran;
     println!(
-        "port gone: reopened {gone} ticks after the fault (window 150 ticks, retried every second)"
+        "port gone: reopened {gone} periods after the fault ({overran} of them overrun; window \
+         150 periods, retried every second)"
     );
     // The window is 1.5 s; the next attempt after it comes within a second.
-    assert!((140..=260).contains(&gone), "reopened after {gone} ticks");
+    assert!((140..=260).contains(&gone), "reopened after {gone} periods");
     samples.extend(held);
     let s = c.wait_status("holding after the reopen", |s| s["state"] == "holding");
     assert_eq!(s["faults"], json!([]), "{s}");

@@ -483,16 +483,24 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.rebuild_lists();
     }
 
+    /// A lost port, when its next try is due: opened again (else tried again a
+    /// [`RETRY_EVERY`] later), and from the tick after, the arm recovered on it (see
+    /// [`super::port::Port::recovery_failed`]).
     fn retry_port(&mut self) {
-        if !self.port.reopen_due(self.clock.now()) {
+        let now = self.clock.now();
+        if !self.port.reopen_due(now) {
             return;
         }
-        let reopened = self
-            .port
-            .reopen(&self.arm)
-            .and_then(|()| self.recover().map(|_| ()).map_err(ReopenError::Recover));
-        match reopened {
-            Ok(()) => {
+        if !self.port.reopened() {
+            // Recovery comes on the next tick, within its own time.
+            if let Err(e) = self.port.reopen(&self.arm, now) {
+                tracing::debug!("reopening the port: {e}");
+                self.port.retry_later(now);
+            }
+            return;
+        }
+        match self.recover() {
+            Ok(_) => {
                 tracing::info!("port reopened");
                 if let Some(info) = self.port.found() {
                     self.announce(FaultChange::Cleared, info);
@@ -501,8 +509,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 self.sync_faulted();
             }
             Err(e) => {
-                tracing::debug!("reopening the port: {e}");
-                self.port.retry_later(self.clock.now());
+                tracing::debug!("{}", ReopenError::Recover(e));
+                self.port.recovery_failed(self.clock.now());
             }
         }
     }

@@ -38,6 +38,8 @@ struct Lost {
     which: Option<String>,
     next_try: Instant,
     detail: String,
+    /// When it was opened again, the arm still to recover on it.
+    reopened: Option<Instant>,
 }
 
 /// The bus and what keeps it.
@@ -122,6 +124,7 @@ impl<B: ServoBus> Port<B> {
             which: which.map(str::to_owned),
             next_try: now + RETRY_EVERY,
             detail,
+            reopened: None,
         });
         self.fault()
     }
@@ -139,17 +142,40 @@ impl<B: ServoBus> Port<B> {
         self.lost.as_ref().is_some_and(|l| now >= l.next_try)
     }
 
-    /// Open the port again (the arm still to recover on it). The failed one is closed first,
-    /// so its lock is free for this process to take again. The new bus reads as the old one
-    /// did (the read bring-up chose from the same servos).
-    pub fn reopen(&mut self, arm: &Arm) -> Result<(), ReopenError> {
+    /// Open the port again at `now`; the arm is to recover on it from the next tick on, with
+    /// that tick's time to itself (opening and bring-up may have spent this one's), each tick
+    /// for a [`RETRY_EVERY`] (see [`Port::recovery_failed`]). The failed one
+    /// is closed first, so its lock is free for this process to take again. The new bus reads
+    /// as the old one did (the read bring-up chose from the same servos).
+    pub fn reopen(&mut self, arm: &Arm, now: Instant) -> Result<(), ReopenError> {
         let read = self.bus.read_kind();
         self.bus.close();
         self.bus = (self.opener)(arm)?;
         if let Err(e) = self.bus.set_read_kind(read) {
             tracing::warn!(%read, "the reopened port keeps Sync Read: {e}");
         }
+        if let Some(lost) = self.lost.as_mut() {
+            lost.reopened = Some(now);
+            lost.next_try = now;
+        }
         Ok(())
+    }
+
+    /// The port was opened again and the arm is still to recover on it.
+    pub fn reopened(&self) -> bool {
+        self.lost.as_ref().is_some_and(|l| l.reopened.is_some())
+    }
+
+    /// The recovery on the reopened port failed at `now` (a busy machine can leave a tick too
+    /// little time for it): tried again on the next tick, until a [`RETRY_EVERY`] after the
+    /// opening; then the port is opened afresh.
+    pub fn recovery_failed(&mut self, now: Instant) {
+        if let Some(lost) = self.lost.as_mut() {
+            lost.next_try = now;
+            if lost.reopened.is_some_and(|at| now >= at + RETRY_EVERY) {
+                lost.reopened = None;
+            }
+        }
     }
 
     /// The port is back: the fault's clearing to report.
@@ -166,6 +192,7 @@ impl<B: ServoBus> Port<B> {
     pub fn retry_later(&mut self, now: Instant) {
         if let Some(lost) = self.lost.as_mut() {
             lost.next_try = now + RETRY_EVERY;
+            lost.reopened = None;
         }
     }
 

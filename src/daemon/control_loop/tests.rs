@@ -82,6 +82,8 @@ struct Wire {
     /// A Sync Write of this register with this value silences this servo once it has taken
     /// it: a servo that drops off the bus in the middle of a sequence of writes.
     mute_on: Option<(Register, i64, u8)>,
+    /// What opening the port again costs on the clock (the adapter's enumeration, bring-up).
+    open_cost: Duration,
 }
 
 /// An in-memory chain of servos whose motors reach every goal at once. Clones share it; the
@@ -321,9 +323,14 @@ impl Rig {
             servo_ports: Vec::new(),
             arm,
             opener: Box::new(move |arm| {
-                if reopen.wire().port_gone {
+                let w = reopen.wire();
+                if let Some(c) = &w.clock {
+                    c.advance(w.open_cost);
+                }
+                if w.port_gone {
                     return Err(ReopenError::NoPath);
                 }
+                drop(w);
                 Ok(arm.limited(reopen.clone(), LimitPolicy::Clamp))
             }),
             clock: ManualClock::new(),
@@ -625,6 +632,62 @@ fn an_estop_while_the_port_is_lost_stays_latched_when_the_port_comes_back() {
     rig.command(LoopCmd::Reset).unwrap();
     assert_eq!(rig.status().state, State::Holding);
     assert!(rig.status().torque);
+}
+
+#[test]
+fn a_reopening_that_takes_its_whole_tick_leaves_the_recovery_to_the_next() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    let lost = rig.status().tick;
+    rig.bus.wire().port_gone = false;
+    // Opening takes longer than a period: nothing of that tick is left for the recovery.
+    rig.bus.wire().open_cost = 15 * MS;
+    let mut cleared = None;
+    for _ in 0..400 {
+        rig.ticks(1);
+        let events = rig.events();
+        if let Some(c) = fault_events(&events, FaultChange::Cleared).first() {
+            assert_eq!(c.1, FaultKind::Port);
+            cleared = Some(rig.status().tick);
+            break;
+        }
+    }
+    let cleared = cleared.expect("the port came back");
+    // Opened on the first try, a second after the loss (the opening overran: one tick fewer
+    // in that second), and recovered on the tick after.
+    assert!(
+        cleared - lost <= 102,
+        "cleared {} ticks after the loss",
+        cleared - lost
+    );
+    let s = rig.status();
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert_eq!(s.state, State::Holding);
+}
+
+#[test]
+fn the_recovery_on_a_reopened_port_is_tried_each_tick_for_a_second() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    let lost = rig.status().tick;
+    // The port comes back with servo 3 not answering yet: opened on the first try, a second
+    // after the loss, the arm cannot recover on it.
+    rig.bus.wire().port_gone = false;
+    rig.bus.servo(3, |s| s.silent = true);
+    rig.ticks(130);
+    assert_eq!(rig.status().faults[0].kind, FaultKind::Port);
+    rig.events();
+    rig.bus.servo(3, |s| s.silent = false);
+    rig.ticks(1);
+    let cleared = fault_events(&rig.events(), FaultChange::Cleared);
+    assert_eq!(cleared.len(), 1, "recovered on the next tick: {cleared:?}");
+    assert_eq!(cleared[0].1, FaultKind::Port);
+    let s = rig.status();
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert_eq!(s.state, State::Holding);
+    assert!(s.tick - lost < 200, "before the next opening");
 }
 
 #[test]
