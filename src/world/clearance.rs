@@ -169,7 +169,7 @@ impl World {
             for k in 0..self.obstacles.len() {
                 if let Some(b) = &best {
                     // The boxes' gap bounds the distance from below.
-                    if self.box_clear_of(k, lo, hi, b.clearance_m + self.link_radius_m) {
+                    if self.box_not_below(k, lo, hi, b.clearance_m + self.link_radius_m) {
                         continue;
                     }
                 }
@@ -180,6 +180,28 @@ impl World {
             }
         }
         best
+    }
+
+    /// [`World::clearance`], the pair `hint` (link, obstacle) looked at first: when it is near
+    /// the least, its clearance bounds the search so tightly that the boxes skip almost every
+    /// other pair ([`World::clearance_below`]). The same least clearance, bit for bit, whatever
+    /// the hint (in a tie, the hint's pair may be the one named). A hint out of range is
+    /// ignored. Allocation-free.
+    pub fn clearance_from(&self, points: &[Vec2], hint: Option<(usize, usize)>) -> Option<Pair> {
+        let valid = |&(link, k): &(usize, usize)| {
+            (1..points.len()).contains(&link) && k < self.obstacles.len()
+        };
+        let Some((link, k)) = hint.filter(valid) else {
+            return self.clearance(points);
+        };
+        let first = self.pair(points, link, k);
+        if first.clearance_m.is_nan() {
+            return self.clearance(points);
+        }
+        Some(
+            self.clearance_below(points, first.clearance_m)
+                .unwrap_or(first),
+        )
     }
 
     /// The pair of least clearance of the pose `points` when that clearance is below `floor_m`,
@@ -228,7 +250,7 @@ impl World {
             *floor = keep_m;
             let (lo, hi) = segment_box(points[link - 1], points[link]);
             for k in 0..self.obstacles.len() {
-                if self.box_clear_of(k, lo, hi, *floor + self.link_radius_m) {
+                if self.box_not_below(k, lo, hi, *floor + self.link_radius_m) {
                     continue;
                 }
                 *floor = floor.min(self.pair(points, link, k).clearance_m);
@@ -242,7 +264,7 @@ impl World {
         for (link, &floor) in (1..points.len()).zip(floors) {
             let (lo, hi) = segment_box(points[link - 1], points[link]);
             for k in 0..self.obstacles.len() {
-                if self.box_clear_of(k, lo, hi, floor + self.link_radius_m) {
+                if self.box_not_below(k, lo, hi, floor + self.link_radius_m) {
                     continue;
                 }
                 let p = self.pair(points, link, k);
@@ -389,6 +411,53 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A disc of radius 0.04 at (`x`, `y`) named `id`.
+    fn disc(id: &str, x: f64, y: f64) -> Obstacle {
+        Obstacle {
+            id: id.into(),
+            shape: Shape::Circle {
+                center: v(x, y),
+                radius_m: 0.04,
+            },
+        }
+    }
+
+    #[test]
+    fn the_deepest_pair_is_found_past_a_link_whose_axis_is_inside_an_obstacle() {
+        // Links of 0.1 along x, radius 0.02. Link 1's axis passes 0.035 from the first disc's
+        // centre (0.005 inside it: clearance -0.025, past the link radius); link 3's passes
+        // through the second disc's centre (clearance -0.04 - 0.02).
+        let w = World::new(
+            0.02,
+            0.01,
+            vec![disc("shallow", 0.05, 0.035), disc("deep", 0.25, 0.0)],
+        )
+        .unwrap();
+        let pts = [v(0.0, 0.0), v(0.1, 0.0), v(0.2, 0.0), v(0.3, 0.0)];
+        let p = w.clearance(&pts).unwrap();
+        assert_eq!((p.link, p.id(&w)), (3, "deep"), "{p:?}");
+        assert!((p.clearance_m + 0.06).abs() < 1e-12, "{}", p.clearance_m);
+        let hinted = w.clearance_from(&pts, Some((1, 0))).unwrap();
+        assert_eq!(hinted.clearance_m, p.clearance_m);
+    }
+
+    #[test]
+    fn a_link_inside_an_obstacle_may_not_go_deeper() {
+        // One link whose axis is 0.03 from a disc's centre (clearance -0.03), then 0.01.
+        let w = World::new(0.02, 0.01, vec![disc("post", 0.05, 0.03)]).unwrap();
+        let now = [v(0.0, 0.0), v(0.1, 0.0)];
+        let mut floors = [0.0];
+        w.link_floors(&now, 0.01, &mut floors);
+        assert!((floors[0] + 0.03).abs() < 1e-12, "{floors:?}");
+        let deeper = [v(0.0, 0.02), v(0.1, 0.02)];
+        let hit = w.below_floors(&deeper, &floors).unwrap();
+        assert_eq!((hit.link, hit.id(&w)), (1, "post"));
+        assert!(hit.clearance_m < floors[0]);
+        // Out of it a little is allowed.
+        let out = [v(0.0, -0.01), v(0.1, -0.01)];
+        assert_eq!(w.below_floors(&out, &floors), None);
     }
 
     #[test]

@@ -519,17 +519,10 @@ impl World {
         pushed
     }
 
-    /// Whether the gap between the box `lo..hi` and obstacle `k`'s box (a lower bound of
-    /// their distance) is at least `d`; compared squared, no root taken.
-    fn box_clear_of(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
-        let (blo, bhi) = self.bounds[k];
-        let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
-        let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
-        d <= 0.0 || dx * dx + dy * dy >= d * d
-    }
-
-    /// Whether no point of the box `lo..hi` can be nearer than `d` to obstacle `k` (signed:
-    /// with `d <= 0`, only a box apart from the obstacle's is).
+    /// Whether no point of the box `lo..hi` can be nearer than `d` to obstacle `k`: the gap
+    /// between the boxes bounds their distance from below (compared squared, no root taken).
+    /// Signed: with `d <= 0` only a box apart from the obstacle's is, since a segment inside
+    /// an obstacle has a negative distance (minus its depth), below any `d`.
     fn box_not_below(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
         let (blo, bhi) = self.bounds[k];
         let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);

@@ -190,7 +190,7 @@ impl World {
     fn leg_clear(&self, a: Vec2, b: Vec2, floor: f64) -> bool {
         let (lo, hi) = (a.inf(&b), a.sup(&b));
         (0..self.obstacles.len()).all(|k| {
-            self.box_clear_of(k, lo, hi, floor)
+            self.box_not_below(k, lo, hi, floor)
                 || self.obstacles[k].shape.segment_clears(a, b, floor)
         })
     }

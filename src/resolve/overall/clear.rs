@@ -365,6 +365,15 @@ impl ClearWork {
         self.prev_k = 0;
     }
 
+    /// The pair (link, obstacle) of least clearance among those the last evaluation found
+    /// near contact, if any.
+    fn nearest(&self) -> Option<(usize, usize)> {
+        self.all
+            .iter()
+            .min_by(|a, b| a.clearance_m.total_cmp(&b.clearance_m))
+            .map(|q| (q.link, q.obstacle))
+    }
+
     /// Whether some pair carried a positive multiplier out of the last solve.
     fn leaning(&self) -> bool {
         self.prev_nu[..self.prev_k].iter().any(|&v| v > 0.0)
@@ -919,11 +928,13 @@ impl Overall {
             .is_some_and(|w| !w.obstacles().is_empty())
     }
 
-    /// The exact least clearance of `pose` (obstacles present).
+    /// The exact least clearance of `pose` (obstacles present), over every pair of the world;
+    /// the last evaluation's nearest pair looked at first, as a bound.
     fn least_clearance(&mut self, world: &World, chain: &Chain, pose: &[f64]) -> f64 {
         chain.points_into(pose, &mut self.clear.pts);
+        let hint = self.clear.nearest();
         world
-            .clearance(&self.clear.pts)
+            .clearance_from(&self.clear.pts, hint)
             .map_or(f64::INFINITY, |q| q.clearance_m)
     }
 

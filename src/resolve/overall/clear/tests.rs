@@ -427,3 +427,26 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The least clearance with a hint, whatever the hint (near the least, far from it, out of
+    /// range), is the whole world's, bit for bit.
+    #[test]
+    fn a_hinted_clearance_is_the_whole_worlds(
+        seed in 0u64..1000,
+        count in 1usize..=12,
+        link in 0usize..=12,
+        obstacle in 0usize..=13,
+    ) {
+        let (chain, theta, _, world) = random_problem(seed, 10, count);
+        let pts = chain.points(&theta);
+        let whole = world.clearance(&pts).map(|q| q.clearance_m);
+        let hinted = world.clearance_from(&pts, Some((link, obstacle)));
+        prop_assert_eq!(hinted.map(|q| q.clearance_m), whole);
+        let nearest = world.clearance(&pts).map(|q| (q.link, q.obstacle));
+        let from_nearest = world.clearance_from(&pts, nearest).map(|q| q.clearance_m);
+        prop_assert_eq!(from_nearest, whole);
+    }
+}
