@@ -10,7 +10,9 @@ use crate::world_support;
 use std::f64::consts::PI;
 
 use snakectl::chain::{Chain, Vec2};
-use snakectl::control::{Activity, Command, Controller, Finish, Limits, Refused};
+use snakectl::control::{
+    Activity, Command, Controller, Finish, Limits, Refused, CLEARANCE_ROUNDOFF_M,
+};
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape, World};
 use world_support::segment_distance;
@@ -235,6 +237,59 @@ fn an_obstacle_put_onto_the_arm_holds_it_and_no_link_gets_closer() {
             );
         }
         before = now;
+    }
+}
+
+#[test]
+fn a_link_whose_axis_is_inside_an_obstacle_never_goes_deeper() {
+    // The box off the centre of link 6, its axis inside it (depth 0.012 past the link's own
+    // radius): a link can get deeper into it, towards its centre. Per link, its clearance to
+    // the box may grow but never shrink (beyond the round-off a tick is allowed), whichever
+    // way the tip is sent.
+    let p = chain().points(&home());
+    let (a, b) = (p[5], p[6]);
+    let normal = Vec2::new(a.y - b.y, b.x - a.x).normalize();
+    for (strategy, side) in [
+        (Strategy::Overall, -1.0),
+        (Strategy::Overall, 1.0),
+        (Strategy::Sequential, -1.0),
+        (Strategy::Sequential, 1.0),
+    ] {
+        for v in [(0.05, 0.05), (0.05, -0.05), (-0.05, 0.05), (-0.05, -0.05)] {
+            let centre = (a + b) * 0.5 + normal * (0.008 * side);
+            let w = world(vec![circle("box", centre.x, centre.y, 0.02)]);
+            let mut c = controller(strategy, &home());
+            let nc = c.set_world(w.clone()).expect("the arm is not clear");
+            assert_eq!(nc.link, 6);
+            assert!(nc.clearance_m < -LINK_RADIUS, "{}", nc.clearance_m);
+            let links = |theta: &[f64]| -> Vec<f64> {
+                let q = chain().points(theta);
+                (1..q.len())
+                    .map(|l| {
+                        segment_distance(q[l - 1], q[l], &w.obstacles()[0].shape) - LINK_RADIUS
+                    })
+                    .collect()
+            };
+            let mut before = links(c.theta());
+            for k in 0..200 {
+                if k % 20 == 0 {
+                    let _ = c.command(Command::Velocity {
+                        v: Vec2::new(v.0, v.1),
+                    });
+                }
+                c.tick(0.01);
+                let now = links(c.theta());
+                for (l, (was, is)) in before.iter().zip(&now).enumerate() {
+                    assert!(
+                        *is >= was.min(KEEP) - CLEARANCE_ROUNDOFF_M - 1e-15,
+                        "{strategy:?}, side {side}, velocity {v:?}, tick {k}: link {} from {was} \
+                         to {is}",
+                        l + 1
+                    );
+                }
+                before = now;
+            }
+        }
     }
 }
 
