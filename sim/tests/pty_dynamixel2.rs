@@ -162,6 +162,7 @@ fn every_instruction_round_trips() {
     again(|| bus.action(3)).expect("unicast action");
     assert_eq!(again(|| bus.read_u8(3, addr::LED)).expect("read").data, 1);
 
+    let stats = handle.with_sim(|s| s.stats());
     bus.sync_write_u32(
         addr::GOAL_POSITION,
         [1u8, 2, 3].map(|id| SyncWriteData {
@@ -170,6 +171,8 @@ fn every_instruction_round_trips() {
         }),
     )
     .expect("sync write");
+    // It has no reply: taken once parsed, before the Sync Read counts the packets after it.
+    assert_eq!(replies_since(&handle, stats, 1), 0);
     assert_eq!(
         sync_read_u32(&handle, &mut bus, &[3, 1, 2], addr::GOAL_POSITION),
         [(3, 300), (1, 100), (2, 200)]
