@@ -324,14 +324,20 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// After a fault: tripped Bus Watchdogs cleared (goal := present, re-armed), goals := the
     /// measured pose, torque on again where it should be (never for a servo held for a power
-    /// loss) or off where it should be off. Returns the servos whose watchdog had fired. Every
-    /// exchange within this tick.
+    /// loss) or off where it should be off. Returns the servos whose watchdog had fired since
+    /// the last recovery that completed. Every exchange within this tick.
     pub(super) fn recover(&mut self) -> Result<Vec<u8>, String> {
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         let watchdogs = self
             .arm
             .recover_watchdog(self.port.bus(), &within, &mut self.unarmed)
             .map_err(|e| e.to_string())?;
+        // Reported with the recovery that completes, when a later step fails this one.
+        for id in watchdogs {
+            if !self.rearmed.contains(&id) {
+                self.rearmed.push(id);
+            }
+        }
         self.measure_pose()?;
         if self.supervisor.torque() {
             let skip = self.health.power_lost();
@@ -350,7 +356,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.recover_after = None;
         self.health.forgive();
         tracing::info!("recovered: holding the measured pose");
-        Ok(watchdogs)
+        Ok(std::mem::take(&mut self.rearmed))
     }
 
     /// The measured pose (one Sync Read of every position, its wait within this tick), each

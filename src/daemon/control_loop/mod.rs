@@ -301,6 +301,9 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     /// Servos whose Bus Watchdog a recovery cut short left cleared (see
     /// [`Arm::recover_watchdog`]): a 0 there is not taken for a power loss.
     unarmed: Vec<u8>,
+    /// Servos whose fired Bus Watchdog a recovery cleared and armed again, that recovery
+    /// failing at a later step: named by the recovery that completes.
+    rearmed: Vec<u8>,
     /// Until when the fault path of this tick may wait on the bus (see [`Cycle::within`]).
     fault_until: Instant,
     /// Servos a torque off did not reach: switched off once they answer a read.
@@ -470,6 +473,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             tick: 0,
             recover_after: None,
             unarmed: Vec::new(),
+            rearmed: Vec::new(),
             fault_until: now,
             torque_off_pending: Vec::new(),
             not_clear: false,
