@@ -451,7 +451,11 @@ fn a_tripped_watchdog_is_found_and_recovered_without_a_jump() {
         .collect();
 
     let recovered = arm
-        .recover_watchdog(&mut limited(&mut rig, &arm), &within(), &mut Vec::new())
+        .recover_watchdog(
+            &mut limited(&mut rig, &arm),
+            &within(),
+            &mut Default::default(),
+        )
         .unwrap();
     assert_eq!(recovered, arm.ids());
     for (&id, present) in arm.ids().iter().zip(&before) {

@@ -37,6 +37,7 @@
 //! stays on at the last goal; the watchdog, if armed, stops the servos once the bus goes
 //! quiet). Either way a servo it could not reach is named: its state is unknown.
 
+use std::collections::BTreeSet;
 use std::fmt;
 use std::time::{Duration, Instant};
 
@@ -1144,7 +1145,7 @@ impl Arm {
         &self,
         bus: &mut Limited<B>,
         within: &Within<'_>,
-        unarmed: &mut Vec<u8>,
+        unarmed: &mut BTreeSet<u8>,
     ) -> Result<Vec<u8>, BringUpError> {
         let tripped = self.tripped_watchdogs(bus, within)?;
         unarmed.retain(|id| tripped.contains(id));
@@ -1159,11 +1160,7 @@ impl Arm {
                 break;
             }
             let zeros: Vec<(u8, i64)> = pending.iter().map(|&id| (id, 0)).collect();
-            for &id in &pending {
-                if !unarmed.contains(&id) {
-                    unarmed.push(id);
-                }
-            }
+            unarmed.extend(&pending);
             bus.sync_write(Register::BusWatchdog, &zeros)
                 .map_err(step("clearing the bus watchdog"))?;
             let present = self
@@ -1196,7 +1193,9 @@ impl Arm {
                     watchdog == Some(armed) && goal_now == Some(goal.1)
                 });
                 match held {
-                    Ok(true) => unarmed.retain(|&x| x != id),
+                    Ok(true) => {
+                        unarmed.remove(&id);
+                    }
                     Ok(false) => {
                         last = Some(ServoError::Malformed {
                             id,
@@ -1244,7 +1243,7 @@ impl Arm {
         bus: &mut B,
         id: u8,
         torque: bool,
-        unarmed: &[u8],
+        unarmed: &BTreeSet<u8>,
         within: &Within<'_>,
     ) -> Result<Option<String>, ServoError> {
         let mut retry = Retry::default();

@@ -352,11 +352,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if let Some(why) = self.pose_unreadable() {
             return refuse(Code::Fault, format!("reset: {why}; the latch stays"));
         }
-        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
-        if let Err(err) = self
-            .arm
-            .recover_watchdog(self.port.bus(), &within, &mut self.unarmed)
-        {
+        if let Err(err) = self.clear_watchdogs() {
             return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
         }
         if let Err(err) = self.measure_pose() {
@@ -381,7 +377,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         self.sync_faulted();
         self.supervisor.reset();
-        tracing::info!("reset: holding the measured pose");
+        // A reset that completes is a recovery that completes: the watchdogs it (or a
+        // recovery that failed before it) re-armed are told here, not by a later recovery.
+        let watchdogs = std::mem::take(&mut self.rearmed);
+        if watchdogs.is_empty() {
+            tracing::info!("reset: holding the measured pose");
+        } else {
+            tracing::info!(
+                "reset: holding the measured pose; bus watchdogs cleared on {}",
+                self.name_servos(&watchdogs.into_iter().collect::<Vec<_>>())
+            );
+        }
         self.event(None, e.id.clone(), |tip| What::Reset { tip });
         self.ok()
     }

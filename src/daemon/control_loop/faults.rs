@@ -327,17 +327,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// loss) or off where it should be off. Returns the servos whose watchdog had fired since
     /// the last recovery that completed. Every exchange within this tick.
     pub(super) fn recover(&mut self) -> Result<Vec<u8>, String> {
-        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
-        let watchdogs = self
-            .arm
-            .recover_watchdog(self.port.bus(), &within, &mut self.unarmed)
-            .map_err(|e| e.to_string())?;
-        // Reported with the recovery that completes, when a later step fails this one.
-        for id in watchdogs {
-            if !self.rearmed.contains(&id) {
-                self.rearmed.push(id);
-            }
-        }
+        self.clear_watchdogs().map_err(|e| e.to_string())?;
         self.measure_pose()?;
         if self.supervisor.torque() {
             let skip = self.health.power_lost();
@@ -356,7 +346,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.recover_after = None;
         self.health.forgive();
         tracing::info!("recovered: holding the measured pose");
-        Ok(std::mem::take(&mut self.rearmed))
+        Ok(std::mem::take(&mut self.rearmed).into_iter().collect())
+    }
+
+    /// Every fired Bus Watchdog cleared, goal := present, armed again (see
+    /// [`Arm::recover_watchdog`]), within this tick. The servos it re-armed join `rearmed`:
+    /// when a later step of the recovery fails, the one that completes names them.
+    pub(super) fn clear_watchdogs(&mut self) -> Result<(), arm::BringUpError> {
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        let fired = self
+            .arm
+            .recover_watchdog(self.port.bus(), &within, &mut self.unarmed)?;
+        self.rearmed.extend(fired);
+        Ok(())
     }
 
     /// The measured pose (one Sync Read of every position, its wait within this tick), each
@@ -433,7 +435,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let tripped = self.arm.tripped_watchdogs(self.port.bus(), &within);
         self.port.contact(self.clock.now());
         let tripped = match tripped {
-            Ok(t) if t.is_empty() => {
+            // None fired, or those that did were re-armed by a recovery that failed past
+            // that step (completed below, naming them).
+            Ok(t) if t.is_empty() && self.rearmed.is_empty() => {
                 self.port.stall_handled();
                 return;
             }
@@ -458,9 +462,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let ended = self.ledger.interrupt(StopReason::Fault);
         self.owe(ended);
         match self.recover() {
-            Ok(_) => {
+            Ok(watchdogs) => {
                 self.port.stall_handled();
-                for id in tripped {
+                for id in watchdogs {
                     if let Some(i) = self.ids.iter().position(|&x| x == id) {
                         let info = self
                             .health

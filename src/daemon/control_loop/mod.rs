@@ -65,7 +65,7 @@ pub mod supervisor;
 #[cfg(test)]
 mod tests;
 
-use std::collections::VecDeque;
+use std::collections::{BTreeSet, VecDeque};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -300,10 +300,10 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     recover_after: Option<Instant>,
     /// Servos whose Bus Watchdog a recovery cut short left cleared (see
     /// [`Arm::recover_watchdog`]): a 0 there is not taken for a power loss.
-    unarmed: Vec<u8>,
+    unarmed: BTreeSet<u8>,
     /// Servos whose fired Bus Watchdog a recovery cleared and armed again, that recovery
-    /// failing at a later step: named by the recovery that completes.
-    rearmed: Vec<u8>,
+    /// failing at a later step: named by the recovery (or `reset`) that completes.
+    rearmed: BTreeSet<u8>,
     /// Until when the fault path of this tick may wait on the bus (see [`Cycle::within`]).
     fault_until: Instant,
     /// Servos a torque off did not reach: switched off once they answer a read.
@@ -472,8 +472,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             ids,
             tick: 0,
             recover_after: None,
-            unarmed: Vec::new(),
-            rearmed: Vec::new(),
+            unarmed: BTreeSet::new(),
+            rearmed: BTreeSet::new(),
             fault_until: now,
             torque_off_pending: Vec::new(),
             not_clear: false,

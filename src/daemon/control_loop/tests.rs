@@ -79,9 +79,10 @@ struct Wire {
     clock: Option<ManualClock>,
     /// What a Sync Read costs on that clock, as the wire time of a real port.
     read_cost: Duration,
-    /// A Sync Write of this register with this value silences this servo once it has taken
-    /// it: a servo that drops off the bus in the middle of a sequence of writes.
-    mute_on: Option<(Register, i64, u8)>,
+    /// A Sync Write of this register with this value, once the first servo has taken it,
+    /// silences the second: a servo that drops off the bus in the middle of a sequence of
+    /// writes (the same servo twice), or another one at that moment.
+    mute_on: Option<(Register, i64, u8, u8)>,
     /// What opening the port again costs on the clock (the adapter's enumeration, bring-up).
     open_cost: Duration,
 }
@@ -239,8 +240,10 @@ impl ServoBus for MemoryBus {
         for &(id, v) in values {
             if let Some(s) = w.servos.get_mut(&id).filter(|s| !s.silent) {
                 s.set(r, v);
-                if mute_on == Some((r, v, id)) {
-                    s.silent = true;
+                if let Some((_, _, _, muted)) = mute_on.filter(|m| (m.0, m.1, m.2) == (r, v, id)) {
+                    if let Some(m) = w.servos.get_mut(&muted) {
+                        m.silent = true;
+                    }
                 }
             }
         }
@@ -521,7 +524,7 @@ fn cut_short_watchdog_recovery(rig: &mut Rig) -> i64 {
         s.set(Register::BusWatchdog, -1);
         s.silent = false;
     });
-    rig.bus.wire().mute_on = Some((Register::BusWatchdog, 0, 5));
+    rig.bus.wire().mute_on = Some((Register::BusWatchdog, 0, 5, 5));
     rig.ticks(1);
     assert_eq!(rig.bus.wire().servos[&5].get(Register::BusWatchdog), 0);
     assert_eq!(rig.status().state, State::Fault, "the recovery failed");
@@ -1143,6 +1146,53 @@ fn a_stall_whose_watchdogs_cannot_be_read_at_once_is_recovered_on_a_later_tick()
         assert!(rig.bus.wire().servos[&id].get(Register::BusWatchdog) > 0);
     }
     assert_eq!(rig.status().state, State::Holding);
+}
+
+#[test]
+fn a_stall_recovery_cut_short_after_its_watchdog_step_is_completed_and_names_them() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(2);
+    rig.events();
+    let armed = rig.bus.wire().servos[&1].get(Register::BusWatchdog);
+    rig.clock.advance(300 * MS);
+    for id in [2, 7] {
+        rig.bus.servo(id, |s| s.set(Register::BusWatchdog, -1));
+    }
+    // Servo 9 drops off as servo 7's watchdog is armed again: the recovery then fails at
+    // reading the pose, its watchdog step done.
+    rig.bus.wire().mute_on = Some((Register::BusWatchdog, armed, 7, 9));
+    rig.ticks(1);
+    rig.bus.wire().mute_on = None;
+    rig.bus.servo(9, |s| s.silent = false);
+    assert!(fault_events(&rig.events(), FaultChange::Recovered).is_empty());
+    assert!(rig.bus.wire().servos[&7].get(Register::BusWatchdog) > 0);
+    // No watchdog reads fired now, yet the recovery is completed, naming the two.
+    rig.ticks(2);
+    let recovered = fault_events(&rig.events(), FaultChange::Recovered);
+    assert_eq!(
+        recovered.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(),
+        vec![
+            (Some(2), FaultKind::Watchdog),
+            (Some(7), FaultKind::Watchdog)
+        ]
+    );
+    assert_eq!(rig.status().state, State::Holding);
+    // A later recovery names no watchdog of that stall.
+    declare_silent(&mut rig, 4);
+    rig.bus.servo(4, |s| s.silent = false);
+    rig.ticks(3);
+    let details: Vec<String> = rig
+        .events()
+        .iter()
+        .filter_map(|e| match &e.what {
+            What::Fault { reason, fault, .. } if *reason == FaultChange::Cleared => {
+                Some(fault.detail.clone())
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(details.len(), 1, "{details:?}");
+    assert!(!details[0].contains("Watchdog"), "{}", details[0]);
 }
 
 #[test]
