@@ -35,8 +35,9 @@
 //!    still cross at its end and are caught then, unless the arm's two free ends (the tip and
 //!    the base end of link 1) slip past each other within one tick's travel.
 //! 5. **Obstacles** ([`Controller::set_world`]). No goal pose loses clearance: each link keeps
-//!    its floor, the world's `clearance_m` (or, for a link not clear when the world was set,
-//!    its clearance then, so that it may only get clearer), to [`CLEARANCE_ROUNDOFF_M`]; with
+//!    its floor, the world's `clearance_m` (or, for a link not clear when the world was set
+//!    or the pose reseeded, the best clearance it has had since, so that it may only get
+//!    clearer), to [`CLEARANCE_ROUNDOFF_M`] (lost once: a floor never sinks); with
 //!    the joints' resolutions set ([`Controller::set_joint_resolution`]) the pose rounded to
 //!    them (what the servos receive, in whole ticks) keeps it too, and the controller plans
 //!    with the clearance raised by the most that rounding can move the arm. The check runs on every
@@ -447,9 +448,12 @@ struct Guard {
     scratch: Vec<Vec2>,
     /// Two links of the commanded pose are in contact.
     tangled: bool,
-    /// Per link, the least clearance a new pose must keep (less round-off):
-    /// [`World::link_floors`] of the commanded pose.
+    /// Per link, the least clearance a new pose must keep: `best` less round-off.
     floors: Vec<f64>,
+    /// Per link, the best of [`World::link_floors`] of the commanded poses since the floors
+    /// were last anchored ([`Guard::anchor`]): a floor never sinks, so the round-off a pose
+    /// may lose against it is lost once, not a tick at a time.
+    best: Vec<f64>,
     /// The commanded pose keeps the world's clearance on every link.
     clear: bool,
     /// A pose rounded to the joints' resolutions.
@@ -464,14 +468,22 @@ impl Guard {
             scratch: vec![Vec2::zeros(); n + 1],
             tangled: false,
             floors: vec![f64::NEG_INFINITY; n],
+            best: vec![f64::NEG_INFINITY; n],
             clear: true,
             rounded: vec![0.0; n],
         };
-        g.commit(chain, &World::default(), theta);
+        g.anchor(chain, &World::default(), theta);
         g
     }
 
-    /// The commanded pose is now `theta`; returns its tip.
+    /// The commanded pose is now `theta`, set from outside the checked ticks (a measured pose,
+    /// a new world): the floors start again from its clearance. Returns its tip.
+    fn anchor(&mut self, chain: &Chain, world: &World, theta: &[f64]) -> Vec2 {
+        self.best.fill(f64::NEG_INFINITY);
+        self.commit(chain, world, theta)
+    }
+
+    /// The commanded pose is now `theta`, a tick's checked step from the last; returns its tip.
     fn commit(&mut self, chain: &Chain, world: &World, theta: &[f64]) -> Vec2 {
         chain.points_into(theta, &mut self.now);
         self.tangled = Chain::self_intersects(&self.now).is_some();
@@ -481,8 +493,9 @@ impl Guard {
             let keep = world.clearance_m();
             world.link_floors(&self.now, keep, &mut self.floors);
             self.clear = self.floors.iter().all(|&f| f >= keep);
-            for f in &mut self.floors {
-                *f -= CLEARANCE_ROUNDOFF_M;
+            for (f, best) in self.floors.iter_mut().zip(&mut self.best) {
+                *best = best.max(*f);
+                *f = *best - CLEARANCE_ROUNDOFF_M;
             }
         }
         self.now[chain.len()]
@@ -882,7 +895,7 @@ impl Controller {
     pub fn reseed(&mut self, theta: &[f64]) -> Result<(), Refused> {
         check_pose(&self.chain, theta, "measured joint angle")?;
         self.theta.copy_from_slice(theta);
-        self.tip = self.guard.commit(&self.chain, &self.world, theta);
+        self.tip = self.guard.anchor(&self.chain, &self.world, theta);
         self.overall.reset();
         self.motion.hold_at(self.tip, &self.theta);
         Ok(())
@@ -940,7 +953,7 @@ impl Controller {
         self.plan = self.planned_world();
         let solver = (!self.plan.obstacles().is_empty()).then(|| self.plan.clone());
         self.overall.set_world(solver);
-        self.guard.commit(&self.chain, &self.world, &self.theta);
+        self.guard.anchor(&self.chain, &self.world, &self.theta);
         let not_clear = self.not_clear();
         if not_clear.is_some() && self.motion.activity() == Activity::Moving {
             self.motion.stop();
