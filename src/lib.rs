@@ -54,6 +54,8 @@
 //! - [`daemon`]: `snakectl run`: the fixed-rate loop on its own thread (held as parts: port,
 //!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
 //!   between them.
+//! - [`beside`]: the threads beside the loop (recorder, Foxglove view, Zenoh bridge) run at
+//!   a lower priority than it.
 //! - [`record`]: recordings of a run as MCAP (ROS 2 messages, telemetry and events as JSON,
 //!   the config): the loop's bounded hand-over, the recorder's thread, reading one back.
 //! - [`client`]: a blocking client of the daemon's socket (requests, typed replies, events, the
@@ -84,6 +86,7 @@ pub mod config;
 pub mod connect;
 
 // The daemon and its clients.
+pub mod beside;
 pub mod client;
 pub mod daemon;
 pub mod protocol;

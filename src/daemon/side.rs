@@ -53,6 +53,7 @@ impl Side {
         let thread = std::thread::Builder::new()
             .name(name.into())
             .spawn(move || {
+                crate::beside::step_aside();
                 body(ends);
                 let _ = done_tx.send(());
             })

@@ -228,7 +228,10 @@ impl Recorder {
         let thread_notes = notes.clone();
         let thread = std::thread::Builder::new()
             .name("snakectl-record".into())
-            .spawn(move || record(sink, &drain, &setup, &thread_notes))
+            .spawn(move || {
+                crate::beside::step_aside();
+                record(sink, &drain, &setup, &thread_notes)
+            })
             .map_err(|e| RecordError::Thread(e.to_string()))?;
         Ok((
             Recorder {
