@@ -12,6 +12,8 @@ use std::collections::BTreeMap;
 use std::net::TcpListener;
 use std::time::{Duration, Instant};
 
+#[cfg(target_os = "linux")]
+use daemon_support::threads_at;
 use daemon_support::{dist, floats, sim_config, xy, Daemon, DEADLINE};
 use foxglove::schemas::SceneUpdate;
 use foxglove::Decode;
@@ -532,25 +534,6 @@ fn beyond_max_clients_a_client_is_answered_503_until_one_leaves() {
     daemon.stop().unwrap();
 }
 
-/// The nice value of each of this process's threads, by name (Linux: `/proc/self/task`).
-#[cfg(target_os = "linux")]
-fn thread_nice() -> BTreeMap<String, Vec<i64>> {
-    let mut out: BTreeMap<String, Vec<i64>> = BTreeMap::new();
-    for task in std::fs::read_dir("/proc/self/task").unwrap() {
-        let dir = task.unwrap().path();
-        let (Ok(comm), Ok(stat)) = (
-            std::fs::read_to_string(dir.join("comm")),
-            std::fs::read_to_string(dir.join("stat")),
-        ) else {
-            continue; // the thread ended meanwhile
-        };
-        out.entry(comm.trim().to_string())
-            .or_default()
-            .push(nice_in(&stat));
-    }
-    out
-}
-
 #[cfg(target_os = "linux")]
 #[test]
 fn the_view_and_the_recorder_run_below_the_loop() {
@@ -563,24 +546,7 @@ fn the_view_and_the_recorder_run_below_the_loop() {
         )),
     );
     daemon.client().status();
-    let threads = thread_nice();
-    let ours = nice_in(&std::fs::read_to_string("/proc/thread-self/stat").unwrap());
-    // Thread names are cut to 15 bytes; the other tests' daemons may run too.
-    let at = |name: &str, nice: i64| {
-        let found = &threads[name];
-        assert!(found.iter().all(|&n| n == nice), "{name}: {threads:?}");
-    };
-    at("snakectl-loop", ours);
-    let lower = (ours + i64::from(snakectl::beside::STEP_ASIDE_NICE)).min(19);
-    at("snakectl-record", lower);
-    at("snakectl-foxglo", lower);
+    // Thread names are cut to 15 bytes.
+    threads_at(&["snakectl-loop"], &["snakectl-record", "snakectl-foxglo"]);
     daemon.stop().unwrap();
-}
-
-/// The nice value in a thread's `stat` line: its 19th field (the 17th after the name, which is
-/// in brackets and may hold spaces).
-#[cfg(target_os = "linux")]
-fn nice_in(stat: &str) -> i64 {
-    let after = &stat[stat.rfind(')').unwrap() + 2..];
-    after.split(' ').nth(16).unwrap().parse().unwrap()
 }

@@ -422,6 +422,17 @@ fn fleet_with_nothing_up_says_so() {
     );
 }
 
+#[cfg(target_os = "linux")]
+#[test]
+fn the_bridge_runs_below_the_loop() {
+    let (daemon, _) = daemon("aside", false);
+    // Thread names are cut to 15 bytes: the bridge's thread, its runtime's worker. (Zenoh's
+    // own threads, which it starts from there, inherit it; the other tests' peers, at the
+    // test's priority, have the same names.)
+    daemon_support::threads_at(&["snakectl-loop"], &["snakectl-zenoh", "snakectl-zenoh-"]);
+    daemon.stop().unwrap();
+}
+
 #[test]
 fn start_up_stops_before_the_arm_moves_when_the_zenoh_endpoint_is_taken() {
     let taken = TcpListener::bind("127.0.0.1:0").unwrap();

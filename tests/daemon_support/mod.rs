@@ -367,3 +367,56 @@ pub fn rounding_bound(config: &Config, theta: &[f64]) -> f64 {
         .map(|p| (tip - p).norm() * half_tick)
         .sum()
 }
+
+/// The nice value of each of this process's threads, by name (cut to 15 bytes, as the kernel
+/// keeps it; Linux: `/proc/self/task`).
+#[cfg(target_os = "linux")]
+pub fn thread_nice() -> std::collections::BTreeMap<String, Vec<i64>> {
+    let mut out: std::collections::BTreeMap<String, Vec<i64>> = Default::default();
+    for task in std::fs::read_dir("/proc/self/task").unwrap() {
+        let dir = task.unwrap().path();
+        let (Ok(comm), Ok(stat)) = (
+            std::fs::read_to_string(dir.join("comm")),
+            std::fs::read_to_string(dir.join("stat")),
+        ) else {
+            continue; // the thread ended meanwhile
+        };
+        out.entry(comm.trim().to_string())
+            .or_default()
+            .push(nice_in(&stat));
+    }
+    out
+}
+
+/// The threads named `loop_side` run at the calling thread's priority, and those named
+/// `beside` at [`snakectl::beside::STEP_ASIDE_NICE`] below it: every thread of each name (the
+/// other tests' daemons may run too), and at least one.
+#[cfg(target_os = "linux")]
+pub fn threads_at(loop_side: &[&str], beside: &[&str]) {
+    let threads = thread_nice();
+    let ours = own_nice();
+    let lower = (ours + i64::from(snakectl::beside::STEP_ASIDE_NICE)).min(19);
+    for (names, nice) in [(loop_side, ours), (beside, lower)] {
+        for name in names {
+            let found = threads.get(*name).map_or(&[][..], |v| &v[..]);
+            assert!(
+                !found.is_empty() && found.iter().all(|&n| n == nice),
+                "{name} not all at {nice}: {threads:?}"
+            );
+        }
+    }
+}
+
+/// The calling thread's nice value.
+#[cfg(target_os = "linux")]
+pub fn own_nice() -> i64 {
+    nice_in(&std::fs::read_to_string("/proc/thread-self/stat").unwrap())
+}
+
+/// The nice value in a thread's `stat` line: its 19th field (the 17th after the name, which is
+/// in brackets and may hold spaces).
+#[cfg(target_os = "linux")]
+fn nice_in(stat: &str) -> i64 {
+    let after = &stat[stat.rfind(')').unwrap() + 2..];
+    after.split(' ').nth(16).unwrap().parse().unwrap()
+}
