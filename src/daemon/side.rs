@@ -50,10 +50,13 @@ impl Side {
             start: start_rx,
             stop: stop_rx,
         };
+        let label = name.to_string();
         let thread = std::thread::Builder::new()
             .name(name.into())
             .spawn(move || {
-                crate::beside::step_aside();
+                if crate::beside::step_aside().is_none() {
+                    tracing::debug!("{label}: runs at the loop's priority (could not lower it)");
+                }
                 body(ends);
                 let _ = done_tx.send(());
             })

@@ -229,7 +229,9 @@ impl Recorder {
         let thread = std::thread::Builder::new()
             .name("snakectl-record".into())
             .spawn(move || {
-                crate::beside::step_aside();
+                if crate::beside::step_aside().is_none() {
+                    tracing::debug!("recorder: runs at the loop's priority (could not lower it)");
+                }
                 record(sink, &drain, &setup, &thread_notes)
             })
             .map_err(|e| RecordError::Thread(e.to_string()))?;

@@ -371,7 +371,7 @@ pub fn rounding_bound(config: &Config, theta: &[f64]) -> f64 {
 /// The nice value of each of this process's threads, by name (cut to 15 bytes, as the kernel
 /// keeps it; Linux: `/proc/self/task`).
 #[cfg(target_os = "linux")]
-pub fn thread_nice() -> std::collections::BTreeMap<String, Vec<i64>> {
+fn thread_nice() -> std::collections::BTreeMap<String, Vec<i64>> {
     let mut out: std::collections::BTreeMap<String, Vec<i64>> = Default::default();
     for task in std::fs::read_dir("/proc/self/task").unwrap() {
         let dir = task.unwrap().path();

@@ -449,10 +449,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 return;
             }
         };
-        tracing::warn!(
-            ?tripped,
-            "the loop stalled {gap:?}: bus watchdogs fired, recovering"
-        );
+        if tripped.is_empty() {
+            tracing::warn!(
+                rearmed = ?self.rearmed,
+                "the loop stalled {gap:?}: completing the recovery of re-armed bus watchdogs"
+            );
+        } else {
+            tracing::warn!(
+                ?tripped,
+                "the loop stalled {gap:?}: bus watchdogs fired, recovering"
+            );
+        }
         let tick = self.tick;
         let detail = format!(
             "the loop stalled {} ms (watchdog {} ms): the Bus Watchdog fired; cleared, goal := present position, re-armed",
