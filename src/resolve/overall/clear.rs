@@ -58,8 +58,8 @@
 use std::ops::ControlFlow;
 
 use super::{
-    half_metric, max_abs_diff, mirror_pose, ElasticStall, Overall, Problem, SplitMix, ARMIJO,
-    MAX_HALVINGS,
+    half_metric, max_abs_diff, mirror_pose, Candidate, ElasticStall, Overall, Podium, Problem,
+    SplitMix, ARMIJO, MAX_HALVINGS,
 };
 use crate::chain::{Chain, Vec2};
 use crate::resolve::Outcome;
@@ -848,28 +848,6 @@ impl ClearWork {
     }
 }
 
-/// What a start of a cold solve among obstacles produced (its pose in the scratch).
-#[derive(Debug, Clone, Copy)]
-struct Found {
-    half_metric: f64,
-    /// Tip error plus the clearance missing, m (ranks answers that are not on target).
-    miss: f64,
-    /// Converged, on target and clear.
-    on_target: bool,
-    mu: [f64; 2],
-}
-
-impl Found {
-    fn beats(&self, other: Option<&Found>) -> bool {
-        match other {
-            None => true,
-            Some(o) if self.on_target != o.on_target => self.on_target,
-            Some(o) if self.on_target => self.half_metric < o.half_metric,
-            Some(o) => self.miss < o.miss,
-        }
-    }
-}
-
 /// The kinds of start of a cold solve among obstacles, in order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum ClearStart {
@@ -1012,19 +990,8 @@ impl Overall {
         self.clear.resize(chain.len(), world.obstacles().len());
         self.start_clipped(&p);
         let mut mu = self.mu;
-        let max_iterations = self.opts.max_iterations;
-        let Overall { w, clear, .. } = self;
-        let l = clear.local(
-            &p,
-            world,
-            &w.lo,
-            &w.hi,
-            &mut w.theta,
-            &mut mu,
-            p.tol,
-            max_iterations,
-        );
-        clear.engaged = clear.leaning();
+        let l = self.clear_local(&p, world, &mut mu);
+        self.clear.engaged = self.clear.leaning();
         let o = self.finish(&p, mu, spent + l.iterations, l.converged, out);
         self.judge(world, chain, out, o)
     }
@@ -1079,7 +1046,7 @@ impl Overall {
         self.clear.free_opt.copy_from_slice(out);
         let free_on_target = free.reachable;
         let mut total = free.iterations;
-        let (mut best, mut second): (Option<Found>, Option<Found>) = (None, None);
+        let mut podium = Podium::default();
         let mut rng = SplitMix(self.opts.seed);
         let randoms = RANDOM_FACTOR * self.opts.random_starts;
         for index in 0..ClearStart::FIXED + randoms {
@@ -1103,7 +1070,11 @@ impl Overall {
                         self.clear_continuation(world, &p, start == ClearStart::PolarPath, &mut mu);
                 }
                 ClearStart::Mirror(rank) => {
-                    let source = if rank == 0 { best } else { second };
+                    let source = if rank == 0 {
+                        podium.best
+                    } else {
+                        podium.second
+                    };
                     if !source.is_some_and(|s| s.on_target) {
                         continue;
                     }
@@ -1126,26 +1097,14 @@ impl Overall {
                         &mut self.w.theta,
                     );
                 }
-                ClearStart::Random => match best.filter(|b| b.on_target) {
+                ClearStart::Random => match podium.best.filter(|b| b.on_target) {
                     Some(b) => self.start_in_ball(&p, (2.0 * b.half_metric).sqrt(), &mut rng),
                     None => self.start_in_box(&p, &mut rng),
                 },
             }
-            self.clear.watch_best =
-                start == ClearStart::Random && best.is_some_and(|b| b.on_target);
-            let max_iterations = self.opts.max_iterations;
-            let Overall { w, clear, .. } = &mut *self;
-            let l = clear.local(
-                &p,
-                world,
-                &w.lo,
-                &w.hi,
-                &mut w.theta,
-                &mut mu,
-                p.tol,
-                max_iterations,
-            );
-            clear.watch_best = false;
+            self.clear.watch_best = start == ClearStart::Random && podium.reached();
+            let l = self.clear_local(&p, world, &mut mu);
+            self.clear.watch_best = false;
             total += l.iterations;
             if l.joined_best {
                 continue;
@@ -1154,35 +1113,17 @@ impl Overall {
             let least = self.least_clearance(world, chain, &theta);
             self.w.theta = theta;
             let clear_enough = least >= world.clearance_m() - CLEAR_SLACK;
-            let found = Found {
+            let found = Candidate {
                 half_metric: half_metric(&self.w.theta, p.theta0),
                 miss: l.tip_error + (world.clearance_m() - least).max(0.0),
                 on_target: l.converged && l.tip_error <= p.tol && clear_enough,
                 mu,
             };
-            let same_as_best = best.is_some_and(|b| {
-                (b.half_metric - found.half_metric).abs()
-                    <= super::SAME_OPTIMUM_METRIC * (1.0 + found.half_metric)
-                    && max_abs_diff(&self.clear.best, &self.w.theta) < super::SAME_OPTIMUM_POSE
-            });
-            if same_as_best {
-                continue;
-            }
-            if found.beats(best.as_ref()) {
-                if best.is_some() {
-                    let (b, s) = (&self.clear.best, &mut self.clear.second);
-                    s.copy_from_slice(b);
-                    second = best;
-                }
-                self.clear.best.copy_from_slice(&self.w.theta);
-                best = Some(found);
-            } else if found.beats(second.as_ref()) {
-                self.clear.second.copy_from_slice(&self.w.theta);
-                second = Some(found);
-            }
+            let clear = &mut self.clear;
+            podium.offer(&self.w.theta, &mut clear.best, &mut clear.second, found);
         }
         self.clear.forget();
-        let Some(b) = best else {
+        let Some(b) = podium.best else {
             self.w.theta.copy_from_slice(&self.clear.free_opt);
             let o = self.finish(&p, [0.0; 2], total, false, out);
             return self.judge(world, chain, out, o);
@@ -1192,19 +1133,9 @@ impl Overall {
         if b.on_target {
             // Once more from the answer (a step or two): its pairs' multipliers, which the
             // next local solve continues from.
-            let max_iterations = self.opts.max_iterations;
-            let Overall { w, clear, .. } = &mut *self;
-            let l = clear.local(
-                &p,
-                world,
-                &w.lo,
-                &w.hi,
-                &mut w.theta,
-                &mut mu,
-                p.tol,
-                max_iterations,
-            );
+            let l = self.clear_local(&p, world, &mut mu);
             total += l.iterations;
+            let Overall { w, clear, .. } = &mut *self;
             if !l.converged || half_metric(&w.theta, p.theta0) > b.half_metric * (1.0 + 1e-12) {
                 w.theta.copy_from_slice(&clear.best);
                 mu = b.mu;
@@ -1231,7 +1162,6 @@ impl Overall {
         let (r1, a1) = ((p.target - b).norm(), super::bearing(p.target - b));
         let da = crate::chain::wrap_angle(a1 - a0);
         let mut iterations = 0;
-        let max_iterations = self.opts.max_iterations;
         for k in 1..=stages {
             let s = k as f64 / (stages + 1) as f64;
             let t = if polar {
@@ -1247,21 +1177,25 @@ impl Overall {
                 stol: super::STAGE_STATIONARITY_TOLERANCE,
                 ..*p
             };
-            let Overall { w, clear, .. } = &mut *self;
-            iterations += clear
-                .local(
-                    &sub,
-                    world,
-                    &w.lo,
-                    &w.hi,
-                    &mut w.theta,
-                    mu,
-                    sub.tol,
-                    max_iterations,
-                )
-                .iterations;
+            iterations += self.clear_local(&sub, world, mu).iterations;
         }
         iterations
+    }
+
+    /// [`ClearWork::local`] of `p` from the iterate in `w.theta`, to `p`'s tip tolerance.
+    fn clear_local(&mut self, p: &Problem, world: &World, mu: &mut [f64; 2]) -> ClearLocal {
+        let max_iterations = self.opts.max_iterations;
+        let Overall { w, clear, .. } = self;
+        clear.local(
+            p,
+            world,
+            &w.lo,
+            &w.hi,
+            &mut w.theta,
+            mu,
+            p.tol,
+            max_iterations,
+        )
     }
 }
 

@@ -696,7 +696,9 @@ impl Schedule {
 #[derive(Debug, Clone, Copy)]
 struct Candidate {
     half_metric: f64,
-    tip_error: f64,
+    /// How far the answer is from what was asked, m: its tip error, plus (among obstacles) the
+    /// clearance it lacks. Ranks the answers that are not on target.
+    miss: f64,
     /// Converged with the tip on target.
     on_target: bool,
     mu: [f64; 2],
@@ -710,7 +712,7 @@ impl Candidate {
             None => true,
             Some(o) if self.on_target != o.on_target => self.on_target,
             Some(o) if self.on_target => self.half_metric < o.half_metric,
-            Some(o) => self.tip_error < o.tip_error,
+            Some(o) => self.miss < o.miss,
         }
     }
 }
@@ -729,26 +731,26 @@ impl Podium {
         self.best.is_some_and(|b| b.on_target)
     }
 
-    /// Ranks the answer `found`, whose pose is `w.theta`; the same optimum as the best is
-    /// dropped.
-    fn offer(&mut self, w: &mut Work, found: Candidate) {
+    /// Ranks the answer `found`, whose pose is `theta`, keeping the poses of the best and the
+    /// second in `best` and `second`; the same optimum as the best is dropped.
+    fn offer(&mut self, theta: &[f64], best: &mut [f64], second: &mut [f64], found: Candidate) {
         let m = found.half_metric;
         let same_as_best = self.best.is_some_and(|b| {
             (b.half_metric - m).abs() <= SAME_OPTIMUM_METRIC * (1.0 + m)
-                && max_abs_diff(&w.best, &w.theta) < SAME_OPTIMUM_POSE
+                && max_abs_diff(best, theta) < SAME_OPTIMUM_POSE
         });
         if same_as_best {
             return;
         }
         if found.beats(self.best.as_ref()) {
             if self.best.is_some() {
-                w.second.copy_from_slice(&w.best);
+                second.copy_from_slice(best);
                 self.second = self.best;
             }
-            w.best.copy_from_slice(&w.theta);
+            best.copy_from_slice(theta);
             self.best = Some(found);
         } else if found.beats(self.second.as_ref()) {
-            w.second.copy_from_slice(&w.theta);
+            second.copy_from_slice(theta);
             self.second = Some(found);
         }
     }
@@ -1056,11 +1058,12 @@ impl Overall {
             }
             let found = Candidate {
                 half_metric: half_metric(&self.w.theta, p.theta0),
-                tip_error: l.tip_error,
+                miss: l.tip_error,
                 on_target: l.converged && l.tip_error <= p.tol,
                 mu,
             };
-            podium.offer(&mut self.w, found);
+            let w = &mut self.w;
+            podium.offer(&w.theta, &mut w.best, &mut w.second, found);
         }
         let Some(best) = podium.best else {
             return self.finish(&p, [0.0; 2], total, false, out);
