@@ -1155,28 +1155,9 @@ impl Overall {
         polar: bool,
         mu: &mut [f64; 2],
     ) -> usize {
-        let stages = self.opts.continuation_stages;
         let tip0 = p.chain.tip(&self.w.theta);
-        let b = p.chain.base();
-        let (r0, a0) = ((tip0 - b).norm(), super::bearing(tip0 - b));
-        let (r1, a1) = ((p.target - b).norm(), super::bearing(p.target - b));
-        let da = crate::chain::wrap_angle(a1 - a0);
         let mut iterations = 0;
-        for k in 1..=stages {
-            let s = k as f64 / (stages + 1) as f64;
-            let t = if polar {
-                let r = r0 + (r1 - r0) * s;
-                let a = a0 + da * s;
-                b + Vec2::new(r * a.cos(), r * a.sin())
-            } else {
-                tip0 + (p.target - tip0) * s
-            };
-            let sub = Problem {
-                target: t,
-                tol: super::STAGE_TIP_TOLERANCE * p.scale,
-                stol: super::STAGE_STATIONARITY_TOLERANCE,
-                ..*p
-            };
+        for sub in super::stages(p, tip0, polar, self.opts.continuation_stages) {
             iterations += self.clear_local(&sub, world, mu).iterations;
         }
         iterations

@@ -596,6 +596,39 @@ pub struct Overall {
     last_clearance: Option<f64>,
 }
 
+/// The intermediate problems of a continuation start whose tip is at `tip0` (see
+/// [`Overall::continuation`]): `count` targets equally spaced on the way to `p`'s, straight or
+/// (`polar`) with radius and bearing around the base interpolated linearly, each with loose
+/// tolerances.
+fn stages<'a>(
+    p: &Problem<'a>,
+    tip0: Vec2,
+    polar: bool,
+    count: usize,
+) -> impl Iterator<Item = Problem<'a>> {
+    let p = *p;
+    let b = p.chain.base();
+    let (r0, a0) = ((tip0 - b).norm(), bearing(tip0 - b));
+    let (r1, a1) = ((p.target - b).norm(), bearing(p.target - b));
+    let da = wrap_angle(a1 - a0);
+    (1..=count).map(move |k| {
+        let s = k as f64 / (count + 1) as f64;
+        let target = if polar {
+            let r = r0 + (r1 - r0) * s;
+            let a = a0 + da * s;
+            b + Vec2::new(r * a.cos(), r * a.sin())
+        } else {
+            tip0 + (p.target - tip0) * s
+        };
+        Problem {
+            target,
+            tol: STAGE_TIP_TOLERANCE * p.scale,
+            stol: STAGE_STATIONARITY_TOLERANCE,
+            ..p
+        }
+    })
+}
+
 /// splitmix64: a tiny deterministic generator for the seeded cold starts.
 struct SplitMix(u64);
 
@@ -1155,28 +1188,9 @@ impl Overall {
     /// interpolated linearly, each from the previous answer and with loose tolerances. Returns
     /// the iterations spent.
     fn continuation(&mut self, p: &Problem, polar: bool, mu: &mut [f64; 2]) -> usize {
-        let stages = self.opts.continuation_stages;
         let tip0 = p.chain.tip(&self.w.theta);
-        let b = p.chain.base();
-        let (r0, a0) = ((tip0 - b).norm(), bearing(tip0 - b));
-        let (r1, a1) = ((p.target - b).norm(), bearing(p.target - b));
-        let da = wrap_angle(a1 - a0);
         let mut iterations = 0;
-        for k in 1..=stages {
-            let s = k as f64 / (stages + 1) as f64;
-            let t = if polar {
-                let r = r0 + (r1 - r0) * s;
-                let a = a0 + da * s;
-                b + Vec2::new(r * a.cos(), r * a.sin())
-            } else {
-                tip0 + (p.target - tip0) * s
-            };
-            let sub = Problem {
-                target: t,
-                tol: STAGE_TIP_TOLERANCE * p.scale,
-                stol: STAGE_STATIONARITY_TOLERANCE,
-                ..*p
-            };
+        for sub in stages(p, tip0, polar, self.opts.continuation_stages) {
             iterations += self.local(&sub, mu, sub.tol).iterations;
         }
         iterations
