@@ -102,9 +102,24 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
             if f.code != 0 {
-                eprintln!("snakectl: {:#}", f.error);
+                eprintln!("snakectl: {}", with_causes(&f.error));
             }
             ExitCode::from(f.code)
         }
     }
+}
+
+/// The error and its causes, joined by `: `. A cause is left out where the message before it
+/// already says it: the library's errors name their source in their own message (and also
+/// return it as their `source`), so the plain chain would print it twice.
+fn with_causes(error: &anyhow::Error) -> String {
+    let mut text = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            text.push_str(": ");
+            text.push_str(&cause);
+        }
+    }
+    text
 }

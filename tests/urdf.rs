@@ -311,4 +311,14 @@ fn the_default_is_the_shipped_simulator_arm() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
+    // The file, then why, said once.
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(
+        err.trim_end(),
+        format!(
+            "snakectl: /nonexistent/arm.toml: cannot read: {}",
+            std::fs::read_to_string("/nonexistent/arm.toml").unwrap_err()
+        ),
+        "{err}"
+    );
 }
