@@ -229,22 +229,33 @@ struct Candidates {
     keys: Vec<(usize, usize, f64)>,
     pts: Vec<Vec2>,
     reach: f64,
+    /// How far each point has moved from `pts` (see [`Candidates::stray`]).
+    moved: Vec<f64>,
 }
 
 /// The candidates are found with this fraction of the mean link length beyond the margin asked.
 const CANDIDATE_SLACK: f64 = 0.1;
 
 impl Candidates {
-    /// Largest move of a point of `pts` from where the candidates were found; infinite for
-    /// points of another chain.
-    fn strayed(&self, pts: &[Vec2]) -> f64 {
+    /// Largest move of a point of `pts` from where the candidates were found (each point's
+    /// kept in `moved`); infinite for points of another chain.
+    fn stray(&mut self, pts: &[Vec2]) -> f64 {
         if pts.len() != self.pts.len() {
             return f64::INFINITY;
         }
-        self.pts
-            .iter()
-            .zip(pts)
-            .fold(0.0_f64, |m, (a, b)| m.max((a - b).norm()))
+        self.moved.resize(pts.len(), 0.0);
+        let mut most: f64 = 0.0;
+        for ((m, a), b) in self.moved.iter_mut().zip(&self.pts).zip(pts) {
+            *m = (a - b).norm();
+            most = most.max(*m);
+        }
+        most
+    }
+
+    /// The most the clearance of a pair of `link` has fallen since the candidates were found:
+    /// the larger move of the link's two ends (after [`Candidates::stray`]).
+    fn link_moved(&self, link: usize) -> f64 {
+        self.moved[link - 1].max(self.moved[link])
     }
 
     /// [`World::near_pairs`] of `pts` for `margin_m`, in the same order, through the candidates
@@ -257,7 +268,7 @@ impl Candidates {
         mean_link: f64,
         out: &mut Vec<Pair>,
     ) {
-        let strayed = self.strayed(pts);
+        let strayed = self.stray(pts);
         // False for a NaN too: the world is then searched.
         let covered = margin_m + strayed <= self.reach;
         if !covered {
@@ -269,11 +280,11 @@ impl Candidates {
             self.pts.clone_from_slice(pts);
         } else {
             out.clear();
-            // A pair farther than the margin by more than the pose strayed stays beyond it.
+            // A pair farther than the margin by more than its link's ends moved stays beyond it.
             out.extend(
                 self.keys
                     .iter()
-                    .filter(|&&(_, _, was)| was - strayed <= margin_m)
+                    .filter(|&&(link, _, was)| was - self.link_moved(link) <= margin_m)
                     .map(|&(link, k, _)| world.pair(pts, link, k)),
             );
         }
@@ -282,13 +293,13 @@ impl Candidates {
 
     /// The least clearance of `pts` when below `floor_m`, else infinity: through the candidates
     /// when they cover it, else [`World::clearance_below`].
-    fn least_below(&self, world: &World, pts: &[Vec2], floor_m: f64) -> f64 {
-        let strayed = self.strayed(pts);
+    fn least_below(&mut self, world: &World, pts: &[Vec2], floor_m: f64) -> f64 {
+        let strayed = self.stray(pts);
         if floor_m + strayed <= self.reach {
             let least = self
                 .keys
                 .iter()
-                .filter(|&&(_, _, was)| was - strayed < floor_m)
+                .filter(|&&(link, _, was)| was - self.link_moved(link) < floor_m)
                 .map(|&(link, k, _)| world.pair(pts, link, k).clearance_m)
                 .fold(f64::INFINITY, f64::min);
             if least < floor_m {
@@ -336,6 +347,7 @@ impl ClearWork {
             keys: Vec::with_capacity(pairs),
             pts: vec![Vec2::zeros(); n + 1],
             reach: f64::NEG_INFINITY,
+            moved: vec![0.0; n + 1],
         };
         self.key = vec![(0, 0); MAX_PAIRS];
         self.prev_key = vec![(0, 0); MAX_PAIRS];

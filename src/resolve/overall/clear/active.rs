@@ -38,6 +38,8 @@ const BOUND_TOL: f64 = 1e-12;
 pub(super) struct ActiveScratch {
     /// Constraints taken: index (rows `0..k2`, lower bounds `k2 + a`, upper `k2 + n + a`).
     act: Vec<usize>,
+    /// Whether each constraint (by index) is among those taken.
+    taken: Vec<bool>,
     /// The sign each row was taken with (an equality is taken pointing at its violation).
     sign: Vec<f64>,
     /// Their multipliers.
@@ -68,6 +70,7 @@ impl ActiveScratch {
         let cap = n + k2;
         Self {
             act: Vec::with_capacity(cap),
+            taken: vec![false; k2 + 2 * n],
             sign: Vec::with_capacity(cap),
             u: Vec::with_capacity(cap),
             chol: vec![0.0; cap * cap],
@@ -209,6 +212,7 @@ impl Qp<'_> {
         let sigma = self.rho_inv.sqrt();
         let total = k2 + 2 * n;
         s.act.clear();
+        s.taken[..total].iter_mut().for_each(|t| *t = false);
         s.sign.clear();
         s.u.clear();
         s.x.copy_from_slice(&self.theta0[..n]);
@@ -226,7 +230,7 @@ impl Qp<'_> {
             // inequality, measured as the distance to its boundary.
             let mut pick: Option<(usize, f64, f64)> = None;
             for i in 0..2.min(k2) {
-                if !s.act.contains(&i) && !skipped[i] {
+                if !s.taken[i] && !skipped[i] {
                     let v = self.slack(i, s, sigma);
                     pick = Some((i, if v > 0.0 { -1.0 } else { 1.0 }, -v.abs()));
                     break;
@@ -235,7 +239,7 @@ impl Qp<'_> {
             if pick.is_none() {
                 let mut worst = 0.0;
                 for c in 2..total {
-                    if s.act.contains(&c) {
+                    if s.taken[c] {
                         continue;
                     }
                     let v = self.slack(c, s, sigma);
@@ -336,6 +340,7 @@ impl Qp<'_> {
                     }
                     s.chol[m * stride + m] = d;
                     s.act.push(p);
+                    s.taken[p] = true;
                     s.sign.push(sp_sign);
                     s.u.push(up);
                     break;
@@ -343,6 +348,7 @@ impl Qp<'_> {
                 let Some(j) = drop else {
                     return false;
                 };
+                s.taken[s.act[j]] = false;
                 s.act.remove(j);
                 s.sign.remove(j);
                 s.u.remove(j);
