@@ -14,8 +14,9 @@
 //!   its target kept 3 cm from every disc.
 //!
 //! Before each group a probe times every tick (warm, 2000 ticks) or case (cold, median of 3
-//! runs each) on its own and prints the median, its ratio to the same n without obstacles,
-//! the mean iterations and how many did not converge.
+//! runs each) on its own and prints the median, its ratio to the same n without obstacles
+//! (warm: also the 99th percentile and the longest tick), the mean iterations and how many did
+//! not converge.
 #![allow(missing_docs, clippy::unwrap_used)]
 
 use std::f64::consts::PI;
@@ -148,9 +149,12 @@ fn warm(c: &mut Criterion) {
             }
             println!(
                 "warm tick n = {n}, {count} obstacles: median {:.2} us, {:.2}x without, \
-                 iterations mean {:.2}, {missed} of 2000 not converged",
+                 p99 {:.1} us, longest {:.1} us, iterations mean {:.2}, {missed} of 2000 not \
+                 converged",
                 med * 1e6,
                 med / base,
+                times[1979] * 1e6,
+                times[1999] * 1e6,
                 its as f64 / 2000.0
             );
             let mut walk = Walk::new(n, count, seed);

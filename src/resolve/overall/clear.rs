@@ -45,8 +45,9 @@
 //!   tip tolerance of `clearance_m`, and stationarity and complementarity (`nu_j` times the
 //!   pair's slack) within the stationarity tolerance; not converged at the iteration cap, when
 //!   no step decreases the merit, when elastic steps stall (as without obstacles), or when
-//!   the optimality residual has not fallen by 1% in [`STALL_STEPS`] iterations (a body
-//!   caught on an obstacle, whose exact and elastic steps alternate, each tiny).
+//!   the optimality residual has not fallen by 1% in [`TICK_STALL_STEPS`] iterations of a
+//!   local solve (a control tick) or [`STALL_STEPS`] of a cold solve's start (a body caught on
+//!   an obstacle, whose exact and elastic steps alternate, each tiny).
 //!
 //! The answer a caller gets is checked once more with [`World::clearance`] (exact, all pairs):
 //! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
@@ -87,9 +88,16 @@ const MARGIN_FLOOR: f64 = 0.05;
 /// Two selected pairs with the same obstacle whose contact points are this close (relative to
 /// the scale) are the same constraint.
 const SAME_CONTACT: f64 = 1e-9;
-/// A local solve whose optimality residual has not fallen by 1% in this many iterations is
-/// stuck (a body caught on an obstacle: exact and elastic steps alternating, each tiny).
+/// A start of a cold solve whose optimality residual has not fallen by 1% in this many
+/// iterations is stuck (a body caught on an obstacle: exact and elastic steps alternating,
+/// each tiny).
 pub const STALL_STEPS: usize = 10;
+/// The same for a local solve (a control tick), which starts next to its answer: a tick that
+/// makes no progress for this many iterations is caught, and the controller holds it. Fewer
+/// than a cold start's: a caught tick is the longest tick the loop runs among obstacles (on the
+/// benchmark's walks as many ticks converge with 4 as with 10, and a cold start with 4 was
+/// seen to give up on a case it solves with 10).
+pub const TICK_STALL_STEPS: usize = 4;
 /// Forward-difference step for the pairs' Hessians, as a fraction of the problem's scale.
 const FD_STEP: f64 = 1e-7;
 /// A Newton multiplier of a pair below `-this * (1 + |nu|)` means the active set is wrong.
@@ -499,6 +507,7 @@ impl ClearWork {
         mu: &mut [f64; 2],
         tol: f64,
         max_iterations: usize,
+        stall_steps: usize,
     ) -> ClearLocal {
         let mut iterations = 0;
         let mut newton_ready = false;
@@ -538,7 +547,7 @@ impl ClearWork {
             if converged {
                 return stop(true, false, iterations);
             }
-            if iterations >= max_iterations || since > STALL_STEPS {
+            if iterations >= max_iterations || since > stall_steps {
                 return stop(false, false, iterations);
             }
             iterations += 1;
@@ -1002,7 +1011,7 @@ impl Overall {
         self.clear.resize(chain.len(), world.obstacles().len());
         self.start_clipped(&p);
         let mut mu = self.mu;
-        let l = self.clear_local(&p, world, &mut mu);
+        let l = self.clear_local(&p, world, &mut mu, TICK_STALL_STEPS);
         self.clear.engaged = self.clear.leaning();
         let o = self.finish(&p, mu, spent + l.iterations, l.converged, out);
         self.judge(world, chain, out, o)
@@ -1115,7 +1124,7 @@ impl Overall {
                 },
             }
             self.clear.watch_best = start == ClearStart::Random && podium.reached();
-            let l = self.clear_local(&p, world, &mut mu);
+            let l = self.clear_local(&p, world, &mut mu, STALL_STEPS);
             self.clear.watch_best = false;
             total += l.iterations;
             if l.joined_best {
@@ -1145,7 +1154,7 @@ impl Overall {
         if b.on_target {
             // Once more from the answer (a step or two): its pairs' multipliers, which the
             // next local solve continues from.
-            let l = self.clear_local(&p, world, &mut mu);
+            let l = self.clear_local(&p, world, &mut mu, STALL_STEPS);
             total += l.iterations;
             let Overall { w, clear, .. } = &mut *self;
             if !l.converged || half_metric(&w.theta, p.theta0) > b.half_metric * (1.0 + 1e-12) {
@@ -1170,13 +1179,20 @@ impl Overall {
         let tip0 = p.chain.tip(&self.w.theta);
         let mut iterations = 0;
         for sub in super::stages(p, tip0, polar, self.opts.continuation_stages) {
-            iterations += self.clear_local(&sub, world, mu).iterations;
+            iterations += self.clear_local(&sub, world, mu, STALL_STEPS).iterations;
         }
         iterations
     }
 
-    /// [`ClearWork::local`] of `p` from the iterate in `w.theta`, to `p`'s tip tolerance.
-    fn clear_local(&mut self, p: &Problem, world: &World, mu: &mut [f64; 2]) -> ClearLocal {
+    /// [`ClearWork::local`] of `p` from the iterate in `w.theta`, to `p`'s tip tolerance,
+    /// stuck after `stall_steps` iterations without progress.
+    fn clear_local(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        mu: &mut [f64; 2],
+        stall_steps: usize,
+    ) -> ClearLocal {
         let max_iterations = self.opts.max_iterations;
         let Overall { w, clear, .. } = self;
         clear.local(
@@ -1188,6 +1204,7 @@ impl Overall {
             mu,
             p.tol,
             max_iterations,
+            stall_steps,
         )
     }
 }
