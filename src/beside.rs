@@ -13,8 +13,19 @@
 pub const STEP_ASIDE_NICE: i32 = 10;
 
 /// Lowers the calling thread's priority by [`STEP_ASIDE_NICE`] (at most to 19, the lowest).
-/// Returns the nice value it now runs at, `None` where that could not be done.
+/// Returns the nice value it now runs at, `None` where that could not be done (logged at debug
+/// level, naming the thread).
 pub fn step_aside() -> Option<i32> {
+    let nice = lower_own_priority();
+    if nice.is_none() {
+        let thread = std::thread::current();
+        let name = thread.name().unwrap_or("a side thread");
+        tracing::debug!("{name}: runs at the loop's priority (could not lower it)");
+    }
+    nice
+}
+
+fn lower_own_priority() -> Option<i32> {
     #[cfg(target_os = "linux")]
     {
         use rustix::process::{getpriority_process, setpriority_process};

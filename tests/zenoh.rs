@@ -426,9 +426,9 @@ fn fleet_with_nothing_up_says_so() {
 #[test]
 fn the_bridge_runs_below_the_loop() {
     let (daemon, _) = daemon("aside", false);
-    // Thread names are cut to 15 bytes: the bridge's thread, its runtime's worker. (Zenoh's
-    // own threads, which it starts from there, inherit it; the other tests' peers, at the
-    // test's priority, have the same names.)
+    // Thread names are cut to 15 bytes: the bridge's thread, its runtime's worker. Zenoh's own
+    // threads, started from there, inherit their priority but are not checked: the plain Zenoh
+    // peers of the other tests in this binary, at the test's priority, carry the same names.
     daemon_support::threads_at(&["snakectl-loop"], &["snakectl-zenoh", "snakectl-zenoh-"]);
     daemon.stop().unwrap();
 }

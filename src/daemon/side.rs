@@ -50,13 +50,10 @@ impl Side {
             start: start_rx,
             stop: stop_rx,
         };
-        let label = name.to_string();
         let thread = std::thread::Builder::new()
             .name(name.into())
             .spawn(move || {
-                if crate::beside::step_aside().is_none() {
-                    tracing::debug!("{label}: runs at the loop's priority (could not lower it)");
-                }
+                crate::beside::step_aside();
                 body(ends);
                 let _ = done_tx.send(());
             })

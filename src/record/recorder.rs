@@ -229,9 +229,7 @@ impl Recorder {
         let thread = std::thread::Builder::new()
             .name("snakectl-record".into())
             .spawn(move || {
-                if crate::beside::step_aside().is_none() {
-                    tracing::debug!("recorder: runs at the loop's priority (could not lower it)");
-                }
+                crate::beside::step_aside();
                 record(sink, &drain, &setup, &thread_notes)
             })
             .map_err(|e| RecordError::Thread(e.to_string()))?;

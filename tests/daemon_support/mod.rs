@@ -409,7 +409,7 @@ pub fn threads_at(loop_side: &[&str], beside: &[&str]) {
 
 /// The calling thread's nice value.
 #[cfg(target_os = "linux")]
-pub fn own_nice() -> i64 {
+fn own_nice() -> i64 {
     nice_in(&std::fs::read_to_string("/proc/thread-self/stat").unwrap())
 }
 
