@@ -284,8 +284,11 @@ fn hostile_clients_are_answered_and_the_loop_and_the_controller_go_on() {
         (loop_hz - rate_hz).abs() <= 0.05 * rate_hz,
         "loop_hz {loop_hz} is not within 5% of {rate_hz}"
     );
+    // Overruns here come from the scheduler: 32 flooding client threads share the machine's
+    // cores with the loop (on a 2-core machine up to 2% of ticks). A loop that waited on a
+    // client would overrun on most ticks and fall off its rate.
     assert!(
-        overruns as f64 <= 0.01 * ticks as f64,
+        overruns as f64 <= 0.05 * ticks as f64,
         "{overruns} overruns in {ticks} ticks"
     );
 }
