@@ -155,23 +155,41 @@ fn stop_torque_off(d: Daemon) {
 
 #[test]
 fn one_percent_drops_and_corruption_stay_within_the_error_budget() {
-    drops_and_corruption("fast");
+    drops_and_corruption("fast", "");
 }
 
 /// The same with Sync Read (`[bus] read = "sync"`).
 #[test]
 fn one_percent_drops_and_corruption_stay_within_the_error_budget_with_sync_read() {
-    drops_and_corruption("sync");
+    drops_and_corruption("sync", "");
 }
 
-fn drops_and_corruption(read: &str) {
+/// The same on two ports, each read in parallel.
+#[test]
+fn one_percent_drops_and_corruption_on_two_ports_stay_within_the_error_budget() {
+    drops_and_corruption("fast", TWO_PORTS);
+}
+
+/// What every port's simulator dropped and corrupted so far.
+fn sim_losses(d: &Daemon) -> (u64, u64) {
+    std::iter::once(&d.sim)
+        .chain(&d.more_sims)
+        .map(|sim| sim.with_sim(|s| s.stats()))
+        .fold((0, 0), |(dr, co), st| (dr + st.dropped, co + st.corrupted))
+}
+
+/// 1% of the replies dropped and 1% corrupted, read with `read`, on the bus `ports`
+/// (`[[bus.ports]]` tables) describes.
+fn drops_and_corruption(read: &str, ports: &str) {
     let d = Daemon::start(sim_config_with(
         &[read_edit(read)],
-        "[[sim.fault]]\nkind = \"drop\"\nfraction = 0.01\n\n\
-         [[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.01\n",
+        &format!(
+            "[[sim.fault]]\nkind = \"drop\"\nfraction = 0.01\n\n\
+             [[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.01\n{ports}"
+        ),
     ));
     let (mut c, (lo, hi), start) = watching(&d);
-    let sim0 = d.sim.with_sim(|s| s.stats());
+    let sim0 = sim_losses(&d);
     let first = watch(&mut c, 1).pop().unwrap();
     // Back and forth for about five seconds.
     let corners = [
@@ -187,7 +205,7 @@ fn drops_and_corruption(read: &str) {
     });
     samples.extend(watch(&mut c, 50));
     let last = samples.last().unwrap().clone();
-    let sim1 = d.sim.with_sim(|s| s.stats());
+    let sim1 = sim_losses(&d);
     assert_eq!(last["command"]["outcome"], "arrived", "{last}");
     for t in &samples {
         assert_ne!(
@@ -206,8 +224,8 @@ fn drops_and_corruption(read: &str) {
     let ticks = last["tick"].as_u64().unwrap() - first["tick"].as_u64().unwrap();
     let dropped = count(&last, "dropped") - count(&first, "dropped");
     let corrupted = count(&last, "corrupted") - count(&first, "corrupted");
-    let sim_dropped = sim1.dropped - sim0.dropped;
-    let sim_corrupted = sim1.corrupted - sim0.corrupted;
+    let sim_dropped = sim1.0 - sim0.0;
+    let sim_corrupted = sim1.1 - sim0.1;
     let overruns = last["overruns"].as_u64().unwrap() - first["overruns"].as_u64().unwrap();
     let replies = ticks * 12;
     println!(
@@ -388,13 +406,28 @@ fn fired_watchdogs(detail: &str) -> Vec<u8> {
 
 #[test]
 fn a_hardware_error_holds_until_reboot_then_torque_is_back_and_the_arm_moves() {
+    hardware_error("", 0);
+}
+
+/// The same with servo 9 on the second of two ports.
+#[test]
+fn a_hardware_error_on_the_second_of_two_ports_is_named_with_its_port() {
+    hardware_error(TWO_PORTS, 1);
+}
+
+/// An overload of servo 9 (on port `k` of the bus `ports` describes) at 2 s.
+fn hardware_error(ports: &str, k: usize) {
     let d = Daemon::start(sim_config_with(
         &[],
-        "[[sim.fault]]\nkind = \"hardware_error\"\nid = 9\nat_s = 2.0\nerror = \"overload\"\n",
+        &format!(
+            "[[sim.fault]]\nkind = \"hardware_error\"\nid = 9\nat_s = 2.0\nerror = \
+             \"overload\"\n{ports}"
+        ),
     ));
     let (mut c, (lo, hi), start) = watching(&d);
     let (mut samples, raised) = watch_until_event(&mut c, fault_event("raised", "hardware_error"));
     assert_eq!(raised["fault"]["id"], json!(9), "{raised}");
+    assert_eq!(raised["fault"]["port"], json!(d.port_path(k)), "{raised}");
     let detail = raised["fault"]["detail"].as_str().unwrap();
     assert!(detail.contains("overload"), "{detail}");
     let ticks = raised["tick"].as_u64().unwrap() - raised["fault"]["since_tick"].as_u64().unwrap();
@@ -425,7 +458,9 @@ fn a_hardware_error_holds_until_reboot_then_torque_is_back_and_the_arm_moves() {
         assert!(d.torque(id), "servo {id} torque off after the reboot");
     }
     assert_eq!(
-        d.sim.with_servo(9, |s| s.hardware_error_status()).unwrap(),
+        d.sim_of(9)
+            .with_servo(9, |s| s.hardware_error_status())
+            .unwrap(),
         0
     );
     goto_arrives(&mut c, [start[0] + 0.04, start[1] - 0.02]);
@@ -656,21 +691,32 @@ fn vanished_port(read: &str, ports: &str, k: usize) {
 
 #[test]
 fn a_servo_that_lost_power_latches_the_arm_until_reset_turns_torque_back_on() {
-    let d = Daemon::start(sim_config_with(&[], ""));
+    power_loss("", 5);
+}
+
+/// The same with servo 9, on the second of two ports.
+#[test]
+fn a_servo_on_the_second_of_two_ports_that_lost_power_latches_the_arm() {
+    power_loss(TWO_PORTS, 9);
+}
+
+/// Servo `id` (joint `id`) loses power during a slow goto, on the bus `ports` describes.
+fn power_loss(ports: &str, id: u8) {
+    let d = Daemon::start(sim_config_with(&[], ports));
     let (mut c, (lo, hi), start) = watching(&d);
     let goto = c.send(json!({"cmd": "goto", "target": [start[0] + 0.08, start[1]], "speed": 0.01}));
     assert_eq!(c.reply(&json!(goto))["ok"], json!(true));
-    assert!(d.sim.with_sim(|s| s.lose_power(5)));
+    assert!(d.sim_of(id).with_sim(|s| s.lose_power(id)));
     let (mut samples, _) = watch_until_event(&mut c, fault_event("raised", "silent"));
     // Power back: the servo answers with its RAM at the defaults.
-    assert!(d.sim.with_sim(|s| s.restore_power(5)));
+    assert!(d.sim_of(id).with_sim(|s| s.restore_power(id)));
     let mut skipped = Vec::new();
     let (held, raised) =
         watch_until_event_keeping(&mut c, fault_event("raised", "power_loss"), &mut skipped);
     samples.extend(held);
-    println!("power loss of servo 5: {raised}");
-    assert_eq!(raised["fault"]["id"], json!(5), "{raised}");
-    assert_eq!(raised["fault"]["joint"], json!(5), "{raised}");
+    println!("power loss of servo {id}: {raised}");
+    assert_eq!(raised["fault"]["id"], json!(id), "{raised}");
+    assert_eq!(raised["fault"]["joint"], json!(id), "{raised}");
     let detail = raised["fault"]["detail"].as_str().unwrap();
     assert!(detail.contains("Bus Watchdog 0"), "{detail}");
     assert!(detail.contains("`reset`"), "{detail}");
@@ -687,7 +733,7 @@ fn a_servo_that_lost_power_latches_the_arm_until_reset_turns_torque_back_on() {
         assert!(!d.torque(id), "servo {id} torque on under the latch");
     }
     // Its RAM was written again as bring-up did.
-    assert!(d.sim.with_servo(5, |s| s.watchdog()).unwrap() > 0);
+    assert!(d.sim_of(id).with_servo(id, |s| s.watchdog()).unwrap() > 0);
     assert_eq!(
         c.error_code(json!({"cmd": "goto", "target": start})),
         "estopped"

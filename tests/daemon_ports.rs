@@ -8,7 +8,7 @@ mod daemon_support;
 
 use std::net::SocketAddr;
 
-use daemon_support::{dist, floats, sim_config_with, xy, Client, TWO_PORTS};
+use daemon_support::{dist, floats, sim_config_with, xy, Client, Daemon, TWO_PORTS};
 use serde_json::json;
 use snakectl::daemon::{Embedded, RunOptions};
 
@@ -55,4 +55,35 @@ fn on_two_ports_of_the_embedded_simulator_the_arm_moves_as_one() {
     assert!(s["health_tick"].as_u64().unwrap() > 0, "{s}");
     let summary = daemon.stop().unwrap();
     assert!(summary.ticks > 0, "{summary:?}");
+}
+
+#[test]
+fn a_port_with_a_servo_too_old_for_fast_sync_read_reads_sync_and_the_other_port_fast() {
+    // Servo 9 (second port) has a firmware without Fast Sync Read; `[bus] read = "auto"`.
+    let extra = format!("{TWO_PORTS}[sim.firmware_by_id]\n9 = 44\n");
+    let d = Daemon::start(sim_config_with(&[], &extra));
+    let mut c = d.client();
+    let describe = c.ok(json!({"cmd": "describe"}));
+    assert_eq!(describe["read"], json!("mixed"), "{describe}");
+    // Over the same ticks, the first port answers each read with one packet (Fast Sync Read),
+    // the second with one per servo (Sync Read: six).
+    let replies =
+        |d: &Daemon| [&d.sim, &d.more_sims[0]].map(|sim| sim.with_sim(|s| s.stats().replies));
+    let before = replies(&d);
+    let start = xy(&c.status()["tip"]);
+    let target = [start[0] + 0.03, start[1] - 0.02];
+    let id = c.send(json!({"cmd": "goto", "target": target}));
+    assert_eq!(c.reply(&json!(id))["ok"], json!(true));
+    c.event("arrived", Some(id));
+    let after = replies(&d);
+    let (fast, sync) = (after[0] - before[0], after[1] - before[1]);
+    println!("replies over the goto: first port {fast}, second port {sync}");
+    assert!(fast > 10, "{fast} replies on the first port");
+    assert!(
+        sync >= 5 * fast && sync <= 7 * fast,
+        "first port {fast} replies, second {sync}: not one reply a read against six"
+    );
+    let s = c.status();
+    assert_eq!(s["faults"], json!([]), "{s}");
+    assert!(dist(xy(&s["tip"]), target) < 1e-9, "{s}");
 }

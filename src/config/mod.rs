@@ -288,13 +288,14 @@ impl Config {
         self.arm.as_ref()
     }
 
-    /// Each port's tick on the wire, for the wire bound ([`crate::servo::wire`]), read with
-    /// `read` (what bring-up chose): its servos, the baud rate and Return Delay Time, the block
-    /// the loop reads (the 13 bytes of the indirect block, health included, where every
-    /// joint's model shares its address; else Present Velocity and Position) and, for a
-    /// simulated bus, the FTDI adapter model when `[sim] adapter` names it. Empty without a
-    /// `[bus]`.
-    pub fn wire(&self, read: ReadKind) -> Vec<Wire> {
+    /// Each port's tick on the wire, for the wire bound ([`crate::servo::wire`]), port `k`
+    /// read with `reads[k]` (what bring-up chose; the last one for ports beyond): its servos,
+    /// the baud rate and Return Delay Time, the block the loop reads (the 13 bytes of the
+    /// indirect block, health included, where every joint's model shares its address; else
+    /// Present Velocity and Position) and, for a simulated bus, the FTDI adapter model when
+    /// `[sim] adapter` names it (a real port's adapter is the bus's to tell:
+    /// [`crate::servo::ServoBus::adapters`]). Empty without a `[bus]`.
+    pub fn wire(&self, reads: &[ReadKind]) -> Vec<Wire> {
         let (Some(bus), Some(arm)) = (&self.bus, &self.arm) else {
             return Vec::new();
         };
@@ -318,10 +319,15 @@ impl Config {
         let return_delay = Duration::from_micros(u64::from(arm.settings().return_delay_us));
         bus.ports
             .iter()
-            .map(|p| Wire {
+            .enumerate()
+            .map(|(k, p)| Wire {
                 servos: p.ids.len(),
                 baud: bus.baud,
-                read,
+                read: reads
+                    .get(k)
+                    .or(reads.last())
+                    .copied()
+                    .unwrap_or(ReadKind::Sync),
                 data_bytes: usize::from(data_bytes),
                 return_delay,
                 adapter,

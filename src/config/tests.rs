@@ -476,7 +476,7 @@ fn several_ports_each_with_its_servos() {
     assert_eq!(bus.ports[1].port.as_deref(), Some("/dev/ttyUSB1"));
     assert_eq!(bus.port(), None, "no single port");
     assert_eq!(
-        c.wire(crate::servo::ReadKind::Sync)
+        c.wire(&[crate::servo::ReadKind::Sync])
             .iter()
             .map(|w| w.servos)
             .collect::<Vec<_>>(),

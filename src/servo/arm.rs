@@ -7,8 +7,9 @@
 //!    (calibration is applied here, in software: a servo reconfigured elsewhere would shift
 //!    every angle). Any servo missing, of the wrong model, in hardware error or with such an
 //!    offset: refuse, naming each one and the register. From every servo's model and firmware
-//!    (the ping's), choose the bus's read ([`choose_read`]: Fast Sync Read where every servo
-//!    speaks it, as `[bus] read` allows) and set it on the bus: every read from here on uses it;
+//!    (the ping's), choose each port's read ([`choose_read`]: Fast Sync Read where every servo
+//!    of the port speaks it, as `[bus] read` allows) and set it on the bus: every read from
+//!    here on uses it;
 //! 2. read the present pose; a joint outside its limits: refuse (move it by hand);
 //! 3. Status Return Level 2 (every instruction acknowledged); then, only where they differ,
 //!    Operating Mode 3 (position), Return Delay Time and Min/Max Position Limit (EEPROM:
@@ -382,8 +383,20 @@ pub struct BringUp {
     pub rebooted: Vec<u8>,
     /// Exchanges sent again after a transient error.
     pub retries: u32,
-    /// The read set on the bus, from `[bus] read` and the servos' firmware.
+    /// The read set on the bus, from `[bus] read` and the servos' firmware: Fast Sync Read
+    /// when every port reads with it, else Sync Read (see `reads`).
     pub read: ReadKind,
+    /// Each port's read, in port order (one entry on a bus of one port).
+    pub reads: Vec<ReadKind>,
+}
+
+/// The read of a bus whose ports read with `kinds`: Fast Sync Read only when every port does.
+pub fn read_of(kinds: &[ReadKind]) -> ReadKind {
+    if !kinds.is_empty() && kinds.iter().all(|&k| k == ReadKind::Fast) {
+        ReadKind::Fast
+    } else {
+        ReadKind::Sync
+    }
 }
 
 /// Options of [`Arm::bring_up`].
@@ -647,7 +660,7 @@ impl Arm {
         let t = self.settings.reply_timeout;
         let mut retry = Retry::default();
         let (servos, rebooted) = self.check_counting(bus, options, clock, &mut retry)?;
-        let read = self.set_read(bus, &servos)?;
+        let reads = self.set_read(bus, &servos)?;
 
         // The present pose, before anything moves. A servo set exactly on a limit may read one
         // tick past it: that pose is held on the limit itself.
@@ -704,44 +717,72 @@ impl Arm {
             pose,
             rebooted,
             retries: retry.retries,
-            read,
+            read: read_of(&reads),
+            reads,
         })
     }
 
-    /// Choose the read from the servos' pings ([`choose_read`]) and set it on the bus. Under
-    /// `auto`, a bus that cannot frame Fast Sync Read keeps Sync Read.
+    /// Choose each port's read from its servos' pings ([`choose_read`]) and set it on the bus:
+    /// under `auto` a port whose servos all answer Fast Sync Read uses it, whatever the other
+    /// ports' servos do; under `fast` every servo must. Under `auto`, a bus that cannot frame
+    /// Fast Sync Read keeps Sync Read.
     fn set_read<B: ServoBus>(
         &self,
         bus: &mut B,
         servos: &[PingInfo],
-    ) -> Result<ReadKind, BringUpError> {
+    ) -> Result<Vec<ReadKind>, BringUpError> {
         let paired: Vec<(&JointServo, PingInfo)> =
             self.joints.iter().zip(servos.iter().copied()).collect();
-        let mut kind = choose_read(self.settings.read, &paired).map_err(BringUpError::Refused)?;
-        if let Err(source) = bus.set_read_kind(kind) {
+        let ports = bus.read_kinds().len().max(1);
+        let mut kinds = Vec::with_capacity(ports);
+        let mut refused = Vec::new();
+        for port in 0..ports {
+            let on_port: Vec<(&JointServo, PingInfo)> = paired
+                .iter()
+                .filter(|(j, _)| bus.port_index(j.id) == port)
+                .copied()
+                .collect();
+            match choose_read(self.settings.read, &on_port) {
+                Ok(kind) => kinds.push(kind),
+                Err(cannot) => refused.extend(cannot),
+            }
+        }
+        if !refused.is_empty() {
+            return Err(BringUpError::Refused(refused));
+        }
+        if let Err(source) = bus.set_read_kinds(&kinds) {
             if self.settings.read == ReadChoice::Fast {
                 return Err(BringUpError::Refused(vec![Refusal::FastReadUnsupported {
                     source,
                 }]));
             }
             tracing::debug!(%source, "keeping Sync Read");
-            kind = ReadKind::Sync;
-            bus.set_read_kind(kind).map_err(step("choosing the read"))?;
+            kinds.iter_mut().for_each(|k| *k = ReadKind::Sync);
+            bus.set_read_kinds(&kinds)
+                .map_err(step("choosing the read"))?;
         }
-        if kind == ReadKind::Sync && self.settings.read == ReadChoice::Auto {
-            if let Some((j, info)) = paired.iter().find(|(_, info)| !answers_fast(info)) {
-                tracing::info!(
-                    id = j.id,
-                    firmware = info.firmware,
-                    "Sync Read: servo {} ({}, firmware {}) does not answer Fast Sync Read",
-                    j.id,
-                    j.model,
-                    info.firmware
-                );
+        if self.settings.read == ReadChoice::Auto {
+            for (port, kind) in kinds.iter().enumerate() {
+                let first_slow = paired
+                    .iter()
+                    .filter(|(j, _)| bus.port_index(j.id) == port)
+                    .find(|(_, info)| !answers_fast(info));
+                if let (ReadKind::Sync, Some((j, info))) = (kind, first_slow) {
+                    tracing::info!(
+                        id = j.id,
+                        firmware = info.firmware,
+                        port,
+                        "Sync Read: servo {} ({}, firmware {}) does not answer Fast Sync Read",
+                        j.id,
+                        j.model,
+                        info.firmware
+                    );
+                }
             }
         }
-        tracing::info!(read = %kind, servos = servos.len(), "bus read chosen");
-        Ok(kind)
+        let read = read_of(&kinds);
+        tracing::info!(%read, ports, servos = servos.len(), "bus read chosen");
+        Ok(kinds)
     }
 
     /// The present position of every joint, ticks: one Sync Read, sent again (up to

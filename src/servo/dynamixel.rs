@@ -900,6 +900,10 @@ impl ServoBus for DynamixelBus {
         self.read_kind
     }
 
+    fn adapters(&self) -> Vec<Option<super::wire::Adapter>> {
+        vec![self.latency.adapter()]
+    }
+
     fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
         self.read_kind = kind;
         Ok(())

@@ -715,6 +715,34 @@ pub trait ServoBus {
         }
     }
 
+    /// Each port's USB-serial adapter, where the bus knows it (an FTDI latency timer found when
+    /// the port opened), in the order of [`ServoBus::read_kinds`]: for the wire bound.
+    fn adapters(&self) -> Vec<Option<wire::Adapter>> {
+        vec![None]
+    }
+
+    /// Which of the bus's ports servo `id` is on, from 0 in the order of
+    /// [`ServoBus::read_kinds`] (always 0 on a bus of one port).
+    fn port_index(&self, _id: u8) -> usize {
+        0
+    }
+
+    /// Each port's [`ServoBus::read_kind`], in port order: one entry on a bus of one port.
+    fn read_kinds(&self) -> Vec<ReadKind> {
+        vec![self.read_kind()]
+    }
+
+    /// [`ServoBus::set_read_kind`] port by port, `kinds` in the order of
+    /// [`ServoBus::read_kinds`]; a bus of one port takes one kind (or several all alike).
+    fn set_read_kinds(&mut self, kinds: &[ReadKind]) -> Result<(), ServoError> {
+        match kinds {
+            [first, rest @ ..] if rest.iter().all(|k| k == first) => self.set_read_kind(*first),
+            _ => Err(ServoError::Unsupported {
+                what: "a bus of one port reads one way",
+            }),
+        }
+    }
+
     /// [`ServoBus::sync_read_into`] into fresh buffers: one result per servo of `ids`.
     fn sync_read(
         &mut self,
@@ -872,6 +900,18 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     }
     fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
         (**self).set_read_kind(kind)
+    }
+    fn port_index(&self, id: u8) -> usize {
+        (**self).port_index(id)
+    }
+    fn adapters(&self) -> Vec<Option<wire::Adapter>> {
+        (**self).adapters()
+    }
+    fn read_kinds(&self) -> Vec<ReadKind> {
+        (**self).read_kinds()
+    }
+    fn set_read_kinds(&mut self, kinds: &[ReadKind]) -> Result<(), ServoError> {
+        (**self).set_read_kinds(kinds)
     }
     fn sync_read(
         &mut self,

@@ -16,6 +16,7 @@ use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use super::wire::Adapter;
 use super::{
     Ack, ErrorClass, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value,
     MAX_ID,
@@ -204,8 +205,10 @@ pub struct Ports<B> {
     /// Each id's port (index into the ports), `u8::MAX` for an id on none.
     route: Vec<u8>,
     baud: u32,
-    /// The read every port was set to (several ports).
-    read: ReadKind,
+    /// Each port's read (several ports), in port order.
+    reads: Vec<ReadKind>,
+    /// Each port's adapter, as its bus told before its thread took it (several ports).
+    adapters: Vec<Option<Adapter>>,
 }
 
 impl<B> std::fmt::Debug for Ports<B> {
@@ -230,7 +233,8 @@ impl<B: ServoBus + Send + 'static> Ports<B> {
             baud: bus.baud(),
             inner: Inner::One(bus),
             route: vec![0; usize::from(MAX_ID) + 1],
-            read: ReadKind::Sync,
+            reads: Vec::new(),
+            adapters: Vec::new(),
         }
     }
 
@@ -255,6 +259,11 @@ impl<B: ServoBus + Send + 'static> Ports<B> {
             }
         }
         let baud = ports.first().map_or(0, |(_, b, _)| b.baud());
+        let reads = vec![ReadKind::Sync; ports.len()];
+        let adapters = ports
+            .iter()
+            .map(|(_, bus, _)| bus.adapters().first().copied().flatten())
+            .collect();
         let workers = ports
             .into_iter()
             .map(|(name, bus, _)| Worker::spawn(name, bus))
@@ -263,7 +272,8 @@ impl<B: ServoBus + Send + 'static> Ports<B> {
             inner: Inner::Many(workers),
             route,
             baud,
-            read: ReadKind::Sync,
+            reads,
+            adapters,
         })
     }
 
@@ -391,17 +401,57 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
         Ok(())
     }
 
+    /// Several ports: Fast Sync Read when every port reads with it, else Sync Read (some port
+    /// does); [`ServoBus::read_kinds`] tells each.
     fn read_kind(&self) -> ReadKind {
         match &self.inner {
             Inner::One(bus) => bus.read_kind(),
-            Inner::Many(_) => self.read,
+            Inner::Many(_) if self.reads.iter().all(|&k| k == ReadKind::Fast) => ReadKind::Fast,
+            Inner::Many(_) => ReadKind::Sync,
         }
     }
 
-    /// Every port reads with `kind` (bring-up chose it from every servo of the arm).
+    /// Every port reads with `kind`.
     fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
         self.every(move |bus| bus.set_read_kind(kind))?;
-        self.read = kind;
+        self.reads.iter_mut().for_each(|k| *k = kind);
+        Ok(())
+    }
+
+    fn port_index(&self, id: u8) -> usize {
+        self.port_of(id).unwrap_or(0)
+    }
+
+    fn adapters(&self) -> Vec<Option<Adapter>> {
+        match &self.inner {
+            Inner::One(bus) => bus.adapters(),
+            Inner::Many(_) => self.adapters.clone(),
+        }
+    }
+
+    fn read_kinds(&self) -> Vec<ReadKind> {
+        match &self.inner {
+            Inner::One(bus) => vec![bus.read_kind()],
+            Inner::Many(_) => self.reads.clone(),
+        }
+    }
+
+    /// Each port reads with its own kind (bring-up chose each from its servos).
+    fn set_read_kinds(&mut self, kinds: &[ReadKind]) -> Result<(), ServoError> {
+        let workers = match &mut self.inner {
+            Inner::One(bus) => return bus.set_read_kinds(kinds),
+            Inner::Many(workers) => workers,
+        };
+        if kinds.len() != workers.len() {
+            return Err(ServoError::Unsupported {
+                what: "one read kind is needed per port",
+            });
+        }
+        for (k, (w, &kind)) in workers.iter_mut().zip(kinds).enumerate() {
+            w.call(move |bus| bus.set_read_kind(kind))?
+                .map_err(|e| w.named(e))?;
+            self.reads[k] = kind;
+        }
         Ok(())
     }
 

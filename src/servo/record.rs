@@ -138,6 +138,18 @@ impl<B: ServoBus> ServoBus for Recording<B> {
     fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
         self.inner.set_read_kind(kind)
     }
+    fn port_index(&self, id: u8) -> usize {
+        self.inner.port_index(id)
+    }
+    fn adapters(&self) -> Vec<Option<super::wire::Adapter>> {
+        self.inner.adapters()
+    }
+    fn read_kinds(&self) -> Vec<ReadKind> {
+        self.inner.read_kinds()
+    }
+    fn set_read_kinds(&mut self, kinds: &[ReadKind]) -> Result<(), ServoError> {
+        self.inner.set_read_kinds(kinds)
+    }
 }
 
 /// A bus on which every servo answers: pings with one model number, reads 0, acknowledges every

@@ -9,6 +9,9 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use super::wire::Adapter;
 
 /// A sysfs tree (normally `/sys`).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -50,6 +53,19 @@ pub enum Latency {
         /// What went wrong.
         error: String,
     },
+}
+
+impl Latency {
+    /// The adapter the port is behind, for the wire bound: an FTDI chip holding a reply's last
+    /// partial USB packet for its latency timer (1 ms once lowered). `None` where no latency
+    /// timer was found.
+    pub fn adapter(&self) -> Option<Adapter> {
+        match self {
+            Self::Low | Self::Lowered { .. } => Some(Adapter::FTDI_1MS),
+            Self::TooHigh { ms, .. } => Some(Adapter::ftdi(Duration::from_millis(u64::from(*ms)))),
+            Self::NotApplicable | Self::Unreadable { .. } => None,
+        }
+    }
 }
 
 /// USB identity of a serial port.
@@ -233,6 +249,25 @@ mod tests {
         );
         assert_eq!(fs::read_to_string(&file).unwrap(), "1");
         assert_eq!(sysfs.ensure_low_latency(port), Latency::Low);
+    }
+
+    #[test]
+    fn the_wire_bound_counts_the_latency_timer_the_port_is_left_with() {
+        assert_eq!(Latency::Low.adapter(), Some(Adapter::FTDI_1MS));
+        assert_eq!(
+            Latency::Lowered { from_ms: 16 }.adapter(),
+            Some(Adapter::FTDI_1MS)
+        );
+        let stuck = Latency::TooHigh {
+            ms: 16,
+            command: String::new(),
+            error: String::new(),
+        };
+        assert_eq!(
+            stuck.adapter().map(|a| a.latency),
+            Some(Duration::from_millis(16))
+        );
+        assert_eq!(Latency::NotApplicable.adapter(), None);
     }
 
     #[test]

@@ -86,7 +86,7 @@ use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
 use crate::servo::limits::{LimitPolicy, Limited};
 use crate::servo::ports::Ports;
-use crate::servo::{units, Goal, Layout, ServoBus, States};
+use crate::servo::{units, Goal, Layout, ReadKind, ServoBus, States};
 
 use self::health::{Budget, Change, Health};
 use self::ledger::{Ended, Ledger};
@@ -339,6 +339,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             servos = brought.servos.len(),
             retries = brought.retries,
             read = %brought.read,
+            reads = ?brought.reads,
             "arm up, holding its present pose"
         );
         let c = config.control();
@@ -372,7 +373,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         // The channel's first value is never seen: tick 0 publishes a measured snapshot
         // before `ready` hands the handle to anyone who could read it.
         let describe = Describe {
-            read: brought.read.as_str().to_owned(),
+            read: read_name(&brought.reads).to_owned(),
             ..describe(config, &arm).with_world(controller.world())
         };
         let (handle, ends) = link::channel(describe, Telemetry::default());
@@ -412,7 +413,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if !servo_ports.is_empty() {
             health.set_ports(&servo_ports);
         }
-        let wires = config.wire(brought.read);
+        let mut wires = config.wire(&brought.reads);
+        // A real port behind a USB adapter: its latency timer as found when it opened.
+        for (w, adapter) in wires.iter_mut().zip(bus.adapters()) {
+            if adapter.is_some() {
+                w.adapter = adapter;
+            }
+        }
         let wire = crate::servo::wire::bound_of_ports(&wires);
         let wire_bound_hz = wire.map_or(f64::INFINITY, |b| b.rate_hz());
         if let Some(b) = wire {
@@ -893,6 +900,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         shut.map_err(DaemonError::ShutDown)?;
         Ok(self.stats.summary(self.tick, self.clock.now()))
+    }
+}
+
+/// `describe`'s `read`: the one every port uses, or `"mixed"` when the ports differ (a port
+/// with a servo that cannot answer Fast Sync Read reads with Sync Read, the others fast).
+fn read_name(reads: &[ReadKind]) -> &'static str {
+    match reads {
+        [first, rest @ ..] if rest.iter().all(|k| k == first) => first.as_str(),
+        [] => ReadKind::Sync.as_str(),
+        _ => "mixed",
     }
 }
 

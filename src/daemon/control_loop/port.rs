@@ -148,11 +148,11 @@ impl<B: ServoBus> Port<B> {
     /// is closed first, so its lock is free for this process to take again. The new bus reads
     /// as the old one did (the read bring-up chose from the same servos).
     pub fn reopen(&mut self, arm: &Arm, now: Instant) -> Result<(), ReopenError> {
-        let read = self.bus.read_kind();
+        let reads = self.bus.read_kinds();
         self.bus.close();
         self.bus = (self.opener)(arm)?;
-        if let Err(e) = self.bus.set_read_kind(read) {
-            tracing::warn!(%read, "the reopened port keeps Sync Read: {e}");
+        if let Err(e) = self.bus.set_read_kinds(&reads) {
+            tracing::warn!(?reads, "the reopened port keeps Sync Read: {e}");
         }
         if let Some(lost) = self.lost.as_mut() {
             lost.reopened = Some(now);
