@@ -489,7 +489,8 @@ pub struct Describe {
     /// The gap every link keeps from every obstacle, m.
     pub clearance_m: f64,
     /// How the loop reads the servos: `"fast"` (Fast Sync Read) or `"sync"` (Sync Read), as
-    /// bring-up chose from `[bus] read` and the servos' firmware; empty when not known.
+    /// bring-up chose from `[bus] read` and the servos' firmware, `"mixed"` when the ports of
+    /// a bus of several differ; empty when not known.
     pub read: String,
 }
 
