@@ -436,7 +436,7 @@ impl Row {
 
     /// The wire bound of this row's configuration.
     fn bound(&self) -> Result<Bound> {
-        let mut wires = self.config(100.0)?.wire(&[self.read]);
+        let mut wires = self.config(100.0)?.wire(&[self.read], &[]);
         for w in &mut wires {
             w.read = self.read;
             w.adapter = self.adapter;

@@ -163,11 +163,11 @@ fn bring_up(read: &str, firmware_3: Option<u8>) -> Result<ReadKind, BringUpError
     let mut rig = sim_rig(sim);
     let mut bus = arm.limited(&mut rig.bus, LimitPolicy::Clamp);
     let up = arm.bring_up(&mut bus, BringUpOptions::default())?;
-    assert_eq!(bus.read_kind(), up.read);
+    assert_eq!(bus.read_kind(), up.read());
     // Whatever the read, the arm reads its pose.
     let pose = arm.read_pose(&mut bus).unwrap();
     assert_eq!(pose.len(), 4);
-    Ok(up.read)
+    Ok(up.read())
 }
 
 #[test]

@@ -292,10 +292,11 @@ impl Config {
     /// read with `reads[k]` (what bring-up chose; the last one for ports beyond): its servos,
     /// the baud rate and Return Delay Time, the block the loop reads (the 13 bytes of the
     /// indirect block, health included, where every joint's model shares its address; else
-    /// Present Velocity and Position) and, for a simulated bus, the FTDI adapter model when
-    /// `[sim] adapter` names it (a real port's adapter is the bus's to tell:
-    /// [`crate::servo::ServoBus::adapters`]). Empty without a `[bus]`.
-    pub fn wire(&self, reads: &[ReadKind]) -> Vec<Wire> {
+    /// Present Velocity and Position) and its adapter: `found[k]` where the port told one
+    /// when it opened ([`crate::servo::ServoBus::adapters`]: a real port's FTDI latency
+    /// timer), else, for a simulated bus, the FTDI adapter model when `[sim] adapter` names it.
+    /// Empty without a `[bus]`.
+    pub fn wire(&self, reads: &[ReadKind], found: &[Option<Adapter>]) -> Vec<Wire> {
         let (Some(bus), Some(arm)) = (&self.bus, &self.arm) else {
             return Vec::new();
         };
@@ -310,7 +311,7 @@ impl Config {
                 .1
             }
         };
-        let adapter = self
+        let modelled = self
             .sim
             .as_ref()
             .and_then(|s| s.ftdi_latency)
@@ -330,7 +331,7 @@ impl Config {
                     .unwrap_or(ReadKind::Sync),
                 data_bytes: usize::from(data_bytes),
                 return_delay,
-                adapter,
+                adapter: found.get(k).copied().flatten().or(modelled),
             })
             .collect()
     }

@@ -476,7 +476,7 @@ fn several_ports_each_with_its_servos() {
     assert_eq!(bus.ports[1].port.as_deref(), Some("/dev/ttyUSB1"));
     assert_eq!(bus.port(), None, "no single port");
     assert_eq!(
-        c.wire(&[crate::servo::ReadKind::Sync])
+        c.wire(&[crate::servo::ReadKind::Sync], &[])
             .iter()
             .map(|w| w.servos)
             .collect::<Vec<_>>(),
@@ -1206,6 +1206,24 @@ fn the_ftdi_adapter_model_takes_a_latency_timer_of_the_chip_s_range() {
         &with("seed = 7", "seed = 7\nadapter = \"u2d2\""),
         &["u2d2", "ftdi"],
     );
+}
+
+#[test]
+fn a_port_s_own_adapter_sets_its_wire_over_the_simulator_s_model() {
+    use crate::servo::wire::Adapter;
+    use crate::servo::ReadKind;
+    let c = load(&with(
+        "seed = 7",
+        "seed = 7\nadapter = \"ftdi\"\nlatency_timer_ms = 4",
+    ))
+    .unwrap();
+    let modelled = Adapter::ftdi(Duration::from_millis(4));
+    let adapter = |found: &[Option<Adapter>]| c.wire(&[ReadKind::Fast], found)[0].adapter;
+    assert_eq!(adapter(&[]), Some(modelled));
+    assert_eq!(adapter(&[None]), Some(modelled));
+    assert_eq!(adapter(&[Some(Adapter::FTDI_1MS)]), Some(Adapter::FTDI_1MS));
+    let plain = load(&base_text()).unwrap();
+    assert_eq!(plain.wire(&[ReadKind::Sync], &[])[0].adapter, None);
 }
 
 #[test]

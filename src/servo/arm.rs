@@ -383,19 +383,15 @@ pub struct BringUp {
     pub rebooted: Vec<u8>,
     /// Exchanges sent again after a transient error.
     pub retries: u32,
-    /// The read set on the bus, from `[bus] read` and the servos' firmware: Fast Sync Read
-    /// when every port reads with it, else Sync Read (see `reads`).
-    pub read: ReadKind,
-    /// Each port's read, in port order (one entry on a bus of one port).
+    /// Each port's read, in port order (one entry on a bus of one port), from `[bus] read`
+    /// and the servos' firmware.
     pub reads: Vec<ReadKind>,
 }
 
-/// The read of a bus whose ports read with `kinds`: Fast Sync Read only when every port does.
-pub fn read_of(kinds: &[ReadKind]) -> ReadKind {
-    if !kinds.is_empty() && kinds.iter().all(|&k| k == ReadKind::Fast) {
-        ReadKind::Fast
-    } else {
-        ReadKind::Sync
+impl BringUp {
+    /// The bus's read: Fast Sync Read when every port reads with it, else Sync Read.
+    pub fn read(&self) -> ReadKind {
+        ReadKind::of_ports(&self.reads)
     }
 }
 
@@ -717,7 +713,6 @@ impl Arm {
             pose,
             rebooted,
             retries: retry.retries,
-            read: read_of(&reads),
             reads,
         })
     }
@@ -731,18 +726,18 @@ impl Arm {
         bus: &mut B,
         servos: &[PingInfo],
     ) -> Result<Vec<ReadKind>, BringUpError> {
-        let paired: Vec<(&JointServo, PingInfo)> =
-            self.joints.iter().zip(servos.iter().copied()).collect();
+        // Each port's servos, paired with their pings.
         let ports = bus.read_kinds().len().max(1);
+        let mut on_port: Vec<Vec<(&JointServo, PingInfo)>> = vec![Vec::new(); ports];
+        for (j, info) in self.joints.iter().zip(servos.iter().copied()) {
+            if let Some(group) = on_port.get_mut(bus.port_index(j.id)) {
+                group.push((j, info));
+            }
+        }
         let mut kinds = Vec::with_capacity(ports);
         let mut refused = Vec::new();
-        for port in 0..ports {
-            let on_port: Vec<(&JointServo, PingInfo)> = paired
-                .iter()
-                .filter(|(j, _)| bus.port_index(j.id) == port)
-                .copied()
-                .collect();
-            match choose_read(self.settings.read, &on_port) {
+        for group in &on_port {
+            match choose_read(self.settings.read, group) {
                 Ok(kind) => kinds.push(kind),
                 Err(cannot) => refused.extend(cannot),
             }
@@ -762,12 +757,9 @@ impl Arm {
                 .map_err(step("choosing the read"))?;
         }
         if self.settings.read == ReadChoice::Auto {
-            for (port, kind) in kinds.iter().enumerate() {
-                let first_slow = paired
-                    .iter()
-                    .filter(|(j, _)| bus.port_index(j.id) == port)
-                    .find(|(_, info)| !answers_fast(info));
-                if let (ReadKind::Sync, Some((j, info))) = (kind, first_slow) {
+            for (port, group) in on_port.iter().enumerate() {
+                let slow = group.iter().find(|(_, info)| !answers_fast(info));
+                if let Some((j, info)) = slow {
                     tracing::info!(
                         id = j.id,
                         firmware = info.firmware,
@@ -780,7 +772,7 @@ impl Arm {
                 }
             }
         }
-        let read = read_of(&kinds);
+        let read = ReadKind::of_ports(&kinds);
         tracing::info!(%read, ports, servos = servos.len(), "bus read chosen");
         Ok(kinds)
     }

@@ -243,6 +243,16 @@ pub enum ReadKind {
 }
 
 impl ReadKind {
+    /// The read of a bus whose ports read with `kinds`: Fast Sync Read only when every port
+    /// does (none: Sync Read).
+    pub fn of_ports(kinds: &[Self]) -> Self {
+        if !kinds.is_empty() && kinds.iter().all(|&k| k == Self::Fast) {
+            Self::Fast
+        } else {
+            Self::Sync
+        }
+    }
+
     /// `"sync"` or `"fast"`, as in the config and the protocol.
     pub const fn as_str(self) -> &'static str {
         match self {

@@ -406,8 +406,7 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
     fn read_kind(&self) -> ReadKind {
         match &self.inner {
             Inner::One(bus) => bus.read_kind(),
-            Inner::Many(_) if self.reads.iter().all(|&k| k == ReadKind::Fast) => ReadKind::Fast,
-            Inner::Many(_) => ReadKind::Sync,
+            Inner::Many(_) => ReadKind::of_ports(&self.reads),
         }
     }
 

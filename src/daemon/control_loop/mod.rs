@@ -338,7 +338,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         tracing::info!(
             servos = brought.servos.len(),
             retries = brought.retries,
-            read = %brought.read,
+            read = %brought.read(),
             reads = ?brought.reads,
             "arm up, holding its present pose"
         );
@@ -413,13 +413,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if !servo_ports.is_empty() {
             health.set_ports(&servo_ports);
         }
-        let mut wires = config.wire(&brought.reads);
-        // A real port behind a USB adapter: its latency timer as found when it opened.
-        for (w, adapter) in wires.iter_mut().zip(bus.adapters()) {
-            if adapter.is_some() {
-                w.adapter = adapter;
-            }
-        }
+        let wires = config.wire(&brought.reads, &bus.adapters());
         let wire = crate::servo::wire::bound_of_ports(&wires);
         let wire_bound_hz = wire.map_or(f64::INFINITY, |b| b.rate_hz());
         if let Some(b) = wire {
@@ -428,7 +422,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 wire_bound_hz = b.rate_hz(),
                 wire_tick_us = b.tick.as_secs_f64() * 1e6,
                 ports = wires.len(),
-                read = %brought.read,
+                read = %brought.read(),
                 "control loop at {:.0} Hz; the wire allows this arm at most {:.0} Hz \
                  ({} bytes a tick on its busiest port)",
                 c.rate_hz,
