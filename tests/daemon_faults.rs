@@ -172,8 +172,7 @@ fn one_percent_drops_and_corruption_on_two_ports_stay_within_the_error_budget() 
 
 /// What every port's simulator dropped and corrupted so far.
 fn sim_losses(d: &Daemon) -> (u64, u64) {
-    std::iter::once(&d.sim)
-        .chain(&d.more_sims)
+    d.sims()
         .map(|sim| sim.with_sim(|s| s.stats()))
         .fold((0, 0), |(dr, co), st| (dr + st.dropped, co + st.corrupted))
 }

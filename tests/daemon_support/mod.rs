@@ -108,8 +108,8 @@ impl Daemon {
     /// Enable in the simulator.
     pub fn stop_and_torques(mut self) -> (Result<Summary, DaemonError>, Vec<(u8, bool)>) {
         let result = self.finish();
-        let torques = std::iter::once(&self.sim)
-            .chain(&self.more_sims)
+        let torques = self
+            .sims()
             .flat_map(|sim| {
                 sim.with_sim(|s| {
                     s.servos()
@@ -129,10 +129,14 @@ impl Daemon {
             .unwrap()
     }
 
+    /// Every port's simulator, in port order.
+    pub fn sims(&self) -> impl Iterator<Item = &SimHandle> {
+        std::iter::once(&self.sim).chain(&self.more_sims)
+    }
+
     /// The simulator of servo `id`'s port.
     pub fn sim_of(&self, id: u8) -> &SimHandle {
-        std::iter::once(&self.sim)
-            .chain(&self.more_sims)
+        self.sims()
             .find(|s| s.with_servo(id, |_| ()).is_some())
             .expect("a simulator serves the servo")
     }
