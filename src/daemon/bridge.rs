@@ -5,8 +5,9 @@
 //! needs a multi-threaded one; the daemon's is single-threaded). Under `<prefix>/` it publishes
 //! `joint_states`, `tip`, `target` (ROS 2 messages in CDR, [`crate::ros`]), `telemetry` (the
 //! socket's telemetry line) and `events` (event lines, and refusals of network commands), at
-//! `publish_hz` from the loop's latest telemetry: the loop hands over a snapshot, latest wins,
-//! and never waits on Zenoh. It answers `<prefix>/status` (the socket's `status` reply) and
+//! `publish_hz` from the loop's latest telemetry, right after the end of a tick (in the idle
+//! rest of the loop's period): the loop hands over a snapshot, latest wins, and never waits on
+//! Zenoh. It answers `<prefix>/status` (the socket's `status` reply) and
 //! `<prefix>/describe`, and holds the liveliness token `<prefix>` while it runs.
 //!
 //! With `accept_commands`, `cmd_vel` (`Twist`) and `goal` (`PointStamped`) become `velocity`
@@ -503,17 +504,23 @@ impl<'a> Served<'a> {
         let mut ticker = time::interval(self.settings.publish_period);
         ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
         let mut telemetry = self.door.telemetry();
+        let tick_done = self.door.tick_done();
         let mut events = self.door.events();
         let mut events_open = true;
         // When the last network command was taken, while this door may hold control.
         let mut last_command: Option<time::Instant> = None;
         let mut refusals = Refusals::default();
         let (answers_tx, mut answers) = tokio::sync::mpsc::channel::<Rejection>(QUERY_QUEUE);
+        // A publication is due: it goes out when the loop's next tick ends, in the idle rest
+        // of the loop's period, so that encoding and sending it never overlap a tick's work.
+        let mut due = false;
         loop {
             let silence = last_command.map(|t| t + self.settings.deadman);
             tokio::select! {
                 _ = &mut *stop => break,
-                _ = ticker.tick() => {
+                _ = ticker.tick() => due = true,
+                () = tick_done.notified(), if due => {
+                    due = false;
                     if telemetry.has_changed().unwrap_or(false) {
                         // Cloned, then the snapshot is let go: encoding never holds the loop.
                         let t = telemetry.borrow_and_update().clone();

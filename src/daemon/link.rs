@@ -8,12 +8,14 @@
 //! Telemetry comes out latest-wins through a `watch` (a slow reader sees fewer snapshots, never
 //! older ones). Events go out through a `broadcast` of
 //! [`EVENT_QUEUE`] slots (a reader that falls that far behind loses the oldest, and is told
-//! how many it lost).
+//! how many it lost). A `Notify` says when a tick's work is done, after its time is taken:
+//! a side thread that waits for it publishes in the idle rest of the loop's period, and the
+//! loop wakes it outside its tick.
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use tokio::sync::{broadcast, mpsc, oneshot, watch};
+use tokio::sync::{broadcast, mpsc, oneshot, watch, Notify};
 
 pub use crate::protocol::Answer;
 use crate::protocol::{ClientId, Describe, Event, LoopCmd, RequestId, Telemetry};
@@ -55,6 +57,8 @@ pub struct Handle {
     pub telemetry: watch::Receiver<Telemetry>,
     /// Events; each client subscribes its own receiver.
     pub events: broadcast::Sender<Event>,
+    /// Notified (`notify_waiters`) each time a tick's work is done.
+    pub tick_done: Arc<Notify>,
     /// The arm's description, fixed for the daemon's life.
     pub describe: Arc<Describe>,
 }
@@ -70,6 +74,8 @@ pub struct LoopEnds {
     pub telemetry: watch::Sender<Telemetry>,
     /// Events.
     pub events: broadcast::Sender<Event>,
+    /// Notified once a tick's work is done, outside the tick's time.
+    pub tick_done: Arc<Notify>,
 }
 
 /// A connected pair of ends, the telemetry starting from `initial`.
@@ -78,12 +84,14 @@ pub fn channel(describe: Describe, initial: Telemetry) -> (Handle, LoopEnds) {
     let (stops_tx, stops_rx) = mpsc::channel(STOP_QUEUE);
     let (telemetry_tx, telemetry_rx) = watch::channel(initial);
     let (events_tx, _) = broadcast::channel(EVENT_QUEUE);
+    let tick_done = Arc::new(Notify::new());
     (
         Handle {
             commands: commands_tx,
             stops: stops_tx,
             telemetry: telemetry_rx,
             events: events_tx.clone(),
+            tick_done: Arc::clone(&tick_done),
             describe: Arc::new(describe),
         },
         LoopEnds {
@@ -91,6 +99,7 @@ pub fn channel(describe: Describe, initial: Telemetry) -> (Handle, LoopEnds) {
             stops: stops_rx,
             telemetry: telemetry_tx,
             events: events_tx,
+            tick_done,
         },
     )
 }

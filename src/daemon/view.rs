@@ -3,8 +3,9 @@
 //!
 //! [`View::open`] binds the server before anything moves (a taken port stops start-up);
 //! [`View::start`] hands it a [`Door`]; [`View::stop`] closes it. Its thread runs its own
-//! runtime and never holds the loop up: at `publish_hz` it clones the latest telemetry from
-//! the loop's `watch` (latest wins: a skipped sample is never queued) and sends the joints,
+//! runtime and never holds the loop up: at `publish_hz`, right after the loop's next tick
+//! ends (in the idle rest of its period, not across a tick), it clones the latest telemetry
+//! from the loop's `watch` (latest wins: a skipped sample is never queued) and sends the joints,
 //! the tips, the target, the telemetry line and the whole scene again (so a client that joins
 //! late sees the arm at rest); events come from the loop's broadcast, and what it misses
 //! when behind is counted ([`View::stop`] logs the count). Each Foxglove client has a bounded
@@ -32,7 +33,7 @@ use foxglove::{Context, PartialMetadata, RawChannel, WebSocketServer};
 use serde::Deserialize;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{broadcast, mpsc, oneshot, Semaphore};
+use tokio::sync::{broadcast, mpsc, oneshot, watch, Semaphore};
 use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
@@ -490,19 +491,30 @@ impl Served<'_> {
         let mut ticker = time::interval(self.settings.publish_period);
         ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
         let mut telemetry = self.door.telemetry();
+        let tick_done = self.door.tick_done();
         let mut events = self.door.events();
         let mut events_open = true;
         let mut last_command: Option<time::Instant> = None;
         let mut last_refusal: Option<Code> = None;
         let (refusals_tx, mut refusals) = mpsc::channel::<Rejection>(REFUSAL_QUEUE);
+        // A publication is due: it goes out when the loop's next tick ends, in the idle rest
+        // of the loop's period, so that encoding and sending it never overlap a tick's work.
+        let mut due = false;
         loop {
             let silence = last_command.map(|t| t + self.settings.deadman);
             tokio::select! {
                 _ = &mut *stop => break,
                 _ = ticker.tick() => {
-                    // Cloned, then the snapshot is let go: building never holds the loop.
-                    let t = telemetry.borrow_and_update().clone();
-                    self.publish(&t);
+                    if due {
+                        // No tick ended in a whole publish period (the loop has stopped):
+                        // the last snapshot goes out on the view's own clock.
+                        self.publish_latest(&mut telemetry);
+                    }
+                    due = true;
+                }
+                () = tick_done.notified(), if due => {
+                    due = false;
+                    self.publish_latest(&mut telemetry);
                 }
                 event = events.recv(), if events_open => match event {
                     Ok(event) => self.event(&event),
@@ -546,6 +558,13 @@ impl Served<'_> {
                 "the Foxglove view fell behind"
             );
         }
+    }
+
+    /// Publishes the loop's latest snapshot: cloned, then let go, so that building the
+    /// messages never holds the loop.
+    fn publish_latest(&mut self, telemetry: &mut watch::Receiver<protocol::Telemetry>) {
+        let t = telemetry.borrow_and_update().clone();
+        self.publish(&t);
     }
 
     /// Sends one snapshot on every channel, and the scene.

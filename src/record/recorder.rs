@@ -367,7 +367,7 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
         }
     };
     while !drain.is_done() {
-        let Some(item) = drain.next(tap::BATCH) else {
+        let Some(item) = drain.next(tap::DRAIN_AT_LEAST_EVERY) else {
             continue;
         };
         let Some(ch) = channels.as_ref().filter(|_| error.is_none()) else {

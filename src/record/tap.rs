@@ -7,10 +7,12 @@
 //! the oldest item is dropped to make room, and the drop is counted per kind: what the
 //! recorder writes plus what was dropped is what the loop offered. The lock is held only to
 //! move an item in or out (the recorder writes outside it), so the loop never waits on the
-//! disk. The recorder is not woken per item: it drains every [`BATCH`], or once the queue is
-//! half full.
+//! disk. The recorder is not woken per item: once an offer brings the queue to [`WAKE_AT`]
+//! items, the loop wakes it after that tick's work ([`Tap::wake`]), so that it encodes and
+//! writes in the idle rest of the loop's period rather than across the next tick.
 
 use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Duration;
 
@@ -19,10 +21,19 @@ use crate::protocol::{Event, FaultInfo, Telemetry};
 /// Items the queue holds by default: 10 s of ticks at 100 Hz, about 1 kB each for 12 joints.
 pub const RECORD_QUEUE: usize = 1024;
 
-/// How long the recorder sleeps between two drains of the queue while the loop runs (less when
-/// the queue fills to half first): at 1 kHz, 50 items a drain, where one wake-up a tick would
-/// put a thread switch on the loop's cores every tick.
-pub const BATCH: Duration = Duration::from_millis(50);
+/// Items queued when the loop wakes the recorder (half the queue, if that is fewer): the
+/// offer that brings the queue to it marks a wake-up, which the loop makes after its tick
+/// ([`Tap::wake`]), so the recorder's burst (about a quarter of a millisecond here) falls in
+/// the loop's idle time, not across a tick. At 1 kHz that is one wake-up, one system call of
+/// the loop, in 32 ticks; waking it every tick would put a thread switch on the loop's cores
+/// every tick.
+pub const WAKE_AT: usize = 32;
+
+/// How long the recorder waits for a wake-up before it drains what is queued anyway: the
+/// bound on how long an item waits when the loop offers fewer than [`WAKE_AT`] in that time
+/// (below 32 Hz). Draining on its own clock lands at any phase of the loop's period, which is
+/// why it is only the fallback.
+pub const DRAIN_AT_LEAST_EVERY: Duration = Duration::from_secs(1);
 
 /// What the loop offered of one kind, and how much of it the full queue dropped.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -64,6 +75,8 @@ struct Queue {
     #[allow(clippy::vec_box)]
     spare: Vec<Box<Telemetry>>,
     counts: Counts,
+    /// Offers that woke the recorder.
+    wakes: u64,
     /// The recorder takes nothing more: everything offered from now on is dropped.
     stopped: bool,
     /// The recorder is to finish once the queue is empty.
@@ -73,8 +86,10 @@ struct Queue {
 #[derive(Debug)]
 struct Shared {
     queue: Mutex<Queue>,
-    /// Signalled when the queue turns non-empty, or closes.
+    /// Signalled when a batch is whole (after the loop's tick), or the hand-over closes.
     ready: Condvar,
+    /// A batch is whole and the recorder not yet woken for it.
+    wake: AtomicBool,
 }
 
 impl Shared {
@@ -108,10 +123,12 @@ pub fn channel(capacity: usize, joints: usize) -> (Tap, Drain) {
             capacity,
             spare,
             counts: Counts::default(),
+            wakes: 0,
             stopped: false,
             closing: false,
         }),
         ready: Condvar::new(),
+        wake: AtomicBool::new(false),
     });
     (
         Tap {
@@ -167,10 +184,8 @@ impl Tap {
         };
         copy_into(&mut buffer, telemetry);
         q.items.push_back(Item::Tick(buffer));
-        let wake = q.half_full();
-        drop(q);
-        if wake {
-            self.shared.ready.notify_one();
+        if q.wakes_recorder() {
+            self.shared.wake.store(true, Ordering::Relaxed);
         }
     }
 
@@ -188,9 +203,16 @@ impl Tap {
             }
         }
         q.items.push_back(Item::Event(event.clone()));
-        let wake = q.half_full();
-        drop(q);
-        if wake {
+        if q.wakes_recorder() {
+            self.shared.wake.store(true, Ordering::Relaxed);
+        }
+    }
+
+    /// Wakes the recorder if an offer since the last call completed a batch: called by the
+    /// loop after its tick's work, so the wake-up's system call and the recorder's burst stay
+    /// out of the tick.
+    pub fn wake(&self) {
+        if self.shared.wake.swap(false, Ordering::Relaxed) {
             self.shared.ready.notify_one();
         }
     }
@@ -202,11 +224,13 @@ impl Tap {
 }
 
 impl Queue {
-    /// The queue has just reached half its capacity: the one offer that wakes the recorder
-    /// early. Otherwise the recorder drains on its own period ([`BATCH`]), so the loop makes no
-    /// system call and wakes no thread per tick.
-    fn half_full(&self) -> bool {
-        self.items.len() == (self.capacity / 2).max(1)
+    /// The queue has just reached [`WAKE_AT`] items (or half its capacity): the one offer of
+    /// the batch that asks for a wake-up, so the loop makes no system call and wakes no thread
+    /// on the other ticks.
+    fn wakes_recorder(&mut self) -> bool {
+        let wake = self.items.len() == (self.capacity / 2).clamp(1, WAKE_AT);
+        self.wakes += u64::from(wake);
+        wake
     }
 
     /// Drops the oldest item, counted; its buffer, if it was a snapshot.
@@ -483,6 +507,42 @@ mod tests {
             }
         }
         assert_eq!(kept, [7, 8, 9, 110]);
+    }
+
+    #[test]
+    fn the_recorder_is_woken_once_a_batch_by_the_offer_that_completes_it() {
+        let (tap, drain) = channel(RECORD_QUEUE, 3);
+        let wakes = || drain.shared.lock().wakes;
+        for tick in 0..WAKE_AT as u64 - 1 {
+            tap.offer_tick(&snapshot(tick, false));
+        }
+        assert_eq!(wakes(), 0, "no wake-up before the batch is whole");
+        tap.offer_tick(&snapshot(99, false));
+        assert_eq!(wakes(), 1);
+        assert!(
+            drain.shared.wake.load(Ordering::Relaxed),
+            "marked for after the tick"
+        );
+        tap.wake();
+        assert!(!drain.shared.wake.load(Ordering::Relaxed), "woken once");
+        for tick in 0..10 {
+            tap.offer_event(&event(tick));
+        }
+        assert_eq!(wakes(), 1, "one wake-up per batch, however long it waits");
+        while let Some(item) = drain.next(Duration::ZERO) {
+            if let Item::Tick(t) = item {
+                drain.recycle(t);
+            }
+        }
+        for tick in 0..WAKE_AT as u64 {
+            tap.offer_tick(&snapshot(tick, false));
+        }
+        assert_eq!(wakes(), 2, "the next batch wakes it again");
+        // A queue shorter than two batches wakes it at half its capacity.
+        let (small, drain) = channel(4, 3);
+        small.offer_tick(&snapshot(0, false));
+        small.offer_tick(&snapshot(1, false));
+        assert_eq!(drain.shared.lock().wakes, 1);
     }
 
     #[test]

@@ -742,6 +742,22 @@ fn a_stall_past_the_bus_watchdog_recovers_the_servos_whose_watchdog_fired() {
 }
 
 #[test]
+fn what_waits_for_the_end_of_a_tick_is_woken_by_it_with_its_snapshot_out() {
+    use futures_util::FutureExt;
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(1);
+    let before = rig.status().tick;
+    let tick_done = Arc::clone(&rig.handle.tick_done);
+    let notified = tick_done.notified();
+    tokio::pin!(notified);
+    notified.as_mut().enable();
+    assert!((&mut notified).now_or_never().is_none(), "no tick yet");
+    rig.ticks(1);
+    assert!(notified.now_or_never().is_some(), "the tick woke it");
+    assert_eq!(rig.status().tick, before + 1, "its snapshot was out first");
+}
+
+#[test]
 fn overruns_count_the_periods_a_late_tick_skipped() {
     let mut rig = Rig::new(100.0, "");
     rig.ticks(10);

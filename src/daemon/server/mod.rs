@@ -43,7 +43,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc::error::TrySendError;
-use tokio::sync::{broadcast, oneshot, watch, OwnedSemaphorePermit, Semaphore};
+use tokio::sync::{broadcast, oneshot, watch, Notify, OwnedSemaphorePermit, Semaphore};
 use tokio::task::JoinSet;
 use tokio::time;
 use tracing::{debug, error, warn};
@@ -315,6 +315,12 @@ impl Door {
     /// The loop's latest telemetry (latest wins: reading it never holds the loop up).
     pub fn telemetry(&self) -> watch::Receiver<Telemetry> {
         self.shared.handle.telemetry.clone()
+    }
+
+    /// Notified each time a tick's work is done: what publishes in the loop's idle time waits
+    /// for it (the loop wakes it outside its tick).
+    pub fn tick_done(&self) -> Arc<Notify> {
+        Arc::clone(&self.shared.handle.tick_done)
     }
 
     /// The loop's events, from now on.
