@@ -41,6 +41,16 @@
 //!   O(n) per constraint). Kept only when the optimality residual at least
 //!   halves and no pair's multiplier turns negative. Dense: used up to [`NEWTON_MAX_JOINTS`]
 //!   joints, beyond which the SQP steps alone finish (linear convergence).
+//! - **Kept factors**. The factors of a Newton step's KKT system are kept, and the next step
+//!   solves with them instead of its own when the free joints and the active pairs are the same
+//!   and no point moved more than [`REUSE_MOVE`] of the scale since (a chord step, for the
+//!   multipliers' change: the residual is always today's). One that does not contract is
+//!   taken again with fresh factors. A control tick after one that leaned starts with such a
+//!   step (the last tick's factors were built at its answer, where this tick starts) instead of
+//!   an SQP step; a typical leaning tick so factorizes once, not twice, and solves no
+//!   subproblem. Its evaluations before a Newton step take the pairs within
+//!   [`NEWTON_MARGIN`] only, and the pairs of an evaluation at the same points and margin as
+//!   the last are not looked up again (a tick starts where the last ended).
 //! - **Stop**: converged when the tip is within the tolerance, the least clearance within the
 //!   tip tolerance of `clearance_m`, and stationarity and complementarity (`nu_j` times the
 //!   pair's slack) within the stationarity tolerance; not converged at the iteration cap, when
@@ -51,7 +61,10 @@
 //!
 //! The answer a caller gets is checked once more with [`World::clearance`] (exact, all pairs):
 //! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
-//! of a distance on an arm of some metres.
+//! of a distance on an arm of some metres. A control tick whose last evaluation was of its
+//! answer and found a pair within its margin takes that evaluation's least clearance instead
+//! (exact too, by the candidates' bound); the controller checks the goal against the world
+//! before it sends it.
 
 // The loops walk several per-joint (or per-row) arrays in step; indices read best there.
 #![allow(clippy::needless_range_loop)]
@@ -85,6 +98,13 @@ pub const CLEAR_SLACK: f64 = 1e-9;
 const MARGIN_MOVES: f64 = 3.0;
 /// ...plus this fraction of the mean link length.
 const MARGIN_FLOOR: f64 = 0.05;
+/// The margin of the evaluation that precedes a Newton step of a control tick, as a fraction
+/// of the mean link length: that step takes no pair beyond contact (the subproblem of an SQP
+/// step does, before they are reached), so the pairs near contact are enough: those leaning,
+/// and those a step brought within it (the least clearance, exact whatever the margin, tells
+/// the step's judge). A cold solve keeps the full margin: its Newton steps start further from
+/// their answer, and on one reference case the lean margin led a start to a worse optimum.
+const NEWTON_MARGIN: f64 = 0.005;
 /// Two selected pairs with the same obstacle whose contact points are this close (relative to
 /// the scale) are the same constraint.
 const SAME_CONTACT: f64 = 1e-9;
@@ -102,6 +122,12 @@ pub const TICK_STALL_STEPS: usize = 4;
 const FD_STEP: f64 = 1e-7;
 /// A Newton multiplier of a pair below `-this * (1 + |nu|)` means the active set is wrong.
 const NEGATIVE_NU: f64 = 1e-9;
+/// A Newton step solves with the factors of the last one when the free joints and the active
+/// pairs are the same and no point has moved more than this fraction of the scale since they
+/// were built (a chord step, whose error is about this times the step's where a fresh Newton
+/// step's is the step's square). A chord step that does not contract as a Newton step must is
+/// taken again with fresh factors.
+const REUSE_MOVE: f64 = 1e-4;
 /// Cold solves: random starts among obstacles, in multiples of `random_starts`.
 const RANDOM_FACTOR: usize = 3;
 
@@ -143,6 +169,24 @@ pub(super) struct ClearWork {
     ds: active::ActiveScratch,
     /// Newton scratch: the structured Hessian and its KKT solves.
     newton: newton::Newton,
+    /// What the factors kept in `newton` were built for: the free joints, the active pairs'
+    /// keys, the points (see `REUSE_MOVE`).
+    fact_free: Vec<usize>,
+    fact_keys: Vec<(usize, usize)>,
+    fact_pts: Vec<Vec2>,
+    /// The next local solve starts with a Newton step (a warm tick after one that leaned).
+    newton_first: bool,
+    /// A control tick is being solved (not a cold solve).
+    tick: bool,
+    /// What the pairs (`all`) and their selection were found for: the points, the margin and
+    /// the scale; `evaluated` false when none stands (a new world or problem).
+    eval_pts: Vec<Vec2>,
+    eval_margin: f64,
+    eval_scale: f64,
+    evaluated: bool,
+    /// The pose of the last evaluation, when it was made in the solve under way.
+    eval_theta: Vec<f64>,
+    eval_current: bool,
     rhs: Vec<f64>,
     free: Vec<usize>,
     held_move: Vec<f64>,
@@ -230,40 +274,73 @@ fn weight(w: f64, norm: f64, elastic: bool, scale: f64) -> f64 {
 /// clearance moves by at most the largest move of its two ends, so while every point is within
 /// `d` of `pts`, a pair whose clearance is now at most `reach - d` is among them: a search of a
 /// margin `m` with `m + d <= reach` reads the candidates alone, exactly, and only a pose that
-/// strayed further searches the world again (with [`CANDIDATE_SLACK`] to spare).
+/// strayed further searches the world again (with [`CANDIDATE_SLACK`] to spare). Each
+/// candidate keeps the clearance it was last measured at and its link's ends then, so that
+/// by the same bound only those that can have come within the margin since are measured again.
 #[derive(Debug, Default)]
 struct Candidates {
-    /// Link, obstacle, and the pair's clearance at `pts`.
-    keys: Vec<(usize, usize, f64)>,
+    keys: Vec<CandidatePair>,
     pts: Vec<Vec2>,
     reach: f64,
-    /// How far each point has moved from `pts` (see [`Candidates::stray`]).
-    moved: Vec<f64>,
+}
+
+/// One candidate pair and where it was last measured.
+#[derive(Debug, Clone, Copy)]
+struct CandidatePair {
+    link: usize,
+    obstacle: usize,
+    /// Its clearance when last measured, m...
+    was: f64,
+    /// ...with its link's two ends there.
+    ends: [Vec2; 2],
+}
+
+impl CandidatePair {
+    fn of(q: &Pair, pts: &[Vec2]) -> Self {
+        Self {
+            link: q.link,
+            obstacle: q.obstacle,
+            was: q.clearance_m,
+            ends: [pts[q.link - 1], pts[q.link]],
+        }
+    }
+
+    /// Whether its clearance at `pts` can be at most `margin_m`: its link's ends moved at
+    /// least `was - margin_m` since it was measured (the bound of [`Candidates`]).
+    fn may_be_within(&self, pts: &[Vec2], margin_m: f64) -> bool {
+        let gap = self.was - margin_m;
+        // A NaN (margin or clearance) is measured too.
+        if gap.is_nan() || gap <= 0.0 {
+            return true;
+        }
+        let g2 = gap * gap;
+        (pts[self.link - 1] - self.ends[0]).norm_squared() >= g2
+            || (pts[self.link] - self.ends[1]).norm_squared() >= g2
+    }
+
+    /// Measures it at `pts`, and remembers where.
+    fn measure(&mut self, world: &World, pts: &[Vec2]) -> Pair {
+        let q = world.pair(pts, self.link, self.obstacle);
+        self.was = q.clearance_m;
+        self.ends = [pts[self.link - 1], pts[self.link]];
+        q
+    }
 }
 
 /// The candidates are found with this fraction of the mean link length beyond the margin asked.
 const CANDIDATE_SLACK: f64 = 0.1;
 
 impl Candidates {
-    /// Largest move of a point of `pts` from where the candidates were found (each point's
-    /// kept in `moved`); infinite for points of another chain.
-    fn stray(&mut self, pts: &[Vec2]) -> f64 {
+    /// Largest move of a point of `pts` from where the candidates were found; infinite for
+    /// points of another chain.
+    fn stray(&self, pts: &[Vec2]) -> f64 {
         if pts.len() != self.pts.len() {
             return f64::INFINITY;
         }
-        self.moved.resize(pts.len(), 0.0);
-        let mut most: f64 = 0.0;
-        for ((m, a), b) in self.moved.iter_mut().zip(&self.pts).zip(pts) {
-            *m = (a - b).norm();
-            most = most.max(*m);
-        }
-        most
-    }
-
-    /// The most the clearance of a pair of `link` has fallen since the candidates were found:
-    /// the larger move of the link's two ends (after [`Candidates::stray`]).
-    fn link_moved(&self, link: usize) -> f64 {
-        self.moved[link - 1].max(self.moved[link])
+        self.pts
+            .iter()
+            .zip(pts)
+            .fold(0.0_f64, |most, (a, b)| most.max((a - b).norm()))
     }
 
     /// [`World::near_pairs`] of `pts` for `margin_m`, in the same order, through the candidates
@@ -284,17 +361,15 @@ impl Candidates {
             world.near_pairs(pts, self.reach, out);
             self.keys.clear();
             self.keys
-                .extend(out.iter().map(|q| (q.link, q.obstacle, q.clearance_m)));
+                .extend(out.iter().map(|q| CandidatePair::of(q, pts)));
             self.pts.clone_from_slice(pts);
         } else {
             out.clear();
-            // A pair farther than the margin by more than its link's ends moved stays beyond it.
-            out.extend(
-                self.keys
-                    .iter()
-                    .filter(|&&(link, _, was)| was - self.link_moved(link) <= margin_m)
-                    .map(|&(link, k, _)| world.pair(pts, link, k)),
-            );
+            for key in &mut self.keys {
+                if key.may_be_within(pts, margin_m) {
+                    out.push(key.measure(world, pts));
+                }
+            }
         }
         out.retain(|q| q.clearance_m <= margin_m);
     }
@@ -306,9 +381,9 @@ impl Candidates {
         if floor_m + strayed <= self.reach {
             let least = self
                 .keys
-                .iter()
-                .filter(|&&(link, _, was)| was - self.link_moved(link) < floor_m)
-                .map(|&(link, k, _)| world.pair(pts, link, k).clearance_m)
+                .iter_mut()
+                .filter(|key| key.may_be_within(pts, floor_m))
+                .map(|key| key.measure(world, pts).clearance_m)
                 .fold(f64::INFINITY, f64::min);
             if least < floor_m {
                 least
@@ -355,7 +430,6 @@ impl ClearWork {
             keys: Vec::with_capacity(pairs),
             pts: vec![Vec2::zeros(); n + 1],
             reach: f64::NEG_INFINITY,
-            moved: vec![0.0; n + 1],
         };
         self.key = vec![(0, 0); MAX_PAIRS];
         self.prev_key = vec![(0, 0); MAX_PAIRS];
@@ -377,12 +451,23 @@ impl ClearWork {
         }
         self.free = Vec::with_capacity(n);
         self.active = Vec::with_capacity(MAX_PAIRS);
+        self.fact_free = Vec::with_capacity(n);
+        self.fact_keys = Vec::with_capacity(MAX_PAIRS);
+        self.fact_pts = vec![Vec2::zeros(); n + 1];
+        self.eval_pts = vec![Vec2::zeros(); n + 1];
+        self.evaluated = false;
+        self.eval_theta = vec![0.0; n];
+        self.eval_current = false;
+        self.newton.forget();
         self.engaged = false;
     }
 
-    /// Forgets the pairs' multipliers (a new problem, or a start of a cold solve).
+    /// Forgets the pairs' multipliers and the kept Newton factors (a new problem, or a start
+    /// of a cold solve).
     pub fn forget(&mut self) {
         self.prev_k = 0;
+        self.newton.forget();
+        self.evaluated = false;
     }
 
     /// The pair (link, obstacle) of least clearance among those the last evaluation found
@@ -407,7 +492,9 @@ impl ClearWork {
     }
 
     /// Evaluates `theta`: points, tip Jacobian, the selected pairs with their multipliers
-    /// (carried by key), and the residuals for the tip multiplier `mu`.
+    /// (carried by key), and the residuals for the tip multiplier `mu`; `newton` when a Newton
+    /// step comes next (see [`NEWTON_MARGIN`]).
+    #[allow(clippy::too_many_arguments)]
     fn eval(
         &mut self,
         p: &Problem,
@@ -416,6 +503,7 @@ impl ClearWork {
         lo: &[f64],
         hi: &[f64],
         mu: [f64; 2],
+        newton: bool,
     ) -> At {
         let n = self.n;
         p.chain.points_into(theta, &mut self.pts);
@@ -429,14 +517,31 @@ impl ClearWork {
         let cm = world.clearance_m();
         let mean_link = p.chain.reach() / n.max(1) as f64;
         let moves = c.norm().max(self.last_move).min(mean_link);
-        let margin = cm + MARGIN_MOVES * moves + MARGIN_FLOOR * mean_link;
-        self.cand
-            .near_pairs(world, &self.pts, margin, mean_link, &mut self.all);
+        let margin = if newton && self.tick {
+            cm + NEWTON_MARGIN * mean_link
+        } else {
+            cm + MARGIN_MOVES * moves + MARGIN_FLOOR * mean_link
+        };
+        // The pairs and their selection depend on the points and the margin alone: those of
+        // the last evaluation stand for the same (a tick's start is the last tick's answer).
+        let same = self.evaluated
+            && margin == self.eval_margin
+            && p.scale == self.eval_scale
+            && self.eval_pts == self.pts;
+        if !same {
+            self.cand
+                .near_pairs(world, &self.pts, margin, mean_link, &mut self.all);
+            self.select(p.scale);
+            self.eval_pts.clone_from(&self.pts);
+            (self.eval_margin, self.eval_scale) = (margin, p.scale);
+            self.evaluated = true;
+        }
+        self.eval_theta.copy_from_slice(theta);
+        self.eval_current = true;
         let least = self
             .all
             .iter()
             .fold(f64::INFINITY, |m, q| m.min(q.clearance_m));
-        self.select(p.scale);
         // Multipliers by key.
         for j in 0..self.k {
             self.nu[j] = (0..self.prev_k)
@@ -510,7 +615,7 @@ impl ClearWork {
         stall_steps: usize,
     ) -> ClearLocal {
         let mut iterations = 0;
-        let mut newton_ready = false;
+        let mut newton_ready = std::mem::take(&mut self.newton_first);
         let mut stall = ElasticStall::default();
         let (mut nu_t, mut nu_c) = (0.0, 0.0);
         self.last_move = 0.0;
@@ -521,7 +626,7 @@ impl ClearWork {
         loop {
             let at = match evaluated.take() {
                 Some(at) => at,
-                None => self.eval(p, world, theta, lo, hi, *mu),
+                None => self.eval(p, world, theta, lo, hi, *mu, newton_ready),
             };
             let residual = at.residual(p.scale);
             if residual < super::ELASTIC_STALL_RATIO * best_residual {
@@ -552,11 +657,25 @@ impl ClearWork {
             }
             iterations += 1;
             if newton_ready && self.n <= NEWTON_MAX_JOINTS {
-                if let Some(next) = self.try_newton(p, world, lo, hi, theta, mu, &at, tol) {
-                    evaluated = Some(next);
+                // With the kept factors when they fit, then (if that step was refused) fresh.
+                let mut reuse = true;
+                loop {
+                    let (next, reused) =
+                        self.try_newton(p, world, lo, hi, theta, mu, &at, tol, reuse);
+                    if let Some(next) = next {
+                        evaluated = Some(next);
+                        break;
+                    }
+                    // The scratch holds the refused pose's evaluation: back to `theta`'s.
+                    self.eval(p, world, theta, lo, hi, *mu, false);
+                    if !reused {
+                        break;
+                    }
+                    reuse = false;
+                }
+                if evaluated.is_some() {
                     continue;
                 }
-                self.eval(p, world, theta, lo, hi, *mu);
             }
             let round_off = |at: &At| {
                 at.cn <= tol
@@ -572,7 +691,7 @@ impl ClearWork {
                 ControlFlow::Break(()) => {
                     // With the multipliers of the last subproblem (no step left: optimal up
                     // to round-off when the conditions hold with them).
-                    let last = self.eval(p, world, theta, lo, hi, *mu);
+                    let last = self.eval(p, world, theta, lo, hi, *mu, false);
                     return ClearLocal {
                         converged: round_off(&last),
                         joined_best: false,
@@ -734,7 +853,8 @@ impl ClearWork {
 
     /// The Newton step on the optimality conditions (see the module doc); when taken, the
     /// evaluation of the pose it reached, with `theta`, `mu` and the pairs' multipliers
-    /// updated (the scratch holds that pose).
+    /// updated (the scratch holds that pose). With `reuse`, solves with the kept factors
+    /// when they fit (see [`REUSE_MOVE`]); the second value says whether it did.
     #[allow(clippy::too_many_arguments)]
     fn try_newton(
         &mut self,
@@ -746,7 +866,8 @@ impl ClearWork {
         mu: &mut [f64; 2],
         at: &At,
         tol: f64,
-    ) -> Option<At> {
+        reuse: bool,
+    ) -> (Option<At>, bool) {
         let n = self.n;
         let cm = world.clearance_m();
         // Active set: joints held at bounds, pairs leaning or not clear.
@@ -774,17 +895,20 @@ impl ClearWork {
         let m = self.free.len();
         let ka = self.active.len();
         if m < 2 {
-            return None;
+            return (None, false);
         }
-        // Lagrangian Hessian I + G - sum nu_j H_j in structured form (module `newton`).
-        let pts = &self.pts[..=n];
-        self.newton.begin(pts, *mu);
-        for &j in &self.active {
-            let (link, obstacle) = self.key[j];
-            if self.nu[j] != 0.0 {
-                let h = FD_STEP * p.scale;
-                self.newton
-                    .add_pair(world, pts, link, obstacle, self.nu[j], h);
+        let reused = reuse && self.factors_fit(p.scale);
+        if !reused {
+            // Lagrangian Hessian I + G - sum nu_j H_j in structured form (module `newton`).
+            let pts = &self.pts[..=n];
+            self.newton.begin(pts, *mu);
+            for &j in &self.active {
+                let (link, obstacle) = self.key[j];
+                if self.nu[j] != 0.0 {
+                    let h = FD_STEP * p.scale;
+                    self.newton
+                        .add_pair(world, pts, link, obstacle, self.nu[j], h);
+                }
             }
         }
         // Right-hand side: the free rows, then the tip's two and one per active pair.
@@ -809,23 +933,51 @@ impl ClearWork {
             let gh: f64 = g.iter().zip(&self.held_move).map(|(g, d)| g * d).sum();
             self.rhs[m + 2 + i] = cm - self.clr[j] - gh;
         }
-        let (jx, jy, grad, active) = (&self.jx, &self.jy, &self.grad, &self.active);
-        let row = |i: usize, a: usize| match i {
-            0 => jx[a],
-            1 => jy[a],
-            _ => grad[active[i - 2] * n + a],
+        let solved = if reused {
+            // The factors' constraint rows are those of another pose: solve for the
+            // multipliers' change, the stationarity residual taken with today's rows and
+            // multipliers (the fresh step's absolute form would carry the rows' change
+            // times the multipliers into the answer).
+            for (r, &a) in self.free.iter().enumerate() {
+                let mut at_lambda = self.jx[a] * mu[0] + self.jy[a] * mu[1];
+                for &j in &self.active {
+                    at_lambda += self.grad[j * n + a] * self.nu[j];
+                }
+                self.rhs[r] += at_lambda;
+            }
+            let ok = self.newton.solve_again(&mut self.rhs[..size]);
+            self.rhs[m] += mu[0];
+            self.rhs[m + 1] += mu[1];
+            for (i, &j) in self.active.iter().enumerate() {
+                self.rhs[m + 2 + i] += self.nu[j];
+            }
+            ok
+        } else {
+            let (jx, jy, grad, active) = (&self.jx, &self.jy, &self.grad, &self.active);
+            let row = |i: usize, a: usize| match i {
+                0 => jx[a],
+                1 => jy[a],
+                _ => grad[active[i - 2] * n + a],
+            };
+            let ok = self
+                .newton
+                .solve_kkt(&self.free, 2 + ka, row, &mut self.rhs[..size]);
+            // What the factors just kept were built for.
+            self.fact_free.clone_from(&self.free);
+            self.fact_keys.clear();
+            self.fact_keys
+                .extend(self.active.iter().map(|&j| self.key[j]));
+            self.fact_pts.copy_from_slice(&self.pts[..=n]);
+            ok
         };
-        if !self
-            .newton
-            .solve_kkt(&self.free, 2 + ka, row, &mut self.rhs[..size])
-        {
-            return None;
+        if !solved {
+            return (None, reused);
         }
         // New multipliers: none of a pair may turn negative.
         for (i, &j) in self.active.iter().enumerate() {
             let v = self.rhs[m + 2 + i];
             if v < -NEGATIVE_NU * (1.0 + self.nu[j].abs()) {
-                return None;
+                return (None, reused);
             }
         }
         let mut largest: f64 = 0.0;
@@ -839,7 +991,7 @@ impl ClearWork {
             self.trial[a] = (theta[a] + d).clamp(lo[a], hi[a]);
         }
         if largest.is_nan() || largest > super::NEWTON_MAX_MOVE {
-            return None;
+            return (None, reused);
         }
         let mu_n = [self.rhs[m], self.rhs[m + 1]];
         // Carry the new multipliers by key (the old ones kept to restore), then judge the step
@@ -854,18 +1006,36 @@ impl ClearWork {
         self.remember();
         self.fd_theta.copy_from_slice(theta);
         theta.copy_from_slice(&self.trial);
-        let next = self.eval(p, world, theta, lo, hi, mu_n);
+        let next = self.eval(p, world, theta, lo, hi, mu_n, true);
         let converged =
             next.cn <= tol && next.viol <= tol && next.s <= p.stol && next.comp <= p.stol;
         if converged || next.residual(p.scale) <= super::NEWTON_CONTRACTION * at.residual(p.scale) {
             *mu = mu_n;
-            return Some(next);
+            return (Some(next), reused);
         }
         theta.copy_from_slice(&self.fd_theta);
         self.prev_k = self.backup_k;
         self.prev_key[..self.prev_k].copy_from_slice(&self.backup_key[..self.prev_k]);
         self.prev_nu[..self.prev_k].copy_from_slice(&self.backup_nu[..self.prev_k]);
-        None
+        (None, reused)
+    }
+
+    /// Whether the kept factors fit the Newton step about to be taken: built for the same
+    /// free joints and active pairs, at points within [`REUSE_MOVE`] of these.
+    fn factors_fit(&self, scale: f64) -> bool {
+        self.newton.has_factors()
+            && self.fact_free == self.free
+            && self.fact_keys.len() == self.active.len()
+            && self
+                .fact_keys
+                .iter()
+                .zip(&self.active)
+                .all(|(key, &j)| *key == self.key[j])
+            && self
+                .fact_pts
+                .iter()
+                .zip(&self.pts)
+                .all(|(a, b)| (a - b).norm() <= REUSE_MOVE * scale)
     }
 }
 
@@ -1011,10 +1181,37 @@ impl Overall {
         self.clear.resize(chain.len(), world.obstacles().len());
         self.start_clipped(&p);
         let mut mu = self.mu;
+        self.clear.tick = true;
+        // After a tick that leaned, the factors of its last Newton step were built at about
+        // this pose: its first step is Newton's, with them.
+        self.clear.newton_first = self.clear.engaged && self.clear.newton.has_factors();
+        self.clear.eval_current = false;
         let l = self.clear_local(&p, world, &mut mu, TICK_STALL_STEPS);
         self.clear.engaged = self.clear.leaning();
         let o = self.finish(&p, mu, spent + l.iterations, l.converged, out);
-        self.judge(world, chain, out, o)
+        self.judge_tick(world, chain, out, o)
+    }
+
+    /// [`Self::judge`] for a control tick: when the solve's last evaluation was of the answer
+    /// and found a pair within its margin, the least of those is the answer's least clearance
+    /// (exact: every other pair is beyond the margin, by the candidates' bound), and the world
+    /// is not searched again. The controller checks the goal it sends against the world
+    /// itself.
+    fn judge_tick(&mut self, world: &World, chain: &Chain, out: &[f64], mut o: Outcome) -> Outcome {
+        let c = &self.clear;
+        if !(c.eval_current && c.eval_theta == out) {
+            return self.judge(world, chain, out, o);
+        }
+        let least = c
+            .all
+            .iter()
+            .fold(f64::INFINITY, |m, q| m.min(q.clearance_m));
+        if !least.is_finite() {
+            return self.judge(world, chain, out, o);
+        }
+        self.last_clearance = Some(least);
+        o.converged &= least >= world.clearance_m() - CLEAR_SLACK;
+        o
     }
 
     /// [`Self::judge`] for an answer that may be bad input (of the wrong length).
@@ -1047,6 +1244,7 @@ impl Overall {
         target: Vec2,
         out: &mut [f64],
     ) -> Outcome {
+        self.clear.tick = false;
         // The best optimum without obstacles, when clear, is the best among them.
         let free = self.free_cold(chain, theta0, target, out);
         if out.len() != chain.len() || theta0.len() != chain.len() {

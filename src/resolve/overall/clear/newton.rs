@@ -60,6 +60,9 @@ pub(super) struct Newton {
     /// Low-rank columns: `cols` of them, `n` entries each.
     v: Vec<f64>,
     cols: usize,
+    /// Each block's link: its columns are zero from that joint on (joints beyond a link do
+    /// not move its ends).
+    links: Vec<usize>,
     /// `C`, `RANK x RANK` per pair, row-major, the blocks one after the other.
     c: Vec<f64>,
     // Scratch of the structured solve (sized for `m` free joints and `rows` constraints).
@@ -82,6 +85,17 @@ pub(super) struct Newton {
     vc: Vec<f64>,
     /// The constraint rows on the free joints (structured route).
     a_free: Vec<f64>,
+    /// The factors the last successful [`Newton::solve_kkt`] left, for [`Newton::solve_again`].
+    factors: Option<Factors>,
+}
+
+/// Which factors of a KKT system are kept, and its shape.
+#[derive(Debug, Clone, Copy)]
+enum Factors {
+    /// The whole matrix's LU (`size` = free joints + rows).
+    Dense { size: usize },
+    /// `H0`'s, `S`'s and `K`'s, with `H^-1 A^T` in `z`.
+    Structured { m: usize, rows: usize },
 }
 
 fn grow<T: Clone + Default>(v: &mut Vec<T>, len: usize) {
@@ -98,6 +112,7 @@ impl Newton {
         grow(&mut self.g, n);
         grow(&mut self.v, RANK * pairs * n);
         grow(&mut self.c, RANK * RANK * pairs);
+        grow(&mut self.links, pairs);
         for v in [&mut self.g_free, &mut self.piv, &mut self.sol] {
             grow(v, n);
         }
@@ -129,6 +144,17 @@ impl Newton {
             self.g[m] = mu[0] * r.x + mu[1] * r.y;
         }
         self.cols = 0;
+        self.factors = None;
+    }
+
+    /// Drops the kept factors (the matrix they factor belongs to another problem).
+    pub fn forget(&mut self) {
+        self.factors = None;
+    }
+
+    /// Whether [`Newton::solve_again`] has factors to use.
+    pub fn has_factors(&self) -> bool {
+        self.factors.is_some()
     }
 
     /// Adds `-nu` times the Hessian of the clearance of (`link`, `obstacle`) at `pts`; `h` is
@@ -172,6 +198,8 @@ impl Newton {
         }
         let block = self.cols / RANK;
         grow(&mut self.c, (block + 1) * RANK * RANK);
+        grow(&mut self.links, block + 1);
+        self.links[block] = link;
         for i in 0..RANK {
             for k in 0..RANK {
                 self.c[block * RANK * RANK + i * RANK + k] = -nu * 0.5 * (hess[i][k] + hess[k][i]);
@@ -277,12 +305,41 @@ impl Newton {
         let structured =
             r * r * m + r * r * r / 3 + (rows + 1) * (2 * r * m + r * r) + rows * rows * m;
         let dense = size * size * size / 3 + m * m * (r + 1);
+        self.factors = None;
         if r <= 2 * m && STRUCTURED_WEIGHT * structured < dense {
             if let Some(ok) = self.solve_structured(free, rows, row, out) {
+                if ok {
+                    self.factors = Some(Factors::Structured { m, rows });
+                }
                 return ok;
             }
         }
-        self.solve_dense(free, rows, row, out)
+        let ok = self.solve_dense(free, rows, row, out);
+        if ok {
+            self.factors = Some(Factors::Dense { size });
+        }
+        ok
+    }
+
+    /// Solves the system the last successful [`Newton::solve_kkt`] solved (the same free
+    /// joints and rows) for another right-hand side in `out`, with its factors: a few
+    /// operations per entry of the matrix instead of a factorization. False without factors
+    /// (none kept since the last [`Newton::begin`]) or with a non-finite answer.
+    pub fn solve_again(&mut self, out: &mut [f64]) -> bool {
+        match self.factors {
+            None => false,
+            Some(Factors::Dense { size }) => {
+                lu_apply(&self.dense, &self.dense_perm, size, &mut out[..size]);
+                out[..size].iter().all(|v| v.is_finite())
+            }
+            Some(Factors::Structured { m, rows }) => {
+                // z1 = H^-1 r1, then K lambda = r2 - A z1 and d = z1 + Z lambda.
+                self.tmp[..m].copy_from_slice(&out[..m]);
+                self.apply_inverse(rows, m);
+                self.finish_structured(m, rows, out);
+                out[..m + rows].iter().all(|v| v.is_finite())
+            }
+        }
     }
 
     /// [`Newton::solve_kkt`] with the whole KKT matrix assembled and factorized.
@@ -315,29 +372,39 @@ impl Newton {
                 .iter_mut()
                 .for_each(|v| *v = 0.0);
         }
-        // V C V^T a block at a time: the block's four columns of V on the free joints, then
-        // row by row (V C)_i times them.
+        // V C V^T a block at a time, on the lower triangle (it is symmetric): the block's four
+        // columns of V on the free joints, then row by row (V C)_i times them. The columns are
+        // zero from the block's link on, so only the free joints before it take part.
         for block in 0..self.cols / RANK {
             let c = &self.c[block * RANK * RANK..(block + 1) * RANK * RANK];
+            let link = self.links[block];
+            let before = free.partition_point(|&a| a < link);
             for k in 0..RANK {
                 let col = &self.v[(block * RANK + k) * n..(block * RANK + k + 1) * n];
-                for (dst, &b) in self.vc[k * m..(k + 1) * m].iter_mut().zip(free) {
+                for (dst, &b) in self.vc[k * m..k * m + before].iter_mut().zip(free) {
                     *dst = col[b];
                 }
             }
             let (v0, rest) = self.vc[..RANK * m].split_at(m);
             let (v1, rest) = rest.split_at(m);
             let (v2, v3) = rest.split_at(m);
-            for (i, row) in kkt.chunks_exact_mut(size).take(m).enumerate() {
+            for (i, row) in kkt.chunks_exact_mut(size).take(before).enumerate() {
                 let vi = [v0[i], v1[i], v2[i], v3[i]];
                 let w: [f64; RANK] =
                     std::array::from_fn(|k| (0..RANK).map(|e| vi[e] * c[e * RANK + k]).sum());
                 if w.iter().all(|&x| x == 0.0) {
                     continue;
                 }
-                for ((((h, a), b), cc), d) in row[..m].iter_mut().zip(v0).zip(v1).zip(v2).zip(v3) {
+                let cols = v0[..=i].iter().zip(&v1[..=i]).zip(&v2[..=i]).zip(&v3[..=i]);
+                for (h, (((a, b), cc), d)) in row[..=i].iter_mut().zip(cols) {
                     *h += w[0] * a + w[1] * b + w[2] * cc + w[3] * d;
                 }
+            }
+        }
+        // The upper triangle from the lower.
+        for i in 0..m {
+            for j in i + 1..m {
+                kkt[i * size + j] = kkt[j * size + i];
             }
         }
         let perm = &mut self.dense_perm[..size];
@@ -431,15 +498,12 @@ impl Newton {
             self.tmp[..m].copy_from_slice(src);
             self.apply_inverse(l, m);
         }
-        // K lambda = r2 - A z1, K = A Z.
+        // K = A Z, factorized.
         grow(&mut self.k_mat, rows * rows);
         grow(&mut self.k_perm, rows);
         grow(&mut self.lam, rows);
-        let z1 = rows * m;
-        let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
         for i in 0..rows {
             let ai = &self.a_free[i * m..(i + 1) * m];
-            self.lam[i] = out[m + i] - dot(ai, &self.z[z1..z1 + m]);
             for l in 0..rows {
                 self.k_mat[i * rows + l] = dot(ai, &self.z[l * m..(l + 1) * m]);
             }
@@ -450,6 +514,18 @@ impl Newton {
             rows,
         ) {
             return Some(false);
+        }
+        self.finish_structured(m, rows, out);
+        Some(out[..m + rows].iter().all(|v| v.is_finite()))
+    }
+
+    /// The structured solve's last part, with `K` factorized and `z1 = H^-1 r1` in `z` after
+    /// the constraint columns: `K lambda = r2 - A z1`, `d = z1 + Z lambda`, into `out`.
+    fn finish_structured(&mut self, m: usize, rows: usize, out: &mut [f64]) {
+        let z1 = rows * m;
+        for i in 0..rows {
+            let ai = &self.a_free[i * m..(i + 1) * m];
+            self.lam[i] = out[m + i] - dot(ai, &self.z[z1..z1 + m]);
         }
         lu_apply(
             &self.k_mat[..rows * rows],
@@ -465,7 +541,6 @@ impl Newton {
             out[e] = d;
         }
         out[m..m + rows].copy_from_slice(&self.lam[..rows]);
-        Some(out[..m + rows].iter().all(|v| v.is_finite()))
     }
 
     /// `z[l] = H_ff^-1 tmp[..m]` by Woodbury, with the factors of `solve_kkt`.
@@ -496,6 +571,10 @@ impl Newton {
             }
         }
     }
+}
+
+fn dot(x: &[f64], y: &[f64]) -> f64 {
+    x.iter().zip(y).map(|(a, b)| a * b).sum()
 }
 
 /// LU factorization with partial pivoting in place (row-major, `size x size`), the row
@@ -689,6 +768,63 @@ mod tests {
         for a in 0..n {
             let want: f64 = (0..n).map(|b| newton.entry(a, b) * x[b]).sum();
             assert!((hx[a] - want).abs() < 1e-12 * (1.0 + want.abs()), "{a}");
+        }
+    }
+
+    #[test]
+    fn a_second_right_hand_side_solves_with_the_kept_factors_of_either_route() {
+        let world = world();
+        let n = 8;
+        let chain = Chain::unlimited(vec![0.125; n], Vec2::zeros(), 0.0).unwrap();
+        let theta = [0.9, -0.2, -0.25, -0.3, -0.2, -0.3, -0.35, -0.4];
+        let mut pts = vec![Vec2::zeros(); n + 1];
+        chain.points_into(&theta, &mut pts);
+        let free = [0, 1, 2, 4, 5, 6, 7];
+        let (m, rows) = (free.len(), 3);
+        let size = m + rows;
+        let a_row = |i: usize, j: usize| ((i * 7 + j * 3) % 5) as f64 - 2.0 + 0.1 * j as f64;
+        let first: Vec<f64> = (0..size).map(|i| (i as f64 * 0.37).sin()).collect();
+        let second: Vec<f64> = (0..size).map(|i| (i as f64 * 1.3).cos()).collect();
+        for structured in [false, true] {
+            let mut newton = Newton::default();
+            newton.begin(&pts, [0.3, -0.2]);
+            newton.add_pair(&world, &pts, 4, 0, 0.7, 1e-7);
+            newton.add_pair(&world, &pts, 8, 1, 0.2, 1e-7);
+            let mut out = second.clone();
+            assert!(!newton.solve_again(&mut out), "no factors before a solve");
+            let mut out = first.clone();
+            if structured {
+                assert_eq!(
+                    newton.solve_structured(&free, rows, a_row, &mut out),
+                    Some(true)
+                );
+                newton.factors = Some(Factors::Structured { m, rows });
+            } else {
+                assert!(newton.solve_dense(&free, rows, a_row, &mut out));
+                newton.factors = Some(Factors::Dense { size });
+            }
+            let dense = DMatrix::from_fn(size, size, |r, c| match (r < m, c < m) {
+                (true, true) => newton.entry(free[r], free[c]),
+                (true, false) => -a_row(c - m, free[r]),
+                (false, true) => a_row(r - m, free[c]),
+                (false, false) => 0.0,
+            });
+            let want = dense
+                .lu()
+                .solve(&DVector::from_vec(second.clone()))
+                .unwrap();
+            let mut again = second.clone();
+            assert!(newton.solve_again(&mut again));
+            for i in 0..size {
+                assert!(
+                    (again[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()),
+                    "structured {structured}, entry {i}: {} against {}",
+                    again[i],
+                    want[i]
+                );
+            }
+            newton.begin(&pts, [0.3, -0.2]);
+            assert!(!newton.solve_again(&mut again), "begin drops the factors");
         }
     }
 }
