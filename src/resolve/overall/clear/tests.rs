@@ -276,6 +276,35 @@ fn warm_ticks_along_a_post_stay_clear_and_on_target() {
     assert!(caught);
 }
 
+/// What a tick carries from the last (multipliers, pairs, the Newton factors it keeps and
+/// starts with) changes how fast it gets there, not where: each warm answer along the walk
+/// onto the post is the one a solver with no memory finds from the same pose, and optimal.
+#[test]
+fn a_warm_tick_among_obstacles_finds_what_a_solver_with_no_memory_finds() {
+    let (chain, theta0, target, world) = leaning_case();
+    let mut warm = Overall::new(OverallOptions::default());
+    warm.set_world(Some(world.clone()));
+    let mut theta = theta0.clone();
+    let start = chain.tip(&theta0);
+    let (mut out, mut fresh_out) = (vec![0.0; 10], vec![0.0; 10]);
+    let mut leaned = 0;
+    for k in 1..=150 {
+        let t = start + (target - start) * (k as f64 / 150.0);
+        let o = warm.solve_local(&chain, &theta, t, &mut out);
+        let mut fresh = Overall::new(OverallOptions::default());
+        fresh.set_world(Some(world.clone()));
+        let f = fresh.solve_local(&chain, &theta, t, &mut fresh_out);
+        assert!(o.converged && f.converged, "tick {k}: {o:?} {f:?}");
+        let apart = max_abs_diff(&out, &fresh_out);
+        assert!(apart < 1e-8, "tick {k}: answers {apart} rad apart");
+        let kkt = kkt_residual(&warm, &chain, &world, &theta, &out);
+        assert!(kkt < 1e-8, "tick {k}: optimality residual {kkt}");
+        leaned += usize::from(warm.clear.leaning());
+        theta.copy_from_slice(&out);
+    }
+    assert!(leaned > 10, "the arm leaned on the post in {leaned} ticks");
+}
+
 /// A random small world near a random pose, and a target near the pose's tip.
 fn random_problem(seed: u64, n: usize, count: usize) -> (Chain, Vec<f64>, Vec2, World) {
     let mut rng = StdRng::seed_from_u64(seed);
