@@ -683,14 +683,53 @@ mod tests {
         g
     }
 
+    /// The tests' 8-joint arm of 0.125 m links, its pose, and the pose's points.
+    const N: usize = 8;
+    const THETA: [f64; N] = [0.9, -0.2, -0.25, -0.3, -0.2, -0.3, -0.35, -0.4];
+
+    fn arm() -> (Chain, Vec<Vec2>) {
+        let chain = Chain::unlimited(vec![0.125; N], Vec2::zeros(), 0.0).unwrap();
+        let mut pts = vec![Vec2::zeros(); N + 1];
+        chain.points_into(&THETA, &mut pts);
+        (chain, pts)
+    }
+
+    /// The KKT systems' shape: the free joints (joint 3 held) and three made-up rows.
+    const FREE: [usize; 7] = [0, 1, 2, 4, 5, 6, 7];
+    const ROWS: usize = 3;
+
+    fn a_row(i: usize, j: usize) -> f64 {
+        ((i * 7 + j * 3) % 5) as f64 - 2.0 + 0.1 * j as f64
+    }
+
+    /// The Hessian with a tip term and two pairs, one on each obstacle.
+    fn two_pairs(world: &World, pts: &[Vec2]) -> Newton {
+        let mut newton = Newton::default();
+        newton.begin(pts, [0.3, -0.2]);
+        newton.add_pair(world, pts, 4, 0, 0.7, 1e-7);
+        newton.add_pair(world, pts, 8, 1, 0.2, 1e-7);
+        newton
+    }
+
+    /// The answer of the KKT system of `newton` for `rhs`, assembled from its entries and
+    /// solved by nalgebra.
+    fn reference_solve(newton: &Newton, rhs: &[f64]) -> DVector<f64> {
+        let m = FREE.len();
+        let size = m + ROWS;
+        let dense = DMatrix::from_fn(size, size, |r, c| match (r < m, c < m) {
+            (true, true) => newton.entry(FREE[r], FREE[c]),
+            (true, false) => -a_row(c - m, FREE[r]),
+            (false, true) => a_row(r - m, FREE[c]),
+            (false, false) => 0.0,
+        });
+        dense.lu().solve(&DVector::from_column_slice(rhs)).unwrap()
+    }
+
     #[test]
     fn pair_hessian_matches_differences_of_the_gradient() {
         let world = world();
-        let n = 8;
-        let chain = Chain::unlimited(vec![0.125; n], Vec2::zeros(), 0.0).unwrap();
-        let theta = [0.9, -0.2, -0.25, -0.3, -0.2, -0.3, -0.35, -0.4];
-        let mut pts = vec![Vec2::zeros(); n + 1];
-        chain.points_into(&theta, &mut pts);
+        let (n, theta) = (N, THETA);
+        let (chain, pts) = arm();
         for (link, obs) in [(4, 0), (5, 0), (7, 1), (8, 1)] {
             let pair = world.pair(&pts, link, obs);
             assert!(
@@ -722,37 +761,20 @@ mod tests {
     #[test]
     fn both_kkt_routes_match_a_reference_solve() {
         let world = world();
-        let n = 8;
-        let chain = Chain::unlimited(vec![0.125; n], Vec2::zeros(), 0.0).unwrap();
-        let theta = [0.9, -0.2, -0.25, -0.3, -0.2, -0.3, -0.35, -0.4];
-        let mut pts = vec![Vec2::zeros(); n + 1];
-        chain.points_into(&theta, &mut pts);
-        let mut newton = Newton::default();
-        newton.begin(&pts, [0.3, -0.2]);
-        newton.add_pair(&world, &pts, 4, 0, 0.7, 1e-7);
-        newton.add_pair(&world, &pts, 8, 1, 0.2, 1e-7);
-        let free = [0, 1, 2, 4, 5, 6, 7];
-        let m = free.len();
-        let rows = 3;
-        let a_row = |i: usize, j: usize| ((i * 7 + j * 3) % 5) as f64 - 2.0 + 0.1 * j as f64;
-        let rhs: Vec<f64> = (0..m + rows).map(|i| (i as f64 * 0.37).sin()).collect();
+        let (_, pts) = arm();
+        let mut newton = two_pairs(&world, &pts);
+        let size = FREE.len() + ROWS;
+        let rhs: Vec<f64> = (0..size).map(|i| (i as f64 * 0.37).sin()).collect();
         let mut structured = rhs.clone();
         assert_eq!(
-            newton.solve_structured(&free, rows, a_row, &mut structured),
+            newton.solve_structured(&FREE, ROWS, a_row, &mut structured),
             Some(true)
         );
         let mut dense_out = rhs.clone();
-        assert!(newton.solve_dense(&free, rows, a_row, &mut dense_out));
+        assert!(newton.solve_dense(&FREE, ROWS, a_row, &mut dense_out));
         let mut picked = rhs.clone();
-        assert!(newton.solve_kkt(&free, rows, a_row, &mut picked));
-        let size = m + rows;
-        let dense = DMatrix::from_fn(size, size, |r, c| match (r < m, c < m) {
-            (true, true) => newton.entry(free[r], free[c]),
-            (true, false) => -a_row(c - m, free[r]),
-            (false, true) => a_row(r - m, free[c]),
-            (false, false) => 0.0,
-        });
-        let want = dense.lu().solve(&DVector::from_vec(rhs)).unwrap();
+        assert!(newton.solve_kkt(&FREE, ROWS, a_row, &mut picked));
+        let want = reference_solve(&newton, &rhs);
         for out in [&structured, &dense_out, &picked] {
             for i in 0..size {
                 assert!(
@@ -762,11 +784,11 @@ mod tests {
             }
         }
         // H x by the structure against the entries.
-        let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.7).cos()).collect();
-        let mut hx = vec![0.0; n];
+        let x: Vec<f64> = (0..N).map(|i| (i as f64 * 0.7).cos()).collect();
+        let mut hx = vec![0.0; N];
         newton.apply(&x, &mut hx);
-        for a in 0..n {
-            let want: f64 = (0..n).map(|b| newton.entry(a, b) * x[b]).sum();
+        for a in 0..N {
+            let want: f64 = (0..N).map(|b| newton.entry(a, b) * x[b]).sum();
             assert!((hx[a] - want).abs() < 1e-12 * (1.0 + want.abs()), "{a}");
         }
     }
@@ -774,45 +796,26 @@ mod tests {
     #[test]
     fn a_second_right_hand_side_solves_with_the_kept_factors_of_either_route() {
         let world = world();
-        let n = 8;
-        let chain = Chain::unlimited(vec![0.125; n], Vec2::zeros(), 0.0).unwrap();
-        let theta = [0.9, -0.2, -0.25, -0.3, -0.2, -0.3, -0.35, -0.4];
-        let mut pts = vec![Vec2::zeros(); n + 1];
-        chain.points_into(&theta, &mut pts);
-        let free = [0, 1, 2, 4, 5, 6, 7];
-        let (m, rows) = (free.len(), 3);
-        let size = m + rows;
-        let a_row = |i: usize, j: usize| ((i * 7 + j * 3) % 5) as f64 - 2.0 + 0.1 * j as f64;
+        let (_, pts) = arm();
+        let (m, size) = (FREE.len(), FREE.len() + ROWS);
         let first: Vec<f64> = (0..size).map(|i| (i as f64 * 0.37).sin()).collect();
         let second: Vec<f64> = (0..size).map(|i| (i as f64 * 1.3).cos()).collect();
         for structured in [false, true] {
-            let mut newton = Newton::default();
-            newton.begin(&pts, [0.3, -0.2]);
-            newton.add_pair(&world, &pts, 4, 0, 0.7, 1e-7);
-            newton.add_pair(&world, &pts, 8, 1, 0.2, 1e-7);
+            let mut newton = two_pairs(&world, &pts);
             let mut out = second.clone();
             assert!(!newton.solve_again(&mut out), "no factors before a solve");
             let mut out = first.clone();
             if structured {
                 assert_eq!(
-                    newton.solve_structured(&free, rows, a_row, &mut out),
+                    newton.solve_structured(&FREE, ROWS, a_row, &mut out),
                     Some(true)
                 );
-                newton.factors = Some(Factors::Structured { m, rows });
+                newton.factors = Some(Factors::Structured { m, rows: ROWS });
             } else {
-                assert!(newton.solve_dense(&free, rows, a_row, &mut out));
+                assert!(newton.solve_dense(&FREE, ROWS, a_row, &mut out));
                 newton.factors = Some(Factors::Dense { size });
             }
-            let dense = DMatrix::from_fn(size, size, |r, c| match (r < m, c < m) {
-                (true, true) => newton.entry(free[r], free[c]),
-                (true, false) => -a_row(c - m, free[r]),
-                (false, true) => a_row(r - m, free[c]),
-                (false, false) => 0.0,
-            });
-            let want = dense
-                .lu()
-                .solve(&DVector::from_vec(second.clone()))
-                .unwrap();
+            let want = reference_solve(&newton, &second);
             let mut again = second.clone();
             assert!(newton.solve_again(&mut again));
             for i in 0..size {
