@@ -60,9 +60,6 @@ pub(super) struct Newton {
     /// Low-rank columns: `cols` of them, `n` entries each.
     v: Vec<f64>,
     cols: usize,
-    /// Each block's link: its columns are zero from that joint on (joints beyond a link do
-    /// not move its ends).
-    links: Vec<usize>,
     /// `C`, `RANK x RANK` per pair, row-major, the blocks one after the other.
     c: Vec<f64>,
     // Scratch of the structured solve (sized for `m` free joints and `rows` constraints).
@@ -112,7 +109,6 @@ impl Newton {
         grow(&mut self.g, n);
         grow(&mut self.v, RANK * pairs * n);
         grow(&mut self.c, RANK * RANK * pairs);
-        grow(&mut self.links, pairs);
         for v in [&mut self.g_free, &mut self.piv, &mut self.sol] {
             grow(v, n);
         }
@@ -198,8 +194,6 @@ impl Newton {
         }
         let block = self.cols / RANK;
         grow(&mut self.c, (block + 1) * RANK * RANK);
-        grow(&mut self.links, block + 1);
-        self.links[block] = link;
         for i in 0..RANK {
             for k in 0..RANK {
                 self.c[block * RANK * RANK + i * RANK + k] = -nu * 0.5 * (hess[i][k] + hess[k][i]);
@@ -372,39 +366,29 @@ impl Newton {
                 .iter_mut()
                 .for_each(|v| *v = 0.0);
         }
-        // V C V^T a block at a time, on the lower triangle (it is symmetric): the block's four
-        // columns of V on the free joints, then row by row (V C)_i times them. The columns are
-        // zero from the block's link on, so only the free joints before it take part.
+        // V C V^T a block at a time: the block's four columns of V on the free joints, then
+        // row by row (V C)_i times them.
         for block in 0..self.cols / RANK {
             let c = &self.c[block * RANK * RANK..(block + 1) * RANK * RANK];
-            let link = self.links[block];
-            let before = free.partition_point(|&a| a < link);
             for k in 0..RANK {
                 let col = &self.v[(block * RANK + k) * n..(block * RANK + k + 1) * n];
-                for (dst, &b) in self.vc[k * m..k * m + before].iter_mut().zip(free) {
+                for (dst, &b) in self.vc[k * m..(k + 1) * m].iter_mut().zip(free) {
                     *dst = col[b];
                 }
             }
             let (v0, rest) = self.vc[..RANK * m].split_at(m);
             let (v1, rest) = rest.split_at(m);
             let (v2, v3) = rest.split_at(m);
-            for (i, row) in kkt.chunks_exact_mut(size).take(before).enumerate() {
+            for (i, row) in kkt.chunks_exact_mut(size).take(m).enumerate() {
                 let vi = [v0[i], v1[i], v2[i], v3[i]];
                 let w: [f64; RANK] =
                     std::array::from_fn(|k| (0..RANK).map(|e| vi[e] * c[e * RANK + k]).sum());
                 if w.iter().all(|&x| x == 0.0) {
                     continue;
                 }
-                let cols = v0[..=i].iter().zip(&v1[..=i]).zip(&v2[..=i]).zip(&v3[..=i]);
-                for (h, (((a, b), cc), d)) in row[..=i].iter_mut().zip(cols) {
+                for ((((h, a), b), cc), d) in row[..m].iter_mut().zip(v0).zip(v1).zip(v2).zip(v3) {
                     *h += w[0] * a + w[1] * b + w[2] * cc + w[3] * d;
                 }
-            }
-        }
-        // The upper triangle from the lower.
-        for i in 0..m {
-            for j in i + 1..m {
-                kkt[i * size + j] = kkt[j * size + i];
             }
         }
         let perm = &mut self.dense_perm[..size];
