@@ -658,24 +658,21 @@ impl ClearWork {
             iterations += 1;
             if newton_ready && self.n <= NEWTON_MAX_JOINTS {
                 // With the kept factors when they fit, then (if that step was refused) fresh.
-                let mut reuse = true;
-                loop {
-                    let (next, reused) =
-                        self.try_newton(p, world, lo, hi, theta, mu, &at, tol, reuse);
-                    if let Some(next) = next {
-                        evaluated = Some(next);
-                        break;
-                    }
-                    // The scratch holds the refused pose's evaluation: back to `theta`'s.
+                // After a refused step the scratch holds the refused pose's evaluation: back to
+                // `theta`'s before anything else reads it.
+                let (mut next, reused) =
+                    self.try_newton(p, world, lo, hi, theta, mu, &at, tol, true);
+                if next.is_none() && reused {
                     self.eval(p, world, theta, lo, hi, *mu, false);
-                    if !reused {
-                        break;
-                    }
-                    reuse = false;
+                    next = self
+                        .try_newton(p, world, lo, hi, theta, mu, &at, tol, false)
+                        .0;
                 }
-                if evaluated.is_some() {
+                if let Some(next) = next {
+                    evaluated = Some(next);
                     continue;
                 }
+                self.eval(p, world, theta, lo, hi, *mu, false);
             }
             let round_off = |at: &At| {
                 at.cn <= tol
