@@ -4,8 +4,9 @@
 //! of link `i - 1`) is enclosed in an annular sector: radii `[r_lo, r_hi]` around the joint and
 //! bearings `[lo, hi]` (or every bearing). Adding link `i` translates the sector by `L_i` along
 //! the link; the radii of the translated sector follow in closed form (the distance from the
-//! origin to a point of it is `sqrt(L^2 + rho^2 + 2 L rho cos phi)`), its bearings from the
-//! extreme points of its boundary (corners and the tangent points of its arcs). Turning joint `i`
+//! origin to a point of it is `sqrt(L^2 + rho^2 + 2 L rho cos phi)`), its bearings by walking its
+//! boundary with the bearing unwrapped (corners, the tangent points of its arcs, and arcs whose
+//! circle holds the origin, which carry the bearing the long way round). Turning joint `i`
 //! through its limits widens the bearings by the limit interval. Each step encloses a superset of
 //! the true set, so the result never excludes a reachable point; without limits every bearing is
 //! allowed at each step, annuli add exactly, and the ring `max(0, 2 max L - R) <= r <= R` comes
@@ -131,34 +132,65 @@ fn translated_bearing(len: f64, s: Sector, r_lo: f64) -> Option<(f64, f64)> {
     let Some((lo, hi)) = s.bearing.filter(|(lo, hi)| hi - lo <= FRAC_PI_2) else {
         return disk;
     };
-    // Extreme bearings lie on the boundary: the four corners and the tangent points of the arcs.
+    // Extreme bearings lie on the boundary. Walk it (the outer arc from `lo` to `hi`, the edge
+    // at `hi` inward, the inner arc back, the edge at `lo` outward) with the bearing unwrapped:
+    // an arc whose circle holds the origin may carry the bearing more than half a turn, the
+    // long way round, which no folding of the corners' bearings can tell.
     let point = |rho: f64, phi: f64| Vec2::new(len + rho * phi.cos(), rho * phi.sin());
-    let mid = point(0.5 * (s.r_lo + s.r_hi), 0.5 * (lo + hi));
-    let reference = mid.y.atan2(mid.x);
-    let mut min = f64::INFINITY;
-    let mut max = f64::NEG_INFINITY;
-    let mut visit = |p: Vec2| {
-        let a = nearest_representative(p.y.atan2(p.x), reference);
-        min = min.min(a);
-        max = max.max(a);
+    let bearing_of = |p: Vec2| p.y.atan2(p.x);
+    let first = bearing_of(point(s.r_lo, lo));
+    let mut at = first;
+    let (mut min, mut max) = (at, at);
+    let visit = |a: f64, min: &mut f64, max: &mut f64| {
+        *min = min.min(a);
+        *max = max.max(a);
     };
-    for rho in [s.r_lo, s.r_hi] {
-        for phi in [lo, hi] {
-            visit(point(rho, phi));
-        }
-        if rho > 0.0 && rho <= len {
-            let t = (-rho / len).acos();
-            for tangent in [t, -t] {
-                let phi = nearest_representative(tangent, 0.5 * (lo + hi));
-                if phi >= lo && phi <= hi {
-                    visit(point(rho, phi));
+    // From `point(rho, from)` (bearing `at`) to `point(rho, to)`.
+    let arc = |rho: f64, from: f64, to: f64, at: &mut f64, min: &mut f64, max: &mut f64| {
+        let end = bearing_of(point(rho, to));
+        if rho >= len {
+            // The origin is inside (or on) the circle: the bearing turns the way phi does (at
+            // least half as fast), by less than a full turn.
+            if from != to {
+                let turn = (end - *at).rem_euclid(TAU);
+                *at += if to > from { turn } else { turn - TAU };
+            }
+        } else {
+            // Outside the circle: the arc is seen within less than half a turn, its extremes
+            // at the ends or where the line of sight touches it.
+            if rho > 0.0 {
+                let t = (-rho / len).acos();
+                for tangent in [t, -t] {
+                    let phi = nearest_representative(tangent, 0.5 * (lo + hi));
+                    if phi >= lo && phi <= hi {
+                        let a = nearest_representative(bearing_of(point(rho, phi)), *at);
+                        visit(a, min, max);
+                    }
                 }
             }
+            *at = nearest_representative(end, *at);
         }
+        visit(*at, min, max);
+    };
+    // A radial edge is a segment that misses the origin: less than half a turn, monotone.
+    let edge = |to: Vec2, at: &mut f64, min: &mut f64, max: &mut f64| {
+        *at = nearest_representative(bearing_of(to), *at);
+        visit(*at, min, max);
+    };
+    edge(point(s.r_hi, lo), &mut at, &mut min, &mut max);
+    arc(s.r_hi, lo, hi, &mut at, &mut min, &mut max);
+    edge(point(s.r_lo, hi), &mut at, &mut min, &mut max);
+    arc(s.r_lo, hi, lo, &mut at, &mut min, &mut max);
+    if (at - first).abs() > PI {
+        // The boundary winds around the origin.
+        return None;
     }
-    if max - min >= PI {
-        return disk;
+    if max - min >= TAU {
+        return None;
     }
+    // Over half a turn only when the origin is inside an arc's circle, and then there is no
+    // disk bound.
+    let reference = 0.5 * (min + max);
     match disk {
         // Both bounds hold; keep the tighter one on each side.
         Some((dlo, dhi)) => {
@@ -222,6 +254,39 @@ mod tests {
             );
             assert!(w.exact && w.bearing.is_none());
         }
+    }
+
+    #[test]
+    fn a_folded_link_longer_than_the_one_before_is_seen_the_long_way_round() {
+        // The second link is longer than the first and folds back: the circle its tip sweeps
+        // around joint 2 holds joint 1, so from joint 1 the tip's bearing turns past the
+        // backward direction, more than half a turn, over the second joint's range.
+        let limits = vec![
+            Some(JointLimit {
+                lo: -3.03,
+                hi: -0.84,
+            }),
+            Some(JointLimit { lo: 2.17, hi: 3.68 }),
+        ];
+        let chain = Chain::new(vec![0.52, 0.53], Vec2::new(0.3, -0.2), 0.0, limits).unwrap();
+        let steps = 60;
+        for i in 0..=steps {
+            for j in 0..=steps {
+                let theta = [
+                    -3.03 + (3.03 - 0.84) * f64::from(i) / f64::from(steps),
+                    2.17 + (3.68 - 2.17) * f64::from(j) / f64::from(steps),
+                ];
+                let tip = chain.tip(&theta);
+                assert_ne!(
+                    chain.classify(tip),
+                    Reachability::Outside,
+                    "{theta:?}: {:?}",
+                    chain.workspace()
+                );
+            }
+        }
+        let (lo, hi) = chain.workspace().bearing.unwrap();
+        assert!(hi - lo > PI && hi - lo < TAU, "{lo} {hi}");
     }
 
     #[test]
