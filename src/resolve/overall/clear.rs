@@ -8,12 +8,12 @@
 //!
 //! `c_j` is the exact capsule clearance of [`World`] (the signed distance from the link's axis to
 //! the obstacle minus the link radius). Only the pairs near contact enter (`select`): those
-//! whose clearance is within a margin of `clearance_m`, the margin three times the larger of the
-//! tip correction wanted and the last step's largest point move, that at most a mean link
-//! length (plus a floor of a twentieth of it), at most
-//! [`MAX_PAIRS`] of them, least clearance first; a pair whose contact point and obstacle repeat
-//! one already taken (a joint touching an obstacle is the end of one link and the start of the
-//! next) is the same constraint and is left out. Pairs further away are checked by the line
+//! whose clearance is within a margin of `clearance_m`, the margin one and a half times the
+//! larger of the tip correction wanted and the last step's largest point move, that at most a
+//! mean link length (plus a floor of a twentieth of it), at most [`MAX_PAIRS`] of them, least
+//! clearance first; a pair whose contact point and obstacle repeat one already taken (a joint
+//! touching an obstacle is the end of one link and the start of the next) is the same
+//! constraint and is left out. Pairs further away are checked by the line
 //! search's merit, which measures the exact least clearance of every trial pose. Both searches
 //! read a list of candidate pairs found with some slack and kept while the pose stays within
 //! it (`Candidates`: exact, as a link's clearance moves no more than its ends), so that most
@@ -95,7 +95,7 @@ pub const NEWTON_MAX_JOINTS: usize = 96;
 pub const CLEAR_SLACK: f64 = 1e-9;
 
 /// The pair margin is this multiple of the expected move (tip correction or last step).
-const MARGIN_MOVES: f64 = 3.0;
+const MARGIN_MOVES: f64 = 1.5;
 /// ...plus this fraction of the mean link length.
 const MARGIN_FLOOR: f64 = 0.05;
 /// The margin of the evaluation that precedes a Newton step of a control tick, as a fraction

@@ -53,6 +53,8 @@ pub(super) struct ActiveScratch {
     /// The primal point: joints and slacks.
     x: Vec<f64>,
     t: Vec<f64>,
+    /// `x - theta` (joints), for the rows' values.
+    d: Vec<f64>,
     /// The primal direction.
     zx: Vec<f64>,
     zt: Vec<f64>,
@@ -77,6 +79,7 @@ impl ActiveScratch {
             w: vec![0.0; cap],
             r: vec![0.0; cap],
             x: vec![0.0; n],
+            d: vec![0.0; n],
             t: vec![0.0; k2],
             zx: vec![0.0; n],
             zt: vec![0.0; k2],
@@ -159,6 +162,50 @@ impl Qp<'_> {
         }
     }
 
+    /// The inequality (a pair's row or a bound) most violated at the scratch's point, by its
+    /// distance to the boundary, beyond `tol` (rows) or [`BOUND_TOL`] (bounds): its index,
+    /// sign and value. In the order of the constraints' indices, the first of equals.
+    fn most_violated(
+        &self,
+        s: &mut ActiveScratch,
+        sigma: f64,
+        tol: f64,
+    ) -> Option<(usize, f64, f64)> {
+        let (n, k2) = (self.n, self.k2);
+        // Every row's value is its normal's product with `x - theta`: that difference once.
+        for ((d, x), t) in s.d.iter_mut().zip(&s.x).zip(self.theta) {
+            *d = x - t;
+        }
+        let mut worst = 0.0;
+        let mut pick = None;
+        let mut consider = |c: usize, v: f64, norm: f64, limit: f64| {
+            if v < -limit && norm > 0.0 && v / norm < worst {
+                worst = v / norm;
+                pick = Some((c, 1.0, v));
+            }
+        };
+        for i in 2..k2 {
+            if s.taken[i] {
+                continue;
+            }
+            let ad: f64 = self.row(i).iter().zip(&s.d).map(|(a, d)| a * d).sum();
+            consider(i, ad + sigma * s.t[i] - self.r[i], s.norm[i], tol);
+        }
+        for k in 0..n {
+            if !s.taken[k2 + k] {
+                let limit = BOUND_TOL * (1.0 + self.lo[k].abs());
+                consider(k2 + k, s.x[k] - self.lo[k], 1.0, limit);
+            }
+        }
+        for k in 0..n {
+            if !s.taken[k2 + n + k] {
+                let limit = BOUND_TOL * (1.0 + self.hi[k].abs());
+                consider(k2 + n + k, self.hi[k] - s.x[k], 1.0, limit);
+            }
+        }
+        pick
+    }
+
     /// Adds `sign * normal(c) * f` to the direction `(zx, zt)`.
     fn axpy(&self, c: usize, f: f64, sigma: f64, zx: &mut [f64], zt: &mut [f64]) {
         match self.con(c) {
@@ -237,22 +284,7 @@ impl Qp<'_> {
                 }
             }
             if pick.is_none() {
-                let mut worst = 0.0;
-                for c in 2..total {
-                    if s.taken[c] {
-                        continue;
-                    }
-                    let v = self.slack(c, s, sigma);
-                    let (norm, limit) = match self.con(c) {
-                        Con::Row(i) => (s.norm[i], tol),
-                        Con::Lower(k) => (1.0, BOUND_TOL * (1.0 + self.lo[k].abs())),
-                        Con::Upper(k) => (1.0, BOUND_TOL * (1.0 + self.hi[k].abs())),
-                    };
-                    if v < -limit && norm > 0.0 && v / norm < worst {
-                        worst = v / norm;
-                        pick = Some((c, 1.0, v));
-                    }
-                }
+                pick = self.most_violated(s, sigma, tol);
             }
             let Some((p, sp_sign, mut sp)) = pick else {
                 break;
