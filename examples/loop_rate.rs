@@ -22,7 +22,7 @@
 //! `cargo run --release --features zenoh --example loop_rate -- SECONDS --zenoh` instead runs
 //! each fixed rate twice, without and with the daemon on a Zenoh network (publishing at the
 //! default rate on the plain keys and, as a ROS 2 node, on rmw_zenoh's, to a peer subscribed
-//! to every key), one after the other.
+//! to every key that listens and that the daemon connects to), one after the other.
 //!
 //! `cargo run --release --example loop_rate -- SECONDS --foxglove` instead runs each fixed
 //! rate twice, without and with the Foxglove view on (at its default rate), one Foxglove client
@@ -85,8 +85,11 @@ fn config_with(
         }
     }
     if let Some(port) = zenoh_port {
+        // The peer listens there, ready before the daemon starts: the daemon's session connects
+        // at once (a peer connecting to a daemon not yet listening would retry a second later,
+        // Zenoh's default, and miss that second's samples).
         text.push_str(&format!(
-            "\n[zenoh]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\nros2 = true\n"
+            "\n[zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\nros2 = true\n"
         ));
     }
     let text = text
@@ -596,13 +599,15 @@ mod with_zenoh {
             // A watcher on every key, plain and ROS 2, as a dashboard or ROS 2 nodes would be.
             let stop = Arc::new(AtomicBool::new(false));
             let count = Arc::new(AtomicU64::new(0));
+            let (ready_tx, ready) = std::sync::mpsc::sync_channel(1);
             let watcher = {
                 let (stop, count) = (stop.clone(), count.clone());
                 std::thread::spawn(move || -> Result<()> {
                     let endpoint = Endpoint::parse(&format!("tcp/127.0.0.1:{port}"))
                         .map_err(anyhow::Error::msg)?;
-                    let peer = Peer::open(&[endpoint], &[])?;
+                    let peer = Peer::open(&[], &[endpoint])?;
                     let all = peer.subscribe("**")?;
+                    let _ = ready_tx.send(());
                     while !stop.load(Ordering::Relaxed) {
                         if all.recv_timeout(Duration::from_millis(100)).is_some() {
                             count.fetch_add(1, Ordering::Relaxed);
@@ -611,6 +616,8 @@ mod with_zenoh {
                     Ok(())
                 })
             };
+            // Listening and subscribed (or failed: the join below says why).
+            let _ = ready.recv_timeout(Duration::from_secs(10));
             let measured = run_with(rate, false, seconds, Some(port))?;
             stop.store(true, Ordering::Relaxed);
             let _ = watcher.join();
