@@ -57,8 +57,8 @@
 //!   no step decreases the merit, when elastic steps stall (as without obstacles), or when
 //!   the optimality residual has not fallen by 1% in [`TICK_STALL_STEPS`] iterations of a
 //!   local solve (a control tick), [`STALL_STEPS`] of a cold solve's fixed start, or
-//!   [`RANDOM_STALL_STEPS`] of a random one (a body caught on an obstacle, whose exact and
-//!   elastic steps alternate, each tiny).
+//!   [`SEARCH_STALL_STEPS`] of a random one or of a continuation start's intermediate target
+//!   (a body caught on an obstacle, whose exact and elastic steps alternate, each tiny).
 //!
 //! The answer a caller gets is checked once more with [`World::clearance`] (exact, all pairs):
 //! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
@@ -119,12 +119,13 @@ pub const STALL_STEPS: usize = 10;
 /// benchmark's walks as many ticks converge with 4 as with 10, and a cold start with 4 was
 /// seen to give up on a case it solves with 10).
 pub const TICK_STALL_STEPS: usize = 4;
-/// The same for a cold solve's random start. With 16 obstacles near the arm, 69 to 77% of the
-/// random starts end without reaching the target clear, most of them after making no progress
-/// for ten iterations, and they took 72% of a cold solve's time. Fewer than a fixed start's,
-/// enough that the benchmark's cases and the reference answers reach the optima they reach
-/// with ten (with four, one case at n = 24 ended at a worse one).
-pub const RANDOM_STALL_STEPS: usize = 6;
+/// The same for a cold solve's random start, and for the intermediate targets of a
+/// continuation start (whose answers only lead to the next). With 16 obstacles near the arm, 69
+/// to 77% of the random starts end without reaching the target clear, most of them after
+/// making no progress for ten iterations, and they took 72% of a cold solve's time. Fewer than
+/// a fixed start's, enough that the benchmark's cases and the reference answers reach the
+/// optima they reach with ten (with four, one case at n = 24 ended at a worse one).
+pub const SEARCH_STALL_STEPS: usize = 6;
 /// Forward-difference step for the pairs' Hessians, as a fraction of the problem's scale.
 const FD_STEP: f64 = 1e-7;
 /// A Newton multiplier of a pair below `-this * (1 + |nu|)` means the active set is wrong.
@@ -1327,7 +1328,7 @@ impl Overall {
             }
             self.clear.watch_best = start == ClearStart::Random && podium.reached();
             let stall = if start == ClearStart::Random {
-                RANDOM_STALL_STEPS
+                SEARCH_STALL_STEPS
             } else {
                 STALL_STEPS
             };
@@ -1386,7 +1387,9 @@ impl Overall {
         let tip0 = p.chain.tip(&self.w.theta);
         let mut iterations = 0;
         for sub in super::stages(p, tip0, polar, self.opts.continuation_stages) {
-            iterations += self.clear_local(&sub, world, mu, STALL_STEPS).iterations;
+            iterations += self
+                .clear_local(&sub, world, mu, SEARCH_STALL_STEPS)
+                .iterations;
         }
         iterations
     }
