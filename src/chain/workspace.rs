@@ -138,22 +138,16 @@ fn translated_bearing(len: f64, s: Sector, r_lo: f64) -> Option<(f64, f64)> {
     // long way round, which no folding of the corners' bearings can tell.
     let point = |rho: f64, phi: f64| Vec2::new(len + rho * phi.cos(), rho * phi.sin());
     let bearing_of = |p: Vec2| p.y.atan2(p.x);
-    let first = bearing_of(point(s.r_lo, lo));
-    let mut at = first;
-    let (mut min, mut max) = (at, at);
-    let visit = |a: f64, min: &mut f64, max: &mut f64| {
-        *min = min.min(a);
-        *max = max.max(a);
-    };
-    // From `point(rho, from)` (bearing `at`) to `point(rho, to)`.
-    let arc = |rho: f64, from: f64, to: f64, at: &mut f64, min: &mut f64, max: &mut f64| {
+    let mut walk = Unwrapped::from(bearing_of(point(s.r_lo, lo)));
+    // Along the arc of radius `rho` from where the walk is to `point(rho, to)`.
+    let arc = |walk: &mut Unwrapped, rho: f64, from: f64, to: f64| {
         let end = bearing_of(point(rho, to));
         if rho >= len {
             // The origin is inside (or on) the circle: the bearing turns the way phi does (at
             // least half as fast), by less than a full turn.
             if from != to {
-                let turn = (end - *at).rem_euclid(TAU);
-                *at += if to > from { turn } else { turn - TAU };
+                let turn = (end - walk.at).rem_euclid(TAU);
+                walk.go(walk.at + if to > from { turn } else { turn - TAU });
             }
         } else {
             // Outside the circle: the arc is seen within less than half a turn, its extremes
@@ -163,24 +157,24 @@ fn translated_bearing(len: f64, s: Sector, r_lo: f64) -> Option<(f64, f64)> {
                 for tangent in [t, -t] {
                     let phi = nearest_representative(tangent, 0.5 * (lo + hi));
                     if phi >= lo && phi <= hi {
-                        let a = nearest_representative(bearing_of(point(rho, phi)), *at);
-                        visit(a, min, max);
+                        walk.pass(nearest_representative(bearing_of(point(rho, phi)), walk.at));
                     }
                 }
             }
-            *at = nearest_representative(end, *at);
+            walk.step(end);
         }
-        visit(*at, min, max);
     };
     // A radial edge is a segment that misses the origin: less than half a turn, monotone.
-    let edge = |to: Vec2, at: &mut f64, min: &mut f64, max: &mut f64| {
-        *at = nearest_representative(bearing_of(to), *at);
-        visit(*at, min, max);
-    };
-    edge(point(s.r_hi, lo), &mut at, &mut min, &mut max);
-    arc(s.r_hi, lo, hi, &mut at, &mut min, &mut max);
-    edge(point(s.r_lo, hi), &mut at, &mut min, &mut max);
-    arc(s.r_lo, hi, lo, &mut at, &mut min, &mut max);
+    walk.step(bearing_of(point(s.r_hi, lo)));
+    arc(&mut walk, s.r_hi, lo, hi);
+    walk.step(bearing_of(point(s.r_lo, hi)));
+    arc(&mut walk, s.r_lo, hi, lo);
+    let Unwrapped {
+        at,
+        min,
+        max,
+        first,
+    } = walk;
     if (at - first).abs() > PI {
         // The boundary winds around the origin.
         return None;
@@ -198,6 +192,44 @@ fn translated_bearing(len: f64, s: Sector, r_lo: f64) -> Option<(f64, f64)> {
             Some((min.max(dlo + shift), max.min(dhi + shift)))
         }
         None => Some((min, max)),
+    }
+}
+
+/// A bearing followed along a path, unwrapped (it may run past +-pi), with its extremes.
+struct Unwrapped {
+    first: f64,
+    at: f64,
+    min: f64,
+    max: f64,
+}
+
+impl From<f64> for Unwrapped {
+    fn from(first: f64) -> Self {
+        Self {
+            first,
+            at: first,
+            min: first,
+            max: first,
+        }
+    }
+}
+
+impl Unwrapped {
+    /// Moves on to bearing `a`.
+    fn go(&mut self, a: f64) {
+        self.at = a;
+        self.pass(a);
+    }
+
+    /// Moves on to bearing `a`, less than half a turn away.
+    fn step(&mut self, a: f64) {
+        self.go(nearest_representative(a, self.at));
+    }
+
+    /// Passes bearing `a` on the way (an extreme between two points).
+    fn pass(&mut self, a: f64) {
+        self.min = self.min.min(a);
+        self.max = self.max.max(a);
     }
 }
 

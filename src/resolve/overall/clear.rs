@@ -487,6 +487,14 @@ impl ClearWork {
             .map(|q| (q.link, q.obstacle))
     }
 
+    /// The least clearance among the pairs the last evaluation found within its margin
+    /// (infinite when none).
+    fn least_found(&self) -> f64 {
+        self.all
+            .iter()
+            .fold(f64::INFINITY, |m, q| m.min(q.clearance_m))
+    }
+
     /// Whether some pair carried a positive multiplier out of the last solve.
     fn leaning(&self) -> bool {
         self.prev_nu[..self.prev_k].iter().any(|&v| v > 0.0)
@@ -546,10 +554,7 @@ impl ClearWork {
         }
         self.eval_theta.copy_from_slice(theta);
         self.eval_current = true;
-        let least = self
-            .all
-            .iter()
-            .fold(f64::INFINITY, |m, q| m.min(q.clearance_m));
+        let least = self.least_found();
         // Multipliers by key.
         for j in 0..self.k {
             self.nu[j] = (0..self.prev_k)
@@ -1207,10 +1212,7 @@ impl Overall {
         if !(c.eval_current && c.eval_theta == out) {
             return self.judge(world, chain, out, o);
         }
-        let least = c
-            .all
-            .iter()
-            .fold(f64::INFINITY, |m, q| m.min(q.clearance_m));
+        let least = c.least_found();
         if !least.is_finite() {
             return self.judge(world, chain, out, o);
         }

@@ -53,7 +53,7 @@ pub(super) struct ActiveScratch {
     /// The primal point: joints and slacks.
     x: Vec<f64>,
     t: Vec<f64>,
-    /// `x - theta` (joints), for the rows' values.
+    /// `x - theta` (joints), for the rows' values ([`Qp::difference`]).
     d: Vec<f64>,
     /// The primal direction.
     zx: Vec<f64>,
@@ -144,38 +144,26 @@ impl Qp<'_> {
         sa * sb * v
     }
 
-    /// A constraint's value at the scratch's point (positive: satisfied with room), unsigned.
-    fn slack(&self, c: usize, s: &ActiveScratch, sigma: f64) -> f64 {
-        match self.con(c) {
-            Con::Row(i) => {
-                let ad: f64 = self
-                    .row(i)
-                    .iter()
-                    .zip(&s.x)
-                    .zip(self.theta)
-                    .map(|((a, x), t)| a * (x - t))
-                    .sum();
-                ad + sigma * s.t[i] - self.r[i]
-            }
-            Con::Lower(k) => s.x[k] - self.lo[k],
-            Con::Upper(k) => self.hi[k] - s.x[k],
+    /// Forms `x - theta` at the scratch's point, which every row's value reads.
+    fn difference(&self, s: &mut ActiveScratch) {
+        for ((d, x), t) in s.d.iter_mut().zip(&s.x).zip(self.theta) {
+            *d = x - t;
         }
+    }
+
+    /// Row `i`'s value at the scratch's point (positive: satisfied with room), unsigned, after
+    /// [`Self::difference`].
+    fn row_value(&self, i: usize, s: &ActiveScratch, sigma: f64) -> f64 {
+        let ad: f64 = self.row(i).iter().zip(&s.d).map(|(a, d)| a * d).sum();
+        ad + sigma * s.t[i] - self.r[i]
     }
 
     /// The inequality (a pair's row or a bound) most violated at the scratch's point, by its
     /// distance to the boundary, beyond `tol` (rows) or [`BOUND_TOL`] (bounds): its index,
     /// sign and value. In the order of the constraints' indices, the first of equals.
-    fn most_violated(
-        &self,
-        s: &mut ActiveScratch,
-        sigma: f64,
-        tol: f64,
-    ) -> Option<(usize, f64, f64)> {
+    /// After [`Self::difference`].
+    fn most_violated(&self, s: &ActiveScratch, sigma: f64, tol: f64) -> Option<(usize, f64, f64)> {
         let (n, k2) = (self.n, self.k2);
-        // Every row's value is its normal's product with `x - theta`: that difference once.
-        for ((d, x), t) in s.d.iter_mut().zip(&s.x).zip(self.theta) {
-            *d = x - t;
-        }
         let mut worst = 0.0;
         let mut pick = None;
         let mut consider = |c: usize, v: f64, norm: f64, limit: f64| {
@@ -188,8 +176,7 @@ impl Qp<'_> {
             if s.taken[i] {
                 continue;
             }
-            let ad: f64 = self.row(i).iter().zip(&s.d).map(|(a, d)| a * d).sum();
-            consider(i, ad + sigma * s.t[i] - self.r[i], s.norm[i], tol);
+            consider(i, self.row_value(i, s, sigma), s.norm[i], tol);
         }
         for k in 0..n {
             if !s.taken[k2 + k] {
@@ -276,9 +263,10 @@ impl Qp<'_> {
             // The constraint to take: an equality not yet taken, else the most violated
             // inequality, measured as the distance to its boundary.
             let mut pick: Option<(usize, f64, f64)> = None;
+            self.difference(s);
             for i in 0..2.min(k2) {
                 if !s.taken[i] && !skipped[i] {
-                    let v = self.slack(i, s, sigma);
+                    let v = self.row_value(i, s, sigma);
                     pick = Some((i, if v > 0.0 { -1.0 } else { 1.0 }, -v.abs()));
                     break;
                 }
