@@ -82,7 +82,8 @@ pub(super) struct Newton {
     vc: Vec<f64>,
     /// The constraint rows on the free joints (structured route).
     a_free: Vec<f64>,
-    /// The factors the last successful [`Newton::solve_kkt`] left, for [`Newton::solve_again`].
+    /// The factors the last successful KKT solve (either route) left, for
+    /// [`Newton::solve_again`]; each route drops them first.
     factors: Option<Factors>,
 }
 
@@ -299,23 +300,15 @@ impl Newton {
         let structured =
             r * r * m + r * r * r / 3 + (rows + 1) * (2 * r * m + r * r) + rows * rows * m;
         let dense = size * size * size / 3 + m * m * (r + 1);
-        self.factors = None;
         if r <= 2 * m && STRUCTURED_WEIGHT * structured < dense {
             if let Some(ok) = self.solve_structured(free, rows, row, out) {
-                if ok {
-                    self.factors = Some(Factors::Structured { m, rows });
-                }
                 return ok;
             }
         }
-        let ok = self.solve_dense(free, rows, row, out);
-        if ok {
-            self.factors = Some(Factors::Dense { size });
-        }
-        ok
+        self.solve_dense(free, rows, row, out)
     }
 
-    /// Solves the system the last successful [`Newton::solve_kkt`] solved (the same free
+    /// Solves the system the last successful KKT solve solved (by either route; the same free
     /// joints and rows) for another right-hand side in `out`, with its factors: a few
     /// operations per entry of the matrix instead of a factorization. False without factors
     /// (none kept since the last [`Newton::begin`]) or with a non-finite answer.
@@ -344,6 +337,7 @@ impl Newton {
         row: impl Fn(usize, usize) -> f64,
         out: &mut [f64],
     ) -> bool {
+        self.factors = None;
         let (m, n) = (free.len(), self.n);
         let size = m + rows;
         grow(&mut self.dense, size * size);
@@ -396,7 +390,11 @@ impl Newton {
             return false;
         }
         lu_apply(kkt, perm, size, &mut out[..size]);
-        out[..size].iter().all(|v| v.is_finite())
+        let ok = out[..size].iter().all(|v| v.is_finite());
+        if ok {
+            self.factors = Some(Factors::Dense { size });
+        }
+        ok
     }
 
     /// [`Newton::solve_kkt`] by the structure; `None` when it cannot be used (`H0` near
@@ -408,6 +406,7 @@ impl Newton {
         row: impl Fn(usize, usize) -> f64,
         out: &mut [f64],
     ) -> Option<bool> {
+        self.factors = None;
         let m = free.len();
         let r = self.cols;
         if r > 2 * m {
@@ -500,7 +499,11 @@ impl Newton {
             return Some(false);
         }
         self.finish_structured(m, rows, out);
-        Some(out[..m + rows].iter().all(|v| v.is_finite()))
+        let ok = out[..m + rows].iter().all(|v| v.is_finite());
+        if ok {
+            self.factors = Some(Factors::Structured { m, rows });
+        }
+        Some(ok)
     }
 
     /// The structured solve's last part, with `K` factorized and `z1 = H^-1 r1` in `z` after
@@ -781,7 +784,7 @@ mod tests {
     fn a_second_right_hand_side_solves_with_the_kept_factors_of_either_route() {
         let world = world();
         let (_, pts) = arm();
-        let (m, size) = (FREE.len(), FREE.len() + ROWS);
+        let size = FREE.len() + ROWS;
         let first: Vec<f64> = (0..size).map(|i| (i as f64 * 0.37).sin()).collect();
         let second: Vec<f64> = (0..size).map(|i| (i as f64 * 1.3).cos()).collect();
         for structured in [false, true] {
@@ -794,10 +797,8 @@ mod tests {
                     newton.solve_structured(&FREE, ROWS, a_row, &mut out),
                     Some(true)
                 );
-                newton.factors = Some(Factors::Structured { m, rows: ROWS });
             } else {
                 assert!(newton.solve_dense(&FREE, ROWS, a_row, &mut out));
-                newton.factors = Some(Factors::Dense { size });
             }
             let want = reference_solve(&newton, &second);
             let mut again = second.clone();
