@@ -23,6 +23,13 @@ fn disc(id: &str, x: f64, y: f64, r: f64) -> Obstacle {
     }
 }
 
+/// A solver among the obstacles of `world`, default options.
+fn among(world: &World) -> Overall {
+    let mut s = Overall::new(OverallOptions::default());
+    s.set_world(Some(world.clone()));
+    s
+}
+
 fn arm(n: usize) -> Chain {
     Chain::unlimited(vec![1.0 / n as f64; n], Vec2::zeros(), 0.0).unwrap()
 }
@@ -87,8 +94,7 @@ fn the_answer_leaning_on_an_obstacle_is_optimal_and_clear() {
     Overall::new(OverallOptions::default()).solve_local(&chain, &theta0, target, &mut free_out);
     assert!(world.pose_clearance(&chain, &free_out).unwrap().clearance_m < 0.0);
     for cold in [false, true] {
-        let mut s = Overall::new(OverallOptions::default());
-        s.set_world(Some(world.clone()));
+        let mut s = among(&world);
         let mut out = vec![0.0; 10];
         let o = if cold {
             s.solve_cold(&chain, &theta0, target, &mut out)
@@ -138,8 +144,7 @@ fn a_start_that_is_not_clear_gets_out() {
     let world = World::new(0.0, 0.002, vec![disc("rock", mid.x, mid.y + 0.01, 0.015)]).unwrap();
     assert!(world.pose_clearance(&chain, &theta0).unwrap().clearance_m < -0.004);
     let target = chain.tip(&theta0);
-    let mut s = Overall::new(OverallOptions::default());
-    s.set_world(Some(world.clone()));
+    let mut s = among(&world);
     let mut out = vec![0.0; 8];
     let o = s.solve_local(&chain, &theta0, target, &mut out);
     assert!(o.converged, "{o:?}");
@@ -157,8 +162,7 @@ fn a_start_that_cannot_get_out_says_so() {
     let chain = arm(4);
     let theta0 = vec![0.2; 4];
     let world = World::new(0.0, 0.0, vec![disc("trap", 0.1, 0.0, 0.2)]).unwrap();
-    let mut s = Overall::new(OverallOptions::default());
-    s.set_world(Some(world.clone()));
+    let mut s = among(&world);
     let mut out = vec![0.0; 4];
     let o = s.solve_local(&chain, &theta0, chain.tip(&theta0), &mut out);
     assert!(!o.converged, "{o:?}");
@@ -180,8 +184,7 @@ fn resolve_leaves_theta_untouched_when_no_clear_answer_exists() {
     // clear.
     let goal = tip + Vec2::new(0.05, 0.0);
     let world = World::new(0.01, 0.005, vec![disc("post", goal.x, goal.y, 0.03)]).unwrap();
-    let mut s = Overall::new(OverallOptions::default());
-    s.set_world(Some(world));
+    let mut s = among(&world);
     let err = s.resolve(&chain, &mut theta, goal).unwrap_err();
     assert!(
         matches!(
@@ -214,8 +217,7 @@ fn a_world_without_obstacles_changes_nothing() {
         let target = chain.tip(&goal);
         for cold in [false, true] {
             let mut plain = Overall::new(OverallOptions::default());
-            let mut with = Overall::new(OverallOptions::default());
-            with.set_world(Some(empty.clone()));
+            let mut with = among(&empty);
             let (mut a, mut b) = (vec![0.0; 9], vec![0.0; 9]);
             let (oa, ob) = if cold {
                 (
@@ -238,8 +240,7 @@ fn a_world_without_obstacles_changes_nothing() {
 #[test]
 fn warm_ticks_along_a_post_stay_clear_and_on_target() {
     let (chain, theta0, target, world) = leaning_case();
-    let mut s = Overall::new(OverallOptions::default());
-    s.set_world(Some(world.clone()));
+    let mut s = among(&world);
     let mut theta = theta0.clone();
     let start = chain.tip(&theta0);
     let mut out = vec![0.0; 10];
@@ -282,8 +283,7 @@ fn warm_ticks_along_a_post_stay_clear_and_on_target() {
 #[test]
 fn a_warm_tick_among_obstacles_finds_what_a_solver_with_no_memory_finds() {
     let (chain, theta0, target, world) = leaning_case();
-    let mut warm = Overall::new(OverallOptions::default());
-    warm.set_world(Some(world.clone()));
+    let mut warm = among(&world);
     let mut theta = theta0.clone();
     let start = chain.tip(&theta0);
     let (mut out, mut fresh_out) = (vec![0.0; 10], vec![0.0; 10]);
@@ -291,8 +291,7 @@ fn a_warm_tick_among_obstacles_finds_what_a_solver_with_no_memory_finds() {
     for k in 1..=150 {
         let t = start + (target - start) * (k as f64 / 150.0);
         let o = warm.solve_local(&chain, &theta, t, &mut out);
-        let mut fresh = Overall::new(OverallOptions::default());
-        fresh.set_world(Some(world.clone()));
+        let mut fresh = among(&world);
         let f = fresh.solve_local(&chain, &theta, t, &mut fresh_out);
         assert!(o.converged && f.converged, "tick {k}: {o:?} {f:?}");
         let apart = max_abs_diff(&out, &fresh_out);
@@ -373,8 +372,7 @@ proptest! {
         cold in proptest::bool::ANY,
     ) {
         let (chain, theta0, target, world) = random_problem(seed, n, count);
-        let mut s = Overall::new(OverallOptions::default());
-        s.set_world(Some(world.clone()));
+        let mut s = among(&world);
         let mut out = vec![0.0; n];
         let o = if cold {
             s.solve_cold(&chain, &theta0, target, &mut out)
@@ -407,8 +405,7 @@ fn most_random_problems_with_a_clear_start_converge() {
             continue;
         }
         tried += 1;
-        let mut s = Overall::new(OverallOptions::default());
-        s.set_world(Some(world));
+        let mut s = among(&world);
         let mut out = vec![0.0; 8];
         converged += usize::from(s.solve_cold(&chain, &theta0, target, &mut out).converged);
     }
