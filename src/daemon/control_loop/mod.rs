@@ -20,7 +20,10 @@
 //! the next tick decides on it), publish the telemetry (latest wins; and, when the run is
 //! recorded, hand a copy to the recorder, [`crate::record::tap`]), then answer the commands
 //! applied in this tick. A tick that runs late makes the loop skip the periods it missed
-//! (counted as overruns), never catch up in a burst. Once warm a tick allocates nothing unless a
+//! (counted as overruns), never catch up in a burst. The wait for the next period sleeps to
+//! [`SPIN_TAIL`](snakectl_sim::clock::SPIN_TAIL) before it and spins the rest
+//! ([`Clock::sleep_until`]), and the loop's thread and its ports' run with a timer slack of
+//! 1 ns ([`crate::beside::sharp_timers`]): a tick starts on time. Once warm a tick allocates nothing unless a
 //! command or an event needs it.
 //!
 //! Time comes from an injected [`Clock`] and the servos from any [`ServoBus`]: the daemon runs
@@ -115,6 +118,7 @@ pub(super) fn main(
     ready: oneshot::Sender<Result<Handle, DaemonError>>,
     tap: Option<Tap>,
 ) -> Result<Summary, DaemonError> {
+    crate::beside::sharp_timers();
     let started = open(&config, options).and_then(|parts| Cycle::new(&config, parts));
     let (mut cycle, handle) = match started {
         Ok(started) => started,
@@ -540,8 +544,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         self.say_behind();
         self.wake_side();
-        self.clock
-            .sleep(pace.deadline.saturating_duration_since(self.clock.now()));
+        self.clock.sleep_until(pace.deadline);
         true
     }
 
