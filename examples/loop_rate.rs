@@ -48,6 +48,7 @@ use snakectl::config::{Config, MAX_RATE_HZ};
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions, Summary};
 use snakectl::record::{RecordOptions, Recording};
+use snakectl::servo::clock::{Clock, RealClock};
 use snakectl::servo::wire::{bound_of_ports, Adapter, Bound, ReadKind};
 
 const WARM_UP: Duration = Duration::from_millis(500);
@@ -259,8 +260,7 @@ fn main() -> Result<()> {
         return record_table(seconds);
     }
     if std::env::args().nth(2).as_deref() == Some("--jitter") {
-        jitter(seconds);
-        return Ok(());
+        return jitter(seconds);
     }
     if std::env::args().nth(2).as_deref() == Some("--wire-row") {
         let row = Row::parse(&std::env::args().skip(3).collect::<Vec<_>>())?;
@@ -276,35 +276,67 @@ fn main() -> Result<()> {
     wire_table(&ROWS_READ, &ROWS_ADAPTER)
 }
 
-/// How late this machine wakes a thread: for `seconds`, a thread asks to sleep [`JITTER_NAP`] and
-/// measures how much longer it slept. A tick of a wire-timed loop waits on a dozen such
-/// wake-ups (the simulator's replies, the loop's reads), so this bounds how close to the wire
-/// bound a rate can hold with under 0.5% of its ticks late.
-fn jitter(seconds: f64) {
+/// How late this machine wakes a thread: for `seconds` each, a lone thread asks to sleep
+/// [`JITTER_NAP`] and measures how much longer it slept, three ways: a plain sleep at the
+/// default timer slack, the same with the loop's sharp timers
+/// ([`snakectl::beside::sharp_timers`]), and the loop's own wait for its period (sharp timers
+/// and [`Clock::sleep_until`]'s spin tail). A tick of a wire-timed loop waits on a dozen
+/// such wake-ups (the simulator's replies, the loop's reads), so this bounds how close to the
+/// wire bound a rate can hold with under 0.5% of its ticks late.
+fn jitter(seconds: f64) -> Result<()> {
+    for (label, sharp, until) in [
+        ("plain sleep", false, false),
+        ("sharp timers", true, false),
+        ("sharp timers, spin tail", true, true),
+    ] {
+        let late_us = std::thread::spawn(move || {
+            if sharp && !snakectl::beside::sharp_timers() {
+                return None;
+            }
+            Some(naps(seconds, until))
+        })
+        .join()
+        .map_err(|_| anyhow::anyhow!("the jitter thread panicked"))?;
+        let Some(late_us) = late_us else {
+            println!("{label}: the timer slack could not be set");
+            continue;
+        };
+        let n = late_us.len();
+        let q = |f: f64| late_us[((n as f64 * f) as usize).min(n - 1)];
+        let over = |us: f64| late_us.iter().filter(|&&l| l > us).count();
+        println!(
+            "{label}: {n} sleeps of {} µs: late by p50 {:.0} / p99 {:.0} / p99.5 {:.0} / p99.9 {:.0} / max {:.0} µs; \
+             over 0.5 ms: {}, over 1 ms: {}, over 2 ms: {}",
+            JITTER_NAP.as_micros(),
+            q(0.5),
+            q(0.99),
+            q(0.995),
+            q(0.999),
+            late_us[n - 1],
+            over(500.0),
+            over(1000.0),
+            over(2000.0),
+        );
+    }
+    Ok(())
+}
+
+/// [`JITTER_NAP`]s for `seconds`, by a plain sleep or by [`Clock::sleep_until`] (`until`): how
+/// late each woke, µs, sorted.
+fn naps(seconds: f64, until: bool) -> Vec<f64> {
     let mut late_us = Vec::new();
     let end = Instant::now() + Duration::from_secs_f64(seconds);
     while Instant::now() < end {
         let t = Instant::now();
-        std::thread::sleep(JITTER_NAP);
+        if until {
+            RealClock.sleep_until(t + JITTER_NAP);
+        } else {
+            std::thread::sleep(JITTER_NAP);
+        }
         late_us.push(t.elapsed().saturating_sub(JITTER_NAP).as_secs_f64() * 1e6);
     }
     late_us.sort_by(f64::total_cmp);
-    let n = late_us.len();
-    let q = |f: f64| late_us[((n as f64 * f) as usize).min(n - 1)];
-    let over = |us: f64| late_us.iter().filter(|&&l| l > us).count();
-    println!(
-        "{n} sleeps of {} µs: late by p50 {:.0} / p99 {:.0} / p99.5 {:.0} / p99.9 {:.0} / max {:.0} µs; \
-         over 0.5 ms: {}, over 1 ms: {}, over 2 ms: {}",
-        JITTER_NAP.as_micros(),
-        q(0.5),
-        q(0.99),
-        q(0.995),
-        q(0.999),
-        late_us[n - 1],
-        over(500.0),
-        over(1000.0),
-        over(2000.0),
-    );
+    late_us
 }
 
 /// The sleep [`jitter`] asks for.
