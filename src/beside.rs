@@ -51,8 +51,9 @@ pub const SHARP_TIMER_SLACK_NS: u64 = 1;
 /// Sets the calling thread's timer slack to [`SHARP_TIMER_SLACK_NS`], so that its sleeps and
 /// read timeouts end when asked. For the control loop and its port threads, whose sleep to the
 /// next period and waits on the bus make up the tick: with the default slack a 500 µs sleep
-/// here woke 83 µs late at the median, with 1 ns 35 µs. Costs nothing but wake-ups that are
-/// not merged with others. Returns whether it was set (logged at debug level otherwise).
+/// on the development machine woke 84 µs late at the median, with 1 ns 34 µs (`loop_rate
+/// --jitter`). Costs nothing but wake-ups that are not merged with others. Returns whether it
+/// was set (logged at debug level otherwise).
 pub fn sharp_timers() -> bool {
     #[cfg(target_os = "linux")]
     {

@@ -23,8 +23,8 @@
 //! (counted as overruns), never catch up in a burst. The wait for the next period sleeps to
 //! [`SPIN_TAIL`](snakectl_sim::clock::SPIN_TAIL) before it and spins the rest
 //! ([`Clock::sleep_until`]), and the loop's thread and its ports' run with a timer slack of
-//! 1 ns ([`crate::beside::sharp_timers`]): a tick starts on time. Once warm a tick allocates nothing unless a
-//! command or an event needs it.
+//! 1 ns ([`crate::beside::sharp_timers`]): a tick starts on time. Once warm a tick allocates
+//! nothing unless a command or an event needs it.
 //!
 //! Time comes from an injected [`Clock`] and the servos from any [`ServoBus`]: the daemon runs
 //! on the real port and the wall clock, the tests on an in-memory bus and a manual clock.
