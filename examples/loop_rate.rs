@@ -279,7 +279,7 @@ fn main() -> Result<()> {
 /// How late this machine wakes a thread: for `seconds` each, a lone thread asks to sleep
 /// [`JITTER_NAP`] and measures how much longer it slept, three ways: a plain sleep at the
 /// default timer slack, the same with the loop's sharp timers
-/// ([`snakectl::beside::sharp_timers`]), and the loop's own wait for its period (sharp timers
+/// ([`snakectl::servo::clock::sharp_timers`]), and the loop's own wait for its period (sharp timers
 /// and [`Clock::sleep_until`]'s spin tail). A tick of a wire-timed loop waits on a dozen
 /// such wake-ups (the simulator's replies, the loop's reads), so this bounds how close to the
 /// wire bound a rate can hold with under 0.5% of its ticks late.
@@ -290,7 +290,7 @@ fn jitter(seconds: f64) -> Result<()> {
         ("sharp timers, spin tail", true, true),
     ] {
         let late_us = std::thread::spawn(move || {
-            if sharp && !snakectl::beside::sharp_timers() {
+            if sharp && !snakectl::servo::clock::sharp_timers() {
                 return None;
             }
             Some(naps(seconds, until))

@@ -8,8 +8,8 @@
 //! no privilege; where it fails or the platform has no per-thread nice, nothing changes.
 //! Under a real-time policy (`chrt`) nice values do not apply.
 //!
-//! The loop and its port threads go the other way with [`sharp_timers`]: their timed waits end
-//! on time instead of up to the kernel's default timer slack (50 µs) late.
+//! The loop and its port threads go the other way: their timed waits end on time
+//! ([`crate::servo::clock::sharp_timers`]).
 
 /// How much lower than the process a side thread runs, in nice steps: at +10 the scheduler
 /// gives a busy side thread about a tenth of what it gives the loop.
@@ -44,36 +44,6 @@ fn lower_own_priority() -> Option<i32> {
     }
 }
 
-/// The timer slack [`sharp_timers`] asks for: the kernel may end a timed wait this much late
-/// to merge wake-ups (1 ns, the least it takes; the default is 50 µs).
-pub const SHARP_TIMER_SLACK_NS: u64 = 1;
-
-/// Sets the calling thread's timer slack to [`SHARP_TIMER_SLACK_NS`], so that its sleeps and
-/// read timeouts end when asked. For the control loop and its port threads, whose sleep to the
-/// next period and waits on the bus make up the tick: with the default slack a 500 µs sleep
-/// on the development machine woke 84 µs late at the median, with 1 ns 34 µs (`loop_rate
-/// --jitter`). Costs nothing but wake-ups that are not merged with others. Returns whether it
-/// was set (logged at debug level otherwise).
-pub fn sharp_timers() -> bool {
-    #[cfg(target_os = "linux")]
-    {
-        let set = rustix::thread::set_current_timer_slack(std::num::NonZeroU64::new(
-            SHARP_TIMER_SLACK_NS,
-        ))
-        .is_ok();
-        if !set {
-            let thread = std::thread::current();
-            let name = thread.name().unwrap_or("a loop thread");
-            tracing::debug!("{name}: keeps the default timer slack (could not set it)");
-        }
-        set
-    }
-    #[cfg(not(target_os = "linux"))]
-    {
-        false
-    }
-}
-
 #[cfg(all(test, target_os = "linux"))]
 #[allow(clippy::unwrap_used)]
 mod tests {
@@ -99,18 +69,5 @@ mod tests {
             rustix::process::getpriority_process(Some(tid)).unwrap(),
             before
         );
-    }
-
-    #[test]
-    fn a_loop_thread_sharpens_its_own_timers_and_no_other_thread_s() {
-        let before = rustix::thread::current_timer_slack().unwrap();
-        let loop_thread = std::thread::spawn(|| {
-            let set = sharp_timers();
-            (set, rustix::thread::current_timer_slack().unwrap())
-        })
-        .join()
-        .unwrap();
-        assert_eq!(loop_thread, (true, SHARP_TIMER_SLACK_NS));
-        assert_eq!(rustix::thread::current_timer_slack().unwrap(), before);
     }
 }

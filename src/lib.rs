@@ -55,7 +55,7 @@
 //!   health, supervisor, ledger, statistics), the socket server on tokio, the bounded seam
 //!   between them.
 //! - [`beside`]: the threads beside the loop (recorder, Foxglove view, Zenoh bridge) run at
-//!   a lower priority than it; the loop's own threads wait with sharp timers.
+//!   a lower priority than it.
 //! - [`record`]: recordings of a run as MCAP (ROS 2 messages, telemetry and events as JSON,
 //!   the config): the loop's bounded hand-over, the recorder's thread, reading one back.
 //! - [`client`]: a blocking client of the daemon's socket (requests, typed replies, events, the

@@ -44,9 +44,6 @@ const IDLE_WAIT: Duration = Duration::from_millis(2);
 /// How close to a reply's deadline the thread stops sleeping and spins. Only wire timing makes
 /// replies due in the future, so only it spins.
 const SPIN_WINDOW: Duration = Duration::from_micros(80);
-/// The serving thread's timer slack: how late the kernel may end its timed waits to merge
-/// wake-ups (1 ns, the least; the default 50 µs would eat most of [`SPIN_WINDOW`]).
-const TIMER_SLACK_NS: u64 = 1;
 /// File name of the link inside a [`Link::Private`] directory.
 const PRIVATE_LINK_NAME: &str = "port";
 
@@ -335,10 +332,8 @@ fn serve(
     link: Option<&Path>,
     pty: &Mutex<Option<PathBuf>>,
 ) -> Result<(), SimError> {
-    #[cfg(target_os = "linux")]
-    if rustix::thread::set_current_timer_slack(std::num::NonZeroU64::new(TIMER_SLACK_NS)).is_err() {
-        tracing::debug!("the serving thread keeps the default timer slack");
-    }
+    // The default slack (50 µs) would eat most of the spin window.
+    crate::clock::sharp_timers();
     let clock = Arc::clone(lock(sim).clock());
     let mut line = Some(line);
     // The pseudo-terminal opened when the line went away, served when it comes back.

@@ -6,7 +6,7 @@
 //! The trait lives in the simulator's crate, the lowest of the workspace (it depends on nothing
 //! of this one), because the simulated servos take their time from the same clock.
 
-pub use snakectl_sim::clock::{Clock, ManualClock, RealClock};
+pub use snakectl_sim::clock::{sharp_timers, Clock, ManualClock, RealClock};
 
 #[cfg(test)]
 mod tests {

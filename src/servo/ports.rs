@@ -72,7 +72,7 @@ impl<B: ServoBus + Send + 'static> Worker<B> {
         let thread = std::thread::Builder::new()
             .name(format!("port {name}"))
             .spawn(move || {
-                crate::beside::sharp_timers();
+                super::clock::sharp_timers();
                 // Ends when the bus is dropped (the sender goes) or the answer has nowhere to go.
                 while let Ok(job) = inbox.recv() {
                     let answer = match job {

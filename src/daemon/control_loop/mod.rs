@@ -23,7 +23,7 @@
 //! (counted as overruns), never catch up in a burst. The wait for the next period sleeps to
 //! [`SPIN_TAIL`](snakectl_sim::clock::SPIN_TAIL) before it and spins the rest
 //! ([`Clock::sleep_until`]), and the loop's thread and its ports' run with a timer slack of
-//! 1 ns ([`crate::beside::sharp_timers`]): a tick starts on time. Once warm a tick allocates
+//! 1 ns ([`crate::servo::clock::sharp_timers`]): a tick starts on time. Once warm a tick allocates
 //! nothing unless a command or an event needs it.
 //!
 //! Time comes from an injected [`Clock`] and the servos from any [`ServoBus`]: the daemon runs
@@ -118,7 +118,7 @@ pub(super) fn main(
     ready: oneshot::Sender<Result<Handle, DaemonError>>,
     tap: Option<Tap>,
 ) -> Result<Summary, DaemonError> {
-    crate::beside::sharp_timers();
+    crate::servo::clock::sharp_timers();
     let started = open(&config, options).and_then(|parts| Cycle::new(&config, parts));
     let (mut cycle, handle) = match started {
         Ok(started) => started,
