@@ -9,7 +9,74 @@
 //! Under a real-time policy (`chrt`) nice values do not apply.
 //!
 //! The loop and its port threads go the other way: their timed waits end on time
-//! ([`crate::servo::clock::sharp_timers`]).
+//! ([`crate::servo::clock::sharp_timers`]), and with `[control] realtime_priority` the loop's
+//! thread takes a real-time policy ([`realtime`]) before it opens the bus, so that the threads
+//! it starts (each port's, an embedded simulator's, which stands in for the servos) inherit it.
+//! The side threads are started elsewhere and keep the normal policy.
+
+use thread_priority::{
+    RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,
+};
+
+/// The real-time priorities `SCHED_FIFO` takes on Linux.
+pub const REALTIME_PRIORITIES: std::ops::RangeInclusive<u8> = 1..=99;
+
+/// Why the calling thread could not take a real-time policy.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot run under SCHED_FIFO at priority {priority}: {source}{hint}")]
+pub struct RealtimeError {
+    /// The priority asked for.
+    pub priority: u8,
+    /// What the system answered.
+    #[source]
+    pub source: std::io::Error,
+    hint: &'static str,
+}
+
+/// Puts the calling thread under `SCHED_FIFO` at `priority` (1 to 99, higher first): it then
+/// runs whenever it is ready, ahead of every thread of the normal policy, whatever their nice
+/// value. Threads it starts afterwards inherit the policy. Needs root, `CAP_SYS_NICE` or an
+/// `RLIMIT_RTPRIO` (`ulimit -r`) of at least `priority`; the error says which is missing.
+pub fn realtime(priority: u8) -> Result<(), RealtimeError> {
+    let refused = |source: std::io::Error| {
+        let hint = if source.kind() == std::io::ErrorKind::PermissionDenied {
+            " (it needs root, CAP_SYS_NICE, or an RLIMIT_RTPRIO of at least the priority: \
+             `ulimit -r`)"
+        } else {
+            ""
+        };
+        RealtimeError {
+            priority,
+            source,
+            hint,
+        }
+    };
+    if !REALTIME_PRIORITIES.contains(&priority) {
+        return Err(refused(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "the priority must be 1 to 99",
+        )));
+    }
+    let value = ThreadPriorityValue::try_from(priority)
+        .map_err(|e| refused(std::io::Error::new(std::io::ErrorKind::InvalidInput, e)))?;
+    thread_priority::set_thread_priority_and_policy(
+        thread_priority::thread_native_id(),
+        ThreadPriority::Crossplatform(value),
+        ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
+    )
+    .map_err(|e| {
+        refused(match e {
+            thread_priority::Error::OS(code) => std::io::Error::from_raw_os_error(code),
+            other => std::io::Error::other(other.to_string()),
+        })
+    })?;
+    tracing::info!(
+        thread = std::thread::current().name().unwrap_or("a thread"),
+        priority,
+        "runs under SCHED_FIFO"
+    );
+    Ok(())
+}
 
 /// How much lower than the process a side thread runs, in nice steps: at +10 the scheduler
 /// gives a busy side thread about a tenth of what it gives the loop.
@@ -48,6 +115,54 @@ fn lower_own_priority() -> Option<i32> {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    /// The calling thread's policy and priority.
+    fn policy() -> (ThreadSchedulePolicy, i32) {
+        let (policy, params) =
+            thread_priority::thread_schedule_policy_param(thread_priority::thread_native_id())
+                .unwrap();
+        (policy, params.sched_priority)
+    }
+
+    const FIFO: ThreadSchedulePolicy =
+        ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo);
+
+    #[test]
+    fn a_priority_outside_fifos_range_is_refused_whatever_the_privileges() {
+        for bad in [0, 100, 255] {
+            let e = std::thread::spawn(move || realtime(bad))
+                .join()
+                .unwrap()
+                .unwrap_err();
+            assert_eq!(e.source.kind(), std::io::ErrorKind::InvalidInput, "{e}");
+            assert!(e.to_string().contains("1 to 99"), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_thread_that_takes_fifo_runs_it_and_so_do_the_threads_it_starts_but_not_its_parent() {
+        let before = policy();
+        let (took, inside, child) = std::thread::spawn(|| {
+            let took = realtime(7);
+            let child = std::thread::spawn(policy).join().unwrap();
+            (took, policy(), child)
+        })
+        .join()
+        .unwrap();
+        match took {
+            Ok(()) => {
+                assert_eq!(inside, (FIFO, 7));
+                assert_eq!(child, (FIFO, 7));
+            }
+            // Without the privilege: the error says what is missing, and nothing changed.
+            Err(e) => {
+                assert_eq!(e.source.kind(), std::io::ErrorKind::PermissionDenied, "{e}");
+                assert!(e.to_string().contains("CAP_SYS_NICE"), "{e}");
+                assert_eq!(inside, before);
+            }
+        }
+        assert_eq!(policy(), before);
+    }
 
     #[test]
     fn a_side_thread_runs_lower_and_the_thread_that_started_it_does_not() {

@@ -87,3 +87,69 @@ fn a_port_with_a_servo_too_old_for_fast_sync_read_reads_sync_and_the_other_port_
     assert_eq!(s["faults"], json!([]), "{s}");
     assert!(dist(xy(&s["tip"]), target) < 1e-9, "{s}");
 }
+
+/// Each thread of this process, by name: (name, scheduling policy, real-time priority), from
+/// `/proc/self/task/*/stat` (fields 41 and 40; 1 is `SCHED_FIFO`, 0 the normal policy).
+fn threads() -> Vec<(String, u32, u32)> {
+    let mut out = Vec::new();
+    for task in std::fs::read_dir("/proc/self/task").unwrap() {
+        let Ok(stat) = std::fs::read_to_string(task.unwrap().path().join("stat")) else {
+            continue; // the thread ended meanwhile
+        };
+        let open = stat.find('(').unwrap();
+        let close = stat.rfind(')').unwrap();
+        let name = stat[open + 1..close].to_owned();
+        // After the name, fields 3 on.
+        let rest: Vec<&str> = stat[close + 1..].split_whitespace().collect();
+        let field = |k: usize| rest[k - 3].parse::<u32>().unwrap();
+        out.push((name, field(41), field(40)));
+    }
+    out
+}
+
+#[test]
+fn with_a_realtime_priority_the_loop_its_ports_and_simulators_run_fifo_and_nothing_else() {
+    const SCHED_FIFO: u32 = 1;
+    let config = sim_config_with(
+        &[("substeps = 1\n", "substeps = 1\nrealtime_priority = 20\n")],
+        TWO_PORTS,
+    );
+    assert_eq!(config.control().realtime_priority, Some(20));
+    // Whether this process may: the daemon must run FIFO if so, and refuse to start if not.
+    let allowed = std::thread::spawn(|| snakectl::beside::realtime(20))
+        .join()
+        .unwrap();
+    let localhost = SocketAddr::from(([127, 0, 0, 1], 0));
+    let daemon = Embedded::start(config, localhost, RunOptions::default()).unwrap();
+    match allowed {
+        Ok(()) => {
+            let mut c = Client::connect(daemon.addr());
+            assert_eq!(c.status()["faults"], json!([]));
+            let all = threads();
+            let of = |name: &str| -> Vec<(u32, u32)> {
+                all.iter()
+                    .filter(|t| t.0.starts_with(name))
+                    .map(|t| (t.1, t.2))
+                    .collect()
+            };
+            assert_eq!(of("snakectl-loop"), [(SCHED_FIFO, 20)], "{all:?}");
+            // Each port's thread ("port /dev/pts/N") and each port's simulator.
+            assert_eq!(of("port "), [(SCHED_FIFO, 20); 2], "{all:?}");
+            assert_eq!(of("snakectl-sim"), [(SCHED_FIFO, 20); 2], "{all:?}");
+            // The socket side keeps the normal policy.
+            assert_eq!(of("snakectl-daemon"), [(0, 0)], "{all:?}");
+            daemon.stop().unwrap();
+        }
+        Err(refused) => {
+            assert_eq!(
+                refused.source.kind(),
+                std::io::ErrorKind::PermissionDenied,
+                "{refused}"
+            );
+            let e = daemon.stop().unwrap_err().to_string();
+            for part in ["control.realtime_priority", "SCHED_FIFO", "priority 20", "ulimit -r"] {
+                assert!(e.contains(part), "{part:?} missing from: {e}");
+            }
+        }
+    }
+}

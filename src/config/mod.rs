@@ -182,6 +182,9 @@ pub struct Control {
     pub max_silence: Duration,
     /// Temperature, load and input voltage are read every `health_every`-th tick, at least 1.
     pub health_every: u32,
+    /// The loop's thread, and those it starts (each port's, an embedded simulator's), run under
+    /// `SCHED_FIFO` at this priority (1 to 99); `None`: the normal policy.
+    pub realtime_priority: Option<u8>,
 }
 
 /// Contact detection (`[world] contact_load` and `contact_ms`): a joint whose |Present Load or
@@ -1277,6 +1280,21 @@ impl Checker<'_> {
             ));
         }
         let max_silence = self.max_silence(raw, rate_hz)?;
+        let realtime_priority = match raw.realtime_priority {
+            None => None,
+            Some(p) => match u8::try_from(p) {
+                Ok(p) if crate::beside::REALTIME_PRIORITIES.contains(&p) => Some(p),
+                _ => {
+                    return Err(self.invalid(
+                        "control.realtime_priority",
+                        FieldProblem::OutOfRange {
+                            value: p,
+                            expected: "must be 1 to 99 (SCHED_FIFO's priorities)",
+                        },
+                    ))
+                }
+            },
+        };
         Ok(Control {
             rate_hz,
             strategy: match raw.strategy {
@@ -1291,6 +1309,7 @@ impl Checker<'_> {
             read_every: raw.read_every,
             max_silence,
             health_every: raw.health_every,
+            realtime_priority,
         })
     }
 

@@ -375,6 +375,10 @@ pub struct RawControl {
     /// Read temperature, load and input voltage every k-th tick.
     #[serde(default = "default_health_every")]
     pub health_every: u32,
+    /// The loop's thread (and the threads it starts) under `SCHED_FIFO` at this priority,
+    /// 1 to 99; the normal policy when absent.
+    #[serde(default)]
+    pub realtime_priority: Option<i64>,
 }
 
 /// `[server]`: the command/telemetry socket.
@@ -712,6 +716,7 @@ impl Default for RawControl {
             max_silence_ms: None,
             max_missed_reads: None,
             health_every: default_health_every(),
+            realtime_priority: None,
         }
     }
 }

@@ -800,6 +800,24 @@ fn control_checks() {
         &with("rate_hz = 100.0", "max_silence_ms = 0"),
         &["control.max_silence_ms", "0"],
     );
+    for bad in ["0", "100", "-1", "300"] {
+        refused(
+            &with("rate_hz = 100.0", &format!("realtime_priority = {bad}")),
+            &["control.realtime_priority", bad, "1 to 99"],
+        );
+    }
+}
+
+#[test]
+fn a_realtime_priority_is_taken_as_given_and_absent_by_default() {
+    for p in [1, 50, 99] {
+        let text = with(
+            "rate_hz = 100.0",
+            &format!("rate_hz = 100.0\nrealtime_priority = {p}"),
+        );
+        assert_eq!(load(&text).unwrap().control().realtime_priority, Some(p));
+    }
+    assert_eq!(load(&base_text()).unwrap().control().realtime_priority, None);
 }
 
 #[test]

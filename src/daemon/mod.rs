@@ -121,6 +121,14 @@ pub enum DaemonError {
     /// The loop's thread could not be started.
     #[error("starting the control loop's thread: {0}")]
     Thread(std::io::Error),
+    /// `[control] realtime_priority` is set and the loop's thread could not take it.
+    #[error("{}: control.realtime_priority: the control loop's thread {source}", path.display())]
+    Realtime {
+        /// The config file.
+        path: PathBuf,
+        /// Why.
+        source: crate::beside::RealtimeError,
+    },
     /// The socket failed.
     #[error("the command socket: {0}")]
     Socket(std::io::Error),

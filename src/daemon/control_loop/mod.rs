@@ -119,7 +119,20 @@ pub(super) fn main(
     tap: Option<Tap>,
 ) -> Result<Summary, DaemonError> {
     crate::servo::clock::sharp_timers();
-    let started = open(&config, options).and_then(|parts| Cycle::new(&config, parts));
+    // Before the bus opens, so that the threads it starts (each port's, an embedded
+    // simulator's) inherit the policy.
+    let realtime = match config.control().realtime_priority {
+        Some(priority) => {
+            crate::beside::realtime(priority).map_err(|source| DaemonError::Realtime {
+                path: config.path().to_path_buf(),
+                source,
+            })
+        }
+        None => Ok(()),
+    };
+    let started = realtime
+        .and_then(|()| open(&config, options))
+        .and_then(|parts| Cycle::new(&config, parts));
     let (mut cycle, handle) = match started {
         Ok(started) => started,
         Err(e) => {
