@@ -12,8 +12,18 @@
 //! one row of it (servos, baud, ports, `sync` or `fast`, adapter `none` or `ftdi`), and each
 //! rate it tries on stderr.
 //!
+//! `--realtime 50` after `--wire` or a `--wire-row` row runs the loop under `SCHED_FIFO` at that
+//! priority (`[control] realtime_priority`; root or `CAP_SYS_NICE`).
+//!
 //! `cargo run --release --example loop_rate -- SECONDS --jitter` measures how late this machine
 //! wakes a sleeping thread, which the held rates of the wire table are to be read against.
+//!
+//! `cargo run --release --example loop_rate -- SECONDS --busy [SERVOS BAUD PORTS READ ADAPTER]`
+//! runs one row of the wire table (default `12 1000000 1 sync none`) four ways: on the idle
+//! machine and beside one busy thread per core (at the normal policy, as a build or a viewer
+//! would be), each with the loop at the normal policy and under `SCHED_FIFO`
+//! (`[control] realtime_priority = 50`, which needs root or `CAP_SYS_NICE`; the simulated
+//! servos then run under it too, as hardware does not wait for a core).
 //!
 //! `cargo run --release --example loop_rate -- SECONDS --obstacles` instead runs the fixed rates
 //! without wire timing twice, with no obstacles and with 16 small discs near the arm (each
@@ -160,7 +170,23 @@ fn run_recorded(
     seconds: f64,
     record: Option<RecordOptions>,
 ) -> Result<Measured> {
-    let sims = connect::spawn_sims(&config, Arc::new(snakectl_sim::RealClock))?;
+    // The simulators stand in for the servos, which do not wait for a core: under the loop's
+    // real-time policy when it has one (started by a thread that took it, they inherit it).
+    let sims = match config.control().realtime_priority {
+        None => connect::spawn_sims(&config, Arc::new(snakectl_sim::RealClock))?,
+        Some(priority) => {
+            let config = config.clone();
+            std::thread::spawn(move || -> Result<_> {
+                snakectl::beside::realtime(priority)?;
+                Ok(connect::spawn_sims(
+                    &config,
+                    Arc::new(snakectl_sim::RealClock),
+                )?)
+            })
+            .join()
+            .map_err(|_| anyhow::anyhow!("the thread starting the simulators panicked"))??
+        }
+    };
     let options = RunOptions {
         ports: sims.iter().map(|s| s.path().to_path_buf()).collect(),
         record,
@@ -232,6 +258,9 @@ fn main() -> Result<()> {
         Some(s) => s.parse().context("seconds per rate")?,
         None => 5.0,
     };
+    if !(seconds > 0.0 && seconds.is_finite()) {
+        bail!("seconds per rate: a positive number, not {seconds}");
+    }
     if std::env::args().nth(2).as_deref() == Some("--zenoh") {
         return with_zenoh::table(seconds);
     }
@@ -254,7 +283,7 @@ fn main() -> Result<()> {
         return Ok(());
     }
     if std::env::args().nth(2).as_deref() == Some("--wire") {
-        return wire_table(&ROWS_READ, &ROWS_ADAPTER);
+        return wire_table(&ROWS_READ, &ROWS_ADAPTER, realtime_arg()?);
     }
     if std::env::args().nth(2).as_deref() == Some("--record") {
         return record_table(seconds);
@@ -263,8 +292,22 @@ fn main() -> Result<()> {
         return jitter(seconds);
     }
     if std::env::args().nth(2).as_deref() == Some("--wire-row") {
-        let row = Row::parse(&std::env::args().skip(3).collect::<Vec<_>>())?;
-        return wire_row(&row);
+        let args: Vec<String> = std::env::args().skip(3).take(5).collect();
+        let row = Row {
+            realtime: realtime_arg()?,
+            ..Row::parse(&args)?
+        };
+        println!("{}", wire_row(&row)?);
+        return Ok(());
+    }
+    if std::env::args().nth(2).as_deref() == Some("--busy") {
+        let args: Vec<String> = std::env::args().skip(3).collect();
+        let row = if args.is_empty() {
+            Row::parse(&["12", "1000000", "1", "sync", "none"].map(String::from))?
+        } else {
+            Row::parse(&args)?
+        };
+        return busy(row);
     }
     println!("Without wire timing, {seconds} s per rate:\n");
     println!("| rate, Hz | achieved, Hz | tick p50 / p99, µs | overruns | command to wire p50 / p99, µs | solve p50 / p99, µs |");
@@ -273,7 +316,21 @@ fn main() -> Result<()> {
         row(rate, &run(rate, false, seconds)?);
     }
 
-    wire_table(&ROWS_READ, &ROWS_ADAPTER)
+    wire_table(&ROWS_READ, &ROWS_ADAPTER, None)
+}
+
+/// The priority after `--realtime`, if given.
+fn realtime_arg() -> Result<Option<u8>> {
+    let args: Vec<String> = std::env::args().collect();
+    match args.iter().position(|a| a == "--realtime") {
+        None => Ok(None),
+        Some(i) => {
+            let p = args
+                .get(i + 1)
+                .context("--realtime takes a priority, 1 to 99")?;
+            Ok(Some(p.parse().context("--realtime: a priority, 1 to 99")?))
+        }
+    }
 }
 
 /// How late this machine wakes a thread: for `seconds` each, a lone thread asks to sleep
@@ -391,6 +448,8 @@ const ROWS_ADAPTER: [Option<Adapter>; 2] = [None, Some(Adapter::FTDI_1MS)];
 /// One row of the wire table: the arm and its bus.
 #[derive(Debug, Clone, Copy)]
 struct Row {
+    /// `[control] realtime_priority`, when the loop runs under `SCHED_FIFO`.
+    realtime: Option<u8>,
     servos: usize,
     baud: u32,
     ports: usize,
@@ -428,7 +487,12 @@ impl Row {
                 a.latency.as_millis()
             ));
         }
+        let control = match self.realtime {
+            Some(p) => format!("substeps = 1\nrealtime_priority = {p}\n"),
+            None => "substeps = 1\n".to_owned(),
+        };
         let mut text = text
+            .replace("substeps = 1\n", &control)
             .replace("baud = 1000000", &format!("baud = {}", self.baud))
             .replace("read = \"auto\"", &read)
             .replace("rate_hz = 100.0", &format!("rate_hz = {rate_hz:.1}"))
@@ -453,6 +517,7 @@ impl Row {
             bail!("--wire-row takes SERVOS BAUD PORTS sync|fast none|ftdi");
         };
         Ok(Self {
+            realtime: None,
             servos: servos.parse().context("servos")?,
             baud: baud.parse().context("baud")?,
             ports: ports.parse().context("ports")?,
@@ -518,12 +583,20 @@ fn first_line(e: &anyhow::Error) -> String {
 /// The wire table: for every row, the wire bound, the highest rate held for [`HOLD`] with
 /// overruns under [`HELD_OVERRUNS`], and their ratio. A probe above the bound makes the loop run
 /// back to back, as fast as its work allows; the candidate is 97% of that rate, confirmed for
-/// [`HOLD`] and stepped down 5% at a time while it overruns more (a health read every tenth
-/// tick is longer than the others). The probe's 99th-percentile tick is shown beside it.
-fn wire_table(reads: &[ReadKind], adapters: &[Option<Adapter>]) -> Result<()> {
+/// [`HOLD`] and stepped down 5% at a time while it overruns more, then tried once more halfway
+/// up to the last rate that did not hold. The probe's 99th-percentile tick is shown beside it.
+fn wire_table(
+    reads: &[ReadKind],
+    adapters: &[Option<Adapter>],
+    realtime: Option<u8>,
+) -> Result<()> {
+    let policy = match realtime {
+        Some(p) => format!(", the loop under SCHED_FIFO {p}"),
+        None => String::new(),
+    };
     println!(
         "\nWith wire timing, held {} s per rate with overruns under {}% (a probe of {PROBE_S} s \
-         above the bound finds the candidate):\n",
+         above the bound finds the candidate){policy}:\n",
         HOLD.as_secs(),
         HELD_OVERRUNS * 100.0
     );
@@ -535,13 +608,14 @@ fn wire_table(reads: &[ReadKind], adapters: &[Option<Adapter>]) -> Result<()> {
                 for &read in reads {
                     for &adapter in adapters {
                         let row = Row {
+                            realtime,
                             servos,
                             baud,
                             ports,
                             read,
                             adapter,
                         };
-                        wire_row(&row)?;
+                        println!("{}", wire_row(&row)?);
                     }
                 }
             }
@@ -550,44 +624,43 @@ fn wire_table(reads: &[ReadKind], adapters: &[Option<Adapter>]) -> Result<()> {
     Ok(())
 }
 
-fn wire_row(row: &Row) -> Result<()> {
+/// One row of the wire table, as a line of its table.
+fn wire_row(row: &Row) -> Result<String> {
     let bound = row.bound()?;
     let bound_hz = bound.rate_hz();
     let probe_hz = (1.5 * bound_hz).min(MAX_RATE_HZ);
     let probe = match run_config(row.config(probe_hz)?, probe_hz, PROBE_S) {
         Ok(m) => m,
         Err(e) => {
-            println!(
+            return Ok(format!(
                 "{} {bound_hz:.0} | the probe at {probe_hz:.0} Hz failed: {} | | |",
                 row.label(),
                 first_line(&e)
-            );
-            return Ok(());
+            ));
         }
     };
     let back_to_back = probe.summary.rate_hz();
     let p99_hz = 1e6 / probe.summary.tick.p99_us.max(1.0);
     let mut rate = (0.97 * back_to_back).min(MAX_RATE_HZ).floor();
     let mut held = None;
+    // The last rate that did not hold, above the one that did.
+    let mut failed = None;
     for _ in 0..STEPS {
-        // A run that faulted (replies lost past the error budget) did not hold its rate.
-        if let Ok(m) = run_config(row.config(rate)?, rate, HOLD.as_secs_f64()) {
-            let s = &m.summary;
-            eprintln!(
-                "  {rate:.0} Hz: {} overruns in {} ticks, tick p50 / p99 / max {:.0} / {:.0} / {:.0} µs{}",
-                s.overruns,
-                s.ticks,
-                s.tick.p50_us,
-                s.tick.p99_us,
-                s.tick.max_us,
-                if m.fault { ", fault" } else { "" }
-            );
-            if !m.fault && (s.overruns as f64) <= HELD_OVERRUNS * s.ticks as f64 {
-                held = Some((rate, s.overruns, s.ticks));
-                break;
+        if let Some((overruns, ticks)) = hold(row, rate)? {
+            held = Some((rate, overruns, ticks));
+            break;
+        }
+        failed = Some(rate);
+        rate = (rate * 0.95).floor();
+    }
+    // Once more halfway up to the rate that failed: the held rate to 2.5%, not 5%.
+    if let (Some((r, ..)), Some(f)) = (held, failed) {
+        let mid = ((r + f) / 2.0).floor();
+        if mid > r {
+            if let Some((overruns, ticks)) = hold(row, mid)? {
+                held = Some((mid, overruns, ticks));
             }
         }
-        rate = (rate * 0.95).floor();
     }
     let (held_hz, ratio) = match held {
         Some((r, overruns, ticks)) => (
@@ -596,12 +669,80 @@ fn wire_row(row: &Row) -> Result<()> {
         ),
         None => (format!("none down to {rate:.0}"), "-".to_owned()),
     };
-    println!(
+    Ok(format!(
         "{} {bound_hz:.0} ({:.2} ms) | {back_to_back:.0} ({:.0}) | {held_hz} | {ratio} |",
         row.label(),
         bound.tick.as_secs_f64() * 1e3,
         p99_hz,
+    ))
+}
+
+/// `row` run at `rate` for [`HOLD`]: its overruns and ticks when it held (overruns under
+/// [`HELD_OVERRUNS`] of the ticks, no fault: a run that faulted lost replies past the error
+/// budget), `None` when it did not; each try on stderr.
+fn hold(row: &Row, rate: f64) -> Result<Option<(u64, u64)>> {
+    let Ok(m) = run_config(row.config(rate)?, rate, HOLD.as_secs_f64()) else {
+        eprintln!("  {rate:.0} Hz: did not run");
+        return Ok(None);
+    };
+    let s = &m.summary;
+    eprintln!(
+        "  {rate:.0} Hz: {} overruns in {} ticks, tick p50 / p99 / max {:.0} / {:.0} / {:.0} µs{}",
+        s.overruns,
+        s.ticks,
+        s.tick.p50_us,
+        s.tick.p99_us,
+        s.tick.max_us,
+        if m.fault { ", fault" } else { "" }
     );
+    let held = !m.fault && (s.overruns as f64) <= HELD_OVERRUNS * s.ticks as f64;
+    Ok(held.then_some((s.overruns, s.ticks)))
+}
+
+/// `row` on the idle machine and beside one busy thread per core, with the loop at the normal
+/// policy and under `SCHED_FIFO` at priority 50.
+fn busy(row: Row) -> Result<()> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    println!(
+        "\nOne row of the wire table on the idle machine and beside {cores} busy threads (one per \
+         core, normal policy), the loop at the normal policy and under SCHED_FIFO 50:\n"
+    );
+    println!("| machine | loop | servos | baud | ports | read | adapter | wire bound, Hz (tick) | back to back, Hz (p99 tick allows) | held 10 s, Hz (overruns of ticks) | held / bound |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    for hogs in [0, cores] {
+        // Spinning until told, each on its own thread, started here (not by the loop's thread,
+        // so they keep the normal policy).
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let spinning: Vec<_> = (0..hogs)
+            .map(|_| {
+                let stop = Arc::clone(&stop);
+                std::thread::spawn(move || {
+                    let mut x = 0u64;
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        x = std::hint::black_box(
+                            x.wrapping_mul(6364136223846793005).wrapping_add(1),
+                        );
+                    }
+                })
+            })
+            .collect();
+        let machine = match hogs {
+            0 => "idle".to_owned(),
+            n => format!("{n} busy threads"),
+        };
+        for realtime in [None, Some(50)] {
+            let policy = match realtime {
+                None => "normal".to_owned(),
+                Some(p) => format!("SCHED_FIFO {p}"),
+            };
+            let line = wire_row(&Row { realtime, ..row })?;
+            println!("| {machine} | {policy} {line}");
+        }
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in spinning {
+            let _ = t.join();
+        }
+    }
     Ok(())
 }
 

@@ -1,18 +1,20 @@
-//! Threads beside the control loop (the recorder, the Foxglove view, the Zenoh bridge) step
-//! aside for it: each lowers its own scheduling priority when it starts, so that on a machine
-//! with few cores the loop, its port threads and the servos' replies win the CPU when they
-//! wake, and what the side threads do shows in their own latency, not in the loop's ticks.
+//! Who wins a core: the control loop and the threads beside it.
 //!
-//! On Linux the nice value belongs to each thread, and threads a side thread starts (a
-//! runtime's workers) inherit it. A thread may always lower its own priority, so this needs
-//! no privilege; where it fails or the platform has no per-thread nice, nothing changes.
-//! Under a real-time policy (`chrt`) nice values do not apply.
+//! Threads beside the control loop (the recorder, the Foxglove view, the Zenoh bridge) step
+//! aside for it: each lowers its own scheduling priority when it starts ([`step_aside`]), so
+//! that on a machine with few cores the loop, its port threads and the servos' replies win the
+//! CPU when they wake, and what the side threads do shows in their own latency, not in the
+//! loop's ticks. On Linux the nice value belongs to each thread, and threads a side thread
+//! starts (a runtime's workers) inherit it. A thread may always lower its own priority, so this
+//! needs no privilege; where it fails or the platform has no per-thread nice, nothing changes.
 //!
 //! The loop and its port threads go the other way: their timed waits end on time
 //! ([`crate::servo::clock::sharp_timers`]), and with `[control] realtime_priority` the loop's
 //! thread takes a real-time policy ([`realtime`]) before it opens the bus, so that the threads
 //! it starts (each port's, an embedded simulator's, which stands in for the servos) inherit it.
-//! The side threads are started elsewhere and keep the normal policy.
+//! Nice values weigh only threads of the normal policy against each other; a real-time thread
+//! runs ahead of them all, whatever else the machine runs. The side threads are started
+//! elsewhere and keep the normal policy.
 
 use thread_priority::{
     RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,

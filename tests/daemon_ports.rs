@@ -125,19 +125,28 @@ fn with_a_realtime_priority_the_loop_its_ports_and_simulators_run_fifo_and_nothi
         Ok(()) => {
             let mut c = Client::connect(daemon.addr());
             assert_eq!(c.status()["faults"], json!([]));
+            // Other tests of this binary run daemons of their own meanwhile, at the normal
+            // policy: this one's are the threads under SCHED_FIFO.
             let all = threads();
-            let of = |name: &str| -> Vec<(u32, u32)> {
-                all.iter()
-                    .filter(|t| t.0.starts_with(name))
-                    .map(|t| (t.1, t.2))
-                    .collect()
-            };
-            assert_eq!(of("snakectl-loop"), [(SCHED_FIFO, 20)], "{all:?}");
-            // Each port's thread ("port /dev/pts/N") and each port's simulator.
-            assert_eq!(of("port "), [(SCHED_FIFO, 20); 2], "{all:?}");
-            assert_eq!(of("snakectl-sim"), [(SCHED_FIFO, 20); 2], "{all:?}");
-            // The socket side keeps the normal policy.
-            assert_eq!(of("snakectl-daemon"), [(0, 0)], "{all:?}");
+            let mut fifo: Vec<(&str, u32)> = all
+                .iter()
+                .filter(|t| t.1 == SCHED_FIFO)
+                .map(|t| (t.0.split(' ').next().unwrap_or_default(), t.2))
+                .collect();
+            fifo.sort_unstable();
+            // The loop, each port's thread ("port /dev/pts/N") and each port's simulator; not
+            // the socket side ("snakectl-daemon"), nor the test's own threads.
+            assert_eq!(
+                fifo,
+                [
+                    ("port", 20),
+                    ("port", 20),
+                    ("snakectl-loop", 20),
+                    ("snakectl-sim", 20),
+                    ("snakectl-sim", 20)
+                ],
+                "{all:?}"
+            );
             daemon.stop().unwrap();
         }
         Err(refused) => {
@@ -147,7 +156,12 @@ fn with_a_realtime_priority_the_loop_its_ports_and_simulators_run_fifo_and_nothi
                 "{refused}"
             );
             let e = daemon.stop().unwrap_err().to_string();
-            for part in ["control.realtime_priority", "SCHED_FIFO", "priority 20", "ulimit -r"] {
+            for part in [
+                "control.realtime_priority",
+                "SCHED_FIFO",
+                "priority 20",
+                "ulimit -r",
+            ] {
                 assert!(e.contains(part), "{part:?} missing from: {e}");
             }
         }

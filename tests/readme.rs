@@ -3,8 +3,8 @@
 //! it lives.
 //!
 //! - The problem and the error of `snakectl solve` run as shown.
-//! - Every JSON and TOML example parses; a `[zenoh]` or `[foxglove]` table is a valid config
-//!   table, and a scenario is a valid scenario that runs.
+//! - Every JSON and TOML example parses; a `[zenoh]`, `[foxglove]`, `[bus]` or `[control]` table
+//!   is a valid config table, and a scenario is a valid scenario that runs.
 //! - Every `snakectl` command shown (in a code block, or inline) names a real subcommand and only
 //!   options that subcommand has; every `cargo` command names tests, benches, examples and
 //!   features that exist.
@@ -44,7 +44,7 @@ const DOCS: &[Doc] = &[
     doc("docs/CLIENTS.md", 2, 30, 3),
     doc("docs/CONFIG.md", 4, 1, 2),
     doc("docs/CONNECT.md", 0, 3, 0),
-    doc("docs/DAEMON.md", 1, 3, 5),
+    doc("docs/DAEMON.md", 3, 3, 5),
     doc("docs/DEMO.md", 1, 6, 2),
     doc("docs/FAULTS.md", 0, 1, 1),
     doc("docs/FLEXIBLE-OBJECTS.md", 2, 6, 10),
@@ -294,6 +294,13 @@ fn json_and_toml_examples_parse() {
                         let config = format!("{head}{}\n{tail}", block.text);
                         Config::from_str(&config, root().join("config/sim.toml"))
                             .unwrap_or_else(|e| panic!("{what}: {e}"));
+                    } else if table.contains_key("control") {
+                        // A `[control]` table, checked in place of the shipped one.
+                        let at = sim.find("[control]").unwrap();
+                        let end = at + sim[at..].find("\n[").unwrap() + 1;
+                        let config = format!("{}{}\n{}", &sim[..at], block.text, &sim[end..]);
+                        Config::from_str(&config, root().join("config/sim.toml"))
+                            .unwrap_or_else(|e| panic!("{what}: {e}"));
                     } else if table.contains_key("curve") {
                         let scenario =
                             Scenario::from_toml(&block.text, doc.path, &root().join("scenarios"))
@@ -301,8 +308,8 @@ fn json_and_toml_examples_parse() {
                         assert!(!scenario.run().is_empty(), "{what}: no runs");
                     } else {
                         panic!(
-                            "{what}: neither a [zenoh] or [foxglove] table nor a scenario; say how \
-                             to check it"
+                            "{what}: neither a [zenoh], [foxglove], [bus] or [control] table nor a \
+                             scenario; say how to check it"
                         );
                     }
                 }
@@ -312,7 +319,7 @@ fn json_and_toml_examples_parse() {
         }
     }
     assert_eq!(seen.get("json"), Some(&2), "{seen:?}");
-    assert_eq!(seen.get("toml"), Some(&6), "{seen:?}");
+    assert_eq!(seen.get("toml"), Some(&7), "{seen:?}");
 }
 
 /// A command the documentation shows: the file it is in, and its words.

@@ -817,7 +817,10 @@ fn a_realtime_priority_is_taken_as_given_and_absent_by_default() {
         );
         assert_eq!(load(&text).unwrap().control().realtime_priority, Some(p));
     }
-    assert_eq!(load(&base_text()).unwrap().control().realtime_priority, None);
+    assert_eq!(
+        load(&base_text()).unwrap().control().realtime_priority,
+        None
+    );
 }
 
 #[test]
