@@ -38,7 +38,7 @@ pub struct RealtimeError {
 /// Puts the calling thread under `SCHED_FIFO` at `priority` (1 to 99, higher first): it then
 /// runs whenever it is ready, ahead of every thread of the normal policy, whatever their nice
 /// value. Threads it starts afterwards inherit the policy. Needs root, `CAP_SYS_NICE` or an
-/// `RLIMIT_RTPRIO` (`ulimit -r`) of at least `priority`; the error says which is missing.
+/// `RLIMIT_RTPRIO` (`ulimit -r`) of at least `priority`; a refusal says so.
 pub fn realtime(priority: u8) -> Result<(), RealtimeError> {
     let refused = |source: std::io::Error| {
         let hint = if source.kind() == std::io::ErrorKind::PermissionDenied {
