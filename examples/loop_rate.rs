@@ -49,6 +49,7 @@
 
 use std::io::{BufRead, BufReader, Write};
 use std::net::TcpStream;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -172,21 +173,19 @@ fn run_recorded(
 ) -> Result<Measured> {
     // The simulators stand in for the servos, which do not wait for a core: under the loop's
     // real-time policy when it has one (started by a thread that took it, they inherit it).
-    let sims = match config.control().realtime_priority {
-        None => connect::spawn_sims(&config, Arc::new(snakectl_sim::RealClock))?,
-        Some(priority) => {
-            let config = config.clone();
-            std::thread::spawn(move || -> Result<_> {
-                snakectl::beside::realtime(priority)?;
-                Ok(connect::spawn_sims(
-                    &config,
-                    Arc::new(snakectl_sim::RealClock),
-                )?)
-            })
-            .join()
-            .map_err(|_| anyhow::anyhow!("the thread starting the simulators panicked"))??
+    let priority = config.control().realtime_priority;
+    let for_sims = config.clone();
+    let sims = std::thread::spawn(move || -> Result<_> {
+        if let Some(p) = priority {
+            snakectl::beside::realtime(p)?;
         }
-    };
+        Ok(connect::spawn_sims(
+            &for_sims,
+            Arc::new(snakectl_sim::RealClock),
+        )?)
+    })
+    .join()
+    .map_err(|_| anyhow::anyhow!("the thread starting the simulators panicked"))??;
     let options = RunOptions {
         ports: sims.iter().map(|s| s.path().to_path_buf()).collect(),
         record,
@@ -303,7 +302,14 @@ fn main() -> Result<()> {
     if std::env::args().nth(2).as_deref() == Some("--busy") {
         let args: Vec<String> = std::env::args().skip(3).collect();
         let row = if args.is_empty() {
-            Row::parse(&["12", "1000000", "1", "sync", "none"].map(String::from))?
+            Row {
+                realtime: None,
+                servos: 12,
+                baud: 1_000_000,
+                ports: 1,
+                read: ReadKind::Sync,
+                adapter: None,
+            }
         } else {
             Row::parse(&args)?
         };
@@ -712,13 +718,13 @@ fn busy(row: Row) -> Result<()> {
     for hogs in [0, cores] {
         // Spinning until told, each on its own thread, started here (not by the loop's thread,
         // so they keep the normal policy).
-        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let stop = Arc::new(AtomicBool::new(false));
         let spinning: Vec<_> = (0..hogs)
             .map(|_| {
                 let stop = Arc::clone(&stop);
                 std::thread::spawn(move || {
                     let mut x = 0u64;
-                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    while !stop.load(Ordering::Relaxed) {
                         x = std::hint::black_box(
                             x.wrapping_mul(6364136223846793005).wrapping_add(1),
                         );
@@ -738,7 +744,7 @@ fn busy(row: Row) -> Result<()> {
             let line = wire_row(&Row { realtime, ..row })?;
             println!("| {machine} | {policy} {line}");
         }
-        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        stop.store(true, Ordering::Relaxed);
         for t in spinning {
             let _ = t.join();
         }

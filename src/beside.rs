@@ -53,14 +53,16 @@ pub fn realtime(priority: u8) -> Result<(), RealtimeError> {
             hint,
         }
     };
-    if !REALTIME_PRIORITIES.contains(&priority) {
-        return Err(refused(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            "the priority must be 1 to 99",
-        )));
-    }
-    let value = ThreadPriorityValue::try_from(priority)
-        .map_err(|e| refused(std::io::Error::new(std::io::ErrorKind::InvalidInput, e)))?;
+    let value = REALTIME_PRIORITIES
+        .contains(&priority)
+        .then(|| ThreadPriorityValue::try_from(priority).ok())
+        .flatten()
+        .ok_or_else(|| {
+            refused(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "the priority must be 1 to 99",
+            ))
+        })?;
     thread_priority::set_thread_priority_and_policy(
         thread_priority::thread_native_id(),
         ThreadPriority::Crossplatform(value),
