@@ -1,7 +1,7 @@
 //! The daemon's wire format: JSON lines over TCP, one set of types for the daemon and every
 //! client, each written and read by the same type.
 //!
-//! One request per line, `{"cmd": NAME, "id": ANY?, ...}` ([`Request`], [`Cmd`]; [`parse`]
+//! One request per line, `{"cmd": NAME, "id": ANY?, ...}` ([`Request`], [`Cmd`]; [`parse()`]
 //! reads one, [`request_line`] writes one); one reply per request,
 //! `{"id": ..., "ok": true, ...fields}` ([`Reply`], [`Fields`]) or
 //! `{"id": ..., "ok": false, "error": {"code", "message"}}` ([`Rejection`], [`Code`]).

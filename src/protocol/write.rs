@@ -87,7 +87,7 @@ pub fn event_line(event: &Event) -> String {
 }
 
 /// A request line, as a client sends it: `{"cmd": NAME, "id": ID?, ...args}`. What
-/// [`parse`](super::parse) reads back to the same command.
+/// [`parse`](super::parse()) reads back to the same command.
 pub fn request_line(id: Option<&Value>, cmd: &Cmd) -> String {
     let mut line = Line::with_capacity(64);
     line.field("cmd", &cmd.name());
