@@ -1,6 +1,11 @@
-//! Fast Sync Read against hand-written bytes on a pseudo-terminal: the test is the chain. A
-//! reply that stops after its first block keeps that block and asks the rest by Sync Read at
-//! once; a servo that then stays silent is named by a timeout, as a Sync Read names it.
+//! Replies against hand-written bytes on a pseudo-terminal: the test is the chain.
+//!
+//! - Fast Sync Read: a reply that stops after its first block keeps that block and asks the
+//!   rest by Sync Read at once; a servo that then stays silent is named by a timeout, as a Sync
+//!   Read names it; after a damaged block the Sync Read waits until the rest of the reply is
+//!   through.
+//! - Status packets damaged on the way (a length field that lies, too short or too long) cost
+//!   one reading, never the replies behind them or a panic, and a scan still ends.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -99,4 +104,140 @@ fn a_servo_silent_after_the_break_is_named_by_its_timeout() {
         out.get(1)
     );
     assert_eq!(position(&out, 2), Some(1023));
+}
+
+/// A status packet whose length field lies (2: no error byte, no data) and whose CRC, where the
+/// instruction and error bytes would sit, matches its first 7 bytes (a chance of 1 in 65536 on
+/// a noisy line, certain here): the Sync Read counts it against the first servo not yet heard
+/// from and reads the others; it must not panic.
+#[test]
+fn a_status_packet_whose_length_field_is_too_short_costs_one_reading_not_a_panic() {
+    let (mut master, _slave, path) = pair();
+    let mut bus =
+        DynamixelBus::open_with_sysfs(&path, 1_000_000, &Sysfs::new("/nonexistent")).unwrap();
+    let chain = std::thread::spawn(move || {
+        let sync = protocol::encode_instruction(
+            BROADCAST_ID,
+            ins::SYNC_READ,
+            &[0x84, 0x00, 0x04, 0x00, 3, 7, 4],
+        );
+        assert_eq!(sent(&mut master, sync.len()), sync);
+        let mut lying = vec![0xFF, 0xFF, 0xFD, 0x00, 3, 0x02, 0x00];
+        let crc = protocol::crc16(&lying);
+        lying.extend_from_slice(&crc.to_le_bytes());
+        let mut bytes = lying;
+        for (id, value) in [(7u8, 2079u32), (4, 1023)] {
+            bytes.extend_from_slice(&protocol::encode_status(id, 0, &value.to_le_bytes()));
+        }
+        master.write_all(&bytes).unwrap();
+        master
+    });
+    let mut out = SyncReadBuf::new();
+    bus.plain_sync_read_into(&[3, 7, 4], 132, 4, Duration::from_millis(30), &mut out)
+        .unwrap();
+    let _master = chain.join().unwrap();
+    assert!(out.get(0).is_err(), "{:?}", out.get(0));
+    assert_eq!(position(&out, 1), Some(2079));
+    assert_eq!(position(&out, 2), Some(1023));
+}
+
+/// A reply whose length field was damaged upwards past what the read buffer holds (0x0008 to
+/// 0x1008): that reply is lost, the two intact replies after it must still be read.
+#[test]
+fn a_length_field_damaged_past_the_buffer_costs_one_reading_not_all() {
+    let (mut master, _slave, path) = pair();
+    let mut bus =
+        DynamixelBus::open_with_sysfs(&path, 1_000_000, &Sysfs::new("/nonexistent")).unwrap();
+    let chain = std::thread::spawn(move || {
+        let sync = protocol::encode_instruction(
+            BROADCAST_ID,
+            ins::SYNC_READ,
+            &[0x84, 0x00, 0x04, 0x00, 3, 7, 4],
+        );
+        assert_eq!(sent(&mut master, sync.len()), sync);
+        let mut bytes = protocol::encode_status(3, 0, &166u32.to_le_bytes());
+        bytes[6] ^= 0x10;
+        for (id, value) in [(7u8, 2079u32), (4, 1023)] {
+            bytes.extend_from_slice(&protocol::encode_status(id, 0, &value.to_le_bytes()));
+        }
+        master.write_all(&bytes).unwrap();
+        master
+    });
+    let mut out = SyncReadBuf::new();
+    bus.plain_sync_read_into(&[3, 7, 4], 132, 4, Duration::from_millis(30), &mut out)
+        .unwrap();
+    let _master = chain.join().unwrap();
+    assert!(out.get(0).is_err());
+    assert_eq!(position(&out, 1), Some(2079), "{:?}", out.get(1));
+    assert_eq!(position(&out, 2), Some(1023), "{:?}", out.get(2));
+}
+
+/// A block that fails its CRC at 57600 baud: the chain does not know and goes on sending the
+/// two blocks after it (16 bytes, 2.78 ms on the wire), so the Sync Read that asks those
+/// servos again must not leave before they are through (on a half-duplex bus it would collide
+/// with them).
+#[test]
+fn the_sync_read_after_a_damaged_block_waits_for_the_rest_of_the_reply() {
+    let (mut master, _slave, path) = pair();
+    let mut bus =
+        DynamixelBus::open_with_sysfs(&path, 57_600, &Sysfs::new("/nonexistent")).unwrap();
+    let chain = std::thread::spawn(move || {
+        assert_eq!(sent(&mut master, INSTRUCTION.len()), INSTRUCTION);
+        let mut block = FIRST_BLOCK;
+        block[10] ^= 0x10;
+        master.write_all(&block).unwrap();
+        let at = std::time::Instant::now();
+        let sync = protocol::encode_instruction(
+            BROADCAST_ID,
+            ins::SYNC_READ,
+            &[0x84, 0x00, 0x04, 0x00, 7, 4],
+        );
+        assert_eq!(sent(&mut master, sync.len()), sync);
+        let gap = at.elapsed();
+        for (id, value) in [(7u8, 2079u32), (4, 1023)] {
+            master
+                .write_all(&protocol::encode_status(id, 0, &value.to_le_bytes()))
+                .unwrap();
+        }
+        (master, gap)
+    });
+    let mut out = SyncReadBuf::new();
+    bus.fast_sync_read_into(&[3, 7, 4], 132, 4, Duration::from_millis(200), &mut out)
+        .unwrap();
+    let (_master, gap) = chain.join().unwrap();
+    assert!(matches!(
+        out.get(0),
+        Err(ServoError::Checksum { id: 3, .. })
+    ));
+    assert_eq!(position(&out, 1), Some(2079));
+    assert_eq!(position(&out, 2), Some(1023));
+    let rest = Duration::from_nanos(16 * 10 * 1_000_000_000 / 57_600);
+    assert!(gap >= rest, "the Sync Read left {gap:?} after the damaged block, before the {rest:?} the rest of the reply takes");
+}
+
+/// A broadcast ping answered by a reply whose length field was damaged past the read buffer
+/// (0x0007 to 0x1007): the scan must still end once its window is over.
+#[test]
+fn a_scan_ends_after_a_reply_whose_length_field_is_damaged() {
+    use snakectl::servo::ServoBus;
+    let (mut master, _slave, path) = pair();
+    let mut bus =
+        DynamixelBus::open_with_sysfs(&path, 1_000_000, &Sysfs::new("/nonexistent")).unwrap();
+    let chain = std::thread::spawn(move || {
+        let ping = protocol::encode_instruction(BROADCAST_ID, ins::PING, &[]);
+        assert_eq!(sent(&mut master, ping.len()), ping);
+        let mut bytes = protocol::encode_status(3, 0, &[0x24, 0x04, 48]);
+        bytes[6] ^= 0x10;
+        bytes.extend_from_slice(&protocol::encode_status(5, 0, &[0x24, 0x04, 48]));
+        master.write_all(&bytes).unwrap();
+        master
+    });
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let found = bus.scan(Duration::from_millis(30));
+        let _ = tx.send(found.map(|f| f.len()));
+    });
+    let _master = chain.join().unwrap();
+    let found = rx.recv_timeout(Duration::from_secs(3));
+    assert!(found.is_ok(), "the scan did not end: {found:?}");
 }

@@ -9,12 +9,18 @@
 //! for with the caller's timeout, never the crate's flat 34 ms; the alert bit is a flag
 //! reported beside the data, not an error.
 //!
-//! A status packet with an error code, or a damaged one, does not reveal its id through the
-//! crate: in a sync read it is attributed to the first servo not yet heard from, which is
-//! exact unless an earlier servo is silent. A reply that arrives after its deadline may still
-//! be in flight when the next instruction goes out: a single exchange skips replies from other
-//! servos and replies of the wrong length (the same servo's answer to an earlier instruction);
-//! a sync read counts the servos listed before a reply's id as missing.
+//! Status packets are framed here too ([`StatusReader`]), read past the crate from a second
+//! handle on the port: the crate's parser trusts a packet's length field, and one damaged on the
+//! way (a noisy line) makes it panic (a length below 4) or give the same error on every read
+//! until the next instruction (a length beyond its buffer). Here a packet whose length cannot
+//! be, or whose CRC fails, costs that packet alone: the search for the next header starts one
+//! byte past its header, so the replies behind it are still read. A status packet with an
+//! error code names its servo; a damaged one, whose id cannot be trusted, is attributed in a
+//! sync read to the first servo not yet heard from, which is exact unless an earlier servo is
+//! silent. A reply that arrives after its deadline may still be in flight when the next
+//! instruction goes out: a single exchange skips replies from other servos and replies of the
+//! wrong length (the same servo's answer to an earlier instruction); a sync read counts the
+//! servos listed before a reply's id as missing.
 //!
 //! Fast Sync Read (0x8A), which the crate does not know, is framed here: the instruction goes
 //! out through `write_instruction` (it is laid out as Sync Read), and its one status packet
@@ -31,7 +37,7 @@ use std::time::{Duration, Instant};
 use dynamixel2::checksum::calculate_checksum;
 use dynamixel2::instructions::instruction_id as ins;
 use dynamixel2::serial2::SerialPort;
-use dynamixel2::{Bus, InvalidMessage, ReadError, WriteError};
+use dynamixel2::{Bus, WriteError};
 
 use super::lock::PortLock;
 use super::sysfs::{Latency, Sysfs};
@@ -91,6 +97,8 @@ pub struct DynamixelBus {
     stall: Duration,
     /// The bytes of a Fast Sync Read reply, reused from read to read.
     fast: Vec<u8>,
+    /// The status packets received since the last instruction.
+    rx: StatusReader,
     /// The Sync Read that asks again the servos after a break in a Fast reply, reused.
     rest: SyncReadBuf,
 }
@@ -100,8 +108,9 @@ pub struct DynamixelBus {
 #[derive(Debug)]
 struct Open {
     bus: Bus<Vec<u8>, Vec<u8>>,
-    /// A second handle on the same device, with its own read timeout: Fast Sync Read replies
-    /// are read through it, past the crate's parser (which would unstuff them).
+    /// A second handle on the same device, with its own read timeout: every reply is read
+    /// through it, past the crate's parser ([`StatusReader`], and [`FastReply`], which must not
+    /// be unstuffed).
     raw: SerialPort,
     lock: PortLock,
 }
@@ -127,34 +136,6 @@ fn write_error(e: WriteError) -> ServoError {
             have: b.total_size,
         },
         WriteError::DiscardBuffer(e) | WriteError::Write(e) => ServoError::Io(e),
-    }
-}
-
-/// The error a failed read means for servo `id`, waited for `waited`.
-fn read_error(id: u8, waited: Duration, e: ReadError) -> ServoError {
-    match e {
-        ReadError::Io(e) if e.kind() == std::io::ErrorKind::TimedOut => {
-            ServoError::Timeout { id, waited }
-        }
-        ReadError::Io(e) => ServoError::Io(e),
-        ReadError::BufferFull(b) => ServoError::BufferTooSmall {
-            needed: b.required_size,
-            have: b.total_size,
-        },
-        ReadError::MotorError(m) => ServoError::Status {
-            id,
-            code: m.error_number(),
-            alert: m.alert(),
-        },
-        ReadError::InvalidMessage(InvalidMessage::InvalidChecksum(c)) => ServoError::Checksum {
-            id,
-            received: c.message,
-            computed: c.computed,
-        },
-        ReadError::InvalidMessage(m) => ServoError::Malformed {
-            id,
-            what: format!("{m:?}"),
-        },
     }
 }
 
@@ -231,6 +212,7 @@ impl DynamixelBus {
             read_kind: ReadKind::Sync,
             stall,
             fast: Vec::with_capacity(READ_BUFFER),
+            rx: StatusReader::new(),
             rest: SyncReadBuf::new(),
         })
     }
@@ -256,6 +238,64 @@ impl DynamixelBus {
         self.open.as_mut().map(|o| &mut o.bus).ok_or_else(closed)
     }
 
+    /// Sends one instruction (through the crate, which stuffs it and first throws away what
+    /// the port had received); the replies to earlier ones are forgotten with it.
+    fn send(
+        &mut self,
+        id: u8,
+        instruction: u8,
+        params: usize,
+        encode: impl FnOnce(&mut [u8]),
+    ) -> Result<(), ServoError> {
+        self.wire()?
+            .write_instruction(id, instruction, params, encode)
+            .map_err(write_error)?;
+        self.rx.clear();
+        Ok(())
+    }
+
+    /// The next status packet received by `deadline` (see [`StatusReader`]). A packet begun
+    /// but not whole by then is given up as damaged (its length field may have been damaged
+    /// upwards, swallowing the replies behind it, which are then read).
+    fn read_status(&mut self, deadline: Instant) -> Result<Got, ServoError> {
+        let Some(open) = self.open.as_mut() else {
+            return Err(closed());
+        };
+        let rx = &mut self.rx;
+        loop {
+            match rx.frame() {
+                Framed::Packet { id, error } => return Ok(Got::Packet { id, error }),
+                Framed::Damaged { id, damage } => return Ok(Got::Damaged { id, damage }),
+                Framed::Pending => {}
+            }
+            let Some(left) = deadline
+                .checked_duration_since(Instant::now())
+                .filter(|d| !d.is_zero())
+            else {
+                return Ok(match rx.give_up() {
+                    Some((id, damage)) => Got::Damaged { id, damage },
+                    None => Got::Nothing,
+                });
+            };
+            if rx.space().is_empty() {
+                // Cannot be (a packet that fits is framed once whole), but never spin on it.
+                return Ok(match rx.give_up() {
+                    Some((id, damage)) => Got::Damaged { id, damage },
+                    None => Got::Nothing,
+                });
+            }
+            // The timeout has whole-millisecond resolution: never ask for 0 (no wait at all).
+            open.raw
+                .set_read_timeout(left.max(Duration::from_millis(1)))
+                .map_err(ServoError::Io)?;
+            match open.raw.read(rx.space()) {
+                Ok(k) => rx.filled(k),
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                Err(e) => return Err(ServoError::Io(e)),
+            }
+        }
+    }
+
     /// How long to wait for a reply of `params` parameters: its wire time plus `timeout`.
     fn reply_wait(&self, params: usize, timeout: Duration) -> Duration {
         wire_time(STATUS_OVERHEAD + params, self.baud) + timeout
@@ -273,53 +313,47 @@ impl DynamixelBus {
         timeout: Duration,
     ) -> Result<Reply, ServoError> {
         check_id(id)?;
-        self.wire()?
-            .write_instruction(id, instruction, params.len(), |buf| {
-                buf.copy_from_slice(params)
-            })
-            .map_err(write_error)?;
+        self.send(id, instruction, params.len(), |buf| {
+            buf.copy_from_slice(params)
+        })?;
         let waited = wire_time(INSTRUCTION_OVERHEAD + params.len(), self.baud)
             + self.reply_wait(reply_params, timeout);
         let deadline = Instant::now() + waited;
         let mut skipped = None;
         let mut stale = None;
         loop {
-            match self
-                .wire()?
-                .read_status_response_deadline(poll_deadline(deadline))
-            {
-                Ok(p) if p.packet_id() != id => {
-                    tracing::debug!(
-                        id,
-                        from = p.packet_id(),
-                        "skipping a reply of another servo"
-                    );
-                    skipped = Some(p.packet_id());
+            match self.read_status(poll_deadline(deadline))? {
+                Got::Packet { id: from, .. } if from != id => {
+                    tracing::debug!(id, from, "skipping a reply of another servo");
+                    skipped = Some(from);
                 }
-                Ok(p) if p.parameters().len() != reply_params => {
-                    // The servo's late reply to an earlier instruction (another length):
-                    // skipped like another servo's. A late reply of the same length cannot be
-                    // told from this one's (Protocol 2.0 has no sequence number).
-                    tracing::debug!(
-                        id,
-                        bytes = p.parameters().len(),
-                        expected = reply_params,
-                        "skipping a reply of another length"
-                    );
-                    stale = Some(p.parameters().len());
-                }
-                Ok(p) => {
-                    let data = p.parameters();
+                Got::Packet { error, .. } => {
+                    let alert = status_error(id, error)?;
+                    let data = self.rx.params();
+                    if data.len() != reply_params {
+                        // The servo's late reply to an earlier instruction (another length):
+                        // skipped like another servo's. A late reply of the same length cannot
+                        // be told from this one's (Protocol 2.0 has no sequence number).
+                        tracing::debug!(
+                            id,
+                            bytes = data.len(),
+                            expected = reply_params,
+                            "skipping a reply of another length"
+                        );
+                        stale = Some(data.len());
+                        continue;
+                    }
                     let mut reply = Reply {
                         params: [0; 4],
-                        alert: p.alert(),
+                        alert,
                     };
                     if let Some(slot) = reply.params.get_mut(..data.len()) {
                         slot.copy_from_slice(data);
                     }
                     return Ok(reply);
                 }
-                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => {
+                Got::Damaged { damage, .. } => return Err(damage.of(id)),
+                Got::Nothing => {
                     return Err(match (skipped, stale) {
                         (Some(from), _) => ServoError::WrongId { id, from },
                         (None, Some(bytes)) => ServoError::Malformed {
@@ -329,7 +363,6 @@ impl DynamixelBus {
                         (None, None) => ServoError::Timeout { id, waited },
                     })
                 }
-                Err(e) => return Err(read_error(id, waited, e)),
             }
         }
     }
@@ -360,16 +393,14 @@ impl DynamixelBus {
             return Ok(());
         }
         let size = usize::from(register.size());
-        self.wire()?
-            .write_instruction(BROADCAST_ID, ins::SYNC_WRITE, 4 + n * (1 + size), |buf| {
-                buf[..2].copy_from_slice(&register.address().to_le_bytes());
-                buf[2..4].copy_from_slice(&register.size().to_le_bytes());
-                for (chunk, (id, value)) in buf[4..].chunks_exact_mut(1 + size).zip(values) {
-                    chunk[0] = id;
-                    chunk[1..].copy_from_slice(&register.encode(value)[..size]);
-                }
-            })
-            .map_err(write_error)
+        self.send(BROADCAST_ID, ins::SYNC_WRITE, 4 + n * (1 + size), |buf| {
+            buf[..2].copy_from_slice(&register.address().to_le_bytes());
+            buf[2..4].copy_from_slice(&register.size().to_le_bytes());
+            for (chunk, (id, value)) in buf[4..].chunks_exact_mut(1 + size).zip(values) {
+                chunk[0] = id;
+                chunk[1..].copy_from_slice(&register.encode(value)[..size]);
+            }
+        })
     }
 }
 
@@ -429,13 +460,11 @@ impl DynamixelBus {
         }
         check_read_ids(ids)?;
         let n = ids.len();
-        self.wire()?
-            .write_instruction(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
-                buf[..2].copy_from_slice(&address.to_le_bytes());
-                buf[2..4].copy_from_slice(&len.to_le_bytes());
-                buf[4..].copy_from_slice(ids);
-            })
-            .map_err(write_error)?;
+        self.send(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
+            buf[..2].copy_from_slice(&address.to_le_bytes());
+            buf[2..4].copy_from_slice(&len.to_le_bytes());
+            buf[4..].copy_from_slice(ids);
+        })?;
         // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
         let mut next = 0;
         let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud) + per_reply;
@@ -444,37 +473,32 @@ impl DynamixelBus {
         while next < n && budget > 0 {
             budget -= 1;
             let deadline = Instant::now() + wait;
-            match self
-                .wire()?
-                .read_status_response_deadline(poll_deadline(deadline))
-            {
-                Ok(p) => {
-                    let id = p.packet_id();
+            match self.read_status(poll_deadline(deadline))? {
+                Got::Packet { id, error } => {
                     let Some(k) = ids[next..].iter().position(|&x| x == id) else {
                         tracing::debug!(id, "sync read: reply from a servo not expected now");
                         continue;
                     };
                     // The servos listed before this one stay marked as missing.
-                    let data = p.parameters();
-                    if data.len() == data_len {
-                        out.set(next + k, data, p.alert());
-                    } else {
-                        out.fail(
+                    let data = self.rx.params();
+                    match status_error(id, error) {
+                        Err(e) => out.fail(next + k, e),
+                        Ok(alert) if data.len() == data_len => out.set(next + k, data, alert),
+                        Ok(_) => out.fail(
                             next + k,
                             ServoError::Malformed {
                                 id,
                                 what: format!("{} data bytes, expected {data_len}", data.len()),
                             },
-                        );
+                        ),
                     }
                     next += k + 1;
                 }
-                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
-                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
-                Err(e) => {
-                    out.fail(next, read_error(ids[next], wait, e));
+                Got::Damaged { damage, .. } => {
+                    out.fail(next, damage.of(ids[next]));
                     next += 1;
                 }
+                Got::Nothing => break,
             }
             wait = per_reply;
         }
@@ -484,7 +508,8 @@ impl DynamixelBus {
     /// One Fast Sync Read (0x8A) of `len` bytes at `address` from every servo in `ids`, into
     /// `out`, whatever [`ServoBus::read_kind`] says. The servos whose blocks arrive whole keep
     /// their data. Where a block fails its CRC (servo k), servo k gets the error a Sync Read
-    /// gives a damaged reply and the servos after it are asked again with one Sync Read; where
+    /// gives a damaged reply and the servos after it are asked again with one Sync Read, once
+    /// the rest of the reply (which the chain goes on sending) is through; where
     /// the reply stops (nothing within its wire time plus `timeout`; once it has begun, no byte
     /// for the wire time of what is missing plus [`FAST_STALL`], or `timeout` if shorter), the
     /// servos from there on are asked again with one Sync Read, which finds and names the
@@ -514,13 +539,11 @@ impl DynamixelBus {
                 have: READ_BUFFER,
             });
         }
-        self.wire()?
-            .write_instruction(BROADCAST_ID, FAST_SYNC_READ, 4 + n, |buf| {
-                buf[..2].copy_from_slice(&address.to_le_bytes());
-                buf[2..4].copy_from_slice(&len.to_le_bytes());
-                buf[4..].copy_from_slice(ids);
-            })
-            .map_err(write_error)?;
+        self.send(BROADCAST_ID, FAST_SYNC_READ, 4 + n, |buf| {
+            buf[..2].copy_from_slice(&address.to_le_bytes());
+            buf[2..4].copy_from_slice(&len.to_le_bytes());
+            buf[4..].copy_from_slice(ids);
+        })?;
         // The first byte is waited for as a Sync Read waits for its first reply: the wire time
         // plus `timeout`. From then on a chain sends its blocks back to back: the rest is
         // waited for until the wire time of what is still missing plus [`FAST_STALL`] (or
@@ -574,6 +597,34 @@ impl DynamixelBus {
                 Err(e) => return Err(ServoError::Io(e)),
             }
         };
+        if damaged.is_some() {
+            // The chain does not know a block was damaged on the way: it goes on sending the
+            // blocks after it. The Sync Read that asks those servos again waits until they are
+            // through (or could be), or it would collide with them on the half-duplex bus.
+            let received = reply.start.map_or(0, |s| got.saturating_sub(s));
+            let mut left = total.saturating_sub(received);
+            let mut quiet = Instant::now() + wire_time(left, baud);
+            while left > 0 {
+                let Some(wait) = quiet
+                    .checked_duration_since(Instant::now())
+                    .filter(|d| !d.is_zero())
+                else {
+                    break;
+                };
+                open.raw
+                    .set_read_timeout(wait.max(Duration::from_millis(1)))
+                    .map_err(ServoError::Io)?;
+                match open.raw.read(&mut buf[..]) {
+                    Ok(k) if k > 0 => {
+                        left = left.saturating_sub(k);
+                        quiet = Instant::now() + wire_time(left, baud);
+                    }
+                    Ok(_) => {}
+                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                    Err(e) => return Err(ServoError::Io(e)),
+                }
+            }
+        }
         let from = match damaged {
             Some(error) => {
                 tracing::debug!(%error, intact = index, "fast sync read damaged");
@@ -627,6 +678,240 @@ fn check_read_ids(ids: &[u8]) -> Result<(), ServoError> {
         });
     }
     Ok(())
+}
+
+/// The error byte of servo `id`'s status packet: its alert bit, or the error its code means
+/// (the instruction was not carried out).
+fn status_error(id: u8, error: u8) -> Result<bool, ServoError> {
+    let (code, alert) = (error & 0x7F, error & 0x80 != 0);
+    if code == 0 {
+        Ok(alert)
+    } else {
+        Err(ServoError::Status { id, code, alert })
+    }
+}
+
+/// Bytes of a status packet up to its length field: header 4, id, length 2.
+const STATUS_HEAD: usize = 7;
+/// The least a status packet's length field can say: instruction, error, CRC 2.
+const STATUS_LEAST_LENGTH: usize = 4;
+
+/// Why a status packet cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Damage {
+    /// Its CRC does not match its bytes.
+    Checksum {
+        /// CRC in the packet.
+        received: u16,
+        /// CRC of the bytes received.
+        computed: u16,
+    },
+    /// Its length field cannot be right, it is not a status packet, or it stopped short.
+    Malformed(String),
+}
+
+impl Damage {
+    /// What it means for the reply of servo `id`.
+    pub fn of(&self, id: u8) -> ServoError {
+        match self {
+            Damage::Checksum { received, computed } => ServoError::Checksum {
+                id,
+                received: *received,
+                computed: *computed,
+            },
+            Damage::Malformed(what) => ServoError::Malformed {
+                id,
+                what: what.clone(),
+            },
+        }
+    }
+}
+
+/// What [`StatusReader::frame`] found.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Framed {
+    /// A whole status packet whose CRC checks: its id and error byte; its parameters, unstuffed,
+    /// are [`StatusReader::params`].
+    Packet {
+        /// The replying servo.
+        id: u8,
+        /// Its error byte (alert bit and code).
+        error: u8,
+    },
+    /// A packet that cannot be used; `id` is the byte where its id sits (which may be damaged
+    /// too). The search goes on one byte past its header.
+    Damaged {
+        /// The id byte of the packet.
+        id: u8,
+        /// What is wrong with it.
+        damage: Damage,
+    },
+    /// No whole packet yet.
+    Pending,
+}
+
+/// What [`DynamixelBus::read_status`] got by its deadline.
+enum Got {
+    Packet { id: u8, error: u8 },
+    Damaged { id: u8, damage: Damage },
+    Nothing,
+}
+
+/// The status packets (Protocol 2.0) in the bytes received since the last instruction, framed
+/// without trusting them: a length field below 4 or beyond the buffer, or a CRC that fails,
+/// makes that packet [`Framed::Damaged`] and the search for the next header goes on one byte
+/// past its header (a header cannot occur inside a packet: byte stuffing breaks every
+/// `FF FF FD` in its body), so one damaged byte costs one reply. Bytes before a header (noise
+/// on the line, the tail of a damaged packet) are skipped. A packet whose parameters were
+/// stuffed (`FF FF FD` followed by an extra `FD`) is unstuffed into [`StatusReader::params`].
+/// Sized once: reading allocates nothing.
+#[derive(Debug)]
+pub struct StatusReader {
+    buf: Vec<u8>,
+    /// Bytes held, from the start of `buf`.
+    len: usize,
+    /// Where the next packet is looked for.
+    pos: usize,
+    /// The parameters of the last packet framed, unstuffed.
+    params: Vec<u8>,
+}
+
+impl Default for StatusReader {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl StatusReader {
+    /// A reader that holds up to [`READ_BUFFER`] bytes, the longest packet it frames.
+    pub fn new() -> Self {
+        Self {
+            buf: vec![0; READ_BUFFER],
+            len: 0,
+            pos: 0,
+            params: Vec::with_capacity(READ_BUFFER),
+        }
+    }
+
+    /// Forgets every byte (a new instruction went out).
+    pub fn clear(&mut self) {
+        self.len = 0;
+        self.pos = 0;
+    }
+
+    /// Room for bytes to come, after those held (moved to the front first when the packet
+    /// being read would not fit behind them).
+    pub fn space(&mut self) -> &mut [u8] {
+        if self.pos > 0 {
+            self.buf.copy_within(self.pos..self.len, 0);
+            self.len -= self.pos;
+            self.pos = 0;
+        }
+        &mut self.buf[self.len..]
+    }
+
+    /// `k` bytes were written into [`StatusReader::space`].
+    pub fn filled(&mut self, k: usize) {
+        self.len = (self.len + k).min(self.buf.len());
+    }
+
+    /// Adds `bytes` as received (as much as fits).
+    pub fn feed(&mut self, bytes: &[u8]) {
+        let space = self.space();
+        let k = bytes.len().min(space.len());
+        space[..k].copy_from_slice(&bytes[..k]);
+        self.filled(k);
+    }
+
+    /// The parameters of the last [`Framed::Packet`].
+    pub fn params(&self) -> &[u8] {
+        &self.params
+    }
+
+    /// The next packet in the bytes held.
+    pub fn frame(&mut self) -> Framed {
+        let held = &self.buf[self.pos..self.len];
+        let Some(at) = held.windows(HEADER.len()).position(|w| w == HEADER) else {
+            // Keep what may be the start of a header.
+            self.pos = self.len.saturating_sub(HEADER.len() - 1).max(self.pos);
+            return Framed::Pending;
+        };
+        self.pos += at;
+        let p = &self.buf[self.pos..self.len];
+        let Some(head) = p.get(..STATUS_HEAD) else {
+            return Framed::Pending;
+        };
+        let id = head[4];
+        let length = usize::from(u16::from_le_bytes([head[5], head[6]]));
+        if !(STATUS_LEAST_LENGTH..=self.buf.len() - STATUS_HEAD).contains(&length) {
+            self.pos += 1;
+            let what = format!("a status packet whose length field says {length} bytes");
+            return Framed::Damaged {
+                id,
+                damage: Damage::Malformed(what),
+            };
+        }
+        let total = STATUS_HEAD + length;
+        let Some(packet) = p.get(..total) else {
+            return Framed::Pending;
+        };
+        let crc_at = total - 2;
+        let computed = calculate_checksum(0, &packet[..crc_at]);
+        let received = u16::from_le_bytes([packet[crc_at], packet[crc_at + 1]]);
+        if computed != received {
+            self.pos += 1;
+            let damage = Damage::Checksum { received, computed };
+            return Framed::Damaged { id, damage };
+        }
+        let (instruction, error) = (packet[STATUS_HEAD], packet[STATUS_HEAD + 1]);
+        self.params.clear();
+        // How much of `FF FF FD` the body has just shown; 3: the next `FD` is stuffing.
+        let mut run = 0;
+        for &b in &packet[STATUS_HEAD + 2..crc_at] {
+            if run == 3 && b == 0xFD {
+                run = 0;
+                continue;
+            }
+            self.params.push(b);
+            run = match (run, b) {
+                (0 | 1, 0xFF) => run + 1,
+                (2, 0xFF) => 2,
+                (2, 0xFD) => 3,
+                _ => 0,
+            };
+        }
+        self.pos += total;
+        if instruction != STATUS {
+            let what = format!("instruction 0x{instruction:02X} where a status packet has 0x55");
+            return Framed::Damaged {
+                id,
+                damage: Damage::Malformed(what),
+            };
+        }
+        Framed::Packet { id, error }
+    }
+
+    /// The wait is over with a packet begun but not whole: it is given up as damaged (its
+    /// length field may have been damaged upwards, making it swallow the replies behind it,
+    /// which [`StatusReader::frame`] then finds), and the search goes on past its header.
+    /// `None` when no packet was begun (its id not yet in).
+    pub fn give_up(&mut self) -> Option<(u8, Damage)> {
+        let p = &self.buf[self.pos..self.len];
+        if !p.starts_with(&HEADER) {
+            return None;
+        }
+        let id = *p.get(4)?;
+        let what = match p.get(5..STATUS_HEAD) {
+            Some(l) => format!(
+                "a status packet cut short: {} of the {} bytes its length field says",
+                p.len(),
+                STATUS_HEAD + usize::from(u16::from_le_bytes([l[0], l[1]]))
+            ),
+            None => format!("a status packet cut short after {} bytes", p.len()),
+        };
+        self.pos += 1;
+        Some((id, Damage::Malformed(what)))
+    }
 }
 
 /// Where a [`FastReply`] stands after the bytes received so far.
@@ -807,9 +1092,7 @@ impl ServoBus for DynamixelBus {
     }
 
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
-        self.wire()?
-            .write_instruction(BROADCAST_ID, ins::PING, 0, |_| {})
-            .map_err(write_error)?;
+        self.send(BROADCAST_ID, ins::PING, 0, |_| {})?;
         let baud = self.baud;
         // Every id may answer, one after the other.
         let window = wire_time(INSTRUCTION_OVERHEAD, baud)
@@ -818,25 +1101,27 @@ impl ServoBus for DynamixelBus {
         let deadline = Instant::now() + window;
         let mut found: Vec<PingInfo> = Vec::new();
         loop {
-            match self
-                .wire()?
-                .read_status_response_deadline(poll_deadline(deadline))
-            {
-                Ok(p) => {
-                    let d = p.parameters();
-                    if d.len() == 3 && !found.iter().any(|f| f.id == p.packet_id()) {
-                        found.push(PingInfo {
-                            id: p.packet_id(),
+            match self.read_status(poll_deadline(deadline))? {
+                Got::Packet { id, error } => {
+                    let d = self.rx.params();
+                    let fresh = !found.iter().any(|f| f.id == id);
+                    match status_error(id, error) {
+                        Ok(alert) if d.len() == 3 && fresh => found.push(PingInfo {
+                            id,
                             model: u16::from_le_bytes([d[0], d[1]]),
                             firmware: d[2],
-                            alert: p.alert(),
-                        });
+                            alert,
+                        }),
+                        Ok(_) => {}
+                        // A servo that refused the ping: not listed; keep listening.
+                        Err(e) => tracing::debug!(error = %e, "scan: a refused ping"),
                     }
                 }
-                Err(ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => break,
-                Err(ReadError::Io(e)) => return Err(ServoError::Io(e)),
-                // A damaged or refused reply: that servo is not listed; keep listening.
-                Err(e) => tracing::debug!(error = ?e, "scan: unusable reply"),
+                // A damaged reply: that servo is not listed; keep listening.
+                Got::Damaged { id, damage } => {
+                    tracing::debug!(error = %damage.of(id), "scan: unusable reply")
+                }
+                Got::Nothing => break,
             }
         }
         found.sort_by_key(|f| f.id);
@@ -950,6 +1235,138 @@ mod tests {
         0x00, 0x04, 0xFF, 0x03, 0x00, 0x00, 0xD1, 0x9E, // servo 4: 1023, CRC 0x9ED1
     ];
     const IDS: [u8; 3] = [3, 7, 4];
+
+    /// A status packet of servo `id` as a servo sends it (stuffed, with its CRC).
+    fn status(id: u8, error: u8, params: &[u8]) -> Vec<u8> {
+        snakectl_sim::protocol::encode_status(id, error, params)
+    }
+
+    /// Every packet `bytes` holds, fed at once, until none is pending.
+    fn frame_all(bytes: &[u8]) -> Vec<(Framed, Vec<u8>)> {
+        let mut rx = StatusReader::new();
+        rx.feed(bytes);
+        let mut out = Vec::new();
+        loop {
+            match rx.frame() {
+                Framed::Pending => return out,
+                f => out.push((f, rx.params().to_vec())),
+            }
+        }
+    }
+
+    fn packet(id: u8, params: &[u8]) -> (Framed, Vec<u8>) {
+        (Framed::Packet { id, error: 0 }, params.to_vec())
+    }
+
+    #[test]
+    fn status_packets_are_framed_past_noise_and_unstuffed() {
+        // Parameters that need stuffing: `FF FF FD` twice, the second followed by a real `FD`.
+        let data = [0xFF, 0xFF, 0xFD, 0x01, 0xFF, 0xFF, 0xFD, 0xFD, 0x00];
+        let mut bytes = vec![0x00, 0xFF, 0xFF, 0x12];
+        bytes.extend(status(3, 0, &data));
+        bytes.extend(status(7, 0x80, &[1, 2, 3, 4]));
+        let framed = frame_all(&bytes);
+        assert_eq!(framed[0], packet(3, &data));
+        assert_eq!(
+            framed[1],
+            (Framed::Packet { id: 7, error: 0x80 }, vec![1, 2, 3, 4])
+        );
+        assert_eq!(framed.len(), 2);
+    }
+
+    #[test]
+    fn a_packet_is_pending_until_its_last_byte_arrives() {
+        let bytes = status(5, 0, &[0x24, 0x04, 48]);
+        let mut rx = StatusReader::new();
+        for (i, &b) in bytes.iter().enumerate() {
+            assert_eq!(rx.frame(), Framed::Pending, "after {i} bytes");
+            rx.feed(&[b]);
+        }
+        assert_eq!(rx.frame(), Framed::Packet { id: 5, error: 0 });
+        assert_eq!(rx.params(), [0x24, 0x04, 48]);
+    }
+
+    #[test]
+    fn a_length_field_too_short_costs_that_packet_alone() {
+        // Length 2 (no room for the error byte), with a CRC that matches its first 7 bytes:
+        // a packet no servo sends, which the crate's parser panics on.
+        let mut bytes = vec![0xFF, 0xFF, 0xFD, 0x00, 3, 0x02, 0x00];
+        let crc = calculate_checksum(0, &bytes);
+        bytes.extend(crc.to_le_bytes());
+        bytes.extend(status(7, 0, &[1, 0, 0, 0]));
+        let framed = frame_all(&bytes);
+        assert!(
+            matches!(&framed[0].0, Framed::Damaged { id: 3, damage: Damage::Malformed(w) } if w.contains("says 2 bytes")),
+            "{framed:?}"
+        );
+        assert_eq!(framed[1], packet(7, &[1, 0, 0, 0]));
+        assert_eq!(framed.len(), 2);
+    }
+
+    #[test]
+    fn a_length_field_beyond_the_buffer_costs_that_packet_alone() {
+        let mut bytes = status(3, 0, &[166, 0, 0, 0]);
+        bytes[6] ^= 0x10; // 0x0008 -> 0x1008
+        bytes.extend(status(7, 0, &[31, 8, 0, 0]));
+        let framed = frame_all(&bytes);
+        assert!(
+            matches!(framed[0].0, Framed::Damaged { id: 3, .. }),
+            "{framed:?}"
+        );
+        assert_eq!(framed[1], packet(7, &[31, 8, 0, 0]));
+    }
+
+    #[test]
+    fn a_damaged_byte_costs_its_packet_and_the_next_is_read() {
+        for at in 4..15 {
+            let mut bytes = status(3, 0, &[166, 0, 0, 0]);
+            bytes[at] ^= 0x04;
+            bytes.extend(status(7, 0, &[31, 8, 0, 0]));
+            let mut rx = StatusReader::new();
+            rx.feed(&bytes);
+            let mut found = Vec::new();
+            loop {
+                match rx.frame() {
+                    Framed::Packet { id, .. } => found.push((id, rx.params().to_vec())),
+                    Framed::Damaged { .. } => {}
+                    // A length damaged upwards (within the buffer) waits for bytes that never
+                    // come: the caller gives it up at its deadline.
+                    Framed::Pending => {
+                        if rx.give_up().is_none() {
+                            break;
+                        }
+                    }
+                }
+            }
+            assert_eq!(found, [(7, vec![31, 8, 0, 0])], "byte {at} damaged");
+        }
+    }
+
+    #[test]
+    fn a_packet_that_is_not_a_status_is_refused() {
+        let mut bytes = snakectl_sim::protocol::encode_instruction(1, 0x02, &[0x84, 0, 4, 0]);
+        bytes.extend(status(1, 0, &[1, 2, 3, 4]));
+        let framed = frame_all(&bytes);
+        assert!(
+            matches!(&framed[0].0, Framed::Damaged { id: 1, damage: Damage::Malformed(w) } if w.contains("0x02")),
+            "{framed:?}"
+        );
+        assert_eq!(framed[1], packet(1, &[1, 2, 3, 4]));
+    }
+
+    #[test]
+    fn an_error_code_names_its_servo_and_the_alert_bit_is_a_flag() {
+        assert!(matches!(status_error(9, 0x80), Ok(true)));
+        assert!(matches!(status_error(9, 0x00), Ok(false)));
+        assert!(matches!(
+            status_error(9, 0x81),
+            Err(ServoError::Status {
+                id: 9,
+                code: 1,
+                alert: true
+            })
+        ));
+    }
 
     fn parse(bytes: &[u8]) -> (FastState, SyncReadBuf, usize) {
         let mut out = SyncReadBuf::new();

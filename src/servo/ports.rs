@@ -572,16 +572,23 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
             Inner::One(bus) => bus.sync_write(register, values),
             Inner::Many(workers) => {
                 let mut pending = Vec::with_capacity(workers.len());
+                let mut first_error = None;
                 for (w, part) in workers.iter_mut().zip(by_port) {
                     if part.is_empty() {
                         pending.push(None);
                         continue;
                     }
-                    pending.push(Some(
-                        w.start(move |bus: &mut B| bus.sync_write(register, &part))?,
-                    ));
+                    // A port that cannot take it is reported once the others have answered:
+                    // returning at once would leave their answers to be taken by their next
+                    // calls, one answer behind from then on.
+                    match w.start(move |bus: &mut B| bus.sync_write(register, &part)) {
+                        Ok(rx) => pending.push(Some(rx)),
+                        Err(e) => {
+                            first_error.get_or_insert(e);
+                            pending.push(None);
+                        }
+                    }
                 }
-                let mut first_error = None;
                 for (w, rx) in workers.iter_mut().zip(pending) {
                     let Some(rx) = rx else { continue };
                     if let Err(e) = w.finish(rx).and_then(|r| r.map_err(|e| w.named(e))) {
@@ -674,6 +681,8 @@ mod tests {
         positions: BTreeMap<u8, i32>,
         silent: Vec<u8>,
         gone: bool,
+        /// The next call panics (its port's thread stops).
+        boom: bool,
         goal_writes: usize,
     }
 
@@ -692,6 +701,8 @@ mod tests {
             m
         }
         fn check(&self) -> Result<(), ServoError> {
+            let boom = self.0.lock().unwrap().boom;
+            assert!(!boom, "the bus panics");
             if self.0.lock().unwrap().gone {
                 return Err(ServoError::Io(std::io::Error::new(
                     std::io::ErrorKind::BrokenPipe,
@@ -856,6 +867,23 @@ mod tests {
             ports.ping(9, T),
             Err(ServoError::BadId { id: 9, .. })
         ));
+    }
+
+    #[test]
+    fn a_sync_write_refused_by_a_stopped_port_leaves_the_other_ports_in_step() {
+        let (mut ports, a, b) = two();
+        // Port B's thread stops (its bus panicked).
+        b.0.lock().unwrap().boom = true;
+        assert_eq!(ports.ping(4, T).unwrap_err().port(), Some("/dev/ttyUSB1"));
+        let e = ports
+            .sync_write(Register::TorqueEnable, &[(1, 0), (4, 0)])
+            .unwrap_err();
+        assert_eq!(e.port(), Some("/dev/ttyUSB1"));
+        // Port A is sound: its next calls are answered, each with its own answer.
+        ports.write_goals(&[Goal { id: 1, ticks: 2000 }]).unwrap();
+        assert_eq!(a.0.lock().unwrap().positions[&1], 2000);
+        let r = ports.read_states(&[2], Fields::POSITION, T).unwrap();
+        assert_eq!(r[0].as_ref().unwrap().position_ticks, 1002);
     }
 
     #[test]
