@@ -42,7 +42,8 @@
 //!    them (what the servos receive, in whole ticks) keeps it too, and the controller plans
 //!    with the clearance raised by the most that rounding can move the arm. The check runs on every
 //!    resolver answer (a step that fails it is bisected like one out of reach) and on the
-//!    final pose (cut back along its joint step, like a self-collision), and the tick reports
+//!    final pose and the way to it, every [`JOINT_WAY_STEP_M`] of the arm's motion (cut back
+//!    along its joint step, like a self-collision), and the tick reports
 //!    the link and obstacle that held it back (`blocked`). The overall solver keeps the
 //!    clearance itself (plus what rounding can take away), so it goes round; the sequential
 //!    strategy's tractrix body does not look ahead, and is cut short where it would touch.
@@ -448,9 +449,10 @@ struct Guard {
     scratch: Vec<Vec2>,
     /// Two links of the commanded pose are in contact.
     tangled: bool,
-    /// Per link, the least clearance a new pose must keep: `best` less round-off.
+    /// Per pair of link and obstacle (`(link - 1) * obstacles + k`), the least clearance a new
+    /// pose must keep: `best` less round-off.
     floors: Vec<f64>,
-    /// Per link, the best of [`World::link_floors`] of the commanded poses since the floors
+    /// Per pair, the best of [`World::link_floors`] of the commanded poses since the floors
     /// were last anchored ([`Guard::anchor`]): a floor never sinks, so the round-off a pose
     /// may lose against it is lost once, not a tick at a time.
     best: Vec<f64>,
@@ -479,6 +481,10 @@ impl Guard {
     /// The commanded pose is now `theta`, set from outside the checked ticks (a measured pose,
     /// a new world): the floors start again from its clearance. Returns its tip.
     fn anchor(&mut self, chain: &Chain, world: &World, theta: &[f64]) -> Vec2 {
+        // One floor per pair of link and obstacle.
+        let pairs = chain.len() * world.obstacles().len().max(1);
+        self.floors.resize(pairs, f64::NEG_INFINITY);
+        self.best.resize(pairs, f64::NEG_INFINITY);
         self.best.fill(f64::NEG_INFINITY);
         self.commit(chain, world, theta)
     }
@@ -1082,7 +1088,15 @@ impl Controller {
                         match self.plan.push_out(r, g) {
                             Some((q, _)) => {
                                 pushed = true;
-                                q
+                                // The push moves the tip no faster than its limit either.
+                                let step = q - from;
+                                let most = self.limits.max_tip_speed_m_s * dt;
+                                let n = step.norm();
+                                if n > most {
+                                    from + step * (most / n)
+                                } else {
+                                    q
+                                }
                             }
                             None => r,
                         }
@@ -1297,17 +1311,73 @@ impl Controller {
     /// bound and the limits. Returns whether it had to for a contact of links, and the link and
     /// obstacle when a link would have lost clearance.
     fn keep_clear(&mut self) -> (bool, Option<Blocked>) {
-        let touches = self.guard.contact(&self.chain, &self.cand).is_some();
-        let blocked = if touches {
+        let mut touches = self.guard.contact(&self.chain, &self.cand).is_some();
+        let mut blocked = if touches {
             None
         } else {
             self.guard
                 .obstacle(&self.chain, &self.world, &self.quanta, &self.cand)
         };
+        let (mut lo, mut hi) = (0.0, 1.0);
+        if !self.world.obstacles().is_empty() {
+            // The servos pass every pose between the last goal and this one: the way there is
+            // checked every [`JOINT_WAY_STEP_M`] of the arm's motion, so that no link passes
+            // through an obstacle between two clear goals.
+            let links = self.chain.links();
+            let (mut carried, mut sweep) = (0.0, 0.0);
+            for i in (0..links.len()).rev() {
+                carried += links[i];
+                sweep += (self.cand[i] - self.theta[i]).abs() * carried;
+            }
+            let steps =
+                ((sweep / JOINT_WAY_STEP_M).ceil() as usize).clamp(1, MAX_JOINT_WAY_SAMPLES);
+            for k in 1..steps {
+                let f = k as f64 / steps as f64;
+                for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {
+                    *x = t + f * (c - t);
+                }
+                // A pose between two goals need keep its floors only to within the samples'
+                // spacing (a straight line in joint space may bow in by round-off against a
+                // link sliding along an obstacle): enough that none passes through one.
+                self.chain.points_into(&self.trial, &mut self.guard.scratch);
+                let hit = self.world.below_floors_by(
+                    &self.guard.scratch,
+                    &self.guard.floors,
+                    0.5 * JOINT_WAY_STEP_M,
+                );
+                if let Some(p) = hit {
+                    (touches, blocked) = (
+                        false,
+                        Some(Blocked {
+                            link: p.link,
+                            obstacle: p.obstacle,
+                        }),
+                    );
+                    hi = f;
+                    // Bisect after the last sample before it that keeps its floors exactly.
+                    for j in (1..k).rev() {
+                        let g = j as f64 / steps as f64;
+                        for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta)
+                        {
+                            *x = t + g * (c - t);
+                        }
+                        let clear = self.guard.contact(&self.chain, &self.trial).is_none()
+                            && self
+                                .guard
+                                .obstacle(&self.chain, &self.world, &self.quanta, &self.trial)
+                                .is_none();
+                        if clear {
+                            lo = g;
+                            break;
+                        }
+                    }
+                    break;
+                }
+            }
+        }
         if !touches && blocked.is_none() {
             return (false, None);
         }
-        let (mut lo, mut hi) = (0.0, 1.0);
         for _ in 0..BISECTION_ROUNDS {
             let mid = 0.5 * (lo + hi);
             for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {

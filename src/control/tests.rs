@@ -216,3 +216,341 @@ fn a_tangled_arm_is_not_tangled_further() {
 fn a_clear_start_pose_has_no_contact() {
     assert_eq!(holding(limits(), &[0.1; N]).self_contact(), None);
 }
+
+/// Independent distance from the segment `a..b` to the circle (`c`, `r`): negative inside.
+fn seg_circle(a: Vec2, b: Vec2, c: Vec2, r: f64) -> f64 {
+    let ab = b - a;
+    let s = ((c - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0);
+    (a + ab * s - c).norm() - r
+}
+
+fn circle_obstacle(id: &str, c: Vec2, r: f64) -> crate::world::Obstacle {
+    crate::world::Obstacle {
+        id: id.into(),
+        shape: crate::world::Shape::Circle {
+            center: c,
+            radius_m: r,
+        },
+    }
+}
+
+/// A link already inside obstacle A (a world put onto the arm) is not driven into obstacle B,
+/// which it was clear of: each pair of link and obstacle keeps its own floor.
+#[test]
+fn a_link_inside_one_obstacle_is_not_driven_into_another() {
+    let (lr, keep) = (0.01, 0.005);
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        let home = vec![0.1; N];
+        let p = chain().points(&home);
+        let pivot = p[6]; // joint 6 (from 0) turns link 7 (1-based) about this point
+        let dir = (p[7] - p[6]).normalize();
+        let (s, c) = 0.6f64.sin_cos();
+        let toward = Vec2::new(c * dir.x - s * dir.y, s * dir.x + c * dir.y);
+        let b_centre = pivot + toward * 0.05;
+        let w = crate::world::World::new(
+            lr,
+            keep,
+            vec![
+                circle_obstacle("a", pivot, 0.02),
+                circle_obstacle("b", b_centre, 0.005),
+            ],
+        )
+        .unwrap();
+        let mut ctl = Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
+        let nc = ctl.set_world(w).expect("link 6/7 inside A");
+        assert_eq!(nc.obstacle, "a");
+        let to_b = |theta: &[f64]| {
+            let q = chain().points(theta);
+            (1..q.len())
+                .map(|l| seg_circle(q[l - 1], q[l], b_centre, 0.005) - lr)
+                .fold(f64::INFINITY, f64::min)
+        };
+        let start = to_b(ctl.theta());
+        assert!(start > keep, "clear of B at the start: {start}");
+        let mut least = start;
+        for k in 0..200 {
+            if k % 20 == 0 {
+                ctl.command(Command::Jog {
+                    joint: 6,
+                    rad_s: 1.0,
+                })
+                .unwrap();
+            }
+            ctl.tick(0.01);
+            least = least.min(to_b(ctl.theta()));
+        }
+        assert!(
+            least >= keep - 1e-9,
+            "{strategy:?}: a link came within {least} m of B (keep {keep}); joint 6 at {}",
+            ctl.theta()[6]
+        );
+    }
+}
+
+/// Between two consecutive goal poses (the servos move from one to the next), no link passes
+/// through an obstacle: a jog of joint 0 at the joint speed limit at 100 Hz (the tip 19 mm a
+/// tick), the world's defaults (link radius 0, clearance 5 mm), a post of 2 mm radius on the
+/// tip's circle.
+#[test]
+fn a_jog_does_not_pass_through_a_thin_post() {
+    let home = vec![0.1; N];
+    let tip = chain().tip(&home);
+    let (r, a0) = (tip.norm(), tip.y.atan2(tip.x));
+    let keep = 0.005;
+    let mut bad = Vec::new();
+    for k in 0..20 {
+        let a = a0 + 0.6 + 0.001 * k as f64;
+        let centre = Vec2::new(r * a.cos(), r * a.sin());
+        let w = crate::world::World::new(0.0, keep, vec![circle_obstacle("post", centre, 0.002)])
+            .unwrap();
+        let mut ctl =
+            Controller::new(chain(), limits(), Strategy::Overall, home.clone(), &home).unwrap();
+        assert!(ctl.set_world(w).is_none());
+        let mut prev = ctl.theta().to_vec();
+        let mut least = f64::INFINITY;
+        for t in 0..100 {
+            if t % 20 == 0 {
+                ctl.command(Command::Jog {
+                    joint: 0,
+                    rad_s: 2.0,
+                })
+                .unwrap();
+            }
+            ctl.tick(0.01);
+            // The way from the last goal to this one, as the servos take it.
+            for s in 0..=100 {
+                let f = s as f64 / 100.0;
+                let pose: Vec<f64> = prev
+                    .iter()
+                    .zip(ctl.theta())
+                    .map(|(p, q)| p + f * (q - p))
+                    .collect();
+                let q = chain().points(&pose);
+                for l in 1..q.len() {
+                    least = least.min(seg_circle(q[l - 1], q[l], centre, 0.002));
+                }
+            }
+            prev = ctl.theta().to_vec();
+        }
+        if least < keep - 1e-6 {
+            bad.push((k, least, ctl.theta()[0]));
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "passed within the clearance (k, least, joint 0): {bad:?}"
+    );
+}
+
+/// A tip velocity's reference pushed out of an obstacle put onto the tip moves the tip no
+/// faster than the tip speed limit.
+#[test]
+fn a_pushed_velocity_keeps_the_tip_speed_limit() {
+    let home = vec![0.1; N];
+    let tip = chain().tip(&home);
+    let w = crate::world::World::new(
+        0.01,
+        0.005,
+        vec![circle_obstacle("post", tip + Vec2::new(0.0, -0.005), 0.01)],
+    )
+    .unwrap();
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        let mut ctl = Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
+        assert!(ctl.set_world(w.clone()).is_some());
+        ctl.command(Command::Velocity {
+            v: Vec2::new(0.001, 0.0),
+        })
+        .unwrap();
+        let mut prev = ctl.tip();
+        for k in 0..30 {
+            let t = ctl.tick(0.01);
+            let v = (t.tip - prev).norm() / 0.01;
+            prev = t.tip;
+            assert!(
+                v <= 0.1 * (1.0 + 1e-9) + 1e-7,
+                "{strategy:?} tick {k}: tip at {v} m/s: {t:?}"
+            );
+        }
+    }
+}
+
+/// With the arm clear but the tip within the route's margin (0.2 mm beyond the clearance), a
+/// slow tip velocity's first ticks at 1 kHz move the tip no faster than its limit while the
+/// push takes it out to the margin.
+#[test]
+fn a_velocity_from_within_the_route_margin_keeps_the_tip_speed_limit() {
+    let home = vec![0.1; N];
+    let p = chain().points(&home);
+    let tip = p[N];
+    let out = (p[N] - p[N - 1]).normalize();
+    let (lr, keep, radius) = (0.01, 0.005, 0.01);
+    // The tip point 0.0002 m beyond the clearance: clear, but within the 0.5 mm margin.
+    let centre = tip + out * (radius + lr + keep + 0.0002);
+    let w =
+        crate::world::World::new(lr, keep, vec![circle_obstacle("post", centre, radius)]).unwrap();
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        let mut ctl = Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
+        assert!(ctl.set_world(w.clone()).is_none(), "the arm is clear");
+        let side = Vec2::new(-out.y, out.x);
+        ctl.command(Command::Velocity { v: side * 0.001 }).unwrap();
+        let dt = 0.001;
+        let mut prev = ctl.tip();
+        for k in 0..10 {
+            let t = ctl.tick(dt);
+            let v = (t.tip - prev).norm() / dt;
+            prev = t.tip;
+            assert!(
+                v <= 0.1 * (1.0 + 1e-9) + 1e-7,
+                "{strategy:?} tick {k}: tip at {v} m/s: {t:?}"
+            );
+        }
+    }
+}
+
+/// Random command sequences, limits, worlds and tick lengths, both strategies: every promise
+/// of the module doc checked every tick with geometry of its own.
+mod tick_by_tick {
+    use super::*;
+    use crate::resolve::Strategy as Strat;
+    use proptest::prelude::{prop_assert, prop_oneof, proptest, Just, ProptestConfig};
+    use proptest::strategy::Strategy as _;
+
+    /// Exact distance between two segments (independent of the crate's).
+    fn seg_seg(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> f64 {
+        let ps = |p: Vec2, a: Vec2, b: Vec2| {
+            let ab = b - a;
+            let l = ab.norm_squared();
+            let s = if l > 0.0 {
+                ((p - a).dot(&ab) / l).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (a + ab * s - p).norm()
+        };
+        let cr = |u: Vec2, v: Vec2| u.x * v.y - u.y * v.x;
+        let (d1, d2) = (cr(b1 - b0, a0 - b0), cr(b1 - b0, a1 - b0));
+        let (d3, d4) = (cr(a1 - a0, b0 - a0), cr(a1 - a0, b1 - a0));
+        if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
+            return 0.0;
+        }
+        ps(a0, b0, b1)
+            .min(ps(a1, b0, b1))
+            .min(ps(b0, a0, a1))
+            .min(ps(b1, a0, a1))
+    }
+
+    #[derive(Debug, Clone)]
+    enum Op {
+        Goto(f64, f64, Option<f64>),
+        Path(Vec<(f64, f64)>),
+        Vel(f64, f64),
+        Jog(usize, f64),
+        Joints(Vec<f64>),
+        Home,
+        Stop,
+        Switch,
+        Freeze,
+    }
+
+    fn op() -> impl proptest::strategy::Strategy<Value = Op> {
+        let p = -1.2f64..1.2;
+        prop_oneof![
+            3 => (p.clone(), p.clone(), proptest::option::of(1e-3f64..5.0)).prop_map(|(x, y, s)| Op::Goto(x, y, s)),
+            1 => proptest::collection::vec((p.clone(), p.clone()), 1..4).prop_map(Op::Path),
+            2 => (-2.0f64..2.0, -2.0f64..2.0).prop_map(|(x, y)| Op::Vel(x, y)),
+            2 => (0usize..N, -20.0f64..20.0).prop_map(|(j, r)| Op::Jog(j, r)),
+            1 => proptest::collection::vec(-1.9f64..1.9, N).prop_map(Op::Joints),
+            1 => Just(Op::Home),
+            1 => Just(Op::Stop),
+            1 => Just(Op::Switch),
+            1 => Just(Op::Freeze),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        #[test]
+        fn promises_hold_tick_by_tick(
+            ops in proptest::collection::vec((op(), 1usize..120), 1..8),
+            posts in proptest::collection::vec((-1.0f64..1.0, -1.0f64..1.0, 0.005f64..0.1), 0..4),
+            lr in 0.0f64..0.02, keep in 0.0f64..0.01,
+            speed in 0.02f64..0.5, accel in 0.1f64..5.0, wmax in 0.2f64..4.0, deadman in 0.05f64..1.5,
+            overall in proptest::bool::ANY,
+            dts in proptest::collection::vec(prop_oneof![4 => 0.0005f64..0.02, 1 => 0.02f64..1.5, 1 => Just(MAX_DT_S)], 16),
+        ) {
+            let limits = Limits { max_tip_speed_m_s: speed, max_tip_accel_m_s2: accel,
+                max_joint_speed_rad_s: wmax, deadman_s: deadman };
+            let home = vec![0.1; N];
+            let strat = if overall { Strat::Overall } else { Strat::Sequential };
+            let mut c = Controller::new(chain(), limits, strat, home.clone(), &home).unwrap();
+            let obstacles: Vec<_> = posts.iter().enumerate()
+                .map(|(i, &(x, y, r))| circle_obstacle(&format!("o{i}"), Vec2::new(x, y), r)).collect();
+            let w = crate::world::World::new(lr, keep, obstacles).unwrap();
+            c.set_world(w.clone());
+            let pair = |th: &[f64]| -> Vec<f64> {
+                let q = chain().points(th);
+                let mut out = Vec::new();
+                for l in 1..q.len() { for &(x, y, r) in &posts {
+                    out.push(seg_circle(q[l - 1], q[l], Vec2::new(x, y), r) - lr);
+                } }
+                out
+            };
+            let mut best: Vec<f64> = pair(c.theta()).iter().map(|d| d.min(keep)).collect();
+            let mut prev = c.theta().to_vec();
+            let mut tip_cmd = true;
+            let mut last_ref = c.tip();
+            let mut k = 0usize;
+            for (op, ticks) in ops {
+                match op {
+                    Op::Goto(x, y, s) => { if c.command(Command::Goto { target: Vec2::new(x, y), speed: s }).is_ok() { tip_cmd = true; } }
+                    Op::Path(p) => { if c.command(Command::Path { points: p.iter().map(|&(x, y)| Vec2::new(x, y)).collect(), speed: None }).is_ok() { tip_cmd = true; } }
+                    Op::Vel(x, y) => { c.command(Command::Velocity { v: Vec2::new(x, y) }).unwrap(); tip_cmd = true; }
+                    Op::Jog(j, r) => { c.command(Command::Jog { joint: j, rad_s: r }).unwrap(); tip_cmd = false; }
+                    Op::Joints(t) => { if c.command(Command::GotoJoints { theta: t }).is_ok() { tip_cmd = false; } }
+                    Op::Home => { if c.command(Command::Home).is_ok() { tip_cmd = false; } }
+                    Op::Stop => { let _ = c.command(Command::Stop); }
+                    Op::Switch => { let s = if c.strategy() == Strat::Overall { Strat::Sequential } else { Strat::Overall }; c.set_strategy(s); }
+                    Op::Freeze => c.freeze(),
+                }
+                for _ in 0..ticks {
+                    let dt = dts[k % dts.len()];
+                    k += 1;
+                    let prev_tip = c.tip();
+                    let on_ref = (prev_tip - last_ref).norm() < 1e-9;
+                    let t = c.tick(dt);
+                    last_ref = t.tip_ref;
+                    let th = c.theta().to_vec();
+                    let h = dt.min(MAX_DT_S);
+                    for (i, (&a, &b)) in th.iter().zip(&prev).enumerate() {
+                        prop_assert!(a.is_finite() && a.abs() <= 2.0, "joint {} at {}", i, a);
+                        prop_assert!((a - b).abs() <= wmax * h * (1.0 + 1e-12) + 1e-12, "joint {} stepped {} (dt {})", i, (a - b).abs(), dt);
+                    }
+                    let q = chain().points(&th);
+                    for a in 0..N { for b in a + 2..N {
+                        let d = seg_seg(q[a], q[a + 1], q[b], q[b + 1]);
+                        prop_assert!(d > crate::chain::SELF_CLEARANCE_M, "links {} {} at {} (tick {})", a, b, d, k);
+                    } }
+                    let now = pair(&th);
+                    for (i, (&d, b)) in now.iter().zip(best.iter_mut()).enumerate() {
+                        prop_assert!(d >= *b - CLEARANCE_ROUNDOFF_M - 1e-12, "pair {} from best {} to {} (tick {}, {:?})", i, b, d, k, t);
+                        *b = b.max(d.min(keep));
+                    }
+                    match (t.min_clearance_m, now.iter().cloned().reduce(f64::min)) {
+                        (Some(a), Some(b)) => prop_assert!((a - b).abs() < 1e-9, "reported {} vs {}", a, b),
+                        (None, None) => {}
+                        (a, b) => prop_assert!(false, "reported {:?} vs {:?}", a, b),
+                    }
+                    prop_assert!((t.tip - chain().tip(&th)).norm() < 1e-12);
+                    // From a tick that ended on its reference (a tick cut short leaves the
+                    // reference where the arm got), the tip keeps its speed limit.
+                    if tip_cmd && on_ref && !t.clamped {
+                        let v = (t.tip - prev_tip).norm() / h;
+                        prop_assert!(v <= speed * (1.0 + 1e-9) + 1e-7, "tip at {} m/s > {} (tick {}, dt {}): {:?}", v, speed, k, dt, t);
+                    }
+                    prop_assert!(!t.self_collision || t.saturated, "{:?}", t);
+                    prev = th;
+                }
+            }
+        }
+    }
+}

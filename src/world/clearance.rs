@@ -242,15 +242,21 @@ impl World {
         self.clearance(&chain.points(theta))
     }
 
-    /// Per link, the floor a new pose must keep: `min(keep_m, link's clearance in points)` into
-    /// `out[link - 1]`, with `keep_m` for a link far from every obstacle (so a clear pose must
-    /// stay clear, and a link not clear may only get clearer). Allocation-free.
+    /// Per pair of link and obstacle, the floor a new pose must keep: `min(keep_m, the pair's
+    /// clearance in points)` into `out[(link - 1) * m + k]` (`m` obstacles, `k` the obstacle's
+    /// index), with `keep_m` for a pair far apart (so a clear pair must stay clear, and a pair
+    /// not clear may only get clearer: a link inside one obstacle is not thereby free to enter
+    /// another). `out` holds `links * m` floors. Allocation-free.
     pub fn link_floors(&self, points: &[Vec2], keep_m: f64, out: &mut [f64]) {
-        for (link, floor) in (1..points.len()).zip(out.iter_mut()) {
-            *floor = keep_m;
+        let m = self.obstacles.len();
+        for link in 1..points.len() {
             let (lo, hi) = segment_box(points[link - 1], points[link]);
-            for k in 0..self.obstacles.len() {
-                if self.box_not_below(k, lo, hi, *floor + self.link_radius_m) {
+            for k in 0..m {
+                let Some(floor) = out.get_mut((link - 1) * m + k) else {
+                    return;
+                };
+                *floor = keep_m;
+                if self.box_not_below(k, lo, hi, keep_m + self.link_radius_m) {
                     continue;
                 }
                 *floor = floor.min(self.pair(points, link, k).clearance_m);
@@ -258,12 +264,19 @@ impl World {
         }
     }
 
-    /// The first pair of the pose `points` whose clearance is below its link's floor
-    /// (`floors[link - 1]`, see [`World::link_floors`]), or `None`. Allocation-free.
+    /// The first pair of the pose `points` whose clearance is below its floor
+    /// (`floors[(link - 1) * m + k]`, see [`World::link_floors`]), or `None`. Allocation-free.
     pub fn below_floors(&self, points: &[Vec2], floors: &[f64]) -> Option<Pair> {
-        for (link, &floor) in (1..points.len()).zip(floors) {
+        self.below_floors_by(points, floors, 0.0)
+    }
+
+    /// As [`World::below_floors`], each floor lowered by `slack_m`. Allocation-free.
+    pub fn below_floors_by(&self, points: &[Vec2], floors: &[f64], slack_m: f64) -> Option<Pair> {
+        let m = self.obstacles.len();
+        for link in 1..points.len() {
             let (lo, hi) = segment_box(points[link - 1], points[link]);
-            for k in 0..self.obstacles.len() {
+            for k in 0..m {
+                let floor = floors.get((link - 1) * m + k)? - slack_m;
                 if self.box_not_below(k, lo, hi, floor + self.link_radius_m) {
                     continue;
                 }

@@ -9,8 +9,9 @@
 //!   it is minus the depth of the segment's deepest point.
 //! - **polygon**, when the segment meets it: minus the largest depth (distance to the boundary)
 //!   of the segment's points sampled at `s = k / DEPTH_SAMPLES`, `k = 0..=DEPTH_SAMPLES`, and at
-//!   the middle of each stretch that begins where it crosses an edge (so a segment that enters
-//!   the polygon at all is negative); points outside count 0. The depth of a point is
+//!   the middle of each stretch between the places where the boundary meets it (an edge
+//!   crossed, or a vertex on it), so a segment that enters the polygon at all, even between two
+//!   vertices, is negative; points outside count 0. The depth of a point is
 //!   1-Lipschitz, so this is never deeper than the true deepest point, shallower by at most
 //!   `|b - a| / (2 DEPTH_SAMPLES)`, and exact when the deepest point is an end point (or any
 //!   sample). It is continuous in the segment except where two stretches inside merge (the
@@ -171,7 +172,25 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
         }
     }
     let (d2, pa, pb, s, edge) = best;
-    if d2 > 0.0 && !inside_polygon(a, points) && !inside_polygon(b, points) {
+    // Where the boundary meets the segment: proper crossings, and vertices on it (which no
+    // proper crossing sees, and rounding may leave a hair off it, so `d2` may not be 0).
+    let ab = b - a;
+    let l2 = ab.norm_squared();
+    let meet = |k: usize| -> Option<f64> {
+        let (u, w) = (points[k], points[(k + 1) % n]);
+        let (su, sw) = (cross(ab, u - a), cross(ab, w - a));
+        let x = if su == 0.0 {
+            u
+        } else if sw != 0.0 && (su < 0.0) != (sw < 0.0) {
+            u + (w - u) * (su / (su - sw))
+        } else {
+            return None;
+        };
+        let t = (x - a).dot(&ab) / l2;
+        (t > 0.0 && t < 1.0).then_some(t)
+    };
+    let apart = d2 > 0.0 && !inside_polygon(a, points) && !inside_polygon(b, points);
+    if apart && (0..n).all(|k| meet(k).is_none()) {
         let d = d2.sqrt();
         return Contact {
             distance_m: d,
@@ -194,18 +213,27 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
     for k in 0..=DEPTH_SAMPLES {
         consider(k as f64 / DEPTH_SAMPLES as f64);
     }
-    // The middle of each stretch that begins where the segment crosses an edge.
-    let crossing = |k: usize| crossing(a, b, points[k], points[(k + 1) % n]);
-    for k in 0..n {
-        if let Some(t) = crossing(k) {
-            let next = (0..n)
-                .filter_map(crossing)
-                .filter(|&u| u > t)
-                .fold(1.0, f64::min);
-            consider(0.5 * (t + next));
-        }
+    // The middle of each stretch between two places where the boundary meets the segment
+    // (or an end): each is wholly inside or wholly outside.
+    for t in std::iter::once(0.0).chain((0..n).filter_map(meet)) {
+        let next = (0..n)
+            .filter_map(meet)
+            .filter(|&u| u > t)
+            .fold(1.0, f64::min);
+        consider(0.5 * (t + next));
     }
     let (depth, x, q, t) = deep;
+    if depth <= 0.0 && apart {
+        // It only grazes vertices from outside.
+        let d = d2.sqrt();
+        return Contact {
+            distance_m: d,
+            on_segment: pa,
+            on_obstacle: pb,
+            s,
+            normal: (pa - pb) / d,
+        };
+    }
     if depth > 0.0 {
         Contact {
             distance_m: -depth,

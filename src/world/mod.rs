@@ -535,14 +535,23 @@ impl World {
         }
     }
 
-    /// Whether that gap is more than `d`.
+    /// Whether that gap is more than `d` (with `d < 0`: whether the boxes are apart, since a
+    /// segment inside an obstacle has a negative distance).
     fn box_beyond(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
         let (blo, bhi) = self.bounds[k];
         let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
         let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
-        d < 0.0 || dx * dx + dy * dy > d * d
+        let gap2 = dx * dx + dy * dy;
+        if d < 0.0 {
+            gap2 > 0.0
+        } else {
+            gap2 > d * d
+        }
     }
 }
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod brute_tests;
