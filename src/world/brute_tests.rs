@@ -11,38 +11,35 @@ fn v(x: f64, y: f64) -> Vec2 {
     Vec2::new(x, y)
 }
 
-/// Signed distance from `p` to a polygon, brute force: each edge by its line or nearer end,
-/// inside by the winding number.
+/// Signed distance from `p` to a polygon, brute force (the route tests' own: each edge by its
+/// line or nearer end, inside by the winding number).
 fn brute_signed(p: Vec2, pts: &[Vec2]) -> f64 {
-    let n = pts.len();
-    let mut best = f64::INFINITY;
-    let mut winding = 0.0;
-    for k in 0..n {
-        let (u, w) = (pts[k], pts[(k + 1) % n]);
-        let e = w - u;
-        let along = (p - u).dot(&e);
-        let d = if along > 0.0 && along < e.norm_squared() {
-            cross(e, p - u).abs() / e.norm()
-        } else {
-            (p - u).norm().min((p - w).norm())
-        };
-        best = best.min(d);
-        let (a, b) = (u - p, w - p);
-        winding += cross(a, b).atan2(a.dot(&b));
+    super::route::tests::distance(p, &polygon(pts))
+}
+
+fn polygon(pts: &[Vec2]) -> Obstacle {
+    Obstacle {
+        id: String::new(),
+        shape: Shape::Polygon {
+            points: pts.to_vec(),
+        },
     }
-    if winding.abs() > std::f64::consts::PI {
-        -best
-    } else {
-        best
-    }
+}
+
+/// The least signed distance of `samples + 1` points evenly along the segment.
+fn least_along(a: Vec2, b: Vec2, pts: &[Vec2], samples: usize) -> f64 {
+    let polygon = polygon(pts);
+    (0..=samples)
+        .map(|k| {
+            let p = a + (b - a) * (k as f64 / samples as f64);
+            super::route::tests::distance(p, &polygon)
+        })
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// The least signed distance of the segment's points, sampled densely.
 fn brute_segment(a: Vec2, b: Vec2, pts: &[Vec2]) -> f64 {
-    let n = 200_000;
-    (0..=n)
-        .map(|k| brute_signed(a + (b - a) * (k as f64 / n as f64), pts))
-        .fold(f64::INFINITY, f64::min)
+    least_along(a, b, pts, 200_000)
 }
 
 #[test]
@@ -75,10 +72,7 @@ mod props {
     use proptest::prelude::*;
 
     fn brute(a: Vec2, b: Vec2, pts: &[Vec2]) -> f64 {
-        let n = 20_000;
-        (0..=n)
-            .map(|k| brute_signed(a + (b - a) * (k as f64 / n as f64), pts))
-            .fold(f64::INFINITY, f64::min)
+        least_along(a, b, pts, 20_000)
     }
 
     /// A star-shaped polygon round the origin: radii per point, either turning sense.

@@ -190,15 +190,18 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
         (t > 0.0 && t < 1.0).then_some(t)
     };
     let apart = d2 > 0.0 && !inside_polygon(a, points) && !inside_polygon(b, points);
-    if apart && (0..n).all(|k| meet(k).is_none()) {
+    let outside = || {
         let d = d2.sqrt();
-        return Contact {
+        Contact {
             distance_m: d,
             on_segment: pa,
             on_obstacle: pb,
             s,
             normal: (pa - pb) / d,
-        };
+        }
+    };
+    if apart && (0..n).all(|k| meet(k).is_none()) {
+        return outside();
     }
     let mut deep = (0.0, a, a, 0.0);
     let mut consider = |t: f64| {
@@ -225,14 +228,7 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
     let (depth, x, q, t) = deep;
     if depth <= 0.0 && apart {
         // It only grazes vertices from outside.
-        let d = d2.sqrt();
-        return Contact {
-            distance_m: d,
-            on_segment: pa,
-            on_obstacle: pb,
-            s,
-            normal: (pa - pb) / d,
-        };
+        return outside();
     }
     if depth > 0.0 {
         Contact {

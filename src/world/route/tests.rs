@@ -32,7 +32,7 @@ fn polygon(id: &str, points: &[(f64, f64)]) -> Obstacle {
 
 /// Signed distance from a point to an obstacle, written apart from the module: circles by the
 /// centre, polygons by each edge's line or nearer end and a winding-number inside test.
-fn distance(p: Vec2, o: &Obstacle) -> f64 {
+pub(in crate::world) fn distance(p: Vec2, o: &Obstacle) -> f64 {
     match &o.shape {
         Shape::Circle { center, radius_m } => (p - center).norm() - radius_m,
         Shape::Polygon { points } => {
