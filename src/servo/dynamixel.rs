@@ -783,7 +783,7 @@ impl Default for StatusReader {
 }
 
 impl StatusReader {
-    /// A reader that holds up to [`READ_BUFFER`] bytes, the longest packet it frames.
+    /// A reader that holds up to 4096 bytes, the longest packet it frames.
     pub fn new() -> Self {
         Self {
             buf: vec![0; READ_BUFFER],
