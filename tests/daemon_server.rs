@@ -16,7 +16,7 @@ use serde_json::{json, Map, Value};
 use snakectl::config::Config;
 use snakectl::daemon::access::{AccessError, Token};
 use snakectl::daemon::link::{self, Envelope, Handle, COMMAND_QUEUE, STOP_QUEUE};
-use snakectl::daemon::server::{serve, ServerOptions};
+use snakectl::daemon::server::{serve, ServerOptions, STOPS_IN_FLIGHT};
 use snakectl::daemon::{self, DaemonError, RunOptions};
 use snakectl::protocol::{
     Applied, CmdName, Code, Describe, Event, EventKind, FaultChange, FaultInfo, FaultKind, Fields,
@@ -1356,4 +1356,66 @@ async fn start_up_refuses_zenoh_enabled_in_a_build_without_it() {
     assert!(message.contains("config/sim.toml"), "{message}");
     assert!(message.contains("[zenoh] enabled = true"), "{message}");
     assert!(message.contains("--features zenoh"), "{message}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn unsubscribe_after_subscribe_behind_a_loop_reply_leaves_no_telemetry() {
+    let daemon = Daemon::new().await;
+    let publisher = publish_every_ms(daemon.telemetry.clone());
+    let mut c = daemon.client().await;
+    // The loop holds the `status`, so the `subscribe` reply waits behind it.
+    daemon.draining.send_replace(false);
+    let mut burst = String::new();
+    for request in [
+        json!({"cmd": "status", "id": 1}),
+        json!({"cmd": "subscribe", "id": 2, "rate_hz": 100}),
+        json!({"cmd": "unsubscribe", "id": 3}),
+    ] {
+        burst.push_str(&request.to_string());
+        burst.push('\n');
+    }
+    c.send_raw(burst.as_bytes()).await;
+    time::sleep(Duration::from_millis(100)).await;
+    daemon.draining.send_replace(true);
+    for id in 1..=3 {
+        let reply = c.reply().await;
+        assert_eq!((&reply["ok"], &reply["id"]), (&json!(true), &json!(id)));
+    }
+    let quiet = time::timeout(Duration::from_secs(2), c.lines.next_line()).await;
+    assert!(quiet.is_err(), "telemetry after unsubscribe: {quiet:?}");
+    publisher.abort();
+}
+
+#[tokio::test]
+async fn a_stop_is_not_refused_busy_for_stops_the_loop_has_answered() {
+    // Large replies and a small receive buffer: a client slow to read holds its replies back.
+    let options = ServerOptions {
+        client_queue: 16,
+        ..ServerOptions::new(JOINTS, 8)
+    };
+    let daemon = Daemon::start(options, describe(2000)).await;
+    let socket = TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut c = Client::from_stream(socket.connect(daemon.addr).await.unwrap());
+    let mut burst = "{\"cmd\":\"describe\"}\n".repeat(30);
+    for i in 0..STOPS_IN_FLIGHT {
+        burst.push_str(&json!({"cmd": "stop", "id": i}).to_string());
+        burst.push('\n');
+    }
+    // A motion after those stops, applied by the loop: the arm moves.
+    burst.push_str(&json!({"cmd": "goto", "id": "go", "target": [0.1, 0.1]}).to_string());
+    burst.push('\n');
+    c.send_raw(burst.as_bytes()).await;
+    // The loop answers those commands within a few milliseconds; their replies wait behind the
+    // describes the client has not read yet. No stop waits for the loop any more.
+    time::sleep(Duration::from_millis(200)).await;
+    c.send(&json!({"cmd": "stop", "id": "late"})).await;
+    time::sleep(Duration::from_millis(100)).await;
+    let late = loop {
+        let reply = c.reply().await;
+        if reply["id"] == json!("late") {
+            break reply;
+        }
+    };
+    assert_eq!(late["ok"], json!(true), "{late}");
 }

@@ -20,6 +20,7 @@ use serde::Deserialize;
 use serde_json::Value;
 use snakectl::chain::Vec2;
 use snakectl::client::{Client, WorldInfo};
+use snakectl::config::world_field;
 use snakectl::protocol::{parse_obstacles, world_rejection, Cmd, Wire};
 use snakectl::world::{Obstacle, Shape, World, WorldError};
 
@@ -368,7 +369,7 @@ fn read_toml(text: &str) -> Result<FileWorld, String> {
         .ok_or("no [world] table: obstacles are [[world.obstacle]] tables")?;
     let mut obstacles = Vec::with_capacity(world.obstacle.len());
     for (i, o) in world.obstacle.into_iter().enumerate() {
-        let at = format!("world.obstacle[{i}]");
+        let at = format!("world.obstacle[{}]", i + 1);
         let shape = match (o.circle, o.polygon) {
             (Some(c), None) => Shape::Circle {
                 center: Vec2::new(c.center_m[0], c.center_m[1]),
@@ -390,21 +391,12 @@ fn read_toml(text: &str) -> Result<FileWorld, String> {
     })
 }
 
-/// A world's refusal with the field as the config spells it (`world.obstacle[1].circle.radius_m`).
+/// A world's refusal with the field as the config spells it (`world.obstacle[1].circle.radius_m`
+/// for the first obstacle: counted from 1, as a config load counts them).
 fn toml_error(e: &WorldError) -> String {
     let text = e.to_string();
     let (field, rest) = text.split_once(": ").unwrap_or(("", text.as_str()));
-    let field = field
-        .replacen("obstacles[", "world.obstacle[", 1)
-        .replace(".circle.center.x", ".circle.center_m[0]")
-        .replace(".circle.center.y", ".circle.center_m[1]")
-        .replace(".polygon.points", ".polygon.points_m");
-    let field = if field == "obstacles" {
-        "world.obstacle".to_owned()
-    } else {
-        field
-    };
-    format!("{field}: {rest}")
+    format!("{}: {rest}", world_field(field))
 }
 
 #[cfg(test)]
@@ -463,11 +455,11 @@ mod tests {
              [[world.obstacle]]\nid = \"b\"\ncircle = { center_m = [1, 0], radius_m = -0.1 }\n",
         )
         .unwrap_err();
-        assert!(e.starts_with("world.obstacle[1].circle.radius_m: "), "{e}");
+        assert!(e.starts_with("world.obstacle[2].circle.radius_m: "), "{e}");
         let e =
             toml_of("[[world.obstacle]]\nid = \"a\"\npolygon = { points_m = [[0, 0], [1, 0]] }\n")
                 .unwrap_err();
-        assert!(e.starts_with("world.obstacle[0].polygon.points_m: "), "{e}");
+        assert!(e.starts_with("world.obstacle[1].polygon.points_m: "), "{e}");
         let e =
             toml_of("[[world.obstacle]]\nid = \"a\"\ncircle = { center = [0, 0], radius_m = 1 }\n")
                 .unwrap_err();
@@ -477,7 +469,39 @@ mod tests {
         let e = toml_of("[bus]\nport = \"x\"\n").unwrap_err();
         assert!(e.contains("no [world] table"), "{e}");
         let e = toml_of("[[world.obstacle]]\nid = \"a\"\n").unwrap_err();
-        assert!(e.starts_with("world.obstacle[0]: missing its shape"), "{e}");
+        assert!(e.starts_with("world.obstacle[1]: missing its shape"), "{e}");
+    }
+
+    #[test]
+    fn a_toml_world_names_a_bad_field_as_loading_the_config_does() {
+        // The shipped world with its post's radius, then the post's centre x, then the shelf's
+        // fourth point made bad: `snakectl run` and `snakectl world set` on the same file must
+        // name the same field.
+        let shipped = include_str!("../../config/world.toml");
+        for (from, to) in [
+            ("radius_m = 0.04 }", "radius_m = -0.04 }"),
+            ("center_m = [0.15, 0.60]", "center_m = [inf, 0.60]"),
+            ("[-0.6, 0.34]]", "[-0.6, 0.3]]"),
+        ] {
+            assert!(shipped.contains(from), "{from}");
+            let text = shipped.replacen(from, to, 1);
+            let loaded = snakectl::config::Config::from_str(&text, "w.toml")
+                .unwrap_err()
+                .to_string();
+            let field = loaded
+                .strip_prefix("w.toml: ")
+                .and_then(|rest| rest.split_once(": "))
+                .map(|(field, _)| field)
+                .unwrap_or_else(|| panic!("{loaded}"));
+            let e = toml_of(&text).unwrap_err();
+            assert!(e.starts_with(&format!("{field}: ")), "{e} / {loaded}");
+        }
+        let e = toml_of(
+            "[[world.obstacle]]\nid = \"a\"\ncircle = { center_m = [0, 0], radius_m = 0.1 }\n\
+             [[world.obstacle]]\nid = \"b\"\n",
+        )
+        .unwrap_err();
+        assert!(e.starts_with("world.obstacle[2]: missing its shape"), "{e}");
     }
 
     #[test]

@@ -201,6 +201,9 @@ pub struct Contact {
 
 /// The fastest control rate accepted, Hz.
 pub const MAX_RATE_HZ: f64 = 2000.0;
+/// The lowest loop rate: a tick's `dt` is capped at a second ([`crate::control::MAX_DT_S`]), so
+/// a slower loop would run every motion slower than asked.
+pub const MIN_RATE_HZ: f64 = 1.0;
 
 /// The validated `[server]` (defaults when the table is absent).
 #[derive(Debug, Clone, PartialEq)]
@@ -380,7 +383,7 @@ impl Config {
 /// A field path of [`World::new`] (`obstacles[2].polygon.points[4]`, indices from 0) as the
 /// file names it (`world.obstacle[3].polygon.points_m[5]`, counted from 1 as every list of the
 /// config is).
-fn world_field(field: &str) -> String {
+pub fn world_field(field: &str) -> String {
     /// `NAME[i]rest` -> (i, rest).
     fn index<'a>(s: &'a str, name: &str) -> Option<(usize, &'a str)> {
         let s = s.strip_prefix(name)?.strip_prefix('[')?;
@@ -981,11 +984,16 @@ impl Checker<'_> {
             F::Disconnect { at_s, until_s, .. } => (FaultKind::Disconnect, None, at_s, until_s),
             F::Blocked { id, at_s, until_s } => (FaultKind::Blocked, Some(id), at_s, until_s),
         };
-        if let Some(id) = id {
-            if !joints.iter().any(|j| j.id == Some(id)) {
-                return Err(self.invalid(field("id"), FieldProblem::UnknownId { id }));
-            }
-        }
+        let id = match id {
+            None => None,
+            Some(wide) => match u8::try_from(wide) {
+                Ok(id) if joints.iter().any(|j| j.id == Some(id)) => Some(id),
+                Ok(id) if (MIN_SERVO_ID..=MAX_ID).contains(&id) => {
+                    return Err(self.invalid(field("id"), FieldProblem::UnknownId { id }))
+                }
+                _ => return Err(self.invalid(field("id"), FieldProblem::BadId { value: wide })),
+            },
+        };
         let from = self.seconds(field("at_s"), at_s)?;
         let until = match until_s {
             Some(until_s) if !(finite_within(until_s) && until_s > at_s) => {
@@ -1231,12 +1239,12 @@ impl Checker<'_> {
 
     fn control(&self, raw: &RawControl) -> Result<Control, ConfigError> {
         let rate_hz = self.positive("control.rate_hz", raw.rate_hz)?;
-        if rate_hz > MAX_RATE_HZ {
+        if !(MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz) {
             return Err(self.invalid(
                 "control.rate_hz",
                 FieldProblem::Outside {
                     value: rate_hz,
-                    lo: 0.0,
+                    lo: MIN_RATE_HZ,
                     hi: MAX_RATE_HZ,
                 },
             ));
@@ -1340,7 +1348,20 @@ impl Checker<'_> {
             )),
             (None, Some(reads)) => {
                 let read_period_s = f64::from(raw.read_every) / rate_hz;
-                let silence = Duration::from_secs_f64(f64::from(reads) * read_period_s);
+                // Read as `max_silence_ms`, so within what that field holds.
+                let silence_s = f64::from(reads) * read_period_s;
+                if silence_s > f64::from(u32::MAX) / 1e3 {
+                    return Err(self.invalid(
+                        "control.max_missed_reads",
+                        FieldProblem::OutOfRange {
+                            value: reads.into(),
+                            expected: "reads at the read rate (read_every / rate_hz) last \
+                                       longer than control.max_silence_ms can say \
+                                       (4294967295 ms)",
+                        },
+                    ));
+                }
+                let silence = Duration::from_secs_f64(silence_s);
                 tracing::warn!(
                     "{}: control.max_missed_reads = {reads} is deprecated; read as \
                      control.max_silence_ms = {} (that many reads at the read rate): \

@@ -243,9 +243,9 @@ pub enum Fault {
     Drop {
         /// Fraction of replies lost, 0..=1.
         fraction: f64,
-        /// Servo affected; all when absent.
+        /// Servo affected; all when absent. Read wide so a bad value can be quoted.
         #[serde(default)]
-        id: Option<u8>,
+        id: Option<i64>,
         /// Start, seconds.
         #[serde(default)]
         at_s: f64,
@@ -257,9 +257,9 @@ pub enum Fault {
     Corrupt {
         /// Fraction of replies corrupted, 0..=1.
         fraction: f64,
-        /// Servo affected; all when absent.
+        /// Servo affected; all when absent. Read wide so a bad value can be quoted.
         #[serde(default)]
-        id: Option<u8>,
+        id: Option<i64>,
         /// Start, seconds.
         #[serde(default)]
         at_s: f64,
@@ -271,9 +271,9 @@ pub enum Fault {
     Latency {
         /// Extra delay per reply, microseconds.
         extra_us: u32,
-        /// Servo affected; all when absent.
+        /// Servo affected; all when absent. Read wide so a bad value can be quoted.
         #[serde(default)]
-        id: Option<u8>,
+        id: Option<i64>,
         /// Start, seconds.
         #[serde(default)]
         at_s: f64,
@@ -283,8 +283,8 @@ pub enum Fault {
     },
     /// One servo stops answering (unplugged, or its id changed).
     Silent {
-        /// Servo affected.
-        id: u8,
+        /// Servo affected; read wide so a bad value can be quoted.
+        id: i64,
         /// Start, seconds.
         at_s: f64,
         /// End, seconds.
@@ -293,8 +293,8 @@ pub enum Fault {
     },
     /// One servo raises a hardware error and, like a real one, drops torque until rebooted.
     HardwareError {
-        /// Servo affected.
-        id: u8,
+        /// Servo affected; read wide so a bad value can be quoted.
+        id: i64,
         /// When, seconds.
         at_s: f64,
         /// Which error.
@@ -303,8 +303,8 @@ pub enum Fault {
     /// One servo's shaft is blocked (something in its way): it stays where it was when the block
     /// began while the servo pushes toward its goal, its load rising as a stalled servo's.
     Blocked {
-        /// Servo affected.
-        id: u8,
+        /// Servo affected; read wide so a bad value can be quoted.
+        id: i64,
         /// Start, seconds.
         #[serde(default)]
         at_s: f64,

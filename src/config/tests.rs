@@ -1382,3 +1382,50 @@ fn foxglove_refusals_name_the_field() {
         &["listen_port"],
     );
 }
+
+#[test]
+fn a_loop_rate_below_one_hertz_and_a_read_budget_beyond_the_silence_field_are_refused() {
+    // 1e-20 Hz is positive and finite, but its period, 1e20 s, is beyond any `Duration` (the
+    // loop's schedule and the recorder panicked converting it); below 1 Hz the tick's `dt`,
+    // capped at a second, would run every motion slower than asked.
+    let slow = |control: &str| {
+        base_text()
+            .replacen("publish_hz = 25.0\n", "", 1)
+            .replacen("rate_hz = 100.0", control, 1)
+    };
+    for bad in ["1e-20", "0.5"] {
+        refused(
+            &slow(&format!("rate_hz = {bad}")),
+            &["control.rate_hz", "[1, 2000]"],
+        );
+    }
+    assert!(load(&slow("rate_hz = 1.0")).is_ok());
+    // The deprecated budget, read as `max_silence_ms`, must fit that field (and a `Duration`:
+    // its conversion panicked).
+    let msg = std::panic::catch_unwind(|| {
+        load(&slow(
+            "rate_hz = 1.0\nread_every = 4294967295\nmax_missed_reads = 4294967295",
+        ))
+        .map_err(|e| e.to_string())
+    })
+    .expect("the deprecated budget's conversion must not panic")
+    .expect_err("the text should be refused");
+    assert!(msg.starts_with(FILE), "{msg}");
+    assert!(msg.contains("control.max_missed_reads"), "{msg}");
+    assert!(msg.contains("4294967295 ms"), "{msg}");
+}
+
+#[test]
+fn a_fault_s_servo_id_out_of_range_is_named_with_its_value() {
+    for (fault, bad) in [
+        ("kind = \"silent\"\nid = 300\nat_s = 1.0", "300"),
+        ("kind = \"drop\"\nfraction = 0.5\nid = -1", "-1"),
+        ("kind = \"blocked\"\nid = 256", "256"),
+    ] {
+        refused(&with_fault(fault), &["sim.fault[1].id", bad, "1..=252"]);
+    }
+    refused(
+        &with_fault("kind = \"silent\"\nid = 9\nat_s = 1.0"),
+        &["sim.fault[1].id", "9", "not the id of any"],
+    );
+}

@@ -202,6 +202,9 @@ enum Owed {
     Line(String),
     /// The `subscribed` reply: once it is written, telemetry starts at `rate_hz`.
     Subscribed { line: String, rate_hz: f64 },
+    /// The `unsubscribed` reply: telemetry stops as it is written (not before the replies
+    /// owed ahead of it, a `subscribe`'s among them).
+    Unsubscribed(String),
     /// The loop's answer to come.
     Loop {
         id: Option<RequestId>,
@@ -238,8 +241,35 @@ impl Answers {
     fn front_ready(&self) -> bool {
         matches!(
             self.owed.front(),
-            Some(Owed::Line(_) | Owed::Subscribed { .. })
+            Some(Owed::Line(_) | Owed::Subscribed { .. } | Owed::Unsubscribed(_))
         )
+    }
+
+    /// Puts in their places the loop's answers already in, wherever they wait in the queue,
+    /// so that only commands the loop has not answered count against the shares.
+    fn settle_answered(&mut self, fill: impl Fn(Option<RequestId>, Answer) -> String) {
+        let (mut commands, mut stops, mut estops) = (0, 0, 0);
+        for owed in &mut self.owed {
+            let Owed::Loop { answer, flight, .. } = owed else {
+                continue;
+            };
+            let answer = match answer.try_recv() {
+                Ok(answer) => answer,
+                Err(oneshot::error::TryRecvError::Empty) => continue,
+                Err(oneshot::error::TryRecvError::Closed) => Err(stopped()),
+            };
+            match flight {
+                Flight::Command => commands += 1,
+                Flight::Stop => stops += 1,
+                Flight::Estop => estops += 1,
+            }
+            if let Owed::Loop { id, .. } = std::mem::replace(owed, Owed::Line(String::new())) {
+                *owed = Owed::Line(fill(id, answer));
+            }
+        }
+        self.commands -= commands;
+        self.stops -= stops;
+        self.estops -= estops;
     }
 
     /// Waits for the loop's answer to the first request and puts its line in its place
@@ -363,6 +393,11 @@ impl Session<'_> {
                 // writer sends queued lines first: the reply precedes the first telemetry line.
                 permit.send(line);
                 self.rate.send_replace(Some(rate_hz));
+            }
+            Some(Owed::Unsubscribed(line)) => {
+                // The other way round: no telemetry line follows the reply.
+                self.rate.send_replace(None);
+                permit.send(line);
             }
             Some(owed @ Owed::Loop { .. }) => self.answers.owed.push_front(owed),
             None => {}
@@ -510,9 +545,9 @@ impl Session<'_> {
                     return self.owe(Owed::Subscribed { line, rate_hz });
                 }
                 SessionCmd::Unsubscribe => {
-                    // The other way round: no telemetry line follows the reply.
-                    self.rate.send_replace(None);
-                    Ok(Reply::Unsubscribed(Unsubscribed {}).into())
+                    let reply = Reply::Unsubscribed(Unsubscribed {}).into();
+                    let line = protocol::ok_line(id.as_deref(), &reply);
+                    return self.owe(Owed::Unsubscribed(line));
                 }
                 SessionCmd::TakeControl => Ok(self.take_control(id.as_ref())),
                 SessionCmd::Release => Ok(self.release(id.as_ref())),
@@ -578,6 +613,11 @@ impl Session<'_> {
             Flight::Stop => (STOPS_IN_FLIGHT, "`stop`s"),
             Flight::Estop => (STOPS_IN_FLIGHT, "`estop`s"),
         };
+        if *self.answers.waiting(flight) >= share {
+            let (shared, me) = (self.shared, self.id);
+            self.answers
+                .settle_answered(|id, answer| reply(shared, me, id, answer));
+        }
         let refused = if *self.answers.waiting(flight) >= share {
             Rejection::new(
                 Code::Busy,

@@ -38,27 +38,36 @@ impl Viewer<'_> {
     }
 }
 
-/// Writes `bytes` and flushes them, or fails with `TimedOut` when the client has not taken them
-/// within `patience`.
+/// Writes `bytes` and flushes them, or fails with `TimedOut` when the client has taken nothing
+/// for `patience`: each step of the write must make progress within it, not the whole, so a
+/// client that reads steadily, however slowly, is not cut off.
 async fn send<W: AsyncWrite + Unpin>(
     sink: &mut W,
     bytes: &[u8],
     patience: Duration,
 ) -> io::Result<()> {
-    let written = time::timeout(patience, async {
-        sink.write_all(bytes).await?;
-        sink.flush().await
-    })
-    .await;
-    written.unwrap_or_else(|_| {
-        Err(io::Error::new(
+    let stalled = || {
+        io::Error::new(
             io::ErrorKind::TimedOut,
             format!(
                 "the client has not read for {} s while lines wait for it",
                 patience.as_secs_f64()
             ),
-        ))
-    })
+        )
+    };
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        let written = time::timeout(patience, sink.write(rest))
+            .await
+            .map_err(|_| stalled())??;
+        if written == 0 {
+            return Err(io::ErrorKind::WriteZero.into());
+        }
+        rest = &rest[written..];
+    }
+    time::timeout(patience, sink.flush())
+        .await
+        .map_err(|_| stalled())?
 }
 
 /// Sends a client's queued lines and, while subscribed, its telemetry, until the queue closes
@@ -165,5 +174,40 @@ mod tests {
         let e = ended.err().map(|e| e.kind());
         assert_eq!(e, Some(io::ErrorKind::TimedOut));
         assert_eq!(started.elapsed(), SLOW_READER);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_reader_that_keeps_reading_slowly_is_not_cut_off() {
+        use tokio::io::AsyncReadExt;
+
+        // A pipe of 4 KiB, read 4 KiB every 200 ms: never 2 s without reading, but 80 KB of
+        // lines take 4 s to go through.
+        let (sink, mut source) = tokio::io::duplex(4096);
+        let reader = tokio::spawn(async move {
+            let mut got = 0usize;
+            let mut buf = [0u8; 4096];
+            loop {
+                time::sleep(Duration::from_millis(200)).await;
+                match source.read(&mut buf).await {
+                    Ok(0) | Err(_) => return got,
+                    Ok(n) => got += n,
+                }
+            }
+        });
+        let (tx, rx) = mpsc::channel(4);
+        let (_t, telemetry) = watch::channel(Telemetry::default());
+        let (_r, rate) = watch::channel(None);
+        let shared = super::super::tests::shared();
+        let viewer = Viewer {
+            id: 1,
+            shared: &shared,
+        };
+        let line = format!("{}\n", "x".repeat(40_000 - 1));
+        tx.send(line.clone()).await.unwrap();
+        tx.send(line).await.unwrap();
+        drop(tx);
+        let ended = write_loop(sink, rx, telemetry, rate, viewer, SLOW_READER).await;
+        assert!(ended.is_ok(), "{ended:?}");
+        assert_eq!(reader.await.unwrap(), 80_000);
     }
 }
