@@ -57,9 +57,12 @@
 //!    an obstacle, or whose tip advances less than [`HEADWAY_M`] in [`HEADWAY_S`], ends
 //!    [`Finish::Blocked`].
 //! 6. The motion **follows** what was achieved: a shortened step moves the reference back onto
-//!    the arm, with the velocity the arm really had, so it never runs ahead. A goto, path or
-//!    joint move that makes no progress for [`crate::motion::STALL_TICKS`] saturated ticks
-//!    ends with one [`Finish::Saturated`].
+//!    the arm, with the velocity the arm really had, so it never runs ahead. A goto or path
+//!    among obstacles goes on along its route from the arm's tip, however far off its way a
+//!    clamped or cut step left it. Every tick's tip reference thus starts on the arm and asks
+//!    it to move at most the tip speed limit. A goto, path or joint move that makes no
+//!    progress for [`crate::motion::STALL_TICKS`] saturated ticks ends with one
+//!    [`Finish::Saturated`].
 //!
 //! A `GotoJoints` whose target pose itself self-intersects is refused
 //! ([`Refused::SelfCollision`]): it could never arrive. So is a home pose that does, when the

@@ -18,10 +18,13 @@
 //!
 //! After each tick the controller reports what the arm achieved ([`Achieved`]): when it fell
 //! short of the reference (out of reach, slowed for the joint-speed bound, clamped), the state
-//! follows the achieved pose and velocity, so the reference never runs ahead of the arm. A goto
-//! or path whose reference keeps being out of reach with no progress ends
-//! [`Finish::Saturated`] after [`STALL_TICKS`] such ticks; so does a joint move (goto_joints,
-//! home) that keeps being cut short (by a pose on its way that the controller will not send).
+//! follows the achieved pose and velocity, so the reference never runs ahead of the arm. A
+//! route goes on from the arm too, however far off its way the arm ended: the segment it was
+//! on starts at the arm's tip instead. Every tick's tip reference therefore starts on the arm
+//! and moves at most the tip speed limit from it. A goto or path whose reference keeps being
+//! out of reach with no progress ends [`Finish::Saturated`] after [`STALL_TICKS`] such ticks;
+//! so does a joint move (goto_joints, home) that keeps being cut short (by a pose on its way
+//! that the controller will not send).
 //!
 //! Nothing here allocates after [`Motion::new`] (a path's points are moved in, not copied), and
 //! nothing reads a clock: time enters as `dt`.
@@ -724,12 +727,48 @@ impl Motion {
         Reference::Joints
     }
 
+    /// A route whose arm fell short of (or off) its reference goes on from where the arm is:
+    /// the segment `seg` (toward the stop `end`) starts at the arm's tip `tip` instead, the
+    /// arc lengths of the points after it follow, and the route's arc length and its rate are
+    /// the arm's: at the segment's start, at the arm's speed along it (`step` over `dt`, none
+    /// backward, at most the tip speed limit). The reference is then on the arm, so the next
+    /// tick's step starts there and keeps the tip speed limit however far the arm left the
+    /// route (a joint step clamped to the joint speed bound, or cut short for a clearance,
+    /// can take it far off).
+    fn rejoin(&mut self, seg: usize, end: usize, tip: Vec2, step: Vec2, dt: f64) {
+        if seg >= end {
+            return;
+        }
+        let (Some(&next), Some(&at), Some(&then)) = (
+            self.path.get(seg + 1),
+            self.cum.get(seg),
+            self.cum.get(seg + 1),
+        ) else {
+            return;
+        };
+        let len = (next - tip).norm();
+        let shift = len - (then - at);
+        self.path[seg] = tip;
+        for c in &mut self.cum[seg + 1..] {
+            *c += shift;
+        }
+        self.s.q = at;
+        let along = if len > 0.0 {
+            step.dot(&((next - tip) / len)) / dt
+        } else {
+            0.0
+        };
+        self.s.v = along.clamp(0.0, self.limits.tip_speed);
+    }
+
     /// Takes in what the arm achieved this tick (after [`Motion::step`]); returns how the
     /// active command ended, if it did (the motion then holds).
     ///
     /// An exact tick keeps the reference as stepped and confirms a pending finish; otherwise
     /// the reference of the active space jumps to what was achieved, with the velocity that
-    /// took it there. The other space's reference always follows the arm.
+    /// took it there (a tip velocity at most the tip speed limit), and a route goes on from
+    /// the arm's tip: its segment starts there. The other space's reference always follows
+    /// the arm.
     pub fn follow(&mut self, got: Achieved) -> Option<Finish> {
         let dt = got.dt;
         let asked = (self.tip.p - self.before.p).norm();
@@ -783,7 +822,8 @@ impl Motion {
                 a.q = t;
             }
         }
-        // A route's arc length follows the tip along its segment.
+        // A route: the arm's progress is its step along the way; the way on starts at the arm.
+        let mut along_route = 0.0;
         if let Mode::Route {
             mut seg,
             end,
@@ -792,11 +832,15 @@ impl Motion {
         {
             if !got.exact {
                 let (_, dir) = self.route_point(&mut seg, end, self.s_before.q);
-                let along = (got.tip - self.before.p).dot(&dir).max(0.0);
                 let goal = self.cum.get(end).copied().unwrap_or(self.s_before.q);
-                self.s.q = (self.s_before.q + along).min(goal);
-                self.s.v = along / dt;
+                along_route = (got.tip - self.before.p)
+                    .dot(&dir)
+                    .max(0.0)
+                    .min(goal - self.s_before.q);
+                self.s.q = self.s_before.q + along_route;
+                self.s.v = (along_route / dt).min(self.limits.tip_speed);
                 let (_, _) = self.route_point(&mut seg, end, self.s.q);
+                self.rejoin(seg, end, got.tip, got.tip - self.before.p, dt);
                 self.mode = Mode::Route { seg, end, speed };
             }
         }
@@ -804,7 +848,7 @@ impl Motion {
         // gives up.
         let route = matches!(self.mode, Mode::Route { .. });
         let stalled = match (got.saturated, self.tip_goal()) {
-            (true, Some(_)) if route => Some(self.s.q - self.s_before.q <= 0.25 * asked),
+            (true, Some(_)) if route => Some(along_route <= 0.25 * asked),
             (true, Some(goal)) => {
                 let progress = (goal - self.before.p).norm() - (goal - got.tip).norm();
                 Some(progress <= 0.25 * asked)
@@ -1128,6 +1172,68 @@ mod tests {
         assert_eq!(finish, Some(Finish::Arrived));
         // At rest only at the leg ends: the corners in between are passed moving.
         assert_eq!(rests, vec![Vec2::new(0.02, 0.01), Vec2::zeros()]);
+    }
+
+    /// An arm put far off its route by a tick that fell short (a clamped joint step) goes on
+    /// from where it is: the next reference starts on the arm, every step keeps the tip speed
+    /// limit, and the route still ends on its stop.
+    #[test]
+    fn a_route_left_by_the_arm_goes_on_from_the_arm() {
+        let lim = limits();
+        let mut m = Motion::new(lim, &[None], Vec2::zeros(), &[0.0]);
+        let goal = Vec2::new(0.05, 0.0);
+        let points = vec![Vec2::zeros(), Vec2::new(0.02, 0.0), goal];
+        m.route(points, vec![true, false, true], 1.0);
+        let theta = [0.0];
+        let dt = 0.01;
+        for _ in 0..5 {
+            let _ = m.step(dt);
+            let got = Achieved {
+                tip: m.tip().p,
+                theta: &theta,
+                dt,
+                exact: true,
+                saturated: false,
+            };
+            assert_eq!(m.follow(got), None);
+        }
+        // One tick falls short far off the way, and faster than the tip speed limit.
+        let _ = m.step(dt);
+        let off = Vec2::new(0.0, 0.03);
+        let got = Achieved {
+            tip: off,
+            theta: &theta,
+            dt,
+            exact: false,
+            saturated: true,
+        };
+        assert_eq!(m.follow(got), None);
+        assert_eq!(m.tip().p, off);
+        let mut arm = off;
+        let mut finish = None;
+        for k in 0..10_000 {
+            let _ = m.step(dt);
+            let p = m.tip().p;
+            assert!(
+                (p - arm).norm() <= lim.tip_speed * dt * (1.0 + 1e-12),
+                "tick {k}: the reference {p:?} is {} from the arm {arm:?}",
+                (p - arm).norm()
+            );
+            arm = p;
+            let got = Achieved {
+                tip: p,
+                theta: &theta,
+                dt,
+                exact: true,
+                saturated: false,
+            };
+            if let Some(f) = m.follow(got) {
+                finish = Some(f);
+                break;
+            }
+        }
+        assert_eq!(finish, Some(Finish::Arrived));
+        assert_eq!(arm, goal);
     }
 
     #[test]
