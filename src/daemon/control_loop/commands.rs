@@ -218,9 +218,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         })
     }
 
-    /// `stop`: decelerate to rest and hold (nothing to do under the estop latch).
+    /// `stop`: decelerate to rest and hold (nothing to do under the estop latch or a fault,
+    /// which hold the arm already: the recovery holds the measured pose).
     fn stop(&mut self, e: &Envelope) -> Pending {
-        if !self.supervisor.estopped() {
+        if self.supervisor.moves() {
             if let Err(r) = self.controller.command(control::Command::Stop) {
                 return refuse(Code::BadArg, r.to_string());
             }
@@ -299,13 +300,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// Write, confirmed within this tick by the servos that answer (the silent ones are not
     /// waited on, and named in the log).
     fn estop(&mut self, e: &Envelope) {
+        let torque_off = self.on_exit == OnExit::TorqueOff;
         if self.supervisor.estopped() {
+            // A latch that kept torque on (a contact's) is no estop's: torque off all the same.
+            if torque_off && self.supervisor.torque() {
+                tracing::warn!("estop under the latch: torque off");
+                self.supervisor.estop(true);
+                self.torque_off_all("estop");
+            }
             return;
         }
         self.controller.freeze();
         self.ledger.estop();
         tracing::warn!("estop: goals frozen");
-        let torque_off = self.on_exit == OnExit::TorqueOff;
         self.supervisor.estop(torque_off);
         if torque_off {
             self.torque_off_all("estop");
@@ -363,6 +370,12 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         if let Err(err) = self.arm.torque_on(self.port.bus(), &[], &within) {
+            if self.supervisor.torque() {
+                // A failed torque on switches every servo off, those a latch kept on too (a
+                // contact's): the latch stays with torque off, confirmed as for an estop.
+                self.supervisor.set_torque(false);
+                self.torque_off_all("reset failed");
+            }
             return refuse(
                 Code::Fault,
                 format!("reset: torque on failed: {err}; the latch stays"),

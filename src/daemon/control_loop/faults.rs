@@ -172,9 +172,12 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let mut back = self.health.back_from_silence();
         let power_lost = self.health.power_lost();
         for i in std::mem::take(&mut self.unmapped) {
-            let held = self.ids.get(i).is_some_and(|id| power_lost.contains(id));
-            if !back.contains(&i) && !held {
-                back.push(i);
+            match self.ids.get(i).copied() {
+                // Held for a power loss already, it lost power once more: its RAM is written
+                // again, the latch holds on.
+                Some(id) if power_lost.contains(&id) => self.restore_again(id),
+                _ if !back.contains(&i) => back.push(i),
+                _ => {}
             }
         }
         if back.is_empty() {
@@ -262,6 +265,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 self.torque_off_all("power loss");
             }
             self.event(None, None, |tip| What::Estop { tip });
+        } else if self.on_exit == OnExit::TorqueOff && self.supervisor.torque() {
+            // Latched already, with torque kept on (a contact): off as for the estop.
+            self.supervisor.estop(true);
+            self.torque_off_all("power loss");
         }
         let tick = self.tick;
         for (i, what) in lost {
@@ -280,6 +287,21 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             );
             tracing::warn!(id, "servo lost power: the arm is latched until `reset`");
             self.raise(i, JointFault::PowerLoss, tick, detail);
+        }
+    }
+
+    /// Servo `id`, held for a power loss, lost its RAM again: written again as bring-up did
+    /// (torque stays off); a failure is tried again on its next answer, which reads unmapped.
+    fn restore_again(&mut self, id: u8) {
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        match self.arm.restore_ram(self.port.bus(), id, &within) {
+            Ok(()) => tracing::warn!(id, "servo lost power again: its settings written again"),
+            Err(e) => {
+                tracing::warn!(
+                    id,
+                    "servo lost power again: writing its settings failed ({e})"
+                )
+            }
         }
     }
 

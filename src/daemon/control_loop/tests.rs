@@ -1513,3 +1513,148 @@ fn a_stalled_recording_does_not_stall_the_loop_and_its_drops_are_counted() {
     }
     drop(rescue);
 }
+
+#[test]
+fn a_stop_sent_while_a_fault_holds_does_not_stay_the_active_command_after_recovery() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(3);
+    declare_silent(&mut rig, 5);
+    assert_eq!(rig.status().state, State::Fault);
+    rig.command(LoopCmd::Stop).unwrap();
+    rig.ticks(5);
+    // The servo answers again: recovered, holding the measured pose.
+    rig.bus.servo(5, |s| s.silent = false);
+    rig.ticks(5);
+    let s = rig.status();
+    assert_eq!(s.state, State::Holding);
+    let command = s.command.expect("a command to report");
+    assert_ne!(
+        command.outcome,
+        Outcome::Active,
+        "the arm holds, yet the command reads active: {command:?}"
+    );
+    rig.events();
+    // The next command preempts nothing: nothing was moving the arm.
+    rig.slow_goto();
+    let events = rig.events();
+    assert!(
+        !events
+            .iter()
+            .any(|e| matches!(e.what, What::Preempted { .. })),
+        "{events:?}"
+    );
+}
+
+#[test]
+fn an_estop_under_a_contact_latch_turns_torque_off() {
+    let mut rig = Rig::with_tables(100.0, "", "\n[world]\ncontact_load = 40\ncontact_ms = 50\n");
+    // Joint 1 pushes against something: Present Load 50 %.
+    rig.bus.servo(1, |s| s.set(Register::PresentCurrent, 500));
+    rig.ticks(10);
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Estop, true), "{:?}", s.faults);
+    assert!(s.faults.iter().any(|f| f.kind == FaultKind::Contact));
+    rig.events();
+    // The user's estop: torque off, as `[bus] on_exit = "torque_off"` says.
+    rig.command(LoopCmd::Estop).unwrap();
+    let s = rig.status();
+    assert_eq!(s.state, State::Estop);
+    assert!(!s.torque, "telemetry says torque on after the estop");
+    for id in 1..=12 {
+        assert_eq!(
+            rig.bus.torque(id),
+            0,
+            "servo {id} torque on after the estop"
+        );
+    }
+    // `reset` brings it back.
+    rig.bus.servo(1, |s| s.set(Register::PresentCurrent, 0));
+    rig.command(LoopCmd::Reset).unwrap();
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Holding, true));
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+}
+
+#[test]
+fn a_power_loss_under_a_contact_latch_turns_torque_off() {
+    let mut rig = Rig::with_tables(100.0, "", "\n[world]\ncontact_load = 40\ncontact_ms = 50\n");
+    rig.bus.servo(1, |s| s.set(Register::PresentCurrent, 500));
+    rig.ticks(10);
+    assert_eq!(rig.status().state, State::Estop);
+    assert!(rig.status().torque, "a contact keeps torque on");
+    rig.bus.lose_power(5);
+    rig.ticks(20);
+    rig.bus.power_back(5);
+    rig.ticks(1);
+    let s = rig.status();
+    assert!(
+        s.faults.iter().any(|f| f.kind == FaultKind::PowerLoss),
+        "{:?}",
+        s.faults
+    );
+    assert_eq!(s.state, State::Estop);
+    assert!(!s.torque, "telemetry says torque on after a power loss");
+    for id in 1..=12 {
+        assert_eq!(
+            rig.bus.torque(id),
+            0,
+            "servo {id} torque on after a power loss"
+        );
+    }
+}
+
+#[test]
+fn a_reset_that_fails_under_a_contact_latch_tells_the_torque_it_left() {
+    let mut rig = Rig::with_tables(100.0, "", "\n[world]\ncontact_load = 40\ncontact_ms = 50\n");
+    rig.bus.servo(1, |s| s.set(Register::PresentCurrent, 500));
+    rig.ticks(10);
+    let s = rig.status();
+    assert_eq!((s.state, s.torque), (State::Estop, true));
+    rig.bus.servo(1, |s| s.set(Register::PresentCurrent, 0));
+    // Servo 9 drops off the bus as the reset's torque on holds servo 1's present position.
+    let present = rig.bus.wire().servos[&1].get(Register::PresentPosition);
+    rig.bus.wire().mute_on = Some((Register::GoalPosition, present, 1, 9));
+    let refused = rig.command(LoopCmd::Reset).unwrap_err();
+    assert_eq!(refused.code, Code::Fault, "{refused}");
+    rig.bus.wire().mute_on = None;
+    let s = rig.status();
+    assert_eq!(s.state, State::Estop, "the latch stays");
+    let on: Vec<u8> = (1..=12).filter(|&id| rig.bus.torque(id) == 1).collect();
+    assert_eq!(
+        s.torque,
+        on.len() == 12,
+        "telemetry says torque {} with torque on for servos {on:?}",
+        s.torque
+    );
+}
+
+#[test]
+fn a_servo_that_loses_power_again_while_latched_has_its_ram_written_again() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(3);
+    rig.bus.lose_power(5);
+    rig.ticks(20);
+    rig.bus.power_back(5);
+    rig.ticks(1);
+    assert_eq!(rig.status().state, State::Estop);
+    let armed = rig.bus.wire().servos[&1].get(Register::BusWatchdog);
+    assert_eq!(rig.bus.wire().servos[&5].get(Register::BusWatchdog), armed);
+    // Latched for it, it loses power once more and comes back.
+    rig.bus.lose_power(5);
+    rig.ticks(20);
+    rig.bus.power_back(5);
+    rig.ticks(3);
+    let s = rig.status();
+    assert_eq!(s.state, State::Estop);
+    let w = rig.bus.wire();
+    let servo = &w.servos[&5];
+    assert_eq!(
+        (
+            servo.get(Register::BusWatchdog),
+            servo.get(Register::IndirectAddress(1))
+        ),
+        (armed, 126),
+        "its RAM as the power loss left it"
+    );
+}
