@@ -15,6 +15,9 @@ pub mod overall;
 pub mod sequential;
 pub mod tractrix;
 
+#[cfg(test)]
+mod props;
+
 use crate::chain::{Chain, LimitViolation, Vec2};
 
 /// Which strategy resolves the redundancy.

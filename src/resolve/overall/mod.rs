@@ -115,6 +115,8 @@ const SAME_OPTIMUM_POSE: f64 = 1e-6;
 const JOIN_BEST_TIP: f64 = 1e-6;
 /// ...and its pose within this many rad of that optimum: from there it can only converge to it.
 const JOIN_BEST_POSE: f64 = 1e-4;
+/// Times a cold start's optimum is turned back toward `theta0` by whole turns and solved again.
+const MAX_TURN_BACKS: usize = 3;
 /// Half-width of the range of a random start's unlimited joint around `theta0`, rad: a
 /// quarter turn either way covers every bend without folding the arm back on itself.
 const UNLIMITED_START_SPREAD: f64 = std::f64::consts::FRAC_PI_2;
@@ -318,6 +320,8 @@ struct Work {
     best: Vec<f64>,
     /// Cold solves: the pose of the second-best optimum so far.
     second: Vec<f64>,
+    /// Cold solves: a converged pose kept while it is solved again turned toward `theta0`.
+    turned: Vec<f64>,
     /// The pose lent out by [`Resolver::scratch_pose`].
     stage: Vec<f64>,
 }
@@ -351,6 +355,7 @@ impl Work {
             &mut self.grad,
             &mut self.best,
             &mut self.second,
+            &mut self.turned,
             &mut self.stage,
         ] {
             *v = vec![0.0; n];
@@ -925,7 +930,10 @@ impl Overall {
         }
         self.prepare(chain);
         let p = self.problem(chain, theta0, target);
-        match self.closed_form_outside(&p, out) {
+        if let Some(o) = self.closed_form_outside(&p, out) {
+            return Err(o);
+        }
+        match self.closed_form_one_link(&p, out) {
             Some(o) => Err(o),
             None => Ok(p),
         }
@@ -1083,9 +1091,31 @@ impl Overall {
             }
             // A random start that runs into the best optimum so far is not followed further.
             self.w.watch_best = matches!(start, Start::Random { .. }) && podium.reached();
-            let l = self.local(&p, &mut mu, p.tol);
-            self.w.watch_best = false;
+            let mut l = self.local(&p, &mut mu, p.tol);
             total += l.iterations;
+            // A local path can end whole turns away from theta0: the same tip, a larger metric 3.
+            // Turned back, the pose is on target but no longer stationary; solved again from
+            // there, it settles on an optimum no farther from theta0.
+            for _ in 0..MAX_TURN_BACKS {
+                if !l.converged {
+                    break;
+                }
+                self.w.turned.copy_from_slice(&self.w.theta);
+                let converged_mu = mu;
+                if !self.nearest_turns(&p) {
+                    break;
+                }
+                mu = [0.0; 2];
+                let again = self.local(&p, &mut mu, p.tol);
+                total += again.iterations;
+                if !again.converged {
+                    self.w.theta.copy_from_slice(&self.w.turned);
+                    mu = converged_mu;
+                    break;
+                }
+                l = again;
+            }
+            self.w.watch_best = false;
             if l.exit == Exit::JoinedBest {
                 continue;
             }
@@ -1162,6 +1192,30 @@ impl Overall {
             }
         }
         Loaded::Ready { iterations: 0 }
+    }
+
+    /// Moves each joint of `w.theta` by whole turns to the value within its limits nearest
+    /// `theta0` (the tip stays where it is); true when some joint moved.
+    fn nearest_turns(&mut self, p: &Problem) -> bool {
+        let tau = 2.0 * std::f64::consts::PI;
+        let w = &mut self.w;
+        let mut moved = false;
+        for a in 0..w.n {
+            let (t, t0, lo, hi) = (w.theta[a], p.theta0[a], w.lo[a], w.hi[a]);
+            let mut c = nearest_representative(t, t0);
+            if c < lo {
+                c = lo + (t - lo).rem_euclid(tau);
+            } else if c > hi {
+                c = hi - (hi - t).rem_euclid(tau);
+            }
+            let c = c.clamp(lo, hi);
+            // Only whole turns count: a move of round-off is not one.
+            if (c - t).abs() > std::f64::consts::PI && (c - t0).abs() < (t - t0).abs() {
+                w.theta[a] = c;
+                moved = true;
+            }
+        }
+        moved
     }
 
     /// Loads `clip(theta0)` as the current iterate.
@@ -1342,6 +1396,47 @@ impl Overall {
             }
         }
         Some(self.finish(p, [0.0; 2], 0, false, out))
+    }
+
+    /// A one-link chain has no redundancy: its tip is on target only at the angle pointing at
+    /// it, and the answer is that angle's representative within the limits nearest `theta0`;
+    /// when none lies within them, the limit whose tip is closer (the nearer to `theta0` on a
+    /// tie); a target on the base, `clip(theta0)`. The iterative solve cannot tell such a pose
+    /// optimal (two tip rows for one joint leave no multiplier within the stationarity
+    /// tolerance), so it is answered here. `None` for longer chains.
+    fn closed_form_one_link(&mut self, p: &Problem, out: &mut [f64]) -> Option<Outcome> {
+        let chain = p.chain;
+        if chain.len() != 1 {
+            return None;
+        }
+        let d = p.target - chain.base();
+        let (lo, hi) = (self.w.lo[0], self.w.hi[0]);
+        let t0 = p.theta0[0];
+        let theta = if d.norm() == 0.0 {
+            t0.clamp(lo, hi)
+        } else {
+            let psi = bearing(d) - chain.heading();
+            if !(lo.is_finite() && hi.is_finite()) {
+                nearest_representative(psi, t0)
+            } else {
+                let tau = 2.0 * std::f64::consts::PI;
+                // The representatives within the limits run from `first` to `last`.
+                let first = lo + (psi - lo).rem_euclid(tau);
+                let last = hi - (hi - psi).rem_euclid(tau);
+                if first <= hi && first <= last {
+                    nearest_representative(psi, t0.clamp(first, last)).clamp(lo, hi)
+                } else {
+                    let (off_lo, off_hi) = (wrap_angle(lo - psi).abs(), wrap_angle(hi - psi).abs());
+                    if off_lo < off_hi || (off_lo == off_hi && (lo - t0).abs() <= (hi - t0).abs()) {
+                        lo
+                    } else {
+                        hi
+                    }
+                }
+            }
+        };
+        self.w.theta[0] = theta;
+        Some(self.finish(p, [0.0; 2], 0, true, out))
     }
 
     /// Forward kinematics and Jacobian at `w.theta`; returns `target - tip` and the

@@ -454,3 +454,66 @@ fn elastic_runs_stall_without_a_one_percent_cut() {
         assert!(!stall.elastic(1.0));
     }
 }
+
+#[test]
+fn one_link_chain_reaches_a_target_on_its_circle() {
+    // One link has no redundancy: the angle pointing at the target is the answer, within the
+    // limits nearest theta0, and a tick to it succeeds.
+    let unlimited = Chain::unlimited(vec![1.0], Vec2::zeros(), 0.0).unwrap();
+    let lim = Some(JointLimit { lo: -0.5, hi: 1.5 });
+    let limited = Chain::new(vec![1.0], Vec2::zeros(), 0.0, vec![lim]).unwrap();
+    for chain in [&unlimited, &limited] {
+        for angle in [1.0f64, 0.3, -0.4] {
+            let target = Vec2::new(angle.cos(), angle.sin());
+            for mode in [OverallMode::Local, OverallMode::Cold] {
+                let mut solver = Overall::new(OverallOptions {
+                    mode,
+                    ..OverallOptions::default()
+                });
+                let mut out = [0.0];
+                let o = solver.solve(chain, &[0.0], target, &mut out);
+                assert!(o.converged && o.reachable, "{angle} {mode:?}: {o:?}");
+                assert!((out[0] - angle).abs() < 1e-12, "{angle} {mode:?}: {out:?}");
+                let mut theta = [0.0];
+                solver.resolve(chain, &mut theta, target).unwrap();
+                assert!(
+                    (theta[0] - angle).abs() < 1e-12,
+                    "{angle} {mode:?}: {theta:?}"
+                );
+            }
+        }
+    }
+    // Within the limits, but the solve started from outside them on the far side.
+    let lim = Some(JointLimit { lo: 2.0, hi: 2.5 });
+    let chain = Chain::new(vec![0.7], Vec2::new(0.3, -0.2), 0.4, vec![lim]).unwrap();
+    let target = chain.tip(&[2.2]);
+    for mode in [OverallMode::Local, OverallMode::Cold] {
+        let mut solver = Overall::new(OverallOptions {
+            mode,
+            ..OverallOptions::default()
+        });
+        let mut out = [0.0];
+        let o = solver.solve(&chain, &[-2.9], target, &mut out);
+        assert!(o.converged && o.reachable, "{mode:?}: {o:?}");
+        assert!((out[0] - 2.2).abs() < 1e-12, "{mode:?}: {out:?}");
+    }
+}
+
+#[test]
+fn one_link_chain_out_of_reach_stops_at_the_nearer_limit() {
+    let lim = Some(JointLimit { lo: -0.5, hi: 1.5 });
+    let chain = Chain::new(vec![1.0], Vec2::zeros(), 0.0, vec![lim]).unwrap();
+    for (angle, expect) in [(2.0f64, 1.5), (-1.0, -0.5), (3.0, 1.5)] {
+        let target = Vec2::new(angle.cos(), angle.sin());
+        for mode in [OverallMode::Local, OverallMode::Cold] {
+            let mut solver = Overall::new(OverallOptions {
+                mode,
+                ..OverallOptions::default()
+            });
+            let mut out = [0.0];
+            let o = solver.solve(&chain, &[0.0], target, &mut out);
+            assert!(!o.converged && !o.reachable, "{angle} {mode:?}: {o:?}");
+            assert!((out[0] - expect).abs() < 1e-9, "{angle} {mode:?}: {out:?}");
+        }
+    }
+}

@@ -1,0 +1,419 @@
+//! Property tests of both resolvers against independent forward kinematics: the promises every
+//! answer keeps on random chains, starts and targets, edge cases included, and the cold overall
+//! optimum against the two elbows of a two-link chain.
+
+#![allow(clippy::unwrap_used, clippy::needless_range_loop)]
+
+use std::f64::consts::{PI, TAU};
+
+use proptest::prelude::*;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+use super::overall::{Overall, OverallMode, OverallOptions};
+use super::sequential::Sequential;
+use super::{ResolveError, Resolver};
+use crate::chain::{Chain, JointLimit, Vec2};
+
+/// Forward kinematics written out here: base, heading, links and relative angles to the tip.
+fn fk_tip(links: &[f64], base: Vec2, heading: f64, theta: &[f64]) -> Vec2 {
+    let mut phi = heading;
+    let (mut x, mut y) = (base.x, base.y);
+    for (l, t) in links.iter().zip(theta) {
+        phi += t;
+        x += l * phi.cos();
+        y += l * phi.sin();
+    }
+    Vec2::new(x, y)
+}
+
+fn tip_of(chain: &Chain, theta: &[f64]) -> Vec2 {
+    fk_tip(chain.links(), chain.base(), chain.heading(), theta)
+}
+
+fn within(chain: &Chain, theta: &[f64]) -> bool {
+    chain
+        .limits()
+        .iter()
+        .zip(theta)
+        .all(|(l, t)| t.is_finite() && l.is_none_or(|l| l.lo <= *t && *t <= l.hi))
+}
+
+fn scale(chain: &Chain) -> f64 {
+    chain.reach() + chain.base().norm()
+}
+
+struct Case {
+    chain: Chain,
+    theta0: Vec<f64>,
+    target: Vec2,
+    /// A pose within the limits whose tip is the target, when one is known.
+    witness: Option<Vec<f64>>,
+}
+
+fn random_case(seed: u64, n: usize, kind: u8) -> Case {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let unit = [0.01, 0.3, 1.0, 5.0][rng.gen_range(0..4)];
+    let mut links: Vec<f64> = (0..n).map(|_| unit * rng.gen_range(0.05..1.0)).collect();
+    if rng.gen_bool(0.2) {
+        let k = rng.gen_range(0..n);
+        links[k] *= n as f64;
+    }
+    let base = Vec2::new(rng.gen_range(-5.0..5.0), rng.gen_range(-5.0..5.0));
+    let heading = rng.gen_range(-10.0..10.0);
+    let p_limit = [0.0, 0.5, 1.0][rng.gen_range(0..3)];
+    let limits: Vec<Option<JointLimit>> = (0..n)
+        .map(|_| {
+            rng.gen_bool(p_limit).then(|| {
+                let c = rng.gen_range(-3.0..3.0);
+                let w = rng.gen_range(0.01..3.5);
+                JointLimit {
+                    lo: c - w,
+                    hi: c + w,
+                }
+            })
+        })
+        .collect();
+    let chain = Chain::new(links, base, heading, limits.clone()).unwrap();
+    let inside = |rng: &mut StdRng| -> Vec<f64> {
+        limits
+            .iter()
+            .map(|l| match l {
+                Some(l) => match rng.gen_range(0..5) {
+                    0 => l.lo,
+                    1 => l.hi,
+                    _ => rng.gen_range(l.lo..l.hi),
+                },
+                None => rng.gen_range(-PI..PI),
+            })
+            .collect()
+    };
+    let mut theta0 = inside(&mut rng);
+    if rng.gen_bool(0.2) {
+        // A start outside its limits.
+        for t in theta0.iter_mut() {
+            *t += rng.gen_range(-4.0..4.0);
+        }
+    }
+    let b = chain.base();
+    let r = chain.reach();
+    let dir = rng.gen_range(-PI..PI);
+    let u = Vec2::new(dir.cos(), dir.sin());
+    let mut witness = None;
+    let target = match kind % 9 {
+        0 => {
+            let w = inside(&mut rng);
+            let t = tip_of(&chain, &w);
+            witness = Some(w);
+            t
+        }
+        1 => b,
+        2 => b + u * r,
+        3 => b + u * (r * rng.gen_range(1.0..3.0)),
+        4 => b + u * (r * rng.gen_range(0.0f64..1.2).sqrt()),
+        5 => {
+            let t = tip_of(&chain, &theta0);
+            if within(&chain, &theta0) {
+                witness = Some(theta0.clone());
+            }
+            t
+        }
+        6 => {
+            let mut w = inside(&mut rng);
+            // Straight, within limits where that is possible.
+            for (a, t) in w.iter_mut().enumerate() {
+                *t = match chain.limits()[a] {
+                    Some(l) if a > 0 => l.clamp(0.0),
+                    _ if a > 0 => 0.0,
+                    _ => *t,
+                };
+            }
+            let t = tip_of(&chain, &w);
+            witness = Some(w);
+            t
+        }
+        7 => b + u * (r * 1e-9),
+        _ => tip_of(&chain, &theta0) + u * (r * 1e-4),
+    };
+    Case {
+        chain,
+        theta0,
+        target,
+        witness,
+    }
+}
+
+/// Every promise an answer makes, checked against the independent kinematics.
+fn check_answer(
+    name: &str,
+    case: &Case,
+    o: &super::Outcome,
+    out: &[f64],
+    tol: f64,
+    limits_promised: bool,
+) -> Result<(), TestCaseError> {
+    let chain = &case.chain;
+    prop_assert!(out.iter().all(|t| t.is_finite()), "{name}: {out:?}");
+    let miss = (tip_of(chain, out) - case.target).norm();
+    prop_assert!(o.tip_error.is_finite(), "{name}: {o:?}");
+    prop_assert!(
+        (o.tip_error - miss).abs() <= 1e-12 * scale(chain) + 1e-9 * miss,
+        "{name}: reported {} measured {miss}",
+        o.tip_error
+    );
+    if o.converged {
+        prop_assert!(o.reachable, "{name}: {o:?}");
+        prop_assert!(
+            miss <= tol + 1e-14 * scale(chain),
+            "{name}: converged with the tip {miss} m off (tolerance {tol}): {o:?}"
+        );
+        if limits_promised {
+            prop_assert!(
+                within(chain, out),
+                "{name}: converged outside limits {out:?}"
+            );
+        }
+    }
+    if limits_promised {
+        prop_assert!(within(chain, out), "{name}: answer outside limits {out:?}");
+    }
+    // Never closer than any pose can be: the unlimited ring bounds the tip's distance.
+    let d = (case.target - chain.base()).norm();
+    let longest = chain.links().iter().cloned().fold(0.0, f64::max);
+    let floor = (d - chain.reach())
+        .max(2.0 * longest - chain.reach() - d)
+        .max(0.0);
+    prop_assert!(
+        miss >= floor - 1e-9 * scale(chain),
+        "{name}: {miss} < {floor}"
+    );
+    Ok(())
+}
+
+fn check_resolve<R: Resolver>(
+    name: &str,
+    r: &mut R,
+    case: &Case,
+    tol: f64,
+) -> Result<(), TestCaseError> {
+    let chain = &case.chain;
+    let mut theta = case.theta0.clone();
+    match r.resolve(chain, &mut theta, case.target) {
+        Ok(o) => {
+            prop_assert!(
+                within(chain, &theta),
+                "{name}: resolved outside limits {theta:?}"
+            );
+            let miss = (tip_of(chain, &theta) - case.target).norm();
+            prop_assert!(
+                miss <= tol + 1e-14 * scale(chain),
+                "{name}: resolved with the tip {miss} off: {o:?}"
+            );
+        }
+        Err(e) => {
+            prop_assert_eq!(&theta, &case.theta0, "{}: {}", name, e);
+            if let ResolveError::Limit(v) = &e {
+                prop_assert!(v.joint >= 1 && v.joint <= chain.len());
+            }
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+
+    #[test]
+    fn every_answer_keeps_its_promises(
+        seed in 0u64..u64::MAX, n in 1usize..=64, kind in 0u8..9,
+    ) {
+        let case = random_case(seed, n, kind);
+        let chain = &case.chain;
+        let s = scale(chain);
+        let otol = 1e-12 * s;
+        let mut out = vec![0.0; n];
+        for mode in [OverallMode::Local, OverallMode::Cold] {
+            let mut solver = Overall::new(OverallOptions { mode, ..OverallOptions::default() });
+            let o = solver.solve(chain, &case.theta0, case.target, &mut out);
+            check_answer(&format!("overall {mode:?}"), &case, &o, &out, otol, true)?;
+            // A straight witness sits on the edge of the workspace, where no multiplier exists
+            // and the tip closes in slowly: only the promises above are asked of it.
+            if mode == OverallMode::Cold && case.witness.is_some() && kind % 9 != 6 {
+                prop_assert!(o.reachable && o.converged,
+                    "cold missed a target within the limits: {:?} witness {:?}", o, case.witness);
+            }
+            check_resolve(&format!("overall {mode:?} resolve"), &mut solver, &case, otol)?;
+        }
+        let mut seq = Sequential::default();
+        let stol = 2.0 * 1e-11f64.max(16.0 * f64::EPSILON
+            * (chain.base().norm() + chain.reach() + case.target.norm()));
+        let o = seq.solve(chain, &case.theta0, case.target, &mut out);
+        check_answer("sequential", &case, &o, &out, stol, false)?;
+        check_resolve("sequential resolve", &mut seq, &case, stol)?;
+    }
+}
+
+/// The least metric 3 over the poses of a two-link chain with the tip on `target`, the
+/// representative of each angle within its limits nearest `theta0`; `None` when no pose is
+/// on target within the limits.
+fn wrap_near(a: f64, lim: Option<JointLimit>, near: f64) -> Option<f64> {
+    // Representatives a + 2 pi k within the limits; the nearest to `near`.
+    let base = near + (a - near).rem_euclid(TAU);
+    let mut best: Option<f64> = None;
+    for k in -3i32..=3 {
+        let v = base + TAU * f64::from(k);
+        if lim.is_some_and(|l| !l.contains(v)) {
+            continue;
+        }
+        if best.is_none_or(|b| (v - near).abs() < (b - near).abs()) {
+            best = Some(v);
+        }
+    }
+    if best.is_none() {
+        if let Some(l) = lim {
+            // Wide limits far from `near`: search around them.
+            let base = l.lo + (a - l.lo).rem_euclid(TAU);
+            if l.contains(base) {
+                best = Some(base);
+            }
+        }
+    }
+    best
+}
+
+/// Two-link inverse kinematics in absolute terms: the absolute angles of both links for each
+/// elbow, from the base point `b` to `target`.
+fn two_link(b: Vec2, l1: f64, l2: f64, target: Vec2) -> Vec<(f64, f64)> {
+    let d = target - b;
+    let r2 = d.norm_squared();
+    let r = r2.sqrt();
+    if r > l1 + l2 || r < (l1 - l2).abs() || r == 0.0 {
+        return Vec::new();
+    }
+    let c = ((r2 - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)).clamp(-1.0, 1.0);
+    let q2 = c.acos();
+    let bearing = d.y.atan2(d.x);
+    let mut v = Vec::new();
+    for q in [q2, -q2] {
+        let q1 = bearing - (l2 * q.sin()).atan2(l1 + l2 * q.cos());
+        v.push((q1, q1 + q));
+    }
+    v
+}
+
+/// The best metric 3 over the poses of a two-link chain on target (its two elbows), each
+/// angle the representative within its limits nearest `theta0`.
+fn best_on_target(chain: &Chain, theta0: &[f64], target: Vec2) -> f64 {
+    let links = chain.links();
+    let lim = chain.limits();
+    let h = chain.heading();
+    let mut best = f64::INFINITY;
+    for (a1, a2) in two_link(chain.base(), links[0], links[1], target) {
+        let mut prev = h;
+        let mut m = 0.0;
+        let mut within = true;
+        for (a, abs) in [a1, a2].into_iter().enumerate() {
+            let Some(t) = wrap_near(abs - prev, lim[a], theta0[a]) else {
+                within = false;
+                break;
+            };
+            m += (t - theta0[a]).powi(2);
+            prev = abs;
+        }
+        if within {
+            best = best.min(m);
+        }
+    }
+    best
+}
+
+/// The global optimum of metric 3 on target within the limits, of a two-link chain: the
+/// better of its two elbows.
+fn brute_force_optimum(chain: &Chain, theta0: &[f64], target: Vec2) -> f64 {
+    assert_eq!(chain.len(), 2, "two links");
+    best_on_target(chain, theta0, target)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    #[test]
+    fn cold_solve_finds_the_global_optimum_of_small_chains(
+        seed in 0u64..u64::MAX, n in 2usize..=2, limited in proptest::bool::ANY,
+    ) {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.2..1.0)).collect();
+        let base = Vec2::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
+        let heading = rng.gen_range(-4.0..4.0);
+        let limits: Vec<Option<JointLimit>> = (0..n)
+            .map(|_| {
+                (limited && rng.gen_bool(0.7)).then(|| {
+                    let c = rng.gen_range(-2.5..2.5);
+                    let w = rng.gen_range(0.2..2.5);
+                    JointLimit { lo: c - w, hi: c + w }
+                })
+            })
+            .collect();
+        let chain = Chain::new(links, base, heading, limits.clone()).unwrap();
+        let pose = |rng: &mut StdRng| -> Vec<f64> {
+            limits
+                .iter()
+                .map(|l| match l {
+                    Some(l) => rng.gen_range(l.lo..l.hi),
+                    None => rng.gen_range(-PI..PI),
+                })
+                .collect()
+        };
+        let theta0 = pose(&mut rng);
+        let goal = pose(&mut rng);
+        let target = tip_of(&chain, &goal);
+        let mut solver = Overall::new(OverallOptions {
+            mode: OverallMode::Cold,
+            ..OverallOptions::default()
+        });
+        let mut out = vec![0.0; n];
+        let o = solver.solve(&chain, &theta0, target, &mut out);
+        let brute = brute_force_optimum(&chain, &theta0, target);
+        let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
+        prop_assert!(brute.is_finite(), "the goal pose is on target: {goal:?}");
+        prop_assert!(o.converged, "{o:?}");
+        prop_assert!(within(&chain, &out));
+        prop_assert!((tip_of(&chain, &out) - target).norm() <= 1e-11);
+        prop_assert!(
+            m <= brute * (1.0 + 1e-6) + 1e-9,
+            "cold metric 3 {m} above the optimum {brute}: theta0 {theta0:?} target {target:?} \
+             out {out:?} chain {chain:?}"
+        );
+    }
+}
+
+#[test]
+fn cold_optimum_is_not_left_whole_turns_away_from_the_start() {
+    // Two links, unlimited: the optimum is one of the two elbows with each angle the
+    // representative nearest theta0. Local paths from the cold starts end whole turns away.
+    let links = [0.21016946090124958, 0.9580344792097548];
+    let chain = Chain::unlimited(
+        links.to_vec(),
+        Vec2::new(0.48355884935939963, -0.11416052361941986),
+        3.536199169747956,
+    )
+    .unwrap();
+    let theta0 = [0.025726353255837164, -2.6767362512547574];
+    let target = Vec2::new(1.5663513710286951, -0.552432346057645);
+    let best = brute_force_optimum(&chain, &theta0, target);
+    let mut solver = Overall::new(OverallOptions {
+        mode: OverallMode::Cold,
+        ..OverallOptions::default()
+    });
+    let mut out = [0.0; 2];
+    let o = solver.solve(&chain, &theta0, target, &mut out);
+    assert!(o.converged, "{o:?}");
+    let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
+    assert!(
+        m <= best * (1.0 + 1e-9),
+        "metric 3 {m} above the optimum {best}: {out:?}"
+    );
+    for (a, b) in out.iter().zip(&theta0) {
+        assert!((a - b).abs() <= PI + 1e-9, "{out:?}");
+    }
+}
