@@ -636,7 +636,7 @@ fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
     .unwrap();
     let (code, _, err) = snakectl(&addr, &["world", "set", bad.to_str().unwrap()]);
     assert_eq!(code, 2, "{err}");
-    assert!(err.contains("world.obstacle[0].circle.radius_m"), "{err}");
+    assert!(err.contains("world.obstacle[1].circle.radius_m"), "{err}");
     let (code, _, err) = snakectl(&addr, &["world", "remove", "nope"]);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("bad_arg") && err.contains("\"nope\""), "{err}");

@@ -1423,8 +1423,9 @@ impl Overall {
                 // The representatives within the limits run from `first` to `last`.
                 let first = lo + (psi - lo).rem_euclid(tau);
                 let last = hi - (hi - psi).rem_euclid(tau);
-                if first <= hi && first <= last {
-                    nearest_representative(psi, t0.clamp(first, last)).clamp(lo, hi)
+                // (`last` may round below `first` when a single representative lies within.)
+                if first <= hi {
+                    nearest_representative(psi, t0.clamp(first, last.max(first))).clamp(lo, hi)
                 } else {
                     let (off_lo, off_hi) = (wrap_angle(lo - psi).abs(), wrap_angle(hi - psi).abs());
                     if off_lo < off_hi || (off_lo == off_hi && (lo - t0).abs() <= (hi - t0).abs()) {

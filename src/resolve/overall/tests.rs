@@ -499,6 +499,29 @@ fn one_link_chain_reaches_a_target_on_its_circle() {
     }
 }
 
+/// One link whose limits hold a single representative of the target's angle, where the first
+/// and last representatives within them round apart by an ulp.
+#[test]
+fn one_link_chain_reaches_a_target_whose_angle_only_just_fits_its_limits() {
+    let (lo, hi) = (-2.589728712633221, -2.5497006647774567);
+    let chain = Chain::new(
+        vec![0.7243284791549299],
+        Vec2::new(1.5445977810755718, 4.239435449773495),
+        -3.415208451906331,
+        vec![Some(JointLimit { lo, hi })],
+    )
+    .unwrap();
+    let target = Vec2::new(2.2404194986343215, 4.4406415209753485);
+    let mut solver = Overall::new(OverallOptions {
+        mode: OverallMode::Cold,
+        ..OverallOptions::default()
+    });
+    let mut out = [0.0];
+    let o = solver.solve(&chain, &[-2.5497006647774567], target, &mut out);
+    assert!(o.converged && o.reachable, "{o:?}: {out:?}");
+    assert!((lo..=hi).contains(&out[0]), "{out:?}");
+}
+
 #[test]
 fn one_link_chain_out_of_reach_stops_at_the_nearer_limit() {
     let lim = Some(JointLimit { lo: -0.5, hi: 1.5 });
