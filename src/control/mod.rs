@@ -1307,6 +1307,23 @@ impl Controller {
         clamped
     }
 
+    /// `trial` := the pose a fraction `f` of the way from the last goal to the candidate (a
+    /// straight line in joint space, as the servos take it).
+    fn trial_at(&mut self, f: f64) {
+        for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {
+            *x = t + f * (c - t);
+        }
+    }
+
+    /// `trial` touches no link and keeps every floor against the world.
+    fn trial_clear(&mut self) -> bool {
+        self.guard.contact(&self.chain, &self.trial).is_none()
+            && self
+                .guard
+                .obstacle(&self.chain, &self.world, &self.quanta, &self.trial)
+                .is_none()
+    }
+
     /// The last check: if the pose `cand` brings two links into contact, or a link below its
     /// floor near an obstacle, it is moved back along the joint step `theta -> cand` to the
     /// farthest fraction found clear by [`BISECTION_ROUNDS`] rounds of bisection (the
@@ -1336,9 +1353,7 @@ impl Controller {
                 ((sweep / JOINT_WAY_STEP_M).ceil() as usize).clamp(1, MAX_JOINT_WAY_SAMPLES);
             for k in 1..steps {
                 let f = k as f64 / steps as f64;
-                for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {
-                    *x = t + f * (c - t);
-                }
+                self.trial_at(f);
                 // A pose between two goals need keep its floors only to within the samples'
                 // spacing (a straight line in joint space may bow in by round-off against a
                 // link sliding along an obstacle): enough that none passes through one.
@@ -1360,16 +1375,8 @@ impl Controller {
                     // Bisect after the last sample before it that keeps its floors exactly.
                     for j in (1..k).rev() {
                         let g = j as f64 / steps as f64;
-                        for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta)
-                        {
-                            *x = t + g * (c - t);
-                        }
-                        let clear = self.guard.contact(&self.chain, &self.trial).is_none()
-                            && self
-                                .guard
-                                .obstacle(&self.chain, &self.world, &self.quanta, &self.trial)
-                                .is_none();
-                        if clear {
+                        self.trial_at(g);
+                        if self.trial_clear() {
                             lo = g;
                             break;
                         }
@@ -1383,15 +1390,8 @@ impl Controller {
         }
         for _ in 0..BISECTION_ROUNDS {
             let mid = 0.5 * (lo + hi);
-            for ((x, &c), &t) in self.trial.iter_mut().zip(&self.cand).zip(&self.theta) {
-                *x = t + mid * (c - t);
-            }
-            let ok = self.guard.contact(&self.chain, &self.trial).is_none()
-                && self
-                    .guard
-                    .obstacle(&self.chain, &self.world, &self.quanta, &self.trial)
-                    .is_none();
-            if ok {
+            self.trial_at(mid);
+            if self.trial_clear() {
                 lo = mid;
             } else {
                 hi = mid;

@@ -268,22 +268,17 @@ impl DynamixelBus {
                 Framed::Damaged { id, damage } => return Ok(Got::Damaged { id, damage }),
                 Framed::Pending => {}
             }
-            let Some(left) = deadline
+            let left = deadline
                 .checked_duration_since(Instant::now())
-                .filter(|d| !d.is_zero())
-            else {
+                .filter(|d| !d.is_zero());
+            // A full buffer cannot be (a packet that fits is framed once whole), but never
+            // spin on it.
+            let Some(left) = left.filter(|_| !rx.space().is_empty()) else {
                 return Ok(match rx.give_up() {
                     Some((id, damage)) => Got::Damaged { id, damage },
                     None => Got::Nothing,
                 });
             };
-            if rx.space().is_empty() {
-                // Cannot be (a packet that fits is framed once whole), but never spin on it.
-                return Ok(match rx.give_up() {
-                    Some((id, damage)) => Got::Damaged { id, damage },
-                    None => Got::Nothing,
-                });
-            }
             // The timeout has whole-millisecond resolution: never ask for 0 (no wait at all).
             open.raw
                 .set_read_timeout(left.max(Duration::from_millis(1)))

@@ -455,6 +455,14 @@ fn elastic_runs_stall_without_a_one_percent_cut() {
     }
 }
 
+/// A solver in `mode`, otherwise as shipped.
+fn in_mode(mode: OverallMode) -> Overall {
+    Overall::new(OverallOptions {
+        mode,
+        ..OverallOptions::default()
+    })
+}
+
 #[test]
 fn one_link_chain_reaches_a_target_on_its_circle() {
     // One link has no redundancy: the angle pointing at the target is the answer, within the
@@ -466,10 +474,7 @@ fn one_link_chain_reaches_a_target_on_its_circle() {
         for angle in [1.0f64, 0.3, -0.4] {
             let target = Vec2::new(angle.cos(), angle.sin());
             for mode in [OverallMode::Local, OverallMode::Cold] {
-                let mut solver = Overall::new(OverallOptions {
-                    mode,
-                    ..OverallOptions::default()
-                });
+                let mut solver = in_mode(mode);
                 let mut out = [0.0];
                 let o = solver.solve(chain, &[0.0], target, &mut out);
                 assert!(o.converged && o.reachable, "{angle} {mode:?}: {o:?}");
@@ -488,10 +493,7 @@ fn one_link_chain_reaches_a_target_on_its_circle() {
     let chain = Chain::new(vec![0.7], Vec2::new(0.3, -0.2), 0.4, vec![lim]).unwrap();
     let target = chain.tip(&[2.2]);
     for mode in [OverallMode::Local, OverallMode::Cold] {
-        let mut solver = Overall::new(OverallOptions {
-            mode,
-            ..OverallOptions::default()
-        });
+        let mut solver = in_mode(mode);
         let mut out = [0.0];
         let o = solver.solve(&chain, &[-2.9], target, &mut out);
         assert!(o.converged && o.reachable, "{mode:?}: {o:?}");
@@ -512,10 +514,7 @@ fn one_link_chain_reaches_a_target_whose_angle_only_just_fits_its_limits() {
     )
     .unwrap();
     let target = Vec2::new(2.2404194986343215, 4.4406415209753485);
-    let mut solver = Overall::new(OverallOptions {
-        mode: OverallMode::Cold,
-        ..OverallOptions::default()
-    });
+    let mut solver = in_mode(OverallMode::Cold);
     let mut out = [0.0];
     let o = solver.solve(&chain, &[-2.5497006647774567], target, &mut out);
     assert!(o.converged && o.reachable, "{o:?}: {out:?}");
@@ -529,10 +528,7 @@ fn one_link_chain_out_of_reach_stops_at_the_nearer_limit() {
     for (angle, expect) in [(2.0f64, 1.5), (-1.0, -0.5), (3.0, 1.5)] {
         let target = Vec2::new(angle.cos(), angle.sin());
         for mode in [OverallMode::Local, OverallMode::Cold] {
-            let mut solver = Overall::new(OverallOptions {
-                mode,
-                ..OverallOptions::default()
-            });
+            let mut solver = in_mode(mode);
             let mut out = [0.0];
             let o = solver.solve(&chain, &[0.0], target, &mut out);
             assert!(!o.converged && !o.reachable, "{angle} {mode:?}: {o:?}");
