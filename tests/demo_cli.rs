@@ -6,6 +6,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use serde_json::Value;
+use snakectl::chain::Vec2;
 
 /// `max_joint_speed_rad_s` and `max_tip_speed_m_s` of the shipped config/sim.toml.
 const JOINT_SPEED_LIMIT: f64 = 2.0;
@@ -177,10 +178,22 @@ fn the_short_demo_drives_both_strategies_and_writes_its_figures() {
     );
     let marks: Vec<&str> = record.events.iter().map(|e| e.label.as_str()).collect();
     assert_eq!(marks, ["estop", "reset"]);
-    assert!(
-        record.phases.last().unwrap().world.is_some(),
-        "the obstacles of the last phase"
-    );
+    // Its reference is the daemon's route round the post, not the blocked straight line: every
+    // point keeps the tip's clearance (the obstacles grown by the link's radius and the gap).
+    let last = record.phases.last().unwrap();
+    let world = last
+        .world
+        .as_ref()
+        .expect("the obstacles of the last phase");
+    let grown = world.link_radius_m() + world.clearance_m();
+    assert!(last.reference.len() > 10, "{:?}", last.reference);
+    for p in &last.reference {
+        let (d, _) = world.point_distance(Vec2::new(p[0], p[1])).unwrap();
+        assert!(
+            d >= grown - 1e-6,
+            "the route at {p:?} is {d} m from an obstacle"
+        );
+    }
     assert!(
         record.samples.len() > 500,
         "{} samples",

@@ -1008,6 +1008,29 @@ impl Session<'_> {
     }
 }
 
+/// The points of a sampled curve at least [`ROUTE_STEP_M`] apart, the last one kept: a route
+/// drawn from telemetry without a point per sample.
+fn thinned(points: impl Iterator<Item = [f64; 2]>) -> Vec<[f64; 2]> {
+    let mut kept: Vec<[f64; 2]> = Vec::new();
+    let mut last = None;
+    for p in points {
+        last = Some(p);
+        if kept
+            .last()
+            .is_none_or(|k| (p[0] - k[0]).hypot(p[1] - k[1]) >= ROUTE_STEP_M)
+        {
+            kept.push(p);
+        }
+    }
+    if let Some(p) = last.filter(|p| kept.last() != Some(p)) {
+        kept.push(p);
+    }
+    kept
+}
+
+/// How far apart the points of a route drawn from telemetry are, m.
+const ROUTE_STEP_M: f64 = 0.5e-3;
+
 impl Session<'_> {
     /// Under overall: a world set (a post and a shelf between the tip and a pocket), the tip
     /// into the pocket and back along the daemon's routes, and the world cleared. An arm that
@@ -1040,8 +1063,9 @@ impl Session<'_> {
             target[0],
             target[1]
         ));
-        self.rec
-            .begin_phase("among obstacles", true, vec![start, target, start]);
+        // The reference is the daemon's route, known only as it is taken: filled in below
+        // from the telemetry's `tip_ref`.
+        self.rec.begin_phase("among obstacles", true, Vec::new());
         if let Some(p) = self.rec.phases.last_mut() {
             p.world = Some(world.clone());
         }
@@ -1072,6 +1096,10 @@ impl Session<'_> {
         )?;
         self.rec.end_phase();
         self.client.set_world(Vec::new())?;
+        let route = thinned(self.rec.recs[first..].iter().map(|r| r.sample.tip_ref));
+        if let Some(p) = self.rec.phases.last_mut() {
+            p.reference = route;
+        }
         let recs = &self.rec.recs[first..];
         let route_in_m = self.rec.recs[first..inside]
             .windows(2)

@@ -375,10 +375,17 @@ fn zoom_panel(
 ) -> Result<(), PlotError> {
     let reference: Vec<(f64, f64)> = phase.reference.iter().map(|&p| xy(p)).collect();
     let trace: Vec<(f64, f64)> = samples.iter().map(|s| xy(s.tip_meas)).collect();
-    // Room above the curve for the legend.
+    // Room above the curve for the legend: a fifth of the curve's height a row (obstacles and
+    // their margin add two rows to reference, tip and start).
+    let rows = if phase.world.is_some() { 5.0 } else { 3.0 };
     let (x0, x1, y0, y1) = bbox(reference.iter().chain(&trace));
     let view = equal_ranges(
-        (x0, x1, y0, y1 + 0.45 * (y1 - y0).max(0.3 * (x1 - x0))),
+        (
+            x0,
+            x1,
+            y0,
+            y1 + 0.15 * rows * (y1 - y0).max(0.3 * (x1 - x0)),
+        ),
         f64::from(COL_W - CHART_EXTRA.0),
         f64::from(ZOOM_H - CHART_EXTRA.1),
         0.12,
