@@ -600,10 +600,14 @@ impl Servo {
                     self.step(deadline - self.last_update);
                     self.last_update = deadline;
                 }
-                // Fired: stop where it is and refuse goals until 0 is written.
+                // Fired: stop where it is and refuse goals until 0 is written. The goal
+                // becomes "here" in a position mode, "still" in velocity mode.
                 self.put(addr::BUS_WATCHDOG, -1);
                 let present = self.pos.round() as i64;
                 self.put(addr::GOAL_POSITION, present);
+                if self.get(addr::OPERATING_MODE) == 1 {
+                    self.put(addr::GOAL_VELOCITY, 0);
+                }
                 self.pos = present as f64;
                 self.vel = 0.0;
                 self.acc = 0.0;

@@ -280,6 +280,39 @@ fn bus_watchdog_fires_refuses_goals_and_clears() {
 }
 
 #[test]
+fn bus_watchdog_stops_a_servo_turning_in_velocity_mode() {
+    let (mut s, clock) = sim(xl430(&[1]));
+    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[1]), 0);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_VELOCITY, &50i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0); // 100 ms
+    clock.advance(Duration::from_millis(80));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4), (0, 50));
+    // Silent for 300 ms: it fires 100 ms after the last packet and the servo stops turning.
+    clock.advance(Duration::from_millis(300));
+    assert_eq!(read(&mut s, 1, addr::BUS_WATCHDOG, 1), (0, -1));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::GOAL_VELOCITY, 4), (0, 0));
+    let stopped = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    clock.advance(Duration::from_millis(500));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, stopped);
+    assert_eq!(read(&mut s, 1, addr::MOVING, 1).1, 0);
+    // Cleared, it stays stopped until a new goal comes.
+    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[0]), 0);
+    clock.advance(Duration::from_millis(500));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, stopped);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_VELOCITY, &(-30i32).to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_millis(500));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4), (0, -30));
+}
+
+#[test]
 fn motion_follows_the_profile() {
     let (mut s, clock) = sim(vec![ServoSpec::new(1, Model::Xm430W350)]);
     // 100 units = 22.9 rev/min = 1563 ticks/s; acceleration 50 units = 12207 ticks/s^2.
