@@ -169,6 +169,7 @@ impl Servo {
     /// RAM to initial values, as after power-on or reboot.
     fn power_on(&mut self, now: Instant) {
         self.load_defaults(false, false);
+        self.wrap_to_one_turn();
         self.vel = 0.0;
         self.acc = 0.0;
         self.temperature_c = 30.0;
@@ -489,19 +490,24 @@ impl Servo {
     pub fn write(&mut self, address: u16, data: &[u8], now: Instant) -> Result<(), u8> {
         self.check_write(address, data)?;
         for (start, bytes) in self.resolve_indirect(address, data)? {
+            let mode_before = self.get(addr::OPERATING_MODE);
             let a = usize::from(start);
             if let Some(dst) = self.mem.get_mut(a..a + bytes.len()) {
                 dst.copy_from_slice(&bytes);
             }
-            self.after_write(start, bytes.len(), now);
+            self.after_write(start, bytes.len(), mode_before, now);
         }
         Ok(())
     }
 
-    fn after_write(&mut self, address: u16, len: usize, now: Instant) {
+    fn after_write(&mut self, address: u16, len: usize, mode_before: i64, now: Instant) {
         let touches = |a: u16| {
             usize::from(address) <= usize::from(a) && usize::from(a) < usize::from(address) + len
         };
+        let mode = self.get(addr::OPERATING_MODE);
+        if touches(addr::OPERATING_MODE) && mode != mode_before {
+            self.mode_changed(mode);
+        }
         if touches(addr::TORQUE_ENABLE) && !self.torque_enabled() {
             self.vel = 0.0;
             self.acc = 0.0;
@@ -510,6 +516,37 @@ impl Servo {
             self.last_rx = now;
         }
         self.refresh(now);
+    }
+
+    /// A new Operating Mode: the gains back to their defaults, Profile Velocity and Profile
+    /// Acceleration 0, Goal PWM at PWM Limit; in position mode the shaft's position within one
+    /// turn, as the encoder reads it (the e-manual's Operating Mode and Present Position).
+    fn mode_changed(&mut self, mode: i64) {
+        for address in [
+            addr::VELOCITY_I_GAIN,
+            addr::VELOCITY_P_GAIN,
+            addr::POSITION_D_GAIN,
+            addr::POSITION_I_GAIN,
+            addr::POSITION_P_GAIN,
+            addr::FEEDFORWARD_2ND_GAIN,
+            addr::FEEDFORWARD_1ST_GAIN,
+        ] {
+            if let Some(initial) = self.table.item_at(address).map(|i| i.initial) {
+                self.put(address, initial);
+            }
+        }
+        self.put(addr::PROFILE_VELOCITY, 0);
+        self.put(addr::PROFILE_ACCELERATION, 0);
+        self.put(addr::GOAL_PWM, self.get(addr::PWM_LIMIT));
+        if mode == 3 {
+            self.wrap_to_one_turn();
+        }
+    }
+
+    /// The shaft's position within one turn (0..4096), as the absolute encoder reads it once
+    /// the multi-turn count is lost.
+    fn wrap_to_one_turn(&mut self) {
+        self.pos = self.pos.round().rem_euclid(4096.0);
     }
 
     /// Store a REG WRITE: checked now, executed by ACTION.

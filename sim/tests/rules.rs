@@ -469,6 +469,67 @@ fn clear_multi_turn() {
 }
 
 #[test]
+fn a_new_operating_mode_resets_profiles_gains_and_goal_pwm() {
+    let (mut s, _) = sim(vec![ServoSpec::new(1, Model::Xm430W350)]);
+    assert_eq!(
+        write(&mut s, 1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::PROFILE_ACCELERATION, &50u32.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::POSITION_P_GAIN, &1000u16.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::VELOCITY_I_GAIN, &1000u16.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::GOAL_PWM, &500i16.to_le_bytes()), 0);
+    // The same mode written again changes nothing.
+    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[3]), 0);
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 100));
+    assert_eq!(read(&mut s, 1, addr::POSITION_P_GAIN, 2), (0, 1000));
+    // Another mode: profiles 0, gains at their defaults, Goal PWM at PWM Limit.
+    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::PROFILE_ACCELERATION, 4), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::POSITION_P_GAIN, 2), (0, 800));
+    assert_eq!(read(&mut s, 1, addr::VELOCITY_I_GAIN, 2), (0, 1920));
+    assert_eq!(read(&mut s, 1, addr::GOAL_PWM, 2), (0, 885));
+}
+
+#[test]
+fn present_position_comes_back_within_one_turn_on_reboot_and_in_position_mode() {
+    let (mut s, clock) = sim(xl430(&[1]));
+    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_secs(10));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000);
+    // A reboot: the encoder's absolute position within one turn, the goal with it.
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000 % 4096);
+    assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4).1, 9000 % 4096);
+    // Multi-turn again (still in extended position mode), then back to position mode.
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &(-3000i32).to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_secs(10));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, -3000);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
+    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[3]), 0);
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 4096 - 3000);
+}
+
+#[test]
 fn indirect_data_follows_indirect_address() {
     let (mut s, _) = sim(xl430(&[1]));
     // Map Indirect Data 1..4 (224..227) onto Goal Position (116..119), Data 5 onto LED.
