@@ -498,6 +498,13 @@ impl Simulator {
         self.servos.iter_mut().find(|s| s.id() == id)
     }
 
+    /// The servo configured with id `id`, whatever id a client has given it since: the one a
+    /// fault names.
+    fn configured_mut(&mut self, id: u8) -> Option<&mut Servo> {
+        let index = self.config.servos.iter().position(|s| s.id == id)?;
+        self.servos.get_mut(index)
+    }
+
     /// Servo `id` (current id) loses its power: silent and limp until
     /// [`Simulator::restore_power`]. False when there is no such servo.
     pub fn lose_power(&mut self, id: u8) -> bool {
@@ -607,7 +614,7 @@ impl Simulator {
             match self.timed[i].event {
                 Event::Silence(id) => {
                     let silent = self.silent_at(id, self.elapsed(at));
-                    if let Some(s) = self.servo_mut(id) {
+                    if let Some(s) = self.configured_mut(id) {
                         if s.is_silent() != silent {
                             tracing::debug!(id, silent, "fault: servo silence changes");
                             s.set_silent(silent);
@@ -615,14 +622,14 @@ impl Simulator {
                     }
                 }
                 Event::Hardware(id, kind) => {
-                    if let Some(s) = self.servo_mut(id) {
+                    if let Some(s) = self.configured_mut(id) {
                         tracing::debug!(id, ?kind, "fault: hardware error");
                         s.raise_hardware_error(kind.bit(), at);
                     }
                 }
                 Event::Block(id) => {
                     let blocked = self.blocked_at(id, self.elapsed(at));
-                    if let Some(s) = self.servo_mut(id) {
+                    if let Some(s) = self.configured_mut(id) {
                         if s.is_blocked() != blocked {
                             tracing::debug!(id, blocked, "fault: servo blocked or let go");
                             s.set_blocked(blocked, at);

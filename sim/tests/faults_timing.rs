@@ -7,7 +7,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::*;
-use snakectl_sim::protocol::{self, instruction as ins, Frame, Parser, BROADCAST_ID};
+use snakectl_sim::protocol::{self, error, instruction as ins, Frame, Parser, BROADCAST_ID};
 use snakectl_sim::table::addr;
 use snakectl_sim::{Fault, Model, ServoSpec, SimConfig, SimError};
 
@@ -146,6 +146,33 @@ fn a_servo_goes_silent_at_its_time() {
     );
     assert_eq!(s.servos()[2].value(addr::LED), Some(0));
     assert_eq!(s.servos()[0].value(addr::LED), Some(1));
+}
+
+#[test]
+fn timed_faults_follow_the_configured_servo_when_a_client_renumbers_it() {
+    let (mut s, clock) = sim_with(config(
+        &[1, 2, 3],
+        vec![
+            Fault::Silent { id: 3, at: ms(100) },
+            Fault::HardwareError {
+                id: 2,
+                at: ms(100),
+                kind: snakectl_sim::HardwareErrorKind::Encoder,
+            },
+        ],
+    ));
+    // Servo 3 becomes 7, servo 2 becomes 3, before the faults' time.
+    assert_eq!(write(&mut s, 3, addr::ID, &[7]), 0);
+    assert_eq!(write(&mut s, 2, addr::ID, &[3]), 0);
+    clock.advance(ms(200));
+    // The servo configured as 3 (now 7) went silent; the one configured as 2 (now 3) latched
+    // the error, and only it.
+    assert!(send(&mut s, 7, ins::PING, &[]).is_empty());
+    assert_eq!(
+        read(&mut s, 3, addr::HARDWARE_ERROR_STATUS, 1),
+        (error::ALERT, 8)
+    );
+    assert_eq!(read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1), (0, 0));
 }
 
 #[test]
