@@ -88,6 +88,9 @@ pub struct Servo {
     silent: bool,
     /// Held by an obstacle (a blocked fault): the shaft stays where it is whatever the goal.
     blocked: bool,
+    /// A hardware error selected by Shutdown switched torque off: it stays off until a reboot,
+    /// whatever Shutdown says since.
+    shut_down: bool,
     /// Firmware Version.
     firmware: u8,
 }
@@ -133,6 +136,7 @@ impl Servo {
             boot: now,
             silent: false,
             blocked: false,
+            shut_down: false,
             firmware,
         };
         servo.load_defaults(true, true);
@@ -175,6 +179,7 @@ impl Servo {
         self.temperature_c = 30.0;
         self.voltage_dv = f64::from(self.table.nominal_voltage);
         self.registered = None;
+        self.shut_down = false;
         self.boot = now;
         self.last_update = now;
         self.last_rx = now;
@@ -483,7 +488,7 @@ impl Servo {
     }
 
     fn shutdown_latched(&self) -> bool {
-        self.hardware_error_status() & (self.get(addr::SHUTDOWN) as u8) != 0
+        self.shut_down || self.hardware_error_status() & (self.get(addr::SHUTDOWN) as u8) != 0
     }
 
     /// Write `data` at `address` at time `now`, applying every rule. On error nothing changes.
@@ -612,6 +617,7 @@ impl Servo {
         let status = self.hardware_error_status() | bits;
         self.put(addr::HARDWARE_ERROR_STATUS, i64::from(status));
         if self.shutdown_latched() {
+            self.shut_down = true;
             self.put(addr::TORQUE_ENABLE, 0);
             self.vel = 0.0;
             self.acc = 0.0;

@@ -200,6 +200,31 @@ fn shutdown_error_switches_torque_off_until_reboot() {
 }
 
 #[test]
+fn clearing_shutdown_after_the_error_does_not_bring_torque_back_before_a_reboot() {
+    let (mut s, clock) = sim_with(SimConfig {
+        servos: xl430(&[1]),
+        faults: vec![Fault::HardwareError {
+            id: 1,
+            at: Duration::from_millis(100),
+            kind: HardwareErrorKind::Overheating,
+        }],
+        ..SimConfig::default()
+    });
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    clock.advance(Duration::from_millis(200));
+    assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 0));
+    // Shutdown (EEPROM, torque off) no longer selects the error: the shutdown still holds.
+    assert_eq!(write(&mut s, 1, addr::SHUTDOWN, &[0]), error::ALERT);
+    assert_eq!(
+        write(&mut s, 1, addr::TORQUE_ENABLE, &[1]),
+        error::RESULT_FAIL | error::ALERT
+    );
+    assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 0));
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, error::ALERT);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+}
+
+#[test]
 fn errors_outside_shutdown_only_raise_the_alert() {
     let (mut s, clock) = sim_with(SimConfig {
         servos: xl430(&[1]),
