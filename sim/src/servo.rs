@@ -311,8 +311,8 @@ impl Servo {
     /// Hold the shaft where it is (something in its way stops it, in either direction), or let
     /// it go; the motor model is advanced to `now` first. Blocked, the shaft stands still, and
     /// with torque on the servo pushes: in a position mode its effort grows with the position
-    /// error as the Position P Gain makes it (PWM = gain / 128 per tick of error, capped by PWM
-    /// Limit), in velocity mode it is at full effort toward a non-zero Goal Velocity.
+    /// error as the Position P Gain makes it (PWM = gain / 128 per tick of error, capped by Goal
+    /// PWM and PWM Limit), in velocity mode it is at full effort toward a non-zero Goal Velocity.
     pub fn set_blocked(&mut self, blocked: bool, now: Instant) {
         self.update(now);
         self.blocked = blocked;
@@ -664,7 +664,8 @@ impl Servo {
     /// Top speed (ticks/s) and acceleration (ticks/s^2) the profile allows now.
     fn profile_limits(&self) -> (f64, f64) {
         let physical_v = self.table.no_load_rpm / 0.229 * VELOCITY_UNIT_TICKS_S;
-        let mut vmax = physical_v;
+        // The no-load speed goes with the voltage the motor gets: its share of full PWM.
+        let mut vmax = physical_v * self.pwm_share();
         let limit = self.get(addr::VELOCITY_LIMIT);
         if limit > 0 {
             vmax = vmax.min(limit as f64 * VELOCITY_UNIT_TICKS_S);
@@ -683,6 +684,15 @@ impl Servo {
         (vmax, amax)
     }
 
+    /// The share of full PWM (0..=1) the servo may drive its motor with in every mode: Goal PWM,
+    /// capped by PWM Limit.
+    fn pwm_share(&self) -> f64 {
+        let cap = self
+            .get(addr::PWM_LIMIT)
+            .min(self.get(addr::GOAL_PWM).abs());
+        (cap as f64 / FULL_PWM).clamp(0.0, 1.0)
+    }
+
     fn step(&mut self, dt: Duration) {
         if !self.torque_enabled() || self.blocked {
             self.vel = 0.0;
@@ -697,7 +707,7 @@ impl Servo {
             3..=5 => {
                 let goal = self.get(addr::GOAL_POSITION) as f64;
                 while left > 0.0 {
-                    if self.pos == goal && self.vel == 0.0 {
+                    if (self.pos == goal || vmax <= 0.0) && self.vel == 0.0 {
                         self.acc = 0.0;
                         break;
                     }
@@ -761,7 +771,8 @@ impl Servo {
         } else if self.blocked {
             self.stall_effort()
         } else {
-            (0.15 * self.vel / physical_v + 0.35 * self.acc / physical_a).clamp(-1.0, 1.0)
+            let share = self.pwm_share();
+            (0.15 * self.vel / physical_v + 0.35 * self.acc / physical_a).clamp(-share, share)
         };
         self.put(addr::PRESENT_POSITION, present);
         self.put(addr::POSITION_TRAJECTORY, present);
@@ -800,10 +811,11 @@ impl Servo {
 
     /// The effort (share of full PWM, -1..=1) of a blocked shaft: in a position mode the
     /// position loop's P term on the error from the held shaft to Goal Position (Position P
-    /// Gain / 128 PWM units per tick), capped by PWM Limit; in velocity mode full effort toward
-    /// Goal Velocity; in current and PWM modes nothing (the shaft holds still there anyway).
+    /// Gain / 128 PWM units per tick), capped by Goal PWM and PWM Limit; in velocity mode full
+    /// effort (as much as they allow) toward Goal Velocity; in current and PWM modes nothing (the
+    /// shaft holds still there anyway).
     fn stall_effort(&self) -> f64 {
-        let cap = self.get(addr::PWM_LIMIT) as f64;
+        let cap = self.pwm_share() * FULL_PWM;
         let pwm = match self.get(addr::OPERATING_MODE) {
             3..=5 => {
                 // On the encoder's reading, whole ticks, as the servo's own loop sees it.

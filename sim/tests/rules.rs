@@ -400,6 +400,35 @@ fn velocity_limit_caps_an_unprofiled_move() {
 }
 
 #[test]
+fn goal_pwm_limits_the_output_in_position_and_velocity_modes() {
+    let (mut s, clock) = sim(xl430(&[1, 2]));
+    // Servo 1 may not drive its motor at all: it stays where it is.
+    assert_eq!(write(&mut s, 1, addr::GOAL_PWM, &0i16.to_le_bytes()), 0);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_secs(1));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 2048);
+    assert_eq!(read(&mut s, 1, addr::PRESENT_PWM, 2).1, 0);
+    // Servo 2 at half its PWM turns at about half its no-load speed (57 rev/min: 124 units).
+    assert_eq!(write(&mut s, 2, addr::OPERATING_MODE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 2, addr::GOAL_PWM, &(-442i16).to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 2, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(
+        write(&mut s, 2, addr::GOAL_VELOCITY, &200i32.to_le_bytes()),
+        0
+    );
+    clock.advance(Duration::from_secs(1));
+    let (_, v) = read(&mut s, 2, addr::PRESENT_VELOCITY, 4);
+    assert!((v - 124).abs() <= 1, "{v}");
+}
+
+#[test]
 fn status_return_level_selects_the_replies() {
     let (mut s, _) = sim(xl430(&[1]));
     // The write that changes the level is still answered under the old one.
