@@ -524,8 +524,9 @@ impl Servo {
     }
 
     /// A new Operating Mode: the gains back to their defaults, Profile Velocity and Profile
-    /// Acceleration 0, Goal PWM at PWM Limit; in position mode the shaft's position within one
-    /// turn, as the encoder reads it (the e-manual's Operating Mode and Present Position).
+    /// Acceleration 0, Goal PWM at PWM Limit (Goal Current at Current Limit); in position mode
+    /// the shaft's position within one turn, as the encoder reads it (the e-manual's Operating
+    /// Mode and Present Position).
     fn mode_changed(&mut self, mode: i64) {
         for address in [
             addr::VELOCITY_I_GAIN,
@@ -543,6 +544,9 @@ impl Servo {
         self.put(addr::PROFILE_VELOCITY, 0);
         self.put(addr::PROFILE_ACCELERATION, 0);
         self.put(addr::GOAL_PWM, self.get(addr::PWM_LIMIT));
+        if self.table.has_current {
+            self.put(addr::GOAL_CURRENT, self.get(addr::CURRENT_LIMIT));
+        }
         if mode == 3 {
             self.wrap_to_one_turn();
         }

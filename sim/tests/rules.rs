@@ -542,6 +542,10 @@ fn a_new_operating_mode_resets_profiles_gains_and_goal_pwm() {
         0
     );
     assert_eq!(write(&mut s, 1, addr::GOAL_PWM, &500i16.to_le_bytes()), 0);
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_CURRENT, &100i16.to_le_bytes()),
+        0
+    );
     // The same mode written again changes nothing.
     assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[3]), 0);
     assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 100));
@@ -553,6 +557,7 @@ fn a_new_operating_mode_resets_profiles_gains_and_goal_pwm() {
     assert_eq!(read(&mut s, 1, addr::POSITION_P_GAIN, 2), (0, 800));
     assert_eq!(read(&mut s, 1, addr::VELOCITY_I_GAIN, 2), (0, 1920));
     assert_eq!(read(&mut s, 1, addr::GOAL_PWM, 2), (0, 885));
+    assert_eq!(read(&mut s, 1, addr::GOAL_CURRENT, 2), (0, 1193));
 }
 
 #[test]
