@@ -688,6 +688,20 @@ impl Servo {
         (vmax, amax)
     }
 
+    /// Where the position loop drives the shaft: Goal Position, held within Min/Max Position
+    /// Limit in position mode (3), whose range they bound even when they changed after the goal
+    /// was written.
+    fn target_position(&self) -> i64 {
+        let goal = self.get(addr::GOAL_POSITION);
+        let lo = self.get(addr::MIN_POSITION_LIMIT);
+        let hi = self.get(addr::MAX_POSITION_LIMIT);
+        if self.get(addr::OPERATING_MODE) == 3 && lo <= hi {
+            goal.clamp(lo, hi)
+        } else {
+            goal
+        }
+    }
+
     /// The share of full PWM (0..=1) the servo may drive its motor with in every mode: Goal PWM,
     /// capped by PWM Limit.
     fn pwm_share(&self) -> f64 {
@@ -709,7 +723,7 @@ impl Servo {
         let h_max = MAX_STEP.as_secs_f64();
         match mode {
             3..=5 => {
-                let goal = self.get(addr::GOAL_POSITION) as f64;
+                let goal = self.target_position() as f64;
                 while left > 0.0 {
                     if (self.pos == goal || vmax <= 0.0) && self.vel == 0.0 {
                         self.acc = 0.0;
@@ -764,7 +778,7 @@ impl Servo {
         let present = self.pos.round() as i64;
         let vel_units = (self.vel / VELOCITY_UNIT_TICKS_S).round() as i64;
         let torque = self.torque_enabled();
-        let goal = self.get(addr::GOAL_POSITION);
+        let goal = self.target_position();
         let mode = self.get(addr::OPERATING_MODE);
         let profiling = torque && (self.vel != 0.0 || ((3..=5).contains(&mode) && goal != present));
         let moving = profiling || vel_units.abs() > self.get(addr::MOVING_THRESHOLD);
@@ -823,7 +837,7 @@ impl Servo {
         let pwm = match self.get(addr::OPERATING_MODE) {
             3..=5 => {
                 // On the encoder's reading, whole ticks, as the servo's own loop sees it.
-                let error = self.get(addr::GOAL_POSITION) as f64 - self.pos.round();
+                let error = self.target_position() as f64 - self.pos.round();
                 self.get(addr::POSITION_P_GAIN) as f64 / 128.0 * error
             }
             1 => (self.get(addr::GOAL_VELOCITY) as f64).signum() * cap,

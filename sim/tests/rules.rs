@@ -382,6 +382,24 @@ fn motion_follows_the_profile() {
 }
 
 #[test]
+fn position_mode_stays_within_the_position_limits_whatever_the_goal_register_holds() {
+    let (mut s, clock) = sim(xl430(&[1]));
+    assert_eq!(
+        write(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes()),
+        0
+    );
+    // Limits narrowed afterwards (torque off): the goal register keeps 3000.
+    assert_eq!(
+        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &2500u32.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    clock.advance(Duration::from_secs(2));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 2500);
+    assert_eq!(read(&mut s, 1, addr::MOVING, 1).1, 0);
+}
+
+#[test]
 fn velocity_limit_caps_an_unprofiled_move() {
     let (mut s, clock) = sim(xl430(&[1]));
     // Velocity Limit 265 units (60.7 rev/min) is above the XL430's 57 rev/min no-load speed:
