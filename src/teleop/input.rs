@@ -135,6 +135,17 @@ fn allowed_without_control(action: Action) -> bool {
     )
 }
 
+/// Whether the daemon ends a running `velocity` on `action`'s command by itself: `stop`,
+/// `estop`, `home` (which replaces it) and `torque` (on only while it is off, when nothing
+/// moves). Any other (`strategy`, `take_control`, a `reset` without a latch, quitting) leaves it
+/// running to its deadman.
+fn halts_a_velocity(action: Action) -> bool {
+    matches!(
+        action,
+        Action::Stop | Action::Estop | Action::Home | Action::ToggleTorque
+    )
+}
+
 /// One hold: the motion keys held, when it ends, when it is renewed.
 #[derive(Debug, Clone)]
 struct Hold {
@@ -283,7 +294,7 @@ impl Keyboard {
                     return;
                 }
                 if let Some(hold) = self.hold.take() {
-                    if action == Action::Quit && hold.live && in_control {
+                    if !halts_a_velocity(action) && hold.live && in_control {
                         out.push(Action::Velocity([0.0, 0.0]));
                     }
                 }
@@ -719,15 +730,12 @@ mod tests {
     }
 
     #[test]
-    fn command_keys_and_other_keys_end_a_hold_without_the_extra_zero() {
+    fn keys_whose_command_halts_the_arm_end_a_hold_without_the_extra_zero() {
         let cases = [
             (Key::Space, Action::Stop),
             (Key::Char('e'), Action::Estop),
-            (Key::Char('r'), Action::Reset),
-            (Key::Tab, Action::NextStrategy),
             (Key::Char('h'), Action::Home),
             (Key::Char('t'), Action::ToggleTorque),
-            (Key::Char('c'), Action::TakeControl),
             (Key::Char('x'), Action::Stop),
             (Key::Other, Action::Stop),
         ];
@@ -737,6 +745,33 @@ mod tests {
             assert_eq!(press(&mut kb, key, 0.2), [action], "{key:?}");
             assert_eq!(kb.held_velocity(), None);
             assert!(run(&mut kb, 0.2, 2.0, true).is_empty(), "{key:?}");
+        }
+    }
+
+    #[test]
+    fn keys_whose_command_leaves_a_velocity_running_end_a_hold_with_its_zero_first() {
+        // `strategy`, `take_control` and a `reset` without a latch leave a velocity to its
+        // deadman: without the zero the tip would go on for up to half a second.
+        let cases = [
+            (Key::Tab, Action::NextStrategy),
+            (Key::Char('c'), Action::TakeControl),
+            (Key::Char('r'), Action::Reset),
+        ];
+        for (key, action) in cases {
+            for releases in [false, true] {
+                let mut kb = Keyboard::new(0.05);
+                kb.set_releases_reported(releases);
+                press(&mut kb, Key::Up, 0.0);
+                assert_eq!(press(&mut kb, key, 0.2), [ZERO, action], "{key:?}");
+                assert_eq!(kb.held_velocity(), None);
+                assert!(run(&mut kb, 0.2, 2.0, true).is_empty(), "{key:?}");
+            }
+            // A hold without control sends nothing: the zero is not ours to send.
+            let mut kb = Keyboard::new(0.05);
+            let mut out = Vec::new();
+            kb.key(Key::Up, KeyKind::Press, 0.0, false, &mut out);
+            kb.key(key, KeyKind::Press, 0.2, false, &mut out);
+            assert!(!out.contains(&ZERO), "{key:?}: {out:?}");
         }
     }
 
