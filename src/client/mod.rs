@@ -795,10 +795,7 @@ impl Client {
                 drop(inbox);
                 return Err(self.closed().into());
             }
-            let left = match deadline {
-                Some(deadline) => deadline.saturating_duration_since(Instant::now()),
-                None => Duration::from_secs(3600),
-            };
+            let left = time_left(deadline);
             if left.is_zero() {
                 return Ok(None);
             }
@@ -811,7 +808,7 @@ impl Client {
     /// [`ClientError::Unreadable`] for a line that does not read (the next call goes on after
     /// it).
     pub fn next(&mut self, timeout: Duration) -> Result<Option<Incoming>, ClientError> {
-        let deadline = Instant::now() + timeout;
+        let deadline = Instant::now().checked_add(timeout);
         let shared = Arc::clone(&self.shared);
         let mut inbox = shared.inbox();
         loop {
@@ -824,7 +821,7 @@ impl Client {
                 drop(inbox);
                 return Err(self.closed());
             }
-            let left = deadline.saturating_duration_since(Instant::now());
+            let left = time_left(deadline);
             if left.is_zero() {
                 return Ok(None);
             }
@@ -849,7 +846,7 @@ impl Client {
         &mut self,
         timeout: Duration,
     ) -> Result<Option<Arc<TelemetryLine>>, ClientError> {
-        let deadline = Instant::now() + timeout;
+        let deadline = Instant::now().checked_add(timeout);
         let shared = Arc::clone(&self.shared);
         let mut inbox = shared.inbox();
         loop {
@@ -861,7 +858,7 @@ impl Client {
                 drop(inbox);
                 return Err(self.closed());
             }
-            let left = deadline.saturating_duration_since(Instant::now());
+            let left = time_left(deadline);
             if left.is_zero() {
                 return Ok(None);
             }
@@ -943,7 +940,7 @@ impl Client {
         cmd: CmdName,
         timeout: Duration,
     ) -> Result<Fields, ClientError> {
-        let deadline = Instant::now() + timeout;
+        let deadline = Instant::now().checked_add(timeout);
         let shared = Arc::clone(&self.shared);
         let mut inbox = shared.inbox();
         inbox.waiting = true;
@@ -962,7 +959,7 @@ impl Client {
             if inbox.closed {
                 break Err(None);
             }
-            let left = deadline.saturating_duration_since(Instant::now());
+            let left = time_left(deadline);
             if left.is_zero() {
                 break Err(Some(ClientError::Timeout { cmd, timeout }));
             }
@@ -1008,6 +1005,15 @@ impl Drop for Client {
         if let Some(reader) = self.reader.take() {
             let _ = reader.join();
         }
+    }
+}
+
+/// What is left of a wait until `deadline`; `None` (a timeout past what an [`Instant`] holds,
+/// such as [`Duration::MAX`]) waits as long as it takes, an hour at a time.
+fn time_left(deadline: Option<Instant>) -> Duration {
+    match deadline {
+        Some(deadline) => deadline.saturating_duration_since(Instant::now()),
+        None => Duration::from_secs(3600),
     }
 }
 

@@ -483,3 +483,36 @@ fn the_world_commands_are_sent_in_the_sockets_shape_and_the_reply_is_typed() {
     assert_eq!(err.code(), Some(Code::BadArg));
     worker.join().unwrap();
 }
+
+#[test]
+fn a_timeout_of_duration_max_waits_as_long_as_it_takes() {
+    let (mut client, mut daemon) = Scripted::start();
+    let worker = std::thread::spawn(move || {
+        let r = daemon.request();
+        let id = r.id.as_deref().unwrap().clone();
+        daemon.send(&json!({"id": id, "ok": true, "tick": 5}).to_string());
+        daemon.send(
+            &json!({"type": "event", "event": "reset", "tick": 6, "tip": [0, 0]}).to_string(),
+        );
+        let mut t = Telemetry::default().to_fields();
+        t.insert("type".into(), json!("telemetry"));
+        t.insert("tick".into(), json!(7));
+        daemon.send(&Value::Object(t).to_string());
+        daemon
+    });
+    let fields = client.request_within(&Cmd::Reset, Duration::MAX).unwrap();
+    assert_eq!(fields.reply.tick(), Some(5));
+    match client.next(Duration::MAX).unwrap() {
+        Some(Incoming::Event(event)) => assert_eq!(event.tick, 6),
+        other => panic!("{other:?}"),
+    }
+    let telemetry = client.wait_telemetry(Duration::MAX).unwrap().unwrap();
+    assert_eq!(telemetry.status.tick, 7);
+    // Once the daemon has gone, the longest wait ends at once with the closed connection.
+    drop(worker.join().unwrap());
+    assert!(client.next(Duration::MAX).unwrap_err().is_closed());
+    assert!(client
+        .wait_telemetry(Duration::MAX)
+        .unwrap_err()
+        .is_closed());
+}
