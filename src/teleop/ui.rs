@@ -286,8 +286,10 @@ pub fn click_to_world(arm: &ArmInfo, screen: Rect, column: u16, row: u16) -> Opt
     }
     let (xs, ys) = world_bounds(arm, inner);
     // The centre of the cell's braille dots (2 across, 4 down), as the canvas places them.
-    let fx = f64::from(2 * (column - inner.x) + 1) / f64::from(2 * inner.width - 1);
-    let fy = f64::from(4 * (row - inner.y) + 2) / f64::from(4 * inner.height - 1);
+    // In u32: four dots a row overflow a u16 from 16384 rows on.
+    let dots = |cell: u16, per: u32| f64::from(per * u32::from(cell));
+    let fx = (dots(column - inner.x, 2) + 1.0) / (dots(inner.width, 2) - 1.0);
+    let fy = (dots(row - inner.y, 4) + 2.0) / (dots(inner.height, 4) - 1.0);
     Some([xs[0] + fx * (xs[1] - xs[0]), ys[1] - fy * (ys[1] - ys[0])])
 }
 

@@ -343,6 +343,32 @@ fn a_click_on_the_canvas_maps_back_to_the_point_drawn_there() {
     assert_eq!(click_to_world(&arm, screen(), 10, parts.help.y), None);
 }
 
+#[test]
+fn a_click_on_a_huge_terminal_maps_to_the_world_without_overflow() {
+    let arm = sim_arm();
+    // A pty may be set to any size (`stty rows 20000 cols 40000`): a click anywhere maps.
+    for screen in [
+        Rect::new(0, 0, 120, 20_000),
+        Rect::new(0, 0, 40_000, 40),
+        Rect::new(0, 0, u16::MAX, u16::MAX),
+    ] {
+        let parts = areas(screen);
+        let inner = canvas_inner(parts.canvas);
+        let (xs, ys) = world_bounds(&arm, inner);
+        for (col, row) in [
+            (inner.x, inner.y),
+            (inner.x + inner.width - 1, inner.y + inner.height - 1),
+        ] {
+            let p = click_to_world(&arm, screen, col, row)
+                .unwrap_or_else(|| panic!("{screen:?}: ({col}, {row}) is on the canvas"));
+            assert!(
+                (xs[0]..=xs[1]).contains(&p[0]) && (ys[0]..=ys[1]).contains(&p[1]),
+                "{screen:?}: ({col}, {row}) -> {p:?}"
+            );
+        }
+    }
+}
+
 /// A panel whose world is one disc `post` at `center`, radius `radius_m`.
 fn among_post(center: [f64; 2], radius_m: f64, link_radius_m: f64, clearance_m: f64) -> Panel {
     let mut panel = status();
