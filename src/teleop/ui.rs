@@ -293,13 +293,16 @@ pub fn click_to_world(arm: &ArmInfo, screen: Rect, column: u16, row: u16) -> Opt
     Some([xs[0] + fx * (xs[1] - xs[0]), ys[1] - fy * (ys[1] - ys[0])])
 }
 
-/// Whether joint `i` at `theta` is within [`NEAR_LIMIT`] of its range from a limit.
+/// Whether joint `i` at `theta` is within [`NEAR_LIMIT`] of its range from a limit (never, for
+/// a joint without limits).
 pub fn near_limit(arm: &ArmInfo, i: usize, theta: f64) -> bool {
-    let (Some(&lo), Some(&hi)) = (arm.min_rad.get(i), arm.max_rad.get(i)) else {
+    // The chain's limits: `describe` writes a joint without any as the extreme f64s, whose
+    // range does not fit in one.
+    let Some(Some(limit)) = arm.chain().limits().get(i) else {
         return false;
     };
-    let margin = NEAR_LIMIT * (hi - lo);
-    theta - lo < margin || hi - theta < margin
+    let margin = NEAR_LIMIT * (limit.hi - limit.lo);
+    theta - limit.lo < margin || limit.hi - theta < margin
 }
 
 /// Who is in control, as the panel says it.

@@ -247,6 +247,23 @@ fn a_joint_near_its_limit_is_marked_in_red() {
 }
 
 #[test]
+fn a_joint_without_limits_is_never_near_one() {
+    // The protocol writes a joint without limits as the lowest and highest f64.
+    let mut describe = sim_arm().describe().clone();
+    describe.min_rad[0] = f64::MIN;
+    describe.max_rad[0] = f64::MAX;
+    let arm = ArmInfo::new(describe).unwrap();
+    assert_eq!(arm.chain().limits()[0], None);
+    for theta in [0.0, 3.0, -100.0] {
+        assert!(!near_limit(&arm, 0, theta), "{theta}");
+    }
+    assert!(near_limit(&arm, 1, 1.9), "a limited joint still is");
+    let snapshot = snapshot_at(&arm, &arm.home_rad);
+    let text = lines(&render_arm(&arm, Some(&snapshot), &status())).join("\n");
+    assert!(!text.contains("near a limit"), "{text}");
+}
+
+#[test]
 fn another_client_in_control_is_named_with_the_way_to_take_over() {
     let arm = sim_arm();
     let mut snapshot = snapshot_at(&arm, &arm.home_rad);
