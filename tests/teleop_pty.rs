@@ -696,3 +696,92 @@ fn the_stick_moves_the_tip_only_while_the_deadman_is_held() {
     ui.send(b"q");
     ui.quits_giving_the_terminal_back("q");
 }
+
+/// A FIFO named like a joystick device in `dir`, standing in for one.
+fn fake_pad(dir: &Path) -> PathBuf {
+    let device = dir.join("js0");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&device)
+        .status()
+        .unwrap();
+    assert!(made.success(), "mkfifo failed");
+    device
+}
+
+/// The writing end of `device`, once the UI has opened it (on a thread, so a reader that never
+/// opens fails the test instead of hanging it); the state on open written: buttons up, stick
+/// centred.
+fn open_pad(device: &Path) -> std::fs::File {
+    let (opened, pad) = mpsc::channel();
+    {
+        let device = device.to_path_buf();
+        std::thread::spawn(move || {
+            let _ = opened.send(std::fs::OpenOptions::new().write(true).open(device));
+        });
+    }
+    let mut pad = pad
+        .recv_timeout(DEADLINE)
+        .expect("teleop opens the device")
+        .unwrap();
+    let mut init: Vec<[u8; 8]> = (0..8).map(|b| js_event(0, 0, 0x81, b)).collect();
+    init.extend([js_event(0, 0, 0x82, 0), js_event(0, 0, 0x82, 1)]);
+    for event in init {
+        pad.write_all(&event).unwrap();
+    }
+    pad.flush().unwrap();
+    pad
+}
+
+#[test]
+fn q_during_a_stick_motion_stops_the_arm_before_quitting() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    // A daemon that outlives the UI: what the arm does after `q` is the UI's doing.
+    let local = LocalDaemon::start(&config, SocketAddr::from(([127, 0, 0, 1], 0)));
+    let addr = local.daemon.addr().to_string();
+    let device = fake_pad(dir.path());
+    let mut ui = Ui::start(&[
+        "--connect".as_ref(),
+        addr.as_ref(),
+        "--joystick".as_ref(),
+        device.as_os_str(),
+        "--deadman-button".as_ref(),
+        "5".as_ref(),
+    ]);
+    let mut pad = open_pad(&device);
+    let text = ui.wait_for("the stick connected, the arm at rest, in control", |t| {
+        t.contains("connected (js0), deadman 5")
+            && field(t, "state") == Some("holding")
+            && field(t, "control") == Some("you")
+    });
+    let start = tip(&text).unwrap();
+    let mut client = Client::connect(&addr, None).unwrap();
+
+    // Full right with the deadman held, and held on through `q`.
+    pad.write_all(&js_event(100, 32767, 2, 0)).unwrap();
+    pad.write_all(&js_event(200, 1, 1, 5)).unwrap();
+    pad.flush().unwrap();
+    ui.wait_for("the tip moving right", |t| {
+        tip(t).is_some_and(|p| p[0] > start[0] + 0.01)
+    });
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+    let at_quit = client.status().unwrap().tip;
+
+    // Stopped at once, the tip goes on by the braking only (0.0025 m from 0.05 m/s at
+    // 0.5 m/s²), not for the rest of the deadman (up to 0.025 m).
+    let deadline = Instant::now() + DEADLINE;
+    let end = loop {
+        let status = client.status().unwrap();
+        if status.state == "holding" {
+            break status.tip;
+        }
+        assert!(Instant::now() < deadline, "the arm never came to rest");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(
+        end[0] - at_quit[0] < 0.006,
+        "the tip went on {} m after teleop quit",
+        end[0] - at_quit[0]
+    );
+}

@@ -530,12 +530,21 @@ impl App {
         }
     }
 
-    /// Sends each action; `true` when one is Quit (after the ones before it went out).
+    /// Sends each action; `true` when one is Quit (after the ones before it went out, and the
+    /// stick's motion ended).
     fn execute(&mut self, actions: &mut Vec<Action>) -> bool {
         let mut quit = false;
+        let mut zero_sent = false;
         for action in actions.drain(..) {
             let cmd = match action {
                 Action::Quit => {
+                    // A stick motion would run on to the daemon's deadman: one zero ends it
+                    // (unless a key's hold has just sent its own).
+                    let mut halt = Vec::new();
+                    self.stick.halt(self.in_control(), &mut halt);
+                    if !halt.is_empty() && !zero_sent {
+                        self.send(&Cmd::Velocity { v: [0.0, 0.0] });
+                    }
                     quit = true;
                     break;
                 }
@@ -554,6 +563,7 @@ impl App {
                     None => continue,
                 },
             };
+            zero_sent = matches!(cmd, Cmd::Velocity { v } if v == [0.0, 0.0]);
             self.send(&cmd);
             self.dirty = true;
         }

@@ -148,6 +148,16 @@ impl Stick {
         }
     }
 
+    /// Ends the motion going on, if any, with its one zero (teleop quitting, say); the deadman
+    /// counts again only after a release.
+    pub fn halt(&mut self, in_control: bool, out: &mut Vec<Action>) {
+        if self.moving.take().is_some() && in_control {
+            out.push(Action::Velocity([0.0, 0.0]));
+        }
+        self.engaged = false;
+        self.armed = false;
+    }
+
     /// When [`Stick::tick`] next has something to do, s.
     pub fn next_deadline(&self) -> Option<f64> {
         self.moving.map(|_| self.next_renewal_s())
@@ -705,6 +715,30 @@ mod tests {
         assert_eq!(out, [Action::Velocity([-2.0 * SPEED, 0.0])]);
         let next = stick.next_deadline().unwrap();
         assert!(next > 11.05 && next <= 11.1 + 1e-9, "{next}");
+    }
+
+    #[test]
+    fn a_halt_sends_the_one_zero_and_the_deadman_needs_a_fresh_press() {
+        let mut stick = connected();
+        feed(&mut stick, &[deadman(true), axis(0, 1.0)], 0.0, true);
+        let mut out = Vec::new();
+        stick.halt(true, &mut out);
+        assert_eq!(out, [ZERO]);
+        stick.halt(true, &mut out);
+        stick.tick(1.0, SPEED, true, &mut out);
+        assert_eq!(
+            out,
+            [ZERO],
+            "one zero, then nothing while the deadman stays down"
+        );
+        assert_eq!(stick.next_deadline(), None);
+        assert!(feed(&mut stick, &[axis(0, 0.9)], 1.1, true).is_empty());
+        assert!(feed(&mut stick, &[deadman(false)], 1.2, true).is_empty());
+        assert_eq!(feed(&mut stick, &[deadman(true)], 1.3, true).len(), 1);
+        // Without control there is no zero to send.
+        let mut out = Vec::new();
+        stick.halt(false, &mut out);
+        assert!(out.is_empty());
     }
 
     #[test]
