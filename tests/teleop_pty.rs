@@ -785,3 +785,45 @@ fn q_during_a_stick_motion_stops_the_arm_before_quitting() {
         end[0] - at_quit[0]
     );
 }
+
+#[test]
+fn a_click_during_a_key_hold_sends_the_tip_to_the_point() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    let mut ui = Ui::start(&["--sim".as_ref(), config.as_os_str()]);
+    let text = ui.wait_for("the arm at rest, in control", |t| {
+        field(t, "state") == Some("holding") && field(t, "control") == Some("you")
+    });
+    let addr = field(&text, "daemon").unwrap().to_owned();
+    let mut client = Client::connect(&addr, None).unwrap();
+    let arm = client.describe().unwrap();
+    let screen = ratatui::layout::Rect::new(0, 0, COLS, ROWS);
+    let (col, row) = (30, 12);
+    let target = ui::click_to_world(&arm, screen, col, row).unwrap();
+
+    // Right (a hold of 0.6 s on a VT100), then at once a click: the click's `goto` wins.
+    ui.send(b"\x1b[C");
+    ui.send(
+        format!(
+            "\x1b[<0;{};{}M\x1b[<0;{};{}m",
+            col + 1,
+            row + 1,
+            col + 1,
+            row + 1
+        )
+        .as_bytes(),
+    );
+    let text = ui.wait_for("the tip at the clicked point", |t| {
+        field(t, "state") == Some("holding")
+            && tip(t).is_some_and(|p| (p[0] - target[0]).hypot(p[1] - target[1]) < 0.005)
+    });
+    let status = client.status().unwrap();
+    assert!(
+        (status.tip_meas[0] - target[0]).hypot(status.tip_meas[1] - target[1]) < 0.005,
+        "clicked {target:?}, the daemon has the tip at {:?}\n{text}",
+        status.tip_meas
+    );
+    drop(client);
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+}

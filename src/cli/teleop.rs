@@ -521,6 +521,8 @@ impl App {
             return;
         };
         if self.in_control() {
+            // A key's hold would stop the `goto` with its zero, or replace it at its renewal.
+            self.keyboard.give_way();
             self.send(&Cmd::Goto {
                 target,
                 speed: None,

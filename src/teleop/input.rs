@@ -330,6 +330,13 @@ impl Keyboard {
         }
     }
 
+    /// Another command took the arm over (a click's `goto`): a hold going on ends, without its
+    /// zero, which would stop that command, and without more renewals, which would replace it.
+    pub fn give_way(&mut self) {
+        self.hold = None;
+        self.pending_zero = false;
+    }
+
     /// The tip velocity being held, m/s (`None` when no key is held, or when the hold does
     /// not command the arm for want of control).
     pub fn held_velocity(&self) -> Option<[f64; 2]> {
@@ -772,6 +779,24 @@ mod tests {
             kb.key(Key::Up, KeyKind::Press, 0.0, false, &mut out);
             kb.key(key, KeyKind::Press, 0.2, false, &mut out);
             assert!(!out.contains(&ZERO), "{key:?}: {out:?}");
+        }
+    }
+
+    #[test]
+    fn giving_way_ends_a_hold_without_its_zero_or_more_renewals() {
+        for releases in [false, true] {
+            let mut kb = Keyboard::new(0.05);
+            kb.set_releases_reported(releases);
+            press(&mut kb, Key::Up, 0.0);
+            kb.give_way();
+            assert_eq!(kb.held_velocity(), None);
+            assert_eq!(kb.next_deadline(), None);
+            assert!(run(&mut kb, 0.0, 2.0, true).is_empty(), "{releases}");
+            // The next press starts a hold of its own.
+            assert_eq!(
+                press(&mut kb, Key::Up, 2.0),
+                [Action::Velocity([0.0, 0.05])]
+            );
         }
     }
 
