@@ -498,4 +498,15 @@ fn a_daemon_with_a_token_admits_token_file_and_refuses_without_it() {
     std::fs::write(&wrong, "battery staple\n").unwrap();
     let run = at(&d, &["status", "--token-file", text(&wrong)]);
     assert_fails(&run, 1, "unauthorized");
+    // The token was passed: the error names its file, and asks for no --token-file.
+    assert_fails(
+        &run,
+        1,
+        &format!("the daemon refused the token in {}", text(&wrong)),
+    );
+    assert!(
+        !run.stderr.contains("pass --token-file"),
+        "{:?}",
+        run.stderr
+    );
 }

@@ -16,7 +16,7 @@ use std::time::Duration;
 use anyhow::anyhow;
 use clap::Args;
 use serde_json::Value;
-use snakectl::client::{Client, ClientError, Ending, Fields};
+use snakectl::client::{Client, ClientError, CmdName, Ending, Fields};
 use snakectl::protocol::{strategy_named, Cmd, Code, MAX_PATH_POINTS, STRATEGIES};
 
 use super::{outln, Failure};
@@ -242,7 +242,21 @@ const FOREVER: Duration = Duration::MAX;
 
 /// Connects as `args` say.
 pub(super) fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
-    Client::connect_with(&args.connect, args.token_file.as_deref()).map_err(refused)
+    Client::connect_with(&args.connect, args.token_file.as_deref()).map_err(|e| {
+        match (&e, &args.token_file) {
+            // A token was passed and refused: the wrong one, not a missing one.
+            (
+                ClientError::Refused {
+                    cmd: CmdName::Auth, ..
+                },
+                Some(file),
+            ) => Failure::other(anyhow::Error::new(e).context(format!(
+                "the daemon refused the token in {}",
+                file.display()
+            ))),
+            _ => refused(e),
+        }
+    })
 }
 
 /// Exit code 1 with the client's error; a missing token gets a hint.
