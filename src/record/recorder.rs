@@ -20,11 +20,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use super::schema::{self, ChannelSpec};
 use super::sink::{McapSink, RecordError, Sink};
-use super::tap::{self, Closer, Counts, Drain, Item, Tap};
+use super::tap::{self, now_ns, Closer, Counts, Drain, Item, Tap};
 use crate::chain::Chain;
 use crate::config::Config;
 use crate::protocol::{self, Event, Status, Telemetry, What};
@@ -85,29 +85,23 @@ impl Setup {
     }
 }
 
-/// The loop's time base on the wall clock: tick 0's time, fixed when the recorder takes its
-/// first item (within a few milliseconds of its tick).
+/// The loop's time base on the wall clock: tick 0's time, from when the loop made its first
+/// offer (the recorder takes it up to a batch later, or up to a second below 32 Hz).
 #[derive(Debug, Clone, Copy, Default)]
 struct Epoch {
     tick0_ns: Option<u64>,
 }
 
 impl Epoch {
-    /// When `tick` ran, ns since the Unix epoch.
-    fn time_ns(&mut self, setup: &Setup, tick: u64) -> u64 {
-        let since = setup.since_start_ns(tick);
-        let tick0 = *self
-            .tick0_ns
-            .get_or_insert_with(|| now_ns().saturating_sub(since));
-        tick0.saturating_add(since)
+    /// When `tick` ran, ns since the Unix epoch; `first` is the first offer's tick and time
+    /// (now, without one).
+    fn time_ns(&mut self, setup: &Setup, first: Option<(u64, u64)>, tick: u64) -> u64 {
+        let tick0 = *self.tick0_ns.get_or_insert_with(|| {
+            let (tick, at) = first.unwrap_or_else(|| (tick, now_ns()));
+            at.saturating_sub(setup.since_start_ns(tick))
+        });
+        tick0.saturating_add(setup.since_start_ns(tick))
     }
-}
-
-/// Now, ns since the Unix epoch (0 before it).
-fn now_ns() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
 }
 
 /// A ROS time from ns since the epoch (seconds saturate past 2038).
@@ -378,7 +372,7 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
         };
         let result = match item {
             Item::Tick(t) => {
-                let ns = epoch.time_ns(setup, t.tick);
+                let ns = epoch.time_ns(setup, drain.first_offer(), t.tick);
                 let before = written;
                 let r = write_tick(sink.as_mut(), ch, ns, &t, &mut written);
                 let r = r.and_then(|()| {
@@ -407,7 +401,7 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
                         Err(e) => tracing::warn!("a world event the scene cannot draw: {e}"),
                     }
                 }
-                let ns = epoch.time_ns(setup, e.tick);
+                let ns = epoch.time_ns(setup, drain.first_offer(), e.tick);
                 let r = write_event(sink.as_mut(), ch, ns, &e, &mut written);
                 lost[EVENTS] += u64::from(r.is_err());
                 r
@@ -678,12 +672,74 @@ mod tests {
         assert_eq!(tap.counts().ticks.dropped, 900);
     }
 
+    /// A sink that keeps the log time of every message, and holds the recorder in its first
+    /// `add_channel` until `hold` is sent to.
+    struct Times {
+        times: Arc<Mutex<Vec<u64>>>,
+        hold: Option<std::sync::mpsc::Receiver<()>>,
+    }
+
+    impl Sink for Times {
+        fn add_channel(&mut self, _: &ChannelSpec) -> Result<u16, RecordError> {
+            if let Some(hold) = self.hold.take() {
+                hold.recv().unwrap();
+            }
+            Ok(0)
+        }
+
+        fn write(&mut self, _: u16, log_time_ns: u64, _: &[u8]) -> Result<(), RecordError> {
+            self.times.lock().unwrap().push(log_time_ns);
+            Ok(())
+        }
+
+        fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), RecordError> {
+            Ok(())
+        }
+
+        fn finish(&mut self) -> Result<(), RecordError> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn tick_0_is_logged_when_the_loop_offered_it_not_when_the_recorder_took_it() {
+        let times = Arc::new(Mutex::new(Vec::new()));
+        let (release, hold) = std::sync::mpsc::channel();
+        let sink = Times {
+            times: Arc::clone(&times),
+            hold: Some(hold),
+        };
+        let (recorder, tap) =
+            Recorder::start(Box::new(sink), setup(), Notes::new(), "times".into()).unwrap();
+        let before = now_ns();
+        tap.offer_tick(&Telemetry {
+            theta_meas: vec![0.1, 0.2],
+            ..Telemetry::default()
+        });
+        let after = now_ns();
+        // The recorder takes it 100 ms later, as it takes a batch's first tick up to 32 ticks
+        // after the loop offered it (a second, below 32 Hz).
+        std::thread::sleep(Duration::from_millis(100));
+        release.send(()).unwrap();
+        let summary = recorder.close();
+        assert!(summary.error.is_none(), "{:?}", summary.error);
+        let times = times.lock().unwrap();
+        assert!(!times.is_empty());
+        for &t in times.iter() {
+            assert!(
+                (before..=after).contains(&t),
+                "tick 0 offered within {before}..={after}, logged at {t} ({} ms late)",
+                t.saturating_sub(after) / 1_000_000
+            );
+        }
+    }
+
     #[test]
     fn ticks_are_logged_whole_periods_after_tick_0() {
         let setup = setup();
         let mut epoch = Epoch::default();
-        let t0 = epoch.time_ns(&setup, 0);
-        assert_eq!(epoch.time_ns(&setup, 250) - t0, 2_500_000_000);
+        let t0 = epoch.time_ns(&setup, None, 0);
+        assert_eq!(epoch.time_ns(&setup, None, 250) - t0, 2_500_000_000);
         assert_eq!(
             stamp(1_700_000_000_123_456_789),
             ros::Time {

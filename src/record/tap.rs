@@ -14,7 +14,7 @@
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
-use std::time::Duration;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use crate::protocol::{Event, FaultInfo, Telemetry};
 
@@ -79,6 +79,9 @@ struct Queue {
     stopped: bool,
     /// The recorder is to finish once the queue is empty.
     closing: bool,
+    /// The first offer: its tick and when it was made, ns since the Unix epoch (the loop's
+    /// time base on the wall clock, whenever the recorder takes it).
+    first: Option<(u64, u64)>,
 }
 
 #[derive(Debug)]
@@ -123,6 +126,7 @@ pub fn channel(capacity: usize, joints: usize) -> (Tap, Drain) {
             counts: Counts::default(),
             stopped: false,
             closing: false,
+            first: None,
         }),
         ready: Condvar::new(),
         wake: AtomicBool::new(false),
@@ -157,6 +161,7 @@ impl Tap {
     pub fn offer_tick(&self, telemetry: &Telemetry) {
         let target = telemetry.target.is_some();
         let mut q = self.shared.lock();
+        q.note_first(telemetry.tick);
         q.counts.ticks.offered += 1;
         if target {
             q.counts.targets.offered += 1;
@@ -189,6 +194,7 @@ impl Tap {
     /// Offers an event (the oldest item dropped when the queue is full).
     pub fn offer_event(&self, event: &Event) {
         let mut q = self.shared.lock();
+        q.note_first(event.tick);
         q.counts.events.offered += 1;
         if q.stopped {
             q.counts.events.dropped += 1;
@@ -221,6 +227,13 @@ impl Tap {
 }
 
 impl Queue {
+    /// Notes the time of the first offer (one clock read, then nothing).
+    fn note_first(&mut self, tick: u64) {
+        if self.first.is_none() {
+            self.first = Some((tick, now_ns()));
+        }
+    }
+
     /// The queue has just reached [`WAKE_AT`] items (or half its capacity): the one offer of
     /// the batch that asks for a wake-up, so the loop makes no system call and wakes no thread
     /// on the other ticks.
@@ -289,6 +302,12 @@ impl Drain {
         self.shared.lock().counts
     }
 
+    /// The first offer's tick and when the loop made it (ns since the Unix epoch); `None`
+    /// before any.
+    pub fn first_offer(&self) -> Option<(u64, u64)> {
+        self.shared.lock().first
+    }
+
     /// A handle that closes the hand-over from another thread.
     pub fn closer(&self) -> Closer {
         Closer {
@@ -314,6 +333,13 @@ impl Closer {
     pub fn counts(&self) -> Counts {
         self.shared.lock().counts
     }
+}
+
+/// Now, ns since the Unix epoch (0 before it).
+pub fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
 }
 
 /// Copies `src` into `dst`, reusing `dst`'s lists and strings (no allocation once they are
