@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use std::net::TcpListener;
 use std::time::{Duration, Instant};
 
+use daemon_support::child::DaemonChild;
 #[cfg(target_os = "linux")]
 use daemon_support::threads_at;
 use daemon_support::{dist, floats, sim_config, xy, Daemon, DEADLINE};
@@ -532,6 +533,93 @@ fn beyond_max_clients_a_client_is_answered_503_until_one_leaves() {
     assert_eq!(first.data().subscription, 1);
     drop((first, third));
     daemon.stop().unwrap();
+}
+
+/// Connects with a small receive buffer, so that a client that stops reading fills its
+/// connection in seconds rather than minutes.
+fn connect_with_small_window(port: u16) -> Fox {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let socket = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let addr = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    socket.connect(&addr.into()).unwrap();
+    let stream: std::net::TcpStream = socket.into();
+    stream.set_nonblocking(true).unwrap();
+    let mut request = format!("ws://127.0.0.1:{port}")
+        .into_client_request()
+        .unwrap();
+    request.headers_mut().insert(
+        "sec-websocket-protocol",
+        HeaderValue::from_static("foxglove.sdk.v1"),
+    );
+    let ws = runtime
+        .block_on(async {
+            let stream = MaybeTlsStream::Plain(TcpStream::from_std(stream).unwrap());
+            tokio_tungstenite::client_async(request, stream).await
+        })
+        .unwrap()
+        .0;
+    Fox {
+        runtime,
+        ws,
+        channels: BTreeMap::new(),
+        control: Vec::new(),
+    }
+}
+
+#[test]
+fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    // Published at the loop's rate, so that the client's connection fills in seconds.
+    let table = format!("[foxglove]\nlisten = \"127.0.0.1:{port}\"\npublish_hz = 100.0\n");
+    let config = sim_config(&[("max_clients = 4", &format!("max_clients = 4\n\n{table}"))]);
+    let path = dir.path().join("arm.toml");
+    std::fs::write(&path, config.text()).unwrap();
+    let recording = dir.path().join("run.mcap");
+    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
+        .unwrap();
+    let mut daemon = DaemonChild::spawn_with(
+        &path,
+        sim.path(),
+        &["--record".as_ref(), recording.as_os_str()],
+    );
+    let mut client = daemon_support::Client::connect(daemon.address());
+    let start = xy(&client.status()["tip"]);
+    let mut stalled = connect_with_small_window(port);
+    stalled.next_op("serverInfo");
+    stalled.advertised(&TOPICS);
+    stalled.subscribe(&TOPICS);
+    // It reads nothing more. The arm moves to and fro (the trail and so the scene grow) until
+    // the server's queue for the client overflows: its connection is full, the server's
+    // writes to it wait.
+    let deadline = Instant::now() + DEADLINE;
+    for k in 0.. {
+        assert!(
+            Instant::now() < deadline,
+            "the stalled client's connection never filled"
+        );
+        let dx = if k % 2 == 0 { 0.06 } else { 0.0 };
+        client.ok(json!({"cmd": "goto", "target": [start[0] + dx, start[1]]}));
+        if daemon
+            .logged("outbox for client", Duration::from_millis(300))
+            .is_some()
+        {
+            break;
+        }
+    }
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+    let bytes = std::fs::read(&recording).unwrap();
+    assert!(
+        bytes.ends_with(b"\x89MCAP0\r\n"),
+        "the recording was closed, its summary written"
+    );
+    drop(stalled);
 }
 
 #[cfg(target_os = "linux")]

@@ -2,8 +2,9 @@
 //! its own, publishing the channels of [`crate::view`] from what the loop publishes.
 //!
 //! [`View::open`] binds the server before anything moves (a taken port stops start-up);
-//! [`View::start`] hands it a [`Door`]; [`View::stop`] closes it. Its thread runs its own
-//! runtime and never holds the loop up: at `publish_hz`, right after the loop's next tick
+//! [`View::start`] hands it a [`Door`]; [`View::stop`] closes it (a client that does not take
+//! its close within [`FLUSH_GRACE`] is cut off). Its thread runs its own runtime and never
+//! holds the loop up: at `publish_hz`, right after the loop's next tick
 //! ends (in the idle rest of its period, not across a tick), it clones the latest telemetry
 //! from the loop's `watch` (latest wins: a skipped sample is never queued) and sends the joints,
 //! the tips, the target, the telemetry line and the whole scene again (so a client that joins
@@ -38,7 +39,7 @@ use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
 use super::access::Token;
-use super::server::Door;
+use super::server::{Door, FLUSH_GRACE};
 use super::side::{Side, SideEnds};
 use crate::chain::Chain;
 use crate::config::Config;
@@ -433,7 +434,18 @@ fn view_thread(
                 Err(e) => warn!(error = %e, "the Foxglove channels could not be declared"),
             }
         }
-        handle.stop().wait().await;
+        // Each client is sent its close; one that reads nothing more (its connection full)
+        // would hold the stop, and the daemon's exit with it, for as long as it stays: it is
+        // given the socket's grace, then cut off with the runtime.
+        if time::timeout(FLUSH_GRACE, handle.stop().wait())
+            .await
+            .is_err()
+        {
+            warn!(
+                grace_ms = FLUSH_GRACE.as_millis() as u64,
+                "a Foxglove client did not take its close in time: cut off"
+            );
+        }
     });
 }
 

@@ -19,11 +19,17 @@ pub struct DaemonChild {
 impl DaemonChild {
     /// `snakectl run` on `config` and `port`, listening on a port-0 loopback socket.
     pub fn spawn(config: &Path, port: &Path) -> Self {
+        Self::spawn_with(config, port, &[])
+    }
+
+    /// [`DaemonChild::spawn`] with more arguments (`--record FILE`, say).
+    pub fn spawn_with(config: &Path, port: &Path, more: &[&std::ffi::OsStr]) -> Self {
         let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
             .args(["run", "--listen", "127.0.0.1:0", "--config"])
             .arg(config)
             .arg("--port")
             .arg(port)
+            .args(more)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
@@ -59,6 +65,20 @@ impl DaemonChild {
                 let rest = &line[at + "listening on ".len()..];
                 let addr = rest.split_whitespace().next().unwrap_or(rest);
                 return addr.parse().unwrap();
+            }
+        }
+    }
+
+    /// The next line logged that contains `text`, waiting up to `wait` (the lines before it are
+    /// let go); `None` when none came in time.
+    pub fn logged(&self, text: &str, wait: Duration) -> Option<String> {
+        let deadline = Instant::now() + wait;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.stderr.recv_timeout(left) {
+                Ok(line) if line.contains(text) => return Some(line),
+                Ok(_) => {}
+                Err(_) => return None,
             }
         }
     }
