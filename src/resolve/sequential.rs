@@ -266,24 +266,21 @@ impl Sequential {
     }
 
     /// Beyond the outer radius: the tip pulled without bound toward the target straightens the
-    /// arm along the pull (every `k` underflows), then the shift puts the base back. The tip
-    /// stops `|t - b| - R` short: the closest any pose gets.
+    /// arm along the pull (every `k` underflows, and each link's head comes from ever farther
+    /// along the same line), then the shift puts the base back. The limit is the straight arm
+    /// pointing from the base at the target, written here directly: a far but finite pull
+    /// leaves every link tilted by about `R` over the pull's length. The tip stops
+    /// `|t - b| - R` short: the closest any pose gets.
     fn correct_beyond_reach(&mut self, chain: &Chain, target: Vec2) -> (usize, f64) {
         let b = chain.base();
         let dir = (target - b) / (target - b).norm();
-        let far = b + dir * (chain.reach() * 1e4 + (target - b).norm());
-        sweep(
-            &self.start,
-            chain.links(),
-            far,
-            self.options.propagation,
-            &mut self.swept,
-        );
-        let delta = self.swept[0] - b;
-        for p in self.swept.iter_mut() {
-            *p -= delta;
+        let mut p = b;
+        self.swept[0] = b;
+        for (s, &len) in self.swept[1..].iter_mut().zip(chain.links()) {
+            p += dir * len;
+            *s = p;
         }
-        (1, (self.swept[chain.len()] - target).norm())
+        (1, (p - target).norm())
     }
 
     /// The published correction. On return `self.swept` holds the last chain translated onto the
@@ -382,7 +379,7 @@ impl Resolver for Sequential {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::chain::JointLimit;
+    use crate::chain::{cross, JointLimit};
     use crate::resolve::ResolveError;
     use proptest::prelude::*;
     use std::f64::consts::PI;
@@ -476,6 +473,36 @@ mod tests {
             prop_assert!(o.tip_error >= r - chain.reach() - 1e-9);
             prop_assert!(o.tip_error <= (r - chain.reach()) * 1.01 + 1e-3, "{o:?}");
             prop_assert!(o.iterations <= s.options().max_rounds);
+        }
+    }
+
+    #[test]
+    fn a_target_just_beyond_reach_gets_the_straight_arm_pointing_at_it() {
+        // The closest any pose gets to a target beyond the reach R is |t - b| - R, with the
+        // arm straight along the line from the base to the target, whatever the start pose.
+        let chain = arm(3);
+        let b = chain.base();
+        for theta0 in [[1.5, 1.5, 1.5], [0.0, 2.0, 0.0], [3.0, -2.5, 2.0]] {
+            for excess in [1e-6, 1e-2, 0.5] {
+                for bearing in [0.0, 2.0, -2.5] {
+                    let dir = Vec2::new(f64::cos(bearing), f64::sin(bearing));
+                    let target = b + dir * (chain.reach() + excess);
+                    let mut out = vec![0.0; 3];
+                    let o = Sequential::default().solve(&chain, &theta0, target, &mut out);
+                    assert!(!o.reachable && !o.converged, "{o:?}");
+                    let tip = chain.tip(&out);
+                    assert!((tip - target).norm() == o.tip_error);
+                    assert!(
+                        (o.tip_error - excess).abs() < 1e-12,
+                        "start {theta0:?}, {excess} m beyond at {bearing} rad: tip {:.3e} m off",
+                        o.tip_error
+                    );
+                    let pts = chain.points(&out);
+                    for p in &pts[1..] {
+                        assert!(cross(p - b, dir).abs() < 1e-12, "{pts:?} off the line");
+                    }
+                }
+            }
         }
     }
 
