@@ -1,7 +1,15 @@
 //! A small arithmetic expression language for parametric curves: numbers, the parameter `t`,
 //! the constants `pi` and `e`, `+ - * / ^` (`^` binds tightest and associates to the right,
 //! unary minus below it), parentheses and the functions `sin cos tan exp ln sqrt abs sinh cosh
-//! tanh`. Nothing else: an expression cannot name a file, loop or call out.
+//! tanh`. Nothing else: an expression cannot name a file, loop or call out. An expression is at
+//! most [`MAX_LEN`] bytes long and nests parentheses, calls, signs and exponents at most
+//! [`MAX_DEPTH`] deep, so that parsing, evaluating and dropping it never runs off the stack.
+
+/// The longest expression accepted, bytes.
+pub const MAX_LEN: usize = 4096;
+
+/// The deepest nesting accepted: parentheses, function calls, signs and exponents, each level.
+pub const MAX_DEPTH: usize = 64;
 
 /// A parse error: the byte offset in the expression and what was expected.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -76,6 +84,8 @@ impl Func {
 struct Parser<'a> {
     text: &'a [u8],
     pos: usize,
+    /// Nesting of the operand being parsed (every nested operand passes through `unary`).
+    depth: usize,
 }
 
 impl Parser<'_> {
@@ -118,6 +128,16 @@ impl Parser<'_> {
     }
 
     fn unary(&mut self) -> Result<Node, ExprError> {
+        if self.depth >= MAX_DEPTH {
+            return self.error(format!("nested more than {MAX_DEPTH} deep"));
+        }
+        self.depth += 1;
+        let node = self.signed();
+        self.depth -= 1;
+        node
+    }
+
+    fn signed(&mut self) -> Result<Node, ExprError> {
         match self.peek() {
             Some(b'-') => {
                 self.pos += 1;
@@ -223,9 +243,16 @@ impl Parser<'_> {
 impl Expr {
     /// Parses an expression in `t`.
     pub fn parse(text: &str) -> Result<Self, ExprError> {
+        if text.len() > MAX_LEN {
+            return Err(ExprError {
+                position: MAX_LEN,
+                message: format!("longer than {MAX_LEN} characters"),
+            });
+        }
         let mut p = Parser {
             text: text.as_bytes(),
             pos: 0,
+            depth: 0,
         };
         let node = p.sum()?;
         if p.peek().is_some() {
@@ -274,6 +301,41 @@ mod tests {
         let e = Expr::parse("0.3*sin(2*pi*t) + 1.5e-1*cos(t)").unwrap();
         assert!((e.eval(0.25) - (0.3 + 0.15 * 0.25f64.cos())).abs() < 1e-15);
         assert!((Expr::parse("ln(e)").unwrap().eval(0.0) - 1.0).abs() < 1e-15);
+    }
+
+    /// A scenario file is input: however deep or long its expression, the answer is a parse
+    /// error, never a parser, evaluator or destructor recursing off the end of the stack.
+    #[test]
+    fn deep_or_long_expressions_are_refused() {
+        let k = 100_000;
+        let parens = format!("{}t{}", "(".repeat(k), ")".repeat(k));
+        let signs = format!("{}t", "-".repeat(k));
+        let calls = format!("{}t{}", "sin(".repeat(k), ")".repeat(k));
+        let powers = vec!["t"; k].join("^");
+        let sum = vec!["t"; k].join("+");
+        // Within the length, too deep.
+        let k = 1000;
+        let short_parens = format!("{}t{}", "(".repeat(k), ")".repeat(k));
+        let short_signs = format!("{}t", "-".repeat(k));
+        let short_powers = vec!["t"; k].join("^");
+        for text in [
+            &parens,
+            &signs,
+            &calls,
+            &powers,
+            &sum,
+            &short_parens,
+            &short_signs,
+            &short_powers,
+        ] {
+            let e = Expr::parse(text).unwrap_err();
+            assert!(e.message.len() < 100, "{e}");
+        }
+        // Nesting and length that any curve needs still parse.
+        let nested = format!("{}t{}", "(".repeat(60), ")".repeat(60));
+        assert_eq!(Expr::parse(&nested).unwrap().eval(2.0), 2.0);
+        let long = vec!["t"; 1000].join("+");
+        assert_eq!(Expr::parse(&long).unwrap().eval(1.0), 1000.0);
     }
 
     #[test]
