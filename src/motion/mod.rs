@@ -326,6 +326,8 @@ pub struct Motion {
     /// Tip state before this tick's step (to measure progress).
     before: PointMass,
     stalled: u32,
+    /// A route that preempted a tip moving off its way: the tip comes to rest first.
+    settling: bool,
 }
 
 impl Motion {
@@ -357,6 +359,7 @@ impl Motion {
             prior: theta.to_vec(),
             before: PointMass::at_rest(tip),
             stalled: 0,
+            settling: false,
         };
         m.hold_at(tip, theta);
         m
@@ -376,12 +379,14 @@ impl Motion {
         }
         self.pending = None;
         self.stalled = 0;
+        self.settling = false;
     }
 
     fn start(&mut self, mode: Mode) {
         self.mode = mode;
         self.pending = None;
         self.stalled = 0;
+        self.settling = false;
     }
 
     /// A straight line to `target` at `speed` (clamped to the tip speed limit).
@@ -408,8 +413,10 @@ impl Motion {
     /// along the way, coming to rest at each point whose `rest` flag is set and at the last.
     /// One trapezoid of speed runs along the arc length of each stretch between rests, so the
     /// tip does not slow at the polyline's other corners: for a route around obstacles, whose
-    /// corners turn by small angles. A moving tip keeps the part of its velocity along the
-    /// first segment.
+    /// corners turn by small angles. A tip moving along the first segment keeps its speed; one
+    /// moving any other way (across the segment, back along it, or off a route of one point)
+    /// cannot join the way within the acceleration limit: it comes to rest first, at that limit,
+    /// then goes back the way it came to the route's start, at rest there, and on.
     pub fn route(&mut self, mut points: Vec<Vec2>, mut rest: Vec<bool>, speed: f64) {
         if points.is_empty() || rest.len() != points.len() {
             return;
@@ -430,6 +437,18 @@ impl Motion {
         if let Some(last) = rest.last_mut() {
             *last = true;
         }
+        let first = match points.get(1) {
+            Some(&p1) if p1 != points[0] => (p1 - points[0]).normalize(),
+            _ => Vec2::zeros(),
+        };
+        let along = self.tip.v.dot(&first).max(0.0);
+        // Round-off of a velocity already along the way is no reason to stop.
+        let settle = (self.tip.v - first * along).norm() > 1e-9 * self.limits.tip_speed;
+        if settle {
+            // The start twice: the first becomes where the tip comes to rest.
+            points.insert(0, points[0]);
+            rest.insert(0, true);
+        }
         self.cum.clear();
         let mut total = 0.0;
         for k in 0..points.len() {
@@ -438,19 +457,35 @@ impl Motion {
             }
             self.cum.push(total);
         }
-        let along = match points.get(1) {
-            Some(&p1) if self.cum[1] > 0.0 => self.tip.v.dot(&((p1 - points[0]) / self.cum[1])),
-            _ => 0.0,
-        };
         self.s = Axis {
             q: 0.0,
-            v: along.max(0.0),
+            v: if settle { 0.0 } else { along },
         };
         let end = (1..points.len()).find(|&k| rest[k]).unwrap_or(0);
         self.path = points;
         self.rest = rest;
         let speed = speed.min(self.limits.tip_speed);
         self.start(Mode::Route { seg: 0, end, speed });
+        self.settling = settle;
+    }
+
+    /// A settling route's tip at rest at `at`: the route starts there.
+    fn settled(&mut self, at: Vec2) {
+        self.settling = false;
+        if let Some(p) = self.path.first_mut() {
+            *p = at;
+        }
+        let mut total = 0.0;
+        for k in 0..self.path.len().min(self.cum.len()) {
+            if k > 0 {
+                total += (self.path[k] - self.path[k - 1]).norm();
+            }
+            self.cum[k] = total;
+        }
+        self.s = Axis { q: 0.0, v: 0.0 };
+        if let Mode::Route { end, speed, .. } = self.mode {
+            self.mode = Mode::Route { seg: 0, end, speed };
+        }
     }
 
     /// The point at arc length `s` of the route and the unit tangent there, searching forward
@@ -623,6 +658,13 @@ impl Motion {
                     } else {
                         Pending::Finish(Finish::Arrived)
                     });
+                }
+                Reference::Tip(self.tip.p)
+            }
+            Mode::Route { .. } if self.settling => {
+                self.tip.drive(Vec2::zeros(), lim.tip_accel, dt);
+                if self.tip.v == Vec2::zeros() {
+                    self.settled(self.tip.p);
                 }
                 Reference::Tip(self.tip.p)
             }
@@ -1172,6 +1214,62 @@ mod tests {
         assert_eq!(finish, Some(Finish::Arrived));
         // At rest only at the leg ends: the corners in between are passed moving.
         assert_eq!(rests, vec![Vec2::new(0.02, 0.01), Vec2::zeros()]);
+    }
+
+    /// A route that preempts a tip moving at full speed keeps the acceleration and speed limits
+    /// on every tick, whichever way it leaves (across, back, ahead, or a route of one point
+    /// where the tip is), and still ends at rest on its goal.
+    #[test]
+    fn a_route_preempting_a_moving_tip_keeps_the_acceleration_limit() {
+        let lim = limits();
+        let dt = 0.002;
+        for way in [
+            Vec2::new(0.0, 0.05),
+            Vec2::new(-0.05, 0.0),
+            Vec2::new(0.03, 0.01),
+            Vec2::new(0.05, 0.0),
+            Vec2::zeros(),
+        ] {
+            let mut m = Motion::new(lim, &[None], Vec2::zeros(), &[0.0]);
+            let theta = [0.0];
+            let exact = |m: &Motion| Achieved {
+                tip: m.tip().p,
+                theta: &theta,
+                dt,
+                exact: true,
+                saturated: false,
+            };
+            for _ in 0..200 {
+                m.velocity(Vec2::new(lim.tip_speed, 0.0));
+                let _ = m.step(dt);
+                assert_eq!(m.follow(exact(&m)), None);
+            }
+            assert!((m.tip().v.norm() - lim.tip_speed).abs() < 1e-12);
+            let start = m.tip().p;
+            let goal = start + way;
+            m.route(vec![start, goal], vec![true, true], 1.0);
+            let mut prev = *m.tip();
+            let mut finish = None;
+            for k in 0..10_000 {
+                let _ = m.step(dt);
+                let now = *m.tip();
+                let dv = (now.v - prev.v).norm();
+                assert!(
+                    dv <= lim.tip_accel * dt * (1.0 + 1e-9),
+                    "{way:?}, tick {k}: the velocity changed by {dv} m/s against {} m/s",
+                    lim.tip_accel * dt
+                );
+                assert!(now.v.norm() <= lim.tip_speed * (1.0 + 1e-12));
+                assert!((now.p - prev.p).norm() <= lim.tip_speed * dt * (1.0 + 1e-12));
+                prev = now;
+                if let Some(f) = m.follow(exact(&m)) {
+                    finish = Some(f);
+                    break;
+                }
+            }
+            assert_eq!(finish, Some(Finish::Arrived), "{way:?}");
+            assert_eq!(m.tip().p, goal, "{way:?}");
+        }
     }
 
     /// An arm put far off its route by a tick that fell short (a clamped joint step) goes on
