@@ -298,8 +298,9 @@ pub fn residuals(points: &[Vec2], links: &[f64], target: Vec2) -> (f64, f64) {
     (lengths, (points[links.len()] - target).norm())
 }
 
-/// The overall free-rope optimizer. Owns its scratch buffers: nothing is allocated per solve
-/// once sized for a rope.
+/// The overall free-rope optimizer. Owns the scratch buffers of its iterations, sized once for
+/// a rope; a solve still allocates a few vectors of the rope's length once per call (arc
+/// lengths, the rolled-out answer, the metrics that judge it against its seed).
 #[derive(Debug, Clone, Default)]
 pub struct RopeOptimizer {
     options: RopeOptions,
