@@ -284,6 +284,28 @@ fn a_config_file_and_a_target_work_too() {
     );
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--from"));
+    // Every flag is named as typed, with its dashes.
+    for (flag, value) in [
+        ("--strategy", "fastest"),
+        ("--propagation", "magic"),
+        ("--steps", "0"),
+    ] {
+        let mut args = vec![
+            "solve",
+            "--config",
+            "config/arm.toml",
+            "--target",
+            "0.5,0.3",
+        ];
+        if flag != "--strategy" {
+            args.extend(["--strategy", "sequential"]);
+        }
+        args.extend([flag, value]);
+        let out = snakectl(&args, "");
+        assert_eq!(out.status.code(), Some(2), "{flag}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(&format!("{flag}:")), "{flag}: {err}");
+    }
     let out = snakectl(
         &[
             "solve",

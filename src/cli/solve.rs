@@ -93,6 +93,14 @@ fn list(flag: &str, text: &str) -> Result<Vec<f64>, ProblemError> {
         .collect()
 }
 
+/// An error of a problem's field renamed to the command-line flag that gave it.
+fn flag(name: &'static str) -> impl Fn(ProblemError) -> ProblemError {
+    move |e| ProblemError {
+        field: name.into(),
+        ..e
+    }
+}
+
 fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Failure> {
     let config = Config::load(path).map_err(Failure::bad_input)?;
     let build = || -> Result<Problem, ProblemError> {
@@ -104,9 +112,10 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
             None => config.home().to_vec(),
         };
         problem::check_pose(&chain, "--from", &theta0)?;
-        let strategy = problem::parse_strategy(&args.strategy)?;
+        let strategy = problem::parse_strategy(&args.strategy).map_err(flag("--strategy"))?;
         let base_mode = problem::BaseMode::Fixed;
-        problem::check_combination(strategy, base_mode, args.propagation.is_some())?;
+        problem::check_combination(strategy, base_mode, args.propagation.is_some())
+            .map_err(flag("--propagation"))?;
         Ok(Problem {
             chain,
             theta0,
@@ -115,8 +124,9 @@ fn problem_from_config(path: &PathBuf, args: &SolveArgs) -> Result<Problem, Fail
             base_mode,
             propagation: problem::parse_propagation(
                 args.propagation.as_deref().unwrap_or("tractrix"),
-            )?,
-            steps: problem::parse_steps(args.steps)?,
+            )
+            .map_err(flag("--propagation"))?,
+            steps: problem::parse_steps(args.steps).map_err(flag("--steps"))?,
             objective: problem::parse_objective(None, None, strategy, base_mode)?,
             world: config.world().clone(),
         })

@@ -183,7 +183,7 @@ impl Sequential {
         target: Vec2,
         tol: f64,
         budget: usize,
-    ) -> (usize, f64) {
+    ) -> (usize, f64, bool) {
         let links = chain.links();
         let prop = self.options.propagation;
         let b = chain.base();
@@ -193,7 +193,8 @@ impl Sequential {
         let mut rounds = 1;
         let mut g = w - self.swept[0] + b - target;
         let mut radius = (target - self.start[n]).norm().max(links[n - 1]);
-        while g.norm() > tol && rounds < budget {
+        let saddle = g.norm() > tol && at_saddle(&(Matrix2::identity() - jac), &g);
+        while g.norm() > tol && rounds < budget && !saddle {
             // Jacobian of the residual: I - d p_0 / d w.
             let jg = Matrix2::identity() - jac;
             let step = dogleg(&jg, &g, radius);
@@ -227,7 +228,7 @@ impl Sequential {
         for p in self.swept.iter_mut() {
             *p -= delta;
         }
-        (rounds, g.norm())
+        (rounds, g.norm(), saddle)
     }
 
     /// The hybrid correction: Newton from the start pose; when it stalls (large moves fold the
@@ -241,10 +242,26 @@ impl Sequential {
         let mut published = 1;
         loop {
             let budget = NEWTON_BUDGET.min(max - rounds);
-            let (r, residual) = self.newton_phase(chain, target, tol, budget);
+            let (r, residual, saddle) = self.newton_phase(chain, target, tol, budget);
             rounds += r;
             if residual <= tol || rounds + 2 > max {
                 return (rounds, residual);
+            }
+            if saddle {
+                // A straight arm pushed along its own line: every link is pushed head-on and
+                // translates (the tractrix's tie-break), so no goal near the target bends it,
+                // and a published round toward the target only translates it too. One round
+                // toward a goal moved sideways (to the left of the move, by its length) bends
+                // the start; Newton goes on from there.
+                let tip = self.start[chain.len()];
+                let side = Vec2::new(tip.y - target.y, target.x - tip.x);
+                sweep(&self.start, links, target + side, prop, &mut self.swept);
+                rounds += 1;
+                let delta = self.swept[0] - b;
+                for (s, p) in self.start.iter_mut().zip(&self.swept) {
+                    *s = p - delta;
+                }
+                continue;
             }
             // Published rounds from the current start (sweep to the target, shift back), twice
             // as many after every failed Newton phase: where Newton keeps failing the cost stays
@@ -307,6 +324,16 @@ impl Sequential {
         }
         (rounds, residual)
     }
+}
+
+/// How small the gradient of `|g|^2 / 2` may be, relative to `|J| |g|`, for [`at_saddle`].
+const SADDLE: f64 = 1e-9;
+
+/// The residual `g` is orthogonal to every direction the Jacobian `jac` can move it in (a
+/// saddle or a maximum of `|g|`: neither Newton nor steepest descent has a way down), while `g`
+/// is not zero.
+fn at_saddle(jac: &Matrix2<f64>, g: &Vec2) -> bool {
+    (jac.transpose() * g).norm() <= SADDLE * jac.norm() * g.norm()
 }
 
 /// The dogleg step for the 2-D system `J s = -g` inside a ball of `radius`: the Newton step when
@@ -502,6 +529,32 @@ mod tests {
                         assert!(cross(p - b, dir).abs() < 1e-12, "{pts:?} off the line");
                     }
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn a_straight_arm_pushed_along_its_own_line_bends_and_reaches() {
+        // Every link of a straight arm pushed along its line is pushed head-on: without the
+        // sideways move of the goal no sweep bent it, and the tip stayed put (499 sweeps).
+        for n in [2, 3, 4, 7, 12] {
+            let chain = arm(n);
+            let b = chain.base();
+            let theta0 = vec![0.0; n];
+            let tip0 = chain.tip(&theta0);
+            let axis = (tip0 - b) / chain.reach();
+            for share in [0.99, 0.7, 0.3, 0.05, -0.3, -0.7] {
+                let target = b + axis * (share * chain.reach());
+                if chain.ring().classify(target - b) != Reachability::Inside {
+                    continue;
+                }
+                let mut out = vec![0.0; n];
+                let o = Sequential::default().solve(&chain, &theta0, target, &mut out);
+                assert!(
+                    o.converged && o.tip_error <= 1e-9,
+                    "n {n}, {share} of the reach along the arm: {o:?}"
+                );
+                check_lengths(&chain, &chain.points(&out));
             }
         }
     }
