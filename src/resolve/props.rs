@@ -432,3 +432,38 @@ fn cold_optimum_is_not_left_whole_turns_away_from_the_start() {
         assert!((a - b).abs() <= PI + 1e-9, "{out:?}");
     }
 }
+
+/// A cold solve on a two-link `chain` from `theta0` to `target`: the answer and its metric 3,
+/// which must be on target within the limits and within 1e-9 of `best`.
+fn assert_cold_reaches(chain: &Chain, theta0: &[f64], target: Vec2, best: f64) {
+    let mut solver = Overall::new(OverallOptions {
+        mode: OverallMode::Cold,
+        ..OverallOptions::default()
+    });
+    let mut out = vec![0.0; chain.len()];
+    let o = solver.solve(chain, theta0, target, &mut out);
+    assert!(o.converged, "{o:?} {out:?}");
+    assert!(within(chain, &out), "{out:?}");
+    let m: f64 = out.iter().zip(theta0).map(|(a, b)| (a - b).powi(2)).sum();
+    assert!(
+        m <= best * (1.0 + 1e-9),
+        "metric 3 {m} above the optimum {best}: {out:?}"
+    );
+}
+
+#[test]
+fn cold_start_already_at_the_optimum_is_kept() {
+    // Two links, unlimited: the mirror start is exactly the better elbow, on target with no step
+    // left. Its residual was measured with the zero multiplier it started from, so it was
+    // turned back as not optimal and the worse elbow (metric 3 4.64 against 1.40) kept.
+    let chain = Chain::unlimited(
+        vec![0.5842065032977075, 0.7040829998560236],
+        Vec2::new(0.6972098916719593, 0.8712848582714168),
+        -3.33136343218629,
+    )
+    .unwrap();
+    let theta0 = [1.3388683897857865, 3.0080512028532675];
+    let target = Vec2::new(0.22829073076011996, 0.6294604793326883);
+    let best = brute_force_optimum(&chain, &theta0, target);
+    assert_cold_reaches(&chain, &theta0, target, best);
+}

@@ -1545,9 +1545,12 @@ impl Overall {
             if self.kick_if_singular(at, tol, &mut run.kicks) {
                 return ControlFlow::Continue(());
             }
-            if at.cn <= tol {
-                // On target and no step left: optimal up to round-off.
+            if at.cn <= tol && *mu != run.mu_q {
+                // On target and no step left: optimal up to round-off, with the subproblem's
+                // multiplier. The residual `at` was measured with the old one (zero at a cold
+                // start that is already an optimum), so the stopping rule looks again.
                 *mu = run.mu_q;
+                return ControlFlow::Continue(());
             }
             return ControlFlow::Break(Exit::NoStep);
         }
