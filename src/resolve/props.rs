@@ -467,3 +467,27 @@ fn cold_start_already_at_the_optimum_is_kept() {
     let best = brute_force_optimum(&chain, &theta0, target);
     assert_cold_reaches(&chain, &theta0, target, best);
 }
+
+fn limit(lo: f64, hi: f64) -> Option<JointLimit> {
+    Some(JointLimit { lo, hi })
+}
+
+#[test]
+fn cold_mirror_takes_the_turn_within_the_limits() {
+    // The better elbow's base angle lies a whole turn below the representative nearest theta0,
+    // which is beyond the upper limit: clipped there, the mirror start never reached it.
+    let chain = Chain::new(
+        vec![0.8710881022031791, 0.3429572737705746],
+        Vec2::new(-0.5774769731817666, 0.8058704924031774),
+        -1.709618353706313,
+        vec![
+            limit(-3.466779250309605, 1.484346881271742),
+            limit(-1.241060401754937, 3.3496742677568507),
+        ],
+    )
+    .unwrap();
+    let theta0 = [0.4318154836861825, 2.6693425389902394];
+    let target = Vec2::new(-1.0997053941511568, 1.7090333976252354);
+    let best = brute_force_optimum(&chain, &theta0, target);
+    assert_cold_reaches(&chain, &theta0, target, best);
+}

@@ -829,7 +829,8 @@ fn bearing(v: Vec2) -> f64 {
 /// The mirror image of the pose `src` across the line from the base through the target (same
 /// tip for an unlimited chain), written to `out`: absolute angles `phi -> 2 line - phi`, so
 /// `theta_1 -> 2 (line - h) - theta_1` and every later relative angle changes sign. Each angle is
-/// taken as the representative nearest `theta0` and clipped into `[lo, hi]`.
+/// taken as the representative within `[lo, hi]` nearest `theta0` (clipped into them when none
+/// lies within).
 fn mirror_pose(p: &Problem, src: &[f64], lo: &[f64], hi: &[f64], out: &mut [f64]) {
     let line = bearing(p.target - p.chain.base());
     for a in 0..out.len() {
@@ -838,7 +839,26 @@ fn mirror_pose(p: &Problem, src: &[f64], lo: &[f64], hi: &[f64], out: &mut [f64]
         } else {
             -src[a]
         };
-        out[a] = nearest_representative(m, p.theta0[a]).clamp(lo[a], hi[a]);
+        out[a] = representative_within(m, p.theta0[a], lo[a], hi[a]);
+    }
+}
+
+/// The angle equal to `t` modulo 2 pi within `[lo, hi]` nearest `t0`; when none lies within,
+/// the nearest representative clipped into the limits.
+fn representative_within(t: f64, t0: f64, lo: f64, hi: f64) -> f64 {
+    let tau = 2.0 * std::f64::consts::PI;
+    let nearest = nearest_representative(t, t0);
+    let c = if nearest < lo {
+        lo + (t - lo).rem_euclid(tau)
+    } else if nearest > hi {
+        hi - (hi - t).rem_euclid(tau)
+    } else {
+        nearest
+    };
+    if lo <= c && c <= hi {
+        c
+    } else {
+        nearest.clamp(lo, hi)
     }
 }
 
@@ -1025,8 +1045,9 @@ impl Overall {
     /// 4. the same continuation along the polar path around the base (radius and bearing
     ///    interpolated linearly);
     /// 5. for the best [`OverallOptions::mirror_starts`] distinct optima found by 1-4, their
-    ///    mirror image across the line from the base to the target (same tip; angles taken as
-    ///    the representatives nearest `theta0`, clipped into the limits).
+    ///    mirror image across the line from the base to the target (same tip; each angle the
+    ///    representative within its limits nearest `theta0`, clipped into them when none lies
+    ///    within).
     ///
     /// 6. when the chain has limits, up to [`OverallOptions::random_starts`] pseudo-random
     ///    poses from a splitmix64 generator seeded with [`OverallOptions::seed`] at every call.
@@ -1197,18 +1218,11 @@ impl Overall {
     /// Moves each joint of `w.theta` by whole turns to the value within its limits nearest
     /// `theta0` (the tip stays where it is); true when some joint moved.
     fn nearest_turns(&mut self, p: &Problem) -> bool {
-        let tau = 2.0 * std::f64::consts::PI;
         let w = &mut self.w;
         let mut moved = false;
         for a in 0..w.n {
-            let (t, t0, lo, hi) = (w.theta[a], p.theta0[a], w.lo[a], w.hi[a]);
-            let mut c = nearest_representative(t, t0);
-            if c < lo {
-                c = lo + (t - lo).rem_euclid(tau);
-            } else if c > hi {
-                c = hi - (hi - t).rem_euclid(tau);
-            }
-            let c = c.clamp(lo, hi);
+            let (t, t0) = (w.theta[a], p.theta0[a]);
+            let c = representative_within(t, t0, w.lo[a], w.hi[a]);
             // Only whole turns count: a move of round-off is not one.
             if (c - t).abs() > std::f64::consts::PI && (c - t0).abs() < (t - t0).abs() {
                 w.theta[a] = c;
