@@ -491,3 +491,24 @@ fn cold_mirror_takes_the_turn_within_the_limits() {
     let best = brute_force_optimum(&chain, &theta0, target);
     assert_cold_reaches(&chain, &theta0, target, best);
 }
+
+#[test]
+fn cold_mirrors_an_optimum_a_random_start_found() {
+    // No fixed start reaches the target; a random start finds one elbow, and the other (the
+    // better) is its mirror image, which the mirrored starts (tried before any optimum was
+    // known) never saw.
+    let chain = Chain::new(
+        vec![0.24000636830579103, 0.4680773947348149],
+        Vec2::new(0.5674114589812134, 0.7308411891415849),
+        0.009957666007553101,
+        vec![
+            limit(-2.3808810170475905, 1.4740140396192103),
+            limit(-0.17508806708740265, 1.8074023942968276),
+        ],
+    )
+    .unwrap();
+    let theta0 = [1.241474879072435, 0.3284122887777823];
+    let target = Vec2::new(0.35514795058598037, 0.05643549735147518);
+    let best = brute_force_optimum(&chain, &theta0, target);
+    assert_cold_reaches(&chain, &theta0, target, best);
+}

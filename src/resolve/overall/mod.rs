@@ -689,14 +689,17 @@ impl Start {
 }
 
 /// The sequence of starts of one cold solve: the fixed and mirrored starts, the random ones
-/// when the chain has limits, and one more round of random starts when no start so far has
-/// reached the target.
+/// when the chain has limits, one more round of random starts when no start so far has reached
+/// the target, and last the mirror image of the best optimum when a random start found it (the
+/// mirrored starts came before it, often before any optimum was known).
 struct Schedule {
     next: usize,
     end: usize,
     mirrors: usize,
     random: usize,
     second_round: bool,
+    /// A random start has found a new best optimum, not mirrored yet.
+    mirror_again: bool,
 }
 
 impl Schedule {
@@ -711,7 +714,13 @@ impl Schedule {
             mirrors: opts.mirror_starts,
             random: opts.random_starts,
             second_round: false,
+            mirror_again: false,
         }
+    }
+
+    /// Asks for the mirror image of the best optimum at the end (a random start found it).
+    fn mirror_best_again(&mut self) {
+        self.mirror_again = self.mirrors > 0;
     }
 
     /// The next start, or `None` when done; `reached` says whether a start has reached the
@@ -719,6 +728,10 @@ impl Schedule {
     fn next(&mut self, reached: bool) -> Option<Start> {
         if self.next >= self.end {
             if reached || self.second_round || self.random == 0 {
+                if reached && self.mirror_again {
+                    self.mirror_again = false;
+                    return Some(Start::Mirror(0));
+                }
                 return None;
             }
             self.second_round = true;
@@ -1060,7 +1073,8 @@ impl Overall {
     ///    number again (limited or not), uniform inside the limits (an unlimited joint:
     ///    `theta0 +- pi/2`). A random start stops as soon as its iterate is on target within
     ///    1e-6 of the scale and within 1e-4 rad of the best optimum so far (it would converge
-    ///    to that optimum).
+    ///    to that optimum);
+    /// 7. when a random start found the best optimum, its mirror image as in 5.
     ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
@@ -1147,7 +1161,11 @@ impl Overall {
                 mu,
             };
             let w = &mut self.w;
+            let new_best = found.on_target && found.beats(podium.best.as_ref());
             podium.offer(&w.theta, &mut w.best, &mut w.second, found);
+            if new_best && matches!(start, Start::Random { .. }) {
+                schedule.mirror_best_again();
+            }
         }
         let Some(best) = podium.best else {
             return self.finish(&p, [0.0; 2], total, false, out);

@@ -433,6 +433,18 @@ fn cold_starts_come_in_the_documented_order() {
     let mut want = fixed.to_vec();
     want.extend([first, later, later]);
     assert_eq!(got, want);
+    // A best optimum found by a random start is mirrored once at the end.
+    let mut s = Schedule::new(&opts, true);
+    let mut got = Vec::new();
+    while let Some(start) = s.next(true) {
+        if start == first {
+            s.mirror_best_again();
+        }
+        got.push(start);
+    }
+    let mut want = fixed.to_vec();
+    want.extend([first, later, later, Start::Mirror(0)]);
+    assert_eq!(got, want);
 }
 
 #[test]
