@@ -512,3 +512,31 @@ fn cold_mirrors_an_optimum_a_random_start_found() {
     let best = brute_force_optimum(&chain, &theta0, target);
     assert_cold_reaches(&chain, &theta0, target, best);
 }
+
+#[test]
+fn cold_pose_short_of_its_optimum_is_turned_back_by_whole_turns() {
+    // A target 1.4e-4 rad of bend from the edge of the workspace: no start meets the
+    // stationarity tolerance there, and the pose kept stood two whole turns away from theta0
+    // (metric 3 186 against 10.5). Turned back, the tip stays and the metric drops.
+    let chain = Chain::unlimited(
+        vec![0.6346737297568141, 0.9284745564865431],
+        Vec2::new(-0.12135531223594187, 0.5431458130368654),
+        -0.1369745485444991,
+    )
+    .unwrap();
+    let theta0 = [-1.1939472542587293, -2.087121004398766];
+    let target = Vec2::new(0.5253185558027738, 1.9662570041825325);
+    let best = brute_force_optimum(&chain, &theta0, target);
+    let mut solver = Overall::new(OverallOptions {
+        mode: OverallMode::Cold,
+        ..OverallOptions::default()
+    });
+    let mut out = [0.0; 2];
+    let o = solver.solve(&chain, &theta0, target, &mut out);
+    assert!(o.tip_error <= 1e-7, "{o:?}");
+    for (a, b) in out.iter().zip(&theta0) {
+        assert!((a - b).abs() <= PI + 1e-9, "{out:?}");
+    }
+    let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
+    assert!(m <= best * (1.0 + 1e-3), "metric 3 {m} against {best}: {out:?}");
+}

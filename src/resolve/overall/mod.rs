@@ -1150,6 +1150,11 @@ impl Overall {
                 }
                 l = again;
             }
+            // A pose the solve left short of an optimum keeps its tip when turned back by whole
+            // turns; its metric 3 only drops.
+            if !l.converged && l.exit != Exit::JoinedBest && self.nearest_turns(&p) {
+                l.tip_error = (p.chain.tip(&self.w.theta) - p.target).norm();
+            }
             self.w.watch_best = false;
             if l.exit == Exit::JoinedBest {
                 continue;
