@@ -540,3 +540,22 @@ fn cold_pose_short_of_its_optimum_is_turned_back_by_whole_turns() {
     let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
     assert!(m <= best * (1.0 + 1e-3), "metric 3 {m} against {best}: {out:?}");
 }
+
+#[test]
+fn cold_random_starts_bend_unlimited_joints_either_way() {
+    // The limited base joint must swing to its other side and the unlimited elbow bend the
+    // other way (+1.28 from -1.54). Random starts drew that joint within a quarter turn of
+    // theta0 only, and every start stalled at the upper limit 0.032 m off the target.
+    let chain = Chain::new(
+        vec![0.8530056202377494, 0.4053990963294705],
+        Vec2::new(-0.028332236673888733, 0.9600877474715608),
+        0.25206106632522207,
+        vec![limit(-0.3753935311398394, 0.44254486166841545), None],
+    )
+    .unwrap();
+    let theta0 = [0.29512406904577837, -1.535240983269761];
+    let target = Vec2::new(0.9505165443053782, 1.3203144935200224);
+    let best = brute_force_optimum(&chain, &theta0, target);
+    assert!(best.is_finite());
+    assert_cold_reaches(&chain, &theta0, target, best);
+}

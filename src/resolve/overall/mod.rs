@@ -117,9 +117,10 @@ const JOIN_BEST_TIP: f64 = 1e-6;
 const JOIN_BEST_POSE: f64 = 1e-4;
 /// Times a cold start's optimum is turned back toward `theta0` by whole turns and solved again.
 const MAX_TURN_BACKS: usize = 3;
-/// Half-width of the range of a random start's unlimited joint around `theta0`, rad: a
-/// quarter turn either way covers every bend without folding the arm back on itself.
-const UNLIMITED_START_SPREAD: f64 = std::f64::consts::FRAC_PI_2;
+/// Half-width of the range of a random start's unlimited joint around `theta0`, rad: half a
+/// turn either way covers every angle once (a quarter turn left the other elbow of a joint bent
+/// the wrong way out of reach when a limited joint had to swing across).
+const UNLIMITED_START_SPREAD: f64 = std::f64::consts::PI;
 
 // The local solve.
 
@@ -1071,7 +1072,7 @@ impl Overall {
     ///    limits cannot touch a better pose, the problem there is the unlimited one, and the
     ///    random starts are skipped. When no start so far has reached the target, the same
     ///    number again (limited or not), uniform inside the limits (an unlimited joint:
-    ///    `theta0 +- pi/2`). A random start stops as soon as its iterate is on target within
+    ///    `theta0 +- pi`). A random start stops as soon as its iterate is on target within
     ///    1e-6 of the scale and within 1e-4 rad of the best optimum so far (it would converge
     ///    to that optimum);
     /// 7. when a random start found the best optimum, its mirror image as in 5.
@@ -1319,7 +1320,7 @@ impl Overall {
         }
     }
 
-    /// A pseudo-random start uniform inside the limits (an unlimited joint: `theta0 +- pi/2`),
+    /// A pseudo-random start uniform inside the limits (an unlimited joint: `theta0 +- pi`),
     /// for when no start has reached the target yet.
     fn start_in_box(&mut self, p: &Problem, rng: &mut SplitMix) {
         for a in 0..p.theta0.len() {
