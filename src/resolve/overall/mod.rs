@@ -121,6 +121,12 @@ const MAX_TURN_BACKS: usize = 3;
 /// turn either way covers every angle once (a quarter turn left the other elbow of a joint bent
 /// the wrong way out of reach when a limited joint had to swing across).
 const UNLIMITED_START_SPREAD: f64 = std::f64::consts::PI;
+/// Random starts are also tried, limits or not, when the best optimum so far turns the joints
+/// by at least this much (the root of metric 3, rad): with a quarter turn and more, optima
+/// around the other side of a joint's turn lie within that radius, and the fixed and mirrored
+/// starts miss some of them (unlimited three-link chains with targets anywhere: 46 of 2,000
+/// missed without these starts, 7 with them).
+const RANDOM_START_RADIUS: f64 = std::f64::consts::FRAC_PI_2;
 
 // The local solve.
 
@@ -236,9 +242,10 @@ pub struct OverallOptions {
     pub continuation_stages: usize,
     /// Cold solves: how many of the distinct optima found are mirrored and solved again.
     pub mirror_starts: usize,
-    /// Cold solves: seeded pseudo-random starts tried when the chain has limits (limits split
-    /// the feasible set into pieces the other starts may not reach) and a limit comes near
-    /// enough to `theta0` to touch a better pose, and once more when no start so far has
+    /// Cold solves: seeded pseudo-random starts tried when a limit comes near enough to
+    /// `theta0` to touch a better pose (limits split the feasible set into pieces the other
+    /// starts may not reach) or the best optimum turns the joints by a quarter turn or more
+    /// (other optima may lie around the other side), and once more when no start so far has
     /// reached the target.
     pub random_starts: usize,
     /// Seed of those starts: the same seed gives the same answer.
@@ -690,7 +697,7 @@ impl Start {
 }
 
 /// The sequence of starts of one cold solve: the fixed and mirrored starts, the random ones
-/// when the chain has limits, one more round of random starts when no start so far has reached
+/// (the first decides whether they are needed), one more round of random starts when no start so far has reached
 /// the target, and last the mirror image of the best optimum when a random start found it (the
 /// mirrored starts came before it, often before any optimum was known).
 struct Schedule {
@@ -704,11 +711,8 @@ struct Schedule {
 }
 
 impl Schedule {
-    fn new(opts: &OverallOptions, limited: bool) -> Self {
-        let mut end = Start::FIXED + opts.mirror_starts;
-        if limited {
-            end += opts.random_starts;
-        }
+    fn new(opts: &OverallOptions) -> Self {
+        let end = Start::FIXED + opts.mirror_starts + opts.random_starts;
         Self {
             next: 0,
             end,
@@ -1063,18 +1067,18 @@ impl Overall {
     ///    representative within its limits nearest `theta0`, clipped into them when none lies
     ///    within).
     ///
-    /// 6. when the chain has limits, up to [`OverallOptions::random_starts`] pseudo-random
-    ///    poses from a splitmix64 generator seeded with [`OverallOptions::seed`] at every call.
-    ///    Any pose better than the best optimum so far (metric 3 = `r^2`) lies within `r` of
-    ///    `theta0`, so the starts are drawn there: each joint uniform over its limits within
-    ///    `+-r` of `clip(theta0)`, pulled onto the ball of radius `r` when outside it (`r`
-    ///    shrinks as better optima are found). When no limit comes within `r` of `theta0` the
-    ///    limits cannot touch a better pose, the problem there is the unlimited one, and the
-    ///    random starts are skipped. When no start so far has reached the target, the same
-    ///    number again (limited or not), uniform inside the limits (an unlimited joint:
-    ///    `theta0 +- pi`). A random start stops as soon as its iterate is on target within
-    ///    1e-6 of the scale and within 1e-4 rad of the best optimum so far (it would converge
-    ///    to that optimum);
+    /// 6. up to [`OverallOptions::random_starts`] pseudo-random poses from a splitmix64
+    ///    generator seeded with [`OverallOptions::seed`] at every call. Any pose better than
+    ///    the best optimum so far (metric 3 = `r^2`) lies within `r` of `theta0`, so the starts
+    ///    are drawn there: each joint uniform over its limits within `+-r` of `clip(theta0)`,
+    ///    pulled onto the ball of radius `r` when outside it (`r` shrinks as better optima are
+    ///    found). They are skipped when no limit comes within `r` of `theta0` (the limits cannot
+    ///    touch a better pose) and `r` is below a quarter turn (the other starts find the
+    ///    optimum of that problem; with larger turns they miss some, on the other side of a
+    ///    joint's turn). When no start so far has reached the target, the same number again,
+    ///    uniform inside the limits (an unlimited joint: `theta0 +- pi`). A random start stops
+    ///    as soon as its iterate is on target within 1e-6 of the scale and within 1e-4 rad of
+    ///    the best optimum so far (it would converge to that optimum);
     /// 7. when a random start found the best optimum, its mirror image as in 5.
     ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
@@ -1116,7 +1120,7 @@ impl Overall {
         };
         let mut total = 0;
         let mut podium = Podium::default();
-        let mut schedule = Schedule::new(&self.opts, chain.is_limited());
+        let mut schedule = Schedule::new(&self.opts);
         let mut rng = SplitMix(self.opts.seed);
         while let Some(start) = schedule.next(podium.reached()) {
             let mut mu = [0.0; 2];
@@ -1224,13 +1228,18 @@ impl Overall {
             }
             Start::Random { first } => {
                 // Any pose better than the best optimum so far lies within the ball of
-                // radius sqrt(metric 3) around theta0.
+                // radius sqrt(metric 3) around theta0. Neither a limit within it nor a quarter
+                // turn: the other starts have found the optimum.
                 let radius = podium
                     .best
                     .filter(|b| b.on_target)
                     .map(|b| (2.0 * b.half_metric).sqrt());
                 match radius {
-                    Some(r) if first && !self.limits_reach_ball(p, r) => return Loaded::Done,
+                    Some(r)
+                        if first && !self.limits_reach_ball(p, r) && r < RANDOM_START_RADIUS =>
+                    {
+                        return Loaded::Done
+                    }
                     Some(r) => self.start_in_ball(p, r, rng),
                     None => self.start_in_box(p, rng),
                 }

@@ -415,26 +415,19 @@ fn cold_starts_come_in_the_documented_order() {
     ];
     let first = Start::Random { first: true };
     let later = Start::Random { first: false };
-    // Limited chain: the random starts follow; a second round only while nothing is on target.
-    let mut s = Schedule::new(&opts, true);
+    // The random starts follow (the first decides whether they run); a second round only while
+    // nothing is on target.
+    let mut s = Schedule::new(&opts);
     let got: Vec<Start> = std::iter::from_fn(|| s.next(true)).collect();
     let mut want = fixed.to_vec();
     want.extend([first, later, later]);
     assert_eq!(got, want);
-    let mut s = Schedule::new(&opts, true);
+    let mut s = Schedule::new(&opts);
     let got: Vec<Start> = std::iter::from_fn(|| s.next(false)).collect();
     want.extend([later; 3]);
     assert_eq!(got, want);
-    // Unlimited chain: random starts only when nothing has reached the target.
-    let mut s = Schedule::new(&opts, false);
-    assert_eq!(std::iter::from_fn(|| s.next(true)).count(), fixed.len());
-    let mut s = Schedule::new(&opts, false);
-    let got: Vec<Start> = std::iter::from_fn(|| s.next(false)).collect();
-    let mut want = fixed.to_vec();
-    want.extend([first, later, later]);
-    assert_eq!(got, want);
     // A best optimum found by a random start is mirrored once at the end.
-    let mut s = Schedule::new(&opts, true);
+    let mut s = Schedule::new(&opts);
     let mut got = Vec::new();
     while let Some(start) = s.next(true) {
         if start == first {
