@@ -344,47 +344,57 @@ fn brute_force_optimum(chain: &Chain, theta0: &[f64], target: Vec2) -> f64 {
     best_on_target(chain, theta0, target)
 }
 
+/// A random chain of `n` links (each joint limited with probability 0.7 when `limited`), a
+/// start and a goal pose within the limits (anywhere for an unlimited joint).
+fn random_pose_case(seed: u64, n: usize, limited: bool) -> (Chain, Vec<f64>, Vec<f64>) {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.2..1.0)).collect();
+    let base = Vec2::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
+    let heading = rng.gen_range(-4.0..4.0);
+    let limits: Vec<Option<JointLimit>> = (0..n)
+        .map(|_| {
+            (limited && rng.gen_bool(0.7)).then(|| {
+                let c = rng.gen_range(-2.5..2.5);
+                let w = rng.gen_range(0.2..2.5);
+                JointLimit {
+                    lo: c - w,
+                    hi: c + w,
+                }
+            })
+        })
+        .collect();
+    let chain = Chain::new(links, base, heading, limits.clone()).unwrap();
+    let pose = |rng: &mut StdRng| -> Vec<f64> {
+        limits
+            .iter()
+            .map(|l| match l {
+                Some(l) => rng.gen_range(l.lo..l.hi),
+                None => rng.gen_range(-PI..PI),
+            })
+            .collect()
+    };
+    let theta0 = pose(&mut rng);
+    let goal = pose(&mut rng);
+    (chain, theta0, goal)
+}
+
 proptest! {
     #![proptest_config(fixed(200, 2))]
 
     /// Two-link chains, unlimited and limited (each joint limited with probability 0.7), goal
-    /// poses anywhere within the limits. A wide search (100,000 cases of each) finds misses only
-    /// where the goal's elbow is within 1.4e-4 rad of straight or of folded back (the edge of the
-    /// workspace), 5 unlimited and 6 limited: both elbows nearly coincide there, the Jacobian
-    /// nearly loses rank and the multiplier grows as its inverse, and the stationarity residual
-    /// (1e-11 rad) is then below the round-off of `J^T mu`, so the solve stops 1e-11 to 6e-8 m
-    /// off the target, not converged, or (once) converged at the other elbow, 7e-4 above the
-    /// optimum. With limits, 3 more reachable targets were not reached (4e-3 to 0.26 m off): no
-    /// start, random ones included, came into the piece of the feasible set that holds them.
+    /// poses anywhere within the limits. A wide search (`cold_optimum_miss_counts`: 100,000
+    /// cases of each) finds 5 unlimited and 6 limited misses where the goal's elbow is within
+    /// 2.3e-4 rad of straight or of folded back (the edge of the workspace): both elbows nearly
+    /// coincide there, the Jacobian nearly loses rank and the multiplier grows as its inverse,
+    /// so the stationarity tolerance (1e-11 rad) is below the round-off of `J^T mu` and the
+    /// solve stops 5e-12 to 6e-8 m off the target, not converged, or (once) converges at the
+    /// other elbow, 7e-4 above the optimum. With limits, 3 more reachable targets away from the
+    /// edge are not reached (4e-3 to 0.26 m off; the cause is not known yet).
     #[test]
     fn cold_solve_finds_the_global_optimum_of_two_links(
         seed in 0u64..u64::MAX, n in 2usize..=2, limited in proptest::bool::ANY,
     ) {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.2..1.0)).collect();
-        let base = Vec2::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
-        let heading = rng.gen_range(-4.0..4.0);
-        let limits: Vec<Option<JointLimit>> = (0..n)
-            .map(|_| {
-                (limited && rng.gen_bool(0.7)).then(|| {
-                    let c = rng.gen_range(-2.5..2.5);
-                    let w = rng.gen_range(0.2..2.5);
-                    JointLimit { lo: c - w, hi: c + w }
-                })
-            })
-            .collect();
-        let chain = Chain::new(links, base, heading, limits.clone()).unwrap();
-        let pose = |rng: &mut StdRng| -> Vec<f64> {
-            limits
-                .iter()
-                .map(|l| match l {
-                    Some(l) => rng.gen_range(l.lo..l.hi),
-                    None => rng.gen_range(-PI..PI),
-                })
-                .collect()
-        };
-        let theta0 = pose(&mut rng);
-        let goal = pose(&mut rng);
+        let (chain, theta0, goal) = random_pose_case(seed, n, limited);
         let target = tip_of(&chain, &goal);
         let mut solver = Overall::new(OverallOptions {
             mode: OverallMode::Cold,
@@ -641,12 +651,7 @@ proptest! {
     /// without the random starts).
     #[test]
     fn cold_solve_finds_the_global_optimum_of_three_unlimited_links(seed in 0u64..u64::MAX) {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let links: Vec<f64> = (0..3).map(|_| rng.gen_range(0.2..1.0)).collect();
-        let base = Vec2::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
-        let chain = Chain::unlimited(links, base, rng.gen_range(-4.0..4.0)).unwrap();
-        let theta0: Vec<f64> = (0..3).map(|_| rng.gen_range(-PI..PI)).collect();
-        let goal: Vec<f64> = (0..3).map(|_| rng.gen_range(-PI..PI)).collect();
+        let (chain, theta0, goal) = random_pose_case(seed, 3, false);
         let target = tip_of(&chain, &goal);
         let mut solver = Overall::new(OverallOptions {
             mode: OverallMode::Cold,
@@ -662,5 +667,59 @@ proptest! {
             "cold metric 3 {m} above the optimum {best}: theta0 {theta0:?} target {target:?} \
              out {out:?} chain {chain:?}"
         );
+    }
+}
+
+/// How often the cold solve misses the optimum over many seeded cases of the property tests'
+/// generator (two links unlimited and limited, 100,000 each; three unlimited links, 2,000):
+/// `cargo test --release --lib cold_optimum_miss_counts -- --ignored --nocapture` prints each
+/// miss and the counts (a few minutes). A miss: not converged, the tip more than 1e-11 m off,
+/// or metric 3 above the optimum by more than 1e-6 relative.
+#[test]
+#[ignore]
+fn cold_optimum_miss_counts() {
+    for (n, limited, cases) in [
+        (2, false, 100_000u64),
+        (2, true, 100_000),
+        (3, false, 2_000),
+    ] {
+        let mut misses = 0;
+        for i in 0..cases {
+            // splitmix64's finalizer spreads the case numbers over the seeds.
+            let mut z = i
+                .wrapping_add(0x9e37_79b9_7f4a_7c15)
+                .wrapping_mul(0x0123_4567);
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            let (chain, theta0, goal) = random_pose_case(z ^ (z >> 31), n, limited);
+            let target = tip_of(&chain, &goal);
+            // A fresh solver: the tie-break at straight poses remembers the last answer.
+            let mut solver = Overall::new(OverallOptions {
+                mode: OverallMode::Cold,
+                ..OverallOptions::default()
+            });
+            let mut out = vec![0.0; n];
+            let o = solver.solve(&chain, &theta0, target, &mut out);
+            let best = if n == 2 {
+                brute_force_optimum(&chain, &theta0, target)
+            } else {
+                three_link_optimum(&chain, &theta0, target)
+            };
+            let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
+            let tip = (tip_of(&chain, &out) - target).norm();
+            if !o.converged
+                || tip > 1e-11
+                || !within(&chain, &out)
+                || m > best * (1.0 + 1e-6) + 1e-9
+            {
+                misses += 1;
+                println!(
+                    "case {i}: converged {} tip {tip:e} m off, metric 3 {m} optimum {best}, \
+                     goal {goal:?} out {out:?}",
+                    o.converged
+                );
+            }
+        }
+        println!("{n} links, limited {limited}: {misses} of {cases} missed");
     }
 }
