@@ -673,15 +673,17 @@ proptest! {
 /// How often the cold solve misses the optimum over many seeded cases of the property tests'
 /// generator (two links unlimited and limited, 100,000 each; three unlimited links, 2,000):
 /// `cargo test --release --lib cold_optimum_miss_counts -- --ignored --nocapture` prints each
-/// miss and the counts (a few minutes). A miss: not converged, the tip more than 1e-11 m off,
-/// or metric 3 above the optimum by more than 1e-6 relative.
+/// miss and the counts (a few minutes), and fails when a set misses more than it did when
+/// last measured (5, 9 and 7: the causes are on the tests above). A miss: not converged, the
+/// tip more than 1e-11 m off, or metric 3 above the optimum by more than 1e-6 relative. Too
+/// slow for every run: a check by hand after a change to the cold solve.
 #[test]
 #[ignore]
 fn cold_optimum_miss_counts() {
-    for (n, limited, cases) in [
-        (2, false, 100_000u64),
-        (2, true, 100_000),
-        (3, false, 2_000),
+    for (n, limited, cases, measured) in [
+        (2, false, 100_000u64, 5),
+        (2, true, 100_000, 9),
+        (3, false, 2_000, 7),
     ] {
         let mut misses = 0;
         for i in 0..cases {
@@ -721,5 +723,9 @@ fn cold_optimum_miss_counts() {
             }
         }
         println!("{n} links, limited {limited}: {misses} of {cases} missed");
+        assert!(
+            misses <= measured,
+            "{n} links, limited {limited}: {misses} misses, {measured} when last measured"
+        );
     }
 }
