@@ -390,6 +390,17 @@ fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
         (target[0] - end[0]).hypot(target[1] - end[1]) > 0.1,
         "{target:?} is too close to the tip"
     );
+    click_and_arrive(&mut ui, &mut client, (col, row), target);
+    drop(client);
+
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+}
+
+/// Clicks the canvas at `(col, row)` (an SGR mouse press and release, as a terminal reports
+/// them with mouse capture on), then waits for the tip at `target`, on the screen and at the
+/// daemon.
+fn click_and_arrive(ui: &mut Ui, client: &mut Client, (col, row): (u16, u16), target: [f64; 2]) {
     ui.send(
         format!(
             "\x1b[<0;{};{}M\x1b[<0;{};{}m",
@@ -410,10 +421,6 @@ fn an_arrow_and_a_click_move_the_tip_and_q_gives_the_terminal_back() {
         "clicked {target:?}, the daemon has the tip at {:?}\n{text}",
         status.tip_meas
     );
-    drop(client);
-
-    ui.send(b"q");
-    ui.quits_giving_the_terminal_back("q");
 }
 
 /// Sleeps until `when` (for holding a key that long, not for waiting on a condition).
@@ -803,26 +810,7 @@ fn a_click_during_a_key_hold_sends_the_tip_to_the_point() {
 
     // Right (a hold of 0.6 s on a VT100), then at once a click: the click's `goto` wins.
     ui.send(b"\x1b[C");
-    ui.send(
-        format!(
-            "\x1b[<0;{};{}M\x1b[<0;{};{}m",
-            col + 1,
-            row + 1,
-            col + 1,
-            row + 1
-        )
-        .as_bytes(),
-    );
-    let text = ui.wait_for("the tip at the clicked point", |t| {
-        field(t, "state") == Some("holding")
-            && tip(t).is_some_and(|p| (p[0] - target[0]).hypot(p[1] - target[1]) < 0.005)
-    });
-    let status = client.status().unwrap();
-    assert!(
-        (status.tip_meas[0] - target[0]).hypot(status.tip_meas[1] - target[1]) < 0.005,
-        "clicked {target:?}, the daemon has the tip at {:?}\n{text}",
-        status.tip_meas
-    );
+    click_and_arrive(&mut ui, &mut client, (col, row), target);
     drop(client);
     ui.send(b"q");
     ui.quits_giving_the_terminal_back("q");

@@ -62,18 +62,7 @@ fn random_case(seed: u64, n: usize, kind: u8) -> Case {
     let base = Vec2::new(rng.gen_range(-5.0..5.0), rng.gen_range(-5.0..5.0));
     let heading = rng.gen_range(-10.0..10.0);
     let p_limit = [0.0, 0.5, 1.0][rng.gen_range(0..3)];
-    let limits: Vec<Option<JointLimit>> = (0..n)
-        .map(|_| {
-            rng.gen_bool(p_limit).then(|| {
-                let c = rng.gen_range(-3.0..3.0);
-                let w = rng.gen_range(0.01..3.5);
-                JointLimit {
-                    lo: c - w,
-                    hi: c + w,
-                }
-            })
-        })
-        .collect();
+    let limits = random_limits(&mut rng, n, p_limit, 3.0, 0.01..3.5);
     let chain = Chain::new(links, base, heading, limits.clone()).unwrap();
     let inside = |rng: &mut StdRng| -> Vec<f64> {
         limits
@@ -344,6 +333,29 @@ fn brute_force_optimum(chain: &Chain, theta0: &[f64], target: Vec2) -> f64 {
     best_on_target(chain, theta0, target)
 }
 
+/// `n` joint limits, each drawn with probability `p`: its centre within `±centre`, its
+/// half-width in `half_width`.
+fn random_limits(
+    rng: &mut StdRng,
+    n: usize,
+    p: f64,
+    centre: f64,
+    half_width: std::ops::Range<f64>,
+) -> Vec<Option<JointLimit>> {
+    (0..n)
+        .map(|_| {
+            rng.gen_bool(p).then(|| {
+                let c = rng.gen_range(-centre..centre);
+                let w = rng.gen_range(half_width.clone());
+                JointLimit {
+                    lo: c - w,
+                    hi: c + w,
+                }
+            })
+        })
+        .collect()
+}
+
 /// A random chain of `n` links (each joint limited with probability 0.7 when `limited`), a
 /// start and a goal pose within the limits (anywhere for an unlimited joint).
 fn random_pose_case(seed: u64, n: usize, limited: bool) -> (Chain, Vec<f64>, Vec<f64>) {
@@ -351,18 +363,11 @@ fn random_pose_case(seed: u64, n: usize, limited: bool) -> (Chain, Vec<f64>, Vec
     let links: Vec<f64> = (0..n).map(|_| rng.gen_range(0.2..1.0)).collect();
     let base = Vec2::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
     let heading = rng.gen_range(-4.0..4.0);
-    let limits: Vec<Option<JointLimit>> = (0..n)
-        .map(|_| {
-            (limited && rng.gen_bool(0.7)).then(|| {
-                let c = rng.gen_range(-2.5..2.5);
-                let w = rng.gen_range(0.2..2.5);
-                JointLimit {
-                    lo: c - w,
-                    hi: c + w,
-                }
-            })
-        })
-        .collect();
+    let limits = if limited {
+        random_limits(&mut rng, n, 0.7, 2.5, 0.2..2.5)
+    } else {
+        vec![None; n]
+    };
     let chain = Chain::new(links, base, heading, limits.clone()).unwrap();
     let pose = |rng: &mut StdRng| -> Vec<f64> {
         limits
