@@ -655,29 +655,13 @@ fn the_stick_moves_the_tip_only_while_the_deadman_is_held() {
         "--deadman-button".as_ref(),
         "5".as_ref(),
     ]);
-    // Opening the writing end waits for the reader: on a thread, so a reader that never
-    // opens fails the test instead of hanging it.
-    let (opened, pad) = mpsc::channel();
-    {
-        let device = device.clone();
-        std::thread::spawn(move || {
-            let _ = opened.send(std::fs::OpenOptions::new().write(true).open(device));
-        });
-    }
-    let mut pad = pad
-        .recv_timeout(DEADLINE)
-        .expect("teleop opens the device")
-        .unwrap();
+    let mut pad = open_pad(&device);
     let mut write = |events: &[[u8; 8]]| {
         for event in events {
             pad.write_all(event).unwrap();
         }
         pad.flush().unwrap();
     };
-    // The state on open: buttons up, stick centred.
-    let mut init: Vec<[u8; 8]> = (0..8).map(|b| js_event(0, 0, 0x81, b)).collect();
-    init.extend([js_event(0, 0, 0x82, 0), js_event(0, 0, 0x82, 1)]);
-    write(&init);
     let text = ui.wait_for("the stick connected, the arm at rest, in control", |t| {
         t.contains("connected (js0), deadman 5")
             && field(t, "state") == Some("holding")

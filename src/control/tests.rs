@@ -342,6 +342,22 @@ fn a_jog_does_not_pass_through_a_thin_post() {
     );
 }
 
+/// Runs `ticks` ticks of `dt`; on none may the tip move faster than the tip speed limit of
+/// [`limits`].
+fn assert_tip_speed_kept(ctl: &mut Controller, ticks: usize, dt: f64, strategy: Strategy) {
+    let limit = limits().max_tip_speed_m_s;
+    let mut prev = ctl.tip();
+    for k in 0..ticks {
+        let t = ctl.tick(dt);
+        let v = (t.tip - prev).norm() / dt;
+        prev = t.tip;
+        assert!(
+            v <= limit * (1.0 + 1e-9) + 1e-7,
+            "{strategy:?} tick {k}: tip at {v} m/s: {t:?}"
+        );
+    }
+}
+
 /// A tip velocity's reference pushed out of an obstacle put onto the tip moves the tip no
 /// faster than the tip speed limit.
 #[test]
@@ -361,16 +377,7 @@ fn a_pushed_velocity_keeps_the_tip_speed_limit() {
             v: Vec2::new(0.001, 0.0),
         })
         .unwrap();
-        let mut prev = ctl.tip();
-        for k in 0..30 {
-            let t = ctl.tick(0.01);
-            let v = (t.tip - prev).norm() / 0.01;
-            prev = t.tip;
-            assert!(
-                v <= 0.1 * (1.0 + 1e-9) + 1e-7,
-                "{strategy:?} tick {k}: tip at {v} m/s: {t:?}"
-            );
-        }
+        assert_tip_speed_kept(&mut ctl, 30, 0.01, strategy);
     }
 }
 
@@ -393,17 +400,7 @@ fn a_velocity_from_within_the_route_margin_keeps_the_tip_speed_limit() {
         assert!(ctl.set_world(w.clone()).is_none(), "the arm is clear");
         let side = Vec2::new(-out.y, out.x);
         ctl.command(Command::Velocity { v: side * 0.001 }).unwrap();
-        let dt = 0.001;
-        let mut prev = ctl.tip();
-        for k in 0..10 {
-            let t = ctl.tick(dt);
-            let v = (t.tip - prev).norm() / dt;
-            prev = t.tip;
-            assert!(
-                v <= 0.1 * (1.0 + 1e-9) + 1e-7,
-                "{strategy:?} tick {k}: tip at {v} m/s: {t:?}"
-            );
-        }
+        assert_tip_speed_kept(&mut ctl, 10, 0.001, strategy);
     }
 }
 

@@ -960,6 +960,17 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    /// A tick that reached `tip` exactly, at `theta`.
+    fn reached(tip: Vec2, theta: &[f64], dt: f64) -> Achieved<'_> {
+        Achieved {
+            tip,
+            theta,
+            dt,
+            exact: true,
+            saturated: false,
+        }
+    }
+
     fn limits() -> MotionLimits {
         MotionLimits {
             tip_speed: 0.1,
@@ -982,13 +993,7 @@ mod tests {
                 theta.copy_from_slice(m.joint_reference());
             }
             let tip = m.tip().p;
-            let got = Achieved {
-                tip,
-                theta,
-                dt,
-                exact: true,
-                saturated: false,
-            };
+            let got = reached(tip, theta, dt);
             if let Some(f) = m.follow(got) {
                 return (Some(f), k);
             }
@@ -1101,13 +1106,7 @@ mod tests {
             let _ = m.step(dt);
             theta.copy_from_slice(m.joint_reference());
             assert!(theta[1] <= 0.5 && theta[0] == 0.0);
-            let got = Achieved {
-                tip: Vec2::zeros(),
-                theta: &theta,
-                dt,
-                exact: true,
-                saturated: false,
-            };
+            let got = reached(Vec2::zeros(), &theta, dt);
             assert_eq!(m.follow(got), None);
             if theta[1] == 0.5 {
                 at_limit += 1;
@@ -1152,13 +1151,7 @@ mod tests {
         for _ in 0..10_000 {
             let _ = m.step(0.002);
             let p = m.tip().p;
-            let got = Achieved {
-                tip: p,
-                theta: &theta,
-                dt: 0.002,
-                exact: true,
-                saturated: false,
-            };
+            let got = reached(p, &theta, 0.002);
             let f = m.follow(got);
             if m.tip().v == Vec2::zeros() && corners.contains(&p) && visited.last() != Some(&p) {
                 visited.push(p);
@@ -1208,13 +1201,7 @@ mod tests {
             if v == Vec2::zeros() && rests.last() != Some(&p) {
                 rests.push(p);
             }
-            let got = Achieved {
-                tip: p,
-                theta: &theta,
-                dt,
-                exact: true,
-                saturated: false,
-            };
+            let got = reached(p, &theta, dt);
             if let Some(f) = m.follow(got) {
                 finish = Some(f);
                 break;
@@ -1242,13 +1229,7 @@ mod tests {
         ] {
             let mut m = Motion::new(lim, &[None], Vec2::zeros(), &[0.0]);
             let theta = [0.0];
-            let exact = |m: &Motion| Achieved {
-                tip: m.tip().p,
-                theta: &theta,
-                dt,
-                exact: true,
-                saturated: false,
-            };
+            let exact = |m: &Motion| reached(m.tip().p, &theta, dt);
             for _ in 0..200 {
                 m.velocity(Vec2::new(lim.tip_speed, 0.0));
                 let _ = m.step(dt);
@@ -1306,13 +1287,7 @@ mod tests {
         let dt = 0.01;
         for _ in 0..5 {
             let _ = m.step(dt);
-            let got = Achieved {
-                tip: m.tip().p,
-                theta: &theta,
-                dt,
-                exact: true,
-                saturated: false,
-            };
+            let got = reached(m.tip().p, &theta, dt);
             assert_eq!(m.follow(got), None);
         }
         // One tick falls short far off the way, and faster than the tip speed limit.
@@ -1338,13 +1313,7 @@ mod tests {
                 (p - arm).norm()
             );
             arm = p;
-            let got = Achieved {
-                tip: p,
-                theta: &theta,
-                dt,
-                exact: true,
-                saturated: false,
-            };
+            let got = reached(p, &theta, dt);
             if let Some(f) = m.follow(got) {
                 finish = Some(f);
                 break;

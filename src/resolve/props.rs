@@ -401,14 +401,8 @@ proptest! {
     ) {
         let (chain, theta0, goal) = random_pose_case(seed, n, limited);
         let target = tip_of(&chain, &goal);
-        let mut solver = Overall::new(OverallOptions {
-            mode: OverallMode::Cold,
-            ..OverallOptions::default()
-        });
-        let mut out = vec![0.0; n];
-        let o = solver.solve(&chain, &theta0, target, &mut out);
+        let (o, out, m) = cold_solve(&chain, &theta0, target);
         let brute = brute_force_optimum(&chain, &theta0, target);
-        let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
         prop_assert!(brute.is_finite(), "the goal pose is on target: {goal:?}");
         prop_assert!(o.converged, "{o:?}");
         prop_assert!(within(&chain, &out));
@@ -435,14 +429,8 @@ fn cold_optimum_is_not_left_whole_turns_away_from_the_start() {
     let theta0 = [0.025726353255837164, -2.6767362512547574];
     let target = Vec2::new(1.5663513710286951, -0.552432346057645);
     let best = brute_force_optimum(&chain, &theta0, target);
-    let mut solver = Overall::new(OverallOptions {
-        mode: OverallMode::Cold,
-        ..OverallOptions::default()
-    });
-    let mut out = [0.0; 2];
-    let o = solver.solve(&chain, &theta0, target, &mut out);
+    let (o, out, m) = cold_solve(&chain, &theta0, target);
     assert!(o.converged, "{o:?}");
-    let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
     assert!(
         m <= best * (1.0 + 1e-9),
         "metric 3 {m} above the optimum {best}: {out:?}"
@@ -452,18 +440,25 @@ fn cold_optimum_is_not_left_whole_turns_away_from_the_start() {
     }
 }
 
-/// A cold solve on a two-link `chain` from `theta0` to `target`: the answer and its metric 3,
-/// which must be on target within the limits and within 1e-9 of `best`.
-fn assert_cold_reaches(chain: &Chain, theta0: &[f64], target: Vec2, best: f64) {
+/// A cold solve from a fresh solver (its tie-break at straight poses remembers the last
+/// answer): the outcome, the pose and its metric 3.
+fn cold_solve(chain: &Chain, theta0: &[f64], target: Vec2) -> (super::Outcome, Vec<f64>, f64) {
     let mut solver = Overall::new(OverallOptions {
         mode: OverallMode::Cold,
         ..OverallOptions::default()
     });
     let mut out = vec![0.0; chain.len()];
     let o = solver.solve(chain, theta0, target, &mut out);
+    let m = out.iter().zip(theta0).map(|(a, b)| (a - b).powi(2)).sum();
+    (o, out, m)
+}
+
+/// A cold solve on a two-link `chain` from `theta0` to `target`: the answer and its metric 3,
+/// which must be on target within the limits and within 1e-9 of `best`.
+fn assert_cold_reaches(chain: &Chain, theta0: &[f64], target: Vec2, best: f64) {
+    let (o, out, m) = cold_solve(chain, theta0, target);
     assert!(o.converged, "{o:?} {out:?}");
     assert!(within(chain, &out), "{out:?}");
-    let m: f64 = out.iter().zip(theta0).map(|(a, b)| (a - b).powi(2)).sum();
     assert!(
         m <= best * (1.0 + 1e-9),
         "metric 3 {m} above the optimum {best}: {out:?}"
@@ -546,17 +541,11 @@ fn cold_pose_short_of_its_optimum_is_turned_back_by_whole_turns() {
     let theta0 = [-1.1939472542587293, -2.087121004398766];
     let target = Vec2::new(0.5253185558027738, 1.9662570041825325);
     let best = brute_force_optimum(&chain, &theta0, target);
-    let mut solver = Overall::new(OverallOptions {
-        mode: OverallMode::Cold,
-        ..OverallOptions::default()
-    });
-    let mut out = [0.0; 2];
-    let o = solver.solve(&chain, &theta0, target, &mut out);
+    let (o, out, m) = cold_solve(&chain, &theta0, target);
     assert!(o.tip_error <= 1e-7, "{o:?}");
     for (a, b) in out.iter().zip(&theta0) {
         assert!((a - b).abs() <= PI + 1e-9, "{out:?}");
     }
-    let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
     assert!(
         m <= best * (1.0 + 1e-3),
         "metric 3 {m} against {best}: {out:?}"
@@ -658,15 +647,9 @@ proptest! {
     fn cold_solve_finds_the_global_optimum_of_three_unlimited_links(seed in 0u64..u64::MAX) {
         let (chain, theta0, goal) = random_pose_case(seed, 3, false);
         let target = tip_of(&chain, &goal);
-        let mut solver = Overall::new(OverallOptions {
-            mode: OverallMode::Cold,
-            ..OverallOptions::default()
-        });
-        let mut out = vec![0.0; 3];
-        let o = solver.solve(&chain, &theta0, target, &mut out);
+        let (o, out, m) = cold_solve(&chain, &theta0, target);
         prop_assert!(o.converged, "{o:?}");
         let best = three_link_optimum(&chain, &theta0, target);
-        let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
         prop_assert!(
             m <= best * (1.0 + 1e-6) + 1e-9,
             "cold metric 3 {m} above the optimum {best}: theta0 {theta0:?} target {target:?} \
@@ -700,19 +683,12 @@ fn cold_optimum_miss_counts() {
             z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
             let (chain, theta0, goal) = random_pose_case(z ^ (z >> 31), n, limited);
             let target = tip_of(&chain, &goal);
-            // A fresh solver: the tie-break at straight poses remembers the last answer.
-            let mut solver = Overall::new(OverallOptions {
-                mode: OverallMode::Cold,
-                ..OverallOptions::default()
-            });
-            let mut out = vec![0.0; n];
-            let o = solver.solve(&chain, &theta0, target, &mut out);
+            let (o, out, m) = cold_solve(&chain, &theta0, target);
             let best = if n == 2 {
                 brute_force_optimum(&chain, &theta0, target)
             } else {
                 three_link_optimum(&chain, &theta0, target)
             };
-            let m: f64 = out.iter().zip(&theta0).map(|(a, b)| (a - b).powi(2)).sum();
             let tip = (tip_of(&chain, &out) - target).norm();
             if !o.converged
                 || tip > 1e-11
