@@ -300,6 +300,34 @@ impl Sequential {
         (1, (p - target).norm())
     }
 
+    /// Inside the inner hole (a link longer than all the others together, and the target
+    /// nearer the base than that excess): the closest any pose gets is the folded arm, the
+    /// longest link pointing from the base at the target and every other link pointing back,
+    /// its tip `r_min - |t - b|` short. Written here directly: the propagation pushed toward
+    /// such a target only crawls toward it, for every sweep of the budget. A target on the
+    /// base itself keeps the longest link's bearing of the start pose.
+    fn correct_inside_hole(&mut self, chain: &Chain, target: Vec2) -> (usize, f64) {
+        let b = chain.base();
+        let links = chain.links();
+        let longest = (0..links.len())
+            .max_by(|&i, &j| links[i].total_cmp(&links[j]))
+            .unwrap_or(0);
+        let offset = target - b;
+        let dir = if offset.norm() > 0.0 {
+            offset / offset.norm()
+        } else {
+            let along = self.start[longest + 1] - self.start[longest];
+            along / along.norm()
+        };
+        let mut p = b;
+        self.swept[0] = b;
+        for (i, (s, &len)) in self.swept[1..].iter_mut().zip(links).enumerate() {
+            p += if i == longest { dir * len } else { -dir * len };
+            *s = p;
+        }
+        (1, (p - target).norm())
+    }
+
     /// The published correction. On return `self.swept` holds the last chain translated onto the
     /// base (its tip off by the last base error). Returns (rounds, tip residual).
     fn correct_translate(&mut self, chain: &Chain, target: Vec2, tol: f64) -> (usize, f64) {
@@ -378,9 +406,12 @@ impl Resolver for Sequential {
         self.size(chain.len());
         chain.points_into(theta0, &mut self.start);
         let tol = self.tolerance(chain, target);
-        let beyond = (target - chain.base()).norm() > chain.reach();
+        let from_base = (target - chain.base()).norm();
+        let beyond = from_base > chain.reach();
+        let inside_hole = from_base < chain.ring().r_min;
         let (rounds, _) = match self.options.correction {
             _ if beyond => self.correct_beyond_reach(chain, target),
+            _ if inside_hole => self.correct_inside_hole(chain, target),
             Correction::Newton => self.correct_newton(chain, target, tol),
             Correction::Translate => self.correct_translate(chain, target, tol),
         };
@@ -500,6 +531,48 @@ mod tests {
             prop_assert!(o.tip_error >= r - chain.reach() - 1e-9);
             prop_assert!(o.tip_error <= (r - chain.reach()) * 1.01 + 1e-3, "{o:?}");
             prop_assert!(o.iterations <= s.options().max_rounds);
+        }
+    }
+
+    #[test]
+    fn a_target_inside_the_inner_hole_gets_the_folded_arm_at_once() {
+        // One link longer than the rest together: no pose brings the tip nearer the base than
+        // r_min = 2 L_max - R. The closest pose to a target inside that hole folds every other
+        // link back along the longest, which points at the target.
+        for links in [
+            vec![0.6, 0.05, 0.05, 0.05, 0.05, 0.05, 0.05, 0.05, 0.05],
+            vec![0.1, 0.1, 0.9, 0.1, 0.2],
+            vec![0.2, 1.0],
+        ] {
+            let chain = Chain::unlimited(links, Vec2::new(0.2, -0.1), 0.3).unwrap();
+            let (b, n, r_min) = (chain.base(), chain.len(), chain.ring().r_min);
+            assert!(r_min > 0.0);
+            for seed in 0..4 {
+                let theta0 = pose(n, seed);
+                for share in [0.0, 0.3, 0.999] {
+                    for bearing in [0.0, 2.0, -2.5] {
+                        let dir = Vec2::new(f64::cos(bearing), f64::sin(bearing));
+                        let target = b + dir * (share * r_min);
+                        let mut out = vec![0.0; n];
+                        let mut s = Sequential::default();
+                        let o = s.solve(&chain, &theta0, target, &mut out);
+                        assert!(!o.reachable && !o.converged, "{o:?}");
+                        assert!(out.iter().all(|t| t.is_finite()));
+                        let tip = chain.tip(&out);
+                        assert!((tip - target).norm() == o.tip_error);
+                        let short = (1.0 - share) * r_min;
+                        assert!(
+                            (o.tip_error - short).abs() < 1e-12,
+                            "{share} of r_min at {bearing} rad: tip {:.6e} m off, not {short:.6e}",
+                            o.tip_error
+                        );
+                        assert!(o.iterations <= 2, "{} sweeps", o.iterations);
+                        if share > 0.0 {
+                            assert!((tip - b).dot(&dir) > 0.0, "the tip on the target's side");
+                        }
+                    }
+                }
+            }
         }
     }
 
