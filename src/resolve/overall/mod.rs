@@ -675,6 +675,9 @@ enum Start {
     /// A seeded pseudo-random pose; `first` for the first of the call, which decides whether
     /// random starts are needed at all.
     Random { first: bool },
+    /// Last, when no start has reached the target: the mirror image of the answer that came
+    /// closest (it often ends on a limit, on the side of the elbow the limits rule out).
+    MirrorMiss,
 }
 
 impl Start {
@@ -699,7 +702,8 @@ impl Start {
 /// The sequence of starts of one cold solve: the fixed and mirrored starts, the random ones
 /// (the first decides whether they are needed), one more round of random starts when no start so far has reached
 /// the target, and last the mirror image of the best optimum when a random start found it (the
-/// mirrored starts came before it, often before any optimum was known).
+/// mirrored starts came before it, often before any optimum was known), or, when no start has
+/// reached the target, of the closest miss.
 struct Schedule {
     next: usize,
     end: usize,
@@ -708,6 +712,8 @@ struct Schedule {
     second_round: bool,
     /// A random start has found a new best optimum, not mirrored yet.
     mirror_again: bool,
+    /// The closest miss has been mirrored.
+    mirrored_miss: bool,
 }
 
 impl Schedule {
@@ -720,6 +726,7 @@ impl Schedule {
             random: opts.random_starts,
             second_round: false,
             mirror_again: false,
+            mirrored_miss: false,
         }
     }
 
@@ -736,6 +743,10 @@ impl Schedule {
                 if reached && self.mirror_again {
                     self.mirror_again = false;
                     return Some(Start::Mirror(0));
+                }
+                if !reached && self.mirrors > 0 && !self.mirrored_miss {
+                    self.mirrored_miss = true;
+                    return Some(Start::MirrorMiss);
                 }
                 return None;
             }
@@ -1079,7 +1090,9 @@ impl Overall {
     ///    uniform inside the limits (an unlimited joint: `theta0 +- pi`). A random start stops
     ///    as soon as its iterate is on target within 1e-6 of the scale and within 1e-4 rad of
     ///    the best optimum so far (it would converge to that optimum);
-    /// 7. when a random start found the best optimum, its mirror image as in 5.
+    /// 7. when a random start found the best optimum, its mirror image as in 5; when no start
+    ///    reached the target, the mirror image of the answer that came closest (limits that
+    ///    rule out one elbow leave the others on a limit, on that elbow's side).
     ///
     /// Nothing here uses the stored multiplier or any other strategy. If no start reaches the
     /// target, the closest reachable tip is sought from the start that came closest.
@@ -1225,6 +1238,13 @@ impl Overall {
                 let w = &mut self.w;
                 let src = if rank == 0 { &w.best } else { &w.second };
                 mirror_pose(p, src, &w.lo, &w.hi, &mut w.theta);
+            }
+            Start::MirrorMiss => {
+                if podium.best.is_none() {
+                    return Loaded::Skip;
+                }
+                let w = &mut self.w;
+                mirror_pose(p, &w.best, &w.lo, &w.hi, &mut w.theta);
             }
             Start::Random { first } => {
                 // Any pose better than the best optimum so far lies within the ball of

@@ -416,7 +416,7 @@ fn cold_starts_come_in_the_documented_order() {
     let first = Start::Random { first: true };
     let later = Start::Random { first: false };
     // The random starts follow (the first decides whether they run); a second round only while
-    // nothing is on target.
+    // nothing is on target, and then the closest miss mirrored.
     let mut s = Schedule::new(&opts);
     let got: Vec<Start> = std::iter::from_fn(|| s.next(true)).collect();
     let mut want = fixed.to_vec();
@@ -424,8 +424,15 @@ fn cold_starts_come_in_the_documented_order() {
     assert_eq!(got, want);
     let mut s = Schedule::new(&opts);
     let got: Vec<Start> = std::iter::from_fn(|| s.next(false)).collect();
-    want.extend([later; 3]);
+    want.extend([later, later, later, Start::MirrorMiss]);
     assert_eq!(got, want);
+    // Without mirrored starts, no mirrored miss either.
+    let mut s = Schedule::new(&OverallOptions {
+        mirror_starts: 0,
+        ..opts
+    });
+    let got = std::iter::from_fn(|| s.next(false)).count();
+    assert_eq!(got, 4 + 3 + 3);
     // A best optimum found by a random start is mirrored once at the end.
     let mut s = Schedule::new(&opts);
     let mut got = Vec::new();
