@@ -3,6 +3,7 @@
 
 mod cli;
 
+use std::io::Write as _;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -102,7 +103,8 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
             if f.code != 0 {
-                eprintln!("snakectl: {}", with_causes(&f.error));
+                // Not `eprintln!`: a terminal hung up would make it panic.
+                let _ = writeln!(std::io::stderr(), "snakectl: {}", with_causes(&f.error));
             }
             ExitCode::from(f.code)
         }

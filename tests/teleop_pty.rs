@@ -3,7 +3,8 @@
 //! rests, a click sends it to the point under the mouse, `q` quits with the terminal given
 //! back as it was; on a terminal with the kitty keyboard protocol a held arrow moves the tip
 //! until its release; with `--connect` it names another
-//! client in control, takes control back on `c`, outlives its daemon and finds a new one.
+//! client in control, takes control back on `c`, outlives its daemon and finds a new one; a
+//! SIGTERM or SIGHUP stops the arm and gives the terminal back, as `q` does.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::io::{Read, Write};
@@ -535,6 +536,16 @@ fn on_a_kitty_terminal_a_held_arrow_moves_the_tip_until_its_release() {
 impl Ui {
     /// Waits for the process to end with status 0, and checks the terminal is as before.
     fn quits_giving_the_terminal_back(&mut self, after: &str) {
+        let status = self.ends_giving_the_terminal_back(after);
+        assert!(
+            status.success(),
+            "teleop exited with {status:?} after {after}"
+        );
+    }
+
+    /// Waits for the process to end, checks the terminal is as before (main screen, cursor
+    /// shown, no mouse capture, canonical mode and echo); its exit status.
+    fn ends_giving_the_terminal_back(&mut self, after: &str) -> portable_pty::ExitStatus {
         let deadline = Instant::now() + DEADLINE;
         let status = loop {
             if let Some(status) = self.child.try_wait().unwrap() {
@@ -547,23 +558,32 @@ impl Ui {
             );
             std::thread::sleep(Duration::from_millis(20));
         };
-        assert!(
-            status.success(),
-            "teleop exited with {status:?} after {after}"
-        );
         self.reader_done
             .recv_timeout(DEADLINE)
             .expect("the terminal's output ends with the process");
         let parser = self.screen.lock().unwrap();
         assert!(
             !parser.screen().alternate_screen(),
-            "still on the alternate screen"
+            "still on the alternate screen after {after} ({status:?})"
         );
-        assert!(!parser.screen().hide_cursor(), "the cursor is still hidden");
+        assert!(
+            !parser.screen().hide_cursor(),
+            "the cursor is still hidden after {after}"
+        );
+        assert_eq!(
+            parser.screen().mouse_protocol_mode(),
+            vt100::MouseProtocolMode::None,
+            "the mouse is still captured after {after}"
+        );
         drop(parser);
         let flags = self.local_flags();
-        assert_eq!(flags & ICANON, ICANON, "not canonical again: {flags:o}");
-        assert_eq!(flags & ECHO, ECHO, "no echo again: {flags:o}");
+        assert_eq!(
+            flags & ICANON,
+            ICANON,
+            "not canonical again after {after}: {flags:o}"
+        );
+        assert_eq!(flags & ECHO, ECHO, "no echo again after {after}: {flags:o}");
+        status
     }
 }
 
@@ -798,4 +818,73 @@ fn a_click_during_a_key_hold_sends_the_tip_to_the_point() {
     drop(client);
     ui.send(b"q");
     ui.quits_giving_the_terminal_back("q");
+}
+
+/// Holds Right on a kitty terminal (a hold that lasts until its release), sends `signal` to
+/// teleop mid-motion, and checks it gives the terminal back, exits with 128 plus the signal's
+/// number, and has stopped the arm as `q` does: the tip goes on by the braking only, not for
+/// the rest of the daemon's deadman.
+fn a_signal_stops_the_arm_and_gives_the_terminal_back(signal: rustix::process::Signal) {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    // A daemon that outlives the UI: what the arm does after the signal is the UI's doing.
+    let local = LocalDaemon::start(&config, SocketAddr::from(([127, 0, 0, 1], 0)));
+    let addr = local.daemon.addr().to_string();
+    let mut ui = Ui::start_on(Answers::Kitty, &["--connect".as_ref(), addr.as_ref()]);
+    let text = ui.wait_for("the arm at rest, in control", |t| {
+        field(t, "state") == Some("holding") && field(t, "control") == Some("you")
+    });
+    let start = tip(&text).unwrap();
+    let mut client = Client::connect(&addr, None).unwrap();
+    ui.send(b"\x1b[1;1:1C");
+    ui.wait_for("the tip moving right", |t| {
+        tip(t).is_some_and(|p| p[0] > start[0] + 0.005)
+    });
+
+    let pid = ui.child.process_id().unwrap();
+    let pid = rustix::process::Pid::from_raw(i32::try_from(pid).unwrap()).unwrap();
+    rustix::process::kill_process(pid, signal).unwrap();
+    let name = format!("{signal:?}");
+    let status = ui.ends_giving_the_terminal_back(&name);
+    let expected = 128 + u32::try_from(signal.as_raw()).unwrap();
+    assert_eq!(
+        status.exit_code(),
+        expected,
+        "teleop ended with {status:?} on {name}"
+    );
+    let modes = ui.modes();
+    let pushes = modes.iter().filter(|c| c.pushed().is_some()).count();
+    let popped: u32 = modes.iter().filter_map(Csi::popped).sum();
+    assert!(
+        pushes > 0 && popped as usize >= pushes,
+        "{pushes} pushes, {popped} popped: {modes:?}"
+    );
+
+    // Stopped at once, the tip goes on by the braking only (0.0025 m from 0.05 m/s at
+    // 0.5 m/s²), not for the rest of the deadman (up to 0.025 m).
+    let at_exit = client.status().unwrap().tip;
+    let deadline = Instant::now() + DEADLINE;
+    let end = loop {
+        let status = client.status().unwrap();
+        if status.state == "holding" {
+            break status.tip;
+        }
+        assert!(Instant::now() < deadline, "the arm never came to rest");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(
+        end[0] - at_exit[0] < 0.006,
+        "the tip went on {} m after teleop ended on {name}",
+        end[0] - at_exit[0]
+    );
+}
+
+#[test]
+fn sigterm_stops_the_arm_and_gives_the_terminal_back() {
+    a_signal_stops_the_arm_and_gives_the_terminal_back(rustix::process::Signal::TERM);
+}
+
+#[test]
+fn sighup_stops_the_arm_and_gives_the_terminal_back() {
+    a_signal_stops_the_arm_and_gives_the_terminal_back(rustix::process::Signal::HUP);
 }

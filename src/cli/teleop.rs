@@ -7,7 +7,7 @@
 
 use std::io::Stdout;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -88,9 +88,13 @@ const STICK_QUEUE: usize = 256;
 /// Replies and events read in one pass of the loop, at most.
 const DRAIN: usize = 1024;
 
-/// Runs the UI until `q` (or Ctrl-C).
+/// Runs the UI until `q` (or Ctrl-C), or until SIGTERM, SIGHUP or SIGINT: exit status 128 plus
+/// the signal's number then.
 pub fn run(args: TeleopArgs) -> Result<(), Failure> {
     // Nothing is logged: a log line would garble the screen.
+    let signals = Signals::catch()
+        .context("installing the signal handlers")
+        .map_err(Failure::other)?;
     let mut local = None;
     let (addr, token_file) = match &args.sim {
         Some(path) => {
@@ -143,7 +147,7 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
     };
     let outcome = {
         let embedded = local.as_ref().map(|(embedded, _)| embedded);
-        let mut app = App::new(addr, token_file, args.deadman_button, stick);
+        let mut app = App::new(addr, token_file, args.deadman_button, stick, signals);
         match Screen::enter() {
             Ok(mut screen) => {
                 app.keyboard.set_releases_reported(screen.releases_reported);
@@ -163,7 +167,7 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
         drop(sim);
         match (&outcome, stopped) {
             (_, Ok(_)) => {}
-            (Ok(()), Err(e)) => {
+            (Ok(_), Err(e)) => {
                 return Err(Failure::other(
                     anyhow::Error::new(e).context("stopping the daemon"),
                 ))
@@ -176,7 +180,65 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
             }
         }
     }
-    outcome.map_err(Failure::other)
+    match outcome {
+        Ok(Quit::Asked) => Ok(()),
+        Ok(Quit::Signal(signal)) => Err(Failure {
+            code: u8::try_from(128 + signal).unwrap_or(1),
+            error: anyhow::anyhow!(
+                "stopped by {}",
+                signal_hook::low_level::signal_name(signal).unwrap_or("a signal")
+            ),
+        }),
+        Err(e) => Err(Failure::other(e)),
+    }
+}
+
+/// The signals that end teleop as `q` does: `kill`, a terminal hung up, and an interrupt sent
+/// from elsewhere (in raw mode Ctrl-C is a key).
+const QUIT_SIGNALS: [i32; 3] = [
+    signal_hook::consts::SIGTERM,
+    signal_hook::consts::SIGHUP,
+    signal_hook::consts::SIGINT,
+];
+
+/// Which of [`QUIT_SIGNALS`] came, for the loop to end on.
+struct Signals(Arc<AtomicUsize>);
+
+impl Signals {
+    /// Catches [`QUIT_SIGNALS`]. A second one ends the process at once (exit status 128 plus
+    /// its number), should the first one's way out be stuck.
+    fn catch() -> std::io::Result<Signals> {
+        let which = Arc::new(AtomicUsize::new(0));
+        let armed = Arc::new(AtomicBool::new(false));
+        for signal in QUIT_SIGNALS {
+            // Registered first, so the first signal finds it disarmed.
+            signal_hook::flag::register_conditional_shutdown(
+                signal,
+                128 + signal,
+                Arc::clone(&armed),
+            )?;
+            signal_hook::flag::register(signal, Arc::clone(&armed))?;
+            signal_hook::flag::register_usize(signal, Arc::clone(&which), signal as usize)?;
+        }
+        Ok(Signals(which))
+    }
+
+    /// The signal that came, if one did.
+    fn received(&self) -> Option<i32> {
+        match self.0.load(Ordering::SeqCst) {
+            0 => None,
+            n => i32::try_from(n).ok(),
+        }
+    }
+}
+
+/// How the UI ended, when it did not fail.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Quit {
+    /// `q` or Ctrl-C.
+    Asked,
+    /// One of [`QUIT_SIGNALS`].
+    Signal(i32),
 }
 
 /// Whether the terminal is in the UI's modes, for the panic hook and the guard.
@@ -312,6 +374,7 @@ struct App {
     dirty: bool,
     last_frame: Option<Instant>,
     actions: Vec<Action>,
+    signals: Signals,
 }
 
 impl App {
@@ -320,6 +383,7 @@ impl App {
         token_file: Option<PathBuf>,
         deadman_button: u8,
         stick_events: Option<(String, Receiver<StickEvent>)>,
+        signals: Signals,
     ) -> Self {
         let joystick = stick_events
             .as_ref()
@@ -354,6 +418,7 @@ impl App {
             dirty: true,
             last_frame: None,
             actions: Vec::new(),
+            signals,
         }
     }
 
@@ -372,9 +437,27 @@ impl App {
         self.dirty = true;
     }
 
-    /// Until `q`: `Ok` on a quit, `Err` when the terminal fails or the local daemon dies.
-    fn run(&mut self, screen: &mut Screen, embedded: Option<&Embedded>) -> anyhow::Result<()> {
+    /// Until `q` or a signal; `Err` when the terminal fails or the local daemon dies. However
+    /// it ends, a motion in progress is stopped as `q` stops it.
+    fn run(&mut self, screen: &mut Screen, embedded: Option<&Embedded>) -> anyhow::Result<Quit> {
+        let ended = self.serve(screen, embedded);
+        if let Ok(Quit::Asked) = ended {
+            // `q` has stopped what moved.
+            return ended;
+        }
+        self.halt();
+        // A hung-up terminal may fail a read before its signal is seen: the signal is the news.
+        match self.signals.received() {
+            Some(signal) => Ok(Quit::Signal(signal)),
+            None => ended,
+        }
+    }
+
+    fn serve(&mut self, screen: &mut Screen, embedded: Option<&Embedded>) -> anyhow::Result<Quit> {
         loop {
+            if let Some(signal) = self.signals.received() {
+                return Ok(Quit::Signal(signal));
+            }
             if embedded.is_some_and(|e| !e.is_running()) {
                 anyhow::bail!("the daemon this UI started has stopped");
             }
@@ -390,14 +473,30 @@ impl App {
             let quit = self.execute(&mut actions);
             self.actions = actions;
             if quit {
-                return Ok(());
+                return Ok(Quit::Asked);
             }
             self.expire_notice();
             self.draw(screen)?;
             if self.wait_input(screen)? {
-                return Ok(());
+                return Ok(Quit::Asked);
             }
         }
+    }
+
+    /// What `q` sends: a key's hold ended with one zero velocity, and the stick's motion too.
+    fn halt(&mut self) {
+        let mut actions = std::mem::take(&mut self.actions);
+        let now_s = self.now_s();
+        let in_control = self.in_control();
+        self.keyboard.key(
+            Key::Char('q'),
+            KeyKind::Press,
+            now_s,
+            in_control,
+            &mut actions,
+        );
+        self.execute(&mut actions);
+        self.actions = actions;
     }
 
     fn draw(&mut self, screen: &mut Screen) -> anyhow::Result<()> {
