@@ -4,23 +4,25 @@
 //! back as it was; on a terminal with the kitty keyboard protocol a held arrow moves the tip
 //! until its release; with `--connect` it names another
 //! client in control, takes control back on `c`, outlives its daemon and finds a new one; a
-//! SIGTERM or SIGHUP stops the arm and gives the terminal back, as `q` does.
+//! SIGTERM or SIGHUP stops the arm and gives the terminal back, as `q` does; a daemon fallen
+//! silent (played by the test) shows as such until its telemetry comes again.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::io::{Read, Write};
-use std::net::SocketAddr;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use portable_pty::{native_pty_system, Child, CommandBuilder, MasterPty, PtySize};
-use snakectl::client::Client;
+use snakectl::client::{ArmInfo, Client, Describe, State, Status, Telemetry, WorldInfo};
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
-use snakectl::protocol::Cmd;
+use snakectl::protocol::{self, Applied, Cmd, Fields, Reply, Subscribed, TookControl};
 use snakectl::teleop::ui;
+use snakectl::world::World;
 use snakectl_sim::{RealClock, SimHandle};
 
 /// Bound on waiting for anything; reached only when the test fails.
@@ -887,4 +889,163 @@ fn sigterm_stops_the_arm_and_gives_the_terminal_back() {
 #[test]
 fn sighup_stops_the_arm_and_gives_the_terminal_back() {
     a_signal_stops_the_arm_and_gives_the_terminal_back(rustix::process::Signal::HUP);
+}
+
+/// A daemon played by the test: it answers every request at once (`describe` with a 12-link
+/// arm, an empty `world`, control granted, any other with an ok) and sends telemetry only when
+/// the test says, so the test decides when it falls silent.
+struct FakeDaemon {
+    addr: String,
+    accepted: mpsc::Receiver<FakeLink>,
+}
+
+/// One connection to a [`FakeDaemon`]: the requests it got, in order, and its sending side.
+struct FakeLink {
+    out: Arc<Mutex<TcpStream>>,
+    requests: mpsc::Receiver<Cmd>,
+    arm: ArmInfo,
+}
+
+/// The arm the fake daemon describes: 12 links of 0.08 m, as the shipped simulator's.
+fn fake_arm() -> Describe {
+    Describe {
+        links_m: vec![0.08; 12],
+        base: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
+        min_rad: vec![-2.0; 12],
+        max_rad: vec![2.0; 12],
+        ids: (1..=12).collect(),
+        models: vec!["XL430-W250".into(); 12],
+        home_rad: vec![0.1; 12],
+        rate_hz: 100.0,
+        strategies: protocol::STRATEGIES.to_vec(),
+        protocol_version: protocol::PROTOCOL_VERSION,
+        ..Describe::default()
+    }
+}
+
+impl FakeDaemon {
+    fn start() -> FakeDaemon {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap().to_string();
+        let (tx, accepted) = mpsc::channel();
+        std::thread::spawn(move || {
+            for stream in listener.incoming() {
+                let Ok(stream) = stream else { return };
+                let out = Arc::new(Mutex::new(stream.try_clone().unwrap()));
+                let (requests_tx, requests) = mpsc::channel();
+                {
+                    let out = Arc::clone(&out);
+                    std::thread::spawn(move || serve_fake(stream, &out, &requests_tx));
+                }
+                let link = FakeLink {
+                    out,
+                    requests,
+                    arm: ArmInfo::new(fake_arm()).unwrap(),
+                };
+                if tx.send(link).is_err() {
+                    return;
+                }
+            }
+        });
+        FakeDaemon { addr, accepted }
+    }
+
+    /// The next connection teleop makes.
+    fn accept(&self) -> FakeLink {
+        self.accepted
+            .recv_timeout(DEADLINE)
+            .expect("teleop connects to the daemon")
+    }
+}
+
+/// Answers each request line on `stream` and hands the request on, until the connection ends.
+fn serve_fake(stream: TcpStream, out: &Mutex<TcpStream>, requests: &mpsc::Sender<Cmd>) {
+    for line in BufReader::new(stream).lines() {
+        let Ok(line) = line else { return };
+        let request = protocol::parse(line.as_bytes(), 12).unwrap();
+        let reply = match &request.cmd {
+            Cmd::Describe => Reply::Describe(Arc::new(fake_arm())),
+            Cmd::World => Reply::World(Box::new(WorldInfo::of(&World::default()))),
+            Cmd::Subscribe { rate_hz } => Reply::Subscribed(Subscribed { rate_hz: *rate_hz }),
+            Cmd::TakeControl => Reply::TookControl(TookControl {
+                client: 1,
+                holder: Some(1),
+                previous: None,
+            }),
+            _ => Reply::Applied(Applied { tick: 1 }),
+        };
+        let line = protocol::ok_line(request.id.as_deref(), &Fields::from(reply));
+        if out.lock().unwrap().write_all(line.as_bytes()).is_err() {
+            return;
+        }
+        let _ = requests.send(request.cmd);
+    }
+}
+
+impl FakeLink {
+    /// Waits for a request `wanted` picks; the ones before it.
+    fn wait_request(&self, what: &str, wanted: impl Fn(&Cmd) -> bool) -> Vec<Cmd> {
+        let mut before = Vec::new();
+        loop {
+            let cmd = self
+                .requests
+                .recv_timeout(DEADLINE)
+                .unwrap_or_else(|_| panic!("no {what} from teleop; before it: {before:?}"));
+            if wanted(&cmd) {
+                return before;
+            }
+            before.push(cmd);
+        }
+    }
+
+    /// One telemetry line: the arm holding at home, `controller` in control (this client, by
+    /// `in_control`).
+    fn telemetry(&self, controller: Option<u64>, in_control: bool) {
+        let theta = fake_arm().home_rad;
+        let tip = *self.arm.points(&theta).last().unwrap();
+        let status = Status {
+            telemetry: Telemetry {
+                state: State::Holding,
+                tip,
+                tip_meas: tip,
+                tip_ref: tip,
+                theta_cmd: theta.clone(),
+                theta_meas: theta,
+                loop_hz: 100.0,
+                torque: true,
+                ..Telemetry::default()
+            },
+            controller,
+            in_control,
+        };
+        let line = protocol::telemetry_line(&status);
+        self.out.lock().unwrap().write_all(line.as_bytes()).unwrap();
+    }
+}
+
+#[test]
+fn a_daemon_fallen_silent_shows_so_until_its_telemetry_comes_again() {
+    let daemon = FakeDaemon::start();
+    let mut ui = Ui::start(&["--connect".as_ref(), daemon.addr.as_ref()]);
+    let link = daemon.accept();
+    link.wait_request("subscribe", |c| matches!(c, Cmd::Subscribe { .. }));
+    link.telemetry(Some(1), true);
+    ui.wait_for("connected, the arm holding, in control", |t| {
+        field(t, "link") == Some("connected")
+            && field(t, "state") == Some("holding")
+            && field(t, "control") == Some("you")
+    });
+
+    // The connection stays open, and nothing comes on it: silent from a second on, the last
+    // pose still shown.
+    let text = ui.wait_for("the link silent", |t| {
+        field(t, "link").is_some_and(|l| l.starts_with("no telemetry for "))
+    });
+    assert!(tip(&text).is_some(), "the last pose is gone:\n{text}");
+
+    // Telemetry again: connected.
+    link.telemetry(Some(1), true);
+    ui.wait_for("connected again", |t| field(t, "link") == Some("connected"));
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
 }

@@ -370,6 +370,8 @@ struct App {
     was_connected: bool,
     my_id: Option<u64>,
     last_take: Option<Instant>,
+    /// When telemetry last came on this connection (or it was made, before any came).
+    heard: Instant,
     screen_area: Rect,
     dirty: bool,
     last_frame: Option<Instant>,
@@ -414,6 +416,7 @@ impl App {
             was_connected: false,
             my_id: None,
             last_take: None,
+            heard: now,
             screen_area: Rect::default(),
             dirty: true,
             last_frame: None,
@@ -725,6 +728,7 @@ impl App {
                     self.status.set_world(world);
                     self.was_connected = true;
                     self.status.link = Contact::Connected;
+                    self.heard = Instant::now();
                     self.status.notice = None;
                     self.notice_until = None;
                     self.my_id = None;
@@ -761,8 +765,8 @@ impl App {
         }
     }
 
-    /// The newest telemetry, the replies and events that came; takes control when nobody
-    /// holds it.
+    /// The newest telemetry, the replies and events that came; the link silent while no
+    /// telemetry comes; takes control when nobody holds it.
     fn read_daemon(&mut self) {
         let Some(client) = self.client.as_mut() else {
             return;
@@ -771,6 +775,7 @@ impl App {
             let snapshot = telemetry.status.clone();
             self.trail.push(snapshot.tip_meas);
             self.snapshot = Some(snapshot);
+            self.heard = Instant::now();
             self.dirty = true;
         }
         let mut incoming = Vec::new();
@@ -798,6 +803,12 @@ impl App {
         if closed {
             self.lost();
             return;
+        }
+        // A daemon whose host is gone closes nothing: only its silence tells.
+        let link = Contact::live(self.heard.elapsed().as_secs_f64());
+        if link != self.status.link {
+            self.status.link = link;
+            self.dirty = true;
         }
         let nobody = self
             .snapshot

@@ -176,15 +176,39 @@ impl Scene {
     }
 }
 
+/// How long a live connection may go without telemetry before it shows as
+/// [`Contact::Silent`], s: a daemon sends it at least 30 times a second, so a second without
+/// any means it (or the way to it) is gone or stuck, though no one closed the connection.
+pub const SILENT_AFTER_S: f64 = 1.0;
+
 /// The connection to the daemon, as the panel shows it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Contact {
     /// Connecting (or waiting for the first reply).
     Connecting,
-    /// Connected.
+    /// Connected, telemetry coming.
     Connected,
+    /// Connected, but no telemetry for `for_s` whole seconds (at least [`SILENT_AFTER_S`]).
+    Silent {
+        /// Whole seconds since telemetry last came (or since the connection was made).
+        for_s: u64,
+    },
     /// The daemon went away; the UI tries again every second.
     Gone,
+}
+
+impl Contact {
+    /// A live connection, `quiet_s` seconds after telemetry last came on it (or after it was
+    /// made, before any came): connected, or silent from [`SILENT_AFTER_S`] on.
+    pub fn live(quiet_s: f64) -> Contact {
+        if quiet_s >= SILENT_AFTER_S {
+            Contact::Silent {
+                for_s: quiet_s as u64,
+            }
+        } else {
+            Contact::Connected
+        }
+    }
 }
 
 /// What the UI knows besides the arm and its telemetry.
@@ -593,11 +617,15 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     let status = view.status;
     let mut lines = vec![row("daemon", status.addr.clone(), plain)];
     let (link, link_style) = match status.link {
-        Contact::Connecting => ("connecting", Style::default().fg(Color::Yellow)),
-        Contact::Connected => ("connected", Style::default().fg(Color::Green)),
-        Contact::Gone => ("gone: retrying", Style::default().fg(Color::Red)),
+        Contact::Connecting => ("connecting".to_owned(), Style::default().fg(Color::Yellow)),
+        Contact::Connected => ("connected".to_owned(), Style::default().fg(Color::Green)),
+        Contact::Silent { for_s } => (
+            format!("no telemetry for {for_s} s"),
+            Style::default().fg(Color::Red),
+        ),
+        Contact::Gone => ("gone: retrying".to_owned(), Style::default().fg(Color::Red)),
     };
-    lines.push(row("link", link.to_owned(), link_style));
+    lines.push(row("link", link, link_style));
     match view.snapshot {
         None => lines.push(Line::from("waiting for telemetry")),
         Some(s) => snapshot_lines(view.arm, &status.scene, s, &mut lines),

@@ -298,6 +298,29 @@ fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
 }
 
 #[test]
+fn a_link_without_telemetry_for_a_second_shows_silent_and_connected_again_after() {
+    assert_eq!(Contact::live(0.0), Contact::Connected);
+    assert_eq!(Contact::live(0.999), Contact::Connected);
+    assert_eq!(Contact::live(1.0), Contact::Silent { for_s: 1 });
+    assert_eq!(Contact::live(2.7), Contact::Silent { for_s: 2 });
+    let arm = sim_arm();
+    let snapshot = snapshot_at(&arm, &arm.home_rad);
+    let mut status = status();
+    status.link = Contact::live(3.2);
+    let buffer = render_arm(&arm, Some(&snapshot), &status);
+    let text = lines(&buffer).join("\n");
+    assert!(text.contains("link      no telemetry for 3 s"), "{text}");
+    assert!(!text.contains("connected"), "{text}");
+    // The last pose stays drawn.
+    let (x, y) = cell_of(&arm, snapshot.tip_meas);
+    assert_eq!(buffer[(x, y)].symbol(), "@");
+    // Telemetry again: connected.
+    status.link = Contact::live(0.02);
+    let text = lines(&render_arm(&arm, Some(&snapshot), &status)).join("\n");
+    assert!(text.contains("link      connected"), "{text}");
+}
+
+#[test]
 fn before_any_telemetry_the_screen_says_it_waits() {
     let mut status = status();
     status.link = Contact::Connecting;
