@@ -5,11 +5,12 @@
 //! until its release; with `--connect` it names another
 //! client in control, takes control back on `c`, outlives its daemon and finds a new one; a
 //! SIGTERM or SIGHUP stops the arm and gives the terminal back, as `q` does; a daemon fallen
-//! silent (played by the test) shows as such until its telemetry comes again.
+//! silent (played by the test) shows as such until its telemetry comes again; after a
+//! reconnection it claims no control until the new daemon's telemetry grants it.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
@@ -1021,6 +1022,11 @@ impl FakeLink {
         let line = protocol::telemetry_line(&status);
         self.out.lock().unwrap().write_all(line.as_bytes()).unwrap();
     }
+
+    /// Closes the connection, as a daemon that stops does.
+    fn close(&self) {
+        let _ = self.out.lock().unwrap().shutdown(Shutdown::Both);
+    }
 }
 
 #[test]
@@ -1046,6 +1052,46 @@ fn a_daemon_fallen_silent_shows_so_until_its_telemetry_comes_again() {
     // Telemetry again: connected.
     link.telemetry(Some(1), true);
     ui.wait_for("connected again", |t| field(t, "link") == Some("connected"));
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+}
+
+#[test]
+fn after_a_reconnection_no_control_is_claimed_before_the_daemon_grants_it() {
+    let daemon = FakeDaemon::start();
+    let mut ui = Ui::start(&["--connect".as_ref(), daemon.addr.as_ref()]);
+    let first = daemon.accept();
+    first.wait_request("subscribe", |c| matches!(c, Cmd::Subscribe { .. }));
+    first.telemetry(Some(1), true);
+    ui.wait_for("in control", |t| field(t, "control") == Some("you"));
+
+    // The daemon goes and one comes back on the address, which sends no telemetry yet.
+    first.close();
+    let second = daemon.accept();
+    second.wait_request("subscribe", |c| matches!(c, Cmd::Subscribe { .. }));
+    let text = ui.wait_for("connected again", |t| {
+        field(t, "link").is_some_and(|l| l != "gone: retrying") && !t.contains("gone: retrying")
+    });
+    assert_ne!(
+        field(&text, "control"),
+        Some("you"),
+        "control claimed before the new daemon said so:\n{text}"
+    );
+    assert!(text.contains("waiting for telemetry"), "{text}");
+    // An arrow moves nothing without control; Space (a stop, sent with or without control)
+    // comes after it, so anything the arrow sent comes before the stop.
+    ui.send(b"\x1b[C ");
+    let before = second.wait_request("stop", |c| *c == Cmd::Stop);
+    assert!(
+        !before.iter().any(|c| matches!(c, Cmd::Velocity { .. })),
+        "an arrow sent a velocity without control: {before:?}"
+    );
+
+    // The new daemon's telemetry names another client in control: so the screen says.
+    second.telemetry(Some(7), false);
+    ui.wait_for("the other client named", |t| {
+        field(t, "control") == Some("client 7")
+    });
     ui.send(b"q");
     ui.quits_giving_the_terminal_back("q");
 }

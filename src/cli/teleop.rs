@@ -725,6 +725,9 @@ impl App {
                 Ok((client, arm, world)) => {
                     self.client = Some(client);
                     self.arm = Some(arm);
+                    // The last connection's telemetry, its control above all, says nothing
+                    // of this one's: nothing is in control until this daemon says so.
+                    self.snapshot = None;
                     self.status.set_world(world);
                     self.was_connected = true;
                     self.status.link = Contact::Connected;
