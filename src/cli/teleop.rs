@@ -76,6 +76,10 @@ const MAX_POLL: Duration = Duration::from_millis(50);
 /// How often a lost daemon is tried again.
 const RETRY: Duration = Duration::from_secs(1);
 
+/// The longest a request waits for the daemon to take it: the screen (and `q`) wait with it,
+/// and a daemon that reads nothing for this long is taken as gone.
+const SEND_WAIT: Duration = Duration::from_millis(500);
+
 /// How long a notice stays on screen.
 const NOTICE_FOR: Duration = Duration::from_secs(5);
 
@@ -329,6 +333,7 @@ fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
             move || {
                 let attempt = || -> Result<(Client, ArmInfo, World), ClientError> {
                     let mut client = Client::connect_with(&addr, token_file.as_deref())?;
+                    client.set_write_timeout(SEND_WAIT);
                     let arm = client.describe()?;
                     // A world the daemon sends is valid; one that is not is drawn as none.
                     let world = client.world()?.to_world().unwrap_or_default();

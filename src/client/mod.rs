@@ -42,6 +42,13 @@ pub const DEFAULT_ADDR: &str = "127.0.0.1:7878";
 /// two; the first waits for the arm's bring-up.
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// How long a request's line may wait, by default, for the daemon to take it (see
+/// [`Client::set_write_timeout`]): as long as a reply may take.
+pub const WRITE_TIMEOUT: Duration = REPLY_TIMEOUT;
+
+/// The shortest wait a write is given, even past its deadline: one try.
+const MIN_WRITE_WAIT: Duration = Duration::from_millis(1);
+
 /// Replies, events and unreadable lines held for the caller before the reading thread waits
 /// for it (unless a request is waiting for its reply behind them).
 const QUEUE: usize = 1024;
@@ -145,6 +152,21 @@ pub enum ClientError {
         /// Why its chain was refused.
         source: ChainError,
     },
+    /// The daemon took no more of a request's line within the time allowed: it has stopped
+    /// reading. The connection is closed, since the line may be half sent.
+    #[error(
+        "the daemon at {addr} took no `{cmd}` request within {} ms: it has stopped reading; \
+         the connection is closed",
+        timeout.as_millis()
+    )]
+    WriteTimeout {
+        /// Its address.
+        addr: String,
+        /// The request's command.
+        cmd: CmdName,
+        /// How long the write waited.
+        timeout: Duration,
+    },
     /// Writing to the socket failed.
     #[error("cannot write to the daemon at {addr}: {source}")]
     Write {
@@ -168,7 +190,10 @@ impl ClientError {
 
     /// Whether the connection is gone (rather than one line or one request having failed).
     pub fn is_closed(&self) -> bool {
-        matches!(self, ClientError::Closed { .. })
+        matches!(
+            self,
+            ClientError::Closed { .. } | ClientError::WriteTimeout { .. }
+        )
     }
 }
 
@@ -537,6 +562,10 @@ pub struct Client {
     /// The requests sent whose replies have not been read: id to command.
     pending: HashMap<u64, CmdName>,
     reader: Option<JoinHandle<()>>,
+    /// How long a line may wait for the daemon to take it.
+    write_timeout: Duration,
+    /// The socket's send timeout as last set (`None`: none, as on a new socket).
+    socket_wait: Option<Duration>,
 }
 
 impl fmt::Debug for Client {
@@ -611,6 +640,8 @@ impl Client {
             id: None,
             pending: HashMap::new(),
             reader: Some(reader),
+            write_timeout: WRITE_TIMEOUT,
+            socket_wait: None,
         };
         if let Some(token) = token {
             client.request(&Cmd::Auth {
@@ -631,13 +662,21 @@ impl Client {
         self.id
     }
 
-    /// Sends `cmd` without waiting; returns the request id it carries. Its reply comes through
-    /// [`Client::next`] (or [`Client::watch`]), typed by `cmd`.
+    /// How long a request's line may wait for the daemon to take it, from now on (default
+    /// [`WRITE_TIMEOUT`]); a UI that must not stall gives it less.
+    pub fn set_write_timeout(&mut self, timeout: Duration) {
+        self.write_timeout = timeout;
+    }
+
+    /// Sends `cmd` without waiting for its reply; returns the request id it carries. Its reply
+    /// comes through [`Client::next`] (or [`Client::watch`]), typed by `cmd`. A daemon that
+    /// takes none of the line within the write timeout ([`Client::set_write_timeout`]) has
+    /// stopped reading: [`ClientError::WriteTimeout`], and the connection is closed.
     pub fn send(&mut self, cmd: &Cmd) -> Result<u64, ClientError> {
         let id = self.next_id;
         self.next_id += 1;
         let line = protocol::request_line(Some(&Value::from(id)), cmd);
-        self.write_line(&line)?;
+        self.write_line(cmd.name(), &line)?;
         self.pending.insert(id, cmd.name());
         Ok(id)
     }
@@ -917,18 +956,58 @@ impl Client {
         Ok(fields)
     }
 
-    fn write_line(&mut self, line: &str) -> Result<(), ClientError> {
-        self.writer
-            .write_all(line.as_bytes())
-            .map_err(|source| match source.kind() {
-                std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset => {
-                    self.closed()
+    /// Writes `line` (a `cmd` request) within the write timeout; past it, closes the
+    /// connection.
+    fn write_line(&mut self, cmd: CmdName, line: &str) -> Result<(), ClientError> {
+        use std::io::ErrorKind;
+        let timeout = self.write_timeout;
+        // `None` (a deadline past what an `Instant` holds): no timeout.
+        let deadline = Instant::now().checked_add(timeout);
+        // The whole timeout for the first try (as set before, mostly); what is left of it for
+        // the rest of a line cut short.
+        let mut wait = deadline.map(|_| timeout.max(MIN_WRITE_WAIT));
+        let mut rest = line.as_bytes();
+        while !rest.is_empty() {
+            if self.socket_wait != wait {
+                self.writer
+                    .set_write_timeout(wait)
+                    .map_err(|source| ClientError::Write {
+                        addr: self.addr.clone(),
+                        source,
+                    })?;
+                self.socket_wait = wait;
+            }
+            match self.writer.write(rest) {
+                Ok(0) => return Err(self.closed()),
+                Ok(n) => rest = rest.get(n..).unwrap_or_default(),
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                    // A line cut short would garble the next one: the connection is done.
+                    let _ = self.writer.shutdown(std::net::Shutdown::Both);
+                    return Err(ClientError::WriteTimeout {
+                        addr: self.addr.clone(),
+                        cmd,
+                        timeout,
+                    });
                 }
-                _ => ClientError::Write {
-                    addr: self.addr.clone(),
-                    source,
-                },
-            })
+                Err(e)
+                    if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) =>
+                {
+                    return Err(self.closed())
+                }
+                Err(source) => {
+                    return Err(ClientError::Write {
+                        addr: self.addr.clone(),
+                        source,
+                    })
+                }
+            }
+            wait = deadline.map(|d| {
+                d.saturating_duration_since(Instant::now())
+                    .max(MIN_WRITE_WAIT)
+            });
+        }
+        Ok(())
     }
 
     /// Waits for the reply to request `id` (of `cmd`), leaving everything else queued in

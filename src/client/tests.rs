@@ -1,6 +1,6 @@
 //! The client against a scripted daemon on a loopback socket: typed replies, events and
 //! telemetry; lines it cannot read surfaced with the line; unknown fields and events tolerated;
-//! how a motion command ends.
+//! how a motion command ends; a daemon that stops reading times a request's write out.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -515,4 +515,58 @@ fn a_timeout_of_duration_max_waits_as_long_as_it_takes() {
         .wait_telemetry(Duration::MAX)
         .unwrap_err()
         .is_closed());
+}
+
+#[test]
+fn a_daemon_that_stops_reading_fails_the_send_with_a_write_timeout_and_the_connection_closes() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let mut client = Client::connect(&addr, None).unwrap();
+    // Accepted, and never read.
+    let (_daemon, _) = listener.accept().unwrap();
+    let timeout = Duration::from_millis(100);
+    client.set_write_timeout(timeout);
+    let (done, outcome) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        // The longest requests fill the socket's buffers, on both sides, in a few sends.
+        let path = Cmd::Path {
+            points: vec![
+                [-0.512_345_678_901_234, 0.712_345_678_901_234];
+                protocol::MAX_PATH_POINTS
+            ],
+            speed: None,
+        };
+        let failed = loop {
+            if let Err(e) = client.send(&path) {
+                break e;
+            }
+        };
+        let after = client.send(&Cmd::Stop);
+        let _ = done.send((failed, after));
+    });
+    let (failed, after) = outcome
+        .recv_timeout(WAIT)
+        .expect("a send still blocks on a daemon that stopped reading");
+    match &failed {
+        ClientError::WriteTimeout {
+            addr: at,
+            cmd,
+            timeout: waited,
+        } => {
+            assert_eq!(at, &addr);
+            assert_eq!(*cmd, CmdName::Path);
+            assert_eq!(*waited, timeout);
+        }
+        other => panic!("not a write timeout: {other}"),
+    }
+    let text = failed.to_string();
+    assert!(
+        text.contains(&format!(
+            "the daemon at {addr} took no `path` request within 100 ms"
+        )),
+        "{text}"
+    );
+    assert!(failed.is_closed(), "{failed:?}");
+    // A line may be half sent: the connection is closed, and the next request is told so.
+    assert!(after.unwrap_err().is_closed());
 }
