@@ -331,8 +331,8 @@ pub struct Reply {
     /// When the last byte would have left the servo (wire timing), or when the instruction was
     /// handled (no wire timing), plus any injected latency.
     pub at: Instant,
-    /// The id of the servo that answers ([`BROADCAST_ID`] for a Fast Sync Read's one packet
-    /// from the whole chain).
+    /// The id of the servo that answers ([`BROADCAST_ID`] for the one packet of a Fast Sync or
+    /// Fast Bulk Read from the whole chain).
     pub id: u8,
     /// The status packet as transmitted (possibly corrupted by a fault).
     pub bytes: Vec<u8>,
@@ -660,9 +660,14 @@ impl Simulator {
                 self.line_free = self.line_free.max(done);
             }
             let outgoing = match p.frame {
-                Frame::Packet(packet) if packet.instruction == ins::FAST_SYNC_READ => {
+                Frame::Packet(packet)
+                    if matches!(
+                        packet.instruction,
+                        ins::FAST_SYNC_READ | ins::FAST_BULK_READ
+                    ) =>
+                {
                     self.stats.packets += 1;
-                    replies.extend(self.fast_sync_read(&packet, now, done));
+                    replies.extend(self.fast_read(&packet, now, done));
                     Vec::new()
                 }
                 Frame::Packet(packet) => {
@@ -751,40 +756,41 @@ impl Simulator {
         (latency, drop, corrupt)
     }
 
-    /// A Fast Sync Read (received whole at `done`): one status packet from the chain, each
-    /// listed servo appending its block in the order of the ids. A servo that does not hear,
-    /// does not answer reads (Status Return Level 0), has a firmware too old for the
-    /// instruction (to which it is an unknown broadcast: no answer) or whose block a drop fault
-    /// takes, breaks the chain there: the servos after it, waiting for its block, stay silent
-    /// too, and the packet ends after the last block sent (nothing at all when the first servo
-    /// is missing). A corrupt fault flips one bit of that servo's block, so the packet's running
-    /// CRC fails from it on. The packet leaves after the first servo's Return Delay Time and
-    /// the largest extra latency among the servos that sent a block.
-    fn fast_sync_read(&mut self, p: &Packet, now: Instant, done: Instant) -> Option<Reply> {
-        if p.id != BROADCAST_ID || p.params.len() < 5 {
+    /// A Fast Sync Read or Fast Bulk Read (received whole at `done`): one status packet from
+    /// the chain, each listed servo appending its block in the order of the instruction. A servo
+    /// that does not hear, does not answer reads (Status Return Level 0), has a firmware too old
+    /// for the instruction (to which it is an unknown broadcast: no answer) or whose block a
+    /// drop fault takes, breaks the chain there: the servos after it, waiting for its block,
+    /// stay silent too, and the packet ends after the last block sent (nothing at all when the
+    /// first servo is missing). A corrupt fault flips one bit of that servo's block, so the
+    /// packet's running CRC fails from it on. The packet leaves after the first servo's Return
+    /// Delay Time and the largest extra latency among the servos that sent a block.
+    fn fast_read(&mut self, p: &Packet, now: Instant, done: Instant) -> Option<Reply> {
+        if p.id != BROADCAST_ID {
             return None;
         }
-        let address = u16::from_le_bytes([p.params[0], p.params[1]]);
-        let len = u16::from_le_bytes([p.params[2], p.params[3]]);
-        let ids = &p.params[4..];
+        let reads = match p.instruction {
+            ins::FAST_SYNC_READ => sync_reads(&p.params)?,
+            ins::FAST_BULK_READ => bulk_reads(&p.params)?,
+            _ => return None,
+        };
         let elapsed = self.elapsed(now);
-        let mut heard = Vec::with_capacity(ids.len());
-        for &id in ids {
-            if let Some(i) = self.find(id) {
+        let mut heard = Vec::with_capacity(reads.len());
+        for &(id, _, _) in &reads {
+            let index = self.find(id);
+            if let Some(i) = index {
                 self.servos[i].touch(now);
-                heard.push((id, Some(i)));
-            } else {
-                heard.push((id, None));
             }
+            heard.push(index);
         }
-        let mut blocks = Vec::with_capacity(ids.len());
+        let mut blocks = Vec::with_capacity(reads.len());
         let mut corrupt_blocks = Vec::new();
         let mut latency = Duration::ZERO;
         let mut first = None;
-        for (id, index) in heard {
+        for (&(id, address, len), index) in reads.iter().zip(heard) {
             let Some(i) = index else { break };
             let servo = &self.servos[i];
-            if !servo.knows_fast_read() || !Self::answers(servo, ins::FAST_SYNC_READ) {
+            if !servo.knows_fast_read() || !Self::answers(servo, p.instruction) {
                 break;
             }
             let (error, data) = match servo.read(address, len) {
@@ -795,7 +801,7 @@ impl Simulator {
             let (extra, drop, corrupt) = self.reply_faults(config_id, elapsed);
             if drop {
                 self.stats.dropped += 1;
-                tracing::debug!(id, "fault: fast sync read block dropped");
+                tracing::debug!(id, "fault: fast read block dropped");
                 break;
             }
             if corrupt {
@@ -805,17 +811,17 @@ impl Simulator {
             first.get_or_insert(i);
             blocks.push(FastBlock { error, id, data });
         }
-        let len = usize::from(len);
-        let mut bytes = protocol::encode_fast_status(ids.len(), len, &blocks);
+        let lengths: Vec<usize> = reads.iter().map(|r| usize::from(r.2)).collect();
+        let mut bytes = protocol::encode_fast_reply(&lengths, &blocks);
         let first = first?;
         for k in corrupt_blocks {
             // A bit of block k (error byte to CRC) flipped on the wire.
-            let from = 8 + k * (len + 4);
-            let at = from + self.rng.below(len + 4);
+            let from = 8 + lengths[..k].iter().map(|len| len + 4).sum::<usize>();
+            let at = from + self.rng.below(lengths[k] + 4);
             if let Some(byte) = bytes.get_mut(at) {
                 *byte ^= 1u8 << self.rng.below(8);
                 self.stats.corrupted += 1;
-                tracing::debug!(byte = at, "fault: fast sync read block corrupted");
+                tracing::debug!(byte = at, "fault: fast read block corrupted");
             }
         }
         let rdt = self.servos[first].return_delay();
@@ -860,9 +866,11 @@ impl Simulator {
     fn answers(servo: &Servo, instruction: u8) -> bool {
         match instruction {
             ins::PING => true,
-            ins::READ | ins::SYNC_READ | ins::FAST_SYNC_READ | ins::BULK_READ => {
-                servo.status_return_level() >= 1
-            }
+            ins::READ
+            | ins::SYNC_READ
+            | ins::FAST_SYNC_READ
+            | ins::BULK_READ
+            | ins::FAST_BULK_READ => servo.status_return_level() >= 1,
             _ => servo.status_return_level() >= 2,
         }
     }
@@ -1001,37 +1009,17 @@ impl Simulator {
     }
 
     fn sync_read(&mut self, p: &Packet, now: Instant) -> Vec<Outgoing> {
-        if p.id != BROADCAST_ID || p.params.len() < 5 {
-            return Vec::new();
+        match sync_reads(&p.params) {
+            Some(reads) if p.id == BROADCAST_ID => self.reads(&reads, p.instruction, now),
+            _ => Vec::new(),
         }
-        let address = u16::from_le_bytes([p.params[0], p.params[1]]);
-        let len = u16::from_le_bytes([p.params[2], p.params[3]]);
-        let reads: Vec<(u8, u16, u16)> =
-            p.params[4..].iter().map(|&id| (id, address, len)).collect();
-        self.reads(&reads, p.instruction, now)
     }
 
     fn bulk_read(&mut self, p: &Packet, now: Instant) -> Vec<Outgoing> {
-        if p.id != BROADCAST_ID || p.params.is_empty() || p.params.len() % 5 != 0 {
-            return Vec::new();
+        match bulk_reads(&p.params) {
+            Some(reads) if p.id == BROADCAST_ID => self.reads(&reads, p.instruction, now),
+            _ => Vec::new(),
         }
-        let reads: Vec<(u8, u16, u16)> = p
-            .params
-            .chunks_exact(5)
-            .map(|c| {
-                (
-                    c[0],
-                    u16::from_le_bytes([c[1], c[2]]),
-                    u16::from_le_bytes([c[3], c[4]]),
-                )
-            })
-            .collect();
-        let mut ids: Vec<u8> = reads.iter().map(|r| r.0).collect();
-        ids.sort_unstable();
-        if ids.windows(2).any(|w| w[0] == w[1]) {
-            return Vec::new();
-        }
-        self.reads(&reads, p.instruction, now)
     }
 
     /// Replies of a sync/bulk read, in the order the ids appear in the packet.
@@ -1099,4 +1087,42 @@ impl Simulator {
         }
         Vec::new()
     }
+}
+
+/// The reads a Sync Read's parameters ask for: (id, address, length) per listed id; `None` when
+/// they name no servo.
+fn sync_reads(params: &[u8]) -> Option<Vec<(u8, u16, u16)>> {
+    let [a0, a1, l0, l1, ids @ ..] = params else {
+        return None;
+    };
+    if ids.is_empty() {
+        return None;
+    }
+    let address = u16::from_le_bytes([*a0, *a1]);
+    let len = u16::from_le_bytes([*l0, *l1]);
+    Some(ids.iter().map(|&id| (id, address, len)).collect())
+}
+
+/// The reads a Bulk Read's parameters ask for: (id, address, length) per 5-byte entry; `None`
+/// when they are empty, cut short, or name an id twice (the e-manual: one read per servo).
+fn bulk_reads(params: &[u8]) -> Option<Vec<(u8, u16, u16)>> {
+    if params.is_empty() || params.len() % 5 != 0 {
+        return None;
+    }
+    let reads: Vec<(u8, u16, u16)> = params
+        .chunks_exact(5)
+        .map(|c| {
+            (
+                c[0],
+                u16::from_le_bytes([c[1], c[2]]),
+                u16::from_le_bytes([c[3], c[4]]),
+            )
+        })
+        .collect();
+    let mut ids: Vec<u8> = reads.iter().map(|r| r.0).collect();
+    ids.sort_unstable();
+    if ids.windows(2).any(|w| w[0] == w[1]) {
+        return None;
+    }
+    Some(reads)
 }

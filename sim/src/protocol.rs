@@ -49,6 +49,9 @@ pub mod instruction {
     pub const BULK_READ: u8 = 0x92;
     /// Write a different block on each of several servos.
     pub const BULK_WRITE: u8 = 0x93;
+    /// Read a different block from each of several servos, all answering in one status packet
+    /// (the same firmware as Fast Sync Read).
+    pub const FAST_BULK_READ: u8 = 0x9A;
 }
 
 /// Error numbers of the status packet's error byte (its low 7 bits), per the e-manual.
@@ -164,7 +167,8 @@ pub fn encode_status(id: u8, error: u8, params: &[u8]) -> Vec<u8> {
     encode(id, STATUS, &body)
 }
 
-/// One servo's part of a Fast Sync Read reply: its error byte, its id, its data.
+/// One servo's part of a Fast Sync Read or Fast Bulk Read reply: its error byte, its id, its
+/// data.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FastBlock {
     /// The status error byte (alert bit included).
@@ -176,21 +180,29 @@ pub struct FastBlock {
 }
 
 /// Encode a Fast Sync Read reply as a chain of `servos` servos sends it, `len` data bytes
-/// each: `FF FF FD 00 | FE | LEN | 55 |` then, per servo, `ERR ID DATA CRC`, where `LEN = 1 +
-/// servos × (len + 4)` and each CRC is the CRC-16 of everything before it from the header on.
-/// Not byte-stuffed. `blocks` may be fewer than `servos` (the chain broke off after them): the
-/// packet then ends after the last block given. Each block's data is cut or padded to `len`.
+/// each: [`encode_fast_reply`] with every length `len`.
 pub fn encode_fast_status(servos: usize, len: usize, blocks: &[FastBlock]) -> Vec<u8> {
+    encode_fast_reply(&vec![len; servos], blocks)
+}
+
+/// Encode a Fast Sync Read or Fast Bulk Read reply as the chain sends it, the k-th servo of the
+/// instruction reading `lengths[k]` bytes: `FF FF FD 00 | FE | LEN | 55 |` then, per servo,
+/// `ERR ID DATA CRC`, where `LEN = 1 + Σ (lengths[k] + 4)` and each CRC is the CRC-16 of
+/// everything before it from the header on. Not byte-stuffed. `blocks` may be fewer than
+/// `lengths` (the chain broke off after them): the packet then ends after the last block given.
+/// Block k's data is cut or padded to `lengths[k]`.
+pub fn encode_fast_reply(lengths: &[usize], blocks: &[FastBlock]) -> Vec<u8> {
     if blocks.is_empty() {
         return Vec::new();
     }
-    let length = u16::try_from(1 + servos * (len + 4)).unwrap_or(u16::MAX);
-    let mut out = Vec::with_capacity(8 + blocks.len() * (len + 4));
+    let total: usize = lengths.iter().map(|len| len + 4).sum();
+    let length = u16::try_from(1 + total).unwrap_or(u16::MAX);
+    let mut out = Vec::with_capacity(8 + total);
     out.extend_from_slice(&HEADER);
     out.push(BROADCAST_ID);
     out.extend_from_slice(&length.to_le_bytes());
     out.push(STATUS);
-    for block in blocks {
+    for (block, &len) in blocks.iter().zip(lengths) {
         out.push(block.error);
         out.push(block.id);
         let start = out.len();
@@ -418,6 +430,36 @@ mod tests {
         let short = encode_fast_status(3, 4, &[block(3, 166), block(7, 2079)]);
         assert_eq!(short[..], bytes[..24]);
         assert!(encode_fast_status(3, 4, &[]).is_empty());
+    }
+
+    #[test]
+    fn the_fast_bulk_read_reply_is_the_emanuals_example() {
+        // Protocol 2.0 page: servo 3's Present Position 166 (4 bytes), servo 7's Present PWM
+        // 421 (2), servo 4's Present Temperature 31 (1).
+        let blocks = [
+            FastBlock {
+                error: 0,
+                id: 3,
+                data: 166u32.to_le_bytes().to_vec(),
+            },
+            FastBlock {
+                error: 0,
+                id: 7,
+                data: 421u16.to_le_bytes().to_vec(),
+            },
+            FastBlock {
+                error: 0,
+                id: 4,
+                data: vec![31],
+            },
+        ];
+        assert_eq!(
+            encode_fast_reply(&[4, 2, 1], &blocks),
+            [
+                0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x14, 0x00, 0x55, 0x00, 0x03, 0xA6, 0x00, 0x00, 0x00,
+                0x67, 0xA4, 0x00, 0x07, 0xA5, 0x01, 0x24, 0x74, 0x00, 0x04, 0x1F, 0xD9, 0xC1
+            ]
+        );
     }
 
     #[test]

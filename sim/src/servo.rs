@@ -46,12 +46,12 @@ pub struct ServoSpec {
     pub initial_position_ticks: Option<i32>,
     /// Firmware Version (address 6, and the ping's third byte); the model's table value
     /// ([`DEFAULT_FIRMWARE`]) when `None`. Below [`Model::fast_read_firmware`] the servo does not
-    /// know Fast Sync Read.
+    /// know Fast Sync Read nor Fast Bulk Read.
     pub firmware: Option<u8>,
 }
 
 /// The firmware version a simulated servo reports unless its spec says otherwise: one that
-/// answers Fast Sync Read on every simulated model.
+/// answers Fast Sync Read and Fast Bulk Read on every simulated model.
 pub const DEFAULT_FIRMWARE: u8 = 48;
 
 impl ServoSpec {
@@ -203,7 +203,7 @@ impl Servo {
         self.firmware
     }
 
-    /// Whether this servo's firmware answers Fast Sync Read.
+    /// Whether this servo's firmware answers Fast Sync Read and Fast Bulk Read.
     pub fn knows_fast_read(&self) -> bool {
         self.firmware >= self.table.model.fast_read_firmware()
     }

@@ -44,8 +44,8 @@ impl FromStr for Model {
 }
 
 impl Model {
-    /// The first firmware version of this model that answers Fast Sync Read (the e-manual: X430
-    /// from 45, X330 from 46).
+    /// The first firmware version of this model that answers Fast Sync Read and Fast Bulk Read
+    /// (the e-manual: X430 from 45, X330 from 46).
     pub fn fast_read_firmware(self) -> u8 {
         match self {
             Self::Xl430W250 | Self::Xm430W350 => 45,
