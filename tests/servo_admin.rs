@@ -12,13 +12,13 @@ use crate::servo_support;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use servo_support::{sim_rig, xl430, Rig, TIMEOUT};
+use servo_support::{sim_rig, xl430, Rig, TIMEOUT, WAIT_STEP};
 use snakectl::servo::admin::{self, AdminError, Info};
 use snakectl::servo::arm::{reboot_and_wait, Retry, REBOOT_WAIT};
 use snakectl::servo::clock::{Clock, ManualClock};
 use snakectl::servo::{HardwareErrors, ServoBus, ServoError};
 use snakectl_sim::table::addr;
-use snakectl_sim::{Model, ServoSpec, SimConfig, SimHandle};
+use snakectl_sim::{Model, ServoSpec, SimConfig, SimHandle, DEFAULT_BOOT_TIME};
 
 /// The register at `address` of servo `id`, as the simulator holds it.
 fn held(rig: &Rig, id: u8, address: u16) -> i64 {
@@ -314,7 +314,7 @@ fn reboot_wait_gives_up_on_the_injected_clock_when_the_servo_never_answers() {
 }
 
 #[test]
-fn reboot_wait_returns_at_once_when_the_servo_is_back_and_clears_the_error() {
+fn reboot_wait_pings_until_the_servo_has_booted_and_clears_the_error() {
     let mut rig = sim_rig(xl430(&[1, 2]));
     rig.sim()
         .with_servo(2, |s| s.poke(addr::HARDWARE_ERROR_STATUS, 0x20));
@@ -322,9 +322,14 @@ fn reboot_wait_returns_at_once_when_the_servo_is_back_and_clears_the_error() {
         rig.bus.hardware_errors(2, TIMEOUT).unwrap(),
         HardwareErrors(0x20)
     );
-    let clock = ManualClock::new();
-    reboot_and_wait(&mut rig.bus, 2, TIMEOUT, &clock, &mut Retry::default()).unwrap();
-    assert_eq!(clock.elapsed(), Duration::ZERO);
+    let wait = rig.wait_clock();
+    reboot_and_wait(&mut rig.bus, 2, TIMEOUT, &*wait, &mut Retry::default()).unwrap();
+    // Back once it had booted, on the simulator's clock, within one step of the wait.
+    let waited = sim_elapsed(rig.sim());
+    assert!(
+        waited >= DEFAULT_BOOT_TIME && waited < DEFAULT_BOOT_TIME + WAIT_STEP,
+        "waited {waited:?}"
+    );
     assert_eq!(
         rig.bus.hardware_errors(2, TIMEOUT).unwrap(),
         HardwareErrors(0)

@@ -331,10 +331,13 @@ fn bring_up_refuses_a_hardware_error_unless_asked_to_reboot() {
         "{err}"
     );
     let mut rig2 = rig(&config, fault);
+    // The rebooted servo boots on the simulator's clock while bring-up waits for it.
+    let wait = rig2.wait_clock();
     let up = arm
-        .bring_up(
+        .bring_up_with_clock(
             &mut limited(&mut rig2, &arm),
             BringUpOptions { reboot: true },
+            &*wait,
         )
         .unwrap();
     assert_eq!(up.rebooted, [4]);

@@ -11,8 +11,7 @@ use std::time::{Duration, Instant};
 
 use servo_support::{rig, sim_rig, xl430, TIMEOUT};
 use snakectl::chain::JointLimit;
-use snakectl::servo::arm::{reboot_and_wait, Arm, JointServo, Retry, Settings};
-use snakectl::servo::clock::RealClock;
+use snakectl::servo::arm::{reboot_and_wait, Arm, JointServo, Retry, Settings, REBOOT_WAIT};
 use snakectl::servo::units::{Calibration, TICKS_PER_TURN};
 use snakectl::servo::{
     Fields, Goal, HardwareErrors, Layout, Register, ServoBus, ServoError, ServoModel, States,
@@ -23,6 +22,7 @@ use snakectl_sim::{Fault, HardwareErrorKind};
 fn every_trait_call_round_trips() {
     let mut rig = rig();
     let ids = rig.ids.clone();
+    let wait = rig.wait_clock();
     let bus = &mut rig.bus;
 
     for &id in &ids {
@@ -94,14 +94,14 @@ fn every_trait_call_round_trips() {
     }
     let ack = bus.reboot(id, TIMEOUT).unwrap();
     assert_eq!(ack.id, id);
-    snakectl::servo::arm::reboot_and_wait(
-        bus,
-        id,
-        TIMEOUT,
-        &snakectl::servo::clock::RealClock,
-        &mut snakectl::servo::arm::Retry::default(),
-    )
-    .unwrap();
+    // It boots, then answers again; the wait reboots it once more and sees it back.
+    let deadline = wait.now() + REBOOT_WAIT;
+    while bus.ping(id, TIMEOUT).is_err() {
+        assert!(wait.now() < deadline, "servo {id} did not come back");
+        wait.sleep(Duration::from_millis(10));
+    }
+    reboot_and_wait(bus, id, TIMEOUT, &*wait, &mut Retry::default()).unwrap();
+    assert_eq!(bus.ping(id, TIMEOUT).unwrap().id, id);
 }
 
 /// Each joint with its own offset and direction: a pose written in radians reads back within a
@@ -428,6 +428,7 @@ fn a_hardware_error_sets_the_alert_flag_until_a_reboot() {
     let mut rig = sim_rig(config);
     rig.bus.set_torque(2, true, TIMEOUT).unwrap();
     rig.settle(Duration::from_millis(150));
+    let wait = rig.wait_clock();
     let bus = &mut rig.bus;
     let ping = bus.ping(2, TIMEOUT).unwrap();
     assert!(ping.alert, "the alert flag comes with a successful reply");
@@ -456,14 +457,7 @@ fn a_hardware_error_sets_the_alert_flag_until_a_reboot() {
         "{err}"
     );
     assert!(err.to_string().contains("alert flag set"), "{err}");
-    snakectl::servo::arm::reboot_and_wait(
-        bus,
-        2,
-        TIMEOUT,
-        &snakectl::servo::clock::RealClock,
-        &mut snakectl::servo::arm::Retry::default(),
-    )
-    .unwrap();
+    reboot_and_wait(bus, 2, TIMEOUT, &*wait, &mut Retry::default()).unwrap();
     // The class a caller matches on: a refusal with the alert flag is a hardware fault.
     assert_eq!(err.class(), snakectl::servo::ErrorClass::Hardware);
     assert!(bus.hardware_errors(2, TIMEOUT).unwrap().is_empty());
@@ -554,6 +548,7 @@ fn the_indirect_block_reads_the_registers_and_a_reboot_unmaps_it() {
     let arm = Arm::new(joints, Settings::default());
     let layout = arm.layout();
     assert_eq!(layout, Layout::Indirect { data: 224 });
+    let wait = rig.wait_clock();
     let bus = &mut rig.bus;
     let mut retry = Retry::default();
     arm.map_indirect(bus, &ids, TIMEOUT, &mut retry).unwrap();
@@ -567,7 +562,7 @@ fn the_indirect_block_reads_the_registers_and_a_reboot_unmaps_it() {
         assert!(indirect.voltage_dv.is_some_and(|v| v > 0), "{indirect:?}");
     }
     let first = ids[0];
-    reboot_and_wait(bus, first, TIMEOUT, &RealClock, &mut retry).unwrap();
+    reboot_and_wait(bus, first, TIMEOUT, &*wait, &mut retry).unwrap();
     bus.read_block_into(&ids, layout, TIMEOUT, &mut block)
         .unwrap();
     assert!(

@@ -45,7 +45,7 @@ pub mod table;
 pub use adapter::{Adapter, FtdiReceiver, FTDI_DEFAULT_LATENCY, FTDI_PACKET_DATA};
 pub use chain::{
     Fault, HardwareErrorKind, Reply, SimConfig, Simulator, Stats, UnknownHardwareError, Window,
-    BAUD_RATES,
+    BAUD_RATES, DEFAULT_BOOT_TIME,
 };
 pub use clock::{Clock, ManualClock, RealClock, SharedClock};
 pub use pty::{spawn_pty, spawn_pty_linked, Link, SimHandle};
@@ -62,6 +62,9 @@ pub enum SimError {
     /// Return Delay Time beyond the register's range or odd.
     #[error("return delay {0} µs: must be even and at most 508")]
     ReturnDelay(u32),
+    /// A boot time beyond [`chain::MAX_BOOT_TIME`].
+    #[error("boot time {0:?} exceeds 60 s")]
+    BootTime(std::time::Duration),
     /// A servo id above 252.
     #[error("servo id {0} is out of range 0..=252")]
     BadId(u8),

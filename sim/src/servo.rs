@@ -93,6 +93,8 @@ pub struct Servo {
     shut_down: bool,
     /// Firmware Version.
     firmware: u8,
+    /// Booting after REBOOT or a factory reset until this instant: it neither hears nor answers.
+    booting_until: Option<Instant>,
 }
 
 fn encode_le(value: i64, size: u8) -> [u8; 4] {
@@ -138,6 +140,7 @@ impl Servo {
             blocked: false,
             shut_down: false,
             firmware,
+            booting_until: None,
         };
         servo.load_defaults(true, true);
         servo.put(addr::ID, i64::from(spec.id));
@@ -298,6 +301,12 @@ impl Servo {
         self.silent
     }
 
+    /// True while the servo boots after REBOOT or a factory reset (see [`Servo::reboot`]): it
+    /// neither hears nor answers.
+    pub fn is_booting(&self) -> bool {
+        self.booting_until.is_some()
+    }
+
     /// Take the servo off the bus (it neither hears nor answers) or put it back.
     pub fn set_silent(&mut self, silent: bool) {
         self.silent = silent;
@@ -336,6 +345,7 @@ impl Servo {
     pub fn restore_power(&mut self, now: Instant) {
         self.power_on(now);
         self.silent = false;
+        self.booting_until = None;
     }
 
     /// The error byte of a status packet: `code` plus the alert bit when a hardware error is
@@ -573,15 +583,26 @@ impl Servo {
         self.write(address, &data, now)
     }
 
-    /// Restart: RAM back to initial values, torque off, hardware errors cleared.
-    pub fn reboot(&mut self, now: Instant) {
+    /// Restart at `now`: RAM back to initial values, torque off, hardware errors cleared; then
+    /// the servo boots for `boot_time`, neither hearing nor answering, as a real one does after
+    /// answering REBOOT.
+    pub fn reboot(&mut self, now: Instant, boot_time: Duration) {
         self.update(now);
         self.power_on(now);
+        self.boot(now, boot_time);
+    }
+
+    /// Off the bus from `now` for `boot_time` (none when zero).
+    fn boot(&mut self, now: Instant, boot_time: Duration) {
+        self.booting_until = (!boot_time.is_zero())
+            .then(|| now.checked_add(boot_time))
+            .flatten();
     }
 
     /// Factory reset with the protocol's option byte (0xFF all, 0x01 all but the id, 0x02 all
-    /// but id and baud rate), then restart.
-    pub fn factory_reset(&mut self, option: u8, now: Instant) {
+    /// but id and baud rate), then restart and boot for `boot_time` (the e-manual: the device
+    /// reboots).
+    pub fn factory_reset(&mut self, option: u8, now: Instant, boot_time: Duration) {
         self.update(now);
         let id = self.get(addr::ID);
         let baud = self.get(addr::BAUD_RATE);
@@ -593,6 +614,7 @@ impl Servo {
             self.put(addr::BAUD_RATE, baud);
         }
         self.power_on(now);
+        self.boot(now, boot_time);
     }
 
     /// CLEAR: bring the multi-turn position back within one turn. Fails while moving.
@@ -636,8 +658,11 @@ impl Servo {
             .then(|| self.last_rx + Duration::from_millis(20 * wd as u64))
     }
 
-    /// Advance the motor model and the watchdog to `now`.
+    /// Advance the motor model and the watchdog to `now`; a boot that is over by then ends.
     pub fn update(&mut self, now: Instant) {
+        if self.booting_until.is_some_and(|until| until <= now) {
+            self.booting_until = None;
+        }
         if now <= self.last_update {
             return;
         }

@@ -254,7 +254,7 @@ fn status_of(what: &str) -> Vec<u8> {
 
 #[test]
 fn simulator_answers_examples_byte_for_byte() {
-    let (mut s, _clock) = two_servos();
+    let (mut s, clock) = two_servos();
     let ok = status_of("write/action/reboot reply");
 
     let r = s.handle_bytes(&wire_of("read present position"));
@@ -276,6 +276,8 @@ fn simulator_answers_examples_byte_for_byte() {
         assert_eq!(r.len(), 1, "{what}");
         assert_eq!(r[0].bytes, ok, "{what}");
     }
+    // Servo 1 boots after the reboot before it answers again.
+    clock.advance(snakectl_sim::DEFAULT_BOOT_TIME);
 
     // Ping: same framing, the simulated model's number and firmware.
     let r = s.handle_bytes(&wire_of("ping id 1"));
@@ -289,6 +291,7 @@ fn simulator_answers_examples_byte_for_byte() {
     let r = s.handle_bytes(&wire_of("factory reset except id"));
     assert_eq!(r[0].bytes, ok);
     assert_eq!(s.servo(1).map(|x| x.baud_index()), Some(1));
+    clock.advance(snakectl_sim::DEFAULT_BOOT_TIME);
     assert!(s.handle_bytes(&wire_of("ping id 1")).is_empty());
 }
 

@@ -12,7 +12,7 @@ use dynamixel2::{Bus, ReadError, TransferError};
 use snakectl_sim::table::addr;
 use snakectl_sim::{
     spawn_pty, Fault, HardwareErrorKind, ManualClock, Model, ServoSpec, SimConfig, SimHandle,
-    Simulator, Stats,
+    Simulator, Stats, DEFAULT_BOOT_TIME,
 };
 
 type Client = Bus<Vec<u8>, Vec<u8>>;
@@ -117,7 +117,7 @@ fn sync_read_u32(handle: &SimHandle, bus: &mut Client, ids: &[u8], address: u16)
 
 #[test]
 fn every_instruction_round_trips() {
-    let (handle, _clock) = serve(chain(&[1, 2, 3]));
+    let (handle, clock) = serve(chain(&[1, 2, 3]));
     let mut bus = open(&handle);
 
     let ping = again(|| bus.ping(2)).expect("ping");
@@ -209,9 +209,12 @@ fn every_instruction_round_trips() {
     again(|| bus.clear_revolution_counter(1)).expect("clear");
     again(|| bus.write_u8(1, addr::LED, 1)).expect("write");
     again(|| bus.reboot(1)).expect("reboot");
+    // It boots before it answers again.
+    advance(&handle, &clock, DEFAULT_BOOT_TIME);
     assert_eq!(again(|| bus.read_u8(1, addr::LED)).expect("read").data, 0);
     again(|| bus.write_u8(3, addr::RETURN_DELAY_TIME, 0)).expect("write");
     again(|| bus.factory_reset(3, FactoryResetKind::KeepIdAndBaudRate)).expect("factory reset");
+    advance(&handle, &clock, DEFAULT_BOOT_TIME);
     assert_eq!(
         again(|| bus.read_u8(3, addr::RETURN_DELAY_TIME))
             .expect("read")
@@ -269,6 +272,7 @@ fn shutdown_error_until_reboot() {
     assert_eq!(code(|| bus.write_u8(2, addr::TORQUE_ENABLE, 1)), 0x81);
     assert!(!again(|| bus.ping(1)).expect("ping").alert);
     again(|| bus.reboot(2)).expect("reboot");
+    advance(&handle, &clock, DEFAULT_BOOT_TIME);
     let hw = again(|| bus.read_u8(2, addr::HARDWARE_ERROR_STATUS)).expect("read");
     assert_eq!((hw.alert, hw.data), (false, 0));
     again(|| bus.write_u8(2, addr::TORQUE_ENABLE, 1)).expect("torque on again");

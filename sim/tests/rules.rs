@@ -11,7 +11,7 @@ use std::time::Duration;
 use common::*;
 use snakectl_sim::protocol::{error, instruction as ins, BROADCAST_ID};
 use snakectl_sim::table::addr;
-use snakectl_sim::{Fault, HardwareErrorKind, Model, ServoSpec, SimConfig};
+use snakectl_sim::{Fault, HardwareErrorKind, Model, ServoSpec, SimConfig, DEFAULT_BOOT_TIME};
 
 const ACCESS: u8 = error::ACCESS;
 
@@ -195,6 +195,7 @@ fn shutdown_error_switches_torque_off_until_reboot() {
         error::RESULT_FAIL | error::ALERT
     );
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, error::ALERT);
+    clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1), (0, 0));
     assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
 }
@@ -221,6 +222,7 @@ fn clearing_shutdown_after_the_error_does_not_bring_torque_back_before_a_reboot(
     );
     assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 0));
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, error::ALERT);
+    clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
 }
 
@@ -448,7 +450,7 @@ fn goal_pwm_limits_the_output_in_position_and_velocity_modes() {
 
 #[test]
 fn status_return_level_selects_the_replies() {
-    let (mut s, _) = sim(xl430(&[1]));
+    let (mut s, clock) = sim(xl430(&[1]));
     // The write that changes the level is still answered under the old one.
     assert_eq!(write(&mut s, 1, addr::STATUS_RETURN_LEVEL, &[1]), 0);
     assert!(send(&mut s, 1, ins::WRITE, &write_params(addr::LED, &[1])).is_empty());
@@ -468,6 +470,7 @@ fn status_return_level_selects_the_replies() {
     assert!(send(&mut s, 1, ins::WRITE, &write_params(addr::LED, &[7])).is_empty());
     // Reboot restores the RAM default (2).
     assert!(send(&mut s, 1, ins::REBOOT, &[]).is_empty());
+    clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 0));
 }
 
@@ -495,18 +498,22 @@ fn reg_write_waits_for_action() {
 fn reboot_and_factory_reset() {
     let mut spec = ServoSpec::new(4, Model::Xl430W250);
     spec.max_position_ticks = Some(3000);
-    let (mut s, _) = sim(vec![spec]);
+    let (mut s, clock) = sim(vec![spec]);
     assert_eq!(write(&mut s, 4, addr::LED, &[1]), 0);
     assert_eq!(
         write(&mut s, 4, addr::POSITION_P_GAIN, &900u16.to_le_bytes()),
         0
     );
     assert_eq!(one(&mut s, 4, ins::REBOOT, &[]).error, 0);
+    clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 4, addr::LED, 1), (0, 0));
     assert_eq!(read(&mut s, 4, addr::POSITION_P_GAIN, 2), (0, 640));
     assert_eq!(read(&mut s, 4, addr::MAX_POSITION_LIMIT, 4), (0, 3000));
     // Reset all but id and baud: EEPROM back to factory values, still reachable.
     assert_eq!(one(&mut s, 4, ins::FACTORY_RESET, &[0x02]).error, 0);
+    // A factory reset reboots the servo: it boots as after REBOOT.
+    assert!(send(&mut s, 4, ins::PING, &[]).is_empty());
+    clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 4, addr::MAX_POSITION_LIMIT, 4), (0, 4095));
     assert_eq!(read(&mut s, 4, addr::RETURN_DELAY_TIME, 1), (0, 250));
     assert_eq!(
@@ -518,8 +525,61 @@ fn reboot_and_factory_reset() {
     assert_eq!(one(&mut s, 4, ins::PING, &[]).error, 0);
     // Reset all: id back to 1, factory baud (57600): gone from a 1 Mbps bus.
     assert_eq!(one(&mut s, 4, ins::FACTORY_RESET, &[0xFF]).id, 4);
+    clock.advance(DEFAULT_BOOT_TIME);
     assert!(send(&mut s, BROADCAST_ID, ins::PING, &[]).is_empty());
     assert_eq!(s.servo(1).map(|x| x.baud_index()), Some(1));
+}
+
+#[test]
+fn a_rebooted_servo_neither_hears_nor_answers_until_it_has_booted() {
+    let (mut s, clock) = sim(xl430(&[1, 2, 3]));
+    assert_eq!(write(&mut s, 1, addr::LED, &[1]), 0);
+    // The reboot itself is answered, then the servo boots.
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    assert!(send(&mut s, 1, ins::PING, &[]).is_empty());
+    // Deaf as well as mute: a write sent meanwhile is not carried out.
+    assert!(send(&mut s, 1, ins::WRITE, &write_params(addr::LED, &[1])).is_empty());
+    // The others answer around it.
+    let ids = |r: Vec<snakectl_sim::Reply>| r.iter().map(|r| r.id).collect::<Vec<u8>>();
+    assert_eq!(ids(send(&mut s, BROADCAST_ID, ins::PING, &[])), [2, 3]);
+    let sync = [65, 0, 1, 0, 1, 2, 3];
+    assert_eq!(
+        ids(send(&mut s, BROADCAST_ID, ins::SYNC_READ, &sync)),
+        [2, 3]
+    );
+    // Still booting just before the time is up, back on the bus when it is.
+    clock.advance(DEFAULT_BOOT_TIME - Duration::from_millis(1));
+    assert!(send(&mut s, 1, ins::PING, &[]).is_empty());
+    clock.advance(Duration::from_millis(1));
+    assert_eq!(one(&mut s, 1, ins::PING, &[]).error, 0);
+    assert_eq!(
+        ids(send(&mut s, BROADCAST_ID, ins::SYNC_READ, &sync)),
+        [1, 2, 3]
+    );
+    // Its RAM came back at the defaults, the write sent while it booted lost.
+    assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 0));
+}
+
+#[test]
+fn the_boot_time_is_configured_zero_for_none() {
+    let config = |boot_time| SimConfig {
+        servos: xl430(&[1]),
+        boot_time,
+        ..SimConfig::default()
+    };
+    let (mut s, clock) = sim_with(config(Duration::from_millis(50)));
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    clock.advance(Duration::from_millis(49));
+    assert!(send(&mut s, 1, ins::PING, &[]).is_empty());
+    clock.advance(Duration::from_millis(1));
+    assert_eq!(one(&mut s, 1, ins::PING, &[]).error, 0);
+    let (mut s, _) = sim_with(config(Duration::ZERO));
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    assert_eq!(one(&mut s, 1, ins::PING, &[]).error, 0);
+    assert!(matches!(
+        config(Duration::from_secs(61)).validate(),
+        Err(snakectl_sim::SimError::BootTime(_))
+    ));
 }
 
 #[test]
@@ -591,6 +651,7 @@ fn present_position_comes_back_within_one_turn_on_reboot_and_in_position_mode() 
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000);
     // A reboot: the encoder's absolute position within one turn, the goal with it.
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000 % 4096);
     assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4).1, 9000 % 4096);
     // Multi-turn again (still in extended position mode), then back to position mode.
@@ -662,7 +723,7 @@ fn a_servo_that_loses_power_answers_again_with_its_ram_reset_and_its_eeprom_kept
 #[test]
 fn indirect_addresses_take_ram_targets_with_torque_on_and_reset_on_reboot() {
     // XL330-M288: Indirect Address 1..20 at 168, Indirect Data 1..20 at 208, range 64..=227.
-    let (mut s, _) = sim(vec![ServoSpec::new(1, Model::Xl330M288)]);
+    let (mut s, clock) = sim(vec![ServoSpec::new(1, Model::Xl330M288)]);
     let slot = addr::INDIRECT_ADDRESS_1;
     assert_eq!(
         read(&mut s, 1, slot, 2),
@@ -694,6 +755,7 @@ fn indirect_addresses_take_ram_targets_with_torque_on_and_reset_on_reboot() {
     assert_eq!(write(&mut s, 1, 208, &[0, 0, 0, 0]), error::ACCESS);
     // Reboot: the mapping is RAM, back at its defaults; the Data reads 0.
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 1, slot, 2), (0, 208));
     assert_eq!(read(&mut s, 1, 208, 4), (0, 0));
 }

@@ -6,7 +6,7 @@
 #![allow(dead_code, missing_docs, clippy::unwrap_used, clippy::expect_used)]
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
@@ -49,6 +49,34 @@ impl Rig {
     /// The simulator; panics on hardware (callers are simulator-only tests).
     pub fn sim(&self) -> &SimHandle {
         self.sim.as_ref().expect("a simulator-only test")
+    }
+
+    /// The clock for the servo layer's waits (a rebooted servo booting): wall time on hardware;
+    /// on the simulator its own clock, each sleep moving it on by at least [`WAIT_STEP`].
+    pub fn wait_clock(&self) -> Box<dyn Clock> {
+        match &self.clock {
+            Some(clock) => Box::new(SimWait(clock.clone())),
+            None => Box::new(RealClock),
+        }
+    }
+}
+
+/// The least a sleep of [`Rig::wait_clock`] moves the simulator's clock on: a wait that polls a
+/// booting servo every 10 ms then sees it back in a few polls, each of them costing a reply
+/// timeout of wall time, instead of one poll per 10 ms of the boot.
+pub const WAIT_STEP: Duration = Duration::from_millis(100);
+
+/// The simulator's manual clock, moved on by at least [`WAIT_STEP`] a sleep.
+#[derive(Debug)]
+struct SimWait(ManualClock);
+
+impl Clock for SimWait {
+    fn now(&self) -> Instant {
+        self.0.now()
+    }
+
+    fn sleep(&self, d: Duration) {
+        self.0.advance(d.max(WAIT_STEP));
     }
 }
 
