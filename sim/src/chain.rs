@@ -33,6 +33,13 @@ pub const DEFAULT_BOOT_TIME: Duration = Duration::from_millis(400);
 /// Longest boot time a configuration may ask for.
 pub const MAX_BOOT_TIME: Duration = Duration::from_secs(60);
 
+/// The slot of one id in the replies to a broadcast ping: counting from id 1 once the line is
+/// quiet, a servo waits this long for each id before its own that has not answered. ROBOTIS'
+/// own Protocol 2.0 device firmware (OpenCR's OP3 sub-controller) counts the ids in steps of
+/// 3 ms, skipping to the next id when it hears a reply, and their SDK waits 3 ms an id for
+/// the replies.
+pub const BROADCAST_PING_SLOT: Duration = Duration::from_millis(3);
+
 /// A hardware error a fault can raise (bits of Hardware Error Status).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
@@ -412,6 +419,9 @@ pub struct Simulator {
 struct Outgoing {
     index: usize,
     bytes: Vec<u8>,
+    /// Wire timing: how long the servo waits, once the line is quiet, before its own Return
+    /// Delay Time (the empty slots before it in the replies to a broadcast ping).
+    slot_wait: Duration,
 }
 
 impl Simulator {
@@ -720,8 +730,9 @@ impl Simulator {
         let mut bytes = out.bytes;
         let at = if self.config.wire_timing {
             // Each servo waits its Return Delay Time once the line is quiet (after the
-            // instruction, or after the previous servo's reply in a sync/bulk read).
-            let start = done.max(self.line_free) + rdt + latency;
+            // instruction, or after the previous servo's reply in a sync/bulk read or to a
+            // broadcast ping, there after the empty slots before its own too).
+            let start = done.max(self.line_free) + out.slot_wait + rdt + latency;
             let end = start + self.byte_time() * bytes.len() as u32;
             self.line_free = end;
             end
@@ -899,6 +910,7 @@ impl Simulator {
         Outgoing {
             index,
             bytes: protocol::encode_status(servo.id(), servo.status_error(code), params),
+            slot_wait: Duration::ZERO,
         }
     }
 
@@ -925,8 +937,9 @@ impl Simulator {
             _ => {
                 let broadcast = p.id == BROADCAST_ID;
                 let mut targets = self.listeners(p.id);
-                // Broadcast ping replies come in id order.
+                // Broadcast ping replies come in id order, each servo in its slot.
                 targets.sort_by_key(|&i| self.servos[i].id());
+                let mut next_slot = 1u8;
                 let mut out = Vec::new();
                 for i in targets {
                     self.servos[i].touch(now);
@@ -936,7 +949,14 @@ impl Simulator {
                         && Self::answers(&self.servos[i], p.instruction);
                     if let Some((code, data, after)) = self.unicast(i, p, broadcast, now) {
                         if answers {
-                            out.push(self.status(i, code, &data));
+                            let mut status = self.status(i, code, &data);
+                            if broadcast {
+                                let id = self.servos[i].id();
+                                let empty = id.saturating_sub(next_slot);
+                                status.slot_wait = BROADCAST_PING_SLOT * u32::from(empty);
+                                next_slot = id.saturating_add(1);
+                            }
+                            out.push(status);
                         }
                         after(&mut self.servos[i], now);
                     }

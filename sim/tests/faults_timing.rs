@@ -191,6 +191,58 @@ fn wire_timing_of_one_reply() {
     assert_eq!(r[0].at, t0 + bt * 10 + Duration::from_micros(500) + bt * 14);
 }
 
+/// The slot a broadcast ping gives each id: 3 ms (ROBOTIS' own Protocol 2.0 device firmware
+/// counts the ids in steps of 3 ms; their SDK waits 3 ms an id for the replies).
+const SLOT: Duration = Duration::from_millis(3);
+
+/// A broadcast ping to servos configured as `ids` (out of id order, with gaps) at `baud`, with
+/// a return delay of 100 µs: the replies, and the wire time of one byte.
+fn broadcast_ping(ids: &[u8], baud: u32) -> (Vec<snakectl_sim::Reply>, Instant, Duration) {
+    let (mut s, clock) = sim_with(SimConfig {
+        servos: xl430(ids),
+        baud,
+        return_delay_us: 100,
+        wire_timing: true,
+        ..SimConfig::default()
+    });
+    let t0 = snakectl_sim::Clock::now(&clock);
+    let r = send(&mut s, BROADCAST_ID, ins::PING, &[]);
+    let byte = Duration::from_nanos(10_000_000_000 / u64::from(baud));
+    (r, t0, byte)
+}
+
+#[test]
+fn a_broadcast_ping_is_answered_in_id_order_each_servo_in_its_own_slot() {
+    let (r, t0, byte) = broadcast_ping(&[7, 1, 3, 4], 57_600);
+    assert_eq!(r.iter().map(|r| r.id).collect::<Vec<_>>(), [1, 3, 4, 7]);
+    // Each reply: its servo's return delay, then 14 bytes.
+    let reply = Duration::from_micros(100) + byte * 14;
+    // Id 1 answers once the instruction's 10 bytes are in; id 3 one empty slot (id 2) after id
+    // 1's reply; id 4 right after id 3's; id 7 two empty slots (5, 6) after id 4's.
+    let at1 = byte * 10 + reply;
+    let at3 = at1 + SLOT + reply;
+    let at4 = at3 + reply;
+    let at7 = at4 + SLOT * 2 + reply;
+    let ends: Vec<Duration> = r.iter().map(|r| r.at - t0).collect();
+    assert_eq!(ends, [at1, at3, at4, at7]);
+}
+
+#[test]
+fn broadcast_ping_replies_never_overlap_even_when_one_outlasts_a_slot() {
+    // At 9600 baud a 14-byte reply takes 14.6 ms, longer than a slot.
+    for baud in [9_600, 57_600, 1_000_000] {
+        let (r, _, byte) = broadcast_ping(&[2, 1, 3, 9, 10, 30], baud);
+        assert_eq!(
+            r.iter().map(|r| r.id).collect::<Vec<_>>(),
+            [1, 2, 3, 9, 10, 30]
+        );
+        for w in r.windows(2) {
+            let starts = w[1].at - byte * 14;
+            assert!(starts > w[0].at, "{baud} Bd: id {} overlaps", w[1].id);
+        }
+    }
+}
+
 #[test]
 fn wire_timing_of_a_sync_cycle_matches_the_formula() {
     for n in [1u8, 4, 12] {
