@@ -16,7 +16,7 @@ use snakectl::servo::units::{Calibration, TICKS_PER_TURN};
 use snakectl::servo::{
     Fields, Goal, HardwareErrors, Layout, Register, ServoBus, ServoError, ServoModel, States,
 };
-use snakectl_sim::{Fault, HardwareErrorKind};
+use snakectl_sim::{Fault, HardwareErrorKind, SimConfig};
 
 #[test]
 fn every_trait_call_round_trips() {
@@ -102,6 +102,27 @@ fn every_trait_call_round_trips() {
     }
     reboot_and_wait(bus, id, TIMEOUT, &*wait, &mut Retry::default()).unwrap();
     assert_eq!(bus.ping(id, TIMEOUT).unwrap().id, id);
+}
+
+/// Under wire timing a servo answers a broadcast ping in its own slot, 3 ms for every silent id
+/// before it: id 252 of this chain answers about 745 ms after the ping. The scan must listen
+/// that long, not only for the wire time of the replies.
+#[test]
+#[cfg_attr(feature = "hardware", ignore = "simulator only")]
+fn a_scan_finds_servos_with_high_ids_under_wire_timing() {
+    let ids = [3, 200, 201, 203, 252];
+    let mut rig = servo_support::realtime_rig(SimConfig {
+        wire_timing: true,
+        ..xl430(&ids)
+    });
+    let found: Vec<u8> = rig
+        .bus
+        .scan(TIMEOUT)
+        .unwrap()
+        .iter()
+        .map(|p| p.id)
+        .collect();
+    assert_eq!(found, ids);
 }
 
 /// Each joint with its own offset and direction: a pose written in radians reads back within a

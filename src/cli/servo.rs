@@ -31,7 +31,7 @@ pub struct ScanArgs {
     /// Baud rate; when absent, the common ones are tried in turn.
     #[arg(long)]
     baud: Option<u32>,
-    /// Wait for replies beyond their wire time, ms.
+    /// Wait for replies beyond every id's slot (3 ms) and reply time, ms.
     #[arg(long, default_value_t = 50)]
     timeout_ms: u64,
 }

@@ -58,6 +58,10 @@ const STATUS_OVERHEAD: usize = 11;
 /// Bytes of an instruction packet without parameters: header 4, id, length 2, instruction,
 /// CRC 2.
 const INSTRUCTION_OVERHEAD: usize = 10;
+/// The slot of one id in the replies to a broadcast ping: servos answer in id order, each
+/// after 3 ms for every id before its own that did not answer (ROBOTIS' device firmware steps
+/// the ids every 3 ms, and their SDK's `broadcastPing` waits 3 ms an id).
+pub const BROADCAST_PING_SLOT: Duration = Duration::from_millis(3);
 /// How long a Fast Sync Read reply may pause (beyond the wire time of what is missing) before
 /// the chain is taken to have broken there: a chain sends its blocks back to back, and a USB
 /// adapter with its latency timer at 1 ms passes bytes on at least every millisecond (behind a
@@ -121,6 +125,19 @@ fn closed() -> ServoError {
         std::io::ErrorKind::NotConnected,
         "the port was closed",
     ))
+}
+
+/// How long a scan at `baud` listens after its broadcast ping: the ping's bytes, the reply of
+/// every id (0 to [`MAX_ID`]), a [`BROADCAST_PING_SLOT`] for every id after the first, then
+/// `timeout`, as ROBOTIS' SDK does (it ends with 16 ms). A servo that answers uses no slot of
+/// its own, which covers its Return Delay Time (at most 508 µs). At 1 Mbps with 50 ms that is
+/// 842 ms, 1.42 s at 57600 baud.
+pub fn scan_window(baud: u32, timeout: Duration) -> Duration {
+    let ids = usize::from(MAX_ID) + 1;
+    wire_time(INSTRUCTION_OVERHEAD, baud)
+        + wire_time((STATUS_OVERHEAD + 3) * ids, baud)
+        + BROADCAST_PING_SLOT * u32::from(MAX_ID)
+        + timeout
 }
 
 /// Time `bytes` take on the wire at `baud` (10 bits a byte).
@@ -1088,12 +1105,9 @@ impl ServoBus for DynamixelBus {
 
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
         self.send(BROADCAST_ID, ins::PING, 0, |_| {})?;
-        let baud = self.baud;
-        // Every id may answer, one after the other.
-        let window = wire_time(INSTRUCTION_OVERHEAD, baud)
-            + wire_time((STATUS_OVERHEAD + 3) * (usize::from(MAX_ID) + 1), baud)
-            + timeout;
-        let deadline = Instant::now() + window;
+        // Replies come in id order, but one from a higher id may follow any of them: listen for
+        // the whole window, never stopping at a lull.
+        let deadline = Instant::now() + scan_window(self.baud, timeout);
         let mut found: Vec<PingInfo> = Vec::new();
         loop {
             match self.read_status(poll_deadline(deadline))? {

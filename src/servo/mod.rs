@@ -669,8 +669,9 @@ pub trait ServoBus {
     /// Ping one servo: model number and firmware.
     fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError>;
 
-    /// Broadcast ping: every servo that answers, in id order. Waits for the wire time of every
-    /// possible reply plus `timeout`.
+    /// Broadcast ping: every servo that answers, in id order. Listens for every id's slot and
+    /// reply, up to id 252, plus `timeout` (see [`dynamixel::scan_window`]): under a second
+    /// at 1 Mbps, whatever the ids.
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError>;
 
     /// Read one register.
