@@ -18,7 +18,7 @@ use snakectl::servo::arm::{reboot_and_wait, Retry, REBOOT_WAIT};
 use snakectl::servo::clock::{Clock, ManualClock};
 use snakectl::servo::{HardwareErrors, ServoBus, ServoError};
 use snakectl_sim::table::addr;
-use snakectl_sim::{Model, ServoSpec, SimConfig, SimHandle, DEFAULT_BOOT_TIME};
+use snakectl_sim::{Fault, Model, ServoSpec, SimConfig, SimHandle, DEFAULT_BOOT_TIME};
 
 /// The register at `address` of servo `id`, as the simulator holds it.
 fn held(rig: &Rig, id: u8, address: u16) -> i64 {
@@ -311,6 +311,65 @@ fn reboot_wait_gives_up_on_the_injected_clock_when_the_servo_never_answers() {
     // The simulator's own clock never moved: the waiting was all on the step clock.
     assert_eq!(sim_elapsed(sim), Duration::ZERO);
     assert!(answers(&mut rig, 1));
+}
+
+/// Servo 2 of a pair with a hardware error latched, and `fault` injected: the simulator's clock
+/// stands still until the reboot wait moves it, so a fault open for its first millisecond hits
+/// the first REBOOT alone.
+fn latched_rig(fault: Fault) -> Rig {
+    let mut config = xl430(&[1, 2]);
+    config.faults = vec![fault.during(Duration::ZERO, Some(Duration::from_millis(1)))];
+    let rig = sim_rig(config);
+    rig.sim()
+        .with_servo(2, |s| s.poke(addr::HARDWARE_ERROR_STATUS, 0x20));
+    rig
+}
+
+#[test]
+fn a_reboot_whose_acknowledgement_is_lost_is_waited_for_not_sent_again() {
+    let mut rig = latched_rig(Fault::DropReplies {
+        id: Some(2),
+        fraction: 1.0,
+    });
+    let wait = rig.wait_clock();
+    let mut retry = Retry::default();
+    reboot_and_wait(&mut rig.bus, 2, TIMEOUT, &*wait, &mut retry).unwrap();
+    // The acknowledgement was the one reply lost, and no REBOOT was sent again (one sent while
+    // the servo booted would have been ignored, and counted).
+    assert_eq!(rig.sim().with_sim(|s| s.stats().dropped), 1);
+    assert_eq!(retry.retries, 0);
+    // Back once it had booted, the error cleared.
+    let waited = sim_elapsed(rig.sim());
+    assert!(
+        waited >= DEFAULT_BOOT_TIME && waited < DEFAULT_BOOT_TIME + WAIT_STEP,
+        "waited {waited:?}"
+    );
+    assert_eq!(
+        rig.bus.hardware_errors(2, TIMEOUT).unwrap(),
+        HardwareErrors(0)
+    );
+}
+
+#[test]
+fn a_reboot_the_servo_never_heard_is_sent_again_once_it_answers_with_its_error() {
+    let mut rig = latched_rig(Fault::Silent {
+        id: 2,
+        at: Duration::ZERO,
+    });
+    let wait = rig.wait_clock();
+    let mut retry = Retry::default();
+    reboot_and_wait(&mut rig.bus, 2, TIMEOUT, &*wait, &mut retry).unwrap();
+    assert_eq!(retry.retries, 1);
+    // The second REBOOT went out once the servo answered, a wait step in; then it booted.
+    let waited = sim_elapsed(rig.sim());
+    assert!(
+        waited >= WAIT_STEP + DEFAULT_BOOT_TIME && waited < 2 * WAIT_STEP + DEFAULT_BOOT_TIME,
+        "waited {waited:?}"
+    );
+    assert_eq!(
+        rig.bus.hardware_errors(2, TIMEOUT).unwrap(),
+        HardwareErrors(0)
+    );
 }
 
 #[test]

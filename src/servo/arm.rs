@@ -1573,8 +1573,14 @@ fn mapped(data: &[u8]) -> bool {
             .all(|(b, &(_, t))| u16::from_le_bytes([b[0], b[1]]) == t)
 }
 
-/// Reboot `id` and wait on `clock` until it answers a ping again (at most [`REBOOT_WAIT`]);
-/// the reboot instruction itself is retried on a transient error.
+/// Reboot `id` and wait on `clock` until it answers a ping again (at most [`REBOOT_WAIT`]).
+///
+/// A REBOOT whose acknowledgement is lost (no reply, a damaged one) may still have arrived:
+/// the servo is then booting and deaf to a second one. So it is waited for first, and REBOOT
+/// is sent again (at most [`RETRIES`] times, each counted in `retry`) only if the servo comes
+/// back with its alert flag set: its hardware error is still latched, the REBOOT never
+/// arrived. A servo without a latched error that answers after a lost acknowledgement is taken
+/// as rebooted: nothing else in its reply tells the two apart.
 pub fn reboot_and_wait<B: ServoBus>(
     bus: &mut B,
     id: u8,
@@ -1582,11 +1588,40 @@ pub fn reboot_and_wait<B: ServoBus>(
     clock: &dyn Clock,
     retry: &mut Retry,
 ) -> Result<(), ServoError> {
-    retry.run(|| bus.reboot(id, timeout))?;
+    let mut left = RETRIES;
+    loop {
+        let lost = match bus.reboot(id, timeout) {
+            Ok(_) => None,
+            Err(e) if e.is_transient() => Some(e),
+            Err(e) => return Err(e),
+        };
+        let back = wait_for_boot(bus, id, timeout, clock)?;
+        match lost {
+            Some(e) if back.alert => {
+                if left == 0 {
+                    return Err(e);
+                }
+                tracing::debug!(error = %e, "the reboot did not arrive; sending it again");
+                left -= 1;
+                retry.retries += 1;
+            }
+            _ => return Ok(()),
+        }
+    }
+}
+
+/// Ping `id` on `clock` until it answers (a booting servo neither hears nor answers), at most
+/// [`REBOOT_WAIT`]; the last ping's error if it never does.
+fn wait_for_boot<B: ServoBus>(
+    bus: &mut B,
+    id: u8,
+    timeout: Duration,
+    clock: &dyn Clock,
+) -> Result<PingInfo, ServoError> {
     let give_up = clock.now() + REBOOT_WAIT;
     loop {
         match bus.ping(id, timeout) {
-            Ok(_) => return Ok(()),
+            Ok(p) => return Ok(p),
             Err(e) if clock.now() >= give_up => return Err(e),
             Err(_) => clock.sleep(Duration::from_millis(10)),
         }
@@ -1675,6 +1710,140 @@ mod tests {
         let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap_err();
         assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");
         assert_eq!(clock.elapsed(), REBOOT_WAIT);
+    }
+
+    /// What the bus loses of one REBOOT.
+    #[derive(Clone, Copy)]
+    enum Lost {
+        /// Nothing: the servo reboots and acknowledges.
+        Nothing,
+        /// The acknowledgement: the servo reboots all the same.
+        Ack,
+        /// The instruction: the servo never hears it.
+        Instruction,
+    }
+
+    /// One servo with a hardware error latched: a REBOOT it hears clears the error and leaves
+    /// it deaf to the next `boot_pings` exchanges; what each REBOOT loses is taken from `fates`.
+    struct Latched {
+        inner: NullBus,
+        latched: bool,
+        deaf: u32,
+        boot_pings: u32,
+        fates: Vec<Lost>,
+        reboots: u32,
+    }
+
+    impl Latched {
+        fn new(fates: &[Lost]) -> Self {
+            Self {
+                inner: NullBus::new(1060),
+                latched: true,
+                deaf: 0,
+                boot_pings: 4,
+                fates: fates.to_vec(),
+                reboots: 0,
+            }
+        }
+    }
+
+    impl ServoBus for Latched {
+        fn baud(&self) -> u32 {
+            self.inner.baud()
+        }
+        fn set_baud(&mut self, b: u32) -> Result<(), ServoError> {
+            self.inner.set_baud(b)
+        }
+        fn ping(&mut self, id: u8, t: Duration) -> Result<PingInfo, ServoError> {
+            if self.deaf > 0 {
+                self.deaf -= 1;
+                return Err(ServoError::Timeout { id, waited: t });
+            }
+            let p = self.inner.ping(id, t)?;
+            Ok(PingInfo {
+                alert: self.latched,
+                ..p
+            })
+        }
+        fn scan(&mut self, t: Duration) -> Result<Vec<PingInfo>, ServoError> {
+            self.inner.scan(t)
+        }
+        fn read(&mut self, id: u8, r: Register, t: Duration) -> Result<Value, ServoError> {
+            self.inner.read(id, r, t)
+        }
+        fn write(&mut self, id: u8, r: Register, v: i64, t: Duration) -> Result<Ack, ServoError> {
+            self.inner.write(id, r, v, t)
+        }
+        fn sync_read_into(
+            &mut self,
+            ids: &[u8],
+            a: u16,
+            l: u16,
+            t: Duration,
+            out: &mut SyncReadBuf,
+        ) -> Result<(), ServoError> {
+            self.inner.sync_read_into(ids, a, l, t, out)
+        }
+        fn sync_write(&mut self, r: Register, v: &[(u8, i64)]) -> Result<(), ServoError> {
+            self.inner.sync_write(r, v)
+        }
+        fn write_goals(&mut self, g: &[Goal]) -> Result<(), ServoError> {
+            self.inner.write_goals(g)
+        }
+        fn reboot(&mut self, id: u8, t: Duration) -> Result<Ack, ServoError> {
+            self.reboots += 1;
+            let lost = ServoError::Timeout { id, waited: t };
+            if self.deaf > 0 {
+                self.deaf -= 1;
+                return Err(lost);
+            }
+            let fate = if self.fates.is_empty() {
+                Lost::Nothing
+            } else {
+                self.fates.remove(0)
+            };
+            if !matches!(fate, Lost::Instruction) {
+                self.latched = false;
+                self.deaf = self.boot_pings;
+            }
+            match fate {
+                Lost::Nothing => self.inner.reboot(id, t),
+                Lost::Ack | Lost::Instruction => Err(lost),
+            }
+        }
+    }
+
+    #[test]
+    fn a_reboot_whose_ack_is_lost_is_waited_for_and_not_sent_again() {
+        let mut bus = Latched::new(&[Lost::Ack]);
+        let clock = ManualClock::new();
+        let mut retry = Retry::default();
+        reboot_and_wait(&mut bus, 3, T, &clock, &mut retry).unwrap();
+        assert!(!bus.latched);
+        assert_eq!((bus.reboots, retry.retries), (1, 0));
+        // Four silent pings while it booted, 10 ms apart on the clock.
+        assert_eq!(clock.elapsed(), Duration::from_millis(40));
+    }
+
+    #[test]
+    fn a_reboot_that_never_arrived_is_sent_again_once_the_servo_answers_with_its_error() {
+        let mut bus = Latched::new(&[Lost::Instruction, Lost::Ack]);
+        let clock = ManualClock::new();
+        let mut retry = Retry::default();
+        reboot_and_wait(&mut bus, 3, T, &clock, &mut retry).unwrap();
+        assert!(!bus.latched);
+        assert_eq!((bus.reboots, retry.retries), (2, 1));
+    }
+
+    #[test]
+    fn reboots_that_never_arrive_are_sent_four_times_then_reported() {
+        let mut bus = Latched::new(&[Lost::Instruction; 5]);
+        let clock = ManualClock::new();
+        let mut retry = Retry::default();
+        let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut retry).unwrap_err();
+        assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");
+        assert!(bus.latched);
+        assert_eq!((bus.reboots, retry.retries), (1 + RETRIES, RETRIES));
     }
 
     #[test]
