@@ -1588,42 +1588,75 @@ pub fn reboot_and_wait<B: ServoBus>(
     clock: &dyn Clock,
     retry: &mut Retry,
 ) -> Result<(), ServoError> {
+    reboot_all_and_wait(bus, &[id], timeout, clock, retry)
+}
+
+/// [`reboot_and_wait`] for every servo of `ids` at once: each is sent its REBOOT, then all are
+/// waited for together, so their boots overlap and the wait is about one boot (a few hundred
+/// ms), not one per servo. The first error ends it.
+pub fn reboot_all_and_wait<B: ServoBus>(
+    bus: &mut B,
+    ids: &[u8],
+    timeout: Duration,
+    clock: &dyn Clock,
+    retry: &mut Retry,
+) -> Result<(), ServoError> {
     let mut left = RETRIES;
-    loop {
-        let lost = match bus.reboot(id, timeout) {
-            Ok(_) => None,
-            Err(e) if e.is_transient() => Some(e),
-            Err(e) => return Err(e),
-        };
-        let back = wait_for_boot(bus, id, timeout, clock)?;
-        match lost {
-            Some(e) if back.alert => {
+    let mut sent: Vec<u8> = ids.to_vec();
+    while !sent.is_empty() {
+        let mut lost = Vec::with_capacity(sent.len());
+        for &id in &sent {
+            match bus.reboot(id, timeout) {
+                Ok(_) => lost.push(None),
+                Err(e) if e.is_transient() => lost.push(Some(e)),
+                Err(e) => return Err(e),
+            }
+        }
+        let back = wait_for_boots(bus, &sent, timeout, clock)?;
+        let mut again = Vec::new();
+        for ((&id, lost), back) in sent.iter().zip(lost).zip(back) {
+            if let Some(e) = lost.filter(|_| back.alert) {
                 if left == 0 {
                     return Err(e);
                 }
                 tracing::debug!(error = %e, "the reboot did not arrive; sending it again");
-                left -= 1;
-                retry.retries += 1;
+                again.push(id);
             }
-            _ => return Ok(()),
         }
+        if !again.is_empty() {
+            left -= 1;
+            retry.retries += u32::try_from(again.len()).unwrap_or(u32::MAX);
+        }
+        sent = again;
     }
+    Ok(())
 }
 
-/// Ping `id` on `clock` until it answers (a booting servo neither hears nor answers), at most
-/// [`REBOOT_WAIT`]; the last ping's error if it never does.
-fn wait_for_boot<B: ServoBus>(
+/// Ping each of `ids` on `clock` until all have answered (a booting servo neither hears nor
+/// answers), at most [`REBOOT_WAIT`]; their answers in the order of `ids`, or the last ping's
+/// error of the first that never answers.
+fn wait_for_boots<B: ServoBus>(
     bus: &mut B,
-    id: u8,
+    ids: &[u8],
     timeout: Duration,
     clock: &dyn Clock,
-) -> Result<PingInfo, ServoError> {
+) -> Result<Vec<PingInfo>, ServoError> {
     let give_up = clock.now() + REBOOT_WAIT;
+    let mut back: Vec<Option<PingInfo>> = vec![None; ids.len()];
     loop {
-        match bus.ping(id, timeout) {
-            Ok(p) => return Ok(p),
-            Err(e) if clock.now() >= give_up => return Err(e),
-            Err(_) => clock.sleep(Duration::from_millis(10)),
+        let mut silent = None;
+        for (&id, b) in ids.iter().zip(back.iter_mut()).filter(|(_, b)| b.is_none()) {
+            match bus.ping(id, timeout) {
+                Ok(p) => *b = Some(p),
+                Err(e) => {
+                    silent.get_or_insert(e);
+                }
+            }
+        }
+        match silent {
+            None => return Ok(back.into_iter().flatten().collect()),
+            Some(e) if clock.now() >= give_up => return Err(e),
+            Some(_) => clock.sleep(Duration::from_millis(10)),
         }
     }
 }
@@ -1687,6 +1720,87 @@ mod tests {
     }
 
     const T: Duration = Duration::from_millis(1);
+
+    /// Servos that boot for `boot` on `clock` after each REBOOT, deaf until then.
+    struct Booting {
+        inner: NullBus,
+        clock: ManualClock,
+        boot: Duration,
+        until: std::collections::HashMap<u8, std::time::Instant>,
+    }
+
+    impl ServoBus for Booting {
+        fn baud(&self) -> u32 {
+            self.inner.baud()
+        }
+        fn set_baud(&mut self, b: u32) -> Result<(), ServoError> {
+            self.inner.set_baud(b)
+        }
+        fn ping(&mut self, id: u8, t: Duration) -> Result<PingInfo, ServoError> {
+            if self.until.get(&id).is_some_and(|&u| self.clock.now() < u) {
+                return Err(ServoError::Timeout { id, waited: t });
+            }
+            self.inner.ping(id, t)
+        }
+        fn scan(&mut self, t: Duration) -> Result<Vec<PingInfo>, ServoError> {
+            self.inner.scan(t)
+        }
+        fn read(&mut self, id: u8, r: Register, t: Duration) -> Result<Value, ServoError> {
+            self.inner.read(id, r, t)
+        }
+        fn write(&mut self, id: u8, r: Register, v: i64, t: Duration) -> Result<Ack, ServoError> {
+            self.inner.write(id, r, v, t)
+        }
+        fn sync_read_into(
+            &mut self,
+            ids: &[u8],
+            a: u16,
+            l: u16,
+            t: Duration,
+            out: &mut SyncReadBuf,
+        ) -> Result<(), ServoError> {
+            self.inner.sync_read_into(ids, a, l, t, out)
+        }
+        fn sync_write(&mut self, r: Register, v: &[(u8, i64)]) -> Result<(), ServoError> {
+            self.inner.sync_write(r, v)
+        }
+        fn write_goals(&mut self, g: &[Goal]) -> Result<(), ServoError> {
+            self.inner.write_goals(g)
+        }
+        fn reboot(&mut self, id: u8, t: Duration) -> Result<Ack, ServoError> {
+            self.until.insert(id, self.clock.now() + self.boot);
+            self.inner.reboot(id, t)
+        }
+    }
+
+    #[test]
+    fn servos_rebooted_together_boot_together() {
+        let boot = Duration::from_millis(400);
+        let clock = ManualClock::new();
+        let mut bus = Booting {
+            inner: NullBus::new(1060),
+            clock: clock.clone(),
+            boot,
+            until: Default::default(),
+        };
+        let ids = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
+        reboot_all_and_wait(&mut bus, &ids, T, &clock, &mut Retry::default()).unwrap();
+        // One boot, waited for in 10 ms steps, not twelve in a row.
+        let took = clock.elapsed();
+        assert!(
+            took >= boot && took <= boot + Duration::from_millis(10),
+            "{took:?}"
+        );
+        for id in ids {
+            assert!(bus.ping(id, T).is_ok(), "servo {id} back");
+        }
+        // One by one, each waits out its own boot.
+        let start = clock.elapsed();
+        for id in ids {
+            reboot_and_wait(&mut bus, id, T, &clock, &mut Retry::default()).unwrap();
+        }
+        assert!(clock.elapsed() - start >= boot * 12);
+    }
 
     #[test]
     fn a_rebooted_servo_is_waited_for_on_the_given_clock() {

@@ -523,10 +523,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn reboot_and_bring_up(&mut self, targets: &[u8]) -> Result<(), Pending> {
         let timeout = self.schedule.reply_timeout;
         let mut retry = Retry::default();
-        for &id in targets {
-            arm::reboot_and_wait(self.port.bus(), id, timeout, &self.clock, &mut retry)
-                .map_err(|err| refuse(Code::Fault, format!("reboot of servo {id}: {err}")))?;
-        }
+        // All at once: their boots overlap, so the loop stands still for one boot, not one per
+        // servo (a few seconds for a whole arm).
+        arm::reboot_all_and_wait(self.port.bus(), targets, timeout, &self.clock, &mut retry)
+            .map_err(|err| {
+                let which = match targets {
+                    [id] => format!("servo {id}"),
+                    ids => format!("servos {ids:?}"),
+                };
+                refuse(Code::Fault, format!("reboot of {which}: {err}"))
+            })?;
         let brought = self
             .arm
             .bring_up_with_clock(self.port.bus(), BringUpOptions::default(), &self.clock)
