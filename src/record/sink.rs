@@ -49,7 +49,11 @@ pub enum RecordError {
 
 impl From<mcap::McapError> for RecordError {
     fn from(e: mcap::McapError) -> Self {
-        RecordError::Write(e.to_string())
+        match e {
+            // The system's reason ("No space left on device"), not only that I/O failed.
+            mcap::McapError::Io(e) => RecordError::Write(e.to_string()),
+            e => RecordError::Write(e.to_string()),
+        }
     }
 }
 
@@ -162,5 +166,44 @@ impl<W: Write + Seek + Send> Sink for McapSink<W> {
             .into_inner()
             .flush()
             .map_err(|e| RecordError::Write(e.to_string()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// A file whose every write fails for `why`.
+    struct Broken {
+        why: &'static str,
+    }
+
+    impl Write for Broken {
+        fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+            Err(std::io::Error::other(self.why))
+        }
+
+        fn flush(&mut self) -> std::io::Result<()> {
+            Err(std::io::Error::other(self.why))
+        }
+    }
+
+    impl Seek for Broken {
+        fn seek(&mut self, _: std::io::SeekFrom) -> std::io::Result<u64> {
+            Ok(0)
+        }
+    }
+
+    #[test]
+    fn a_failed_write_says_the_systems_reason() {
+        let e = McapSink::new(Broken {
+            why: "No space left on device",
+        })
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "writing the recording: No space left on device"
+        );
     }
 }
