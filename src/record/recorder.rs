@@ -13,8 +13,10 @@
 //! The config the run used is a metadata record (`snakectl.config`: `path`, `toml`) at the
 //! start. On close the recorder writes the notes it was given (such as the arm's description,
 //! `snakectl.describe`), then `snakectl.recording`: per channel, what the loop offered, what
-//! was written and what was dropped; and it says the same in a log line. A write that fails
-//! stops the recording (the rest is dropped, counted), never the loop.
+//! was written and what was dropped; and it says the same in a log line. A message counts as
+//! written once a flush of the sink after it has succeeded (one every [`FLUSH_BYTES`] of
+//! messages, and one at the close). A write that fails stops the recording, never the loop:
+//! what was not flushed yet, and the rest, count as dropped.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -38,6 +40,12 @@ pub const SCENE_HZ: f64 = 30.0;
 
 /// The frame the tips and the target are in: the arm's base frame.
 pub const FRAME_ID: &str = "base";
+
+/// Bytes of messages the recorder writes between two flushes of its sink: an MCAP file's
+/// chunk (about 2 s at 100 Hz with 12 joints). Messages count as written only once a flush
+/// after them has succeeded; what a failed write or flush leaves unflushed counts as dropped,
+/// even if part of it reached the file, so the count never claims a message the file lacks.
+pub const FLUSH_BYTES: usize = 1 << 20;
 
 /// What a recording needs to know of the run.
 #[derive(Debug, Clone)]
@@ -166,9 +174,10 @@ pub struct ChannelCount {
     pub topic: String,
     /// Messages the loop offered.
     pub offered: u64,
-    /// Messages written.
+    /// Messages written: in the file, flushed (see [`FLUSH_BYTES`]).
     pub written: u64,
-    /// Messages dropped (the queue was full, or the recording had stopped).
+    /// Messages dropped: the queue was full, the recording had stopped, or a failed write
+    /// found them not yet flushed.
     pub dropped: u64,
 }
 
@@ -338,18 +347,76 @@ struct SceneState {
     world: World,
 }
 
+/// The sink and its account: what reached it whole (flushed), and what was written to it since
+/// its last flush, which a failure may still lose.
+struct Out {
+    sink: Box<dyn Sink>,
+    /// Messages flushed, per channel.
+    flushed: PerChannel,
+    /// Messages written since the last flush, per channel.
+    unflushed: PerChannel,
+    /// Their bytes.
+    unflushed_bytes: usize,
+}
+
+impl Out {
+    fn new(sink: Box<dyn Sink>) -> Self {
+        Out {
+            sink,
+            flushed: [0; 7],
+            unflushed: [0; 7],
+            unflushed_bytes: 0,
+        }
+    }
+
+    /// One message on the channel of index `k` (sink id `channel`).
+    fn write(&mut self, k: usize, channel: u16, ns: u64, data: &[u8]) -> Result<(), RecordError> {
+        self.sink.write(channel, ns, data)?;
+        self.unflushed[k] += 1;
+        self.unflushed_bytes = self.unflushed_bytes.saturating_add(data.len());
+        Ok(())
+    }
+
+    /// Flushes the sink once [`FLUSH_BYTES`] wait.
+    fn flush_when_due(&mut self) -> Result<(), RecordError> {
+        if self.unflushed_bytes >= FLUSH_BYTES {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// Flushes the sink: what was written counts as flushed.
+    fn flush(&mut self) -> Result<(), RecordError> {
+        self.sink.flush()?;
+        for (flushed, unflushed) in self.flushed.iter_mut().zip(&mut self.unflushed) {
+            *flushed += std::mem::take(unflushed);
+        }
+        self.unflushed_bytes = 0;
+        Ok(())
+    }
+
+    /// After a failure: what was not flushed is added to `lost`.
+    fn lose_unflushed(&mut self, lost: &mut PerChannel) {
+        for (lost, unflushed) in lost.iter_mut().zip(&mut self.unflushed) {
+            *lost += std::mem::take(unflushed);
+        }
+        self.unflushed_bytes = 0;
+    }
+}
+
 /// The recorder's thread: set up, write until closed, account.
-fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> RecordSummary {
+fn record(sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> RecordSummary {
     let specs = channel_specs(&setup.prefix);
-    // Messages written, and messages taken but not written (their write failed).
-    let mut written: PerChannel = [0; 7];
+    let mut out = Out::new(sink);
+    // Messages taken but not in the file: their write failed, or a failure came before their
+    // flush.
     let mut lost: PerChannel = [0; 7];
     let mut scene = SceneState {
         trail: Trail::new(view::scene::TRAIL_POINTS),
         world: setup.world.clone(),
     };
     let mut epoch = Epoch::default();
-    let begun = begin(sink.as_mut(), &specs, setup);
+    let begun = begin(out.sink.as_mut(), &specs, setup);
     let mut error = None;
     let channels = match begun {
         Ok(channels) => Some(channels),
@@ -373,11 +440,9 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
         let result = match item {
             Item::Tick(t) => {
                 let ns = epoch.time_ns(setup, drain.first_offer(), t.tick);
-                let before = written;
-                let r = write_tick(sink.as_mut(), ch, ns, &t, &mut written);
-                let r = r.and_then(|()| {
-                    write_scene(sink.as_mut(), ch, setup, &mut scene, ns, &t, &mut written)
-                });
+                let before = out.unflushed;
+                let r = write_tick(&mut out, ch, ns, &t);
+                let r = r.and_then(|()| write_scene(&mut out, ch, setup, &mut scene, ns, &t));
                 if r.is_err() {
                     // The tick's messages that did not get out.
                     for k in [JOINT_STATES, TIP_CMD, TIP_MEAS, TARGET, TELEMETRY, SCENE] {
@@ -386,7 +451,7 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
                             SCENE => t.tick % setup.scene_every == 0,
                             _ => true,
                         };
-                        if owed && written[k] == before[k] {
+                        if owed && out.unflushed[k] == before[k] {
                             lost[k] += 1;
                         }
                     }
@@ -402,21 +467,29 @@ fn record(mut sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) 
                     }
                 }
                 let ns = epoch.time_ns(setup, drain.first_offer(), e.tick);
-                let r = write_event(sink.as_mut(), ch, ns, &e, &mut written);
+                let r = write_event(&mut out, ch, ns, &e);
                 lost[EVENTS] += u64::from(r.is_err());
                 r
             }
         };
-        if let Err(e) = result {
+        if let Err(e) = result.and_then(|()| out.flush_when_due()) {
             tracing::error!("recording stopped: {e}; the arm goes on, the rest is dropped");
+            out.lose_unflushed(&mut lost);
             error = Some(e);
             drain.stop();
         }
     }
-    let counts = drain.counts();
-    let summary = account(&specs, counts, written, lost);
     if error.is_none() {
-        if let Err(e) = end(sink.as_mut(), notes, &summary) {
+        if let Err(e) = out.flush() {
+            tracing::error!("recording stopped: {e}; the rest is dropped");
+            out.lose_unflushed(&mut lost);
+            error = Some(e);
+        }
+    }
+    let counts = drain.counts();
+    let summary = account(&specs, counts, out.flushed, lost);
+    if error.is_none() {
+        if let Err(e) = end(out.sink.as_mut(), notes, &summary) {
             error = Some(e);
         }
     }
@@ -458,36 +531,30 @@ fn begin(
 }
 
 /// One tick's messages.
-fn write_tick(
-    sink: &mut dyn Sink,
-    ch: &Channels,
-    ns: u64,
-    t: &Telemetry,
-    written: &mut PerChannel,
-) -> Result<(), RecordError> {
+fn write_tick(out: &mut Out, ch: &Channels, ns: u64, t: &Telemetry) -> Result<(), RecordError> {
     let cdr = |bytes: Result<Vec<u8>, ros::RosError>| {
         bytes.map_err(|e| RecordError::Write(format!("a ROS message: {e}")))
     };
     let mut joints = ros::joint_state(t, 0.0);
     joints.header.stamp = stamp(ns);
-    sink.write(ch.joint_states, ns, &cdr(ros::encode(&joints))?)?;
-    written[JOINT_STATES] += 1;
+    out.write(
+        JOINT_STATES,
+        ch.joint_states,
+        ns,
+        &cdr(ros::encode(&joints))?,
+    )?;
     let point = |p: [f64; 2]| {
         let mut point = ros::point_stamped(p, 0.0, FRAME_ID);
         point.header.stamp = stamp(ns);
         cdr(ros::encode(&point))
     };
-    sink.write(ch.tip_cmd, ns, &point(t.tip)?)?;
-    written[TIP_CMD] += 1;
-    sink.write(ch.tip_meas, ns, &point(t.tip_meas)?)?;
-    written[TIP_MEAS] += 1;
+    out.write(TIP_CMD, ch.tip_cmd, ns, &point(t.tip)?)?;
+    out.write(TIP_MEAS, ch.tip_meas, ns, &point(t.tip_meas)?)?;
     if let Some(target) = t.target {
-        sink.write(ch.target, ns, &point(target)?)?;
-        written[TARGET] += 1;
+        out.write(TARGET, ch.target, ns, &point(target)?)?;
     }
     let line = protocol::telemetry_line(&Status::of(t));
-    sink.write(ch.telemetry, ns, line.trim_end().as_bytes())?;
-    written[TELEMETRY] += 1;
+    out.write(TELEMETRY, ch.telemetry, ns, line.trim_end().as_bytes())?;
     // Further channels built from the same snapshot (the 3-D scene) are written here, through
     // `Sink::add_channel` in `begin` and `Sink::write`.
     Ok(())
@@ -495,13 +562,12 @@ fn write_tick(
 
 /// The 3-D scene of a tick, on every `scene_every`th tick (the trail takes every tick).
 fn write_scene(
-    sink: &mut dyn Sink,
+    out: &mut Out,
     ch: &Channels,
     setup: &Setup,
     scene: &mut SceneState,
     ns: u64,
     t: &Telemetry,
-    written: &mut PerChannel,
 ) -> Result<(), RecordError> {
     if t.theta_meas.len() == setup.chain.len() {
         scene.trail.push(t.tip_meas);
@@ -512,23 +578,13 @@ fn write_scene(
     let stamp = view::timestamp(ns as f64 * 1e-9);
     let update = view::scene(&setup.chain, &scene.world, t, &scene.trail, stamp);
     let bytes = view::encode(&update).map_err(|e| RecordError::Write(format!("the scene: {e}")))?;
-    sink.write(ch.scene, ns, &bytes)?;
-    written[SCENE] += 1;
-    Ok(())
+    out.write(SCENE, ch.scene, ns, &bytes)
 }
 
 /// One event's message.
-fn write_event(
-    sink: &mut dyn Sink,
-    ch: &Channels,
-    ns: u64,
-    e: &Event,
-    written: &mut PerChannel,
-) -> Result<(), RecordError> {
+fn write_event(out: &mut Out, ch: &Channels, ns: u64, e: &Event) -> Result<(), RecordError> {
     let line = protocol::event_line(e);
-    sink.write(ch.events, ns, line.trim_end().as_bytes())?;
-    written[EVENTS] += 1;
-    Ok(())
+    out.write(EVENTS, ch.events, ns, line.trim_end().as_bytes())
 }
 
 /// Per channel: offered, written, dropped (by the hand-over, or taken and not written).
@@ -612,6 +668,10 @@ mod tests {
             Ok(())
         }
 
+        fn flush(&mut self) -> Result<(), RecordError> {
+            Ok(())
+        }
+
         fn finish(&mut self) -> Result<(), RecordError> {
             Ok(())
         }
@@ -660,16 +720,126 @@ mod tests {
         let joint_states = &summary.channels[0];
         assert_eq!(joint_states.topic, "/arm7/joint_states");
         assert_eq!(joint_states.offered, 1000);
-        // 100 whole ticks, then one whose tip_meas found the disk full.
-        assert_eq!(joint_states.written, 101, "{joint_states:?}");
-        assert_eq!(joint_states.dropped, 899, "{joint_states:?}");
+        // 100 whole ticks, then one whose tip_meas found the disk full: far less than a flush's
+        // worth, so none of them counts as written.
+        assert_eq!(joint_states.written, 0, "{joint_states:?}");
+        assert_eq!(joint_states.dropped, 1000, "{joint_states:?}");
         for c in &summary.channels {
             assert_eq!(c.written + c.dropped, c.offered, "{c:?}");
         }
-        assert_eq!(summary.channels[2].written, 100, "tip_meas");
         // The offers after the failure are taken, counted and dropped.
         tap.offer_tick(&Telemetry::default());
         assert_eq!(tap.counts().ticks.dropped, 900);
+    }
+
+    /// A file on a disk with room for `room` bytes: a write past it stores what fits, and the
+    /// next fails, as on a full disk.
+    struct Disk {
+        bytes: Arc<Mutex<Vec<u8>>>,
+        room: usize,
+        at: usize,
+    }
+
+    impl std::io::Write for Disk {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            let n = buf.len().min(self.room.saturating_sub(self.at));
+            if n == 0 && !buf.is_empty() {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::StorageFull,
+                    "No space left on device",
+                ));
+            }
+            let mut bytes = self.bytes.lock().unwrap();
+            let end = self.at + n;
+            if bytes.len() < end {
+                bytes.resize(end, 0);
+            }
+            bytes[self.at..end].copy_from_slice(&buf[..n]);
+            self.at = end;
+            Ok(n)
+        }
+
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl std::io::Seek for Disk {
+        fn seek(&mut self, to: std::io::SeekFrom) -> std::io::Result<u64> {
+            let len = self.bytes.lock().unwrap().len() as i64;
+            let at = match to {
+                std::io::SeekFrom::Start(at) => at as i64,
+                std::io::SeekFrom::End(by) => len + by,
+                std::io::SeekFrom::Current(by) => self.at as i64 + by,
+            };
+            self.at = usize::try_from(at).map_err(std::io::Error::other)?;
+            Ok(self.at as u64)
+        }
+    }
+
+    /// Messages per topic in an MCAP file, read up to where it breaks off.
+    fn messages_in(file: &[u8]) -> BTreeMap<String, u64> {
+        let mut counts = BTreeMap::new();
+        let stream =
+            mcap::MessageStream::new_with_options(file, mcap::read::Options::IgnoreEndMagic.into())
+                .unwrap();
+        for message in stream.map_while(Result::ok) {
+            *counts.entry(message.channel.topic.clone()).or_insert(0) += 1;
+        }
+        counts
+    }
+
+    #[test]
+    fn after_a_full_disk_the_messages_counted_written_are_those_in_the_file() {
+        // Two chunks fit (about 1.3 MB each: a flush's worth of messages, their records and
+        // index), and a third is cut short in its messages.
+        let bytes = Arc::new(Mutex::new(Vec::new()));
+        let disk = Disk {
+            bytes: Arc::clone(&bytes),
+            room: 3 * FLUSH_BYTES,
+            at: 0,
+        };
+        let sink = McapSink::new(std::io::BufWriter::new(disk)).unwrap();
+        // Room for every tick offered: nothing is dropped before the disk fills, so the file's
+        // layout, and where it breaks off, are the same in every run.
+        const TICKS: u64 = 6000;
+        let setup = Setup {
+            queue: TICKS as usize,
+            ..setup()
+        };
+        let (recorder, tap) =
+            Recorder::start(Box::new(sink), setup, Notes::new(), "disk".into()).unwrap();
+        for tick in 0..TICKS {
+            tap.offer_tick(&Telemetry {
+                tick,
+                theta_meas: vec![0.1, 0.2],
+                target: Some([0.3, 0.4]),
+                ..Telemetry::default()
+            });
+        }
+        let summary = recorder.close();
+        assert!(
+            summary
+                .error
+                .as_ref()
+                .is_some_and(|e| e.to_string().contains("No space left")),
+            "{:?}",
+            summary.error
+        );
+        let in_file = messages_in(&bytes.lock().unwrap());
+        for c in &summary.channels {
+            assert_eq!(
+                c.written,
+                in_file.get(&c.topic).copied().unwrap_or(0),
+                "{c:?}: the file holds {in_file:?}"
+            );
+            assert_eq!(c.written + c.dropped, c.offered, "{c:?}");
+        }
+        let joint_states = &summary.channels[JOINT_STATES];
+        assert!(
+            joint_states.written > 0 && joint_states.dropped > 0,
+            "whole chunks in the file, then the disk full: {joint_states:?}"
+        );
     }
 
     /// A sink that keeps the log time of every message, and holds the recorder in its first
@@ -693,6 +863,10 @@ mod tests {
         }
 
         fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), RecordError> {
+            Ok(())
+        }
+
+        fn flush(&mut self) -> Result<(), RecordError> {
             Ok(())
         }
 

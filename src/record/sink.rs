@@ -1,6 +1,7 @@
-//! Where a recording goes: the [`Sink`] trait (channels, messages, metadata records), and
-//! [`McapSink`], an MCAP file through the `mcap` crate, uncompressed (its compressors are C
-//! code), chunked and indexed so that Foxglove and `ros2 bag` seek in it.
+//! Where a recording goes: the [`Sink`] trait (channels, messages, metadata records, flushes),
+//! and [`McapSink`], an MCAP file through the `mcap` crate, uncompressed (its compressors are C
+//! code), chunked (a chunk ends at each flush) and indexed so that Foxglove and `ros2 bag` seek
+//! in it.
 //!
 //! Any channel can be added by its topic, schema and encodings ([`ChannelSpec`]): the
 //! recorder's own and, from the same writer, whatever else the daemon publishes (the 3-D
@@ -69,6 +70,10 @@ pub trait Sink: Send {
         name: &str,
         entries: &BTreeMap<String, String>,
     ) -> Result<(), RecordError>;
+    /// Pushes everything written so far to where the recording goes (an MCAP file: the chunk in
+    /// progress ended and handed to the operating system). Until a flush after it succeeds, a
+    /// message may still sit in a buffer, and a failure loses it.
+    fn flush(&mut self) -> Result<(), RecordError>;
     /// Ends the recording (the summary and index); nothing may be written after.
     fn finish(&mut self) -> Result<(), RecordError>;
 }
@@ -106,8 +111,11 @@ impl McapSink<BufWriter<File>> {
 impl<W: Write + Seek> McapSink<W> {
     /// A recording written to `w`.
     pub fn new(w: W) -> Result<Self, RecordError> {
+        // Chunks end only at a flush (or a metadata record, or the end), so that whoever
+        // flushes knows which messages are in the file.
         let writer = mcap::WriteOptions::new()
             .compression(None)
+            .chunk_size(None)
             .library(LIBRARY)
             .create(w)?;
         Ok(McapSink {
@@ -155,6 +163,11 @@ impl<W: Write + Seek + Send> Sink for McapSink<W> {
             name: name.to_owned(),
             metadata: entries.clone(),
         })?;
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), RecordError> {
+        self.writer.as_mut().ok_or(RecordError::Finished)?.flush()?;
         Ok(())
     }
 

@@ -1434,6 +1434,10 @@ impl crate::record::Sink for StalledSink {
         Ok(())
     }
 
+    fn flush(&mut self) -> Result<(), crate::record::RecordError> {
+        Ok(())
+    }
+
     fn finish(&mut self) -> Result<(), crate::record::RecordError> {
         Ok(())
     }
