@@ -842,6 +842,41 @@ mod tests {
         );
     }
 
+    #[test]
+    fn a_file_that_fails_from_the_start_stops_the_recording_and_is_accounted() {
+        // The header fits in the buffer; the first chunk's start finds the disk full.
+        let disk = Disk {
+            bytes: Arc::new(Mutex::new(Vec::new())),
+            room: 0,
+            at: 0,
+        };
+        let sink = McapSink::new(std::io::BufWriter::new(disk)).unwrap();
+        let (recorder, tap) =
+            Recorder::start(Box::new(sink), setup(), Notes::new(), "full".into()).unwrap();
+        for tick in 0..100 {
+            tap.offer_tick(&Telemetry {
+                tick,
+                theta_meas: vec![0.1, 0.2],
+                ..Telemetry::default()
+            });
+        }
+        let summary = recorder.close();
+        assert_eq!(
+            summary.error.as_ref().map(ToString::to_string).as_deref(),
+            Some("writing the recording: No space left on device")
+        );
+        let joint_states = &summary.channels[JOINT_STATES];
+        assert_eq!(
+            (
+                joint_states.offered,
+                joint_states.written,
+                joint_states.dropped
+            ),
+            (100, 0, 100),
+            "{joint_states:?}"
+        );
+    }
+
     /// A sink that keeps the log time of every message, and holds the recorder in its first
     /// `add_channel` until `hold` is sent to.
     struct Times {

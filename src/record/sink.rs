@@ -9,8 +9,9 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::{BufWriter, Seek, Write};
+use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
 
 use super::schema::ChannelSpec;
 
@@ -81,9 +82,87 @@ pub trait Sink: Send {
 /// An MCAP file (or any seekable writer).
 pub struct McapSink<W: Write + Seek> {
     /// `None` once finished.
-    writer: Option<mcap::Writer<W>>,
+    writer: Option<mcap::Writer<Guarded<W>>>,
+    /// The file's first I/O error, reported by every call from then on.
+    error: Arc<OnceLock<String>>,
     /// Each channel's next sequence number, by channel id.
     sequences: BTreeMap<u16, u32>,
+}
+
+/// The file under the `mcap` writer: it keeps the first I/O error and from then on takes every
+/// write and writes nothing, so that the writer never sees a failure (one while it starts a
+/// chunk leaves `mcap` 0.25's writer unable to drop without a panic). [`McapSink`] reports the
+/// kept error after each call instead.
+struct Guarded<W> {
+    inner: W,
+    error: Arc<OnceLock<String>>,
+    /// Where the next byte goes, and the end of what was written: kept after a failure too, so
+    /// that the writer's offsets stay consistent.
+    at: u64,
+    end: u64,
+}
+
+impl<W> Guarded<W> {
+    fn failed(&self) -> bool {
+        self.error.get().is_some()
+    }
+
+    fn fail(&mut self, e: &std::io::Error) {
+        // Only the first error is kept: the others follow from it.
+        let _ = self.error.set(e.to_string());
+    }
+
+    fn moved_to(&mut self, at: u64) {
+        self.at = at;
+        self.end = self.end.max(at);
+    }
+}
+
+impl<W: Write> Write for Guarded<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        if !self.failed() {
+            match self.inner.write(buf) {
+                Ok(n) => {
+                    self.moved_to(self.at.saturating_add(n as u64));
+                    return Ok(n);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => return Err(e),
+                Err(e) => self.fail(&e),
+            }
+        }
+        self.moved_to(self.at.saturating_add(buf.len() as u64));
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        if !self.failed() {
+            if let Err(e) = self.inner.flush() {
+                self.fail(&e);
+            }
+        }
+        Ok(())
+    }
+}
+
+impl<W: Seek> Seek for Guarded<W> {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        if !self.failed() {
+            match self.inner.seek(to) {
+                Ok(at) => {
+                    self.moved_to(at);
+                    return Ok(at);
+                }
+                Err(e) => self.fail(&e),
+            }
+        }
+        let at = match to {
+            SeekFrom::Start(at) => at,
+            SeekFrom::Current(by) => self.at.saturating_add_signed(by),
+            SeekFrom::End(by) => self.end.saturating_add_signed(by),
+        };
+        self.moved_to(at);
+        Ok(at)
+    }
 }
 
 impl<W: Write + Seek> std::fmt::Debug for McapSink<W> {
@@ -110,26 +189,60 @@ impl McapSink<BufWriter<File>> {
 
 impl<W: Write + Seek> McapSink<W> {
     /// A recording written to `w`.
-    pub fn new(w: W) -> Result<Self, RecordError> {
+    pub fn new(mut w: W) -> Result<Self, RecordError> {
+        let at = w
+            .stream_position()
+            .map_err(|e| RecordError::Write(e.to_string()))?;
+        let error = Arc::new(OnceLock::new());
+        let file = Guarded {
+            inner: w,
+            error: Arc::clone(&error),
+            at,
+            end: at,
+        };
         // Chunks end only at a flush (or a metadata record, or the end), so that whoever
         // flushes knows which messages are in the file.
         let writer = mcap::WriteOptions::new()
             .compression(None)
             .chunk_size(None)
             .library(LIBRARY)
-            .create(w)?;
-        Ok(McapSink {
+            .create(file)?;
+        let sink = McapSink {
             writer: Some(writer),
+            error,
             sequences: BTreeMap::new(),
-        })
+        };
+        sink.failed()?;
+        Ok(sink)
+    }
+
+    /// The file's first I/O error, if it had one.
+    fn failed(&self) -> Result<(), RecordError> {
+        match self.error.get() {
+            Some(e) => Err(RecordError::Write(e.clone())),
+            None => Ok(()),
+        }
+    }
+
+    /// Runs `op` on the writer; then the file's error, if it had one.
+    fn with_writer<T>(
+        &mut self,
+        op: impl FnOnce(&mut mcap::Writer<Guarded<W>>) -> mcap::McapResult<T>,
+    ) -> Result<T, RecordError> {
+        self.failed()?;
+        let out = op(self.writer.as_mut().ok_or(RecordError::Finished)?)?;
+        self.failed()?;
+        Ok(out)
     }
 }
 
 impl<W: Write + Seek + Send> Sink for McapSink<W> {
     fn add_channel(&mut self, spec: &ChannelSpec) -> Result<u16, RecordError> {
-        let writer = self.writer.as_mut().ok_or(RecordError::Finished)?;
-        let schema = writer.add_schema(&spec.schema_name, &spec.schema_encoding, &spec.schema)?;
-        let id = writer.add_channel(schema, &spec.topic, &spec.message_encoding, &spec.metadata)?;
+        let id = self.with_writer(|writer| {
+            let schema =
+                writer.add_schema(&spec.schema_name, &spec.schema_encoding, &spec.schema)?;
+            writer.add_channel(schema, &spec.topic, &spec.message_encoding, &spec.metadata)
+        })?;
         self.sequences.entry(id).or_insert(0);
         Ok(id)
     }
@@ -146,11 +259,7 @@ impl<W: Write + Seek + Send> Sink for McapSink<W> {
             log_time: log_time_ns,
             publish_time: log_time_ns,
         };
-        self.writer
-            .as_mut()
-            .ok_or(RecordError::Finished)?
-            .write_to_known_channel(&header, data)?;
-        Ok(())
+        self.with_writer(|writer| writer.write_to_known_channel(&header, data))
     }
 
     fn metadata(
@@ -158,27 +267,27 @@ impl<W: Write + Seek + Send> Sink for McapSink<W> {
         name: &str,
         entries: &BTreeMap<String, String>,
     ) -> Result<(), RecordError> {
-        let writer = self.writer.as_mut().ok_or(RecordError::Finished)?;
-        writer.write_metadata(&mcap::records::Metadata {
-            name: name.to_owned(),
-            metadata: entries.clone(),
-        })?;
-        Ok(())
+        self.with_writer(|writer| {
+            writer.write_metadata(&mcap::records::Metadata {
+                name: name.to_owned(),
+                metadata: entries.clone(),
+            })
+        })
     }
 
     fn flush(&mut self) -> Result<(), RecordError> {
-        self.writer.as_mut().ok_or(RecordError::Finished)?.flush()?;
-        Ok(())
+        self.with_writer(mcap::Writer::flush)
     }
 
     fn finish(&mut self) -> Result<(), RecordError> {
-        let mut writer = self.writer.take().ok_or(RecordError::Finished)?;
-        writer.finish()?;
+        self.with_writer(|writer| writer.finish().map(drop))?;
+        let writer = self.writer.take().ok_or(RecordError::Finished)?;
         // What the buffer still holds reaches the file here, its error with it.
         writer
             .into_inner()
             .flush()
-            .map_err(|e| RecordError::Write(e.to_string()))
+            .map_err(|e| RecordError::Write(e.to_string()))?;
+        self.failed()
     }
 }
 
