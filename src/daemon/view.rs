@@ -20,9 +20,10 @@
 //! arm.
 //!
 //! The address asked for is a gate: the server listens on loopback behind it. A client is let
-//! through while fewer than `[foxglove] max_clients` are connected (the next gets `503`), and,
-//! with a `[server]` token, only when the URL it opens carries `?token=<token>`
-//! (percent-encoded), checked in constant time before the handshake; others get `401`.
+//! through while fewer than `[foxglove] max_clients` are connected (the next gets `503` and is
+//! closed at once, its request not waited for), and, with a `[server]` token, only when the URL
+//! it opens carries `?token=<token>` (percent-encoded), checked in constant time before the
+//! handshake; others get `401`.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -168,10 +169,10 @@ const GATE_RETRY: Duration = Duration::from_millis(100);
 /// How long a client has to send its request head through the gate.
 const GATE_WAIT: Duration = Duration::from_secs(5);
 
-/// The address clients connect to, in front of the server: each client's request head is read
-/// (within [`GATE_WAIT`]), then it is let through to the server at `inner`, or answered and
-/// closed: `503` beyond `max_clients` connected at once, `401` without `?token=<token>` when a
-/// token is asked for.
+/// The address clients connect to, in front of the server. A client beyond `max_clients`
+/// connected at once is answered `503` and closed as soon as it is accepted. Another's request
+/// head is read (within [`GATE_WAIT`]), then it is let through to the server at `inner`, or
+/// answered `401` and closed without `?token=<token>` when a token is asked for.
 async fn gatekeeper(
     listener: TcpListener,
     token: Option<Token>,
@@ -209,6 +210,16 @@ async fn pass(
     token: Option<&Token>,
     inner: SocketAddr,
 ) -> std::io::Result<()> {
+    if !seated {
+        // Its request is not waited for: a client that is refused anyway holds nothing, not
+        // even its descriptor, while it takes its time to send one.
+        return refuse(
+            client,
+            "503 Service Unavailable",
+            "[foxglove] max_clients are connected already",
+        )
+        .await;
+    }
     let mut head = Vec::with_capacity(1024);
     let mut buf = [0u8; 1024];
     let read_head = async {
@@ -227,14 +238,6 @@ async fn pass(
     time::timeout(GATE_WAIT, read_head)
         .await
         .map_err(|_| std::io::Error::other("no request in time"))??;
-    if !seated {
-        return refuse(
-            client,
-            "503 Service Unavailable",
-            "[foxglove] max_clients are connected already",
-        )
-        .await;
-    }
     if token.is_some_and(|token| !url_token(&head).is_some_and(|given| token.matches(&given))) {
         return refuse(client, "401 Unauthorized", "no token, or the wrong one").await;
     }
@@ -244,10 +247,17 @@ async fn pass(
     Ok(())
 }
 
-/// Answers `client` an empty response of `status` and closes; the error says `why`.
+/// Answers `client` `status`, with `why` as the body, and closes; the error says `why`. What the
+/// client has sent already is read first (without waiting for more), so that the close does not
+/// reset the connection under the answer.
 async fn refuse(mut client: TcpStream, status: &str, why: &str) -> std::io::Result<()> {
-    let head = format!("HTTP/1.1 {status}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
-    client.write_all(head.as_bytes()).await?;
+    let answer = format!(
+        "HTTP/1.1 {status}\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{why}\n",
+        why.len() + 1
+    );
+    client.write_all(answer.as_bytes()).await?;
+    let mut unread = [0u8; 1024];
+    while matches!(client.try_read(&mut unread), Ok(n) if n > 0) {}
     Err(std::io::Error::other(why.to_owned()))
 }
 
@@ -677,6 +687,44 @@ mod tests {
         assert_eq!(token("/?tok=s3cret"), None);
         assert_eq!(token("/?token=bad%2"), None, "a cut escape");
         assert_eq!(token("/?token=bad%zz"), None, "not hex");
+    }
+
+    #[tokio::test]
+    async fn beyond_max_clients_a_client_is_refused_without_waiting_for_its_request() {
+        // The Foxglove server behind the gate, and the gate with one seat.
+        let server = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let gate = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = gate.local_addr().unwrap();
+        tokio::spawn(gatekeeper(gate, None, 1, server.local_addr().unwrap()));
+        // The seat taken by a client let through to the server.
+        let mut first = TcpStream::connect(addr).await.unwrap();
+        let request = b"GET / HTTP/1.1\r\nHost: x\r\n\r\n";
+        first.write_all(request).await.unwrap();
+        let (mut passed, _) = server.accept().await.unwrap();
+        let mut head = vec![0u8; request.len()];
+        passed.read_exact(&mut head).await.unwrap();
+        assert_eq!(head, request);
+        // From here no timer of the gate runs but one it starts for the next client: with time
+        // paused, its clock jumps to that timer as soon as nothing else is left to do.
+        time::pause();
+        let paused = time::Instant::now();
+        // A second client, which sends nothing.
+        let mut second = TcpStream::connect(addr).await.unwrap();
+        let mut answer = Vec::new();
+        tokio::select! {
+            read = second.read_to_end(&mut answer) => read.unwrap(),
+            _ = server.accept() => panic!("the second client was let through"),
+        };
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(
+            answer.starts_with("HTTP/1.1 503 Service Unavailable\r\n")
+                && answer.ends_with("max_clients are connected already\n"),
+            "{answer}"
+        );
+        assert!(
+            time::Instant::now() - paused < GATE_WAIT,
+            "closed only when the wait for its request ran out"
+        );
     }
 
     #[test]
