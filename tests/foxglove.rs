@@ -594,8 +594,8 @@ fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
     stalled.advertised(&TOPICS);
     stalled.subscribe(&TOPICS);
     // It reads nothing more. The arm moves to and fro (the trail and so the scene grow) until
-    // the server's queue for the client overflows: its connection is full, the server's
-    // writes to it wait.
+    // the gate's outbox for the client overflows: its connection is full, the gate's writes to
+    // it wait.
     let deadline = Instant::now() + DEADLINE;
     for k in 0.. {
         assert!(
@@ -605,7 +605,10 @@ fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
         let dx = if k % 2 == 0 { 0.06 } else { 0.0 };
         client.ok(json!({"cmd": "goto", "target": [start[0] + dx, start[1]]}));
         if daemon
-            .logged("outbox for client", Duration::from_millis(300))
+            .logged(
+                "its oldest messages are dropped",
+                Duration::from_millis(300),
+            )
             .is_some()
         {
             break;
@@ -620,6 +623,71 @@ fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
         "the recording was closed, its summary written"
     );
     drop(stalled);
+}
+
+/// Wall-clock time now, ns since the Unix epoch: the clock of the messages' log times.
+fn now_ns() -> u64 {
+    let since = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap();
+    u64::try_from(since.as_nanos()).unwrap()
+}
+
+#[test]
+fn a_client_that_stopped_reading_reads_fresh_data_again_after_a_bounded_backlog() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let table = format!("[foxglove]\nlisten = \"127.0.0.1:{port}\"\npublish_hz = 100.0\n");
+    let config = sim_config(&[("max_clients = 4", &format!("max_clients = 4\n\n{table}"))]);
+    let path = dir.path().join("arm.toml");
+    std::fs::write(&path, config.text()).unwrap();
+    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
+        .unwrap();
+    let mut daemon = DaemonChild::spawn_with(&path, sim.path(), &[]);
+    let mut client = daemon_support::Client::connect(daemon.address());
+    let start = xy(&client.status()["tip"]);
+    let mut stalled = connect_with_small_window(port);
+    stalled.next_op("serverInfo");
+    stalled.advertised(&TOPICS);
+    stalled.subscribe(&TOPICS);
+    // It reads nothing until what waits for it fills the gate's outbox and the oldest is dropped.
+    let deadline = Instant::now() + DEADLINE;
+    for k in 0.. {
+        assert!(
+            Instant::now() < deadline,
+            "nothing was dropped for the stalled client"
+        );
+        let dx = if k % 2 == 0 { 0.06 } else { 0.0 };
+        client.ok(json!({"cmd": "goto", "target": [start[0] + dx, start[1]]}));
+        if daemon
+            .logged(
+                "its oldest messages are dropped",
+                Duration::from_millis(300),
+            )
+            .is_some()
+        {
+            break;
+        }
+    }
+    // It reads again: what was published before is what waited for it. The gate's outbox
+    // (256 kB), its send buffer and this client's small receive buffer hold well under 1 MB;
+    // without the bound, the loopback connections behind the gate held about 8 MB.
+    let resumed = now_ns();
+    let mut stale = 0;
+    loop {
+        let data = stalled.data();
+        if data.log_time >= resumed {
+            break;
+        }
+        stale += data.payload.len() + 13;
+    }
+    assert!(
+        stale > 0 && stale < 1 << 20,
+        "{stale} bytes of messages published before the client read again"
+    );
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
 }
 
 #[cfg(target_os = "linux")]

@@ -17,6 +17,8 @@
 //! - [`embedded`]: the daemon started inside another program, on a loopback port.
 //! - [`link`]: the seam between the loop's thread and the socket side (bounded command queue,
 //!   latest-wins telemetry, broadcast events).
+//! - `relay`: what the Foxglove gate forwards from the server to a client: whole WebSocket
+//!   frames in a bounded outbox, the oldest message data dropped for a client that falls behind.
 //! - [`server`]: the JSON-lines TCP server on the socket side.
 //! - [`side`]: a thread beside the loop serving another network (the view, the bridge).
 //! - [`stats`]: fixed-size histograms for the run summary.
@@ -29,6 +31,7 @@ pub mod bridge;
 pub mod control_loop;
 pub mod embedded;
 pub mod link;
+mod relay;
 pub mod server;
 pub mod side;
 pub mod stats;

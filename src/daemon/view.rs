@@ -9,8 +9,10 @@
 //! from the loop's `watch` (latest wins: a skipped sample is never queued) and sends the joints,
 //! the tips, the target, the telemetry line and the whole scene again (so a client that joins
 //! late sees the arm at rest); events come from the loop's broadcast, and what it misses
-//! when behind is counted ([`View::stop`] logs the count). Each Foxglove client has a bounded
-//! queue of its own in the server, which drops its oldest messages when the client stalls.
+//! when behind is counted ([`View::stop`] logs the count). What waits for a Foxglove client
+//! that stalls is bounded and its oldest message data dropped: in the gate's outbox for the
+//! client (`relay`), which reads the server as fast as it writes, and in the server's own
+//! queue for it.
 //!
 //! With `accept_commands`, the server offers client publishing (`json` and `cdr`), and a
 //! `Twist` published on `/<prefix>/cmd_vel` becomes `velocity` (`linear.x`, `linear.y`, m/s)
@@ -23,7 +25,9 @@
 //! through while fewer than `[foxglove] max_clients` are connected (the next gets `503` and is
 //! closed at once, its request not waited for), and, with a `[server]` token, only when the URL
 //! it opens carries `?token=<token>` (percent-encoded), checked in constant time before the
-//! handshake; others get `401`.
+//! handshake; others get `401`. What the server sends a client let through goes through a
+//! bounded outbox in the gate (`relay`), and the gate's socket to the client has a small send
+//! buffer ([`SEND_BUFFER`]): the kernel does not hide megabytes of stale messages.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -40,7 +44,8 @@ use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
 use super::access::Token;
-use super::server::{Door, FLUSH_GRACE};
+use super::relay;
+use super::server::{Door, FLUSH_GRACE, SEND_BUFFER};
 use super::side::{Side, SideEnds};
 use crate::chain::Chain;
 use crate::config::Config;
@@ -59,9 +64,10 @@ const COMMAND_QUEUE: usize = 8;
 /// Refusals of Foxglove commands held before they are logged.
 const REFUSAL_QUEUE: usize = 16;
 
-/// Messages each Foxglove client's queue in the server holds before its oldest are dropped:
-/// under two seconds of every channel at the default rate (about 150 messages a second, a
-/// scene of a full trail about 25 kB), so a stalled client holds a few MB at most.
+/// Messages each Foxglove client's queue in the server holds before its oldest are dropped
+/// (under two seconds of every channel at the default rate). The gate reads each client's
+/// connection as fast as the server writes, so this queue fills only when the view's thread
+/// itself falls behind; a stalled client's backlog waits in the gate's outbox.
 const CLIENT_BACKLOG: usize = 256;
 
 /// Why the view could not start.
@@ -190,11 +196,16 @@ async fn gatekeeper(
                 continue;
             }
         };
+        // Small: what waits for a client that reads slowly waits in the relay's bounded outbox,
+        // where stale messages are dropped, not in the kernel.
+        if let Err(e) = socket2::SockRef::from(&client).set_send_buffer_size(SEND_BUFFER) {
+            debug!(%peer, error = %e, "SO_SNDBUF not set");
+        }
         // Taken before the head is read, so that clients that never send one count too.
         let seat = Arc::clone(&seats).try_acquire_owned().ok();
         let token = token.clone();
         tokio::spawn(async move {
-            if let Err(e) = pass(client, seat.is_some(), token.as_ref(), inner).await {
+            if let Err(e) = pass(client, peer, seat.is_some(), token.as_ref(), inner).await {
                 debug!(%peer, error = %e, "a Foxglove client turned away");
             }
             drop(seat);
@@ -206,6 +217,7 @@ async fn gatekeeper(
 /// `seated`: a place among `max_clients` was free for it.
 async fn pass(
     mut client: TcpStream,
+    peer: SocketAddr,
     seated: bool,
     token: Option<&Token>,
     inner: SocketAddr,
@@ -243,8 +255,43 @@ async fn pass(
     }
     let mut server = TcpStream::connect(inner).await?;
     server.write_all(&head).await?;
-    tokio::io::copy_bidirectional(&mut client, &mut server).await?;
-    Ok(())
+    both_ways(client, server, peer).await
+}
+
+/// The bytes both ways between a client let through and the server: the client's as they come,
+/// the server's through [`relay::forward`], which drops the oldest message data for a client
+/// that falls behind rather than queue it.
+async fn both_ways(
+    mut client: TcpStream,
+    mut server: TcpStream,
+    peer: SocketAddr,
+) -> std::io::Result<()> {
+    let (mut client_r, client_w) = client.split();
+    let (server_r, mut server_w) = server.split();
+    let up = async {
+        tokio::io::copy(&mut client_r, &mut server_w).await?;
+        server_w.shutdown().await
+    };
+    let down = relay::forward(server_r, client_w, || {
+        info!(%peer, "a Foxglove client reads slower than the view sends: its oldest messages are dropped");
+    });
+    tokio::pin!(up, down);
+    let mut up_open = true;
+    loop {
+        tokio::select! {
+            sent = &mut up, if up_open => {
+                sent?;
+                up_open = false;
+            }
+            relayed = &mut down => {
+                let dropped = relayed?.dropped;
+                if dropped > 0 {
+                    debug!(%peer, dropped, "a Foxglove client that fell behind left");
+                }
+                return Ok(());
+            }
+        }
+    }
 }
 
 /// Answers `client` `status`, with `why` as the body, and closes; the error says `why`. What the
