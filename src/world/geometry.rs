@@ -73,12 +73,23 @@ pub fn segment_segment(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> (f64, Vec2, Ve
 }
 
 /// Where the segment `a0..a1` properly crosses `b0..b1`, as a parameter along `a0..a1`.
+///
+/// An end point within round-off of the other segment's line counts as on it, not on a side:
+/// on two collinear segments every side is round-off, and its signs alone would make two
+/// disjoint segments cross. The end points' distances, which [`segment_segment`] takes
+/// otherwise, see a touch as one.
 fn crossing(a0: Vec2, a1: Vec2, b0: Vec2, b1: Vec2) -> Option<f64> {
     let (da, db) = (a1 - a0, b1 - b0);
     let (s0, s1) = (cross(db, a0 - b0), cross(db, a1 - b0));
     let (t0, t1) = (cross(da, b0 - a0), cross(da, b1 - a0));
-    (s0 * s1 < 0.0 && t0 * t1 < 0.0).then(|| s0 / (s0 - s1))
+    let off_s = SIDE_ROUND_OFF * db.norm() * ((a0 - b0).norm() + (a1 - b0).norm());
+    let off_t = SIDE_ROUND_OFF * da.norm() * ((b0 - a0).norm() + (b1 - a0).norm());
+    let apart = |x: f64, y: f64, off: f64| x.abs() > off && y.abs() > off && (x < 0.0) != (y < 0.0);
+    (apart(s0, s1, off_s) && apart(t0, t1, off_t)).then(|| s0 / (s0 - s1))
 }
+
+/// The round-off of a cross product `cross(u, v)`, relative to `|u| |v|`.
+const SIDE_ROUND_OFF: f64 = 16.0 * f64::EPSILON;
 
 /// Whether `p` is inside the polygon by the even-odd rule (boundary points either way).
 pub fn inside_polygon(p: Vec2, points: &[Vec2]) -> bool {
@@ -254,6 +265,36 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn collinear_segments_apart_are_apart() {
+        // A segment on the line of a triangle's edge, beyond its vertex: the sides of its end
+        // points are round-off, and once made it cross the edge (distance 0, not 0.105).
+        let pts = [
+            Vec2::new(-0.4620621495420264, -0.8003151192612773),
+            Vec2::new(-0.26795772610624985, 0.4641163958966503),
+            Vec2::new(0.3, 0.0),
+        ];
+        let (p, q) = (pts[0], pts[1]);
+        let a = p + (q - p) * -0.08230470735384633;
+        let b = p + (q - p) * -1.278993834039326;
+        let want = (a - p).norm();
+        let got = segment_polygon(a, b, &pts).distance_m;
+        assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+        let (d2, ..) = segment_segment(a, b, p, q);
+        assert!((d2.sqrt() - want).abs() < 1e-12);
+        // Collinear and overlapping: touching.
+        let (d2, ..) = segment_segment(p + (q - p) * -0.5, p + (q - p) * 0.5, p, q);
+        assert!(d2 < 1e-24, "{d2}");
+        // Crossing at a small angle still crosses.
+        let (d2, ..) = segment_segment(
+            Vec2::new(0.0, -1e-6),
+            Vec2::new(1.0, 1e-6),
+            Vec2::new(0.0, 0.0),
+            Vec2::new(1.0, 0.0),
+        );
+        assert_eq!(d2, 0.0);
+    }
 
     /// Brute force, independent of the code above: the segment sampled densely, each sample's
     /// signed distance to the shape from its own point test and boundary distance.
