@@ -45,7 +45,7 @@ pub mod table;
 pub use adapter::{Adapter, FtdiReceiver, FTDI_DEFAULT_LATENCY, FTDI_PACKET_DATA};
 pub use chain::{
     Fault, HardwareErrorKind, Reply, SimConfig, Simulator, Stats, UnknownHardwareError, Window,
-    BAUD_RATES, DEFAULT_BOOT_TIME,
+    BAUD_RATES, DEFAULT_BOOT_TIME, MAX_BOOT_TIME,
 };
 pub use clock::{Clock, ManualClock, RealClock, SharedClock};
 pub use pty::{spawn_pty, spawn_pty_linked, Link, SimHandle};

@@ -156,6 +156,9 @@ pub struct Sim {
     /// Per-servo Firmware Version (servo id, version), over `firmware`; every id names a
     /// joint's servo.
     pub firmware_by_id: Vec<(u8, u8)>,
+    /// How long a servo boots after REBOOT, at most the simulator's
+    /// [`snakectl_sim::MAX_BOOT_TIME`]; the simulator's default when `None`.
+    pub boot_time: Option<Duration>,
 }
 
 /// The validated `[control]` (defaults when the table is absent).
@@ -919,6 +922,18 @@ impl Checker<'_> {
             };
             firmware_by_id.push((id, version));
         }
+        let boot_time = match raw.boot_ms.map(|ms| Duration::from_millis(ms.into())) {
+            Some(t) if t > snakectl_sim::MAX_BOOT_TIME => {
+                return Err(self.invalid(
+                    "sim.boot_ms",
+                    FieldProblem::OutOfRange {
+                        value: i64::try_from(t.as_millis()).unwrap_or(i64::MAX),
+                        expected: "must lie in 0..=60000",
+                    },
+                ))
+            }
+            t => t,
+        };
         Ok(Sim {
             wire_timing: raw.wire_timing,
             ftdi_latency,
@@ -926,6 +941,7 @@ impl Checker<'_> {
             faults,
             firmware: raw.firmware,
             firmware_by_id,
+            boot_time,
         })
     }
 

@@ -205,6 +205,10 @@ pub struct RawSim {
     /// `[sim.firmware_by_id]`: per-servo Firmware Version, servo id = version.
     #[serde(default)]
     pub firmware_by_id: std::collections::BTreeMap<String, u8>,
+    /// How long a servo boots after REBOOT or a factory reset, ms (0..=60000; the simulator's
+    /// default when absent).
+    #[serde(default)]
+    pub boot_ms: Option<u32>,
 }
 
 /// `[sim] adapter`: what stands between the simulated bus and the host.

@@ -1296,6 +1296,23 @@ fn the_bus_read_and_the_simulated_firmware() {
     );
 }
 
+#[test]
+fn the_simulated_boot_time() {
+    use crate::connect::sim::sim_config;
+    let default = sim_config(&load(&base_text()).unwrap()).unwrap();
+    assert_eq!(default.boot_time, snakectl_sim::DEFAULT_BOOT_TIME);
+    for ms in [0u64, 50, 60_000] {
+        let c = load(&with("seed = 7", &format!("seed = 7\nboot_ms = {ms}"))).unwrap();
+        assert_eq!(c.sim().unwrap().boot_time, Some(Duration::from_millis(ms)));
+        assert_eq!(sim_config(&c).unwrap().boot_time, Duration::from_millis(ms));
+    }
+    refused(
+        &with("seed = 7", "seed = 7\nboot_ms = 60001"),
+        &["sim.boot_ms", "60001", "0..=60000"],
+    );
+    refused(&with("seed = 7", "seed = 7\nboot_ms = -1"), &["-1", "u32"]);
+}
+
 /// `base_text` with a `[foxglove]` table of `table` added (the base text has a token file
 /// unless `no_token`).
 fn with_foxglove(table: &str, no_token: bool) -> String {

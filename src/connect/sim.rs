@@ -139,6 +139,9 @@ pub fn sim_config(config: &Config) -> Result<SimConfig, SimBusError> {
         }
         out.seed = sim.seed;
         out.faults = sim.faults.iter().map(fault).collect();
+        if let Some(boot_time) = sim.boot_time {
+            out.boot_time = boot_time;
+        }
     }
     Ok(out)
 }
