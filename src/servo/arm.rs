@@ -1669,56 +1669,6 @@ mod tests {
     use crate::servo::record::NullBus;
     use crate::servo::{Ack, SyncReadBuf, Value};
 
-    /// Acknowledges everything; after a reboot, stays silent to `silent_pings` pings.
-    struct Rebooting {
-        inner: NullBus,
-        silent_pings: u32,
-    }
-
-    impl ServoBus for Rebooting {
-        fn baud(&self) -> u32 {
-            self.inner.baud()
-        }
-        fn set_baud(&mut self, b: u32) -> Result<(), ServoError> {
-            self.inner.set_baud(b)
-        }
-        fn ping(&mut self, id: u8, t: Duration) -> Result<PingInfo, ServoError> {
-            if self.silent_pings > 0 {
-                self.silent_pings -= 1;
-                return Err(ServoError::Timeout { id, waited: t });
-            }
-            self.inner.ping(id, t)
-        }
-        fn scan(&mut self, t: Duration) -> Result<Vec<PingInfo>, ServoError> {
-            self.inner.scan(t)
-        }
-        fn read(&mut self, id: u8, r: Register, t: Duration) -> Result<Value, ServoError> {
-            self.inner.read(id, r, t)
-        }
-        fn write(&mut self, id: u8, r: Register, v: i64, t: Duration) -> Result<Ack, ServoError> {
-            self.inner.write(id, r, v, t)
-        }
-        fn sync_read_into(
-            &mut self,
-            ids: &[u8],
-            a: u16,
-            l: u16,
-            t: Duration,
-            out: &mut SyncReadBuf,
-        ) -> Result<(), ServoError> {
-            self.inner.sync_read_into(ids, a, l, t, out)
-        }
-        fn sync_write(&mut self, r: Register, v: &[(u8, i64)]) -> Result<(), ServoError> {
-            self.inner.sync_write(r, v)
-        }
-        fn write_goals(&mut self, g: &[Goal]) -> Result<(), ServoError> {
-            self.inner.write_goals(g)
-        }
-        fn reboot(&mut self, id: u8, t: Duration) -> Result<Ack, ServoError> {
-            self.inner.reboot(id, t)
-        }
-    }
-
     const T: Duration = Duration::from_millis(1);
 
     /// Servos that boot for `boot` on `clock` after each REBOOT, deaf until then.
@@ -1777,12 +1727,7 @@ mod tests {
     fn servos_rebooted_together_boot_together() {
         let boot = Duration::from_millis(400);
         let clock = ManualClock::new();
-        let mut bus = Booting {
-            inner: NullBus::new(1060),
-            clock: clock.clone(),
-            boot,
-            until: Default::default(),
-        };
+        let mut bus = booting(&clock, boot);
         let ids = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
         reboot_all_and_wait(&mut bus, &ids, T, &clock, &mut Retry::default()).unwrap();
         // One boot, waited for in 10 ms steps, not twelve in a row.
@@ -1802,13 +1747,20 @@ mod tests {
         assert!(clock.elapsed() - start >= boot * 12);
     }
 
+    /// A [`Booting`] bus of servos that boot for `boot` on `clock`.
+    fn booting(clock: &ManualClock, boot: Duration) -> Booting {
+        Booting {
+            inner: NullBus::new(1060),
+            clock: clock.clone(),
+            boot,
+            until: Default::default(),
+        }
+    }
+
     #[test]
     fn a_rebooted_servo_is_waited_for_on_the_given_clock() {
-        let mut bus = Rebooting {
-            inner: NullBus::new(1060),
-            silent_pings: 7,
-        };
         let clock = ManualClock::new();
+        let mut bus = booting(&clock, Duration::from_millis(70));
         reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap();
         // Seven silent pings, 10 ms apart on the clock, none of it on wall time.
         assert_eq!(clock.elapsed(), Duration::from_millis(70));
@@ -1816,11 +1768,8 @@ mod tests {
 
     #[test]
     fn a_servo_that_never_comes_back_is_given_up_after_the_reboot_wait() {
-        let mut bus = Rebooting {
-            inner: NullBus::new(1060),
-            silent_pings: u32::MAX,
-        };
         let clock = ManualClock::new();
+        let mut bus = booting(&clock, Duration::from_secs(3600));
         let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap_err();
         assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");
         assert_eq!(clock.elapsed(), REBOOT_WAIT);
