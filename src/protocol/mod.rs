@@ -89,7 +89,8 @@ pub enum Code {
     /// A `goto_joints` pose outside the joint limits.
     Unreachable,
     /// The loop's command queue is full, or this connection already has its share of it
-    /// waiting; send again.
+    /// waiting; or a command that would move the arm or switch its torque while a `reboot` is
+    /// under way. Send again.
     Busy,
     /// A `velocity` that waited longer than the deadman before the loop could apply it (the
     /// loop was held up); it was not applied.

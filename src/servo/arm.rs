@@ -1601,63 +1601,185 @@ pub fn reboot_all_and_wait<B: ServoBus>(
     clock: &dyn Clock,
     retry: &mut Retry,
 ) -> Result<(), ServoError> {
-    let mut left = RETRIES;
-    let mut sent: Vec<u8> = ids.to_vec();
-    while !sent.is_empty() {
-        let mut lost = Vec::with_capacity(sent.len());
-        for &id in &sent {
-            match bus.reboot(id, timeout) {
-                Ok(_) => lost.push(None),
-                Err(e) if e.is_transient() => lost.push(Some(e)),
+    let mut reboots = Reboots::send(bus, ids, timeout, clock.now())?;
+    let done = loop {
+        let within = Within::new(clock, clock.now() + REBOOT_WAIT, timeout);
+        match reboots.poll(bus, &within) {
+            Ok(true) => break Ok(()),
+            Ok(false) => clock.sleep(REBOOT_PING_EVERY),
+            Err(e) => break Err(e),
+        }
+    };
+    retry.retries += reboots.retries();
+    done
+}
+
+/// How often a servo that has not answered since its REBOOT is pinged again.
+pub const REBOOT_PING_EVERY: Duration = Duration::from_millis(10);
+
+/// How long to wait for a ping's reply from a servo that may be back from its boot: the
+/// instruction (10 bytes) and the reply (14) on the wire at `baud`, 10 bits a byte, the servo's
+/// return delay, and a millisecond for the serial port's read timeout resolution. A booting
+/// servo's silence so costs about that, not a whole reply timeout, which lets a control loop
+/// ping it in the spare time of its ticks.
+pub fn ping_wait(baud: u32, return_delay_us: u32) -> Duration {
+    let wire_s = 24.0 * 10.0 / f64::from(baud.max(1));
+    Duration::from_secs_f64(wire_s)
+        + Duration::from_micros(u64::from(return_delay_us))
+        + Duration::from_millis(1)
+}
+
+/// A reboot of several servos taken a step at a time, so that a control loop keeps ticking
+/// (and serving its stops) while they boot: [`Reboots::send`] sends every REBOOT, then each
+/// [`Reboots::poll`] pings the servos not back yet, as far as its time allows, until all have
+/// answered. Each is waited for at most [`REBOOT_WAIT`] from its REBOOT.
+///
+/// A REBOOT whose acknowledgement is lost (no reply, a damaged one) may still have arrived:
+/// the servo is then booting and deaf to a second one. So it is waited for first, and REBOOT
+/// is sent again (at most [`RETRIES`] times in all, each counted in [`Reboots::retries`]) only if
+/// it comes back with its alert flag set: its hardware error is still latched, the REBOOT
+/// never arrived. A servo without a latched error that answers after a lost acknowledgement is
+/// taken as rebooted: nothing else in its reply tells the two apart.
+#[derive(Debug)]
+pub struct Reboots {
+    /// Every servo rebooted.
+    targets: Vec<u8>,
+    /// The servos of this round: sent their REBOOT together.
+    round: Vec<u8>,
+    /// Per servo of `round`: the error of its REBOOT's acknowledgement, when lost.
+    lost: Vec<Option<ServoError>>,
+    /// Per servo of `round`: whether it has answered a ping since, and with its alert flag.
+    back: Vec<Option<bool>>,
+    /// The last ping error of each servo not back yet.
+    last: Vec<Option<ServoError>>,
+    /// When this round gives up on a servo that has not answered.
+    give_up: Instant,
+    /// No ping before this instant (a booting servo is asked every [`REBOOT_PING_EVERY`]).
+    next_ping: Instant,
+    /// REBOOT rounds left to send again.
+    left: u32,
+    retries: u32,
+    timeout: Duration,
+}
+
+impl Reboots {
+    /// Sends REBOOT to every servo of `ids` (each acknowledgement waited for at most
+    /// `timeout`), at `now`. An error other than a lost acknowledgement (a vanished port)
+    /// ends it.
+    pub fn send<B: ServoBus>(
+        bus: &mut B,
+        ids: &[u8],
+        timeout: Duration,
+        now: Instant,
+    ) -> Result<Self, ServoError> {
+        let mut reboots = Self {
+            targets: ids.to_vec(),
+            round: Vec::new(),
+            lost: Vec::new(),
+            back: Vec::new(),
+            last: Vec::new(),
+            give_up: now,
+            next_ping: now,
+            left: RETRIES,
+            retries: 0,
+            timeout,
+        };
+        reboots.send_round(bus, ids.to_vec(), now)?;
+        Ok(reboots)
+    }
+
+    /// One round: REBOOT to each of `ids`, their wait started at `now`.
+    fn send_round<B: ServoBus>(
+        &mut self,
+        bus: &mut B,
+        ids: Vec<u8>,
+        now: Instant,
+    ) -> Result<(), ServoError> {
+        self.lost.clear();
+        for &id in &ids {
+            match bus.reboot(id, self.timeout) {
+                Ok(_) => self.lost.push(None),
+                Err(e) if e.is_transient() => self.lost.push(Some(e)),
                 Err(e) => return Err(e),
             }
         }
-        let back = wait_for_boots(bus, &sent, timeout, clock)?;
+        self.back = vec![None; ids.len()];
+        self.last = (0..ids.len()).map(|_| None).collect();
+        self.round = ids;
+        self.give_up = now + REBOOT_WAIT;
+        self.next_ping = now;
+        Ok(())
+    }
+
+    /// The servos rebooted, in the order they were given.
+    pub fn ids(&self) -> &[u8] {
+        &self.targets
+    }
+
+    /// REBOOTs sent again so far.
+    pub fn retries(&self) -> u32 {
+        self.retries
+    }
+
+    /// Pings the servos not back yet, each reply waited for as `within` allows, up to the first
+    /// that does not answer (they boot together: while one is silent the others most likely
+    /// are too, and each silence costs a whole wait). True once every servo has answered and
+    /// none needs its REBOOT again; an error when one has not answered within [`REBOOT_WAIT`]
+    /// (its last ping's error), or its REBOOT never arrived [`RETRIES`] rounds running.
+    pub fn poll<B: ServoBus>(&mut self, bus: &mut B, within: &Within) -> Result<bool, ServoError> {
+        let now = within.clock.now();
+        if now < self.next_ping {
+            return Ok(false);
+        }
+        for k in 0..self.round.len() {
+            if self.back[k].is_some() {
+                continue;
+            }
+            let id = self.round[k];
+            let Some(wait) = within.wait() else {
+                return Ok(false);
+            };
+            match bus.ping(id, wait) {
+                Ok(p) => self.back[k] = Some(p.alert),
+                Err(e) if e.class() == ErrorClass::Bus => return Err(e),
+                Err(e) => {
+                    self.last[k] = Some(e);
+                    break;
+                }
+            }
+        }
+        let now = within.clock.now();
+        if let Some(k) = self.back.iter().position(Option::is_none) {
+            if now >= self.give_up {
+                let id = self.round[k];
+                return Err(self.last[k].take().unwrap_or(ServoError::Timeout {
+                    id,
+                    waited: REBOOT_WAIT,
+                }));
+            }
+            self.next_ping = now + REBOOT_PING_EVERY;
+            return Ok(false);
+        }
         let mut again = Vec::new();
-        for ((&id, lost), back) in sent.iter().zip(lost).zip(back) {
-            if let Some(e) = lost.filter(|_| back.alert) {
-                if left == 0 {
+        for k in 0..self.round.len() {
+            if self.back[k] != Some(true) {
+                continue;
+            }
+            if let Some(e) = self.lost[k].take() {
+                if self.left == 0 {
                     return Err(e);
                 }
                 tracing::debug!(error = %e, "the reboot did not arrive; sending it again");
-                again.push(id);
+                again.push(self.round[k]);
             }
         }
-        if !again.is_empty() {
-            left -= 1;
-            retry.retries += u32::try_from(again.len()).unwrap_or(u32::MAX);
+        if again.is_empty() {
+            return Ok(true);
         }
-        sent = again;
-    }
-    Ok(())
-}
-
-/// Ping each of `ids` on `clock` until all have answered (a booting servo neither hears nor
-/// answers), at most [`REBOOT_WAIT`]; their answers in the order of `ids`, or the last ping's
-/// error of the first that never answers.
-fn wait_for_boots<B: ServoBus>(
-    bus: &mut B,
-    ids: &[u8],
-    timeout: Duration,
-    clock: &dyn Clock,
-) -> Result<Vec<PingInfo>, ServoError> {
-    let give_up = clock.now() + REBOOT_WAIT;
-    let mut back: Vec<Option<PingInfo>> = vec![None; ids.len()];
-    loop {
-        let mut silent = None;
-        for (&id, b) in ids.iter().zip(back.iter_mut()).filter(|(_, b)| b.is_none()) {
-            match bus.ping(id, timeout) {
-                Ok(p) => *b = Some(p),
-                Err(e) => {
-                    silent.get_or_insert(e);
-                }
-            }
-        }
-        match silent {
-            None => return Ok(back.into_iter().flatten().collect()),
-            Some(e) if clock.now() >= give_up => return Err(e),
-            Some(_) => clock.sleep(Duration::from_millis(10)),
-        }
+        self.left -= 1;
+        self.retries += u32::try_from(again.len()).unwrap_or(u32::MAX);
+        self.send_round(bus, again, now)?;
+        Ok(false)
     }
 }
 
@@ -1670,6 +1792,15 @@ mod tests {
     use crate::servo::{Ack, SyncReadBuf, Value};
 
     const T: Duration = Duration::from_millis(1);
+
+    #[test]
+    fn a_ping_after_a_reboot_waits_for_its_exchange_on_the_wire_not_a_reply_timeout() {
+        // 24 bytes at 1 Mbps: 240 us, plus the port's millisecond.
+        assert_eq!(ping_wait(1_000_000, 0), Duration::from_micros(1240));
+        // At 57600 baud the exchange alone is 4.17 ms; a 250 us return delay adds to it.
+        let slow = ping_wait(57_600, 250).as_secs_f64();
+        assert!((slow - (240.0 / 57_600.0 + 0.00125)).abs() < 1e-6, "{slow}");
+    }
 
     /// Servos that boot for `boot` on `clock` after each REBOOT, deaf until then.
     struct Booting {

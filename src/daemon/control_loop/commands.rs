@@ -2,13 +2,17 @@
 //! against the supervisor's mode, handed to the controller, entered in the ledger, and answered
 //! once this tick's telemetry is out.
 
+use std::time::Duration;
+
+use tokio::sync::oneshot;
+
 use crate::chain::Vec2;
 use crate::control::{self, Refused};
 use crate::protocol::{
     world_rejection, Answer, Applied, Code, LoopCmd, Motion, Rebooted, Rejection, Reply, Status,
     StopReason, What, WorldInfo,
 };
-use crate::servo::arm::{self, BringUpOptions, OnExit, Retry};
+use crate::servo::arm::{self, BringUpOptions, OnExit};
 use crate::servo::clock::Clock;
 use crate::servo::ServoBus;
 use crate::world::{Obstacle, World};
@@ -67,7 +71,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn take(&mut self, envelope: Envelope) {
         let pending = self.apply(&envelope);
         self.received.push(envelope.received);
-        self.pending.push((envelope.reply, pending));
+        match (pending, self.rebooting.as_mut()) {
+            // Answered when its servos are back (`tend_reboot`).
+            (Pending::Rebooting, Some(job)) => job.reply = Some(envelope.reply),
+            (pending, _) => self.pending.push((envelope.reply, pending)),
+        }
     }
 
     /// Sends the answers of the commands applied in this tick.
@@ -85,6 +93,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                         Ok(Reply::Status(Box::new(Status::of(t))).into())
                     })
                     .clone(),
+                // `take` keeps these with their reboot; none reaches here.
+                Pending::Rebooting => Err(Rejection {
+                    code: Code::Fault,
+                    message: "the reboot is no longer under way".into(),
+                }),
             };
             // A client gone before its answer is not an error.
             let _ = reply.send(answer);
@@ -119,6 +132,24 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         );
         if self.supervisor.exiting() && !stops {
             return refuse(Code::ShuttingDown, "the daemon is stopping");
+        }
+        if let Some(job) = &self.rebooting {
+            let waits = matches!(
+                e.cmd,
+                LoopCmd::Reset
+                    | LoopCmd::Torque { .. }
+                    | LoopCmd::Reboot { .. }
+                    | LoopCmd::Motion(_)
+            );
+            if waits {
+                return refuse(
+                    Code::Busy,
+                    format!(
+                        "servos {:?} are rebooting: send again once the reboot has answered",
+                        job.reboots.ids()
+                    ),
+                );
+            }
         }
         match &e.cmd {
             LoopCmd::Status => Pending::Status,
@@ -461,9 +492,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.ok()
     }
 
-    /// `reboot`: reboot `ids` (default: the servos in hardware error, else all), bring the arm
-    /// up again where it stands (settings, watchdog, goal := present, torque on), goals := that
-    /// pose; every joint fault clears.
+    /// `reboot`: reboot `ids` (default: the servos in hardware error, else all). The REBOOTs
+    /// go out now; the servos boot while the loop ticks on ([`Rebooting`]), and once all are
+    /// back the arm is brought up again where it stands (settings, watchdog, goal := present,
+    /// torque on), goals := that pose, every joint fault cleared, and the reboot answered.
     fn reboot(&mut self, ids: Option<&[u8]>) -> Pending {
         if self.port.is_lost() {
             return refuse(
@@ -488,9 +520,100 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.controller.freeze();
         let ended = self.ledger.interrupt(StopReason::Reboot);
         self.owe(ended);
+        let timeout = self.schedule.reply_timeout;
+        let sent = arm::Reboots::send(self.port.bus(), &targets, timeout, self.clock.now());
+        let reboots = match sent {
+            Ok(reboots) => reboots,
+            Err(err) => {
+                return refuse(Code::Fault, format!("reboot of {}: {err}", which(&targets)))
+            }
+        };
+        let mut reading = Vec::with_capacity(self.ids.len());
+        let mut joints = Vec::with_capacity(self.ids.len());
+        for (i, &id) in self.ids.iter().enumerate() {
+            if targets.contains(&id) {
+                // Not counted silent while it boots: it is not read.
+                self.health.expect_silence(i);
+            } else {
+                reading.push(id);
+                joints.push(i);
+            }
+        }
+        tracing::info!(?targets, "rebooting; the loop ticks on while they boot");
+        self.rebooting = Some(Rebooting {
+            reboots,
+            reply: None,
+            reading,
+            joints,
+            abandoned: false,
+        });
+        Pending::Rebooting
+    }
+
+    /// A tick of the reboot under way: its servos pinged within the fault path's time; once
+    /// all are back, the arm brought up and the reboot answered; a servo that never comes back
+    /// (or a lost port) ends it with the error.
+    pub(super) fn tend_reboot(&mut self) {
+        let Some(job) = self.rebooting.as_mut() else {
+            return;
+        };
+        if job.abandoned {
+            return;
+        }
+        let polled = if self.port.is_lost() {
+            Err("the serial port was lost while the servos booted".to_owned())
+        } else {
+            // A ping of a booting servo waits about its exchange's time, not a reply timeout,
+            // and ends a millisecond (the port's resolution) short of the fault path's time.
+            let bus = self.port.bus();
+            let wait = arm::ping_wait(bus.baud(), self.arm.settings().return_delay_us)
+                .min(self.schedule.reply_timeout);
+            let until = self
+                .fault_until
+                .checked_sub(Duration::from_millis(1))
+                .unwrap_or(self.fault_until);
+            let within = Self::within(&self.clock, until, wait);
+            match job.reboots.poll(bus, &within) {
+                Ok(false) => return,
+                Ok(true) => Ok(()),
+                Err(err) => Err(format!("reboot of {}: {err}", which(job.reboots.ids()))),
+            }
+        };
+        let Some(job) = self.rebooting.take() else {
+            return;
+        };
+        self.stats.counters.retries += u64::from(job.reboots.retries());
+        let targets = job.reboots.ids().to_vec();
+        let answer = match polled {
+            Ok(()) => self.rebooted(targets),
+            Err(message) => refuse(Code::Fault, message),
+        };
+        if let Some(reply) = job.reply {
+            self.pending.push((reply, answer));
+        }
+    }
+
+    /// The shut-down began: a reboot under way is answered `shutting_down`; its servos are
+    /// left booting (and the shut-down does not wait on them).
+    pub(super) fn abandon_reboot(&mut self) {
+        let Some(job) = self.rebooting.as_mut() else {
+            return;
+        };
+        job.abandoned = true;
+        if let Some(reply) = job.reply.take() {
+            let answer = refuse(
+                Code::ShuttingDown,
+                "the daemon is stopping: the reboot was not completed",
+            );
+            self.pending.push((reply, answer));
+        }
+    }
+
+    /// Every rebooted servo answers: the arm brought up where it stands, the faults cleared.
+    fn rebooted(&mut self, targets: Vec<u8>) -> Pending {
         // Under a latch that switched torque off, torque stays off until `reset`.
         let latched_off = self.supervisor.estopped() && !self.supervisor.torque();
-        if let Err(refusal) = self.reboot_and_bring_up(&targets) {
+        if let Err(refusal) = self.bring_up_after_reboot() {
             return refusal;
         }
         let torque = if latched_off {
@@ -519,25 +642,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         .into()))
     }
 
-    /// The reboots, then the bring-up where the arm stands; goals := that pose, torque on.
-    fn reboot_and_bring_up(&mut self, targets: &[u8]) -> Result<(), Pending> {
-        let timeout = self.schedule.reply_timeout;
-        let mut retry = Retry::default();
-        // All at once: their boots overlap, so the loop stands still for one boot, not one per
-        // servo (a few seconds for a whole arm).
-        arm::reboot_all_and_wait(self.port.bus(), targets, timeout, &self.clock, &mut retry)
-            .map_err(|err| {
-                let which = match targets {
-                    [id] => format!("servo {id}"),
-                    ids => format!("servos {ids:?}"),
-                };
-                refuse(Code::Fault, format!("reboot of {which}: {err}"))
-            })?;
+    /// The bring-up where the arm stands after a reboot; goals := that pose, torque on.
+    fn bring_up_after_reboot(&mut self) -> Result<(), Pending> {
         let brought = self
             .arm
             .bring_up_with_clock(self.port.bus(), BringUpOptions::default(), &self.clock)
             .map_err(|err| refuse(Code::Fault, format!("bring-up after the reboot: {err}")))?;
-        self.stats.counters.retries += u64::from(retry.retries + brought.retries);
+        self.stats.counters.retries += u64::from(brought.retries);
         self.port.contact(self.clock.now());
         self.measured.theta.copy_from_slice(&brought.pose);
         self.controller
@@ -546,6 +657,38 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.supervisor.set_torque(true);
         self.recover_after = None;
         Ok(())
+    }
+}
+
+/// A `reboot` under way: its servos booting (deaf to the bus for a few hundred ms) while the
+/// loop ticks on, serving `status`, `stop`, `estop` and the world; commands that would move
+/// the arm or change its torque are answered `busy` meanwhile. Each tick's read leaves the
+/// booting servos out (a servo back from its boot has its RAM at the defaults until the
+/// bring-up writes it again, which the read would take for a power loss).
+#[derive(Debug)]
+pub(super) struct Rebooting {
+    pub reboots: arm::Reboots,
+    /// The sender's reply, once [`Cycle::take`] has handed it over.
+    pub reply: Option<oneshot::Sender<Answer>>,
+    /// The servos read meanwhile (the others), and their joint indices.
+    pub reading: Vec<u8>,
+    pub joints: Vec<usize>,
+    /// The shut-down began: nothing more is done for it.
+    pub abandoned: bool,
+}
+
+impl Rebooting {
+    /// The servos that may still be booting.
+    pub fn booting(&self) -> impl Iterator<Item = u8> + '_ {
+        self.reboots.ids().iter().copied()
+    }
+}
+
+/// "servo 3" or "servos [3, 4]", for messages.
+fn which(ids: &[u8]) -> String {
+    match ids {
+        [id] => format!("servo {id}"),
+        ids => format!("servos {ids:?}"),
     }
 }
 

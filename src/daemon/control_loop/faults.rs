@@ -54,10 +54,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if health {
             self.measured.begin_health();
         }
+        // While servos reboot, the others alone.
+        let ids = match &self.rebooting {
+            Some(job) => &job.reading,
+            None => &self.ids,
+        };
         let read = self
             .port
             .bus()
-            .read_block_into(&self.ids, layout, timeout, &mut self.states);
+            .read_block_into(ids, layout, timeout, &mut self.states);
+        let read_count = ids.len();
+        let joint = |slot: usize, job: Option<&super::commands::Rebooting>| {
+            job.map_or(Some(slot), |j| j.joints.get(slot).copied())
+        };
         let mut attention = false;
         match read {
             Err(e) if e.class() == ErrorClass::Bus => {
@@ -66,15 +75,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             Err(e) => {
                 tracing::debug!("sync read failed: {e}");
-                self.stats.counters.dropped += self.ids.len() as u64;
-                for i in 0..self.health.len() {
-                    attention |= self.health.missed(i, self.tick, scheduled);
+                self.stats.counters.dropped += read_count as u64;
+                for slot in 0..read_count {
+                    if let Some(i) = joint(slot, self.rebooting.as_ref()) {
+                        attention |= self.health.missed(i, self.tick, scheduled);
+                    }
                 }
             }
             Ok(()) => {
                 self.port.contact(self.clock.now());
-                for i in 0..self.ids.len() {
-                    attention |= self.take_reading(i, scheduled);
+                for slot in 0..read_count {
+                    if let Some(i) = joint(slot, self.rebooting.as_ref()) {
+                        attention |= self.take_reading(slot, i, scheduled);
+                    }
                 }
                 self.retry_torque_off();
             }
@@ -88,9 +101,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
     }
 
-    /// Joint `i`'s part of this read; true when the fault path has something to look at.
-    fn take_reading(&mut self, i: usize, scheduled: Instant) -> bool {
-        match self.states.readings().get(i) {
+    /// Joint `i`'s part of this read, in its `slot`; true when the fault path has something to
+    /// look at.
+    fn take_reading(&mut self, slot: usize, i: usize, scheduled: Instant) -> bool {
+        match self.states.readings().get(slot) {
             Some(Ok(s)) => {
                 self.measured.record(i, s);
                 self.health.answered(i, s.alert)

@@ -317,6 +317,14 @@ impl Health {
         j.fault.is_none() && silence(streak, at, budget) >= budget.max_silence
     }
 
+    /// Joint `i` is not read for a while (it reboots): a silence it may have begun is
+    /// forgotten, and none is counted until it misses a read again.
+    pub fn expect_silence(&mut self, i: usize) {
+        if let Some(j) = self.joints.get_mut(i) {
+            j.streak = None;
+        }
+    }
+
     /// Silent joints to raise, as of `at`: each with the tick its silence began and why.
     pub fn exhausted(&self, at: Instant) -> Vec<(usize, u64, String)> {
         let budget = self.budget;

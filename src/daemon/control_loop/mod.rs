@@ -17,7 +17,8 @@
 //! joint-speed limit, [`Controller::tick`]; frozen while the supervisor holds the arm), write
 //! the goals (one Sync Write through the limits wrapper), read (one Sync Read of Present
 //! Velocity and Position every `read_every`-th tick, its wait capped at the end of the tick;
-//! the next tick decides on it), publish the telemetry (latest wins; and, when the run is
+//! the next tick decides on it), tend a `reboot` under way in the rest of the tick (ping its
+//! booting servos; once all are back, bring the arm up and answer it), publish the telemetry (latest wins; and, when the run is
 //! recorded, hand a copy to the recorder, [`crate::record::tap`]), then answer the commands
 //! applied in this tick. A tick that runs late makes the loop skip the periods it missed
 //! (counted as overruns), never catch up in a burst. The wait for the next period sleeps to
@@ -268,6 +269,9 @@ enum Pending {
     Ready(Answer),
     /// `status`: the telemetry of the tick that applied it.
     Status,
+    /// `reboot`: answered once its servos have booted and the arm is up again (see
+    /// [`commands::Rebooting`]), ticks later.
+    Rebooting,
 }
 
 /// Where the fixed-rate schedule stands between two ticks.
@@ -336,6 +340,8 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     wire_bound_hz: f64,
     /// The recorder's hand-over: every tick's snapshot and every event are offered to it.
     tap: Option<Tap>,
+    /// A `reboot` whose servos are booting.
+    rebooting: Option<commands::Rebooting>,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -499,6 +505,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             late_start: false,
             wire_bound_hz,
             tap: None,
+            rebooting: None,
         };
         Ok((cycle, handle))
     }
@@ -597,6 +604,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The shut-down began: decelerate to rest before letting go.
     fn begin_exit(&mut self) {
         self.supervisor.begin_exit();
+        self.abandon_reboot();
         if self.supervisor.moves() {
             // A failure here cannot be worse than holding, which the next ticks do anyway.
             let _ = self.controller.command(control::Command::Stop);
@@ -630,6 +638,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 self.read(scheduled, deadline, health);
             }
         }
+        self.tend_reboot();
         self.publish();
         self.answer();
     }
@@ -902,7 +911,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             tracing::warn!("shut-down: the serial port is lost, no servo can be reached");
             self.ids.clone()
         } else {
-            self.health.unanswering()
+            let mut silent = self.health.unanswering();
+            // Servos still booting from an abandoned reboot do not hear.
+            silent.extend(self.rebooting.iter().flat_map(|r| r.booting()));
+            silent
         };
         if self.late_start {
             // The loop ran back to back: replies its last read gave up on may still be on

@@ -85,6 +85,33 @@ struct Wire {
     mute_on: Option<(Register, i64, u8, u8)>,
     /// What opening the port again costs on the clock (the adapter's enumeration, bring-up).
     open_cost: Duration,
+    /// How long a servo boots after REBOOT, deaf (on `clock`; zero: it answers at once)...
+    boot: Duration,
+    /// ...or it never comes back.
+    never_back: bool,
+    /// The servos booting, and when each answers again (`None`: never).
+    booting: BTreeMap<u8, Option<Instant>>,
+}
+
+impl Wire {
+    /// The servos whose boot is over answer again.
+    fn wake(&mut self) {
+        let Some(now) = self.clock.as_ref().map(ManualClock::now) else {
+            return;
+        };
+        let done: Vec<u8> = self
+            .booting
+            .iter()
+            .filter(|(_, until)| until.is_some_and(|u| now >= u))
+            .map(|(&id, _)| id)
+            .collect();
+        for id in done {
+            self.booting.remove(&id);
+            if let Some(s) = self.servos.get_mut(&id) {
+                s.silent = false;
+            }
+        }
+    }
 }
 
 /// An in-memory chain of servos whose motors reach every goal at once. Clones share it; the
@@ -110,7 +137,8 @@ impl MemoryBus {
     }
     fn answering(&self, id: u8, timeout: Duration) -> Result<(), ServoError> {
         self.port()?;
-        let w = self.wire();
+        let mut w = self.wire();
+        w.wake();
         match w.servos.get(&id) {
             Some(s) if !s.silent => Ok(()),
             _ => {
@@ -135,6 +163,19 @@ impl MemoryBus {
     fn power_back(&self, id: u8) {
         self.servo(id, |s| {
             s.silent = false;
+            s.reset_ram();
+        });
+    }
+    fn torque(&self, id: u8) -> i64 {
+        self.wire().servos[&id].get(Register::TorqueEnable)
+    }
+}
+
+impl Servo {
+    /// Its RAM at the defaults, as after a power cycle or a reboot.
+    fn reset_ram(&mut self) {
+        let s = self;
+        {
             for r in [
                 Register::TorqueEnable,
                 Register::BusWatchdog,
@@ -149,10 +190,7 @@ impl MemoryBus {
             }
             let present = s.get(Register::PresentPosition);
             s.set(Register::GoalPosition, present);
-        });
-    }
-    fn torque(&self, id: u8) -> i64 {
-        self.wire().servos[&id].get(Register::TorqueEnable)
+        }
     }
 }
 
@@ -214,6 +252,7 @@ impl ServoBus for MemoryBus {
         self.port()?;
         out.reset(ids, len, timeout);
         let mut w = self.wire();
+        w.wake();
         w.reads.push((address, len));
         let mut missing = false;
         for (i, id) in ids.iter().enumerate() {
@@ -236,6 +275,7 @@ impl ServoBus for MemoryBus {
     fn sync_write(&mut self, r: Register, values: &[(u8, i64)]) -> Result<(), ServoError> {
         self.port()?;
         let mut w = self.wire();
+        w.wake();
         let mute_on = w.mute_on;
         for &(id, v) in values {
             if let Some(s) = w.servos.get_mut(&id).filter(|s| !s.silent) {
@@ -252,6 +292,7 @@ impl ServoBus for MemoryBus {
     fn write_goals(&mut self, goals: &[Goal]) -> Result<(), ServoError> {
         self.port()?;
         let mut w = self.wire();
+        w.wake();
         for g in goals {
             if let Some(s) = w.servos.get_mut(&g.id).filter(|s| !s.silent) {
                 s.set(Register::GoalPosition, g.ticks.into());
@@ -262,10 +303,18 @@ impl ServoBus for MemoryBus {
     }
     fn reboot(&mut self, id: u8, timeout: Duration) -> Result<Ack, ServoError> {
         self.answering(id, timeout)?;
-        self.servo(id, |s| {
-            s.set(Register::HardwareErrorStatus, 0);
-            s.set(Register::TorqueEnable, 0);
-        });
+        let mut w = self.wire();
+        let until = match (w.never_back, &w.clock) {
+            (true, _) => Some(None),
+            (false, Some(c)) if !w.boot.is_zero() => Some(Some(c.now() + w.boot)),
+            _ => None,
+        };
+        let s = w.servos.get_mut(&id).unwrap();
+        s.reset_ram();
+        if let Some(until) = until {
+            s.silent = true;
+            w.booting.insert(id, until);
+        }
         Ok(Ack { id, alert: false })
     }
     fn read_kind(&self) -> ReadKind {
@@ -1118,6 +1167,144 @@ fn a_shut_down_with_a_silent_servo_does_not_wait_on_it_and_names_it() {
         other => panic!("not a shut-down error: {other}"),
     }
     assert!((1..=12).filter(|&id| id != 5).all(|id| bus.torque(id) == 0));
+}
+
+/// Servo 3 in hardware error, its servos booting for `boot` after a REBOOT (`None`: never
+/// back); the loop at 100 Hz.
+fn rig_with_a_servo_to_reboot(boot: Option<Duration>) -> Rig {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.servo(3, |s| {
+        s.set(Register::HardwareErrorStatus, 0x20);
+        s.set(Register::TorqueEnable, 0);
+    });
+    rig.ticks(1);
+    assert_eq!(rig.status().state, State::Fault);
+    match boot {
+        Some(b) => rig.bus.wire().boot = b,
+        None => rig.bus.wire().never_back = true,
+    }
+    rig
+}
+
+#[test]
+fn the_loop_ticks_on_and_serves_an_estop_while_rebooted_servos_boot() {
+    let mut rig = rig_with_a_servo_to_reboot(Some(400 * MS));
+    let mut reboot = rig.send(LoopCmd::Reboot { ids: None });
+    let t0 = rig.status().tick;
+    rig.ticks(10);
+    assert!(reboot.try_recv().is_err(), "answered before servo 3 booted");
+    assert_eq!(rig.status().tick, t0 + 10, "telemetry every tick meanwhile");
+    // Moving and switching torque wait for the reboot; an estop does not.
+    let goto = LoopCmd::Motion(Motion::Goto {
+        target: [0.3, 0.3],
+        speed: None,
+    });
+    let busy = rig.command(goto).unwrap_err();
+    assert_eq!(busy.code, Code::Busy);
+    assert!(
+        busy.message.contains("servos [3] are rebooting"),
+        "{}",
+        busy.message
+    );
+    rig.command(LoopCmd::Estop).unwrap();
+    assert_eq!(rig.status().state, State::Estop);
+    assert!((1..=12)
+        .filter(|&id| id != 3)
+        .all(|id| rig.bus.torque(id) == 0));
+    rig.events();
+    // The boot, 400 ms in all: no fault is raised for the servo that does not answer.
+    let mut answer = None;
+    for _ in 0..50 {
+        rig.ticks(1);
+        if let Ok(a) = reboot.try_recv() {
+            answer = Some(a);
+            break;
+        }
+    }
+    let answer = answer.expect("answered once servo 3 was back").unwrap();
+    match answer.reply {
+        Reply::Rebooted(r) => assert_eq!(r.rebooted, vec![3]),
+        other => panic!("not a reboot's reply: {other:?}"),
+    }
+    let raised = fault_events(&rig.events(), FaultChange::Raised);
+    assert!(raised.is_empty(), "{raised:?}");
+    let s = rig.status();
+    assert!(
+        s.tick >= t0 + 40,
+        "servo 3 booted for 400 ms: tick {}",
+        s.tick
+    );
+    assert_eq!(
+        (s.state, s.torque),
+        (State::Estop, false),
+        "the latch holds"
+    );
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert!((1..=12).all(|id| rig.bus.torque(id) == 0));
+    // Read again, mapped again: no power loss is taken for its reset RAM.
+    rig.ticks(5);
+    assert!(rig.status().faults.is_empty(), "{:?}", rig.status().faults);
+    rig.command(LoopCmd::Reset).unwrap();
+    assert_eq!(rig.status().state, State::Holding);
+    rig.slow_goto();
+}
+
+#[test]
+fn a_servo_that_never_comes_back_from_its_reboot_fails_the_reboot_not_the_loop() {
+    let mut rig = rig_with_a_servo_to_reboot(None);
+    let mut reboot = rig.send(LoopCmd::Reboot { ids: None });
+    let t0 = rig.status().tick;
+    let mut answer = None;
+    for _ in 0..400 {
+        rig.ticks(1);
+        if let Ok(a) = reboot.try_recv() {
+            answer = Some(a);
+            break;
+        }
+    }
+    let refused = answer.expect("answered within its wait").unwrap_err();
+    assert_eq!(refused.code, Code::Fault);
+    assert!(
+        refused.message.contains("reboot of servo 3"),
+        "{}",
+        refused.message
+    );
+    let s = rig.status();
+    // Every tick ran meanwhile (3 s at 100 Hz), none held up.
+    assert!(s.tick >= t0 + 300, "tick {}", s.tick);
+    assert_eq!(s.overruns, 0);
+    assert_eq!(s.state, State::Fault, "servo 3 still holds the arm");
+    // Motion is refused for the fault, not `busy`: the reboot is over.
+    let goto = LoopCmd::Motion(Motion::Goto {
+        target: [0.3, 0.3],
+        speed: None,
+    });
+    assert_eq!(rig.command(goto).unwrap_err().code, Code::Fault);
+}
+
+#[test]
+fn a_shut_down_during_a_reboot_answers_it_and_does_not_wait_on_the_booting_servo() {
+    let mut rig = rig_with_a_servo_to_reboot(None);
+    let mut reboot = rig.send(LoopCmd::Reboot { ids: Some(vec![3]) });
+    rig.ticks(2);
+    // Held by the fault, the arm is at rest: the shut-down ends in its first tick.
+    assert!(!rig.cycle.turn(&mut rig.pace, true));
+    let refused = reboot
+        .try_recv()
+        .expect("answered at the shut-down")
+        .unwrap_err();
+    assert_eq!(refused.code, Code::ShuttingDown);
+    let Rig { cycle, clock, .. } = rig;
+    let start = clock.now();
+    let err = cycle.shut_down(false).unwrap_err();
+    assert_eq!(clock.now(), start, "waited on the booting servo");
+    match err {
+        crate::daemon::DaemonError::ShutDown(e) => {
+            let ids: Vec<u8> = e.unreached.iter().map(|u| u.id).collect();
+            assert_eq!(ids, vec![3], "{e}");
+        }
+        other => panic!("not a shut-down error: {other}"),
+    }
 }
 
 #[test]
