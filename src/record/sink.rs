@@ -177,13 +177,24 @@ impl<W: Write + Seek> std::fmt::Debug for McapSink<W> {
 const LIBRARY: &str = concat!("snakectl ", env!("CARGO_PKG_VERSION"));
 
 impl McapSink<BufWriter<File>> {
-    /// Creates (or truncates) the file at `path`.
+    /// Creates (or truncates) the file at `path`, its header written through: a file that
+    /// takes nothing (a full disk) is refused here, before anything is recorded, not found
+    /// out at the first chunk.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
         let file = File::create(path).map_err(|source| RecordError::Create {
             path: path.to_path_buf(),
             source,
         })?;
-        McapSink::new(BufWriter::new(file))
+        let named = |e| match e {
+            RecordError::Write(why) => RecordError::Create {
+                path: path.to_path_buf(),
+                source: std::io::Error::other(why),
+            },
+            other => other,
+        };
+        let mut sink = McapSink::new(BufWriter::new(file)).map_err(named)?;
+        sink.flush().map_err(named)?;
+        Ok(sink)
     }
 }
 
@@ -326,6 +337,20 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "writing the recording: No space left on device"
+        );
+    }
+
+    /// A file that opens but takes no byte (Linux's full device) is refused at creation,
+    /// behind the buffer that would have hidden it until the first chunk.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_recording_on_a_full_disk_is_refused_when_created() {
+        let Err(e) = McapSink::create(Path::new("/dev/full")) else {
+            panic!("/dev/full was taken for a recording");
+        };
+        assert_eq!(
+            e.to_string(),
+            "creating the recording /dev/full: No space left on device (os error 28)"
         );
     }
 }
