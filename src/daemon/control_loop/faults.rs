@@ -322,7 +322,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// Torque off every servo within this tick, not waiting on the silent ones; `why` names
     /// the occasion in the log line naming the servos not confirmed.
     pub(super) fn torque_off_all(&mut self, why: &str) {
-        let silent = self.health.unanswering();
+        let mut silent = self.health.unanswering();
+        // Servos booting from a reboot hear nothing yet (and come back with torque off).
+        silent.extend(self.rebooting.iter().flat_map(|job| job.booting()));
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         self.torque_off_pending.clear();
         if let Err(unreached) = self.arm.torque_off(self.port.bus(), &silent, &within) {
@@ -346,11 +348,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.torque_off_pending.clear();
             return;
         }
+        // The servos this tick read: while servos reboot, the others alone.
+        let read = match &self.rebooting {
+            Some(job) => &job.reading,
+            None => &self.ids,
+        };
         let answered = self.torque_off_pending.iter().any(|id| {
-            self.ids
-                .iter()
+            read.iter()
                 .position(|x| x == id)
-                .and_then(|i| self.states.readings().get(i))
+                .and_then(|slot| self.states.readings().get(slot))
                 .is_some_and(Result::is_ok)
         });
         if answered {

@@ -91,6 +91,9 @@ struct Wire {
     never_back: bool,
     /// The servos booting, and when each answers again (`None`: never).
     booting: BTreeMap<u8, Option<Instant>>,
+    /// Reads (not pings) waited on in vain for a servo, and Sync Writes of Torque Enable.
+    vain_reads: usize,
+    torque_writes: usize,
 }
 
 impl Wire {
@@ -220,7 +223,10 @@ impl ServoBus for MemoryBus {
             .collect())
     }
     fn read(&mut self, id: u8, r: Register, timeout: Duration) -> Result<Value, ServoError> {
-        self.answering(id, timeout)?;
+        if let Err(e) = self.answering(id, timeout) {
+            self.wire().vain_reads += 1;
+            return Err(e);
+        }
         let w = self.wire();
         let s = &w.servos[&id];
         Ok(Value {
@@ -267,6 +273,9 @@ impl ServoBus for MemoryBus {
         if let (true, Some(c)) = (missing, &w.clock) {
             c.advance(timeout);
         }
+        if missing {
+            w.vain_reads += 1;
+        }
         if let Some(c) = &w.clock {
             c.advance(w.read_cost);
         }
@@ -276,6 +285,9 @@ impl ServoBus for MemoryBus {
         self.port()?;
         let mut w = self.wire();
         w.wake();
+        if r == Register::TorqueEnable {
+            w.torque_writes += 1;
+        }
         let mute_on = w.mute_on;
         for &(id, v) in values {
             if let Some(s) = w.servos.get_mut(&id).filter(|s| !s.silent) {
@@ -1206,11 +1218,21 @@ fn the_loop_ticks_on_and_serves_an_estop_while_rebooted_servos_boot() {
         "{}",
         busy.message
     );
+    let vain = rig.bus.wire().vain_reads;
     rig.command(LoopCmd::Estop).unwrap();
     assert_eq!(rig.status().state, State::Estop);
     assert!((1..=12)
         .filter(|&id| id != 3)
         .all(|id| rig.bus.torque(id) == 0));
+    // The booting servo is not waited on for its torque off, nor asked again each tick.
+    assert_eq!(
+        rig.bus.wire().vain_reads,
+        vain,
+        "waited on the booting servo"
+    );
+    let torque_writes = rig.bus.wire().torque_writes;
+    rig.ticks(10);
+    assert_eq!(rig.bus.wire().torque_writes, torque_writes);
     rig.events();
     // The boot, 400 ms in all: no fault is raised for the servo that does not answer.
     let mut answer = None;
@@ -1239,6 +1261,7 @@ fn the_loop_ticks_on_and_serves_an_estop_while_rebooted_servos_boot() {
         (State::Estop, false),
         "the latch holds"
     );
+    assert_eq!(s.overruns, 0, "a tick waited on the booting servo");
     assert!(s.faults.is_empty(), "{:?}", s.faults);
     assert!((1..=12).all(|id| rig.bus.torque(id) == 0));
     // Read again, mapped again: no power loss is taken for its reset RAM.
