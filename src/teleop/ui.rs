@@ -628,7 +628,7 @@ pub fn panel_lines(view: &View<'_>) -> Vec<Line<'static>> {
     lines.push(row("link", link, link_style));
     match view.snapshot {
         None => lines.push(Line::from("waiting for telemetry")),
-        Some(s) => snapshot_lines(view.arm, &status.scene, s, &mut lines),
+        Some(s) => snapshot_lines(view.arm, &status.scene, s, status.link, &mut lines),
     }
     lines.push(row("speed", format!("{:.3} m/s", status.speed_m_s), plain));
     lines.push(row(
@@ -681,22 +681,38 @@ fn clearance_line(scene: &Scene, arm: &ArmInfo, s: &Snapshot) -> Option<Line<'st
     ))
 }
 
+/// The snapshot's rows. Without telemetry (`link` silent or gone) the state is the last one
+/// seen, and says so; with the daemon gone, so is its control.
 fn snapshot_lines(
     arm: Option<&ArmInfo>,
     scene: &Scene,
     s: &Snapshot,
+    link: Contact,
     lines: &mut Vec<Line<'static>>,
 ) {
     let plain = Style::default();
+    let stale = Style::default().fg(Color::DarkGray);
     let signed = |p: [f64; 2]| format!("{:+.3}  {:+.3} m", p[0], p[1]);
-    lines.push(row("state", s.state.to_string(), state_style(s.state)));
+    match link {
+        Contact::Connecting | Contact::Connected => {
+            lines.push(row("state", s.state.to_string(), state_style(s.state)));
+        }
+        Contact::Silent { .. } | Contact::Gone => {
+            lines.push(row("state", format!("{} (last seen)", s.state), stale));
+        }
+    }
     lines.push(row("strategy", s.strategy.name().to_owned(), plain));
     let control_style = if s.in_control {
         Style::default().fg(Color::Green)
     } else {
         Style::default().fg(Color::Yellow)
     };
-    lines.push(row("control", controller_text(s), control_style));
+    if link == Contact::Gone {
+        // The session ended with the connection: whatever control it held is gone with it.
+        lines.push(row("control", "none: the daemon is gone".to_owned(), stale));
+    } else {
+        lines.push(row("control", controller_text(s), control_style));
+    }
     lines.push(row(
         "loop",
         format!(

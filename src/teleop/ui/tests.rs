@@ -293,6 +293,13 @@ fn a_gone_daemon_is_told_and_the_last_pose_stays_drawn() {
         text.contains("daemon at 127.0.0.1:40404 gone: retrying"),
         "{text}"
     );
+    // Its control went with it; the state shown is the last one seen.
+    assert!(
+        text.contains("control   none: the daemon is gone"),
+        "{text}"
+    );
+    assert!(!text.contains("control   you"), "{text}");
+    assert!(text.contains("state     holding (last seen)"), "{text}");
     let (x, y) = cell_of(&arm, snapshot.tip_meas);
     assert_eq!(buffer[(x, y)].symbol(), "@");
 }
@@ -311,6 +318,7 @@ fn a_link_without_telemetry_for_a_second_shows_silent_and_connected_again_after(
     let text = lines(&buffer).join("\n");
     assert!(text.contains("link      no telemetry for 3 s"), "{text}");
     assert!(!text.contains("connected"), "{text}");
+    assert!(text.contains("(last seen)"), "{text}");
     // The last pose stays drawn.
     let (x, y) = cell_of(&arm, snapshot.tip_meas);
     assert_eq!(buffer[(x, y)].symbol(), "@");
