@@ -163,6 +163,45 @@ fn a_target_where_the_tip_can_never_be_clear_is_refused_naming_the_obstacle() {
     assert_eq!(c.activity(), Activity::Holding);
 }
 
+/// From a pose not clear (an obstacle put onto the tip), a target inside another obstacle is
+/// still refused up front, naming that obstacle: the tip could never be clear there.
+#[test]
+fn a_target_inside_an_obstacle_is_refused_from_a_pose_not_clear_too() {
+    let tip = chain().tip(&home());
+    let mut c = controller(Strategy::Overall, &home());
+    let nc = c.set_world(world(vec![
+        circle("on_tip", tip.x, tip.y, 0.02),
+        circle("post", 0.3, 0.4, 0.03),
+    ]));
+    assert_eq!(nc.map(|n| n.obstacle), Some("on_tip".to_string()));
+    let err = c
+        .command(Command::Goto {
+            target: Vec2::new(0.3, 0.4),
+            speed: None,
+        })
+        .unwrap_err();
+    assert!(
+        matches!(&err, Refused::InsideObstacle { obstacle, .. } if obstacle == "post"),
+        "{err:?}"
+    );
+    let err = c
+        .command(Command::Path {
+            points: vec![Vec2::new(0.31, 0.4)],
+            speed: None,
+        })
+        .unwrap_err();
+    assert!(
+        matches!(&err, Refused::InsideObstacle { obstacle, .. } if obstacle == "post"),
+        "{err:?}"
+    );
+    // A clear target is taken: the tip leaves the obstacle on the straight line.
+    c.command(Command::Goto {
+        target: tip + Vec2::new(0.0, -0.1),
+        speed: None,
+    })
+    .unwrap();
+}
+
 #[test]
 fn a_velocity_into_a_wall_slides_along_it() {
     let tip = chain().tip(&home());

@@ -798,7 +798,8 @@ impl Controller {
     /// shortest that keeps the tip clear ([`World::route`]), at rest at each point. A point
     /// inside a grown obstacle is refused; so is one closed off. From a tip already too near
     /// an obstacle (a world changed under it) the first leg is the straight line, which the
-    /// clearance check in each tick still guards.
+    /// clearance check in each tick still guards; its point is refused all the same when the
+    /// tip can never be clear there.
     fn route(&mut self, points: &[Vec2], what: &'static str, speed: f64) -> Result<(), Refused> {
         let mut way = vec![self.tip];
         let mut rest = vec![true];

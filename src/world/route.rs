@@ -247,14 +247,15 @@ impl World {
     }
 
     /// The shortest route for the tip from `start` to `goal` (see the module doc).
+    ///
+    /// The goal is checked before the start, so a start refused as [`RouteError::Inside`]
+    /// means the goal is one the tip can be at: a caller that leaves a start not clear on a
+    /// straight line still refuses a goal inside an obstacle.
     pub fn route(&self, start: Vec2, goal: Vec2) -> Result<Route, RouteError> {
         let r = self.route_radius_m();
         let g = r + self.route_margin_m();
         let mut ends = [0.0; 2];
-        for (slot, (end, p)) in [(RouteEnd::Start, start), (RouteEnd::Goal, goal)]
-            .into_iter()
-            .enumerate()
-        {
+        for (slot, (end, p)) in [(1, (RouteEnd::Goal, goal)), (0, (RouteEnd::Start, start))] {
             if !(p.x.is_finite() && p.y.is_finite()) {
                 return Err(RouteError::NotFinite {
                     end,
