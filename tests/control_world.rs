@@ -389,6 +389,45 @@ fn goals_rounded_to_the_servos_resolution_stay_clear() {
     assert!(c.set_joint_resolution(&[f64::NAN; N]).is_err());
 }
 
+/// A joint move whose goal is clear but not as the servos receive it (each joint rounded to a
+/// whole tick) is refused up front, naming the link and the obstacle: taken, it could only end
+/// blocked short of its goal.
+#[test]
+fn a_joint_move_whose_goal_rounded_to_ticks_is_not_clear_is_refused() {
+    let q = 2.0 * PI / 4096.0;
+    let rounded: Vec<f64> = home().iter().map(|t| (t / q).round() * q).collect();
+    let (tip, tip_rounded) = (chain().tip(&home()), chain().tip(&rounded));
+    // A post on the side rounding moves the tip to, 0.1 mm beyond the clearance from home.
+    let centre = tip + (tip_rounded - tip).normalize() * 0.05;
+    let post = |r: f64| world(vec![circle("post", centre.x, centre.y, r)]);
+    let r = 0.001 + clearance(&post(0.001), &home()) - KEEP - 1e-4;
+    let w = post(r);
+    assert!((clearance(&w, &home()) - (KEEP + 1e-4)).abs() < 1e-9);
+    assert!(
+        clearance(&w, &rounded) < KEEP,
+        "{}",
+        clearance(&w, &rounded)
+    );
+    let start: Vec<f64> = home().iter().map(|t| 1.5 * t).collect();
+    let mut c = controller(Strategy::Overall, &start);
+    c.set_joint_resolution(&[q; N]).unwrap();
+    assert!(c.set_world(w).is_none());
+    let err = c.command(Command::Home).unwrap_err();
+    assert!(
+        matches!(&err, Refused::GoalNotClearAsSent { obstacle, clearance_m, .. }
+            if obstacle == "post" && *clearance_m < KEEP),
+        "{err:?}"
+    );
+    assert!(err.to_string().contains("whole tick"), "{err}");
+    assert!(c.command(Command::GotoJoints { theta: home() }).is_err());
+    assert_eq!(c.activity(), Activity::Holding);
+    // With the post 5 mm further off, the same move is taken and arrives.
+    assert!(c.set_world(post(r - 0.005)).is_none());
+    c.command(Command::Home).unwrap();
+    let (finish, _) = run_clear(&mut c, 1000);
+    assert_eq!(finish, Some(Finish::Arrived));
+}
+
 #[test]
 fn a_goto_the_arm_cannot_keep_up_with_ends_blocked_within_the_headway_time() {
     let slow = Limits {

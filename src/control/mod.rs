@@ -292,6 +292,23 @@ pub enum Refused {
         /// The clearance to keep, m.
         keep_m: f64,
     },
+    /// A joint move whose goal is clear, but not as the servos receive it: each joint rounded
+    /// to a whole tick of its servo (see [`Controller::set_joint_resolution`]).
+    #[error(
+        "link {link} of the goal, each joint rounded to a whole tick as the servos take it, \
+         would come within {clearance_m:.4} m of obstacle \"{obstacle}\" (the clearance to \
+         keep is {keep_m} m)"
+    )]
+    GoalNotClearAsSent {
+        /// The link, 1-based from the base.
+        link: usize,
+        /// The obstacle's id.
+        obstacle: String,
+        /// The clearance of the rounded goal, m.
+        clearance_m: f64,
+        /// The clearance to keep, m.
+        keep_m: f64,
+    },
     /// A goto or path point no route reaches: the obstacles, grown by the link radius and the
     /// clearance, close it off.
     #[error(
@@ -870,6 +887,22 @@ impl Controller {
                     link: p.link,
                     obstacle: p.id(&self.world).to_string(),
                     fraction: f,
+                    clearance_m: p.clearance_m,
+                    keep_m: self.world.clearance_m(),
+                });
+            }
+        }
+        // Each tick's check holds the goal as the servos receive it to the floors as well
+        // (from a clear pose): a goal clear only before rounding would end blocked short of it.
+        if self.guard.clear && !self.quanta.is_empty() {
+            for ((x, &t), &q) in pose.iter_mut().zip(goal).zip(&self.quanta) {
+                *x = if q > 0.0 { (t / q).round() * q } else { t };
+            }
+            self.chain.points_into(&pose, &mut points);
+            if let Some(p) = self.world.below_floors(&points, &self.guard.floors) {
+                return Err(Refused::GoalNotClearAsSent {
+                    link: p.link,
+                    obstacle: p.id(&self.world).to_string(),
                     clearance_m: p.clearance_m,
                     keep_m: self.world.clearance_m(),
                 });

@@ -277,6 +277,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 | Refused::SelfCollision { .. }
                 | Refused::InsideObstacle { .. }
                 | Refused::NotClearOnTheWay { .. }
+                | Refused::GoalNotClearAsSent { .. }
                 | Refused::NoRoute { .. }),
             ) => refuse(Code::Unreachable, r.to_string()),
             Err(r) => refuse(Code::BadArg, r.to_string()),
