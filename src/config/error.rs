@@ -369,11 +369,12 @@ pub enum FieldProblem {
         /// `link_radius_m + clearance_m`, m.
         keep_m: f64,
     },
-    /// The home pose is not clear of an obstacle.
+    /// The home pose is not clear of an obstacle, as given or rounded to the servos' ticks.
     #[error(
-        "link {link} of the home pose (arm.home_rad) keeps {clearance_m:.4} m from obstacle \
+        "link {link} of the home pose (arm.home_rad){} keeps {clearance_m:.4} m from obstacle \
          {id:?} (negative: it overlaps), less than clearance_m = {keep_m} m: move the obstacle \
-         or the home pose"
+         or the home pose",
+        if *.rounded { ", each joint rounded to a whole tick as the servos take it," } else { "" }
     )]
     HomeNotClear {
         /// The obstacle's id.
@@ -384,5 +385,7 @@ pub enum FieldProblem {
         clearance_m: f64,
         /// `clearance_m`, m.
         keep_m: f64,
+        /// The pose rounded to whole ticks is the one not clear (the pose as given is).
+        rounded: bool,
     },
 }

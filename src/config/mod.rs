@@ -1091,7 +1091,14 @@ impl Checker<'_> {
                 ));
             }
         }
-        if let Some(pair) = world.clearance(&chain.points(home)) {
+        // The servos take the home pose in whole ticks: rounded, it must be clear as well, or
+        // `home` could never arrive.
+        let tick = std::f64::consts::TAU / crate::servo::units::TICKS_PER_TURN;
+        let rounded: Vec<f64> = home.iter().map(|t| (t / tick).round() * tick).collect();
+        for (pose, rounded) in [(home, false), (&rounded[..], true)] {
+            let Some(pair) = world.clearance(&chain.points(pose)) else {
+                break;
+            };
             if pair.clearance_m < world.clearance_m() {
                 return Err(self.invalid(
                     format!("world.obstacle[{}]", pair.obstacle + 1),
@@ -1100,6 +1107,7 @@ impl Checker<'_> {
                         link: pair.link,
                         clearance_m: pair.clearance_m,
                         keep_m: world.clearance_m(),
+                        rounded,
                     },
                 ));
             }

@@ -338,6 +338,58 @@ fn a_home_pose_that_is_not_clear_is_refused_naming_the_link_and_the_obstacle() {
     );
 }
 
+/// The home pose reaches the servos in whole ticks: one clear only before rounding is refused
+/// too, or `home` could never arrive there.
+#[test]
+fn a_home_pose_clear_only_before_rounding_to_ticks_is_refused() {
+    let c = load(&base_text()).unwrap();
+    let q = std::f64::consts::TAU / crate::servo::units::TICKS_PER_TURN;
+    let rounded: Vec<f64> = c.home().iter().map(|t| (t / q).round() * q).collect();
+    let (tip, tip_rounded) = (c.chain().tip(c.home()), c.chain().tip(&rounded));
+    // A post on the side rounding moves the tip to, a quarter of that move beyond the
+    // clearance from home.
+    let centre = tip + (tip_rounded - tip).normalize() * 0.05;
+    let beyond = 0.25 * (tip_rounded - tip).norm();
+    let post = |r: f64| {
+        with_world(&format!(
+            "[world]\nclearance_m = 0.005\n\n[[world.obstacle]]\nid = \"post\"\n\
+             circle = {{ center_m = [{:?}, {:?}], radius_m = {r:?} }}",
+            centre.x, centre.y
+        ))
+    };
+    let probe = load(&post(0.001)).unwrap();
+    let least = probe.world().pose_clearance(c.chain(), c.home()).unwrap();
+    let r = 0.001 + least.clearance_m - 0.005 - beyond;
+    let post_at = |r: f64| {
+        World::new(
+            0.0,
+            0.005,
+            vec![Obstacle {
+                id: "post".into(),
+                shape: Shape::Circle {
+                    center: centre,
+                    radius_m: r,
+                },
+            }],
+        )
+        .unwrap()
+    };
+    let home = post_at(r).pose_clearance(c.chain(), c.home()).unwrap();
+    assert!((home.clearance_m - 0.005 - beyond).abs() < 1e-9, "{home:?}");
+    let sent = post_at(r).pose_clearance(c.chain(), &rounded).unwrap();
+    assert!(sent.clearance_m < 0.005, "{sent:?}");
+    refused(
+        &post(r),
+        &[
+            "world.obstacle[1]:",
+            "\"post\"",
+            "home pose",
+            "whole tick",
+            "clearance_m = 0.005",
+        ],
+    );
+}
+
 #[test]
 fn world_fields_map_to_the_files_names() {
     for (from, to) in [
