@@ -14,7 +14,7 @@ use snakectl::control::{
     Activity, Command, Controller, Finish, Limits, Refused, CLEARANCE_ROUNDOFF_M,
 };
 use snakectl::resolve::Strategy;
-use snakectl::world::{Obstacle, Shape, World};
+use snakectl::world::{Obstacle, Shape, World, MAX_ROUTE_WORK};
 use world_support::segment_distance;
 
 /// The least clearance of the pose `theta` of the arm.
@@ -197,6 +197,48 @@ fn a_target_inside_an_obstacle_is_refused_from_a_pose_not_clear_too() {
     // A clear target is taken: the tip leaves the obstacle on the straight line.
     c.command(Command::Goto {
         target: tip + Vec2::new(0.0, -0.1),
+        speed: None,
+    })
+    .unwrap();
+}
+
+/// Planning runs in the control loop's tick, so a command may spend only so much on it: a path
+/// whose legs each go round a 256-point star is refused once its legs together need more than
+/// that (it held the loop a second and more), naming the point, and nothing moves; a goto
+/// round the same star is taken.
+#[test]
+fn a_path_whose_routes_cost_too_much_to_plan_is_refused() {
+    let points: Vec<Vec2> = (0..256)
+        .map(|i| {
+            let a = 2.0 * PI * f64::from(i) / 256.0;
+            let r = if i % 2 == 0 { 0.1 } else { 0.06 };
+            Vec2::new(0.45 + r * a.cos(), 0.45 + r * a.sin())
+        })
+        .collect();
+    let star = Obstacle {
+        id: "star".into(),
+        shape: Shape::Polygon { points },
+    };
+    let (near, far) = (Vec2::new(0.3, 0.45), Vec2::new(0.6, 0.45));
+    let mut c = controller(Strategy::Overall, &home());
+    assert!(c.set_world(world(vec![star])).is_none());
+    let to_and_fro: Vec<Vec2> = (0..200)
+        .map(|i| if i % 2 == 0 { near } else { far })
+        .collect();
+    let err = c
+        .command(Command::Path {
+            points: to_and_fro,
+            speed: None,
+        })
+        .unwrap_err();
+    assert!(
+        matches!(err, Refused::RouteTooLong { what: "path point", limit, .. } if limit == MAX_ROUTE_WORK),
+        "{err:?}"
+    );
+    assert!(err.to_string().contains("fewer path points"), "{err}");
+    assert_eq!(c.activity(), Activity::Holding);
+    c.command(Command::Path {
+        points: vec![near, far],
         speed: None,
     })
     .unwrap();

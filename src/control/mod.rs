@@ -78,7 +78,7 @@ use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
 use crate::resolve::overall::{Overall, OverallOptions};
 use crate::resolve::sequential::Sequential;
 use crate::resolve::{verdict, Resolver, Strategy};
-use crate::world::{RouteEnd, RouteError, World};
+use crate::world::{RouteEnd, RouteError, World, MAX_ROUTE_WORK};
 
 pub use crate::motion::{Activity, Finish, JOINT_ACCEL_TIME_S};
 
@@ -319,6 +319,23 @@ pub enum Refused {
         what: &'static str,
         /// The distance the tip's route keeps from the obstacles, m.
         needed_m: f64,
+    },
+    /// A goto or path whose routes need more work to find than a command may spend
+    /// ([`MAX_ROUTE_WORK`], shared by a path's legs): planning runs in the control loop's tick.
+    #[error(
+        "finding the route to the {what} ({x}, {y}) needs more than the {limit} segment checks a \
+         command may spend, so that the control loop keeps its rate: give fewer path points, or \
+         obstacles of fewer polygon points"
+    )]
+    RouteTooLong {
+        /// What it was ("target", "path point").
+        what: &'static str,
+        /// The point, m.
+        x: f64,
+        /// The point, m.
+        y: f64,
+        /// The work a command may spend, in checks of a segment against an edge or a circle.
+        limit: u64,
     },
     /// Joint resolutions that are not finite and not negative, or not one per joint.
     #[error("joint resolutions must be one finite, non-negative angle per joint")]
@@ -821,8 +838,10 @@ impl Controller {
         let mut way = vec![self.tip];
         let mut rest = vec![true];
         let mut from = self.tip;
+        // One budget for all the legs: the loop plans in a tick.
+        let mut left = MAX_ROUTE_WORK;
         for &p in points {
-            match self.plan.route(from, p) {
+            match self.plan.route_within(from, p, &mut left) {
                 Ok(r) => {
                     let n = r.waypoints.len();
                     for (k, w) in r.waypoints.into_iter().enumerate().skip(1) {
@@ -853,6 +872,15 @@ impl Controller {
                 }
                 Err(RouteError::NoRoute { needed_m }) => {
                     return Err(Refused::NoRoute { what, needed_m })
+                }
+                // The leg was given what the legs before it left: name the command's whole.
+                Err(RouteError::TooMuchWork { .. }) => {
+                    return Err(Refused::RouteTooLong {
+                        what,
+                        x: p.x,
+                        y: p.y,
+                        limit: MAX_ROUTE_WORK,
+                    })
                 }
                 Err(_) => return Err(Refused::NotFinite { what }),
             }

@@ -50,7 +50,7 @@ use crate::chain::{Vec2, MAX_MAGNITUDE};
 
 pub use clearance::{ActivePairs, Pair};
 pub use geometry::Contact;
-pub use route::{Route, RouteEnd, RouteError};
+pub use route::{Route, RouteEnd, RouteError, MAX_ROUTE_WORK};
 
 /// Most obstacles a world may hold: bounds every per-tick loop and the route's graph.
 pub const MAX_OBSTACLES: usize = 64;
@@ -130,6 +130,14 @@ impl Shape {
                 // No edge near: either wholly outside or wholly inside.
                 !geometry::inside_polygon(a, points)
             }
+        }
+    }
+
+    /// What checking a segment against the shape costs, in edges (1 for a circle).
+    pub fn size(&self) -> u64 {
+        match self {
+            Shape::Circle { .. } => 1,
+            Shape::Polygon { points } => points.len() as u64,
         }
     }
 

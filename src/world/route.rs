@@ -42,6 +42,15 @@ const MAX_TURN_STEPS: usize = 64;
 /// legs stay outside, only a little longer), which bounds the search's work.
 pub const MAX_ROUTE_NODES: usize = 2048;
 
+/// Most work one route may take, in checks of a segment against an obstacle's edge or circle
+/// (and of an arc node against each). It bounds what planning a command costs the control
+/// loop, which plans in a tick: past it the route is refused ([`RouteError::TooMuchWork`]),
+/// not searched for longer, and a `path` shares it among its legs. On a small 2-core machine a
+/// check takes 2 to 8 ns (most are a box apart), so a command plans in at most about 80 ms,
+/// within the servos' 100 ms bus watchdog. Threading a grid of sixteen 64-gons (1024 points)
+/// takes 9 million; a 512-point star, 5.6 million; post and shelf, a few thousand.
+pub const MAX_ROUTE_WORK: u64 = 10_000_000;
+
 /// Nodes sit this fraction further out than the circumscribing radius, so round-off never
 /// brings a chord inside.
 const OUTSIDE: f64 = 1e-9;
@@ -95,6 +104,15 @@ pub enum RouteError {
         distance_m: f64,
         /// What the tip must keep, m.
         needed_m: f64,
+    },
+    /// The search needed more than the work it was given ([`MAX_ROUTE_WORK`] for one route).
+    #[error(
+        "the route needs more than {limit} segment checks among these obstacles, the most a \
+         command may spend so that the control loop keeps its rate"
+    )]
+    TooMuchWork {
+        /// The work the search was given.
+        limit: u64,
     },
     /// The obstacles, grown, separate the start from the goal.
     #[error("no route clears the obstacles by {needed_m} m: the goal is closed off")]
@@ -157,6 +175,23 @@ fn push_arc(out: &mut Vec<ArcNode>, center: Vec2, rho: f64, from: f64, turn: f64
     }
 }
 
+/// The work a route search may do and has done.
+#[derive(Debug)]
+struct Work {
+    limit: u64,
+    spent: u64,
+}
+
+impl Work {
+    fn spend(&mut self, n: u64) {
+        self.spent = self.spent.saturating_add(n);
+    }
+
+    fn over(&self) -> bool {
+        self.spent > self.limit
+    }
+}
+
 /// A cost in the heap, smallest first.
 #[derive(Debug, PartialEq)]
 struct Open(f64, usize);
@@ -186,18 +221,22 @@ impl World {
         MIN_ROUTE_MARGIN_M.max(ROUTE_MARGIN_FRACTION * self.clearance_m)
     }
 
-    /// Whether the segment `a..b` keeps at least `floor` from every obstacle.
-    fn leg_clear(&self, a: Vec2, b: Vec2, floor: f64) -> bool {
+    /// Whether the segment `a..b` keeps at least `floor` from every obstacle; `work` counts the
+    /// edges and circles it is checked against.
+    fn leg_clear(&self, a: Vec2, b: Vec2, floor: f64, work: &mut Work) -> bool {
         let (lo, hi) = (a.inf(&b), a.sup(&b));
         (0..self.obstacles.len()).all(|k| {
-            self.box_not_below(k, lo, hi, floor)
-                || self.obstacles[k].shape.segment_clears(a, b, floor)
+            if self.box_not_below(k, lo, hi, floor) {
+                return true;
+            }
+            work.spend(self.obstacles[k].shape.size());
+            self.obstacles[k].shape.segment_clears(a, b, floor)
         })
     }
 
     /// The arc nodes of every obstacle grown by `g` with the chord tolerance `tol`, or coarser
     /// when there would be more than [`MAX_ROUTE_NODES`]; those at least `g` from all obstacles.
-    fn arc_nodes(&self, g: f64, tol: f64) -> Vec<ArcNode> {
+    fn arc_nodes(&self, g: f64, tol: f64, work: &mut Work) -> Vec<ArcNode> {
         let mut tol = tol;
         let mut nodes = Vec::new();
         // At the coarsest (8 steps a turn) 64 circles and 1024 corners make at most 2560.
@@ -207,6 +246,11 @@ impl World {
                 break;
             }
             tol *= 2.0;
+        }
+        let sizes: u64 = self.obstacles.iter().map(|o| o.shape.size()).sum();
+        work.spend(sizes.saturating_mul(nodes.len() as u64));
+        if work.over() {
+            return Vec::new();
         }
         nodes.retain(|a| {
             self.obstacles
@@ -246,12 +290,38 @@ impl World {
         }
     }
 
-    /// The shortest route for the tip from `start` to `goal` (see the module doc).
+    /// The shortest route for the tip from `start` to `goal` (see the module doc), within
+    /// [`MAX_ROUTE_WORK`].
     ///
     /// The goal is checked before the start, so a start refused as [`RouteError::Inside`]
     /// means the goal is one the tip can be at: a caller that leaves a start not clear on a
     /// straight line still refuses a goal inside an obstacle.
     pub fn route(&self, start: Vec2, goal: Vec2) -> Result<Route, RouteError> {
+        let mut left = MAX_ROUTE_WORK;
+        self.route_within(start, goal, &mut left)
+    }
+
+    /// [`World::route`] with at most `left` work (in checks of a segment against an edge or a
+    /// circle), less what it spent on return: legs of one command share one budget.
+    pub fn route_within(
+        &self,
+        start: Vec2,
+        goal: Vec2,
+        left: &mut u64,
+    ) -> Result<Route, RouteError> {
+        let mut work = Work {
+            limit: *left,
+            spent: 0,
+        };
+        let found = self.search(start, goal, &mut work);
+        *left = left.saturating_sub(work.spent);
+        if work.over() {
+            return Err(RouteError::TooMuchWork { limit: work.limit });
+        }
+        found
+    }
+
+    fn search(&self, start: Vec2, goal: Vec2, work: &mut Work) -> Result<Route, RouteError> {
         let r = self.route_radius_m();
         let g = r + self.route_margin_m();
         let mut ends = [0.0; 2];
@@ -276,13 +346,13 @@ impl World {
             }
             ends[slot] = d.min(g);
         }
-        if self.leg_clear(start, goal, ends[0].min(ends[1])) {
+        if self.leg_clear(start, goal, ends[0].min(ends[1]), work) {
             return Ok(Route {
                 waypoints: vec![start, goal],
                 length_m: (goal - start).norm(),
             });
         }
-        let arcs = self.arc_nodes(g, self.route_margin_m());
+        let arcs = self.arc_nodes(g, self.route_margin_m(), work);
         // Node 0 the start, 1 the goal, then the arcs.
         let count = arcs.len() + 2;
         let point = |i: usize| match i {
@@ -333,10 +403,13 @@ impl World {
                 if c + len >= cost[w] || !leaves(u, w, pw) || !leaves(w, u, pu) {
                     continue;
                 }
-                if self.leg_clear(pu, pw, floor(u, w)) {
+                if self.leg_clear(pu, pw, floor(u, w), work) {
                     cost[w] = c + len;
                     from[w] = u;
                     open.push(Open(c + len, w));
+                }
+                if work.over() {
+                    return Err(RouteError::TooMuchWork { limit: work.limit });
                 }
             }
         }

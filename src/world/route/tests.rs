@@ -332,7 +332,14 @@ fn too_many_arc_nodes_are_coarsened() {
     // At the margin's tolerance the posts would make 64 x 34 nodes: coarsened to fit.
     let g = w.route_radius_m() + w.route_margin_m();
     assert_eq!(turn_steps(0.2 + g, w.route_margin_m()), 34);
-    let nodes = w.arc_nodes(g, w.route_margin_m());
+    let nodes = w.arc_nodes(
+        g,
+        w.route_margin_m(),
+        &mut Work {
+            limit: u64::MAX,
+            spent: 0,
+        },
+    );
     assert_eq!(nodes.len(), 64 * 24);
     check(&w, v(-0.4, 0.3), v(4.6, 4.0));
 }
@@ -479,4 +486,45 @@ fn shape_clearance_agrees_with_the_signed_distance() {
         }
     }
     assert!(seen[0] > 100 && seen[1] > 100, "{seen:?}");
+}
+
+/// A star of 1020 points beside the daemon's arm: the world of 0.012 m links, clearance 0.005 m
+/// and the servos' rounding allowance the controller plans in.
+fn star(points: usize) -> World {
+    let pts: Vec<(f64, f64)> = (0..points)
+        .map(|i| {
+            let a = 2.0 * PI * i as f64 / points as f64;
+            let r = if i % 2 == 0 { 0.1 } else { 0.06 };
+            (0.45 + r * a.cos(), 0.45 + r * a.sin())
+        })
+        .collect();
+    World::new(0.012, 0.009786, vec![polygon("star", &pts)]).unwrap()
+}
+
+/// The search is bounded: past its work it is refused, naming the limit, rather than
+/// searched on; a small world's route costs a sliver of it, and legs share what is left.
+#[test]
+fn a_route_past_its_work_is_refused_and_legs_share_the_work() {
+    let (from, to) = (v(0.3, 0.45), v(0.6, 0.45));
+    let e = star(1020).route(from, to).unwrap_err();
+    assert_eq!(
+        e,
+        RouteError::TooMuchWork {
+            limit: MAX_ROUTE_WORK
+        }
+    );
+    assert!(e.to_string().contains("segment checks"), "{e}");
+    let w = star(64);
+    let mut left = MAX_ROUTE_WORK;
+    let r = w.route_within(from, to, &mut left).unwrap();
+    assert!(r.waypoints.len() > 2);
+    let spent = MAX_ROUTE_WORK - left;
+    assert!(spent > 0 && spent < MAX_ROUTE_WORK / 50, "{spent}");
+    // With less left than that, the same route is refused and nothing is left.
+    let mut left = spent - 1;
+    assert_eq!(
+        w.route_within(from, to, &mut left),
+        Err(RouteError::TooMuchWork { limit: spent - 1 })
+    );
+    assert_eq!(left, 0);
 }
