@@ -4,7 +4,7 @@
 
 use serde_json::{Map, Value};
 
-use super::{bad, Shown};
+use super::{bad, Num, Shown};
 use crate::chain::Vec2;
 use crate::protocol::{Rejection, MAX_ARG};
 use crate::world::{Obstacle, Shape};
@@ -126,7 +126,8 @@ fn number(field: &str, value: &Value) -> Result<f64, Rejection> {
     }
     if x.abs() > MAX_ARG {
         return Err(bad(format_args!(
-            "`{field}`: {x} is over {MAX_ARG} in magnitude"
+            "`{field}`: {} is over {MAX_ARG} in magnitude",
+            Num(x)
         )));
     }
     Ok(x)

@@ -292,6 +292,25 @@ fn unknown_cmd_lists_the_known_ones() {
     refused_with(r#"{"cmd":"GOTO"}"#, Code::UnknownCmd, &["GOTO"]);
 }
 
+/// A huge number is shown short in the refusal, not as its 301 digits.
+#[test]
+fn a_huge_number_is_named_in_a_short_message() {
+    for line in [
+        r#"{"cmd":"goto","target":[1e300,0]}"#,
+        r#"{"cmd":"add_obstacle","obstacle":{"id":"a","circle":{"center":[0,0],"radius":-1e300}}}"#,
+    ] {
+        let (_, why) = refused(line);
+        assert_eq!(why.code, Code::BadArg, "{why}");
+        assert!(why.message.contains("e300 is over"), "{why}");
+        assert!(why.message.len() < 120, "{why}");
+    }
+    refused_with(
+        r#"{"cmd":"goto","target":[0,2000000]}"#,
+        Code::BadArg,
+        &["`target[1]`: 2000000 is over 1000000 in magnitude"],
+    );
+}
+
 #[test]
 fn bad_arg_names_the_field_and_the_value() {
     let cases: &[(&str, &[&str])] = &[
