@@ -299,6 +299,27 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             Ok(world) => world,
             Err(err) => return Pending::Ready(Err(world_rejection(&err, added))),
         };
+        // As at start-up: link 1 starts at the base whatever the pose, so no pose could keep
+        // clear of an obstacle that close.
+        let keep_m = world.link_radius_m() + world.clearance_m();
+        let base = self.controller.chain().base();
+        if let Some((distance_m, k)) = world.point_distance(base) {
+            if distance_m < keep_m {
+                let field = match added {
+                    Some(a) if a == k => "obstacle".to_owned(),
+                    _ => format!("obstacles[{k}]"),
+                };
+                return refuse(
+                    Code::BadArg,
+                    format!(
+                        "`{field}`: obstacle {:?} is {distance_m:.4} m from the base point, where \
+                         link 1 starts, closer than link_radius_m + clearance_m = {keep_m:.4} m: \
+                         no pose keeps clear of it",
+                        world.obstacles()[k].id
+                    ),
+                );
+            }
+        }
         let info = Box::new(WorldInfo::of(&world));
         let not_clear = self.controller.set_world(world);
         self.decided.min_clearance_m = self.controller.min_clearance();

@@ -1534,6 +1534,49 @@ fn the_config_files_world_is_in_force_from_start_up() {
 }
 
 #[test]
+fn a_world_change_with_an_obstacle_at_the_base_is_refused_naming_it() {
+    use crate::world::{Obstacle, Shape};
+    let mut rig = Rig::with_tables(100.0, "", "\n[world]\nlink_radius_m = 0.01\n");
+    let base = rig.cycle.controller.chain().base();
+    let disc = |id: &str, dx: f64| Obstacle {
+        id: id.into(),
+        shape: Shape::Circle {
+            center: base + crate::chain::Vec2::new(dx, 0.0),
+            radius_m: 0.02,
+        },
+    };
+    // 2 mm from the base point, where link 1 starts: 10 mm of radius and 5 of clearance to keep.
+    let set = LoopCmd::SetWorld {
+        obstacles: vec![disc("far", 0.5), disc("pad", 0.022)],
+    };
+    let refused = rig.command(set).unwrap_err();
+    assert_eq!(refused.code, Code::BadArg);
+    assert!(
+        refused
+            .message
+            .starts_with("`obstacles[1]`: obstacle \"pad\" is 0.0020 m from the base"),
+        "{}",
+        refused.message
+    );
+    let add = LoopCmd::AddObstacle {
+        obstacle: disc("pad", 0.022),
+    };
+    let refused = rig.command(add).unwrap_err();
+    assert!(
+        refused.message.starts_with("`obstacle`: "),
+        "{}",
+        refused.message
+    );
+    assert!(rig.cycle.controller.world().obstacles().is_empty());
+    // Beyond what is kept, taken.
+    rig.command(LoopCmd::AddObstacle {
+        obstacle: disc("pad", 0.036),
+    })
+    .unwrap();
+    assert_eq!(rig.cycle.controller.world().obstacles().len(), 1);
+}
+
+#[test]
 fn every_read_carries_the_health_registers_through_indirect_address() {
     let mut rig = Rig::new(100.0, "");
     // Bring-up mapped Indirect Address 1..13 onto Present Load/Current .. Temperature.
