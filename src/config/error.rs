@@ -306,6 +306,12 @@ pub enum FieldProblem {
     /// An obstacle with an empty id.
     #[error("an obstacle needs a non-empty id")]
     EmptyId,
+    /// An obstacle id too long, or with a control character.
+    #[error("{why}")]
+    BadObstacleId {
+        /// What is wrong with it.
+        why: String,
+    },
     /// Two obstacles with one id.
     #[error("{id:?} is already the id of world.obstacle[{other}]")]
     DuplicateObstacle {

@@ -1148,6 +1148,7 @@ impl Checker<'_> {
             }
             WorldError::Negative { field, value } => (field, FieldProblem::Negative { value }),
             WorldError::EmptyId { field } => (field, FieldProblem::EmptyId),
+            WorldError::BadId { field, why } => (field, FieldProblem::BadObstacleId { why }),
             WorldError::DuplicateId { field, id, first } => (
                 field,
                 FieldProblem::DuplicateObstacle {

@@ -286,6 +286,7 @@ fn world_error(e: WorldError) -> ProblemError {
         | WorldError::NotPositive { field, .. }
         | WorldError::Negative { field, .. }
         | WorldError::EmptyId { field }
+        | WorldError::BadId { field, .. }
         | WorldError::DuplicateId { field, .. }
         | WorldError::TooFewPoints { field, .. }
         | WorldError::RepeatedPoint { field, .. }

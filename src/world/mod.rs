@@ -61,6 +61,10 @@ pub const DEFAULT_CLEARANCE_M: f64 = 0.005;
 /// Most polygon points a world may hold, all polygons together.
 pub const MAX_POLYGON_POINTS: usize = 1024;
 
+/// Longest obstacle id, in characters: ids go out in every `world` event and telemetry's
+/// nearest pair, and name obstacles in messages and on screens.
+pub const MAX_ID_CHARS: usize = 64;
+
 /// The shape of an obstacle, in the arm's frame.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {
@@ -204,6 +208,15 @@ pub enum WorldError {
     EmptyId {
         /// Path of the id.
         field: String,
+    },
+    /// An id longer than [`MAX_ID_CHARS`] characters, or with a control character (a line
+    /// break, a tab, an escape) that would garble the messages and screens that name it.
+    #[error("{field}: {why}")]
+    BadId {
+        /// Path of the id.
+        field: String,
+        /// What is wrong with it.
+        why: String,
     },
     /// Two obstacles with the same id.
     #[error("{field}: id {id:?} is already used by obstacles[{first}]")]
@@ -408,6 +421,19 @@ impl World {
             if o.id.is_empty() {
                 return Err(WorldError::EmptyId {
                     field: format!("{at}.id"),
+                });
+            }
+            let chars = o.id.chars().count();
+            if chars > MAX_ID_CHARS {
+                return Err(WorldError::BadId {
+                    field: format!("{at}.id"),
+                    why: format!("an id of {chars} characters, at most {MAX_ID_CHARS} allowed"),
+                });
+            }
+            if let Some(c) = o.id.chars().find(|c| c.is_control()) {
+                return Err(WorldError::BadId {
+                    field: format!("{at}.id"),
+                    why: format!("id {:?} holds the control character {c:?}", o.id),
                 });
             }
             if let Some(first) = obstacles[..i].iter().position(|p| p.id == o.id) {

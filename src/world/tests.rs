@@ -191,6 +191,26 @@ fn bad_polygons_name_the_point_or_edges() {
 }
 
 #[test]
+fn ids_are_short_and_printable() {
+    let long = "p".repeat(MAX_ID_CHARS + 1);
+    assert_eq!(
+        refused(vec![
+            circle("a", 0.0, 0.0, 1.0),
+            circle(&long, 3.0, 0.0, 1.0)
+        ])
+        .to_string(),
+        "obstacles[1].id: an id of 65 characters, at most 64 allowed"
+    );
+    assert_eq!(
+        refused(vec![circle("post\n", 0.0, 0.0, 1.0)]).to_string(),
+        "obstacles[0].id: id \"post\\n\" holds the control character '\\n'"
+    );
+    // 64 characters, not bytes: ids in any script.
+    let ok = "é".repeat(MAX_ID_CHARS);
+    assert!(World::new(0.0, 0.0, vec![circle(&ok, 0.0, 0.0, 1.0)]).is_ok());
+}
+
+#[test]
 fn ids_must_be_given_and_unique() {
     assert_eq!(
         refused(vec![circle("", 0.0, 0.0, 1.0)]),
