@@ -570,6 +570,38 @@ fn connect_with_small_window(port: u16) -> Fox {
     }
 }
 
+/// A Foxglove client on `port` subscribed to every topic that then reads nothing, while a
+/// socket client moves the arm to and fro (the trail and so the scene grow) until the daemon
+/// logs that the gate's outbox for it overflowed and its oldest messages are dropped (its
+/// connection full, the gate's writes to it waiting).
+fn stall_a_client(port: u16, daemon: &mut DaemonChild) -> Fox {
+    let mut client = daemon_support::Client::connect(daemon.address());
+    let start = xy(&client.status()["tip"]);
+    let mut stalled = connect_with_small_window(port);
+    stalled.next_op("serverInfo");
+    stalled.advertised(&TOPICS);
+    stalled.subscribe(&TOPICS);
+    let deadline = Instant::now() + DEADLINE;
+    for k in 0.. {
+        assert!(
+            Instant::now() < deadline,
+            "nothing was dropped for the stalled client"
+        );
+        let dx = if k % 2 == 0 { 0.06 } else { 0.0 };
+        client.ok(json!({"cmd": "goto", "target": [start[0] + dx, start[1]]}));
+        if daemon
+            .logged(
+                "its oldest messages are dropped",
+                Duration::from_millis(300),
+            )
+            .is_some()
+        {
+            break;
+        }
+    }
+    stalled
+}
+
 #[test]
 fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
     let dir = tempfile::tempdir().unwrap();
@@ -587,33 +619,7 @@ fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
         sim.path(),
         &["--record".as_ref(), recording.as_os_str()],
     );
-    let mut client = daemon_support::Client::connect(daemon.address());
-    let start = xy(&client.status()["tip"]);
-    let mut stalled = connect_with_small_window(port);
-    stalled.next_op("serverInfo");
-    stalled.advertised(&TOPICS);
-    stalled.subscribe(&TOPICS);
-    // It reads nothing more. The arm moves to and fro (the trail and so the scene grow) until
-    // the gate's outbox for the client overflows: its connection is full, the gate's writes to
-    // it wait.
-    let deadline = Instant::now() + DEADLINE;
-    for k in 0.. {
-        assert!(
-            Instant::now() < deadline,
-            "the stalled client's connection never filled"
-        );
-        let dx = if k % 2 == 0 { 0.06 } else { 0.0 };
-        client.ok(json!({"cmd": "goto", "target": [start[0] + dx, start[1]]}));
-        if daemon
-            .logged(
-                "its oldest messages are dropped",
-                Duration::from_millis(300),
-            )
-            .is_some()
-        {
-            break;
-        }
-    }
+    let stalled = stall_a_client(port, &mut daemon);
     daemon.signal("-TERM");
     let (status, log) = daemon.wait();
     assert!(status.success(), "exit {status:?}; log:\n{log}");
@@ -644,31 +650,7 @@ fn a_client_that_stopped_reading_reads_fresh_data_again_after_a_bounded_backlog(
     let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
         .unwrap();
     let mut daemon = DaemonChild::spawn_with(&path, sim.path(), &[]);
-    let mut client = daemon_support::Client::connect(daemon.address());
-    let start = xy(&client.status()["tip"]);
-    let mut stalled = connect_with_small_window(port);
-    stalled.next_op("serverInfo");
-    stalled.advertised(&TOPICS);
-    stalled.subscribe(&TOPICS);
-    // It reads nothing until what waits for it fills the gate's outbox and the oldest is dropped.
-    let deadline = Instant::now() + DEADLINE;
-    for k in 0.. {
-        assert!(
-            Instant::now() < deadline,
-            "nothing was dropped for the stalled client"
-        );
-        let dx = if k % 2 == 0 { 0.06 } else { 0.0 };
-        client.ok(json!({"cmd": "goto", "target": [start[0] + dx, start[1]]}));
-        if daemon
-            .logged(
-                "its oldest messages are dropped",
-                Duration::from_millis(300),
-            )
-            .is_some()
-        {
-            break;
-        }
-    }
+    let mut stalled = stall_a_client(port, &mut daemon);
     // It reads again: what was published before is what waited for it. The gate's outbox
     // (256 kB), its send buffer and this client's small receive buffer hold well under 1 MB;
     // without the bound, the loopback connections behind the gate held about 8 MB.

@@ -677,6 +677,18 @@ mod tests {
         }
     }
 
+    /// The recording stopped for the disk that filled up, and says so.
+    fn assert_out_of_space(summary: &RecordSummary) {
+        assert!(
+            summary
+                .error
+                .as_ref()
+                .is_some_and(|e| e.to_string().contains("No space left")),
+            "{:?}",
+            summary.error
+        );
+    }
+
     fn setup() -> Setup {
         Setup {
             prefix: "arm7".into(),
@@ -709,14 +721,7 @@ mod tests {
             tap.offer_tick(&t);
         }
         let summary = recorder.close();
-        assert!(
-            summary
-                .error
-                .as_ref()
-                .is_some_and(|e| e.to_string().contains("No space left")),
-            "{:?}",
-            summary.error
-        );
+        assert_out_of_space(&summary);
         let joint_states = &summary.channels[0];
         assert_eq!(joint_states.topic, "/arm7/joint_states");
         assert_eq!(joint_states.offered, 1000);
@@ -818,14 +823,7 @@ mod tests {
             });
         }
         let summary = recorder.close();
-        assert!(
-            summary
-                .error
-                .as_ref()
-                .is_some_and(|e| e.to_string().contains("No space left")),
-            "{:?}",
-            summary.error
-        );
+        assert_out_of_space(&summary);
         let in_file = messages_in(&bytes.lock().unwrap());
         for c in &summary.channels {
             assert_eq!(

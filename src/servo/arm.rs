@@ -1802,108 +1802,23 @@ mod tests {
         assert!((slow - (240.0 / 57_600.0 + 0.00125)).abs() < 1e-6, "{slow}");
     }
 
-    /// Servos that boot for `boot` on `clock` after each REBOOT, deaf until then.
+    /// Servos that boot for `boot` on `clock` after each REBOOT they hear, deaf until then (a
+    /// REBOOT sent meanwhile is lost); `latched`: the hardware error a REBOOT clears, shown in
+    /// every ping's alert flag; what each REBOOT loses is taken from `fates` (none: nothing).
     struct Booting {
         inner: NullBus,
         clock: ManualClock,
         boot: Duration,
         until: std::collections::HashMap<u8, std::time::Instant>,
+        latched: bool,
+        fates: Vec<Lost>,
+        reboots: u32,
     }
 
-    impl ServoBus for Booting {
-        fn baud(&self) -> u32 {
-            self.inner.baud()
+    impl Booting {
+        fn deaf(&self, id: u8) -> bool {
+            self.until.get(&id).is_some_and(|&u| self.clock.now() < u)
         }
-        fn set_baud(&mut self, b: u32) -> Result<(), ServoError> {
-            self.inner.set_baud(b)
-        }
-        fn ping(&mut self, id: u8, t: Duration) -> Result<PingInfo, ServoError> {
-            if self.until.get(&id).is_some_and(|&u| self.clock.now() < u) {
-                return Err(ServoError::Timeout { id, waited: t });
-            }
-            self.inner.ping(id, t)
-        }
-        fn scan(&mut self, t: Duration) -> Result<Vec<PingInfo>, ServoError> {
-            self.inner.scan(t)
-        }
-        fn read(&mut self, id: u8, r: Register, t: Duration) -> Result<Value, ServoError> {
-            self.inner.read(id, r, t)
-        }
-        fn write(&mut self, id: u8, r: Register, v: i64, t: Duration) -> Result<Ack, ServoError> {
-            self.inner.write(id, r, v, t)
-        }
-        fn sync_read_into(
-            &mut self,
-            ids: &[u8],
-            a: u16,
-            l: u16,
-            t: Duration,
-            out: &mut SyncReadBuf,
-        ) -> Result<(), ServoError> {
-            self.inner.sync_read_into(ids, a, l, t, out)
-        }
-        fn sync_write(&mut self, r: Register, v: &[(u8, i64)]) -> Result<(), ServoError> {
-            self.inner.sync_write(r, v)
-        }
-        fn write_goals(&mut self, g: &[Goal]) -> Result<(), ServoError> {
-            self.inner.write_goals(g)
-        }
-        fn reboot(&mut self, id: u8, t: Duration) -> Result<Ack, ServoError> {
-            self.until.insert(id, self.clock.now() + self.boot);
-            self.inner.reboot(id, t)
-        }
-    }
-
-    #[test]
-    fn servos_rebooted_together_boot_together() {
-        let boot = Duration::from_millis(400);
-        let clock = ManualClock::new();
-        let mut bus = booting(&clock, boot);
-        let ids = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
-        reboot_all_and_wait(&mut bus, &ids, T, &clock, &mut Retry::default()).unwrap();
-        // One boot, waited for in 10 ms steps, not twelve in a row.
-        let took = clock.elapsed();
-        assert!(
-            took >= boot && took <= boot + Duration::from_millis(10),
-            "{took:?}"
-        );
-        for id in ids {
-            assert!(bus.ping(id, T).is_ok(), "servo {id} back");
-        }
-        // One by one, each waits out its own boot.
-        let start = clock.elapsed();
-        for id in ids {
-            reboot_and_wait(&mut bus, id, T, &clock, &mut Retry::default()).unwrap();
-        }
-        assert!(clock.elapsed() - start >= boot * 12);
-    }
-
-    /// A [`Booting`] bus of servos that boot for `boot` on `clock`.
-    fn booting(clock: &ManualClock, boot: Duration) -> Booting {
-        Booting {
-            inner: NullBus::new(1060),
-            clock: clock.clone(),
-            boot,
-            until: Default::default(),
-        }
-    }
-
-    #[test]
-    fn a_rebooted_servo_is_waited_for_on_the_given_clock() {
-        let clock = ManualClock::new();
-        let mut bus = booting(&clock, Duration::from_millis(70));
-        reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap();
-        // Seven silent pings, 10 ms apart on the clock, none of it on wall time.
-        assert_eq!(clock.elapsed(), Duration::from_millis(70));
-    }
-
-    #[test]
-    fn a_servo_that_never_comes_back_is_given_up_after_the_reboot_wait() {
-        let clock = ManualClock::new();
-        let mut bus = booting(&clock, Duration::from_secs(3600));
-        let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap_err();
-        assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");
-        assert_eq!(clock.elapsed(), REBOOT_WAIT);
     }
 
     /// What the bus loses of one REBOOT.
@@ -1917,31 +1832,7 @@ mod tests {
         Instruction,
     }
 
-    /// One servo with a hardware error latched: a REBOOT it hears clears the error and leaves
-    /// it deaf to the next `boot_pings` exchanges; what each REBOOT loses is taken from `fates`.
-    struct Latched {
-        inner: NullBus,
-        latched: bool,
-        deaf: u32,
-        boot_pings: u32,
-        fates: Vec<Lost>,
-        reboots: u32,
-    }
-
-    impl Latched {
-        fn new(fates: &[Lost]) -> Self {
-            Self {
-                inner: NullBus::new(1060),
-                latched: true,
-                deaf: 0,
-                boot_pings: 4,
-                fates: fates.to_vec(),
-                reboots: 0,
-            }
-        }
-    }
-
-    impl ServoBus for Latched {
+    impl ServoBus for Booting {
         fn baud(&self) -> u32 {
             self.inner.baud()
         }
@@ -1949,8 +1840,7 @@ mod tests {
             self.inner.set_baud(b)
         }
         fn ping(&mut self, id: u8, t: Duration) -> Result<PingInfo, ServoError> {
-            if self.deaf > 0 {
-                self.deaf -= 1;
+            if self.deaf(id) {
                 return Err(ServoError::Timeout { id, waited: t });
             }
             let p = self.inner.ping(id, t)?;
@@ -1987,8 +1877,7 @@ mod tests {
         fn reboot(&mut self, id: u8, t: Duration) -> Result<Ack, ServoError> {
             self.reboots += 1;
             let lost = ServoError::Timeout { id, waited: t };
-            if self.deaf > 0 {
-                self.deaf -= 1;
+            if self.deaf(id) {
                 return Err(lost);
             }
             let fate = if self.fates.is_empty() {
@@ -1998,7 +1887,7 @@ mod tests {
             };
             if !matches!(fate, Lost::Instruction) {
                 self.latched = false;
-                self.deaf = self.boot_pings;
+                self.until.insert(id, self.clock.now() + self.boot);
             }
             match fate {
                 Lost::Nothing => self.inner.reboot(id, t),
@@ -2006,11 +1895,75 @@ mod tests {
             }
         }
     }
+    #[test]
+    fn servos_rebooted_together_boot_together() {
+        let boot = Duration::from_millis(400);
+        let clock = ManualClock::new();
+        let mut bus = booting(&clock, boot);
+        let ids = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
+        reboot_all_and_wait(&mut bus, &ids, T, &clock, &mut Retry::default()).unwrap();
+        // One boot, waited for in 10 ms steps, not twelve in a row.
+        let took = clock.elapsed();
+        assert!(
+            took >= boot && took <= boot + Duration::from_millis(10),
+            "{took:?}"
+        );
+        for id in ids {
+            assert!(bus.ping(id, T).is_ok(), "servo {id} back");
+        }
+        // One by one, each waits out its own boot.
+        let start = clock.elapsed();
+        for id in ids {
+            reboot_and_wait(&mut bus, id, T, &clock, &mut Retry::default()).unwrap();
+        }
+        assert!(clock.elapsed() - start >= boot * 12);
+    }
+
+    /// Servos without a latched error that boot for `boot` on `clock` after each REBOOT.
+    fn booting(clock: &ManualClock, boot: Duration) -> Booting {
+        Booting {
+            inner: NullBus::new(1060),
+            clock: clock.clone(),
+            boot,
+            until: Default::default(),
+            latched: false,
+            fates: Vec::new(),
+            reboots: 0,
+        }
+    }
+
+    #[test]
+    fn a_rebooted_servo_is_waited_for_on_the_given_clock() {
+        let clock = ManualClock::new();
+        let mut bus = booting(&clock, Duration::from_millis(70));
+        reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap();
+        // Seven silent pings, 10 ms apart on the clock, none of it on wall time.
+        assert_eq!(clock.elapsed(), Duration::from_millis(70));
+    }
+
+    #[test]
+    fn a_servo_that_never_comes_back_is_given_up_after_the_reboot_wait() {
+        let clock = ManualClock::new();
+        let mut bus = booting(&clock, Duration::from_secs(3600));
+        let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut Retry::default()).unwrap_err();
+        assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");
+        assert_eq!(clock.elapsed(), REBOOT_WAIT);
+    }
+
+    /// One servo with a hardware error latched, booting 40 ms (four pings 10 ms apart) after
+    /// a REBOOT it hears; what each REBOOT loses is taken from `fates`.
+    fn latched(clock: &ManualClock, fates: &[Lost]) -> Booting {
+        Booting {
+            latched: true,
+            fates: fates.to_vec(),
+            ..booting(clock, Duration::from_millis(40))
+        }
+    }
 
     #[test]
     fn a_reboot_whose_ack_is_lost_is_waited_for_and_not_sent_again() {
-        let mut bus = Latched::new(&[Lost::Ack]);
         let clock = ManualClock::new();
+        let mut bus = latched(&clock, &[Lost::Ack]);
         let mut retry = Retry::default();
         reboot_and_wait(&mut bus, 3, T, &clock, &mut retry).unwrap();
         assert!(!bus.latched);
@@ -2021,8 +1974,8 @@ mod tests {
 
     #[test]
     fn a_reboot_that_never_arrived_is_sent_again_once_the_servo_answers_with_its_error() {
-        let mut bus = Latched::new(&[Lost::Instruction, Lost::Ack]);
         let clock = ManualClock::new();
+        let mut bus = latched(&clock, &[Lost::Instruction, Lost::Ack]);
         let mut retry = Retry::default();
         reboot_and_wait(&mut bus, 3, T, &clock, &mut retry).unwrap();
         assert!(!bus.latched);
@@ -2031,8 +1984,8 @@ mod tests {
 
     #[test]
     fn reboots_that_never_arrive_are_sent_four_times_then_reported() {
-        let mut bus = Latched::new(&[Lost::Instruction; 5]);
         let clock = ManualClock::new();
+        let mut bus = latched(&clock, &[Lost::Instruction; 5]);
         let mut retry = Retry::default();
         let err = reboot_and_wait(&mut bus, 3, T, &clock, &mut retry).unwrap_err();
         assert!(matches!(err, ServoError::Timeout { id: 3, .. }), "{err}");

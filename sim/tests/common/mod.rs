@@ -148,3 +148,19 @@ pub fn send_all(port: &mut impl Write, handle: &SimHandle, bytes: &[u8]) -> (u64
         std::thread::sleep(Duration::from_millis(1));
     }
 }
+
+/// A Fast read's reply `bytes` is the undamaged `whole` but for one byte inside the block at
+/// `block` (its ERR to its CRC): the running CRC ending just before the block still checks,
+/// the one ending the block (through the damaged byte) does not.
+pub fn assert_one_block_corrupted(bytes: &[u8], whole: &[u8], block: std::ops::Range<usize>) {
+    assert_eq!(bytes.len(), whole.len());
+    let differs: Vec<usize> = (0..whole.len()).filter(|&i| bytes[i] != whole[i]).collect();
+    assert_eq!(differs.len(), 1, "{differs:?}");
+    assert!(block.contains(&differs[0]), "{differs:?} outside {block:?}");
+    let crc_at = |end: usize| u16::from_le_bytes([bytes[end - 2], bytes[end - 1]]);
+    assert_eq!(
+        protocol::crc16(&bytes[..block.start - 2]),
+        crc_at(block.start)
+    );
+    assert_ne!(protocol::crc16(&bytes[..block.end - 2]), crc_at(block.end));
+}

@@ -700,6 +700,11 @@ pub(super) struct Rebooting {
 }
 
 impl Rebooting {
+    /// The servos a tick reads, of the arm's `all`: while servos reboot (`job`), the others.
+    pub fn read_ids<'a>(job: Option<&'a Rebooting>, all: &'a [u8]) -> &'a [u8] {
+        job.map_or(all, |j| &j.reading)
+    }
+
     /// The servos that may still be booting.
     pub fn booting(&self) -> impl Iterator<Item = u8> + '_ {
         self.reboots.ids().iter().copied()

@@ -13,6 +13,7 @@ use crate::servo::{
     units, ErrorClass, Fields, HardwareErrors, Layout, Register, ServoBus, ServoError,
 };
 
+use super::commands::Rebooting;
 use super::health::{JointFault, Limits};
 use super::port::{ReopenError, RETRY_EVERY};
 use super::Cycle;
@@ -54,17 +55,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if health {
             self.measured.begin_health();
         }
-        // While servos reboot, the others alone.
-        let ids = match &self.rebooting {
-            Some(job) => &job.reading,
-            None => &self.ids,
-        };
+        let ids = Rebooting::read_ids(self.rebooting.as_ref(), &self.ids);
         let read = self
             .port
             .bus()
             .read_block_into(ids, layout, timeout, &mut self.states);
         let read_count = ids.len();
-        let joint = |slot: usize, job: Option<&super::commands::Rebooting>| {
+        let joint = |slot: usize, job: Option<&Rebooting>| {
             job.map_or(Some(slot), |j| j.joints.get(slot).copied())
         };
         let mut attention = false;
@@ -348,11 +345,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.torque_off_pending.clear();
             return;
         }
-        // The servos this tick read: while servos reboot, the others alone.
-        let read = match &self.rebooting {
-            Some(job) => &job.reading,
-            None => &self.ids,
-        };
+        let read = Rebooting::read_ids(self.rebooting.as_ref(), &self.ids);
         let answered = self.torque_off_pending.iter().any(|id| {
             read.iter()
                 .position(|x| x == id)
