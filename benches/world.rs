@@ -13,6 +13,9 @@
 //!   pose's tip, 16 seeded cases cycled, each case's discs drawn around its own start pose and
 //!   its target kept 3 cm from every disc.
 //!
+//! - `validate`: [`World::new`] of the most polygon points a world may hold (1024): one star
+//!   of 1024 points, and sixteen 64-gons in a grid (what `set_world` checks in a tick).
+//!
 //! Before each group a probe times every tick (warm, 2000 ticks) or case (cold, median of 3
 //! runs each) on its own and prints the median, its ratio to the same n without obstacles
 //! (warm: also the 99th percentile and the longest tick), the mean iterations and how many did
@@ -272,6 +275,38 @@ fn cold(c: &mut Criterion) {
     group.finish();
 }
 
+/// A star of `n` points round `centre`, radii alternating between `r` and `0.6 r`.
+fn star(n: usize, centre: Vec2, r: f64) -> Vec<Vec2> {
+    (0..n)
+        .map(|k| {
+            let a = 2.0 * PI * k as f64 / n as f64;
+            let r = if k % 2 == 0 { r } else { 0.6 * r };
+            centre + Vec2::new(a.cos(), a.sin()) * r
+        })
+        .collect()
+}
+
+fn validate(c: &mut Criterion) {
+    let polygon = |id: String, points| Obstacle {
+        id,
+        shape: Shape::Polygon { points },
+    };
+    let one_star = vec![polygon("star".into(), star(1024, Vec2::new(0.0, 0.5), 0.3))];
+    let grid: Vec<Obstacle> = (0..16)
+        .map(|k| {
+            let centre = Vec2::new(-0.6 + 0.4 * (k % 4) as f64, 0.2 + 0.3 * (k / 4) as f64);
+            polygon(format!("g{k}"), star(64, centre, 0.1))
+        })
+        .collect();
+    let mut group = c.benchmark_group("world/validate");
+    for (name, obstacles) in [("star_1024", one_star), ("grid_16x64", grid)] {
+        group.bench_function(name, |b| {
+            b.iter(|| World::new(LINK_RADIUS, CLEARANCE, black_box(obstacles.clone())).unwrap())
+        });
+    }
+    group.finish();
+}
+
 fn config() -> Criterion {
     Criterion::default()
         .sample_size(20)
@@ -282,6 +317,6 @@ fn config() -> Criterion {
 criterion_group! {
     name = benches;
     config = config();
-    targets = warm, cold
+    targets = warm, cold, validate
 }
 criterion_main!(benches);

@@ -1068,12 +1068,9 @@ impl Controller {
         if self.rounding_m == 0.0 || self.world.obstacles().is_empty() {
             return self.world.clone();
         }
-        World::new(
-            self.world.link_radius_m(),
-            self.world.clearance_m() + self.rounding_m,
-            self.world.obstacles().to_vec(),
-        )
-        .unwrap_or_else(|_| self.world.clone())
+        self.world
+            .with_clearance(self.world.clearance_m() + self.rounding_m)
+            .unwrap_or_else(|_| self.world.clone())
     }
 
     /// The clearance of the commanded pose, m (from its points, kept by the controller);

@@ -276,3 +276,127 @@ fn pairs_deeper_than_a_negative_margin_are_listed() {
         pair.clearance_m
     );
 }
+
+/// The polygon check against a scan of every pair of points and every pair of edges, in
+/// order: the same verdict and the same first fault (point, edges, place of contact).
+mod polygon_check {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn scan(points: &[Vec2]) -> Result<(), WorldError> {
+        let field = "p.points".to_string();
+        for (j, p) in points.iter().enumerate() {
+            if let Some(first) = points[..j].iter().position(|q| q == p) {
+                return Err(WorldError::RepeatedPoint {
+                    field: format!("{field}[{j}]"),
+                    first,
+                    x: p.x,
+                    y: p.y,
+                });
+            }
+        }
+        let n = points.len();
+        let edge = |k: usize| (points[k], points[(k + 1) % n]);
+        for a in 0..n {
+            let ((a0, a1), (_, a2)) = (edge(a), edge((a + 1) % n));
+            let (u, w) = (a1 - a0, a2 - a1);
+            if cross(u, w) == 0.0 && u.dot(&w) < 0.0 {
+                let (x, y) = (a1.x, a1.y);
+                let (edge_a, edge_b) = (a, (a + 1) % n);
+                return Err(WorldError::SelfIntersecting {
+                    field,
+                    edge_a,
+                    edge_b,
+                    x,
+                    y,
+                });
+            }
+            for b in a + 2..n {
+                if a == 0 && b == n - 1 {
+                    continue;
+                }
+                let (b0, b1) = edge(b);
+                let (d2, p, _, _) = geometry::segment_segment(a0, a1, b0, b1);
+                if d2 == 0.0 {
+                    let (x, y) = (p.x, p.y);
+                    return Err(WorldError::SelfIntersecting {
+                        field,
+                        edge_a: a,
+                        edge_b: b,
+                        x,
+                        y,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn checked(points: &[Vec2]) -> Result<(), WorldError> {
+        super::super::check_polygon("p", points)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(3000))]
+
+        /// Points on a coarse grid: repeats, folds, collinear overlaps and edges through
+        /// vertices are common, crossings more so.
+        #[test]
+        fn grid_polygons_get_the_scans_verdict(
+            cells in proptest::collection::vec((-3i32..=3, -3i32..=3), 3..14),
+            signed_zero in any::<bool>(),
+        ) {
+            let pts: Vec<Vec2> = cells
+                .iter()
+                .map(|&(x, y)| {
+                    let x = f64::from(x) * 0.5;
+                    v(if signed_zero && x == 0.0 { -0.0 } else { x }, f64::from(y) * 0.25)
+                })
+                .collect();
+            prop_assert_eq!(checked(&pts), scan(&pts));
+        }
+
+        /// Stars round the origin, some of their points then moved anywhere: mostly simple,
+        /// some crossing.
+        #[test]
+        fn stars_get_the_scans_verdict(
+            radii in proptest::collection::vec(0.2..1.0f64, 3..40),
+            moved in proptest::collection::vec((0usize..40, -1.0..1.0f64, -1.0..1.0f64), 0..3),
+        ) {
+            let n = radii.len();
+            let mut pts: Vec<Vec2> = radii
+                .iter()
+                .enumerate()
+                .map(|(k, r)| {
+                    let a = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+                    v(r * a.cos(), r * a.sin())
+                })
+                .collect();
+            for (k, x, y) in moved {
+                pts[k % n] = v(x, y);
+            }
+            prop_assert_eq!(checked(&pts), scan(&pts));
+        }
+    }
+
+    #[test]
+    fn the_first_fault_of_a_long_polygon_is_the_scans() {
+        // A 1000-point star, then its last point pulled across the first edges.
+        let n = 1000;
+        let mut pts: Vec<Vec2> = (0..n)
+            .map(|k| {
+                let a = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+                let r = if k % 2 == 0 { 1.0 } else { 0.6 };
+                v(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        assert_eq!(checked(&pts), Ok(()));
+        pts[n - 1] = v(0.9, 0.3);
+        let e = checked(&pts);
+        assert!(
+            matches!(e, Err(WorldError::SelfIntersecting { .. })),
+            "{e:?}"
+        );
+        assert_eq!(e, scan(&pts));
+    }
+}

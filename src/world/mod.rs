@@ -314,6 +314,12 @@ fn non_negative(field: &str, value: f64) -> Result<(), WorldError> {
 }
 
 /// Checks one polygon's points: count, finiteness, repeats, edges that touch or cross.
+///
+/// The first fault in the order of a plain scan is reported (the lowest point repeating an
+/// earlier one; the lowest pair of edges, an edge folding back onto the next counted with
+/// that next), found in O(n log n) plus the pairs whose boxes overlap: a polygon of the
+/// most points a world allows is checked in well under a millisecond, not the tens of
+/// milliseconds every pair would take.
 fn check_polygon(at: &str, points: &[Vec2]) -> Result<(), WorldError> {
     let field = format!("{at}.points");
     if points.len() < 3 {
@@ -327,50 +333,113 @@ fn check_polygon(at: &str, points: &[Vec2]) -> Result<(), WorldError> {
             finite(|| format!("{field}[{j}]"), v)?;
         }
     }
-    for (j, p) in points.iter().enumerate() {
-        if let Some(first) = points[..j].iter().position(|q| q == p) {
-            return Err(WorldError::RepeatedPoint {
-                field: format!("{field}[{j}]"),
-                first,
-                x: p.x,
-                y: p.y,
-            });
-        }
+    if let Some((j, first)) = first_repeat(points) {
+        return Err(WorldError::RepeatedPoint {
+            field: format!("{field}[{j}]"),
+            first,
+            x: points[j].x,
+            y: points[j].y,
+        });
     }
-    let n = points.len();
-    let edge = |k: usize| (points[k], points[(k + 1) % n]);
-    for a in 0..n {
-        let (a0, a1) = edge(a);
-        // Neighbours meet at a point; they are wrong only when they fold back onto each other.
-        let (_, a2) = edge((a + 1) % n);
-        let (u, v) = (a1 - a0, a2 - a1);
-        if geometry::cross(u, v) == 0.0 && u.dot(&v) < 0.0 {
-            return Err(WorldError::SelfIntersecting {
-                field,
-                edge_a: a,
-                edge_b: (a + 1) % n,
-                x: a1.x,
-                y: a1.y,
-            });
-        }
-        for b in a + 2..n {
-            if a == 0 && b == n - 1 {
-                continue; // neighbours through the closing point
-            }
-            let (b0, b1) = edge(b);
-            let (d2, p, _, _) = geometry::segment_segment(a0, a1, b0, b1);
-            if d2 == 0.0 {
-                return Err(WorldError::SelfIntersecting {
-                    field,
-                    edge_a: a,
-                    edge_b: b,
-                    x: p.x,
-                    y: p.y,
-                });
-            }
-        }
+    if let Some((edge_a, edge_b, p)) = first_touch(points) {
+        return Err(WorldError::SelfIntersecting {
+            field,
+            edge_a,
+            edge_b,
+            x: p.x,
+            y: p.y,
+        });
     }
     Ok(())
+}
+
+/// The lowest index `j` whose point equals an earlier one, with that earlier one's index.
+fn first_repeat(points: &[Vec2]) -> Option<(usize, usize)> {
+    // `+ 0.0` makes -0 and 0 one key, as `==` takes them.
+    let key = |k: usize| (points[k].x + 0.0, points[k].y + 0.0);
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    order.sort_unstable_by(|&i, &j| {
+        let (a, b) = (key(i), key(j));
+        a.0.total_cmp(&b.0)
+            .then(a.1.total_cmp(&b.1))
+            .then(i.cmp(&j))
+    });
+    let mut group = order[0];
+    let mut found: Option<(usize, usize)> = None;
+    for w in order.windows(2) {
+        if key(w[0]) != key(w[1]) {
+            group = w[1];
+        } else if found.is_none_or(|(j, _)| w[1] < j) {
+            found = Some((w[1], group));
+        }
+    }
+    found
+}
+
+/// Relative slack added to each edge's box, so that round-off in the exact distance never
+/// finds a touch between edges whose boxes were taken as apart.
+const BOX_SLACK: f64 = 64.0 * f64::EPSILON;
+
+/// The first pair of edges `(a, b)` that touch, by `a` then `b` (edge `k` runs from point `k`
+/// to the next), with a point of contact: two neighbours when they fold back onto each other
+/// (at their shared point), others when their distance is zero. Edges are swept in the order
+/// of their boxes' left sides; only pairs whose boxes overlap are measured.
+fn first_touch(points: &[Vec2]) -> Option<(usize, usize, Vec2)> {
+    let n = points.len();
+    let edge = |k: usize| (points[k], points[(k + 1) % n]);
+    // Keys (a, b) in the order of a scan over `a`, then `b`; a fold of `a` onto its next
+    // comes first among `a`'s pairs, keyed `a + 1` (`n` for the closing one).
+    let mut found: Option<((usize, usize), usize, Vec2)> = None;
+    let offer = |found: &mut Option<_>, key: (usize, usize), b: usize, p: Vec2| {
+        if found.as_ref().is_none_or(|(k, _, _)| key < *k) {
+            *found = Some((key, b, p));
+        }
+    };
+    for a in 0..n {
+        let ((a0, a1), (_, a2)) = (edge(a), edge((a + 1) % n));
+        let (u, v) = (a1 - a0, a2 - a1);
+        if geometry::cross(u, v) == 0.0 && u.dot(&v) < 0.0 {
+            offer(&mut found, (a, a + 1), (a + 1) % n, a1);
+        }
+    }
+    let boxes: Vec<[f64; 4]> = (0..n)
+        .map(|k| {
+            let (a, b) = edge(k);
+            let slack = BOX_SLACK * (1.0 + a.abs().max().max(b.abs().max()));
+            [
+                a.x.min(b.x) - slack,
+                a.x.max(b.x) + slack,
+                a.y.min(b.y) - slack,
+                a.y.max(b.y) + slack,
+            ]
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_unstable_by(|&i, &j| boxes[i][0].total_cmp(&boxes[j][0]));
+    let mut open: Vec<usize> = Vec::new();
+    for &k in &order {
+        let [left, _, bottom, top] = boxes[k];
+        open.retain(|&o| boxes[o][1] >= left);
+        for &o in &open {
+            let (a, b) = (k.min(o), k.max(o));
+            if b == a + 1 || (a == 0 && b == n - 1) {
+                continue; // neighbours: they meet at a point, and only a fold is wrong
+            }
+            if boxes[o][3] < bottom || boxes[o][2] > top {
+                continue;
+            }
+            if found.as_ref().is_some_and(|(key, _, _)| *key <= (a, b)) {
+                continue;
+            }
+            let ((a0, a1), (b0, b1)) = (edge(a), edge(b));
+            let (d2, p, _, _) = geometry::segment_segment(a0, a1, b0, b1);
+            if d2 == 0.0 {
+                offer(&mut found, (a, b), b, p);
+            }
+        }
+        open.push(k);
+    }
+    found.map(|((a, _), b, p)| (a, b, p))
 }
 
 impl Default for World {
@@ -464,6 +533,16 @@ impl World {
             clearance_m,
             obstacles,
             bounds,
+        })
+    }
+
+    /// The same obstacles and link radius with another clearance, without checking the
+    /// obstacles again.
+    pub fn with_clearance(&self, clearance_m: f64) -> Result<Self, WorldError> {
+        non_negative("clearance_m", clearance_m)?;
+        Ok(Self {
+            clearance_m,
+            ..self.clone()
         })
     }
 
