@@ -17,7 +17,8 @@
 //! elsewhere and keep the normal policy.
 
 use thread_priority::{
-    RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,
+    NormalThreadSchedulePolicy, RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue,
+    ThreadSchedulePolicy,
 };
 
 /// The real-time priorities `SCHED_FIFO` takes on Linux.
@@ -97,6 +98,28 @@ pub fn step_aside() -> Option<i32> {
         tracing::debug!("{name}: runs at the loop's priority (could not lower it)");
     }
     nice
+}
+
+/// For a thread the loop starts to work beside it (a route's planning, up to tens of
+/// milliseconds of CPU): a real-time policy inherited from the loop is left for the normal one
+/// at its lowest priority (nice 19), so that it never takes a core from the loop, its ports or
+/// the servos' replies; under the normal policy it steps aside as the side threads do
+/// ([`step_aside`]). A thread may always lower its own priority: this needs no privilege.
+pub fn step_aside_from_the_loop() {
+    let native = thread_priority::thread_native_id();
+    let inherited = thread_priority::thread_schedule_policy_param(native);
+    if !matches!(inherited, Ok((ThreadSchedulePolicy::Realtime(_), _))) {
+        step_aside();
+        return;
+    }
+    let normal = ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Other);
+    if let Err(e) =
+        thread_priority::set_thread_priority_and_policy(native, ThreadPriority::Min, normal)
+    {
+        let thread = std::thread::current();
+        let name = thread.name().unwrap_or("a thread beside the loop");
+        tracing::warn!("{name}: keeps the loop's real-time policy (could not leave it: {e})");
+    }
 }
 
 fn lower_own_priority() -> Option<i32> {
@@ -188,5 +211,32 @@ mod tests {
             rustix::process::getpriority_process(Some(tid)).unwrap(),
             before
         );
+    }
+
+    #[test]
+    fn a_thread_the_loop_starts_to_work_beside_it_leaves_its_real_time_policy() {
+        let before = rustix::process::getpriority_process(None).unwrap();
+        let (took, after, nice) = std::thread::spawn(|| {
+            let took = realtime(7).is_ok();
+            step_aside_from_the_loop();
+            let tid = rustix::thread::gettid();
+            (
+                took,
+                policy(),
+                rustix::process::getpriority_process(Some(tid)).unwrap(),
+            )
+        })
+        .join()
+        .unwrap();
+        let normal = ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Other);
+        assert_eq!(after, (normal, 0));
+        // From the loop's real-time policy to the lowest normal priority; without the privilege
+        // to take it, stepped aside as the side threads do.
+        let expected = if took {
+            19
+        } else {
+            (before + STEP_ASIDE_NICE).min(19)
+        };
+        assert_eq!(nice, expected);
     }
 }

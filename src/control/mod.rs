@@ -321,11 +321,10 @@ pub enum Refused {
         needed_m: f64,
     },
     /// A goto or path whose routes need more work to find than a command may spend
-    /// ([`MAX_ROUTE_WORK`], shared by a path's legs): planning runs in the control loop's tick.
+    /// ([`MAX_ROUTE_WORK`], shared by a path's legs).
     #[error(
         "finding the route to the {what} ({x}, {y}) needs more than the {limit} segment checks a \
-         command may spend, so that the control loop keeps its rate: give fewer path points, or \
-         obstacles of fewer polygon points"
+         command may spend: give fewer path points, or obstacles of fewer polygon points"
     )]
     RouteTooLong {
         /// What it was ("target", "path point").
@@ -440,6 +439,117 @@ pub struct Tick {
     pub m3_rad2: f64,
     /// Resolver iterations spent, summed over bisection and re-solves.
     pub iterations: usize,
+}
+
+/// How [`Controller::command_within`] took a command.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Accepted {
+    /// In force from the next tick.
+    Now,
+    /// A `goto` or `path` among obstacles whose routes need more work than was given: nothing
+    /// changed; plan them with [`plan_route`] and start them with [`Controller::start_route`].
+    Plan(RouteRequest),
+}
+
+/// The routes a `goto` or `path` asks for: from `from` through `points` in turn, in `world`
+/// (the world the controller plans in, its clearance raised for the joints' resolution).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RouteRequest {
+    /// Where the tip was, m.
+    pub from: Vec2,
+    /// The command's points (a `goto`'s one target), m.
+    pub points: Vec<Vec2>,
+    /// What they are, for messages ("target", "path point").
+    pub what: &'static str,
+    /// The command's speed, m/s.
+    pub speed: f64,
+    /// The world planned in.
+    pub world: World,
+}
+
+/// Planned routes: the tip's way from the request's `from` through its points, and whether it
+/// comes to rest at each waypoint (at the command's points, not at the corners between them).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedRoute {
+    way: Vec<Vec2>,
+    rest: Vec<bool>,
+}
+
+impl PlannedRoute {
+    /// The waypoints, the first the request's `from`.
+    pub fn waypoints(&self) -> &[Vec2] {
+        &self.way
+    }
+}
+
+/// A route planned for a tip or a world that is no longer the controller's: plan again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the route was planned from another tip or in another world")]
+pub struct Replan;
+
+/// The routes of `request` with at most `work` (checks of a segment against an edge or a
+/// circle; a `path`'s legs share it): each leg the shortest that keeps the tip clear
+/// ([`World::route`]), at rest at each point. Pure: the daemon runs it beside its loop for a
+/// command whose routes take longer than a tick can spare.
+///
+/// A point inside a grown obstacle is refused; so is one closed off. From a start already
+/// too near an obstacle (a world changed under the tip) the first leg is the straight line,
+/// which the clearance check in each tick still guards; its point is refused all the same
+/// when the tip can never be clear there. Over `work`: [`Refused::RouteTooLong`], naming
+/// [`MAX_ROUTE_WORK`], the most a command may spend.
+pub fn plan_route(request: &RouteRequest, work: u64) -> Result<PlannedRoute, Refused> {
+    let what = request.what;
+    let mut way = vec![request.from];
+    let mut rest = vec![true];
+    let mut from = request.from;
+    let mut left = work;
+    for &p in &request.points {
+        match request.world.route_within(from, p, &mut left) {
+            Ok(r) => {
+                let n = r.waypoints.len();
+                for (k, w) in r.waypoints.into_iter().enumerate().skip(1) {
+                    way.push(w);
+                    rest.push(k + 1 == n);
+                }
+            }
+            Err(RouteError::Inside {
+                end: RouteEnd::Start,
+                ..
+            }) => {
+                way.push(p);
+                rest.push(true);
+            }
+            Err(RouteError::Inside {
+                end: RouteEnd::Goal,
+                id,
+                needed_m,
+                ..
+            }) => {
+                return Err(Refused::InsideObstacle {
+                    what,
+                    x: p.x,
+                    y: p.y,
+                    obstacle: id,
+                    grown_m: needed_m,
+                })
+            }
+            Err(RouteError::NoRoute { needed_m }) => {
+                return Err(Refused::NoRoute { what, needed_m })
+            }
+            // The leg was given what the legs before it left: name the command's whole.
+            Err(RouteError::TooMuchWork { .. }) => {
+                return Err(Refused::RouteTooLong {
+                    what,
+                    x: p.x,
+                    y: p.y,
+                    limit: MAX_ROUTE_WORK,
+                })
+            }
+            Err(_) => return Err(Refused::NotFinite { what }),
+        }
+        from = p;
+    }
+    Ok(PlannedRoute { way, rest })
 }
 
 /// The control core: the commanded pose and everything that moves it.
@@ -772,6 +882,25 @@ impl Controller {
     /// never arrive). Its way there may still be blocked by a pose in between that would
     /// touch: the move then stops short and ends [`Finish::Saturated`].
     pub fn command(&mut self, cmd: Command) -> Result<(), Refused> {
+        match self.command_within(cmd, MAX_ROUTE_WORK)? {
+            Accepted::Now => Ok(()),
+            // The whole budget was given: a route over it is refused, never handed back.
+            Accepted::Plan(r) => Err(Refused::RouteTooLong {
+                what: r.what,
+                x: r.points.last().map_or(f64::NAN, |p| p.x),
+                y: r.points.last().map_or(f64::NAN, |p| p.y),
+                limit: MAX_ROUTE_WORK,
+            }),
+        }
+    }
+
+    /// [`Controller::command`], spending at most `route_work` on the routes of a `goto` or
+    /// `path` among obstacles (checks of a segment against an edge or a circle). When they need
+    /// more (and less than [`MAX_ROUTE_WORK`]), nothing changes and the command comes back as
+    /// [`Accepted::Plan`]: its routes planned elsewhere with [`plan_route`], then started with
+    /// [`Controller::start_route`], so that the control loop never plans longer than it can
+    /// spare in a tick.
+    pub fn command_within(&mut self, cmd: Command, route_work: u64) -> Result<Accepted, Refused> {
         let max_speed = self.limits.max_tip_speed_m_s;
         let among = !self.world.obstacles().is_empty();
         match cmd {
@@ -779,7 +908,7 @@ impl Controller {
                 let target = check_point(target, "target")?;
                 let speed = check_speed(speed, max_speed)?;
                 if among {
-                    self.route(&[target], "target", speed)?;
+                    return self.route(vec![target], "target", speed, route_work);
                 } else {
                     self.motion.goto(target, speed);
                 }
@@ -793,7 +922,7 @@ impl Controller {
                 }
                 let speed = check_speed(speed, max_speed)?;
                 if among {
-                    self.route(&points, "path point", speed)?;
+                    return self.route(points, "path point", speed, route_work);
                 } else {
                     self.motion.path(points, speed);
                 }
@@ -825,69 +954,65 @@ impl Controller {
             Command::Stop => self.motion.stop(),
         }
         self.anchor = None;
+        Ok(Accepted::Now)
+    }
+
+    /// Among obstacles: the tip's route through `points` from where it is ([`plan_route`]),
+    /// started at once when it takes at most `work`, else handed back to be planned elsewhere.
+    fn route(
+        &mut self,
+        points: Vec<Vec2>,
+        what: &'static str,
+        speed: f64,
+        work: u64,
+    ) -> Result<Accepted, Refused> {
+        let request = RouteRequest {
+            from: self.tip,
+            points,
+            what,
+            speed,
+            world: self.plan.clone(),
+        };
+        match plan_route(&request, work) {
+            Ok(route) => {
+                self.motion.route(route.way, route.rest, speed);
+                self.anchor = None;
+                Ok(Accepted::Now)
+            }
+            Err(Refused::RouteTooLong { .. }) if work < MAX_ROUTE_WORK => {
+                Ok(Accepted::Plan(request))
+            }
+            Err(r) => Err(r),
+        }
+    }
+
+    /// Starts a route planned elsewhere for `request` (see [`Controller::command_within`]),
+    /// as the command would have started it. Refused with [`Replan`], nothing changed, when the
+    /// route no longer fits: the tip has moved from where it was planned, or the world planned
+    /// in (obstacles, clearance) has changed.
+    pub fn start_route(
+        &mut self,
+        request: &RouteRequest,
+        route: PlannedRoute,
+    ) -> Result<(), Replan> {
+        if self.tip != request.from || self.plan != request.world {
+            return Err(Replan);
+        }
+        self.motion.route(route.way, route.rest, request.speed);
+        self.anchor = None;
         Ok(())
     }
 
-    /// Among obstacles: the tip's route through `points` in turn from where it is, each leg the
-    /// shortest that keeps the tip clear ([`World::route`]), at rest at each point. A point
-    /// inside a grown obstacle is refused; so is one closed off. From a tip already too near
-    /// an obstacle (a world changed under it) the first leg is the straight line, which the
-    /// clearance check in each tick still guards; its point is refused all the same when the
-    /// tip can never be clear there.
-    fn route(&mut self, points: &[Vec2], what: &'static str, speed: f64) -> Result<(), Refused> {
-        let mut way = vec![self.tip];
-        let mut rest = vec![true];
-        let mut from = self.tip;
-        // One budget for all the legs: the loop plans in a tick.
-        let mut left = MAX_ROUTE_WORK;
-        for &p in points {
-            match self.plan.route_within(from, p, &mut left) {
-                Ok(r) => {
-                    let n = r.waypoints.len();
-                    for (k, w) in r.waypoints.into_iter().enumerate().skip(1) {
-                        way.push(w);
-                        rest.push(k + 1 == n);
-                    }
-                }
-                Err(RouteError::Inside {
-                    end: RouteEnd::Start,
-                    ..
-                }) => {
-                    way.push(p);
-                    rest.push(true);
-                }
-                Err(RouteError::Inside {
-                    end: RouteEnd::Goal,
-                    id,
-                    needed_m,
-                    ..
-                }) => {
-                    return Err(Refused::InsideObstacle {
-                        what,
-                        x: p.x,
-                        y: p.y,
-                        obstacle: id,
-                        grown_m: needed_m,
-                    })
-                }
-                Err(RouteError::NoRoute { needed_m }) => {
-                    return Err(Refused::NoRoute { what, needed_m })
-                }
-                // The leg was given what the legs before it left: name the command's whole.
-                Err(RouteError::TooMuchWork { .. }) => {
-                    return Err(Refused::RouteTooLong {
-                        what,
-                        x: p.x,
-                        y: p.y,
-                        limit: MAX_ROUTE_WORK,
-                    })
-                }
-                Err(_) => return Err(Refused::NotFinite { what }),
-            }
-            from = p;
+    /// A route request for the same points from where the tip is now, in the world in force:
+    /// what [`Controller::start_route`] takes after it asked for a [`Replan`].
+    pub fn replan(&self, request: &RouteRequest) -> RouteRequest {
+        RouteRequest {
+            from: self.tip,
+            points: request.points.clone(),
+            what: request.what,
+            speed: request.speed,
+            world: self.plan.clone(),
         }
-        self.motion.route(way, rest, speed);
-        Ok(())
     }
 
     /// Among obstacles: refuses a joint move whose straight way in joint space passes a pose

@@ -612,3 +612,54 @@ mod tick_by_tick {
         }
     }
 }
+
+#[test]
+fn a_route_handed_back_for_planning_starts_as_the_command_would_have_started_it() {
+    let home = vec![0.1; N];
+    let tip = chain().tip(&home);
+    // A post between the tip and the target: the route goes round it.
+    let post = circle_obstacle("post", tip + Vec2::new(-0.08, -0.08), 0.03);
+    let world = crate::world::World::new(0.01, 0.005, vec![post]).unwrap();
+    let target = tip + Vec2::new(-0.16, -0.16);
+    let goto = Command::Goto {
+        target,
+        speed: None,
+    };
+    let fresh = || {
+        let mut c = holding(limits(), &home);
+        assert!(c.set_world(world.clone()).is_none());
+        c
+    };
+    // Planned at once with the whole budget.
+    let mut direct = fresh();
+    direct.command(goto.clone()).unwrap();
+    // Handed back with too little, nothing changed; planned apart, started.
+    let mut apart = fresh();
+    let Accepted::Plan(request) = apart.command_within(goto.clone(), 10).unwrap() else {
+        panic!("planned within 10 checks");
+    };
+    assert_eq!(apart.activity(), Activity::Holding);
+    assert_eq!(request.from, tip);
+    let route = plan_route(&request, MAX_ROUTE_WORK).unwrap();
+    assert!(route.waypoints().len() > 2, "not round the post: {route:?}");
+    apart.start_route(&request, route.clone()).unwrap();
+    for _ in 0..300 {
+        let (a, b) = (direct.tick(0.01), apart.tick(0.01));
+        assert_eq!(a.tip_ref, b.tip_ref);
+    }
+    // A tip or a world that moved since: planned again.
+    let mut moved = fresh();
+    moved
+        .command(Command::Velocity {
+            v: Vec2::new(0.0, -0.05),
+        })
+        .unwrap();
+    moved.tick(0.01);
+    assert_eq!(moved.start_route(&request, route.clone()), Err(Replan));
+    let again = moved.replan(&request);
+    assert_eq!(again.from, moved.tip());
+    let mut changed = fresh();
+    let other = circle_obstacle("other", tip + Vec2::new(0.3, 0.3), 0.03);
+    changed.set_world(crate::world::World::new(0.01, 0.005, vec![other]).unwrap());
+    assert_eq!(changed.start_route(&request, route), Err(Replan));
+}

@@ -43,12 +43,12 @@ const MAX_TURN_STEPS: usize = 64;
 pub const MAX_ROUTE_NODES: usize = 2048;
 
 /// Most work one route may take, in checks of a segment against an obstacle's edge or circle
-/// (and of an arc node against each). It bounds what planning a command costs the control
-/// loop, which plans in a tick: past it the route is refused ([`RouteError::TooMuchWork`]),
-/// not searched for longer, and a `path` shares it among its legs. On a small 2-core machine a
-/// check takes 2 to 8 ns (most are a box apart), so a command plans in at most about 80 ms,
-/// within the servos' 100 ms bus watchdog. Threading a grid of sixteen 64-gons (1024 points)
-/// takes 9 million; a 512-point star, 5.6 million; post and shelf, a few thousand.
+/// (and of an arc node against each). It bounds what planning a command costs: past it the
+/// route is refused ([`RouteError::TooMuchWork`]), not searched for longer, and a `path`
+/// shares it among its legs. On a small 2-core machine a check takes 2 to 8 ns (most are a box
+/// apart), so a command plans in at most about 80 ms (the daemon plans what takes longer than
+/// a tick can spare beside its loop). Threading a grid of sixteen 64-gons (1024 points) takes
+/// 9 million; a 512-point star, 5.6 million; post and shelf, a few thousand.
 pub const MAX_ROUTE_WORK: u64 = 10_000_000;
 
 /// Nodes sit this fraction further out than the circumscribing radius, so round-off never
@@ -108,7 +108,7 @@ pub enum RouteError {
     /// The search needed more than the work it was given ([`MAX_ROUTE_WORK`] for one route).
     #[error(
         "the route needs more than {limit} segment checks among these obstacles, the most a \
-         command may spend so that the control loop keeps its rate"
+         command may spend"
     )]
     TooMuchWork {
         /// The work the search was given.

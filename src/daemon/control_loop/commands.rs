@@ -7,10 +7,10 @@ use std::time::Duration;
 use tokio::sync::oneshot;
 
 use crate::chain::Vec2;
-use crate::control::{self, Refused};
+use crate::control::{self, Accepted, Activity, Refused, Replan, RouteRequest};
 use crate::protocol::{
-    world_rejection, Answer, Applied, Code, LoopCmd, Motion, Rebooted, Rejection, Reply, Status,
-    StopReason, What, WorldInfo,
+    world_rejection, Answer, Applied, ClientId, CmdName, Code, LoopCmd, Motion, Rebooted,
+    Rejection, Reply, RequestId, Status, StopReason, What, WorldInfo,
 };
 use crate::servo::arm::{self, BringUpOptions, OnExit};
 use crate::servo::clock::Clock;
@@ -19,6 +19,7 @@ use crate::world::{Obstacle, World};
 
 use super::ledger::Renewal;
 use super::link::{Envelope, COMMAND_QUEUE, STOP_QUEUE};
+use super::planner::{Polled, MAX_REPLANS, TICK_ROUTE_WORK};
 use super::supervisor::Blocked;
 use super::{Cycle, Pending};
 
@@ -31,6 +32,20 @@ fn refuse(code: Code, message: impl Into<String>) -> Pending {
 
 fn applied(tick: u64) -> Pending {
     Pending::Ready(Ok(Reply::Applied(Applied { tick }).into()))
+}
+
+/// A command the controller refused: `unreachable` where no pose or route gets there, else
+/// `bad_arg`.
+fn refusal(r: Refused) -> Pending {
+    match r {
+        Refused::OutsideLimits { .. }
+        | Refused::SelfCollision { .. }
+        | Refused::InsideObstacle { .. }
+        | Refused::NotClearOnTheWay { .. }
+        | Refused::GoalNotClearAsSent { .. }
+        | Refused::NoRoute { .. } => refuse(Code::Unreachable, r.to_string()),
+        r => refuse(Code::BadArg, r.to_string()),
+    }
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -71,10 +86,12 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn take(&mut self, envelope: Envelope) {
         let pending = self.apply(&envelope);
         self.received.push(envelope.received);
-        match (pending, self.rebooting.as_mut()) {
+        match (pending, self.rebooting.as_mut(), self.planning.as_mut()) {
             // Answered when its servos are back (`tend_reboot`).
-            (Pending::Rebooting, Some(job)) => job.reply = Some(envelope.reply),
-            (pending, _) => self.pending.push((envelope.reply, pending)),
+            (Pending::Rebooting, Some(job), _) => job.reply = Some(envelope.reply),
+            // Answered when its routes are planned (`tend_planning`).
+            (Pending::Planning, _, Some(job)) => job.reply = Some(envelope.reply),
+            (pending, _, _) => self.pending.push((envelope.reply, pending)),
         }
     }
 
@@ -93,10 +110,14 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                         Ok(Reply::Status(Box::new(Status::of(t))).into())
                     })
                     .clone(),
-                // `take` keeps these with their reboot; none reaches here.
+                // `take` keeps these with their reboot or route; none reaches here.
                 Pending::Rebooting => Err(Rejection {
                     code: Code::Fault,
                     message: "the reboot is no longer under way".into(),
+                }),
+                Pending::Planning => Err(Rejection {
+                    code: Code::Fault,
+                    message: "the route is no longer being planned".into(),
                 }),
             };
             // A client gone before its answer is not an error.
@@ -150,6 +171,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                     ),
                 );
             }
+        }
+        if matches!(e.cmd, LoopCmd::Stop | LoopCmd::Estop | LoopCmd::Motion(_)) {
+            // A command whose routes are still being planned was taken before this one, which
+            // preempts it.
+            self.settle_planning(e.cmd.name());
         }
         match &e.cmd {
             LoopCmd::Status => Pending::Status,
@@ -267,20 +293,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if let Some(blocked) = self.supervisor.blocked() {
             return self.blocked(blocked, "send `reset` before moving");
         }
-        match self.controller.command(command) {
-            Ok(()) => {
+        match self.controller.command_within(command, TICK_ROUTE_WORK) {
+            Ok(Accepted::Now) => {
                 self.begin(e);
                 self.ok()
             }
-            Err(
-                r @ (Refused::OutsideLimits { .. }
-                | Refused::SelfCollision { .. }
-                | Refused::InsideObstacle { .. }
-                | Refused::NotClearOnTheWay { .. }
-                | Refused::GoalNotClearAsSent { .. }
-                | Refused::NoRoute { .. }),
-            ) => refuse(Code::Unreachable, r.to_string()),
-            Err(r) => refuse(Code::BadArg, r.to_string()),
+            Ok(Accepted::Plan(request)) => self.plan_beside(e, request),
+            Err(r) => refusal(r),
         }
     }
 
@@ -680,6 +699,191 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.recover_after = None;
         Ok(())
     }
+}
+
+impl<B: ServoBus, C: Clock> Cycle<B, C> {
+    /// A `goto` or `path` whose routes need more than a tick can spare: the command it
+    /// replaces ends (`preempted`), the arm comes to rest, and its routes are planned beside
+    /// the loop from where it stands; answered once they are (`tend_planning`).
+    fn plan_beside(&mut self, e: &Envelope, request: RouteRequest) -> Pending {
+        let ended = self.ledger.preempt(e.cmd.name());
+        self.owe(ended);
+        if self.controller.activity() != Activity::Holding {
+            if let Err(r) = self.controller.command(control::Command::Stop) {
+                return refuse(Code::BadArg, r.to_string());
+            }
+        }
+        tracing::info!(
+            client = e.client,
+            cmd = e.cmd.name().as_str(),
+            "planning the routes beside the loop"
+        );
+        self.planning = Some(Planning {
+            client: e.client,
+            id: e.id.clone(),
+            kind: e.cmd.name(),
+            reply: None,
+            request,
+            serial: None,
+            replans: 0,
+            since: self.clock.now(),
+        });
+        self.send_plan();
+        Pending::Planning
+    }
+
+    /// Hands the planning's request to the planner once the arm is at rest (its routes start
+    /// where the tip stands).
+    fn send_plan(&mut self) {
+        let Some(job) = self.planning.as_mut() else {
+            return;
+        };
+        if job.serial.is_some() || self.controller.activity() != Activity::Holding {
+            return;
+        }
+        job.request = self.controller.replan(&job.request);
+        match self.planner.send(job.request.clone()) {
+            Ok(serial) => job.serial = Some(serial),
+            Err(why) => self.end_planning(refuse(Code::Busy, format!("{why}; send again"))),
+        }
+    }
+
+    /// A tick of the planning under way: its routes started once planned, as the command
+    /// would have started them then; planned again when the tip or the world moved meanwhile;
+    /// refused as the command would have been (a fault holding the arm, a refused route).
+    pub(super) fn tend_planning(&mut self) {
+        let Some(job) = self.planning.as_ref() else {
+            return;
+        };
+        if let Some(blocked) = self.supervisor.blocked() {
+            let answer = self.blocked(blocked, "send `reset` before moving");
+            return self.end_planning(answer);
+        }
+        if let Some(reboot) = &self.rebooting {
+            let message = format!(
+                "servos {:?} began rebooting while the routes were planned: send again once \
+                 the reboot has answered",
+                reboot.reboots.ids()
+            );
+            return self.end_planning(refuse(Code::Busy, message));
+        }
+        let Some(serial) = job.serial else {
+            return self.send_plan();
+        };
+        let route = match self.planner.poll(serial) {
+            Polled::Waiting => return,
+            Polled::Gone => {
+                let message = "the route planner stopped without an answer: send again";
+                return self.end_planning(refuse(Code::Busy, message));
+            }
+            Polled::Done(Err(r)) => return self.end_planning(refusal(r)),
+            Polled::Done(Ok(route)) => route,
+        };
+        let Some(job) = self.planning.as_mut() else {
+            return;
+        };
+        match self.controller.start_route(&job.request, route) {
+            Ok(()) => {
+                let Some(job) = self.planning.take() else {
+                    return;
+                };
+                let took = self.clock.now().saturating_duration_since(job.since);
+                tracing::info!(
+                    cmd = job.kind.as_str(),
+                    ms = took.as_secs_f64() * 1e3,
+                    replans = job.replans,
+                    "routes planned beside the loop; the command begins"
+                );
+                let ended = self
+                    .ledger
+                    .begin(job.client, job.id.clone(), job.kind, Renewal::None);
+                self.owe(ended);
+                if let Some(reply) = job.reply {
+                    self.pending.push((reply, applied(self.tick)));
+                }
+            }
+            Err(Replan) if job.replans < MAX_REPLANS => {
+                job.replans += 1;
+                job.serial = None;
+                self.send_plan();
+            }
+            Err(Replan) => {
+                let message = format!(
+                    "the tip or the world moved each of the {} times the routes were planned: \
+                     send again",
+                    MAX_REPLANS + 1
+                );
+                self.end_planning(refuse(Code::Busy, message));
+            }
+        }
+    }
+
+    /// A command came that preempts the one whose routes are being planned (`by`): that one
+    /// is answered as taken and ends at once, `preempted`, as it would have had it begun.
+    fn settle_planning(&mut self, by: CmdName) {
+        let Some(job) = self.planning.take() else {
+            return;
+        };
+        let _ = self
+            .ledger
+            .begin(job.client, job.id.clone(), job.kind, Renewal::None);
+        let ended = self.ledger.preempt(by);
+        self.owe(ended);
+        if let Some(reply) = job.reply {
+            self.pending.push((reply, applied(self.tick)));
+        }
+    }
+
+    /// The planning ends without its command: answered `answer`.
+    fn end_planning(&mut self, answer: Pending) {
+        if let Some(reply) = self.planning.take().and_then(|job| job.reply) {
+            self.pending.push((reply, answer));
+        }
+    }
+
+    /// The shut-down began: a command whose routes are being planned is answered
+    /// `shutting_down`.
+    pub(super) fn abandon_planning(&mut self) {
+        self.end_planning(refuse(
+            Code::ShuttingDown,
+            "the daemon is stopping: the command's routes were being planned",
+        ));
+    }
+}
+
+#[cfg(test)]
+impl<B: ServoBus, C: Clock> Cycle<B, C> {
+    /// Whether a command's routes are being planned beside the loop.
+    pub(super) fn planning_routes(&self) -> bool {
+        self.planning.is_some()
+    }
+
+    /// Blocks until the routes being planned have come (the planner works in real time, the
+    /// tests' loop on a manual clock); `false` when none were handed to the planner.
+    pub(super) fn wait_for_routes(&mut self) -> bool {
+        let Some(serial) = self.planning.as_ref().and_then(|p| p.serial) else {
+            return false;
+        };
+        self.planner.wait(serial, Duration::from_secs(120))
+    }
+}
+
+/// A `goto` or `path` whose routes are planned beside the loop (see [`Cycle::plan_beside`]).
+/// The loop ticks on meanwhile; any `stop`, `estop` or motion command preempts it.
+#[derive(Debug)]
+pub(super) struct Planning {
+    client: ClientId,
+    id: Option<RequestId>,
+    kind: CmdName,
+    /// The sender's reply, once [`Cycle::take`] has handed it over.
+    pub reply: Option<oneshot::Sender<Answer>>,
+    request: RouteRequest,
+    /// The planner's job (`None`: the arm is still coming to rest).
+    serial: Option<u64>,
+    /// How often the routes were planned again.
+    replans: u32,
+    /// When the command was taken.
+    since: std::time::Instant,
 }
 
 /// A `reboot` under way: its servos booting (deaf to the bus for a few hundred ms) while the

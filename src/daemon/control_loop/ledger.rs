@@ -199,6 +199,12 @@ impl Ledger {
         self.end(outcome, |e| Some(e.ended(Ending::Stopped(reason))))
     }
 
+    /// The active command ends `preempted` by `by` with none in its place yet (a `goto` whose
+    /// routes are planned beside the loop begins once they are).
+    pub fn preempt(&mut self, by: CmdName) -> Option<Ended> {
+        self.end(Outcome::Preempted, |e| Some(e.ended(Ending::Preempted(by))))
+    }
+
     /// The estop ends the active command (outcome `estop`; the estop event goes to everyone).
     pub fn estop(&mut self) {
         self.end(Outcome::Estop, |_| None);

@@ -10,7 +10,8 @@
 //! - [`measure`]: this tick's measurements in SI units;
 //! - the statistics ([`crate::daemon::stats::Stats`], one reset).
 //!
-//! Each tick, in this order: apply the queued commands (in arrival order, `stop` and `estop`
+//! Each tick, in this order: start a `goto` or `path` whose routes were planned beside the loop
+//! ([`planner`]: those that need more work than a tick can spare), apply the queued commands (in arrival order, `stop` and `estop`
 //! from their own queue merged in by arrival; the estop latch is checked per command, so nothing
 //! queued after an `estop` can undo it), tend the port (reopen
 //! a lost one, recover from a stall past the Bus Watchdog), decide (motion -> resolve ->
@@ -64,6 +65,7 @@ mod faults;
 pub mod health;
 pub mod ledger;
 pub mod measure;
+mod planner;
 pub mod port;
 pub mod supervisor;
 #[cfg(test)]
@@ -272,6 +274,9 @@ enum Pending {
     /// `reboot`: answered once its servos have booted and the arm is up again (see
     /// [`commands::Rebooting`]), ticks later.
     Rebooting,
+    /// `goto` or `path` whose routes are planned beside the loop: answered once they are (see
+    /// [`commands::Planning`]), ticks later.
+    Planning,
 }
 
 /// Where the fixed-rate schedule stands between two ticks.
@@ -342,6 +347,10 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     tap: Option<Tap>,
     /// A `reboot` whose servos are booting.
     rebooting: Option<commands::Rebooting>,
+    /// A `goto` or `path` whose routes are planned beside the loop.
+    planning: Option<commands::Planning>,
+    /// Where they are planned.
+    planner: planner::Planner,
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
@@ -506,6 +515,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             wire_bound_hz,
             tap: None,
             rebooting: None,
+            planning: None,
+            planner: planner::Planner::default(),
         };
         Ok((cycle, handle))
     }
@@ -605,6 +616,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn begin_exit(&mut self) {
         self.supervisor.begin_exit();
         self.abandon_reboot();
+        self.abandon_planning();
         if self.supervisor.moves() {
             // A failure here cannot be worse than holding, which the next ticks do anyway.
             let _ = self.controller.command(control::Command::Stop);
@@ -617,6 +629,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn step(&mut self, scheduled: Instant, deadline: Instant) {
         self.tick += 1;
         self.set_fault_until(deadline);
+        self.tend_planning();
         self.apply_commands();
         self.tend_port();
         if self.port.is_lost() {

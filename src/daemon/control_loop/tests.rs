@@ -15,7 +15,7 @@ use super::{Cycle, Pace, Parts};
 use crate::config::Config;
 use crate::daemon::link::{Envelope, Handle};
 use crate::protocol::{
-    Answer, Code, Event, FaultChange, FaultKind, LoopCmd, Motion, Outcome, Reply, State,
+    Answer, CmdName, Code, Event, FaultChange, FaultKind, LoopCmd, Motion, Outcome, Reply, State,
     StopReason, What,
 };
 use crate::servo::clock::{Clock, ManualClock};
@@ -1914,4 +1914,166 @@ fn a_servo_that_loses_power_again_while_latched_has_its_ram_written_again() {
         (armed, 126),
         "its RAM as the power loss left it"
     );
+}
+
+/// A star of `n` points round `centre` (radii alternating `r` and `0.6 r`): many corners for a
+/// route to thread.
+fn star_obstacle(id: &str, centre: crate::chain::Vec2, n: usize, r: f64) -> crate::world::Obstacle {
+    let points = (0..n)
+        .map(|k| {
+            let a = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+            let r = if k % 2 == 0 { r } else { 0.6 * r };
+            centre + crate::chain::Vec2::new(a.cos(), a.sin()) * r
+        })
+        .collect();
+    crate::world::Obstacle {
+        id: id.into(),
+        shape: crate::world::Shape::Polygon { points },
+    }
+}
+
+/// A rig with a 256-point star between the tip and [`beyond_the_star`], off the arm's body,
+/// whose way round takes more route work than a tick may spend; the tip's position.
+fn rig_with_a_star_beside_the_tip() -> (Rig, [f64; 2]) {
+    let mut rig = Rig::with_tables(100.0, "", "\n[world]\nlink_radius_m = 0.01\n");
+    let tip = rig.status().tip;
+    // The arm curls left from its base: below and left of the tip is clear of its body.
+    let centre = crate::chain::Vec2::new(tip[0] - 0.08, tip[1] - 0.08);
+    rig.command(LoopCmd::SetWorld {
+        obstacles: vec![star_obstacle("star", centre, 256, 0.035)],
+    })
+    .unwrap();
+    (rig, tip)
+}
+
+/// A target behind the star from the tip.
+fn beyond_the_star(tip: [f64; 2]) -> [f64; 2] {
+    [tip[0] - 0.16, tip[1] - 0.16]
+}
+
+#[test]
+fn a_route_too_long_for_a_tick_is_planned_beside_the_loop_which_ticks_on() {
+    let (mut rig, tip) = rig_with_a_star_beside_the_tip();
+    let target = beyond_the_star(tip);
+    let mut goto = rig.send(LoopCmd::Motion(Motion::Goto {
+        target,
+        speed: Some(0.1),
+    }));
+    // The loop serves what comes meanwhile, in its tick.
+    let mut status = rig.send(LoopCmd::Status);
+    rig.ticks(1);
+    assert!(rig.cycle.planning_routes(), "planned within the tick");
+    assert!(
+        goto.try_recv().is_err(),
+        "answered before its routes were planned"
+    );
+    status.try_recv().expect("answered in its tick").unwrap();
+    assert!(rig.cycle.wait_for_routes(), "the planner never answered");
+    rig.ticks(1);
+    goto.try_recv()
+        .expect("answered once its routes were planned")
+        .expect("taken");
+    assert!(!rig.cycle.planning_routes());
+    // The tip goes round the star, every goal pose keeping the clearance, and arrives.
+    let keep = rig.cycle.controller.world().clearance_m();
+    let mut arrived = false;
+    for _ in 0..1500 {
+        rig.ticks(1);
+        let s = rig.status();
+        let c = s.min_clearance_m.expect("a world with an obstacle");
+        assert!(c >= keep - 1e-9, "clearance {c} at tick {}", s.tick);
+        let events = rig.events();
+        assert!(
+            !events
+                .iter()
+                .any(|e| matches!(e.what, What::Blocked { .. })),
+            "{events:?}"
+        );
+        if events
+            .iter()
+            .any(|e| matches!(e.what, What::Arrived { .. }))
+        {
+            arrived = true;
+            break;
+        }
+    }
+    assert!(arrived, "never arrived: tip {:?}", rig.status().tip);
+    let end = rig.status().tip;
+    assert!(
+        (end[0] - target[0]).hypot(end[1] - target[1]) < 1e-6,
+        "{end:?}"
+    );
+}
+
+#[test]
+fn a_stop_while_the_routes_are_planned_preempts_the_goto_and_nothing_moves() {
+    let (mut rig, tip) = rig_with_a_star_beside_the_tip();
+    rig.events();
+    let target = beyond_the_star(tip);
+    let goto = LoopCmd::Motion(Motion::Goto {
+        target,
+        speed: Some(0.1),
+    });
+    // Both in one tick, so that the routes cannot have come before the stop.
+    let mut first = rig.send(goto.clone());
+    let mut stop = rig.send(LoopCmd::Stop);
+    rig.ticks(1);
+    stop.try_recv().expect("answered in its tick").unwrap();
+    first
+        .try_recv()
+        .expect("answered when the stop came")
+        .expect("taken, then preempted");
+    let events = rig.events();
+    assert!(
+        events.iter().any(|e| matches!(
+            e.what,
+            What::Preempted {
+                reason: CmdName::Stop,
+                ..
+            }
+        ) && e.owner == Some(1)),
+        "{events:?}"
+    );
+    assert!(!rig.cycle.planning_routes());
+    // Whenever its routes come, they are dropped: the arm holds where it was.
+    rig.ticks(50);
+    assert_eq!(rig.status().tip, tip);
+    // The same goto again is planned in turn, and goes.
+    let mut second = rig.send(goto);
+    rig.ticks(1);
+    assert!(rig.cycle.wait_for_routes());
+    rig.ticks(1);
+    second.try_recv().expect("answered").expect("taken");
+    rig.ticks(50);
+    assert_ne!(rig.status().tip, tip, "the second goto did not move");
+}
+
+#[test]
+fn routes_planned_before_the_world_changed_are_planned_again_in_the_new_one() {
+    let (mut rig, tip) = rig_with_a_star_beside_the_tip();
+    let mut goto = rig.send(LoopCmd::Motion(Motion::Goto {
+        target: beyond_the_star(tip),
+        speed: Some(0.1),
+    }));
+    let far = crate::world::Obstacle {
+        id: "far".into(),
+        shape: crate::world::Shape::Circle {
+            center: crate::chain::Vec2::new(tip[0] + 0.12, tip[1] - 0.3),
+            radius_m: 0.02,
+        },
+    };
+    // In the goto's tick, so that its routes cannot have come before.
+    let mut add = rig.send(LoopCmd::AddObstacle { obstacle: far });
+    rig.ticks(1);
+    add.try_recv().expect("answered in its tick").unwrap();
+    assert!(rig.cycle.wait_for_routes());
+    rig.ticks(1);
+    assert!(
+        goto.try_recv().is_err(),
+        "started on routes planned in the old world"
+    );
+    assert!(rig.cycle.planning_routes(), "not planned again");
+    assert!(rig.cycle.wait_for_routes());
+    rig.ticks(1);
+    goto.try_recv().expect("answered").expect("taken");
 }

@@ -1,0 +1,171 @@
+//! Routes planned beside the loop. A `goto` or `path` among obstacles whose routes need more
+//! than [`TICK_ROUTE_WORK`] (a large polygon's many corners to thread) is planned on a thread
+//! of its own with the whole budget a command may spend ([`MAX_ROUTE_WORK`]), while the loop
+//! ticks on: it keeps reading, publishing and serving `stop` and `estop`. Every queue is one
+//! place deep; a command that would queue a third plan is refused `busy`.
+//!
+//! The thread is started on first use, steps aside for the loop (leaving a real-time policy
+//! the loop's thread gave it, [`crate::beside::step_aside_from_the_loop`]), and ends with the
+//! loop (its job queue closes).
+
+use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError, TrySendError};
+use std::thread;
+
+use crate::control::{plan_route, PlannedRoute, Refused, RouteRequest};
+use crate::world::MAX_ROUTE_WORK;
+
+/// Most route work the loop spends within a tick, in checks of a segment against an edge or a
+/// circle (2 to 8 ns each on a small machine: well under a millisecond). A post and a shelf
+/// take a few thousand; routes that need more are planned beside the loop.
+pub const TICK_ROUTE_WORK: u64 = 100_000;
+
+/// How often one command's routes are planned again (the tip or the world moved while they
+/// were planned) before the command is refused `busy`.
+pub const MAX_REPLANS: u32 = 8;
+
+/// A route to plan, numbered.
+struct Job {
+    serial: u64,
+    request: RouteRequest,
+}
+
+/// A planned route (or why there is none), numbered as its job.
+struct Done {
+    serial: u64,
+    route: Result<PlannedRoute, Refused>,
+}
+
+/// The planning thread's ends.
+struct Worker {
+    jobs: SyncSender<Job>,
+    done: Receiver<Done>,
+}
+
+/// What became of a job.
+#[derive(Debug)]
+pub enum Polled {
+    /// Still being planned.
+    Waiting,
+    /// Planned, or refused.
+    Done(Result<PlannedRoute, Refused>),
+    /// The thread is gone (it panicked): nothing will come.
+    Gone,
+}
+
+/// The planning thread, started on first use.
+#[derive(Default)]
+pub struct Planner {
+    worker: Option<Worker>,
+    serial: u64,
+    /// The last result taken off the queue and not yet asked for.
+    ready: Option<Done>,
+    gone: bool,
+}
+
+impl std::fmt::Debug for Planner {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Planner")
+            .field("started", &self.worker.is_some())
+            .field("serial", &self.serial)
+            .finish()
+    }
+}
+
+impl Planner {
+    /// Hands `request` to the thread; its serial for [`Planner::poll`]. Refused when the
+    /// thread cannot be started or already has a job waiting behind the one it plans.
+    pub fn send(&mut self, request: RouteRequest) -> Result<u64, String> {
+        if self.worker.is_none() {
+            self.worker = Some(spawn().map_err(|e| format!("no thread to plan on: {e}"))?);
+        }
+        let Some(worker) = &self.worker else {
+            return Err("no thread to plan on".into());
+        };
+        self.serial += 1;
+        let job = Job {
+            serial: self.serial,
+            request,
+        };
+        match worker.jobs.try_send(job) {
+            Ok(()) => Ok(self.serial),
+            Err(TrySendError::Full(_)) => {
+                Err("the route planner still has routes of earlier commands to plan".into())
+            }
+            Err(TrySendError::Disconnected(_)) => {
+                self.gone = true;
+                Err("the route planner has stopped".into())
+            }
+        }
+    }
+
+    /// The job `serial`'s result if it has come. Results of other jobs (commands that ended
+    /// before their routes came) are dropped.
+    pub fn poll(&mut self, serial: u64) -> Polled {
+        self.drain();
+        match self.ready.take() {
+            Some(done) if done.serial == serial => Polled::Done(done.route),
+            Some(other) if other.serial > serial => {
+                self.ready = Some(other);
+                Polled::Waiting
+            }
+            _ if self.gone => Polled::Gone,
+            _ => Polled::Waiting,
+        }
+    }
+
+    /// Takes what the thread has finished, keeping the newest.
+    fn drain(&mut self) {
+        let Some(worker) = &self.worker else {
+            return;
+        };
+        loop {
+            match worker.done.try_recv() {
+                Ok(done) => self.ready = Some(done),
+                Err(TryRecvError::Empty) => return,
+                Err(TryRecvError::Disconnected) => {
+                    self.gone = true;
+                    return;
+                }
+            }
+        }
+    }
+
+    /// Blocks until the thread has finished its jobs in hand (tests: the loop's own clock is
+    /// manual, the planner's work takes real time).
+    #[cfg(test)]
+    pub fn wait(&mut self, serial: u64, timeout: std::time::Duration) -> bool {
+        let Some(worker) = &self.worker else {
+            return false;
+        };
+        while self.ready.as_ref().is_none_or(|d| d.serial < serial) {
+            match worker.done.recv_timeout(timeout) {
+                Ok(done) => self.ready = Some(done),
+                Err(_) => return false,
+            }
+        }
+        true
+    }
+}
+
+/// The thread: plans each job with the whole budget, until the loop drops its end.
+fn spawn() -> std::io::Result<Worker> {
+    let (jobs, inbox) = mpsc::sync_channel::<Job>(1);
+    let (outbox, done) = mpsc::sync_channel::<Done>(2);
+    thread::Builder::new()
+        .name("route planner".into())
+        .spawn(move || {
+            // Started by the loop's thread, it would share its real-time policy.
+            crate::beside::step_aside_from_the_loop();
+            while let Ok(job) = inbox.recv() {
+                let route = plan_route(&job.request, MAX_ROUTE_WORK);
+                let done = Done {
+                    serial: job.serial,
+                    route,
+                };
+                if outbox.send(done).is_err() {
+                    return;
+                }
+            }
+        })?;
+    Ok(Worker { jobs, done })
+}
