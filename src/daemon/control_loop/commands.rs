@@ -19,7 +19,7 @@ use crate::world::{Obstacle, World};
 
 use super::ledger::Renewal;
 use super::link::{Envelope, COMMAND_QUEUE, STOP_QUEUE};
-use super::planner::{Polled, MAX_REPLANS, TICK_ROUTE_WORK};
+use super::planner::{tick_route_work, Polled, MAX_REPLANS};
 use super::supervisor::Blocked;
 use super::{Cycle, Pending};
 
@@ -293,7 +293,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if let Some(blocked) = self.supervisor.blocked() {
             return self.blocked(blocked, "send `reset` before moving");
         }
-        match self.controller.command_within(command, TICK_ROUTE_WORK) {
+        match self
+            .controller
+            .command_within(command, tick_route_work(self.schedule.period))
+        {
             Ok(Accepted::Now) => {
                 self.begin(e);
                 self.ok()
@@ -824,6 +827,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let Some(job) = self.planning.take() else {
             return;
         };
+        self.planner.cancel();
         let _ = self
             .ledger
             .begin(job.client, job.id.clone(), job.kind, Renewal::None);
@@ -836,6 +840,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// The planning ends without its command: answered `answer`.
     fn end_planning(&mut self, answer: Pending) {
+        self.planner.cancel();
         if let Some(reply) = self.planning.take().and_then(|job| job.reply) {
             self.pending.push((reply, answer));
         }

@@ -1,23 +1,32 @@
 //! Routes planned beside the loop. A `goto` or `path` among obstacles whose routes need more
-//! than [`TICK_ROUTE_WORK`] (a large polygon's many corners to thread) is planned on a thread
+//! than a tick can spare ([`tick_route_work`]: a large polygon's many corners to thread) is planned on a thread
 //! of its own with the whole budget a command may spend ([`MAX_ROUTE_WORK`]), while the loop
-//! ticks on: it keeps reading, publishing and serving `stop` and `estop`. Every queue is one
-//! place deep; a command that would queue a third plan is refused `busy`.
+//! ticks on: it keeps reading, publishing and serving `stop` and `estop`. Only the routes of
+//! the command waiting for them are planned: the thread skips a job whose command has ended.
+//! The job queue holds two; a command that finds it full (the thread has not run since) is
+//! refused `busy`.
 //!
 //! The thread is started on first use, steps aside for the loop (leaving a real-time policy
 //! the loop's thread gave it, [`crate::beside::step_aside_from_the_loop`]), and ends with the
 //! loop (its job queue closes).
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError, TrySendError};
+use std::sync::Arc;
 use std::thread;
+use std::time::Duration;
 
 use crate::control::{plan_route, PlannedRoute, Refused, RouteRequest};
 use crate::world::MAX_ROUTE_WORK;
 
 /// Most route work the loop spends within a tick, in checks of a segment against an edge or a
-/// circle (2 to 8 ns each on a small machine: well under a millisecond). A post and a shelf
-/// take a few thousand; routes that need more are planned beside the loop.
-pub const TICK_ROUTE_WORK: u64 = 100_000;
+/// circle: what a tenth of the period allows at 8 ns a check (2 to 8 ns on a small machine),
+/// at most 100,000 (0.8 ms), at least 2,000. A post and a shelf take a few thousand, planned in
+/// the tick at 1 kHz and below; routes that need more are planned beside the loop.
+pub fn tick_route_work(period: Duration) -> u64 {
+    const CHECK_S: f64 = 8e-9;
+    ((0.1 * period.as_secs_f64() / CHECK_S) as u64).clamp(2_000, 100_000)
+}
 
 /// How often one command's routes are planned again (the tip or the world moved while they
 /// were planned) before the command is refused `busy`.
@@ -39,6 +48,8 @@ struct Done {
 struct Worker {
     jobs: SyncSender<Job>,
     done: Receiver<Done>,
+    /// The serial of the job whose command waits for it (0: none).
+    wanted: Arc<AtomicU64>,
 }
 
 /// What became of a job.
@@ -86,6 +97,7 @@ impl Planner {
             serial: self.serial,
             request,
         };
+        worker.wanted.store(self.serial, Ordering::Relaxed);
         match worker.jobs.try_send(job) {
             Ok(()) => Ok(self.serial),
             Err(TrySendError::Full(_)) => {
@@ -95,6 +107,13 @@ impl Planner {
                 self.gone = true;
                 Err("the route planner has stopped".into())
             }
+        }
+    }
+
+    /// No command waits for routes any more: the thread skips the jobs it still holds.
+    pub fn cancel(&mut self) {
+        if let Some(worker) = &self.worker {
+            worker.wanted.store(0, Ordering::Relaxed);
         }
     }
 
@@ -149,15 +168,23 @@ impl Planner {
 
 /// The thread: plans each job with the whole budget, until the loop drops its end.
 fn spawn() -> std::io::Result<Worker> {
-    let (jobs, inbox) = mpsc::sync_channel::<Job>(1);
+    let (jobs, inbox) = mpsc::sync_channel::<Job>(2);
     let (outbox, done) = mpsc::sync_channel::<Done>(2);
+    let wanted = Arc::new(AtomicU64::new(0));
+    let wanted_here = Arc::clone(&wanted);
     thread::Builder::new()
         .name("route planner".into())
         .spawn(move || {
             // Started by the loop's thread, it would share its real-time policy.
             crate::beside::step_aside_from_the_loop();
             while let Ok(job) = inbox.recv() {
+                if wanted_here.load(Ordering::Relaxed) != job.serial {
+                    continue;
+                }
                 let route = plan_route(&job.request, MAX_ROUTE_WORK);
+                if wanted_here.load(Ordering::Relaxed) != job.serial {
+                    continue;
+                }
                 let done = Done {
                     serial: job.serial,
                     route,
@@ -167,5 +194,19 @@ fn spawn() -> std::io::Result<Worker> {
                 }
             }
         })?;
-    Ok(Worker { jobs, done })
+    Ok(Worker { jobs, done, wanted })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_tick_spends_on_routes_a_tenth_of_its_period() {
+        let ms = Duration::from_millis;
+        assert_eq!(tick_route_work(ms(1)), 12_500);
+        assert_eq!(tick_route_work(ms(10)), 100_000);
+        assert_eq!(tick_route_work(Duration::from_micros(500)), 6_250);
+        assert_eq!(tick_route_work(Duration::from_micros(100)), 2_000);
+    }
 }
