@@ -39,7 +39,8 @@ pub use crate::world::{Obstacle, Shape};
 pub const DEFAULT_ADDR: &str = "127.0.0.1:7878";
 
 /// How long [`Client::request`] waits for a reply by default. Replies come within a tick or
-/// two; the first waits for the arm's bring-up.
+/// two (a `reboot`'s once its servos are back, a `goto`'s whose routes are planned beside the
+/// loop once they are); the first waits for the arm's bring-up.
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// How long a request's line may wait, by default, for the daemon to take it (see
