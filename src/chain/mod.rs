@@ -26,6 +26,21 @@ pub type Vec2 = Vector2<f64>;
 /// swamps the 1e-9 m tolerances the resolvers promise.
 pub const MAX_MAGNITUDE: f64 = 1e6;
 
+/// A number for a message: as Rust writes it up to 1e15 in magnitude, in exponent form beyond
+/// (a value such as 1e300 would otherwise print as 301 digits).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.0.abs() < 1e15 || !self.0.is_finite() {
+            write!(f, "{}", self.0)
+        } else {
+            write!(f, "{:e}", self.0)
+        }
+    }
+}
+
 /// Why a chain description was refused. Each variant names the offending item (1-based, as a
 /// user counts joints) and carries the value.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -35,7 +50,7 @@ pub enum ChainError {
     #[error("the chain has no links")]
     Empty,
     /// A link length that is zero, negative, non-finite or absurdly large.
-    #[error("link {link}: length {value} m must be finite, positive and at most {MAX_MAGNITUDE}")]
+    #[error("link {link}: length {} m must be finite, positive and at most {MAX_MAGNITUDE}", Num(*.value))]
     BadLink {
         /// 1-based link index.
         link: usize,
@@ -43,7 +58,7 @@ pub enum ChainError {
         value: f64,
     },
     /// A base coordinate or heading that is non-finite or absurdly large.
-    #[error("base: {value} must be finite and at most {MAX_MAGNITUDE} in magnitude")]
+    #[error("base: {} must be finite and at most {MAX_MAGNITUDE} in magnitude", Num(*.value))]
     BadBase {
         /// The offending value.
         value: f64,
@@ -70,7 +85,7 @@ pub enum ChainError {
 
 /// A joint angle outside its limits.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error("joint {joint}: {value} rad outside its limits [{lo}, {hi}]")]
+#[error("joint {joint}: {} rad outside its limits [{lo}, {hi}]", Num(*.value))]
 pub struct LimitViolation {
     /// 1-based joint index.
     pub joint: usize,
@@ -370,6 +385,18 @@ mod tests {
 
     fn chain3() -> Chain {
         Chain::unlimited(vec![1.0, 0.5, 0.25], Vec2::new(1.0, -2.0), 0.5).unwrap()
+    }
+
+    #[test]
+    fn numbers_in_messages_stay_short() {
+        let shown = |v: f64| Num(v).to_string();
+        assert_eq!(shown(0.5), "0.5");
+        assert_eq!(shown(-2.0), "-2");
+        assert_eq!(shown(2e6), "2000000");
+        assert_eq!(shown(1e15), "1e15");
+        assert_eq!(shown(-1e300), "-1e300");
+        assert_eq!(shown(f64::NAN), "NaN");
+        assert_eq!(shown(f64::INFINITY), "inf");
     }
 
     #[test]

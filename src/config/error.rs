@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use crate::chain::{ChainError, MAX_MAGNITUDE};
+use crate::chain::{ChainError, Num, MAX_MAGNITUDE};
 
 /// A config file that could not be read, parsed or accepted.
 ///
@@ -62,19 +62,19 @@ pub enum FieldProblem {
     #[error("no [[joint]] tables: an arm needs at least one joint")]
     NoJoints,
     /// A length or rate that must be finite and positive.
-    #[error("{value} must be finite and positive, at most {MAX_MAGNITUDE}")]
+    #[error("{} must be finite and positive, at most {MAX_MAGNITUDE}", Num(*.value))]
     NotPositive {
         /// The value given.
         value: f64,
     },
     /// A value that must be finite and not negative.
-    #[error("{value} must be finite and not negative, at most {MAX_MAGNITUDE}")]
+    #[error("{} must be finite and not negative, at most {MAX_MAGNITUDE}", Num(*.value))]
     Negative {
         /// The value given.
         value: f64,
     },
     /// A coordinate or angle that must be finite and of sane magnitude.
-    #[error("{value} must be finite and at most {MAX_MAGNITUDE} in magnitude")]
+    #[error("{} must be finite and at most {MAX_MAGNITUDE} in magnitude", Num(*.value))]
     NotFinite {
         /// The value given.
         value: f64,
@@ -119,7 +119,7 @@ pub enum FieldProblem {
         expected: usize,
     },
     /// A home angle outside its joint's limits.
-    #[error("{value} rad lies outside joint {joint}'s limits [{min_rad}, {max_rad}]")]
+    #[error("{} rad lies outside joint {joint}'s limits [{min_rad}, {max_rad}]", Num(*.value))]
     OutsideLimits {
         /// 1-based joint.
         joint: usize,
@@ -217,7 +217,7 @@ pub enum FieldProblem {
         expected: &'static str,
     },
     /// A number outside a closed interval.
-    #[error("{value} must lie in [{lo}, {hi}]")]
+    #[error("{} must lie in [{lo}, {hi}]", Num(*.value))]
     Outside {
         /// The value given.
         value: f64,

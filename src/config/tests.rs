@@ -220,6 +220,15 @@ fn huge_link() {
         &with("link_m = 0.1", "link_m = 2e6"),
         &["joint[1].link_m", "2000000"],
     );
+    // Past 1e15 in exponent form, not 301 digits.
+    let msg = refused(
+        &with("link_m = 0.1", "link_m = 1e300"),
+        &["joint[1].link_m"],
+    );
+    assert_eq!(
+        msg,
+        "config/test.toml: joint[1].link_m: 1e300 must be finite and positive, at most 1000000"
+    );
 }
 
 #[test]

@@ -73,7 +73,7 @@
 //! non-finite) advances nothing, `dt` above [`MAX_DT_S`] counts as [`MAX_DT_S`], and commands
 //! with non-finite or huge numbers are refused by [`Controller::command`].
 
-use crate::chain::{Chain, Vec2, MAX_MAGNITUDE, SELF_CLEARANCE_M};
+use crate::chain::{Chain, Num, Vec2, MAX_MAGNITUDE, SELF_CLEARANCE_M};
 use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
 use crate::resolve::overall::{Overall, OverallOptions};
 use crate::resolve::sequential::Sequential;
@@ -198,7 +198,7 @@ pub enum Command {
 #[non_exhaustive]
 pub enum Refused {
     /// A pose with a joint outside its limits.
-    #[error("joint {j}: {value} rad is outside its limits [{lo}, {hi}]", j = .joint + 1)]
+    #[error("joint {j}: {} rad is outside its limits [{lo}, {hi}]", Num(*.value), j = .joint + 1)]
     OutsideLimits {
         /// Joint index, from 0.
         joint: usize,
@@ -232,13 +232,13 @@ pub enum Refused {
         what: &'static str,
     },
     /// A speed that is not a positive finite number.
-    #[error("speed {value} m/s must be a positive, finite number")]
+    #[error("speed {} m/s must be a positive, finite number", Num(*.value))]
     BadSpeed {
         /// The speed given, m/s.
         value: f64,
     },
     /// A finite number too large to mean anything for an arm.
-    #[error("the {what} {value} is larger in magnitude than {max}")]
+    #[error("the {what} {} is larger in magnitude than {max}", Num(*.value))]
     TooLarge {
         /// What it was.
         what: &'static str,
@@ -340,7 +340,7 @@ pub enum Refused {
     #[error("joint resolutions must be one finite, non-negative angle per joint")]
     BadResolution,
     /// A limit that is not a positive finite number.
-    #[error("the limit {what} = {value} must be a positive, finite number")]
+    #[error("the limit {what} = {} must be a positive, finite number", Num(*.value))]
     BadLimit {
         /// Which limit.
         what: &'static str,

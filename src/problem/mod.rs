@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::chain::{Chain, ChainError, JointLimit, Vec2, MAX_MAGNITUDE};
+use crate::chain::{Chain, ChainError, JointLimit, Num, Vec2, MAX_MAGNITUDE};
 use crate::metrics::{self, Metrics};
 use crate::resolve::overall::CLEAR_SLACK;
 use crate::resolve::overall::{Overall, OverallMode, OverallOptions};
@@ -145,7 +145,10 @@ fn number(field: &str, value: f64) -> Result<f64, ProblemError> {
     if value.abs() > MAX_MAGNITUDE {
         return Err(ProblemError::new(
             field,
-            format!("{value} exceeds the largest accepted magnitude {MAX_MAGNITUDE:e}"),
+            format!(
+                "{} exceeds the largest accepted magnitude {MAX_MAGNITUDE:e}",
+                Num(value)
+            ),
         ));
     }
     Ok(value)
@@ -355,11 +358,12 @@ fn chain_error(e: ChainError) -> ProblemError {
         ChainError::Empty => ProblemError::new("links", "the chain has no links"),
         ChainError::BadLink { link, value } => ProblemError::new(
             format!("links[{}]", link - 1),
-            format!("{value} must be a positive length"),
+            format!("{} must be a positive length", Num(value)),
         ),
-        ChainError::BadBase { value } => {
-            ProblemError::new("base", format!("{value} is not an accepted coordinate"))
-        }
+        ChainError::BadBase { value } => ProblemError::new(
+            "base",
+            format!("{} is not an accepted coordinate", Num(value)),
+        ),
         ChainError::LimitCount { got, joints } => ProblemError::new(
             "limits",
             format!("expected {joints} entries (one per joint), got {got}"),

@@ -9,6 +9,7 @@ use serde_json::{Map, Value};
 use super::{
     strategy_named, Cmd, CmdName, Code, Rejection, Request, RequestId, MAX_ARG, STRATEGIES,
 };
+use crate::chain::Num;
 use crate::resolve::Strategy;
 
 mod obstacle;
@@ -501,20 +502,6 @@ fn bad(message: fmt::Arguments<'_>) -> Rejection {
 
 fn unknown(message: fmt::Arguments<'_>) -> Rejection {
     Rejection::new(Code::UnknownCmd, message.to_string())
-}
-
-/// A number for a message: as written up to 1e15 in magnitude, in exponent form beyond (1e300
-/// would be 301 digits).
-pub(super) struct Num(pub f64);
-
-impl fmt::Display for Num {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.0.abs() < 1e15 {
-            write!(f, "{}", self.0)
-        } else {
-            write!(f, "{:e}", self.0)
-        }
-    }
 }
 
 /// A value as JSON for a message, cut short when long (a request line may be 1 MiB).

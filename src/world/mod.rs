@@ -46,7 +46,7 @@ pub mod clearance;
 pub mod geometry;
 pub mod route;
 
-use crate::chain::{Vec2, MAX_MAGNITUDE};
+use crate::chain::{Num, Vec2, MAX_MAGNITUDE};
 
 pub use clearance::{ActivePairs, Pair};
 pub use geometry::Contact;
@@ -180,7 +180,7 @@ pub struct Obstacle {
 #[non_exhaustive]
 pub enum WorldError {
     /// A coordinate or length that is not finite or beyond [`MAX_MAGNITUDE`].
-    #[error("{field}: {value} must be finite and at most {MAX_MAGNITUDE} in magnitude")]
+    #[error("{field}: {} must be finite and at most {MAX_MAGNITUDE} in magnitude", Num(*.value))]
     NotFinite {
         /// Path of the value.
         field: String,
@@ -188,7 +188,7 @@ pub enum WorldError {
         value: f64,
     },
     /// A length that must be positive and is not.
-    #[error("{field}: {value} m must be positive")]
+    #[error("{field}: {} m must be positive", Num(*.value))]
     NotPositive {
         /// Path of the value.
         field: String,
@@ -196,7 +196,7 @@ pub enum WorldError {
         value: f64,
     },
     /// A length that must not be negative and is.
-    #[error("{field}: {value} m must not be negative")]
+    #[error("{field}: {} m must not be negative", Num(*.value))]
     Negative {
         /// Path of the value.
         field: String,
