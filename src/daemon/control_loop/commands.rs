@@ -172,11 +172,6 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 );
             }
         }
-        if matches!(e.cmd, LoopCmd::Stop | LoopCmd::Estop | LoopCmd::Motion(_)) {
-            // A command whose routes are still being planned was taken before this one, which
-            // preempts it.
-            self.settle_planning(e.cmd.name());
-        }
         match &e.cmd {
             LoopCmd::Status => Pending::Status,
             LoopCmd::Stop => self.stop(e),
@@ -360,6 +355,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// A command accepted by the controller becomes the active one (a velocity, or the same
     /// joint's jog, from the same client renews it).
     fn begin(&mut self, e: &Envelope) {
+        // One whose routes are still being planned was taken before it, and is preempted.
+        self.settle_planning(e.cmd.name());
         let renewal = match e.cmd {
             LoopCmd::Motion(Motion::Velocity { .. }) => Renewal::Velocity,
             LoopCmd::Motion(Motion::Jog { joint, .. }) => Renewal::Jog(joint),
@@ -375,6 +372,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// Write, confirmed within this tick by the servos that answer (the silent ones are not
     /// waited on, and named in the log).
     fn estop(&mut self, e: &Envelope) {
+        self.settle_planning(CmdName::Estop);
         let torque_off = self.on_exit == OnExit::TorqueOff;
         if self.supervisor.estopped() {
             // A latch that kept torque on (a contact's) is no estop's: torque off all the same.
@@ -709,6 +707,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// replaces ends (`preempted`), the arm comes to rest, and its routes are planned beside
     /// the loop from where it stands; answered once they are (`tend_planning`).
     fn plan_beside(&mut self, e: &Envelope, request: RouteRequest) -> Pending {
+        self.settle_planning(e.cmd.name());
         let ended = self.ledger.preempt(e.cmd.name());
         self.owe(ended);
         if self.controller.activity() != Activity::Holding {
@@ -731,23 +730,37 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             replans: 0,
             since: self.clock.now(),
         });
-        self.send_plan();
-        Pending::Planning
+        match self.send_plan() {
+            Ok(()) => Pending::Planning,
+            Err(refused) => {
+                self.planning = None;
+                refused
+            }
+        }
     }
 
     /// Hands the planning's request to the planner once the arm is at rest (its routes start
-    /// where the tip stands).
-    fn send_plan(&mut self) {
+    /// where the tip stands); `busy` when the planner cannot take it.
+    fn send_plan(&mut self) -> Result<(), Pending> {
         let Some(job) = self.planning.as_mut() else {
-            return;
+            return Ok(());
         };
         if job.serial.is_some() || self.controller.activity() != Activity::Holding {
-            return;
+            return Ok(());
         }
         job.request = self.controller.replan(&job.request);
-        match self.planner.send(job.request.clone()) {
-            Ok(serial) => job.serial = Some(serial),
-            Err(why) => self.end_planning(refuse(Code::Busy, format!("{why}; send again"))),
+        let serial = self
+            .planner
+            .send(job.request.clone())
+            .map_err(|why| refuse(Code::Busy, format!("{why}; send again")))?;
+        job.serial = Some(serial);
+        Ok(())
+    }
+
+    /// [`Cycle::send_plan`] from a tick: a refusal ends the planning.
+    fn send_plan_or_end(&mut self) {
+        if let Err(refused) = self.send_plan() {
+            self.end_planning(refused);
         }
     }
 
@@ -771,7 +784,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             return self.end_planning(refuse(Code::Busy, message));
         }
         let Some(serial) = job.serial else {
-            return self.send_plan();
+            return self.send_plan_or_end();
         };
         let route = match self.planner.poll(serial) {
             Polled::Waiting => return,
@@ -808,7 +821,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             Err(Replan) if job.replans < MAX_REPLANS => {
                 job.replans += 1;
                 job.serial = None;
-                self.send_plan();
+                self.send_plan_or_end();
             }
             Err(Replan) => {
                 let message = format!(
@@ -874,7 +887,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 }
 
 /// A `goto` or `path` whose routes are planned beside the loop (see [`Cycle::plan_beside`]).
-/// The loop ticks on meanwhile; any `stop`, `estop` or motion command preempts it.
+/// The loop ticks on meanwhile; a `stop`, `estop` or motion command taken preempts it (one
+/// refused does not, as it would not preempt a command under way).
 #[derive(Debug)]
 pub(super) struct Planning {
     client: ClientId,

@@ -11,10 +11,10 @@
 //! - the statistics ([`crate::daemon::stats::Stats`], one reset).
 //!
 //! Each tick, in this order: start a `goto` or `path` whose routes were planned beside the loop
-//! ([`planner`]: those that need more work than a tick can spare), apply the queued commands (in arrival order, `stop` and `estop`
-//! from their own queue merged in by arrival; the estop latch is checked per command, so nothing
-//! queued after an `estop` can undo it), tend the port (reopen
-//! a lost one, recover from a stall past the Bus Watchdog), decide (motion -> resolve ->
+//! (module `planner`: those that need more work than a tick can spare), apply the queued
+//! commands (in arrival order, `stop` and `estop` from their own queue merged in by arrival; the
+//! estop latch is checked per command, so nothing queued after an `estop` can undo it), tend the
+//! port (reopen a lost one, recover from a stall past the Bus Watchdog), decide (motion -> resolve ->
 //! joint-speed limit, [`Controller::tick`]; frozen while the supervisor holds the arm), write
 //! the goals (one Sync Write through the limits wrapper), read (one Sync Read of Present
 //! Velocity and Position every `read_every`-th tick, its wait capped at the end of the tick;

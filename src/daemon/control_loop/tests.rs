@@ -2077,3 +2077,31 @@ fn routes_planned_before_the_world_changed_are_planned_again_in_the_new_one() {
     rig.ticks(1);
     goto.try_recv().expect("answered").expect("taken");
 }
+
+#[test]
+fn a_motion_refused_while_the_routes_are_planned_leaves_them_to_come() {
+    let (mut rig, tip) = rig_with_a_star_beside_the_tip();
+    let mut goto = rig.send(LoopCmd::Motion(Motion::Goto {
+        target: beyond_the_star(tip),
+        speed: Some(0.1),
+    }));
+    // Into the star: refused, in the same tick (so that the routes cannot have come first).
+    let mut inside = rig.send(LoopCmd::Motion(Motion::Goto {
+        target: [tip[0] - 0.08, tip[1] - 0.08],
+        speed: None,
+    }));
+    rig.ticks(1);
+    let refused = inside
+        .try_recv()
+        .expect("answered in its tick")
+        .unwrap_err();
+    assert_eq!(refused.code, Code::Unreachable, "{}", refused.message);
+    assert!(
+        rig.cycle.planning_routes(),
+        "the refused goto ended the planned one"
+    );
+    assert!(goto.try_recv().is_err());
+    assert!(rig.cycle.wait_for_routes());
+    rig.ticks(1);
+    goto.try_recv().expect("answered").expect("taken");
+}
