@@ -1,10 +1,10 @@
 //! Routes planned beside the loop. A `goto` or `path` among obstacles whose routes need more
-//! than a tick can spare ([`tick_route_work`]: a large polygon's many corners to thread) is planned on a thread
-//! of its own with the whole budget a command may spend ([`MAX_ROUTE_WORK`]), while the loop
-//! ticks on: it keeps reading, publishing and serving `stop` and `estop`. Only the routes of
-//! the command waiting for them are planned: the thread skips a job whose command has ended.
-//! The job queue holds two; a command that finds it full (the thread has not run since) is
-//! refused `busy`.
+//! than a tick can spare ([`tick_route_work`]; a large polygon has many corners to thread) is
+//! planned on a thread of its own with the whole budget a command may spend
+//! ([`MAX_ROUTE_WORK`]), while the loop ticks on, reading, publishing and serving every
+//! command. Only the routes of the command waiting for them are planned: the thread skips a
+//! job whose command has ended. The job queue holds two; a command that finds it full (the
+//! thread has not run since) is refused `busy`.
 //!
 //! The thread is started on first use, steps aside for the loop (leaving a real-time policy
 //! the loop's thread gave it, [`crate::beside::step_aside_from_the_loop`]), and ends with the
@@ -84,7 +84,7 @@ impl std::fmt::Debug for Planner {
 
 impl Planner {
     /// Hands `request` to the thread; its serial for [`Planner::poll`]. Refused when the
-    /// thread cannot be started or already has a job waiting behind the one it plans.
+    /// thread cannot be started, or has stopped, or its queue is full.
     pub fn send(&mut self, request: RouteRequest) -> Result<u64, String> {
         if self.worker.is_none() {
             self.worker = Some(spawn().map_err(|e| format!("no thread to plan on: {e}"))?);
