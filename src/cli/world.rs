@@ -8,7 +8,7 @@
 //! or `polygon = { points_m }`), told apart by its extension (`.json`, `.toml`) or, failing
 //! that, by whether it opens with `{`. In TOML, tables other than `[world]` are ignored, so a
 //! daemon's whole config file may be given; in either, `link_radius_m` and `clearance_m` are
-//! read but not sent (the daemon keeps its own; a note says so when they differ). The
+//! checked but not sent (the daemon keeps its own; a note says so when they differ). The
 //! obstacles are checked here first as the daemon would (exit code 2, naming the file and the
 //! field), then sent. Exit codes as the other clients': 0 done, 2 bad input, 1 refused.
 
@@ -311,7 +311,9 @@ fn read_json(text: &str) -> Result<FileWorld, String> {
         .get("obstacles")
         .ok_or("`obstacles`: missing (an empty world is `{\"obstacles\": []}`)")?;
     let obstacles = parse_obstacles(list).map_err(|r| r.message)?;
-    World::new(0.0, 0.0, obstacles.clone()).map_err(|e| world_rejection(&e, None).message)?;
+    // The radius and clearance are not sent, but a file that gives bad ones is a bad file.
+    let (r, c) = (link_radius_m.unwrap_or(0.0), clearance_m.unwrap_or(0.0));
+    World::new(r, c, obstacles.clone()).map_err(|e| world_rejection(&e, None).message)?;
     Ok(FileWorld {
         obstacles,
         link_radius_m,
@@ -383,7 +385,9 @@ fn read_toml(text: &str) -> Result<FileWorld, String> {
         };
         obstacles.push(Obstacle { id: o.id, shape });
     }
-    World::new(0.0, 0.0, obstacles.clone()).map_err(|e| toml_error(&e))?;
+    let (r, c) = (world.link_radius_m, world.clearance_m);
+    World::new(r.unwrap_or(0.0), c.unwrap_or(0.0), obstacles.clone())
+        .map_err(|e| toml_error(&e))?;
     Ok(FileWorld {
         obstacles,
         link_radius_m: world.link_radius_m,
@@ -526,6 +530,14 @@ mod tests {
         assert!(e.starts_with("`obstacle`: unknown key"), "{e}");
         let e = bad(r#"{}"#);
         assert!(e.starts_with("`obstacles`: missing"), "{e}");
+        // Not sent, but checked: a bad one is a bad file.
+        let e = bad(r#"{"clearance_m": -1, "obstacles": []}"#);
+        assert_eq!(e, "`clearance_m`: -1 m must not be negative");
+        let e = toml_of("[world]\nlink_radius_m = nan\n").unwrap_err();
+        assert!(
+            e.starts_with("world.link_radius_m: NaN must be finite"),
+            "{e}"
+        );
     }
 
     #[test]
