@@ -349,7 +349,20 @@ fn parse_world(
                 .unwrap_or_else(|| format!("obstacle_{}", i + 1));
         obstacles.push(Obstacle { id, shape });
     }
-    World::new(link_radius_m, clearance_m, obstacles).map_err(world_error)
+    World::new(link_radius_m, clearance_m, obstacles).map_err(|e| {
+        let named = match &e {
+            WorldError::DuplicateId { first, .. } => {
+                raw.get(*first).is_some_and(|o| o.id.is_none())
+            }
+            _ => false,
+        };
+        let mut refused = world_error(e);
+        if named {
+            refused.message += ", which has no `id` of its own and is named by its place: give \
+                                it one, or this one another";
+        }
+        refused
+    })
 }
 
 /// Maps a chain construction error onto the problem's field names.
@@ -766,6 +779,27 @@ mod tests {
         assert!(a.converged && a.reachable && a.within_limits);
         assert!(a.tip_error < 1e-9);
         assert_eq!(a.points.len(), 4);
+    }
+
+    #[test]
+    fn an_id_clashing_with_one_named_by_its_place_says_so() {
+        let e = err(&with(
+            r#""obstacles":[{"circle":{"center":[5,5],"radius":0.1}},
+                {"id":"obstacle_1","circle":{"center":[-5,5],"radius":0.1}}]"#,
+        ));
+        assert_eq!(e.field, "obstacles[1].id");
+        assert!(
+            e.message
+                .contains("obstacles[0], which has no `id` of its own"),
+            "{}",
+            e.message
+        );
+        // Two given ids that clash: no word about places.
+        let e = err(&with(
+            r#""obstacles":[{"id":"a","circle":{"center":[5,5],"radius":0.1}},
+                {"id":"a","circle":{"center":[-5,5],"radius":0.1}}]"#,
+        ));
+        assert!(!e.message.contains("place"), "{}", e.message);
     }
 
     #[test]
