@@ -602,23 +602,31 @@ fn stall_a_client(port: u16, daemon: &mut DaemonChild) -> Fox {
     stalled
 }
 
-#[test]
-fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
-    let dir = tempfile::tempdir().unwrap();
-    let port = free_port();
-    // Published at the loop's rate, so that the client's connection fills in seconds.
+/// A daemon on the simulated chain in `dir`, its Foxglove view on `port` publishing at the
+/// loop's rate (so that a client's connection fills in seconds), started with `args`; its
+/// simulator, which must outlive it.
+fn publishing_daemon(
+    dir: &tempfile::TempDir,
+    port: u16,
+    args: &[&std::ffi::OsStr],
+) -> (snakectl_sim::SimHandle, DaemonChild) {
     let table = format!("[foxglove]\nlisten = \"127.0.0.1:{port}\"\npublish_hz = 100.0\n");
     let config = sim_config(&[("max_clients = 4", &format!("max_clients = 4\n\n{table}"))]);
     let path = dir.path().join("arm.toml");
     std::fs::write(&path, config.text()).unwrap();
-    let recording = dir.path().join("run.mcap");
     let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
         .unwrap();
-    let mut daemon = DaemonChild::spawn_with(
-        &path,
-        sim.path(),
-        &["--record".as_ref(), recording.as_os_str()],
-    );
+    let daemon = DaemonChild::spawn_with(&path, sim.path(), args);
+    (sim, daemon)
+}
+
+#[test]
+fn a_client_that_stopped_reading_does_not_hold_the_daemon_at_exit() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let recording = dir.path().join("run.mcap");
+    let (_sim, mut daemon) =
+        publishing_daemon(&dir, port, &["--record".as_ref(), recording.as_os_str()]);
     let stalled = stall_a_client(port, &mut daemon);
     daemon.signal("-TERM");
     let (status, log) = daemon.wait();
@@ -643,13 +651,7 @@ fn now_ns() -> u64 {
 fn a_client_that_stopped_reading_reads_fresh_data_again_after_a_bounded_backlog() {
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
-    let table = format!("[foxglove]\nlisten = \"127.0.0.1:{port}\"\npublish_hz = 100.0\n");
-    let config = sim_config(&[("max_clients = 4", &format!("max_clients = 4\n\n{table}"))]);
-    let path = dir.path().join("arm.toml");
-    std::fs::write(&path, config.text()).unwrap();
-    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
-        .unwrap();
-    let mut daemon = DaemonChild::spawn_with(&path, sim.path(), &[]);
+    let (_sim, mut daemon) = publishing_daemon(&dir, port, &[]);
     let mut stalled = stall_a_client(port, &mut daemon);
     // It reads again: what was published before is what waited for it. The gate's outbox
     // (256 kB), its send buffer and this client's small receive buffer hold well under 1 MB;
