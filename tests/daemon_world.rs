@@ -391,7 +391,8 @@ fn every_bad_world_command_gets_its_code() {
         "bad_arg",
         &["`obstacle.polygon.points[1]`"],
     );
-    // What the loop's world refuses.
+    // Read whole and no world: refused as the line is read (an added obstacle's id, which
+    // only the world in force can tell taken, by the loop).
     refused(
         &mut a,
         set(vec![far_post(), circle("x", [0.5, 0.5], 0.0)]),

@@ -22,7 +22,7 @@ use snakectl::chain::Vec2;
 use snakectl::client::{Client, WorldInfo};
 use snakectl::config::world_field;
 use snakectl::protocol::{parse_obstacles, world_rejection, Cmd, Wire};
-use snakectl::world::{Obstacle, Shape, World, WorldError};
+use snakectl::world::{CheckedObstacle, Obstacle, Obstacles, Shape, World, WorldError};
 
 use super::client::{connect, refused, ConnectArgs};
 use super::{outln, Failure};
@@ -106,7 +106,9 @@ pub fn run(args: WorldArgs) -> Result<(), Failure> {
             send(&a.connect, &cmd, &format!("removed obstacle {:?}", a.id))
         }
         Some(Action::Clear(a)) => {
-            let cmd = Cmd::SetWorld { obstacles: vec![] };
+            let cmd = Cmd::SetWorld {
+                obstacles: Obstacles::default(),
+            };
             send(&a.connect, &cmd, "cleared every obstacle")
         }
     }
@@ -238,13 +240,8 @@ fn add(args: AddArgs) -> Result<(), Failure> {
             )))
         }
     };
-    let obstacle = Obstacle { id: args.id, shape };
-    if let Err(e) = World::new(0.0, 0.0, vec![obstacle.clone()]) {
-        return Err(Failure::bad_input(anyhow!(
-            "{}",
-            world_rejection(&e, Some(0)).message
-        )));
-    }
+    let obstacle = CheckedObstacle::new(Obstacle { id: args.id, shape })
+        .map_err(|e| Failure::bad_input(anyhow!("{}", world_rejection(&e, None).message)))?;
     let done = format!(
         "added obstacle {}",
         serde_json::to_string(&Wire(&obstacle)).unwrap_or_default()
@@ -262,7 +259,7 @@ fn send(connect_args: &ConnectArgs, cmd: &Cmd, done: &str) -> Result<(), Failure
 /// What a file says: the obstacles, and the link radius and clearance when it gives them.
 #[derive(Debug, PartialEq)]
 struct FileWorld {
-    obstacles: Vec<Obstacle>,
+    obstacles: Obstacles,
     link_radius_m: Option<f64>,
     clearance_m: Option<f64>,
 }
@@ -313,9 +310,9 @@ fn read_json(text: &str) -> Result<FileWorld, String> {
     let obstacles = parse_obstacles(list).map_err(|r| r.message)?;
     // The radius and clearance are not sent, but a file that gives bad ones is a bad file.
     let (r, c) = (link_radius_m.unwrap_or(0.0), clearance_m.unwrap_or(0.0));
-    World::new(r, c, obstacles.clone()).map_err(|e| world_rejection(&e, None).message)?;
+    let world = World::new(r, c, obstacles).map_err(|e| world_rejection(&e, None).message)?;
     Ok(FileWorld {
-        obstacles,
+        obstacles: world.checked_obstacles().clone(),
         link_radius_m,
         clearance_m,
     })
@@ -386,10 +383,10 @@ fn read_toml(text: &str) -> Result<FileWorld, String> {
         obstacles.push(Obstacle { id: o.id, shape });
     }
     let (r, c) = (world.link_radius_m, world.clearance_m);
-    World::new(r.unwrap_or(0.0), c.unwrap_or(0.0), obstacles.clone())
-        .map_err(|e| toml_error(&e))?;
+    let checked =
+        World::new(r.unwrap_or(0.0), c.unwrap_or(0.0), obstacles).map_err(|e| toml_error(&e))?;
     Ok(FileWorld {
-        obstacles,
+        obstacles: checked.checked_obstacles().clone(),
         link_radius_m: world.link_radius_m,
         clearance_m: world.clearance_m,
     })

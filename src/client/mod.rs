@@ -28,11 +28,14 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use crate::chain::{Chain, ChainError};
-use crate::protocol::{self, ClientId, ReadError, ReplyLine, RequestId, ServerLine};
+use crate::protocol::{
+    self, world_rejection, ClientId, ReadError, ReplyLine, RequestId, ServerLine,
+};
 pub use crate::protocol::{
     Cmd, CmdName, Code, CommandInfo, Describe, Event, EventKind, FaultChange, FaultInfo, FaultKind,
     Fields, Rejection, Reply, State, Status, StopReason, Telemetry, TookControl, What, WorldInfo,
 };
+use crate::world::{CheckedObstacle, Obstacles};
 pub use crate::world::{Obstacle, Shape};
 
 /// Where the daemon listens unless told otherwise (`[server] listen` of the shipped configs).
@@ -741,12 +744,22 @@ impl Client {
     }
 
     /// `set_world`: replaces every obstacle (needs control); the tick it was applied in.
+    /// Obstacles that make no world are refused here, as the daemon would refuse them.
     pub fn set_world(&mut self, obstacles: Vec<Obstacle>) -> Result<u64, ClientError> {
+        let obstacles = Obstacles::new(obstacles).map_err(|e| ClientError::Refused {
+            cmd: CmdName::SetWorld,
+            rejection: world_rejection(&e, None),
+        })?;
         self.applied(&Cmd::SetWorld { obstacles })
     }
 
-    /// `add_obstacle` (needs control); the tick it was applied in.
+    /// `add_obstacle` (needs control); the tick it was applied in. A bad shape or id is
+    /// refused here, as the daemon would refuse it.
     pub fn add_obstacle(&mut self, obstacle: Obstacle) -> Result<u64, ClientError> {
+        let obstacle = CheckedObstacle::new(obstacle).map_err(|e| ClientError::Refused {
+            cmd: CmdName::AddObstacle,
+            rejection: world_rejection(&e, None),
+        })?;
         self.applied(&Cmd::AddObstacle { obstacle })
     }
 

@@ -451,12 +451,17 @@ fn the_world_commands_are_sent_in_the_sockets_shape_and_the_reply_is_typed() {
         assert_eq!(
             r.cmd,
             Cmd::SetWorld {
-                obstacles: vec![sent.clone()]
+                obstacles: Obstacles::new(vec![sent.clone()]).unwrap()
             }
         );
         daemon.send(&json!({"id": r.id.as_deref().unwrap(), "ok": true, "tick": 3}).to_string());
         let r = daemon.request();
-        assert_eq!(r.cmd, Cmd::AddObstacle { obstacle: sent });
+        assert_eq!(
+            r.cmd,
+            Cmd::AddObstacle {
+                obstacle: CheckedObstacle::new(sent).unwrap()
+            }
+        );
         daemon.send(&json!({"id": r.id.as_deref().unwrap(), "ok": true, "tick": 4}).to_string());
         let r = daemon.request();
         assert_eq!(r.cmd, Cmd::RemoveObstacle { id: "post".into() });

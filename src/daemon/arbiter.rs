@@ -200,15 +200,18 @@ mod tests {
             Cmd::Reset,
             Cmd::Torque { on: true },
             Cmd::Reboot { ids: None },
-            Cmd::SetWorld { obstacles: vec![] },
+            Cmd::SetWorld {
+                obstacles: crate::world::Obstacles::default(),
+            },
             Cmd::AddObstacle {
-                obstacle: crate::world::Obstacle {
+                obstacle: crate::world::CheckedObstacle::new(crate::world::Obstacle {
                     id: "post".into(),
                     shape: crate::world::Shape::Circle {
                         center: crate::chain::Vec2::new(1.0, 1.0),
                         radius_m: 0.1,
                     },
-                },
+                })
+                .unwrap(),
             },
             Cmd::RemoveObstacle { id: "post".into() },
         ];

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::RequestId;
 use crate::resolve::Strategy;
-use crate::world::Obstacle;
+use crate::world::{CheckedObstacle, Obstacles};
 
 /// Declares [`CmdName`], its table [`CmdName::ALL`] and [`COMMANDS`] from one list, so that
 /// the enum, the names it is written as and the names it is read from cannot disagree.
@@ -251,13 +251,13 @@ pub enum Cmd {
     World,
     /// Replace every obstacle (the link radius and the clearance stay as configured).
     SetWorld {
-        /// The new obstacles.
-        obstacles: Vec<Obstacle>,
+        /// The new obstacles, each shape checked, and their ids and number.
+        obstacles: Obstacles,
     },
     /// Add one obstacle.
     AddObstacle {
-        /// The obstacle.
-        obstacle: Obstacle,
+        /// The obstacle, its shape and id checked.
+        obstacle: CheckedObstacle,
     },
     /// Remove the obstacle of this id (the request's `obstacle`).
     RemoveObstacle {
@@ -421,13 +421,15 @@ pub enum LoopCmd {
     World,
     /// `set_world`.
     SetWorld {
-        /// The new obstacles, not yet validated as a world.
-        obstacles: Vec<Obstacle>,
+        /// The new obstacles, checked where the request was read: the loop only asks whether
+        /// the arm's base keeps clear of them.
+        obstacles: Obstacles,
     },
     /// `add_obstacle`.
     AddObstacle {
-        /// The obstacle, not yet validated.
-        obstacle: Obstacle,
+        /// The obstacle, its shape checked where the request was read: the loop asks whether
+        /// the world has room for it and its id is free.
+        obstacle: CheckedObstacle,
     },
     /// `remove_obstacle`.
     RemoveObstacle {

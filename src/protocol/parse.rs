@@ -7,10 +7,12 @@ use std::sync::Arc;
 use serde_json::{Map, Value};
 
 use super::{
-    strategy_named, Cmd, CmdName, Code, Rejection, Request, RequestId, MAX_ARG, STRATEGIES,
+    strategy_named, world_rejection, Cmd, CmdName, Code, Rejection, Request, RequestId, MAX_ARG,
+    STRATEGIES,
 };
 use crate::chain::Num;
 use crate::resolve::Strategy;
+use crate::world::{CheckedObstacle, Obstacles};
 
 mod obstacle;
 mod strict;
@@ -160,11 +162,13 @@ fn command(mut map: Map<String, Value>, joints: usize) -> Result<Cmd, Rejection>
         CmdName::SetWorld => {
             let mut args = Args::new(map, known, &["obstacles"])?;
             let obstacles = obstacle::obstacles("obstacles", &args.required("obstacles")?)?;
+            let obstacles = Obstacles::new(obstacles).map_err(|e| world_rejection(&e, None))?;
             Cmd::SetWorld { obstacles }
         }
         CmdName::AddObstacle => {
             let mut args = Args::new(map, known, &["obstacle"])?;
             let obstacle = obstacle::obstacle("obstacle", &args.required("obstacle")?)?;
+            let obstacle = CheckedObstacle::new(obstacle).map_err(|e| world_rejection(&e, None))?;
             Cmd::AddObstacle { obstacle }
         }
         CmdName::RemoveObstacle => {

@@ -8,6 +8,7 @@ use serde_json::{json, Map};
 use super::*;
 use crate::chain::{Chain, JointLimit, Vec2};
 use crate::resolve::Strategy;
+use crate::world::{CheckedObstacle, Obstacles};
 
 const JOINTS: usize = 3;
 
@@ -53,10 +54,10 @@ fn example(name: CmdName) -> Cmd {
         },
         CmdName::World => Cmd::World,
         CmdName::SetWorld => Cmd::SetWorld {
-            obstacles: obstacles(),
+            obstacles: Obstacles::new(obstacles()).unwrap(),
         },
         CmdName::AddObstacle => Cmd::AddObstacle {
-            obstacle: obstacles().remove(1),
+            obstacle: CheckedObstacle::new(obstacles().remove(1)).unwrap(),
         },
         CmdName::RemoveObstacle => Cmd::RemoveObstacle {
             id: "post \"2\"".into(),

@@ -46,6 +46,9 @@ pub mod clearance;
 pub mod geometry;
 pub mod route;
 
+use std::ops::Deref;
+use std::sync::Arc;
+
 use crate::chain::{Num, Vec2, MAX_MAGNITUDE};
 
 pub use clearance::{ActivePairs, Pair};
@@ -283,13 +286,30 @@ pub enum WorldError {
 }
 
 /// A validated world: the links' radius, the clearance every link keeps, and the obstacles.
+/// Cloning one is cheap: the obstacles are shared.
 #[derive(Debug, Clone, PartialEq)]
 pub struct World {
     link_radius_m: f64,
     clearance_m: f64,
-    obstacles: Vec<Obstacle>,
-    bounds: Vec<(Vec2, Vec2)>,
+    obstacles: Obstacles,
 }
+
+/// Obstacles checked on their own and together (ids, shapes, how many): all a [`World`] asks
+/// of them but its link radius and clearance. A request's obstacles are checked where it is
+/// read, so that the control loop makes a world of them without checking a polygon again
+/// (a 1024-point polygon takes a millisecond or two). Cloning is cheap: the list is shared.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Obstacles {
+    list: Arc<[Obstacle]>,
+    /// Each obstacle's bounding box.
+    bounds: Arc<[(Vec2, Vec2)]>,
+}
+
+/// One obstacle whose id and shape are checked (as [`Obstacles`] checks each of its own), to be
+/// added to a world ([`Obstacles::with`]): what remains is whether the world has room for it
+/// and whether its id is free.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckedObstacle(Obstacle);
 
 fn finite(field: impl FnOnce() -> String, value: f64) -> Result<(), WorldError> {
     if value.is_finite() && value.abs() <= MAX_MAGNITUDE {
@@ -432,6 +452,9 @@ fn first_touch(points: &[Vec2]) -> Option<(usize, usize, Vec2)> {
                 continue;
             }
             let ((a0, a1), (b0, b1)) = (edge(a), edge(b));
+            if one_side(a0, a1, b0, b1) || one_side(b0, b1, a0, a1) {
+                continue; // apart for certain: most pairs of a spiky polygon, cheaply
+            }
             let (d2, p, _, _) = geometry::segment_segment(a0, a1, b0, b1);
             if d2 == 0.0 {
                 offer(&mut found, (a, b), b, p);
@@ -442,14 +465,211 @@ fn first_touch(points: &[Vec2]) -> Option<(usize, usize, Vec2)> {
     found.map(|((a, _), b, p)| (a, b, p))
 }
 
+/// Shewchuk's bound on the rounding error of an orientation determinant, relative to the sum
+/// of its two products' magnitudes ("Adaptive precision floating-point arithmetic and fast
+/// robust geometric predicates", 1997: `ccwerrboundA`).
+const ORIENT_BOUND: f64 = (3.0 + 16.0 * f64::EPSILON) * f64::EPSILON;
+
+/// The side of the line through `a` and `b` on which `p` lies, when rounding cannot have
+/// decided it: 1 left, -1 right, 0 on it or too near to tell.
+fn side(a: Vec2, b: Vec2, p: Vec2) -> i8 {
+    let left = (a.x - p.x) * (b.y - p.y);
+    let right = (a.y - p.y) * (b.x - p.x);
+    let det = left - right;
+    let bound = ORIENT_BOUND * (left.abs() + right.abs());
+    // Far above the subnormal range, where the bound no longer holds.
+    if det.abs() <= bound || det.abs() < 1e-280 {
+        0
+    } else if det > 0.0 {
+        1
+    } else {
+        -1
+    }
+}
+
+/// Whether the segment `c d` lies strictly on one side of the line through `a` and `b`, for
+/// certain: then it cannot touch the segment `a b`.
+fn one_side(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> bool {
+    let s = side(a, b, c);
+    s != 0 && s == side(a, b, d)
+}
+
+/// Checks an obstacle's id at `at` (not whether another obstacle has it).
+fn check_id(at: &str, o: &Obstacle) -> Result<(), WorldError> {
+    if o.id.is_empty() {
+        return Err(WorldError::EmptyId {
+            field: format!("{at}.id"),
+        });
+    }
+    let chars = o.id.chars().count();
+    if chars > MAX_ID_CHARS {
+        return Err(WorldError::BadId {
+            field: format!("{at}.id"),
+            why: format!("an id of {chars} characters, at most {MAX_ID_CHARS} allowed"),
+        });
+    }
+    if let Some(c) = o.id.chars().find(|c| c.is_control()) {
+        return Err(WorldError::BadId {
+            field: format!("{at}.id"),
+            why: format!("id {:?} holds the control character {c:?}", o.id),
+        });
+    }
+    Ok(())
+}
+
+/// Checks an obstacle's shape at `at`.
+fn check_shape(at: &str, o: &Obstacle) -> Result<(), WorldError> {
+    match &o.shape {
+        Shape::Circle { center, radius_m } => {
+            finite(|| format!("{at}.circle.center.x"), center.x)?;
+            finite(|| format!("{at}.circle.center.y"), center.y)?;
+            finite(|| format!("{at}.circle.radius_m"), *radius_m)?;
+            if *radius_m <= 0.0 {
+                return Err(WorldError::NotPositive {
+                    field: format!("{at}.circle.radius_m"),
+                    value: *radius_m,
+                });
+            }
+            Ok(())
+        }
+        Shape::Polygon { points } => check_polygon(&format!("{at}.polygon"), points),
+    }
+}
+
+/// Points of the obstacles' polygons, all together.
+fn polygon_points<'a>(obstacles: impl IntoIterator<Item = &'a Obstacle>) -> usize {
+    obstacles
+        .into_iter()
+        .map(|o| match &o.shape {
+            Shape::Polygon { points } => points.len(),
+            Shape::Circle { .. } => 0,
+        })
+        .sum()
+}
+
+/// Whether `count` obstacles with `points` polygon points in all fit in a world.
+fn check_room(count: usize, points: usize) -> Result<(), WorldError> {
+    if count > MAX_OBSTACLES {
+        return Err(WorldError::TooManyObstacles {
+            count,
+            max: MAX_OBSTACLES,
+        });
+    }
+    if points > MAX_POLYGON_POINTS {
+        return Err(WorldError::TooManyPoints {
+            count: points,
+            max: MAX_POLYGON_POINTS,
+        });
+    }
+    Ok(())
+}
+
+impl Obstacles {
+    /// Checks obstacles; the first fault is reported, fields named `obstacles[i]...`: how
+    /// many there are and their polygons' points in all, then in order each one's id
+    /// (non-empty, at most [`MAX_ID_CHARS`] characters, no control character, not used by an
+    /// earlier one) and shape.
+    pub fn new(obstacles: Vec<Obstacle>) -> Result<Self, WorldError> {
+        check_room(obstacles.len(), polygon_points(&obstacles))?;
+        for (i, o) in obstacles.iter().enumerate() {
+            let at = format!("obstacles[{i}]");
+            check_id(&at, o)?;
+            if let Some(first) = obstacles[..i].iter().position(|p| p.id == o.id) {
+                return Err(WorldError::DuplicateId {
+                    field: format!("{at}.id"),
+                    id: o.id.clone(),
+                    first,
+                });
+            }
+            check_shape(&at, o)?;
+        }
+        Ok(Self::of_checked(obstacles))
+    }
+
+    fn of_checked(list: Vec<Obstacle>) -> Self {
+        let bounds = list.iter().map(|o| o.shape.bounds()).collect();
+        Self {
+            list: list.into(),
+            bounds,
+        }
+    }
+
+    /// These and `more` after them, when a world has room for it and its id is free; a
+    /// refusal names it `obstacles[k]`, `k` the place it would have taken.
+    pub fn with(&self, more: &CheckedObstacle) -> Result<Self, WorldError> {
+        let o = &more.0;
+        let k = self.list.len();
+        check_room(k + 1, polygon_points(self.list.iter().chain([o])))?;
+        if let Some(first) = self.list.iter().position(|p| p.id == o.id) {
+            return Err(WorldError::DuplicateId {
+                field: format!("obstacles[{k}].id"),
+                id: o.id.clone(),
+                first,
+            });
+        }
+        let mut bounds = self.bounds.to_vec();
+        bounds.push(o.shape.bounds());
+        Ok(Self {
+            list: self.list.iter().chain([o]).cloned().collect(),
+            bounds: bounds.into(),
+        })
+    }
+
+    /// These but the one at index `k` (all of them when there is none there).
+    pub fn without(&self, k: usize) -> Self {
+        let list: Vec<Obstacle> = self
+            .list
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i != k)
+            .map(|(_, o)| o.clone())
+            .collect();
+        let bounds = self
+            .bounds
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i != k)
+            .map(|(_, b)| *b)
+            .collect();
+        Self {
+            list: list.into(),
+            bounds,
+        }
+    }
+}
+
+impl Deref for Obstacles {
+    type Target = [Obstacle];
+
+    fn deref(&self) -> &[Obstacle] {
+        &self.list
+    }
+}
+
+impl CheckedObstacle {
+    /// Checks one obstacle's id and shape, fields named `obstacle...`.
+    pub fn new(obstacle: Obstacle) -> Result<Self, WorldError> {
+        check_id("obstacle", &obstacle)?;
+        check_shape("obstacle", &obstacle)?;
+        Ok(Self(obstacle))
+    }
+}
+
+impl Deref for CheckedObstacle {
+    type Target = Obstacle;
+
+    fn deref(&self) -> &Obstacle {
+        &self.0
+    }
+}
+
 impl Default for World {
     /// No obstacles, no link radius, the default clearance ([`DEFAULT_CLEARANCE_M`]).
     fn default() -> Self {
         Self {
             link_radius_m: 0.0,
             clearance_m: DEFAULT_CLEARANCE_M,
-            obstacles: Vec::new(),
-            bounds: Vec::new(),
+            obstacles: Obstacles::default(),
         }
     }
 }
@@ -466,74 +686,19 @@ impl World {
     ) -> Result<Self, WorldError> {
         non_negative("link_radius_m", link_radius_m)?;
         non_negative("clearance_m", clearance_m)?;
-        if obstacles.len() > MAX_OBSTACLES {
-            return Err(WorldError::TooManyObstacles {
-                count: obstacles.len(),
-                max: MAX_OBSTACLES,
-            });
-        }
-        let total: usize = obstacles
-            .iter()
-            .map(|o| match &o.shape {
-                Shape::Polygon { points } => points.len(),
-                Shape::Circle { .. } => 0,
-            })
-            .sum();
-        if total > MAX_POLYGON_POINTS {
-            return Err(WorldError::TooManyPoints {
-                count: total,
-                max: MAX_POLYGON_POINTS,
-            });
-        }
-        for (i, o) in obstacles.iter().enumerate() {
-            let at = format!("obstacles[{i}]");
-            if o.id.is_empty() {
-                return Err(WorldError::EmptyId {
-                    field: format!("{at}.id"),
-                });
-            }
-            let chars = o.id.chars().count();
-            if chars > MAX_ID_CHARS {
-                return Err(WorldError::BadId {
-                    field: format!("{at}.id"),
-                    why: format!("an id of {chars} characters, at most {MAX_ID_CHARS} allowed"),
-                });
-            }
-            if let Some(c) = o.id.chars().find(|c| c.is_control()) {
-                return Err(WorldError::BadId {
-                    field: format!("{at}.id"),
-                    why: format!("id {:?} holds the control character {c:?}", o.id),
-                });
-            }
-            if let Some(first) = obstacles[..i].iter().position(|p| p.id == o.id) {
-                return Err(WorldError::DuplicateId {
-                    field: format!("{at}.id"),
-                    id: o.id.clone(),
-                    first,
-                });
-            }
-            match &o.shape {
-                Shape::Circle { center, radius_m } => {
-                    finite(|| format!("{at}.circle.center.x"), center.x)?;
-                    finite(|| format!("{at}.circle.center.y"), center.y)?;
-                    finite(|| format!("{at}.circle.radius_m"), *radius_m)?;
-                    if *radius_m <= 0.0 {
-                        return Err(WorldError::NotPositive {
-                            field: format!("{at}.circle.radius_m"),
-                            value: *radius_m,
-                        });
-                    }
-                }
-                Shape::Polygon { points } => check_polygon(&format!("{at}.polygon"), points)?,
-            }
-        }
-        let bounds = obstacles.iter().map(|o| o.shape.bounds()).collect();
         Ok(Self {
             link_radius_m,
             clearance_m,
-            obstacles,
-            bounds,
+            obstacles: Obstacles::new(obstacles)?,
         })
+    }
+
+    /// The same link radius and clearance round other obstacles, already checked.
+    pub fn with_obstacles(&self, obstacles: Obstacles) -> Self {
+        Self {
+            obstacles,
+            ..self.clone()
+        }
     }
 
     /// The same obstacles and link radius with another clearance, without checking the
@@ -558,6 +723,12 @@ impl World {
 
     /// The obstacles, in the order given.
     pub fn obstacles(&self) -> &[Obstacle] {
+        &self.obstacles
+    }
+
+    /// The obstacles as checked, to make another world of (see [`Obstacles::with`] and
+    /// [`Obstacles::without`]).
+    pub fn checked_obstacles(&self) -> &Obstacles {
         &self.obstacles
     }
 
@@ -637,7 +808,7 @@ impl World {
     /// Signed: with `d <= 0` only a box apart from the obstacle's is, since a segment inside
     /// an obstacle has a negative distance (minus its depth), below any `d`.
     fn box_not_below(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
-        let (blo, bhi) = self.bounds[k];
+        let (blo, bhi) = self.obstacles.bounds[k];
         let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
         let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
         let gap2 = dx * dx + dy * dy;
@@ -651,7 +822,7 @@ impl World {
     /// Whether that gap is more than `d` (with `d < 0`: whether the boxes are apart, since a
     /// segment inside an obstacle has a negative distance).
     fn box_beyond(&self, k: usize, lo: Vec2, hi: Vec2, d: f64) -> bool {
-        let (blo, bhi) = self.bounds[k];
+        let (blo, bhi) = self.obstacles.bounds[k];
         let dx = (blo.x - hi.x).max(lo.x - bhi.x).max(0.0);
         let dy = (blo.y - hi.y).max(lo.y - bhi.y).max(0.0);
         let gap2 = dx * dx + dy * dy;

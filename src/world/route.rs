@@ -263,7 +263,7 @@ impl World {
     /// Fills `nodes` with the arc nodes of every obstacle grown by `g`, chord tolerance `tol`.
     fn push_arc_nodes(&self, g: f64, tol: f64, nodes: &mut Vec<ArcNode>) {
         nodes.clear();
-        for o in &self.obstacles {
+        for o in self.obstacles() {
             match &o.shape {
                 Shape::Circle { center, radius_m } => {
                     let rho = radius_m + g;

@@ -232,6 +232,81 @@ fn ids_must_be_given_and_unique() {
     );
 }
 
+/// One obstacle checked alone is named `obstacle`; added to a world, only its room and its id
+/// are left to check, and the world is the one `World::new` makes of the whole list.
+#[test]
+fn an_obstacle_is_checked_alone_then_added_or_removed_as_a_world_would_be() {
+    assert_eq!(
+        CheckedObstacle::new(circle("a", 0.0, 0.0, -1.0)).unwrap_err(),
+        WorldError::NotPositive {
+            field: "obstacle.circle.radius_m".into(),
+            value: -1.0
+        }
+    );
+    assert!(matches!(
+        CheckedObstacle::new(polygon("bow", vec![v(0.0, 0.0), v(1.0, 1.0), v(1.0, 0.0), v(0.0, 1.0)])),
+        Err(WorldError::SelfIntersecting { field, .. }) if field == "obstacle.polygon.points"
+    ));
+    assert!(matches!(
+        CheckedObstacle::new(circle("", 0.0, 0.0, 1.0)),
+        Err(WorldError::EmptyId { field }) if field == "obstacle.id"
+    ));
+    let two = vec![circle("a", 0.0, 0.0, 1.0), polygon("b", square())];
+    let world = World::new(0.01, 0.002, two.clone()).unwrap();
+    let third = polygon("c", square().iter().map(|p| p + v(5.0, 0.0)).collect());
+    let added = world
+        .checked_obstacles()
+        .with(&CheckedObstacle::new(third.clone()).unwrap())
+        .unwrap();
+    let mut three = two.clone();
+    three.push(third);
+    assert_eq!(
+        world.with_obstacles(added.clone()),
+        World::new(0.01, 0.002, three).unwrap()
+    );
+    assert_eq!(
+        world
+            .checked_obstacles()
+            .with(&CheckedObstacle::new(circle("b", 9.0, 9.0, 1.0)).unwrap()),
+        Err(WorldError::DuplicateId {
+            field: "obstacles[2].id".into(),
+            id: "b".into(),
+            first: 1
+        })
+    );
+    assert_eq!(
+        world.with_obstacles(added.without(0)),
+        World::new(0.01, 0.002, added[1..].to_vec()).unwrap()
+    );
+    assert_eq!(added.without(3), added, "no obstacle at index 3");
+    // No room for one more, by count and by points.
+    let full: Vec<Obstacle> = (0..MAX_OBSTACLES)
+        .map(|i| circle(&format!("c{i}"), i as f64 * 3.0, 0.0, 1.0))
+        .collect();
+    let full = Obstacles::new(full).unwrap();
+    assert_eq!(
+        full.with(&CheckedObstacle::new(circle("one more", -5.0, 0.0, 1.0)).unwrap()),
+        Err(WorldError::TooManyObstacles {
+            count: MAX_OBSTACLES + 1,
+            max: MAX_OBSTACLES
+        })
+    );
+    let many_points: Vec<Vec2> = (0..MAX_POLYGON_POINTS)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / MAX_POLYGON_POINTS as f64;
+            v(a.cos(), a.sin())
+        })
+        .collect();
+    let ring = Obstacles::new(vec![polygon("ring", many_points)]).unwrap();
+    assert_eq!(
+        ring.with(&CheckedObstacle::new(polygon("tri", square()[..3].to_vec())).unwrap()),
+        Err(WorldError::TooManyPoints {
+            count: MAX_POLYGON_POINTS + 3,
+            max: MAX_POLYGON_POINTS
+        })
+    );
+}
+
 #[test]
 fn the_world_is_bounded() {
     let many: Vec<Obstacle> = (0..=MAX_OBSTACLES)

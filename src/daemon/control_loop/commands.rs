@@ -15,7 +15,7 @@ use crate::protocol::{
 use crate::servo::arm::{self, BringUpOptions, OnExit};
 use crate::servo::clock::Clock;
 use crate::servo::ServoBus;
-use crate::world::{Obstacle, World};
+use crate::world::Obstacles;
 
 use super::ledger::Renewal;
 use super::link::{Envelope, COMMAND_QUEUE, STOP_QUEUE};
@@ -197,10 +197,12 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             .into())),
             LoopCmd::SetWorld { obstacles } => self.change_world(e, obstacles.clone(), None),
             LoopCmd::AddObstacle { obstacle } => {
-                let mut obstacles = self.controller.world().obstacles().to_vec();
-                let added = obstacles.len();
-                obstacles.push(obstacle.clone());
-                self.change_world(e, obstacles, Some(added))
+                let now = self.controller.world().checked_obstacles();
+                let added = now.len();
+                match now.with(obstacle) {
+                    Ok(obstacles) => self.change_world(e, obstacles, Some(added)),
+                    Err(err) => Pending::Ready(Err(world_rejection(&err, Some(added)))),
+                }
             }
             LoopCmd::RemoveObstacle { id } => {
                 let world = self.controller.world();
@@ -213,8 +215,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                         ),
                     );
                 };
-                let mut obstacles = world.obstacles().to_vec();
-                obstacles.remove(k);
+                let obstacles = world.checked_obstacles().without(k);
                 self.change_world(e, obstacles, None)
             }
             LoopCmd::Motion(Motion::Velocity { .. }) if self.stale(e) => refuse(
@@ -308,14 +309,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn change_world(
         &mut self,
         e: &Envelope,
-        obstacles: Vec<Obstacle>,
+        obstacles: Obstacles,
         added: Option<usize>,
     ) -> Pending {
-        let now = self.controller.world();
-        let world = match World::new(now.link_radius_m(), now.clearance_m(), obstacles) {
-            Ok(world) => world,
-            Err(err) => return Pending::Ready(Err(world_rejection(&err, added))),
-        };
+        // Checked where the request was read: only the base is left to ask about.
+        let world = self.controller.world().with_obstacles(obstacles);
         // As at start-up: link 1 starts at the base whatever the pose, so no pose could keep
         // clear of an obstacle that close.
         let keep_m = world.link_radius_m() + world.clearance_m();

@@ -24,6 +24,7 @@ use crate::servo::{
     Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, ServoModel, SyncReadBuf, Value,
     INDIRECT_ADDRESS_1,
 };
+use crate::world::{CheckedObstacle, Obstacles};
 
 const MS: Duration = Duration::from_millis(1);
 
@@ -1547,7 +1548,7 @@ fn a_world_change_with_an_obstacle_at_the_base_is_refused_naming_it() {
     };
     // 2 mm from the base point, where link 1 starts: 10 mm of radius and 5 of clearance to keep.
     let set = LoopCmd::SetWorld {
-        obstacles: vec![disc("far", 0.5), disc("pad", 0.022)],
+        obstacles: Obstacles::new(vec![disc("far", 0.5), disc("pad", 0.022)]).unwrap(),
     };
     let refused = rig.command(set).unwrap_err();
     assert_eq!(refused.code, Code::BadArg);
@@ -1559,7 +1560,7 @@ fn a_world_change_with_an_obstacle_at_the_base_is_refused_naming_it() {
         refused.message
     );
     let add = LoopCmd::AddObstacle {
-        obstacle: disc("pad", 0.022),
+        obstacle: CheckedObstacle::new(disc("pad", 0.022)).unwrap(),
     };
     let refused = rig.command(add).unwrap_err();
     assert!(
@@ -1570,7 +1571,7 @@ fn a_world_change_with_an_obstacle_at_the_base_is_refused_naming_it() {
     assert!(rig.cycle.controller.world().obstacles().is_empty());
     // Beyond what is kept, taken.
     rig.command(LoopCmd::AddObstacle {
-        obstacle: disc("pad", 0.036),
+        obstacle: CheckedObstacle::new(disc("pad", 0.036)).unwrap(),
     })
     .unwrap();
     assert_eq!(rig.cycle.controller.world().obstacles().len(), 1);
@@ -1940,7 +1941,7 @@ fn rig_with_a_star_beside_the_tip() -> (Rig, [f64; 2]) {
     // The arm curls left from its base: below and left of the tip is clear of its body.
     let centre = crate::chain::Vec2::new(tip[0] - 0.08, tip[1] - 0.08);
     rig.command(LoopCmd::SetWorld {
-        obstacles: vec![star_obstacle("star", centre, 256, 0.035)],
+        obstacles: Obstacles::new(vec![star_obstacle("star", centre, 256, 0.035)]).unwrap(),
     })
     .unwrap();
     (rig, tip)
@@ -2063,7 +2064,9 @@ fn routes_planned_before_the_world_changed_are_planned_again_in_the_new_one() {
         },
     };
     // In the goto's tick, so that its routes cannot have come before.
-    let mut add = rig.send(LoopCmd::AddObstacle { obstacle: far });
+    let mut add = rig.send(LoopCmd::AddObstacle {
+        obstacle: CheckedObstacle::new(far).unwrap(),
+    });
     rig.ticks(1);
     add.try_recv().expect("answered in its tick").unwrap();
     assert!(rig.cycle.wait_for_routes());

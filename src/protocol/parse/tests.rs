@@ -603,23 +603,53 @@ fn valid_cmd(joints: usize) -> impl proptest::strategy::Strategy<Value = Cmd> {
         )
         .prop_map(|ids| Cmd::Reboot { ids }),
         Just(Cmd::World),
-        prop::collection::vec(obstacle(), 0..5).prop_map(|obstacles| Cmd::SetWorld { obstacles }),
-        obstacle().prop_map(|obstacle| Cmd::AddObstacle { obstacle }),
+        obstacles().prop_map(|obstacles| Cmd::SetWorld { obstacles }),
+        obstacle().prop_map(|o| Cmd::AddObstacle {
+            obstacle: CheckedObstacle::new(o).unwrap()
+        }),
         any::<String>().prop_map(|id| Cmd::RemoveObstacle { id }),
     ]
 }
 
 /// An obstacle as the parser takes it: any id, a circle or a polygon of any numbers in range
 /// (whether it makes a world is the loop's to say).
+/// An obstacle a world takes: an id without control characters, a circle of positive radius
+/// or a convex polygon (a regular one, turned), numbers anywhere the wire allows.
 fn obstacle() -> impl proptest::strategy::Strategy<Value = crate::world::Obstacle> {
     use crate::chain::Vec2;
     use crate::world::{Obstacle, Shape};
-    let point = || (number_arg(), number_arg()).prop_map(|(x, y)| Vec2::new(x, y));
-    let shape = prop_oneof![
-        (point(), number_arg()).prop_map(|(center, radius_m)| Shape::Circle { center, radius_m }),
-        prop::collection::vec(point(), 0..8).prop_map(|points| Shape::Polygon { points }),
-    ];
-    (any::<String>(), shape).prop_map(|(id, shape)| Obstacle { id, shape })
+    let circle =
+        (number_arg(), number_arg(), positive_arg()).prop_map(|(x, y, radius_m)| Shape::Circle {
+            center: Vec2::new(x, y),
+            radius_m,
+        });
+    let polygon = (
+        -1e5..1e5f64,
+        -1e5..1e5f64,
+        1e-3..1e3f64,
+        3..9usize,
+        0.0..std::f64::consts::PI,
+    )
+        .prop_map(|(x, y, r, n, turn)| Shape::Polygon {
+            points: (0..n)
+                .map(|k| {
+                    let a = turn + std::f64::consts::TAU * k as f64 / n as f64;
+                    Vec2::new(x + r * a.cos(), y + r * a.sin())
+                })
+                .collect(),
+        });
+    ("[^\\p{Cc}]{1,40}", prop_oneof![circle, polygon])
+        .prop_map(|(id, shape)| Obstacle { id, shape })
+}
+
+/// Up to four obstacles with ids of their own (each led by its place).
+fn obstacles() -> impl proptest::strategy::Strategy<Value = crate::world::Obstacles> {
+    prop::collection::vec(obstacle(), 0..5).prop_map(|mut list| {
+        for (k, o) in list.iter_mut().enumerate() {
+            o.id = format!("{k}:{}", o.id);
+        }
+        crate::world::Obstacles::new(list).unwrap()
+    })
 }
 
 /// The same obstacles, numbers within an ulp (see [`close`]).
@@ -812,19 +842,23 @@ mod world {
             ))
             .cmd,
             Cmd::SetWorld {
-                obstacles: vec![post(), shelf()]
+                obstacles: Obstacles::new(vec![post(), shelf()]).unwrap()
             }
         );
         assert_eq!(
             ok(r#"{"cmd": "set_world", "obstacles": []}"#).cmd,
-            Cmd::SetWorld { obstacles: vec![] }
+            Cmd::SetWorld {
+                obstacles: Obstacles::default()
+            }
         );
         assert_eq!(
             ok(&format!(
                 r#"{{"cmd": "add_obstacle", "obstacle": {SHELF}}}"#
             ))
             .cmd,
-            Cmd::AddObstacle { obstacle: shelf() }
+            Cmd::AddObstacle {
+                obstacle: CheckedObstacle::new(shelf()).unwrap()
+            }
         );
         // The request's `id` is its own; the obstacle's id is `obstacle`.
         let req = ok(r#"{"cmd": "remove_obstacle", "id": 3, "obstacle": "post"}"#);
@@ -917,6 +951,23 @@ mod world {
                 r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0], [0, 1, 2]]}}"#,
                 "`obstacles[1].polygon.points[2]`: expected 2 entries",
             ),
+            // Read whole, and not a shape: refused where the line is read, as the loop would.
+            (
+                r#"{"id": "a", "circle": {"center": [0, 0], "radius": 0}}"#,
+                "`obstacles[1].circle.radius`: 0 m must be positive",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 0]]}}"#,
+                "`obstacles[1].polygon.points`: 2 points, a polygon needs at least 3",
+            ),
+            (
+                r#"{"id": "a", "polygon": {"points": [[0, 0], [1, 1], [1, 0], [0, 1]]}}"#,
+                "`obstacles[1].polygon.points`: edges 0 and 2 touch or cross",
+            ),
+            (
+                r#"{"id": "", "circle": {"center": [0, 0], "radius": 1}}"#,
+                "`obstacles[1].id`: an obstacle needs a non-empty id",
+            ),
         ];
         for (obstacle, message) in cases {
             let (_, why) = refused(&set(obstacle));
@@ -926,6 +977,17 @@ mod world {
             let message = message.replacen("obstacles[1]", "obstacle", 1);
             assert!(why.message.starts_with(&message), "{obstacle}: {why}");
         }
+        // Two obstacles of one id make no world; one alone is checked without the world's.
+        let twice = set(r#"{"id": "post", "circle": {"center": [1, 1], "radius": 0.1}}"#);
+        refused_with(
+            &twice,
+            Code::BadArg,
+            &["`obstacles[1].id`: id \"post\" is already used by obstacles[0]"],
+        );
+        assert!(matches!(
+            ok(&add(POST)).cmd,
+            Cmd::AddObstacle { obstacle } if obstacle.id == "post"
+        ));
         refused_with(
             r#"{"cmd": "set_world"}"#,
             Code::BadArg,
