@@ -4,7 +4,9 @@
 //! `link_radius_m`. This module is the geometry the rest builds on:
 //!
 //! - [`Obstacle`], [`Shape`] and the validated [`World`] (errors name the field, e.g.
-//!   `obstacles[2].polygon.points[4]`, and carry the numbers);
+//!   `obstacles[2].polygon.points[4]`, and carry the numbers), whose obstacles can be checked
+//!   on their own first ([`Obstacles`], [`CheckedObstacle`]: where a request is read, so that
+//!   the control loop makes a world of them without checking a polygon again);
 //! - exact distances from a segment to a circle or a polygon, unsigned and signed (a link
 //!   inside an obstacle has a negative distance: minus its depth), in [`geometry`];
 //! - the clearance of a pose and the pairs of (link, obstacle) near contact, each with the
