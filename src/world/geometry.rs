@@ -172,12 +172,35 @@ pub fn segment_circle(a: Vec2, b: Vec2, center: Vec2, radius: f64) -> Contact {
     }
 }
 
+/// Relative rounding allowed for a squared distance against the gap between two boxes.
+const BOX_ROUND_OFF: f64 = 1e-9;
+/// Boxes this far apart, relative to the coordinates' magnitude, are apart whatever the
+/// rounding of the tests that would otherwise say so.
+const BOX_APART: f64 = 1e-12;
+
+/// The squared gap between the boxes `alo..ahi` and `blo..bhi` (0 when they overlap).
+fn box_gap2(alo: Vec2, ahi: Vec2, blo: Vec2, bhi: Vec2) -> f64 {
+    let gx = (blo.x - ahi.x).max(alo.x - bhi.x).max(0.0);
+    let gy = (blo.y - ahi.y).max(alo.y - bhi.y).max(0.0);
+    gx * gx + gy * gy
+}
+
 /// Signed distance from the segment `a..b` to the polygon (see the module doc for the depth).
 pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
     let n = points.len();
+    let (slo, shi) = (a.inf(&b), a.sup(&b));
     let mut best = (f64::INFINITY, a, a, 0.0, 0);
+    let (mut plo, mut phi) = (points[0], points[0]);
     for k in 0..n {
-        let (d2, pa, pb, s) = segment_segment(a, b, points[k], points[(k + 1) % n]);
+        let (u, w) = (points[k], points[(k + 1) % n]);
+        let (elo, ehi) = (u.inf(&w), u.sup(&w));
+        (plo, phi) = (plo.inf(&elo), phi.sup(&ehi));
+        // The gap between the boxes bounds the distance from below: an edge whose box is
+        // farther than the nearest so far (by more than rounding) cannot be nearer.
+        if box_gap2(slo, shi, elo, ehi) > best.0 * (1.0 + BOX_ROUND_OFF) {
+            continue;
+        }
+        let (d2, pa, pb, s) = segment_segment(a, b, u, w);
         if d2 < best.0 {
             best = (d2, pa, pb, s, k);
         }
@@ -200,6 +223,25 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
         let t = (x - a).dot(&ab) / l2;
         (t > 0.0 && t < 1.0).then_some(t)
     };
+    // A segment whose box lies clear of the polygon's (by more than rounding) is outside it
+    // and meets no edge: the passes below would find the same.
+    let scale = 1.0
+        + slo
+            .abs()
+            .max()
+            .max(shi.abs().max())
+            .max(plo.abs().max())
+            .max(phi.abs().max());
+    if d2 > 0.0 && box_gap2(slo, shi, plo, phi).sqrt() > BOX_APART * scale {
+        let d = d2.sqrt();
+        return Contact {
+            distance_m: d,
+            on_segment: pa,
+            on_obstacle: pb,
+            s,
+            normal: (pa - pb) / d,
+        };
+    }
     let apart = d2 > 0.0 && !inside_polygon(a, points) && !inside_polygon(b, points);
     let outside = || {
         let d = d2.sqrt();
