@@ -223,26 +223,6 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
         let t = (x - a).dot(&ab) / l2;
         (t > 0.0 && t < 1.0).then_some(t)
     };
-    // A segment whose box lies clear of the polygon's (by more than rounding) is outside it
-    // and meets no edge: the passes below would find the same.
-    let scale = 1.0
-        + slo
-            .abs()
-            .max()
-            .max(shi.abs().max())
-            .max(plo.abs().max())
-            .max(phi.abs().max());
-    if d2 > 0.0 && box_gap2(slo, shi, plo, phi).sqrt() > BOX_APART * scale {
-        let d = d2.sqrt();
-        return Contact {
-            distance_m: d,
-            on_segment: pa,
-            on_obstacle: pb,
-            s,
-            normal: (pa - pb) / d,
-        };
-    }
-    let apart = d2 > 0.0 && !inside_polygon(a, points) && !inside_polygon(b, points);
     let outside = || {
         let d = d2.sqrt();
         Contact {
@@ -253,6 +233,19 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
             normal: (pa - pb) / d,
         }
     };
+    // A segment whose box lies clear of the polygon's (by more than rounding) is outside it
+    // and meets no edge: the passes below would find the same.
+    let scale = 1.0
+        + slo
+            .abs()
+            .max()
+            .max(shi.abs().max())
+            .max(plo.abs().max())
+            .max(phi.abs().max());
+    if d2 > 0.0 && box_gap2(slo, shi, plo, phi).sqrt() > BOX_APART * scale {
+        return outside();
+    }
+    let apart = d2 > 0.0 && !inside_polygon(a, points) && !inside_polygon(b, points);
     if apart && (0..n).all(|k| meet(k).is_none()) {
         return outside();
     }
