@@ -18,7 +18,10 @@
 //!    one. A resolved step that would is shortened in proportion and re-resolved (up to
 //!    [`SLOWDOWN_ROUNDS`] times, `slowed`); a final per-joint clamp guarantees the bound
 //!    (`clamped`). The bound wins over the tip acceleration limit. Both ends of every joint's
-//!    step lie inside its limits, so the clamped pose does too.
+//!    step lie inside its limits, so the clamped pose does too. A tip motion's clamped pose is
+//!    no longer the resolver's answer (a body leaving an obstacle put onto it can ask every
+//!    joint to turn its fastest), so it is moved back along its joint step until the tip moves
+//!    no faster than the tip speed limit (`keep_tip_speed`).
 //! 4. **Self-collision.** No goal pose brings two links within [`SELF_CLEARANCE_M`] of each
 //!    other ([`Chain::self_intersects`]). The final pose is checked once more (a clamped step
 //!    or a joint reference was not checked yet); if it touches, the tick takes the farthest
@@ -60,7 +63,10 @@
 //!    the arm, with the velocity the arm really had, so it never runs ahead. A goto or path
 //!    among obstacles goes on along its route from the arm's tip, however far off its way a
 //!    clamped or cut step left it. Every tick's tip reference thus starts on the arm and asks
-//!    it to move at most the tip speed limit. A goto, path or joint move that makes no
+//!    it to move at most the tip speed limit. A stop never speeds up: what the arm did
+//!    takes over its reference only up to the speed the stop had come down to, and once that
+//!    is zero the stop ends, met exactly or not (a body not clear of an obstacle, whose
+//!    ticks may be held back for ever, holds where it got). A goto, path or joint move that makes no
 //!    progress for [`crate::motion::STALL_TICKS`] saturated ticks ends with one
 //!    [`Finish::Saturated`].
 //!
@@ -1264,9 +1270,11 @@ impl Controller {
         // The point the step reached, as the resolver was asked for it (exact on the line).
         let mut reached = from;
         let mut pushed = false;
+        let mut tip_space = false;
         match self.motion.step(dt) {
             Reference::Hold => self.cand.copy_from_slice(&self.theta),
             Reference::Tip(r) => {
+                tip_space = true;
                 // A tip velocity (or its stop) slides along an obstacle: the part of its step
                 // into it is removed.
                 let r = match self.motion.target() {
@@ -1300,6 +1308,9 @@ impl Controller {
             }
         }
         t.clamped = self.clamp_joint_steps(dt);
+        if t.clamped && tip_space {
+            self.keep_tip_speed(from, dt);
+        }
         let (cut, cut_by) = self.keep_clear();
         if cut {
             t.saturated = true;
@@ -1489,6 +1500,40 @@ impl Controller {
             }
         }
         clamped
+    }
+
+    /// A tip motion's step clamped for the joints' speed is no longer the resolver's (its tip
+    /// is off the reference: a body leaving an obstacle it was put into can ask every joint
+    /// to turn its fastest), and may move the tip faster than its limit: it is then moved back
+    /// along the joint step `theta -> cand` to the farthest fraction found, by
+    /// [`BISECTION_ROUNDS`] rounds of bisection, to keep the tip within `max_tip_speed * dt`
+    /// of `from`, the last goal's tip.
+    fn keep_tip_speed(&mut self, from: Vec2, dt: f64) {
+        let most = self.limits.max_tip_speed_m_s * dt * (1.0 + CLAMP_ROUNDOFF);
+        if (self.chain.tip(&self.cand) - from).norm() <= most {
+            return;
+        }
+        let (mut lo, mut hi) = (0.0, 1.0);
+        for _ in 0..BISECTION_ROUNDS {
+            let mid = 0.5 * (lo + hi);
+            self.trial_at(mid);
+            if (self.chain.tip(&self.trial) - from).norm() <= most {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        for ((c, &t), lim) in self
+            .cand
+            .iter_mut()
+            .zip(&self.theta)
+            .zip(self.chain.limits())
+        {
+            *c = t + lo * (*c - t);
+            if let Some(l) = lim {
+                *c = l.clamp(*c);
+            }
+        }
     }
 
     /// `trial` := the pose a fraction `f` of the way from the last goal to the candidate (a

@@ -663,3 +663,125 @@ fn a_route_handed_back_for_planning_starts_as_the_command_would_have_started_it(
     changed.set_world(crate::world::World::new(0.01, 0.005, vec![other]).unwrap());
     assert_eq!(changed.start_route(&request, route), Err(Replan));
 }
+
+/// The daemon's `config/world.toml`: a post to the right, a shelf to the left, the arm's
+/// joints at 4096-tick resolution.
+fn world_toml() -> crate::world::World {
+    let shelf = crate::world::Obstacle {
+        id: "shelf".into(),
+        shape: crate::world::Shape::Polygon {
+            points: vec![
+                Vec2::new(-0.6, 0.3),
+                Vec2::new(-0.4, 0.3),
+                Vec2::new(-0.4, 0.34),
+                Vec2::new(-0.6, 0.34),
+            ],
+        },
+    };
+    crate::world::World::new(
+        0.012,
+        0.005,
+        vec![circle_obstacle("post", Vec2::new(0.15, 0.6), 0.04), shelf],
+    )
+    .unwrap()
+}
+
+fn at_servo_resolution(ctl: &mut Controller) {
+    let q = std::f64::consts::TAU / 4096.0;
+    ctl.set_joint_resolution(&[q; N]).unwrap();
+}
+
+/// A world with a disc of 10 mm radius dropped onto the middle of link `link` of `theta` (its
+/// centre to 0.1 mm, as a client would type it) besides the post and the shelf.
+fn dropped_on(theta: &[f64], link: usize) -> crate::world::World {
+    dropped_by(theta, link, Vec2::zeros())
+}
+
+/// [`dropped_on`] with the disc's centre moved by `offset`.
+fn dropped_by(theta: &[f64], link: usize, offset: Vec2) -> crate::world::World {
+    let p = chain().points(theta);
+    let mid = (p[link - 1] + p[link]) * 0.5 + offset;
+    let mid = Vec2::new((mid.x * 1e4).round() / 1e4, (mid.y * 1e4).round() / 1e4);
+    let mut obstacles = world_toml().obstacles().to_vec();
+    obstacles.push(circle_obstacle("drop", mid, 0.01));
+    crate::world::World::new(0.012, 0.005, obstacles).unwrap()
+}
+
+/// An obstacle dropped onto an arm that is going somewhere stops the command: the stop comes
+/// to rest and ends, and the arm holds, however the body's ticks are held back (they were cut
+/// short on every tick, and the stop never ended).
+#[test]
+fn an_obstacle_dropped_onto_a_moving_arm_stops_it_and_it_holds() {
+    let mut moving = 0;
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        for after in [50, 150, 250] {
+            for link in [3, 6, 9, 11] {
+                let home = vec![0.1; N];
+                let mut ctl =
+                    Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
+                at_servo_resolution(&mut ctl);
+                assert!(ctl.set_world(world_toml()).is_none());
+                ctl.command(Command::Goto {
+                    target: Vec2::new(0.3, 0.6),
+                    speed: None,
+                })
+                .unwrap();
+                for _ in 0..after {
+                    ctl.tick(0.01);
+                }
+                if ctl.activity() != Activity::Moving {
+                    // The goto ended first (the sequential body caught on the post).
+                    continue;
+                }
+                moving += 1;
+                let w = dropped_on(ctl.theta(), link);
+                assert!(ctl.set_world(w).is_some(), "link {link} is not clear");
+                // From the tip speed limit at the tip's deceleration: 0.2 s.
+                let (finish, k) = run(&mut ctl, 0.01, 25);
+                assert_eq!(
+                    finish,
+                    Some(Finish::Stopped { deadman: false }),
+                    "{strategy:?}, dropped after {after} ticks on link {link}: not ended in {k} ticks"
+                );
+                assert_eq!(ctl.activity(), Activity::Holding);
+                // A stop asked for now ends too.
+                ctl.command(Command::Stop).unwrap();
+                let (finish, _) = run(&mut ctl, 0.01, 100);
+                assert_eq!(finish, Some(Finish::Stopped { deadman: false }));
+            }
+        }
+    }
+    assert!(moving >= 16, "only {moving} of 24 drops onto a moving arm");
+}
+
+/// The tip motions after an obstacle was put onto the arm keep the tip speed limit: the body's
+/// way out of the obstacle asked every joint to turn its fastest, and the clamped pose threw
+/// the tip 33 mm in one tick.
+#[test]
+fn a_tip_motion_out_of_an_obstacle_put_onto_the_arm_keeps_the_tip_speed_limit() {
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        for (link, below) in [(12, 0.015), (12, 0.0), (9, 0.015), (5, 0.0)] {
+            for motion in 0..2 {
+                let home = vec![0.1; N];
+                let mut ctl =
+                    Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
+                at_servo_resolution(&mut ctl);
+                let w = dropped_by(&home, link, Vec2::new(0.0, -below));
+                assert!(ctl.set_world(w).is_some());
+                let tip = ctl.tip();
+                let cmd = if motion == 0 {
+                    Command::Velocity {
+                        v: Vec2::new(0.0, 0.05),
+                    }
+                } else {
+                    Command::Goto {
+                        target: tip + Vec2::new(0.0, 0.08),
+                        speed: None,
+                    }
+                };
+                ctl.command(cmd).unwrap();
+                assert_tip_speed_kept(&mut ctl, 100, 0.01, strategy);
+            }
+        }
+    }
+}

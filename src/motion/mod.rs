@@ -853,8 +853,17 @@ impl Motion {
                 }
         );
         let holding = self.mode == Mode::Hold;
+        // A stop never speeds up: what the arm did takes over its reference's velocity only
+        // up to the speed the stop had come down to (a body leaving an obstacle it was put
+        // into moves its tip as it must, and would otherwise keep the stop going).
+        let stopping = matches!(self.mode, Mode::Stop { .. });
         // The tip: unless it is the exactly met reference, it is where the arm put it.
         if holding || joint_space || !got.exact {
+            let most = if stopping && !joint_space {
+                self.tip.v.norm().min(self.limits.tip_speed)
+            } else {
+                self.limits.tip_speed
+            };
             self.tip.v = if holding {
                 Vec2::zeros()
             } else {
@@ -862,14 +871,19 @@ impl Motion {
             };
             self.tip.p = got.tip;
             let s = self.tip.v.norm();
-            if s > self.limits.tip_speed {
-                self.tip.v *= self.limits.tip_speed / s;
+            if s > most {
+                self.tip.v *= most / s;
             }
         }
         // The joints: likewise.
         if holding || !joint_space || !got.exact {
             for ((a, &t), &t0) in self.axes.iter_mut().zip(got.theta).zip(&self.prior) {
-                a.v = if holding { 0.0 } else { (t - t0) / dt };
+                let v = if holding { 0.0 } else { (t - t0) / dt };
+                a.v = if stopping && joint_space {
+                    v.clamp(-a.v.abs(), a.v.abs())
+                } else {
+                    v
+                };
                 a.q = t;
             }
         }
@@ -917,6 +931,13 @@ impl Motion {
         }
         let pending = self.pending.take();
         if !got.exact {
+            // A stop whose reference has come to rest ends even when the arm could not meet
+            // it exactly (a body not clear of an obstacle, which may only get clearer, is held
+            // back on every tick): the arm holds where it got, instead of stopping for ever.
+            if let (Some(Pending::Finish(f)), Mode::Stop { .. }) = (pending, self.mode) {
+                self.hold_at(got.tip, got.theta);
+                return Some(f);
+            }
             return None;
         }
         match pending? {
