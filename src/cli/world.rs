@@ -19,10 +19,10 @@ use clap::{Args, Subcommand};
 use serde::Deserialize;
 use serde_json::Value;
 use snakectl::chain::Vec2;
-use snakectl::client::{Client, WorldInfo};
-use snakectl::config::world_field;
-use snakectl::protocol::{parse_obstacles, world_rejection, Cmd, Wire};
-use snakectl::world::{CheckedObstacle, Obstacle, Obstacles, Shape, World, WorldError};
+use snakectl::client::{Client, ClientError, WorldInfo};
+use snakectl::config::{world_field, world_problem};
+use snakectl::protocol::{parse_obstacles, strict_json, world_rejection, Cmd, Code, Wire};
+use snakectl::world::{CheckedObstacle, Obstacle, Obstacles, Shape, World};
 
 use super::client::{connect, refused, ConnectArgs};
 use super::{outln, Failure};
@@ -187,7 +187,23 @@ fn set(args: SetArgs) -> Result<(), Failure> {
     let cmd = Cmd::SetWorld {
         obstacles: read.obstacles,
     };
-    let fields = client.request(&cmd).map_err(refused)?;
+    // What only the daemon can check (an obstacle on its arm's base) is refused there; the
+    // refusal names the file, and the field as the file spells it.
+    let toml = !is_json(file, &text);
+    let fields = client.request(&cmd).map_err(|e| match e {
+        ClientError::Refused { rejection, .. } if rejection.code == Code::BadArg => {
+            let why = if toml {
+                in_toml_terms(&rejection.message)
+            } else {
+                rejection.message
+            };
+            Failure::other(anyhow!(
+                "{}: `set_world` refused: bad_arg: {why}",
+                file.display()
+            ))
+        }
+        e => refused(e),
+    })?;
     outln!(
         "ok: set_world with {n} obstacle{} at tick {}",
         if n == 1 { "" } else { "s" },
@@ -267,22 +283,34 @@ struct FileWorld {
 /// Reads a world file, JSON or TOML (by the extension, else by a leading `{`), its obstacles
 /// checked as the daemon checks them. The error names the field.
 fn read_file(path: &Path, text: &str) -> Result<FileWorld, String> {
-    let json = match path.extension().and_then(|e| e.to_str()) {
-        Some(e) if e.eq_ignore_ascii_case("json") => true,
-        Some(e) if e.eq_ignore_ascii_case("toml") => false,
-        _ => text.trim_start().starts_with('{'),
-    };
-    if json {
+    if is_json(path, text) {
         read_json(text)
     } else {
         read_toml(text)
     }
 }
 
+/// Whether a world file is JSON: by its extension, else by a leading `{`.
+fn is_json(path: &Path, text: &str) -> bool {
+    match path.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("json") => true,
+        Some(e) if e.eq_ignore_ascii_case("toml") => false,
+        _ => text.trim_start().starts_with('{'),
+    }
+}
+
 /// `{"obstacles": [...], "link_radius_m"?: r, "clearance_m"?: c}`, the obstacles in the
 /// socket's shape.
 fn read_json(text: &str) -> Result<FileWorld, String> {
-    let value: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    // An object with the same key twice is refused, as the daemon refuses such a line: a file
+    // that says two things is read as neither.
+    let value: Value = strict_json(text.as_bytes()).map_err(|e| {
+        if e.is_data() {
+            e.to_string()
+        } else {
+            format!("not JSON: {e}")
+        }
+    })?;
     let Value::Object(map) = value else {
         return Err(r#"expected a JSON object {"obstacles": [...]}"#.into());
     };
@@ -383,8 +411,10 @@ fn read_toml(text: &str) -> Result<FileWorld, String> {
         obstacles.push(Obstacle { id: o.id, shape });
     }
     let (r, c) = (world.link_radius_m, world.clearance_m);
-    let checked =
-        World::new(r.unwrap_or(0.0), c.unwrap_or(0.0), obstacles).map_err(|e| toml_error(&e))?;
+    let checked = World::new(r.unwrap_or(0.0), c.unwrap_or(0.0), obstacles).map_err(|e| {
+        let (field, problem) = world_problem(e);
+        format!("{field}: {problem}")
+    })?;
     Ok(FileWorld {
         obstacles: checked.checked_obstacles().clone(),
         link_radius_m: world.link_radius_m,
@@ -392,12 +422,21 @@ fn read_toml(text: &str) -> Result<FileWorld, String> {
     })
 }
 
-/// A world's refusal with the field as the config spells it (`world.obstacle[1].circle.radius_m`
-/// for the first obstacle: counted from 1, as a config load counts them).
-fn toml_error(e: &WorldError) -> String {
-    let text = e.to_string();
-    let (field, rest) = text.split_once(": ").unwrap_or(("", text.as_str()));
-    format!("{}: {rest}", world_field(field))
+/// The daemon's refusal of a TOML file's world with the field as the file spells it: the
+/// socket's `` `obstacles[0].circle.radius` `` is `world.obstacle[1].circle.radius_m`.
+fn in_toml_terms(message: &str) -> String {
+    let Some((field, rest)) = message
+        .strip_prefix('`')
+        .and_then(|m| m.split_once("`: "))
+        .filter(|(f, _)| f.starts_with("obstacles"))
+    else {
+        return message.to_owned();
+    };
+    let field = field
+        .replace(".circle.radius", ".circle.radius_m")
+        .replace(".circle.center[0]", ".circle.center.x")
+        .replace(".circle.center[1]", ".circle.center.y");
+    format!("{}: {rest}", world_field(&field))
 }
 
 #[cfg(test)]
@@ -483,19 +522,18 @@ mod tests {
             ("radius_m = 0.04 }", "radius_m = -0.04 }"),
             ("center_m = [0.15, 0.60]", "center_m = [inf, 0.60]"),
             ("[-0.6, 0.34]]", "[-0.6, 0.3]]"),
+            ("id = \"shelf\"", "id = \"post\""),
         ] {
             assert!(shipped.contains(from), "{from}");
             let text = shipped.replacen(from, to, 1);
             let loaded = snakectl::config::Config::from_str(&text, "w.toml")
                 .unwrap_err()
                 .to_string();
-            let field = loaded
+            let said = loaded
                 .strip_prefix("w.toml: ")
-                .and_then(|rest| rest.split_once(": "))
-                .map(|(field, _)| field)
                 .unwrap_or_else(|| panic!("{loaded}"));
-            let e = toml_of(&text).unwrap_err();
-            assert!(e.starts_with(&format!("{field}: ")), "{e} / {loaded}");
+            // The same field and the same words (obstacles and edges counted from 1).
+            assert_eq!(toml_of(&text).unwrap_err(), said);
         }
         let e = toml_of(
             "[[world.obstacle]]\nid = \"a\"\ncircle = { center_m = [0, 0], radius_m = 0.1 }\n\
@@ -523,6 +561,15 @@ mod tests {
             e.starts_with("`obstacles[0].circle.radius`: missing"),
             "{e}"
         );
+        // A key twice is refused, as the daemon refuses it, not read as the last.
+        let e = bad(
+            r#"{"obstacles": [{"id": "x", "circle": {"center": [1, 1], "radius": 1}, "id": "y"}]}"#,
+        );
+        assert!(e.starts_with("duplicate key \"id\""), "{e}");
+        let e = bad(
+            r#"{"obstacles": [{"id": "x", "circle": {"center": [1, 1], "radius": 1, "radius": 2}}]}"#,
+        );
+        assert!(e.starts_with("duplicate key \"radius\""), "{e}");
         let e = bad(r#"{"obstacle": []}"#);
         assert!(e.starts_with("`obstacle`: unknown key"), "{e}");
         let e = bad(r#"{}"#);
@@ -535,6 +582,27 @@ mod tests {
             e.starts_with("world.link_radius_m: NaN must be finite"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_daemons_refusal_of_a_toml_file_names_the_field_as_the_file_does() {
+        for (said, meant) in [
+            (
+                "`obstacles[0]`: obstacle \"post\" touches the base",
+                "world.obstacle[1]: obstacle \"post\" touches the base",
+            ),
+            (
+                "`obstacles[2].circle.radius`: 0 m must be positive",
+                "world.obstacle[3].circle.radius_m: 0 m must be positive",
+            ),
+            (
+                "`obstacles[1].circle.center[1]`: NaN must be finite",
+                "world.obstacle[2].circle.center_m[2]: NaN must be finite",
+            ),
+            ("not in control", "not in control"),
+        ] {
+            assert_eq!(in_toml_terms(said), meant);
+        }
     }
 
     #[test]

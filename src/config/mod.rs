@@ -383,6 +383,67 @@ impl Config {
     }
 }
 
+/// A refusal of [`World::new`] as a config file's `[world]` table would be refused: the field
+/// as the file names it ([`world_field`]: `world.obstacle[3].circle.radius_m`, counted from 1)
+/// and what is wrong with it, with the obstacles and edges it names counted from 1 too.
+pub fn world_problem(e: WorldError) -> (String, FieldProblem) {
+    let (field, problem) = match e {
+        WorldError::NotFinite { field, value } => (field, FieldProblem::NotFinite { value }),
+        WorldError::NotPositive { field, value } => (field, FieldProblem::NotPositive { value }),
+        WorldError::Negative { field, value } => (field, FieldProblem::Negative { value }),
+        WorldError::EmptyId { field } => (field, FieldProblem::EmptyId),
+        WorldError::BadId { field, why } => (field, FieldProblem::BadObstacleId { why }),
+        WorldError::DuplicateId { field, id, first } => (
+            field,
+            FieldProblem::DuplicateObstacle {
+                id,
+                other: first + 1,
+            },
+        ),
+        WorldError::TooFewPoints { field, count } => (field, FieldProblem::TooFewPoints { count }),
+        WorldError::RepeatedPoint { field, first, x, y } => (
+            field,
+            FieldProblem::RepeatedPoint {
+                x,
+                y,
+                first: first + 1,
+            },
+        ),
+        WorldError::SelfIntersecting {
+            field,
+            edge_a,
+            edge_b,
+            x,
+            y,
+        } => (
+            field,
+            FieldProblem::SelfIntersecting {
+                edge_a: edge_a + 1,
+                edge_b: edge_b + 1,
+                x,
+                y,
+            },
+        ),
+        WorldError::TooManyObstacles { count, max } => (
+            "obstacles".to_owned(),
+            FieldProblem::TooMany {
+                what: "obstacles",
+                count,
+                max,
+            },
+        ),
+        WorldError::TooManyPoints { count, max } => (
+            "obstacles".to_owned(),
+            FieldProblem::TooMany {
+                what: "polygon points in all",
+                count,
+                max,
+            },
+        ),
+    };
+    (world_field(&field), problem)
+}
+
 /// A field path of [`World::new`] (`obstacles[2].polygon.points[4]`, indices from 0) as the
 /// file names it (`world.obstacle[3].polygon.points_m[5]`, counted from 1 as every list of the
 /// config is).
@@ -1141,65 +1202,8 @@ impl Checker<'_> {
     /// A refusal of [`World::new`], its field named as in the file (`world.obstacle[3]...`,
     /// counted from 1).
     fn world_error(&self, e: WorldError) -> ConfigError {
-        let (field, problem) = match e {
-            WorldError::NotFinite { field, value } => (field, FieldProblem::NotFinite { value }),
-            WorldError::NotPositive { field, value } => {
-                (field, FieldProblem::NotPositive { value })
-            }
-            WorldError::Negative { field, value } => (field, FieldProblem::Negative { value }),
-            WorldError::EmptyId { field } => (field, FieldProblem::EmptyId),
-            WorldError::BadId { field, why } => (field, FieldProblem::BadObstacleId { why }),
-            WorldError::DuplicateId { field, id, first } => (
-                field,
-                FieldProblem::DuplicateObstacle {
-                    id,
-                    other: first + 1,
-                },
-            ),
-            WorldError::TooFewPoints { field, count } => {
-                (field, FieldProblem::TooFewPoints { count })
-            }
-            WorldError::RepeatedPoint { field, first, x, y } => (
-                field,
-                FieldProblem::RepeatedPoint {
-                    x,
-                    y,
-                    first: first + 1,
-                },
-            ),
-            WorldError::SelfIntersecting {
-                field,
-                edge_a,
-                edge_b,
-                x,
-                y,
-            } => (
-                field,
-                FieldProblem::SelfIntersecting {
-                    edge_a: edge_a + 1,
-                    edge_b: edge_b + 1,
-                    x,
-                    y,
-                },
-            ),
-            WorldError::TooManyObstacles { count, max } => (
-                "obstacles".to_owned(),
-                FieldProblem::TooMany {
-                    what: "obstacles",
-                    count,
-                    max,
-                },
-            ),
-            WorldError::TooManyPoints { count, max } => (
-                "obstacles".to_owned(),
-                FieldProblem::TooMany {
-                    what: "polygon points in all",
-                    count,
-                    max,
-                },
-            ),
-        };
-        self.invalid(world_field(&field), problem)
+        let (field, problem) = world_problem(e);
+        self.invalid(field, problem)
     }
 
     /// `contact_load` (one number for every joint, or one per joint) and `contact_ms`.

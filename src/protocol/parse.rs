@@ -27,6 +27,13 @@ const MAX_REBOOT_IDS: usize = MAX_SERVO_ID as usize + 1;
 /// The largest id a Protocol 2.0 servo may have (253 is reserved, 254 is the broadcast id).
 const MAX_SERVO_ID: u8 = 252;
 
+/// Reads `bytes` as one JSON value, refusing an object with the same key twice at any depth
+/// (as [`parse`] does: `serde_json` alone keeps the last of two equal keys). A duplicate key
+/// is a data error ([`serde_json::Error::is_data`]) whose message names the key.
+pub fn strict_json(bytes: &[u8]) -> serde_json::Result<Value> {
+    strict::from_slice(bytes)
+}
+
 /// Reads one request line (without its newline) for an arm of `joints` joints.
 ///
 /// # Returns
