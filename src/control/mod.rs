@@ -265,9 +265,14 @@ pub enum Refused {
     /// A path without points.
     #[error("a path needs at least one point")]
     EmptyPath,
-    /// A goto or path point where the tip can never be clear: inside an obstacle grown by the
-    /// link radius and the clearance.
-    #[error("the {what} ({x}, {y}) lies within {grown_m} m of obstacle \"{obstacle}\": the tip can never be clear there")]
+    /// A goto or path point where the tip cannot be kept clear: inside an obstacle grown by the
+    /// link radius, the clearance and what rounding the joints to whole servo ticks may take
+    /// (the clearance the controller plans with).
+    #[error(
+        "the {what} ({x}, {y}) is {distance_m:.4} m from obstacle \"{obstacle}\", closer than \
+         the {grown_m:.4} m the tip keeps ({}): the tip cannot be kept clear there",
+        keep_parts(*link_radius_m, *grown_m - *link_radius_m - *rounding_m, *rounding_m)
+    )]
     InsideObstacle {
         /// What it was ("target", "path point").
         what: &'static str,
@@ -277,13 +282,21 @@ pub enum Refused {
         y: f64,
         /// The obstacle's id.
         obstacle: String,
-        /// `link_radius_m + clearance_m`, m.
+        /// The point's distance from the obstacle, m (negative inside it).
+        distance_m: f64,
+        /// What the tip keeps: `link_radius_m + clearance_m + rounding_m`, m.
         grown_m: f64,
+        /// The arm's link radius, m.
+        link_radius_m: f64,
+        /// The most rounding the joints to whole servo ticks moves a point, m (0 for exact).
+        rounding_m: f64,
     },
-    /// A joint move whose straight way in joint space passes a pose that is not clear.
+    /// A joint move whose straight way in joint space passes a pose that is not clear: below
+    /// the clearance to keep or, for a link not clear now, closer than it is (its floor).
     #[error(
-        "link {link} would come within {clearance_m:.4} m of obstacle \"{obstacle}\" \
-         {percent:.0}% of the way there (the clearance to keep is {keep_m} m)",
+        "link {link} would come within {clearance_m:.6} m of obstacle \"{obstacle}\" \
+         {percent:.0}% of the way there ({})",
+        floor_words(*keep_m, *floor_m),
         percent = .fraction * 100.0
     )]
     NotClearOnTheWay {
@@ -297,12 +310,15 @@ pub enum Refused {
         clearance_m: f64,
         /// The clearance to keep, m.
         keep_m: f64,
+        /// What this link may not come closer than: `keep_m`, or, for a link not clear since
+        /// the world or the pose changed, the best clearance it has had since, m.
+        floor_m: f64,
     },
     /// A joint move whose goal is clear, but not as the servos receive it: each joint rounded
     /// to a whole tick of its servo (see [`Controller::set_joint_resolution`]).
     #[error(
         "link {link} of the goal, each joint rounded to a whole tick as the servos take it, \
-         would come within {clearance_m:.4} m of obstacle \"{obstacle}\" (the clearance to \
+         would come within {clearance_m:.6} m of obstacle \"{obstacle}\" (the clearance to \
          keep is {keep_m} m)"
     )]
     GoalNotClearAsSent {
@@ -471,6 +487,34 @@ pub struct RouteRequest {
     pub speed: f64,
     /// The world planned in.
     pub world: World,
+    /// What rounding the joints to whole servo ticks may take, m: the part of the planned
+    /// world's clearance that is not the world's own (for messages).
+    pub rounding_m: f64,
+}
+
+/// The rule a joint move's way broke, in words: the clearance to keep, or a link's floor below
+/// it (a link not clear may only get clearer).
+fn floor_words(keep_m: f64, floor_m: f64) -> String {
+    if floor_m < keep_m {
+        format!(
+            "the clearance to keep is {keep_m} m; the link is not clear, at {floor_m:.6} m at \
+             best since the obstacle or the pose changed, and may not come closer until it is"
+        )
+    } else {
+        format!("the clearance to keep is {keep_m} m")
+    }
+}
+
+/// What the tip keeps from an obstacle, in words: the link radius, the clearance, and what
+/// rounding may take when it may take anything.
+fn keep_parts(link_radius_m: f64, clearance_m: f64, rounding_m: f64) -> String {
+    let mut s = format!("link radius {link_radius_m} m, clearance {clearance_m:.4} m");
+    if rounding_m > 0.0 {
+        s += &format!(
+            ", and {rounding_m:.4} m that rounding the joints to whole servo ticks may take"
+        );
+    }
+    s
 }
 
 /// Planned routes: the tip's way from the request's `from` through its points, and whether it
@@ -529,6 +573,7 @@ pub fn plan_route(request: &RouteRequest, work: u64) -> Result<PlannedRoute, Ref
                 end: RouteEnd::Goal,
                 id,
                 needed_m,
+                distance_m,
                 ..
             }) => {
                 return Err(Refused::InsideObstacle {
@@ -536,7 +581,10 @@ pub fn plan_route(request: &RouteRequest, work: u64) -> Result<PlannedRoute, Ref
                     x: p.x,
                     y: p.y,
                     obstacle: id,
+                    distance_m,
                     grown_m: needed_m,
+                    link_radius_m: request.world.link_radius_m(),
+                    rounding_m: request.rounding_m,
                 })
             }
             Err(RouteError::NoRoute { needed_m }) => {
@@ -978,6 +1026,7 @@ impl Controller {
             what,
             speed,
             world: self.plan.clone(),
+            rounding_m: self.rounding_m,
         };
         match plan_route(&request, work) {
             Ok(route) => {
@@ -1018,6 +1067,7 @@ impl Controller {
             what: request.what,
             speed: request.speed,
             world: self.plan.clone(),
+            rounding_m: self.rounding_m,
         }
     }
 
@@ -1042,12 +1092,20 @@ impl Controller {
             }
             self.chain.points_into(&pose, &mut points);
             if let Some(p) = self.world.below_floors(&points, &self.guard.floors) {
+                let m = self.world.obstacles().len();
+                let keep_m = self.world.clearance_m();
+                let floor_m = self
+                    .guard
+                    .floors
+                    .get((p.link - 1) * m + p.obstacle)
+                    .map_or(keep_m, |&f| f.min(keep_m));
                 return Err(Refused::NotClearOnTheWay {
                     link: p.link,
                     obstacle: p.id(&self.world).to_string(),
                     fraction: f,
                     clearance_m: p.clearance_m,
-                    keep_m: self.world.clearance_m(),
+                    keep_m,
+                    floor_m,
                 });
             }
         }

@@ -785,3 +785,69 @@ fn a_tip_motion_out_of_an_obstacle_put_onto_the_arm_keeps_the_tip_speed_limit() 
         }
     }
 }
+
+/// A goto refused for a target too near an obstacle says how near it is and what the tip keeps,
+/// rounding included: 17.5 mm from the post keeps the world's 5 mm beyond the link radius, but
+/// not the 4.8 mm rounding to servo ticks may take on top.
+#[test]
+fn a_target_too_near_an_obstacle_is_refused_with_what_the_tip_keeps() {
+    let home = vec![0.1; N];
+    let mut ctl = holding(limits(), &home);
+    at_servo_resolution(&mut ctl);
+    assert!(ctl.set_world(world_toml()).is_none());
+    let err = ctl
+        .command(Command::Goto {
+            target: Vec2::new(0.15, 0.6575),
+            speed: None,
+        })
+        .unwrap_err();
+    let text = err.to_string();
+    assert!(
+        matches!(err, Refused::InsideObstacle { distance_m, .. } if (distance_m - 0.0175).abs() < 1e-12),
+        "{err:?}"
+    );
+    for part in [
+        "is 0.0175 m from obstacle \"post\"",
+        "the 0.0218 m the tip keeps",
+        "link radius 0.012 m, clearance 0.0050 m, and 0.0048 m that rounding",
+    ] {
+        assert!(text.contains(part), "{part} / {text}");
+    }
+}
+
+/// A joint move refused from a pose not clear says that the link may not come closer than it is,
+/// not only the clearance to keep.
+#[test]
+fn a_joint_move_refused_from_a_pose_not_clear_names_the_links_floor() {
+    // A disc 15 mm to one side of link 6's middle: the link is 7 mm inside its grown edge.
+    // Turning joint 5 one way takes link 6 off it, the other way across it.
+    let home = vec![0.1; N];
+    let p = chain().points(&home);
+    let along = (p[6] - p[5]).normalize();
+    let side = Vec2::new(-along.y, along.x) * 0.015;
+    let mut refused = Vec::new();
+    for turn in [0.3, -0.3] {
+        let mut ctl = holding(limits(), &home);
+        let nc = ctl
+            .set_world(dropped_by(&home, 6, side))
+            .expect("link 6 inside the disc");
+        let mut goal = home.clone();
+        goal[5] += turn;
+        if let Err(e) = ctl.command(Command::GotoJoints { theta: goal }) {
+            refused.push((e, nc));
+        }
+    }
+    assert_eq!(refused.len(), 1, "{refused:?}");
+    let (err, nc) = refused.remove(0);
+    let Refused::NotClearOnTheWay {
+        floor_m, keep_m, ..
+    } = &err
+    else {
+        panic!("{err:?}");
+    };
+    assert!(
+        *floor_m < *keep_m && (*floor_m - nc.clearance_m).abs() < 1e-8,
+        "{err:?} {nc:?}"
+    );
+    assert!(err.to_string().contains("the link is not clear"), "{err}");
+}
