@@ -54,6 +54,9 @@ enum Command {
     Estop(cli::client::PlainArgs),
     /// Clear the estop latch: hold the measured pose, torque on.
     Reset(cli::client::PlainArgs),
+    /// Reboot servos to clear a hardware error (default: those in one, else all); the arm is
+    /// brought up again where it stands.
+    Reboot(cli::client::RebootArgs),
     /// Move the joints to the home pose.
     Home(cli::client::HomeArgs),
     /// Switch the strategy live: `overall` or `sequential`.
@@ -92,6 +95,7 @@ fn main() -> ExitCode {
         Command::Stop(args) => cli::client::stop(args),
         Command::Estop(args) => cli::client::estop(args),
         Command::Reset(args) => cli::client::reset(args),
+        Command::Reboot(args) => cli::client::reboot(args),
         Command::Home(args) => cli::client::home(args),
         Command::Strategy(args) => cli::client::strategy(args),
         Command::Watch(args) => cli::client::watch(args),

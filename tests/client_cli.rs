@@ -1,5 +1,5 @@
 //! The one-shot client commands (`status`, `describe`, `goto`, `path`, `home`, `stop`,
-//! `estop`, `reset`, `strategy`, `watch`) as a user runs them: the built binary against a
+//! `estop`, `reset`, `reboot`, `strategy`, `watch`) as a user runs them: the built binary against a
 //! daemon on simulated servos started in this process. Exit codes, what is printed, and what
 //! the daemon did afterwards.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -12,7 +12,7 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use daemon_support::{dist, sim_config, xy, Daemon, DEADLINE};
+use daemon_support::{dist, sim_config, sim_config_with, xy, Daemon, DEADLINE};
 use serde_json::{json, Value};
 
 /// Where the shipped simulator's tip rests at home, m.
@@ -276,6 +276,45 @@ fn a_waiting_goto_interrupted_by_an_estop_fails_saying_estop() {
     assert_fails(&at(&d, &["goto", "-0.55", "0.70"]), 1, "estopped");
     let run = at(&d, &["reset"]);
     assert_ok(&run, "reset");
+}
+
+/// A servo's hardware error holds the arm through `reset` (a note says so, and what clears
+/// it); `snakectl reboot` clears it, naming the servo, and the arm moves again.
+#[test]
+fn reset_tells_of_a_hardware_error_and_reboot_clears_it() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config_with(
+        &[],
+        "[[sim.fault]]\nkind = \"hardware_error\"\nid = 9\nat_s = 0.5\nerror = \"overload\"\n",
+    ));
+    let mut c = d.client();
+    let deadline = Instant::now() + DEADLINE;
+    while c.status()["state"] != "fault" {
+        assert!(Instant::now() < deadline, "no hardware error raised");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let run = at(&d, &["reset"]);
+    assert_ok(&run, "reset");
+    assert!(
+        run.stderr.contains(
+            "a hardware error still holds the arm (servo 9); `snakectl reboot` clears it"
+        ),
+        "{:?}",
+        run.stderr
+    );
+    let run = at(&d, &["reboot"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: rebooted [9] at tick "),
+        "{:?}",
+        run.stdout
+    );
+    assert_eq!(c.status()["state"], "holding");
+    let run = at(&d, &["reset"]);
+    assert_ok(&run, "reset");
+    assert!(run.stderr.is_empty(), "{:?}", run.stderr);
+    let run = at(&d, &["goto", "-0.55", "0.70"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
 }
 
 #[test]

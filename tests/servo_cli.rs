@@ -68,6 +68,16 @@ fn scan_of_a_dead_port_fails_with_a_hint() {
     let out = snakectl(&["scan", "--port", "/dev/null", "--baud", "12345"]);
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out).1.contains("not a Dynamixel baud rate"));
+    // An id no servo can have is refused before the port is opened.
+    for id in ["253", "254", "255"] {
+        let out = snakectl(&["servo", "--port", "/dev/does-not-exist", "--id", id, "info"]);
+        assert_eq!(out.status.code(), Some(2));
+        assert!(
+            text(&out).1.contains("out of range 0..=252"),
+            "{}",
+            text(&out).1
+        );
+    }
 }
 
 #[test]

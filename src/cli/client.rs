@@ -17,7 +17,7 @@ use anyhow::anyhow;
 use clap::Args;
 use serde_json::Value;
 use snakectl::client::{Client, ClientError, CmdName, Ending, Fields};
-use snakectl::protocol::{strategy_named, Cmd, Code, MAX_PATH_POINTS, STRATEGIES};
+use snakectl::protocol::{strategy_named, Cmd, Code, FaultKind, MAX_PATH_POINTS, STRATEGIES};
 
 use super::{outln, Failure};
 
@@ -35,6 +35,15 @@ pub struct ConnectArgs {
 /// Arguments of the commands that take nothing else.
 #[derive(Debug, Args)]
 pub struct PlainArgs {
+    #[command(flatten)]
+    pub connect: ConnectArgs,
+}
+
+/// `reboot [ID...]`.
+#[derive(Debug, Args)]
+pub struct RebootArgs {
+    /// The servos to reboot (default: those in hardware error, else every one).
+    pub ids: Vec<u8>,
     #[command(flatten)]
     pub connect: ConnectArgs,
 }
@@ -163,9 +172,44 @@ pub fn estop(args: PlainArgs) -> Result<(), Failure> {
     one_shot(&args.connect, &Cmd::Estop)
 }
 
-/// `snakectl reset`.
+/// `snakectl reset`. It clears the estop latch (and a servo that lost power or a joint in
+/// contact, which latch it), not a servo's hardware error: when one still holds the arm, a
+/// note on stderr says so and what clears it.
 pub fn reset(args: PlainArgs) -> Result<(), Failure> {
-    one_shot(&args.connect, &Cmd::Reset)
+    let mut client = connect(&args.connect)?;
+    let fields = client.request(&Cmd::Reset).map_err(refused)?;
+    outln!("ok: reset at tick {}", fields.reply.tick().unwrap_or(0))?;
+    if let Ok(status) = client.status() {
+        let held: Vec<String> = status
+            .faults
+            .iter()
+            .filter(|f| f.kind == FaultKind::HardwareError)
+            .filter_map(|f| f.id.map(|id| id.to_string()))
+            .collect();
+        if !held.is_empty() {
+            eprintln!(
+                "snakectl: note: a hardware error still holds the arm (servo {}); `snakectl \
+                 reboot` clears it",
+                held.join(", ")
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `snakectl reboot [ID...]`: the reply comes once the servos have booted; it names them.
+pub fn reboot(args: RebootArgs) -> Result<(), Failure> {
+    let mut client = connect(&args.connect)?;
+    let ids = (!args.ids.is_empty()).then(|| args.ids.clone());
+    let fields = client.request(&Cmd::Reboot { ids }).map_err(refused)?;
+    let rebooted = fields
+        .to_map()
+        .get("rebooted")
+        .map_or_else(|| "[]".to_owned(), Value::to_string);
+    outln!(
+        "ok: rebooted {rebooted} at tick {}",
+        fields.reply.tick().unwrap_or(0)
+    )
 }
 
 /// `snakectl home`.

@@ -47,7 +47,7 @@ pub struct ServoArgs {
     /// Baud rate the servo listens at now; when absent, the common ones are tried.
     #[arg(long)]
     baud: Option<u32>,
-    /// The servo's present id.
+    /// The servo's present id, 0..=252.
     #[arg(long)]
     id: u8,
     /// Wait for a reply beyond its wire time, ms.
@@ -251,6 +251,12 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
     init_logging();
     let timeout = Duration::from_millis(args.timeout_ms);
     // Check the arguments before touching the bus.
+    if args.id > MAX_ID {
+        return Err(Failure::bad_input(anyhow!(
+            "--id {} is out of range 0..=252 (253 is reserved, 254 is the broadcast id)",
+            args.id
+        )));
+    }
     match args.action {
         ServoAction::SetId { new_id } if new_id > MAX_ID => {
             return Err(Failure::bad_input(anyhow!(

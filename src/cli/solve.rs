@@ -12,8 +12,12 @@ use super::{outln, Failure};
 
 #[derive(Debug, Args)]
 pub struct SolveArgs {
-    /// Problem file in the JSON format of docs/SOLVE.md; `-` reads stdin.
-    #[arg(conflicts_with_all = ["config", "from"], required_unless_present = "config")]
+    /// Problem file in the JSON format of docs/SOLVE.md; `-` reads stdin. It says everything
+    /// itself: the flags that go with `--config` are refused beside it, not ignored.
+    #[arg(
+        conflicts_with_all = ["config", "from", "target", "strategy", "propagation", "steps"],
+        required_unless_present = "config"
+    )]
     problem: Option<PathBuf>,
     /// Take the arm from this config file instead of a problem file.
     #[arg(long, requires = "target")]
