@@ -57,7 +57,10 @@ pub enum BaseMode {
 
 /// The problem file as written. Every key is optional only where the format says so.
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    expecting = "a problem: a JSON object (docs/SOLVE.md)"
+)]
 struct RawProblem {
     links: Vec<f64>,
     base: Vec<f64>,
@@ -88,7 +91,10 @@ struct RawProblem {
 /// One obstacle as written: `{"id": "post", "circle": {"center": [x, y], "radius": r}}` or
 /// `{"polygon": {"points": [[x, y], ...]}}`.
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    expecting = r#"an obstacle: {"id"?, "circle": {"center", "radius"}} or {"id"?, "polygon": {"points"}}"#
+)]
 struct RawObstacle {
     #[serde(default)]
     id: Option<String>,
@@ -99,14 +105,20 @@ struct RawObstacle {
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    expecting = r#"a circle: {"center": [x, y], "radius": r}"#
+)]
 struct RawCircle {
     center: Vec<f64>,
     radius: f64,
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    expecting = r#"a polygon: {"points": [[x, y], ...]}"#
+)]
 struct RawPolygon {
     points: Vec<Vec<f64>>,
 }
@@ -406,8 +418,25 @@ pub fn check_pose(chain: &Chain, field: &str, theta: &[f64]) -> Result<(), Probl
 impl Problem {
     /// Parses and validates a problem from JSON text.
     pub fn from_json(text: &str) -> Result<Self, ProblemError> {
-        let raw: RawProblem =
-            serde_json::from_str(text).map_err(|e| ProblemError::new("input", format!("{e}")))?;
+        // Serde would read an array as the fields in order, and name its elements.
+        if text.trim_start().starts_with('[') {
+            return Err(ProblemError::new(
+                "input",
+                "a problem is a JSON object (docs/SOLVE.md), not an array",
+            ));
+        }
+        // The path of a value of the wrong shape names the field, as every other refusal does.
+        let de = &mut serde_json::Deserializer::from_str(text);
+        let raw: RawProblem = serde_path_to_error::deserialize(de).map_err(|e| {
+            let path = e.path().to_string();
+            // `.` is the whole; `?` a place the parser could not name (text that is not JSON).
+            let field = if path == "." || path.contains('?') {
+                "input".to_owned()
+            } else {
+                path
+            };
+            ProblemError::new(field, e.into_inner().to_string())
+        })?;
         Self::from_raw(raw)
     }
 
@@ -807,7 +836,7 @@ mod tests {
         let cases: Vec<(String, &str)> = vec![
             ("{".into(), "input"),
             ("[1,2]".into(), "input"),
-            (with(r#""colour":1"#), "input"),
+            (with(r#""colour":1"#), "colour"),
             (GOOD.replace("[1,1,1]", "[]"), "links"),
             (GOOD.replace("[1,1,1]", "[1,-1,1]"), "links[1]"),
             (GOOD.replace("[1,1,1]", "[1,0,1]"), "links[1]"),
@@ -856,8 +885,9 @@ mod tests {
                 with(r#""strategy":"overall","propagation":"distance""#),
                 "propagation",
             ),
-            (with(r#""steps":-1"#), "input"),
-            (GOOD.replace("[1.5,1.0]", "[1.5,1e999]"), "input"),
+            (with(r#""steps":-1"#), "steps"),
+            (GOOD.replace("[1.5,1.0]", "[1.5,1e999]"), "target[1]"),
+            (GOOD.replace("[1.5,1.0]", "[1.5,\"1\"]"), "target[1]"),
             (with(r#""link_radius_m":-0.01"#), "link_radius_m"),
             (with(r#""clearance_m":2e6"#), "clearance_m"),
             (with(r#""obstacles":[{"id":"a"}]"#), "obstacles[0]"),
@@ -869,11 +899,20 @@ mod tests {
             ),
             (
                 with(r#""obstacles":[{"circle":{"center":[0,0],"radius_m":1}}]"#),
-                "input",
+                "obstacles[0].circle.radius_m",
             ),
             (
                 with(r#""obstacles":[{"circle":{"center":[0,0],"radius":1},"kind":"post"}]"#),
-                "input",
+                "obstacles[0].kind",
+            ),
+            (
+                with(r#""obstacles":[{"circle":{"center":[0,0],"radius":"1"}}]"#),
+                "obstacles[0].circle.radius",
+            ),
+            (with(r#""obstacles":[1]"#), "obstacles[0]"),
+            (
+                with(r#""obstacles":[{"id":3,"circle":{"center":[0,0],"radius":1}}]"#),
+                "obstacles[0].id",
             ),
             (
                 with(r#""obstacles":[{"circle":{"center":[0,0,0],"radius":1}}]"#),
