@@ -1571,11 +1571,18 @@ impl Controller {
         if (self.chain.tip(&self.cand) - from).norm() <= most {
             return;
         }
-        let (mut lo, mut hi) = (0.0, 1.0);
+        self.cut_back(0.0, 1.0, |c| (c.chain.tip(&c.trial) - from).norm() <= most);
+    }
+
+    /// Moves `cand` back along the joint step `theta -> cand` to the farthest fraction between
+    /// `lo` (whose pose keeps) and `hi` (whose pose does not) found by [`BISECTION_ROUNDS`]
+    /// rounds of bisection to keep (`keeps` of the pose in `trial`); the last goal at worst. A
+    /// fraction of the step keeps within the joint-speed bound and the limits.
+    fn cut_back(&mut self, mut lo: f64, mut hi: f64, mut keeps: impl FnMut(&mut Self) -> bool) {
         for _ in 0..BISECTION_ROUNDS {
             let mid = 0.5 * (lo + hi);
             self.trial_at(mid);
-            if (self.chain.tip(&self.trial) - from).norm() <= most {
+            if keeps(self) {
                 lo = mid;
             } else {
                 hi = mid;
@@ -1587,7 +1594,7 @@ impl Controller {
             .zip(&self.theta)
             .zip(self.chain.limits())
         {
-            *c = t + lo * (*c - t);
+            *c = if lo > 0.0 { t + lo * (*c - t) } else { t };
             if let Some(l) = lim {
                 *c = l.clamp(*c);
             }
@@ -1675,26 +1682,7 @@ impl Controller {
         if !touches && blocked.is_none() {
             return (false, None);
         }
-        for _ in 0..BISECTION_ROUNDS {
-            let mid = 0.5 * (lo + hi);
-            self.trial_at(mid);
-            if self.trial_clear() {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        for ((c, &t), lim) in self
-            .cand
-            .iter_mut()
-            .zip(&self.theta)
-            .zip(self.chain.limits())
-        {
-            *c = if lo > 0.0 { t + lo * (*c - t) } else { t };
-            if let Some(l) = lim {
-                *c = l.clamp(*c);
-            }
-        }
+        self.cut_back(lo, hi, Self::trial_clear);
         (touches, blocked)
     }
 }
