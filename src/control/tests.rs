@@ -752,6 +752,30 @@ fn an_obstacle_dropped_onto_a_moving_arm_stops_it_and_it_holds() {
         }
     }
     assert!(moving >= 16, "only {moving} of 24 drops onto a moving arm");
+    // A jog's stop (in joint space) as well.
+    for link in [3, 9, 11] {
+        let home = vec![0.1; N];
+        let mut ctl = holding(limits(), &home);
+        at_servo_resolution(&mut ctl);
+        assert!(ctl.set_world(world_toml()).is_none());
+        ctl.command(Command::Jog {
+            joint: 1,
+            rad_s: -0.5,
+        })
+        .unwrap();
+        for _ in 0..20 {
+            ctl.tick(0.01);
+        }
+        assert_eq!(ctl.activity(), Activity::Moving);
+        assert!(ctl.set_world(dropped_on(ctl.theta(), link)).is_some());
+        let (finish, k) = run(&mut ctl, 0.01, 100);
+        assert_eq!(
+            finish,
+            Some(Finish::Stopped { deadman: false }),
+            "a jog, dropped on link {link}: not ended in {k} ticks"
+        );
+        assert_eq!(ctl.activity(), Activity::Holding);
+    }
 }
 
 /// The tip motions after an obstacle was put onto the arm keep the tip speed limit: the body's

@@ -879,8 +879,10 @@ impl Motion {
         if holding || !joint_space || !got.exact {
             for ((a, &t), &t0) in self.axes.iter_mut().zip(got.theta).zip(&self.prior) {
                 let v = if holding { 0.0 } else { (t - t0) / dt };
+                // (`max`/`min`, not `clamp`: no panic whatever the numbers.)
+                let most = a.v.abs();
                 a.v = if stopping && joint_space {
-                    v.clamp(-a.v.abs(), a.v.abs())
+                    v.max(-most).min(most)
                 } else {
                     v
                 };
