@@ -7,32 +7,28 @@
 //!
 //! - **circle**: `|c - q| - r` with `q` the segment's point nearest the centre. Exact: inside,
 //!   it is minus the depth of the segment's deepest point.
-//! - **polygon**, when the segment meets it: minus the depth (distance to the boundary) of its
-//!   deepest point, exact. Along the segment the depth is the least of the boundary features'
-//!   distances (each edge's line where the perpendicular's foot falls on the edge, each
-//!   vertex), all convex in the segment's parameter, so it is greatest at an end or where two
-//!   features are equally far: places found in closed form (a linear or quadratic equation per
-//!   pair). First the depths of the segment's points at `s = k / DEPTH_SAMPLES`, `k =
-//!   0..=DEPTH_SAMPLES`, and at the middle of each stretch between the places where the
-//!   boundary meets it (an edge crossed, or a vertex on it) give a lower bound, and so an upper
-//!   one (the depth is 1-Lipschitz: at most `|b - a| / (2 DEPTH_SAMPLES)` deeper), so that only
-//!   the features within that reach are paired. A segment that enters the polygon at all, even
-//!   between two vertices, is negative; points outside count 0; one that only touches the
-//!   boundary gets 0. The depth is continuous in the segment.
+//! - **polygon**, when the segment meets it: minus the largest depth (distance to the boundary)
+//!   of the segment's points sampled at `s = k / DEPTH_SAMPLES`, `k = 0..=DEPTH_SAMPLES`, and at
+//!   the middle of each stretch between the places where the boundary meets it (an edge
+//!   crossed, or a vertex on it), so a segment that enters the polygon at all, even between two
+//!   vertices, is negative; points outside count 0. The depth of a point is
+//!   1-Lipschitz, so this is never deeper than the true deepest point, shallower by at most
+//!   `|b - a| / (2 DEPTH_SAMPLES)`, and exact when the deepest point is an end point (or any
+//!   sample). It is continuous in the segment except where two stretches inside merge (the
+//!   segment sweeping over a reflex corner), where the middles jump, never across 0. A segment
+//!   that only touches the boundary gets 0.
 //!
 //! The contact's `normal` is the gradient of the signed distance with respect to the contact
 //! point on the segment (held at its parameter `s`): the direction that moves the segment out.
-//! Where `s` is the minimizer (apart, circles) or an end, the envelope argument makes it also
-//! the exact gradient with respect to any motion of the segment, which is what a solver needs.
-//! Where the deepest point is a peak between two features equally far, whose place moves with
-//! the segment, it is the mix of their two unit normals that keeps them equally far (each
-//! weighted by the other's slope along the segment), again the exact gradient of the depth,
-//! and shorter than a unit vector.
+//! Where `s` is the minimizer (apart, circles) or a fixed sample (`k / DEPTH_SAMPLES`), the
+//! envelope argument makes it also the exact gradient with respect to any motion of the
+//! segment, which is what a solver needs. At a stretch's middle, whose parameter moves with the
+//! crossings, it is the direction that pushes that point out, not the exact derivative.
 
 use crate::chain::Vec2;
 pub use crate::chain::{cross, point_segment};
 
-/// Pieces the segment is cut into to bound the depth of a polygon it enters.
+/// Pieces the segment is cut into to find the depth of a polygon it enters.
 pub const DEPTH_SAMPLES: usize = 16;
 
 /// The nearest approach of a segment `a..b` and an obstacle.
@@ -46,8 +42,7 @@ pub struct Contact {
     pub on_obstacle: Vec2,
     /// Where `on_segment` sits along the segment, 0 at `a` to 1 at `b`.
     pub s: f64,
-    /// Gradient of `distance_m` with respect to `on_segment` (a unit vector but at a peak of a
-    /// polygon's depth; module doc).
+    /// Unit gradient of `distance_m` with respect to `on_segment`.
     pub normal: Vec2,
 }
 
@@ -276,7 +271,7 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
             .fold(1.0, f64::min);
         consider(0.5 * (t + next));
     }
-    let (depth, x, q, t, normal) = deepest(a, b, points, deep);
+    let (depth, x, q, t) = deep;
     if depth <= 0.0 && apart {
         // It only grazes vertices from outside.
         return outside();
@@ -287,7 +282,7 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
             on_segment: x,
             on_obstacle: q,
             s: t,
-            normal,
+            normal: (q - x) / depth,
         }
     } else {
         Contact {
@@ -298,223 +293,6 @@ pub fn segment_polygon(a: Vec2, b: Vec2, points: &[Vec2]) -> Contact {
             normal: outward_normal(points, edge),
         }
     }
-}
-
-/// A foot this far (as a fraction of its edge) beyond an end still counts as on the edge: the
-/// vertex's own distance takes over there, equal to round-off.
-const FOOT_SLACK: f64 = 1e-9;
-/// Two features' distances this close (relative to the scale) at a place along the segment are
-/// equal there: the place is where the depth's nearest feature changes.
-const SAME_DEPTH: f64 = 1e-9;
-
-/// A feature of a polygon's boundary whose distance from the point `a + t e` of a segment is
-/// one of the functions the depth is the least of: an edge's line (where the foot of the
-/// perpendicular falls on the edge) or a vertex. Each is convex in `t`.
-#[derive(Debug, Clone, Copy)]
-enum Feature {
-    /// The edge `u..w`: signed distance from its line `s0 + s1 t`, foot at `p0 + p1 t` along it.
-    Edge {
-        u: Vec2,
-        w: Vec2,
-        s0: f64,
-        s1: f64,
-        p0: f64,
-        p1: f64,
-    },
-    Vertex(Vec2),
-}
-
-impl Feature {
-    fn edge(a: Vec2, e: Vec2, u: Vec2, w: Vec2) -> Self {
-        let d = w - u;
-        let (len, len2) = (d.norm(), d.norm_squared());
-        Feature::Edge {
-            u,
-            w,
-            s0: cross(d, a - u) / len,
-            s1: cross(d, e) / len,
-            p0: (a - u).dot(&d) / len2,
-            p1: e.dot(&d) / len2,
-        }
-    }
-
-    /// Whether the distance to the boundary at `t` may be this feature's: an edge's line only
-    /// where its foot falls on the edge.
-    fn holds(&self, t: f64) -> bool {
-        match *self {
-            Feature::Edge { p0, p1, .. } => {
-                (-FOOT_SLACK..=1.0 + FOOT_SLACK).contains(&(p0 + p1 * t))
-            }
-            Feature::Vertex(_) => true,
-        }
-    }
-
-    fn distance(&self, x: Vec2, t: f64) -> f64 {
-        match *self {
-            Feature::Edge { s0, s1, .. } => (s0 + s1 * t).abs(),
-            Feature::Vertex(v) => (x - v).norm(),
-        }
-    }
-
-    fn nearest(&self, x: Vec2) -> Vec2 {
-        match *self {
-            Feature::Edge { u, w, .. } => point_segment(x, u, w).0,
-            Feature::Vertex(v) => v,
-        }
-    }
-
-    /// The places `t` where this feature and `other` are equally far from `a + t e` (at most
-    /// two; `NaN` for none).
-    fn equal_at(&self, other: &Feature, a: Vec2, e: Vec2) -> [f64; 2] {
-        let none = [f64::NAN; 2];
-        let e2 = e.norm_squared();
-        match (*self, *other) {
-            (Feature::Edge { s0, s1, .. }, Feature::Edge { s0: r0, s1: r1, .. }) => {
-                // |s| = |r|: s = r or s = -r, each linear.
-                [-(s0 - r0) / (s1 - r1), -(s0 + r0) / (s1 + r1)]
-            }
-            (Feature::Vertex(v), Feature::Vertex(w)) => {
-                // |x - v|^2 = |x - w|^2 is linear in t (the squares cancel).
-                [
-                    ((a - w).norm_squared() - (a - v).norm_squared()) / (2.0 * e.dot(&(w - v))),
-                    f64::NAN,
-                ]
-            }
-            (Feature::Edge { s0, s1, .. }, Feature::Vertex(v))
-            | (Feature::Vertex(v), Feature::Edge { s0, s1, .. }) => {
-                // (s0 + s1 t)^2 = |a - v|^2 + 2 t e.(a - v) + t^2 |e|^2.
-                let av = a - v;
-                let qa = s1 * s1 - e2;
-                let qb = 2.0 * (s0 * s1 - e.dot(&av));
-                let qc = s0 * s0 - av.norm_squared();
-                if qa.abs() <= 1e-12 * e2 {
-                    return [-qc / qb, f64::NAN];
-                }
-                let disc = qb * qb - 4.0 * qa * qc;
-                if disc < 0.0 {
-                    return none;
-                }
-                let q = -0.5 * (qb + disc.sqrt().copysign(qb));
-                [q / qa, qc / q]
-            }
-        }
-    }
-}
-
-/// The deepest point of the segment `a..b` inside the polygon, exact, from `sampled`, the
-/// deepest of some of its points (depth, point, nearest boundary point, parameter; depth 0 for
-/// none inside), which bounds it: the depth, the point, its nearest boundary point, its
-/// parameter and the signed distance's gradient there (module doc).
-///
-/// Along the segment the depth is the least of the features' distances ([`Feature`], each
-/// convex in `t`), so its greatest value is at an end of the segment or where two features are
-/// equally far. Only features within the bound's reach (the sampled depth plus half a sample's
-/// spacing, the depth being 1-Lipschitz) can be the least where it is that deep.
-fn deepest(
-    a: Vec2,
-    b: Vec2,
-    points: &[Vec2],
-    sampled: (f64, Vec2, Vec2, f64),
-) -> (f64, Vec2, Vec2, f64, Vec2) {
-    let (depth, x, q, t) = sampled;
-    let single = |depth: f64, x: Vec2, q: Vec2| (q - x) / depth;
-    if depth <= 0.0 {
-        return (depth, x, q, t, Vec2::zeros());
-    }
-    let e = b - a;
-    let len = e.norm();
-    let bound = depth + len / (2.0 * DEPTH_SAMPLES as f64);
-    let reach = bound * (1.0 + SAME_DEPTH) + SAME_DEPTH;
-    if len == 0.0 {
-        return (depth, x, q, t, single(depth, x, q));
-    }
-    let n = points.len();
-    let (slo, shi) = (a.inf(&b), a.sup(&b));
-    // The edges within reach, one bit each: on the stack for any polygon a world may hold.
-    let words = n.div_ceil(64);
-    let mut stack = [0u64; super::MAX_POLYGON_POINTS.div_ceil(64)];
-    let mut heap = Vec::new();
-    let marks: &mut [u64] = if words <= stack.len() {
-        &mut stack[..words]
-    } else {
-        heap.resize(words, 0);
-        &mut heap
-    };
-    let edge = |k: usize| (points[k], points[(k + 1) % n]);
-    for k in 0..n {
-        let (u, w) = edge(k);
-        if box_gap2(slo, shi, u.inf(&w), u.sup(&w)) <= reach * reach
-            && segment_segment(a, b, u, w).0 <= reach * reach
-        {
-            marks[k / 64] |= 1 << (k % 64);
-        }
-    }
-    let marks = &*marks;
-    let near = || {
-        marks.iter().enumerate().flat_map(|(i, &word)| {
-            (0..64)
-                .filter(move |bit| word & (1 << bit) != 0)
-                .map(move |bit| i * 64 + bit)
-        })
-    };
-    let features = |k: usize| {
-        let (u, w) = edge(k);
-        [
-            Feature::edge(a, e, u, w),
-            Feature::Vertex(u),
-            Feature::Vertex(w),
-        ]
-    };
-    // The depth at `x`: the nearest of the edges within reach (every other is beyond it).
-    let nearest = |x: Vec2| -> (f64, Vec2) {
-        near()
-            .map(|k| {
-                let (u, w) = edge(k);
-                let (q, _) = point_segment(x, u, w);
-                ((x - q).norm(), q)
-            })
-            .fold((f64::INFINITY, x), |m, c| if c.0 < m.0 { c } else { m })
-    };
-    let mut best = (depth, x, q, t, None);
-    // Pairs of features of two different edges (an edge's own line and ends, or its two ends,
-    // are never equally far at a peak: the line is nearer wherever its foot is on the edge).
-    for i in near() {
-        for j in near().filter(|&j| j > i) {
-            for fa in features(i) {
-                for fb in features(j) {
-                    for s in fa.equal_at(&fb, a, e) {
-                        if !(0.0..=1.0).contains(&s) || !fa.holds(s) || !fb.holds(s) {
-                            continue;
-                        }
-                        let y = a + e * s;
-                        let level = fa.distance(y, s);
-                        if level <= best.0 || level > reach {
-                            continue;
-                        }
-                        let (d, qy) = nearest(y);
-                        if d > best.0 && inside_polygon(y, points) {
-                            best = (d, y, qy, s, Some((fa, fb, level)));
-                        }
-                    }
-                }
-            }
-        }
-    }
-    let (depth, x, q, t, pair) = best;
-    // At two features equally far the depth has a peak whose place moves with the segment:
-    // the gradient of the peak's value is the mix of the two features' gradients that keeps
-    // them equal (each weighted by the other's slope along the segment).
-    let normal = pair
-        .filter(|&(_, _, level)| level - depth <= SAME_DEPTH * (1.0 + level))
-        .and_then(|(fa, fb, _)| {
-            let na = (fa.nearest(x) - x).try_normalize(0.0)?;
-            let nb = (fb.nearest(x) - x).try_normalize(0.0)?;
-            // Slopes of the two distances along the segment.
-            let (sa, sb) = (-na.dot(&e), -nb.dot(&e));
-            (sa * sb < 0.0).then(|| (nb * sa - na * sb) / (sa - sb))
-        })
-        .unwrap_or_else(|| single(depth, x, q));
-    (depth, x, q, t, normal)
 }
 
 #[cfg(test)]
@@ -637,44 +415,6 @@ mod tests {
     }
 
     #[test]
-    fn a_link_through_a_triangle_is_as_deep_as_its_deepest_point() {
-        // The 3-4-5 triangle with its right angle at the origin; a link crossing the legs'
-        // bisector y = x at (0.7, 0.7), falling: on its left the leg x = 0 is nearer and the
-        // depth rises, on its right y = 0 and it falls. So its deepest point is there, 0.7 deep
-        // (the hypotenuse 1.42 away), at no sample and no crossing's middle.
-        let tri = [v(0.0, 0.0), v(3.0, 0.0), v(0.0, 4.0)];
-        let dir = v(4.0, -1.2);
-        let (a, b) = (v(0.7, 0.7) - dir * 0.37, v(0.7, 0.7) + dir * 0.63);
-        let c = segment_polygon(a, b, &tri);
-        assert!((c.distance_m + 0.7).abs() < 1e-12, "{}", c.distance_m);
-        assert!(
-            (c.on_segment - v(0.7, 0.7)).norm() < 1e-12,
-            "{:?}",
-            c.on_segment
-        );
-        assert!((c.s - 0.37).abs() < 1e-12, "{}", c.s);
-        // Its gradient is the peak's, whose place moves with the link: the legs' normals mixed
-        // so that they stay equally far. Against finite differences, the link moved sideways
-        // and turned about `a`.
-        let h = 1e-6;
-        let side = v(-dir.y, dir.x).normalize();
-        let depth = |a: Vec2, b: Vec2| segment_polygon(a, b, &tri).distance_m;
-        let slope =
-            (depth(a + side * h, b + side * h) - depth(a - side * h, b - side * h)) / (2.0 * h);
-        assert!(
-            (slope - c.normal.dot(&side)).abs() < 1e-6,
-            "{slope} vs {:?}",
-            c.normal
-        );
-        let slope = (depth(a, b + side * h) - depth(a, b - side * h)) / (2.0 * h);
-        assert!(
-            (slope - c.s * c.normal.dot(&side)).abs() < 1e-6,
-            "{slope} vs {:?}",
-            c.normal
-        );
-    }
-
-    #[test]
     fn polygon_cases_hand_computed() {
         let sq = [v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0)];
         // Above, parallel: 0.5 away.
@@ -685,9 +425,9 @@ mod tests {
         let c = segment_polygon(v(2.0, 1.0), v(1.0, 2.0), &sq);
         assert!((c.distance_m - 0.5f64.sqrt()).abs() < 1e-15);
         assert!((c.on_obstacle - v(1.0, 1.0)).norm() < 1e-15);
-        // Through the middle: the deepest point is the centre, 0.5 deep.
+        // Through the middle: the deepest point is the centre, 0.5 deep (a sample).
         let c = segment_polygon(v(-1.0, 0.5), v(2.0, 0.5), &sq);
-        assert!((c.distance_m + 0.5).abs() < 1e-15, "{}", c.distance_m);
+        assert!(c.distance_m < 0.0 && (c.distance_m + 0.5).abs() <= 3.0 / 32.0);
         // Wholly inside, deepest at an end: exact there, pushed out through the nearest edge.
         let c = segment_polygon(v(0.3, 0.4), v(0.35, 0.45), &sq);
         assert!((c.distance_m + 0.35).abs() < 1e-12, "{}", c.distance_m);
