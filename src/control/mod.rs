@@ -48,7 +48,9 @@
 //!    final pose and the way to it, every [`JOINT_WAY_STEP_M`] of the arm's motion (cut back
 //!    along its joint step, like a self-collision), and the tick reports
 //!    the link and obstacle that held it back (`blocked`). The overall solver keeps the
-//!    clearance itself (plus what rounding can take away), so it goes round; the sequential
+//!    clearance itself (plus what rounding can take away), so it goes round; from a pose not
+//!    clear, a link nearer than that need only come no closer in the solve
+//!    ([`Overall::set_floors`]), so that a body deep in an obstacle can slide out; the sequential
 //!    strategy's tractrix body does not look ahead, and is cut short where it would touch.
 //!    Goto and path run the tip along the world's route ([`World::route`]: the straight line
 //!    when clear, else the shortest way round the obstacles grown by the link radius and the
@@ -661,6 +663,9 @@ struct Guard {
     clear: bool,
     /// A pose rounded to the joints' resolutions.
     rounded: Vec<f64>,
+    /// Per pair, what the overall solver is asked to keep from a pose not clear
+    /// ([`Guard::solve_floors`]).
+    solve: Vec<f64>,
 }
 
 impl Guard {
@@ -674,6 +679,7 @@ impl Guard {
             best: vec![f64::NEG_INFINITY; n],
             clear: true,
             rounded: vec![0.0; n],
+            solve: Vec::new(),
         };
         g.anchor(chain, &World::default(), theta);
         g
@@ -706,6 +712,23 @@ impl Guard {
             }
         }
         self.now[chain.len()]
+    }
+
+    /// Per pair, the least clearance the overall solver must keep in a tick from the commanded
+    /// pose against `plan` (the world planned in, the same obstacles): nothing (empty) from a
+    /// clear pose, else `plan`'s clearance, or for a pair below it where the pair is now (no
+    /// closer), never below its floor. Allocation-free once sized.
+    fn solve_floors(&mut self, plan: &World) -> &[f64] {
+        self.solve.clear();
+        if self.clear || plan.obstacles().is_empty() {
+            return &self.solve;
+        }
+        self.solve.resize(self.best.len(), 0.0);
+        plan.link_floors(&self.now, plan.clearance_m(), &mut self.solve);
+        for (s, &b) in self.solve.iter_mut().zip(&self.best) {
+            *s = s.max(b);
+        }
+        &self.solve
     }
 
     /// The first link of `pose` (and, from a clear pose, of `pose` rounded to `quanta`) below
@@ -1357,6 +1380,11 @@ impl Controller {
                     _ => r,
                 };
                 t.tip_ref = r;
+                if self.strategy == Strategy::Overall {
+                    // From a pose not clear, the links need only come no closer.
+                    let floors = self.guard.solve_floors(&self.plan);
+                    self.overall.set_floors(floors);
+                }
                 reached = self.resolve_step(from, r, dt, &mut t);
             }
             Reference::Joints => {

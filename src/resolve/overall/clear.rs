@@ -60,6 +60,12 @@
 //!   [`SEARCH_STALL_STEPS`] of a random one or of a continuation start's intermediate target
 //!   (a body caught on an obstacle, whose exact and elastic steps alternate, each tiny).
 //!
+//! **Floors.** A control tick from a pose an obstacle was put onto may let a pair keep less than
+//! `clearance_m` ([`Overall::set_floors`]: a link not clear need only come no closer). The solve
+//! then sees each pair's clearance raised by how far its floor is below `clearance_m`, so that
+//! every constraint above reads the same; a raised clearance is never below the pair's own, so
+//! the searches for the pairs within a margin stay exact.
+//!
 //! The answer a caller gets is checked once more with [`World::clearance`] (exact, all pairs):
 //! `converged` needs it to be at least `clearance_m - 1e-9` m ([`CLEAR_SLACK`]), the round-off
 //! of a distance on an arm of some metres. A control tick whose last evaluation was of its
@@ -155,6 +161,12 @@ pub(super) struct ClearWork {
     order: Vec<usize>,
     /// Candidate pairs (see `Candidates`), kept across iterations and ticks.
     cand: Candidates,
+    /// Per pair of link and obstacle (`(link - 1) * obstacles + k`), how far below
+    /// `clearance_m` the pair may be, m (a link that need only come no closer: see
+    /// [`Overall::set_floors`]); empty for none.
+    allow: Vec<f64>,
+    /// Pairs found by a search of the world while some pair has an allowance.
+    spare: Vec<Pair>,
     /// Selected pairs: count, keys (link, obstacle), clearance, contact point, gradient rows.
     k: usize,
     key: Vec<(usize, usize)>,
@@ -338,6 +350,34 @@ impl CandidatePair {
 /// The candidates are found with this fraction of the mean link length beyond the margin asked.
 const CANDIDATE_SLACK: f64 = 0.1;
 
+/// What the solve sees of a pair's clearance: its own, raised by how far below `clearance_m`
+/// the pair may be (see [`Overall::set_floors`]), so that every constraint reads
+/// `clearance_m` whatever its floor. Never lower than the pair's own, so that a search for
+/// the pairs whose clearance is within a margin finds every pair the solve sees within it.
+#[derive(Debug, Clone, Copy)]
+struct Allowance<'a> {
+    per_pair: &'a [f64],
+    obstacles: usize,
+}
+
+impl Allowance<'_> {
+    /// Whether no pair has one: the solve sees the clearances as they are.
+    fn none(&self) -> bool {
+        self.per_pair.is_empty()
+    }
+
+    /// The clearance the solve sees of `q`, m.
+    fn seen(&self, q: &Pair) -> f64 {
+        let raise = q
+            .link
+            .checked_sub(1)
+            .and_then(|l| self.per_pair.get(l * self.obstacles + q.obstacle))
+            .copied()
+            .unwrap_or(0.0);
+        q.clearance_m + raise
+    }
+}
+
 impl Candidates {
     /// Largest move of a point of `pts` from where the candidates were found; infinite for
     /// points of another chain.
@@ -359,6 +399,7 @@ impl Candidates {
         pts: &[Vec2],
         margin_m: f64,
         mean_link: f64,
+        allow: Allowance,
         out: &mut Vec<Pair>,
     ) {
         let strayed = self.stray(pts);
@@ -379,29 +420,53 @@ impl Candidates {
                 }
             }
         }
+        if !allow.none() {
+            for q in out.iter_mut() {
+                q.clearance_m = allow.seen(q);
+            }
+        }
         out.retain(|q| q.clearance_m <= margin_m);
     }
 
-    /// The least clearance of `pts` when below `floor_m`, else infinity: through the candidates
-    /// when they cover it, else [`World::clearance_below`].
-    fn least_below(&mut self, world: &World, pts: &[Vec2], floor_m: f64) -> f64 {
+    /// The least clearance (as `allow` has the solve see it) of `pts` when below `floor_m`,
+    /// else infinity: through the candidates when they cover it, else a search of the world
+    /// (into `spare` when some pair has an allowance).
+    fn least_below(
+        &mut self,
+        world: &World,
+        pts: &[Vec2],
+        floor_m: f64,
+        allow: Allowance,
+        spare: &mut Vec<Pair>,
+    ) -> f64 {
         let strayed = self.stray(pts);
         if floor_m + strayed <= self.reach {
             let least = self
                 .keys
                 .iter_mut()
                 .filter(|key| key.may_be_within(pts, floor_m))
-                .map(|key| key.measure(world, pts).clearance_m)
+                .map(|key| allow.seen(&key.measure(world, pts)))
                 .fold(f64::INFINITY, f64::min);
             if least < floor_m {
                 least
             } else {
                 f64::INFINITY
             }
-        } else {
+        } else if allow.none() {
             world
                 .clearance_below(pts, floor_m)
                 .map_or(f64::INFINITY, |q| q.clearance_m)
+        } else {
+            world.near_pairs(pts, floor_m, spare);
+            let least = spare
+                .iter()
+                .map(|q| allow.seen(q))
+                .fold(f64::INFINITY, f64::min);
+            if least < floor_m {
+                least
+            } else {
+                f64::INFINITY
+            }
         }
     }
 }
@@ -545,8 +610,12 @@ impl ClearWork {
             && p.scale == self.eval_scale
             && self.eval_pts == self.pts;
         if !same {
+            let allow = Allowance {
+                per_pair: &self.allow,
+                obstacles: self.obstacles,
+            };
             self.cand
-                .near_pairs(world, &self.pts, margin, mean_link, &mut self.all);
+                .near_pairs(world, &self.pts, margin, mean_link, allow, &mut self.all);
             self.select(p.scale);
             self.eval_pts.clone_from(&self.pts);
             (self.eval_margin, self.eval_scale) = (margin, p.scale);
@@ -836,7 +905,13 @@ impl ClearWork {
             p.chain.points_into(&self.trial, &mut self.trial_pts);
             let tip_err = (self.trial_pts[n] - p.target).norm();
             // Only a clearance below `clearance_m` counts in the merit.
-            let least = self.cand.least_below(world, &self.trial_pts, cm);
+            let allow = Allowance {
+                per_pair: &self.allow,
+                obstacles: self.obstacles,
+            };
+            let least = self
+                .cand
+                .least_below(world, &self.trial_pts, cm, allow, &mut self.spare);
             let m = half_metric(&self.trial, p.theta0)
                 + *nu_t * tip_err
                 + *nu_c * (cm - least).max(0.0);
@@ -1080,9 +1155,10 @@ impl ClearStart {
 impl Overall {
     /// Sets the obstacles every answer keeps clear of (`None`, or a world without obstacles:
     /// none, and every solve is exactly the one without a world). Forgets the pairs'
-    /// multipliers carried from tick to tick.
+    /// multipliers carried from tick to tick, and the floors ([`Overall::set_floors`]).
     pub fn set_world(&mut self, world: Option<World>) {
         self.world = world;
+        self.clear.allow.clear();
         self.clear.forget();
         self.clear.cand.reach = f64::NEG_INFINITY;
         self.clear.engaged = false;
@@ -1096,6 +1172,7 @@ impl Overall {
 
     /// The least clearance of the last answer (m; see [`World::clearance`]), or `None` when
     /// the world in use has no obstacles. Says whether a start that was not clear got out.
+    /// With floors in force, the least the solve sees (see [`Overall::set_floors`]).
     pub fn last_clearance(&self) -> Option<f64> {
         self.last_clearance
     }
@@ -1108,13 +1185,46 @@ impl Overall {
     }
 
     /// The exact least clearance of `pose` (obstacles present), over every pair of the world;
-    /// the last evaluation's nearest pair looked at first, as a bound.
+    /// the last evaluation's nearest pair looked at first, as a bound. With floors in force
+    /// ([`Overall::set_floors`]), the least the solve sees, or a mean link length beyond
+    /// `clearance_m` when no pair is within that.
     fn least_clearance(&mut self, world: &World, chain: &Chain, pose: &[f64]) -> f64 {
-        chain.points_into(pose, &mut self.clear.pts);
-        let hint = self.clear.nearest();
-        world
-            .clearance_from(&self.clear.pts, hint)
-            .map_or(f64::INFINITY, |q| q.clearance_m)
+        let c = &mut self.clear;
+        chain.points_into(pose, &mut c.pts);
+        if c.allow.is_empty() {
+            let hint = c.nearest();
+            return world
+                .clearance_from(&c.pts, hint)
+                .map_or(f64::INFINITY, |q| q.clearance_m);
+        }
+        let reach = world.clearance_m() + chain.reach() / chain.len().max(1) as f64;
+        world.near_pairs(&c.pts, reach, &mut c.spare);
+        let allow = Allowance {
+            per_pair: &c.allow,
+            obstacles: c.obstacles,
+        };
+        c.spare.iter().map(|q| allow.seen(q)).fold(reach, f64::min)
+    }
+
+    /// Lets pairs of link and obstacle keep less than the world's clearance: the floor of link
+    /// `l` (from 1) and obstacle `k`, `floors[(l - 1) * m + k]` with `m` obstacles, is the least
+    /// clearance the pair must keep, m, and one at or above `clearance_m` changes nothing. For a control tick from a pose not clear (an
+    /// obstacle put onto the arm), whose links need only come no closer: with the whole
+    /// clearance asked of every link, a link deep inside an obstacle leaves the solve no pose
+    /// near the last, and the arm could not move. Empty: every pair keeps `clearance_m`. In
+    /// force until changed; a new world clears them. [`Overall::last_clearance`] is then the
+    /// least clearance the solve sees, each pair's raised by how far its floor is below
+    /// `clearance_m`.
+    pub fn set_floors(&mut self, floors: &[f64]) {
+        let c = &mut self.clear;
+        if floors.is_empty() && c.allow.is_empty() {
+            return;
+        }
+        let cm = self.world.as_ref().map_or(0.0, World::clearance_m);
+        c.allow.clear();
+        // A NaN floor allows nothing.
+        c.allow.extend(floors.iter().map(|&f| (cm - f).max(0.0)));
+        c.evaluated = false;
     }
 
     /// Records the answer's clearance and takes `converged` back unless it is clear.

@@ -416,40 +416,64 @@ fn most_random_problems_with_a_clear_start_converge() {
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
 
-    /// The candidate pairs answer what a search of the whole world answers, pair for pair and
-    /// in the same order, along a random walk of poses (small steps reusing them, large ones
-    /// straying beyond them), and the line search's least clearance is the world's.
+    /// The candidate pairs answer what a search of every pair answers, pair for pair and in
+    /// the same order, along a random walk of poses (small steps reusing them, large ones
+    /// straying beyond them), and the line search's least clearance is the world's: with no
+    /// floors, and with random ones (each pair seen raised by its allowance).
     #[test]
     fn candidates_answer_as_the_whole_world_does(
         seed in 0u64..1000,
+        floors in proptest::bool::ANY,
         steps in proptest::collection::vec((0.0..0.04f64, 0.0..0.03f64), 1..24),
     ) {
         let (chain, mut theta, _, world) = random_problem(seed, 10, 12);
         let mean_link = chain.reach() / chain.len() as f64;
         let mut rng = StdRng::seed_from_u64(seed);
+        let m = world.obstacles().len();
+        let per_pair: Vec<f64> = if floors {
+            (0..chain.len() * m)
+                .map(|_| if rng.gen_bool(0.5) { 0.0 } else { rng.gen_range(0.0..0.05) })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let allow = Allowance { per_pair: &per_pair, obstacles: m };
         let mut cand = Candidates {
             pts: vec![Vec2::zeros(); chain.len() + 1],
             reach: f64::NEG_INFINITY,
             ..Candidates::default()
         };
-        let (mut got, mut want) = (Vec::new(), Vec::new());
+        let (mut got, mut spare) = (Vec::new(), Vec::new());
         for (step, margin) in steps {
             for t in theta.iter_mut() {
                 *t += rng.gen_range(-step..=step);
             }
             let pts = chain.points(&theta);
-            cand.near_pairs(&world, &pts, margin, mean_link, &mut got);
-            world.near_pairs(&pts, margin, &mut want);
-            let key = |q: &Pair| (q.link, q.obstacle, q.clearance_m);
-            prop_assert_eq!(
-                got.iter().map(key).collect::<Vec<_>>(),
-                want.iter().map(key).collect::<Vec<_>>()
-            );
+            cand.near_pairs(&world, &pts, margin, mean_link, allow, &mut got);
+            // Every pair, link by link, as the world orders them.
+            let mut every = Vec::new();
+            for link in 1..=chain.len() {
+                for k in 0..m {
+                    let q = world.pair(&pts, link, k);
+                    let raise = per_pair.get((link - 1) * m + k).copied().unwrap_or(0.0);
+                    every.push((link, k, q.clearance_m + raise));
+                }
+            }
+            let mut want: Vec<_> = every.iter().copied().filter(|q| q.2 <= margin).collect();
+            want.sort_by_key(|q| (q.0, q.1));
+            let mut found: Vec<_> = got.iter().map(|q| (q.link, q.obstacle, q.clearance_m)).collect();
+            if !floors {
+                // In the order of a search of the world.
+                world.near_pairs(&pts, margin, &mut spare);
+                let key = |q: &Pair| (q.link, q.obstacle, q.clearance_m);
+                prop_assert_eq!(&found, &spare.iter().map(key).collect::<Vec<_>>());
+            }
+            found.sort_by_key(|q| (q.0, q.1));
+            prop_assert_eq!(found, want);
             let floor = world.clearance_m();
-            let least = world
-                .clearance_below(&pts, floor)
-                .map_or(f64::INFINITY, |q| q.clearance_m);
-            prop_assert_eq!(cand.least_below(&world, &pts, floor), least);
+            let least = every.iter().map(|q| q.2).fold(f64::INFINITY, f64::min);
+            let least = if least < floor { least } else { f64::INFINITY };
+            prop_assert_eq!(cand.least_below(&world, &pts, floor, allow, &mut spare), least);
         }
     }
 }
