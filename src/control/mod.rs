@@ -1395,9 +1395,13 @@ impl Controller {
         }
         t.clamped = self.clamp_joint_steps(dt);
         if t.clamped && tip_space {
-            self.keep_tip_speed(from, dt);
+            self.keep_tip_speed(from, dt, false);
         }
         let (cut, cut_by) = self.keep_clear();
+        if tip_space && (cut || cut_by.is_some()) {
+            // A step cut back along its joint path is no longer the resolver's either.
+            self.keep_tip_speed(from, dt, true);
+        }
         if cut {
             t.saturated = true;
             t.self_collision = true;
@@ -1524,7 +1528,12 @@ impl Controller {
                 let target = from + (r - from) * mid;
                 let (v, its) = attempt(resolver, chain, &mut check, theta, target, trial);
                 t.iterations += its;
-                t.self_collision |= v == Verdict::Collides;
+                if v == Verdict::Collides {
+                    // A step held back by a contact of links is `saturated` whatever held the
+                    // whole step back.
+                    t.self_collision = true;
+                    t.saturated = true;
+                }
                 if let (Verdict::Blocked(b) | Verdict::Caught(b), None) = (v, t.blocked) {
                     t.blocked = Some(b);
                 }
@@ -1588,18 +1597,22 @@ impl Controller {
         clamped
     }
 
-    /// A tip motion's step clamped for the joints' speed is no longer the resolver's (its tip
-    /// is off the reference: a body leaving an obstacle it was put into can ask every joint
-    /// to turn its fastest), and may move the tip faster than its limit: it is then moved back
-    /// along the joint step `theta -> cand` to the farthest fraction found, by
-    /// [`BISECTION_ROUNDS`] rounds of bisection, to keep the tip within `max_tip_speed * dt`
-    /// of `from`, the last goal's tip.
-    fn keep_tip_speed(&mut self, from: Vec2, dt: f64) {
+    /// A tip motion's step clamped for the joints' speed, or cut back along its joint path to
+    /// keep clear, is no longer the resolver's (its tip is off the reference: a body leaving
+    /// an obstacle it was put into can ask every joint to turn its fastest, and a long step's
+    /// joint path can swing the tip far off the line of its ends), and may move the tip faster
+    /// than its limit: it is then moved back along the joint step `theta -> cand` to the
+    /// farthest fraction found, by [`BISECTION_ROUNDS`] rounds of bisection, to keep the tip
+    /// within `max_tip_speed * dt` of `from`, the last goal's tip; with `clear`, a fraction
+    /// whose pose keeps clear as well ([`Controller::trial_clear`]).
+    fn keep_tip_speed(&mut self, from: Vec2, dt: f64, clear: bool) {
         let most = self.limits.max_tip_speed_m_s * dt * (1.0 + CLAMP_ROUNDOFF);
         if (self.chain.tip(&self.cand) - from).norm() <= most {
             return;
         }
-        self.cut_back(0.0, 1.0, |c| (c.chain.tip(&c.trial) - from).norm() <= most);
+        self.cut_back(0.0, 1.0, |c| {
+            (c.chain.tip(&c.trial) - from).norm() <= most && (!clear || c.trial_clear())
+        });
     }
 
     /// Moves `cand` back along the joint step `theta -> cand` to the farthest fraction between

@@ -510,6 +510,9 @@ mod tick_by_tick {
         Stop,
         Switch,
         Freeze,
+        /// A disc dropped onto the commanded pose: on link `.0` (of every link, in turn), at
+        /// `.1` of its length, `.2` off its axis, radius `.3`.
+        Drop(usize, f64, f64, f64),
     }
 
     fn op() -> impl proptest::strategy::Strategy<Value = Op> {
@@ -524,15 +527,17 @@ mod tick_by_tick {
             1 => Just(Op::Stop),
             1 => Just(Op::Switch),
             1 => Just(Op::Freeze),
+            1 => (0usize..N, 0.0f64..1.0, -0.03f64..0.03, 0.005f64..0.03)
+                .prop_map(|(l, a, o, r)| Op::Drop(l, a, o, r)),
         ]
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(48))]
+        #![proptest_config(ProptestConfig::with_cases(256))]
         #[test]
         fn promises_hold_tick_by_tick(
             ops in proptest::collection::vec((op(), 1usize..120), 1..8),
-            posts in proptest::collection::vec((-1.0f64..1.0, -1.0f64..1.0, 0.005f64..0.1), 0..4),
+            mut posts in proptest::collection::vec((-1.0f64..1.0, -1.0f64..1.0, 0.005f64..0.1), 0..4),
             lr in 0.0f64..0.02, keep in 0.0f64..0.01,
             speed in 0.02f64..0.5, accel in 0.1f64..5.0, wmax in 0.2f64..4.0, deadman in 0.05f64..1.5,
             overall in proptest::bool::ANY,
@@ -547,15 +552,15 @@ mod tick_by_tick {
                 .map(|(i, &(x, y, r))| circle_obstacle(&format!("o{i}"), Vec2::new(x, y), r)).collect();
             let w = crate::world::World::new(lr, keep, obstacles).unwrap();
             c.set_world(w.clone());
-            let pair = |th: &[f64]| -> Vec<f64> {
+            let pair = |th: &[f64], posts: &[(f64, f64, f64)]| -> Vec<f64> {
                 let q = chain().points(th);
                 let mut out = Vec::new();
-                for l in 1..q.len() { for &(x, y, r) in &posts {
+                for l in 1..q.len() { for &(x, y, r) in posts {
                     out.push(seg_circle(q[l - 1], q[l], Vec2::new(x, y), r) - lr);
                 } }
                 out
             };
-            let mut best: Vec<f64> = pair(c.theta()).iter().map(|d| d.min(keep)).collect();
+            let mut best: Vec<f64> = pair(c.theta(), &posts).iter().map(|d| d.min(keep)).collect();
             let mut prev = c.theta().to_vec();
             let mut tip_cmd = true;
             let mut k = 0usize;
@@ -570,6 +575,28 @@ mod tick_by_tick {
                     Op::Stop => { let _ = c.command(Command::Stop); }
                     Op::Switch => { let s = if c.strategy() == Strat::Overall { Strat::Sequential } else { Strat::Overall }; c.set_strategy(s); }
                     Op::Freeze => c.freeze(),
+                    Op::Drop(link, at, off, r) => {
+                        let q = chain().points(c.theta());
+                        let d = q[link + 1] - q[link];
+                        let normal = Vec2::new(-d.y, d.x) / d.norm();
+                        let centre = q[link] + d * at + normal * off;
+                        if posts.len() < 8 {
+                            posts.push((centre.x, centre.y, r));
+                            let obstacles: Vec<_> = posts.iter().enumerate()
+                                .map(|(i, &(x, y, r))| circle_obstacle(&format!("o{i}"), Vec2::new(x, y), r)).collect();
+                            // Refused (as the daemon refuses it) when no pose could keep
+                            // clear of it: the world stays as it was.
+                            let base = chain().base();
+                            match crate::world::World::new(lr, keep, obstacles) {
+                                Ok(w) if w.point_distance(base).is_none_or(|(d, _)| d >= lr + keep) => {
+                                    c.set_world(w);
+                                    // The floors start again from the pose's clearances.
+                                    best = pair(c.theta(), &posts).iter().map(|d| d.min(keep)).collect();
+                                }
+                                _ => { posts.pop(); }
+                            }
+                        }
+                    }
                 }
                 for _ in 0..ticks {
                     let dt = dts[k % dts.len()];
@@ -587,7 +614,7 @@ mod tick_by_tick {
                         let d = seg_seg(q[a], q[a + 1], q[b], q[b + 1]);
                         prop_assert!(d > crate::chain::SELF_CLEARANCE_M, "links {} {} at {} (tick {})", a, b, d, k);
                     } }
-                    let now = pair(&th);
+                    let now = pair(&th, &posts);
                     for (i, (&d, b)) in now.iter().zip(best.iter_mut()).enumerate() {
                         prop_assert!(d >= *b - CLEARANCE_ROUNDOFF_M - 1e-12, "pair {} from best {} to {} (tick {}, {:?})", i, b, d, k, t);
                         *b = b.max(d.min(keep));
