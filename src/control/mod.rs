@@ -411,14 +411,22 @@ pub struct NotClear {
     pub clearance_m: f64,
     /// The clearance to keep, m.
     pub keep_m: f64,
+    /// The commanded pose is clear, its goal as sent (rounded to whole servo ticks) is not:
+    /// `link` and `clearance_m` are the goal's.
+    pub as_sent: bool,
 }
 
 impl std::fmt::Display for NotClear {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let whose = if self.as_sent {
+            " (in the goal as sent, rounded to whole servo ticks)"
+        } else {
+            ""
+        };
         write!(
             f,
-            "link {} is {:.4} m from obstacle \"{}\" (the clearance to keep is {} m): the arm \
-             holds, and moves only where no link's clearance shrinks",
+            "link {}{whose} is {:.4} m from obstacle \"{}\" (the clearance to keep is {} m): the \
+             arm holds, and moves only where no link's clearance shrinks",
             self.link, self.clearance_m, self.obstacle, self.keep_m
         )
     }
@@ -659,8 +667,12 @@ struct Guard {
     /// were last anchored ([`Guard::anchor`]): a floor never sinks, so the round-off a pose
     /// may lose against it is lost once, not a tick at a time.
     best: Vec<f64>,
-    /// The commanded pose keeps the world's clearance on every link.
+    /// The commanded pose keeps the world's clearance on every link, and so does its goal as
+    /// sent (rounded to the joints' resolutions, when set).
     clear: bool,
+    /// Points of the commanded pose's goal as sent (rounded to the joints' resolutions), when
+    /// they are set.
+    sent: Vec<Vec2>,
     /// A pose rounded to the joints' resolutions.
     rounded: Vec<f64>,
     /// Per pair, what the overall solver is asked to keep from a pose not clear
@@ -678,26 +690,28 @@ impl Guard {
             floors: vec![f64::NEG_INFINITY; n],
             best: vec![f64::NEG_INFINITY; n],
             clear: true,
+            sent: vec![Vec2::zeros(); n + 1],
             rounded: vec![0.0; n],
             solve: Vec::new(),
         };
-        g.anchor(chain, &World::default(), theta);
+        g.anchor(chain, &World::default(), &[], theta);
         g
     }
 
     /// The commanded pose is now `theta`, set from outside the checked ticks (a measured pose,
     /// a new world): the floors start again from its clearance. Returns its tip.
-    fn anchor(&mut self, chain: &Chain, world: &World, theta: &[f64]) -> Vec2 {
+    fn anchor(&mut self, chain: &Chain, world: &World, quanta: &[f64], theta: &[f64]) -> Vec2 {
         // One floor per pair of link and obstacle.
         let pairs = chain.len() * world.obstacles().len().max(1);
         self.floors.resize(pairs, f64::NEG_INFINITY);
         self.best.resize(pairs, f64::NEG_INFINITY);
         self.best.fill(f64::NEG_INFINITY);
-        self.commit(chain, world, theta)
+        self.commit(chain, world, quanta, theta)
     }
 
     /// The commanded pose is now `theta`, a tick's checked step from the last; returns its tip.
-    fn commit(&mut self, chain: &Chain, world: &World, theta: &[f64]) -> Vec2 {
+    /// `quanta`: the joints' resolutions (empty for exact).
+    fn commit(&mut self, chain: &Chain, world: &World, quanta: &[f64], theta: &[f64]) -> Vec2 {
         chain.points_into(theta, &mut self.now);
         self.tangled = Chain::self_intersects(&self.now).is_some();
         if world.obstacles().is_empty() {
@@ -709,6 +723,13 @@ impl Guard {
             for (f, best) in self.floors.iter_mut().zip(&mut self.best) {
                 *best = best.max(*f);
                 *f = *best - CLEARANCE_ROUNDOFF_M;
+            }
+            if self.clear && !quanta.is_empty() {
+                // An obstacle put between the goal as sent and the commanded pose is on the
+                // arm as the servos hold it.
+                round_to(theta, quanta, &mut self.rounded);
+                chain.points_into(&self.rounded, &mut self.sent);
+                self.clear = world.below_floors(&self.sent, &self.floors).is_none();
             }
         }
         self.now[chain.len()]
@@ -746,9 +767,7 @@ impl Guard {
         chain.points_into(pose, &mut self.scratch);
         let mut hit = world.below_floors(&self.scratch, &self.floors);
         if hit.is_none() && self.clear && !quanta.is_empty() {
-            for ((r, &t), &q) in self.rounded.iter_mut().zip(pose).zip(quanta) {
-                *r = if q > 0.0 { (t / q).round() * q } else { t };
-            }
+            round_to(pose, quanta, &mut self.rounded);
             chain.points_into(&self.rounded, &mut self.scratch);
             hit = world.below_floors(&self.scratch, &self.floors);
         }
@@ -767,6 +786,14 @@ impl Guard {
         } else {
             Chain::new_self_intersection(&self.scratch, &self.now, SELF_CLEARANCE_M)
         }
+    }
+}
+
+/// `out` := `theta` rounded to the joints' resolutions `quanta` (a joint of resolution 0 as it
+/// is): the goal as the servos receive it.
+fn round_to(theta: &[f64], quanta: &[f64], out: &mut [f64]) {
+    for ((r, &t), &q) in out.iter_mut().zip(theta).zip(quanta) {
+        *r = if q > 0.0 { (t / q).round() * q } else { t };
     }
 }
 
@@ -1135,9 +1162,7 @@ impl Controller {
         // Each tick's check holds the goal as the servos receive it to the floors as well
         // (from a clear pose): a goal clear only before rounding would end blocked short of it.
         if self.guard.clear && !self.quanta.is_empty() {
-            for ((x, &t), &q) in pose.iter_mut().zip(goal).zip(&self.quanta) {
-                *x = if q > 0.0 { (t / q).round() * q } else { t };
-            }
+            round_to(goal, &self.quanta, &mut pose);
             self.chain.points_into(&pose, &mut points);
             if let Some(p) = self.world.below_floors(&points, &self.guard.floors) {
                 return Err(Refused::GoalNotClearAsSent {
@@ -1178,7 +1203,9 @@ impl Controller {
     pub fn reseed(&mut self, theta: &[f64]) -> Result<(), Refused> {
         check_pose(&self.chain, theta, "measured joint angle")?;
         self.theta.copy_from_slice(theta);
-        self.tip = self.guard.anchor(&self.chain, &self.world, theta);
+        self.tip = self
+            .guard
+            .anchor(&self.chain, &self.world, &self.quanta, theta);
         self.overall.reset();
         self.motion.hold_at(self.tip, &self.theta);
         Ok(())
@@ -1236,7 +1263,8 @@ impl Controller {
         self.plan = self.planned_world();
         let solver = (!self.plan.obstacles().is_empty()).then(|| self.plan.clone());
         self.overall.set_world(solver);
-        self.guard.anchor(&self.chain, &self.world, &self.theta);
+        self.guard
+            .anchor(&self.chain, &self.world, &self.quanta, &self.theta);
         let not_clear = self.not_clear();
         if not_clear.is_some() && self.motion.activity() == Activity::Moving {
             self.motion.stop();
@@ -1271,6 +1299,9 @@ impl Controller {
         self.plan = self.planned_world();
         let solver = (!self.plan.obstacles().is_empty()).then(|| self.plan.clone());
         self.overall.set_world(solver);
+        // Whether the goal as sent is clear, at the new resolution.
+        self.guard
+            .commit(&self.chain, &self.world, &self.quanta, &self.theta);
         Ok(())
     }
 
@@ -1291,15 +1322,32 @@ impl Controller {
         self.world.clearance(&self.guard.now).map(|p| p.clearance_m)
     }
 
-    /// The link and obstacle of least clearance when the commanded pose is not clear.
+    /// The link and obstacle of least clearance when the commanded pose is not clear, or else
+    /// when its goal as sent (rounded to the joints' resolutions) is not.
     pub fn not_clear(&self) -> Option<NotClear> {
+        if self.guard.clear {
+            return None;
+        }
+        let keep_m = self.world.clearance_m();
         let p = self.world.clearance(&self.guard.now)?;
-        (p.clearance_m < self.world.clearance_m()).then(|| NotClear {
+        let (p, as_sent) = if p.clearance_m < keep_m {
+            (p, false)
+        } else {
+            (self.world.clearance(&self.guard.sent)?, true)
+        };
+        Some(NotClear {
             link: p.link,
             obstacle: p.id(&self.world).to_string(),
             clearance_m: p.clearance_m,
-            keep_m: self.world.clearance_m(),
+            keep_m,
+            as_sent,
         })
+    }
+
+    /// Whether the commanded pose, and its goal as sent (rounded to the joints' resolutions),
+    /// keep the world's clearance on every link: what [`Controller::not_clear`] says of it.
+    pub fn is_clear(&self) -> bool {
+        self.guard.clear
     }
 
     /// The first pair of links of the commanded pose in contact, when there is one (a measured
@@ -1418,7 +1466,9 @@ impl Controller {
             m3 += d * d;
             *goal = c;
         }
-        self.tip = self.guard.commit(&self.chain, &self.world, &self.theta);
+        self.tip = self
+            .guard
+            .commit(&self.chain, &self.world, &self.quanta, &self.theta);
         if t.clamped || cut || cut_by.is_some() {
             reached = self.tip;
         }

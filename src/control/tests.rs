@@ -541,6 +541,7 @@ mod tick_by_tick {
             lr in 0.0f64..0.02, keep in 0.0f64..0.01,
             speed in 0.02f64..0.5, accel in 0.1f64..5.0, wmax in 0.2f64..4.0, deadman in 0.05f64..1.5,
             overall in proptest::bool::ANY,
+            ticks4096 in proptest::bool::ANY,
             dts in proptest::collection::vec(prop_oneof![4 => 0.0005f64..0.02, 1 => 0.02f64..1.5, 1 => Just(MAX_DT_S)], 16),
         ) {
             let limits = Limits { max_tip_speed_m_s: speed, max_tip_accel_m_s2: accel,
@@ -552,6 +553,10 @@ mod tick_by_tick {
                 .map(|(i, &(x, y, r))| circle_obstacle(&format!("o{i}"), Vec2::new(x, y), r)).collect();
             let w = crate::world::World::new(lr, keep, obstacles).unwrap();
             c.set_world(w.clone());
+            let quantum = std::f64::consts::TAU / 4096.0;
+            if ticks4096 {
+                c.set_joint_resolution(&[quantum; N]).unwrap();
+            }
             let pair = |th: &[f64], posts: &[(f64, f64, f64)]| -> Vec<f64> {
                 let q = chain().points(th);
                 let mut out = Vec::new();
@@ -615,6 +620,18 @@ mod tick_by_tick {
                         prop_assert!(d > crate::chain::SELF_CLEARANCE_M, "links {} {} at {} (tick {})", a, b, d, k);
                     } }
                     let now = pair(&th, &posts);
+                    // From a clear pose whose goal as sent was clear, the goal as sent (rounded
+                    // to whole ticks) is clear.
+                    let round = |th: &[f64]| -> Vec<f64> { th.iter().map(|t| (t / quantum).round() * quantum).collect() };
+                    if ticks4096
+                        && pair(&prev, &posts).iter().all(|&d| d >= keep)
+                        && pair(&round(&prev), &posts).iter().all(|&d| d >= keep)
+                    {
+                        let sent = round(&th);
+                        for (i, &d) in pair(&sent, &posts).iter().enumerate() {
+                            prop_assert!(d >= keep - CLEARANCE_ROUNDOFF_M - 1e-12, "pair {} of the goal as sent at {} (tick {}, {:?})", i, d, k, t);
+                        }
+                    }
                     for (i, (&d, b)) in now.iter().zip(best.iter_mut()).enumerate() {
                         prop_assert!(d >= *b - CLEARANCE_ROUNDOFF_M - 1e-12, "pair {} from best {} to {} (tick {}, {:?})", i, b, d, k, t);
                         *b = b.max(d.min(keep));
@@ -970,5 +987,68 @@ fn a_goto_away_from_an_obstacle_dropped_deep_onto_the_arm_takes_it_out() {
                 assert!((ctl.tip() - target).norm() < 1e-6);
             }
         }
+    }
+}
+
+/// An obstacle put between the commanded pose and its goal as sent (rounded to whole servo
+/// ticks) is on the arm as the servos hold it: `not_clear` says so (the goal's link and
+/// clearance), and the arm moves away from it. It was not told, and under sequential every
+/// tick was cut back to the held pose (its goal as sent not clear) and a goto away ended
+/// `blocked` in 3 ticks.
+#[test]
+fn an_obstacle_between_the_pose_and_its_goal_as_sent_is_on_the_arm() {
+    let home = vec![0.1; N];
+    let q = std::f64::consts::TAU / 4096.0;
+    let sent: Vec<f64> = home.iter().map(|t| (t / q).round() * q).collect();
+    let keep = 0.005;
+    // A disc beside link 6 whose gap to the pose is kept and to the goal as sent is not.
+    let p = chain().points(&home);
+    let (a, b) = (p[5], p[6]);
+    let normal = {
+        let d = (b - a).normalize();
+        Vec2::new(-d.y, d.x)
+    };
+    let world_at = |off: f64| {
+        let mut obstacles = world_toml().obstacles().to_vec();
+        obstacles.push(circle_obstacle("drop", (a + b) * 0.5 + normal * off, 0.01));
+        crate::world::World::new(0.012, keep, obstacles).unwrap()
+    };
+    let clearance =
+        |w: &crate::world::World, th: &[f64]| w.clearance(&chain().points(th)).unwrap().clearance_m;
+    let found = (0..4000)
+        .map(|k| 0.02 + k as f64 * 1e-5 * if k % 2 == 0 { 1.0 } else { -1.0 })
+        .flat_map(|off| [off, -off])
+        .find(|&off| {
+            let w = world_at(off);
+            clearance(&w, &home) >= keep + 1e-6 && clearance(&w, &sent) < keep - 1e-6
+        })
+        .expect("a disc between the pose and its goal as sent");
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        let mut ctl = Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
+        at_servo_resolution(&mut ctl);
+        let w = world_at(found);
+        let nc = ctl.set_world(w.clone()).expect("on the arm as sent");
+        assert!(nc.as_sent, "{nc:?}");
+        assert_eq!((nc.link, nc.obstacle.as_str()), (6, "drop"));
+        assert!(
+            (nc.clearance_m - clearance(&w, &sent)).abs() < 1e-12,
+            "{nc:?}"
+        );
+        assert!(nc.to_string().contains("goal as sent"), "{nc}");
+        assert!(!ctl.is_clear());
+        // Away from the disc: the tip moves along the disc's normal, away from it.
+        let target = ctl.tip() - normal * 0.05 * found.signum();
+        ctl.command(Command::Goto {
+            target,
+            speed: None,
+        })
+        .unwrap();
+        let (finish, k) = run(&mut ctl, 0.01, 300);
+        assert_eq!(
+            finish,
+            Some(Finish::Arrived),
+            "{strategy:?} after {k} ticks"
+        );
+        assert!(ctl.is_clear() && ctl.not_clear().is_none(), "{strategy:?}");
     }
 }

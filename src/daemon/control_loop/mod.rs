@@ -676,11 +676,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             min_clearance_m: tick.min_clearance_m,
             solve_us: solve.as_secs_f64() * 1e6,
         };
-        if self.not_clear {
-            let keep = self.controller.world().clearance_m();
-            if tick.min_clearance_m.is_none_or(|c| c >= keep) {
-                self.now_clear();
-            }
+        if self.not_clear && self.controller.is_clear() {
+            self.now_clear();
         }
         if tick.clamped {
             self.stats.counters.clamped += 1;
