@@ -110,13 +110,16 @@ proptest! {
     ) {
         let chain = chain();
         let home = vec![0.1; N];
-        // Only obstacles clear of the home pose, where the arm starts.
+        // Only obstacles clear of the home pose, where the arm starts, and of its goal as sent
+        // (rounded to whole ticks).
+        let sent: Vec<f64> = home.iter().map(|t| (t / TICK).round() * TICK).collect();
         let candidates: Vec<Obstacle> =
             shapes.into_iter().enumerate().map(|(k, s)| obstacle(k, s)).collect();
         let mut kept = Vec::new();
         for o in candidates {
             let one = World::new(link_radius, keep, vec![o.clone()]).unwrap();
             if world_support::clearance(&chain, &one, &home) > keep + 1e-3
+                && world_support::clearance(&chain, &one, &sent) > keep + 1e-3
                 && one.point_distance(Vec2::zeros()).is_some_and(|(d, _)| d > link_radius + keep)
             {
                 kept.push(o);
