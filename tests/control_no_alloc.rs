@@ -1,7 +1,8 @@
 //! The control loop ticks at up to 2 kHz: once warm, `Controller::tick` allocates nothing, in
 //! every kind of motion (goto, path, velocity, jog, joint moves, stop) and on its harder paths
 //! (bisection of an unreachable step, saturation, the joint-speed slow-down, strategy
-//! switches, a step cut short where the arm would fold onto itself). A counting global allocator checks it, per thread.
+//! switches, a step cut short where the arm would fold onto itself), among obstacles, and out
+//! of one put onto the arm. A counting global allocator checks it, per thread.
 #![allow(clippy::unwrap_used)]
 
 use crate::alloc_support;
@@ -216,4 +217,81 @@ fn warm_ticks_among_obstacles_allocate_nothing() {
         }
         assert_eq!(allocated[1], 0, "{strategy:?}: {allocated:?}");
     }
+}
+
+/// Ticks from a pose an obstacle was put onto, the overall solver asking the links not clear
+/// only to come no closer: none allocates, the first included (the world's buffers are sized
+/// when it is set, or by the solve before).
+#[test]
+fn ticks_out_of_an_obstacle_put_onto_the_arm_allocate_nothing() {
+    use snakectl::world::{Obstacle, Shape, World};
+    let n = 12;
+    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
+    let chain = Chain::new(vec![0.08; n], Vec2::zeros(), FRAC_PI_2, vec![lim; n]).unwrap();
+    let limits = Limits {
+        max_tip_speed_m_s: 0.1,
+        max_tip_accel_m_s2: 0.5,
+        max_joint_speed_rad_s: 0.6,
+        deadman_s: 0.3,
+    };
+    let home = vec![0.1; n];
+    let p = chain.points(&home);
+    let disc = |r: f64| Obstacle {
+        id: "drop".into(),
+        shape: Shape::Circle {
+            center: (p[5] + p[6]) * 0.5 + Vec2::new(0.0, 0.004),
+            radius_m: r,
+        },
+    };
+    let mut c = Controller::new(
+        chain.clone(),
+        limits,
+        Strategy::Overall,
+        home.clone(),
+        &home,
+    )
+    .unwrap();
+    c.set_joint_resolution(&vec![std::f64::consts::TAU / 4096.0; n])
+        .unwrap();
+    // A clear world of one obstacle first: the solver sized for it.
+    let clear = World::new(
+        0.012,
+        0.005,
+        vec![Obstacle {
+            id: "drop".into(),
+            shape: Shape::Circle {
+                center: Vec2::new(1.5, 1.5),
+                radius_m: 0.02,
+            },
+        }],
+    )
+    .unwrap();
+    c.set_world(clear);
+    c.command(Command::Goto {
+        target: c.tip() + Vec2::new(0.01, 0.0),
+        speed: None,
+    })
+    .unwrap();
+    run(&mut c, 100, 0.01);
+    // The disc dropped on link 6, 20 mm radius: 28 mm deep.
+    let on_arm = World::new(0.012, 0.005, vec![disc(0.02)]).unwrap();
+    assert!(c.set_world(on_arm).is_some());
+    c.command(Command::Goto {
+        target: c.tip() + Vec2::new(0.08, 0.0),
+        speed: None,
+    })
+    .unwrap();
+    let (mut allocated, mut finished) = (0, None);
+    for _ in 0..600 {
+        let before = allocations();
+        let t = c.tick(0.01);
+        allocated += allocations() - before;
+        if t.finished.is_some() {
+            finished = t.finished;
+            break;
+        }
+    }
+    assert_eq!(allocated, 0);
+    assert_eq!(finished, Some(snakectl::control::Finish::Arrived));
+    assert!(c.is_clear(), "the goto took the arm out");
 }

@@ -705,6 +705,7 @@ impl Guard {
         let pairs = chain.len() * world.obstacles().len().max(1);
         self.floors.resize(pairs, f64::NEG_INFINITY);
         self.best.resize(pairs, f64::NEG_INFINITY);
+        self.solve.reserve(pairs);
         self.best.fill(f64::NEG_INFINITY);
         self.commit(chain, world, quanta, theta)
     }

@@ -497,6 +497,9 @@ impl ClearWork {
             *v = vec![0.0; n];
         }
         let pairs = (n * obstacles).max(1);
+        // The floors in force are kept (set for this world before its first solve).
+        self.allow.reserve(pairs.saturating_sub(self.allow.len()));
+        self.spare = Vec::with_capacity(pairs);
         self.all = Vec::with_capacity(pairs);
         self.order = Vec::with_capacity(pairs);
         self.cand = Candidates {
