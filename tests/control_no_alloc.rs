@@ -149,9 +149,9 @@ fn warm_ticks_allocate_nothing_in_any_motion() {
     }
 }
 
-#[test]
-fn warm_ticks_among_obstacles_allocate_nothing() {
-    use snakectl::world::{Obstacle, Shape, World};
+/// The arm of the tests among obstacles: twelve 0.08 m links within +-2 rad, its limits and
+/// home pose.
+fn arm_among_obstacles() -> (Chain, Limits, Vec<f64>) {
     let n = 12;
     let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
     let chain = Chain::new(vec![0.08; n], Vec2::zeros(), FRAC_PI_2, vec![lim; n]).unwrap();
@@ -161,7 +161,14 @@ fn warm_ticks_among_obstacles_allocate_nothing() {
         max_joint_speed_rad_s: 0.6,
         deadman_s: 0.3,
     };
-    let home = vec![0.1; n];
+    (chain, limits, vec![0.1; n])
+}
+
+#[test]
+fn warm_ticks_among_obstacles_allocate_nothing() {
+    use snakectl::world::{Obstacle, Shape, World};
+    let (chain, limits, home) = arm_among_obstacles();
+    let n = chain.len();
     let tip = chain.tip(&home);
     let top = tip.y - 0.12;
     let world = World::new(
@@ -225,16 +232,8 @@ fn warm_ticks_among_obstacles_allocate_nothing() {
 #[test]
 fn ticks_out_of_an_obstacle_put_onto_the_arm_allocate_nothing() {
     use snakectl::world::{Obstacle, Shape, World};
-    let n = 12;
-    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
-    let chain = Chain::new(vec![0.08; n], Vec2::zeros(), FRAC_PI_2, vec![lim; n]).unwrap();
-    let limits = Limits {
-        max_tip_speed_m_s: 0.1,
-        max_tip_accel_m_s2: 0.5,
-        max_joint_speed_rad_s: 0.6,
-        deadman_s: 0.3,
-    };
-    let home = vec![0.1; n];
+    let (chain, limits, home) = arm_among_obstacles();
+    let n = chain.len();
     let p = chain.points(&home);
     let disc = |r: f64| Obstacle {
         id: "drop".into(),
