@@ -1019,13 +1019,8 @@ fn an_obstacle_dropped_onto_a_moving_arm_stops_it_and_it_holds() {
                 let w = dropped_on(ctl.theta(), link);
                 assert!(ctl.set_world(w).is_some(), "link {link} is not clear");
                 // From the tip speed limit at the tip's deceleration: 0.2 s.
-                let (finish, k) = run(&mut ctl, 0.01, 25);
-                assert_eq!(
-                    finish,
-                    Some(Finish::Stopped { deadman: false }),
-                    "{strategy:?}, dropped after {after} ticks on link {link}: not ended in {k} ticks"
-                );
-                assert_eq!(ctl.activity(), Activity::Holding);
+                let what = format!("{strategy:?}, dropped after {after} ticks on link {link}");
+                assert_stops_and_holds(&mut ctl, 25, &what);
                 // A stop asked for now ends too.
                 ctl.command(Command::Stop).unwrap();
                 let (finish, _) = run(&mut ctl, 0.01, 100);
@@ -1050,14 +1045,20 @@ fn an_obstacle_dropped_onto_a_moving_arm_stops_it_and_it_holds() {
         }
         assert_eq!(ctl.activity(), Activity::Moving);
         assert!(ctl.set_world(dropped_on(ctl.theta(), link)).is_some());
-        let (finish, k) = run(&mut ctl, 0.01, 100);
-        assert_eq!(
-            finish,
-            Some(Finish::Stopped { deadman: false }),
-            "a jog, dropped on link {link}: not ended in {k} ticks"
-        );
-        assert_eq!(ctl.activity(), Activity::Holding);
+        assert_stops_and_holds(&mut ctl, 100, &format!("a jog, dropped on link {link}"));
     }
+}
+
+/// Ticks `ctl` (10 ms) until its command ends, at most `max` ticks: it must end stopped, the
+/// arm holding.
+fn assert_stops_and_holds(ctl: &mut Controller, max: usize, what: &str) {
+    let (finish, k) = run(ctl, 0.01, max);
+    assert_eq!(
+        finish,
+        Some(Finish::Stopped { deadman: false }),
+        "{what}: not ended in {k} ticks"
+    );
+    assert_eq!(ctl.activity(), Activity::Holding, "{what}");
 }
 
 /// The tip motions after an obstacle was put onto the arm keep the tip speed limit: the body's
