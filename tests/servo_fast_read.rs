@@ -1,5 +1,6 @@
 //! Fast Sync Read over a pseudo-terminal against the simulated chain: every servo read in one
-//! packet; a silent servo in the middle, a damaged block, each costing that servo alone; mixed
+//! packet; a silent servo in the middle, a damaged block, each costing that servo alone (also
+//! on a timed wire, where the read sleeps toward the reply it has learnt to expect); mixed
 //! firmware falling back to Sync Read under `read = "auto"` and refused, naming the servo,
 //! under `read = "fast"`.
 
@@ -9,7 +10,7 @@ use crate::servo_support;
 
 use std::time::Duration;
 
-use servo_support::{sim_rig, xl430, TIMEOUT};
+use servo_support::{realtime_rig, sim_rig, xl430, TIMEOUT};
 use snakectl::config::Config;
 use snakectl::servo::arm::{BringUpError, BringUpOptions, Refusal};
 use snakectl::servo::limits::LimitPolicy;
@@ -133,6 +134,45 @@ fn the_last_servo_silent_is_named_after_the_others_arrive() {
     assert!(matches!(got[11], Err(ServoError::Timeout { id: 12, .. })));
     // Nobody after it to ask again: the one Fast reply was all.
     assert_eq!(rig.sim().with_sim(|s| s.stats().replies), 1);
+}
+
+#[test]
+fn on_a_timed_wire_a_servo_falling_silent_after_reads_that_taught_the_timing_costs_its_reading() {
+    // Wire time at 1 Mbps: after a few whole reads the read sleeps toward its reply. Servo 6
+    // falls silent 300 ms in; every read before reads all twelve, every read after all but it.
+    let mut config = chain(vec![Fault::Silent {
+        id: 6,
+        at: Duration::from_millis(300),
+    }]);
+    config.baud = 1_000_000;
+    config.wire_timing = true;
+    let mut rig = realtime_rig(config);
+    let (mut whole, mut without_6) = (0, 0);
+    while without_6 < 20 {
+        let got = fast_positions(&mut rig);
+        let missing: Vec<u8> = IDS
+            .iter()
+            .zip(&got)
+            .filter(|(_, v)| v.is_err())
+            .map(|(&id, _)| id)
+            .collect();
+        match missing.as_slice() {
+            [] => {
+                assert_eq!(without_6, 0, "servo 6 answered again after falling silent");
+                whole += 1;
+            }
+            [6] => {
+                assert!(matches!(got[5], Err(ServoError::Timeout { id: 6, .. })));
+                without_6 += 1;
+            }
+            other => panic!("servos {other:?} unread after {whole} whole reads: {got:?}"),
+        }
+        for (&id, value) in IDS.iter().zip(&got).filter(|(&id, _)| id != 6) {
+            assert_eq!(value.as_ref().ok(), Some(&expected(id)), "servo {id}");
+        }
+        assert!(whole < 1000, "servo 6 never fell silent");
+    }
+    assert!(whole >= 10, "only {whole} whole reads before the silence");
 }
 
 /// A four-joint arm of XL330s (Fast Sync Read from firmware 46) with `[bus] read = read`.

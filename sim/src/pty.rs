@@ -41,6 +41,12 @@ use crate::SimError;
 /// Longest the serving thread sleeps when no reply is pending: bounds how late it notices a stop
 /// request and how often the motor model advances without traffic.
 const IDLE_WAIT: Duration = Duration::from_millis(2);
+/// Longest the serving thread sleeps at a time with wire timing, a reply pending or not: a
+/// thread that sleeps for milliseconds lets its core idle deeply, and on a virtual machine it
+/// then wakes a few hundred microseconds after the host's bytes come, which would start the
+/// instruction's wire time that much late (a servo listens all the time), or after a reply's
+/// deadline. Short sleeps wake promptly.
+const LISTEN_WAIT: Duration = Duration::from_micros(150);
 /// How close to a reply's deadline the thread stops sleeping and spins. Only wire timing makes
 /// replies due in the future, so only it spins.
 const SPIN_WINDOW: Duration = Duration::from_micros(80);
@@ -340,9 +346,10 @@ fn serve(
     let mut spare: Option<Line> = None;
     // Replies waiting for their deadline. Bounded by what one instruction can ask for (one
     // reply per servo); a client that stops reading only makes writes time out.
-    let mut pending = {
+    let (mut pending, listen) = {
         let sim = lock(sim);
-        Outbox::new(sim.config().adapter, clock.now())
+        let outbox = Outbox::new(sim.config().adapter, clock.now());
+        (outbox, sim.config().wire_timing)
     };
     let mut buf = [0u8; 4096];
     let mut baud_unreadable_logged = false;
@@ -391,6 +398,7 @@ fn serve(
             .next_at()
             .map(|at| (at, at.saturating_duration_since(now)))
         {
+            None if listen => LISTEN_WAIT,
             None => IDLE_WAIT,
             Some((at, left)) if left <= SPIN_WINDOW => {
                 // A timed wait wakes tens of µs late (timer slack): spin the last stretch so
@@ -401,6 +409,7 @@ fn serve(
                 }
                 continue;
             }
+            Some((_, left)) if listen => (left - SPIN_WINDOW).min(LISTEN_WAIT),
             Some((_, left)) => (left - SPIN_WINDOW).min(IDLE_WAIT),
         };
         master.set_timeout(wait)?;

@@ -67,6 +67,12 @@ pub const BROADCAST_PING_SLOT: Duration = Duration::from_millis(3);
 /// adapter with its latency timer at 1 ms passes bytes on at least every millisecond (behind a
 /// latency timer that could not be lowered, the pause allowed is that timer plus 1 ms).
 pub const FAST_STALL: Duration = Duration::from_millis(2);
+/// How long before a Fast Sync Read reply is expected whole its read stops sleeping on a timer
+/// and waits on the port. A thread blocked on the port for milliseconds lets its core idle
+/// deeply, and on a virtual machine the wake-up when the bytes come can take a few hundred
+/// microseconds; a timer wakes it about on time, and a short wait on the port after it is woken
+/// promptly ([`Arrival`]).
+const WAKE_AHEAD: Duration = Duration::from_micros(150);
 /// Fast Sync Read's instruction byte (Protocol 2.0; X430/X540 firmware 45+, X330 46+).
 pub const FAST_SYNC_READ: u8 = 0x8A;
 /// Status packet instruction byte.
@@ -105,6 +111,60 @@ pub struct DynamixelBus {
     rx: StatusReader,
     /// The Sync Read that asks again the servos after a break in a Fast reply, reused.
     rest: SyncReadBuf,
+    /// When the Fast Sync Read replies have been whole.
+    arrival: Option<Arrival>,
+}
+
+/// When a Fast Sync Read reply is whole after its instruction was sent, for one shape of read,
+/// as learnt from the reads before: the next read of that shape sleeps until [`WAKE_AHEAD`]
+/// before then, and only then waits on the port (bytes that come sooner wait in the port's
+/// buffer; an adapter's packets before the last are not each waited for). Learnt rather than
+/// computed, since the host cannot tell what is still on the wire ahead of the instruction (the
+/// goals' Sync Write), nor how long an adapter holds bytes back; a far end that answers at once
+/// (a simulator without wire timing) is then never slept for. An earlier arrival is taken at
+/// once, a later one an eighth at a time, so that one late wake-up does not make the next reads
+/// oversleep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Arrival {
+    servos: usize,
+    len: usize,
+    baud: u32,
+    after: Duration,
+}
+
+impl Arrival {
+    /// How long to sleep after sending a read of this shape; zero when nothing was learnt
+    /// for it.
+    fn sleep(last: Option<Arrival>, servos: usize, len: usize, baud: u32) -> Duration {
+        match last {
+            Some(a) if (a.servos, a.len, a.baud) == (servos, len, baud) => {
+                a.after.saturating_sub(WAKE_AHEAD)
+            }
+            _ => Duration::ZERO,
+        }
+    }
+
+    /// What `last` becomes once a read of this shape had its reply whole `after` it was sent.
+    fn learn(
+        last: Option<Arrival>,
+        servos: usize,
+        len: usize,
+        baud: u32,
+        after: Duration,
+    ) -> Arrival {
+        let after = match last {
+            Some(a) if (a.servos, a.len, a.baud) == (servos, len, baud) && after > a.after => {
+                a.after + (after - a.after) / 8
+            }
+            _ => after,
+        };
+        Arrival {
+            servos,
+            len,
+            baud,
+            after,
+        }
+    }
 }
 
 /// A port open, and the lock that makes this process its one owner. The fields drop in this
@@ -231,6 +291,7 @@ impl DynamixelBus {
             fast: Vec::with_capacity(READ_BUFFER),
             rx: StatusReader::new(),
             rest: SyncReadBuf::new(),
+            arrival: None,
         })
     }
 
@@ -556,16 +617,22 @@ impl DynamixelBus {
             buf[2..4].copy_from_slice(&len.to_le_bytes());
             buf[4..].copy_from_slice(ids);
         })?;
-        // The first byte is waited for as a Sync Read waits for its first reply: the wire time
-        // plus `timeout`. From then on a chain sends its blocks back to back: the rest is
+        // The read first sleeps toward the time its replies of this shape have been whole
+        // ([`Arrival`]); the port is waited on from then. The first byte is waited for as a Sync
+        // Read waits for its first reply: the wire time plus `timeout` (at least
+        // [`MIN_POLL_WAIT`] from the wake-up). From then on a chain sends its blocks back to back: the rest is
         // waited for until the wire time of what is still missing plus [`FAST_STALL`] (or
         // `timeout`, if shorter) from the last byte received (an adapter may hand the bytes on
         // in bursts, or all at the end). Once the bytes stop that long, the chain broke there.
         let stall = timeout.min(self.stall);
         let baud = self.baud;
-        let mut end = poll_deadline(
-            Instant::now() + wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud) + timeout,
-        );
+        let sent = Instant::now();
+        let asleep = Arrival::sleep(self.arrival, n, data_len, baud);
+        if !asleep.is_zero() {
+            std::thread::sleep(asleep);
+        }
+        let wire = wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud);
+        let mut end = poll_deadline(sent + wire + timeout);
         let Some(open) = self.open.as_mut() else {
             return Err(closed());
         };
@@ -578,7 +645,11 @@ impl DynamixelBus {
         let (index, damaged) = loop {
             match reply.advance(&buf[..got], out) {
                 FastState::Pending => {}
-                FastState::Complete => return Ok(()),
+                FastState::Complete => {
+                    let after = sent.elapsed();
+                    self.arrival = Some(Arrival::learn(self.arrival, n, data_len, baud, after));
+                    return Ok(());
+                }
                 FastState::Broken { index, error } => break (index, Some(error)),
             }
             let Some(left) = end
@@ -1601,5 +1672,39 @@ mod tests {
         assert!(matches!(state, FastState::Complete), "{state:?}");
         assert_eq!(out.get(0).map(|(_, alert)| alert).ok(), Some(true));
         assert_eq!(position(&out, 0), Some(166));
+    }
+
+    #[test]
+    fn a_fast_read_sleeps_only_toward_an_arrival_learnt_for_its_shape() {
+        let us = Duration::from_micros;
+        // Nothing learnt yet: wait on the port at once.
+        assert_eq!(Arrival::sleep(None, 12, 13, 1_000_000), Duration::ZERO);
+        let learnt = Some(Arrival::learn(None, 12, 13, 1_000_000, us(3100)));
+        assert_eq!(
+            Arrival::sleep(learnt, 12, 13, 1_000_000),
+            us(3100) - WAKE_AHEAD
+        );
+        // Another shape (servos, bytes, baud) has its own arrival, not yet learnt.
+        assert_eq!(Arrival::sleep(learnt, 6, 13, 1_000_000), Duration::ZERO);
+        assert_eq!(Arrival::sleep(learnt, 12, 8, 1_000_000), Duration::ZERO);
+        assert_eq!(Arrival::sleep(learnt, 12, 13, 4_000_000), Duration::ZERO);
+        // A far end that answers at once (a simulator without wire timing) is never slept for.
+        let at_once = Some(Arrival::learn(None, 12, 13, 1_000_000, us(40)));
+        assert_eq!(Arrival::sleep(at_once, 12, 13, 1_000_000), Duration::ZERO);
+    }
+
+    #[test]
+    fn an_earlier_arrival_is_learnt_at_once_and_a_later_one_an_eighth_at_a_time() {
+        let us = Duration::from_micros;
+        let learnt = Some(Arrival::learn(None, 12, 13, 1_000_000, us(3100)));
+        let earlier = Arrival::learn(learnt, 12, 13, 1_000_000, us(2500));
+        assert_eq!(earlier.after, us(2500));
+        // One wake-up 8 ms late moves it by 1 ms, so the next reads do not sleep past their
+        // replies for long.
+        let late = Arrival::learn(learnt, 12, 13, 1_000_000, us(11_100));
+        assert_eq!(late.after, us(4100));
+        // Another shape starts over from what it saw.
+        let other = Arrival::learn(learnt, 6, 13, 1_000_000, us(1800));
+        assert_eq!((other.servos, other.after), (6, us(1800)));
     }
 }
