@@ -32,9 +32,14 @@ pub(super) struct Viewer<'a> {
 }
 
 impl Viewer<'_> {
-    /// The telemetry line of `telemetry` for this client.
-    fn line(&self, telemetry: &Telemetry) -> String {
-        protocol::telemetry_line(&self.shared.status(telemetry, self.id))
+    /// The telemetry line of the latest telemetry for this client. The snapshot is taken, and
+    /// the telemetry let go, before who is in control is looked up: the loop's next publication
+    /// waits for every borrow of the telemetry to end, and new borrows wait behind it, so a
+    /// borrow held while waiting for the arbiter (whose holder may be borrowing the telemetry to
+    /// announce a change of control) would stop the loop for good.
+    fn line(&self, telemetry: &mut watch::Receiver<Telemetry>) -> String {
+        let snapshot = telemetry.borrow_and_update().clone();
+        protocol::telemetry_line(&self.shared.status(&snapshot, self.id))
     }
 }
 
@@ -112,7 +117,7 @@ pub(super) async fn write_loop<W: AsyncWrite + Unpin>(
             () = next_tick(&mut ticker), if ticker.is_some() => {
                 if fresh || telemetry.has_changed().unwrap_or(false) {
                     fresh = false;
-                    let line = viewer.line(&telemetry.borrow_and_update());
+                    let line = viewer.line(&mut telemetry);
                     send(&mut sink, line.as_bytes(), patience).await?;
                 }
             }
@@ -153,6 +158,46 @@ mod tests {
         assert_eq!(interval_at(1e-300).period(), Duration::from_secs(86_400));
         assert_eq!(interval_at(1e9).period(), Duration::from_micros(1));
         assert_eq!(interval_at(50.0).period(), Duration::from_millis(20));
+    }
+
+    #[test]
+    fn a_telemetry_line_waiting_for_the_arbiter_never_holds_up_the_loop() {
+        use std::sync::mpsc as std_mpsc;
+
+        // The writer builds a line while another task holds the arbiter (as one announcing a
+        // change of control does); the loop publishes meanwhile. Were the writer's borrow of
+        // the telemetry held while it waits for the arbiter, the publication would wait for it,
+        // and the arbiter's holder, borrowing the telemetry next, behind the publication.
+        let shared = super::super::tests::shared();
+        let (publish, telemetry) = watch::channel(Telemetry::default());
+        for round in 0..50u64 {
+            let mut telemetry = telemetry.clone();
+            let held = shared.arbiter();
+            std::thread::scope(|s| {
+                let (started, is_started) = std_mpsc::channel();
+                let (shared, telemetry) = (&shared, &mut telemetry);
+                let writer = s.spawn(move || {
+                    let viewer = Viewer { id: 1, shared };
+                    let _ = started.send(());
+                    viewer.line(telemetry)
+                });
+                is_started.recv().unwrap();
+                let (published, is_published) = std_mpsc::channel();
+                let publish = &publish;
+                s.spawn(move || {
+                    publish.send_modify(|t| t.tick = round + 1);
+                    let _ = published.send(());
+                });
+                let done = is_published.recv_timeout(Duration::from_secs(5));
+                drop(held);
+                assert!(
+                    done.is_ok(),
+                    "round {round}: the publication waited for the writer"
+                );
+                let line = writer.join().unwrap();
+                assert!(line.contains("\"tick\""), "{line}");
+            });
+        }
     }
 
     #[tokio::test(start_paused = true)]
