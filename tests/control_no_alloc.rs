@@ -235,11 +235,11 @@ fn ticks_out_of_an_obstacle_put_onto_the_arm_allocate_nothing() {
     let (chain, limits, home) = arm_among_obstacles();
     let n = chain.len();
     let p = chain.points(&home);
-    let disc = |r: f64| Obstacle {
+    let disc = |center: Vec2| Obstacle {
         id: "drop".into(),
         shape: Shape::Circle {
-            center: (p[5] + p[6]) * 0.5 + Vec2::new(0.0, 0.004),
-            radius_m: r,
+            center,
+            radius_m: 0.02,
         },
     };
     let mut c = Controller::new(
@@ -253,18 +253,7 @@ fn ticks_out_of_an_obstacle_put_onto_the_arm_allocate_nothing() {
     c.set_joint_resolution(&vec![std::f64::consts::TAU / 4096.0; n])
         .unwrap();
     // A clear world of one obstacle first: the solver sized for it.
-    let clear = World::new(
-        0.012,
-        0.005,
-        vec![Obstacle {
-            id: "drop".into(),
-            shape: Shape::Circle {
-                center: Vec2::new(1.5, 1.5),
-                radius_m: 0.02,
-            },
-        }],
-    )
-    .unwrap();
+    let clear = World::new(0.012, 0.005, vec![disc(Vec2::new(1.5, 1.5))]).unwrap();
     c.set_world(clear);
     c.command(Command::Goto {
         target: c.tip() + Vec2::new(0.01, 0.0),
@@ -273,7 +262,12 @@ fn ticks_out_of_an_obstacle_put_onto_the_arm_allocate_nothing() {
     .unwrap();
     run(&mut c, 100, 0.01);
     // The disc dropped on link 6, 20 mm radius: 28 mm deep.
-    let on_arm = World::new(0.012, 0.005, vec![disc(0.02)]).unwrap();
+    let on_arm = World::new(
+        0.012,
+        0.005,
+        vec![disc((p[5] + p[6]) * 0.5 + Vec2::new(0.0, 0.004))],
+    )
+    .unwrap();
     assert!(c.set_world(on_arm).is_some());
     c.command(Command::Goto {
         target: c.tip() + Vec2::new(0.08, 0.0),

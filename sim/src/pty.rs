@@ -346,10 +346,15 @@ fn serve(
     let mut spare: Option<Line> = None;
     // Replies waiting for their deadline. Bounded by what one instruction can ask for (one
     // reply per servo); a client that stops reading only makes writes time out.
-    let (mut pending, listen) = {
+    let (mut pending, longest) = {
         let sim = lock(sim);
         let outbox = Outbox::new(sim.config().adapter, clock.now());
-        (outbox, sim.config().wire_timing)
+        let longest = if sim.config().wire_timing {
+            LISTEN_WAIT
+        } else {
+            IDLE_WAIT
+        };
+        (outbox, longest)
     };
     let mut buf = [0u8; 4096];
     let mut baud_unreadable_logged = false;
@@ -398,8 +403,7 @@ fn serve(
             .next_at()
             .map(|at| (at, at.saturating_duration_since(now)))
         {
-            None if listen => LISTEN_WAIT,
-            None => IDLE_WAIT,
+            None => longest,
             Some((at, left)) if left <= SPIN_WINDOW => {
                 // A timed wait wakes tens of µs late (timer slack): spin the last stretch so
                 // replies leave on time. Bounded in real time, in case the clock is manual.
@@ -409,8 +413,7 @@ fn serve(
                 }
                 continue;
             }
-            Some((_, left)) if listen => (left - SPIN_WINDOW).min(LISTEN_WAIT),
-            Some((_, left)) => (left - SPIN_WINDOW).min(IDLE_WAIT),
+            Some((_, left)) => (left - SPIN_WINDOW).min(longest),
         };
         master.set_timeout(wait)?;
         match master.read(&mut buf) {

@@ -579,17 +579,22 @@ mod tick_by_tick {
             Strat::Sequential
         };
         let mut c = Controller::new(chain(), limits, strat, home.clone(), &home).unwrap();
-        let obstacles: Vec<_> = posts
-            .iter()
-            .enumerate()
-            .map(|(i, &(x, y, r))| circle_obstacle(&format!("o{i}"), Vec2::new(x, y), r))
-            .collect();
-        let w = crate::world::World::new(lr, keep, obstacles).unwrap();
-        c.set_world(w.clone());
+        let world_of = |posts: &[(f64, f64, f64)]| {
+            let obstacles = posts
+                .iter()
+                .enumerate()
+                .map(|(i, &(x, y, r))| circle_obstacle(&format!("o{i}"), Vec2::new(x, y), r))
+                .collect();
+            crate::world::World::new(lr, keep, obstacles)
+        };
+        c.set_world(world_of(&posts).unwrap());
         let quantum = std::f64::consts::TAU / 4096.0;
         if ticks4096 {
             c.set_joint_resolution(&[quantum; N]).unwrap();
         }
+        let round = |th: &[f64]| -> Vec<f64> {
+            th.iter().map(|t| (t / quantum).round() * quantum).collect()
+        };
         let pair = |th: &[f64], posts: &[(f64, f64, f64)]| -> Vec<f64> {
             let q = chain().points(th);
             let mut out = Vec::new();
@@ -600,10 +605,11 @@ mod tick_by_tick {
             }
             out
         };
-        let mut best: Vec<f64> = pair(c.theta(), &posts)
-            .iter()
-            .map(|d| d.min(keep))
-            .collect();
+        // Each pair's floor: its clearance, up to the clearance kept.
+        let floors = |th: &[f64], posts: &[(f64, f64, f64)]| -> Vec<f64> {
+            pair(th, posts).iter().map(|d| d.min(keep)).collect()
+        };
+        let mut best = floors(c.theta(), &posts);
         let mut prev = c.theta().to_vec();
         let mut tip_cmd = true;
         let mut k = 0usize;
@@ -666,24 +672,14 @@ mod tick_by_tick {
                     let centre = q[link] + d * at + normal * off;
                     if posts.len() < 8 {
                         posts.push((centre.x, centre.y, r));
-                        let obstacles: Vec<_> = posts
-                            .iter()
-                            .enumerate()
-                            .map(|(i, &(x, y, r))| {
-                                circle_obstacle(&format!("o{i}"), Vec2::new(x, y), r)
-                            })
-                            .collect();
                         // Refused (as the daemon refuses it) when no pose could keep
                         // clear of it: the world stays as it was.
                         let base = chain().base();
-                        match crate::world::World::new(lr, keep, obstacles) {
+                        match world_of(&posts) {
                             Ok(w) if w.point_distance(base).is_none_or(|(d, _)| d >= lr + keep) => {
                                 c.set_world(w);
                                 // The floors start again from the pose's clearances.
-                                best = pair(c.theta(), &posts)
-                                    .iter()
-                                    .map(|d| d.min(keep))
-                                    .collect();
+                                best = floors(c.theta(), &posts);
                             }
                             _ => {
                                 posts.pop();
@@ -726,9 +722,6 @@ mod tick_by_tick {
                 let now = pair(&th, &posts);
                 // From a clear pose whose goal as sent was clear, the goal as sent (rounded
                 // to whole ticks) is clear.
-                let round = |th: &[f64]| -> Vec<f64> {
-                    th.iter().map(|t| (t / quantum).round() * quantum).collect()
-                };
                 if ticks4096
                     && pair(&prev, &posts).iter().all(|&d| d >= keep)
                     && pair(&round(&prev), &posts).iter().all(|&d| d >= keep)
@@ -807,7 +800,14 @@ mod tick_by_tick {
     /// `proptest-regressions` draws another case once the generator changes).
     #[test]
     fn the_cases_it_once_failed_on_keep_the_promises() {
-        let short = 0.0005;
+        // Sixteen ticks of 0.5 ms but those given (index, length in s).
+        let ticks = |long: &[(usize, f64)]| {
+            let mut dts = vec![0.0005; 16];
+            for &(i, dt) in long {
+                dts[i] = dt;
+            }
+            dts
+        };
         // A long sequential step cut back to keep clear swung the tip 0.88 m in a 1 s tick
         // against a 0.34 m/s limit.
         let tip_speed = Run {
@@ -824,24 +824,14 @@ mod tick_by_tick {
             deadman: 0.05,
             overall: true,
             ticks4096: false,
-            dts: vec![
-                short,
-                short,
-                short,
-                short,
-                1.1120391747257556,
-                0.6989399903404656,
-                short,
-                1.0,
-                0.6269305614221404,
-                short,
-                short,
-                short,
-                short,
-                1.1736286826775097,
-                short,
-                0.9537801657371354,
-            ],
+            dts: ticks(&[
+                (4, 1.1120391747257556),
+                (5, 0.6989399903404656),
+                (7, 1.0),
+                (8, 0.6269305614221404),
+                (13, 1.1736286826775097),
+                (15, 0.9537801657371354),
+            ]),
         };
         // A step held back by an obstacle whose bisection met a contact of links: flagged
         // `self_collision` without `saturated`.
@@ -863,24 +853,14 @@ mod tick_by_tick {
             deadman: 0.05,
             overall: false,
             ticks4096: false,
-            dts: vec![
-                short,
-                short,
-                short,
-                short,
-                1.0,
-                1.0,
-                0.4005296882841721,
-                1.0,
-                short,
-                short,
-                short,
-                short,
-                0.013740987400304472,
-                1.4596799809245355,
-                short,
-                short,
-            ],
+            dts: ticks(&[
+                (4, 1.0),
+                (5, 1.0),
+                (6, 0.4005296882841721),
+                (7, 1.0),
+                (12, 0.013740987400304472),
+                (13, 1.4596799809245355),
+            ]),
         };
         for run in [tip_speed, saturated] {
             if let Err(e) = promises(run.clone()) {

@@ -133,15 +133,16 @@ struct Arrival {
 }
 
 impl Arrival {
+    /// What `last` learnt for this shape of read, if it is of this shape.
+    fn of(last: Option<Arrival>, servos: usize, len: usize, baud: u32) -> Option<Duration> {
+        last.filter(|a| (a.servos, a.len, a.baud) == (servos, len, baud))
+            .map(|a| a.after)
+    }
+
     /// How long to sleep after sending a read of this shape; zero when nothing was learnt
     /// for it.
     fn sleep(last: Option<Arrival>, servos: usize, len: usize, baud: u32) -> Duration {
-        match last {
-            Some(a) if (a.servos, a.len, a.baud) == (servos, len, baud) => {
-                a.after.saturating_sub(WAKE_AHEAD)
-            }
-            _ => Duration::ZERO,
-        }
+        Self::of(last, servos, len, baud).map_or(Duration::ZERO, |a| a.saturating_sub(WAKE_AHEAD))
     }
 
     /// What `last` becomes once a read of this shape had its reply whole `after` it was sent.
@@ -152,10 +153,8 @@ impl Arrival {
         baud: u32,
         after: Duration,
     ) -> Arrival {
-        let after = match last {
-            Some(a) if (a.servos, a.len, a.baud) == (servos, len, baud) && after > a.after => {
-                a.after + (after - a.after) / 8
-            }
+        let after = match Self::of(last, servos, len, baud) {
+            Some(before) if after > before => before + (after - before) / 8,
             _ => after,
         };
         Arrival {
