@@ -271,8 +271,9 @@ pub enum Refused {
     /// link radius, the clearance and what rounding the joints to whole servo ticks may take
     /// (the clearance the controller plans with).
     #[error(
-        "the {what} ({x}, {y}) is {distance_m:.4} m from obstacle \"{obstacle}\", closer than \
-         the {grown_m:.4} m the tip keeps ({}): the tip cannot be kept clear there",
+        "the {what} ({x}, {y}) is {}, closer than the {grown_m:.4} m the tip keeps ({}): the \
+         tip cannot be kept clear there",
+        crate::world::standing(*distance_m, obstacle),
         keep_parts(*link_radius_m, *grown_m - *link_radius_m - *rounding_m, *rounding_m)
     )]
     InsideObstacle {
@@ -425,9 +426,11 @@ impl std::fmt::Display for NotClear {
         };
         write!(
             f,
-            "link {}{whose} is {:.4} m from obstacle \"{}\" (the clearance to keep is {} m): the \
-             arm holds, and moves only where no link's clearance shrinks",
-            self.link, self.clearance_m, self.obstacle, self.keep_m
+            "link {}{whose} is {} (the clearance to keep is {} m): the arm holds, and moves only \
+             where no link's clearance shrinks",
+            self.link,
+            crate::world::standing(self.clearance_m, &self.obstacle),
+            self.keep_m
         )
     }
 }

@@ -1102,6 +1102,35 @@ fn a_target_too_near_an_obstacle_is_refused_with_what_the_tip_keeps() {
     }
 }
 
+/// A target on an obstacle's edge or inside it is refused in words a person reads: never a
+/// negative distance, nor "-0.0000 m".
+#[test]
+fn a_target_on_or_inside_an_obstacle_says_so_in_words() {
+    let home = vec![0.1; N];
+    let mut ctl = holding(limits(), &home);
+    assert!(ctl.set_world(world_toml()).is_none());
+    for (target, words) in [
+        (
+            Vec2::new(0.15, 0.6),
+            "is inside obstacle \"post\", 0.0400 m deep",
+        ),
+        (Vec2::new(-0.5, 0.3), "is on the edge of obstacle \"shelf\""),
+    ] {
+        let err = ctl
+            .command(Command::Goto {
+                target,
+                speed: None,
+            })
+            .unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains(words), "{words} / {text}");
+        assert!(
+            !text.contains("is -") && !text.contains("-0.0000"),
+            "{text}"
+        );
+    }
+}
+
 /// A joint move refused from a pose not clear says that the link may not come closer than it is,
 /// not only the clearance to keep.
 #[test]

@@ -70,6 +70,21 @@ pub const MAX_POLYGON_POINTS: usize = 1024;
 /// nearest pair, and name obstacles in messages and on screens.
 pub const MAX_ID_CHARS: usize = 64;
 
+/// Where a point stands against obstacle `id`, in words, from its signed distance (m, negative
+/// inside): "0.0175 m from", "on the edge of" (within a twentieth of a millimetre, what four
+/// decimals of a metre show), or "inside ..., 0.0400 m deep": never a negative distance, nor a
+/// "-0.0000".
+pub fn standing(distance_m: f64, id: &str) -> String {
+    const EDGE_M: f64 = 5e-5;
+    if distance_m.abs() < EDGE_M {
+        format!("on the edge of obstacle {id:?}")
+    } else if distance_m < 0.0 {
+        format!("inside obstacle {id:?}, {:.4} m deep", -distance_m)
+    } else {
+        format!("{distance_m:.4} m from obstacle {id:?}")
+    }
+}
+
 /// The shape of an obstacle, in the arm's frame.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {

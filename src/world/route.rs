@@ -89,7 +89,8 @@ pub enum RouteError {
     },
     /// An end closer to an obstacle than `link_radius_m + clearance_m`, on it or inside it.
     #[error(
-        "{end} ({x}, {y}) is {distance_m} m from obstacle {id:?}; the tip must keep {needed_m} m"
+        "{end} ({x}, {y}) is {}; the tip must keep {needed_m} m",
+        super::standing(*distance_m, id)
     )]
     Inside {
         /// Which end.

@@ -347,3 +347,18 @@ fn the_world_is_bounded() {
         .collect();
     assert!(World::new(0.0, 0.0, fits).is_ok());
 }
+
+/// A point's place against an obstacle reads as a distance outside it, "on the edge" within what
+/// four decimals show, and a depth inside: never a negative distance.
+#[test]
+fn where_a_point_stands_is_said_without_negative_distances() {
+    use super::standing;
+    assert_eq!(standing(0.0175, "post"), "0.0175 m from obstacle \"post\"");
+    assert_eq!(standing(0.0, "post"), "on the edge of obstacle \"post\"");
+    assert_eq!(standing(-0.0, "post"), "on the edge of obstacle \"post\"");
+    assert_eq!(standing(-4e-5, "post"), "on the edge of obstacle \"post\"");
+    assert_eq!(
+        standing(-0.04, "post"),
+        "inside obstacle \"post\", 0.0400 m deep"
+    );
+}
