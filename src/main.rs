@@ -44,7 +44,8 @@ enum Command {
     Status(cli::client::PlainArgs),
     /// The arm's description (links, limits, servos, strategies), one JSON object.
     Describe(cli::client::PlainArgs),
-    /// Move the tip to X Y (m) in a straight line; waits for the arrival.
+    /// Move the tip to X Y (m) in a straight line, or round obstacles by the shortest clear
+    /// route; waits for the arrival.
     Goto(cli::client::GotoArgs),
     /// Move the tip along the corners of a CSV file (x,y in m), stopping at each.
     Path(cli::client::PathArgs),

@@ -478,7 +478,8 @@ impl Ending {
 
 impl fmt::Display for Ending {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let [x, y] = self.tip();
+        // A coordinate that rounds to zero at four decimals is shown as 0.0000, not -0.0000.
+        let [x, y] = self.tip().map(|v| if v.abs() < 5e-5 { 0.0 } else { v });
         let at = format!("({x:.4}, {y:.4}) m, tick {}", self.tick());
         match self {
             Ending::Arrived { .. } => write!(f, "arrived at {at}"),

@@ -575,3 +575,18 @@ fn a_daemon_that_stops_reading_fails_the_send_with_a_write_timeout_and_the_conne
     // A line may be half sent: the connection is closed, and the next request is told so.
     assert!(after.unwrap_err().is_closed());
 }
+
+/// A tip on an axis reads 0.0000 there, not -0.0000 (a round-off below zero is no place).
+#[test]
+fn an_ending_on_an_axis_shows_no_negative_zero() {
+    let e = Ending::Arrived {
+        tick: 41783,
+        tip: [-1.7e-17, 0.85],
+    };
+    assert_eq!(e.to_string(), "arrived at (0.0000, 0.8500) m, tick 41783");
+    let e = Ending::Arrived {
+        tick: 7,
+        tip: [-0.00006, -0.0],
+    };
+    assert_eq!(e.to_string(), "arrived at (-0.0001, 0.0000) m, tick 7");
+}
