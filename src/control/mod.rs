@@ -506,9 +506,12 @@ pub struct RouteRequest {
 }
 
 /// The rule a joint move's way broke, in words: the clearance to keep, or a link's floor below
-/// it (a link not clear may only get clearer).
+/// it (a link not clear may only get clearer). A floor short of the clearance by less than the
+/// six decimals it is shown with (a link that came out onto the clearance, short of it by a
+/// solver's round-off) is not told apart: "not clear, at 0.005000 m" beside "0.005 m to keep"
+/// would read as a contradiction.
 fn floor_words(keep_m: f64, floor_m: f64) -> String {
-    if floor_m < keep_m {
+    if floor_m < keep_m - 5e-7 {
         format!(
             "the clearance to keep is {keep_m} m; the link is not clear, at {floor_m:.6} m at \
              best since the obstacle or the pose changed, and may not come closer until it is"

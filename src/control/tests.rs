@@ -1295,3 +1295,22 @@ fn an_obstacle_between_the_pose_and_its_goal_as_sent_is_on_the_arm() {
         assert!(ctl.is_clear() && ctl.not_clear().is_none(), "{strategy:?}");
     }
 }
+
+/// A link's floor below the clearance is told in a refusal when it shows; one short of it by
+/// round-off alone reads as the clearance to keep.
+#[test]
+fn a_floor_short_of_the_clearance_by_round_off_is_not_told_apart() {
+    assert_eq!(
+        floor_words(0.005, 0.005),
+        "the clearance to keep is 0.005 m"
+    );
+    assert_eq!(
+        floor_words(0.005, 0.005 - 1e-10),
+        "the clearance to keep is 0.005 m"
+    );
+    let deeper = floor_words(0.005, 0.0031);
+    assert!(
+        deeper.contains("the link is not clear, at 0.003100 m at best"),
+        "{deeper}"
+    );
+}
