@@ -16,7 +16,7 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::outline;
-use super::{draw_err, PlotError};
+use super::{axis_label, draw_err, PlotError};
 use crate::chain::{Chain, Vec2};
 use crate::world::World;
 
@@ -270,6 +270,8 @@ fn arm_panel(
         .map_err(draw_err)?;
     chart
         .configure_mesh()
+        .x_label_formatter(&axis_label)
+        .y_label_formatter(&axis_label)
         .light_line_style(TRANSPARENT)
         .bold_line_style(BLACK.mix(0.08))
         .x_desc("x (m)")
@@ -399,6 +401,8 @@ fn zoom_panel(
         .map_err(draw_err)?;
     chart
         .configure_mesh()
+        .x_label_formatter(&axis_label)
+        .y_label_formatter(&axis_label)
         .light_line_style(TRANSPARENT)
         .bold_line_style(BLACK.mix(0.08))
         .x_desc("x (m)")
@@ -584,6 +588,8 @@ pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
             .map_err(draw_err)?;
         chart
             .configure_mesh()
+            .x_label_formatter(&axis_label)
+            .y_label_formatter(&axis_label)
             .light_line_style(TRANSPARENT)
             .bold_line_style(BLACK.mix(0.08))
             .x_desc("time (s)")
@@ -615,6 +621,8 @@ pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
             .map_err(draw_err)?;
         chart
             .configure_mesh()
+            .x_label_formatter(&axis_label)
+            .y_label_formatter(&axis_label)
             .light_line_style(TRANSPARENT)
             .bold_line_style(BLACK.mix(0.08))
             .x_desc("time (s)")
@@ -927,6 +935,37 @@ mod tests {
         let plain = motion(&swing(None), "t").unwrap();
         assert!(filled_polygons(&plain, OBSTACLE_FILL).is_empty());
         assert!(!plain.contains(&margin) && !plain.contains("clearance margin"));
+    }
+
+    /// The axes of the demo's arm (base at the origin, the arm leaning left of it) are labelled
+    /// without a "-0.0" where an axis crosses zero.
+    #[test]
+    fn no_axis_label_reads_negative_zero() {
+        assert_eq!(axis_label(&-2.8e-17), "0.0");
+        assert_eq!(axis_label(&-0.0), "0.0");
+        assert_eq!(axis_label(&-0.2), "-0.2");
+        assert_eq!(axis_label(&0.25), "0.25");
+        let mut record = swing(None);
+        let chain = Chain::unlimited(
+            vec![0.2, 0.15, 0.1],
+            Vec2::zeros(),
+            std::f64::consts::FRAC_PI_2,
+        )
+        .unwrap();
+        for s in &mut record.samples {
+            let tip = chain.tip(&s.theta);
+            s.tip_ref = [tip.x, tip.y];
+            s.tip_meas = [tip.x, tip.y];
+        }
+        record.chain = Some(chain);
+        let svg = motion(&record, "t").unwrap();
+        let labels: Vec<&str> = svg
+            .split("</text>")
+            .filter_map(|piece| piece.rsplit('>').next())
+            .map(str::trim)
+            .collect();
+        assert!(labels.contains(&"0.0"), "no label at zero: {labels:?}");
+        assert!(!labels.contains(&"-0.0"), "{labels:?}");
     }
 
     #[test]

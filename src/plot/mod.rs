@@ -39,6 +39,15 @@ pub enum PlotError {
     Empty,
 }
 
+/// An axis label as plotters writes an `f64` key point, except that a key point at zero up to
+/// the round-off of stepping to it (-2.8e-17) reads "0.0", not "-0.0".
+pub(crate) fn axis_label(v: &f64) -> String {
+    use plotters::coord::ranged1d::ValueFormatter;
+    use plotters::coord::types::RangedCoordf64;
+    let v = if v.abs() < 1e-12 { 0.0 } else { *v };
+    RangedCoordf64::format(&v)
+}
+
 fn draw_err<E: std::fmt::Debug>(e: E) -> PlotError {
     PlotError::Draw(format!("{e:?}"))
 }
@@ -209,6 +218,8 @@ fn draw_panel(
         .map_err(draw_err)?;
     chart
         .configure_mesh()
+        .x_label_formatter(&axis_label)
+        .y_label_formatter(&axis_label)
         .disable_mesh()
         .x_desc("x (m)")
         .y_desc("y (m)")
@@ -344,6 +355,8 @@ pub fn rotations(scenario: &Scenario, runs: &[Run]) -> Result<String, PlotError>
                 .map_err(draw_err)?;
             chart
                 .configure_mesh()
+                .x_label_formatter(&axis_label)
+                .y_label_formatter(&axis_label)
                 .light_line_style(TRANSPARENT)
                 .bold_line_style(BLACK.mix(0.12))
                 .x_desc("arc length from the pulled end (m)")
