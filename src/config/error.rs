@@ -364,8 +364,9 @@ pub enum FieldProblem {
     },
     /// An obstacle within reach of the base, where link 1 starts whatever the pose.
     #[error(
-        "obstacle {id:?} is {distance_m:.4} m from the base point, where link 1 starts, closer \
-         than link_radius_m + clearance_m = {keep_m} m: no pose of the arm is clear of it"
+        "obstacle {id:?} {}, where link 1 starts, closer than link_radius_m + clearance_m = \
+         {keep_m} m: no pose of the arm is clear of it",
+        crate::world::over_point(*distance_m, "the base point")
     )]
     TouchesBase {
         /// The obstacle's id.
@@ -377,10 +378,10 @@ pub enum FieldProblem {
     },
     /// The home pose is not clear of an obstacle, as given or rounded to the servos' ticks.
     #[error(
-        "link {link} of the home pose (arm.home_rad){} keeps {clearance_m:.4} m from obstacle \
-         {id:?} (negative: it overlaps), less than clearance_m = {keep_m} m: move the obstacle \
-         or the home pose",
-        if *.rounded { ", each joint rounded to a whole tick as the servos take it," } else { "" }
+        "link {link} of the home pose (arm.home_rad){} is {}, short of clearance_m = {keep_m} \
+         m: move the obstacle or the home pose",
+        if *.rounded { ", each joint rounded to a whole tick as the servos take it," } else { "" },
+        crate::world::standing(*clearance_m, id)
     )]
     HomeNotClear {
         /// The obstacle's id.

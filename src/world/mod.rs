@@ -70,18 +70,33 @@ pub const MAX_POLYGON_POINTS: usize = 1024;
 /// nearest pair, and name obstacles in messages and on screens.
 pub const MAX_ID_CHARS: usize = 64;
 
-/// Where a point stands against obstacle `id`, in words, from its signed distance (m, negative
-/// inside): "0.0175 m from", "on the edge of" (within a twentieth of a millimetre, what four
-/// decimals of a metre show), or "inside ..., 0.0400 m deep": never a negative distance, nor a
-/// "-0.0000".
+/// Below this distance (m) a point is on an obstacle's edge in words: four decimals of a metre
+/// would show it as 0.0000, or -0.0000.
+const EDGE_WORDS_M: f64 = 5e-5;
+
+/// Where a point (or a link) stands against obstacle `id`, in words, from its signed distance
+/// (m, negative inside): "0.0175 m from obstacle \"post\"", "on the edge of ...", or "inside
+/// ..., 0.0400 m deep": never a negative distance, nor a "-0.0000".
 pub fn standing(distance_m: f64, id: &str) -> String {
-    const EDGE_M: f64 = 5e-5;
-    if distance_m.abs() < EDGE_M {
+    if distance_m.abs() < EDGE_WORDS_M {
         format!("on the edge of obstacle {id:?}")
     } else if distance_m < 0.0 {
         format!("inside obstacle {id:?}, {:.4} m deep", -distance_m)
     } else {
         format!("{distance_m:.4} m from obstacle {id:?}")
+    }
+}
+
+/// What an obstacle does to `point`, in words, from the point's signed distance to it (m,
+/// negative inside): "is 0.0020 m from the base point", "touches ...", or "covers ..., 0.0100
+/// m deep".
+pub fn over_point(distance_m: f64, point: &str) -> String {
+    if distance_m.abs() < EDGE_WORDS_M {
+        format!("touches {point}")
+    } else if distance_m < 0.0 {
+        format!("covers {point}, {:.4} m deep", -distance_m)
+    } else {
+        format!("is {distance_m:.4} m from {point}")
     }
 }
 

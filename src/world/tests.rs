@@ -361,4 +361,12 @@ fn where_a_point_stands_is_said_without_negative_distances() {
         standing(-0.04, "post"),
         "inside obstacle \"post\", 0.0400 m deep"
     );
+    use super::over_point;
+    let base = "the base point";
+    assert_eq!(over_point(0.002, base), "is 0.0020 m from the base point");
+    assert_eq!(over_point(-0.0, base), "touches the base point");
+    assert_eq!(
+        over_point(-0.01, base),
+        "covers the base point, 0.0100 m deep"
+    );
 }

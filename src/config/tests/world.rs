@@ -326,7 +326,10 @@ fn a_home_pose_that_is_not_clear_is_refused_naming_the_link_and_the_obstacle() {
             "clearance_m = 0.005",
         ],
     );
-    let shown = format!("{:.4} m", least.clearance_m - 0.012);
+    // 0.012 m of link radius more than the clearance above takes it into the post.
+    let depth = 0.012 - least.clearance_m;
+    assert!(depth > 0.0, "{depth}");
+    let shown = format!("inside obstacle \"post\", {depth:.4} m deep");
     assert!(msg.contains(&shown), "{shown} not in {msg}");
     // A polygon across link 1: negative clearance, still named.
     refused(
@@ -334,7 +337,13 @@ fn a_home_pose_that_is_not_clear_is_refused_naming_the_link_and_the_obstacle() {
             "[[world.obstacle]]\nid = \"block\"\n\
              polygon = { points_m = [[0.04, -0.05], [0.06, -0.05], [0.06, 0.05], [0.04, 0.05]] }",
         ),
-        &["world.obstacle[1]:", "\"block\"", "link 1", "-0.0"],
+        &[
+            "world.obstacle[1]:",
+            "\"block\"",
+            "link 1",
+            "inside obstacle",
+            "m deep",
+        ],
     );
 }
 

@@ -327,10 +327,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 return refuse(
                     Code::BadArg,
                     format!(
-                        "`{field}`: obstacle {:?} is {distance_m:.4} m from the base point, where \
-                         link 1 starts, closer than link_radius_m + clearance_m = {keep_m:.4} m: \
-                         no pose keeps clear of it",
-                        world.obstacles()[k].id
+                        "`{field}`: obstacle {:?} {}, where link 1 starts, closer than \
+                         link_radius_m + clearance_m = {keep_m:.4} m: no pose keeps clear of it",
+                        world.obstacles()[k].id,
+                        crate::world::over_point(distance_m, "the base point"),
                     ),
                 );
             }
