@@ -619,10 +619,11 @@ impl DynamixelBus {
         // The read first sleeps toward the time its replies of this shape have been whole
         // ([`Arrival`]); the port is waited on from then. The first byte is waited for as a Sync
         // Read waits for its first reply: the wire time plus `timeout` (at least
-        // [`MIN_POLL_WAIT`] from the wake-up). From then on a chain sends its blocks back to back: the rest is
-        // waited for until the wire time of what is still missing plus [`FAST_STALL`] (or
-        // `timeout`, if shorter) from the last byte received (an adapter may hand the bytes on
-        // in bursts, or all at the end). Once the bytes stop that long, the chain broke there.
+        // [`MIN_POLL_WAIT`] from the wake-up). From then on a chain sends its blocks back to
+        // back: the rest is waited for until the wire time of what is still missing plus
+        // [`FAST_STALL`] (or `timeout`, if shorter) from the last byte received (an adapter may
+        // hand the bytes on in bursts, or all at the end). Once the bytes stop that long, the
+        // chain broke there.
         let stall = timeout.min(self.stall);
         let baud = self.baud;
         let sent = Instant::now();

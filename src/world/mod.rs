@@ -70,20 +70,40 @@ pub const MAX_POLYGON_POINTS: usize = 1024;
 /// nearest pair, and name obstacles in messages and on screens.
 pub const MAX_ID_CHARS: usize = 64;
 
-/// Below this distance (m) a point is on an obstacle's edge in words: four decimals of a metre
-/// would show it as 0.0000, or -0.0000.
-const EDGE_WORDS_M: f64 = 5e-5;
+/// Where a point stands against an obstacle, as words tell it: four decimals of a metre show a
+/// distance below [`Place::EDGE_M`] as 0.0000 (or -0.0000), so that is "on the edge".
+enum Place {
+    /// Outside, this far, m.
+    Outside(f64),
+    /// On the edge.
+    Edge,
+    /// Inside, this deep, m.
+    Inside(f64),
+}
+
+impl Place {
+    const EDGE_M: f64 = 5e-5;
+
+    /// The place of a signed distance (m, negative inside).
+    fn of(distance_m: f64) -> Self {
+        if distance_m.abs() < Self::EDGE_M {
+            Self::Edge
+        } else if distance_m < 0.0 {
+            Self::Inside(-distance_m)
+        } else {
+            Self::Outside(distance_m)
+        }
+    }
+}
 
 /// Where a point (or a link) stands against obstacle `id`, in words, from its signed distance
 /// (m, negative inside): "0.0175 m from obstacle \"post\"", "on the edge of ...", or "inside
 /// ..., 0.0400 m deep": never a negative distance, nor a "-0.0000".
 pub fn standing(distance_m: f64, id: &str) -> String {
-    if distance_m.abs() < EDGE_WORDS_M {
-        format!("on the edge of obstacle {id:?}")
-    } else if distance_m < 0.0 {
-        format!("inside obstacle {id:?}, {:.4} m deep", -distance_m)
-    } else {
-        format!("{distance_m:.4} m from obstacle {id:?}")
+    match Place::of(distance_m) {
+        Place::Outside(d) => format!("{d:.4} m from obstacle {id:?}"),
+        Place::Edge => format!("on the edge of obstacle {id:?}"),
+        Place::Inside(depth) => format!("inside obstacle {id:?}, {depth:.4} m deep"),
     }
 }
 
@@ -91,12 +111,10 @@ pub fn standing(distance_m: f64, id: &str) -> String {
 /// negative inside): "is 0.0020 m from the base point", "touches ...", or "covers ..., 0.0100
 /// m deep".
 pub fn over_point(distance_m: f64, point: &str) -> String {
-    if distance_m.abs() < EDGE_WORDS_M {
-        format!("touches {point}")
-    } else if distance_m < 0.0 {
-        format!("covers {point}, {:.4} m deep", -distance_m)
-    } else {
-        format!("is {distance_m:.4} m from {point}")
+    match Place::of(distance_m) {
+        Place::Outside(d) => format!("is {d:.4} m from {point}"),
+        Place::Edge => format!("touches {point}"),
+        Place::Inside(depth) => format!("covers {point}, {depth:.4} m deep"),
     }
 }
 
