@@ -389,14 +389,30 @@ fn a_joint_move_through_an_obstacle_is_refused_naming_link_and_how_far() {
         link,
         ref obstacle,
         fraction,
+        from_fraction,
+        clearance_m,
         ..
     } = err
     else {
         panic!("{err:?}");
     };
+    // Named at the deepest pose of the way (the tip through the post's centre, halfway), and
+    // where the way first loses clearance (before it).
     assert_eq!((link, obstacle.as_str()), (N, "post"));
-    assert!(fraction > 0.2 && fraction < 0.5, "{fraction}");
-    assert!(err.to_string().contains("of the way"), "{err}");
+    assert!(
+        from_fraction > 0.2 && from_fraction < 0.5,
+        "{from_fraction}"
+    );
+    assert!((fraction - 0.5).abs() < 0.02, "{fraction}");
+    assert!(clearance_m < -0.02, "{clearance_m}");
+    let said = err.to_string();
+    assert!(
+        said.contains(&format!(
+            "would be inside obstacle \"post\", {:.4} m deep, 50% of the way there",
+            -clearance_m
+        )) && said.contains("loses its clearance from"),
+        "{said}"
+    );
     assert!(c
         .command(Command::GotoJoints {
             theta: home().to_vec()

@@ -86,7 +86,7 @@ use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
 use crate::resolve::overall::{Overall, OverallOptions};
 use crate::resolve::sequential::Sequential;
 use crate::resolve::{verdict, Resolver, Strategy};
-use crate::world::{RouteEnd, RouteError, World, MAX_ROUTE_WORK};
+use crate::world::{Pair, RouteEnd, RouteError, World, MAX_ROUTE_WORK};
 
 pub use crate::motion::{Activity, Finish, JOINT_ACCEL_TIME_S};
 
@@ -295,21 +295,27 @@ pub enum Refused {
         rounding_m: f64,
     },
     /// A joint move whose straight way in joint space passes a pose that is not clear: below
-    /// the clearance to keep or, for a link not clear now, closer than it is (its floor).
+    /// the clearance to keep or, for a link not clear now, closer than it is (its floor). Names
+    /// the deepest pose of the way (the least clearance of any link there) and where the way
+    /// first loses clearance.
     #[error(
-        "link {link} would come within {clearance_m:.6} m of obstacle \"{obstacle}\" \
-         {percent:.0}% of the way there ({})",
+        "link {link} would be {}, {percent:.0}% of the way there (the way loses its clearance \
+         from {from_percent:.0}% of it; {})",
+        way_words(*clearance_m, obstacle),
         floor_words(*keep_m, *floor_m),
-        percent = .fraction * 100.0
+        percent = .fraction * 100.0,
+        from_percent = .from_fraction * 100.0
     )]
     NotClearOnTheWay {
-        /// The link, 1-based from the base.
+        /// The link at the deepest pose, 1-based from the base.
         link: usize,
         /// The obstacle's id.
         obstacle: String,
-        /// How far along the move, 0..=1.
+        /// How far along the move the deepest pose is, 0..=1.
         fraction: f64,
-        /// The clearance there, m.
+        /// How far along the move the way first loses clearance, 0..=1.
+        from_fraction: f64,
+        /// The link's clearance at the deepest pose, m (negative inside the obstacle).
         clearance_m: f64,
         /// The clearance to keep, m.
         keep_m: f64,
@@ -518,6 +524,17 @@ fn floor_words(keep_m: f64, floor_m: f64) -> String {
         )
     } else {
         format!("the clearance to keep is {keep_m} m")
+    }
+}
+
+/// Where a joint move's way takes a link against obstacle `id`, from its clearance there (m,
+/// negative inside): "within 0.004975 m of obstacle \"post\"" to the micrometre (a way that
+/// only grazes the clearance reads so), "on the edge of ...", or "inside ..., 0.0363 m deep".
+fn way_words(clearance_m: f64, id: &str) -> String {
+    if clearance_m >= crate::world::ON_EDGE_M {
+        format!("within {clearance_m:.6} m of obstacle {id:?}")
+    } else {
+        crate::world::standing(clearance_m, id)
     }
 }
 
@@ -1142,29 +1159,43 @@ impl Controller {
         let steps = ((sweep / JOINT_WAY_STEP_M).ceil() as usize).clamp(1, MAX_JOINT_WAY_SAMPLES);
         let mut pose = self.theta.clone();
         let mut points = self.chain.points(&pose);
+        // Where the way first loses clearance, and its deepest pose: the whole way is read, so
+        // that a way which only grazes the clearance is told from one through an obstacle.
+        let mut from = None;
+        let mut deepest: Option<(Pair, f64)> = None;
         for k in 1..=steps {
             let f = k as f64 / steps as f64;
             for ((x, &a), &b) in pose.iter_mut().zip(&self.theta).zip(goal) {
                 *x = a + f * (b - a);
             }
             self.chain.points_into(&pose, &mut points);
-            if let Some(p) = self.world.below_floors(&points, &self.guard.floors) {
-                let m = self.world.obstacles().len();
-                let keep_m = self.world.clearance_m();
-                let floor_m = self
-                    .guard
-                    .floors
-                    .get((p.link - 1) * m + p.obstacle)
-                    .map_or(keep_m, |&f| f.min(keep_m));
-                return Err(Refused::NotClearOnTheWay {
-                    link: p.link,
-                    obstacle: p.id(&self.world).to_string(),
-                    fraction: f,
-                    clearance_m: p.clearance_m,
-                    keep_m,
-                    floor_m,
-                });
+            if let Some(p) = self.world.deepest_below_floors(&points, &self.guard.floors) {
+                from.get_or_insert(f);
+                if deepest
+                    .as_ref()
+                    .is_none_or(|(d, _)| p.clearance_m < d.clearance_m)
+                {
+                    deepest = Some((p, f));
+                }
             }
+        }
+        if let (Some(from), Some((p, f))) = (from, deepest) {
+            let m = self.world.obstacles().len();
+            let keep_m = self.world.clearance_m();
+            let floor_m = self
+                .guard
+                .floors
+                .get((p.link - 1) * m + p.obstacle)
+                .map_or(keep_m, |&f| f.min(keep_m));
+            return Err(Refused::NotClearOnTheWay {
+                link: p.link,
+                obstacle: p.id(&self.world).to_string(),
+                fraction: f,
+                from_fraction: from,
+                clearance_m: p.clearance_m,
+                keep_m,
+                floor_m,
+            });
         }
         // Each tick's check holds the goal as the servos receive it to the floors as well
         // (from a clear pose): a goal clear only before rounding would end blocked short of it.

@@ -289,6 +289,29 @@ impl World {
         None
     }
 
+    /// The pair of the pose `points` whose clearance is least among those below their floors
+    /// (see [`World::below_floors`]): the deepest a link would go, or `None`. Allocation-free.
+    pub fn deepest_below_floors(&self, points: &[Vec2], floors: &[f64]) -> Option<Pair> {
+        let m = self.obstacles.len();
+        let mut deepest: Option<Pair> = None;
+        for link in 1..points.len() {
+            let (lo, hi) = segment_box(points[link - 1], points[link]);
+            for k in 0..m {
+                let floor = *floors.get((link - 1) * m + k)?;
+                // Only a pair below its floor and below the deepest so far counts.
+                let bar = deepest.as_ref().map_or(floor, |d| floor.min(d.clearance_m));
+                if self.box_not_below(k, lo, hi, bar + self.link_radius_m) {
+                    continue;
+                }
+                let p = self.pair(points, link, k);
+                if p.clearance_m < bar {
+                    deepest = Some(p);
+                }
+            }
+        }
+        deepest
+    }
+
     /// Fills `out` with every pair of the pose `points` (`p_0..p_n`) whose clearance is at most
     /// `margin_m`, each with its gradient (see the module doc). Allocation-free once `out` has
     /// held as many pairs.
@@ -471,6 +494,29 @@ mod tests {
         // Out of it a little is allowed.
         let out = [v(0.0, -0.01), v(0.1, -0.01)];
         assert_eq!(w.below_floors(&out, &floors), None);
+    }
+
+    #[test]
+    fn the_deepest_pair_below_its_floor_is_found_not_the_first() {
+        // Link 1 grazes "shallow" (clearance 0.005, below 0.01); link 3 runs through "deep".
+        let w = World::new(
+            0.01,
+            0.01,
+            vec![disc("shallow", 0.05, 0.055), disc("deep", 0.25, 0.0)],
+        )
+        .unwrap();
+        let pts = [v(0.0, 0.0), v(0.1, 0.0), v(0.2, 0.0), v(0.3, 0.0)];
+        let floors = [0.01; 6];
+        let first = w.below_floors(&pts, &floors).unwrap();
+        assert_eq!((first.link, first.id(&w)), (1, "shallow"));
+        let deepest = w.deepest_below_floors(&pts, &floors).unwrap();
+        assert_eq!((deepest.link, deepest.id(&w)), (3, "deep"), "{deepest:?}");
+        assert_eq!(deepest.clearance_m, w.clearance(&pts).unwrap().clearance_m);
+        // A floor below a pair's clearance lets it be: the graze alone is left.
+        let let_deep = [0.01, 0.01, 0.01, -1.0, 0.01, -1.0];
+        let only = w.deepest_below_floors(&pts, &let_deep).unwrap();
+        assert_eq!((only.link, only.id(&w)), (1, "shallow"), "{only:?}");
+        assert_eq!(w.deepest_below_floors(&pts, &[-1.0; 6]), None);
     }
 
     #[test]

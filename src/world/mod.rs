@@ -71,7 +71,7 @@ pub const MAX_POLYGON_POINTS: usize = 1024;
 pub const MAX_ID_CHARS: usize = 64;
 
 /// Where a point stands against an obstacle, as words tell it: four decimals of a metre show a
-/// distance below [`Place::EDGE_M`] as 0.0000 (or -0.0000), so that is "on the edge".
+/// distance below [`ON_EDGE_M`] as 0.0000 (or -0.0000), so that is "on the edge".
 enum Place {
     /// Outside, this far, m.
     Outside(f64),
@@ -81,12 +81,14 @@ enum Place {
     Inside(f64),
 }
 
-impl Place {
-    const EDGE_M: f64 = 5e-5;
+/// A signed distance (m) within this of zero is said to be on an obstacle's edge: it would
+/// read 0.0000 m at the tenth of a millimetre the words give.
+pub const ON_EDGE_M: f64 = 5e-5;
 
+impl Place {
     /// The place of a signed distance (m, negative inside).
     fn of(distance_m: f64) -> Self {
-        if distance_m.abs() < Self::EDGE_M {
+        if distance_m.abs() < ON_EDGE_M {
             Self::Edge
         } else if distance_m < 0.0 {
             Self::Inside(-distance_m)
