@@ -22,6 +22,8 @@
 //!   paper's flexible objects; not a [`resolve::Resolver`]: nothing holds its base).
 //! - [`world`]: obstacles (circles, polygons) and the arm among them: exact link distances,
 //!   the clearance of a pose with its gradients, the tip's shortest route around them.
+//! - [`reach`]: a clear way in joint space to a target among obstacles, for where the tip's
+//!   route cannot pull the body (`snakectl reach`).
 //!
 //! **The paper's tooling** (flexible objects, one-shot problems; uses the math core only):
 //! - [`problem`]: the JSON problem format of `snakectl solve`: parsing, validation, the answer.
@@ -69,6 +71,7 @@ pub mod chain;
 pub mod control;
 pub mod metrics;
 pub mod motion;
+pub mod reach;
 pub mod resolve;
 pub mod rope;
 pub mod world;

@@ -1,5 +1,5 @@
 //! The map of the crate holds: the math core (`chain`, `metrics`, `resolve`, `motion`,
-//! `control`, `rope` for free flexible objects, and `world` for obstacles) imports no I/O, time, threads, tokio, serde or tracing, and nothing of the crate
+//! `control`, `rope` for free flexible objects, `world` for obstacles and `reach` for ways among them) imports no I/O, time, threads, tokio, serde or tracing, and nothing of the crate
 //! outside the math core; the simulator crate imports nothing of the controller.
 //!
 //! Production code only: a file's `#[cfg(test)]` module and files named `tests.rs` may read
@@ -10,8 +10,8 @@
 use std::path::{Path, PathBuf};
 
 /// The math core's modules, as directories under `src/`.
-const MATH_CORE: [&str; 7] = [
-    "chain", "metrics", "resolve", "motion", "control", "rope", "world",
+const MATH_CORE: [&str; 8] = [
+    "chain", "metrics", "resolve", "motion", "control", "rope", "world", "reach",
 ];
 
 /// What the math core must never name.

@@ -1,0 +1,585 @@
+//! A clear way in joint space to a target, for where the tip's route cannot pull the body.
+//!
+//! A `goto` leads the tip along its route and lets the strategy move the body the least it can
+//! each tick. Round an obstacle that least motion can wrap the body on the side the route led
+//! it to, while the clear poses with the tip on the target lie round the other side: the arm
+//! ends `blocked` (docs/WORLD.md measures how often, and why no other tick gets out). Here
+//! the arm goes there as a whole instead:
+//!
+//! 1. **The goal**: the best clear pose with the tip on the target, the overall strategy's
+//!    cold solve among the obstacles from the current pose (metric 3 from it), its clearance
+//!    raised by [`ReachOptions::margin_m`]; each joint rounded to the servos' resolution it
+//!    must keep `clearance_m`, as the controller sends it.
+//! 2. **The way**: straight legs in joint space from the current pose to the goal, found by a
+//!    bidirectional rapidly-exploring random tree (RRT-Connect, Kuffner and LaValle, 2000):
+//!    poses drawn at random within the limits, each tree grown toward them by steps of at most
+//!    [`ReachOptions::step_rad`] and the other tree pulled straight toward what grew, until the
+//!    two meet. Every pose a tree keeps is clear by `clearance_m + margin_m`.
+//! 3. **Shorter**: legs whose ends can be joined straight are joined
+//!    ([`ReachOptions::shortcuts`] tries), since the arm comes to rest at each leg's end.
+//!
+//! **A leg is clear** when every pose along it keeps [`LEG_KEEP_M`] more than `clearance_m`
+//! from every obstacle, stays within the limits (a box: straight legs between poses within it
+//! stay within it), and keeps its links more than [`SELF_CLEARANCE_M`] from each other. It is
+//! checked by a conservative bound, not by samples that could step over a corner: along a leg
+//! from `a` to `b` no point of the arm moves more than the leg's sweep, `sum_i |b_i - a_i| L_i`
+//! (`L_i` the length joint `i` carries), times the fraction walked; so from a pose of clearance
+//! `c` the next `c - keep` of sweep needs no look (at least [`MIN_ADVANCE_M`] is taken, which
+//! [`LEG_KEEP_M`] covers). The links' gaps to each other are checked at each pose looked at
+//! with twice the step to the next added.
+//!
+//! Pure and deterministic: the same request gives the same way (a splitmix64 generator seeded
+//! with [`ReachOptions::seed`]), and nothing is read from a clock: the work is bounded by
+//! [`ReachOptions::max_checks`] poses looked at.
+
+use crate::chain::{Chain, Vec2, SELF_CLEARANCE_M};
+use crate::resolve::overall::{Overall, OverallOptions, SplitMix};
+use crate::world::{Pair, World};
+
+#[cfg(test)]
+mod tests;
+
+/// What a leg keeps beyond `clearance_m`, m: the controller checks a `goto_joints` way at
+/// samples a millimetre of motion apart, each against `clearance_m` itself; a leg clear by this
+/// much more everywhere passes that check wherever its samples fall.
+pub const LEG_KEEP_M: f64 = 1e-4;
+
+/// The least step along a leg, m of sweep: a pose whose slack is below it is looked at again
+/// this far on (only a leg that grazes the clearance takes such steps).
+pub const MIN_ADVANCE_M: f64 = 1e-5;
+
+/// The most sweep between two looks at the links' gaps to each other, m.
+const SELF_STEP_M: f64 = 2e-3;
+
+/// How a way is sought.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReachOptions {
+    /// What the goal and every pose the trees keep hold beyond `clearance_m`, m: room for the
+    /// legs between them, and for rounding each joint to a whole servo tick.
+    pub margin_m: f64,
+    /// The longest step a tree grows by, rad (Euclidean, over all joints).
+    pub step_rad: f64,
+    /// The most poses drawn at random before giving up.
+    pub max_samples: usize,
+    /// The most poses looked at (clearance and self-contact) before giving up: bounds the work.
+    pub max_checks: usize,
+    /// Tries at joining two legs' ends straight.
+    pub shortcuts: usize,
+    /// Seed of the random poses and shortcuts.
+    pub seed: u64,
+}
+
+impl Default for ReachOptions {
+    fn default() -> Self {
+        Self {
+            margin_m: 2e-3,
+            step_rad: 0.25,
+            max_samples: 20_000,
+            max_checks: 20_000_000,
+            shortcuts: 200,
+            seed: 0x5eed,
+        }
+    }
+}
+
+/// What to reach, from where, among what.
+#[derive(Debug, Clone, Copy)]
+pub struct ReachRequest<'a> {
+    /// The arm.
+    pub chain: &'a Chain,
+    /// The obstacles and the clearance to keep.
+    pub world: &'a World,
+    /// The pose the arm is at (commanded), rad.
+    pub from: &'a [f64],
+    /// Where the tip should end, m.
+    pub target: Vec2,
+    /// Each joint's resolution, rad (what the servos take: the goal rounded to it must be
+    /// clear); empty for exact joints.
+    pub quanta: &'a [f64],
+}
+
+/// A way found: the legs' ends in order, the last the goal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Way {
+    /// Each leg's end pose, rad; the arm goes straight (in joint space) from one to the next,
+    /// starting at the request's `from`.
+    pub legs: Vec<Vec<f64>>,
+    /// The goal's clearance, m (`None` without obstacles).
+    pub goal_clearance_m: Option<f64>,
+    /// Metric 3 from `from` to the goal, rad^2.
+    pub goal_m3_rad2: f64,
+    /// Poses looked at, in all.
+    pub checks: usize,
+    /// Poses the two trees held when they met (0 when the straight leg was clear).
+    pub nodes: usize,
+}
+
+/// Why no way was found. Each names the numbers that tell why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReachError {
+    /// The pose or the target is not one of this arm (wrong length, not finite, outside the
+    /// limits).
+    #[error("{0}")]
+    BadInput(String),
+    /// The arm is not clear where it stands: a way from there would start inside the margin.
+    #[error(
+        "the arm is not clear where it stands: link {link} is {} (the clearance to keep is \
+         {keep_m} m); move it out first",
+        crate::world::standing(*clearance_m, obstacle)
+    )]
+    NotClearNow {
+        /// The link, 1-based from the base.
+        link: usize,
+        /// The obstacle's id.
+        obstacle: String,
+        /// The link's clearance, m.
+        clearance_m: f64,
+        /// The clearance to keep, m.
+        keep_m: f64,
+    },
+    /// The arm's links touch each other where it stands.
+    #[error("links {a} and {b} touch where the arm stands (1-based); untangle it first")]
+    TangledNow {
+        /// The first link, 1-based.
+        a: usize,
+        /// The second link, 1-based.
+        b: usize,
+    },
+    /// No pose with the tip on the target keeps the clearance and the margin (the cold solve
+    /// found none).
+    #[error(
+        "no pose found with the tip on ({:.4}, {:.4}) m that keeps {keep_m} m from every \
+         obstacle (the cold solve ended {tip_error_m:.2e} m from it after {iterations} \
+         iterations)",
+        target.x, target.y
+    )]
+    NoClearPose {
+        /// The target, m.
+        target: Vec2,
+        /// The clearance asked, m (`clearance_m + margin_m`).
+        keep_m: f64,
+        /// How far the best pose found left the tip, m.
+        tip_error_m: f64,
+        /// Solver iterations, over all its starts.
+        iterations: usize,
+    },
+    /// The goal is clear but not once each joint is rounded to its resolution, or its links
+    /// touch each other.
+    #[error("the best pose with the tip on the target is not clear as the servos take it: {what}")]
+    GoalNotClear {
+        /// What is wrong with it, in words.
+        what: String,
+    },
+    /// The trees did not meet within the work allowed.
+    #[error(
+        "no clear way found in joint space: {samples} random poses drawn and {checks} looked \
+         at, the trees holding {nodes} poses"
+    )]
+    NoWay {
+        /// Poses drawn.
+        samples: usize,
+        /// Poses looked at.
+        checks: usize,
+        /// Poses the two trees held.
+        nodes: usize,
+    },
+}
+
+/// Finds a clear way from `req.from` to the best clear pose with the tip on `req.target` (see
+/// the module doc).
+pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> {
+    let n = req.chain.len();
+    check_pose(req.chain, req.from, "the arm's pose")?;
+    if !(req.target.x.is_finite() && req.target.y.is_finite()) {
+        return Err(ReachError::BadInput(format!(
+            "the target ({}, {}) is not a finite point",
+            req.target.x, req.target.y
+        )));
+    }
+    if !(req.quanta.is_empty() || req.quanta.len() == n)
+        || !req.quanta.iter().all(|q| q.is_finite() && *q >= 0.0)
+    {
+        return Err(ReachError::BadInput(format!(
+            "{} joint resolutions for {n} joints, or one not a finite angle of at least 0",
+            req.quanta.len()
+        )));
+    }
+    if !(opts.margin_m.is_finite() && opts.margin_m >= 2.0 * LEG_KEEP_M) {
+        return Err(ReachError::BadInput(format!(
+            "margin_m {} is below {} m",
+            opts.margin_m,
+            2.0 * LEG_KEEP_M
+        )));
+    }
+    let mut look = Looker::new(req, opts);
+    let keep_m = req.world.clearance_m();
+    let now = req.chain.points(req.from);
+    if let Some((a, b)) = Chain::self_intersects(&now) {
+        return Err(ReachError::TangledNow { a: a + 1, b: b + 1 });
+    }
+    if let Some(p) = req.world.clearance(&now) {
+        if p.clearance_m < look.leg_keep {
+            return Err(ReachError::NotClearNow {
+                link: p.link,
+                obstacle: p.id(req.world).to_string(),
+                clearance_m: p.clearance_m,
+                keep_m,
+            });
+        }
+    }
+    let goal = goal_pose(req, opts)?;
+    let goal_clearance_m = req
+        .world
+        .clearance(&req.chain.points(&goal))
+        .map(|p| p.clearance_m);
+    let goal_m3_rad2 = goal
+        .iter()
+        .zip(req.from)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum();
+    let mut rng = SplitMix(opts.seed);
+    let (mut legs, nodes) = if look.leg(req.from, &goal) {
+        (vec![req.from.to_vec(), goal.clone()], 0)
+    } else {
+        connect(&mut look, req, &goal, opts, &mut rng)?
+    };
+    shorten(&mut look, &mut legs, opts.shortcuts, &mut rng);
+    legs.remove(0);
+    Ok(Way {
+        legs,
+        goal_clearance_m,
+        goal_m3_rad2,
+        checks: look.checks,
+        nodes,
+    })
+}
+
+/// The request's pose checked: one finite angle per joint, within the limits.
+fn check_pose(chain: &Chain, theta: &[f64], what: &str) -> Result<(), ReachError> {
+    if theta.len() != chain.len() {
+        return Err(ReachError::BadInput(format!(
+            "{what} has {} angles for {} joints",
+            theta.len(),
+            chain.len()
+        )));
+    }
+    if let Some(i) = theta.iter().position(|t| !t.is_finite()) {
+        return Err(ReachError::BadInput(format!(
+            "{what}: joint {} is {}, not a finite angle",
+            i + 1,
+            theta[i]
+        )));
+    }
+    chain
+        .check_limits(theta)
+        .map_err(|e| ReachError::BadInput(format!("{what}: {e}")))
+}
+
+/// The best clear pose with the tip on the target, its clearance raised by the margin; checked
+/// as the servos take it.
+fn goal_pose(req: &ReachRequest, opts: &ReachOptions) -> Result<Vec<f64>, ReachError> {
+    let w = req.world;
+    let keep_m = w.clearance_m() + opts.margin_m;
+    let raised = World::new(w.link_radius_m(), keep_m, w.obstacles().to_vec())
+        .map_err(|e| ReachError::BadInput(format!("the world with the margin: {e}")))?;
+    let mut solver = Overall::new(OverallOptions::default());
+    solver.set_world(Some(raised));
+    let mut goal = vec![0.0; req.chain.len()];
+    let o = solver.solve_cold(req.chain, req.from, req.target, &mut goal);
+    if !o.converged {
+        return Err(ReachError::NoClearPose {
+            target: req.target,
+            keep_m,
+            tip_error_m: o.tip_error,
+            iterations: o.iterations,
+        });
+    }
+    let mut sent = goal.clone();
+    if !req.quanta.is_empty() {
+        for (t, q) in sent.iter_mut().zip(req.quanta) {
+            if *q > 0.0 {
+                *t = (*t / q).round() * q;
+            }
+        }
+    }
+    let pts = req.chain.points(&sent);
+    if let Some((a, b)) = Chain::self_intersects(&pts) {
+        return Err(ReachError::GoalNotClear {
+            what: format!("links {} and {} touch", a + 1, b + 1),
+        });
+    }
+    if let Some(p) = w
+        .clearance(&pts)
+        .filter(|p| p.clearance_m < w.clearance_m())
+    {
+        return Err(ReachError::GoalNotClear {
+            what: format!(
+                "link {} is {} (the clearance to keep is {} m)",
+                p.link,
+                crate::world::standing(p.clearance_m, p.id(w)),
+                w.clearance_m()
+            ),
+        });
+    }
+    Ok(goal)
+}
+
+/// Looks at poses and legs, counting.
+struct Looker<'a> {
+    chain: &'a Chain,
+    world: &'a World,
+    /// What every pose along a leg keeps, m.
+    leg_keep: f64,
+    /// What every pose a tree keeps holds, m.
+    node_keep: f64,
+    /// The length each joint carries, m.
+    carried: Vec<f64>,
+    pose: Vec<f64>,
+    points: Vec<Vec2>,
+    checks: usize,
+    max_checks: usize,
+}
+
+impl<'a> Looker<'a> {
+    fn new(req: &ReachRequest<'a>, opts: &ReachOptions) -> Self {
+        let links = req.chain.links();
+        let n = links.len();
+        Self {
+            chain: req.chain,
+            world: req.world,
+            leg_keep: req.world.clearance_m() + LEG_KEEP_M,
+            node_keep: req.world.clearance_m() + opts.margin_m,
+            carried: (0..n).map(|i| links[i..].iter().sum()).collect(),
+            pose: vec![0.0; n],
+            points: vec![Vec2::zeros(); n + 1],
+            checks: 0,
+            max_checks: opts.max_checks,
+        }
+    }
+
+    fn out_of_work(&self) -> bool {
+        self.checks >= self.max_checks
+    }
+
+    /// The most any point moves along the straight leg from `a` to `b`, m.
+    fn sweep(&self, a: &[f64], b: &[f64]) -> f64 {
+        a.iter()
+            .zip(b)
+            .zip(&self.carried)
+            .map(|((x, y), l)| (y - x).abs() * l)
+            .sum()
+    }
+
+    /// The nearest pair of `self.points` (`None`: no obstacles).
+    fn nearest(&mut self) -> Option<Pair> {
+        self.checks += 1;
+        self.world.clearance(&self.points)
+    }
+
+    /// Whether a pose a tree would keep is clear by the margin, with links apart.
+    fn node(&mut self, theta: &[f64]) -> bool {
+        self.chain.points_into(theta, &mut self.points);
+        let clear = self
+            .nearest()
+            .is_none_or(|p| p.clearance_m >= self.node_keep);
+        clear && Chain::self_intersects(&self.points).is_none()
+    }
+
+    /// Whether the straight leg from `a` to `b` is clear (see the module doc); false, too,
+    /// when the work allowed runs out.
+    fn leg(&mut self, a: &[f64], b: &[f64]) -> bool {
+        let sweep = self.sweep(a, b);
+        let mut f = 0.0_f64;
+        loop {
+            if self.out_of_work() {
+                return false;
+            }
+            for ((x, &p), &q) in self.pose.iter_mut().zip(a).zip(b) {
+                *x = p + f * (q - p);
+            }
+            self.chain.points_into(&self.pose, &mut self.points);
+            let slack = match self.nearest() {
+                Some(p) => p.clearance_m - self.leg_keep,
+                None => f64::INFINITY,
+            };
+            if slack < 0.0 {
+                return false;
+            }
+            if f >= 1.0 {
+                return Chain::self_intersects(&self.points).is_none();
+            }
+            let left = (1.0 - f) * sweep;
+            let mut advance = slack.clamp(MIN_ADVANCE_M, SELF_STEP_M).min(left);
+            // Two links close by at most twice what each moves before the next look.
+            while Chain::self_intersects_within(&self.points, SELF_CLEARANCE_M + 2.0 * advance)
+                .is_some()
+            {
+                if advance <= MIN_ADVANCE_M {
+                    return false;
+                }
+                advance = (0.25 * advance).max(MIN_ADVANCE_M);
+            }
+            f = if advance >= left {
+                1.0
+            } else {
+                f + advance / sweep
+            };
+        }
+    }
+}
+
+/// One tree: its poses (flat, `n` a pose) and each one's parent (`usize::MAX` at the root).
+struct Tree {
+    n: usize,
+    poses: Vec<f64>,
+    parent: Vec<usize>,
+}
+
+impl Tree {
+    fn new(root: &[f64]) -> Self {
+        Self {
+            n: root.len(),
+            poses: root.to_vec(),
+            parent: vec![usize::MAX],
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.parent.len()
+    }
+
+    fn pose(&self, i: usize) -> &[f64] {
+        &self.poses[i * self.n..(i + 1) * self.n]
+    }
+
+    fn push(&mut self, pose: &[f64], parent: usize) -> usize {
+        self.poses.extend_from_slice(pose);
+        self.parent.push(parent);
+        self.len() - 1
+    }
+
+    /// The pose nearest `q` (Euclidean in joint space).
+    fn nearest(&self, q: &[f64]) -> usize {
+        let mut best = (f64::INFINITY, 0);
+        for i in 0..self.len() {
+            let d: f64 = self
+                .pose(i)
+                .iter()
+                .zip(q)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum();
+            if d < best.0 {
+                best = (d, i);
+            }
+        }
+        best.1
+    }
+
+    /// The poses from `i` back to the root.
+    fn to_root(&self, mut i: usize) -> Vec<Vec<f64>> {
+        let mut out = Vec::new();
+        while i != usize::MAX {
+            out.push(self.pose(i).to_vec());
+            i = self.parent[i];
+        }
+        out
+    }
+}
+
+/// `out` := the pose at most `step` from `from` toward `to`; whether it is `to` itself.
+fn toward(from: &[f64], to: &[f64], step: f64, out: &mut [f64]) -> bool {
+    let d = from
+        .iter()
+        .zip(to)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    if d <= step {
+        out.copy_from_slice(to);
+        return true;
+    }
+    for ((o, a), b) in out.iter_mut().zip(from).zip(to) {
+        *o = a + (b - a) * step / d;
+    }
+    false
+}
+
+/// RRT-Connect between `req.from` and `goal`: the way, both ends included, and the poses the
+/// trees held.
+fn connect(
+    look: &mut Looker,
+    req: &ReachRequest,
+    goal: &[f64],
+    opts: &ReachOptions,
+    rng: &mut SplitMix,
+) -> Result<(Vec<Vec<f64>>, usize), ReachError> {
+    let n = goal.len();
+    let mut trees = [Tree::new(req.from), Tree::new(goal)];
+    let bounds: Vec<(f64, f64)> = req
+        .chain
+        .limits()
+        .iter()
+        .zip(req.from)
+        .map(|(l, t)| match l {
+            Some(l) => (l.lo, l.hi),
+            None => (t - std::f64::consts::PI, t + std::f64::consts::PI),
+        })
+        .collect();
+    let (mut q, mut grown, mut next) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let mut samples = 0;
+    while samples < opts.max_samples && !look.out_of_work() {
+        let s = samples % 2;
+        samples += 1;
+        for (x, (lo, hi)) in q.iter_mut().zip(&bounds) {
+            *x = lo + (hi - lo) * rng.unit();
+        }
+        // Grow tree `s` one step toward the random pose.
+        let near = trees[s].nearest(&q);
+        toward(trees[s].pose(near), &q, opts.step_rad, &mut grown);
+        if !(look.node(&grown) && look.leg(trees[s].pose(near), &grown)) {
+            continue;
+        }
+        let added = trees[s].push(&grown, near);
+        // Pull the other tree straight toward it, step by step.
+        let o = 1 - s;
+        let mut at = trees[o].nearest(&grown);
+        loop {
+            let reached = toward(trees[o].pose(at), &grown, opts.step_rad, &mut next);
+            let ok = (reached || look.node(&next)) && look.leg(trees[o].pose(at), &next);
+            if !ok {
+                break;
+            }
+            at = trees[o].push(&next, at);
+            if reached {
+                let mut way = trees[s].to_root(added);
+                way.reverse();
+                way.extend(trees[o].to_root(at).into_iter().skip(1));
+                if s == 1 {
+                    way.reverse();
+                }
+                return Ok((way, trees[0].len() + trees[1].len()));
+            }
+        }
+    }
+    Err(ReachError::NoWay {
+        samples,
+        checks: look.checks,
+        nodes: trees[0].len() + trees[1].len(),
+    })
+}
+
+/// Joins legs' ends straight where the leg between them is clear, `tries` times at random
+/// pairs; the ends stay.
+fn shorten(look: &mut Looker, way: &mut Vec<Vec<f64>>, tries: usize, rng: &mut SplitMix) {
+    for _ in 0..tries {
+        if way.len() < 3 || look.out_of_work() {
+            return;
+        }
+        let m = way.len();
+        let i = ((rng.unit() * (m - 2) as f64) as usize).min(m - 3);
+        let j = i + 2 + ((rng.unit() * (m - i - 2) as f64) as usize).min(m - i - 3);
+        if look.leg(&way[i].clone(), &way[j].clone()) {
+            way.drain(i + 1..j);
+        }
+    }
+}

@@ -1,0 +1,235 @@
+//! Ways found are clear (checked here on their own, by samples finer than a millimetre of the
+//! arm's motion, not by the planner's bound), end with the tip on the target, keep the limits,
+//! and come out the same for the same request; bad requests are refused in words.
+
+#![allow(clippy::unwrap_used)]
+
+use std::f64::consts::{FRAC_PI_2, TAU};
+
+use rand::{Rng, SeedableRng};
+
+use super::*;
+use crate::chain::JointLimit;
+use crate::world::{Obstacle, Shape};
+
+const N: usize = 12;
+
+fn chain() -> Chain {
+    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
+    Chain::new(vec![0.08; N], Vec2::zeros(), FRAC_PI_2, vec![lim; N]).unwrap()
+}
+
+fn home() -> Vec<f64> {
+    vec![0.1; N]
+}
+
+fn disc(id: &str, x: f64, y: f64, r: f64) -> Obstacle {
+    Obstacle {
+        id: id.into(),
+        shape: Shape::Circle {
+            center: Vec2::new(x, y),
+            radius_m: r,
+        },
+    }
+}
+
+/// Seeded worlds of one to six discs near the home pose's tip, each clear of the home pose,
+/// and a target below them: the moves where a goto's body is caught come from such worlds.
+fn cases(count: usize) -> Vec<(World, Vec2)> {
+    let c = chain();
+    let tip = c.tip(&home());
+    let mut rng = rand::rngs::StdRng::seed_from_u64(22);
+    let mut out = Vec::new();
+    while out.len() < count {
+        let obstacles = (0..rng.gen_range(1..=6))
+            .map(|k| {
+                let at = tip + Vec2::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.1));
+                disc(&format!("o{k}"), at.x, at.y, rng.gen_range(0.01..0.04))
+            })
+            .collect();
+        let world = World::new(0.01, 0.005, obstacles).unwrap();
+        let target = tip + Vec2::new(rng.gen_range(-0.35..0.35), rng.gen_range(-0.4..-0.1));
+        let clear = world.pose_clearance(&c, &home()).unwrap().clearance_m > 0.01;
+        let far = world.point_distance(target).unwrap().0 > 0.03;
+        if clear && far && target.norm() < 0.9 * c.reach() {
+            out.push((world, target));
+        }
+    }
+    out
+}
+
+/// The least clearance along the straight leg from `a` to `b`, sampled every 0.2 mm of the
+/// arm's motion, and whether every sample keeps the limits and its links apart.
+fn along(c: &Chain, w: &World, a: &[f64], b: &[f64]) -> (f64, bool) {
+    let carried: Vec<f64> = (0..N).map(|i| c.links()[i..].iter().sum()).collect();
+    let sweep: f64 = (0..N).map(|i| (b[i] - a[i]).abs() * carried[i]).sum();
+    let steps = ((sweep / 2e-4).ceil() as usize).max(1);
+    let (mut least, mut fine) = (f64::INFINITY, true);
+    for k in 0..=steps {
+        let f = k as f64 / steps as f64;
+        let p: Vec<f64> = a.iter().zip(b).map(|(x, y)| x + f * (y - x)).collect();
+        least = least.min(w.pose_clearance(c, &p).unwrap().clearance_m);
+        fine &= c.check_limits(&p).is_ok() && Chain::self_intersects(&c.points(&p)).is_none();
+    }
+    (least, fine)
+}
+
+#[test]
+fn ways_round_the_obstacles_are_clear_and_end_on_the_target() {
+    let c = chain();
+    let quanta = [TAU / 4096.0; N];
+    let (mut planned, mut searched) = (0, 0);
+    for (world, target) in cases(24) {
+        let from = home();
+        let req = ReachRequest {
+            chain: &c,
+            world: &world,
+            from: &from,
+            target,
+            quanta: &quanta,
+        };
+        let way = match plan(&req, &ReachOptions::default()) {
+            Ok(way) => way,
+            // A target no clear pose reaches is said so; nothing else may fail.
+            Err(ReachError::NoClearPose { .. }) => continue,
+            Err(e) => panic!("{target:?}: {e}"),
+        };
+        planned += 1;
+        searched += usize::from(way.nodes > 0);
+        let mut at = from.clone();
+        for leg in &way.legs {
+            let (least, fine) = along(&c, &world, &at, leg);
+            assert!(
+                least >= world.clearance_m(),
+                "{target:?}: a leg at {least} m"
+            );
+            assert!(
+                fine,
+                "{target:?}: a leg leaves the limits or touches itself"
+            );
+            at.clone_from(leg);
+        }
+        let goal = way.legs.last().unwrap();
+        assert!((c.tip(goal) - target).norm() < 1e-9, "{target:?}");
+        // Rounded to whole ticks, as the servos take it, the goal is clear too.
+        let sent: Vec<f64> = goal
+            .iter()
+            .map(|t| (t / quanta[0]).round() * quanta[0])
+            .collect();
+        assert!(world.pose_clearance(&c, &sent).unwrap().clearance_m >= world.clearance_m());
+        let m3: f64 = goal.iter().zip(&from).map(|(a, b)| (a - b).powi(2)).sum();
+        assert!((m3 - way.goal_m3_rad2).abs() < 1e-12);
+    }
+    // Most of these moves have a pose to reach, and some need the trees (no straight leg).
+    assert!(
+        planned >= 20 && searched >= 3,
+        "{planned} planned, {searched} searched"
+    );
+}
+
+#[test]
+fn the_same_request_gives_the_same_way() {
+    let c = chain();
+    let (world, target) = cases(3).pop().unwrap();
+    let from = home();
+    let req = ReachRequest {
+        chain: &c,
+        world: &world,
+        from: &from,
+        target,
+        quanta: &[],
+    };
+    let a = plan(&req, &ReachOptions::default()).unwrap();
+    let b = plan(&req, &ReachOptions::default()).unwrap();
+    assert_eq!(a, b);
+}
+
+#[test]
+fn a_way_that_needs_more_work_than_allowed_says_how_much_was_done() {
+    let c = chain();
+    let from = home();
+    // The first case whose straight leg is not clear, with a single random pose allowed.
+    for (world, target) in cases(24) {
+        let req = ReachRequest {
+            chain: &c,
+            world: &world,
+            from: &from,
+            target,
+            quanta: &[],
+        };
+        let Ok(way) = plan(&req, &ReachOptions::default()) else {
+            continue;
+        };
+        if way.nodes == 0 {
+            continue;
+        }
+        let tight = ReachOptions {
+            max_samples: 1,
+            ..ReachOptions::default()
+        };
+        let err = plan(&req, &tight).unwrap_err();
+        assert!(
+            matches!(err, ReachError::NoWay { samples: 1, .. }),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("1 random poses drawn"), "{err}");
+        return;
+    }
+    panic!("no case needed the trees");
+}
+
+#[test]
+fn bad_requests_are_refused_in_words() {
+    let c = chain();
+    let tip = c.tip(&home());
+    let world = World::new(
+        0.01,
+        0.005,
+        vec![disc("post", tip.x - 0.1, tip.y - 0.2, 0.03)],
+    )
+    .unwrap();
+    let ask = |from: &[f64], target: Vec2, quanta: &[f64]| {
+        let req = ReachRequest {
+            chain: &c,
+            world: &world,
+            from,
+            target,
+            quanta,
+        };
+        plan(&req, &ReachOptions::default())
+            .unwrap_err()
+            .to_string()
+    };
+    let below = tip - Vec2::new(0.0, 0.2);
+    let said = ask(&[0.1; 3], below, &[]);
+    assert!(said.contains("3 angles for 12 joints"), "{said}");
+    let said = ask(&home(), Vec2::new(f64::NAN, 0.0), &[]);
+    assert!(said.contains("not a finite point"), "{said}");
+    let said = ask(&home(), below, &[0.1; 2]);
+    assert!(said.contains("2 joint resolutions for 12 joints"), "{said}");
+    let mut out = home();
+    out[3] = 2.5;
+    let said = ask(&out, below, &[]);
+    assert!(said.contains("the arm's pose"), "{said}");
+    // A target inside the post: no clear pose has the tip there.
+    let said = ask(&home(), Vec2::new(tip.x - 0.1, tip.y - 0.2), &[]);
+    assert!(said.starts_with("no pose found with the tip on"), "{said}");
+    // An arm that stands inside an obstacle is told to get out first.
+    let pts = c.points(&home());
+    let mid = (pts[6] + pts[7]) * 0.5;
+    let on_arm = World::new(0.01, 0.005, vec![disc("drop", mid.x, mid.y, 0.02)]).unwrap();
+    let req = ReachRequest {
+        chain: &c,
+        world: &on_arm,
+        from: &home(),
+        target: below,
+        quanta: &[],
+    };
+    let said = plan(&req, &ReachOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        said.contains("link 7 is inside obstacle \"drop\"") && said.contains("move it out first"),
+        "{said}"
+    );
+}
