@@ -81,8 +81,11 @@
 //! non-finite) advances nothing, `dt` above [`MAX_DT_S`] counts as [`MAX_DT_S`], and commands
 //! with non-finite or huge numbers are refused by [`Controller::command`].
 
+use std::collections::VecDeque;
+
 use crate::chain::{Chain, Num, Vec2, MAX_MAGNITUDE, SELF_CLEARANCE_M};
 use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
+use crate::reach::{ReachError, ReachOptions, ReachRequest, Way};
 use crate::resolve::overall::{Overall, OverallOptions};
 use crate::resolve::sequential::Sequential;
 use crate::resolve::{verdict, Resolver, Strategy};
@@ -196,6 +199,14 @@ pub enum Command {
     },
     /// A joint-space move to the home pose.
     Home,
+    /// The tip to `target` by a clear way in joint space ([`crate::reach`]): the best clear
+    /// pose with the tip there, reached in straight joint-space legs round the obstacles, each
+    /// at the joint speed limit from rest to rest. Always planned beside the loop
+    /// ([`Accepted::Plan`]).
+    Reach {
+        /// Target tip position, m.
+        target: Vec2,
+    },
     /// Decelerate to rest at the acceleration limit, then hold.
     Stop,
 }
@@ -351,6 +362,9 @@ pub enum Refused {
         /// The distance the tip's route keeps from the obstacles, m.
         needed_m: f64,
     },
+    /// A `reach` that found no clear way, or whose request was not one of this arm.
+    #[error("{0}")]
+    Reach(#[from] ReachError),
     /// A goto or path whose routes need more work to find than a command may spend
     /// ([`MAX_ROUTE_WORK`], shared by a path's legs).
     #[error(
@@ -487,9 +501,65 @@ pub struct Tick {
 pub enum Accepted {
     /// In force from the next tick.
     Now,
-    /// A `goto` or `path` among obstacles whose routes need more work than was given: nothing
-    /// changed; plan them with [`plan_route`] and start them with [`Controller::start_route`].
-    Plan(RouteRequest),
+    /// A `goto` or `path` among obstacles whose routes need more work than was given, or a
+    /// `reach`: nothing changed; plan it with [`plan`] and start it with
+    /// [`Controller::start_planned`].
+    Plan(PlanRequest),
+}
+
+/// Work a command needs done before it starts, more than a control tick can spare.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PlanRequest {
+    /// A `goto`'s or a `path`'s routes for the tip.
+    Routes(RouteRequest),
+    /// A `reach`'s way in joint space.
+    Reach(Box<ReachJob>),
+}
+
+/// What a `reach` asks for: a way from the pose the arm holds to the best clear pose with the
+/// tip on `target` ([`crate::reach::plan`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReachJob {
+    /// The arm.
+    pub chain: Chain,
+    /// The world in force (not the one raised for rounding: the planner checks the rounded
+    /// goals itself).
+    pub world: World,
+    /// The commanded pose at rest, rad.
+    pub from: Vec<f64>,
+    /// Where the tip should end, m.
+    pub target: Vec2,
+    /// Each joint's resolution, rad (empty: exact).
+    pub quanta: Vec<f64>,
+}
+
+/// A [`PlanRequest`] done.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Planned {
+    /// The tip's routes.
+    Routes(PlannedRoute),
+    /// The joint-space legs.
+    Way(Way),
+}
+
+/// Does the work of `request` (the routes with at most `route_work`, see [`plan_route`]).
+pub fn plan(request: &PlanRequest, route_work: u64) -> Result<Planned, Refused> {
+    match request {
+        PlanRequest::Routes(r) => plan_route(r, route_work).map(Planned::Routes),
+        PlanRequest::Reach(job) => {
+            let req = ReachRequest {
+                chain: &job.chain,
+                world: &job.world,
+                from: &job.from,
+                target: job.target,
+                quanta: &job.quanta,
+            };
+            Ok(Planned::Way(crate::reach::plan(
+                &req,
+                &ReachOptions::default(),
+            )?))
+        }
+    }
 }
 
 /// The routes a `goto` or `path` asks for: from `from` through `points` in turn, in `world`
@@ -563,6 +633,16 @@ impl PlannedRoute {
     pub fn waypoints(&self) -> &[Vec2] {
         &self.way
     }
+}
+
+/// Why [`Controller::start_planned`] did not start what was planned.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NotStarted {
+    /// The plan no longer fits where the arm is or the world it was made in: plan again
+    /// ([`Controller::replan_request`]).
+    Replan,
+    /// Its first leg is refused as a joint move would be.
+    Refused(Refused),
 }
 
 /// A route planned for a tip or a world that is no longer the controller's: plan again.
@@ -672,6 +752,8 @@ pub struct Controller {
     plan: World,
     /// Headway of a goto or path among obstacles: where the tip was and how long ago.
     anchor: Option<(Vec2, f64)>,
+    /// A `reach`'s legs still to go, each a joint-space move begun when the one before arrives.
+    legs: VecDeque<Vec<f64>>,
 }
 
 /// The self-collision check of candidate poses against the commanded one.
@@ -994,6 +1076,7 @@ impl Controller {
             rounding_m: 0.0,
             plan: World::default(),
             anchor: None,
+            legs: VecDeque::new(),
         };
         // Size both resolvers' scratch now, so that even the first tick allocates nothing.
         let (theta, trial) = (c.theta.clone(), &mut c.trial);
@@ -1009,16 +1092,25 @@ impl Controller {
     /// other; one that self-intersects is refused with [`Refused::SelfCollision`] (it could
     /// never arrive). Its way there may still be blocked by a pose in between that would
     /// touch: the move then stops short and ends [`Finish::Saturated`].
+    ///
+    /// A `Reach` is planned here, before this returns ([`crate::reach`]: tens to hundreds of
+    /// milliseconds among a few obstacles); [`Controller::command_within`] hands it back
+    /// instead, to be planned elsewhere.
     pub fn command(&mut self, cmd: Command) -> Result<(), Refused> {
         match self.command_within(cmd, MAX_ROUTE_WORK)? {
             Accepted::Now => Ok(()),
             // The whole budget was given: a route over it is refused, never handed back.
-            Accepted::Plan(r) => Err(Refused::RouteTooLong {
+            Accepted::Plan(PlanRequest::Routes(r)) => Err(Refused::RouteTooLong {
                 what: r.what,
                 x: r.points.last().map_or(f64::NAN, |p| p.x),
                 y: r.points.last().map_or(f64::NAN, |p| p.y),
                 limit: MAX_ROUTE_WORK,
             }),
+            // Planned here, in the caller's time (the daemon plans it beside its loop).
+            Accepted::Plan(request @ PlanRequest::Reach(_)) => match plan(&request, 0)? {
+                Planned::Way(way) => self.start_way(way),
+                Planned::Routes(_) => Ok(()),
+            },
         }
     }
 
@@ -1079,9 +1171,20 @@ impl Controller {
                 self.check_joint_way(&self.home)?;
                 self.motion.joints(&self.home);
             }
+            Command::Reach { target } => {
+                let target = check_point(target, "target")?;
+                return Ok(Accepted::Plan(PlanRequest::Reach(Box::new(ReachJob {
+                    chain: self.chain.clone(),
+                    world: self.world.clone(),
+                    from: self.theta.clone(),
+                    target,
+                    quanta: self.quanta.clone(),
+                }))));
+            }
             Command::Stop => self.motion.stop(),
         }
         self.anchor = None;
+        self.legs.clear();
         Ok(Accepted::Now)
     }
 
@@ -1106,10 +1209,11 @@ impl Controller {
             Ok(route) => {
                 self.motion.route(route.way, route.rest, speed);
                 self.anchor = None;
+                self.legs.clear();
                 Ok(Accepted::Now)
             }
             Err(Refused::RouteTooLong { .. }) if work < MAX_ROUTE_WORK => {
-                Ok(Accepted::Plan(request))
+                Ok(Accepted::Plan(PlanRequest::Routes(request)))
             }
             Err(r) => Err(r),
         }
@@ -1129,7 +1233,62 @@ impl Controller {
         }
         self.motion.route(route.way, route.rest, request.speed);
         self.anchor = None;
+        self.legs.clear();
         Ok(())
+    }
+
+    /// Starts what was planned elsewhere for `request` ([`plan`]), as the command would have
+    /// started it: a route as [`Controller::start_route`]; a `reach`'s way from its first leg
+    /// (each next leg when the one before arrives, its straight way checked against the world
+    /// then in force). Refused with [`NotStarted::Replan`], nothing changed, when the plan no
+    /// longer fits (the tip or the pose has moved, or the world has changed); with
+    /// [`NotStarted::Refused`] when the first leg's way is not clear after all.
+    pub fn start_planned(
+        &mut self,
+        request: &PlanRequest,
+        planned: Planned,
+    ) -> Result<(), NotStarted> {
+        match (request, planned) {
+            (PlanRequest::Routes(r), Planned::Routes(route)) => self
+                .start_route(r, route)
+                .map_err(|Replan| NotStarted::Replan),
+            (PlanRequest::Reach(job), Planned::Way(way)) => {
+                if self.theta != job.from || self.world != job.world {
+                    return Err(NotStarted::Replan);
+                }
+                self.start_way(way).map_err(NotStarted::Refused)
+            }
+            _ => Err(NotStarted::Replan),
+        }
+    }
+
+    /// Starts a `reach`'s way planned from the commanded pose: its first leg now, the others
+    /// as each arrives.
+    fn start_way(&mut self, way: Way) -> Result<(), Refused> {
+        let mut legs: VecDeque<Vec<f64>> = way.legs.into();
+        let Some(first) = legs.pop_front() else {
+            return Ok(());
+        };
+        self.check_joint_way(&first)?;
+        self.motion.joints(&first);
+        self.anchor = None;
+        self.legs = legs;
+        Ok(())
+    }
+
+    /// The same request from where the arm is now, in the world in force: what
+    /// [`Controller::start_planned`] takes after it asked for a replan.
+    pub fn replan_request(&self, request: &PlanRequest) -> PlanRequest {
+        match request {
+            PlanRequest::Routes(r) => PlanRequest::Routes(self.replan(r)),
+            PlanRequest::Reach(job) => PlanRequest::Reach(Box::new(ReachJob {
+                chain: self.chain.clone(),
+                world: self.world.clone(),
+                from: self.theta.clone(),
+                target: job.target,
+                quanta: self.quanta.clone(),
+            })),
+        }
     }
 
     /// A route request for the same points from where the tip is now, in the world in force:
@@ -1528,8 +1687,38 @@ impl Controller {
                 obstacle: b.obstacle,
             });
         }
+        self.next_leg(&mut t);
         self.headway(dt, &mut t);
         t
+    }
+
+    /// A `reach` whose leg arrived goes on with the next, its straight way checked against
+    /// the world in force; one not clear (the world changed meanwhile) ends the move
+    /// [`Finish::Blocked`], naming the pair of least clearance on it. Any other ending drops
+    /// the legs left.
+    fn next_leg(&mut self, t: &mut Tick) {
+        match t.finished {
+            Some(Finish::Arrived) => {}
+            Some(_) => return self.legs.clear(),
+            None => return,
+        }
+        let Some(next) = self.legs.pop_front() else {
+            return;
+        };
+        match self.check_joint_way(&next) {
+            Ok(()) => {
+                self.motion.joints(&next);
+                t.finished = None;
+            }
+            Err(_) => {
+                self.legs.clear();
+                let (link, obstacle) = self
+                    .world
+                    .clearance(&self.guard.now)
+                    .map_or((self.chain.len(), 0), |p| (p.link, p.obstacle));
+                t.finished = Some(Finish::Blocked { link, obstacle });
+            }
+        }
     }
 
     /// Among obstacles, a goto or path whose tip advances less than [`HEADWAY_M`] (or half what

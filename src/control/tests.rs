@@ -892,7 +892,9 @@ fn a_route_handed_back_for_planning_starts_as_the_command_would_have_started_it(
     direct.command(goto.clone()).unwrap();
     // Handed back with too little, nothing changed; planned apart, started.
     let mut apart = fresh();
-    let Accepted::Plan(request) = apart.command_within(goto.clone(), 10).unwrap() else {
+    let Accepted::Plan(PlanRequest::Routes(request)) =
+        apart.command_within(goto.clone(), 10).unwrap()
+    else {
         panic!("planned within 10 checks");
     };
     assert_eq!(apart.activity(), Activity::Holding);

@@ -53,6 +53,8 @@ command_names! {
     Goto = "goto",
     /// `goto_joints`.
     GotoJoints = "goto_joints",
+    /// `reach`.
+    Reach = "reach",
     /// `path`.
     Path = "path",
     /// `velocity`.
@@ -106,6 +108,7 @@ impl CmdName {
         match self {
             CmdName::Goto
             | CmdName::GotoJoints
+            | CmdName::Reach
             | CmdName::Path
             | CmdName::Velocity
             | CmdName::Jog
@@ -186,6 +189,11 @@ pub enum Cmd {
     GotoJoints {
         /// Target pose, one angle per joint, rad.
         theta: Vec<f64>,
+    },
+    /// The tip to `target` by a clear way in joint space, planned round the obstacles.
+    Reach {
+        /// Target tip position, m.
+        target: [f64; 2],
     },
     /// Tip along a polyline, stopping at each corner.
     Path {
@@ -274,6 +282,7 @@ impl Cmd {
             Cmd::Status => CmdName::Status,
             Cmd::Goto { .. } => CmdName::Goto,
             Cmd::GotoJoints { .. } => CmdName::GotoJoints,
+            Cmd::Reach { .. } => CmdName::Reach,
             Cmd::Path { .. } => CmdName::Path,
             Cmd::Velocity { .. } => CmdName::Velocity,
             Cmd::Jog { .. } => CmdName::Jog,
@@ -327,6 +336,7 @@ impl Cmd {
                 Route::Loop(LoopCmd::Motion(Motion::Goto { target, speed }))
             }
             Cmd::GotoJoints { theta } => Route::Loop(LoopCmd::Motion(Motion::GotoJoints { theta })),
+            Cmd::Reach { target } => Route::Loop(LoopCmd::Motion(Motion::Reach { target })),
             Cmd::Path { points, speed } => {
                 Route::Loop(LoopCmd::Motion(Motion::Path { points, speed }))
             }
@@ -503,6 +513,11 @@ pub enum Motion {
         /// Target pose, rad.
         theta: Vec<f64>,
     },
+    /// `reach`.
+    Reach {
+        /// Target tip position, m.
+        target: [f64; 2],
+    },
     /// `path`.
     Path {
         /// Corner points, m.
@@ -532,6 +547,7 @@ impl Motion {
         match self {
             Motion::Goto { .. } => CmdName::Goto,
             Motion::GotoJoints { .. } => CmdName::GotoJoints,
+            Motion::Reach { .. } => CmdName::Reach,
             Motion::Path { .. } => CmdName::Path,
             Motion::Velocity { .. } => CmdName::Velocity,
             Motion::Jog { .. } => CmdName::Jog,
@@ -545,6 +561,7 @@ impl From<Motion> for Cmd {
         match motion {
             Motion::Goto { target, speed } => Cmd::Goto { target, speed },
             Motion::GotoJoints { theta } => Cmd::GotoJoints { theta },
+            Motion::Reach { target } => Cmd::Reach { target },
             Motion::Path { points, speed } => Cmd::Path { points, speed },
             Motion::Velocity { v } => Cmd::Velocity { v },
             Motion::Jog { joint, rad_s } => Cmd::Jog { joint, rad_s },

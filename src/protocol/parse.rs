@@ -138,6 +138,11 @@ fn command(mut map: Map<String, Value>, joints: usize) -> Result<Cmd, Rejection>
             let speed = args.speed()?;
             Cmd::Goto { target, speed }
         }
+        CmdName::Reach => {
+            let mut args = Args::new(map, known, &["target"])?;
+            let target = point(Field::new("target"), &args.required("target")?)?;
+            Cmd::Reach { target }
+        }
         CmdName::GotoJoints => {
             let mut args = Args::new(map, known, &["theta"])?;
             let theta = numbers(Field::new("theta"), &args.required("theta")?, joints)?;

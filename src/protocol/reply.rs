@@ -111,6 +111,7 @@ impl Reply {
             CmdName::World => Reply::World(Box::new(from(fields)?)),
             CmdName::Goto
             | CmdName::GotoJoints
+            | CmdName::Reach
             | CmdName::Path
             | CmdName::Velocity
             | CmdName::Jog

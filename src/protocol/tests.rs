@@ -24,6 +24,9 @@ fn example(name: CmdName) -> Cmd {
         CmdName::GotoJoints => Cmd::GotoJoints {
             theta: vec![0.1, -0.2, 0.3],
         },
+        CmdName::Reach => Cmd::Reach {
+            target: [-0.3, 0.45],
+        },
         CmdName::Path => Cmd::Path {
             points: vec![[0.1, 0.2], [-0.3, 0.4]],
             speed: Some(0.02),
@@ -126,6 +129,7 @@ fn reply_to(name: CmdName) -> Reply {
         CmdName::World => Reply::World(Box::new(world_info())),
         CmdName::Goto
         | CmdName::GotoJoints
+        | CmdName::Reach
         | CmdName::Path
         | CmdName::Velocity
         | CmdName::Jog
@@ -333,6 +337,7 @@ fn every_command_is_routed_once_keeping_its_name_and_need() {
         [
             CmdName::Goto,
             CmdName::GotoJoints,
+            CmdName::Reach,
             CmdName::Path,
             CmdName::Velocity,
             CmdName::Jog,

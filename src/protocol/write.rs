@@ -102,6 +102,7 @@ pub fn request_line(id: Option<&Value>, cmd: &Cmd) -> String {
             }
         }
         Cmd::GotoJoints { theta } => line.field("theta", theta),
+        Cmd::Reach { target } => line.field("target", target),
         Cmd::Path { points, speed } => {
             line.field("points", points);
             if let Some(speed) = speed {

@@ -334,6 +334,8 @@ struct Looker<'a> {
     node_keep: f64,
     /// The length each joint carries, m.
     carried: Vec<f64>,
+    /// Each joint's resolution, rad (empty: exact).
+    quanta: &'a [f64],
     pose: Vec<f64>,
     points: Vec<Vec2>,
     checks: usize,
@@ -350,6 +352,7 @@ impl<'a> Looker<'a> {
             leg_keep: req.world.clearance_m() + LEG_KEEP_M,
             node_keep: req.world.clearance_m() + opts.margin_m,
             carried: (0..n).map(|i| links[i..].iter().sum()).collect(),
+            quanta: req.quanta,
             pose: vec![0.0; n],
             points: vec![Vec2::zeros(); n + 1],
             checks: 0,
@@ -376,13 +379,26 @@ impl<'a> Looker<'a> {
         self.world.clearance(&self.points)
     }
 
-    /// Whether a pose a tree would keep is clear by the margin, with links apart.
+    /// Whether a pose a tree would keep is clear by the margin, with links apart, and clear
+    /// once rounded to the joints' resolution (each leg's end is a goal the servos take).
     fn node(&mut self, theta: &[f64]) -> bool {
         self.chain.points_into(theta, &mut self.points);
         let clear = self
             .nearest()
             .is_none_or(|p| p.clearance_m >= self.node_keep);
-        clear && Chain::self_intersects(&self.points).is_none()
+        if !clear || Chain::self_intersects(&self.points).is_some() {
+            return false;
+        }
+        if self.quanta.is_empty() {
+            return true;
+        }
+        for ((x, &t), &q) in self.pose.iter_mut().zip(theta).zip(self.quanta) {
+            *x = if q > 0.0 { (t / q).round() * q } else { t };
+        }
+        self.chain.points_into(&self.pose, &mut self.points);
+        self.nearest()
+            .is_none_or(|p| p.clearance_m >= self.world.clearance_m())
+            && Chain::self_intersects(&self.points).is_none()
     }
 
     /// Whether the straight leg from `a` to `b` is clear (see the module doc); false, too,

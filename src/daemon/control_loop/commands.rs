@@ -7,11 +7,12 @@ use std::time::Duration;
 use tokio::sync::oneshot;
 
 use crate::chain::Vec2;
-use crate::control::{self, Accepted, Activity, Refused, Replan, RouteRequest};
+use crate::control::{self, Accepted, Activity, NotStarted, PlanRequest, Refused};
 use crate::protocol::{
     world_rejection, Answer, Applied, ClientId, CmdName, Code, LoopCmd, Motion, Rebooted,
     Rejection, Reply, RequestId, Status, StopReason, What, WorldInfo,
 };
+use crate::reach::ReachError;
 use crate::servo::arm::{self, BringUpOptions, OnExit};
 use crate::servo::clock::Clock;
 use crate::servo::ServoBus;
@@ -34,11 +35,13 @@ fn applied(tick: u64) -> Pending {
     Pending::Ready(Ok(Reply::Applied(Applied { tick }).into()))
 }
 
-/// A command the controller refused: `unreachable` where no pose or route gets there, else
-/// `bad_arg`.
+/// A command the controller refused: `unreachable` where no pose, route or way gets there,
+/// else `bad_arg`.
 fn refusal(r: Refused) -> Pending {
     match r {
+        Refused::Reach(ReachError::BadInput(_)) => refuse(Code::BadArg, r.to_string()),
         Refused::OutsideLimits { .. }
+        | Refused::Reach(_)
         | Refused::SelfCollision { .. }
         | Refused::InsideObstacle { .. }
         | Refused::NotClearOnTheWay { .. }
@@ -256,6 +259,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             Motion::GotoJoints { theta } => control::Command::GotoJoints {
                 theta: theta.clone(),
             },
+            Motion::Reach { target } => control::Command::Reach { target: v2(target) },
             Motion::Path { points, speed } => control::Command::Path {
                 points: points.iter().map(v2).collect(),
                 speed: *speed,
@@ -704,7 +708,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// A `goto` or `path` whose routes need more than a tick can spare: the command it
     /// replaces ends (`preempted`), the arm comes to rest, and its routes are planned beside
     /// the loop from where it stands; answered once they are (`tend_planning`).
-    fn plan_beside(&mut self, e: &Envelope, request: RouteRequest) -> Pending {
+    fn plan_beside(&mut self, e: &Envelope, request: PlanRequest) -> Pending {
         self.settle_planning(e.cmd.name());
         let ended = self.ledger.preempt(e.cmd.name());
         self.owe(ended);
@@ -716,7 +720,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         tracing::info!(
             client = e.client,
             cmd = e.cmd.name().as_str(),
-            "planning the routes beside the loop"
+            "planning beside the loop"
         );
         self.planning = Some(Planning {
             client: e.client,
@@ -746,7 +750,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if job.serial.is_some() || self.controller.activity() != Activity::Holding {
             return Ok(());
         }
-        job.request = self.controller.replan(&job.request);
+        job.request = self.controller.replan_request(&job.request);
         let serial = self
             .planner
             .send(job.request.clone())
@@ -787,7 +791,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let route = match self.planner.poll(serial) {
             Polled::Waiting => return,
             Polled::Gone => {
-                let message = "the route planner stopped without an answer: send again";
+                let message = "the planner stopped without an answer: send again";
                 return self.end_planning(refuse(Code::Busy, message));
             }
             Polled::Done(Err(r)) => return self.end_planning(refusal(r)),
@@ -796,7 +800,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let Some(job) = self.planning.as_mut() else {
             return;
         };
-        match self.controller.start_route(&job.request, route) {
+        match self.controller.start_planned(&job.request, route) {
             Ok(()) => {
                 let Some(job) = self.planning.take() else {
                     return;
@@ -806,7 +810,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                     cmd = job.kind.as_str(),
                     ms = took.as_secs_f64() * 1e3,
                     replans = job.replans,
-                    "routes planned beside the loop; the command begins"
+                    "planned beside the loop; the command begins"
                 );
                 let ended = self
                     .ledger
@@ -816,14 +820,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                     self.pending.push((reply, applied(self.tick)));
                 }
             }
-            Err(Replan) if job.replans < MAX_REPLANS => {
+            Err(NotStarted::Refused(r)) => self.end_planning(refusal(r)),
+            Err(NotStarted::Replan) if job.replans < MAX_REPLANS => {
                 job.replans += 1;
                 job.serial = None;
                 self.send_plan_or_end();
             }
-            Err(Replan) => {
+            Err(NotStarted::Replan) => {
                 let message = format!(
-                    "the tip or the world moved each of the {} times the routes were planned: \
+                    "the arm or the world moved each of the {} times the command was planned: \
                      send again",
                     MAX_REPLANS + 1
                 );
@@ -894,7 +899,7 @@ pub(super) struct Planning {
     kind: CmdName,
     /// The sender's reply, once [`Cycle::take`] has handed it over.
     pub reply: Option<oneshot::Sender<Answer>>,
-    request: RouteRequest,
+    request: PlanRequest,
     /// The planner's job (`None`: the arm is still coming to rest).
     serial: Option<u64>,
     /// How often the routes were planned again.

@@ -1,8 +1,9 @@
-//! Routes planned beside the loop. A `goto` or `path` among obstacles whose routes need more
-//! than a tick can spare ([`tick_route_work`]; a large polygon has many corners to thread) is
-//! planned on a thread of its own with the whole budget a command may spend
-//! ([`MAX_ROUTE_WORK`]), while the loop ticks on, reading, publishing and serving every
-//! command. Only the routes of the command waiting for them are planned: the thread skips a
+//! Routes and ways planned beside the loop. A `goto` or `path` among obstacles whose routes
+//! need more than a tick can spare ([`tick_route_work`]; a large polygon has many corners to
+//! thread) is planned on a thread of its own with the whole budget a command may spend
+//! ([`MAX_ROUTE_WORK`]), and so is every `reach`'s way in joint space (tens to hundreds of
+//! milliseconds, [`crate::reach`]), while the loop ticks on, reading, publishing and serving
+//! every command. Only the routes of the command waiting for them are planned: the thread skips a
 //! job whose command has ended. The job queue holds two; a command that finds it full (the
 //! thread has not run since) is refused `busy`.
 //!
@@ -16,7 +17,7 @@ use std::sync::Arc;
 use std::thread;
 use std::time::Duration;
 
-use crate::control::{plan_route, PlannedRoute, Refused, RouteRequest};
+use crate::control::{plan, PlanRequest, Planned, Refused};
 use crate::world::MAX_ROUTE_WORK;
 
 /// Most route work the loop spends within a tick, in checks of a segment against an edge or a
@@ -35,13 +36,13 @@ pub const MAX_REPLANS: u32 = 8;
 /// A route to plan, numbered.
 struct Job {
     serial: u64,
-    request: RouteRequest,
+    request: PlanRequest,
 }
 
 /// A planned route (or why there is none), numbered as its job.
 struct Done {
     serial: u64,
-    route: Result<PlannedRoute, Refused>,
+    route: Result<Planned, Refused>,
 }
 
 /// The planning thread's ends.
@@ -58,7 +59,7 @@ pub enum Polled {
     /// Still being planned.
     Waiting,
     /// Planned, or refused.
-    Done(Result<PlannedRoute, Refused>),
+    Done(Result<Planned, Refused>),
     /// The thread is gone (it panicked): nothing will come.
     Gone,
 }
@@ -85,7 +86,7 @@ impl std::fmt::Debug for Planner {
 impl Planner {
     /// Hands `request` to the thread; its serial for [`Planner::poll`]. Refused when the
     /// thread cannot be started, or has stopped, or its queue is full.
-    pub fn send(&mut self, request: RouteRequest) -> Result<u64, String> {
+    pub fn send(&mut self, request: PlanRequest) -> Result<u64, String> {
         if self.worker.is_none() {
             self.worker = Some(spawn().map_err(|e| format!("no thread to plan on: {e}"))?);
         }
@@ -101,11 +102,11 @@ impl Planner {
         match worker.jobs.try_send(job) {
             Ok(()) => Ok(self.serial),
             Err(TrySendError::Full(_)) => {
-                Err("the route planner still has routes of earlier commands to plan".into())
+                Err("the planner still has the work of earlier commands to do".into())
             }
             Err(TrySendError::Disconnected(_)) => {
                 self.gone = true;
-                Err("the route planner has stopped".into())
+                Err("the planner has stopped".into())
             }
         }
     }
@@ -173,7 +174,7 @@ fn spawn() -> std::io::Result<Worker> {
     let wanted = Arc::new(AtomicU64::new(0));
     let wanted_here = Arc::clone(&wanted);
     thread::Builder::new()
-        .name("route planner".into())
+        .name("planner".into())
         .spawn(move || {
             // Started by the loop's thread, it would share its real-time policy.
             crate::beside::step_aside_from_the_loop();
@@ -181,7 +182,7 @@ fn spawn() -> std::io::Result<Worker> {
                 if wanted_here.load(Ordering::Relaxed) != job.serial {
                     continue;
                 }
-                let route = plan_route(&job.request, MAX_ROUTE_WORK);
+                let route = plan(&job.request, MAX_ROUTE_WORK);
                 if wanted_here.load(Ordering::Relaxed) != job.serial {
                     continue;
                 }

@@ -65,6 +65,12 @@ fn every_command_parses() {
             },
         ),
         (
+            r#"{"cmd":"reach","target":[-0.3,0.45]}"#,
+            Cmd::Reach {
+                target: [-0.3, 0.45],
+            },
+        ),
+        (
             r#"{"cmd":"goto_joints","theta":[0,0.5,-0.5,1]}"#,
             Cmd::GotoJoints {
                 theta: vec![0.0, 0.5, -0.5, 1.0],
@@ -578,6 +584,7 @@ fn valid_cmd(joints: usize) -> impl proptest::strategy::Strategy<Value = Cmd> {
         (point(), prop::option::of(positive_arg()))
             .prop_map(|(target, speed)| Cmd::Goto { target, speed }),
         prop::collection::vec(number_arg(), joints).prop_map(|theta| Cmd::GotoJoints { theta }),
+        point().prop_map(|target| Cmd::Reach { target }),
         (
             prop::collection::vec(point(), 1..20),
             prop::option::of(positive_arg())
@@ -705,6 +712,7 @@ fn same_cmd(a: &Cmd, b: &Cmd) -> bool {
             },
         ) => all(t, u) && opt(s, r),
         (Cmd::GotoJoints { theta: t }, Cmd::GotoJoints { theta: u }) => all(t, u),
+        (Cmd::Reach { target: t }, Cmd::Reach { target: u }) => all(t, u),
         (
             Cmd::Path {
                 points: p,
