@@ -49,6 +49,10 @@ enum Command {
     Goto(cli::client::GotoArgs),
     /// Move the tip along the corners of a CSV file (x,y in m), stopping at each.
     Path(cli::client::PathArgs),
+    /// Move the tip to X Y (m) by a clear way in joint space round the obstacles, the whole
+    /// arm at once (for where a `goto` ends blocked, its body caught on an obstacle); waits
+    /// for the arrival.
+    Reach(cli::client::ReachArgs),
     /// Decelerate to rest and hold.
     Stop(cli::client::PlainArgs),
     /// Emergency stop: freeze, torque off (or hold), latched until `reset`.
@@ -93,6 +97,7 @@ fn main() -> ExitCode {
         Command::Describe(args) => cli::client::describe(args),
         Command::Goto(args) => cli::client::goto(args),
         Command::Path(args) => cli::client::path(args),
+        Command::Reach(args) => cli::client::reach(args),
         Command::Stop(args) => cli::client::stop(args),
         Command::Estop(args) => cli::client::estop(args),
         Command::Reset(args) => cli::client::reset(args),

@@ -1,4 +1,4 @@
-//! The one-shot client commands (`status`, `describe`, `goto`, `path`, `home`, `stop`,
+//! The one-shot client commands (`status`, `describe`, `goto`, `reach`, `path`, `home`, `stop`,
 //! `estop`, `reset`, `reboot`, `strategy`, `watch`) as a user runs them: the built binary against a
 //! daemon on simulated servos started in this process. Exit codes, what is printed, and what
 //! the daemon did afterwards.
@@ -200,6 +200,20 @@ fn goto_with_negative_numbers_arrives_and_home_returns() {
     assert!(run.stdout.starts_with("arrived at ("), "{:?}", run.stdout);
     let tip = xy(&d.client().status()["tip"]);
     assert!(dist(tip, HOME_TIP) < 2e-3, "tip {tip:?}");
+}
+
+#[test]
+fn reach_arrives_and_says_where() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let run = at(&d, &["reach", "-0.45", "0.62"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(run.stdout.starts_with("arrived at ("), "{:?}", run.stdout);
+    let tip = xy(&d.client().status()["tip"]);
+    assert!(dist(tip, [-0.45, 0.62]) < 1e-6, "tip {tip:?}");
+    let addr = closed_port();
+    let run = snakectl(&["reach", "-0.5", "inf", "--connect", &addr]);
+    assert_fails(&run, 2, "finite");
 }
 
 #[test]

@@ -533,3 +533,92 @@ fn without_obstacles_nothing_changes() {
     }
     assert_eq!(a.theta(), b.theta());
 }
+
+/// Seeded worlds of one to six discs near the home pose's tip and a target below them, each
+/// clear of the home pose and the target 30 mm from every disc.
+fn caught_candidates(count: usize) -> Vec<(World, Vec2)> {
+    use rand::{Rng, SeedableRng};
+    let c = chain();
+    let tip = c.tip(&home());
+    let mut rng = rand::rngs::StdRng::seed_from_u64(22);
+    let mut out = Vec::new();
+    while out.len() < count {
+        let obstacles = (0..rng.gen_range(1..=6))
+            .map(|k| {
+                let at = tip + Vec2::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.1));
+                circle(&format!("o{k}"), at.x, at.y, rng.gen_range(0.01..0.04))
+            })
+            .collect();
+        let w = world(obstacles);
+        let target = tip + Vec2::new(rng.gen_range(-0.35..0.35), rng.gen_range(-0.4..-0.1));
+        let far = w.point_distance(target).unwrap().0 > 0.03;
+        if clearance(&w, &home()) > 0.01 && far && target.norm() < 0.9 * c.reach() {
+            out.push((w, target));
+        }
+    }
+    out
+}
+
+/// Where the least joint motion of each tick wraps the body round an obstacle on the side the
+/// tip's route led it to, a `goto` ends `blocked`; a `reach` to the same target goes there in
+/// straight joint-space legs round the obstacles instead, every goal pose clear, and arrives.
+#[test]
+fn a_reach_gets_there_where_a_goto_is_caught() {
+    let quanta = [std::f64::consts::TAU / 4096.0; N];
+    let mut rescued = 0;
+    for (w, target) in caught_candidates(60) {
+        let mut c = controller(Strategy::Overall, &home());
+        c.set_joint_resolution(&quanta).unwrap();
+        assert!(c.set_world(w.clone()).is_none());
+        c.command(Command::Goto {
+            target,
+            speed: None,
+        })
+        .unwrap();
+        let (finish, _) = run_clear(&mut c, 3000);
+        if !matches!(finish, Some(Finish::Blocked { .. })) {
+            continue;
+        }
+        let mut r = controller(Strategy::Overall, &home());
+        r.set_joint_resolution(&quanta).unwrap();
+        r.set_world(w.clone());
+        r.command(Command::Reach { target }).unwrap();
+        assert_eq!(r.activity(), Activity::Moving);
+        let (finish, least) = run_clear(&mut r, 6000);
+        assert_eq!(finish, Some(Finish::Arrived), "{target:?}");
+        assert!(least >= KEEP - TOL);
+        assert!((r.tip() - target).norm() < 1e-9, "{:?} {target:?}", r.tip());
+        rescued += 1;
+        if rescued == 4 {
+            return;
+        }
+    }
+    panic!("{rescued} caught gotos found in 60 moves");
+}
+
+/// A `reach` that finds no clear pose with the tip on its target, or is asked from a pose not
+/// clear, is refused in words and nothing moves.
+#[test]
+fn a_reach_with_nowhere_to_go_is_refused_and_nothing_moves() {
+    let tip = chain().tip(&home());
+    let w = world(vec![circle("post", tip.x, tip.y - 0.2, 0.03)]);
+    let mut c = controller(Strategy::Overall, &home());
+    c.set_world(w);
+    let err = c
+        .command(Command::Reach {
+            target: Vec2::new(tip.x, tip.y - 0.2),
+        })
+        .unwrap_err();
+    assert!(matches!(err, Refused::Reach(_)), "{err:?}");
+    assert!(
+        err.to_string().starts_with("no pose found with the tip on"),
+        "{err}"
+    );
+    assert_eq!(c.activity(), Activity::Holding);
+    let err = c
+        .command(Command::Reach {
+            target: Vec2::new(f64::NAN, 0.0),
+        })
+        .unwrap_err();
+    assert!(err.to_string().contains("target"), "{err}");
+}

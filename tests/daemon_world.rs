@@ -340,6 +340,70 @@ fn a_goto_behind_a_post_goes_round_it_and_arrives_clear() {
     );
 }
 
+/// Two discs between the arm and a target down and to its left: the tip's route clears them,
+/// but the body, turning the least each tick, wraps round the lower disc and is caught there
+/// (`goto` ends `blocked`). A `reach` plans a way in joint space beside the loop, takes the body
+/// round the other side leg by leg, and arrives; the measured pose keeps the clearance but for
+/// the tracking error all the way.
+#[test]
+fn a_reach_gets_round_where_a_goto_is_caught() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[(
+        "max_clients = 4",
+        "max_clients = 4\n\n[world]\nlink_radius_m = 0.01",
+    )]));
+    let mut c = d.client();
+    take_control(&mut c);
+    let discs = [
+        circle("upper", [-0.3001, 0.7139], 0.0127),
+        circle("lower", [-0.5183, 0.5435], 0.0148),
+    ];
+    c.ok(json!({"cmd": "set_world", "obstacles": discs}));
+    let world = world_of(&c.ok(json!({"cmd": "world"})));
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let target = [-0.6656, 0.4673];
+    let id = c.send(json!({"cmd": "goto", "target": target}));
+    assert_eq!(c.reply(&json!(id))["ok"], json!(true));
+    let lines = c.telemetry_until(|t| {
+        t["command"]["outcome"] != "active" && t["command"]["id"] == json!(id)
+    });
+    let last = lines.last().unwrap();
+    assert_eq!(last["command"]["outcome"], "blocked", "{last}");
+    let id = c.send(json!({"cmd": "reach", "target": target}));
+    assert_eq!(c.reply(&json!(id))["ok"], json!(true));
+    let lines = c.telemetry_until(|t| {
+        t["command"]["outcome"] != "active" && t["command"]["id"] == json!(id)
+    });
+    for t in &lines {
+        let measured = measured_clearance(&d, &world, t);
+        let tracking = t["tracking_error_m"].as_f64().unwrap();
+        assert!(
+            measured >= world.clearance_m() - tracking - 1e-4,
+            "measured {measured} m with a tracking error of {tracking} m: {t}"
+        );
+        let commanded = t["min_clearance_m"].as_f64().unwrap();
+        assert!(commanded >= world.clearance_m() - 1e-9, "{t}");
+    }
+    let last = lines.last().unwrap();
+    assert_eq!(last["command"]["kind"], "reach", "{last}");
+    assert_eq!(last["command"]["outcome"], "arrived", "{last}");
+    let s = c.wait_status("at rest", |s| s["state"] == "holding");
+    let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
+    let off = dist(xy(&s["tip_meas"]), target);
+    assert!(
+        off <= bound,
+        "the tip {off} m from the target (ticks allow {bound})"
+    );
+    // A target inside a disc has no clear pose: refused in words, nothing moves.
+    let refused = c.request(json!({"cmd": "reach", "target": [-0.5183, 0.5435]}));
+    assert_eq!(refused["error"]["code"], "unreachable", "{refused}");
+    let message = refused["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("no pose found with the tip on"),
+        "{message}"
+    );
+}
+
 #[test]
 fn a_velocity_into_a_wall_slides_along_it() {
     let _one = one_at_a_time();

@@ -66,6 +66,22 @@ pub struct GotoArgs {
     pub connect: ConnectArgs,
 }
 
+/// `reach X Y`.
+#[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
+pub struct ReachArgs {
+    /// Target x, m (world frame).
+    pub x: f64,
+    /// Target y, m.
+    pub y: f64,
+    /// Return once the daemon has accepted the command (its way planned), without waiting for
+    /// the arrival.
+    #[arg(long)]
+    pub no_wait: bool,
+    #[command(flatten)]
+    pub connect: ConnectArgs,
+}
+
 /// `path FILE.csv`.
 #[derive(Debug, Args)]
 pub struct PathArgs {
@@ -138,6 +154,22 @@ pub fn goto(args: GotoArgs) -> Result<(), Failure> {
     let cmd = Cmd::Goto {
         target: [args.x, args.y],
         speed,
+    };
+    motion(&mut client, &cmd, args.no_wait)
+}
+
+/// `snakectl reach`.
+pub fn reach(args: ReachArgs) -> Result<(), Failure> {
+    for (name, value) in [("X", args.x), ("Y", args.y)] {
+        if !value.is_finite() {
+            return Err(Failure::bad_input(anyhow!(
+                "{name} must be a finite number of metres, not {value}"
+            )));
+        }
+    }
+    let mut client = connect(&args.connect)?;
+    let cmd = Cmd::Reach {
+        target: [args.x, args.y],
     };
     motion(&mut client, &cmd, args.no_wait)
 }

@@ -75,7 +75,7 @@ impl Default for ReachOptions {
             margin_m: 2e-3,
             step_rad: 0.25,
             max_samples: 20_000,
-            max_checks: 20_000_000,
+            max_checks: 4_000_000,
             shortcuts: 200,
             seed: 0x5eed,
         }

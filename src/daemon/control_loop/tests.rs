@@ -2006,6 +2006,53 @@ fn a_route_too_long_for_a_tick_is_planned_beside_the_loop_which_ticks_on() {
     );
 }
 
+/// A `reach` is planned beside the loop (the loop answers meanwhile), then the arm goes leg by
+/// leg in joint space, every goal pose clear, and arrives with the tip on the target.
+#[test]
+fn a_reach_is_planned_beside_the_loop_and_arrives_clear() {
+    let (mut rig, tip) = rig_with_a_star_beside_the_tip();
+    let target = beyond_the_star(tip);
+    let mut reach = rig.send(LoopCmd::Motion(Motion::Reach { target }));
+    let mut status = rig.send(LoopCmd::Status);
+    rig.ticks(1);
+    assert!(rig.cycle.planning_routes(), "planned within the tick");
+    status.try_recv().expect("answered in its tick").unwrap();
+    assert!(rig.cycle.wait_for_routes(), "the planner never answered");
+    rig.ticks(1);
+    reach
+        .try_recv()
+        .expect("answered once its way was planned")
+        .expect("taken");
+    let keep = rig.cycle.controller.world().clearance_m();
+    let mut arrived = false;
+    for _ in 0..3000 {
+        rig.ticks(1);
+        let s = rig.status();
+        let c = s.min_clearance_m.expect("a world with an obstacle");
+        assert!(c >= keep - 1e-9, "clearance {c} at tick {}", s.tick);
+        let events = rig.events();
+        assert!(
+            !events
+                .iter()
+                .any(|e| matches!(e.what, What::Blocked { .. })),
+            "{events:?}"
+        );
+        if events
+            .iter()
+            .any(|e| matches!(e.what, What::Arrived { .. }))
+        {
+            arrived = true;
+            break;
+        }
+    }
+    assert!(arrived, "never arrived: tip {:?}", rig.status().tip);
+    let end = rig.status().tip;
+    assert!(
+        (end[0] - target[0]).hypot(end[1] - target[1]) < 1e-6,
+        "{end:?}"
+    );
+}
+
 #[test]
 fn a_stop_while_the_routes_are_planned_preempts_the_goto_and_nothing_moves() {
     let (mut rig, tip) = rig_with_a_star_beside_the_tip();
