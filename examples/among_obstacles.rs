@@ -3,7 +3,9 @@
 //! random worlds of one to six discs and bars near the arm, and a goto from the home pose to a
 //! random target behind them. For each strategy: how many arrived, ended blocked or were refused
 //! up front, the least clearance of any goal pose, metric 3 summed over the move and the time
-//! taken (medians over the moves both strategies completed).
+//! taken (medians over the moves both strategies completed). Then, for each move overall ended
+//! blocked, a `reach` to the same target from home (a way in joint space, `snakectl::reach`):
+//! how many arrived, the legs, the time to plan (this machine's clock) and the time to move.
 //!
 //! `cargo run --release --example among_obstacles [-- CASES]` (default 200).
 #![allow(clippy::unwrap_used)]
@@ -15,6 +17,7 @@ use snakectl::chain::{Chain, JointLimit, Vec2};
 use snakectl::control::{Command, Controller, Finish, Limits};
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape, World};
+use std::time::Instant;
 
 const N: usize = 12;
 const DT: f64 = 0.01;
@@ -78,22 +81,36 @@ struct Tally {
     least: f64,
 }
 
-/// One goto: its finish (or `None` when refused), metric 3 summed over its ticks and seconds.
+/// One goto (or reach): its finish (or `None` when refused), metric 3 summed over its ticks
+/// and seconds.
 fn run(
     strategy: Strategy,
     world: &World,
     target: Vec2,
     least: &mut f64,
 ) -> Option<(Finish, f64, f64)> {
+    drive(
+        strategy,
+        world,
+        Command::Goto {
+            target,
+            speed: None,
+        },
+        least,
+    )
+}
+
+fn drive(
+    strategy: Strategy,
+    world: &World,
+    command: Command,
+    least: &mut f64,
+) -> Option<(Finish, f64, f64)> {
     let home = vec![0.1; N];
     let mut c = Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
     c.set_joint_resolution(&[TAU / 4096.0; N]).unwrap();
     c.set_world(world.clone());
-    c.command(Command::Goto {
-        target,
-        speed: None,
-    })
-    .ok()?;
+    c.command(command).ok()?;
     let mut m3 = 0.0;
     for k in 1..=MAX_TICKS {
         let t = c.tick(DT);
@@ -130,6 +147,8 @@ fn main() {
     }
     let (mut m3, mut secs) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
     let mut done = 0;
+    let (mut plan_ms, mut legs, mut reach_secs) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut reach_tries, mut reach_least) = (0, f64::INFINITY);
     while done < cases {
         let Some((world, target)) = case(&mut rng, &chain, &home) else {
             continue;
@@ -141,6 +160,33 @@ fn main() {
             .enumerate()
         {
             let r = run(strategy, &world, target, &mut tally[s].least);
+            if strategy == Strategy::Overall && matches!(r, Some((Finish::Blocked { .. }, ..))) {
+                let t0 = Instant::now();
+                let planned = snakectl::reach::plan(
+                    &snakectl::reach::ReachRequest {
+                        chain: &chain,
+                        world: &world,
+                        from: &home,
+                        target,
+                        quanta: &[TAU / 4096.0; N],
+                    },
+                    &Default::default(),
+                );
+                plan_ms.push(t0.elapsed().as_secs_f64() * 1e3);
+                if let Ok(way) = planned {
+                    legs.push(way.legs.len() as f64);
+                }
+                let reached = drive(
+                    strategy,
+                    &world,
+                    Command::Reach { target },
+                    &mut reach_least,
+                );
+                reach_tries += 1;
+                if let Some((Finish::Arrived, _, secs)) = reached {
+                    reach_secs.push(secs);
+                }
+            }
             match r {
                 None => tally[s].refused += 1,
                 Some((Finish::Arrived, ..)) => tally[s].arrived += 1,
@@ -175,4 +221,18 @@ fn main() {
         );
     }
     println!("\n({} moves both arrived)", m3[0].len());
+    let (fewest, most) = plan_ms
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(a, b), &t| (a.min(t), b.max(t)));
+    println!(
+        "\nreach, from home, where overall ended blocked: {} of {reach_tries} arrived; legs (median) {}; \
+         planning {:.0} ms median ({:.0} to {:.0} ms); move {:.2} s median; least clearance {:.3} mm",
+        reach_secs.len(),
+        median(legs),
+        median(plan_ms.clone()),
+        fewest,
+        most,
+        median(reach_secs),
+        reach_least * 1e3,
+    );
 }
