@@ -622,3 +622,49 @@ fn a_reach_with_nowhere_to_go_is_refused_and_nothing_moves() {
         .unwrap_err();
     assert!(err.to_string().contains("target"), "{err}");
 }
+
+/// A `reach` stopped on its first leg ends there: the legs left are dropped, and a joint move
+/// sent next arrives and holds instead of going on with them.
+#[test]
+fn a_stopped_reach_leaves_no_legs_behind() {
+    let c0 = chain();
+    for (w, target) in caught_candidates(60) {
+        let req = snakectl::reach::ReachRequest {
+            chain: &c0,
+            world: &w,
+            from: &home(),
+            target,
+            quanta: &[],
+        };
+        let Ok(way) = snakectl::reach::plan(&req, &Default::default()) else {
+            continue;
+        };
+        if way.legs.len() < 3 {
+            continue;
+        }
+        let mut c = controller(Strategy::Overall, &home());
+        c.set_world(w.clone());
+        c.command(Command::Reach { target }).unwrap();
+        for _ in 0..10 {
+            assert!(c.tick(0.01).finished.is_none());
+        }
+        c.command(Command::Stop).unwrap();
+        let (finish, _) = run_clear(&mut c, 500);
+        assert!(matches!(finish, Some(Finish::Stopped { .. })), "{finish:?}");
+        let mut near = c.theta().to_vec();
+        near[N - 1] += 0.01;
+        c.command(Command::GotoJoints {
+            theta: near.clone(),
+        })
+        .unwrap();
+        let (finish, _) = run_clear(&mut c, 500);
+        assert_eq!(finish, Some(Finish::Arrived));
+        for _ in 0..50 {
+            assert!(c.tick(0.01).finished.is_none());
+        }
+        assert_eq!(c.activity(), Activity::Holding);
+        assert_eq!(c.theta(), &near[..]);
+        return;
+    }
+    panic!("no reach of three legs or more in 60 moves");
+}

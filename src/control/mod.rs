@@ -1391,6 +1391,7 @@ impl Controller {
     /// they are.
     pub fn freeze(&mut self) {
         self.motion.hold_at(self.tip, &self.theta);
+        self.legs.clear();
     }
 
     /// Goal := the measured pose `theta` (after a reset or a recovery): motion at rest, holding.
@@ -1405,6 +1406,7 @@ impl Controller {
             .anchor(&self.chain, &self.world, &self.quanta, theta);
         self.overall.reset();
         self.motion.hold_at(self.tip, &self.theta);
+        self.legs.clear();
         Ok(())
     }
 
