@@ -3,9 +3,10 @@
 //! random worlds of one to six discs and bars near the arm, and a goto from the home pose to a
 //! random target behind them. For each strategy: how many arrived, ended blocked or were refused
 //! up front, the least clearance of any goal pose, metric 3 summed over the move and the time
-//! taken (medians over the moves both strategies completed). Then, for each move overall ended
-//! blocked, a `reach` to the same target from home (a way in joint space, `snakectl::reach`):
-//! how many arrived, the legs, the time to plan (this machine's clock) and the time to move.
+//! taken (medians over the moves both strategies completed). Then, for each move a strategy ended
+//! blocked, a `reach` to the same target from where the arm was caught (a way in joint space,
+//! `snakectl::reach`): how many arrived, ended blocked or were refused, the least clearance of
+//! any goal pose, the legs, the time to plan (this machine's clock) and the time to move.
 //!
 //! `cargo run --release --example among_obstacles [-- CASES]` (default 200).
 #![allow(clippy::unwrap_used)]
@@ -81,36 +82,71 @@ struct Tally {
     least: f64,
 }
 
-/// One goto (or reach): its finish (or `None` when refused), metric 3 summed over its ticks
-/// and seconds.
+/// One goto: its finish (or `None` when refused), metric 3 summed over its ticks and seconds;
+/// when it ended blocked, what a `reach` from there did.
 fn run(
     strategy: Strategy,
     world: &World,
     target: Vec2,
     least: &mut f64,
-) -> Option<(Finish, f64, f64)> {
-    drive(
-        strategy,
-        world,
-        Command::Goto {
-            target,
-            speed: None,
-        },
-        least,
-    )
-}
-
-fn drive(
-    strategy: Strategy,
-    world: &World,
-    command: Command,
-    least: &mut f64,
-) -> Option<(Finish, f64, f64)> {
+) -> (Option<(Finish, f64, f64)>, Option<Reached>) {
     let home = vec![0.1; N];
     let mut c = Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
     c.set_joint_resolution(&[TAU / 4096.0; N]).unwrap();
     c.set_world(world.clone());
-    c.command(command).ok()?;
+    let goto = Command::Goto {
+        target,
+        speed: None,
+    };
+    if c.command(goto).is_err() {
+        return (None, None);
+    }
+    let r = ticks(&mut c, least);
+    if !matches!(r, (Finish::Blocked { .. }, ..)) {
+        return (Some(r), None);
+    }
+    // Planned once more on its own, to time it and count its legs.
+    let t0 = Instant::now();
+    let planned = snakectl::reach::plan(
+        &snakectl::reach::ReachRequest {
+            chain: &chain(),
+            world,
+            from: c.theta(),
+            target,
+            quanta: &[TAU / 4096.0; N],
+        },
+        &Default::default(),
+    );
+    let plan_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let legs = planned.map_or(0, |w| w.legs.len());
+    let mut reach_least = f64::INFINITY;
+    let finish = match c.command(Command::Reach { target }) {
+        Ok(()) => Some(ticks(&mut c, &mut reach_least)),
+        Err(e) => {
+            eprintln!("{strategy:?}: reach to {target:?} refused: {e}");
+            None
+        }
+    };
+    let reached = Reached {
+        finish,
+        plan_ms,
+        legs,
+        least: reach_least,
+    };
+    (Some(r), Some(reached))
+}
+
+/// What a `reach` from a caught pose did.
+struct Reached {
+    /// Its finish, metric 3 and seconds (`None`: refused).
+    finish: Option<(Finish, f64, f64)>,
+    plan_ms: f64,
+    legs: usize,
+    least: f64,
+}
+
+/// Ticks until the command finishes: the finish, metric 3 summed and seconds.
+fn ticks(c: &mut Controller, least: &mut f64) -> (Finish, f64, f64) {
     let mut m3 = 0.0;
     for k in 1..=MAX_TICKS {
         let t = c.tick(DT);
@@ -119,10 +155,10 @@ fn drive(
             *least = least.min(m);
         }
         if let Some(f) = t.finished {
-            return Some((f, m3, k as f64 * DT));
+            return (f, m3, k as f64 * DT);
         }
     }
-    Some((Finish::Saturated, m3, MAX_TICKS as f64 * DT))
+    (Finish::Saturated, m3, MAX_TICKS as f64 * DT)
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -147,8 +183,7 @@ fn main() {
     }
     let (mut m3, mut secs) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
     let mut done = 0;
-    let (mut plan_ms, mut legs, mut reach_secs) = (Vec::new(), Vec::new(), Vec::new());
-    let (mut reach_tries, mut reach_least) = (0, f64::INFINITY);
+    let mut reach: [Vec<Reached>; 2] = [Vec::new(), Vec::new()];
     while done < cases {
         let Some((world, target)) = case(&mut rng, &chain, &home) else {
             continue;
@@ -159,33 +194,9 @@ fn main() {
             .into_iter()
             .enumerate()
         {
-            let r = run(strategy, &world, target, &mut tally[s].least);
-            if strategy == Strategy::Overall && matches!(r, Some((Finish::Blocked { .. }, ..))) {
-                let t0 = Instant::now();
-                let planned = snakectl::reach::plan(
-                    &snakectl::reach::ReachRequest {
-                        chain: &chain,
-                        world: &world,
-                        from: &home,
-                        target,
-                        quanta: &[TAU / 4096.0; N],
-                    },
-                    &Default::default(),
-                );
-                plan_ms.push(t0.elapsed().as_secs_f64() * 1e3);
-                if let Ok(way) = planned {
-                    legs.push(way.legs.len() as f64);
-                }
-                let reached = drive(
-                    strategy,
-                    &world,
-                    Command::Reach { target },
-                    &mut reach_least,
-                );
-                reach_tries += 1;
-                if let Some((Finish::Arrived, _, secs)) = reached {
-                    reach_secs.push(secs);
-                }
+            let (r, reached) = run(strategy, &world, target, &mut tally[s].least);
+            if let Some(reached) = reached {
+                reach[s].push(reached);
             }
             match r {
                 None => tally[s].refused += 1,
@@ -221,18 +232,41 @@ fn main() {
         );
     }
     println!("\n({} moves both arrived)", m3[0].len());
-    let (fewest, most) = plan_ms
-        .iter()
-        .fold((f64::INFINITY, 0.0f64), |(a, b), &t| (a.min(t), b.max(t)));
     println!(
-        "\nreach, from home, where overall ended blocked: {} of {reach_tries} arrived; legs (median) {}; \
-         planning {:.0} ms median ({:.0} to {:.0} ms); move {:.2} s median; least clearance {:.3} mm",
-        reach_secs.len(),
-        median(legs),
-        median(plan_ms.clone()),
-        fewest,
-        most,
-        median(reach_secs),
-        reach_least * 1e3,
+        "\nA reach to the same target from where each blocked goto was caught:\n\n\
+         | strategy | caught | arrived | blocked | refused | least clearance, mm | legs (median) | \
+         planning (median, range), ms | move (median), s |\n|---|---|---|---|---|---|---|---|---|"
     );
+    for (s, name) in ["sequential", "overall"].into_iter().enumerate() {
+        let r = &reach[s];
+        let count = |f: fn(&Finish) -> bool| {
+            r.iter()
+                .filter(|x| x.finish.as_ref().is_some_and(|(fin, ..)| f(fin)))
+                .count()
+        };
+        let arrived = count(|f| matches!(f, Finish::Arrived));
+        let blocked = count(|f| matches!(f, Finish::Blocked { .. }));
+        let refused = r.iter().filter(|x| x.finish.is_none()).count();
+        let ms: Vec<f64> = r.iter().map(|x| x.plan_ms).collect();
+        let (lo, hi) = ms
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), &t| (a.min(t), b.max(t)));
+        let secs = r
+            .iter()
+            .filter_map(|x| match x.finish {
+                Some((Finish::Arrived, _, s)) => Some(s),
+                _ => None,
+            })
+            .collect();
+        println!(
+            "| {name} | {} | {arrived} | {blocked} | {refused} | {:.3} | {} | {:.0} ({:.0} to {:.0}) | {:.2} |",
+            r.len(),
+            r.iter().map(|x| x.least).fold(f64::INFINITY, f64::min) * 1e3,
+            median(r.iter().map(|x| x.legs as f64).collect()),
+            median(ms.clone()),
+            lo,
+            hi,
+            median(secs),
+        );
+    }
 }

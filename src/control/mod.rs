@@ -201,8 +201,8 @@ pub enum Command {
     Home,
     /// The tip to `target` by a clear way in joint space ([`crate::reach`]): the best clear
     /// pose with the tip there, reached in straight joint-space legs round the obstacles, each
-    /// at the joint speed limit from rest to rest. Always planned beside the loop
-    /// ([`Accepted::Plan`]).
+    /// at the joint speed limit from rest to rest. [`Controller::command_within`] hands it back
+    /// to be planned elsewhere ([`Accepted::Plan`]); [`Controller::command`] plans it in place.
     Reach {
         /// Target tip position, m.
         target: Vec2,

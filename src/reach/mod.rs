@@ -26,7 +26,12 @@
 //! (`L_i` the length joint `i` carries), times the fraction walked; so from a pose of clearance
 //! `c` the next `c - keep` of sweep needs no look (at least [`MIN_ADVANCE_M`] is taken, which
 //! [`LEG_KEEP_M`] covers). The links' gaps to each other are checked at each pose looked at
-//! with twice the step to the next added.
+//! with twice the step to the next added. Where the clearance is within rounding's reach of
+//! `clearance_m` (each joint rounded to a whole servo tick moves a point by up to the sum of
+//! half a tick times the length each joint carries), the poses as sent are looked at as well,
+//! every one the leg passes (the rounded pose changes only where a joint crosses half a tick):
+//! the controller holds each goal as sent to the clearance, and would cut the leg short where
+//! one is not clear. An arm caught leaning on the clearance starts there.
 //!
 //! Pure and deterministic: the same request gives the same way (a splitmix64 generator seeded
 //! with [`ReachOptions::seed`]), and nothing is read from a clock: the work is bounded by
@@ -39,10 +44,15 @@ use crate::world::{Pair, World};
 #[cfg(test)]
 mod tests;
 
-/// What a leg keeps beyond `clearance_m`, m: the controller checks a `goto_joints` way at
-/// samples a millimetre of motion apart, each against `clearance_m` itself; a leg clear by this
-/// much more everywhere passes that check wherever its samples fall.
+/// What a leg keeps beyond `clearance_m`, m (less when the arm starts closer than that, down
+/// to `clearance_m` itself): room for round-off and for the least step along a leg
+/// ([`MIN_ADVANCE_M`]), so that the controller's own check of each leg (samples a millimetre of
+/// motion apart, each against `clearance_m`) passes wherever its samples fall.
 pub const LEG_KEEP_M: f64 = 1e-4;
+
+/// How far from the target a goal's tip may be, m: a cold solve that stopped short of its
+/// optimality tolerance is taken when its tip is this close (and the pose clear).
+pub const GOAL_TIP_M: f64 = 1e-9;
 
 /// The least step along a leg, m of sweep: a pose whose slack is below it is looked at again
 /// this far on (only a leg that grazes the clearance takes such steps).
@@ -218,7 +228,10 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
         return Err(ReachError::TangledNow { a: a + 1, b: b + 1 });
     }
     if let Some(p) = req.world.clearance(&now) {
-        if p.clearance_m < look.leg_keep {
+        // An arm caught on an obstacle leans on it at the clearance itself: its legs keep that
+        // much, and the margin above it only as far as the start has it.
+        look.leg_keep = keep_m + (p.clearance_m - keep_m).clamp(0.0, LEG_KEEP_M);
+        if p.clearance_m < keep_m {
             return Err(ReachError::NotClearNow {
                 link: p.link,
                 obstacle: p.id(req.world).to_string(),
@@ -286,7 +299,13 @@ fn goal_pose(req: &ReachRequest, opts: &ReachOptions) -> Result<Vec<f64>, ReachE
     solver.set_world(Some(raised));
     let mut goal = vec![0.0; req.chain.len()];
     let o = solver.solve_cold(req.chain, req.from, req.target, &mut goal);
-    if !o.converged {
+    // A pose on the target that keeps the clearance asked will do, optimal or not (a cold solve
+    // among many obstacles can stop short of its optimality tolerance with the tip there).
+    let on_target = (req.chain.tip(&goal) - req.target).norm() <= GOAL_TIP_M;
+    let clear = w
+        .clearance(&req.chain.points(&goal))
+        .is_none_or(|p| p.clearance_m >= keep_m - LEG_KEEP_M);
+    if !(o.converged || (on_target && clear)) {
         return Err(ReachError::NoClearPose {
             target: req.target,
             keep_m,
@@ -336,6 +355,10 @@ struct Looker<'a> {
     carried: Vec<f64>,
     /// Each joint's resolution, rad (empty: exact).
     quanta: &'a [f64],
+    /// The most rounding each joint to its resolution moves any point, m.
+    rounding_m: f64,
+    /// Where along a leg some joint crosses from one whole tick to the next (scratch).
+    cuts: Vec<f64>,
     pose: Vec<f64>,
     points: Vec<Vec2>,
     checks: usize,
@@ -353,6 +376,13 @@ impl<'a> Looker<'a> {
             node_keep: req.world.clearance_m() + opts.margin_m,
             carried: (0..n).map(|i| links[i..].iter().sum()).collect(),
             quanta: req.quanta,
+            rounding_m: req
+                .quanta
+                .iter()
+                .enumerate()
+                .map(|(i, q)| 0.5 * q * links[i..].iter().sum::<f64>())
+                .sum(),
+            cuts: Vec::new(),
             pose: vec![0.0; n],
             points: vec![Vec2::zeros(); n + 1],
             checks: 0,
@@ -435,12 +465,74 @@ impl<'a> Looker<'a> {
                 }
                 advance = (0.25 * advance).max(MIN_ADVANCE_M);
             }
-            f = if advance >= left {
+            let next = if advance >= left {
                 1.0
             } else {
                 f + advance / sweep
             };
+            // Within rounding's reach of the clearance, the goals as sent (each joint rounded
+            // to a whole tick) are looked at too: every one met between here and the next look.
+            let near = slack + self.leg_keep < self.world.clearance_m() + self.rounding_m;
+            if near && !self.quanta.is_empty() && !self.sent_clear(a, b, f, next) {
+                return false;
+            }
+            f = next;
         }
+    }
+
+    /// Whether every pose as sent (each joint rounded to its resolution) along the leg from
+    /// `a` to `b` between fractions `f0` and `f1` keeps `clearance_m`: the rounded pose changes
+    /// only where some joint crosses half a tick, so each piece between two such crossings is
+    /// looked at once.
+    fn sent_clear(&mut self, a: &[f64], b: &[f64], f0: f64, f1: f64) -> bool {
+        /// More crossings than this in one stretch: not looked at one by one, refused.
+        const MAX_CUTS: usize = 4096;
+        self.cuts.clear();
+        self.cuts.extend([f0, f1]);
+        for ((&p, &r), &q) in a.iter().zip(b).zip(self.quanta) {
+            let d = r - p;
+            if q <= 0.0 || d == 0.0 {
+                continue;
+            }
+            let (t0, t1) = (p + f0 * d, p + f1 * d);
+            let (lo, hi) = (t0.min(t1), t0.max(t1));
+            let first = (lo / q - 0.5).ceil();
+            let last = (hi / q - 0.5).floor();
+            if last - first > MAX_CUTS as f64 {
+                return false;
+            }
+            let mut k = first;
+            while k <= last {
+                let cut = ((k + 0.5) * q - p) / d;
+                if cut > f0 && cut < f1 {
+                    self.cuts.push(cut);
+                }
+                k += 1.0;
+            }
+            if self.cuts.len() > MAX_CUTS {
+                return false;
+            }
+        }
+        self.cuts.sort_by(f64::total_cmp);
+        for i in 1..self.cuts.len() {
+            let (u, v) = (self.cuts[i - 1], self.cuts[i]);
+            if v <= u {
+                continue;
+            }
+            let mid = 0.5 * (u + v);
+            for (((x, &p), &r), &q) in self.pose.iter_mut().zip(a).zip(b).zip(self.quanta) {
+                let t = p + mid * (r - p);
+                *x = if q > 0.0 { (t / q).round() * q } else { t };
+            }
+            self.chain.points_into(&self.pose, &mut self.points);
+            if self
+                .nearest()
+                .is_some_and(|c| c.clearance_m < self.world.clearance_m())
+            {
+                return false;
+            }
+        }
+        true
     }
 }
 
