@@ -184,6 +184,7 @@ mod tests {
         let control = [
             goto(),
             Cmd::GotoJoints { theta: vec![0.0] },
+            Cmd::Reach { target: [0.1, 0.2] },
             Cmd::Path {
                 points: vec![[0.0, 0.0]],
                 speed: None,
