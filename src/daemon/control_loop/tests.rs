@@ -2010,8 +2010,25 @@ fn a_route_too_long_for_a_tick_is_planned_beside_the_loop_which_ticks_on() {
 /// leg in joint space, every goal pose clear, and arrives with the tip on the target.
 #[test]
 fn a_reach_is_planned_beside_the_loop_and_arrives_clear() {
-    let (mut rig, tip) = rig_with_a_star_beside_the_tip();
-    let target = beyond_the_star(tip);
+    use crate::world::{Obstacle, Shape};
+    let mut rig = Rig::with_tables(100.0, "", "\n[world]\nlink_radius_m = 0.01\n");
+    let disc = |id: &str, x: f64, y: f64, r: f64| Obstacle {
+        id: id.into(),
+        shape: Shape::Circle {
+            center: crate::chain::Vec2::new(x, y),
+            radius_m: r,
+        },
+    };
+    // Two discs a goto to the target is caught between (`tests/daemon_world.rs`).
+    let discs = vec![
+        disc("upper", -0.3001, 0.7139, 0.0127),
+        disc("lower", -0.5183, 0.5435, 0.0148),
+    ];
+    rig.command(LoopCmd::SetWorld {
+        obstacles: Obstacles::new(discs).unwrap(),
+    })
+    .unwrap();
+    let target = [-0.6656, 0.4673];
     let mut reach = rig.send(LoopCmd::Motion(Motion::Reach { target }));
     let mut status = rig.send(LoopCmd::Status);
     rig.ticks(1);
