@@ -58,6 +58,24 @@ fn cases(count: usize) -> Vec<(World, Vec2)> {
     out
 }
 
+/// [`plan`] with the default options.
+fn ask(
+    c: &Chain,
+    world: &World,
+    from: &[f64],
+    target: Vec2,
+    quanta: &[f64],
+) -> Result<Way, ReachError> {
+    let req = ReachRequest {
+        chain: c,
+        world,
+        from,
+        target,
+        quanta,
+    };
+    plan(&req, &ReachOptions::default())
+}
+
 /// The least clearance along the straight leg from `a` to `b`, sampled every 0.2 mm of the
 /// arm's motion, and whether every sample keeps the limits and its links apart.
 fn along(c: &Chain, w: &World, a: &[f64], b: &[f64]) -> (f64, bool) {
@@ -81,14 +99,7 @@ fn ways_round_the_obstacles_are_clear_and_end_on_the_target() {
     let (mut planned, mut searched) = (0, 0);
     for (world, target) in cases(24) {
         let from = home();
-        let req = ReachRequest {
-            chain: &c,
-            world: &world,
-            from: &from,
-            target,
-            quanta: &quanta,
-        };
-        let way = match plan(&req, &ReachOptions::default()) {
+        let way = match ask(&c, &world, &from, target, &quanta) {
             Ok(way) => way,
             // A target no clear pose reaches is said so; nothing else may fail.
             Err(ReachError::NoClearPose { .. }) => continue,
@@ -132,15 +143,8 @@ fn the_same_request_gives_the_same_way() {
     let c = chain();
     let (world, target) = cases(3).pop().unwrap();
     let from = home();
-    let req = ReachRequest {
-        chain: &c,
-        world: &world,
-        from: &from,
-        target,
-        quanta: &[],
-    };
-    let a = plan(&req, &ReachOptions::default()).unwrap();
-    let b = plan(&req, &ReachOptions::default()).unwrap();
+    let a = ask(&c, &world, &from, target, &[]).unwrap();
+    let b = ask(&c, &world, &from, target, &[]).unwrap();
     assert_eq!(a, b);
 }
 
@@ -188,44 +192,30 @@ fn bad_requests_are_refused_in_words() {
         vec![disc("post", tip.x - 0.1, tip.y - 0.2, 0.03)],
     )
     .unwrap();
-    let ask = |from: &[f64], target: Vec2, quanta: &[f64]| {
-        let req = ReachRequest {
-            chain: &c,
-            world: &world,
-            from,
-            target,
-            quanta,
-        };
-        plan(&req, &ReachOptions::default())
+    let refused = |from: &[f64], target: Vec2, quanta: &[f64]| {
+        ask(&c, &world, from, target, quanta)
             .unwrap_err()
             .to_string()
     };
     let below = tip - Vec2::new(0.0, 0.2);
-    let said = ask(&[0.1; 3], below, &[]);
+    let said = refused(&[0.1; 3], below, &[]);
     assert!(said.contains("3 angles for 12 joints"), "{said}");
-    let said = ask(&home(), Vec2::new(f64::NAN, 0.0), &[]);
+    let said = refused(&home(), Vec2::new(f64::NAN, 0.0), &[]);
     assert!(said.contains("not a finite point"), "{said}");
-    let said = ask(&home(), below, &[0.1; 2]);
+    let said = refused(&home(), below, &[0.1; 2]);
     assert!(said.contains("2 joint resolutions for 12 joints"), "{said}");
     let mut out = home();
     out[3] = 2.5;
-    let said = ask(&out, below, &[]);
+    let said = refused(&out, below, &[]);
     assert!(said.contains("the arm's pose"), "{said}");
     // A target inside the post: no clear pose has the tip there.
-    let said = ask(&home(), Vec2::new(tip.x - 0.1, tip.y - 0.2), &[]);
+    let said = refused(&home(), Vec2::new(tip.x - 0.1, tip.y - 0.2), &[]);
     assert!(said.starts_with("no pose found with the tip on"), "{said}");
     // An arm that stands inside an obstacle is told to get out first.
     let pts = c.points(&home());
     let mid = (pts[6] + pts[7]) * 0.5;
     let on_arm = World::new(0.01, 0.005, vec![disc("drop", mid.x, mid.y, 0.02)]).unwrap();
-    let req = ReachRequest {
-        chain: &c,
-        world: &on_arm,
-        from: &home(),
-        target: below,
-        quanta: &[],
-    };
-    let said = plan(&req, &ReachOptions::default())
+    let said = ask(&c, &on_arm, &home(), below, &[])
         .unwrap_err()
         .to_string();
     assert!(
