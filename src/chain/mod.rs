@@ -296,6 +296,29 @@ impl Chain {
         (theta.len() == self.len()).then(|| self.points(theta))
     }
 
+    /// The most any point of the arm moves along the straight joint-space way from `a` to `b`,
+    /// m: joint `i` turning by `|b_i - a_i|` moves a point by at most that times the length it
+    /// carries (its link and every link after it).
+    pub fn sweep(&self, a: &[f64], b: &[f64]) -> f64 {
+        let links = &self.links;
+        a.iter()
+            .zip(b)
+            .enumerate()
+            .map(|(i, (x, y))| (y - x).abs() * links[i.min(links.len())..].iter().sum::<f64>())
+            .sum()
+    }
+
+    /// The most rounding each joint to its resolution (`quanta`, rad, one per joint) moves any
+    /// point of the arm, m: half a tick of each joint times the length it carries.
+    pub fn rounding_m(&self, quanta: &[f64]) -> f64 {
+        let links = &self.links;
+        quanta
+            .iter()
+            .enumerate()
+            .map(|(i, q)| 0.5 * q * links[i.min(links.len())..].iter().sum::<f64>())
+            .sum()
+    }
+
     /// The tip `p_n` for the pose `theta`.
     pub fn tip(&self, theta: &[f64]) -> Vec2 {
         let mut phi = self.heading;
@@ -363,6 +386,14 @@ impl Chain {
     }
 }
 
+/// `out` := `theta` with each joint rounded to a whole multiple of its resolution in `quanta`
+/// (a joint of resolution 0 as it is): the pose as servos of that resolution take it.
+pub fn round_to(theta: &[f64], quanta: &[f64], out: &mut [f64]) {
+    for ((r, &t), &q) in out.iter_mut().zip(theta).zip(quanta) {
+        *r = if q > 0.0 { (t / q).round() * q } else { t };
+    }
+}
+
 /// Wraps an angle to (-pi, pi].
 pub fn wrap_angle(a: f64) -> f64 {
     let w = a.rem_euclid(2.0 * PI);
@@ -381,6 +412,46 @@ pub fn nearest_representative(a: f64, reference: f64) -> f64 {
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
+
+    #[test]
+    fn a_joint_move_sweeps_each_turn_times_what_it_carries_and_rounding_half_a_tick() {
+        let c = Chain::unlimited(vec![0.08; 12], Vec2::zeros(), 0.0).unwrap();
+        let a = [0.0; 12];
+        let mut b = [0.0; 12];
+        b[9] = 0.5;
+        // Joint 10 carries the last three links.
+        assert!((c.sweep(&a, &b) - 0.5 * 0.24).abs() < 1e-15);
+        b[0] = -0.1;
+        assert!((c.sweep(&a, &b) - (0.1 * 0.96 + 0.5 * 0.24)).abs() < 1e-15);
+        // Twelve 4096-tick servos: 4.8 mm, the figure the controller plans with.
+        let q = [std::f64::consts::TAU / 4096.0; 12];
+        assert!(
+            (c.rounding_m(&q) - 0.0048).abs() < 5e-5,
+            "{}",
+            c.rounding_m(&q)
+        );
+        let mut out = [0.0; 12];
+        round_to(
+            &[
+                0.3 * q[0],
+                0.6 * q[0],
+                -1.6 * q[0],
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            ],
+            &q,
+            &mut out,
+        );
+        assert_eq!(&out[..3], &[0.0, q[0], -2.0 * q[0]]);
+    }
+
     use super::*;
 
     fn chain3() -> Chain {

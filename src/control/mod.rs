@@ -83,7 +83,7 @@
 
 use std::collections::VecDeque;
 
-use crate::chain::{Chain, Num, Vec2, MAX_MAGNITUDE, SELF_CLEARANCE_M};
+use crate::chain::{round_to, Chain, Num, Vec2, MAX_MAGNITUDE, SELF_CLEARANCE_M};
 use crate::motion::{joint_accel, Achieved, Motion, MotionLimits, Reference};
 use crate::reach::{ReachError, ReachOptions, ReachRequest, Way};
 use crate::resolve::overall::{Overall, OverallOptions};
@@ -895,14 +895,6 @@ impl Guard {
     }
 }
 
-/// `out` := `theta` rounded to the joints' resolutions `quanta` (a joint of resolution 0 as it
-/// is): the goal as the servos receive it.
-fn round_to(theta: &[f64], quanta: &[f64], out: &mut [f64]) {
-    for ((r, &t), &q) in out.iter_mut().zip(theta).zip(quanta) {
-        *r = if q > 0.0 { (t / q).round() * q } else { t };
-    }
-}
-
 /// The first pair of links of the pose `theta` within [`SELF_CLEARANCE_M`] of each other, as a
 /// refusal.
 fn check_clear(chain: &Chain, theta: &[f64]) -> Result<(), Refused> {
@@ -1173,13 +1165,7 @@ impl Controller {
             }
             Command::Reach { target } => {
                 let target = check_point(target, "target")?;
-                return Ok(Accepted::Plan(PlanRequest::Reach(Box::new(ReachJob {
-                    chain: self.chain.clone(),
-                    world: self.world.clone(),
-                    from: self.theta.clone(),
-                    target,
-                    quanta: self.quanta.clone(),
-                }))));
+                return Ok(Accepted::Plan(self.reach_job(target)));
             }
             Command::Stop => self.motion.stop(),
         }
@@ -1281,14 +1267,19 @@ impl Controller {
     pub fn replan_request(&self, request: &PlanRequest) -> PlanRequest {
         match request {
             PlanRequest::Routes(r) => PlanRequest::Routes(self.replan(r)),
-            PlanRequest::Reach(job) => PlanRequest::Reach(Box::new(ReachJob {
-                chain: self.chain.clone(),
-                world: self.world.clone(),
-                from: self.theta.clone(),
-                target: job.target,
-                quanta: self.quanta.clone(),
-            })),
+            PlanRequest::Reach(job) => self.reach_job(job.target),
         }
+    }
+
+    /// A `reach` to `target` from the commanded pose, in the world in force.
+    fn reach_job(&self, target: Vec2) -> PlanRequest {
+        PlanRequest::Reach(Box::new(ReachJob {
+            chain: self.chain.clone(),
+            world: self.world.clone(),
+            from: self.theta.clone(),
+            target,
+            quanta: self.quanta.clone(),
+        }))
     }
 
     /// A route request for the same points from where the tip is now, in the world in force:
@@ -1311,10 +1302,7 @@ impl Controller {
             return Ok(());
         }
         // No point moves farther than the sum of each joint's turn times what it carries.
-        let links = self.chain.links();
-        let sweep: f64 = (0..goal.len())
-            .map(|i| (goal[i] - self.theta[i]).abs() * links[i..].iter().sum::<f64>())
-            .sum();
+        let sweep = self.chain.sweep(&self.theta, goal);
         let steps = ((sweep / JOINT_WAY_STEP_M).ceil() as usize).clamp(1, MAX_JOINT_WAY_SAMPLES);
         let mut pose = self.theta.clone();
         let mut points = self.chain.points(&pose);
@@ -1482,14 +1470,7 @@ impl Controller {
         if quanta.len() != self.chain.len() || !quanta.iter().all(|q| q.is_finite() && *q >= 0.0) {
             return Err(Refused::BadResolution);
         }
-        let links = self.chain.links();
-        // Rounding turns joint i by at most q_i / 2, moving a point by at most that times the
-        // length it carries.
-        self.rounding_m = quanta
-            .iter()
-            .enumerate()
-            .map(|(i, q)| 0.5 * q * links[i..].iter().sum::<f64>())
-            .sum();
+        self.rounding_m = self.chain.rounding_m(quanta);
         self.quanta = if quanta.iter().all(|&q| q == 0.0) {
             Vec::new()
         } else {

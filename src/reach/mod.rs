@@ -37,7 +37,7 @@
 //! with [`ReachOptions::seed`]), and nothing is read from a clock: the work is bounded by
 //! [`ReachOptions::max_checks`] poses looked at.
 
-use crate::chain::{Chain, Vec2, SELF_CLEARANCE_M};
+use crate::chain::{round_to, Chain, Vec2, SELF_CLEARANCE_M};
 use crate::resolve::overall::{Overall, OverallOptions, SplitMix};
 use crate::world::{Pair, World};
 
@@ -114,8 +114,6 @@ pub struct Way {
     /// Each leg's end pose, rad; the arm goes straight (in joint space) from one to the next,
     /// starting at the request's `from`.
     pub legs: Vec<Vec<f64>>,
-    /// The goal's clearance, m (`None` without obstacles).
-    pub goal_clearance_m: Option<f64>,
     /// Metric 3 from `from` to the goal, rad^2.
     pub goal_m3_rad2: f64,
     /// Poses looked at, in all.
@@ -241,10 +239,6 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
         }
     }
     let goal = goal_pose(req, opts)?;
-    let goal_clearance_m = req
-        .world
-        .clearance(&req.chain.points(&goal))
-        .map(|p| p.clearance_m);
     let goal_m3_rad2 = goal
         .iter()
         .zip(req.from)
@@ -260,7 +254,6 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
     legs.remove(0);
     Ok(Way {
         legs,
-        goal_clearance_m,
         goal_m3_rad2,
         checks: look.checks,
         nodes,
@@ -314,13 +307,7 @@ fn goal_pose(req: &ReachRequest, opts: &ReachOptions) -> Result<Vec<f64>, ReachE
         });
     }
     let mut sent = goal.clone();
-    if !req.quanta.is_empty() {
-        for (t, q) in sent.iter_mut().zip(req.quanta) {
-            if *q > 0.0 {
-                *t = (*t / q).round() * q;
-            }
-        }
-    }
+    round_to(&goal, req.quanta, &mut sent);
     let pts = req.chain.points(&sent);
     if let Some((a, b)) = Chain::self_intersects(&pts) {
         return Err(ReachError::GoalNotClear {
@@ -351,8 +338,6 @@ struct Looker<'a> {
     leg_keep: f64,
     /// What every pose a tree keeps holds, m.
     node_keep: f64,
-    /// The length each joint carries, m.
-    carried: Vec<f64>,
     /// Each joint's resolution, rad (empty: exact).
     quanta: &'a [f64],
     /// The most rounding each joint to its resolution moves any point, m.
@@ -360,6 +345,8 @@ struct Looker<'a> {
     /// Where along a leg some joint crosses from one whole tick to the next (scratch).
     cuts: Vec<f64>,
     pose: Vec<f64>,
+    /// `pose` as sent (rounded to `quanta`).
+    sent: Vec<f64>,
     points: Vec<Vec2>,
     checks: usize,
     max_checks: usize,
@@ -367,23 +354,17 @@ struct Looker<'a> {
 
 impl<'a> Looker<'a> {
     fn new(req: &ReachRequest<'a>, opts: &ReachOptions) -> Self {
-        let links = req.chain.links();
-        let n = links.len();
+        let n = req.chain.len();
         Self {
             chain: req.chain,
             world: req.world,
             leg_keep: req.world.clearance_m() + LEG_KEEP_M,
             node_keep: req.world.clearance_m() + opts.margin_m,
-            carried: (0..n).map(|i| links[i..].iter().sum()).collect(),
             quanta: req.quanta,
-            rounding_m: req
-                .quanta
-                .iter()
-                .enumerate()
-                .map(|(i, q)| 0.5 * q * links[i..].iter().sum::<f64>())
-                .sum(),
+            rounding_m: req.chain.rounding_m(req.quanta),
             cuts: Vec::new(),
             pose: vec![0.0; n],
+            sent: vec![0.0; n],
             points: vec![Vec2::zeros(); n + 1],
             checks: 0,
             max_checks: opts.max_checks,
@@ -392,15 +373,6 @@ impl<'a> Looker<'a> {
 
     fn out_of_work(&self) -> bool {
         self.checks >= self.max_checks
-    }
-
-    /// The most any point moves along the straight leg from `a` to `b`, m.
-    fn sweep(&self, a: &[f64], b: &[f64]) -> f64 {
-        a.iter()
-            .zip(b)
-            .zip(&self.carried)
-            .map(|((x, y), l)| (y - x).abs() * l)
-            .sum()
     }
 
     /// The nearest pair of `self.points` (`None`: no obstacles).
@@ -422,10 +394,8 @@ impl<'a> Looker<'a> {
         if self.quanta.is_empty() {
             return true;
         }
-        for ((x, &t), &q) in self.pose.iter_mut().zip(theta).zip(self.quanta) {
-            *x = if q > 0.0 { (t / q).round() * q } else { t };
-        }
-        self.chain.points_into(&self.pose, &mut self.points);
+        round_to(theta, self.quanta, &mut self.sent);
+        self.chain.points_into(&self.sent, &mut self.points);
         self.nearest()
             .is_none_or(|p| p.clearance_m >= self.world.clearance_m())
             && Chain::self_intersects(&self.points).is_none()
@@ -434,7 +404,7 @@ impl<'a> Looker<'a> {
     /// Whether the straight leg from `a` to `b` is clear (see the module doc); false, too,
     /// when the work allowed runs out.
     fn leg(&mut self, a: &[f64], b: &[f64]) -> bool {
-        let sweep = self.sweep(a, b);
+        let sweep = self.chain.sweep(a, b);
         let mut f = 0.0_f64;
         loop {
             if self.out_of_work() {
@@ -444,10 +414,8 @@ impl<'a> Looker<'a> {
                 *x = p + f * (q - p);
             }
             self.chain.points_into(&self.pose, &mut self.points);
-            let slack = match self.nearest() {
-                Some(p) => p.clearance_m - self.leg_keep,
-                None => f64::INFINITY,
-            };
+            let clearance = self.nearest().map_or(f64::INFINITY, |p| p.clearance_m);
+            let slack = clearance - self.leg_keep;
             if slack < 0.0 {
                 return false;
             }
@@ -472,7 +440,7 @@ impl<'a> Looker<'a> {
             };
             // Within rounding's reach of the clearance, the goals as sent (each joint rounded
             // to a whole tick) are looked at too: every one met between here and the next look.
-            let near = slack + self.leg_keep < self.world.clearance_m() + self.rounding_m;
+            let near = clearance < self.world.clearance_m() + self.rounding_m;
             if near && !self.quanta.is_empty() && !self.sent_clear(a, b, f, next) {
                 return false;
             }
@@ -520,11 +488,11 @@ impl<'a> Looker<'a> {
                 continue;
             }
             let mid = 0.5 * (u + v);
-            for (((x, &p), &r), &q) in self.pose.iter_mut().zip(a).zip(b).zip(self.quanta) {
-                let t = p + mid * (r - p);
-                *x = if q > 0.0 { (t / q).round() * q } else { t };
+            for ((x, &p), &r) in self.pose.iter_mut().zip(a).zip(b) {
+                *x = p + mid * (r - p);
             }
-            self.chain.points_into(&self.pose, &mut self.points);
+            round_to(&self.pose, self.quanta, &mut self.sent);
+            self.chain.points_into(&self.sent, &mut self.points);
             if self
                 .nearest()
                 .is_some_and(|c| c.clearance_m < self.world.clearance_m())
