@@ -11,7 +11,7 @@ use std::f64::consts::PI;
 
 use snakectl::chain::{Chain, Vec2};
 use snakectl::control::{
-    Activity, Command, Controller, Finish, Limits, Refused, CLEARANCE_ROUNDOFF_M,
+    Activity, Command, Controller, Finish, Limits, Refused, CLEARANCE_ROUNDOFF_M, JOINT_WAY_STEP_M,
 };
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape, World, MAX_ROUTE_WORK};
@@ -421,6 +421,113 @@ fn a_joint_move_through_an_obstacle_is_refused_naming_link_and_how_far() {
     // The same move with the post out of the way is taken.
     c.set_world(world(vec![circle("post", 2.0, 2.0, 0.02)]));
     c.command(Command::Home).unwrap();
+}
+
+/// A joint move's way is judged on a grid of samples [`JOINT_WAY_STEP_M`] of motion apart; the
+/// controller passes over the samples it can vouch for from one it looked at (no point can move
+/// far enough in between to lose the clearance). Its verdict, where the way first loses its
+/// clearance and its deepest pose are those of the tests' own look at every sample, over seeded
+/// worlds of discs about the arm and random moves, some taken and some refused.
+#[test]
+fn a_joint_move_is_judged_as_if_every_sample_were_looked_at() {
+    use rand::{Rng, SeedableRng};
+    let c = chain();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(23);
+    let (mut taken, mut refused) = (0, 0);
+    for _ in 0..150 {
+        let start: Vec<f64> = home()
+            .iter()
+            .map(|h| h + rng.gen_range(-0.3..0.3))
+            .collect();
+        let points = c.points(&start);
+        let obstacles = (0..rng.gen_range(1..=4))
+            .map(|k| {
+                let near = points[rng.gen_range(1..=N)];
+                let at = near + Vec2::new(rng.gen_range(-0.15..0.15), rng.gen_range(-0.15..0.15));
+                circle(&format!("o{k}"), at.x, at.y, rng.gen_range(0.01..0.05))
+            })
+            .collect();
+        let w = world(obstacles);
+        if disc_clearance(&w, &start) <= KEEP + 1e-6 {
+            continue;
+        }
+        let goal: Vec<f64> = start.iter().map(|a| a + rng.gen_range(-0.6..0.6)).collect();
+        // The tests' own look at every sample.
+        let steps = (c.sweep(&start, &goal) / JOINT_WAY_STEP_M).ceil() as usize;
+        let (mut first, mut deepest) = (None, (f64::INFINITY, 0.0));
+        let mut near_the_line = false;
+        for k in 1..=steps {
+            let f = k as f64 / steps as f64;
+            let pose: Vec<f64> = start
+                .iter()
+                .zip(&goal)
+                .map(|(a, b)| a + f * (b - a))
+                .collect();
+            let cl = disc_clearance(&w, &pose);
+            near_the_line |= (cl - KEEP).abs() < TOL;
+            if cl < KEEP {
+                first.get_or_insert(f);
+                if cl < deepest.0 {
+                    deepest = (cl, f);
+                }
+            }
+        }
+        if near_the_line {
+            continue;
+        }
+        let mut ctl = controller(Strategy::Overall, &start);
+        assert!(ctl.set_world(w.clone()).is_none());
+        match ctl.command(Command::GotoJoints {
+            theta: goal.clone(),
+        }) {
+            Ok(()) => {
+                assert_eq!(first, None, "a way through an obstacle taken");
+                taken += 1;
+            }
+            Err(Refused::NotClearOnTheWay {
+                fraction,
+                from_fraction,
+                clearance_m,
+                ..
+            }) => {
+                assert_eq!(Some(from_fraction), first);
+                assert!(
+                    (clearance_m - deepest.0).abs() < TOL,
+                    "{clearance_m} vs {deepest:?}"
+                );
+                let there: Vec<f64> = start
+                    .iter()
+                    .zip(&goal)
+                    .map(|(a, b)| a + fraction * (b - a))
+                    .collect();
+                assert!((disc_clearance(&w, &there) - deepest.0).abs() < TOL);
+                refused += 1;
+            }
+            // A goal pose whose links meet, say: not this test's business.
+            Err(_) => {}
+        }
+    }
+    assert!(
+        taken >= 20 && refused >= 20,
+        "{taken} taken, {refused} refused"
+    );
+}
+
+/// The least clearance of the pose `theta` among discs, signed: a link into a disc counts the
+/// depth of its deepest point (its axis's distance from the centre, less the radius).
+fn disc_clearance(w: &World, theta: &[f64]) -> f64 {
+    let p = chain().points(theta);
+    let mut least = f64::INFINITY;
+    for link in 1..p.len() {
+        for o in w.obstacles() {
+            let Shape::Circle { center, radius_m } = o.shape else {
+                panic!("discs only");
+            };
+            let d = world_support::point_segment(center, p[link - 1], p[link]);
+            least = least.min(d - radius_m - w.link_radius_m());
+        }
+    }
+    least
 }
 
 #[test]

@@ -125,6 +125,10 @@ pub const JOINT_WAY_STEP_M: f64 = 1e-3;
 /// Most poses of a joint move's way checked against the world.
 const MAX_JOINT_WAY_SAMPLES: usize = 20_000;
 
+/// What a free sweep ([`World::free_sweep`]) is shortened by before samples are passed over on
+/// its strength, m: round-off in the distances and the sweep.
+const SWEEP_SLACK_M: f64 = 1e-9;
+
 /// Relative excess over the joint-speed bound that counts as round-off, not as a clamp (the
 /// goal is still put exactly on the bound).
 const CLAMP_ROUNDOFF: f64 = 1e-9;
@@ -1310,13 +1314,27 @@ impl Controller {
         // that a way which only grazes the clearance is told from one through an obstacle.
         let mut from = None;
         let mut deepest: Option<(Pair, f64)> = None;
-        for k in 1..=steps {
+        // Samples within the free sweep of one looked at keep their floors (no point moves
+        // farther than its share of the sweep), so they are passed over: far from every
+        // obstacle a long way costs a few looks, and what is found is what every sample finds.
+        let spacing = sweep / steps as f64;
+        let mut k = 0;
+        while k <= steps {
             let f = k as f64 / steps as f64;
             for ((x, &a), &b) in pose.iter_mut().zip(&self.theta).zip(goal) {
                 *x = a + f * (b - a);
             }
             self.chain.points_into(&pose, &mut points);
-            if let Some(p) = self.world.deepest_below_floors(&points, &self.guard.floors) {
+            let left = (steps - k) as f64 * spacing;
+            let free = self.world.free_sweep(&points, &self.guard.floors, left) - SWEEP_SLACK_M;
+            if free > 0.0 {
+                k += 1 + (free / spacing) as usize;
+                continue;
+            }
+            let below = (k > 0)
+                .then(|| self.world.deepest_below_floors(&points, &self.guard.floors))
+                .flatten();
+            if let Some(p) = below {
                 from.get_or_insert(f);
                 if deepest
                     .as_ref()
@@ -1325,6 +1343,7 @@ impl Controller {
                     deepest = Some((p, f));
                 }
             }
+            k += 1;
         }
         if let (Some(from), Some((p, f))) = (from, deepest) {
             let m = self.world.obstacles().len();

@@ -289,6 +289,36 @@ impl World {
         None
     }
 
+    /// How far any point of the pose `points` may move, m, before a pair could fall below its
+    /// floor (see [`World::below_floors`]): the least of `cap_m` and each pair's clearance above
+    /// its floor, since a pair's distance changes by no more than its link's points move. 0
+    /// when it cannot vouch for any move: a pair below or on its floor, or meeting its obstacle
+    /// (a depth inside is found by sampling). Pairs whose boxes are farther than the answer are
+    /// skipped. Allocation-free.
+    pub fn free_sweep(&self, points: &[Vec2], floors: &[f64], cap_m: f64) -> f64 {
+        let m = self.obstacles.len();
+        let mut free = cap_m.max(0.0);
+        for link in 1..points.len() {
+            let (lo, hi) = segment_box(points[link - 1], points[link]);
+            for k in 0..m {
+                let Some(&floor) = floors.get((link - 1) * m + k) else {
+                    return 0.0;
+                };
+                if self.box_not_below(k, lo, hi, floor + free + self.link_radius_m) {
+                    continue;
+                }
+                let p = self.pair(points, link, k);
+                let excess = p.clearance_m - floor;
+                // Written so that a NaN cannot vouch either.
+                if !(p.contact.distance_m > 0.0 && excess > 0.0) {
+                    return 0.0;
+                }
+                free = free.min(excess);
+            }
+        }
+        free
+    }
+
     /// The pair of the pose `points` whose clearance is least among those below their floors
     /// (see [`World::below_floors`]): the deepest a link would go, or `None`. Allocation-free.
     pub fn deepest_below_floors(&self, points: &[Vec2], floors: &[f64]) -> Option<Pair> {
@@ -628,6 +658,45 @@ mod tests {
             let (w, c) = (world(), chain());
             // All 8 pairs are active with a 1 m margin; at most a few derivatives sit on a kink.
             prop_assert!(check_gradients(&w, &c, &theta) >= 20);
+        }
+
+        #[test]
+        fn the_free_sweep_is_the_least_excess_and_no_pose_within_it_falls_below_a_floor(
+            start in proptest::collection::vec(-1.2..1.2f64, 4),
+            at in proptest::collection::vec(-1.2..1.2f64, 4),
+            dir in proptest::collection::vec(-1.0..1.0f64, 4),
+        ) {
+            let (w, c) = (world(), chain());
+            let mut floors = [0.0; 8];
+            w.link_floors(&c.points(&start), 0.01, &mut floors);
+            let pts = c.points(&at);
+            let cap = 0.3;
+            let free = w.free_sweep(&pts, &floors, cap);
+            // Every pair, looked at one by one.
+            let mut least = cap;
+            let mut vouch = true;
+            for link in 1..=4 {
+                for k in 0..2 {
+                    let p = w.pair(&pts, link, k);
+                    let excess = p.clearance_m - floors[(link - 1) * 2 + k];
+                    vouch &= p.contact.distance_m > 0.0 && excess > 0.0;
+                    least = least.min(excess);
+                }
+            }
+            if !vouch {
+                prop_assert_eq!(free, 0.0);
+                return Ok(());
+            }
+            prop_assert!((free - least).abs() < 1e-15, "{} against {}", free, least);
+            let ahead: Vec<f64> = at.iter().zip(&dir).map(|(a, d)| a + d).collect();
+            let per_unit = c.sweep(&at, &ahead);
+            prop_assume!(per_unit > 0.0);
+            for f in [0.1, 0.3, 0.5, 0.7, 0.9, 1.0] {
+                let s = f * free / per_unit;
+                let theta: Vec<f64> = at.iter().zip(&dir).map(|(a, d)| a + s * d).collect();
+                let hit = w.below_floors(&c.points(&theta), &floors);
+                prop_assert!(hit.is_none(), "{:?} at {} of the free sweep {}", hit, f, free);
+            }
         }
     }
 }
