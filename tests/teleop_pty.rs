@@ -1095,3 +1095,47 @@ fn after_a_reconnection_no_control_is_claimed_before_the_daemon_grants_it() {
     ui.send(b"q");
     ui.quits_giving_the_terminal_back("q");
 }
+
+/// A right-click on the arm's canvas sends a `reach` to the point under it (a way round the
+/// obstacles, planned by the daemon), and a `blocked` event tells of that way out.
+#[test]
+fn a_right_click_reaches_for_the_point_and_a_blocked_goto_says_so() {
+    let daemon = FakeDaemon::start();
+    let mut ui = Ui::start(&["--connect".as_ref(), daemon.addr.as_ref()]);
+    let link = daemon.accept();
+    link.wait_request("subscribe", |c| matches!(c, Cmd::Subscribe { .. }));
+    link.telemetry(Some(1), true);
+    ui.wait_for("in control", |t| field(t, "control") == Some("you"));
+
+    let event = protocol::Event {
+        owner: None,
+        cmd_id: None,
+        tick: 2,
+        what: protocol::What::Blocked {
+            tip: [-0.5, 0.6],
+            link: 9,
+            obstacle: "post".into(),
+        },
+    };
+    let line = protocol::event_line(&event);
+    link.out.lock().unwrap().write_all(line.as_bytes()).unwrap();
+    ui.wait_for("the blocked notice", |t| {
+        t.contains("blocked: link 9 against \"post\"") && t.contains("right-click")
+    });
+
+    let screen = ratatui::layout::Rect::new(0, 0, COLS, ROWS);
+    let (col, row) = (30, 12);
+    let target = ui::click_to_world(&link.arm, screen, col, row).unwrap();
+    // An SGR report of the right button (2) pressed and released.
+    ui.send(format!("\x1b[<2;{0};{1}M\x1b[<2;{0};{1}m", col + 1, row + 1).as_bytes());
+    let before = link.wait_request("reach", |c| {
+        matches!(c, Cmd::Reach { target: t }
+            if (t[0] - target[0]).abs() < 1e-9 && (t[1] - target[1]).abs() < 1e-9)
+    });
+    assert!(
+        !before.iter().any(|c| matches!(c, Cmd::Goto { .. })),
+        "a right-click sent a goto: {before:?}"
+    );
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+}

@@ -354,6 +354,15 @@ fn start_connecting(addr: &str, token_file: Option<PathBuf>) -> Connecting {
     rx
 }
 
+/// What a click on the arm's canvas asks for at the point under it.
+#[derive(Debug, Clone, Copy)]
+enum Click {
+    /// Left: the tip along its route there.
+    Goto,
+    /// Right: a way round the obstacles in joint space, planned by the daemon.
+    Reach,
+}
+
 /// The UI's state between frames.
 struct App {
     addr: String,
@@ -565,8 +574,14 @@ impl App {
         match event {
             Event::Key(key) => self.handle_key(key),
             Event::Mouse(mouse) => {
-                if mouse.kind == MouseEventKind::Down(MouseButton::Left) {
-                    self.click(mouse.column, mouse.row);
+                match mouse.kind {
+                    MouseEventKind::Down(MouseButton::Left) => {
+                        self.click(mouse.column, mouse.row, Click::Goto);
+                    }
+                    MouseEventKind::Down(MouseButton::Right) => {
+                        self.click(mouse.column, mouse.row, Click::Reach);
+                    }
+                    _ => {}
                 }
                 false
             }
@@ -620,7 +635,7 @@ impl App {
         asked || quit
     }
 
-    fn click(&mut self, column: u16, row: u16) {
+    fn click(&mut self, column: u16, row: u16, click: Click) {
         let Some(arm) = &self.arm else {
             return;
         };
@@ -628,11 +643,14 @@ impl App {
             return;
         };
         if self.in_control() {
-            // A key's hold would stop the `goto` with its zero, or replace it at its renewal.
+            // A key's hold would stop the command with its zero, or replace it at its renewal.
             self.keyboard.give_way();
-            self.send(&Cmd::Goto {
-                target,
-                speed: None,
+            self.send(&match click {
+                Click::Goto => Cmd::Goto {
+                    target,
+                    speed: None,
+                },
+                Click::Reach => Cmd::Reach { target },
             });
         } else {
             self.notice("not in control: press c to take it".to_owned());
@@ -864,7 +882,10 @@ impl App {
                      closer only"
                 )),
                 What::Blocked { link, obstacle, .. } => {
-                    self.notice(format!("blocked: link {link} against \"{obstacle}\""));
+                    self.notice(format!(
+                        "blocked: link {link} against \"{obstacle}\": a right-click on the \
+                         target plans a way round"
+                    ));
                 }
                 What::Fault { reason, fault, .. } => {
                     self.notice(format!("fault {reason}: {fault}"));

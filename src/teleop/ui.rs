@@ -36,8 +36,8 @@ const MARGIN: f64 = 0.06;
 pub const NEAR_LIMIT: f64 = 0.10;
 
 /// The key-help line.
-pub const HELP: &str = "q quit  arrows/wasd move  +/- speed  click goto  space stop  e estop  \
-                        r reset  h home  tab strategy  t torque  c control";
+pub const HELP: &str = "q quit  arrows/wasd move  +/- speed  click goto, right-click reach  space \
+                        stop  e estop  r reset  h home  tab strategy  t torque  c control";
 
 /// The measured tips drawn behind the arm, oldest first; bounded.
 #[derive(Debug, Clone)]
