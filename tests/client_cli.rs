@@ -216,6 +216,38 @@ fn reach_arrives_and_says_where() {
     assert_fails(&run, 2, "finite");
 }
 
+/// A `goto` whose body is caught between two discs fails `blocked`, saying which `reach` to
+/// send; that `reach` gets there.
+#[test]
+fn a_caught_goto_says_which_reach_gets_round_and_it_does() {
+    let _one = one_at_a_time();
+    let radius = "max_clients = 4\n\n[world]\nlink_radius_m = 0.01";
+    let d = Daemon::start(sim_config(&[("max_clients = 4", radius)]));
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("discs.json");
+    let discs = json!({"obstacles": [
+        {"id": "upper", "circle": {"center": [-0.3001, 0.7139], "radius": 0.0127}},
+        {"id": "lower", "circle": {"center": [-0.5183, 0.5435], "radius": 0.0148}},
+    ]});
+    std::fs::write(&file, discs.to_string()).unwrap();
+    let run = at(&d, &["world", "set", file.to_str().unwrap()]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+
+    let run = at(&d, &["goto", "-0.6656", "0.4673"]);
+    assert_fails(&run, 1, "blocked: link");
+    assert!(
+        run.stderr
+            .contains("`snakectl reach -0.6656 0.4673` plans a way round the obstacles"),
+        "{:?}",
+        run.stderr
+    );
+    let run = at(&d, &["reach", "-0.6656", "0.4673"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(run.stdout.starts_with("arrived at ("), "{:?}", run.stdout);
+    let tip = xy(&d.client().status()["tip"]);
+    assert!(dist(tip, [-0.6656, 0.4673]) < 1e-6, "tip {tip:?}");
+}
+
 #[test]
 fn goto_no_wait_returns_while_the_arm_moves() {
     let _one = one_at_a_time();

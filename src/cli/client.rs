@@ -387,6 +387,13 @@ fn motion(client: &mut Client, cmd: &Cmd, no_wait: bool) -> Result<(), Failure> 
         })?;
     match ending {
         Some(arrived @ Ending::Arrived { .. }) => outln!("{arrived}"),
+        // Caught on an obstacle: the way out is a way round in joint space.
+        Some(blocked @ Ending::Blocked { .. }) => match cmd {
+            Cmd::Goto { target: [x, y], .. } => Err(Failure::other(anyhow!(
+                "{blocked}\n(`snakectl reach {x} {y}` plans a way round the obstacles)"
+            ))),
+            _ => Err(Failure::other(anyhow!("{blocked}"))),
+        },
         Some(other) => Err(Failure::other(anyhow!("{other}"))),
         None => Err(Failure::other(anyhow!("`{name}` did not finish"))),
     }
