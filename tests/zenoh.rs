@@ -257,6 +257,39 @@ fn cmd_vel_moves_the_tip_and_stops_within_the_deadman_then_lets_go() {
     daemon.stop().unwrap();
 }
 
+/// `goal` and `reach` take the tip to their targets (`goto` along its route, `reach` along a
+/// way in joint space planned beside the loop); a `reach` sample that is no point is refused,
+/// naming the topic.
+#[test]
+fn goal_and_reach_take_the_tip_to_their_targets() {
+    let (daemon, mut client, peer) = on_network("snakectl", true);
+    let events = peer.subscribe("snakectl/events").unwrap();
+    at_rest(&mut client);
+    for (key, target) in [
+        ("snakectl/goal", [-0.45, 0.62]),
+        ("snakectl/reach", [-0.40, 0.60]),
+    ] {
+        let point = ros::encode(&ros::point_stamped(target, 0.0, "")).unwrap();
+        peer.put(key, point).unwrap();
+        let arrived = next_json(&events, "arrived", |e| e["event"] == "arrived");
+        let tip = xy(&arrived["tip"]);
+        assert!(
+            dist(tip, target) < 1e-6,
+            "{key}: arrived at {tip:?}, not {target:?}"
+        );
+    }
+    peer.put("snakectl/reach", twist(0.1, 0.2)).unwrap();
+    let refused = next_json(&events, "a refusal", |e| e["ok"] == json!(false));
+    assert_eq!(refused["error"]["code"], json!("bad_arg"), "{refused}");
+    let message = refused["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("reach is not a geometry_msgs/msg/PointStamped"),
+        "{message}"
+    );
+    assert!(dist(xy(&client.status()["tip"]), [-0.40, 0.60]) < 1e-6);
+    daemon.stop().unwrap();
+}
+
 #[test]
 fn without_accept_commands_cmd_vel_and_goal_are_ignored() {
     let (daemon, mut client, peer) = on_network("snakectl", false);
@@ -510,6 +543,7 @@ fn a_ros2_node_on_rmw_zenohs_keys_with_its_graph_and_attachments() {
         node.entity_token::<PointStamped>(4, EntityKind::Publisher, "/snakectl/target", &qos),
         node.entity_token::<Twist>(5, EntityKind::Subscription, "/snakectl/cmd_vel", &qos),
         node.entity_token::<PointStamped>(6, EntityKind::Subscription, "/snakectl/goal", &qos),
+        node.entity_token::<PointStamped>(7, EntityKind::Subscription, "/snakectl/reach", &qos),
     ];
     expected.sort();
     assert_eq!(tokens, expected);

@@ -436,7 +436,7 @@ pub struct RawZenoh {
     /// Publishing rate, Hz; the smaller of 50 and `control.rate_hz` when absent.
     #[serde(default)]
     pub publish_hz: Option<f64>,
-    /// Take `cmd_vel` and `goal` from the network.
+    /// Take `cmd_vel`, `goal` and `reach` from the network.
     #[serde(default)]
     pub accept_commands: bool,
     /// A Zenoh json5 config file passed through to the session (access control, TLS, ...);

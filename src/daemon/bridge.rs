@@ -10,14 +10,14 @@
 //! Zenoh. It answers `<prefix>/status` (the socket's `status` reply) and
 //! `<prefix>/describe`, and holds the liveliness token `<prefix>` while it runs.
 //!
-//! With `accept_commands`, `cmd_vel` (`Twist`) and `goal` (`PointStamped`) become `velocity`
-//! and `goto` through a [`Door`]: one controller id for everything that comes from the
+//! With `accept_commands`, `cmd_vel` (`Twist`), `goal` and `reach` (`PointStamped`) become
+//! `velocity`, `goto` and `reach` through a [`Door`]: one controller id for everything that comes from the
 //! network, put to the same arbiter and the same bounded queue as a socket client's commands,
 //! and let go of after the deadman's silence.
 //!
 //! With `ros2`, the daemon is also a ROS 2 node as rmw_zenoh sees one: node `snakectl` in
 //! the namespace `/<prefix>`, publishing `joint_states`, `tip_cmd`, `tip_meas` and `target` on
-//! rmw_zenoh's data keys with its attachment, subscribing `cmd_vel` and `goal` there when
+//! rmw_zenoh's data keys with its attachment, subscribing `cmd_vel`, `goal` and `reach` there when
 //! commands are accepted, and holding a graph token for the node and for each of those; the
 //! names and bytes come from [`crate::ros::rmw`]. Both key layouts may be served at once. A
 //! sample on a ROS 2 key without rmw_zenoh's attachment is refused (`bad_arg`, on the events
@@ -283,6 +283,7 @@ struct Served<'a> {
     describe: Queryable,
     cmd_vel: Option<Subscriber>,
     goal: Option<Subscriber>,
+    reach: Option<Subscriber>,
     _token: zenoh::liveliness::LivelinessToken,
     frame_id: String,
     /// The ROS 2 node's side, with `ros2`.
@@ -313,12 +314,13 @@ struct RosNode {
     target: RosPublisher,
     cmd_vel: Option<Subscriber>,
     goal: Option<Subscriber>,
+    reach: Option<Subscriber>,
     _subscription_tokens: Vec<zenoh::liveliness::LivelinessToken>,
 }
 
 impl RosNode {
     /// Declares node `snakectl` in `/<prefix>` of `domain`, with ids 0 (the node), 1-4 (the
-    /// publishers) and 5-6 (the subscriptions).
+    /// publishers) and 5-7 (the subscriptions).
     async fn declare(
         session: &Session,
         settings: &Settings,
@@ -333,20 +335,25 @@ impl RosNode {
         let tip_meas = ros_publisher::<ros::PointStamped>(session, &node, 3, &names[2]).await?;
         let target = ros_publisher::<ros::PointStamped>(session, &node, 4, &names[3]).await?;
         let mut subscription_tokens = Vec::new();
-        let (cmd_vel, goal) = if settings.accept_commands {
-            let (cmd_vel, goal) = (topic("cmd_vel"), topic("goal"));
+        let (cmd_vel, goal, reach) = if settings.accept_commands {
             let subscription = rmw::EntityKind::Subscription;
             let qos = &rmw::Qos::DEFAULT;
+            let cmd_vel = topic("cmd_vel");
             let cmd_vel_token = node.entity_token::<ros::Twist>(5, subscription, &cmd_vel, qos);
-            let goal_token = node.entity_token::<ros::PointStamped>(6, subscription, &goal, qos);
             let cmd_vel = subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel)).await?;
-            let goal_key = rmw::data_key::<ros::PointStamped>(domain, &goal);
-            let goal = subscribe(session, goal_key).await?;
             subscription_tokens.push(live_token(session, cmd_vel_token).await?);
-            subscription_tokens.push(live_token(session, goal_token).await?);
-            (Some(cmd_vel), Some(goal))
+            let mut points = Vec::new();
+            for (id, name) in [(6, "goal"), (7, "reach")] {
+                let name = topic(name);
+                let token = node.entity_token::<ros::PointStamped>(id, subscription, &name, qos);
+                let key = rmw::data_key::<ros::PointStamped>(domain, &name);
+                points.push(subscribe(session, key).await?);
+                subscription_tokens.push(live_token(session, token).await?);
+            }
+            let reach = points.pop();
+            (Some(cmd_vel), points.pop(), reach)
         } else {
-            (None, None)
+            (None, None, None)
         };
         Ok(RosNode {
             _token: node_token,
@@ -356,6 +363,7 @@ impl RosNode {
             target,
             cmd_vel,
             goal,
+            reach,
             _subscription_tokens: subscription_tokens,
         })
     }
@@ -457,13 +465,14 @@ impl<'a> Served<'a> {
         let telemetry = publisher("telemetry", Encoding::APPLICATION_JSON).await?;
         let status = queryable("status").await?;
         let describe = queryable("describe").await?;
-        let (cmd_vel, goal) = if settings.accept_commands {
+        let (cmd_vel, goal, reach) = if settings.accept_commands {
             (
                 Some(subscriber("cmd_vel").await?),
                 Some(subscriber("goal").await?),
+                Some(subscriber("reach").await?),
             )
         } else {
-            (None, None)
+            (None, None, None)
         };
         let token = session
             .liveliness()
@@ -494,6 +503,7 @@ impl<'a> Served<'a> {
             describe,
             cmd_vel,
             goal,
+            reach,
             _token: token,
             frame_id: format!("{}/world", settings.prefix),
             ros,
@@ -557,6 +567,12 @@ impl<'a> Served<'a> {
                         last_command = Some(time::Instant::now());
                     }
                 }
+                sample = recv(self.reach.as_ref()) => {
+                    let cmd = reach(&sample);
+                    if self.command(cmd, &answers_tx, &mut refusals).await {
+                        last_command = Some(time::Instant::now());
+                    }
+                }
                 sample = recv(self.ros.as_ref().and_then(|r| r.cmd_vel.as_ref())) => {
                     let cmd = from_ros(&sample, &self.settings.key("cmd_vel"))
                         .and_then(|()| velocity(&sample));
@@ -567,6 +583,13 @@ impl<'a> Served<'a> {
                 sample = recv(self.ros.as_ref().and_then(|r| r.goal.as_ref())) => {
                     let cmd = from_ros(&sample, &self.settings.key("goal"))
                         .and_then(|()| goto(&sample));
+                    if self.command(cmd, &answers_tx, &mut refusals).await {
+                        last_command = Some(time::Instant::now());
+                    }
+                }
+                sample = recv(self.ros.as_ref().and_then(|r| r.reach.as_ref())) => {
+                    let cmd = from_ros(&sample, &self.settings.key("reach"))
+                        .and_then(|()| reach(&sample));
                     if self.command(cmd, &answers_tx, &mut refusals).await {
                         last_command = Some(time::Instant::now());
                     }
@@ -782,13 +805,28 @@ fn velocity(sample: &Sample) -> Result<Cmd, Rejection> {
 
 /// A `goal` sample as `goto` at the default speed: `point.x`, `point.y`, m.
 fn goto(sample: &Sample) -> Result<Cmd, Rejection> {
-    let goal: ros::PointStamped = ros::decode(&sample.payload().to_bytes())
-        .map_err(|e| bad("goal is not a geometry_msgs/msg/PointStamped in CDR", e))?;
-    let target = protocol::checked_point("target", [goal.point.x, goal.point.y])?;
+    let target = point_of(sample, "goal")?;
     Ok(Cmd::Goto {
         target,
         speed: None,
     })
+}
+
+/// A `reach` sample as `reach`: `point.x`, `point.y`, m.
+fn reach(sample: &Sample) -> Result<Cmd, Rejection> {
+    let target = point_of(sample, "reach")?;
+    Ok(Cmd::Reach { target })
+}
+
+/// The target a `PointStamped` sample on `topic` carries: `point.x`, `point.y`, m.
+fn point_of(sample: &Sample, topic: &str) -> Result<[f64; 2], Rejection> {
+    let point: ros::PointStamped = ros::decode(&sample.payload().to_bytes()).map_err(|e| {
+        bad(
+            &format!("{topic} is not a geometry_msgs/msg/PointStamped in CDR"),
+            e,
+        )
+    })?;
+    protocol::checked_point("target", [point.point.x, point.point.y])
 }
 
 /// A blocking Zenoh session for tools and tests: peer mode, the given endpoints, multicast
