@@ -212,6 +212,18 @@ impl Fox {
     }
 }
 
+/// Publishes on client channel `id` (advertised in JSON as `schema` on `topic`) the JSON
+/// message `message`.
+fn publish_on(fox: &mut Fox, id: u32, topic: &str, schema: &str, message: &Value) {
+    fox.send_json(json!({"op": "advertise", "channels": [{
+        "id": id, "topic": topic, "encoding": "json", "schemaName": schema,
+    }]}));
+    let mut frame = vec![1u8];
+    frame.extend_from_slice(&id.to_le_bytes());
+    frame.extend_from_slice(message.to_string().as_bytes());
+    fox.send(Message::binary(frame));
+}
+
 const TOPICS: [&str; 8] = [
     "/snakectl/joint_states",
     "/snakectl/tip_cmd",
@@ -457,6 +469,37 @@ fn a_twist_from_foxglove_moves_the_tip_only_with_accept_commands() {
     // A socket client is refused while the view holds control, as with any other client.
     let refused = client.error_code(json!({"cmd": "velocity", "v": [0.0, 0.01]}));
     assert_eq!(refused, "not_in_control");
+    drop(fox);
+    daemon.stop().unwrap();
+}
+
+/// A `PointStamped` on `goal` or `reach` (as the 3-D panel's click publishes one, with its
+/// publish topic set there) sends the tip to the point: a `goto`, or a `reach` round the
+/// obstacles.
+#[test]
+fn a_point_from_foxglove_on_goal_or_reach_takes_the_tip_there() {
+    let (daemon, port) = start_daemon(true);
+    let mut fox = Fox::connect(port);
+    fox.next_op("serverInfo");
+    let mut client = daemon.client();
+    let schema = "geometry_msgs/msg/PointStamped";
+    for (id, topic, target) in [
+        (2, "/snakectl/goal", [-0.45, 0.62]),
+        (3, "/snakectl/reach", [-0.40, 0.60]),
+    ] {
+        let point = json!({"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": "base"},
+                           "point": {"x": target[0], "y": target[1], "z": 0.0}});
+        publish_on(&mut fox, id, topic, schema, &point);
+        let s = client.wait_status("arrived", |s| {
+            s["command"]["outcome"] == "arrived" && dist(xy(&s["tip"]), target) < 1e-6
+        });
+        let kind = if topic.ends_with("goal") {
+            "goto"
+        } else {
+            "reach"
+        };
+        assert_eq!(s["command"]["kind"], kind, "{s}");
+    }
     drop(fox);
     daemon.stop().unwrap();
 }

@@ -19,7 +19,8 @@ pub struct Foxglove {
     pub listen: Option<SocketAddr>,
     /// Publishing rate, Hz, positive and at most `control.rate_hz`.
     pub publish_hz: f64,
-    /// Whether a Foxglove client's `Twist` on `cmd_vel` becomes `velocity`.
+    /// Whether a Foxglove client's `Twist` on `cmd_vel` becomes `velocity`, and a `PointStamped`
+    /// on `goal` or `reach` a `goto` or a `reach`.
     pub accept_commands: bool,
     /// Most clients connected at once (at least 1); the next is answered `503` and closed.
     pub max_clients: u32,

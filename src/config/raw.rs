@@ -461,7 +461,8 @@ pub struct RawFoxglove {
     /// Publishing rate, Hz; the smaller of 30 and `control.rate_hz` when absent.
     #[serde(default)]
     pub publish_hz: Option<f64>,
-    /// Take `cmd_vel` (a Teleop panel's `Twist`) from Foxglove.
+    /// Take `cmd_vel` (a Teleop panel's `Twist`), `goal` and `reach` (a `PointStamped`) from
+    /// Foxglove.
     #[serde(default)]
     pub accept_commands: bool,
     /// Most Foxglove clients connected at once; [`DEFAULT_FOXGLOVE_MAX_CLIENTS`] when absent.

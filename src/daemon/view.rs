@@ -14,9 +14,10 @@
 //! client (`relay`), which reads the server as fast as it writes, and in the server's own
 //! queue for it.
 //!
-//! With `accept_commands`, the server offers client publishing (`json` and `cdr`), and a
-//! `Twist` published on `/<prefix>/cmd_vel` becomes `velocity` (`linear.x`, `linear.y`, m/s)
-//! through the door: the same arbiter and bounded queue as a socket client's commands, one
+//! With `accept_commands`, the server offers client publishing (`json` and `cdr`): a `Twist`
+//! published on `/<prefix>/cmd_vel` becomes `velocity` (`linear.x`, `linear.y`, m/s), and a
+//! `PointStamped` on `/<prefix>/goal` or `/<prefix>/reach` (the 3-D panel's click, say) a
+//! `goto` or a `reach` to (`point.x`, `point.y`), all through the door: the same arbiter and bounded queue as a socket client's commands, one
 //! controller id for every Foxglove client, control let go of after the deadman's silence.
 //! Without it the server offers no publishing and nothing a Foxglove client sends moves the
 //! arm.
@@ -57,8 +58,13 @@ use crate::world::World;
 /// The topic a Teleop panel publishes to, under the prefix.
 pub const CMD_VEL: &str = "cmd_vel";
 
-/// `Twist`s held between two turns of the view's task; when full the newest is dropped (the
-/// next one replaces it anyway) and counted.
+/// The topics whose `PointStamped` is a `goto` and a `reach` target, under the prefix.
+pub const GOAL: &str = "goal";
+/// See [`GOAL`].
+pub const REACH: &str = "reach";
+
+/// Commands held between two turns of the view's task; when full the newest is dropped (a
+/// `Twist`'s next one replaces it anyway) and counted.
 const COMMAND_QUEUE: usize = 8;
 
 /// Refusals of Foxglove commands held before they are logged.
@@ -346,20 +352,37 @@ struct JsonVector {
     y: f64,
 }
 
-/// Hands what Foxglove clients publish on `cmd_vel` to the view's task, never waiting.
+/// A `PointStamped` as a Foxglove client sends it in JSON; only `point.x`, `point.y` are read.
+#[derive(Debug, Deserialize)]
+struct JsonPointStamped {
+    point: JsonVector,
+}
+
+/// Hands what Foxglove clients publish on the command topics to the view's task, never
+/// waiting.
 struct Commands {
-    topic: String,
-    tx: mpsc::Sender<Result<[f64; 2], Rejection>>,
+    /// `/<prefix>/`: the command topics' common start.
+    prefix: String,
+    tx: mpsc::Sender<Result<Cmd, Rejection>>,
     dropped: Arc<AtomicU64>,
 }
 
 impl ServerListener for Commands {
     fn on_message_data(&self, _client: Client, channel: &ClientChannel, payload: &[u8]) {
-        if channel.topic != self.topic {
+        let Some(topic) = channel.topic.strip_prefix(&self.prefix) else {
             return;
-        }
-        let v = twist(&channel.encoding, payload);
-        if self.tx.try_send(v).is_err() {
+        };
+        let encoding = &channel.encoding;
+        let cmd = match topic {
+            CMD_VEL => twist(encoding, payload).map(|v| Cmd::Velocity { v }),
+            GOAL => point(GOAL, encoding, payload).map(|target| Cmd::Goto {
+                target,
+                speed: None,
+            }),
+            REACH => point(REACH, encoding, payload).map(|target| Cmd::Reach { target }),
+            _ => return,
+        };
+        if self.tx.try_send(cmd).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
@@ -394,6 +417,35 @@ fn twist(encoding: &str, payload: &[u8]) -> Result<[f64; 2], Rejection> {
         }
     };
     protocol::checked_point("v", v)
+}
+
+/// The target of a `PointStamped` on `topic` in `encoding` (`json` or `cdr`): `point.x`,
+/// `point.y`, m.
+fn point(topic: &str, encoding: &str, payload: &[u8]) -> Result<[f64; 2], Rejection> {
+    let bad = |e: &dyn std::fmt::Display| {
+        Rejection::new(
+            Code::BadArg,
+            format!("{topic} is not a geometry_msgs/msg/PointStamped in {encoding}: {e}"),
+        )
+    };
+    let p = match encoding {
+        "json" => {
+            let p: JsonPointStamped = serde_json::from_slice(payload).map_err(|e| bad(&e))?;
+            [p.point.x, p.point.y]
+        }
+        "cdr" => {
+            let p: ros::PointStamped = ros::decode(payload).map_err(|e| bad(&e))?;
+            [p.point.x, p.point.y]
+        }
+        other => {
+            return Err(Rejection::new(
+                Code::BadArg,
+                format!("{topic} in {other:?}: only json and cdr are taken"),
+            ))
+        }
+    };
+    protocol::checked_point("target", p)
+        .map_err(|e| Rejection::new(e.code, format!("{topic} {}", e.message)))
 }
 
 /// Seconds since the Unix epoch now: the stamps of what the view sends.
@@ -444,7 +496,7 @@ fn view_thread(
                 .capabilities([Capability::ClientPublish])
                 .supported_encodings(["json", "cdr"])
                 .listener(Arc::new(Commands {
-                    topic: format!("/{}/{CMD_VEL}", settings.prefix),
+                    prefix: format!("/{}/", settings.prefix),
                     tx: commands_tx,
                     dropped: Arc::clone(&dropped),
                 }));
@@ -554,7 +606,7 @@ struct Served<'a> {
 impl Served<'_> {
     async fn run(
         mut self,
-        mut commands: mpsc::Receiver<Result<[f64; 2], Rejection>>,
+        mut commands: mpsc::Receiver<Result<Cmd, Rejection>>,
         stop: &mut oneshot::Receiver<()>,
     ) {
         let mut ticker = time::interval(self.settings.publish_period);
@@ -593,8 +645,8 @@ impl Served<'_> {
                     }
                     Err(broadcast::error::RecvError::Closed) => events_open = false,
                 },
-                Some(v) = commands.recv() => {
-                    let sent = v.and_then(|v| self.door.send(Cmd::Velocity { v }));
+                Some(cmd) = commands.recv() => {
+                    let sent = cmd.and_then(|cmd| self.door.send(cmd));
                     match sent {
                         Ok(answer) => {
                             last_command = Some(time::Instant::now());
@@ -800,5 +852,25 @@ mod tests {
         // Out of the protocol's range, refused as a socket client's would be.
         let huge = br#"{"linear":{"x":1e300,"y":0}}"#;
         assert_eq!(twist("json", huge).unwrap_err().code, Code::BadArg);
+    }
+
+    #[test]
+    fn a_point_reads_from_json_and_cdr_and_names_its_topic() {
+        // As the 3-D panel's click publishes it: a header, and z.
+        let json = br#"{"header":{"stamp":{"sec":1,"nanosec":2},"frame_id":"base"},
+                        "point":{"x":-0.45,"y":0.62,"z":0.1}}"#;
+        assert_eq!(point(REACH, "json", json).unwrap(), [-0.45, 0.62]);
+        let cdr = ros::encode(&ros::point_stamped([0.3, -0.2], 5.0, "base")).unwrap();
+        assert_eq!(point(GOAL, "cdr", &cdr).unwrap(), [0.3, -0.2]);
+        for (encoding, payload) in [
+            ("json", &br#"{"linear":{"x":1,"y":2}}"#[..]),
+            ("json", br#"{"point":{"x":1e300,"y":0}}"#),
+            ("cdr", b"\x00\x01"),
+            ("protobuf", b""),
+        ] {
+            let e = point(REACH, encoding, payload).unwrap_err();
+            assert_eq!(e.code, Code::BadArg, "{encoding}: {}", e.message);
+            assert!(e.message.starts_with("reach "), "{}", e.message);
+        }
     }
 }
