@@ -37,7 +37,7 @@
 //! with [`ReachOptions::seed`]), and nothing is read from a clock: the work is bounded by
 //! [`ReachOptions::max_checks`] poses looked at.
 
-use crate::chain::{round_to, Chain, Vec2, SELF_CLEARANCE_M};
+use crate::chain::{round_to, Chain, Reachability, Vec2, SELF_CLEARANCE_M};
 use crate::resolve::overall::{Overall, OverallOptions, SplitMix};
 use crate::world::{Pair, World};
 
@@ -129,6 +129,27 @@ pub enum ReachError {
     /// limits).
     #[error("{0}")]
     BadInput(String),
+    /// The target lies where no pose of the arm puts the tip (beyond its reach around the base,
+    /// inside the hole its links leave, or outside the bearings its limits allow).
+    #[error(
+        "the target ({:.4}, {:.4}) m is out of the arm's reach: {distance_m:.4} m from the base, \
+         where the tip can be from {r_min_m:.4} to {r_max_m:.4} m{}",
+        target.x,
+        target.y,
+        if *bearing { " (and not at that bearing, within the joint limits)" } else { "" }
+    )]
+    OutOfReach {
+        /// The target, m.
+        target: Vec2,
+        /// Its distance from the base, m.
+        distance_m: f64,
+        /// The nearest and farthest the tip can be from the base, m.
+        r_min_m: f64,
+        /// See `r_min_m`.
+        r_max_m: f64,
+        /// Whether it is within those radii but at a bearing the limits rule out.
+        bearing: bool,
+    },
     /// The arm is not clear where it stands: a way from there would start inside the margin.
     #[error(
         "the arm is not clear where it stands: link {link} is {} (the clearance to keep is \
@@ -218,6 +239,18 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
             opts.margin_m,
             2.0 * LEG_KEEP_M
         )));
+    }
+    let ring = req.chain.ring();
+    let offset = req.target - req.chain.base();
+    if ring.classify(offset) == Reachability::Outside {
+        let d = offset.norm();
+        return Err(ReachError::OutOfReach {
+            target: req.target,
+            distance_m: d,
+            r_min_m: ring.r_min,
+            r_max_m: ring.r_max,
+            bearing: d >= ring.r_min && d <= ring.r_max,
+        });
     }
     let mut look = Looker::new(req, opts);
     let keep_m = req.world.clearance_m();

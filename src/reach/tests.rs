@@ -208,6 +208,24 @@ fn bad_requests_are_refused_in_words() {
     out[3] = 2.5;
     let said = refused(&out, below, &[]);
     assert!(said.contains("the arm's pose"), "{said}");
+    // Beyond the arm's reach (0.96 m): refused up front, with the numbers.
+    let err = ask(&c, &world, &home(), Vec2::new(1.2, 0.5), &[]).unwrap_err();
+    let ReachError::OutOfReach {
+        distance_m,
+        r_max_m,
+        bearing,
+        ..
+    } = err
+    else {
+        panic!("{err:?}");
+    };
+    assert!((distance_m - 1.3).abs() < 1e-12 && (r_max_m - 0.96).abs() < 1e-12);
+    assert!(!bearing);
+    let said = err.to_string();
+    assert!(
+        said.contains("out of the arm's reach: 1.3000 m from the base, where the tip can be from 0.0000 to 0.9600 m"),
+        "{said}"
+    );
     // A target inside the post: no clear pose has the tip there.
     let said = refused(&home(), Vec2::new(tip.x - 0.1, tip.y - 0.2), &[]);
     assert!(said.starts_with("no pose found with the tip on"), "{said}");
