@@ -300,12 +300,12 @@ impl Chain {
     /// m: joint `i` turning by `|b_i - a_i|` moves a point by at most that times the length it
     /// carries (its link and every link after it).
     pub fn sweep(&self, a: &[f64], b: &[f64]) -> f64 {
-        let links = &self.links;
-        a.iter()
-            .zip(b)
-            .enumerate()
-            .map(|(i, (x, y))| (y - x).abs() * links[i.min(links.len())..].iter().sum::<f64>())
-            .sum()
+        let (mut carried, mut sweep) = (0.0, 0.0);
+        for ((&l, x), y) in self.links.iter().zip(a).zip(b).rev() {
+            carried += l;
+            sweep += (y - x).abs() * carried;
+        }
+        sweep
     }
 
     /// The most rounding each joint to its resolution (`quanta`, rad, one per joint) moves any

@@ -1957,12 +1957,7 @@ impl Controller {
             // The servos pass every pose between the last goal and this one: the way there is
             // checked every [`JOINT_WAY_STEP_M`] of the arm's motion, so that no link passes
             // through an obstacle between two clear goals.
-            let links = self.chain.links();
-            let (mut carried, mut sweep) = (0.0, 0.0);
-            for i in (0..links.len()).rev() {
-                carried += links[i];
-                sweep += (self.cand[i] - self.theta[i]).abs() * carried;
-            }
+            let sweep = self.chain.sweep(&self.theta, &self.cand);
             let steps =
                 ((sweep / JOINT_WAY_STEP_M).ceil() as usize).clamp(1, MAX_JOINT_WAY_SAMPLES);
             for k in 1..steps {
