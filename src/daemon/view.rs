@@ -37,6 +37,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use foxglove::websocket::{Capability, Client, ClientChannel, ServerListener};
 use foxglove::{Context, PartialMetadata, RawChannel, WebSocketServer};
+use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -394,58 +395,59 @@ impl ServerListener for Commands {
 
 /// The planar velocity of a `Twist` in `encoding` (`json` or `cdr`): `linear.x`, `linear.y`.
 fn twist(encoding: &str, payload: &[u8]) -> Result<[f64; 2], Rejection> {
-    let bad = |e: &dyn std::fmt::Display| {
-        Rejection::new(
-            Code::BadArg,
-            format!("cmd_vel is not a geometry_msgs/msg/Twist in {encoding}: {e}"),
-        )
-    };
-    let v = match encoding {
-        "json" => {
-            let t: JsonTwist = serde_json::from_slice(payload).map_err(|e| bad(&e))?;
-            [t.linear.x, t.linear.y]
-        }
-        "cdr" => {
-            let t: ros::Twist = ros::decode(payload).map_err(|e| bad(&e))?;
-            [t.linear.x, t.linear.y]
-        }
-        other => {
-            return Err(Rejection::new(
-                Code::BadArg,
-                format!("cmd_vel in {other:?}: only json and cdr are taken"),
-            ))
-        }
-    };
+    let v = planar(
+        CMD_VEL,
+        "geometry_msgs/msg/Twist",
+        encoding,
+        payload,
+        |t: JsonTwist| [t.linear.x, t.linear.y],
+        |t: ros::Twist| [t.linear.x, t.linear.y],
+    )?;
     protocol::checked_point("v", v)
 }
 
 /// The target of a `PointStamped` on `topic` in `encoding` (`json` or `cdr`): `point.x`,
 /// `point.y`, m.
 fn point(topic: &str, encoding: &str, payload: &[u8]) -> Result<[f64; 2], Rejection> {
+    let p = planar(
+        topic,
+        "geometry_msgs/msg/PointStamped",
+        encoding,
+        payload,
+        |p: JsonPointStamped| [p.point.x, p.point.y],
+        |p: ros::PointStamped| [p.point.x, p.point.y],
+    )?;
+    protocol::checked_point("target", p)
+        .map_err(|e| Rejection::new(e.code, format!("{topic} {}", e.message)))
+}
+
+/// The two numbers a message of type `schema` on `topic` carries, decoded from `encoding`:
+/// JSON as `J`, CDR as `C`; refused `bad_arg`, naming the topic and the type, when it is not
+/// one.
+fn planar<J: DeserializeOwned, C: DeserializeOwned>(
+    topic: &str,
+    schema: &str,
+    encoding: &str,
+    payload: &[u8],
+    from_json: impl FnOnce(J) -> [f64; 2],
+    from_cdr: impl FnOnce(C) -> [f64; 2],
+) -> Result<[f64; 2], Rejection> {
     let bad = |e: &dyn std::fmt::Display| {
         Rejection::new(
             Code::BadArg,
-            format!("{topic} is not a geometry_msgs/msg/PointStamped in {encoding}: {e}"),
+            format!("{topic} is not a {schema} in {encoding}: {e}"),
         )
     };
-    let p = match encoding {
-        "json" => {
-            let p: JsonPointStamped = serde_json::from_slice(payload).map_err(|e| bad(&e))?;
-            [p.point.x, p.point.y]
-        }
-        "cdr" => {
-            let p: ros::PointStamped = ros::decode(payload).map_err(|e| bad(&e))?;
-            [p.point.x, p.point.y]
-        }
-        other => {
-            return Err(Rejection::new(
-                Code::BadArg,
-                format!("{topic} in {other:?}: only json and cdr are taken"),
-            ))
-        }
-    };
-    protocol::checked_point("target", p)
-        .map_err(|e| Rejection::new(e.code, format!("{topic} {}", e.message)))
+    match encoding {
+        "json" => Ok(from_json(
+            serde_json::from_slice(payload).map_err(|e| bad(&e))?,
+        )),
+        "cdr" => Ok(from_cdr(ros::decode(payload).map_err(|e| bad(&e))?)),
+        other => Err(Rejection::new(
+            Code::BadArg,
+            format!("{topic} in {other:?}: only json and cdr are taken"),
+        )),
+    }
 }
 
 /// Seconds since the Unix epoch now: the stamps of what the view sends.
