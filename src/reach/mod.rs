@@ -58,8 +58,10 @@ pub const GOAL_TIP_M: f64 = 1e-9;
 /// this far on (only a leg that grazes the clearance takes such steps).
 pub const MIN_ADVANCE_M: f64 = 1e-5;
 
-/// The most sweep between two looks at the links' gaps to each other, m.
-const SELF_STEP_M: f64 = 2e-3;
+/// The most sweep between two looks at the links' gaps to each other, as a share of the
+/// shortest link: the gap looked for, twice the step, stays well within a link's length (two
+/// neighbouring links count as touching only when folded back within it).
+const SELF_STEP_LINKS: f64 = 0.25;
 
 /// How a way is sought.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -375,6 +377,8 @@ struct Looker<'a> {
     quanta: &'a [f64],
     /// The most rounding each joint to its resolution moves any point, m.
     rounding_m: f64,
+    /// The most sweep between two looks at the links' gaps, m ([`SELF_STEP_LINKS`]).
+    self_step_m: f64,
     /// Where along a leg some joint crosses from one whole tick to the next (scratch).
     cuts: Vec<f64>,
     pose: Vec<f64>,
@@ -395,6 +399,8 @@ impl<'a> Looker<'a> {
             node_keep: req.world.clearance_m() + opts.margin_m,
             quanta: req.quanta,
             rounding_m: req.chain.rounding_m(req.quanta),
+            self_step_m: SELF_STEP_LINKS
+                * req.chain.links().iter().copied().fold(f64::INFINITY, f64::min),
             cuts: Vec::new(),
             pose: vec![0.0; n],
             sent: vec![0.0; n],
@@ -456,7 +462,7 @@ impl<'a> Looker<'a> {
                 return Chain::self_intersects(&self.points).is_none();
             }
             let left = (1.0 - f) * sweep;
-            let mut advance = slack.clamp(MIN_ADVANCE_M, SELF_STEP_M).min(left);
+            let mut advance = slack.min(self.self_step_m).max(MIN_ADVANCE_M).min(left);
             // Two links close by at most twice what each moves before the next look.
             while Chain::self_intersects_within(&self.points, SELF_CLEARANCE_M + 2.0 * advance)
                 .is_some()
