@@ -33,8 +33,8 @@ pub struct Zenoh {
     pub prefix: String,
     /// Publishing rate, Hz, positive and at most `control.rate_hz`.
     pub publish_hz: f64,
-    /// Whether `cmd_vel`, `goal` and `reach` are taken from the network. When true, every endpoint is
-    /// on loopback and multicast is off, unless `config_file` is set.
+    /// Whether `cmd_vel`, `goal` and `reach` are taken from the network. When true, every
+    /// endpoint is on loopback and multicast is off, unless `config_file` is set.
     pub accept_commands: bool,
     /// A Zenoh json5 config file for the session, resolved against the config file's
     /// directory (not read here).

@@ -11,15 +11,15 @@
 //! `<prefix>/describe`, and holds the liveliness token `<prefix>` while it runs.
 //!
 //! With `accept_commands`, `cmd_vel` (`Twist`), `goal` and `reach` (`PointStamped`) become
-//! `velocity`, `goto` and `reach` through a [`Door`]: one controller id for everything that comes from the
-//! network, put to the same arbiter and the same bounded queue as a socket client's commands,
-//! and let go of after the deadman's silence.
+//! `velocity`, `goto` and `reach` through a [`Door`]: one controller id for everything that
+//! comes from the network, put to the same arbiter and the same bounded queue as a socket
+//! client's commands, and let go of after the deadman's silence.
 //!
 //! With `ros2`, the daemon is also a ROS 2 node as rmw_zenoh sees one: node `snakectl` in
 //! the namespace `/<prefix>`, publishing `joint_states`, `tip_cmd`, `tip_meas` and `target` on
-//! rmw_zenoh's data keys with its attachment, subscribing `cmd_vel`, `goal` and `reach` there when
-//! commands are accepted, and holding a graph token for the node and for each of those; the
-//! names and bytes come from [`crate::ros::rmw`]. Both key layouts may be served at once. A
+//! rmw_zenoh's data keys with its attachment, subscribing `cmd_vel`, `goal` and `reach` there
+//! when commands are accepted, and holding a graph token for the node and for each of those;
+//! the names and bytes come from [`crate::ros::rmw`]. Both key layouts may be served at once. A
 //! sample on a ROS 2 key without rmw_zenoh's attachment is refused (`bad_arg`, on the events
 //! key), as rmw_zenoh itself drops one; the plain keys take samples with or without one.
 //!
@@ -342,7 +342,7 @@ impl RosNode {
             let cmd_vel_token = node.entity_token::<ros::Twist>(5, subscription, &cmd_vel, qos);
             let cmd_vel = subscribe(session, rmw::data_key::<ros::Twist>(domain, &cmd_vel)).await?;
             subscription_tokens.push(live_token(session, cmd_vel_token).await?);
-            let mut points = Vec::new();
+            let mut points = Vec::with_capacity(2);
             for (id, name) in [(6, "goal"), (7, "reach")] {
                 let name = topic(name);
                 let token = node.entity_token::<ros::PointStamped>(id, subscription, &name, qos);
@@ -350,8 +350,8 @@ impl RosNode {
                 points.push(subscribe(session, key).await?);
                 subscription_tokens.push(live_token(session, token).await?);
             }
-            let reach = points.pop();
-            (Some(cmd_vel), points.pop(), reach)
+            let mut points = points.into_iter();
+            (Some(cmd_vel), points.next(), points.next())
         } else {
             (None, None, None)
         };

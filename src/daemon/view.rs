@@ -17,8 +17,9 @@
 //! With `accept_commands`, the server offers client publishing (`json` and `cdr`): a `Twist`
 //! published on `/<prefix>/cmd_vel` becomes `velocity` (`linear.x`, `linear.y`, m/s), and a
 //! `PointStamped` on `/<prefix>/goal` or `/<prefix>/reach` (the 3-D panel's click, say) a
-//! `goto` or a `reach` to (`point.x`, `point.y`), all through the door: the same arbiter and bounded queue as a socket client's commands, one
-//! controller id for every Foxglove client, control let go of after the deadman's silence.
+//! `goto` or a `reach` to (`point.x`, `point.y`), all through the door: the same arbiter and
+//! bounded queue as a socket client's commands, one controller id for every Foxglove client,
+//! control let go of after the deadman's silence.
 //! Without it the server offers no publishing and nothing a Foxglove client sends moves the
 //! arm.
 //!

@@ -392,6 +392,8 @@ struct Looker<'a> {
 impl<'a> Looker<'a> {
     fn new(req: &ReachRequest<'a>, opts: &ReachOptions) -> Self {
         let n = req.chain.len();
+        let links = req.chain.links();
+        let shortest = links.iter().copied().fold(f64::INFINITY, f64::min);
         Self {
             chain: req.chain,
             world: req.world,
@@ -399,8 +401,7 @@ impl<'a> Looker<'a> {
             node_keep: req.world.clearance_m() + opts.margin_m,
             quanta: req.quanta,
             rounding_m: req.chain.rounding_m(req.quanta),
-            self_step_m: SELF_STEP_LINKS
-                * req.chain.links().iter().copied().fold(f64::INFINITY, f64::min),
+            self_step_m: SELF_STEP_LINKS * shortest,
             cuts: Vec::new(),
             pose: vec![0.0; n],
             sent: vec![0.0; n],
