@@ -92,6 +92,43 @@ fn along(c: &Chain, w: &World, a: &[f64], b: &[f64]) -> (f64, bool) {
     (least, fine)
 }
 
+/// Checks a way found from `from` to `target`: every leg clear by the tests' own sampling,
+/// within the limits and untangled; the tip on the target; the goal clear as sent; metric 3
+/// as reported.
+fn assert_way_is_clear(
+    c: &Chain,
+    world: &World,
+    from: &[f64],
+    target: Vec2,
+    quanta: &[f64],
+    way: &Way,
+) {
+    let mut at = from.to_vec();
+    for leg in &way.legs {
+        let (least, fine) = along(c, world, &at, leg);
+        assert!(
+            least >= world.clearance_m(),
+            "{target:?}: a leg at {least} m"
+        );
+        assert!(
+            fine,
+            "{target:?}: a leg leaves the limits or touches itself"
+        );
+        at.clone_from(leg);
+    }
+    let goal = way.legs.last().unwrap();
+    assert!((c.tip(goal) - target).norm() < 1e-9, "{target:?}");
+    // Rounded to whole ticks, as the servos take it, the goal is clear too.
+    let sent: Vec<f64> = goal
+        .iter()
+        .zip(quanta)
+        .map(|(t, q)| (t / q).round() * q)
+        .collect();
+    assert!(world.pose_clearance(c, &sent).unwrap().clearance_m >= world.clearance_m());
+    let m3: f64 = goal.iter().zip(from).map(|(a, b)| (a - b).powi(2)).sum();
+    assert!((m3 - way.goal_m3_rad2).abs() < 1e-12);
+}
+
 #[test]
 fn ways_round_the_obstacles_are_clear_and_end_on_the_target() {
     let c = chain();
@@ -107,34 +144,61 @@ fn ways_round_the_obstacles_are_clear_and_end_on_the_target() {
         };
         planned += 1;
         searched += usize::from(way.nodes > 0);
-        let mut at = from.clone();
-        for leg in &way.legs {
-            let (least, fine) = along(&c, &world, &at, leg);
-            assert!(
-                least >= world.clearance_m(),
-                "{target:?}: a leg at {least} m"
-            );
-            assert!(
-                fine,
-                "{target:?}: a leg leaves the limits or touches itself"
-            );
-            at.clone_from(leg);
-        }
-        let goal = way.legs.last().unwrap();
-        assert!((c.tip(goal) - target).norm() < 1e-9, "{target:?}");
-        // Rounded to whole ticks, as the servos take it, the goal is clear too.
-        let sent: Vec<f64> = goal
-            .iter()
-            .map(|t| (t / quanta[0]).round() * quanta[0])
-            .collect();
-        assert!(world.pose_clearance(&c, &sent).unwrap().clearance_m >= world.clearance_m());
-        let m3: f64 = goal.iter().zip(&from).map(|(a, b)| (a - b).powi(2)).sum();
-        assert!((m3 - way.goal_m3_rad2).abs() < 1e-12);
+        assert_way_is_clear(&c, &world, &from, target, &quanta, &way);
     }
     // Most of these moves have a pose to reach, and some need the trees (no straight leg).
     assert!(
         planned >= 20 && searched >= 3,
         "{planned} planned, {searched} searched"
+    );
+}
+
+/// A shelf left of the arm, below the tip, with a lip hanging from its far end (an L: a
+/// polygon that is not convex), and a target under it: the arm goes round the shelf's near end
+/// and in beneath it, the straight way from home passing through it.
+#[test]
+fn a_way_under_a_shelf_that_is_not_convex_is_clear() {
+    let c = chain();
+    let quanta = [TAU / 4096.0; N];
+    let tip = c.tip(&home());
+    let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+    let (mut planned, mut searched) = (0, 0);
+    for _ in 0..8 {
+        // The shelf's near end, clear of the home pose's arc.
+        let (x, top) = (
+            tip.x + rng.gen_range(0.08..0.12),
+            tip.y - rng.gen_range(0.22..0.28),
+        );
+        let (long, lip) = (rng.gen_range(0.25..0.32), rng.gen_range(0.06..0.1));
+        let v = |dx: f64, dy: f64| Vec2::new(x + dx, top + dy);
+        let shelf = Obstacle {
+            id: "shelf".into(),
+            shape: Shape::Polygon {
+                points: vec![
+                    v(0.0, 0.0),
+                    v(-long, 0.0),
+                    v(-long, -lip),
+                    v(-long + 0.03, -lip),
+                    v(-long + 0.03, -0.03),
+                    v(0.0, -0.03),
+                ],
+            },
+        };
+        let world = World::new(0.01, 0.005, vec![shelf]).unwrap();
+        let target = v(-0.5 * long, -0.1);
+        match ask(&c, &world, &home(), target, &quanta) {
+            Ok(way) => {
+                assert_way_is_clear(&c, &world, &home(), target, &quanta, &way);
+                planned += 1;
+                searched += usize::from(way.nodes > 0);
+            }
+            Err(ReachError::NoClearPose { .. }) => {}
+            Err(e) => panic!("{target:?}: {e}"),
+        }
+    }
+    assert!(
+        planned >= 6 && searched >= 6,
+        "{planned} of 8 planned, {searched} of them by the trees"
     );
 }
 
