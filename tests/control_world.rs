@@ -696,6 +696,8 @@ fn a_reach_gets_there_where_a_goto_is_caught() {
             assert_eq!(finish, Some(Finish::Arrived), "{strategy:?} {target:?}");
             assert!(least >= KEEP - TOL);
             assert!((c.tip() - target).norm() < 1e-9, "{:?} {target:?}", c.tip());
+            // Arrived, it has no target left.
+            assert_eq!(c.target(), None);
             rescued += 1;
             if rescued == 6 {
                 break;
@@ -759,10 +761,13 @@ fn a_stopped_reach_leaves_no_legs_behind() {
         c.command(Command::Reach { target }).unwrap();
         for _ in 0..10 {
             assert!(c.tick(0.01).finished.is_none());
+            // Its target is told while it goes (telemetry's `target`).
+            assert_eq!(c.target(), Some(target));
         }
         c.command(Command::Stop).unwrap();
         let (finish, _) = run_clear(&mut c, 500);
         assert!(matches!(finish, Some(Finish::Stopped { .. })), "{finish:?}");
+        assert_eq!(c.target(), None);
         let mut near = c.theta().to_vec();
         near[N - 1] += 0.01;
         c.command(Command::GotoJoints {

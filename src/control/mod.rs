@@ -756,7 +756,16 @@ pub struct Controller {
     plan: World,
     /// Headway of a goto or path among obstacles: where the tip was and how long ago.
     anchor: Option<(Vec2, f64)>,
-    /// A `reach`'s legs still to go, each a joint-space move begun when the one before arrives.
+    /// The `reach` under way: its target, and its legs still to go.
+    reach: Option<Reaching>,
+}
+
+/// A `reach` under way.
+#[derive(Debug)]
+struct Reaching {
+    /// Where the tip ends, m.
+    target: Vec2,
+    /// The legs still to go, each a joint-space move begun when the one before arrives.
     legs: VecDeque<Vec<f64>>,
 }
 
@@ -1072,7 +1081,7 @@ impl Controller {
             rounding_m: 0.0,
             plan: World::default(),
             anchor: None,
-            legs: VecDeque::new(),
+            reach: None,
         };
         // Size both resolvers' scratch now, so that even the first tick allocates nothing.
         let (theta, trial) = (c.theta.clone(), &mut c.trial);
@@ -1103,10 +1112,13 @@ impl Controller {
                 limit: MAX_ROUTE_WORK,
             }),
             // Planned here, in the caller's time (the daemon plans it beside its loop).
-            Accepted::Plan(request @ PlanRequest::Reach(_)) => match plan(&request, 0)? {
-                Planned::Way(way) => self.start_way(way),
-                Planned::Routes(_) => Ok(()),
-            },
+            Accepted::Plan(PlanRequest::Reach(job)) => {
+                let target = job.target;
+                match plan(&PlanRequest::Reach(job), 0)? {
+                    Planned::Way(way) => self.start_way(target, way),
+                    Planned::Routes(_) => Ok(()),
+                }
+            }
         }
     }
 
@@ -1174,7 +1186,7 @@ impl Controller {
             Command::Stop => self.motion.stop(),
         }
         self.anchor = None;
-        self.legs.clear();
+        self.reach = None;
         Ok(Accepted::Now)
     }
 
@@ -1199,7 +1211,7 @@ impl Controller {
             Ok(route) => {
                 self.motion.route(route.way, route.rest, speed);
                 self.anchor = None;
-                self.legs.clear();
+                self.reach = None;
                 Ok(Accepted::Now)
             }
             Err(Refused::RouteTooLong { .. }) if work < MAX_ROUTE_WORK => {
@@ -1223,7 +1235,7 @@ impl Controller {
         }
         self.motion.route(route.way, route.rest, request.speed);
         self.anchor = None;
-        self.legs.clear();
+        self.reach = None;
         Ok(())
     }
 
@@ -1246,7 +1258,7 @@ impl Controller {
                 if self.theta != job.from || self.world != job.world {
                     return Err(NotStarted::Replan);
                 }
-                self.start_way(way).map_err(NotStarted::Refused)
+                self.start_way(job.target, way).map_err(NotStarted::Refused)
             }
             _ => Err(NotStarted::Replan),
         }
@@ -1254,7 +1266,7 @@ impl Controller {
 
     /// Starts a `reach`'s way planned from the commanded pose: its first leg now, the others
     /// as each arrives.
-    fn start_way(&mut self, way: Way) -> Result<(), Refused> {
+    fn start_way(&mut self, target: Vec2, way: Way) -> Result<(), Refused> {
         let mut legs: VecDeque<Vec<f64>> = way.legs.into();
         let Some(first) = legs.pop_front() else {
             return Ok(());
@@ -1262,7 +1274,7 @@ impl Controller {
         self.check_joint_way(&first)?;
         self.motion.joints(&first);
         self.anchor = None;
-        self.legs = legs;
+        self.reach = Some(Reaching { target, legs });
         Ok(())
     }
 
@@ -1398,7 +1410,7 @@ impl Controller {
     /// they are.
     pub fn freeze(&mut self) {
         self.motion.hold_at(self.tip, &self.theta);
-        self.legs.clear();
+        self.reach = None;
     }
 
     /// Goal := the measured pose `theta` (after a reset or a recovery): motion at rest, holding.
@@ -1413,7 +1425,7 @@ impl Controller {
             .anchor(&self.chain, &self.world, &self.quanta, theta);
         self.overall.reset();
         self.motion.hold_at(self.tip, &self.theta);
-        self.legs.clear();
+        self.reach = None;
         Ok(())
     }
 
@@ -1432,9 +1444,12 @@ impl Controller {
         self.motion.activity()
     }
 
-    /// The final target of a goto or path (a path's last point), else `None`.
+    /// The final target of a goto or path (a path's last point), or of the reach under way,
+    /// else `None`.
     pub fn target(&self) -> Option<Vec2> {
-        self.motion.target()
+        self.motion
+            .target()
+            .or_else(|| self.reach.as_ref().map(|r| r.target))
     }
 
     /// The chain.
@@ -1701,10 +1716,15 @@ impl Controller {
     fn next_leg(&mut self, t: &mut Tick) {
         match t.finished {
             Some(Finish::Arrived) => {}
-            Some(_) => return self.legs.clear(),
+            Some(_) => {
+                self.reach = None;
+                return;
+            }
             None => return,
         }
-        let Some(next) = self.legs.pop_front() else {
+        let Some(next) = self.reach.as_mut().and_then(|r| r.legs.pop_front()) else {
+            // The last leg arrived: the reach is done.
+            self.reach = None;
             return;
         };
         match self.check_joint_way(&next) {
@@ -1713,7 +1733,7 @@ impl Controller {
                 t.finished = None;
             }
             Err(_) => {
-                self.legs.clear();
+                self.reach = None;
                 let (link, obstacle) = self
                     .world
                     .clearance(&self.guard.now)
