@@ -641,31 +641,6 @@ fn without_obstacles_nothing_changes() {
     assert_eq!(a.theta(), b.theta());
 }
 
-/// Seeded worlds of one to six discs near the home pose's tip and a target below them, each
-/// clear of the home pose and the target 30 mm from every disc.
-fn caught_candidates(count: usize) -> Vec<(World, Vec2)> {
-    use rand::{Rng, SeedableRng};
-    let c = chain();
-    let tip = c.tip(&home());
-    let mut rng = rand::rngs::StdRng::seed_from_u64(22);
-    let mut out = Vec::new();
-    while out.len() < count {
-        let obstacles = (0..rng.gen_range(1..=6))
-            .map(|k| {
-                let at = tip + Vec2::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.1));
-                circle(&format!("o{k}"), at.x, at.y, rng.gen_range(0.01..0.04))
-            })
-            .collect();
-        let w = world(obstacles);
-        let target = tip + Vec2::new(rng.gen_range(-0.35..0.35), rng.gen_range(-0.4..-0.1));
-        let far = w.point_distance(target).unwrap().0 > 0.03;
-        if clearance(&w, &home()) > 0.01 && far && target.norm() < 0.9 * c.reach() {
-            out.push((w, target));
-        }
-    }
-    out
-}
-
 /// Where the least joint motion of each tick wraps the body round an obstacle on the side the
 /// tip's route led it to, a `goto` ends `blocked`; a `reach` to the same target, sent from where
 /// the arm was caught, goes there in straight joint-space legs round the obstacles instead,
@@ -677,7 +652,7 @@ fn a_reach_gets_there_where_a_goto_is_caught() {
     let quanta = [std::f64::consts::TAU / 4096.0; N];
     for strategy in [Strategy::Overall, Strategy::Sequential] {
         let mut rescued = 0;
-        for (w, target) in caught_candidates(60) {
+        for (w, target) in world_support::caught_moves(60) {
             let mut c = controller(strategy, &home());
             c.set_joint_resolution(&quanta).unwrap();
             assert!(c.set_world(w.clone()).is_none());
@@ -742,7 +717,7 @@ fn a_reach_with_nowhere_to_go_is_refused_and_nothing_moves() {
 #[test]
 fn a_stopped_reach_leaves_no_legs_behind() {
     let c0 = chain();
-    for (w, target) in caught_candidates(60) {
+    for (w, target) in world_support::caught_moves(60) {
         let req = snakectl::reach::ReachRequest {
             chain: &c0,
             world: &w,

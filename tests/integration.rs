@@ -18,6 +18,7 @@ mod layers;
 mod obstacle_vectors;
 mod overall_vectors;
 mod overall_vs_sequential;
+mod reach_plan;
 mod readme;
 mod rope_optimizer;
 mod servo_admin;

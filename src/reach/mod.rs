@@ -41,9 +41,6 @@ use crate::chain::{round_to, Chain, Reachability, Vec2, SELF_CLEARANCE_M};
 use crate::resolve::overall::{Overall, OverallOptions, SplitMix};
 use crate::world::{Pair, World};
 
-#[cfg(test)]
-mod tests;
-
 /// What a leg keeps beyond `clearance_m`, m (less when the arm starts closer than that, down
 /// to `clearance_m` itself): room for round-off and for the least step along a leg
 /// ([`MIN_ADVANCE_M`]), so that the controller's own check of each leg (samples a millimetre of
@@ -116,8 +113,6 @@ pub struct Way {
     /// Each leg's end pose, rad; the arm goes straight (in joint space) from one to the next,
     /// starting at the request's `from`.
     pub legs: Vec<Vec<f64>>,
-    /// Metric 3 from `from` to the goal, rad^2.
-    pub goal_m3_rad2: f64,
     /// Poses looked at, in all.
     pub checks: usize,
     /// Poses the two trees held when they met (0 when the straight leg was clear).
@@ -274,11 +269,6 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
         }
     }
     let goal = goal_pose(req, opts)?;
-    let goal_m3_rad2 = goal
-        .iter()
-        .zip(req.from)
-        .map(|(a, b)| (a - b).powi(2))
-        .sum();
     let mut rng = SplitMix(opts.seed);
     let (mut legs, nodes) = if look.leg(req.from, &goal) {
         (vec![req.from.to_vec(), goal.clone()], 0)
@@ -289,7 +279,6 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
     legs.remove(0);
     Ok(Way {
         legs,
-        goal_m3_rad2,
         checks: look.checks,
         nodes,
     })

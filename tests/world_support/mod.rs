@@ -4,8 +4,9 @@
 
 use std::f64::consts::FRAC_PI_2;
 
+use rand::{Rng, SeedableRng};
 use snakectl::chain::{Chain, JointLimit, Vec2};
-use snakectl::world::{Shape, World};
+use snakectl::world::{Obstacle, Shape, World};
 
 /// The daemon's arm: 12 links of 0.08 m, limits +-2 rad, base at the origin heading up.
 pub fn arm() -> Chain {
@@ -81,4 +82,41 @@ pub fn clearance(chain: &Chain, w: &World, theta: &[f64]) -> f64 {
         }
     }
     least
+}
+
+/// The daemon's home pose: 0.1 rad at every joint (the tip at about (-0.547, 0.720)).
+pub fn home() -> Vec<f64> {
+    vec![0.1; 12]
+}
+
+/// Seeded worlds (link radius 10 mm, clearance 5 mm) of one to six discs near the home pose's
+/// tip, and a target below them: each world clear of the home pose by 10 mm, the target 30 mm
+/// from every disc and within 0.9 of the reach. The moves where a `goto`'s body is caught, and
+/// a `reach` has to go round, come from such worlds.
+pub fn caught_moves(count: usize) -> Vec<(World, Vec2)> {
+    let c = arm();
+    let tip = c.tip(&home());
+    let mut rng = rand::rngs::StdRng::seed_from_u64(22);
+    let mut out = Vec::new();
+    while out.len() < count {
+        let obstacles = (0..rng.gen_range(1..=6))
+            .map(|k| {
+                let at = tip + Vec2::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.1));
+                Obstacle {
+                    id: format!("o{k}"),
+                    shape: Shape::Circle {
+                        center: at,
+                        radius_m: rng.gen_range(0.01..0.04),
+                    },
+                }
+            })
+            .collect();
+        let world = World::new(0.01, 0.005, obstacles).unwrap_or_else(|e| panic!("{e}"));
+        let target = tip + Vec2::new(rng.gen_range(-0.35..0.35), rng.gen_range(-0.4..-0.1));
+        let far = world.point_distance(target).is_some_and(|(d, _)| d > 0.03);
+        if clearance(&c, &world, &home()) > 0.01 && far && target.norm() < 0.9 * c.reach() {
+            out.push((world, target));
+        }
+    }
+    out
 }

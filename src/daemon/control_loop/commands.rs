@@ -705,9 +705,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 }
 
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
-    /// A `goto` or `path` whose routes need more than a tick can spare: the command it
-    /// replaces ends (`preempted`), the arm comes to rest, and its routes are planned beside
-    /// the loop from where it stands; answered once they are (`tend_planning`).
+    /// A `goto` or `path` whose routes need more than a tick can spare, or a `reach`: the
+    /// command it replaces ends (`preempted`), the arm comes to rest, and its routes (or its
+    /// way) are planned beside the loop from where it stands; answered once they are
+    /// (`tend_planning`).
     fn plan_beside(&mut self, e: &Envelope, request: PlanRequest) -> Pending {
         self.settle_planning(e.cmd.name());
         let ended = self.ledger.preempt(e.cmd.name());

@@ -1,27 +1,19 @@
-//! Ways found are clear (checked here on their own, by samples finer than a millimetre of the
-//! arm's motion, not by the planner's bound), end with the tip on the target, keep the limits,
-//! and come out the same for the same request; bad requests are refused in words.
+//! `snakectl::reach` from outside: ways found are clear (checked here on their own, with the
+//! tests' own distance, by samples finer than a millimetre of the arm's motion, not by the
+//! planner's bound), end with the tip on the target, keep the limits, and come out the same for
+//! the same request; bad requests are refused in words.
 
-#![allow(clippy::unwrap_used)]
-
-use std::f64::consts::{FRAC_PI_2, TAU};
+use std::f64::consts::TAU;
 
 use rand::{Rng, SeedableRng};
 
-use super::*;
-use crate::chain::JointLimit;
-use crate::world::{Obstacle, Shape};
+use snakectl::chain::{Chain, Vec2};
+use snakectl::reach::{plan, ReachError, ReachOptions, ReachRequest, Way};
+use snakectl::world::{Obstacle, Shape, World};
+
+use crate::world_support::{self, arm as chain, caught_moves as cases, home};
 
 const N: usize = 12;
-
-fn chain() -> Chain {
-    let lim = Some(JointLimit { lo: -2.0, hi: 2.0 });
-    Chain::new(vec![0.08; N], Vec2::zeros(), FRAC_PI_2, vec![lim; N]).unwrap()
-}
-
-fn home() -> Vec<f64> {
-    vec![0.1; N]
-}
 
 fn disc(id: &str, x: f64, y: f64, r: f64) -> Obstacle {
     Obstacle {
@@ -31,31 +23,6 @@ fn disc(id: &str, x: f64, y: f64, r: f64) -> Obstacle {
             radius_m: r,
         },
     }
-}
-
-/// Seeded worlds of one to six discs near the home pose's tip, each clear of the home pose,
-/// and a target below them: the moves where a goto's body is caught come from such worlds.
-fn cases(count: usize) -> Vec<(World, Vec2)> {
-    let c = chain();
-    let tip = c.tip(&home());
-    let mut rng = rand::rngs::StdRng::seed_from_u64(22);
-    let mut out = Vec::new();
-    while out.len() < count {
-        let obstacles = (0..rng.gen_range(1..=6))
-            .map(|k| {
-                let at = tip + Vec2::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.1));
-                disc(&format!("o{k}"), at.x, at.y, rng.gen_range(0.01..0.04))
-            })
-            .collect();
-        let world = World::new(0.01, 0.005, obstacles).unwrap();
-        let target = tip + Vec2::new(rng.gen_range(-0.35..0.35), rng.gen_range(-0.4..-0.1));
-        let clear = world.pose_clearance(&c, &home()).unwrap().clearance_m > 0.01;
-        let far = world.point_distance(target).unwrap().0 > 0.03;
-        if clear && far && target.norm() < 0.9 * c.reach() {
-            out.push((world, target));
-        }
-    }
-    out
 }
 
 /// [`plan`] with the default options.
@@ -79,22 +46,32 @@ fn ask(
 /// The least clearance along the straight leg from `a` to `b`, sampled every 0.2 mm of the
 /// arm's motion, and whether every sample keeps the limits and its links apart.
 fn along(c: &Chain, w: &World, a: &[f64], b: &[f64]) -> (f64, bool) {
-    let carried: Vec<f64> = (0..N).map(|i| c.links()[i..].iter().sum()).collect();
-    let sweep: f64 = (0..N).map(|i| (b[i] - a[i]).abs() * carried[i]).sum();
-    let steps = ((sweep / 2e-4).ceil() as usize).max(1);
+    let steps = ((c.sweep(a, b) / 2e-4).ceil() as usize).max(1);
     let (mut least, mut fine) = (f64::INFINITY, true);
     for k in 0..=steps {
         let f = k as f64 / steps as f64;
         let p: Vec<f64> = a.iter().zip(b).map(|(x, y)| x + f * (y - x)).collect();
-        least = least.min(w.pose_clearance(c, &p).unwrap().clearance_m);
+        least = least.min(world_support::clearance(c, w, &p));
         fine &= c.check_limits(&p).is_ok() && Chain::self_intersects(&c.points(&p)).is_none();
     }
     (least, fine)
 }
 
+/// The way from home to `target`, checked ([`assert_way_is_clear`]); `None` when no clear pose
+/// has the tip there, which is said so. Any other refusal fails the test.
+fn planned_from_home(c: &Chain, world: &World, target: Vec2, quanta: &[f64]) -> Option<Way> {
+    match ask(c, world, &home(), target, quanta) {
+        Ok(way) => {
+            assert_way_is_clear(c, world, &home(), target, quanta, &way);
+            Some(way)
+        }
+        Err(ReachError::NoClearPose { .. }) => None,
+        Err(e) => panic!("{target:?}: {e}"),
+    }
+}
+
 /// Checks a way found from `from` to `target`: every leg clear by the tests' own sampling,
-/// within the limits and untangled; the tip on the target; the goal clear as sent; metric 3
-/// as reported.
+/// within the limits and untangled; the tip on the target; the goal clear as sent.
 fn assert_way_is_clear(
     c: &Chain,
     world: &World,
@@ -124,9 +101,7 @@ fn assert_way_is_clear(
         .zip(quanta)
         .map(|(t, q)| (t / q).round() * q)
         .collect();
-    assert!(world.pose_clearance(c, &sent).unwrap().clearance_m >= world.clearance_m());
-    let m3: f64 = goal.iter().zip(from).map(|(a, b)| (a - b).powi(2)).sum();
-    assert!((m3 - way.goal_m3_rad2).abs() < 1e-12);
+    assert!(world_support::clearance(c, world, &sent) >= world.clearance_m());
 }
 
 #[test]
@@ -135,16 +110,11 @@ fn ways_round_the_obstacles_are_clear_and_end_on_the_target() {
     let quanta = [TAU / 4096.0; N];
     let (mut planned, mut searched) = (0, 0);
     for (world, target) in cases(24) {
-        let from = home();
-        let way = match ask(&c, &world, &from, target, &quanta) {
-            Ok(way) => way,
-            // A target no clear pose reaches is said so; nothing else may fail.
-            Err(ReachError::NoClearPose { .. }) => continue,
-            Err(e) => panic!("{target:?}: {e}"),
-        };
-        planned += 1;
-        searched += usize::from(way.nodes > 0);
-        assert_way_is_clear(&c, &world, &from, target, &quanta, &way);
+        // A target no clear pose reaches is said so; nothing else may fail.
+        if let Some(way) = planned_from_home(&c, &world, target, &quanta) {
+            planned += 1;
+            searched += usize::from(way.nodes > 0);
+        }
     }
     // Most of these moves have a pose to reach, and some need the trees (no straight leg).
     assert!(
@@ -186,14 +156,9 @@ fn a_way_under_a_shelf_that_is_not_convex_is_clear() {
         };
         let world = World::new(0.01, 0.005, vec![shelf]).unwrap();
         let target = v(-0.5 * long, -0.1);
-        match ask(&c, &world, &home(), target, &quanta) {
-            Ok(way) => {
-                assert_way_is_clear(&c, &world, &home(), target, &quanta, &way);
-                planned += 1;
-                searched += usize::from(way.nodes > 0);
-            }
-            Err(ReachError::NoClearPose { .. }) => {}
-            Err(e) => panic!("{target:?}: {e}"),
+        if let Some(way) = planned_from_home(&c, &world, target, &quanta) {
+            planned += 1;
+            searched += usize::from(way.nodes > 0);
         }
     }
     assert!(
