@@ -13,6 +13,7 @@ use snakectl::chain::{Chain, Vec2};
 use snakectl::control::{
     Activity, Command, Controller, Finish, Limits, Refused, CLEARANCE_ROUNDOFF_M, JOINT_WAY_STEP_M,
 };
+use snakectl::reach::ReachError;
 use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape, World, MAX_ROUTE_WORK};
 use world_support::segment_distance;
@@ -685,8 +686,48 @@ fn a_reach_gets_there_where_a_goto_is_caught() {
     }
 }
 
-/// A `reach` that finds no clear pose with the tip on its target, or is asked from a pose not
-/// clear, is refused in words and nothing moves.
+/// An obstacle put onto the arm: a `reach` takes the arm out (no link ever closer to the disc
+/// than it has been, by the tests' own distance at every tick) and round to its target, under
+/// both strategies, with the servos' resolution set.
+#[test]
+fn a_reach_from_an_obstacle_put_onto_the_arm_gets_out_and_arrives() {
+    let quanta = [std::f64::consts::TAU / 4096.0; N];
+    for strategy in [Strategy::Overall, Strategy::Sequential] {
+        let mut arrived = 0;
+        for (w, target) in world_support::dropped_onto(8) {
+            let mut c = controller(strategy, &home());
+            c.set_joint_resolution(&quanta).unwrap();
+            assert!(c.set_world(w.clone()).is_some(), "the drop is on the arm");
+            match c.command(Command::Reach { target }) {
+                Ok(()) => {}
+                Err(Refused::Reach(ReachError::NoClearPose { .. })) => continue,
+                Err(e) => panic!("{target:?}: {e}"),
+            }
+            let pairs = |theta: &[f64]| world_support::disc_pairs(&chain(), &w, theta);
+            let mut best: Vec<f64> = pairs(c.theta()).iter().map(|&d| d.min(KEEP)).collect();
+            let mut finish = None;
+            for _ in 0..6000 {
+                let t = c.tick(0.01);
+                for (l, (b, now)) in best.iter_mut().zip(pairs(c.theta())).enumerate() {
+                    assert!(now.min(KEEP) >= *b - 1e-6, "link {}: {b} to {now}", l + 1);
+                    *b = b.max(now.min(KEEP));
+                }
+                if t.finished.is_some() {
+                    finish = t.finished;
+                    break;
+                }
+            }
+            assert_eq!(finish, Some(Finish::Arrived), "{strategy:?} {target:?}");
+            assert!((c.tip() - target).norm() < 1e-9, "{:?} {target:?}", c.tip());
+            assert!(c.is_clear());
+            arrived += 1;
+        }
+        assert!(arrived >= 6, "{strategy:?}: {arrived} of 8 arrived");
+    }
+}
+
+/// A `reach` that finds no clear pose with the tip on its target is refused in words and
+/// nothing moves.
 #[test]
 fn a_reach_with_nowhere_to_go_is_refused_and_nothing_moves() {
     let tip = chain().tip(&home());

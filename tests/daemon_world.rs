@@ -278,6 +278,55 @@ fn a_goto_away_from_an_obstacle_put_deep_onto_the_arm_arrives() {
     assert_eq!(last["command"]["outcome"], "arrived", "{last}");
 }
 
+/// A `reach` from a pose an obstacle was put deep onto takes the arm out (the least clearance
+/// never below the depth it started at), then round to its target, and arrives there clear.
+#[test]
+fn a_reach_from_an_obstacle_put_deep_onto_the_arm_gets_out_and_arrives() {
+    let _one = one_at_a_time();
+    let d = with_link_radius("0.012");
+    let mut c = d.client();
+    take_control(&mut c);
+    let s = c.status();
+    let p = points(&d, &s);
+    // A disc of 20 mm radius 4 mm beside the middle of link 6.
+    let mid = (p[5] + p[6]) / 2.0;
+    let onto = circle("onto", [mid.x, mid.y + 0.004], 0.02);
+    c.ok(json!({"cmd": "set_world", "obstacles": [onto]}));
+    let depth = c.event("not_clear", None)["clearance_m"].as_f64().unwrap();
+    let world = world_of(&c.ok(json!({"cmd": "world"})));
+    c.ok(json!({"cmd": "subscribe", "rate_hz": 100.0}));
+    let tip = xy(&s["tip"]);
+    let target = [tip[0] + 0.15, tip[1] - 0.1];
+    let id = c.send(json!({"cmd": "reach", "target": target}));
+    assert_eq!(c.reply(&json!(id))["ok"], json!(true));
+    let lines = c.telemetry_until(|t| {
+        t["command"]["outcome"] != "active" && t["command"]["id"] == json!(id)
+    });
+    let mut best = depth;
+    for t in &lines {
+        let now = t["min_clearance_m"].as_f64().unwrap();
+        assert!(
+            now >= best.min(world.clearance_m()) - 1e-9,
+            "closer than {best} m: {t}"
+        );
+        best = best.max(now);
+    }
+    c.event("clear", None);
+    let last = lines.last().unwrap();
+    assert_eq!(last["command"]["outcome"], "arrived", "{last}");
+    let s = c.wait_status("at rest", |s| s["state"] == "holding");
+    let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
+    let off = dist(xy(&s["tip_meas"]), target);
+    assert!(
+        off <= bound,
+        "the tip {off} m from the target (ticks allow {bound})"
+    );
+    assert!(
+        measured_clearance(&d, &world, &s) >= world.clearance_m() - 1e-4,
+        "{s}"
+    );
+}
+
 /// The measured pose's clearance in a telemetry line, by the world's exact distance.
 fn measured_clearance(d: &Daemon, world: &World, t: &Value) -> f64 {
     let p = d.config.chain().points(&floats(&t["theta_meas"]));

@@ -41,6 +41,8 @@ use crate::chain::{round_to, Chain, Reachability, Vec2, SELF_CLEARANCE_M};
 use crate::resolve::overall::{Overall, OverallOptions, SplitMix};
 use crate::world::{Pair, World};
 
+mod escape;
+
 /// What a leg keeps beyond `clearance_m`, m (less when the arm starts closer than that, down
 /// to `clearance_m` itself): room for round-off and for the least step along a leg
 /// ([`MIN_ADVANCE_M`]), so that the controller's own check of each leg (samples a millimetre of
@@ -50,6 +52,9 @@ pub const LEG_KEEP_M: f64 = 1e-4;
 /// How far from the target a goal's tip may be, m: a cold solve that stopped short of its
 /// optimality tolerance is taken when its tip is this close (and the pose clear).
 pub const GOAL_TIP_M: f64 = 1e-9;
+
+/// The tip's step between two local solves of [`goal_along`], m: a few control ticks' worth.
+const ALONG_STEP_M: f64 = 0.005;
 
 /// The least step along a leg, m of sweep: a pose whose slack is below it is looked at again
 /// this far on (only a leg that grazes the clearance takes such steps).
@@ -147,10 +152,12 @@ pub enum ReachError {
         /// Whether it is within those radii but at a bearing the limits rule out.
         bearing: bool,
     },
-    /// The arm is not clear where it stands: a way from there would start inside the margin.
+    /// The arm is not clear where it stands, and no way out was found that takes no link
+    /// closer to an obstacle ([`escape`]).
     #[error(
         "the arm is not clear where it stands: link {link} is {} (the clearance to keep is \
-         {keep_m} m); move it out first",
+         {keep_m} m), and no way out was found that takes no link closer to an obstacle; move \
+         it out first",
         crate::world::standing(*clearance_m, obstacle)
     )]
     NotClearNow {
@@ -255,30 +262,41 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
     if let Some((a, b)) = Chain::self_intersects(&now) {
         return Err(ReachError::TangledNow { a: a + 1, b: b + 1 });
     }
-    if let Some(p) = req.world.clearance(&now) {
+    let start = req.world.clearance(&now);
+    if let Some(p) = start {
         // An arm caught on an obstacle leans on it at the clearance itself: its legs keep that
-        // much, and the margin above it only as far as the start has it.
+        // much, and the margin above it only as far as the start has it (an arm not clear gets
+        // out first, clear by the margin).
         look.leg_keep = keep_m + (p.clearance_m - keep_m).clamp(0.0, LEG_KEEP_M);
-        if p.clearance_m < keep_m {
-            return Err(ReachError::NotClearNow {
-                link: p.link,
-                obstacle: p.id(req.world).to_string(),
-                clearance_m: p.clearance_m,
-                keep_m,
-            });
-        }
     }
-    let goal = goal_pose(req, opts)?;
-    let mut rng = SplitMix(opts.seed);
-    let (mut legs, nodes) = if look.leg(req.from, &goal) {
-        (vec![req.from.to_vec(), goal.clone()], 0)
+    // An arm an obstacle was put onto first gets out ([`escape`]); the way round starts there.
+    let out = if start.is_some_and(|p| p.clearance_m < keep_m) {
+        look.leg_keep = keep_m + LEG_KEEP_M;
+        escape::way_out(&mut look, req)?
     } else {
-        connect(&mut look, req, &goal, opts, &mut rng)?
+        Vec::new()
+    };
+    // The goal is the least motion from where the way round starts: out on the side it got
+    // out on, not across the obstacle.
+    let from = out.last().map_or(req.from, |p| p.as_slice());
+    let round = ReachRequest { from, ..*req };
+    let goal = goal_pose(&round, opts)?;
+    let mut rng = SplitMix(opts.seed);
+    let (mut legs, nodes) = match way_to(&mut look, &round, &goal, opts, &mut rng) {
+        // The best goal may lie where the trees cannot get (across an obstacle the arm would
+        // have to fold away from): the goal the tip's straight way leads to, when another.
+        Err(no @ ReachError::NoWay { .. }) => match goal_along(&round, opts) {
+            Some(g) if g != goal => {
+                way_to(&mut look, &round, &g, opts, &mut rng).map_err(|_| no)?
+            }
+            _ => return Err(no),
+        },
+        found => found?,
     };
     shorten(&mut look, &mut legs, opts.shortcuts, &mut rng);
     legs.remove(0);
     Ok(Way {
-        legs,
+        legs: out.into_iter().chain(legs).collect(),
         checks: look.checks,
         nodes,
     })
@@ -305,24 +323,45 @@ fn check_pose(chain: &Chain, theta: &[f64], what: &str) -> Result<(), ReachError
         .map_err(|e| ReachError::BadInput(format!("{what}: {e}")))
 }
 
+/// The way from `req.from` to `goal`: the straight leg when it is clear, else the trees'. Both
+/// ends included; the poses the trees held (0 for the straight leg).
+fn way_to(
+    look: &mut Looker,
+    req: &ReachRequest,
+    goal: &[f64],
+    opts: &ReachOptions,
+    rng: &mut SplitMix,
+) -> Result<(Vec<Vec<f64>>, usize), ReachError> {
+    if look.leg(req.from, goal) {
+        Ok((vec![req.from.to_vec(), goal.to_vec()], 0))
+    } else {
+        connect(look, req, goal, opts, rng)
+    }
+}
+
+/// The overall solver among `req.world` with its clearance raised by the margin.
+fn raised_solver(req: &ReachRequest, opts: &ReachOptions) -> Result<Overall, ReachError> {
+    let w = req.world;
+    let raised = World::new(
+        w.link_radius_m(),
+        w.clearance_m() + opts.margin_m,
+        w.obstacles().to_vec(),
+    )
+    .map_err(|e| ReachError::BadInput(format!("the world with the margin: {e}")))?;
+    let mut solver = Overall::new(OverallOptions::default());
+    solver.set_world(Some(raised));
+    Ok(solver)
+}
+
 /// The best clear pose with the tip on the target, its clearance raised by the margin; checked
 /// as the servos take it.
 fn goal_pose(req: &ReachRequest, opts: &ReachOptions) -> Result<Vec<f64>, ReachError> {
-    let w = req.world;
-    let keep_m = w.clearance_m() + opts.margin_m;
-    let raised = World::new(w.link_radius_m(), keep_m, w.obstacles().to_vec())
-        .map_err(|e| ReachError::BadInput(format!("the world with the margin: {e}")))?;
-    let mut solver = Overall::new(OverallOptions::default());
-    solver.set_world(Some(raised));
+    let keep_m = req.world.clearance_m() + opts.margin_m;
     let mut goal = vec![0.0; req.chain.len()];
-    let o = solver.solve_cold(req.chain, req.from, req.target, &mut goal);
+    let o = raised_solver(req, opts)?.solve_cold(req.chain, req.from, req.target, &mut goal);
     // A pose on the target that keeps the clearance asked will do, optimal or not (a cold solve
     // among many obstacles can stop short of its optimality tolerance with the tip there).
-    let on_target = (req.chain.tip(&goal) - req.target).norm() <= GOAL_TIP_M;
-    let clear = w
-        .clearance(&req.chain.points(&goal))
-        .is_none_or(|p| p.clearance_m >= keep_m - LEG_KEEP_M);
-    if !(o.converged || (on_target && clear)) {
+    if !(o.converged || on_target_clear(req, opts, &goal)) {
         return Err(ReachError::NoClearPose {
             target: req.target,
             keep_m,
@@ -330,6 +369,43 @@ fn goal_pose(req: &ReachRequest, opts: &ReachOptions) -> Result<Vec<f64>, ReachE
             iterations: o.iterations,
         });
     }
+    checked_as_sent(req, goal)
+}
+
+/// The pose the tip's straight way from `req.from` to the target leads to: a local solve every
+/// [`ALONG_STEP_M`] of it, as control ticks would take it, each clear by the margin; `None`
+/// where the body is caught on the way, or the pose is not clear as the servos take it.
+fn goal_along(req: &ReachRequest, opts: &ReachOptions) -> Option<Vec<f64>> {
+    let mut solver = raised_solver(req, opts).ok()?;
+    let start = req.chain.tip(req.from);
+    let steps = ((req.target - start).norm() / ALONG_STEP_M).ceil().max(1.0) as usize;
+    let (mut at, mut next) = (req.from.to_vec(), req.from.to_vec());
+    for k in 1..=steps {
+        let t = start + (req.target - start) * (k as f64 / steps as f64);
+        if !solver.solve_local(req.chain, &at, t, &mut next).converged {
+            return None;
+        }
+        std::mem::swap(&mut at, &mut next);
+    }
+    on_target_clear(req, opts, &at)
+        .then(|| checked_as_sent(req, at).ok())
+        .flatten()
+}
+
+/// Whether `goal` has the tip on the target and keeps the clearance and the margin.
+fn on_target_clear(req: &ReachRequest, opts: &ReachOptions, goal: &[f64]) -> bool {
+    let keep_m = req.world.clearance_m() + opts.margin_m;
+    (req.chain.tip(goal) - req.target).norm() <= GOAL_TIP_M
+        && req
+            .world
+            .clearance(&req.chain.points(goal))
+            .is_none_or(|p| p.clearance_m >= keep_m - LEG_KEEP_M)
+}
+
+/// `goal`, refused when rounded to the joints' resolutions its links touch or one loses the
+/// clearance.
+fn checked_as_sent(req: &ReachRequest, goal: Vec<f64>) -> Result<Vec<f64>, ReachError> {
+    let w = req.world;
     let mut sent = goal.clone();
     round_to(&goal, req.quanta, &mut sent);
     let pts = req.chain.points(&sent);

@@ -120,3 +120,54 @@ pub fn caught_moves(count: usize) -> Vec<(World, Vec2)> {
     }
     out
 }
+
+/// Each pair of link and disc's clearance in the pose `theta` of `chain`, signed (negative
+/// inside: the centre's distance to the link's axis less the radius and the link radius), at
+/// `(link - 1) * discs + k`. Discs only.
+pub fn disc_pairs(chain: &Chain, w: &World, theta: &[f64]) -> Vec<f64> {
+    let p = chain.points(theta);
+    let mut out = Vec::new();
+    for link in 1..p.len() {
+        for o in w.obstacles() {
+            let Shape::Circle { center, radius_m } = o.shape else {
+                panic!("discs only");
+            };
+            out.push(point_segment(center, p[link - 1], p[link]) - radius_m - w.link_radius_m());
+        }
+    }
+    out
+}
+
+/// Seeded worlds (link radius 10 mm, clearance 5 mm) of one disc put onto the home pose's arm
+/// (on a link from 3 to 12, its centre up to 5 mm beyond the link's capsule on either side, so
+/// some are deep and some graze it), and a target 30 mm from the disc within 0.9 of the reach:
+/// what a `reach` from a pose not clear starts from.
+pub fn dropped_onto(count: usize) -> Vec<(World, Vec2)> {
+    let c = arm();
+    let pts = c.points(&home());
+    let tip = c.tip(&home());
+    let mut rng = rand::rngs::StdRng::seed_from_u64(51);
+    let mut out = Vec::new();
+    while out.len() < count {
+        let link = rng.gen_range(3..=12);
+        let (a, b) = (pts[link - 1], pts[link]);
+        let r = rng.gen_range(0.01..0.04);
+        let normal = Vec2::new(a.y - b.y, b.x - a.x).normalize();
+        let off = rng.gen_range(-1.0..1.0) * (r + 0.015);
+        let centre = a + (b - a) * rng.gen_range(0.1..0.9) + normal * off;
+        let target = tip + Vec2::new(rng.gen_range(-0.25..0.25), rng.gen_range(-0.3..0.1));
+        let drop = Obstacle {
+            id: "drop".into(),
+            shape: Shape::Circle {
+                center: centre,
+                radius_m: r,
+            },
+        };
+        let world = World::new(0.01, 0.005, vec![drop]).unwrap_or_else(|e| panic!("{e}"));
+        let far = world.point_distance(target).is_some_and(|(d, _)| d > 0.03);
+        if far && clearance(&c, &world, &home()) < 0.005 && target.norm() < 0.9 * c.reach() {
+            out.push((world, target));
+        }
+    }
+    out
+}
