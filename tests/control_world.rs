@@ -726,6 +726,68 @@ fn a_reach_from_an_obstacle_put_onto_the_arm_gets_out_and_arrives() {
     }
 }
 
+/// A disc put on a `reach`'s second leg while the first goes (clear of the first): the reach
+/// ends `blocked` when the first arrives, naming the disc that stops the second, not the
+/// obstacle the arm is nearest there.
+#[test]
+fn a_reach_whose_next_leg_a_new_obstacle_stops_is_blocked_naming_it() {
+    let c0 = chain();
+    for (w, target) in world_support::caught_moves(60) {
+        let req = snakectl::reach::ReachRequest {
+            chain: &c0,
+            world: &w,
+            from: &home(),
+            target,
+            quanta: &[],
+        };
+        let Ok(way) = snakectl::reach::plan(&req, &Default::default()) else {
+            continue;
+        };
+        if way.legs.len() < 2 {
+            continue;
+        }
+        // Poses along a leg, every 1% of it.
+        let along = |a: &[f64], b: &[f64]| -> Vec<Vec<Vec2>> {
+            (0..=100)
+                .map(|k| {
+                    let f = k as f64 / 100.0;
+                    let p: Vec<f64> = a.iter().zip(b).map(|(x, y)| x + f * (y - x)).collect();
+                    c0.points(&p)
+                })
+                .collect()
+        };
+        let first = along(&home(), &way.legs[0]);
+        // A joint of the second leg's middle pose, 5 cm from every point of the first leg and
+        // from every obstacle: a disc of 1 cm there stops the second leg only.
+        let middle = along(&way.legs[0], &way.legs[1])[50].clone();
+        let Some(&spot) = middle.iter().skip(2).find(|q| {
+            first.iter().flatten().all(|p| (*p - **q).norm() > 0.05)
+                && w.point_distance(**q).is_none_or(|(d, _)| d > 0.05)
+        }) else {
+            continue;
+        };
+        let mut more = w.obstacles().to_vec();
+        more.push(circle("new", spot.x, spot.y, 0.01));
+        let more = world(more);
+        // Where the first leg ends, another obstacle is nearer than the new disc.
+        let nearest = more.pose_clearance(&c0, &way.legs[0]).unwrap();
+        if nearest.id(&more) == "new" {
+            continue;
+        }
+        let mut c = controller(Strategy::Overall, &home());
+        assert!(c.set_world(w.clone()).is_none());
+        c.command(Command::Reach { target }).unwrap();
+        assert!(c.set_world(more).is_none(), "the first leg's pose is clear");
+        let (finish, _) = run_clear(&mut c, 3000);
+        let Some(Finish::Blocked { obstacle, .. }) = finish else {
+            panic!("{finish:?}");
+        };
+        assert_eq!(c.world().obstacles()[obstacle].id, "new");
+        return;
+    }
+    panic!("no way of two legs with room for a disc on the second");
+}
+
 /// A `reach` that finds no clear pose with the tip on its target is refused in words and
 /// nothing moves.
 #[test]

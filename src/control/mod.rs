@@ -1711,7 +1711,7 @@ impl Controller {
 
     /// A `reach` whose leg arrived goes on with the next, its straight way checked against
     /// the world in force; one not clear (the world changed meanwhile) ends the move
-    /// [`Finish::Blocked`], naming the pair of least clearance on it. Any other ending drops
+    /// [`Finish::Blocked`], naming the link and obstacle of the way's deepest pose. Any other ending drops
     /// the legs left.
     fn next_leg(&mut self, t: &mut Tick) {
         match t.finished {
@@ -1732,12 +1732,21 @@ impl Controller {
                 self.motion.joints(&next);
                 t.finished = None;
             }
-            Err(_) => {
+            Err(refused) => {
                 self.reach = None;
-                let (link, obstacle) = self
-                    .world
-                    .clearance(&self.guard.now)
-                    .map_or((self.chain.len(), 0), |p| (p.link, p.obstacle));
+                // What held the way back, else the pair of least clearance now.
+                let held = match &refused {
+                    Refused::NotClearOnTheWay { link, obstacle, .. }
+                    | Refused::GoalNotClearAsSent { link, obstacle, .. } => {
+                        self.world.find(obstacle).map(|(k, _)| (*link, k))
+                    }
+                    _ => None,
+                };
+                let (link, obstacle) = held.unwrap_or_else(|| {
+                    self.world
+                        .clearance(&self.guard.now)
+                        .map_or((self.chain.len(), 0), |p| (p.link, p.obstacle))
+                });
                 t.finished = Some(Finish::Blocked { link, obstacle });
             }
         }
