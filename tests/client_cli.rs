@@ -241,6 +241,7 @@ fn a_caught_goto_says_which_reach_gets_round_and_it_does() {
         "{:?}",
         run.stderr
     );
+    assert_eq!(run.stderr.trim_end().lines().count(), 1, "{:?}", run.stderr);
     let run = at(&d, &["reach", "-0.6656", "0.4673"]);
     assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
     assert!(run.stdout.starts_with("arrived at ("), "{:?}", run.stdout);
@@ -578,6 +579,15 @@ fn a_daemon_with_a_token_admits_token_file_and_refuses_without_it() {
     assert_eq!(status["state"], "holding", "{status}");
     let run = at(&d, &["goto", "-0.54", "0.71", "--token-file", text(&token)]);
     assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+
+    // A token file that cannot be read is bad input, found before connecting.
+    let missing = dir.path().join("missing");
+    let run = at(&d, &["status", "--token-file", text(&missing)]);
+    assert_fails(
+        &run,
+        2,
+        &format!("{}: cannot read the token file", text(&missing)),
+    );
 
     let wrong = dir.path().join("wrong");
     std::fs::write(&wrong, "battery staple\n").unwrap();

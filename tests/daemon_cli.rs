@@ -169,6 +169,27 @@ fn a_bad_config_value_is_refused_naming_the_field() {
     );
 }
 
+/// An address another program listens on refuses start-up (exit code 2), naming it, before
+/// anything says it listens.
+#[test]
+fn a_taken_address_refuses_start_up_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_config(dir.path(), &[]);
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["run", "--listen", &addr, "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("listening on {addr}")) && !err.contains("bringing the arm up"),
+        "{err}"
+    );
+}
+
 #[test]
 fn a_stall_longer_than_the_bus_watchdog_is_recovered_and_the_arm_moves_again() {
     let dir = tempfile::tempdir().unwrap();

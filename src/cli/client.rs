@@ -120,7 +120,7 @@ pub struct StrategyArgs {
 #[derive(Debug, Args)]
 pub struct WatchArgs {
     /// Telemetry lines per second.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     pub rate_hz: f64,
     #[command(flatten)]
     pub connect: ConnectArgs,
@@ -330,6 +330,10 @@ pub(super) fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
                 "the daemon refused the token in {}",
                 file.display()
             ))),
+            // Found before connecting: bad input.
+            (ClientError::TokenFile { .. } | ClientError::EmptyToken { .. }, _) => {
+                Failure::bad_input(e)
+            }
             _ => refused(e),
         }
     })
@@ -390,7 +394,7 @@ fn motion(client: &mut Client, cmd: &Cmd, no_wait: bool) -> Result<(), Failure> 
         // Caught on an obstacle: the way out is a way round in joint space.
         Some(blocked @ Ending::Blocked { .. }) => match cmd {
             Cmd::Goto { target: [x, y], .. } => Err(Failure::other(anyhow!(
-                "{blocked}\n(`snakectl reach {x} {y}` plans a way round the obstacles)"
+                "{blocked}; `snakectl reach {x} {y}` plans a way round the obstacles"
             ))),
             _ => Err(Failure::other(anyhow!("{blocked}"))),
         },

@@ -19,7 +19,7 @@ use clap::Args;
 use serde::Serialize;
 use serde_json::Value;
 
-use snakectl::chain::Vec2;
+use snakectl::chain::{Chain, Vec2};
 use snakectl::client::{ArmInfo, Client, ClientError, Ending, Motion, Seen, Status as Snapshot};
 use snakectl::config::Config;
 use snakectl::connect;
@@ -31,7 +31,7 @@ use snakectl::protocol::{
 use snakectl::record::read::phase_note;
 use snakectl::record::{Notes, RecordOptions, Recording};
 use snakectl::resolve::Strategy;
-use snakectl::world::{Obstacle, Shape};
+use snakectl::world::{Obstacle, Shape, World};
 use snakectl_sim::RealClock;
 
 use super::{outln, Failure};
@@ -71,7 +71,7 @@ pub struct DemoArgs {
     #[arg(long, value_name = "DIR", default_value = DEFAULT_OUT)]
     pub out: PathBuf,
     /// How long the figure eights take, each, s (the whole demo takes about twice this, plus
-    /// the path).
+    /// about 15 s for the gotos, the path and the obstacle phase).
     #[arg(long)]
     pub seconds: Option<f64>,
 }
@@ -431,11 +431,15 @@ struct WorldFigures {
     way_back: String,
 }
 
-/// The phase among obstacles: a pocket beside the eight's centre along its long axis, a post
-/// halfway there on the straight line, and a shelf over the pocket's outer side, so that the
-/// tip must go round the post.
-fn pocket(eight: &Eight, reach: f64) -> ([f64; 2], Vec<Obstacle>) {
-    let (c, t, u) = (eight.centre, eight.along, eight.across);
+/// The phase among obstacles: a pocket beside the eight's centre along its long axis (turned
+/// by `quarters` quarter turns), a post halfway there on the straight line, and a shelf over
+/// the pocket's outer side, so that the tip must go round the post.
+fn pocket(eight: &Eight, reach: f64, quarters: usize) -> ([f64; 2], Vec<Obstacle>) {
+    let (mut t, mut u) = (eight.along, eight.across);
+    for _ in 0..quarters % 4 {
+        (t, u) = ([-t[1], t[0]], [-u[1], u[0]]);
+    }
+    let c = eight.centre;
     let at = |p: f64, q: f64| Vec2::new(c[0] + p * t[0] + q * u[0], c[1] + p * t[1] + q * u[1]);
     let d = 0.2 * reach;
     let target = at(d, 0.0);
@@ -455,6 +459,29 @@ fn pocket(eight: &Eight, reach: f64) -> ([f64; 2], Vec<Obstacle>) {
         },
     };
     ([target.x, target.y], vec![post, shelf])
+}
+
+/// The pocket of [`pocket`] for an arm that stands in the pose `theta` at the eight's centre:
+/// along the eight's long axis, else turned a quarter at a time, the first whose obstacles keep
+/// a twentieth of the reach from every link (another arm's body may lie where one pocket is);
+/// along the axis when none does (the phase then reports where the arm was held).
+fn pocket_beside(
+    eight: &Eight,
+    chain: &Chain,
+    theta: &[f64],
+    link_radius_m: f64,
+) -> ([f64; 2], Vec<Obstacle>) {
+    let reach = chain.reach();
+    let points = chain.points(theta);
+    (0..4)
+        .map(|q| pocket(eight, reach, q))
+        .find(|(_, obstacles)| {
+            World::new(link_radius_m, 0.0, obstacles.clone())
+                .ok()
+                .and_then(|w| w.clearance(&points))
+                .is_some_and(|p| p.clearance_m >= 0.05 * reach)
+        })
+        .unwrap_or_else(|| pocket(eight, reach, 0))
 }
 
 /// A finished run: its figures and its phases (in the daemon's time).
@@ -755,6 +782,8 @@ impl Session<'_> {
         self.goto(eight.centre, cap_speed / COMMAND_SHARE)?;
         self.rec.end_phase();
         self.client.request(&Cmd::ResetStats)?;
+        // The daemon's count runs on from its start: the eight's are the difference.
+        let overruns_before = self.client.status()?.overruns;
 
         self.rec.progress.line(format!(
             "{name}: figure eight, {:.1} s of `velocity` at {} Hz",
@@ -883,7 +912,7 @@ impl Session<'_> {
             velocity_commands: sent,
             samples: recs.len(),
             saturated_samples: recs.iter().filter(|r| r.saturated).count(),
-            overruns: status.overruns,
+            overruns: status.overruns.saturating_sub(overruns_before),
         };
         self.rec.progress.line(format!(
             "{name}: at rest; tracking error p50 {:.2} mm, max {:.2} mm; peak joint speed {:.3} rad/s",
@@ -1052,7 +1081,9 @@ impl Session<'_> {
         self.goto(eight.centre, max_tip_speed)?;
         self.rec.end_phase();
         let start = eight.centre;
-        let (target, obstacles) = pocket(eight, self.rec.arm.reach());
+        let theta = self.client.status()?.theta_cmd.clone();
+        let link_radius_m = self.client.world()?.link_radius_m;
+        let (target, obstacles) = pocket_beside(eight, self.rec.arm.chain(), &theta, link_radius_m);
         let ids: Vec<String> = obstacles.iter().map(|o| o.id.clone()).collect();
         self.client.set_world(obstacles.clone())?;
         let info = self.client.world()?;
@@ -1297,24 +1328,31 @@ mod tests {
         }
     }
 
-    /// The phase among obstacles, run on the controller alone from the eight's centre: the
-    /// straight line is blocked, and overall takes the tip in and back out, clear throughout.
+    /// The phase among obstacles, run on the controller alone from the eight's centre, for
+    /// both shipped arms (the simulated one of 12 links the demo runs, and the 8-link arm of
+    /// `config/arm.toml`): the pocket's obstacles are clear of the arm there, the straight
+    /// line is blocked, and overall takes the tip in and back out, clear throughout.
     #[test]
     fn the_pocket_is_reached_round_the_post_under_overall() {
+        for file in ["sim.toml", "arm.toml"] {
+            let path = format!("{}/config/{file}", env!("CARGO_MANIFEST_DIR"));
+            let config = Config::load(&path).unwrap();
+            let chain = config.chain();
+            let arm = ArmInfo::new(snakectl::protocol::Describe {
+                links_m: chain.links().to_vec(),
+                base: [chain.base().x, chain.base().y, chain.heading()],
+                home_rad: config.home().to_vec(),
+                rate_hz: 100.0,
+                ..Default::default()
+            })
+            .unwrap();
+            pocket_round_the_post(&arm, file);
+        }
+    }
+
+    fn pocket_round_the_post(arm: &ArmInfo, file: &str) {
         use snakectl::control::{Command, Controller, Finish, Limits};
-        use snakectl::world::World;
-        let arm = sim_arm();
-        let eight = Eight::new(&arm, 15.0, 0.1);
-        let (target, obstacles) = pocket(&eight, arm.reach());
-        let world = World::new(0.0, 0.005, obstacles).unwrap();
-        let (c, t) = (
-            Vec2::new(eight.centre[0], eight.centre[1]),
-            Vec2::new(target[0], target[1]),
-        );
-        assert!(
-            world.route(c, t).unwrap().waypoints.len() > 2,
-            "the straight line is clear"
-        );
+        let eight = Eight::new(arm, 15.0, 0.1);
         let limits = Limits {
             max_tip_speed_m_s: 0.1,
             max_tip_accel_m_s2: 0.5,
@@ -1322,6 +1360,7 @@ mod tests {
             deadman_s: 0.5,
         };
         let home = arm.home_rad.clone();
+        let n = home.len();
         let mut ctl = Controller::new(
             arm.chain().clone(),
             limits,
@@ -1331,7 +1370,7 @@ mod tests {
         )
         .unwrap();
         // As the daemon does: goals go out in whole servo ticks.
-        ctl.set_joint_resolution(&[std::f64::consts::TAU / 4096.0; 12])
+        ctl.set_joint_resolution(&vec![std::f64::consts::TAU / 4096.0; n])
             .unwrap();
         let run = |ctl: &mut Controller, to: Vec2| {
             ctl.command(Command::Goto {
@@ -1341,11 +1380,17 @@ mod tests {
             .unwrap();
             (0..5000).find_map(|_| ctl.tick(0.01).finished)
         };
-        assert_eq!(run(&mut ctl, c), Some(Finish::Arrived));
+        let c = Vec2::new(eight.centre[0], eight.centre[1]);
+        assert_eq!(run(&mut ctl, c), Some(Finish::Arrived), "{file}");
+        let (target, obstacles) = pocket_beside(&eight, arm.chain(), ctl.theta(), 0.0);
+        let world = World::new(0.0, 0.005, obstacles).unwrap();
+        let t = Vec2::new(target[0], target[1]);
         assert!(
-            ctl.set_world(world.clone()).is_none(),
-            "the centre pose is clear"
+            world.route(c, t).unwrap().waypoints.len() > 2,
+            "{file}: the straight line is clear"
         );
+        let nc = ctl.set_world(world.clone());
+        assert!(nc.is_none(), "{file}: the centre pose is clear: {nc:?}");
         let mut least = f64::INFINITY;
         for to in [t, c] {
             ctl.command(Command::Goto {
@@ -1362,9 +1407,9 @@ mod tests {
                     break;
                 }
             }
-            assert_eq!(finish, Some(Finish::Arrived), "to {to:?}");
+            assert_eq!(finish, Some(Finish::Arrived), "{file}: to {to:?}");
         }
-        assert!(least >= 0.005 - 1e-9, "{least}");
+        assert!(least >= 0.005 - 1e-9, "{file}: {least}");
     }
 
     #[test]

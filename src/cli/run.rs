@@ -62,15 +62,13 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         // gracefully (once the arm is up, if it comes during bring-up), never by default.
         let shutdown = signals()
             .map_err(|e| Failure::other(anyhow::anyhow!("installing the signal handlers: {e}")))?;
+        // An address taken or not this host's refuses start-up, as a bad config does.
         let listener = tokio::net::TcpListener::bind(listen)
             .await
-            .map_err(|e| Failure::other(anyhow::anyhow!("listening on {listen}: {e}")))?;
-        let local = listener
-            .local_addr()
-            .map_err(|e| Failure::other(anyhow::anyhow!("listening on {listen}: {e}")))?;
-        // Connections are taken from here on, but answered only once the arm is up (the loop
-        // logs that it is serving).
-        tracing::info!("listening on {local} (bringing the arm up first)");
+            .map_err(|e| Failure {
+                code: EXIT_REFUSED,
+                error: anyhow::anyhow!("listening on {listen}: {e}"),
+            })?;
         let options = RunOptions {
             ports: args.port,
             record: args.record.map(RecordOptions::to),

@@ -390,7 +390,10 @@ struct TomlPolygon {
 
 /// `[[world.obstacle]]` tables, as the config writes them.
 fn read_toml(text: &str) -> Result<FileWorld, String> {
-    let file: TomlFile = toml::from_str(text).map_err(|e| format!("not a world: {e}"))?;
+    let file: TomlFile = toml::from_str(text).map_err(|e| {
+        let (line, column, message) = snakectl::config::toml_where(text, &e);
+        format!("not a world: line {line}, column {column}: {message}")
+    })?;
     let world = file
         .world
         .ok_or("no [world] table: obstacles are [[world.obstacle]] tables")?;
@@ -510,6 +513,10 @@ mod tests {
         assert!(e.contains("no [world] table"), "{e}");
         let e = toml_of("[[world.obstacle]]\nid = \"a\"\n").unwrap_err();
         assert!(e.starts_with("world.obstacle[1]: missing its shape"), "{e}");
+        // Not TOML at all: where, on one line.
+        let e = toml_of("[world]\nclearance_m = abc\n").unwrap_err();
+        assert!(e.starts_with("not a world: line 2, column 15: "), "{e}");
+        assert!(!e.contains('\n'), "{e}");
     }
 
     #[test]

@@ -475,6 +475,18 @@ pub fn world_field(field: &str) -> String {
 
 /// Turns a TOML error into one naming the file, line and column.
 fn syntax_error(text: &str, path: &Path, e: &toml::de::Error) -> ConfigError {
+    let (line, column, message) = toml_where(text, e);
+    ConfigError::Syntax {
+        path: path.to_path_buf(),
+        line,
+        column,
+        message,
+    }
+}
+
+/// Where in `text` a TOML error is (line and column from 1; 0 when it does not say) and its
+/// message on one line.
+pub fn toml_where(text: &str, e: &toml::de::Error) -> (usize, usize, String) {
     let (line, column) = match e.span().and_then(|s| text.get(..s.start)) {
         Some(before) => {
             let line = before.matches('\n').count() + 1;
@@ -483,18 +495,14 @@ fn syntax_error(text: &str, path: &Path, e: &toml::de::Error) -> ConfigError {
         }
         None => (0, 0),
     };
-    ConfigError::Syntax {
-        path: path.to_path_buf(),
-        line,
-        column,
-        message: e
-            .message()
-            .lines()
-            .map(str::trim)
-            .filter(|l| !l.is_empty())
-            .collect::<Vec<_>>()
-            .join("; "),
-    }
+    let message = e
+        .message()
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join("; ");
+    (line, column, message)
 }
 
 fn finite_within(value: f64) -> bool {

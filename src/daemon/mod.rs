@@ -240,6 +240,9 @@ pub async fn run(
         }
         None => (None, None),
     };
+    // Connections are taken from here on, but answered only once the arm is up (the loop
+    // logs that it is serving).
+    tracing::info!("listening on {addr} (bringing the arm up first)");
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = oneshot::channel();
     let (done_tx, done_rx) = oneshot::channel();
