@@ -674,6 +674,22 @@ fn a_reach_gets_there_where_a_goto_is_caught() {
             assert!((c.tip() - target).norm() < 1e-9, "{:?} {target:?}", c.tip());
             // Arrived, it has no target left.
             assert_eq!(c.target(), None);
+            // A tip command from there starts with the body still: the goal keeps what the
+            // overall strategy keeps (the clearance and what rounding may take).
+            let at = c.theta().to_vec();
+            c.command(Command::Velocity { v: Vec2::zeros() }).unwrap();
+            for _ in 0..5 {
+                c.tick(0.01);
+            }
+            let moved = at
+                .iter()
+                .zip(c.theta())
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(
+                moved < 1e-9,
+                "{strategy:?} {target:?}: a joint moved {moved} rad"
+            );
             rescued += 1;
             if rescued == 6 {
                 break;

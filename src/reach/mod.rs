@@ -8,8 +8,9 @@
 //!
 //! 1. **The goal**: the best clear pose with the tip on the target, the overall strategy's
 //!    cold solve among the obstacles from the current pose (metric 3 from it), its clearance
-//!    raised by [`ReachOptions::margin_m`]; each joint rounded to the servos' resolution it
-//!    must keep `clearance_m`, as the controller sends it.
+//!    raised by the larger of [`ReachOptions::margin_m`] and what rounding each joint to the
+//!    servos' resolution may take (what the overall strategy keeps); so rounded it must keep
+//!    `clearance_m`, as the controller sends it.
 //! 2. **The way**: straight legs in joint space from the current pose to the goal, found by a
 //!    bidirectional rapidly-exploring random tree (RRT-Connect, Kuffner and LaValle, 2000):
 //!    poses drawn at random within the limits, each tree grown toward them by steps of at most
@@ -339,12 +340,20 @@ fn way_to(
     }
 }
 
-/// The overall solver among `req.world` with its clearance raised by the margin.
+/// What the goal keeps, m: `clearance_m` and the larger of the margin and what rounding the
+/// joints to their resolutions may take. The controller's overall strategy keeps the latter
+/// (the world it plans in), so a tip command after the reach starts from a pose it would keep,
+/// the body still.
+fn goal_keep(req: &ReachRequest, opts: &ReachOptions) -> f64 {
+    req.world.clearance_m() + opts.margin_m.max(req.chain.rounding_m(req.quanta))
+}
+
+/// The overall solver among `req.world` with its clearance raised as the goal keeps it.
 fn raised_solver(req: &ReachRequest, opts: &ReachOptions) -> Result<Overall, ReachError> {
     let w = req.world;
     let raised = World::new(
         w.link_radius_m(),
-        w.clearance_m() + opts.margin_m,
+        goal_keep(req, opts),
         w.obstacles().to_vec(),
     )
     .map_err(|e| ReachError::BadInput(format!("the world with the margin: {e}")))?;
@@ -353,10 +362,10 @@ fn raised_solver(req: &ReachRequest, opts: &ReachOptions) -> Result<Overall, Rea
     Ok(solver)
 }
 
-/// The best clear pose with the tip on the target, its clearance raised by the margin; checked
+/// The best clear pose with the tip on the target, its clearance raised as [`goal_keep`] says; checked
 /// as the servos take it.
 fn goal_pose(req: &ReachRequest, opts: &ReachOptions) -> Result<Vec<f64>, ReachError> {
-    let keep_m = req.world.clearance_m() + opts.margin_m;
+    let keep_m = goal_keep(req, opts);
     let mut goal = vec![0.0; req.chain.len()];
     let o = raised_solver(req, opts)?.solve_cold(req.chain, req.from, req.target, &mut goal);
     // A pose on the target that keeps the clearance asked will do, optimal or not (a cold solve
@@ -394,7 +403,7 @@ fn goal_along(req: &ReachRequest, opts: &ReachOptions) -> Option<Vec<f64>> {
 
 /// Whether `goal` has the tip on the target and keeps the clearance and the margin.
 fn on_target_clear(req: &ReachRequest, opts: &ReachOptions, goal: &[f64]) -> bool {
-    let keep_m = req.world.clearance_m() + opts.margin_m;
+    let keep_m = goal_keep(req, opts);
     (req.chain.tip(goal) - req.target).norm() <= GOAL_TIP_M
         && req
             .world
