@@ -167,6 +167,18 @@ fn a_way_under_a_shelf_that_is_not_convex_is_clear() {
     );
 }
 
+/// A target on the edge of the reach (the arm straight) with an obstacle far off: reached,
+/// as a `goto` reaches it.
+#[test]
+fn a_target_on_the_edge_of_the_reach_is_reached() {
+    let c = chain();
+    let world = World::new(0.01, 0.005, vec![disc("far", 0.5, 0.2, 0.03)]).unwrap();
+    let target = Vec2::new(0.0, c.reach());
+    let quanta = [TAU / 4096.0; N];
+    let way = ask(&c, &world, &home(), target, &quanta).unwrap();
+    assert_way_is_clear(&c, &world, &home(), target, &quanta, &way);
+}
+
 #[test]
 fn the_same_request_gives_the_same_way() {
     let c = chain();

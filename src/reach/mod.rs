@@ -281,7 +281,14 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
     // out on, not across the obstacle.
     let from = out.last().map_or(req.from, |p| p.as_slice());
     let round = ReachRequest { from, ..*req };
-    let goal = goal_pose(&round, opts)?;
+    // The cold solve can stop short where the tip's straight way gets there (a target on the
+    // edge of the reach, where the arm is straight): that goal then.
+    let goal = match goal_pose(&round, opts) {
+        Err(none @ ReachError::NoClearPose { .. }) => edge_pose(&round, opts)
+            .or_else(|| goal_along(&round, opts))
+            .ok_or(none)?,
+        found => found?,
+    };
     let mut rng = SplitMix(opts.seed);
     let (mut legs, nodes) = match way_to(&mut look, &round, &goal, opts, &mut rng) {
         // The best goal may lie where the trees cannot get (across an obstacle the arm would
@@ -398,6 +405,23 @@ fn goal_along(req: &ReachRequest, opts: &ReachOptions) -> Option<Vec<f64>> {
     }
     on_target_clear(req, opts, &at)
         .then(|| checked_as_sent(req, at).ok())
+        .flatten()
+}
+
+/// On the outer edge of the reach the only pose is the arm straight toward the target, where
+/// the solvers' steps are singular and stop short: that pose, when it is within the limits,
+/// on the target and clear as the goal must be.
+fn edge_pose(req: &ReachRequest, opts: &ReachOptions) -> Option<Vec<f64>> {
+    let offset = req.target - req.chain.base();
+    if (offset.norm() - req.chain.ring().r_max).abs() > GOAL_TIP_M {
+        return None;
+    }
+    let mut straight = vec![0.0; req.chain.len()];
+    let turn = offset.y.atan2(offset.x) - req.chain.heading();
+    // The turn of joint 1 within a half turn either way of 0, as its limits count it.
+    straight[0] = turn - std::f64::consts::TAU * (turn / std::f64::consts::TAU).round();
+    (req.chain.check_limits(&straight).is_ok() && on_target_clear(req, opts, &straight))
+        .then(|| checked_as_sent(req, straight).ok())
         .flatten()
 }
 
