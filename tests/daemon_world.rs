@@ -454,6 +454,140 @@ fn a_reach_gets_round_where_a_goto_is_caught() {
     );
 }
 
+/// The post and the shelf of `config/world.toml`.
+fn post_and_shelf() -> [Value; 2] {
+    [
+        circle("post", [0.15, 0.60], 0.04),
+        polygon(
+            "shelf",
+            &[[-0.6, 0.3], [-0.4, 0.3], [-0.4, 0.34], [-0.6, 0.34]],
+        ),
+    ]
+}
+
+/// `requests` in one write, each with a fresh id; their ids.
+fn send_at_once(c: &mut Client, requests: &[Value]) -> Vec<u64> {
+    let mut bytes = Vec::new();
+    let ids = (0..requests.len() as u64)
+        .map(|k| 1000 + k)
+        .collect::<Vec<_>>();
+    for (request, id) in requests.iter().zip(&ids) {
+        let mut request = request.clone();
+        request["id"] = json!(id);
+        bytes.extend(serde_json::to_vec(&request).unwrap());
+        bytes.push(b'\n');
+    }
+    c.write_raw(&bytes);
+    ids
+}
+
+/// The replies to `ids` and the events naming them, in the order they come, until `done` says
+/// so of them (within [`daemon_support::DEADLINE`]); other lines are dropped.
+fn lines_about(c: &mut Client, ids: &[u64], mut done: impl FnMut(&[Value]) -> bool) -> Vec<Value> {
+    let mut lines = Vec::new();
+    let ours = |l: &Value| {
+        let id = if l["type"] == "event" {
+            &l["cmd_id"]
+        } else {
+            &l["id"]
+        };
+        l["type"] != "telemetry" && ids.iter().any(|i| id == &json!(i))
+    };
+    while !done(&lines) {
+        let line = c
+            .next_matching(daemon_support::DEADLINE, ours)
+            .unwrap_or_else(|| panic!("not done within the deadline: {lines:?}"));
+        lines.push(line);
+    }
+    lines
+}
+
+/// The reply to `id` among `lines`.
+fn reply_in(lines: &[Value], id: u64) -> Option<&Value> {
+    lines
+        .iter()
+        .find(|l| l.get("type").is_none() && l["id"] == json!(id))
+}
+
+/// Regression: a `reach` the planner could not take (`busy`) preempted the one taken before
+/// it, so that nothing moved. Six in one write, more than the planner's queue of two takes
+/// before its thread has run: each refused one changes nothing, each taken one preempts the
+/// one before, and the last one taken arrives.
+#[test]
+fn a_reach_refused_busy_leaves_the_one_taken_to_run() {
+    let _one = one_at_a_time();
+    let d = with_link_radius("0.012");
+    let mut c = d.client();
+    take_control(&mut c);
+    c.ok(json!({"cmd": "set_world", "obstacles": post_and_shelf()}));
+    let targets = [
+        [0.3, 0.6],
+        [0.0, 0.5],
+        [-0.3, 0.6],
+        [0.5, 0.2],
+        [0.0, 0.5],
+        [0.3, 0.6],
+    ];
+    let reaches: Vec<Value> = targets
+        .iter()
+        .map(|t| json!({"cmd": "reach", "target": t}))
+        .collect();
+    let ids = send_at_once(&mut c, &reaches);
+    // Every reply, then every event about the reaches until the last one taken ends.
+    let lines = lines_about(&mut c, &ids, |lines| {
+        let Some(replies) = ids
+            .iter()
+            .map(|&id| reply_in(lines, id))
+            .collect::<Option<Vec<_>>>()
+        else {
+            return false;
+        };
+        let Some(last) = ids
+            .iter()
+            .zip(&replies)
+            .rfind(|(_, r)| r["ok"] == json!(true))
+        else {
+            return true;
+        };
+        lines.iter().any(|l| {
+            l["type"] == "event" && l["cmd_id"] == json!(last.0) && l["event"] != "preempted"
+        })
+    });
+    let (taken, refused): (Vec<u64>, Vec<u64>) = ids
+        .iter()
+        .partition(|&&id| reply_in(&lines, id).unwrap()["ok"] == json!(true));
+    for id in &refused {
+        let reply = reply_in(&lines, *id).unwrap();
+        assert_eq!(reply["error"]["code"], "busy", "{reply}");
+    }
+    assert!(!refused.is_empty(), "the planner took all six");
+    let last = *taken.last().expect("the planner took none");
+    let events: Vec<&Value> = lines.iter().filter(|l| l["type"] == "event").collect();
+    assert!(
+        events
+            .iter()
+            .any(|e| e["cmd_id"] == json!(last) && e["event"] == "arrived"),
+        "the last reach taken, {last}, did not arrive: {events:?}"
+    );
+    for id in &taken[..taken.len() - 1] {
+        assert!(
+            events.iter().any(|e| e["cmd_id"] == json!(id)
+                && e["event"] == "preempted"
+                && e["reason"] == "reach"),
+            "reach {id} was taken, then not preempted: {events:?}"
+        );
+    }
+    for id in &refused {
+        assert!(
+            events.iter().all(|e| e["cmd_id"] != json!(id)),
+            "reach {id} was refused, yet told of: {events:?}"
+        );
+    }
+    let s = c.status();
+    assert_eq!(s["command"]["id"], json!(last), "{s}");
+    assert_eq!(s["command"]["outcome"], "arrived", "{s}");
+}
+
 #[test]
 fn a_velocity_into_a_wall_slides_along_it() {
     let _one = one_at_a_time();

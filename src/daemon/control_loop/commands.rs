@@ -708,9 +708,31 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// A `goto` or `path` whose routes need more than a tick can spare, or a `reach`: the
     /// command it replaces ends (`preempted`), the arm comes to rest, and its routes (or its
     /// way) are planned beside the loop from where it stands; answered once they are
-    /// (`tend_planning`).
+    /// (`tend_planning`). With the arm at rest the request is handed to the planner first: one
+    /// it cannot take is refused `busy` with nothing changed, the command under way or the one
+    /// waiting for its routes going on.
     fn plan_beside(&mut self, e: &Envelope, request: PlanRequest) -> Pending {
-        self.settle_planning(e.cmd.name());
+        let mut job = Planning {
+            client: e.client,
+            id: e.id.clone(),
+            kind: e.cmd.name(),
+            reply: None,
+            request,
+            serial: None,
+            replans: 0,
+            since: self.clock.now(),
+        };
+        if self.controller.activity() == Activity::Holding {
+            job.request = self.controller.replan_request(&job.request);
+            match self.planner.send(job.request.clone()) {
+                Ok(serial) => job.serial = Some(serial),
+                Err(why) => return refuse(Code::Busy, format!("{why}; send again")),
+            }
+            // Its job is the one waited for now: the planner skips the one it replaces.
+            self.preempt_planning(e.cmd.name());
+        } else {
+            self.settle_planning(e.cmd.name());
+        }
         let ended = self.ledger.preempt(e.cmd.name());
         self.owe(ended);
         if self.controller.activity() != Activity::Holding {
@@ -723,23 +745,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             cmd = e.cmd.name().as_str(),
             "planning beside the loop"
         );
-        self.planning = Some(Planning {
-            client: e.client,
-            id: e.id.clone(),
-            kind: e.cmd.name(),
-            reply: None,
-            request,
-            serial: None,
-            replans: 0,
-            since: self.clock.now(),
-        });
-        match self.send_plan() {
-            Ok(()) => Pending::Planning,
-            Err(refused) => {
-                self.planning = None;
-                refused
-            }
-        }
+        self.planning = Some(job);
+        Pending::Planning
     }
 
     /// Hands the planning's request to the planner once the arm is at rest (its routes start
@@ -841,10 +848,18 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// A command came that preempts the one whose routes are being planned (`by`): that one
     /// is answered as taken and ends at once, `preempted`, as it would have had it begun.
     fn settle_planning(&mut self, by: CmdName) {
+        if self.planning.is_some() {
+            self.planner.cancel();
+        }
+        self.preempt_planning(by);
+    }
+
+    /// [`Cycle::settle_planning`] where a job handed to the planner since has taken the place
+    /// of the one preempted (the planner no longer waits for it).
+    fn preempt_planning(&mut self, by: CmdName) {
         let Some(job) = self.planning.take() else {
             return;
         };
-        self.planner.cancel();
         let _ = self
             .ledger
             .begin(job.client, job.id.clone(), job.kind, Renewal::None);

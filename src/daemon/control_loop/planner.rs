@@ -49,7 +49,8 @@ struct Done {
 struct Worker {
     jobs: SyncSender<Job>,
     done: Receiver<Done>,
-    /// The serial of the job whose command waits for it (0: none).
+    /// The first serial whose command still waits for it: the thread skips the jobs numbered
+    /// below it (their commands ended, or a later job took their place).
     wanted: Arc<AtomicU64>,
 }
 
@@ -84,8 +85,10 @@ impl std::fmt::Debug for Planner {
 }
 
 impl Planner {
-    /// Hands `request` to the thread; its serial for [`Planner::poll`]. Refused when the
-    /// thread cannot be started, or has stopped, or its queue is full.
+    /// Hands `request` to the thread; its serial for [`Planner::poll`]. The job it hands
+    /// over before is no longer waited for. Refused when the thread cannot be started, or has
+    /// stopped, or its queue is full; a refused request changes nothing (the job waited for
+    /// before still is).
     pub fn send(&mut self, request: PlanRequest) -> Result<u64, String> {
         if self.worker.is_none() {
             self.worker = Some(spawn().map_err(|e| format!("no thread to plan on: {e}"))?);
@@ -93,14 +96,16 @@ impl Planner {
         let Some(worker) = &self.worker else {
             return Err("no thread to plan on".into());
         };
-        self.serial += 1;
-        let job = Job {
-            serial: self.serial,
-            request,
-        };
-        worker.wanted.store(self.serial, Ordering::Relaxed);
+        let serial = self.serial + 1;
+        let job = Job { serial, request };
         match worker.jobs.try_send(job) {
-            Ok(()) => Ok(self.serial),
+            Ok(()) => {
+                self.serial = serial;
+                // Stored once queued: the thread may have taken the job already, and skips
+                // only jobs below `wanted`, which was at most `serial` until now.
+                worker.wanted.store(serial, Ordering::Relaxed);
+                Ok(serial)
+            }
             Err(TrySendError::Full(_)) => {
                 Err("the planner still has the work of earlier commands to do".into())
             }
@@ -114,7 +119,7 @@ impl Planner {
     /// No command waits for routes any more: the thread skips the jobs it still holds.
     pub fn cancel(&mut self) {
         if let Some(worker) = &self.worker {
-            worker.wanted.store(0, Ordering::Relaxed);
+            worker.wanted.store(self.serial + 1, Ordering::Relaxed);
         }
     }
 
@@ -179,11 +184,11 @@ fn spawn() -> std::io::Result<Worker> {
             // Started by the loop's thread, it would share its real-time policy.
             crate::beside::step_aside_from_the_loop();
             while let Ok(job) = inbox.recv() {
-                if wanted_here.load(Ordering::Relaxed) != job.serial {
+                if job.serial < wanted_here.load(Ordering::Relaxed) {
                     continue;
                 }
                 let route = plan(&job.request, MAX_ROUTE_WORK);
-                if wanted_here.load(Ordering::Relaxed) != job.serial {
+                if job.serial < wanted_here.load(Ordering::Relaxed) {
                     continue;
                 }
                 let done = Done {
