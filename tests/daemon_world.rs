@@ -465,6 +465,21 @@ fn post_and_shelf() -> [Value; 2] {
     ]
 }
 
+/// Two long thin walls either side of the base, forming a slot the arm points out of: the
+/// planner finds no clear way down below them, after 0.6 s or so of work.
+fn slot() -> [Value; 2] {
+    [
+        polygon(
+            "right",
+            &[[0.05, 0.0], [1.2, 0.0], [1.2, 0.01], [0.05, 0.01]],
+        ),
+        polygon(
+            "left",
+            &[[-0.05, 0.0], [-1.2, 0.0], [-1.2, 0.01], [-0.05, 0.01]],
+        ),
+    ]
+}
+
 /// `requests` in one write, each with a fresh id; their ids.
 fn send_at_once(c: &mut Client, requests: &[Value]) -> Vec<u64> {
     let mut bytes = Vec::new();
@@ -586,6 +601,46 @@ fn a_reach_refused_busy_leaves_the_one_taken_to_run() {
     let s = c.status();
     assert_eq!(s["command"]["id"], json!(last), "{s}");
     assert_eq!(s["command"]["outcome"], "arrived", "{s}");
+}
+
+/// Regression: a `reach` whose way the planner did not find in a world changed meanwhile was
+/// refused `unreachable` in the world no longer in force. Sent in one write with the world
+/// that clears the slot, it is planned again in the world in force, and arrives.
+#[test]
+fn a_reach_refused_in_a_world_changed_meanwhile_is_planned_again() {
+    let _one = one_at_a_time();
+    let d = with_link_radius("0.012");
+    let mut c = d.client();
+    take_control(&mut c);
+    c.ok(json!({"cmd": "set_world", "obstacles": slot()}));
+    let target = [0.5, -0.2];
+    let ids = send_at_once(
+        &mut c,
+        &[
+            json!({"cmd": "reach", "target": target}),
+            json!({"cmd": "set_world", "obstacles": []}),
+        ],
+    );
+    // Both replies, and the reach's ending when it is taken.
+    let lines = lines_about(&mut c, &ids, |lines| {
+        reply_in(lines, ids[1]).is_some()
+            && (reply_in(lines, ids[0]).is_some_and(|r| r["ok"] == json!(false))
+                || lines
+                    .iter()
+                    .any(|l| l["type"] == "event" && l["cmd_id"] == json!(ids[0])))
+    });
+    let reply = reply_in(&lines, ids[0]).unwrap();
+    assert_eq!(reply["ok"], json!(true), "{reply}");
+    assert_eq!(reply_in(&lines, ids[1]).unwrap()["ok"], json!(true));
+    let ending = lines.last().unwrap();
+    assert_eq!(ending["event"], "arrived", "{ending}");
+    let s = c.wait_status("at rest", |s| s["state"] == "holding");
+    let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
+    let off = dist(xy(&s["tip_meas"]), target);
+    assert!(
+        off <= bound,
+        "the tip {off} m from the target (ticks allow {bound})"
+    );
 }
 
 #[test]

@@ -1255,7 +1255,7 @@ impl Controller {
                 .start_route(r, route)
                 .map_err(|Replan| NotStarted::Replan),
             (PlanRequest::Reach(job), Planned::Way(way)) => {
-                if self.theta != job.from || self.world != job.world {
+                if !self.fits(request) {
                     return Err(NotStarted::Replan);
                 }
                 self.start_way(job.target, way).map_err(NotStarted::Refused)
@@ -1276,6 +1276,16 @@ impl Controller {
         self.anchor = None;
         self.reach = Some(Reaching { target, legs });
         Ok(())
+    }
+
+    /// Whether `request` was made from where the arm is now (the tip for routes, the pose for
+    /// a `reach`'s way) and in the world in force: what is planned for it, or refused, holds
+    /// now; otherwise it is to be planned again ([`Controller::replan_request`]).
+    pub fn fits(&self, request: &PlanRequest) -> bool {
+        match request {
+            PlanRequest::Routes(r) => self.tip == r.from && self.plan == r.world,
+            PlanRequest::Reach(job) => self.theta == job.from && self.world == job.world,
+        }
     }
 
     /// The same request from where the arm is now, in the world in force: what

@@ -775,8 +775,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// A tick of the planning under way: its routes started once planned, as the command
-    /// would have started them then; planned again when the tip or the world moved meanwhile;
-    /// refused as the command would have been (a fault holding the arm, a refused route).
+    /// would have started them then; planned again when the tip or the world moved meanwhile
+    /// (whether the planner found routes or not: a refusal in a world no longer in force says
+    /// nothing of this one); refused as the command would have been (a fault holding the arm,
+    /// a refused route).
     pub(super) fn tend_planning(&mut self) {
         let Some(job) = self.planning.as_ref() else {
             return;
@@ -802,10 +804,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 let message = "the planner stopped without an answer: send again";
                 return self.end_planning(refuse(Code::Busy, message));
             }
-            Polled::Done(Err(r)) => return self.end_planning(refusal(r)),
+            Polled::Done(Err(r)) if self.controller.fits(&job.request) => {
+                return self.end_planning(refusal(r))
+            }
+            Polled::Done(Err(_)) => return self.plan_again(),
             Polled::Done(Ok(route)) => route,
         };
-        let Some(job) = self.planning.as_mut() else {
+        let Some(job) = self.planning.as_ref() else {
             return;
         };
         match self.controller.start_planned(&job.request, route) {
@@ -829,20 +834,27 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 }
             }
             Err(NotStarted::Refused(r)) => self.end_planning(refusal(r)),
-            Err(NotStarted::Replan) if job.replans < MAX_REPLANS => {
-                job.replans += 1;
-                job.serial = None;
-                self.send_plan_or_end();
-            }
-            Err(NotStarted::Replan) => {
-                let message = format!(
-                    "the arm or the world moved each of the {} times the command was planned: \
-                     send again",
-                    MAX_REPLANS + 1
-                );
-                self.end_planning(refuse(Code::Busy, message));
-            }
+            Err(NotStarted::Replan) => self.plan_again(),
         }
+    }
+
+    /// The planning's request made for a tip, a pose or a world no longer in force: handed to
+    /// the planner again from where the arm is, in the world in force, up to [`MAX_REPLANS`]
+    /// times; then refused `busy`.
+    fn plan_again(&mut self) {
+        let Some(job) = self.planning.as_mut() else {
+            return;
+        };
+        if job.replans < MAX_REPLANS {
+            job.replans += 1;
+            job.serial = None;
+            return self.send_plan_or_end();
+        }
+        let message = format!(
+            "the arm or the world moved each of the {} times the command was planned: send again",
+            MAX_REPLANS + 1
+        );
+        self.end_planning(refuse(Code::Busy, message));
     }
 
     /// A command came that preempts the one whose routes are being planned (`by`): that one

@@ -2151,3 +2151,50 @@ fn a_motion_refused_while_the_routes_are_planned_leaves_them_to_come() {
     rig.ticks(1);
     goto.try_recv().expect("answered").expect("taken");
 }
+
+/// Two long thin walls either side of the base, forming a slot the arm points out of: no clear
+/// way down below them is found (the planner gives up after its work).
+fn slot() -> Obstacles {
+    use crate::world::{Obstacle, Shape};
+    let wall = |id: &str, near: f64, far: f64| Obstacle {
+        id: id.into(),
+        shape: Shape::Polygon {
+            points: [[near, 0.0], [far, 0.0], [far, 0.01], [near, 0.01]]
+                .map(|[x, y]| crate::chain::Vec2::new(x, y))
+                .to_vec(),
+        },
+    };
+    Obstacles::new(vec![wall("right", 0.05, 1.2), wall("left", -0.05, -1.2)]).unwrap()
+}
+
+/// Regression: a `reach` refused by the planner in a world changed meanwhile was answered
+/// `unreachable`, though the world in force had nothing in its way. Its way is planned again in
+/// the world in force, as a way found would be.
+#[test]
+fn a_reach_refused_in_a_world_changed_meanwhile_is_planned_again() {
+    let mut rig = Rig::with_tables(100.0, "", "\n[world]\nlink_radius_m = 0.012\n");
+    rig.command(LoopCmd::SetWorld { obstacles: slot() })
+        .unwrap();
+    let mut reach = rig.send(LoopCmd::Motion(Motion::Reach {
+        target: [0.5, -0.2],
+    }));
+    // In the reach's tick, so that its way is planned in the slot.
+    let mut clear = rig.send(LoopCmd::SetWorld {
+        obstacles: Obstacles::new(Vec::new()).unwrap(),
+    });
+    rig.ticks(1);
+    clear.try_recv().expect("answered in its tick").unwrap();
+    assert!(rig.cycle.wait_for_routes(), "the planner never answered");
+    rig.ticks(1);
+    assert!(
+        reach.try_recv().is_err(),
+        "answered on the slot's refusal, the slot gone"
+    );
+    assert!(rig.cycle.planning_routes(), "not planned again");
+    assert!(rig.cycle.wait_for_routes(), "the planner never answered");
+    rig.ticks(1);
+    reach
+        .try_recv()
+        .expect("answered once its way was planned again")
+        .expect("taken");
+}
