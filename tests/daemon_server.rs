@@ -87,6 +87,7 @@ impl Daemon {
             ends.commands,
             ends.stops,
             ends.telemetry.subscribe(),
+            ends.events.clone(),
             draining_rx,
         ));
         let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -130,14 +131,18 @@ impl Daemon {
 /// `estop` from their own queue, merged by arrival) and answers
 /// each `{"tick": k, "cmd": NAME, "client": ID}`, k counting the commands it answered; `status`
 /// with the telemetry fields; `goto_joints` with an `unreachable` rejection; `reset_stats` by
-/// dropping the reply (as a loop that went away mid-command).
+/// dropping the reply (as a loop that went away mid-command). A `reach` it keeps for later (as
+/// the loop does while its way is planned), saying so, until a `stop` comes: that answers the
+/// reach as taken, then tells its sender it was `preempted`, then answers the stop.
 async fn fake_loop(
     mut commands: mpsc::Receiver<Envelope>,
     mut stops: mpsc::Receiver<Envelope>,
     telemetry: watch::Receiver<Telemetry>,
+    events: broadcast::Sender<Event>,
     mut draining: watch::Receiver<bool>,
 ) {
     let mut tick = 0u64;
+    let mut kept: Vec<Envelope> = Vec::new();
     let mut every = time::interval(Duration::from_millis(1));
     loop {
         every.tick().await;
@@ -150,8 +155,31 @@ async fn fake_loop(
         let mut taken: Vec<Envelope> = std::iter::from_fn(|| stops.try_recv().ok()).collect();
         taken.extend(std::iter::from_fn(|| commands.try_recv().ok()));
         taken.sort_by_key(|e| e.received);
-        for envelope in taken {
+        for mut envelope in taken {
             tick += 1;
+            if let LoopCmd::Motion(Motion::Reach { .. }) = envelope.cmd {
+                if let Some(later) = envelope.later.take() {
+                    let _ = later.send(());
+                }
+                kept.push(envelope);
+                continue;
+            }
+            if let LoopCmd::Stop = envelope.cmd {
+                for reach in kept.drain(..) {
+                    let _ = reach
+                        .reply
+                        .send(Ok(Reply::Applied(Applied { tick }).into()));
+                    let _ = events.send(Event {
+                        owner: Some(reach.client),
+                        cmd_id: reach.id,
+                        tick,
+                        what: What::Preempted {
+                            tip: [0.0, 0.0],
+                            reason: CmdName::Stop,
+                        },
+                    });
+                }
+            }
             let answer = match envelope.cmd {
                 LoopCmd::Status => {
                     let status = Status::of(telemetry.borrow().clone());
@@ -396,6 +424,52 @@ async fn replies_keep_the_order_of_the_requests() {
     }
 }
 
+/// Regression: a reply the loop keeps for later (a `reach` while its way is planned) held up
+/// every reply and event after it on its connection. Those are written meanwhile; the kept
+/// reply comes when the loop gives it, before the reply to the `stop` that ended it and
+/// before the event about it.
+#[tokio::test]
+async fn a_reply_the_loop_keeps_for_later_holds_up_nothing_after_it() {
+    let daemon = Daemon::new().await;
+    let mut c = daemon.client().await;
+    let mut burst = String::new();
+    for request in [
+        json!({"cmd": "reach", "id": "r", "target": [0.1, 0.1]}),
+        json!({"cmd": "describe", "id": "d"}),
+        json!({"cmd": "status", "id": "s"}),
+        json!({"cmd": "goto", "id": "g", "target": [0.1, 0.1]}),
+    ] {
+        burst.push_str(&request.to_string());
+        burst.push('\n');
+    }
+    c.send_raw(burst.as_bytes()).await;
+    for id in ["d", "s", "g"] {
+        let reply = c.reply().await;
+        assert_eq!(reply["id"], json!(id), "{reply}");
+    }
+    // An event to everyone comes too (after the `control` event the reach's taking of control
+    // sent).
+    daemon
+        .events
+        .send(event(None, EventKind::Reset, 7))
+        .unwrap();
+    loop {
+        let line = c.recv().await;
+        assert_eq!(line["type"], json!("event"), "{line}");
+        if line["event"] == json!("reset") {
+            break;
+        }
+    }
+    c.send(&json!({"cmd": "stop", "id": "x"})).await;
+    let lines = [c.recv().await, c.recv().await, c.recv().await];
+    assert_eq!(lines[0]["id"], json!("r"), "{lines:?}");
+    assert_eq!(lines[0]["ok"], json!(true), "{lines:?}");
+    assert_eq!(lines[1]["id"], json!("x"), "{lines:?}");
+    assert_eq!(lines[2]["event"], json!("preempted"), "{lines:?}");
+    assert_eq!(lines[2]["cmd_id"], json!("r"), "{lines:?}");
+    assert_eq!(lines[0]["tick"], lines[2]["tick"], "{lines:?}");
+}
+
 #[tokio::test]
 async fn describe_is_answered_with_its_fields_flat() {
     let daemon = Daemon::new().await;
@@ -433,6 +507,7 @@ fn fill_the_queue(daemon: &Daemon) -> Vec<oneshot::Receiver<link::Answer>> {
             cmd: LoopCmd::Status,
             received: std::time::Instant::now(),
             reply,
+            later: None,
         };
         if daemon.handle.commands.try_send(envelope).is_err() {
             return waiting;

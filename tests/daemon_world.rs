@@ -643,6 +643,59 @@ fn a_reach_refused_in_a_world_changed_meanwhile_is_planned_again() {
     );
 }
 
+/// Regression: while a `reach` was planned (0.6 s in the slot), every other reply and event to
+/// its connection waited for its answer. The lines sent after it are answered meanwhile, and
+/// so is another client's taking of control told; the reach's own reply comes when its
+/// planning ends.
+#[test]
+fn a_connection_is_served_while_its_reach_is_planned() {
+    let _one = one_at_a_time();
+    let d = with_link_radius("0.012");
+    let mut c = d.client();
+    take_control(&mut c);
+    c.ok(json!({"cmd": "set_world", "obstacles": slot()}));
+    let ids = send_at_once(
+        &mut c,
+        &[
+            json!({"cmd": "reach", "target": [0.5, -0.2]}),
+            json!({"cmd": "describe"}),
+            json!({"cmd": "world"}),
+            json!({"cmd": "status"}),
+        ],
+    );
+    let mut seen = Vec::new();
+    let mut next = |seen: &mut Vec<Value>| {
+        let line = c
+            .read_line(daemon_support::DEADLINE)
+            .expect("a line within the deadline");
+        seen.push(line);
+    };
+    while ids[1..].iter().any(|&id| reply_in(&seen, id).is_none()) {
+        next(&mut seen);
+    }
+    assert!(
+        reply_in(&seen, ids[0]).is_none(),
+        "the others waited for the reach: {seen:?}"
+    );
+    let mut other = d.client();
+    let holder = take_control(&mut other);
+    while !seen
+        .iter()
+        .any(|l| l["event"] == "control" && l["holder"] == json!(holder))
+    {
+        next(&mut seen);
+    }
+    assert!(
+        reply_in(&seen, ids[0]).is_none(),
+        "the control event waited for the reach: {seen:?}"
+    );
+    while reply_in(&seen, ids[0]).is_none() {
+        next(&mut seen);
+    }
+    let reply = reply_in(&seen, ids[0]).unwrap();
+    assert_eq!(reply["error"]["code"], "unreachable", "{reply}");
+}
+
 #[test]
 fn a_velocity_into_a_wall_slides_along_it() {
     let _one = one_at_a_time();

@@ -2,7 +2,8 @@
 //!
 //! Commands go in through one bounded queue ([`COMMAND_QUEUE`] envelopes; when it is full the
 //! server answers `busy` at once instead of waiting), each with a oneshot for its reply, sent once
-//! the loop has applied the command. `stop` and `estop` have a queue of their own
+//! the loop has applied the command (and one to say the reply comes later, for a command the
+//! loop works on over ticks). `stop` and `estop` have a queue of their own
 //! ([`STOP_QUEUE`]), so that no backlog of other commands can hold them back; the loop drains
 //! both at the start of every tick and applies what it took in the order the lines arrived.
 //! Telemetry comes out latest-wins through a `watch` (a slow reader sees fewer snapshots, never
@@ -44,6 +45,11 @@ pub struct Envelope {
     /// Where the loop sends the answer once it has applied the command. A client gone by then
     /// is not an error.
     pub reply: oneshot::Sender<Answer>,
+    /// Told when the loop keeps the answer for later than the tick that takes the command (a
+    /// `goto`, `path` or `reach` planned beside the loop, a `reboot`): the sender's connection
+    /// then serves its lines after it meanwhile. `None`: the sender waits for the answer
+    /// whenever it comes.
+    pub later: Option<oneshot::Sender<()>>,
 }
 
 /// What the socket side holds of a running loop.

@@ -1,6 +1,7 @@
 //! Commands as the loop applies them, at the start of a tick in arrival order: each checked
 //! against the supervisor's mode, handed to the controller, entered in the ledger, and answered
-//! once this tick's telemetry is out.
+//! once this tick's telemetry is out (a `reboot`, or a command planned beside the loop, when
+//! that work ends).
 
 use std::time::Duration;
 
@@ -85,16 +86,35 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.stops = stops;
     }
 
-    /// One command applied; its answer waits for this tick's telemetry.
+    /// One command applied; its answer waits for this tick's telemetry, or for the reboot or
+    /// the planning it began (its sender told so).
     fn take(&mut self, envelope: Envelope) {
         let pending = self.apply(&envelope);
         self.received.push(envelope.received);
-        match (pending, self.rebooting.as_mut(), self.planning.as_mut()) {
+        let kept = match (pending, self.rebooting.as_mut(), self.planning.as_mut()) {
             // Answered when its servos are back (`tend_reboot`).
-            (Pending::Rebooting, Some(job), _) => job.reply = Some(envelope.reply),
+            (Pending::Rebooting, Some(job), _) => &mut job.reply,
             // Answered when its routes are planned (`tend_planning`).
-            (Pending::Planning, _, Some(job)) => job.reply = Some(envelope.reply),
-            (pending, _, _) => self.pending.push((envelope.reply, pending)),
+            (Pending::Planning, _, Some(job)) => &mut job.reply,
+            (pending, _, _) => return self.pending.push((envelope.reply, pending)),
+        };
+        *kept = Some(envelope.reply);
+        if let Some(later) = envelope.later {
+            // A sender gone is not an error.
+            let _ = later.send(());
+        }
+    }
+
+    /// The answer of a command the loop kept for later (a reboot, a planning), sent now:
+    /// before the events about it that this tick sends, so that its sender, whose connection
+    /// writes the answer as it comes, reads them in that order.
+    fn answer_kept(&mut self, reply: oneshot::Sender<Answer>, answer: Pending) {
+        match answer {
+            // A client gone is not an error.
+            Pending::Ready(answer) => {
+                let _ = reply.send(answer);
+            }
+            other => self.pending.push((reply, other)),
         }
     }
 
@@ -628,12 +648,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         };
         self.stats.counters.retries += u64::from(job.reboots.retries());
         let targets = job.reboots.ids().to_vec();
-        let answer = match polled {
-            Ok(()) => self.rebooted(targets),
-            Err(message) => refuse(Code::Fault, message),
-        };
-        if let Some(reply) = job.reply {
-            self.pending.push((reply, answer));
+        match polled {
+            Ok(()) => self.rebooted(targets, job.reply),
+            Err(message) => {
+                if let Some(reply) = job.reply {
+                    self.answer_kept(reply, refuse(Code::Fault, message));
+                }
+            }
         }
     }
 
@@ -649,16 +670,20 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 Code::ShuttingDown,
                 "the daemon is stopping: the reboot was not completed",
             );
-            self.pending.push((reply, answer));
+            self.answer_kept(reply, answer);
         }
     }
 
-    /// Every rebooted servo answers: the arm brought up where it stands, the faults cleared.
-    fn rebooted(&mut self, targets: Vec<u8>) -> Pending {
+    /// Every rebooted servo answers: the arm brought up where it stands, the reboot answered
+    /// (`reply`), then the faults cleared.
+    fn rebooted(&mut self, targets: Vec<u8>, reply: Option<oneshot::Sender<Answer>>) {
         // Under a latch that switched torque off, torque stays off until `reset`.
         let latched_off = self.supervisor.estopped() && !self.supervisor.torque();
         if let Err(refusal) = self.bring_up_after_reboot() {
-            return refusal;
+            if let Some(reply) = reply {
+                self.answer_kept(reply, refusal);
+            }
+            return;
         }
         let torque = if latched_off {
             // Bring-up switched it on; the latch keeps it off.
@@ -669,6 +694,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             "torque on"
         };
         tracing::info!(?targets, "rebooted; holding the measured pose");
+        if let Some(reply) = reply {
+            let answer = Reply::Rebooted(Rebooted {
+                tick: self.tick,
+                rebooted: targets.clone(),
+            });
+            self.answer_kept(reply, Pending::Ready(Ok(answer.into())));
+        }
         for i in 0..self.health.len() {
             let id = self.ids.get(i).copied().unwrap_or_default();
             let detail = if targets.contains(&id) {
@@ -679,11 +711,6 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.clear(i, detail);
         }
         self.sync_faulted();
-        Pending::Ready(Ok(Reply::Rebooted(Rebooted {
-            tick: self.tick,
-            rebooted: targets,
-        })
-        .into()))
     }
 
     /// The bring-up where the arm stands after a reboot; goals := that pose, torque on.
@@ -825,13 +852,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                     replans = job.replans,
                     "planned beside the loop; the command begins"
                 );
+                if let Some(reply) = job.reply {
+                    self.answer_kept(reply, applied(self.tick));
+                }
                 let ended = self
                     .ledger
                     .begin(job.client, job.id.clone(), job.kind, Renewal::None);
                 self.owe(ended);
-                if let Some(reply) = job.reply {
-                    self.pending.push((reply, applied(self.tick)));
-                }
             }
             Err(NotStarted::Refused(r)) => self.end_planning(refusal(r)),
             Err(NotStarted::Replan) => self.plan_again(),
@@ -872,21 +899,21 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let Some(job) = self.planning.take() else {
             return;
         };
+        if let Some(reply) = job.reply {
+            self.answer_kept(reply, applied(self.tick));
+        }
         let _ = self
             .ledger
             .begin(job.client, job.id.clone(), job.kind, Renewal::None);
         let ended = self.ledger.preempt(by);
         self.owe(ended);
-        if let Some(reply) = job.reply {
-            self.pending.push((reply, applied(self.tick)));
-        }
     }
 
     /// The planning ends without its command: answered `answer`.
     fn end_planning(&mut self, answer: Pending) {
         self.planner.cancel();
         if let Some(reply) = self.planning.take().and_then(|job| job.reply) {
-            self.pending.push((reply, answer));
+            self.answer_kept(reply, answer);
         }
     }
 

@@ -21,7 +21,9 @@
 //! the next tick decides on it), tend a `reboot` under way in the rest of the tick (ping its
 //! booting servos; once all are back, bring the arm up and answer it), publish the telemetry (latest wins; and, when the run is
 //! recorded, hand a copy to the recorder, [`crate::record::tap`]), then answer the commands
-//! applied in this tick. A tick that runs late makes the loop skip the periods it missed
+//! applied in this tick. A `reboot`, or a command planned beside the loop, is answered when that
+//! work ends, in the tick that ends it and before the events about it (its sender told, when
+//! the loop took it, that the answer comes later). A tick that runs late makes the loop skip the periods it missed
 //! (counted as overruns), never catch up in a burst. The wait for the next period sleeps to
 //! [`SPIN_TAIL`](snakectl_sim::clock::SPIN_TAIL) before it and spins the rest
 //! ([`Clock::sleep_until`]), and the loop's thread and its ports' run with a timer slack of

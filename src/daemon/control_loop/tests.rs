@@ -440,6 +440,7 @@ impl Rig {
                 cmd,
                 received: self.clock.now(),
                 reply,
+                later: None,
             })
             .unwrap();
         answer
@@ -1452,6 +1453,7 @@ fn queue(rig: &Rig, stops: bool, cmd: LoopCmd, received: Instant) -> oneshot::Re
         cmd,
         received,
         reply,
+        later: None,
     };
     let queue = if stops {
         &rig.handle.stops

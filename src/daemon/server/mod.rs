@@ -292,7 +292,7 @@ impl Door {
     /// refused `bad_arg`: a door moves, stops and asks for status, nothing else.
     pub fn send(&self, cmd: Cmd) -> Result<oneshot::Receiver<Answer>, Rejection> {
         match cmd.route() {
-            Route::Loop(cmd) => self.shared.submit(self.id, None, cmd, Instant::now()),
+            Route::Loop(cmd) => self.shared.submit(self.id, None, cmd, Instant::now(), None),
             Route::Session(cmd) => Err(Rejection::new(
                 Code::BadArg,
                 format!("`{}` is not taken through this door", cmd.name()),
@@ -426,13 +426,15 @@ impl Shared {
     }
 
     /// Puts `cmd` from `who` to the arbiter and, admitted, queues it for the loop without
-    /// waiting for room (full: `busy`, and control taken for it is given back).
+    /// waiting for room (full: `busy`, and control taken for it is given back). `later` is
+    /// told if the loop keeps the answer past the tick that takes the command.
     fn submit(
         &self,
         who: ClientId,
         id: Option<RequestId>,
         cmd: LoopCmd,
         received: Instant,
+        later: Option<oneshot::Sender<()>>,
     ) -> Result<oneshot::Receiver<Answer>, Rejection> {
         let (reply, answer) = oneshot::channel();
         // Admission and queueing under one lock: once a `take_control` is answered, no
@@ -445,6 +447,7 @@ impl Shared {
             cmd,
             received,
             reply,
+            later,
         };
         let queue = match envelope.cmd {
             LoopCmd::Stop | LoopCmd::Estop => &self.handle.stops,
@@ -581,7 +584,7 @@ async fn over_the_limit(
                 let Route::Loop(cmd) = request.cmd.route() else {
                     return;
                 };
-                let answer = match shared.submit(id, rid.clone(), cmd, Instant::now()) {
+                let answer = match shared.submit(id, rid.clone(), cmd, Instant::now(), None) {
                     Ok(answer) => answer.await.unwrap_or_else(|_| Err(stopped())),
                     Err(why) => Err(why),
                 };

@@ -1,12 +1,15 @@
 //! One client from connect to close: its lines read as they come, its commands sent on at once,
-//! its answers written in the order of its requests.
+//! its answers written in the order of its requests (but for one the loop keeps for later).
 //!
 //! Reading never waits for the loop. Each request line is parsed and, for the loop, submitted
 //! the moment it arrives; what will answer it joins the connection's [`Answers`], a queue in
 //! request order that the session moves to the writer as answers come in. So a `stop` or an
 //! `estop` is in the loop's hands in the tick after its line arrives, whatever this client (or
 //! any other) sent before it, and its reply still comes after the replies to the lines before
-//! it. What bounds a client:
+//! it. A command the loop answers only once its work beside the ticks is done (a `reach`, a
+//! `goto` or `path` planned beside the loop, a `reboot`) steps out of that order when the loop
+//! says so: the replies and events after it are written meanwhile, and its reply when it comes
+//! (before the events about it, which the loop sends after it). What bounds a client:
 //! - [`COMMANDS_IN_FLIGHT`] commands waiting for the loop (a `velocity` flood included): one
 //!   more is answered `busy` at once. `stop` and `estop` do not count against it; they have a
 //!   share of their own ([`STOPS_IN_FLIGHT`] of each, which a burst cannot exceed in a tick
@@ -18,8 +21,11 @@
 //!   connection that says nothing is closed, so idle sockets cannot hold the places.
 
 use std::collections::VecDeque;
+use std::future::Future;
 use std::io;
+use std::pin::Pin;
 use std::sync::Arc;
+use std::task::Poll;
 use std::time::Instant;
 
 use tokio::io::AsyncRead;
@@ -45,8 +51,8 @@ pub const COMMANDS_IN_FLIGHT: usize = super::COMMAND_QUEUE / 4;
 /// `stop`s, and separately `estop`s, one connection may have waiting for the loop at once.
 pub const STOPS_IN_FLIGHT: usize = 8;
 
-/// Replies and events one connection may have waiting to be written; a client that lets more
-/// pile up does not read, and is disconnected.
+/// Replies and events one connection may have waiting to be written (answers the loop keeps
+/// for later among them); a client that lets more pile up does not read, and is disconnected.
 pub const ANSWERS_WAITING: usize = 1024;
 
 /// One client from connect to close.
@@ -210,7 +216,26 @@ enum Owed {
         id: Option<RequestId>,
         flight: Flight,
         answer: oneshot::Receiver<Answer>,
+        /// Told if the loop keeps the answer for later; `None` once the loop has taken the
+        /// command without saying so (its answer then comes in that tick).
+        later: Option<oneshot::Receiver<()>>,
     },
+}
+
+/// An answer the loop keeps for later, out of the order of the requests.
+struct Later {
+    id: Option<RequestId>,
+    answer: oneshot::Receiver<Answer>,
+}
+
+/// What became of the loop's answer to the first request.
+enum Front {
+    /// In.
+    Answered(Answer),
+    /// The loop keeps it for later.
+    Later,
+    /// The loop took the command without keeping its answer: it comes in that tick.
+    InTick,
 }
 
 /// The answers a connection owes, in the order of its requests, and how many of them wait on
@@ -218,6 +243,9 @@ enum Owed {
 #[derive(Default)]
 struct Answers {
     owed: VecDeque<Owed>,
+    /// The answers the loop keeps for later, each written as it comes. Few: the loop keeps
+    /// one planning and one reboot at a time, and answers the one a new one replaces.
+    later: Vec<Later>,
     commands: usize,
     stops: usize,
     estops: usize,
@@ -272,17 +300,88 @@ impl Answers {
         self.estops -= estops;
     }
 
-    /// Waits for the loop's answer to the first request and puts its line in its place
-    /// (cancel-safe: nothing is taken until the answer is in). `fill` turns it into the line.
-    async fn settle_front(&mut self, fill: impl FnOnce(Option<RequestId>, Answer) -> String) {
-        let Some(Owed::Loop { answer, .. }) = self.owed.front_mut() else {
+    /// Waits for the next of the loop's answers this connection waits on, and puts its line in
+    /// place: one kept for later first among those owed, as it comes (so before the answers
+    /// owed after its request: a `stop` that ended it, say); the first request's in its place.
+    /// When the loop keeps the first request's answer for later, sets the request aside
+    /// ([`Answers::later`]), so that the ones after it are written meanwhile. Cancel-safe:
+    /// nothing is taken until an answer or the loop's word is in. `fill` turns an answer into
+    /// its line. Waits for ever when nothing waits on the loop.
+    async fn settle(&mut self, fill: impl FnOnce(Option<RequestId>, Answer) -> String) {
+        enum Got {
+            Kept(usize, Answer),
+            Front(Front),
+        }
+        let answered = |a: Result<Answer, _>| a.unwrap_or_else(|_| Err(stopped()));
+        let got = std::future::poll_fn(|cx| {
+            for (k, l) in self.later.iter_mut().enumerate() {
+                if let Poll::Ready(a) = Pin::new(&mut l.answer).poll(cx) {
+                    return Poll::Ready(Got::Kept(k, answered(a)));
+                }
+            }
+            if let Some(Owed::Loop { answer, later, .. }) = self.owed.front_mut() {
+                if let Poll::Ready(a) = Pin::new(answer).poll(cx) {
+                    return Poll::Ready(Got::Front(Front::Answered(answered(a))));
+                }
+                if let Some(word) = later {
+                    if let Poll::Ready(told) = Pin::new(word).poll(cx) {
+                        let front = if told.is_ok() {
+                            Front::Later
+                        } else {
+                            Front::InTick
+                        };
+                        return Poll::Ready(Got::Front(front));
+                    }
+                }
+            }
+            Poll::Pending
+        })
+        .await;
+        let front = match got {
+            Got::Kept(k, answer) => {
+                let l = self.later.remove(k);
+                return self.owed.push_front(Owed::Line(fill(l.id, answer)));
+            }
+            Got::Front(Front::InTick) => {
+                if let Some(Owed::Loop { later, .. }) = self.owed.front_mut() {
+                    *later = None;
+                }
+                return;
+            }
+            Got::Front(front) => front,
+        };
+        let Some(Owed::Loop {
+            id, flight, answer, ..
+        }) = self.owed.pop_front()
+        else {
             return;
         };
-        let answer = answer.await.unwrap_or_else(|_| Err(stopped()));
-        if let Some(Owed::Loop { id, flight, .. }) = self.owed.pop_front() {
-            *self.waiting(flight) -= 1;
-            self.owed.push_front(Owed::Line(fill(id, answer)));
+        *self.waiting(flight) -= 1;
+        match front {
+            Front::Answered(a) => self.owed.push_front(Owed::Line(fill(id, a))),
+            _ => self.later.push(Later { id, answer }),
         }
+    }
+
+    /// Puts first among those owed the lines of the answers kept for later that are in
+    /// already: before an event about one of them, which the loop sends after its answer.
+    fn take_later(&mut self, fill: impl Fn(Option<RequestId>, Answer) -> String) {
+        let mut k = self.later.len();
+        while k > 0 {
+            k -= 1;
+            let answer = match self.later[k].answer.try_recv() {
+                Ok(answer) => answer,
+                Err(oneshot::error::TryRecvError::Empty) => continue,
+                Err(oneshot::error::TryRecvError::Closed) => Err(stopped()),
+            };
+            let l = self.later.remove(k);
+            self.owed.push_front(Owed::Line(fill(l.id, answer)));
+        }
+    }
+
+    /// How many answers are owed, those kept for later included.
+    fn len(&self) -> usize {
+        self.owed.len() + self.later.len()
     }
 }
 
@@ -322,14 +421,16 @@ impl Session<'_> {
         loop {
             let waits = self.answers.front_waits();
             let ready = self.answers.front_ready();
+            let kept = !self.answers.later.is_empty();
             let out = self.out.clone();
+            let (shared, me) = (self.shared, self.id);
             let step = tokio::select! {
                 biased;
                 _ = stop.changed() => {
                     self.drain_events(&mut events, &mut control);
                     return End::Stop;
                 }
-                () = self.answers.settle_front(|id, answer| reply(self.shared, self.id, id, answer)), if waits => Ok(()),
+                () = self.answers.settle(|id, answer| reply(shared, me, id, answer)), if waits || kept => Ok(()),
                 permit = out.reserve_owned(), if ready => match permit {
                     Ok(permit) => {
                         self.write_front(permit);
@@ -407,12 +508,13 @@ impl Session<'_> {
     /// Every answer still owed, written (the loop's within the caller's grace), the events
     /// already broadcast included.
     async fn flush(&mut self) {
-        while !self.answers.owed.is_empty() {
-            if self.answers.front_waits() {
-                let (shared, me) = (self.shared, self.id);
+        let (shared, me) = (self.shared, self.id);
+        while self.answers.len() > 0 {
+            if self.answers.owed.is_empty() || self.answers.front_waits() {
                 self.answers
-                    .settle_front(|id, answer| reply(shared, me, id, answer))
+                    .settle(|id, answer| reply(shared, me, id, answer))
                     .await;
+                continue;
             }
             match self.out.clone().reserve_owned().await {
                 Ok(permit) => self.write_front(permit),
@@ -498,11 +600,17 @@ impl Session<'_> {
         }
     }
 
-    /// Owes an event line when the event is this client's or everyone's.
+    /// Owes an event line when the event is this client's or everyone's, after the answers
+    /// kept for later that are in (the loop sends one before the events about its command).
     fn event(&mut self, event: &Event) -> Result<(), End> {
         match event.owner {
             Some(owner) if owner != self.id => Ok(()),
-            _ => self.owe(Owed::Line(protocol::event_line(event))),
+            _ => {
+                let (shared, me) = (self.shared, self.id);
+                self.answers
+                    .take_later(|id, answer| reply(shared, me, id, answer));
+                self.owe(Owed::Line(protocol::event_line(event)))
+            }
         }
     }
 
@@ -513,7 +621,7 @@ impl Session<'_> {
 
     /// Adds an answer to those owed; too many owed ends the client.
     fn owe(&mut self, owed: Owed) -> Result<(), End> {
-        if self.answers.owed.len() >= ANSWERS_WAITING {
+        if self.answers.len() >= ANSWERS_WAITING {
             return Err(End::Overflow);
         }
         self.answers.owed.push_back(owed);
@@ -627,11 +735,21 @@ impl Session<'_> {
                 ),
             )
         } else {
-            match self.shared.submit(self.id, id.clone(), cmd, received) {
+            let (tell, later) = oneshot::channel();
+            match self
+                .shared
+                .submit(self.id, id.clone(), cmd, received, Some(tell))
+            {
                 Ok(answer) => {
                     *self.answers.waiting(flight) += 1;
                     // Sent on even when the answer cannot be owed: a `stop` still stops.
-                    return self.owe(Owed::Loop { id, flight, answer });
+                    let later = Some(later);
+                    return self.owe(Owed::Loop {
+                        id,
+                        flight,
+                        answer,
+                        later,
+                    });
                 }
                 Err(why) => why,
             }
