@@ -696,6 +696,55 @@ fn a_connection_is_served_while_its_reach_is_planned() {
     assert_eq!(reply["error"]["code"], "unreachable", "{reply}");
 }
 
+/// A `preempted` event carries the tick its command ended in, the tick that took the command
+/// replacing it, not the one that took its own: a `goto` under way ended by a `reach` (taken
+/// with a `status` in one write), and that `reach`, still being planned, ended by a `stop`
+/// some ticks on, answered then with the stop's tick.
+#[test]
+fn a_preempted_event_carries_the_tick_that_ended_its_command() {
+    let _one = one_at_a_time();
+    let d = with_link_radius("0.012");
+    let mut c = d.client();
+    take_control(&mut c);
+    c.ok(json!({"cmd": "set_world", "obstacles": slot()}));
+    let tip = xy(&c.status()["tip"]);
+    let goto = c.send(json!({"cmd": "goto", "target": [tip[0] + 0.05, tip[1]], "speed": 0.01}));
+    let began = c.reply(&json!(goto))["tick"].as_u64().unwrap();
+    let ids = send_at_once(
+        &mut c,
+        &[
+            json!({"cmd": "reach", "target": [0.5, -0.2]}),
+            json!({"cmd": "status"}),
+        ],
+    );
+    let taken = c.reply(&json!(ids[1]))["tick"].as_u64().unwrap();
+    let ended = c.event("preempted", Some(goto));
+    assert_eq!(ended["reason"], "reach", "{ended}");
+    let at = ended["tick"].as_u64().unwrap();
+    assert!(began < at && at <= taken, "{began} < {at} <= {taken}");
+    // A few ticks on, the reach still being planned.
+    let later = c.wait_status("ticks on", |s| s["tick"].as_u64().unwrap() >= taken + 5);
+    assert_eq!(
+        later["command"]["id"],
+        json!(goto),
+        "the reach began: {later}"
+    );
+    let stop = c.send(json!({"cmd": "stop"}));
+    let lines = lines_about(&mut c, &[ids[0], stop], |lines| {
+        reply_in(lines, stop).is_some()
+            && lines
+                .iter()
+                .any(|l| l["event"] == "preempted" && l["cmd_id"] == json!(ids[0]))
+    });
+    let stopped = reply_in(&lines, stop).unwrap()["tick"].as_u64().unwrap();
+    let reach = reply_in(&lines, ids[0]).unwrap();
+    assert_eq!(reach["tick"], json!(stopped), "{reach}");
+    let ended = lines.iter().find(|l| l["event"] == "preempted").unwrap();
+    assert_eq!(ended["reason"], "stop", "{ended}");
+    assert_eq!(ended["tick"], json!(stopped), "{ended}");
+    assert!(stopped > taken + 4, "{stopped} after {taken}");
+}
+
 #[test]
 fn a_velocity_into_a_wall_slides_along_it() {
     let _one = one_at_a_time();
