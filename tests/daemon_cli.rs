@@ -77,6 +77,12 @@ fn sigterm_brings_the_arm_to_rest_then_torque_off_and_exits_0() {
         told.iter().any(|l| l["event"] == "shutting_down"),
         "no shutting_down event: {told:?}"
     );
+    // The goto came to rest for the shut-down, and is told so (not as if someone sent `stop`).
+    assert!(
+        told.iter()
+            .any(|l| l["event"] == "stopped" && l["reason"] == "shutdown"),
+        "no stopped event for the shut-down: {told:?}"
+    );
 }
 
 #[test]

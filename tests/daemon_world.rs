@@ -243,6 +243,27 @@ fn an_obstacle_put_onto_the_arm_is_told_to_everyone_and_the_arm_holds() {
     a.event("clear", None);
 }
 
+/// A move under way when a world change puts an obstacle onto the arm comes to rest, and its
+/// sender is told why (`not_clear`), not as if someone had sent `stop`.
+#[test]
+fn a_move_an_obstacle_is_put_onto_stops_saying_why() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let mut c = d.client();
+    take_control(&mut c);
+    let s = c.status();
+    let tip = xy(&s["tip"]);
+    let id = c.send(json!({"cmd": "goto", "target": [tip[0] + 0.1, tip[1]], "speed": 0.02}));
+    assert_eq!(c.reply(&json!(id))["ok"], json!(true));
+    let s = c.wait_status("moving", |s| s["state"] == "moving");
+    let p = points(&d, &s);
+    let mid = (p[4] + p[5]) / 2.0;
+    c.ok(json!({"cmd": "set_world", "obstacles": [circle("onto", [mid.x, mid.y], 0.01)]}));
+    let stopped = c.event("stopped", None);
+    assert_eq!(stopped["cmd_id"], json!(id), "{stopped}");
+    assert_eq!(stopped["reason"], "not_clear", "{stopped}");
+}
+
 /// A goto away from an obstacle put deep onto the arm takes the arm out under overall (the
 /// shipped strategy): the links not clear need only come no closer, and none does on the way.
 /// The arm 12 mm in radius, as in `config/world.toml`: the disc below is 28 mm deep (when the

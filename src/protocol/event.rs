@@ -114,6 +114,10 @@ pub enum StopReason {
     Torque,
     /// A `reboot`.
     Reboot,
+    /// The daemon is shutting down: it brought the arm to rest.
+    Shutdown,
+    /// A world change put an obstacle onto the arm: it came to rest and holds.
+    NotClear,
 }
 
 impl StopReason {
@@ -125,6 +129,8 @@ impl StopReason {
             StopReason::Fault => "fault",
             StopReason::Torque => "torque",
             StopReason::Reboot => "reboot",
+            StopReason::Shutdown => "shutdown",
+            StopReason::NotClear => "not_clear",
         }
     }
 }

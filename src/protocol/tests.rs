@@ -606,6 +606,8 @@ fn closed_sets_are_written_as_the_strings_they_always_were() {
         (StopReason::Fault, "fault"),
         (StopReason::Torque, "torque"),
         (StopReason::Reboot, "reboot"),
+        (StopReason::Shutdown, "shutdown"),
+        (StopReason::NotClear, "not_clear"),
     ] {
         wire(reason, text);
         assert_eq!(reason.as_str(), text);

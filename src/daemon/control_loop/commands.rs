@@ -361,6 +361,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         let info = Box::new(WorldInfo::of(&world));
         let not_clear = self.controller.set_world(world);
+        if not_clear.is_some() {
+            // The controller brings a moving arm to rest and holds it.
+            self.ledger.stopping(StopReason::NotClear);
+        }
         self.decided.min_clearance_m = self.controller.min_clearance();
         tracing::info!(
             client = e.client,

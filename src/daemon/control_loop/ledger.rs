@@ -98,6 +98,9 @@ pub struct Ledger {
     last: Option<Entry>,
     /// The joint of the last jog, to tell a renewal from a new jog.
     last_jog: Option<usize>,
+    /// Why the daemon itself stopped the active command ([`Ledger::stopping`]): the reason
+    /// its coming to rest is told with, instead of `stop`.
+    cause: Option<StopReason>,
 }
 
 impl Ledger {
@@ -142,6 +145,8 @@ impl Ledger {
         if let Renewal::Jog(joint) = renewal {
             self.last_jog = Some(joint);
         }
+        // A command taken (a renewal too) is what the arm does now, not the daemon's stop.
+        self.cause = None;
         if renews {
             if let Some(a) = self.active.as_mut() {
                 a.id = id;
@@ -181,11 +186,20 @@ impl Ledger {
             Finish::Stopped { deadman: true } => {
                 (Outcome::Stopped, Ending::Stopped(StopReason::Deadman))
             }
-            Finish::Stopped { deadman: false } => {
-                (Outcome::Stopped, Ending::Stopped(StopReason::Stop))
-            }
+            Finish::Stopped { deadman: false } => (
+                Outcome::Stopped,
+                Ending::Stopped(self.cause.take().unwrap_or(StopReason::Stop)),
+            ),
         };
         self.end(outcome, |e| Some(e.ended(ending)))
+    }
+
+    /// The daemon brings the active command to rest itself, for `reason`: told as the reason
+    /// of the `stopped` its coming to rest ends with (until a new command begins).
+    pub fn stopping(&mut self, reason: StopReason) {
+        if self.active.is_some() {
+            self.cause = Some(reason);
+        }
     }
 
     /// The active command ends without arriving: outcome `fault` for a fault, else `stopped`,
@@ -215,6 +229,7 @@ impl Ledger {
         outcome: Outcome,
         event: impl FnOnce(&Entry) -> Option<Ended>,
     ) -> Option<Ended> {
+        self.cause = None;
         let mut done = self.active.take()?;
         done.outcome = outcome;
         let ended = event(&done);
@@ -289,6 +304,30 @@ mod tests {
         l.estop();
         let info = l.info().unwrap();
         assert_eq!((info.kind, info.outcome), (CmdName::Goto, Outcome::Estop));
+    }
+
+    #[test]
+    fn a_stop_the_daemon_made_is_told_with_its_own_reason_once() {
+        let mut l = Ledger::new();
+        l.begin(1, id(1), CmdName::Goto, Renewal::None);
+        l.stopping(StopReason::Shutdown);
+        let e = l.finish(Finish::Stopped { deadman: false }).unwrap();
+        assert_eq!(e.ending, Ending::Stopped(StopReason::Shutdown));
+        // The next command's stop is a client's again.
+        l.begin(1, id(2), CmdName::Goto, Renewal::None);
+        let e = l.finish(Finish::Stopped { deadman: false }).unwrap();
+        assert_eq!(e.ending, Ending::Stopped(StopReason::Stop));
+        // A command taken after the daemon's stop (a renewed velocity) is not the daemon's.
+        l.begin(1, id(3), CmdName::Velocity, Renewal::Velocity);
+        l.stopping(StopReason::NotClear);
+        l.begin(1, id(4), CmdName::Velocity, Renewal::Velocity);
+        let e = l.finish(Finish::Stopped { deadman: false }).unwrap();
+        assert_eq!(e.ending, Ending::Stopped(StopReason::Stop));
+        // With nothing active there is nothing to tell.
+        l.stopping(StopReason::Shutdown);
+        l.begin(1, id(5), CmdName::Goto, Renewal::None);
+        let e = l.finish(Finish::Stopped { deadman: false }).unwrap();
+        assert_eq!(e.ending, Ending::Stopped(StopReason::Stop));
     }
 
     #[test]

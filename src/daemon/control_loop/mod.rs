@@ -86,7 +86,8 @@ use crate::config::Config;
 use crate::connect::{self, ArmConnection};
 use crate::control::{self, Activity, Controller, NotClear};
 use crate::protocol::{
-    Answer, ClientId, Describe, Event, FaultChange, FaultInfo, RequestId, Telemetry, What,
+    Answer, ClientId, Describe, Event, FaultChange, FaultInfo, RequestId, StopReason, Telemetry,
+    What,
 };
 use crate::record::Tap;
 use crate::servo::arm::{Arm, BringUpOptions, OnExit, Within};
@@ -622,6 +623,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if self.supervisor.moves() {
             // A failure here cannot be worse than holding, which the next ticks do anyway.
             let _ = self.controller.command(control::Command::Stop);
+            self.ledger.stopping(StopReason::Shutdown);
         }
         tracing::info!("stopping: bringing the arm to rest");
         self.event(None, None, |tip| What::ShuttingDown { tip });
