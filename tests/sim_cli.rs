@@ -129,6 +129,20 @@ fn sim_serves_one_pty_per_port_each_with_its_servos() {
     assert_eq!(answered(1, &[3, 9]), [9]);
     let _ = child.kill();
     let _ = child.wait();
+    // One --link for two ports: refused, naming the flag and the counts.
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["sim", "--config"])
+        .arg(&config)
+        .arg("--link")
+        .arg(dir.path().join("only"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("1 --link given for the 2 ports of [bus]"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -89,10 +89,12 @@ pub enum ConnectError {
         ports: usize,
     },
     /// Explicit ports given, but not one per port of the file.
-    #[error("{}: {given} ports given for the {expected} of [bus]: give one per port, in order", path.display())]
+    #[error("{}: {given} {flag} given for the {expected} ports of [bus]: give one per port, in order", path.display())]
     PortCount {
         /// The config file.
         path: PathBuf,
+        /// What gave them (`--port`, `--link`).
+        flag: &'static str,
         /// Ports given.
         given: usize,
         /// Ports in the file.
@@ -240,6 +242,7 @@ pub fn open_arm(config: &Config, options: Options) -> Result<ArmConnection, Conn
     if !given.is_empty() && given.len() != expected {
         return Err(ConnectError::PortCount {
             path: path(),
+            flag: "--port",
             given: given.len(),
             expected,
         });
@@ -321,6 +324,7 @@ pub fn spawn_sims_linked(
     if links.len() != configs.len() {
         return Err(ConnectError::PortCount {
             path: path(),
+            flag: "--link",
             given: links.len(),
             expected: configs.len(),
         });

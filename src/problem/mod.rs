@@ -435,7 +435,14 @@ impl Problem {
             } else {
                 path
             };
-            ProblemError::new(field, e.into_inner().to_string())
+            let inner = e.into_inner();
+            let message = match inner.classify() {
+                serde_json::error::Category::Syntax | serde_json::error::Category::Eof => {
+                    format!("not JSON ({inner})")
+                }
+                _ => inner.to_string(),
+            };
+            ProblemError::new(field, message)
         })?;
         Self::from_raw(raw)
     }
@@ -829,6 +836,17 @@ mod tests {
                 {"id":"a","circle":{"center":[-5,5],"radius":0.1}}]"#,
         ));
         assert!(!e.message.contains("place"), "{}", e.message);
+    }
+
+    #[test]
+    fn text_that_is_not_json_is_told_so() {
+        let e = Problem::from_json("not json").unwrap_err();
+        assert_eq!(e.field, "input");
+        assert!(
+            e.message.starts_with("not JSON (expected ident"),
+            "{}",
+            e.message
+        );
     }
 
     #[test]

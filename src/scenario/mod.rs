@@ -326,7 +326,7 @@ impl Scenario {
         let text = std::fs::read_to_string(path).map_err(|e| ScenarioError {
             file: file.clone(),
             field: "input".into(),
-            message: e.to_string(),
+            message: format!("cannot read the file: {e}"),
         })?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Self::from_toml(&text, &file, &dir)
