@@ -742,26 +742,32 @@ fn a_reach_from_an_obstacle_put_onto_the_arm_gets_out_and_arrives() {
     }
 }
 
+/// The caught moves ([`world_support::caught_moves`]) whose way from home, planned with exact
+/// joints, has `legs` legs or more: each world, target and way.
+fn planned_ways(legs: usize) -> impl Iterator<Item = (World, Vec2, snakectl::reach::Way)> {
+    let (c0, from) = (chain(), home());
+    world_support::caught_moves(60)
+        .into_iter()
+        .filter_map(move |(w, target)| {
+            let req = snakectl::reach::ReachRequest {
+                chain: &c0,
+                world: &w,
+                from: &from,
+                target,
+                quanta: &[],
+            };
+            let way = snakectl::reach::plan(&req, &Default::default()).ok()?;
+            (way.legs.len() >= legs).then_some((w, target, way))
+        })
+}
+
 /// A disc put on a `reach`'s second leg while the first goes (clear of the first): the reach
 /// ends `blocked` when the first arrives, naming the disc that stops the second, not the
 /// obstacle the arm is nearest there.
 #[test]
 fn a_reach_whose_next_leg_a_new_obstacle_stops_is_blocked_naming_it() {
     let c0 = chain();
-    for (w, target) in world_support::caught_moves(60) {
-        let req = snakectl::reach::ReachRequest {
-            chain: &c0,
-            world: &w,
-            from: &home(),
-            target,
-            quanta: &[],
-        };
-        let Ok(way) = snakectl::reach::plan(&req, &Default::default()) else {
-            continue;
-        };
-        if way.legs.len() < 2 {
-            continue;
-        }
+    for (w, target, way) in planned_ways(2) {
         // Poses along a leg, every 1% of it.
         let along = |a: &[f64], b: &[f64]| -> Vec<Vec<Vec2>> {
             (0..=100)
@@ -835,47 +841,32 @@ fn a_reach_with_nowhere_to_go_is_refused_and_nothing_moves() {
 /// sent next arrives and holds instead of going on with them.
 #[test]
 fn a_stopped_reach_leaves_no_legs_behind() {
-    let c0 = chain();
-    for (w, target) in world_support::caught_moves(60) {
-        let req = snakectl::reach::ReachRequest {
-            chain: &c0,
-            world: &w,
-            from: &home(),
-            target,
-            quanta: &[],
-        };
-        let Ok(way) = snakectl::reach::plan(&req, &Default::default()) else {
-            continue;
-        };
-        if way.legs.len() < 3 {
-            continue;
-        }
-        let mut c = controller(Strategy::Overall, &home());
-        c.set_world(w.clone());
-        c.command(Command::Reach { target }).unwrap();
-        for _ in 0..10 {
-            assert!(c.tick(0.01).finished.is_none());
-            // Its target is told while it goes (telemetry's `target`).
-            assert_eq!(c.target(), Some(target));
-        }
-        c.command(Command::Stop).unwrap();
-        let (finish, _) = run_clear(&mut c, 500);
-        assert!(matches!(finish, Some(Finish::Stopped { .. })), "{finish:?}");
-        assert_eq!(c.target(), None);
-        let mut near = c.theta().to_vec();
-        near[N - 1] += 0.01;
-        c.command(Command::GotoJoints {
-            theta: near.clone(),
-        })
-        .unwrap();
-        let (finish, _) = run_clear(&mut c, 500);
-        assert_eq!(finish, Some(Finish::Arrived));
-        for _ in 0..50 {
-            assert!(c.tick(0.01).finished.is_none());
-        }
-        assert_eq!(c.activity(), Activity::Holding);
-        assert_eq!(c.theta(), &near[..]);
-        return;
+    let (w, target, _) = planned_ways(3)
+        .next()
+        .expect("a reach of three legs or more in 60 moves");
+    let mut c = controller(Strategy::Overall, &home());
+    c.set_world(w);
+    c.command(Command::Reach { target }).unwrap();
+    for _ in 0..10 {
+        assert!(c.tick(0.01).finished.is_none());
+        // Its target is told while it goes (telemetry's `target`).
+        assert_eq!(c.target(), Some(target));
     }
-    panic!("no reach of three legs or more in 60 moves");
+    c.command(Command::Stop).unwrap();
+    let (finish, _) = run_clear(&mut c, 500);
+    assert!(matches!(finish, Some(Finish::Stopped { .. })), "{finish:?}");
+    assert_eq!(c.target(), None);
+    let mut near = c.theta().to_vec();
+    near[N - 1] += 0.01;
+    c.command(Command::GotoJoints {
+        theta: near.clone(),
+    })
+    .unwrap();
+    let (finish, _) = run_clear(&mut c, 500);
+    assert_eq!(finish, Some(Finish::Arrived));
+    for _ in 0..50 {
+        assert!(c.tick(0.01).finished.is_none());
+    }
+    assert_eq!(c.activity(), Activity::Holding);
+    assert_eq!(c.theta(), &near[..]);
 }

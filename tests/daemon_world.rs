@@ -335,6 +335,16 @@ fn a_reach_from_an_obstacle_put_deep_onto_the_arm_gets_out_and_arrives() {
     c.event("clear", None);
     let last = lines.last().unwrap();
     assert_eq!(last["command"]["outcome"], "arrived", "{last}");
+    let s = rests_on(&mut c, &d, target);
+    assert!(
+        measured_clearance(&d, &world, &s) >= world.clearance_m() - 1e-4,
+        "{s}"
+    );
+}
+
+/// Waits for the arm to hold, then checks that the measured tip is on `target` within what
+/// whole servo ticks allow; the status it held in.
+fn rests_on(c: &mut Client, d: &Daemon, target: [f64; 2]) -> Value {
     let s = c.wait_status("at rest", |s| s["state"] == "holding");
     let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
     let off = dist(xy(&s["tip_meas"]), target);
@@ -342,10 +352,7 @@ fn a_reach_from_an_obstacle_put_deep_onto_the_arm_gets_out_and_arrives() {
         off <= bound,
         "the tip {off} m from the target (ticks allow {bound})"
     );
-    assert!(
-        measured_clearance(&d, &world, &s) >= world.clearance_m() - 1e-4,
-        "{s}"
-    );
+    s
 }
 
 /// The measured pose's clearance in a telemetry line, by the world's exact distance.
@@ -410,13 +417,7 @@ fn a_goto_behind_a_post_goes_round_it_and_arrives_clear() {
     assert_eq!(last["command"]["outcome"], "arrived", "{last}");
     assert!(least >= world.clearance_m() - 1e-9, "{least}");
     // Once at rest, the measured tip is on the target within what whole ticks allow.
-    let s = c.wait_status("at rest", |s| s["state"] == "holding");
-    let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
-    let off = dist(xy(&s["tip_meas"]), target);
-    assert!(
-        off <= bound,
-        "the tip {off} m from the target (ticks allow {bound})"
-    );
+    rests_on(&mut c, &d, target);
 }
 
 /// Two discs between the arm and a target down and to its left: the tip's route clears them,
@@ -458,13 +459,7 @@ fn a_reach_gets_round_where_a_goto_is_caught() {
     let last = lines.last().unwrap();
     assert_eq!(last["command"]["kind"], "reach", "{last}");
     assert_eq!(last["command"]["outcome"], "arrived", "{last}");
-    let s = c.wait_status("at rest", |s| s["state"] == "holding");
-    let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
-    let off = dist(xy(&s["tip_meas"]), target);
-    assert!(
-        off <= bound,
-        "the tip {off} m from the target (ticks allow {bound})"
-    );
+    rests_on(&mut c, &d, target);
     // A target inside a disc has no clear pose: refused in words, nothing moves.
     let refused = c.request(json!({"cmd": "reach", "target": [-0.5183, 0.5435]}));
     assert_eq!(refused["error"]["code"], "unreachable", "{refused}");
@@ -655,13 +650,7 @@ fn a_reach_refused_in_a_world_changed_meanwhile_is_planned_again() {
     assert_eq!(reply_in(&lines, ids[1]).unwrap()["ok"], json!(true));
     let ending = lines.last().unwrap();
     assert_eq!(ending["event"], "arrived", "{ending}");
-    let s = c.wait_status("at rest", |s| s["state"] == "holding");
-    let bound = daemon_support::rounding_bound(&d.config, &floats(&s["theta_meas"]));
-    let off = dist(xy(&s["tip_meas"]), target);
-    assert!(
-        off <= bound,
-        "the tip {off} m from the target (ticks allow {bound})"
-    );
+    rests_on(&mut c, &d, target);
 }
 
 /// Regression: while a `reach` was planned (0.6 s in the slot), every other reply and event to

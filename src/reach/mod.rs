@@ -154,7 +154,7 @@ pub enum ReachError {
         bearing: bool,
     },
     /// The arm is not clear where it stands, and no way out was found that takes no link
-    /// closer to an obstacle ([`escape`]).
+    /// closer to an obstacle (see the module doc).
     #[error(
         "the arm is not clear where it stands: link {link} is {} (the clearance to keep is \
          {keep_m} m), and no way out was found that takes no link closer to an obstacle; move \
