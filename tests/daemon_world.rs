@@ -653,6 +653,23 @@ fn a_reach_refused_in_a_world_changed_meanwhile_is_planned_again() {
     rests_on(&mut c, &d, target);
 }
 
+/// While a `reach` is planned beside the loop, telemetry's `target` is already its target;
+/// once it is refused, nothing is.
+#[test]
+fn a_reach_being_planned_shows_its_target() {
+    let _one = one_at_a_time();
+    let d = with_link_radius("0.012");
+    let mut c = d.client();
+    take_control(&mut c);
+    c.ok(json!({"cmd": "set_world", "obstacles": slot()}));
+    let mut watcher = d.client();
+    let id = c.send(json!({"cmd": "reach", "target": [0.5, -0.2]}));
+    watcher.wait_status("the reach's target", |s| s["target"] == json!([0.5, -0.2]));
+    let refused = c.reply(&json!(id));
+    assert_eq!(refused["error"]["code"], "unreachable", "{refused}");
+    assert_eq!(watcher.status()["target"], Value::Null);
+}
+
 /// Regression: while a `reach` was planned (0.6 s in the slot), every other reply and event to
 /// its connection waited for its answer. The lines sent after it are answered meanwhile, and
 /// so is another client's taking of control told; the reach's own reply comes when its

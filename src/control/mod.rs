@@ -520,6 +520,16 @@ pub enum PlanRequest {
     Reach(Box<ReachJob>),
 }
 
+impl PlanRequest {
+    /// Where the command goes: a `goto`'s target or a `path`'s last point, a `reach`'s target.
+    pub fn target(&self) -> Option<Vec2> {
+        match self {
+            PlanRequest::Routes(r) => r.points.last().copied(),
+            PlanRequest::Reach(job) => Some(job.target),
+        }
+    }
+}
+
 /// What a `reach` asks for: a way from the pose the arm holds to the best clear pose with the
 /// tip on `target` ([`crate::reach::plan`]).
 #[derive(Debug, Clone, PartialEq)]

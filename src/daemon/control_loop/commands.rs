@@ -967,6 +967,13 @@ pub(super) struct Planning {
     since: std::time::Instant,
 }
 
+impl Planning {
+    /// Where the command being planned goes (telemetry's `target` meanwhile).
+    pub(super) fn target(&self) -> Option<Vec2> {
+        self.request.target()
+    }
+}
+
 /// A `reboot` under way: its servos booting (deaf to the bus for a few hundred ms) while the
 /// loop ticks on, serving `status`, `stop`, `estop` and the world; commands that would move
 /// the arm or change its torque are answered `busy` meanwhile. Each tick's read leaves the

@@ -741,7 +741,12 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let tip = chain.tip(self.controller.theta());
         let tip_meas = chain.tip(&self.measured.theta);
         let state = self.supervisor.state(self.controller.activity());
-        let target = self.controller.target().map(|t| [t.x, t.y]);
+        // A command being planned beside the loop goes there already.
+        let target = self
+            .controller
+            .target()
+            .or_else(|| self.planning.as_ref().and_then(|p| p.target()))
+            .map(|t| [t.x, t.y]);
         let command = self.ledger.info();
         let d = self.decided;
         let tracking = (d.tip_ref - tip_meas).norm();
