@@ -175,8 +175,8 @@ fn a_bad_config_value_is_refused_naming_the_field() {
     );
 }
 
-/// An address another program listens on refuses start-up (exit code 2), naming it, before
-/// anything says it listens.
+/// An address another program listens on, or one other hosts reach without a token, refuses
+/// start-up (exit code 2), naming it, before anything says it listens.
 #[test]
 fn a_taken_address_refuses_start_up_naming_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -192,6 +192,19 @@ fn a_taken_address_refuses_start_up_naming_it() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         err.contains(&format!("listening on {addr}")) && !err.contains("bringing the arm up"),
+        "{err}"
+    );
+    // An address other hosts reach, without a token: refused before the daemon says it
+    // listens.
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["run", "--listen", "0.0.0.0:0", "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("refusing to listen on 0.0.0.0:") && !err.contains("bringing the arm up"),
         "{err}"
     );
 }

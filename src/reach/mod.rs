@@ -283,17 +283,20 @@ pub fn plan(req: &ReachRequest, opts: &ReachOptions) -> Result<Way, ReachError> 
     let round = ReachRequest { from, ..*req };
     // The cold solve can stop short where the tip's straight way gets there (a target on the
     // edge of the reach, where the arm is straight): that goal then.
+    // The goal the tip's straight way leads to, looked for once whichever asks first.
+    let along = std::cell::OnceCell::new();
+    let straight = || along.get_or_init(|| goal_along(&round, opts)).clone();
     let goal = match goal_pose(&round, opts) {
-        Err(none @ ReachError::NoClearPose { .. }) => edge_pose(&round, opts)
-            .or_else(|| goal_along(&round, opts))
-            .ok_or(none)?,
+        Err(none @ ReachError::NoClearPose { .. }) => {
+            edge_pose(&round, opts).or_else(straight).ok_or(none)?
+        }
         found => found?,
     };
     let mut rng = SplitMix(opts.seed);
     let (mut legs, nodes) = match way_to(&mut look, &round, &goal, opts, &mut rng) {
         // The best goal may lie where the trees cannot get (across an obstacle the arm would
         // have to fold away from): the goal the tip's straight way leads to, when another.
-        Err(no @ ReachError::NoWay { .. }) => match goal_along(&round, opts) {
+        Err(no @ ReachError::NoWay { .. }) => match straight() {
             Some(g) if g != goal => {
                 way_to(&mut look, &round, &g, opts, &mut rng).map_err(|_| no)?
             }
