@@ -6,6 +6,7 @@
 
 use std::f64::consts::FRAC_PI_2;
 
+use super::refused::floor_words;
 use super::*;
 use crate::chain::JointLimit;
 
