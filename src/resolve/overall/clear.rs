@@ -78,10 +78,8 @@
 
 use std::ops::ControlFlow;
 
-use super::{
-    half_metric, max_abs_diff, mirror_pose, Candidate, ElasticStall, Overall, Podium, Problem,
-    SplitMix, ARMIJO, MAX_HALVINGS,
-};
+use super::cold::{mirror_pose, stages, Candidate, Podium, SplitMix};
+use super::{half_metric, max_abs_diff, ElasticStall, Overall, Problem, ARMIJO, MAX_HALVINGS};
 use crate::chain::{Chain, Vec2};
 use crate::resolve::Outcome;
 use crate::world::clearance::pair_gradient;
@@ -1501,7 +1499,7 @@ impl Overall {
     ) -> usize {
         let tip0 = p.chain.tip(&self.w.theta);
         let mut iterations = 0;
-        for sub in super::stages(p, tip0, polar, self.opts.continuation_stages) {
+        for sub in stages(p, tip0, polar, self.opts.continuation_stages) {
             iterations += self
                 .clear_local(&sub, world, mu, SEARCH_STALL_STEPS)
                 .iterations;

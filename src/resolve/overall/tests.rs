@@ -3,6 +3,7 @@
 
 #![allow(clippy::unwrap_used, clippy::needless_range_loop)]
 
+use super::cold::{Schedule, Start};
 use super::*;
 use crate::chain::JointLimit;
 use crate::resolve::ResolveError;
