@@ -427,7 +427,7 @@ impl Problem {
         }
         // The path of a value of the wrong shape names the field, as every other refusal does.
         let de = &mut serde_json::Deserializer::from_str(text);
-        let raw: RawProblem = serde_path_to_error::deserialize(de).map_err(|e| {
+        let raw: RawProblem = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
             let path = e.path().to_string();
             // `.` is the whole; `?` a place the parser could not name (text that is not JSON).
             let field = if path == "." || path.contains('?') {
@@ -444,6 +444,10 @@ impl Problem {
             };
             ProblemError::new(field, message)
         })?;
+        // One problem a file: text after it (a second problem, a stray word) is refused, not
+        // left unread.
+        de.end()
+            .map_err(|e| ProblemError::new("input", format!("not JSON ({e})")))?;
         Self::from_raw(raw)
     }
 
@@ -847,6 +851,21 @@ mod tests {
             "{}",
             e.message
         );
+    }
+
+    #[test]
+    fn text_after_the_problem_is_refused_not_left_unread() {
+        for tail in [" trailing", r#" {"links":[1]}"#] {
+            let e = Problem::from_json(&format!("{GOOD}{tail}")).unwrap_err();
+            assert_eq!(e.field, "input");
+            assert!(
+                e.message.starts_with("not JSON (trailing characters"),
+                "{}",
+                e.message
+            );
+        }
+        // White space after it is not text.
+        assert!(Problem::from_json(&format!("{GOOD}\n\n")).is_ok());
     }
 
     #[test]
