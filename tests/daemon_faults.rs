@@ -282,11 +282,30 @@ fn a_silent_servo_on_one_of_two_ports_holds_the_arm_named_with_its_port() {
     silent_servo("fast", TWO_PORTS);
 }
 
+/// On a wire with its timing, where a recovery's round trips take more than a tick leaves:
+/// recovered as anywhere else, not refused for time and then, with the torque it had switched
+/// off, taken for a servo that lost power.
+#[test]
+fn a_silent_servo_on_a_timed_wire_is_recovered_not_taken_for_a_power_loss() {
+    silent_servo_on(
+        &[
+            read_edit("sync"),
+            ("wire_timing = false", "wire_timing = true"),
+        ],
+        TWO_PORTS,
+    );
+}
+
 /// Servo 5 silent from 2.5 s to 4 s, read with `read`, on the bus `ports` (`[[bus.ports]]`
 /// tables) describes.
 fn silent_servo(read: &str, ports: &str) {
+    silent_servo_on(&[read_edit(read)], ports);
+}
+
+/// [`silent_servo`] with the shipped config edited as `edits` say.
+fn silent_servo_on(edits: &[(&str, &str)], ports: &str) {
     let d = Daemon::start(sim_config_with(
-        &[read_edit(read)],
+        edits,
         &format!("[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 2.5\nuntil_s = 4.0\n{ports}"),
     ));
     // The budget is a time: at this rate, the reads it spans on schedule.

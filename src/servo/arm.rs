@@ -1012,6 +1012,25 @@ impl Arm {
         result
     }
 
+    /// Torque on again, as [`Arm::torque_on`], for servos whose torque should be on already (a
+    /// recovery after a fault, the arm holding): a failure leaves every servo as it was, those
+    /// on still holding, for the next try. Switching them off would leave an arm reported as
+    /// holding limp, and a servo read back with Torque Enable 0 would later pass for one that
+    /// lost power.
+    pub fn keep_torque_on<B: ServoBus>(
+        &self,
+        bus: &mut Limited<B>,
+        skip: &[u8],
+        within: &Within<'_>,
+    ) -> Result<(), BringUpError> {
+        let ids: Vec<u8> = self
+            .ids()
+            .into_iter()
+            .filter(|id| !skip.contains(id))
+            .collect();
+        self.torque_on_ids(bus, &ids, within)
+    }
+
     fn torque_on_ids<B: ServoBus>(
         &self,
         bus: &mut Limited<B>,

@@ -448,13 +448,18 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// `reset`: out of the estop latch, holding the measured pose with torque on: tripped
-    /// watchdogs cleared, goals := the measured pose, torque on (within this tick), any
-    /// `power_loss` fault cleared. Refused with `fault`, naming the servos, while the pose
-    /// cannot be read or torque cannot be switched on; the latch then stays.
+    /// watchdogs cleared, goals := the measured pose, torque on (with a recovery's time, see
+    /// [`Cycle::stretched`]), any `power_loss` fault cleared. Refused with `fault`, naming the
+    /// servos, while the pose cannot be read or torque cannot be switched on; the latch then
+    /// stays.
     fn reset(&mut self, e: &Envelope) -> Pending {
         if !self.supervisor.estopped() {
             return self.ok();
         }
+        self.stretched(|cycle| cycle.reset_now(e))
+    }
+
+    fn reset_now(&mut self, e: &Envelope) -> Pending {
         if let Some(why) = self.pose_unreadable() {
             return refuse(Code::Fault, format!("reset: {why}; the latch stays"));
         }
@@ -546,6 +551,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.supervisor.set_torque(true);
             if let Err(err) = self.recover() {
                 self.supervisor = before;
+                // Torque was off: the servos a torque on that half happened reached go off
+                // again, as they were.
+                self.torque_off_all("torque on failed");
                 return refuse(Code::Fault, format!("torque on: {err}"));
             }
             tracing::info!("torque on, holding the measured pose");

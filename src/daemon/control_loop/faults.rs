@@ -26,6 +26,11 @@ const MIN_READ_WAIT: Duration = Duration::from_micros(300);
 /// costs no overrun.
 pub(super) const READ_TAIL: Duration = Duration::from_micros(500);
 
+/// The wire's ticks (a Sync Write of every goal and a read of every servo) a recovery's
+/// exchanges may take: about five round trips of every servo (the watchdogs, the pose, the
+/// goals and the torque, the last two confirmed), with room for a retry each.
+pub(super) const RECOVERY_WIRE_TICKS: f64 = 10.0;
+
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The read of the tick scheduled at `scheduled`, its wait capped short of `deadline`;
     /// with `health` (always, through Indirect Address), Present Current/Load, Input Voltage
@@ -362,13 +367,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// loss) or off where it should be off. Returns the servos whose watchdog had fired since
     /// the last recovery that completed. Every exchange within this tick.
     pub(super) fn recover(&mut self) -> Result<Vec<u8>, String> {
+        self.stretched(Self::recover_now)
+    }
+
+    fn recover_now(&mut self) -> Result<Vec<u8>, String> {
         self.clear_watchdogs().map_err(|e| e.to_string())?;
         self.measure_pose()?;
         if self.supervisor.torque() {
             let skip = self.health.power_lost();
             let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
             self.arm
-                .torque_on(self.port.bus(), &skip, &within)
+                .keep_torque_on(self.port.bus(), &skip, &within)
                 .map_err(|e| e.to_string())?;
         } else {
             self.torque_off_all("recovery");
@@ -382,6 +391,30 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.health.forgive();
         tracing::info!("recovered: holding the measured pose");
         Ok(std::mem::take(&mut self.rearmed).into_iter().collect())
+    }
+
+    /// `work` (a recovery's or a `reset`'s exchanges) with the fault path's time stretched to
+    /// [`RECOVERY_WIRE_TICKS`] of the wire's ticks (at least a period) from now, when this
+    /// tick has less left and every servo answered the latest read. It runs once, the arm at
+    /// rest; cut short to what a tick leaves, it failed at every try on a timed wire (five round
+    /// trips where a tick left room for three). The tick it runs in may overrun, and is counted
+    /// as such. With a servo missing from the latest read it keeps to the tick: that servo
+    /// would most likely be waited on in vain.
+    pub(super) fn stretched<T>(&mut self, work: impl FnOnce(&mut Self) -> T) -> T {
+        if !self.health.all_answered() {
+            return work(self);
+        }
+        let wire_tick = if self.wire_bound_hz.is_finite() {
+            Duration::from_secs_f64(RECOVERY_WIRE_TICKS / self.wire_bound_hz)
+        } else {
+            Duration::ZERO
+        };
+        let tick_until = self.fault_until;
+        let span = wire_tick.max(self.schedule.period);
+        self.fault_until = tick_until.max(self.clock.now() + span);
+        let done = work(self);
+        self.fault_until = tick_until;
+        done
     }
 
     /// Every fired Bus Watchdog cleared, goal := present, armed again (see

@@ -237,6 +237,11 @@ impl Health {
         }
     }
 
+    /// Whether every servo answered the latest read (those held silent too, once back).
+    pub fn all_answered(&self) -> bool {
+        self.joints.iter().all(|j| j.streak.is_none())
+    }
+
     /// The servos not to wait on: those held silent, and those that missed their latest
     /// `SILENT_READS` reads in a row.
     pub fn unanswering(&self) -> Vec<u8> {

@@ -621,6 +621,44 @@ fn a_servo_whose_watchdog_recovery_was_cut_short_is_not_taken_for_a_power_loss()
 }
 
 #[test]
+fn a_recovery_that_fails_at_its_torque_step_leaves_the_arm_holding_with_torque_on() {
+    let mut rig = Rig::new(100.0, "");
+    declare_silent(&mut rig, 5);
+    rig.bus.servo(5, |s| s.silent = false);
+    // Servo 9 drops off as the recovery's Torque Enable 1 reaches servo 1: the recovery fails
+    // at its last step.
+    rig.bus.wire().mute_on = Some((Register::TorqueEnable, 1, 1, 9));
+    rig.ticks(1);
+    rig.bus.wire().mute_on = None;
+    assert_eq!(rig.status().state, State::Fault, "the recovery failed");
+    // Nothing was switched off: the arm still holds with torque on every servo that hears.
+    for id in (1..=12).filter(|&id| id != 9) {
+        assert_eq!(
+            rig.bus.wire().servos[&id].get(Register::TorqueEnable),
+            1,
+            "servo {id}"
+        );
+    }
+    rig.events();
+    // Servo 9 back: recovered, and no servo's torque taken for a power loss.
+    rig.bus.servo(9, |s| s.silent = false);
+    rig.ticks(200);
+    let events = rig.events();
+    let raised = fault_events(&events, FaultChange::Raised);
+    assert!(
+        raised.iter().all(|r| r.1 != FaultKind::PowerLoss),
+        "{events:?}"
+    );
+    let s = rig.status();
+    assert_eq!(
+        (s.state, s.torque),
+        (State::Holding, true),
+        "{:?}",
+        s.faults
+    );
+}
+
+#[test]
 fn a_power_loss_after_a_watchdog_recovery_cut_short_is_still_told_by_the_other_registers() {
     let mut rig = Rig::new(100.0, "");
     cut_short_watchdog_recovery(&mut rig);
