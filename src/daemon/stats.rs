@@ -12,6 +12,9 @@ use super::Summary;
 /// Ticks the loop-rate and tick-time statistics look back over.
 pub const WINDOW: usize = 1000;
 
+/// The fewest ticks in the window over which the loop is judged behind its rate.
+pub const BEHIND_MIN_TICKS: usize = 10;
+
 /// Overrun messages come at most this often.
 const OVERRUN_LOG_EVERY: Duration = Duration::from_secs(1);
 
@@ -200,10 +203,11 @@ impl Window {
         }
     }
 
-    /// More than half the window's ticks ran late: the loop runs back to back, below its
-    /// configured rate.
+    /// More than half the window's ticks ran late, over at least [`BEHIND_MIN_TICKS`]: the
+    /// loop runs back to back, below its configured rate. (One late tick alone, the first after
+    /// start-up or a `reset_stats`, tells nothing, and no rate can be measured yet.)
     fn behind(&self) -> bool {
-        self.filled > 0 && 2 * self.late_count > self.filled
+        self.filled >= BEHIND_MIN_TICKS && 2 * self.late_count > self.filled
     }
 
     fn clear(&mut self) {
@@ -406,8 +410,12 @@ mod tests {
         }
         assert!(!s.behind());
         s.reset(t0, 0);
-        tick(&mut s, 0, true);
+        for k in 0..BEHIND_MIN_TICKS as u32 {
+            assert!(!s.behind(), "{k} ticks tell nothing yet");
+            tick(&mut s, k, true);
+        }
         assert!(s.behind(), "after a reset, the window starts again");
+        assert!(s.rate_hz() > 0.0, "and the rate it then tells is measured");
     }
 
     #[test]

@@ -757,13 +757,14 @@ impl Arm {
                 .map_err(step("choosing the read"))?;
         }
         if self.settings.read == ReadChoice::Auto {
-            for (port, group) in on_port.iter().enumerate() {
+            for (k, group) in on_port.iter().enumerate() {
                 let slow = group.iter().find(|(_, info)| !answers_fast(info));
                 if let Some((j, info)) = slow {
                     tracing::info!(
                         id = j.id,
                         firmware = info.firmware,
-                        port,
+                        // Counted from 1, as `[[sim.fault]] port` and the messages count them.
+                        port = k + 1,
                         "Sync Read: servo {} ({}, firmware {}) does not answer Fast Sync Read",
                         j.id,
                         j.model,
@@ -772,8 +773,8 @@ impl Arm {
                 }
             }
         }
-        let read = ReadKind::of_ports(&kinds);
-        tracing::info!(%read, ports, servos = servos.len(), "bus read chosen");
+        let read = ReadKind::name_of_ports(&kinds);
+        tracing::info!(read, ports, servos = servos.len(), "bus read chosen");
         Ok(kinds)
     }
 

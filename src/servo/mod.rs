@@ -253,6 +253,17 @@ impl ReadKind {
         }
     }
 
+    /// The name of the read of a bus whose ports read with `kinds`: the one every port uses,
+    /// or `"mixed"` when they differ (a port with a servo that cannot answer Fast Sync Read
+    /// reads with Sync Read, the others fast); `describe`'s `read`, and the logs'.
+    pub fn name_of_ports(kinds: &[Self]) -> &'static str {
+        match kinds {
+            [first, rest @ ..] if rest.iter().all(|k| k == first) => first.as_str(),
+            [] => Self::Sync.as_str(),
+            _ => "mixed",
+        }
+    }
+
     /// `"sync"` or `"fast"`, as in the config and the protocol.
     pub const fn as_str(self) -> &'static str {
         match self {
@@ -970,6 +981,17 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_bus_whose_ports_read_differently_reads_mixed_and_fast_only_when_all_do() {
+        use ReadKind::{Fast, Sync};
+        assert_eq!(ReadKind::name_of_ports(&[Fast, Fast]), "fast");
+        assert_eq!(ReadKind::name_of_ports(&[Sync]), "sync");
+        assert_eq!(ReadKind::name_of_ports(&[Fast, Sync]), "mixed");
+        assert_eq!(ReadKind::name_of_ports(&[]), "sync");
+        assert_eq!(ReadKind::of_ports(&[Fast, Sync]), Sync);
+        assert_eq!(ReadKind::of_ports(&[Fast, Fast]), Fast);
+    }
 
     #[test]
     fn registers_encode_decode_and_fit() {

@@ -373,7 +373,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         tracing::info!(
             servos = brought.servos.len(),
             retries = brought.retries,
-            read = %brought.read(),
+            read = ReadKind::name_of_ports(&brought.reads),
             reads = ?brought.reads,
             "arm up, holding its present pose"
         );
@@ -408,7 +408,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         // The channel's first value is never seen: tick 0 publishes a measured snapshot
         // before `ready` hands the handle to anyone who could read it.
         let describe = Describe {
-            read: read_name(&brought.reads).to_owned(),
+            read: ReadKind::name_of_ports(&brought.reads).to_owned(),
             ..describe(config, &arm).with_world(controller.world())
         };
         let (handle, ends) = link::channel(describe, Telemetry::default());
@@ -457,7 +457,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 wire_bound_hz = b.rate_hz(),
                 wire_tick_us = b.tick.as_secs_f64() * 1e6,
                 ports = wires.len(),
-                read = %brought.read(),
+                read = ReadKind::name_of_ports(&brought.reads),
                 "control loop at {:.0} Hz; the wire allows this arm at most {:.0} Hz \
                  ({} bytes a tick on its busiest port)",
                 c.rate_hz,
@@ -953,16 +953,6 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         shut.map_err(DaemonError::ShutDown)?;
         Ok(self.stats.summary(self.tick, self.clock.now()))
-    }
-}
-
-/// `describe`'s `read`: the one every port uses, or `"mixed"` when the ports differ (a port
-/// with a servo that cannot answer Fast Sync Read reads with Sync Read, the others fast).
-fn read_name(reads: &[ReadKind]) -> &'static str {
-    match reads {
-        [first, rest @ ..] if rest.iter().all(|k| k == first) => first.as_str(),
-        [] => ReadKind::Sync.as_str(),
-        _ => "mixed",
     }
 }
 
