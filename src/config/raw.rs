@@ -226,7 +226,8 @@ pub enum RawAdapter {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum HardwareError {
-    /// Input voltage out of range (bit 0).
+    /// Input voltage out of range (bit 0); `voltage` too, as the simulator's names have it.
+    #[serde(alias = "voltage")]
     InputVoltage,
     /// Internal temperature too high (bit 2).
     Overheating,

@@ -686,6 +686,21 @@ error = "overload""#,
 }
 
 #[test]
+fn a_hardware_error_takes_the_simulators_names() {
+    for name in ["voltage", "input_voltage"] {
+        let c = load(&with_fault(&format!(
+            "kind = \"hardware_error\"\nid = 2\nat_s = 1.0\nerror = \"{name}\""
+        )))
+        .unwrap();
+        assert_eq!(
+            c.sim().unwrap().faults[0].kind,
+            FaultKind::HardwareError(HardwareError::InputVoltage),
+            "{name}"
+        );
+    }
+}
+
+#[test]
 fn a_disconnect_fault_parses_with_its_window_and_no_servo() {
     let c = load(&with_fault(
         "kind = \"disconnect\"\nat_s = 2.0\nuntil_s = 3.5",
