@@ -636,7 +636,7 @@ fn a_vanished_port_holds_the_arm_is_reopened_and_the_arm_moves_again_with_sync_r
 }
 
 #[test]
-fn a_vanished_port_of_two_holds_the_whole_arm_named_and_both_are_reopened() {
+fn a_vanished_port_of_two_holds_the_whole_arm_named_and_is_reopened() {
     vanished_port("fast", TWO_PORTS, 1);
 }
 
@@ -705,6 +705,70 @@ fn vanished_port(read: &str, ports: &str, k: usize) {
     let reseeds = check_goals(&samples, &lo, &hi);
     assert!(reseeds <= 1, "{reseeds} jumps to the measured pose");
     stop_torque_off(d);
+}
+
+#[test]
+fn a_port_of_two_lost_for_good_leaves_the_other_open_and_estop_switches_its_servos_off() {
+    lost_for_good(true);
+}
+
+#[test]
+fn a_port_of_two_lost_for_good_leaves_shut_down_to_switch_the_other_ports_servos_off() {
+    lost_for_good(false);
+}
+
+/// Port 2 (servos 7 to 12) of two vanishes for good: port 1 stays open and locked through the
+/// reopening of port 2, its servos held (their Bus Watchdog fed) and switched off by an
+/// `estop` (when `estop`) and by shut-down, which names servos 7 to 12 alone as unreached, each
+/// for port 2.
+fn lost_for_good(estop: bool) {
+    let d = Daemon::start(sim_config_with(
+        &[],
+        &format!("[[sim.fault]]\nkind = \"disconnect\"\nport = 2\nat_s = 1.0\n{TWO_PORTS}"),
+    ));
+    let (mut c, _, _) = watching(&d);
+    let (_, raised) = watch_until_event(&mut c, fault_event("raised", "port"));
+    let (kept, lost) = (d.port_path(0), d.port_path(1));
+    assert_eq!(raised["fault"]["port"], json!(lost), "{raised}");
+    // Past two tries to reopen port 2 (one a second).
+    watch(&mut c, 250);
+    let s = c.status();
+    assert_eq!(s["state"], "fault", "{s}");
+    // Port 1 is still the daemon's: not even this process opens it a second time.
+    let baud = d.config.bus().unwrap().baud;
+    match snakectl::connect::open_port(&d.sim.pty_path().unwrap(), baud) {
+        Err(snakectl::connect::ConnectError::InUse(_)) => {}
+        other => panic!("port 1 ({kept}) was let go while port 2 was lost: {other:?}"),
+    }
+    for id in 1..=6 {
+        assert!(d.torque(id), "servo {id} let go while port 2 was lost");
+        let watchdog = d.sim.with_servo(id, |s| s.watchdog()).unwrap();
+        assert!(watchdog > 0, "servo {id}: Bus Watchdog {watchdog}, not fed");
+    }
+    if estop {
+        c.ok(json!({"cmd": "estop"}));
+        for id in 1..=6 {
+            assert!(!d.torque(id), "servo {id} torque on after the estop");
+        }
+    }
+    let (result, torques) = d.stop_and_torques();
+    for (id, on) in torques.iter().filter(|(id, _)| *id <= 6) {
+        assert!(!on, "servo {id} left with torque on by shut-down");
+    }
+    let unreached = match result {
+        Err(snakectl::daemon::DaemonError::ShutDown(e)) => e.unreached,
+        other => panic!("shut-down with port 2 lost: {other:?}"),
+    };
+    let ids: Vec<u8> = unreached.iter().map(|u| u.id).collect();
+    assert_eq!(ids, (7..=12).collect::<Vec<u8>>(), "{unreached:?}");
+    for u in &unreached {
+        assert!(
+            u.why.contains(&lost) && !u.why.contains(&kept),
+            "servo {} unreached for the wrong port: {}",
+            u.id,
+            u.why
+        );
+    }
 }
 
 #[test]

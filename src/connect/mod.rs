@@ -276,9 +276,8 @@ pub fn open_arm(config: &Config, options: Options) -> Result<ArmConnection, Conn
 }
 
 /// Open every port of `ports` (path and servo ids) at `baud` as one bus, limited to `arm`'s
-/// joint limits with `strategy`: [`open_arm`]'s bus, and how a caller gets it back after a
-/// port vanished (every port is opened again; the ones still open must be closed first, so
-/// that their locks are free).
+/// joint limits with `strategy`: [`open_arm`]'s bus (a port that fails later is opened again
+/// alone, [`Ports::reopen_failed`] with [`open_port_of_several`]).
 pub fn reopen_arm(
     ports: &[(PathBuf, Vec<u8>)],
     baud: u32,
@@ -287,19 +286,26 @@ pub fn reopen_arm(
 ) -> Result<Limited<Ports<DynamixelBus>>, ConnectError> {
     let mut buses = Vec::with_capacity(ports.len());
     for (path, ids) in ports {
-        let bus = open_port(path, baud).map_err(|e| match e {
-            ConnectError::Open { source } => ConnectError::Open {
-                source: ServoError::OnPort {
-                    port: path.display().to_string(),
-                    source: Box::new(source),
-                },
-            },
-            e => e,
-        })?;
+        let bus = open_port_of_several(path, baud)?;
         buses.push((path.display().to_string(), bus, ids.clone()));
     }
     let bus = Ports::new(buses).map_err(|source| ConnectError::Open { source })?;
     Ok(arm.limited(bus, strategy))
+}
+
+/// Open one port of a bus of several, as [`reopen_arm`] does (its failure names the port): how
+/// a port that failed is opened again while the others stay open
+/// ([`Ports::reopen_failed`]).
+pub fn open_port_of_several(path: &Path, baud: u32) -> Result<DynamixelBus, ConnectError> {
+    open_port(path, baud).map_err(|e| match e {
+        ConnectError::Open { source } => ConnectError::Open {
+            source: ServoError::OnPort {
+                port: path.display().to_string(),
+                source: Box::new(source),
+            },
+        },
+        e => e,
+    })
 }
 
 /// One simulator per port of `config`'s bus, each serving that port's servos (and the faults

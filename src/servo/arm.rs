@@ -49,8 +49,9 @@ use super::limits::{LimitPolicy, Limited, Setting, TickLimits, POSITION_MODE};
 use super::model::ServoModel;
 use super::units::{self, Calibration};
 use super::{
-    ErrorClass, Fields, Goal, HardwareErrors, Layout, PingInfo, ReadChoice, ReadKind, Reading,
-    Register, ServoBus, ServoError, States, DRIVE_MODE_REVERSE, INDIRECT_ADDRESS_1, INDIRECT_BYTES,
+    Block, ErrorClass, Fields, Goal, HardwareErrors, Layout, PingInfo, ReadChoice, ReadKind,
+    Reading, Register, ServoBus, ServoError, States, DRIVE_MODE_REVERSE, INDIRECT_ADDRESS_1,
+    INDIRECT_BYTES,
 };
 
 /// How far past a joint's limit, ticks, a servo may read at bring-up and still be brought up
@@ -1441,49 +1442,49 @@ impl Arm {
     /// Enable from those not in `silent` confirms it; a servo that still reads 1 is written
     /// once more, one that did not answer is asked again while there is time. Returns the
     /// servos not confirmed, each with why (the `silent` ones were not waited on).
+    ///
+    /// On a bus of several ports every servo has its own port's outcome: the Sync Write goes
+    /// to each port's servos apart (a port that failed is named for its servos alone, the
+    /// others' are still switched off), and a read that fails is asked again port by port to
+    /// tell which port it was.
     pub fn torque_off<B: ServoBus>(
         &self,
         bus: &mut B,
         silent: &[u8],
         within: &Within<'_>,
     ) -> Result<(), Vec<Unreached>> {
-        let values: Vec<(u8, i64)> = self.joints.iter().map(|j| (j.id, 0)).collect();
+        let groups = by_port(bus, &self.ids());
         let mut failed: Vec<(u8, String)> = Vec::new();
         let mut pending: Vec<u8> = Vec::new();
-        match bus.sync_write(Register::TorqueEnable, &values) {
-            Err(e) if e.class() == ErrorClass::Bus => {
-                let why = format!("was not reached: the port failed ({e})");
-                failed.extend(self.joints.iter().map(|j| (j.id, why.clone())));
+        for group in &groups {
+            let values: Vec<(u8, i64)> = group.iter().map(|&id| (id, 0)).collect();
+            match bus.sync_write(Register::TorqueEnable, &values) {
+                Err(e) if e.class() == ErrorClass::Bus => {
+                    let why = format!("was not reached: the port failed ({e})");
+                    failed.extend(group.iter().map(|&id| (id, why.clone())));
+                }
+                _ => pending.extend(group.iter().filter(|id| !silent.contains(id))),
             }
-            _ => pending.extend(self.ids().into_iter().filter(|id| !silent.contains(id))),
         }
-        let mut last: Vec<(u8, ServoError)> = Vec::new();
+        let mut last: Vec<(u8, String)> = Vec::new();
         for _ in 0..=RETRIES {
             let Some(wait) = pending.first().and_then(|_| within.wait()) else {
                 break;
             };
-            let blocks = match bus.sync_read(
-                &pending,
-                Register::TorqueEnable.address(),
-                Register::TorqueEnable.size(),
-                wait,
-            ) {
-                Ok(blocks) => blocks,
-                Err(e) => {
-                    let why = format!("was not reached: {e}");
-                    failed.extend(pending.drain(..).map(|id| (id, why.clone())));
-                    break;
-                }
-            };
             let mut still = Vec::new();
-            for (&id, block) in pending.iter().zip(blocks) {
+            for (id, block) in read_torque(bus, &pending, wait) {
                 let written = match block {
-                    Ok(b) if b.data.first() == Some(&0) => continue,
+                    Read::Off => continue,
                     // Still on: the Sync Write was lost on its way to this one.
-                    Ok(_) => within
+                    Read::On => within
                         .wait_for(id)
-                        .and_then(|w| bus.set_torque(id, false, w)),
-                    Err(e) => Err(e),
+                        .and_then(|w| bus.set_torque(id, false, w))
+                        .map_err(|e| e.to_string()),
+                    Read::Missed(e) => Err(e),
+                    Read::PortFailed(why) => {
+                        failed.push((id, why));
+                        continue;
+                    }
                 };
                 if let Err(e) = written {
                     last.retain(|(x, _)| *x != id);
@@ -1492,8 +1493,8 @@ impl Arm {
                 }
             }
             pending = still;
-            if !pending.is_empty() {
-                let values: Vec<(u8, i64)> = pending.iter().map(|&id| (id, 0)).collect();
+            for group in by_port(bus, &pending) {
+                let values: Vec<(u8, i64)> = group.iter().map(|&id| (id, 0)).collect();
                 let _ = bus.sync_write(Register::TorqueEnable, &values);
             }
         }
@@ -1531,6 +1532,77 @@ impl Arm {
             Err(unreached)
         }
     }
+}
+
+/// `ids` split by the port each is on ([`ServoBus::port_index`]), in port order, each in the
+/// order given: one group on a bus of one port.
+fn by_port<B: ServoBus>(bus: &B, ids: &[u8]) -> Vec<Vec<u8>> {
+    let mut groups: Vec<(usize, Vec<u8>)> = Vec::new();
+    for &id in ids {
+        let port = bus.port_index(id);
+        match groups.iter_mut().find(|(p, _)| *p == port) {
+            Some((_, group)) => group.push(id),
+            None => groups.push((port, vec![id])),
+        }
+    }
+    groups.sort_by_key(|(p, _)| *p);
+    groups.into_iter().map(|(_, g)| g).collect()
+}
+
+/// A servo's Torque Enable as [`read_torque`] found it.
+enum Read {
+    Off,
+    On,
+    /// No (valid) reply: asked again while there is time.
+    Missed(String),
+    /// Its port failed: not asked again.
+    PortFailed(String),
+}
+
+/// Torque Enable of `ids` in one Sync Read, waiting `wait`: each id with what it read. A read
+/// that fails as a whole on a bus of several ports is asked again port by port, so that only
+/// the failed port's servos are taken for unreached.
+fn read_torque<B: ServoBus>(bus: &mut B, ids: &[u8], wait: Duration) -> Vec<(u8, Read)> {
+    let (address, size) = (
+        Register::TorqueEnable.address(),
+        Register::TorqueEnable.size(),
+    );
+    let of = |ids: &[u8], blocks: Vec<Result<Block, ServoError>>| -> Vec<(u8, Read)> {
+        ids.iter()
+            .zip(blocks)
+            .map(|(&id, block)| {
+                let read = match block {
+                    Ok(b) if b.data.first() == Some(&0) => Read::Off,
+                    Ok(_) => Read::On,
+                    Err(e) => Read::Missed(e.to_string()),
+                };
+                (id, read)
+            })
+            .collect()
+    };
+    let whole = match bus.sync_read(ids, address, size, wait) {
+        Ok(blocks) => return of(ids, blocks),
+        Err(e) => e,
+    };
+    let groups = by_port(bus, ids);
+    if groups.len() < 2 {
+        let why = format!("was not reached: {whole}");
+        return ids
+            .iter()
+            .map(|&id| (id, Read::PortFailed(why.clone())))
+            .collect();
+    }
+    let mut out = Vec::with_capacity(ids.len());
+    for group in groups {
+        match bus.sync_read(&group, address, size, wait) {
+            Ok(blocks) => out.extend(of(&group, blocks)),
+            Err(e) => {
+                let why = format!("was not reached: {e}");
+                out.extend(group.iter().map(|&id| (id, Read::PortFailed(why.clone()))));
+            }
+        }
+    }
+    out
 }
 
 impl JointServo {

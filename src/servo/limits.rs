@@ -16,6 +16,7 @@
 use std::collections::HashMap;
 use std::time::Duration;
 
+use super::ports::{Ports, ReopenPortError};
 use super::{Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value};
 
 /// What to do with a goal outside the limits.
@@ -152,6 +153,23 @@ impl<B: ServoBus> Limited<B> {
             }
         }
         Ok(())
+    }
+}
+
+/// A bus of several ports keeps its limits while a failed port is opened again.
+impl<B: ServoBus + Send + 'static> Limited<Ports<B>> {
+    /// The ports that failed and were not opened again since ([`Ports::failed`]).
+    pub fn failed_ports(&self) -> Vec<&str> {
+        self.inner.failed()
+    }
+
+    /// Open again only the ports that failed ([`Ports::reopen_failed`]); the others stay open
+    /// and locked.
+    pub fn reopen_failed<E>(
+        &mut self,
+        open: impl FnMut(usize) -> Result<B, E>,
+    ) -> Result<(), ReopenPortError<E>> {
+        self.inner.reopen_failed(open)
     }
 }
 

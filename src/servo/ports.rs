@@ -63,6 +63,9 @@ struct Worker<B> {
     slots: Vec<usize>,
     /// A job was sent and its answer not yet taken.
     busy: bool,
+    /// The port itself failed (an error of [`ErrorClass::Bus`]): it stays failed until
+    /// [`Ports::reopen_failed`] opens it again.
+    failed: bool,
 }
 
 impl<B: ServoBus + Send + 'static> Worker<B> {
@@ -111,11 +114,13 @@ impl<B: ServoBus + Send + 'static> Worker<B> {
             buf: SyncReadBuf::new(),
             slots: Vec::new(),
             busy: false,
+            failed: false,
         })
     }
 
-    /// The port's thread is gone: an error naming the port.
-    fn gone(&self) -> ServoError {
+    /// The port's thread is gone: an error naming the port, which counts as failed.
+    fn gone(&mut self) -> ServoError {
+        self.failed = true;
         ServoError::OnPort {
             port: self.name.clone(),
             source: Box::new(ServoError::Io(std::io::Error::new(
@@ -126,14 +131,19 @@ impl<B: ServoBus + Send + 'static> Worker<B> {
     }
 
     fn send(&mut self, job: Job<B>) -> Result<(), ServoError> {
-        self.jobs.send(job).map_err(|_| self.gone())?;
+        if self.jobs.send(job).is_err() {
+            return Err(self.gone());
+        }
         self.busy = true;
         Ok(())
     }
 
     fn wait(&mut self) -> Result<Done, ServoError> {
         self.busy = false;
-        self.done.recv().map_err(|_| self.gone())
+        match self.done.recv() {
+            Ok(done) => Ok(done),
+            Err(_) => Err(self.gone()),
+        }
     }
 
     /// `f` on the port's bus, awaited.
@@ -160,12 +170,20 @@ impl<B: ServoBus + Send + 'static> Worker<B> {
 
     fn finish<R>(&mut self, rx: Receiver<R>) -> Result<R, ServoError> {
         self.wait()?;
-        rx.recv().map_err(|_| self.gone())
+        match rx.recv() {
+            Ok(r) => Ok(r),
+            Err(_) => Err(self.gone()),
+        }
     }
 
-    /// A port error of this port's bus names it; a servo's error stays as it is.
-    fn named(&self, e: ServoError) -> ServoError {
-        name_port(&self.name, e)
+    /// A port error of this port's bus names it and marks the port failed; a servo's error
+    /// stays as it is.
+    fn named(&mut self, e: ServoError) -> ServoError {
+        let e = name_port(&self.name, e);
+        if e.class() == ErrorClass::Bus {
+            self.failed = true;
+        }
+        e
     }
 }
 
@@ -191,6 +209,17 @@ fn name_port(name: &str, e: ServoError) -> ServoError {
         },
         e => e,
     }
+}
+
+/// Why [`Ports::reopen_failed`] could not open a failed port again.
+#[derive(Debug, thiserror::Error)]
+pub enum ReopenPortError<E> {
+    /// Opening its device failed.
+    #[error(transparent)]
+    Open(E),
+    /// Its thread could not be started.
+    #[error("the reopened port's thread could not start: {0}")]
+    Thread(ServoError),
 }
 
 enum Inner<B> {
@@ -289,6 +318,76 @@ impl<B: ServoBus + Send + 'static> Ports<B> {
     /// Never: a bus has at least one port.
     pub fn is_empty(&self) -> bool {
         false
+    }
+
+    /// The paths of the ports that failed (an error of [`ErrorClass::Bus`] came from them) and
+    /// were not opened again since; empty with one port, whose failures its caller sees.
+    pub fn failed(&self) -> Vec<&str> {
+        match &self.inner {
+            Inner::One(_) => Vec::new(),
+            Inner::Many(w) => w
+                .iter()
+                .filter(|w| w.failed)
+                .map(|w| w.name.as_str())
+                .collect(),
+        }
+    }
+
+    /// Open again the ports that failed, each with `open(index)` (its index in the order the
+    /// ports were given), after closing it so that its lock is free: the others stay open,
+    /// locked and untouched. A reopened port reads as before. With one port, that port is
+    /// closed and opened again. Every failed port is tried; the first error is returned, and a
+    /// port whose opening failed stays failed (closed) for the next try.
+    pub fn reopen_failed<E>(
+        &mut self,
+        mut open: impl FnMut(usize) -> Result<B, E>,
+    ) -> Result<(), ReopenPortError<E>> {
+        let workers = match &mut self.inner {
+            Inner::One(bus) => {
+                bus.close();
+                *bus = open(0).map_err(ReopenPortError::Open)?;
+                return Ok(());
+            }
+            Inner::Many(workers) => workers,
+        };
+        let mut first_error = None;
+        for (k, w) in workers.iter_mut().enumerate().filter(|(_, w)| w.failed) {
+            // A port whose thread is gone has nothing left to close.
+            let _ = w.call(|bus: &mut B| bus.close());
+            let bus = match open(k) {
+                Ok(bus) => bus,
+                Err(e) => {
+                    first_error.get_or_insert(ReopenPortError::Open(e));
+                    continue;
+                }
+            };
+            if let Some(slot) = self.adapters.get_mut(k) {
+                *slot = bus.adapters().first().copied().flatten();
+            }
+            let mut fresh = match Worker::spawn(w.name.clone(), bus) {
+                Ok(fresh) => fresh,
+                Err(e) => {
+                    first_error.get_or_insert(ReopenPortError::Thread(e));
+                    continue;
+                }
+            };
+            let kind = self.reads.get(k).copied().unwrap_or(ReadKind::Sync);
+            let set = fresh
+                .call(move |bus: &mut B| bus.set_read_kind(kind))
+                .and_then(|r| r);
+            if let Err(e) = set {
+                tracing::warn!(port = %fresh.name, ?kind, "the reopened port keeps Sync Read: {e}");
+                if let Some(slot) = self.reads.get_mut(k) {
+                    *slot = ReadKind::Sync;
+                }
+            }
+            // The failed worker goes (its thread joined, its bus dropped).
+            *w = fresh;
+        }
+        match first_error {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
     }
 
     /// The port (index) servo `id` is on.
@@ -540,7 +639,7 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
                             }
                         }
                         Err(e) => {
-                            first_error.get_or_insert(name_port(&w.name, e));
+                            first_error.get_or_insert(w.named(e));
                         }
                     }
                     w.ids = ids;
@@ -632,7 +731,7 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
                 Ok(Done::Goals(goals, result)) => {
                     w.goals = goals;
                     if let Err(e) = result {
-                        first_error.get_or_insert(name_port(&w.name, e));
+                        first_error.get_or_insert(w.named(e));
                     }
                 }
                 Ok(_) => {
@@ -769,7 +868,10 @@ mod tests {
                 if let (Some(p), false) = (w.positions.get(id), w.silent.contains(id)) {
                     let mut data = vec![0u8; usize::from(len)];
                     let n = data.len();
-                    data[n - 4..].copy_from_slice(&p.to_le_bytes());
+                    // A position where it fits; a shorter register (Torque Enable) reads 0.
+                    if n >= 4 {
+                        data[n - 4..].copy_from_slice(&p.to_le_bytes());
+                    }
                     out.set(i, &data, false);
                 }
             }
@@ -884,6 +986,69 @@ mod tests {
         assert_eq!(a.0.lock().unwrap().positions[&1], 2000);
         let r = ports.read_states(&[2], Fields::POSITION, T).unwrap();
         assert_eq!(r[0].as_ref().unwrap().position_ticks, 1002);
+    }
+
+    #[test]
+    fn only_a_failed_port_is_opened_again_and_the_other_keeps_its_bus() {
+        let (mut ports, a, b) = two();
+        b.0.lock().unwrap().gone = true;
+        let goals = |ticks| [Goal { id: 1, ticks }, Goal { id: 4, ticks }];
+        assert_eq!(
+            ports.write_goals(&goals(2000)).unwrap_err().port(),
+            Some("/dev/ttyUSB1")
+        );
+        assert_eq!(ports.failed(), ["/dev/ttyUSB1"]);
+        // Opening it fails: it stays failed, the other untouched.
+        let e = ports.reopen_failed(|_| Err("not there yet")).unwrap_err();
+        assert!(matches!(e, ReopenPortError::Open("not there yet")), "{e:?}");
+        assert_eq!(ports.failed(), ["/dev/ttyUSB1"]);
+        let fresh = Memory::with(&[4, 5, 6]);
+        let mut opened = Vec::new();
+        ports
+            .reopen_failed(|k| {
+                opened.push(k);
+                Ok::<_, ServoError>(fresh.clone())
+            })
+            .unwrap();
+        assert_eq!(opened, [1]);
+        assert!(ports.failed().is_empty());
+        ports.write_goals(&goals(2100)).unwrap();
+        // Port A kept its bus throughout: both writes reached it.
+        assert_eq!(a.0.lock().unwrap().goal_writes, 2);
+        assert_eq!(a.0.lock().unwrap().positions[&1], 2100);
+        assert_eq!(fresh.0.lock().unwrap().positions[&4], 2100);
+    }
+
+    #[test]
+    fn a_torque_off_with_one_port_gone_reaches_the_other_and_names_each_servos_own_port() {
+        use crate::chain::JointLimit;
+        use crate::servo::arm::{Arm, JointServo, Settings, Within};
+        use crate::servo::clock::{Clock, ManualClock};
+        use crate::servo::model::ServoModel;
+        use crate::servo::units::Calibration;
+        let (mut ports, _a, b) = two();
+        b.0.lock().unwrap().gone = true;
+        let joints = (1..=6)
+            .map(|id| {
+                JointServo::new(
+                    usize::from(id),
+                    id,
+                    ServoModel::from_name("XL430-W250").unwrap(),
+                    Calibration::default(),
+                    JointLimit { lo: -1.5, hi: 1.5 },
+                )
+            })
+            .collect();
+        let arm = Arm::new(joints, Settings::default());
+        let clock = ManualClock::new();
+        let within = Within::new(&clock, clock.now() + Duration::from_millis(50), T);
+        let unreached = arm.torque_off(&mut ports, &[], &within).unwrap_err();
+        let ids: Vec<u8> = unreached.iter().map(|u| u.id).collect();
+        assert_eq!(ids, [4, 5, 6], "{unreached:?}");
+        for u in &unreached {
+            assert!(u.why.contains("/dev/ttyUSB1"), "{u}");
+            assert!(!u.why.contains("/dev/ttyUSB0"), "{u}");
+        }
     }
 
     #[test]

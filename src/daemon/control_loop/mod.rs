@@ -93,14 +93,14 @@ use crate::record::Tap;
 use crate::servo::arm::{Arm, BringUpOptions, OnExit, Within};
 use crate::servo::clock::{Clock, RealClock};
 use crate::servo::dynamixel::DynamixelBus;
-use crate::servo::limits::{LimitPolicy, Limited};
+use crate::servo::limits::Limited;
 use crate::servo::ports::Ports;
 use crate::servo::{units, Goal, Layout, ReadKind, ServoBus, States};
 
 use self::health::{Budget, Change, Health};
 use self::ledger::{Ended, Ledger};
 use self::measure::Measured;
-use self::port::{Opener, Port};
+use self::port::{Opener, Port, ReopenError};
 use self::supervisor::Supervisor;
 use super::link::{self, Handle, LoopEnds, COMMAND_QUEUE, STOP_QUEUE};
 use super::stats::Stats;
@@ -194,8 +194,19 @@ fn open(
         Vec::new()
     };
     let baud = bus.baud();
-    let opener: Opener<Ports<DynamixelBus>> =
-        Box::new(move |arm: &Arm| Ok(connect::reopen_arm(&ports, baud, arm, LimitPolicy::Clamp)?));
+    let config_path = config.path().to_path_buf();
+    // Only the ports that failed: the others stay open and locked, their servos reachable.
+    let opener: Opener<Ports<DynamixelBus>> = Box::new(
+        move |_: &Arm, bus: &mut Limited<Ports<DynamixelBus>>| -> Result<(), ReopenError> {
+            bus.reopen_failed(|k| match ports.get(k) {
+                Some((path, _)) => connect::open_port_of_several(path, baud),
+                None => Err(connect::ConnectError::NoBus {
+                    path: config_path.clone(),
+                }),
+            })?;
+            Ok(())
+        },
+    );
     Ok(Parts {
         bus,
         port,
@@ -637,10 +648,17 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         self.apply_commands();
         self.tend_port();
         if self.port.is_lost() {
-            // Nothing to write to: hold the goals until the port is back.
-            self.received.clear();
+            // Hold the goals until the port is back.
             self.decided = self.decided.frozen();
             self.decided.min_clearance_m = self.controller.min_clearance();
+            if self.port.several() {
+                // The other ports are still open: their servos are held on the goals, as
+                // every tick, which keeps their Bus Watchdog fed (the lost port's part fails,
+                // and is already reported).
+                self.write();
+            } else {
+                self.received.clear();
+            }
         } else {
             self.decide();
             self.write();
@@ -926,10 +944,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// on, and the whole takes at most [`SHUT_DOWN_WITHIN`]; a servo it could not reach is
     /// named in the error.
     fn shut_down(mut self, panicked: bool) -> Result<Summary, DaemonError> {
-        let silent = if self.port.is_lost() {
+        let silent = if self.port.is_lost() && !self.port.several() {
             tracing::warn!("shut-down: the serial port is lost, no servo can be reached");
             self.ids.clone()
         } else {
+            if let Some(lost) = self.port.fault() {
+                tracing::warn!(
+                    "shut-down: {}; the servos on the other ports are still reached",
+                    lost.detail
+                );
+            }
             let mut silent = self.health.unanswering();
             // Servos still booting from an abandoned reboot do not hear.
             silent.extend(self.rebooting.iter().flat_map(|r| r.booting()));

@@ -8,13 +8,15 @@ use crate::connect::ConnectError;
 use crate::protocol::FaultInfo;
 use crate::servo::arm::Arm;
 use crate::servo::limits::Limited;
+use crate::servo::ports::ReopenPortError;
 use crate::servo::ServoBus;
 
 /// How often a lost port is reopened, and a failed recovery tried again.
 pub const RETRY_EVERY: Duration = Duration::from_secs(1);
 
-/// Opens the port again, limited as at start.
-pub type Opener<B> = Box<dyn FnMut(&Arm) -> Result<Limited<B>, ReopenError>>;
+/// Opens the lost port again in the bus, limited as at start: on a bus of several ports only
+/// the ports that failed, so the others stay open and locked (and their servos reachable).
+pub type Opener<B> = Box<dyn FnMut(&Arm, &mut Limited<B>) -> Result<(), ReopenError>>;
 
 /// Why reopening the port failed.
 #[derive(Debug, thiserror::Error)]
@@ -25,6 +27,9 @@ pub enum ReopenError {
     /// Opening it failed.
     #[error(transparent)]
     Open(#[from] ConnectError),
+    /// Opening a failed port of several failed.
+    #[error(transparent)]
+    Ports(#[from] ReopenPortError<ConnectError>),
     /// It opened, but the arm did not recover.
     #[error("the port opened, but the arm did not recover: {0}")]
     Recover(String),
@@ -56,6 +61,8 @@ pub struct Port<B: ServoBus> {
     /// A stall whose recovery is still to be done, and how long it was: the goals written since
     /// renew the contact, so the gap alone would not show it again.
     stall_left: Option<Duration>,
+    /// The bus has several ports: one lost leaves the others to be written.
+    several: bool,
 }
 
 impl<B: ServoBus> Port<B> {
@@ -68,6 +75,7 @@ impl<B: ServoBus> Port<B> {
         watchdog: Option<Duration>,
         now: Instant,
     ) -> Self {
+        let several = bus.read_kinds().len() > 1;
         Self {
             bus,
             opener,
@@ -76,7 +84,13 @@ impl<B: ServoBus> Port<B> {
             watchdog,
             name,
             stall_left: None,
+            several,
         }
+    }
+
+    /// The bus has several ports, so a lost one leaves others open.
+    pub fn several(&self) -> bool {
+        self.several
     }
 
     /// The port's path, when known.
@@ -100,8 +114,8 @@ impl<B: ServoBus> Port<B> {
     }
 
     /// The port failed with `why` at `tick` (`which` of several, when the error says): the
-    /// fault to report, `None` if it already was. A bus of several ports is one arm: every
-    /// port is closed and reopened together.
+    /// fault to report, `None` if it already was. A bus of several ports is one arm: it holds
+    /// while one is lost, and only the ports that failed are reopened.
     pub fn lose(
         &mut self,
         tick: u64,
@@ -114,8 +128,8 @@ impl<B: ServoBus> Port<B> {
         }
         let detail = match which {
             Some(port) => format!(
-                "the serial port {port} failed ({why}); the arm holds, every port reopened every \
-                 second"
+                "the serial port {port} failed ({why}); the arm holds, that port reopened every \
+                 second, the others kept open"
             ),
             None => format!("the serial port failed ({why}); reopening it every second"),
         };
@@ -144,15 +158,17 @@ impl<B: ServoBus> Port<B> {
 
     /// Open the port again at `now`; the arm is to recover on it from the next tick on, with
     /// that tick's time to itself (opening and bring-up may have spent this one's), each tick
-    /// for a [`RETRY_EVERY`] (see [`Port::recovery_failed`]). The failed one
-    /// is closed first, so its lock is free for this process to take again. The new bus reads
-    /// as the old one did (the read bring-up chose from the same servos).
+    /// for a [`RETRY_EVERY`] (see [`Port::recovery_failed`]). The opener closes the failed
+    /// port first, so its lock is free for this process to take again, and leaves the other
+    /// ports of the bus open. The bus reads as it did (the read bring-up chose from the same
+    /// servos).
     pub fn reopen(&mut self, arm: &Arm, now: Instant) -> Result<(), ReopenError> {
         let reads = self.bus.read_kinds();
-        self.bus.close();
-        self.bus = (self.opener)(arm)?;
-        if let Err(e) = self.bus.set_read_kinds(&reads) {
-            tracing::warn!(?reads, "the reopened port keeps Sync Read: {e}");
+        (self.opener)(arm, &mut self.bus)?;
+        if self.bus.read_kinds() != reads {
+            if let Err(e) = self.bus.set_read_kinds(&reads) {
+                tracing::warn!(?reads, "the reopened port keeps Sync Read: {e}");
+            }
         }
         if let Some(lost) = self.lost.as_mut() {
             lost.reopened = Some(now);

@@ -18,8 +18,9 @@ use crate::protocol::{
     Answer, CmdName, Code, Event, FaultChange, FaultKind, LoopCmd, Motion, Outcome, Reply, State,
     StopReason, What,
 };
+use crate::servo::arm::Arm;
 use crate::servo::clock::{Clock, ManualClock};
-use crate::servo::limits::LimitPolicy;
+use crate::servo::limits::{LimitPolicy, Limited};
 use crate::servo::{
     Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, ServoModel, SyncReadBuf, Value,
     INDIRECT_ADDRESS_1,
@@ -387,7 +388,8 @@ impl Rig {
             port: Some("/dev/memory".into()),
             servo_ports: Vec::new(),
             arm,
-            opener: Box::new(move |arm| {
+            opener: Box::new(move |arm: &Arm, bus: &mut Limited<MemoryBus>| {
+                bus.close();
                 let w = reopen.wire();
                 if let Some(c) = &w.clock {
                     c.advance(w.open_cost);
@@ -396,7 +398,8 @@ impl Rig {
                     return Err(ReopenError::NoPath);
                 }
                 drop(w);
-                Ok(arm.limited(reopen.clone(), LimitPolicy::Clamp))
+                *bus = arm.limited(reopen.clone(), LimitPolicy::Clamp);
+                Ok(())
             }),
             clock: ManualClock::new(),
             sims: Vec::new(),
