@@ -285,3 +285,73 @@ fn a_bus_closed_after_a_failure_frees_its_port_for_this_process_to_open_again() 
     let mut again = connect::open_port(sim.path(), baud).unwrap();
     again.ping(1, t).unwrap();
 }
+
+/// A two-port config (servos 1 to 6, 7 to 12) in `dir`, `[bus] kind` as given, each port's
+/// path from `paths` (none: no `port` keys).
+fn two_port_config(dir: &std::path::Path, kind: &str, paths: &[&str]) -> PathBuf {
+    let shipped = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
+    let mut text = std::fs::read_to_string(shipped).unwrap();
+    let old = "kind = \"sim\"";
+    assert!(text.contains(old), "no `{old}` in config/sim.toml");
+    text = text.replacen(old, &format!("kind = \"{kind}\""), 1);
+    for (k, ids) in ["[1, 2, 3, 4, 5, 6]", "[7, 8, 9, 10, 11, 12]"]
+        .iter()
+        .enumerate()
+    {
+        text.push_str(&format!("\n[[bus.ports]]\nids = {ids}\n"));
+        if let Some(path) = paths.get(k) {
+            text.push_str(&format!("port = \"{path}\"\n"));
+        }
+    }
+    let path = dir.join(format!("two-{kind}.toml"));
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn one_device_given_as_two_ports_is_refused_before_the_socket_is_bound() {
+    let config = Config::load(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();
+    let link = sim.path().display().to_string();
+    let pty = sim.pty_path().unwrap().display().to_string();
+    let dir = tempfile::tempdir().unwrap();
+    // The address is taken: a daemon that bound it first would fail on it instead.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let listen = taken.local_addr().unwrap().to_string();
+    let expect = |stderr: &str, path: &str| {
+        let says = format!("port 2 ({path}) is the same device as port 1");
+        assert!(stderr.contains(&says), "not `{says}`:\n{stderr}");
+    };
+    // The same flag twice, and a link beside the device it points to.
+    let flags = two_port_config(dir.path(), "sim", &[]);
+    let flags = flags.to_str().unwrap();
+    for second in [&link, &pty] {
+        let args = [
+            "run", "--config", flags, "--listen", &listen, "--port", &link, "--port", second,
+        ];
+        let (status, _, stderr) = snakectl(&args);
+        assert_eq!(status.code(), Some(2), "{stderr}");
+        expect(&stderr, second);
+    }
+    // Two spellings of one path in the file.
+    let dotted = sim
+        .path()
+        .parent()
+        .unwrap()
+        .join(".")
+        .join(sim.path().file_name().unwrap());
+    let dotted = dotted.display().to_string();
+    let file = two_port_config(dir.path(), "dynamixel", &[&link, &dotted]);
+    let args = [
+        "run",
+        "--config",
+        file.to_str().unwrap(),
+        "--listen",
+        &listen,
+    ];
+    let (status, _, stderr) = snakectl(&args);
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    expect(&stderr, &dotted);
+    // Nothing was written to the device.
+    assert_eq!(sim.with_sim(|s| s.stats().bytes), 0);
+}

@@ -51,6 +51,8 @@ pub struct RunArgs {
 pub fn run(args: RunArgs) -> Result<(), Failure> {
     super::init_logs(args.verbose);
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
+    // Two ports on one device are refused before anything is bound or opened.
+    snakectl::connect::check_ports(&config, &args.port).map_err(Failure::bad_input)?;
     let listen = args.listen.unwrap_or(config.server().listen);
     // The socket side is light: one thread of its own, off the loop's.
     let runtime = tokio::runtime::Builder::new_current_thread()

@@ -104,6 +104,17 @@ pub enum ConnectError {
     /// process that holds it): nothing was written to it.
     #[error(transparent)]
     InUse(ServoError),
+    /// Two ports of the bus are one device (the same path, or two paths to it): the second
+    /// would be refused as in use by this very process.
+    #[error("port {port} ({path}) is the same device as port {first}", path = path.display())]
+    SameDevice {
+        /// The later port, from 1 in order.
+        port: usize,
+        /// Its path as given.
+        path: PathBuf,
+        /// The earlier port on that device, from 1.
+        first: usize,
+    },
 }
 
 /// How [`open`] reaches the servos.
@@ -225,6 +236,47 @@ pub struct ArmConnection {
     pub ports: Vec<(PathBuf, Vec<u8>)>,
 }
 
+/// Refuses a bus whose ports name one device twice: the ports `given` (`--port`, one per port
+/// of `[bus]`), else `[bus]`'s paths for real servos (a simulator's ports are its own). Paths
+/// are compared as resolved (symbolic links followed, `.` and `..` taken out); one that does
+/// not resolve (nothing there yet) is compared as written. The one check of both, run before
+/// anything is opened or bound.
+pub fn check_ports(config: &Config, given: &[PathBuf]) -> Result<(), ConnectError> {
+    let Some(bus) = config.bus() else {
+        return Ok(());
+    };
+    let paths: Vec<PathBuf> = if !given.is_empty() {
+        given.to_vec()
+    } else if bus.kind == BusKind::Dynamixel {
+        bus.ports
+            .iter()
+            .filter_map(|p| p.port.as_deref().map(PathBuf::from))
+            .collect()
+    } else {
+        return Ok(());
+    };
+    distinct_devices(&paths)
+}
+
+/// [`ConnectError::SameDevice`] for the first path of `paths` that resolves to an earlier one's
+/// device.
+fn distinct_devices(paths: &[PathBuf]) -> Result<(), ConnectError> {
+    let resolved: Vec<PathBuf> = paths
+        .iter()
+        .map(|p| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone()))
+        .collect();
+    for (k, device) in resolved.iter().enumerate() {
+        if let Some(first) = resolved[..k].iter().position(|d| d == device) {
+            return Err(ConnectError::SameDevice {
+                port: k + 1,
+                path: paths[k].clone(),
+                first: first + 1,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Open every port of the bus `config` describes, as one bus: the explicit ports of `options`
 /// (one per port, in order), else `[bus]`'s paths for real servos, else one simulator per port
 /// serving that port's servos. Each port is locked as [`open_port`] does.
@@ -247,6 +299,7 @@ pub fn open_arm(config: &Config, options: Options) -> Result<ArmConnection, Conn
             expected,
         });
     }
+    check_ports(config, &given)?;
     let real = bus_config.kind == BusKind::Dynamixel;
     let mut sims = Vec::new();
     let paths: Vec<PathBuf> = if !given.is_empty() {
