@@ -143,6 +143,22 @@ fn sim_serves_one_pty_per_port_each_with_its_servos() {
         err.contains("1 --link given for the 2 ports of [bus]"),
         "{err}"
     );
+    // One link for both ports (once through `.`): refused, naming the flags, nothing made.
+    let same = dir.path().join("same");
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["sim", "--config"])
+        .arg(&config)
+        .arg("--link")
+        .arg(&same)
+        .arg("--link")
+        .arg(dir.path().join(".").join("same"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("is the same path as --link 1"), "{err}");
+    assert!(err.contains("--link 2 ("), "{err}");
+    assert!(same.symlink_metadata().is_err(), "a link was made");
 }
 
 #[test]

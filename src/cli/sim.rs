@@ -1,7 +1,7 @@
 //! `snakectl sim`: the config's servo chain, simulated, served on a pseudo-terminal (one per
 //! port of a bus of several).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
@@ -33,6 +33,7 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
     let other = Failure::other;
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
     let ports = config.bus().map_or(1, |b| b.ports.len());
+    distinct_links(&args.link).map_err(Failure::bad_input)?;
     let links: Vec<connect::Link> = if args.link.is_empty() {
         (0..ports).map(|_| connect::Link::None).collect()
     } else {
@@ -75,4 +76,68 @@ pub fn run(args: SimArgs) -> Result<(), Failure> {
         }
     }
     stopped
+}
+
+/// `--link` given twice for one path: the second would replace the first's symlink and leave
+/// that port's pseudo-terminal without one.
+#[derive(Debug, thiserror::Error)]
+#[error("--link {link} ({path}) is the same path as --link {first}: give each port a link of its own", path = path.display())]
+struct SameLink {
+    /// The later `--link`, from 1 in order.
+    link: usize,
+    /// Its path as given.
+    path: PathBuf,
+    /// The earlier `--link` with that path, from 1.
+    first: usize,
+}
+
+/// Refuses two `--link` flags for one path, compared as resolved: the directory with its
+/// symbolic links followed (the link itself may not exist yet, or be an old one replaced).
+fn distinct_links(links: &[PathBuf]) -> Result<(), SameLink> {
+    let resolved: Vec<PathBuf> = links.iter().map(|l| resolve_link(l)).collect();
+    for (k, path) in resolved.iter().enumerate() {
+        if let Some(first) = resolved[..k].iter().position(|p| p == path) {
+            return Err(SameLink {
+                link: k + 1,
+                path: links[k].clone(),
+                first: first + 1,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Where `link` would be made: its directory resolved (the current one for a bare name), its
+/// name kept; as written when the directory does not resolve.
+fn resolve_link(link: &Path) -> PathBuf {
+    let dir = match link.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    match (std::fs::canonicalize(dir), link.file_name()) {
+        (Ok(dir), Some(name)) => dir.join(name),
+        _ => link.to_path_buf(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_path_given_twice_as_link_is_refused_naming_both_flags() {
+        let links = [
+            PathBuf::from("a"),
+            PathBuf::from("same"),
+            PathBuf::from("./same"),
+        ];
+        let e = distinct_links(&links).err().map(|e| e.to_string());
+        assert_eq!(
+            e.as_deref(),
+            Some(
+                "--link 3 (./same) is the same path as --link 2: give each port a link of its own"
+            )
+        );
+        assert!(distinct_links(&links[..2]).is_ok());
+    }
 }
