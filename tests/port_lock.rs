@@ -352,6 +352,17 @@ fn one_device_given_as_two_ports_is_refused_before_the_socket_is_bound() {
     let (status, _, stderr) = snakectl(&args);
     assert_eq!(status.code(), Some(2), "{stderr}");
     expect(&stderr, &dotted);
+    // One `--port` for two ports: refused the same way, before it says it listens.
+    let args = [
+        "run", "--config", flags, "--listen", &listen, "--port", &link,
+    ];
+    let (status, _, stderr) = snakectl(&args);
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("1 --port given for the 2 ports of [bus]"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("listening"), "{stderr}");
     // Nothing was written to the device.
     assert_eq!(sim.with_sim(|s| s.stats().bytes), 0);
 }

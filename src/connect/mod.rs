@@ -236,8 +236,9 @@ pub struct ArmConnection {
     pub ports: Vec<(PathBuf, Vec<u8>)>,
 }
 
-/// Refuses a bus whose ports name one device twice: the ports `given` (`--port`, one per port
-/// of `[bus]`), else `[bus]`'s paths for real servos (a simulator's ports are its own). Paths
+/// Refuses ports `given` (`--port`) that are not one per port of `[bus]`, and a bus whose
+/// ports name one device twice: the ports `given`, else `[bus]`'s paths for real servos (a
+/// simulator's ports are its own). Paths
 /// are compared as resolved (symbolic links followed, `.` and `..` taken out); one that does
 /// not resolve (nothing there yet) is compared as written. The one check of both, run before
 /// anything is opened or bound.
@@ -245,6 +246,15 @@ pub fn check_ports(config: &Config, given: &[PathBuf]) -> Result<(), ConnectErro
     let Some(bus) = config.bus() else {
         return Ok(());
     };
+    let expected = bus.ports.len();
+    if !given.is_empty() && given.len() != expected {
+        return Err(ConnectError::PortCount {
+            path: config.path().to_path_buf(),
+            flag: "--port",
+            given: given.len(),
+            expected,
+        });
+    }
     let paths: Vec<PathBuf> = if !given.is_empty() {
         given.to_vec()
     } else if bus.kind == BusKind::Dynamixel {
@@ -289,15 +299,6 @@ pub fn open_arm(config: &Config, options: Options) -> Result<ArmConnection, Conn
     let mut given = options.ports.clone();
     if given.is_empty() {
         given.extend(options.port.clone());
-    }
-    let expected = bus_config.ports.len();
-    if !given.is_empty() && given.len() != expected {
-        return Err(ConnectError::PortCount {
-            path: path(),
-            flag: "--port",
-            given: given.len(),
-            expected,
-        });
     }
     check_ports(config, &given)?;
     let real = bus_config.kind == BusKind::Dynamixel;
