@@ -303,6 +303,9 @@ pub enum FieldProblem {
         /// What was given: "both" or "neither".
         given: &'static str,
     },
+    /// A port's path given empty.
+    #[error("an empty path: name the serial device, e.g. /dev/ttyUSB0")]
+    EmptyPath,
     /// An obstacle with an empty id.
     #[error("an obstacle needs a non-empty id")]
     EmptyId,

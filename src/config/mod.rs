@@ -843,6 +843,9 @@ impl Checker<'_> {
             if raw.kind == BusKind::Dynamixel && raw.port.is_none() {
                 return Err(self.invalid("bus.port", FieldProblem::Missing { why: NEEDS_PATH }));
             }
+            if raw.port.as_deref().is_some_and(|p| p.trim().is_empty()) {
+                return Err(self.invalid("bus.port", FieldProblem::EmptyPath));
+            }
             return Ok(vec![BusPort {
                 port: raw.port.clone(),
                 ids: servos.iter().map(|s| s.id).collect(),
@@ -887,6 +890,11 @@ impl Checker<'_> {
                         format!("bus.ports[{n}].port"),
                         FieldProblem::Missing { why: NEEDS_PATH },
                     ))
+                }
+                (Some(path), _) if path.trim().is_empty() => {
+                    return Err(
+                        self.invalid(format!("bus.ports[{n}].port"), FieldProblem::EmptyPath)
+                    )
                 }
                 (Some(path), _) => {
                     if let Some(other) = paths.iter().position(|q| q == path) {

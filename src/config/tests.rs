@@ -447,6 +447,10 @@ fn dynamixel_needs_a_port() {
         &with("kind = \"sim\"", "kind = \"dynamixel\""),
         &["bus.port", "missing"],
     );
+    refused(
+        &with("kind = \"sim\"", "kind = \"dynamixel\"\nport = \" \""),
+        &["bus.port", "an empty path"],
+    );
     let c = load(&with(
         "kind = \"sim\"",
         "kind = \"dynamixel\"\nport = \"/dev/ttyUSB0\"",
@@ -553,6 +557,11 @@ fn several_ports_refusals_name_the_field() {
             "kind = \"dynamixel\"\nport = \"/dev/ttyUSB0\"\n",
             "[[bus.ports]]\nids = [1, 2, 3]\nport = \"/dev/ttyUSB1\"\n",
             &["bus.port", "[[bus.ports]]"],
+        ),
+        (
+            real,
+            "[[bus.ports]]\nids = [1]\nport = \"/dev/ttyUSB0\"\n[[bus.ports]]\nids = [2, 3]\nport = \"\"\n",
+            &["bus.ports[2].port", "an empty path"],
         ),
         (
             sim,
