@@ -902,19 +902,23 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// A fault or warning change: logged, sent to everyone, the lists rebuilt.
     fn report(&mut self, change: Change) {
         let Change { change, info } = change;
+        // Absent fields (a port's own fault has no servo) are left out of the line.
+        let (id, joint, port) = (info.id, info.joint, info.port.as_deref());
         match (info.kind.is_warning(), change) {
             (false, FaultChange::Raised) => tracing::warn!(
-                id = ?info.id,
-                joint = ?info.joint,
+                id,
+                joint,
+                port,
                 kind = %info.kind,
                 "fault: {}",
                 info.detail
             ),
             (false, _) => {
-                tracing::info!(id = ?info.id, kind = %info.kind, "fault cleared: {}", info.detail)
+                tracing::info!(id, port, kind = %info.kind, "fault cleared: {}", info.detail)
             }
             (true, _) => tracing::warn!(
-                id = ?info.id,
+                id,
+                port,
                 kind = %info.kind,
                 reason = %change,
                 "health: {}",
