@@ -100,6 +100,9 @@ pub struct Bound {
     pub bytes_in: usize,
     /// The tick's time: bytes on the wire, return delays and the adapter's hold.
     pub tick: Duration,
+    /// The adapter's part of `tick`: its latency timer, waited out for the reply's last
+    /// partial USB packet (zero without an adapter model).
+    pub hold: Duration,
 }
 
 impl Bound {
@@ -167,6 +170,7 @@ impl Wire {
             bytes_out,
             bytes_in,
             tick: wire + delays + hold,
+            hold,
         }
     }
 }

@@ -470,10 +470,18 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 ports = wires.len(),
                 read = ReadKind::name_of_ports(&brought.reads),
                 "control loop at {:.0} Hz; the wire allows this arm at most {:.0} Hz \
-                 ({} bytes a tick on its busiest port)",
+                 ({} bytes a tick on its busiest port{})",
                 c.rate_hz,
                 b.rate_hz(),
                 b.bytes(),
+                if b.hold.is_zero() {
+                    String::new()
+                } else {
+                    format!(
+                        ", and {:.1} ms of the adapter's latency timer",
+                        b.hold.as_secs_f64() * 1e3
+                    )
+                },
             );
             if c.rate_hz > b.rate_hz() {
                 tracing::warn!(
