@@ -129,6 +129,27 @@ fn shipped_scenarios_run_exactly_and_concentrate_near_the_pulled_end() {
     }
 }
 
+/// The largest link count a scenario allows, 100000, splits every shipped curve (the straight
+/// line among them) into that many equal chords from end to end.
+#[test]
+fn shipped_curves_split_at_the_largest_link_count() {
+    for file in shipped() {
+        let text = std::fs::read_to_string(&file).unwrap();
+        let name = file.display();
+        let at = text.find("\nlinks = ").expect("a links line") + 1;
+        let eol = at + text[at..].find('\n').unwrap();
+        let text = format!("{}links = 100000{}", &text[..at], &text[eol..]);
+        let s = Scenario::from_toml(&text, &name.to_string(), file.parent().unwrap())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(s.links.len(), 100_000, "{name}");
+        let (mn, mx) = s
+            .links
+            .iter()
+            .fold((f64::MAX, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+        assert!(mx - mn < 1e-10, "{name}: chords {mn} .. {mx}");
+    }
+}
+
 /// Every objective in one scenario: each overall optimum is the best of all columns under its
 /// own objective, single step.
 #[test]
