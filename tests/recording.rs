@@ -2,7 +2,8 @@
 //! (a goto, then `velocity`), then shuts down; the file is read with the `mcap` crate alone.
 //! Each channel holds what the loop offered minus what was dropped, its times increase, a
 //! `JointState` decodes to the angles of the telemetry logged with it, the metadata holds the
-//! config and the account, and `snakectl plot` draws the figures from it.
+//! config and the account, and `snakectl plot` draws the figures from it; it draws a run in
+//! which the arm never moved, and one cut short as a killed writer leaves it.
 #![allow(clippy::unwrap_used)]
 
 mod daemon_support;
@@ -225,4 +226,73 @@ fn a_recording_that_cannot_be_created_refuses_start_up_before_the_arm_moves() {
     let e = d.stop().unwrap_err();
     assert!(matches!(e, snakectl::daemon::DaemonError::Record(_)), "{e}");
     assert!(e.to_string().contains("run.mcap"), "{e}");
+}
+
+/// Runs `snakectl plot FILE --out OUT`.
+fn plot(file: &std::path::Path, out: &std::path::Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .arg("plot")
+        .arg(file)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+/// A run in which the arm never moved draws (the arm at rest, flat joint angles); `--out` naming
+/// a file is refused as not a directory.
+#[test]
+fn a_recording_of_an_arm_at_rest_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("idle.mcap");
+    let d = Daemon::start_with(sim_config(&[]), Some(RecordOptions::to(&path)));
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    d.stop().unwrap();
+
+    let out = dir.path().join("figures");
+    let plotted = plot(&path, &out);
+    assert!(plotted.status.success(), "{plotted:?}");
+    let said = String::from_utf8_lossy(&plotted.stdout);
+    assert!(said.contains("1 phase(s) pictured"), "{said}");
+    for name in ["motion.svg", "motion.png", "joints.svg", "joints.png"] {
+        assert!(out.join(name).is_file(), "{name}");
+    }
+
+    let refused = plot(&path, &path);
+    assert_eq!(refused.status.code(), Some(2), "{refused:?}");
+    let said = String::from_utf8_lossy(&refused.stderr);
+    assert!(said.contains("not a directory"), "{said}");
+}
+
+/// A recording whose writer was killed (the file cut in the middle of a chunk, without its
+/// summary) still draws from what it holds, and the warning names `mcap recover`.
+#[test]
+fn a_recording_cut_short_plots_what_it_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    let d = Daemon::start_with(sim_config(&[]), Some(RecordOptions::to(&path)));
+    let mut c = d.client();
+    c.ok(json!({"cmd": "take_control"}));
+    for _ in 0..100 {
+        c.ok(json!({"cmd": "velocity", "v": [0.02, 0.0]}));
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    c.ok(json!({"cmd": "stop"}));
+    drop(c);
+    d.stop().unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    // Halfway through the data section, most likely in a chunk: cut anywhere, what is before
+    // the cut still reads.
+    let data_end = mcap::read::footer(&bytes).unwrap().summary_start as usize;
+    assert!(data_end > 1000, "{data_end}");
+    std::fs::write(&cut, &bytes[..data_end / 2]).unwrap();
+
+    let out = dir.path().join("figures");
+    let plotted = plot(&cut, &out);
+    assert!(plotted.status.success(), "{plotted:?}");
+    let said = String::from_utf8_lossy(&plotted.stderr);
+    assert!(said.contains("ends in the middle of a record"), "{said}");
+    assert!(said.contains("`mcap recover`"), "{said}");
+    assert!(out.join("motion.svg").is_file());
 }

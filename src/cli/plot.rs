@@ -23,9 +23,31 @@ pub struct PlotArgs {
     out: PathBuf,
 }
 
-/// Reads the recording and writes the figures.
+/// Reads the recording and writes the figures. The figures are drawn before `--out` is created,
+/// so that a recording that cannot be drawn leaves nothing behind.
 pub fn run(args: PlotArgs) -> Result<(), Failure> {
+    if args.out.exists() && !args.out.is_dir() {
+        return Err(Failure::bad_input(anyhow!(
+            "--out {}: not a directory (it is a file; name a directory, new or existing)",
+            args.out.display()
+        )));
+    }
     let recording = Recording::open(&args.file).map_err(Failure::bad_input)?;
+    if let Some(reason) = &recording.cut {
+        let telemetry = recording.telemetry();
+        let last_s = match (telemetry.first(), telemetry.last()) {
+            (Some(first), Some(last)) => last.t_s - first.t_s,
+            _ => 0.0,
+        };
+        eprintln!(
+            "snakectl: {} ends in the middle of a record ({reason}): its writer did not close it \
+             (killed?). Drawn from the {} messages read before that ({last_s:.1} s of \
+             telemetry); what was written after the last complete chunk is lost. `mcap recover` \
+             (the MCAP command-line tool) rebuilds the file and may save more of it.",
+            args.file.display(),
+            recording.message_count(),
+        );
+    }
     let record = recording.plot_record();
     if record.samples.is_empty() {
         return Err(Failure::bad_input(anyhow!(
@@ -33,19 +55,20 @@ pub fn run(args: PlotArgs) -> Result<(), Failure> {
             args.file.display()
         )));
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))
-        .map_err(Failure::other)?;
     let name = args.file.file_name().map_or_else(
         || "the recording".into(),
         |n| n.to_string_lossy().into_owned(),
     );
-    let written = figures(
+    let drawn = render(
         &record,
-        &args.out,
         &format!("{name}: the arm's motion"),
         &format!("{name}: joint angles and tracking error"),
-    )?;
+    )
+    .map_err(|e| Failure::bad_input(e.context(format!("drawing {}", args.file.display()))))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))
+        .map_err(Failure::other)?;
+    let written = write_all(&args.out, &drawn)?;
     outln!(
         "{}: {} samples, {} phase(s) pictured; written to {}:",
         args.file.display(),
@@ -76,22 +99,40 @@ pub fn figures(
     motion_title: &str,
     joints_title: &str,
 ) -> Result<Vec<PathBuf>, Failure> {
-    let write = |name: &str, bytes: &[u8]| write_file(out, name, bytes);
+    let drawn = render(record, motion_title, joints_title).map_err(Failure::other)?;
+    write_all(out, &drawn)
+}
+
+/// `motion` and `joints`, each as SVG and PNG: (file name, bytes). Warns on stderr when no font
+/// was found for the PNGs' text.
+fn render(
+    record: &Record,
+    motion_title: &str,
+    joints_title: &str,
+) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
     let drawn = [
         ("motion", plot::demo::motion(record, motion_title)),
         ("joints", plot::demo::joints(record, joints_title)),
     ];
-    let mut written = Vec::new();
+    let mut files = Vec::new();
     let mut fonts = true;
     for (name, svg) in drawn {
-        let svg = svg.map_err(Failure::other)?;
-        written.push(write(&format!("{name}.svg"), svg.as_bytes())?);
-        let (png, found) = plot::png(&svg).map_err(Failure::other)?;
+        let svg = svg.with_context(|| format!("the {name} figure"))?;
+        let (png, found) = plot::png(&svg)?;
         fonts &= found;
-        written.push(write(&format!("{name}.png"), &png)?);
+        files.push((format!("{name}.svg"), svg.into_bytes()));
+        files.push((format!("{name}.png"), png));
     }
     if !fonts {
         eprintln!("snakectl: no system font found: the PNG figures have no text");
     }
-    Ok(written)
+    Ok(files)
+}
+
+/// Writes each (file name, bytes) into `out`; their paths.
+fn write_all(out: &Path, files: &[(String, Vec<u8>)]) -> Result<Vec<PathBuf>, Failure> {
+    files
+        .iter()
+        .map(|(name, bytes)| write_file(out, name, bytes))
+        .collect()
 }

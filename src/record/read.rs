@@ -6,7 +6,11 @@
 //! telemetry; the estops and resets from the events, the obstacles from the `world` events.
 //! The phases pictured are the recording's own (`snakectl.phase` records, which the demo
 //! writes) or, in any other recording, its stretches of motion: at most
-//! [`MAX_PICTURED`], a pause shorter than [`PAUSE_S`] not splitting one.
+//! [`MAX_PICTURED`], a pause shorter than [`PAUSE_S`] not splitting one; a recording in which
+//! the arm never moved is one phase, at rest.
+//!
+//! A file whose writer did not close it (the process killed) ends in the middle of a record:
+//! what it holds up to there is read ([`Recording::cut`] says so), the rest is lost.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -58,20 +62,56 @@ pub struct Recording {
     pub channels: BTreeMap<String, Channel>,
     /// Metadata records (name, entries), in the file's order.
     pub metadata: Vec<(String, BTreeMap<String, String>)>,
+    /// Why the file ended early, when it did (`None`: read whole): it ends in the middle of a
+    /// record, its writer never having closed it. What is above was read up to there; whatever
+    /// the writer had begun after the last complete record or chunk is lost.
+    pub cut: Option<String>,
+}
+
+/// Whether `e` says the file of `file_len` bytes ends before its records do: in the middle of
+/// one, or in a chunk the writer began and never finished (its lengths still the placeholders,
+/// all ones, written first), or with a record longer than the whole file.
+fn ends_early(e: &mcap::McapError, file_len: usize) -> bool {
+    match e {
+        mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc => true,
+        mcap::McapError::RecordTooLarge { len, .. } => {
+            usize::try_from(*len).map_or(true, |len| len > file_len)
+        }
+        _ => false,
+    }
 }
 
 impl Recording {
-    /// Reads the MCAP file at `path`.
+    /// Reads the MCAP file at `path`. A file that ends in the middle of a record (its writer
+    /// did not close it) is read up to there, [`Recording::cut`] saying so, unless nothing at
+    /// all could be read from it.
     pub fn open(path: &Path) -> Result<Recording, RecordError> {
         let failed = |message: String| RecordError::Read {
             path: path.to_path_buf(),
             message,
         };
         let bytes = std::fs::read(path).map_err(|e| failed(e.to_string()))?;
+        // A file its writer closed ends with a footer: one that ends early in spite of it is
+        // damaged, not cut short.
+        let closed = mcap::read::footer(&bytes).is_ok();
+        let failed_cut = |e: mcap::McapError| {
+            failed(format!(
+                "{e}, in a file its writer closed (it has its footer): the file is damaged"
+            ))
+        };
         let mut channels: BTreeMap<String, Channel> = BTreeMap::new();
+        let mut cut = None;
         let stream = mcap::MessageStream::new(&bytes).map_err(|e| failed(e.to_string()))?;
         for message in stream {
-            let message = message.map_err(|e| failed(e.to_string()))?;
+            let message = match message {
+                Ok(m) => m,
+                Err(e) if ends_early(&e, bytes.len()) && closed => return Err(failed_cut(e)),
+                Err(e) if ends_early(&e, bytes.len()) => {
+                    cut = Some(e.to_string());
+                    break;
+                }
+                Err(e) => return Err(failed(e.to_string())),
+            };
             let c = &message.channel;
             let channel = channels.entry(c.topic.clone()).or_insert_with(|| Channel {
                 topic: c.topic.clone(),
@@ -96,15 +136,34 @@ impl Recording {
         let mut metadata = Vec::new();
         let reader = mcap::read::LinearReader::new(&bytes).map_err(|e| failed(e.to_string()))?;
         for record in reader {
-            if let mcap::records::Record::Metadata(m) = record.map_err(|e| failed(e.to_string()))? {
-                metadata.push((m.name, m.metadata));
+            match record {
+                Ok(mcap::records::Record::Metadata(m)) => metadata.push((m.name, m.metadata)),
+                Ok(_) => {}
+                Err(e) if ends_early(&e, bytes.len()) && closed => return Err(failed_cut(e)),
+                Err(e) if ends_early(&e, bytes.len()) => {
+                    cut.get_or_insert_with(|| e.to_string());
+                    break;
+                }
+                Err(e) => return Err(failed(e.to_string())),
             }
+        }
+        if let (Some(reason), true) = (&cut, channels.is_empty() && metadata.is_empty()) {
+            return Err(failed(format!(
+                "{reason}, before any message: the writer did not close the file (killed?); \
+                 `mcap recover` (the MCAP command-line tool) may rebuild it"
+            )));
         }
         Ok(Recording {
             path: path.to_path_buf(),
             channels,
             metadata,
+            cut,
         })
+    }
+
+    /// The messages read, over every channel.
+    pub fn message_count(&self) -> usize {
+        self.channels.values().map(|c| c.messages.len()).sum()
     }
 
     /// The first metadata record named `name`.
@@ -284,7 +343,7 @@ fn rate_of(telemetry: &[Telemetry]) -> f64 {
 
 /// The stretches in which the arm moved (a pause shorter than [`PAUSE_S`] joins two), at most
 /// [`MAX_PICTURED`] (the nearest stretches merged), each pictured and labelled with its times
-/// and strategies.
+/// and strategies; when it never moved, the whole recording, labelled "at rest".
 fn moving_phases(telemetry: &[Telemetry], t0: f64) -> Vec<Phase> {
     let mut stretches: Vec<(usize, usize)> = Vec::new();
     for (i, t) in telemetry.iter().enumerate() {
@@ -295,6 +354,19 @@ fn moving_phases(telemetry: &[Telemetry], t0: f64) -> Vec<Phase> {
             Some((_, end)) if t.t_s - telemetry[*end].t_s < PAUSE_S => *end = i,
             _ => stretches.push((i, i)),
         }
+    }
+    if let (true, Some(last)) = (stretches.is_empty(), telemetry.last()) {
+        // The arm never moved: the whole recording is one phase, so that the figures still show
+        // the arm (at rest) and its flat joint angles.
+        let (t_a, t_b) = (telemetry[0].t_s - t0, last.t_s - t0);
+        return vec![Phase {
+            label: format!("{t_a:.1}-{t_b:.1} s, at rest"),
+            t0: t_a,
+            t1: t_b,
+            reference: Vec::new(),
+            pictured: true,
+            world: None,
+        }];
     }
     while stretches.len() > MAX_PICTURED {
         // Merge the pair with the shortest pause between them.
@@ -329,4 +401,153 @@ fn moving_phases(telemetry: &[Telemetry], t0: f64) -> Vec<Phase> {
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use crate::record::schema::ChannelSpec;
+    use crate::record::sink::{McapSink, Sink};
+
+    fn spec() -> ChannelSpec {
+        ChannelSpec {
+            topic: "/t".into(),
+            schema_name: "s".into(),
+            schema_encoding: "jsonschema".into(),
+            schema: b"{}".to_vec(),
+            message_encoding: "json".into(),
+            metadata: BTreeMap::new(),
+        }
+    }
+
+    /// Writes 30 messages on one channel, a flush (the chunk ended) after each 10, straight to
+    /// the file (no buffer, as a killed process leaves it), and abandons the writer with the
+    /// fourth chunk begun: its header still holds the placeholder lengths.
+    fn killed_writer(path: &Path) {
+        let mut sink = McapSink::new(std::fs::File::create(path).unwrap()).unwrap();
+        sink.metadata("note", &BTreeMap::from([("k".into(), "v".into())]))
+            .unwrap();
+        let channel = sink.add_channel(&spec()).unwrap();
+        for i in 0..35u64 {
+            sink.write(channel, i, b"{}").unwrap();
+            if i % 10 == 9 {
+                sink.flush().unwrap();
+            }
+        }
+        std::mem::forget(sink);
+    }
+
+    #[test]
+    fn a_file_its_writer_never_closed_is_read_up_to_its_last_whole_chunk() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("killed.mcap");
+        killed_writer(&path);
+        let r = Recording::open(&path).unwrap();
+        assert_eq!(r.message_count(), 30);
+        assert!(r.cut.is_some());
+        assert_eq!(r.metadata("note").unwrap()["k"], "v");
+        // Cut anywhere in its last chunk: the same.
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
+        let r = Recording::open(&path).unwrap();
+        assert_eq!(r.message_count(), 30);
+        assert!(r.cut.is_some());
+    }
+
+    #[test]
+    fn a_file_cut_before_any_message_is_refused_naming_mcap_recover() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cut.mcap");
+        killed_writer(&path);
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..12]).unwrap();
+        let e = Recording::open(&path).unwrap_err().to_string();
+        assert!(e.contains("did not close the file"), "{e}");
+        assert!(e.contains("`mcap recover`"), "{e}");
+    }
+
+    /// A recording in which the arm never moved is one phase, at rest, and both figures draw.
+    #[test]
+    fn an_arm_at_rest_is_one_phase_and_draws() {
+        let telemetry: Vec<Telemetry> = (0..400)
+            .map(|i| Telemetry {
+                tick: i,
+                t_s: 5.0 + i as f64 * 0.01,
+                theta_meas: vec![0.1, -0.2, 0.3],
+                ..Telemetry::default()
+            })
+            .collect();
+        let phases = moving_phases(&telemetry, 5.0);
+        assert_eq!(phases.len(), 1);
+        let phase = &phases[0];
+        assert!(phase.pictured);
+        assert_eq!(
+            (phase.t0, phase.label.as_str()),
+            (0.0, "0.0-4.0 s, at rest")
+        );
+        assert!((phase.t1 - 3.99).abs() < 1e-9);
+        let record = Record {
+            chain: None,
+            samples: telemetry
+                .iter()
+                .map(|t| Sample {
+                    t_s: t.t_s - 5.0,
+                    theta: t.theta_meas.clone(),
+                    ..Sample::default()
+                })
+                .collect(),
+            phases,
+            events: Vec::new(),
+        };
+        assert!(crate::plot::demo::motion(&record, "t").is_ok());
+        assert!(crate::plot::demo::joints(&record, "t").is_ok());
+    }
+
+    /// A closed file (its footer there) that ends a record early in the middle is damaged:
+    /// refused, not read in part.
+    #[test]
+    fn a_closed_file_damaged_inside_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("damaged.mcap");
+        let mut sink = McapSink::create(&path).unwrap();
+        let channel = sink.add_channel(&spec()).unwrap();
+        for i in 0..20 {
+            sink.write(channel, i, b"{}").unwrap();
+            if i % 10 == 9 {
+                sink.flush().unwrap();
+            }
+        }
+        sink.finish().unwrap();
+        let mut bytes = std::fs::read(&path).unwrap();
+        // The second chunk's record length made far longer than the file: records are an
+        // opcode (a chunk's is 6) and a length after the 8 magic bytes.
+        let (mut at, mut chunks) = (8, 0);
+        loop {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            if bytes[at] == 6 {
+                chunks += 1;
+                if chunks == 2 {
+                    break;
+                }
+            }
+            at += 9 + len;
+        }
+        bytes[at + 1..at + 9].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let e = Recording::open(&path).unwrap_err().to_string();
+        assert!(e.contains("the file is damaged"), "{e}");
+    }
+
+    #[test]
+    fn a_whole_file_is_not_cut() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("whole.mcap");
+        let mut sink = McapSink::create(&path).unwrap();
+        let channel = sink.add_channel(&spec()).unwrap();
+        sink.write(channel, 1, b"{}").unwrap();
+        sink.finish().unwrap();
+        let r = Recording::open(&path).unwrap();
+        assert_eq!((r.message_count(), r.cut), (1, None));
+    }
 }
