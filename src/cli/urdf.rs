@@ -10,13 +10,17 @@ use snakectl::config::Config;
 use super::{outln, Failure};
 
 /// The shipped simulator config, compiled in: the arm described when no `--config` is given.
+/// Compiled in rather than read, so that the default does not hang on the current directory; the
+/// URDF's header names it as such, so that nobody takes it for their own config/sim.toml.
 const SHIPPED: &str = include_str!("../../config/sim.toml");
-const SHIPPED_PATH: &str = "config/sim.toml";
+const SHIPPED_PATH: &str = "the built-in copy of the shipped config/sim.toml";
 
 #[derive(Debug, Args)]
 pub struct UrdfArgs {
     /// Config file: the arm (`[arm]`, `[[joint]]`), `[world] link_radius_m` and
-    /// `[control] max_joint_speed_rad_s`. Default: the shipped config/sim.toml.
+    /// `[control] max_joint_speed_rad_s`. Default: the built-in copy of the shipped
+    /// config/sim.toml (compiled in: a config/sim.toml in the current directory is not read;
+    /// pass it with --config).
     #[arg(long)]
     config: Option<PathBuf>,
 }
