@@ -956,6 +956,78 @@ fn snakectl(addr: &str, args: &[&str]) -> (i32, String, String) {
     )
 }
 
+/// `snakectl world --connect ADDR SUBCOMMAND ...`: the connection given before the subcommand.
+fn snakectl_before(addr: &str, args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["world", "--connect", addr])
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap(),
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8(out.stderr).unwrap(),
+    )
+}
+
+/// `--connect` (and `--token-file`) may come before `world`'s subcommand as well as after it;
+/// the subcommands' usage shows them optional.
+#[test]
+fn world_subcommands_take_the_connection_before_them_too() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let addr = d.addr.to_string();
+    let mut c = d.client();
+    let ids = |c: &mut Client| -> Vec<String> {
+        c.ok(json!({"cmd": "world"}))["obstacles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["id"].as_str().unwrap().to_owned())
+            .collect()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("w.json");
+    std::fs::write(&file, json!({"obstacles": [far_post()]}).to_string()).unwrap();
+
+    let (code, _, err) = snakectl_before(&addr, &["set", file.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(ids(&mut c).len(), 1);
+    let (code, _, err) =
+        snakectl_before(&addr, &["add", "dot", "--circle", "-1.5", "-1.5", "0.05"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(ids(&mut c).last().map(String::as_str), Some("dot"));
+    let (code, _, err) = snakectl_before(&addr, &["remove", "dot"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!ids(&mut c).contains(&"dot".to_owned()));
+    let (code, out, err) = snakectl_before(&addr, &["clear"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("cleared every obstacle"), "{out}");
+    assert!(ids(&mut c).is_empty());
+    // The token file too (this daemon asks for none: an unreadable one is refused, as input).
+    let (code, _, err) = snakectl_before(&addr, &["--token-file", "/nonexistent/token", "clear"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("/nonexistent/token"), "{err}");
+
+    let (code, _, err) = snakectl_before(&addr, &["--json", "clear"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("--json goes with `snakectl world` alone"),
+        "{err}"
+    );
+
+    for sub in ["set", "add", "remove", "clear"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+            .args(["world", sub, "--help"])
+            .output()
+            .unwrap();
+        let help = String::from_utf8(out.stdout).unwrap();
+        let usage = help.lines().find(|l| l.starts_with("Usage:")).unwrap();
+        assert!(!usage.contains("--connect"), "{sub}: {usage}");
+        assert!(help.contains("--connect <ADDR>"), "{sub}: {help}");
+    }
+}
+
 #[test]
 fn snakectl_world_prints_it_and_sets_it_from_json_and_toml() {
     let _one = one_at_a_time();

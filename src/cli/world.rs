@@ -27,9 +27,9 @@ use snakectl::world::{CheckedObstacle, Obstacle, Obstacles, Shape, World};
 use super::client::{connect, refused, ConnectArgs};
 use super::{outln, Failure};
 
-/// `world`.
+/// `world`. (`--json` is refused beside a subcommand in [`run`], not by clap's
+/// `args_conflicts_with_subcommands`, which would refuse the global connection options too.)
 #[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true)]
 pub struct WorldArgs {
     #[command(subcommand)]
     pub action: Option<Action>,
@@ -37,7 +37,28 @@ pub struct WorldArgs {
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
-    pub connect: ConnectArgs,
+    pub connect: WorldConnectArgs,
+}
+
+/// [`ConnectArgs`] taken before or after the subcommand (`world --connect H:P clear` and `world
+/// clear --connect H:P` alike): global to `world`'s subcommands rather than flattened into each.
+#[derive(Debug, Args)]
+pub struct WorldConnectArgs {
+    /// The daemon's address, `host:port`.
+    #[arg(long, value_name = "ADDR", default_value = snakectl::client::DEFAULT_ADDR, global = true)]
+    pub connect: String,
+    /// A file whose first line is the daemon's token (`[server] token_file`).
+    #[arg(long, value_name = "FILE", global = true)]
+    pub token_file: Option<PathBuf>,
+}
+
+impl WorldConnectArgs {
+    fn args(&self) -> ConnectArgs {
+        ConnectArgs {
+            connect: self.connect.clone(),
+            token_file: self.token_file.clone(),
+        }
+    }
 }
 
 /// What to do with the world.
@@ -54,13 +75,23 @@ pub enum Action {
     Clear(ClearArgs),
 }
 
+impl Action {
+    /// The subcommand's name.
+    fn name(&self) -> &'static str {
+        match self {
+            Action::Set(_) => "set",
+            Action::Add(_) => "add",
+            Action::Remove(_) => "remove",
+            Action::Clear(_) => "clear",
+        }
+    }
+}
+
 /// `world set FILE`.
 #[derive(Debug, Args)]
 pub struct SetArgs {
     /// `.json` (`{"obstacles": [...]}`) or `.toml` (`[[world.obstacle]]` tables).
     pub file: PathBuf,
-    #[command(flatten)]
-    pub connect: ConnectArgs,
 }
 
 /// `world add ID --circle X Y R` or `--polygon X Y X Y X Y ...`.
@@ -75,8 +106,6 @@ pub struct AddArgs {
     /// A polygon: its corners' x and y in turn, m (at least three corners).
     #[arg(long, num_args = 6.., value_name = "X Y")]
     pub polygon: Option<Vec<f64>>,
-    #[command(flatten)]
-    pub connect: ConnectArgs,
 }
 
 /// `world remove ID`.
@@ -84,32 +113,34 @@ pub struct AddArgs {
 pub struct RemoveArgs {
     /// The obstacle's id.
     pub id: String,
-    #[command(flatten)]
-    pub connect: ConnectArgs,
 }
 
 /// `world clear`.
 #[derive(Debug, Args)]
-pub struct ClearArgs {
-    #[command(flatten)]
-    pub connect: ConnectArgs,
-}
+pub struct ClearArgs {}
 
 /// `snakectl world`.
 pub fn run(args: WorldArgs) -> Result<(), Failure> {
+    let connect = args.connect.args();
+    if let (true, Some(action)) = (args.json, &args.action) {
+        return Err(Failure::bad_input(anyhow!(
+            "--json goes with `snakectl world` alone (it prints the world), not with `world {}`",
+            action.name()
+        )));
+    }
     match args.action {
-        None => show(&args.connect, args.json),
-        Some(Action::Set(a)) => set(a),
-        Some(Action::Add(a)) => add(a),
+        None => show(&connect, args.json),
+        Some(Action::Set(a)) => set(a, &connect),
+        Some(Action::Add(a)) => add(a, &connect),
         Some(Action::Remove(a)) => {
             let cmd = Cmd::RemoveObstacle { id: a.id.clone() };
-            send(&a.connect, &cmd, &format!("removed obstacle {:?}", a.id))
+            send(&connect, &cmd, &format!("removed obstacle {:?}", a.id))
         }
-        Some(Action::Clear(a)) => {
+        Some(Action::Clear(ClearArgs {})) => {
             let cmd = Cmd::SetWorld {
                 obstacles: Obstacles::default(),
             };
-            send(&a.connect, &cmd, "cleared every obstacle")
+            send(&connect, &cmd, "cleared every obstacle")
         }
     }
 }
@@ -175,13 +206,13 @@ fn table(world: &WorldInfo) -> Vec<String> {
 }
 
 /// `world set FILE`.
-fn set(args: SetArgs) -> Result<(), Failure> {
+fn set(args: SetArgs, connect_args: &ConnectArgs) -> Result<(), Failure> {
     let file = &args.file;
     let text = std::fs::read_to_string(file)
         .map_err(|e| Failure::bad_input(anyhow!("{}: cannot read it: {e}", file.display())))?;
     let read = read_file(file, &text)
         .map_err(|e| Failure::bad_input(anyhow!("{}: {e}", file.display())))?;
-    let mut client = connect(&args.connect)?;
+    let mut client = connect(connect_args)?;
     note_fixed(&mut client, file, &read)?;
     let n = read.obstacles.len();
     let cmd = Cmd::SetWorld {
@@ -233,7 +264,7 @@ fn note_fixed(client: &mut Client, file: &Path, read: &FileWorld) -> Result<(), 
 }
 
 /// `world add`.
-fn add(args: AddArgs) -> Result<(), Failure> {
+fn add(args: AddArgs, connect_args: &ConnectArgs) -> Result<(), Failure> {
     let shape = match (&args.circle, &args.polygon) {
         (Some(c), _) => Shape::Circle {
             center: Vec2::new(c[0], c[1]),
@@ -262,7 +293,7 @@ fn add(args: AddArgs) -> Result<(), Failure> {
         "added obstacle {}",
         serde_json::to_string(&Wire(&obstacle)).unwrap_or_default()
     );
-    send(&args.connect, &Cmd::AddObstacle { obstacle }, &done)
+    send(connect_args, &Cmd::AddObstacle { obstacle }, &done)
 }
 
 /// Sends `cmd`, prints `ok: DONE at tick N`.
