@@ -345,3 +345,25 @@ fn a_reader_that_closes_the_pipe_early_ends_the_command_quietly() {
     assert!(!err.contains("panicked"), "{err}");
     assert_eq!(out.status.code(), Some(0), "{err}");
 }
+
+/// A target inside a cage whose slit (1 cm) no link (2 cm thick) can pass: the tip is put on it,
+/// so `reachable`, but through the cage's wall, so neither `converged` nor `collision_free`
+/// (docs/SOLVE.md: `reachable` says nothing of obstacles).
+#[test]
+fn a_target_the_body_cannot_get_to_clear_is_reachable_but_neither_converged_nor_clear() {
+    let problem = r#"{"links":[0.3,0.3,0.2,0.2],"base":[0,0,0],"theta0":[0.2,0.2,0.2,0.2],
+        "target":[0.6,0.0],"link_radius_m":0.01,"clearance_m":0.005,
+        "obstacles":[{"id":"cage","polygon":{"points":[[0.5,-0.1],[0.7,-0.1],[0.7,0.1],
+            [0.5,0.1],[0.5,0.005],[0.52,0.005],[0.52,0.08],[0.68,0.08],[0.68,-0.08],
+            [0.52,-0.08],[0.52,-0.005],[0.5,-0.005]]}}]}"#;
+    let out = snakectl(&["solve", "-"], problem);
+    assert_eq!(out.status.code(), Some(0));
+    let a = json(&out);
+    assert!(a["tip_error"].as_f64().unwrap() < 1e-9, "{a}");
+    assert_eq!(
+        (&a["reachable"], &a["converged"], &a["collision_free"]),
+        (&true.into(), &false.into(), &false.into()),
+        "{a}"
+    );
+    assert!(a["min_clearance_m"].as_f64().unwrap() < 0.0, "{a}");
+}
