@@ -1000,11 +1000,7 @@ impl Arm {
         skip: &[u8],
         within: &Within<'_>,
     ) -> Result<(), BringUpError> {
-        let ids: Vec<u8> = self
-            .ids()
-            .into_iter()
-            .filter(|id| !skip.contains(id))
-            .collect();
+        let ids = self.ids_but(skip);
         let result = self.torque_on_ids(bus, &ids, within);
         if result.is_err() {
             let values: Vec<(u8, i64)> = ids.iter().map(|&id| (id, 0)).collect();
@@ -1025,12 +1021,15 @@ impl Arm {
         skip: &[u8],
         within: &Within<'_>,
     ) -> Result<(), BringUpError> {
-        let ids: Vec<u8> = self
-            .ids()
+        self.torque_on_ids(bus, &self.ids_but(skip), within)
+    }
+
+    /// Every servo's id but those in `skip`, in joint order.
+    fn ids_but(&self, skip: &[u8]) -> Vec<u8> {
+        self.ids()
             .into_iter()
             .filter(|id| !skip.contains(id))
-            .collect();
-        self.torque_on_ids(bus, &ids, within)
+            .collect()
     }
 
     fn torque_on_ids<B: ServoBus>(
