@@ -309,6 +309,42 @@ fn two_port_config(dir: &std::path::Path, kind: &str, paths: &[&str]) -> PathBuf
 }
 
 #[test]
+fn ports_given_out_of_order_are_refused_once_per_port_saying_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = two_port_config(dir.path(), "sim", &[]);
+    let config = Config::load(&file).unwrap();
+    let sims = connect::spawn_sims(&config, Arc::new(RealClock)).unwrap();
+    let (one, two) = (
+        sims[0].path().display().to_string(),
+        sims[1].path().display().to_string(),
+    );
+    let args = [
+        "run",
+        "--config",
+        file.to_str().unwrap(),
+        "--listen",
+        "127.0.0.1:0",
+        "--port",
+        &two,
+        "--port",
+        &one,
+    ];
+    let (status, _, stderr) = snakectl(&args);
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    for says in [
+        "no servo on port 1 answers (servos 1, 2, 3, 4, 5, 6;",
+        "no servo on port 2 answers (servos 7, 8, 9, 10, 11, 12;",
+        "the ports are given in the order of [[bus.ports]]",
+    ] {
+        assert!(stderr.contains(says), "not `{says}`:\n{stderr}");
+    }
+    assert!(
+        !stderr.contains("joint 1: servo 1 does not answer"),
+        "{stderr}"
+    );
+}
+
+#[test]
 fn one_device_given_as_two_ports_is_refused_before_the_socket_is_bound() {
     let config = Config::load(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
     let sim = connect::spawn_sim(&config, Arc::new(RealClock)).unwrap();

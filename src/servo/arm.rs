@@ -225,6 +225,21 @@ pub enum Refusal {
         /// What the ping got.
         source: ServoError,
     },
+    /// No servo of one port of several answers: the port's cable or power, or the ports given
+    /// out of order (each port then asks for servos that are on another).
+    #[error(
+        "no servo on port {port} answers ({}; first: {source}): check that port's cable and \
+         power, and that the ports are given in the order of [[bus.ports]]",
+        servo_list(.ids)
+    )]
+    PortSilent {
+        /// The port, 1-based in the order of `[[bus.ports]]`.
+        port: usize,
+        /// Its servos.
+        ids: Vec<u8>,
+        /// What the first one's ping got.
+        source: ServoError,
+    },
     /// A servo of another model answers at this id.
     #[error("joint {joint}: servo {id} is a {} (model {found}), the config says {expected}", super::model_name(*found).unwrap_or("servo of unknown model"))]
     WrongModel {
@@ -371,6 +386,15 @@ fn join<T: std::fmt::Display>(items: &[T]) -> String {
         .map(ToString::to_string)
         .collect::<Vec<_>>()
         .join("; ")
+}
+
+/// "servo 7" or "servos 7, 8, 9", for messages.
+fn servo_list(ids: &[u8]) -> String {
+    let list: Vec<String> = ids.iter().map(ToString::to_string).collect();
+    match ids {
+        [_] => format!("servo {}", list.join("")),
+        _ => format!("servos {}", list.join(", ")),
+    }
 }
 
 /// What bring-up found.
@@ -916,8 +940,57 @@ impl Arm {
         if refusals.is_empty() {
             Ok((servos, rebooted))
         } else {
-            Err(BringUpError::Refused(refusals))
+            Err(BringUpError::Refused(self.by_port(bus, refusals)))
         }
+    }
+
+    /// `refusals` with the `Missing` of every servo on a port none of whose servos answers,
+    /// on a bus of several ports, told once for that port ([`Refusal::PortSilent`]).
+    fn by_port<B: ServoBus>(&self, bus: &B, refusals: Vec<Refusal>) -> Vec<Refusal> {
+        let ports = bus.read_kinds().len();
+        if ports < 2 {
+            return refusals;
+        }
+        let missing = |id: u8| {
+            refusals
+                .iter()
+                .any(|r| matches!(r, Refusal::Missing { id: m, .. } if *m == id))
+        };
+        let silent: Vec<usize> = (0..ports)
+            .filter(|&k| {
+                let mut on = self.joints.iter().filter(|j| bus.port_index(j.id) == k);
+                on.clone().next().is_some() && on.all(|j| missing(j.id))
+            })
+            .collect();
+        if silent.is_empty() {
+            return refusals;
+        }
+        let mut out: Vec<Refusal> = Vec::new();
+        for r in refusals {
+            let k = match &r {
+                Refusal::Missing { id, .. } => bus.port_index(*id),
+                _ => usize::MAX,
+            };
+            if !silent.contains(&k) {
+                out.push(r);
+                continue;
+            }
+            let Refusal::Missing { id, source, .. } = r else {
+                continue;
+            };
+            match out
+                .iter_mut()
+                .find(|o| matches!(o, Refusal::PortSilent { port, .. } if *port == k + 1))
+            {
+                Some(Refusal::PortSilent { ids, .. }) => ids.push(id),
+                _ => out.push(Refusal::PortSilent {
+                    port: k + 1,
+                    ids: vec![id],
+                    source,
+                }),
+            }
+        }
+        out
     }
 
     /// Step 3 for one servo: acknowledgements on, EEPROM items where they differ, profiles.
