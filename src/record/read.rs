@@ -94,10 +94,16 @@ impl Recording {
         // A file its writer closed ends with a footer: one that ends early in spite of it is
         // damaged, not cut short.
         let closed = mcap::read::footer(&bytes).is_ok();
-        let failed_cut = |e: mcap::McapError| {
-            failed(format!(
-                "{e}, in a file its writer closed (it has its footer): the file is damaged"
-            ))
+        // An error that ends the reading where the file ends early: why, to keep reading what
+        // came before it; any other, or one in a file its writer closed, refuses the file.
+        let cut_short = |e: mcap::McapError| -> Result<String, RecordError> {
+            match (ends_early(&e, bytes.len()), closed) {
+                (true, false) => Ok(e.to_string()),
+                (true, true) => Err(failed(format!(
+                    "{e}, in a file its writer closed (it has its footer): the file is damaged"
+                ))),
+                (false, _) => Err(failed(e.to_string())),
+            }
         };
         let mut channels: BTreeMap<String, Channel> = BTreeMap::new();
         let mut cut = None;
@@ -105,12 +111,10 @@ impl Recording {
         for message in stream {
             let message = match message {
                 Ok(m) => m,
-                Err(e) if ends_early(&e, bytes.len()) && closed => return Err(failed_cut(e)),
-                Err(e) if ends_early(&e, bytes.len()) => {
-                    cut = Some(e.to_string());
+                Err(e) => {
+                    cut = Some(cut_short(e)?);
                     break;
                 }
-                Err(e) => return Err(failed(e.to_string())),
             };
             let c = &message.channel;
             let channel = channels.entry(c.topic.clone()).or_insert_with(|| Channel {
@@ -139,12 +143,11 @@ impl Recording {
             match record {
                 Ok(mcap::records::Record::Metadata(m)) => metadata.push((m.name, m.metadata)),
                 Ok(_) => {}
-                Err(e) if ends_early(&e, bytes.len()) && closed => return Err(failed_cut(e)),
-                Err(e) if ends_early(&e, bytes.len()) => {
-                    cut.get_or_insert_with(|| e.to_string());
+                Err(e) => {
+                    let reason = cut_short(e)?;
+                    cut.get_or_insert(reason);
                     break;
                 }
-                Err(e) => return Err(failed(e.to_string())),
             }
         }
         if let (Some(reason), true) = (&cut, channels.is_empty() && metadata.is_empty()) {

@@ -967,27 +967,23 @@ impl Arm {
         }
         let mut out: Vec<Refusal> = Vec::new();
         for r in refusals {
-            let k = match &r {
-                Refusal::Missing { id, .. } => bus.port_index(*id),
-                _ => usize::MAX,
-            };
-            if !silent.contains(&k) {
-                out.push(r);
-                continue;
-            }
-            let Refusal::Missing { id, source, .. } = r else {
-                continue;
-            };
-            match out
-                .iter_mut()
-                .find(|o| matches!(o, Refusal::PortSilent { port, .. } if *port == k + 1))
-            {
-                Some(Refusal::PortSilent { ids, .. }) => ids.push(id),
-                _ => out.push(Refusal::PortSilent {
-                    port: k + 1,
-                    ids: vec![id],
-                    source,
-                }),
+            match r {
+                Refusal::Missing { id, source, .. } if silent.contains(&bus.port_index(id)) => {
+                    let port = bus.port_index(id) + 1;
+                    let told = out.iter_mut().find_map(|o| match o {
+                        Refusal::PortSilent { port: p, ids, .. } if *p == port => Some(ids),
+                        _ => None,
+                    });
+                    match told {
+                        Some(ids) => ids.push(id),
+                        None => out.push(Refusal::PortSilent {
+                            port,
+                            ids: vec![id],
+                            source,
+                        }),
+                    }
+                }
+                r => out.push(r),
             }
         }
         out

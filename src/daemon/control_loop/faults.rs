@@ -396,9 +396,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// `work` (a recovery's or a `reset`'s exchanges) with the fault path's time stretched to
     /// [`RECOVERY_WIRE_TICKS`] of the wire's ticks (at least a period) from now, when this
     /// tick has less left and every servo answered the latest read. It runs once, the arm at
-    /// rest; cut short to what a tick leaves, it failed at every try on a timed wire (five round
-    /// trips where a tick left room for three). The tick it runs in may overrun, and is counted
-    /// as such. With a servo missing from the latest read it keeps to the tick: that servo
+    /// rest; cut short to what a tick leaves, it failed on a timed wire try after try. The tick
+    /// it runs in may overrun, and is counted as such. With a servo missing from the latest read it keeps to the tick: that servo
     /// would most likely be waited on in vain.
     pub(super) fn stretched<T>(&mut self, work: impl FnOnce(&mut Self) -> T) -> T {
         if !self.health.all_answered() {
