@@ -233,6 +233,11 @@ fn estop_latches_until_reset_which_holds_without_moving() {
         assert!(!d.torque(id), "servo {id} still has torque after estop");
     }
     assert_eq!(
+        estop.get("unconfirmed"),
+        None,
+        "every servo confirmed off: {estop}"
+    );
+    assert_eq!(
         c.error_code(json!({"cmd": "goto", "target": start})),
         "estopped"
     );

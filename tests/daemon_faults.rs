@@ -719,8 +719,8 @@ fn a_port_of_two_lost_for_good_leaves_shut_down_to_switch_the_other_ports_servos
 
 /// Port 2 (servos 7 to 12) of two vanishes for good: port 1 stays open and locked through the
 /// reopening of port 2, its servos held (their Bus Watchdog fed) and switched off by an
-/// `estop` (when `estop`) and by shut-down, which names servos 7 to 12 alone as unreached, each
-/// for port 2.
+/// `estop` (when `estop`, whose reply names servos 7 to 12 alone as not confirmed off) and by
+/// shut-down, which names servos 7 to 12 alone as unreached, each for port 2.
 fn lost_for_good(estop: bool) {
     let d = Daemon::start(sim_config_with(
         &[],
@@ -746,10 +746,41 @@ fn lost_for_good(estop: bool) {
         assert!(watchdog > 0, "servo {id}: Bus Watchdog {watchdog}, not fed");
     }
     if estop {
-        c.ok(json!({"cmd": "estop"}));
+        let reply = c.ok(json!({"cmd": "estop"}));
         for id in 1..=6 {
             assert!(!d.torque(id), "servo {id} torque on after the estop");
         }
+        let unconfirmed = reply["unconfirmed"].as_array().cloned().unwrap_or_default();
+        let ids: Vec<u64> = unconfirmed
+            .iter()
+            .filter_map(|u| u["id"].as_u64())
+            .collect();
+        assert_eq!(ids, (7..=12).collect::<Vec<u64>>(), "{reply}");
+        for u in &unconfirmed {
+            assert_eq!(u["joint"], u["id"], "{u}");
+            let why = u["why"].as_str().unwrap_or_default();
+            assert!(
+                why.contains(&lost),
+                "servo {} not named for port 2: {why}",
+                u["id"]
+            );
+        }
+        // Again from the command line: the latch stands, the servos of port 2 are still not
+        // known to be off, and it says so, exiting 1.
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
+            .args(["estop", "--connect", &d.addr.to_string()])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert!(stderr.contains("estop latched"), "{stderr}");
+        for id in 7..=12 {
+            assert!(
+                stderr.contains(&format!("servo {id} (joint {id})")),
+                "{stderr}"
+            );
+        }
+        assert!(!stderr.contains("servo 1 (joint 1)"), "{stderr}");
     }
     let (result, torques) = d.stop_and_torques();
     for (id, on) in torques.iter().filter(|(id, _)| *id <= 6) {

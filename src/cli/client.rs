@@ -17,7 +17,9 @@ use anyhow::anyhow;
 use clap::Args;
 use serde_json::Value;
 use snakectl::client::{Client, ClientError, CmdName, Ending, Fields};
-use snakectl::protocol::{strategy_named, Cmd, Code, FaultKind, MAX_PATH_POINTS, STRATEGIES};
+use snakectl::protocol::{
+    strategy_named, Cmd, Code, FaultKind, Reply, MAX_PATH_POINTS, STRATEGIES,
+};
 
 use super::{outln, Failure};
 
@@ -199,9 +201,23 @@ pub fn stop(args: PlainArgs) -> Result<(), Failure> {
     one_shot(&args.connect, &Cmd::Stop)
 }
 
-/// `snakectl estop`.
+/// `snakectl estop`. The latch is set whatever the servos say; a servo whose torque off was not confirmed
+/// makes it exit 1, naming each.
 pub fn estop(args: PlainArgs) -> Result<(), Failure> {
-    one_shot(&args.connect, &Cmd::Estop)
+    let mut client = connect(&args.connect)?;
+    let fields = client.request(&Cmd::Estop).map_err(refused)?;
+    let tick = fields.reply.tick().unwrap_or(0);
+    match &fields.reply {
+        Reply::TorqueOff(off) if !off.unconfirmed.is_empty() => {
+            let each: Vec<String> = off.unconfirmed.iter().map(ToString::to_string).collect();
+            Err(Failure::other(anyhow!(
+                "estop latched at tick {tick}, but torque off was not confirmed: {}; the daemon \
+                 sends it again when they answer",
+                each.join("; ")
+            )))
+        }
+        _ => outln!("ok: estop at tick {tick}"),
+    }
 }
 
 /// `snakectl reset`. It clears the estop latch (and a servo that lost power or a joint in

@@ -28,7 +28,7 @@ use snakectl::client::{self, ArmInfo, Client, ClientError, Incoming, Replied, St
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
-use snakectl::protocol::{Cmd, CmdName, What};
+use snakectl::protocol::{Cmd, CmdName, Reply, What};
 use snakectl::record::RecordOptions;
 use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
@@ -853,6 +853,16 @@ impl App {
                     if cmd == Some(CmdName::TakeControl) {
                         if let Some(me) = fields.reply.client() {
                             self.my_id = Some(me);
+                        }
+                    }
+                    if let Reply::TorqueOff(off) = &fields.reply {
+                        if !off.unconfirmed.is_empty() {
+                            let ids: Vec<String> =
+                                off.unconfirmed.iter().map(|u| u.id.to_string()).collect();
+                            self.notice(format!(
+                                "torque off not confirmed for servos {}",
+                                ids.join(", ")
+                            ));
                         }
                     }
                 }

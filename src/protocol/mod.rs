@@ -37,7 +37,7 @@ pub use parse::{checked_point, parse, parse_obstacles, strict_json, MAX_PATH_POI
 pub use read::{read_line, ReadError, ServerLine};
 pub use reply::{
     Admitted, Answer, Applied, Fields, Rebooted, Released, Reply, ReplyLine, Subscribed,
-    TookControl, Unsubscribed,
+    TookControl, TorqueOff, Unconfirmed, Unsubscribed,
 };
 pub use telemetry::{
     CommandInfo, Counters, Describe, FaultInfo, FaultKind, LoadUnit, Outcome, State, Status,

@@ -5,6 +5,7 @@
 //! reads one with the name of the command it sent ([`Fields::read`]). Fields beside the typed
 //! ones (a newer daemon's) are kept in [`Fields::more`], not refused.
 
+use std::fmt;
 use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
@@ -57,6 +58,35 @@ pub struct Applied {
     pub tick: u64,
 }
 
+/// `estop` and `torque`: the tick, and the servos a torque off did not confirm (none for a
+/// torque on, or when every servo read back torque off). The latch or the torque off stands
+/// either way; the servos named are switched off when they answer again.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TorqueOff {
+    /// The tick.
+    pub tick: u64,
+    /// The servos whose torque is not known to be off, each with why; absent when empty.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unconfirmed: Vec<Unconfirmed>,
+}
+
+/// A servo whose torque off was not confirmed: its state is unknown.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Unconfirmed {
+    /// 1-based joint index.
+    pub joint: usize,
+    /// Servo id.
+    pub id: u8,
+    /// Why: not reached (its port failed), silent, or no reply in the time allowed.
+    pub why: String,
+}
+
+impl fmt::Display for Unconfirmed {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "servo {} (joint {}) {}", self.id, self.joint, self.why)
+    }
+}
+
 /// `reboot`: the tick, and the servos rebooted.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Rebooted {
@@ -88,6 +118,8 @@ pub enum Reply {
     Applied(Applied),
     /// `reboot`.
     Rebooted(Rebooted),
+    /// `estop`, `torque`.
+    TorqueOff(TorqueOff),
     /// `world`.
     World(Box<WorldInfo>),
 }
@@ -109,6 +141,7 @@ impl Reply {
             CmdName::Auth => Reply::Admitted(from(fields)?),
             CmdName::Reboot => Reply::Rebooted(from(fields)?),
             CmdName::World => Reply::World(Box::new(from(fields)?)),
+            CmdName::Estop | CmdName::Torque => Reply::TorqueOff(from(fields)?),
             CmdName::Goto
             | CmdName::GotoJoints
             | CmdName::Reach
@@ -116,12 +149,10 @@ impl Reply {
             | CmdName::Velocity
             | CmdName::Jog
             | CmdName::Stop
-            | CmdName::Estop
             | CmdName::Reset
             | CmdName::Home
             | CmdName::Strategy
             | CmdName::ResetStats
-            | CmdName::Torque
             | CmdName::SetWorld
             | CmdName::AddObstacle
             | CmdName::RemoveObstacle => Reply::Applied(from(fields)?),
@@ -131,9 +162,9 @@ impl Reply {
     /// The tick the loop applied the command in, for the replies that carry one.
     pub fn tick(&self) -> Option<u64> {
         match self {
-            Reply::Applied(Applied { tick }) | Reply::Rebooted(Rebooted { tick, .. }) => {
-                Some(*tick)
-            }
+            Reply::Applied(Applied { tick })
+            | Reply::Rebooted(Rebooted { tick, .. })
+            | Reply::TorqueOff(TorqueOff { tick, .. }) => Some(*tick),
             Reply::Status(status) => Some(status.tick),
             Reply::Describe(_)
             | Reply::Subscribed(_)
@@ -157,6 +188,7 @@ impl Reply {
             | Reply::Unsubscribed(_)
             | Reply::Applied(_)
             | Reply::Rebooted(_)
+            | Reply::TorqueOff(_)
             | Reply::World(_) => None,
         }
     }

@@ -127,6 +127,14 @@ fn reply_to(name: CmdName) -> Reply {
             rebooted: vec![1, 9],
         }),
         CmdName::World => Reply::World(Box::new(world_info())),
+        CmdName::Estop | CmdName::Torque => Reply::TorqueOff(TorqueOff {
+            tick: 62,
+            unconfirmed: vec![Unconfirmed {
+                joint: 3,
+                id: 7,
+                why: "did not confirm torque off in the time allowed".into(),
+            }],
+        }),
         CmdName::Goto
         | CmdName::GotoJoints
         | CmdName::Reach
@@ -134,12 +142,10 @@ fn reply_to(name: CmdName) -> Reply {
         | CmdName::Velocity
         | CmdName::Jog
         | CmdName::Stop
-        | CmdName::Estop
         | CmdName::Reset
         | CmdName::Home
         | CmdName::Strategy
         | CmdName::ResetStats
-        | CmdName::Torque
         | CmdName::SetWorld
         | CmdName::AddObstacle
         | CmdName::RemoveObstacle => Reply::Applied(Applied { tick: 61 }),

@@ -11,7 +11,7 @@ use crate::chain::Vec2;
 use crate::control::{self, Accepted, Activity, NotStarted, PlanRequest, Refused};
 use crate::protocol::{
     world_rejection, Answer, Applied, ClientId, CmdName, Code, LoopCmd, Motion, Rebooted,
-    Rejection, Reply, RequestId, Status, StopReason, What, WorldInfo,
+    Rejection, Reply, RequestId, Status, StopReason, TorqueOff, Unconfirmed, What, WorldInfo,
 };
 use crate::reach::ReachError;
 use crate::servo::arm::{self, BringUpOptions, OnExit};
@@ -198,10 +198,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         match &e.cmd {
             LoopCmd::Status => Pending::Status,
             LoopCmd::Stop => self.stop(e),
-            LoopCmd::Estop => {
-                self.estop(e);
-                self.ok()
-            }
+            LoopCmd::Estop => self.estop(e),
             LoopCmd::Reset => self.reset(e),
             LoopCmd::Strategy { name } => {
                 self.controller.set_strategy(*name);
@@ -396,27 +393,41 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// `estop`: goals frozen, the latch set, torque off where `[bus] on_exit` says so: one Sync
     /// Write, confirmed within this tick by the servos that answer (the silent ones are not
-    /// waited on, and named in the log).
-    fn estop(&mut self, e: &Envelope) {
+    /// waited on). The reply names the servos whose torque off was not confirmed.
+    fn estop(&mut self, e: &Envelope) -> Pending {
         self.settle_planning(CmdName::Estop);
         let torque_off = self.on_exit == OnExit::TorqueOff;
         if self.supervisor.estopped() {
             // A latch that kept torque on (a contact's) is no estop's: torque off all the same.
-            if torque_off && self.supervisor.torque() {
+            // Servos not yet confirmed off are asked again, and the reply says how they stand.
+            if torque_off && (self.supervisor.torque() || !self.torque_off_pending.is_empty()) {
                 tracing::warn!("estop under the latch: torque off");
                 self.supervisor.estop(true);
-                self.torque_off_all("estop");
+                let unconfirmed = self.torque_off_all("estop");
+                return self.torque_off_reply(unconfirmed);
             }
-            return;
+            return self.torque_off_reply(Vec::new());
         }
         self.controller.freeze();
         self.ledger.estop();
         tracing::warn!("estop: goals frozen");
         self.supervisor.estop(torque_off);
-        if torque_off {
-            self.torque_off_all("estop");
-        }
+        let unconfirmed = if torque_off {
+            self.torque_off_all("estop")
+        } else {
+            Vec::new()
+        };
         self.event(None, e.id.clone(), |tip| What::Estop { tip });
+        self.torque_off_reply(unconfirmed)
+    }
+
+    /// The reply to `estop` and `torque`: the tick, and the servos not confirmed off.
+    fn torque_off_reply(&self, unconfirmed: Vec<Unconfirmed>) -> Pending {
+        Pending::Ready(Ok(Reply::TorqueOff(TorqueOff {
+            tick: self.tick,
+            unconfirmed,
+        })
+        .into()))
     }
 
     /// The servos among `ids`, named with their joints.
@@ -557,15 +568,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 return refuse(Code::Fault, format!("torque on: {err}"));
             }
             tracing::info!("torque on, holding the measured pose");
-        } else {
-            self.torque_off_all("torque off");
-            self.supervisor.set_torque(false);
-            self.controller.freeze();
-            let ended = self.ledger.interrupt(StopReason::Torque);
-            self.owe(ended);
-            tracing::info!("torque off");
+            return self.torque_off_reply(Vec::new());
         }
-        self.ok()
+        let unconfirmed = self.torque_off_all("torque off");
+        self.supervisor.set_torque(false);
+        self.controller.freeze();
+        let ended = self.ledger.interrupt(StopReason::Torque);
+        self.owe(ended);
+        tracing::info!("torque off");
+        self.torque_off_reply(unconfirmed)
     }
 
     /// `reboot`: reboot `ids` (default: the servos in hardware error, else all). The REBOOTs

@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::protocol::{FaultChange, FaultKind, What};
+use crate::protocol::{FaultChange, FaultKind, Unconfirmed, What};
 use crate::servo::arm::{self, Arm, OnExit, Retry};
 use crate::servo::clock::Clock;
 use crate::servo::limits::Limited;
@@ -322,22 +322,32 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// Torque off every servo within this tick, not waiting on the silent ones; `why` names
-    /// the occasion in the log line naming the servos not confirmed.
-    pub(super) fn torque_off_all(&mut self, why: &str) {
+    /// the occasion in the log line naming the servos not confirmed, which are returned (for
+    /// the reply of the command that asked) and sent the torque off again once they answer.
+    pub(super) fn torque_off_all(&mut self, why: &str) -> Vec<Unconfirmed> {
         let mut silent = self.health.unanswering();
         // Servos booting from a reboot hear nothing yet (and come back with torque off).
         silent.extend(self.rebooting.iter().flat_map(|job| job.booting()));
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         self.torque_off_pending.clear();
-        if let Err(unreached) = self.arm.torque_off(self.port.bus(), &silent, &within) {
-            let list: Vec<String> = unreached.iter().map(ToString::to_string).collect();
-            tracing::warn!(
-                "{why}: torque off not confirmed (sent again once they answer): {}",
-                list.join("; ")
-            );
-            self.torque_off_pending
-                .extend(unreached.iter().map(|u| u.id));
-        }
+        let Err(unreached) = self.arm.torque_off(self.port.bus(), &silent, &within) else {
+            return Vec::new();
+        };
+        let list: Vec<String> = unreached.iter().map(ToString::to_string).collect();
+        tracing::warn!(
+            "{why}: torque off not confirmed (sent again once they answer): {}",
+            list.join("; ")
+        );
+        self.torque_off_pending
+            .extend(unreached.iter().map(|u| u.id));
+        unreached
+            .into_iter()
+            .map(|u| Unconfirmed {
+                joint: u.joint,
+                id: u.id,
+                why: u.why,
+            })
+            .collect()
     }
 
     /// A torque off that missed servos reaches them once one of them answers a read (torque
