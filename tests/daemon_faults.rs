@@ -745,6 +745,15 @@ fn lost_for_good(estop: bool) {
         let watchdog = d.sim.with_servo(id, |s| s.watchdog()).unwrap();
         assert!(watchdog > 0, "servo {id}: Bus Watchdog {watchdog}, not fed");
     }
+    // Port 1's servos are still read: their health stays current while port 2 is lost.
+    d.sim.with_servo(2, |s| s.set_temperature(47.0)).unwrap();
+    let later = watch(&mut c, 30);
+    let t = later.last().unwrap();
+    assert!(
+        t["health_tick"].as_u64() > s["health_tick"].as_u64(),
+        "health not read while port 2 was lost: {t}"
+    );
+    assert!((floats(&t["temperature_c"])[1] - 47.0).abs() < 1e-9, "{t}");
     if estop {
         let reply = c.ok(json!({"cmd": "estop"}));
         for id in 1..=6 {

@@ -285,6 +285,10 @@ impl<B: ServoBus> ServoBus for Limited<B> {
         self.inner.port_index(id)
     }
 
+    fn port_failed(&self, port: usize) -> bool {
+        self.inner.port_failed(port)
+    }
+
     fn adapters(&self) -> Vec<Option<super::wire::Adapter>> {
         self.inner.adapters()
     }

@@ -749,6 +749,13 @@ pub trait ServoBus {
         0
     }
 
+    /// Port `port` (as [`ServoBus::port_index`] counts) of a bus of several failed and is not
+    /// open again yet, so its servos cannot be reached while the others can. Always false on a
+    /// bus of one port, whose failure its caller sees in every exchange.
+    fn port_failed(&self, _port: usize) -> bool {
+        false
+    }
+
     /// Each port's [`ServoBus::read_kind`], in port order: one entry on a bus of one port.
     fn read_kinds(&self) -> Vec<ReadKind> {
         vec![self.read_kind()]
@@ -925,6 +932,9 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     }
     fn port_index(&self, id: u8) -> usize {
         (**self).port_index(id)
+    }
+    fn port_failed(&self, port: usize) -> bool {
+        (**self).port_failed(port)
     }
     fn adapters(&self) -> Vec<Option<wire::Adapter>> {
         (**self).adapters()

@@ -521,6 +521,13 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
         self.port_of(id).unwrap_or(0)
     }
 
+    fn port_failed(&self, port: usize) -> bool {
+        match &self.inner {
+            Inner::One(_) => false,
+            Inner::Many(workers) => workers.get(port).is_some_and(|w| w.failed),
+        }
+    }
+
     fn adapters(&self) -> Vec<Option<Adapter>> {
         match &self.inner {
             Inner::One(bus) => bus.adapters(),

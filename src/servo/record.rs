@@ -141,6 +141,9 @@ impl<B: ServoBus> ServoBus for Recording<B> {
     fn port_index(&self, id: u8) -> usize {
         self.inner.port_index(id)
     }
+    fn port_failed(&self, port: usize) -> bool {
+        self.inner.port_failed(port)
+    }
     fn adapters(&self) -> Vec<Option<super::wire::Adapter>> {
         self.inner.adapters()
     }

@@ -1011,14 +1011,57 @@ pub(super) struct Rebooting {
 }
 
 impl Rebooting {
-    /// The servos a tick reads, of the arm's `all`: while servos reboot (`job`), the others.
-    pub fn read_ids<'a>(job: Option<&'a Rebooting>, all: &'a [u8]) -> &'a [u8] {
-        job.map_or(all, |j| &j.reading)
-    }
-
     /// The servos that may still be booting.
     pub fn booting(&self) -> impl Iterator<Item = u8> + '_ {
         self.reboots.ids().iter().copied()
+    }
+}
+
+/// The servos a tick reads, of the arm's `all`, with each one's joint index when it is not
+/// its slot: while a port of several is lost, those on the other ports (`reachable`);
+/// while servos reboot (`job`), the others; else all.
+pub(super) fn read_set<'a>(
+    reachable: Option<&'a Reachable>,
+    job: Option<&'a Rebooting>,
+    all: &'a [u8],
+) -> (&'a [u8], Option<&'a [usize]>) {
+    match (reachable, job) {
+        (Some(r), _) => (&r.ids, Some(&r.joints)),
+        (None, Some(j)) => (&j.reading, Some(&j.joints)),
+        (None, None) => (all, None),
+    }
+}
+
+/// The servos still reachable while a port of a bus of several is lost (those on the other
+/// ports), and their joint indices: read every tick meanwhile, so their measured pose and
+/// health stay current. Filled anew whenever a port fails, within its capacity.
+#[derive(Debug, Default)]
+pub(super) struct Reachable {
+    pub ids: Vec<u8>,
+    pub joints: Vec<usize>,
+}
+
+impl Reachable {
+    /// Room for `n` servos, so that filling it never allocates in the loop.
+    pub fn with_capacity(n: usize) -> Self {
+        Reachable {
+            ids: Vec::with_capacity(n),
+            joints: Vec::with_capacity(n),
+        }
+    }
+
+    /// The servos of `ids` (joint indices `joints`, else their slots) whose port has not
+    /// failed.
+    pub fn fill<B: ServoBus>(&mut self, bus: &B, ids: &[u8], joints: Option<&[usize]>) {
+        self.ids.clear();
+        self.joints.clear();
+        for (slot, &id) in ids.iter().enumerate() {
+            let joint = joints.map_or(Some(slot), |j| j.get(slot).copied());
+            if let (Some(joint), false) = (joint, bus.port_failed(bus.port_index(id))) {
+                self.ids.push(id);
+                self.joints.push(joint);
+            }
+        }
     }
 }
 

@@ -13,7 +13,7 @@ use crate::servo::{
     units, ErrorClass, Fields, HardwareErrors, Layout, Register, ServoBus, ServoError,
 };
 
-use super::commands::Rebooting;
+use super::commands::{read_set, Reachable};
 use super::health::{JointFault, Limits};
 use super::port::{ReopenError, RETRY_EVERY};
 use super::Cycle;
@@ -60,15 +60,14 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if health {
             self.measured.begin_health();
         }
-        let ids = Rebooting::read_ids(self.rebooting.as_ref(), &self.ids);
+        let partial = self.port.is_lost() && self.port.several();
+        let reachable = partial.then_some(&self.reachable);
+        let (ids, _) = read_set(reachable, self.rebooting.as_ref(), &self.ids);
         let read = self
             .port
             .bus()
             .read_block_into(ids, layout, timeout, &mut self.states);
         let read_count = ids.len();
-        let joint = |slot: usize, job: Option<&Rebooting>| {
-            job.map_or(Some(slot), |j| j.joints.get(slot).copied())
-        };
         let mut attention = false;
         match read {
             Err(e) if e.class() == ErrorClass::Bus => {
@@ -79,15 +78,18 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 tracing::debug!("sync read failed: {e}");
                 self.stats.counters.dropped += read_count as u64;
                 for slot in 0..read_count {
-                    if let Some(i) = joint(slot, self.rebooting.as_ref()) {
+                    if let Some(i) = self.joint_of_slot(slot) {
                         attention |= self.health.missed(i, self.tick, scheduled);
                     }
                 }
             }
             Ok(()) => {
-                self.port.contact(self.clock.now());
+                if !self.port.is_lost() {
+                    // Every servo heard the loop (not so while a port of several is lost).
+                    self.port.contact(self.clock.now());
+                }
                 for slot in 0..read_count {
-                    if let Some(i) = joint(slot, self.rebooting.as_ref()) {
+                    if let Some(i) = self.joint_of_slot(slot) {
                         attention |= self.take_reading(slot, i, scheduled);
                     }
                 }
@@ -100,6 +102,19 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         }
         if attention {
             self.review_faults(scheduled);
+        }
+    }
+
+    /// While a port of several is lost, the servos on the others, which a tick reads.
+    fn reachable(&self) -> Option<&Reachable> {
+        (self.port.is_lost() && self.port.several()).then_some(&self.reachable)
+    }
+
+    /// The joint whose servo a tick's read has in `slot` ([`read_set`]).
+    fn joint_of_slot(&self, slot: usize) -> Option<usize> {
+        match read_set(self.reachable(), self.rebooting.as_ref(), &self.ids) {
+            (_, Some(joints)) => joints.get(slot).copied(),
+            (_, None) => Some(slot),
         }
     }
 
@@ -360,7 +375,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.torque_off_pending.clear();
             return;
         }
-        let read = Rebooting::read_ids(self.rebooting.as_ref(), &self.ids);
+        let (read, _) = read_set(self.reachable(), self.rebooting.as_ref(), &self.ids);
         let answered = self.torque_off_pending.iter().any(|id| {
             read.iter()
                 .position(|x| x == id)
@@ -568,7 +583,14 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// The serial port failed: hold, report, reopen every [`RETRY_EVERY`].
     pub(super) fn lose_port(&mut self, e: &ServoError) {
-        let Some(info) = self.port.lose(self.tick, self.clock.now(), e.port(), e) else {
+        let info = self.port.lose(self.tick, self.clock.now(), e.port(), e);
+        if self.port.several() {
+            // The servos on the ports still open go on being read (another port may have
+            // failed since the first).
+            let (ids, joints) = read_set(None, self.rebooting.as_ref(), &self.ids);
+            self.reachable.fill(self.port.bus(), ids, joints);
+        }
+        let Some(info) = info else {
             return;
         };
         self.sync_faulted();

@@ -348,6 +348,8 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     fault_until: Instant,
     /// Servos a torque off did not reach: switched off once they answer a read.
     torque_off_pending: Vec<u8>,
+    /// While a port of several is lost, the servos on the others, read every tick.
+    reachable: commands::Reachable,
     /// The commanded pose was not clear of an obstacle when last looked at (a `not_clear`
     /// event went out; a `clear` one is owed once it is).
     not_clear: bool,
@@ -433,6 +435,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             deadman: c.deadman,
         };
         let ids = arm.ids();
+        let n_servos = ids.len();
         let layout = arm.layout();
         match layout {
             Layout::Indirect { data } => tracing::info!(
@@ -531,6 +534,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             rearmed: BTreeSet::new(),
             fault_until: now,
             torque_off_pending: Vec::new(),
+            reachable: commands::Reachable::with_capacity(n_servos),
             not_clear: false,
             behind: false,
             late_start: false,
@@ -662,28 +666,37 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             if self.port.several() {
                 // The other ports are still open: their servos are held on the goals, as
                 // every tick, which keeps their Bus Watchdog fed (the lost port's part fails,
-                // and is already reported).
+                // and is already reported), and read, so their pose and health stay current.
                 self.write();
+                self.read_if_due(scheduled, deadline);
             } else {
                 self.received.clear();
             }
         } else {
             self.decide();
             self.write();
-            let s = self.schedule;
-            let read = self.tick % s.read_every == 0;
-            let health = match self.layout {
-                // The health registers ride along in every read's block.
-                Layout::Indirect { .. } => read,
-                Layout::Direct(_) => self.tick % s.health_every == 0,
-            };
-            if !self.port.is_lost() && (health || read) {
-                self.read(scheduled, deadline, health);
+            if !self.port.is_lost() {
+                self.read_if_due(scheduled, deadline);
             }
         }
         self.tend_reboot();
         self.publish();
         self.answer();
+    }
+
+    /// This tick's read, if it has one: the pose every `read_every` ticks, the health registers
+    /// every `health_every` (or with every read, through Indirect Address).
+    fn read_if_due(&mut self, scheduled: Instant, deadline: Instant) {
+        let s = self.schedule;
+        let read = self.tick % s.read_every == 0;
+        let health = match self.layout {
+            // The health registers ride along in every read's block.
+            Layout::Indirect { .. } => read,
+            Layout::Direct(_) => self.tick % s.health_every == 0,
+        };
+        if health || read {
+            self.read(scheduled, deadline, health);
+        }
     }
 
     /// Motion -> resolve -> joint-speed limit; frozen while the supervisor holds the arm.
