@@ -11,7 +11,7 @@ mod daemon_support;
 use std::collections::BTreeMap;
 use std::process::Command;
 
-use daemon_support::{sim_config, xy, Daemon};
+use daemon_support::{sim_config, sim_config_with, xy, Daemon};
 use foxglove::schemas::SceneUpdate;
 use foxglove::Decode;
 use serde_json::{json, Value};
@@ -295,4 +295,81 @@ fn a_recording_cut_short_plots_what_it_holds() {
     assert!(said.contains("ends in the middle of a record"), "{said}");
     assert!(said.contains("`mcap recover`"), "{said}");
     assert!(out.join("motion.svg").is_file());
+}
+
+/// A file that exists is never replaced unasked: refused naming it, kept as it was; with
+/// `overwrite` it is replaced, but not while another recording is being written to it.
+#[test]
+fn a_recording_replaces_a_file_only_when_asked_and_never_one_being_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let kept = dir.path().join("kept.mcap");
+    std::fs::write(&kept, "a file worth keeping").unwrap();
+    let d = Daemon::start_with(sim_config(&[]), Some(RecordOptions::to(&kept)));
+    let e = d.stop().unwrap_err();
+    assert!(e.to_string().contains("kept.mcap exists already"), "{e}");
+    assert_eq!(
+        std::fs::read_to_string(&kept).unwrap(),
+        "a file worth keeping"
+    );
+
+    let first = Daemon::start_with(
+        sim_config(&[]),
+        Some(RecordOptions::to(&kept).overwriting(true)),
+    );
+    let second = Daemon::start_with(
+        sim_config(&[]),
+        Some(RecordOptions::to(&kept).overwriting(true)),
+    );
+    let e = second.stop().unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("kept.mcap is being written by another process"),
+        "{e}"
+    );
+    first.stop().unwrap();
+    let recording = snakectl::record::Recording::open(&kept).unwrap();
+    assert!(
+        !recording.channels.is_empty(),
+        "the first daemon's recording was spoilt"
+    );
+}
+
+/// The config given as the recording is refused from the command line, exit 2, and kept.
+#[test]
+fn snakectl_run_never_records_over_its_own_config() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("arm.toml");
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    std::fs::write(&config, &text).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["run", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&config)
+        .arg("--record")
+        .arg(&config)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("arm.toml exists already"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), text);
+}
+
+/// A start-up refused after the recording was created (a servo that does not answer) leaves no
+/// file behind.
+#[test]
+fn a_refused_start_up_leaves_no_recording_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    let config = sim_config_with(
+        &[],
+        "[[sim.fault]]\nkind = \"silent\"\nid = 5\nat_s = 0.0\n",
+    );
+    let d = Daemon::start_with(config, Some(RecordOptions::to(&path)));
+    let e = d.stop().unwrap_err();
+    assert!(e.to_string().contains("servo 5"), "{e}");
+    assert!(
+        !path.exists(),
+        "a recording left behind by a refused start-up"
+    );
 }

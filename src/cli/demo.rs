@@ -117,9 +117,11 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     let sim = connect::spawn_sim(&config, Arc::new(RealClock)).map_err(Failure::bad_input)?;
     let recording = out.join(RECORDING);
     let notes = Notes::new();
+    // The demo's own output: each run replaces the last one's.
     let options = RunOptions::port(sim.path().to_path_buf()).recorded(Some(RecordOptions {
         path: recording.clone(),
         notes: notes.clone(),
+        overwrite: true,
     }));
     let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
     let daemon = Embedded::start(config.clone(), loopback, options).map_err(Failure::other)?;

@@ -40,6 +40,9 @@ pub struct RunArgs {
     /// config); see docs/RECORDING.md.
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Replace the `--record` file if it exists (else that is refused, and the file kept).
+    #[arg(long, requires = "record")]
+    overwrite: bool,
     /// More log lines (debug level); `RUST_LOG` overrides.
     #[arg(short, long)]
     verbose: bool,
@@ -73,7 +76,9 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
             })?;
         let options = RunOptions {
             ports: args.port,
-            record: args.record.map(RecordOptions::to),
+            record: args
+                .record
+                .map(|path| RecordOptions::to(path).overwriting(args.overwrite)),
         };
         let summary = daemon::run(config, listener, options, shutdown)
             .await

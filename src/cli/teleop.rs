@@ -62,6 +62,9 @@ pub struct TeleopArgs {
     /// With `--sim`: record the run to this MCAP file (see docs/RECORDING.md).
     #[arg(long, value_name = "FILE.mcap", requires = "sim")]
     pub record: Option<PathBuf>,
+    /// Replace the `--record` file if it exists (else that is refused, and the file kept).
+    #[arg(long, requires = "record")]
+    pub overwrite: bool,
 }
 
 /// Telemetry lines a second the UI asks for.
@@ -111,11 +114,16 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
                 .clone()
                 .or_else(|| config.server().token_file.clone());
             if let Some(path) = &args.record {
-                // Said here, before the screen takes the terminal.
-                snakectl::record::McapSink::create(path).map_err(Failure::bad_input)?;
+                // Said here, before the screen takes the terminal; the daemon then writes
+                // over the file made here.
+                snakectl::record::McapSink::create(path, args.overwrite)
+                    .map_err(Failure::bad_input)?;
             }
-            let options = RunOptions::port(sim.path().to_path_buf())
-                .recorded(args.record.clone().map(RecordOptions::to));
+            let options = RunOptions::port(sim.path().to_path_buf()).recorded(
+                args.record
+                    .clone()
+                    .map(|path| RecordOptions::to(path).overwriting(true)),
+            );
             let embedded = Embedded::start(config, listen, options)
                 .with_context(|| format!("starting the daemon on {listen}"))
                 .map_err(Failure::other)?;

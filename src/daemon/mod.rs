@@ -233,8 +233,8 @@ pub async fn run(
     // Created before anything moves: a file that cannot be made stops start-up here.
     let (recorder, tap) = match &options.record {
         Some(r) => {
-            let (recorder, tap) = Recorder::create(&r.path, Setup::of(&config), r.notes.clone())
-                .map_err(DaemonError::Record)?;
+            let (recorder, tap) =
+                Recorder::create(r, Setup::of(&config)).map_err(DaemonError::Record)?;
             tracing::info!("recording to {}", r.path.display());
             (Some(recorder), Some(tap))
         }
@@ -245,7 +245,7 @@ pub async fn run(
     tracing::info!("listening on {addr} (bringing the arm up first)");
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = oneshot::channel();
-    let (done_tx, done_rx) = oneshot::channel();
+    let (done_tx, mut done_rx) = oneshot::channel();
     let loop_stop = stop.clone();
     std::thread::Builder::new()
         .name("snakectl-loop".into())
@@ -256,14 +256,21 @@ pub async fn run(
         .map_err(DaemonError::Thread)?;
 
     let handle = match ready_rx.await {
-        Ok(Ok(handle)) => handle,
-        Ok(Err(e)) => return Err(e),
+        Ok(Ok(handle)) => Ok(handle),
+        Ok(Err(e)) => Err(e),
         // The thread ended without a word: it panicked during start-up.
-        Err(_) => {
-            return match done_rx.await {
-                Ok(Err(e)) => Err(e),
-                _ => Err(DaemonError::LoopPanicked),
+        Err(_) => match (&mut done_rx).await {
+            Ok(Err(e)) => Err(e),
+            _ => Err(DaemonError::LoopPanicked),
+        },
+    };
+    let handle = match handle {
+        Ok(handle) => handle,
+        Err(e) => {
+            if let Some(recorder) = recorder {
+                recorder.discard();
             }
+            return Err(e);
         }
     };
 
@@ -273,7 +280,6 @@ pub async fn run(
             std::collections::BTreeMap::from([("describe".to_owned(), describe)]),
         );
     }
-    let mut done_rx = done_rx;
     let mut ended = None;
     let served = {
         // The server outlives the loop: clients see the arm come to rest, hear the

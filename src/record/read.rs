@@ -513,7 +513,7 @@ mod tests {
     fn a_closed_file_damaged_inside_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("damaged.mcap");
-        let mut sink = McapSink::create(&path).unwrap();
+        let mut sink = McapSink::create(&path, false).unwrap();
         let channel = sink.add_channel(&spec()).unwrap();
         for i in 0..20 {
             sink.write(channel, i, b"{}").unwrap();
@@ -546,7 +546,7 @@ mod tests {
     fn a_whole_file_is_not_cut() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("whole.mcap");
-        let mut sink = McapSink::create(&path).unwrap();
+        let mut sink = McapSink::create(&path, false).unwrap();
         let channel = sink.add_channel(&spec()).unwrap();
         sink.write(channel, 1, b"{}").unwrap();
         sink.finish().unwrap();

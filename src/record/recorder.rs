@@ -19,7 +19,7 @@
 //! what was not flushed yet, and the rest, count as dropped.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -155,15 +155,23 @@ pub struct RecordOptions {
     pub path: PathBuf,
     /// Metadata records to add on close.
     pub notes: Notes,
+    /// Replace the file if it exists (else that is refused).
+    pub overwrite: bool,
 }
 
 impl RecordOptions {
-    /// A recording to `path`, with no notes yet.
+    /// A recording to `path`, which must not exist yet, with no notes yet.
     pub fn to(path: impl Into<PathBuf>) -> Self {
         Self {
             path: path.into(),
             notes: Notes::new(),
+            overwrite: false,
         }
+    }
+
+    /// These options, replacing the file if `overwrite`.
+    pub fn overwriting(self, overwrite: bool) -> Self {
+        Self { overwrite, ..self }
     }
 }
 
@@ -209,14 +217,34 @@ pub struct Recorder {
     notes: Notes,
     thread: Option<JoinHandle<RecordSummary>>,
     what: String,
+    /// The file it writes, when it is one ([`Recorder::create`]).
+    file: Option<PathBuf>,
 }
 
 impl Recorder {
-    /// Creates the MCAP file at `path` and starts recording into it; the loop's end of the
-    /// hand-over.
-    pub fn create(path: &Path, setup: Setup, notes: Notes) -> Result<(Recorder, Tap), RecordError> {
-        let sink = McapSink::create(path)?;
-        Self::start(Box::new(sink), setup, notes, path.display().to_string())
+    /// Creates the MCAP file `options` name ([`McapSink::create`]) and starts recording into
+    /// it; the loop's end of the hand-over.
+    pub fn create(options: &RecordOptions, setup: Setup) -> Result<(Recorder, Tap), RecordError> {
+        let sink = McapSink::create(&options.path, options.overwrite)?;
+        let what = options.path.display().to_string();
+        let (mut recorder, tap) = Self::start(Box::new(sink), setup, options.notes.clone(), what)?;
+        recorder.file = Some(options.path.clone());
+        Ok((recorder, tap))
+    }
+
+    /// A start-up that was refused leaves no recording behind: the thread ends and the file
+    /// it created (header and channels, not a message) is removed.
+    pub fn discard(mut self) {
+        if let Some(thread) = self.thread.take() {
+            self.closer.close();
+            let _ = thread.join();
+        }
+        if let Some(file) = &self.file {
+            match std::fs::remove_file(file) {
+                Ok(()) => tracing::info!("start-up refused: the recording {} removed", self.what),
+                Err(e) => tracing::warn!("removing the recording {}: {e}", self.what),
+            }
+        }
     }
 
     /// Starts recording into `sink` (`what` names it in the log).
@@ -242,6 +270,7 @@ impl Recorder {
                 notes,
                 thread: Some(thread),
                 what,
+                file: None,
             },
             tap,
         ))

@@ -27,6 +27,21 @@ pub enum RecordError {
         /// Why.
         source: std::io::Error,
     },
+    /// The file exists, and replacing it was not asked for.
+    #[error(
+        "the recording {} exists already: `--overwrite` replaces it, or give another file",
+        path.display()
+    )]
+    Exists {
+        /// The file.
+        path: PathBuf,
+    },
+    /// Another recording (of this process or another) is being written to the file.
+    #[error("the recording {} is being written by another process", path.display())]
+    Busy {
+        /// The file.
+        path: PathBuf,
+    },
     /// Writing failed (the disk full, the file system gone, ...).
     #[error("writing the recording: {0}")]
     Write(String),
@@ -177,14 +192,43 @@ impl<W: Write + Seek> std::fmt::Debug for McapSink<W> {
 const LIBRARY: &str = concat!("snakectl ", env!("CARGO_PKG_VERSION"));
 
 impl McapSink<BufWriter<File>> {
-    /// Creates (or truncates) the file at `path`, its header written through: a file that
-    /// takes nothing (a full disk) is refused here, before anything is recorded, not found
-    /// out at the first chunk.
-    pub fn create(path: &Path) -> Result<Self, RecordError> {
-        let file = File::create(path).map_err(|source| RecordError::Create {
+    /// Creates the file at `path`, its header written through: a file that takes nothing (a
+    /// full disk) is refused here, before anything is recorded, not found out at the first
+    /// chunk. A file that exists is refused unless `overwrite`; one that another recording is
+    /// being written to is refused even then (an exclusive `flock`, held while this sink
+    /// lives), and left as it was.
+    pub fn create(path: &Path, overwrite: bool) -> Result<Self, RecordError> {
+        let created = |source| RecordError::Create {
             path: path.to_path_buf(),
             source,
-        })?;
+        };
+        let file = match File::options()
+            .write(true)
+            .create(overwrite)
+            .create_new(!overwrite)
+            .open(path)
+        {
+            Ok(file) => file,
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                return Err(RecordError::Exists {
+                    path: path.to_path_buf(),
+                })
+            }
+            Err(e) => return Err(created(e)),
+        };
+        match rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
+            Ok(()) => {}
+            Err(rustix::io::Errno::WOULDBLOCK) => {
+                return Err(RecordError::Busy {
+                    path: path.to_path_buf(),
+                })
+            }
+            Err(e) => return Err(created(e.into())),
+        }
+        // Emptied only once it is this sink's alone (a device, `/dev/null` say, has no length).
+        if file.metadata().map_err(created)?.is_file() {
+            file.set_len(0).map_err(created)?;
+        }
         let named = |e| match e {
             RecordError::Write(why) => RecordError::Create {
                 path: path.to_path_buf(),
@@ -345,7 +389,7 @@ mod tests {
     #[cfg(target_os = "linux")]
     #[test]
     fn a_recording_on_a_full_disk_is_refused_when_created() {
-        let Err(e) = McapSink::create(Path::new("/dev/full")) else {
+        let Err(e) = McapSink::create(Path::new("/dev/full"), true) else {
             panic!("/dev/full was taken for a recording");
         };
         assert_eq!(
