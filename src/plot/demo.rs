@@ -128,8 +128,12 @@ const TITLE_H: u32 = 44;
 /// Room a chart takes around its plotting area: margins, caption, label areas (w, h), px.
 const CHART_EXTRA: (u32, u32) = (2 * 10 + 56, 2 * 10 + 26 + 40);
 
+/// The least span of a view, m: a tip that barely moved is drawn in a view whose axis labels
+/// still read apart.
+const MIN_VIEW_M: f64 = 1e-3;
+
 /// Ranges of equal scale on both axes holding `(x0, x1, y0, y1)`, padded, for a plotting area
-/// of `w` by `h` pixels.
+/// of `w` by `h` pixels, at least [`MIN_VIEW_M`] across.
 fn equal_ranges(
     (x0, x1, y0, y1): (f64, f64, f64, f64),
     w: f64,
@@ -143,7 +147,7 @@ fn equal_ranges(
         y0 - pad * span,
         y1 + pad * span,
     );
-    let scale = (w / (x1 - x0)).min(h / (y1 - y0));
+    let scale = (w / (x1 - x0).max(MIN_VIEW_M)).min(h / (y1 - y0).max(MIN_VIEW_M));
     let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
     let (hx, hy) = (0.5 * w / scale, 0.5 * h / scale);
     ((cx - hx)..(cx + hx), (cy - hy)..(cy + hy))
@@ -801,6 +805,18 @@ mod tests {
         assert_eq!(spread(1, 6), vec![0]);
         assert_eq!(spread(3, 6), vec![0, 1, 2]);
         assert_eq!(spread(101, 5), vec![0, 25, 50, 75, 100]);
+    }
+
+    #[test]
+    fn a_view_of_a_tip_that_barely_moved_is_a_millimetre_across() {
+        let (x, y) = equal_ranges(
+            (0.27448, 0.27448 + 2e-7, 0.32976, 0.32976),
+            300.0,
+            300.0,
+            0.0,
+        );
+        assert!((x.end - x.start - MIN_VIEW_M).abs() < 1e-12, "{x:?}");
+        assert!((y.end - y.start - MIN_VIEW_M).abs() < 1e-12, "{y:?}");
     }
 
     #[test]

@@ -29,6 +29,10 @@ pub const MAX_PICTURED: usize = 4;
 /// A pause in the motion shorter than this, s, does not split a phase.
 pub const PAUSE_S: f64 = 1.0;
 
+/// A phase shorter than this, s (a motion ended a few ticks after it began), is widened about
+/// its middle to this, within the recording, so that its band and its tip's trace are seen.
+pub const MIN_PHASE_S: f64 = 0.5;
+
 /// One message.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Message {
@@ -393,7 +397,13 @@ fn moving_phases(telemetry: &[Telemetry], t0: f64) -> Vec<Phase> {
                     strategies.push(name);
                 }
             }
-            let (t_a, t_b) = (telemetry[a].t_s - t0, telemetry[b].t_s - t0);
+            let (t_a, t_b) = widened(
+                (telemetry[a].t_s - t0, telemetry[b].t_s - t0),
+                (
+                    telemetry[0].t_s - t0,
+                    telemetry[telemetry.len() - 1].t_s - t0,
+                ),
+            );
             Phase {
                 label: format!("{t_a:.1}-{t_b:.1} s, {}", strategies.join(", ")),
                 t0: t_a,
@@ -406,11 +416,39 @@ fn moving_phases(telemetry: &[Telemetry], t0: f64) -> Vec<Phase> {
         .collect()
 }
 
+/// `(t_a, t_b)` widened about its middle to at least [`MIN_PHASE_S`], kept within `(lo, hi)`
+/// (shifted rather than cut where it can be).
+fn widened((t_a, t_b): (f64, f64), (lo, hi): (f64, f64)) -> (f64, f64) {
+    let short = MIN_PHASE_S - (t_b - t_a);
+    if short <= 0.0 {
+        return (t_a, t_b);
+    }
+    let (mut a, mut b) = (t_a - 0.5 * short, t_b + 0.5 * short);
+    if a < lo {
+        (a, b) = (lo, b + (lo - a));
+    }
+    if b > hi {
+        (a, b) = ((a - (b - hi)).max(lo), hi);
+    }
+    (a, b)
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
     use crate::record::schema::ChannelSpec;
+
+    #[test]
+    fn a_phase_of_a_few_ticks_is_widened_within_the_recording() {
+        assert_eq!(widened((18.90, 18.93), (0.0, 40.0)), (18.665, 19.165));
+        // At the start of the recording it is shifted, not cut.
+        assert_eq!(widened((0.0, 0.1), (0.0, 40.0)), (0.0, 0.5));
+        // A recording shorter than the least phase gives all it has.
+        assert_eq!(widened((0.1, 0.2), (0.0, 0.3)), (0.0, 0.3));
+        // A phase long enough stays as it is.
+        assert_eq!(widened((3.0, 9.0), (0.0, 40.0)), (3.0, 9.0));
+    }
     use crate::record::sink::{McapSink, Sink};
 
     fn spec() -> ChannelSpec {
