@@ -316,6 +316,8 @@ fn a_recording_replaces_a_file_only_when_asked_and_never_one_being_written() {
         sim_config(&[]),
         Some(RecordOptions::to(&kept).overwriting(true)),
     );
+    // Up, so its recording is made before the second daemon starts.
+    first.client().status();
     let second = Daemon::start_with(
         sim_config(&[]),
         Some(RecordOptions::to(&kept).overwriting(true)),
