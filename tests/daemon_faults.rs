@@ -707,6 +707,53 @@ fn vanished_port(read: &str, ports: &str, k: usize) {
     stop_torque_off(d);
 }
 
+/// Port 2 vanishes, then port 1 while port 2 is still gone: each is a fault of its own, both
+/// listed while either is gone, both cleared once the two are back, and the arm holds again.
+#[test]
+fn both_ports_of_two_lost_one_after_the_other_are_each_named_and_both_recovered() {
+    let d = Daemon::start(sim_config_with(
+        &[],
+        &format!(
+            "[[sim.fault]]\nkind = \"disconnect\"\nport = 2\nat_s = 1.0\nuntil_s = 2.5\n\
+             [[sim.fault]]\nkind = \"disconnect\"\nport = 1\nat_s = 1.5\nuntil_s = 2.5\n\
+             {TWO_PORTS}"
+        ),
+    ));
+    let (mut c, _, _) = watching(&d);
+    let (first, second) = (d.port_path(1), d.port_path(0));
+    let (_, raised) = watch_until_event(&mut c, fault_event("raised", "port"));
+    assert_eq!(raised["fault"]["port"], json!(first), "{raised}");
+    let (_, raised) = watch_until_event(&mut c, fault_event("raised", "port"));
+    assert_eq!(raised["fault"]["port"], json!(second), "{raised}");
+    assert!(
+        raised["fault"]["detail"]
+            .as_str()
+            .unwrap()
+            .contains(&second),
+        "{raised}"
+    );
+    let s = c.status();
+    let listed: Vec<&Value> = s["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["kind"] == "port")
+        .map(|f| &f["port"])
+        .collect();
+    assert_eq!(listed, [&json!(first), &json!(second)], "{s}");
+    let mut cleared = Vec::new();
+    while cleared.len() < 2 {
+        let (_, e) = watch_until_event(&mut c, fault_event("cleared", "port"));
+        cleared.push(e["fault"]["port"].clone());
+    }
+    assert_eq!(cleared, [json!(first), json!(second)]);
+    let s = c.wait_status("holding after both ports are back", |s| {
+        s["state"] == "holding"
+    });
+    assert_eq!(s["faults"], json!([]), "{s}");
+    stop_torque_off(d);
+}
+
 #[test]
 fn a_port_of_two_lost_for_good_leaves_the_other_open_and_estop_switches_its_servos_off() {
     lost_for_good(true);

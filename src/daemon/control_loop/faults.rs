@@ -618,7 +618,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         match self.recover() {
             Ok(_) => {
                 tracing::info!("port reopened");
-                if let Some(info) = self.port.found() {
+                for info in self.port.found() {
                     self.announce(FaultChange::Cleared, info);
                 }
                 self.rebuild_lists();

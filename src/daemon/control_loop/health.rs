@@ -568,9 +568,9 @@ impl Health {
         })
     }
 
-    /// The fault and warning lists telemetry carries, `port` first when the port is lost.
-    pub fn lists(&self, port: Option<FaultInfo>) -> (Vec<FaultInfo>, Vec<FaultInfo>) {
-        let mut faults: Vec<FaultInfo> = port.into_iter().collect();
+    /// The fault and warning lists telemetry carries, the lost ports' faults (`ports`) first.
+    pub fn lists(&self, ports: Vec<FaultInfo>) -> (Vec<FaultInfo>, Vec<FaultInfo>) {
+        let mut faults = ports;
         let mut warnings = Vec::new();
         for (i, j) in self.joints.iter().enumerate() {
             if let Some(h) = &j.fault {
@@ -739,7 +739,7 @@ mod tests {
         assert!(
             matches!(&cleared[..], [Change { change: FaultChange::Cleared, info }] if info.since_tick == 2)
         );
-        assert_eq!(h.lists(None).1.len(), 0);
+        assert_eq!(h.lists(Vec::new()).1.len(), 0);
     }
 
     #[test]
@@ -750,7 +750,7 @@ mod tests {
         assert!(
             matches!(&raised[..], [Change { change: FaultChange::Raised, info }] if info.kind == FaultKind::Voltage && info.id == Some(2))
         );
-        assert_eq!(h.lists(None).1.len(), 1);
+        assert_eq!(h.lists(Vec::new()).1.len(), 1);
         assert!(h.judge(1, 40.0, 10.05, 2).is_empty());
         assert_eq!(h.judge(1, 40.0, 10.2, 3).len(), 1);
         assert_eq!(h.judge(1, 40.0, 15.5, 4).len(), 1, "the high end warns too");
@@ -818,14 +818,14 @@ mod tests {
         // Latched: listed as a fault, not raised again, not a fault that holds by itself.
         assert!(h.in_contact() && !h.any_fault());
         assert_eq!(h.judge_load(0, 90.0, LoadUnit::Percent, 40), None);
-        let (faults, _) = h.lists(None);
+        let (faults, _) = h.lists(Vec::new());
         assert_eq!(faults.len(), 1);
         assert_eq!(faults[0].kind, FaultKind::Contact);
         let cleared = h.release_contacts("released");
         assert_eq!(cleared.len(), 1);
         assert_eq!(cleared[0].change, FaultChange::Cleared);
         assert!(cleared[0].info.since_tick == 10 && cleared[0].info.detail == "released");
-        assert!(!h.in_contact() && h.lists(None).0.is_empty());
+        assert!(!h.in_contact() && h.lists(Vec::new()).0.is_empty());
         assert!(h.release_contacts("again").is_empty());
     }
 
@@ -873,7 +873,7 @@ mod tests {
         let mut h = health(10);
         h.raise(0, JointFault::Silent, 1, "quiet".into());
         let port = FaultInfo::port(Some("/dev/ttyUSB0".into()), 4, "gone".into());
-        let (faults, warnings) = h.lists(Some(port));
+        let (faults, warnings) = h.lists(vec![port]);
         assert_eq!(faults.len(), 2);
         assert_eq!(faults[0].kind, FaultKind::Port);
         assert_eq!(faults[1].kind, FaultKind::Silent);

@@ -956,7 +956,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     fn rebuild_lists(&mut self) {
-        let (faults, warnings) = self.health.lists(self.port.fault());
+        let (faults, warnings) = self.health.lists(self.port.faults());
         self.lists = Lists {
             faults,
             warnings,
@@ -973,7 +973,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             tracing::warn!("shut-down: the serial port is lost, no servo can be reached");
             self.ids.clone()
         } else {
-            if let Some(lost) = self.port.fault() {
+            for lost in self.port.faults() {
                 tracing::warn!(
                     "shut-down: {}; the servos on the other ports are still reached",
                     lost.detail

@@ -45,6 +45,8 @@ struct Lost {
     detail: String,
     /// When it was opened again, the arm still to recover on it.
     reopened: Option<Instant>,
+    /// Other ports of the bus that failed since, each with its own fault (the tick and why).
+    also: Vec<(String, u64, String)>,
 }
 
 /// The bus and what keeps it.
@@ -123,14 +125,22 @@ impl<B: ServoBus> Port<B> {
         which: Option<&str>,
         why: &dyn std::fmt::Display,
     ) -> Option<FaultInfo> {
-        if self.lost.is_some() {
-            return None;
-        }
-        let detail = match which {
-            Some(port) => format!(
+        let detail = |port: &str| {
+            format!(
                 "the serial port {port} failed ({why}); the arm holds, that port reopened every \
                  second, the others kept open"
-            ),
+            )
+        };
+        if let Some(lost) = self.lost.as_mut() {
+            // Another port of several failing meanwhile is a fault of its own.
+            let other = which.filter(|&p| {
+                lost.which.as_deref() != Some(p) && lost.also.iter().all(|(q, ..)| q != p)
+            })?;
+            lost.also.push((other.to_owned(), tick, detail(other)));
+            return Some(FaultInfo::port(Some(other.to_owned()), tick, detail(other)));
+        }
+        let detail = match which {
+            Some(port) => detail(port),
             None => format!("the serial port failed ({why}); reopening it every second"),
         };
         self.lost = Some(Lost {
@@ -139,16 +149,23 @@ impl<B: ServoBus> Port<B> {
             next_try: now + RETRY_EVERY,
             detail,
             reopened: None,
+            also: Vec::new(),
         });
-        self.fault()
+        self.faults().into_iter().next()
     }
 
-    /// The port's fault as listed, while lost.
-    pub fn fault(&self) -> Option<FaultInfo> {
-        self.lost.as_ref().map(|l| {
-            let name = l.which.clone().or_else(|| self.name.clone());
-            FaultInfo::port(name, l.since, l.detail.clone())
-        })
+    /// The ports' faults as listed, while lost: the first port that failed, then any other of
+    /// several that failed since.
+    pub fn faults(&self) -> Vec<FaultInfo> {
+        let Some(l) = &self.lost else {
+            return Vec::new();
+        };
+        let name = l.which.clone().or_else(|| self.name.clone());
+        let mut faults = vec![FaultInfo::port(name, l.since, l.detail.clone())];
+        faults.extend(l.also.iter().map(|(port, since, detail)| {
+            FaultInfo::port(Some(port.clone()), *since, detail.clone())
+        }));
+        faults
     }
 
     /// A lost port whose next try is due at `now`.
@@ -194,14 +211,23 @@ impl<B: ServoBus> Port<B> {
         }
     }
 
-    /// The port is back: the fault's clearing to report.
-    pub fn found(&mut self) -> Option<FaultInfo> {
-        let lost = self.lost.take()?;
-        Some(FaultInfo::port(
+    /// The ports are back: each fault's clearing to report.
+    pub fn found(&mut self) -> Vec<FaultInfo> {
+        let Some(lost) = self.lost.take() else {
+            return Vec::new();
+        };
+        let back = || "the port is open again; goals := measured pose".to_owned();
+        let mut cleared = vec![FaultInfo::port(
             lost.which.or_else(|| self.name.clone()),
             lost.since,
-            "the port is open again; goals := measured pose".into(),
-        ))
+            back(),
+        )];
+        cleared.extend(
+            lost.also
+                .into_iter()
+                .map(|(port, since, _)| FaultInfo::port(Some(port), since, back())),
+        );
+        cleared
     }
 
     /// A reopening failed at `now`: the next try one [`RETRY_EVERY`] later.
