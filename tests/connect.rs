@@ -131,6 +131,34 @@ fn sim_config_with(extra: &str) -> Config {
     Config::from_str(&text, shipped("sim.toml")).unwrap()
 }
 
+/// `[sim] adapter = "ftdi"` holds the replies as the chip would, on a pseudo-terminal that tells
+/// no latency timer: the bus is opened as behind that adapter, on one port and on several, and
+/// so waits out its timer (the chip's default 16 ms) instead of taking the held reply for a
+/// chain that broke.
+#[test]
+fn a_simulated_ftdi_adapter_is_the_one_the_opened_bus_is_behind() {
+    use snakectl::servo::wire::Adapter;
+    let text = std::fs::read_to_string(shipped("sim.toml")).unwrap();
+    let modelled = "# adapter = \"ftdi\"";
+    assert!(text.contains(modelled));
+    let text = text.replacen(modelled, "adapter = \"ftdi\" #", 1);
+    let config = Config::from_str(&text, shipped("sim.toml")).unwrap();
+    let ftdi = Adapter::ftdi(Duration::from_millis(16));
+    assert_eq!(config.modelled_adapter(), Some(ftdi));
+    let options = || Options {
+        clock: std::sync::Arc::new(snakectl_sim::ManualClock::new()),
+        ..Options::default()
+    };
+    let one = connect::open(&config, options()).unwrap();
+    assert_eq!(one.bus.adapters(), [Some(ftdi)]);
+    drop(one);
+    let arm = connect::open_arm(&config, options()).unwrap();
+    assert_eq!(arm.bus.adapters(), [Some(ftdi)]);
+    // Without the model, nothing is assumed.
+    let plain = connect::open_arm(&sim_config(), options()).unwrap();
+    assert_eq!(plain.bus.adapters(), [None]);
+}
+
 /// Poll `done` until it holds, for at most 10 s (reached only on failure).
 fn wait_for(what: &str, mut done: impl FnMut() -> bool) {
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
@@ -176,7 +204,13 @@ fn the_in_process_simulator_is_reopened_on_its_link_after_a_disconnect() {
     let err = arm.write_pose(&mut bus, config.home()).unwrap_err();
     assert_eq!(err.class(), ErrorClass::Bus, "{err:?}");
     let baud = config.bus().unwrap().baud;
-    match connect::reopen(&port, baud, &arm, options.strategy) {
+    match connect::reopen(
+        &port,
+        baud,
+        config.modelled_adapter(),
+        &arm,
+        options.strategy,
+    ) {
         Err(ConnectError::Open { source }) => assert_eq!(source.class(), ErrorClass::Bus),
         other => panic!("reopened while unplugged: {other:?}"),
     }
@@ -185,7 +219,14 @@ fn the_in_process_simulator_is_reopened_on_its_link_after_a_disconnect() {
     wait_for("the plug-back", || sim.pty_path().is_some());
     assert_ne!(sim.pty_path().unwrap(), old);
     assert_eq!(bus.ping(1, t).unwrap_err().class(), ErrorClass::Bus);
-    let mut bus = connect::reopen(&port, baud, &arm, options.strategy).unwrap();
+    let mut bus = connect::reopen(
+        &port,
+        baud,
+        config.modelled_adapter(),
+        &arm,
+        options.strategy,
+    )
+    .unwrap();
     for id in arm.ids() {
         bus.ping(id, t).unwrap();
         // Torque stayed on; the Bus Watchdog fired in the silence.

@@ -4,6 +4,9 @@
 //!   rest by Sync Read at once; a servo that then stays silent is named by a timeout, as a Sync
 //!   Read names it; after a damaged block the Sync Read waits until the rest of the reply is
 //!   through.
+//! - Behind an adapter the bus was told of (a simulated FTDI chip's 16 ms latency timer), a
+//!   reply that pauses while the chip holds its last partial USB packet is waited for, not
+//!   taken for a chain that broke and asked again.
 //! - Status packets damaged on the way (a length field that lies, too short or too long) cost
 //!   one reading, never the replies behind them or a panic, and a scan still ends.
 
@@ -16,8 +19,9 @@ use std::time::Duration;
 use serialport::{SerialPort, TTYPort};
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
-use snakectl::servo::{Register, ServoError, SyncReadBuf};
-use snakectl_sim::protocol::{self, instruction as ins, BROADCAST_ID};
+use snakectl::servo::wire::Adapter;
+use snakectl::servo::{Register, ServoBus, ServoError, SyncReadBuf};
+use snakectl_sim::protocol::{self, instruction as ins, FastBlock, BROADCAST_ID};
 
 /// The e-manual's Fast Sync Read example: Present Position of servos 3, 7, 4.
 const INSTRUCTION: [u8; 17] = [
@@ -104,6 +108,49 @@ fn a_servo_silent_after_the_break_is_named_by_its_timeout() {
         out.get(1)
     );
     assert_eq!(position(&out, 2), Some(1023));
+}
+
+/// An FTDI chip hands a reply's full USB packets on as they fill and holds the last partial
+/// one for its latency timer: the chain here sends the first block, then, after a pause longer
+/// than a bare chain's [`FAST_STALL`](snakectl::servo::dynamixel::FAST_STALL) but well inside
+/// the 16 ms timer the bus was told of, the rest. The read keeps every block and sends nothing
+/// more (before the bus heeded its adapter, it gave up at the pause and asked servos 7 and 4
+/// again with a Sync Read, which nobody answers here).
+#[test]
+fn a_reply_held_by_the_adapter_s_latency_timer_is_waited_for_not_asked_again() {
+    let (mut master, _slave, path) = pair();
+    let mut bus =
+        DynamixelBus::open_with_sysfs(&path, 1_000_000, &Sysfs::new("/nonexistent")).unwrap();
+    assert_eq!(bus.adapters(), [None]);
+    let ftdi = Adapter::ftdi(Duration::from_millis(16));
+    bus.assume_adapter(ftdi);
+    assert_eq!(bus.adapters(), [Some(ftdi)]);
+    let blocks: Vec<FastBlock> = [(3u8, 166u32), (7, 2079), (4, 1023)]
+        .iter()
+        .map(|&(id, value)| FastBlock {
+            error: 0,
+            id,
+            data: value.to_le_bytes().to_vec(),
+        })
+        .collect();
+    let reply = protocol::encode_fast_status(3, 4, &blocks);
+    assert_eq!(reply[..FIRST_BLOCK.len()], FIRST_BLOCK);
+    let chain = std::thread::spawn(move || {
+        assert_eq!(sent(&mut master, INSTRUCTION.len()), INSTRUCTION);
+        master.write_all(&FIRST_BLOCK).unwrap();
+        std::thread::sleep(Duration::from_millis(6));
+        master.write_all(&reply[FIRST_BLOCK.len()..]).unwrap();
+        master
+    });
+    let mut out = SyncReadBuf::new();
+    bus.fast_sync_read_into(&[3, 7, 4], 132, 4, Duration::from_millis(100), &mut out)
+        .unwrap();
+    let master = chain.join().unwrap();
+    assert_eq!(
+        (0..3).map(|i| position(&out, i)).collect::<Vec<_>>(),
+        [Some(166), Some(2079), Some(1023)]
+    );
+    assert_eq!(master.bytes_to_read().unwrap(), 0, "the bus asked again");
 }
 
 /// A Sync Read of Present Position from servos 3, 7 and 4 whose replies come as `first` (what

@@ -320,12 +320,7 @@ impl Config {
                 .1
             }
         };
-        let modelled = self
-            .sim
-            .as_ref()
-            .and_then(|s| s.ftdi_latency)
-            .filter(|_| bus.kind == BusKind::Sim)
-            .map(Adapter::ftdi);
+        let modelled = self.modelled_adapter();
         let return_delay = Duration::from_micros(u64::from(arm.settings().return_delay_us));
         bus.ports
             .iter()
@@ -343,6 +338,18 @@ impl Config {
                 adapter: found.get(k).copied().flatten().or(modelled),
             })
             .collect()
+    }
+
+    /// The adapter a simulated bus's replies come through: the FTDI model when `[bus] kind =
+    /// "sim"` and `[sim] adapter = "ftdi"` (`None` otherwise). What the wire bound counts for a
+    /// port that told no adapter of its own, and what such a port is taken to be behind
+    /// ([`crate::servo::dynamixel::DynamixelBus::assume_adapter`]).
+    pub fn modelled_adapter(&self) -> Option<Adapter> {
+        self.sim
+            .as_ref()
+            .and_then(|s| s.ftdi_latency)
+            .filter(|_| self.bus.as_ref().is_some_and(|b| b.kind == BusKind::Sim))
+            .map(Adapter::ftdi)
     }
 
     /// The simulator settings, if the file has a `[sim]` table.

@@ -29,6 +29,13 @@
 //! frees its lock, and call [`reopen`] on [`port_path`] (the same path
 //! [`open`] used: for the in-process simulator its link) until it succeeds, then bring the arm
 //! up again (the servos kept their state, but their watchdogs may have fired meanwhile).
+//!
+//! # A simulated adapter
+//!
+//! A pseudo-terminal tells no latency timer, so a simulated bus with `[sim] adapter = "ftdi"`
+//! is opened as behind the adapter it models ([`Config::modelled_adapter`],
+//! [`DynamixelBus::assume_adapter`]): its reads then wait out the timer the simulator holds the
+//! replies for, as they do behind a real FTDI chip whose timer could not be lowered.
 
 pub mod sim;
 
@@ -42,6 +49,7 @@ use crate::servo::arm::Arm;
 use crate::servo::dynamixel::DynamixelBus;
 use crate::servo::limits::{LimitPolicy, Limited};
 use crate::servo::ports::Ports;
+use crate::servo::wire::Adapter;
 use crate::servo::ServoError;
 
 pub use sim::{sim_config, sim_configs, SimBusError};
@@ -190,7 +198,8 @@ pub fn open(config: &Config, options: Options) -> Result<Connection, ConnectErro
     let port = port_path(config, &options, sim.as_ref()).ok_or_else(|| ConnectError::NoBus {
         path: config.path().to_path_buf(),
     })?;
-    let bus = reopen(&port, bus_config.baud, &arm, options.strategy)?;
+    let adapter = config.modelled_adapter();
+    let bus = reopen(&port, bus_config.baud, adapter, &arm, options.strategy)?;
     Ok(Connection { bus, arm, sim })
 }
 
@@ -207,17 +216,27 @@ pub fn port_path(config: &Config, options: &Options, sim: Option<&SimHandle>) ->
     }
 }
 
-/// Open `port` at `baud` and limit it to `arm`'s joint limits with `strategy`, as [`open`]
-/// does: how a caller gets its bus back after the port vanished (call it on [`port_path`],
-/// retrying while it fails with [`ConnectError::Open`], or [`ConnectError::InUse`] while
-/// another program has it).
+/// Open `port` at `baud`, behind `adapter` where the port tells none
+/// ([`Config::modelled_adapter`]), and limit it to `arm`'s joint limits with `strategy`, as
+/// [`open`] does: how a caller gets its bus back after the port vanished (call it on
+/// [`port_path`], retrying while it fails with [`ConnectError::Open`], or
+/// [`ConnectError::InUse`] while another program has it).
 pub fn reopen(
     port: &Path,
     baud: u32,
+    adapter: Option<Adapter>,
     arm: &Arm,
     strategy: LimitPolicy,
 ) -> Result<Limited<DynamixelBus>, ConnectError> {
-    Ok(arm.limited(open_port(port, baud)?, strategy))
+    Ok(arm.limited(behind(open_port(port, baud)?, adapter), strategy))
+}
+
+/// `bus`, taken to be behind `adapter` (if any) where its port told none.
+fn behind(mut bus: DynamixelBus, adapter: Option<Adapter>) -> DynamixelBus {
+    if let Some(a) = adapter {
+        bus.assume_adapter(a);
+    }
+    bus
 }
 
 /// The whole arm opened, on every port of `[bus]`: one bus of [`Ports`], limited to the
@@ -320,7 +339,8 @@ pub fn open_arm(config: &Config, options: Options) -> Result<ArmConnection, Conn
         .into_iter()
         .zip(bus_config.ports.iter().map(|p| p.ids.clone()))
         .collect();
-    let bus = reopen_arm(&ports, bus_config.baud, &arm, options.strategy)?;
+    let adapter = config.modelled_adapter();
+    let bus = reopen_arm(&ports, bus_config.baud, adapter, &arm, options.strategy)?;
     Ok(ArmConnection {
         bus,
         arm,
@@ -329,18 +349,20 @@ pub fn open_arm(config: &Config, options: Options) -> Result<ArmConnection, Conn
     })
 }
 
-/// Open every port of `ports` (path and servo ids) at `baud` as one bus, limited to `arm`'s
-/// joint limits with `strategy`: [`open_arm`]'s bus (a port that fails later is opened again
-/// alone, [`Ports::reopen_failed`] with [`open_port_of_several`]).
+/// Open every port of `ports` (path and servo ids) at `baud` as one bus, each behind `adapter`
+/// where it tells none ([`Config::modelled_adapter`]), limited to `arm`'s joint limits with
+/// `strategy`: [`open_arm`]'s bus (a port that fails later is opened again alone,
+/// [`Ports::reopen_failed`] with [`open_port_of_several`]).
 pub fn reopen_arm(
     ports: &[(PathBuf, Vec<u8>)],
     baud: u32,
+    adapter: Option<Adapter>,
     arm: &Arm,
     strategy: LimitPolicy,
 ) -> Result<Limited<Ports<DynamixelBus>>, ConnectError> {
     let mut buses = Vec::with_capacity(ports.len());
     for (path, ids) in ports {
-        let bus = open_port_of_several(path, baud)?;
+        let bus = open_port_of_several(path, baud, adapter)?;
         buses.push((path.display().to_string(), bus, ids.clone()));
     }
     let bus = Ports::new(buses).map_err(|source| ConnectError::Open { source })?;
@@ -349,9 +371,13 @@ pub fn reopen_arm(
 
 /// Open one port of a bus of several, as [`reopen_arm`] does (its failure names the port): how
 /// a port that failed is opened again while the others stay open
-/// ([`Ports::reopen_failed`]).
-pub fn open_port_of_several(path: &Path, baud: u32) -> Result<DynamixelBus, ConnectError> {
-    open_port(path, baud).map_err(|e| match e {
+/// ([`Ports::reopen_failed`]), behind `adapter` as before.
+pub fn open_port_of_several(
+    path: &Path,
+    baud: u32,
+    adapter: Option<Adapter>,
+) -> Result<DynamixelBus, ConnectError> {
+    let bus = open_port(path, baud).map_err(|e| match e {
         ConnectError::Open { source } => ConnectError::Open {
             source: ServoError::OnPort {
                 port: path.display().to_string(),
@@ -359,7 +385,8 @@ pub fn open_port_of_several(path: &Path, baud: u32) -> Result<DynamixelBus, Conn
             },
         },
         e => e,
-    })
+    })?;
+    Ok(behind(bus, adapter))
 }
 
 /// One simulator per port of `config`'s bus, each serving that port's servos (and the faults

@@ -41,6 +41,7 @@ use dynamixel2::{Bus, WriteError};
 
 use super::lock::PortLock;
 use super::sysfs::{Latency, Sysfs};
+use super::wire::Adapter;
 use super::{
     baud_index, Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, SyncReadBuf, Value,
     BROADCAST_ID, MAX_ID,
@@ -65,8 +66,20 @@ pub const BROADCAST_PING_SLOT: Duration = Duration::from_millis(3);
 /// How long a Fast Sync Read reply may pause (beyond the wire time of what is missing) before
 /// the chain is taken to have broken there: a chain sends its blocks back to back, and a USB
 /// adapter with its latency timer at 1 ms passes bytes on at least every millisecond (behind a
-/// latency timer that could not be lowered, the pause allowed is that timer plus 1 ms).
+/// longer latency timer, one that could not be lowered or a simulated adapter's, the pause
+/// allowed is that timer plus 1 ms).
 pub const FAST_STALL: Duration = Duration::from_millis(2);
+/// How long a Fast Sync Read reply behind `adapter` may pause before the chain is taken to have
+/// broken: [`FAST_STALL`], or the adapter's latency timer and 1 ms where that is longer. An
+/// FTDI chip sends the reply's full USB packets as they fill and holds the last partial one
+/// until its timer runs out, up to a whole timer after the packet before: behind the chip's
+/// default 16 ms, a pause of 2 ms would give up on every reply of more than one packet.
+fn stall_behind(adapter: Option<Adapter>) -> Duration {
+    adapter.map_or(FAST_STALL, |a| {
+        FAST_STALL.max(a.latency + Duration::from_millis(1))
+    })
+}
+
 /// How long before a Fast Sync Read reply is expected whole its read stops sleeping on a timer
 /// and waits on the port. A thread blocked on the port for milliseconds lets its core idle
 /// deeply, and on a virtual machine the wake-up when the bytes come can take a few hundred
@@ -100,10 +113,13 @@ pub struct DynamixelBus {
     baud: u32,
     port: PathBuf,
     latency: Latency,
+    /// The adapter the port is taken to be behind where it told none when it opened (a
+    /// simulator's FTDI model on a pseudo-terminal; see [`DynamixelBus::assume_adapter`]).
+    assumed: Option<Adapter>,
     /// What [`ServoBus::sync_read_into`] sends.
     read_kind: ReadKind,
     /// How long a Fast Sync Read reply may pause before the chain is taken to have broken:
-    /// [`FAST_STALL`], or longer behind an FTDI latency timer that could not be lowered.
+    /// [`FAST_STALL`], or longer behind a longer latency timer ([`stall_behind`]).
     stall: Duration,
     /// The bytes of a Fast Sync Read reply, reused from read to read.
     fast: Vec<u8>,
@@ -273,18 +289,13 @@ impl DynamixelBus {
             }
             Latency::NotApplicable | Latency::Low => {}
         }
-        // An adapter holds received bytes up to its latency timer: a reply may pause that long.
-        let stall = match &latency {
-            Latency::TooHigh { ms, .. } => {
-                FAST_STALL.max(Duration::from_millis(u64::from(*ms) + 1))
-            }
-            _ => FAST_STALL,
-        };
+        let stall = stall_behind(latency.adapter());
         Ok(Self {
             open: Some(Open { bus, raw, lock }),
             baud,
             port,
             latency,
+            assumed: None,
             read_kind: ReadKind::Sync,
             stall,
             fast: Vec::with_capacity(READ_BUFFER),
@@ -297,6 +308,22 @@ impl DynamixelBus {
     /// What was found (and done) about the port's FTDI latency timer when it was opened.
     pub fn latency(&self) -> &Latency {
         &self.latency
+    }
+
+    /// Takes the port to be behind `adapter` where it told none when it opened: a simulator's
+    /// FTDI model (`[sim] adapter = "ftdi"`) on a pseudo-terminal, which holds the replies as
+    /// the chip would but has no latency timer in sysfs. A Fast Sync Read reply then may pause
+    /// for the adapter's timer and 1 ms without being taken for a chain that broke (see
+    /// [`FAST_STALL`]), and [`ServoBus::adapters`] names it. A latency timer the port told wins.
+    pub fn assume_adapter(&mut self, adapter: Adapter) {
+        self.assumed = Some(adapter);
+        self.stall = stall_behind(self.adapter());
+    }
+
+    /// The adapter the port is behind: the latency timer it told when it opened, else the one
+    /// it was taken to be behind.
+    fn adapter(&self) -> Option<Adapter> {
+        self.latency.adapter().or(self.assumed)
     }
 
     /// The serial port's path.
@@ -1265,8 +1292,8 @@ impl ServoBus for DynamixelBus {
         self.read_kind
     }
 
-    fn adapters(&self) -> Vec<Option<super::wire::Adapter>> {
-        vec![self.latency.adapter()]
+    fn adapters(&self) -> Vec<Option<Adapter>> {
+        vec![self.adapter()]
     }
 
     fn set_read_kind(&mut self, kind: ReadKind) -> Result<(), ServoError> {
@@ -1672,6 +1699,23 @@ mod tests {
         assert!(matches!(state, FastState::Complete), "{state:?}");
         assert_eq!(out.get(0).map(|(_, alert)| alert).ok(), Some(true));
         assert_eq!(position(&out, 0), Some(166));
+    }
+
+    #[test]
+    fn a_fast_reply_may_pause_for_the_latency_timer_of_the_adapter_it_is_behind() {
+        let ms = Duration::from_millis;
+        assert_eq!(stall_behind(None), FAST_STALL);
+        assert_eq!(stall_behind(Some(Adapter::FTDI_1MS)), FAST_STALL);
+        // The chip's default timer holds a reply's last partial packet up to 16 ms after the
+        // packet before: a pause of 2 ms gave up on every reply of more than one packet.
+        assert_eq!(stall_behind(Some(Adapter::ftdi(ms(16)))), ms(17));
+        // A timer the port told when it opened, as one it was taken to be behind.
+        let too_high = Latency::TooHigh {
+            ms: 16,
+            command: String::new(),
+            error: String::new(),
+        };
+        assert_eq!(stall_behind(too_high.adapter()), ms(17));
     }
 
     #[test]

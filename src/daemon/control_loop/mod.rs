@@ -194,12 +194,13 @@ fn open(
         Vec::new()
     };
     let baud = bus.baud();
+    let adapter = config.modelled_adapter();
     let config_path = config.path().to_path_buf();
     // Only the ports that failed: the others stay open and locked, their servos reachable.
     let opener: Opener<Ports<DynamixelBus>> = Box::new(
         move |_: &Arm, bus: &mut Limited<Ports<DynamixelBus>>| -> Result<(), ReopenError> {
             bus.reopen_failed(|k| match ports.get(k) {
-                Some((path, _)) => connect::open_port_of_several(path, baud),
+                Some((path, _)) => connect::open_port_of_several(path, baud, adapter),
                 None => Err(connect::ConnectError::NoBus {
                     path: config_path.clone(),
                 }),
