@@ -249,6 +249,35 @@ fn a_caught_goto_says_which_reach_gets_round_and_it_does() {
     assert!(dist(tip, [-0.6656, 0.4673]) < 1e-6, "tip {tip:?}");
 }
 
+/// `world add` of an obstacle onto the arm is done (exit 0) and says on stderr that the arm is
+/// not clear of it, naming the link; one off the arm says nothing more.
+#[test]
+fn world_add_onto_the_arm_notes_the_link_it_is_on() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[]));
+    let run = at(
+        &d,
+        &["world", "add", "far", "--circle", "2.0", "2.0", "0.05"],
+    );
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert_eq!(run.stderr, "", "{:?}", run.stderr);
+    let tip = xy(&d.client().status()["tip"]);
+    let (x, y) = (tip[0].to_string(), tip[1].to_string());
+    let run = at(&d, &["world", "add", "onto", "--circle", &x, &y, "0.01"]);
+    assert_eq!(run.code, 0, "stderr {:?}", run.stderr);
+    assert!(
+        run.stdout.starts_with("ok: added obstacle"),
+        "{:?}",
+        run.stdout
+    );
+    assert!(
+        run.stderr
+            .contains("not clear of the new world: link 12 is inside obstacle \"onto\""),
+        "{:?}",
+        run.stderr
+    );
+}
+
 #[test]
 fn goto_no_wait_returns_while_the_arm_moves() {
     let _one = one_at_a_time();

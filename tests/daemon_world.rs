@@ -213,9 +213,14 @@ fn an_obstacle_put_onto_the_arm_is_told_to_everyone_and_the_arm_holds() {
     let mid = (p[4] + p[5]) / 2.0;
     let onto = circle("onto", [mid.x, mid.y], 0.01);
     let id = a.send(json!({"cmd": "set_world", "obstacles": [far_post(), onto]}));
-    assert_eq!(a.reply(&json!(id))["ok"], json!(true));
+    let reply = a.reply(&json!(id));
+    assert_eq!(reply["ok"], json!(true));
 
     let told = b.event("not_clear", None);
+    // The sender's reply says it too, as the event does.
+    for field in ["link", "obstacle", "clearance_m", "keep_m"] {
+        assert_eq!(reply["not_clear"][field], told[field], "{reply} {told}");
+    }
     assert_eq!(told["link"], json!(5), "{told}");
     assert_eq!(told["obstacle"], json!("onto"), "{told}");
     let depth = told["clearance_m"].as_f64().unwrap();

@@ -21,7 +21,9 @@ use serde_json::Value;
 use snakectl::chain::Vec2;
 use snakectl::client::{Client, ClientError, WorldInfo};
 use snakectl::config::{world_field, world_problem};
-use snakectl::protocol::{parse_obstacles, strict_json, world_rejection, Cmd, Code, Wire};
+use snakectl::protocol::{
+    parse_obstacles, strict_json, world_rejection, Cmd, Code, Reply, Wire, WorldChanged,
+};
 use snakectl::world::{CheckedObstacle, Obstacle, Obstacles, Shape, World};
 
 use super::client::{connect, refused, ConnectArgs};
@@ -296,11 +298,27 @@ fn add(args: AddArgs, connect_args: &ConnectArgs) -> Result<(), Failure> {
     send(connect_args, &Cmd::AddObstacle { obstacle }, &done)
 }
 
-/// Sends `cmd`, prints `ok: DONE at tick N`.
+/// Sends `cmd`, prints `ok: DONE at tick N`; a note on stderr when the new world leaves the
+/// arm's pose not clear (the change stands: the arm holds).
 fn send(connect_args: &ConnectArgs, cmd: &Cmd, done: &str) -> Result<(), Failure> {
     let mut client = connect(connect_args)?;
     let fields = client.request(cmd).map_err(refused)?;
-    outln!("ok: {done} at tick {}", fields.reply.tick().unwrap_or(0))
+    outln!("ok: {done} at tick {}", fields.reply.tick().unwrap_or(0))?;
+    if let Reply::WorldChanged(WorldChanged {
+        not_clear: Some(nc),
+        ..
+    }) = &fields.reply
+    {
+        eprintln!(
+            "snakectl: note: the arm is not clear of the new world: link {} is {} (the \
+             clearance to keep is {} m); it holds, and moves only where no link's clearance \
+             shrinks",
+            nc.link,
+            snakectl::world::standing(nc.clearance_m, &nc.obstacle),
+            nc.keep_m
+        );
+    }
+    Ok(())
 }
 
 /// What a file says: the obstacles, and the link radius and clearance when it gives them.

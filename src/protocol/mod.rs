@@ -36,8 +36,8 @@ pub use event::{Event, EventKind, FaultChange, StopReason, What};
 pub use parse::{checked_point, parse, parse_obstacles, strict_json, MAX_PATH_POINTS};
 pub use read::{read_line, ReadError, ServerLine};
 pub use reply::{
-    Admitted, Answer, Applied, Fields, Rebooted, Released, Reply, ReplyLine, Subscribed,
-    TookControl, TorqueOff, Unconfirmed, Unsubscribed,
+    Admitted, Answer, Applied, Fields, PoseNotClear, Rebooted, Released, Reply, ReplyLine,
+    Subscribed, TookControl, TorqueOff, Unconfirmed, Unsubscribed, WorldChanged,
 };
 pub use telemetry::{
     CommandInfo, Counters, Describe, FaultInfo, FaultKind, LoadUnit, Outcome, State, Status,

@@ -87,6 +87,31 @@ impl fmt::Display for Unconfirmed {
     }
 }
 
+/// `set_world`, `add_obstacle`, `remove_obstacle`: the tick, and, when the new world leaves
+/// the arm's pose not clear (an obstacle put onto it), the link of least clearance (as the
+/// `not_clear` event tells everyone).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorldChanged {
+    /// The tick.
+    pub tick: u64,
+    /// The pose is not clear of the new world; absent when it is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_clear: Option<PoseNotClear>,
+}
+
+/// The link of least clearance of a pose not clear.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoseNotClear {
+    /// The link, from 1 at the base.
+    pub link: usize,
+    /// The obstacle's id.
+    pub obstacle: String,
+    /// The link's clearance, m (negative: inside, by that depth).
+    pub clearance_m: f64,
+    /// The clearance to keep, m.
+    pub keep_m: f64,
+}
+
 /// `reboot`: the tick, and the servos rebooted.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Rebooted {
@@ -120,6 +145,8 @@ pub enum Reply {
     Rebooted(Rebooted),
     /// `estop`, `torque`.
     TorqueOff(TorqueOff),
+    /// `set_world`, `add_obstacle`, `remove_obstacle`.
+    WorldChanged(WorldChanged),
     /// `world`.
     World(Box<WorldInfo>),
 }
@@ -142,6 +169,9 @@ impl Reply {
             CmdName::Reboot => Reply::Rebooted(from(fields)?),
             CmdName::World => Reply::World(Box::new(from(fields)?)),
             CmdName::Estop | CmdName::Torque => Reply::TorqueOff(from(fields)?),
+            CmdName::SetWorld | CmdName::AddObstacle | CmdName::RemoveObstacle => {
+                Reply::WorldChanged(from(fields)?)
+            }
             CmdName::Goto
             | CmdName::GotoJoints
             | CmdName::Reach
@@ -152,10 +182,7 @@ impl Reply {
             | CmdName::Reset
             | CmdName::Home
             | CmdName::Strategy
-            | CmdName::ResetStats
-            | CmdName::SetWorld
-            | CmdName::AddObstacle
-            | CmdName::RemoveObstacle => Reply::Applied(from(fields)?),
+            | CmdName::ResetStats => Reply::Applied(from(fields)?),
         })
     }
 
@@ -164,7 +191,8 @@ impl Reply {
         match self {
             Reply::Applied(Applied { tick })
             | Reply::Rebooted(Rebooted { tick, .. })
-            | Reply::TorqueOff(TorqueOff { tick, .. }) => Some(*tick),
+            | Reply::TorqueOff(TorqueOff { tick, .. })
+            | Reply::WorldChanged(WorldChanged { tick, .. }) => Some(*tick),
             Reply::Status(status) => Some(status.tick),
             Reply::Describe(_)
             | Reply::Subscribed(_)
@@ -189,6 +217,7 @@ impl Reply {
             | Reply::Applied(_)
             | Reply::Rebooted(_)
             | Reply::TorqueOff(_)
+            | Reply::WorldChanged(_)
             | Reply::World(_) => None,
         }
     }

@@ -145,10 +145,18 @@ fn reply_to(name: CmdName) -> Reply {
         | CmdName::Reset
         | CmdName::Home
         | CmdName::Strategy
-        | CmdName::ResetStats
-        | CmdName::SetWorld
-        | CmdName::AddObstacle
-        | CmdName::RemoveObstacle => Reply::Applied(Applied { tick: 61 }),
+        | CmdName::ResetStats => Reply::Applied(Applied { tick: 61 }),
+        CmdName::SetWorld | CmdName::AddObstacle | CmdName::RemoveObstacle => {
+            Reply::WorldChanged(WorldChanged {
+                tick: 63,
+                not_clear: Some(PoseNotClear {
+                    link: 4,
+                    obstacle: "post".into(),
+                    clearance_m: -0.0125,
+                    keep_m: 0.017,
+                }),
+            })
+        }
     }
 }
 

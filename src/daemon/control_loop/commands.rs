@@ -10,8 +10,9 @@ use tokio::sync::oneshot;
 use crate::chain::Vec2;
 use crate::control::{self, Accepted, Activity, NotStarted, PlanRequest, Refused};
 use crate::protocol::{
-    world_rejection, Answer, Applied, ClientId, CmdName, Code, LoopCmd, Motion, Rebooted,
-    Rejection, Reply, RequestId, Status, StopReason, TorqueOff, Unconfirmed, What, WorldInfo,
+    world_rejection, Answer, Applied, ClientId, CmdName, Code, LoopCmd, Motion, PoseNotClear,
+    Rebooted, Rejection, Reply, RequestId, Status, StopReason, TorqueOff, Unconfirmed, What,
+    WorldChanged, WorldInfo,
 };
 use crate::reach::ReachError;
 use crate::servo::arm::{self, BringUpOptions, OnExit};
@@ -371,8 +372,18 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         );
         let by = e.client;
         self.event(None, e.id.clone(), |_| What::World { by, world: info });
+        let told = not_clear.as_ref().map(|nc| PoseNotClear {
+            link: nc.link,
+            obstacle: nc.obstacle.clone(),
+            clearance_m: nc.clearance_m,
+            keep_m: nc.keep_m,
+        });
         self.look_clear_after(e.id.clone(), not_clear);
-        self.ok()
+        Pending::Ready(Ok(Reply::WorldChanged(WorldChanged {
+            tick: self.tick,
+            not_clear: told,
+        })
+        .into()))
     }
 
     /// A command accepted by the controller becomes the active one (a velocity, or the same
