@@ -733,3 +733,232 @@ fn the_view_and_the_recorder_run_below_the_loop() {
     threads_at(&["snakectl-loop"], &["snakectl-record", "snakectl-foxglo"]);
     daemon.stop().unwrap();
 }
+
+/// A token file holding `correct horse` in `dir`, and the `[server]` lines that ask for it.
+fn token_lines(dir: &tempfile::TempDir) -> String {
+    let file = dir.path().join("token");
+    std::fs::write(&file, "correct horse\n").unwrap();
+    format!(
+        "max_clients = 4\ntoken_file = {:?}\n",
+        file.to_str().unwrap()
+    )
+}
+
+/// `snakectl run` in `dir` on `config` (its simulator started here, returned to outlive it),
+/// with more `args`.
+fn spawn_daemon(
+    dir: &tempfile::TempDir,
+    config: &Config,
+    args: &[&std::ffi::OsStr],
+) -> (snakectl_sim::SimHandle, DaemonChild) {
+    let path = dir.path().join("arm.toml");
+    std::fs::write(&path, config.text()).unwrap();
+    let sim =
+        snakectl::connect::spawn_sim(config, std::sync::Arc::new(snakectl_sim::RealClock)).unwrap();
+    let daemon = DaemonChild::spawn_with(&path, sim.path(), args);
+    (sim, daemon)
+}
+
+/// The TCP ports process `pid` listens on: its sockets (`/proc/PID/fd`) in the state LISTEN in
+/// `/proc/PID/net/tcp` and `tcp6`.
+#[cfg(target_os = "linux")]
+fn listening_ports(pid: u32) -> std::collections::BTreeSet<u16> {
+    let inodes: std::collections::BTreeSet<String> = std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .unwrap()
+        .filter_map(|entry| std::fs::read_link(entry.ok()?.path()).ok())
+        .filter_map(|link| {
+            let link = link.to_string_lossy().into_owned();
+            let inode = link.strip_prefix("socket:[")?.strip_suffix(']')?;
+            Some(inode.to_owned())
+        })
+        .collect();
+    let mut ports = std::collections::BTreeSet::new();
+    for table in ["tcp", "tcp6"] {
+        let text = std::fs::read_to_string(format!("/proc/{pid}/net/{table}")).unwrap();
+        for line in text.lines().skip(1) {
+            let fields: Vec<&str> = line.split_whitespace().collect();
+            // local_address is fields[1] (ADDR:PORT, hex), st fields[3], inode fields[9].
+            if fields[3] == "0A" && inodes.contains(fields[9]) {
+                let port = fields[1].rsplit(':').next().unwrap();
+                ports.insert(u16::from_str_radix(port, 16).unwrap());
+            }
+        }
+    }
+    ports
+}
+
+/// With a token, nothing reaches the view without it: the daemon listens on the socket's port
+/// and the view's, and on no other (no server of the view on a port of its own, where no token
+/// would be asked for).
+#[cfg(target_os = "linux")]
+#[test]
+fn a_daemon_with_a_token_listens_on_the_socket_and_the_view_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let lines = format!(
+        "{}\n[foxglove]\nlisten = \"127.0.0.1:{port}\"\naccept_commands = true\n",
+        token_lines(&dir)
+    );
+    let config = sim_config(&[("max_clients = 4", &lines)]);
+    let (_sim, mut daemon) = spawn_daemon(&dir, &config, &[]);
+    let socket = daemon.address();
+    daemon
+        .logged("the Foxglove view serves", DEADLINE)
+        .expect("the view serves");
+    // A client in, with the token: the view serves it from the port asked for.
+    let mut fox = Fox::try_url(
+        &format!("ws://127.0.0.1:{port}/?token=correct%20horse"),
+        "foxglove.sdk.v1",
+    )
+    .unwrap();
+    fox.next_op("serverInfo");
+    let ports = listening_ports(daemon.pid());
+    assert_eq!(
+        ports,
+        [socket.port(), port].into_iter().collect(),
+        "the socket is on {}, the view on {port}",
+        socket.port()
+    );
+    drop(fox);
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+}
+
+/// Publishes the JSON text `message` on client channel `id` (advertised already).
+fn publish_raw(fox: &mut Fox, id: u32, message: &str) {
+    let mut frame = vec![1u8];
+    frame.extend_from_slice(&id.to_le_bytes());
+    frame.extend_from_slice(message.as_bytes());
+    fox.send(Message::binary(frame));
+}
+
+/// Lines of `log` that contain every one of `parts`.
+fn lines_with<'a>(log: &'a str, parts: &[&str]) -> Vec<&'a str> {
+    log.lines()
+        .filter(|l| parts.iter().all(|p| l.contains(p)))
+        .collect()
+}
+
+/// A refused Foxglove command is logged once per run of the same refusal on the same topic,
+/// the run's end saying how many more there were; a refusal on another topic, or for another
+/// reason, is logged.
+#[test]
+fn refused_foxglove_commands_are_logged_once_per_run_with_a_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let (_sim, mut daemon) = spawn_daemon(&dir, &config(port, true), &[]);
+    let mut client = daemon_support::Client::connect(daemon.address());
+    client.status();
+    let mut fox = Fox::connect(port);
+    fox.next_op("serverInfo");
+    fox.send_json(json!({"op": "advertise", "channels": [
+        {"id": 1, "topic": "/snakectl/cmd_vel", "encoding": "json",
+         "schemaName": "geometry_msgs/msg/Twist"},
+        {"id": 2, "topic": "/snakectl/goal", "encoding": "json",
+         "schemaName": "geometry_msgs/msg/PointStamped"},
+    ]}));
+    // Not a point on goal, then not a Twist on cmd_vel: both bad_arg, each logged.
+    publish_raw(&mut fox, 2, "{}");
+    let goal = daemon.logged("a Foxglove command was refused", DEADLINE);
+    assert!(
+        goal.as_deref()
+            .is_some_and(|l| l.contains("topic=\"goal\"") && l.contains("bad_arg")),
+        "{goal:?}"
+    );
+    publish_raw(&mut fox, 1, "{}");
+    let cmd_vel = daemon.logged("a Foxglove command was refused", DEADLINE);
+    assert!(
+        cmd_vel
+            .as_deref()
+            .is_some_and(|l| l.contains("topic=\"cmd_vel\"") && l.contains("bad_arg")),
+        "{cmd_vel:?}"
+    );
+    // A Teleop panel publishing during an estop: 25 refusals, one line, and a count.
+    client.ok(json!({"cmd": "estop"}));
+    const TWISTS: usize = 25;
+    for _ in 0..TWISTS {
+        fox.publish_twist([0.01, 0.0]);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // The estop's refusals logged (the first of them), and the socket's round trip after the
+    // view's last command: all of them answered by the loop.
+    daemon
+        .logged("code=\"estopped\"", DEADLINE)
+        .expect("the first refusal logged");
+    client.status();
+    drop(fox);
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+    let refused = lines_with(
+        &log,
+        &["a Foxglove command was refused", "code=\"estopped\""],
+    );
+    assert!(refused.is_empty(), "logged again: {refused:?}");
+    let more = lines_with(&log, &["refused alike", "code=\"estopped\""]);
+    assert_eq!(more.len(), 1, "{log}");
+    assert!(
+        more[0].contains(&format!("count={}", TWISTS - 1)),
+        "{}",
+        more[0]
+    );
+}
+
+/// A client that sends what the view does not take, over and over, is logged once, with the
+/// count, and is still served.
+#[test]
+fn a_client_sending_garbage_is_logged_once_with_a_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let (_sim, mut daemon) = spawn_daemon(&dir, &config(port, false), &[]);
+    daemon_support::Client::connect(daemon.address()).status();
+    let mut fox = Fox::connect(port);
+    fox.next_op("serverInfo");
+    const GARBAGE: usize = 300;
+    for _ in 0..GARBAGE {
+        fox.send(Message::binary(&b"\xff garbage"[..]));
+        fox.send(Message::text("garbage"));
+    }
+    // Told once, with a status message.
+    let status = fox.next_op("status");
+    assert_eq!(status["level"], 2, "{status}");
+    // Still served: what it sent after the garbage is taken.
+    fox.advertised(&["/snakectl/joint_states"]);
+    fox.subscribe(&["/snakectl/joint_states"]);
+    assert_eq!(fox.data().subscription, 1);
+    drop(fox);
+    let line = daemon
+        .logged("messages the view does not take", DEADLINE)
+        .expect("the client's garbage logged when it left");
+    assert!(line.contains(&format!("count={}", 2 * GARBAGE)), "{line}");
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+    let errors = lines_with(&log, &["ERROR"]);
+    assert!(errors.is_empty(), "{errors:?}");
+    assert!(lines_with(&log, &["does not take"]).is_empty(), "{log}");
+}
+
+/// What is not a `Twist` on cmd_vel (no `linear` object) is refused, and does not take control
+/// from a socket client's running goto.
+#[test]
+fn json_that_is_not_a_twist_on_cmd_vel_does_not_preempt_a_goto() {
+    let (daemon, port) = start_daemon(true);
+    let mut client = daemon.client();
+    let start = xy(&client.status()["tip_meas"]);
+    let target = [start[0] - 0.05, start[1]];
+    client.ok(json!({"cmd": "goto", "target": target, "speed": 0.05}));
+    let mut fox = Fox::connect(port);
+    fox.next_op("serverInfo");
+    fox.advertise_twist("/snakectl/cmd_vel");
+    for message in ["[]", "{}", r#"{"data":"hi"}"#, r#"{"linear":[0.1,0]}"#] {
+        publish_raw(&mut fox, 1, message);
+    }
+    let s = client.wait_status("arrived", |s| s["command"]["outcome"] != "active");
+    assert_eq!(s["command"]["kind"], "goto", "{s}");
+    assert_eq!(s["command"]["outcome"], "arrived", "{s}");
+    assert!(dist(xy(&s["tip"]), target) < 1e-6, "{s}");
+    drop(fox);
+    daemon.stop().unwrap();
+}

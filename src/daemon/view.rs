@@ -1,54 +1,50 @@
-//! The live Foxglove view: a Foxglove WebSocket server (the `foxglove` crate) on a thread of
-//! its own, publishing the channels of [`crate::view`] from what the loop publishes.
+//! The live Foxglove view: the Foxglove WebSocket protocol served on `[foxglove] listen`, on a
+//! thread of its own, publishing the channels of [`crate::view`] from what the loop publishes.
 //!
-//! [`View::open`] binds the server before anything moves (a taken port stops start-up);
-//! [`View::start`] hands it a [`Door`]; [`View::stop`] closes it (a client that does not take
-//! its close within [`FLUSH_GRACE`] is cut off). Its thread runs its own runtime and never
-//! holds the loop up: at `publish_hz`, right after the loop's next tick
-//! ends (in the idle rest of its period, not across a tick), it clones the latest telemetry
-//! from the loop's `watch` (latest wins: a skipped sample is never queued) and sends the joints,
-//! the tips, the target, the telemetry line and the whole scene again (so a client that joins
-//! late sees the arm at rest); events come from the loop's broadcast, and what it misses
-//! when behind is counted ([`View::stop`] logs the count). What waits for a Foxglove client
-//! that stalls is bounded and its oldest message data dropped: in the gate's outbox for the
-//! client (`relay`), which reads the server as fast as it writes, and in the server's own
-//! queue for it.
+//! [`View::open`] binds the address before anything moves (a taken port stops start-up);
+//! [`View::start`] hands the view a [`Door`]; [`View::stop`] closes it (a client that does not
+//! take its close within [`FLUSH_GRACE`] is cut off). Its thread runs its own runtime and never
+//! holds the loop up: at `publish_hz`, right after the loop's next tick ends (in the idle rest
+//! of its period, not across a tick), it clones the latest telemetry from the loop's `watch`
+//! (latest wins: a skipped sample is never queued) and sends the joints, the tips, the target,
+//! the telemetry line and the whole scene again (so a client that joins late sees the arm at
+//! rest); events come from the loop's broadcast, and what it misses when behind is counted
+//! ([`View::stop`] logs the count).
+//!
+//! The `foxglove` crate gives the channels, their schemas and the messages' encodings, on a
+//! [`Context`] of the view's own; the protocol's server side is the daemon's (`gate`, `hub`),
+//! so that the address asked for is the only way in: no other socket listens. There a client is
+//! let in while fewer than `[foxglove] max_clients` are connected (the next gets `503`), and,
+//! with a `[server]` token, only when the URL it opens carries `?token=<token>` (`401`
+//! otherwise); what waits for it is bounded, its oldest message data dropped (`outbox`).
 //!
 //! With `accept_commands`, the server offers client publishing (`json` and `cdr`): a `Twist`
 //! published on `/<prefix>/cmd_vel` becomes `velocity` (`linear.x`, `linear.y`, m/s), and a
 //! `PointStamped` on `/<prefix>/goal` or `/<prefix>/reach` (the 3-D panel's click, say) a
 //! `goto` or a `reach` to (`point.x`, `point.y`), all through the door: the same arbiter and
 //! bounded queue as a socket client's commands, one controller id for every Foxglove client,
-//! control let go of after the deadman's silence.
+//! control let go of after the deadman's silence. A refused command is logged once per run of
+//! refusals with the same code on the same topic; the run's end says how many more there were.
 //! Without it the server offers no publishing and nothing a Foxglove client sends moves the
 //! arm.
-//!
-//! The address asked for is a gate: the server listens on loopback behind it. A client is let
-//! through while fewer than `[foxglove] max_clients` are connected (the next gets `503` and is
-//! closed at once, its request not waited for), and, with a `[server]` token, only when the URL
-//! it opens carries `?token=<token>` (percent-encoded), checked in constant time before the
-//! handshake; others get `401`. What the server sends a client let through goes through a
-//! bounded outbox in the gate (`relay`), and the gate's socket to the client has a small send
-//! buffer ([`SEND_BUFFER`]): the kernel does not hide megabytes of stale messages.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use foxglove::websocket::{Capability, Client, ClientChannel, ServerListener};
-use foxglove::{Context, PartialMetadata, RawChannel, WebSocketServer};
+use foxglove::{Context, PartialMetadata, RawChannel};
 use serde::de::DeserializeOwned;
-use serde::Deserialize;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{broadcast, mpsc, oneshot, watch, Semaphore};
+use serde_json::Value;
+use tokio::net::TcpListener;
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
 use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
 use super::access::Token;
-use super::relay;
-use super::server::{Door, FLUSH_GRACE, SEND_BUFFER};
+use super::gate::{self, Gate};
+use super::hub::Hub;
+use super::server::{Door, FLUSH_GRACE};
 use super::side::{Side, SideEnds};
 use crate::chain::Chain;
 use crate::config::Config;
@@ -69,14 +65,8 @@ pub const REACH: &str = "reach";
 /// `Twist`'s next one replaces it anyway) and counted.
 const COMMAND_QUEUE: usize = 8;
 
-/// Refusals of Foxglove commands held before they are logged.
-const REFUSAL_QUEUE: usize = 16;
-
-/// Messages each Foxglove client's queue in the server holds before its oldest are dropped
-/// (under two seconds of every channel at the default rate). The gate reads each client's
-/// connection as fast as the server writes, so this queue fills only when the view's thread
-/// itself falls behind; a stalled client's backlog waits in the gate's outbox.
-const CLIENT_BACKLOG: usize = 256;
+/// Answers to Foxglove commands held before they are looked at (for the log of refusals).
+const OUTCOME_QUEUE: usize = 16;
 
 /// Why the view could not start.
 #[derive(Debug, thiserror::Error)]
@@ -174,263 +164,93 @@ impl View {
     }
 }
 
-/// Longest HTTP request head the gate reads before it refuses a client.
-const GATE_HEAD: usize = 8192;
-
-/// How long the gate waits after a failed accept before the next.
-const GATE_RETRY: Duration = Duration::from_millis(100);
-
-/// How long a client has to send its request head through the gate.
-const GATE_WAIT: Duration = Duration::from_secs(5);
-
-/// The address clients connect to, in front of the server. A client beyond `max_clients`
-/// connected at once is answered `503` and closed as soon as it is accepted. Another's request
-/// head is read (within [`GATE_WAIT`]), then it is let through to the server at `inner`, or
-/// answered `401` and closed without `?token=<token>` when a token is asked for.
-async fn gatekeeper(
-    listener: TcpListener,
-    token: Option<Token>,
-    max_clients: u32,
-    inner: SocketAddr,
-) {
-    let seats = Arc::new(Semaphore::new(max_clients as usize));
-    loop {
-        let (client, peer) = match listener.accept().await {
-            Ok(accepted) => accepted,
-            Err(e) => {
-                // Out of descriptors, say: wait before trying again rather than spin.
-                warn!(error = %e, "the Foxglove gate could not accept a client");
-                time::sleep(GATE_RETRY).await;
-                continue;
-            }
-        };
-        // Small: what waits for a client that reads slowly waits in the relay's bounded outbox,
-        // where stale messages are dropped, not in the kernel.
-        if let Err(e) = socket2::SockRef::from(&client).set_send_buffer_size(SEND_BUFFER) {
-            debug!(%peer, error = %e, "SO_SNDBUF not set");
-        }
-        // Taken before the head is read, so that clients that never send one count too.
-        let seat = Arc::clone(&seats).try_acquire_owned().ok();
-        let token = token.clone();
-        tokio::spawn(async move {
-            if let Err(e) = pass(client, peer, seat.is_some(), token.as_ref(), inner).await {
-                debug!(%peer, error = %e, "a Foxglove client turned away");
-            }
-            drop(seat);
-        });
-    }
-}
-
-/// One client through the gate: its request head read and checked, then the bytes both ways.
-/// `seated`: a place among `max_clients` was free for it.
-async fn pass(
-    mut client: TcpStream,
-    peer: SocketAddr,
-    seated: bool,
-    token: Option<&Token>,
-    inner: SocketAddr,
-) -> std::io::Result<()> {
-    if !seated {
-        // Its request is not waited for: a client that is refused anyway holds nothing, not
-        // even its descriptor, while it takes its time to send one.
-        return refuse(
-            client,
-            "503 Service Unavailable",
-            "[foxglove] max_clients are connected already",
-        )
-        .await;
-    }
-    let mut head = Vec::with_capacity(1024);
-    let mut buf = [0u8; 1024];
-    let read_head = async {
-        while !head.windows(4).any(|w| w == b"\r\n\r\n") {
-            if head.len() > GATE_HEAD {
-                return Err(std::io::Error::other("a request head too long"));
-            }
-            let got = client.read(&mut buf).await?;
-            if got == 0 {
-                return Err(std::io::Error::other("closed before its request"));
-            }
-            head.extend_from_slice(&buf[..got]);
-        }
-        Ok(())
-    };
-    time::timeout(GATE_WAIT, read_head)
-        .await
-        .map_err(|_| std::io::Error::other("no request in time"))??;
-    if token.is_some_and(|token| !url_token(&head).is_some_and(|given| token.matches(&given))) {
-        return refuse(client, "401 Unauthorized", "no token, or the wrong one").await;
-    }
-    let mut server = TcpStream::connect(inner).await?;
-    server.write_all(&head).await?;
-    both_ways(client, server, peer).await
-}
-
-/// The bytes both ways between a client let through and the server: the client's as they come,
-/// the server's through [`relay::forward`], which drops the oldest message data for a client
-/// that falls behind rather than queue it.
-async fn both_ways(
-    mut client: TcpStream,
-    mut server: TcpStream,
-    peer: SocketAddr,
-) -> std::io::Result<()> {
-    let (mut client_r, client_w) = client.split();
-    let (server_r, mut server_w) = server.split();
-    let up = async {
-        tokio::io::copy(&mut client_r, &mut server_w).await?;
-        server_w.shutdown().await
-    };
-    let down = relay::forward(server_r, client_w, || {
-        info!(%peer, "a Foxglove client reads slower than the view sends: its oldest messages are dropped");
-    });
-    tokio::pin!(up, down);
-    let mut up_open = true;
-    loop {
-        tokio::select! {
-            sent = &mut up, if up_open => {
-                sent?;
-                up_open = false;
-            }
-            relayed = &mut down => {
-                let dropped = relayed?.dropped;
-                if dropped > 0 {
-                    debug!(%peer, dropped, "a Foxglove client that fell behind left");
-                }
-                return Ok(());
-            }
-        }
-    }
-}
-
-/// Answers `client` `status`, with `why` as the body, and closes; the error says `why`. What the
-/// client has sent already is read first (without waiting for more), so that the close does not
-/// reset the connection under the answer.
-async fn refuse(mut client: TcpStream, status: &str, why: &str) -> std::io::Result<()> {
-    let answer = format!(
-        "HTTP/1.1 {status}\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{why}\n",
-        why.len() + 1
-    );
-    client.write_all(answer.as_bytes()).await?;
-    let mut unread = [0u8; 1024];
-    while matches!(client.try_read(&mut unread), Ok(n) if n > 0) {}
-    Err(std::io::Error::other(why.to_owned()))
-}
-
-/// The `token` of the query of a request head's target (`GET /?token=... HTTP/1.1`),
-/// percent-decoded; `None` without one, or with a broken escape.
-fn url_token(head: &[u8]) -> Option<Vec<u8>> {
-    let line = head.split(|&b| b == b'\r').next()?;
-    let target = line.split(|&b| b == b' ').nth(1)?;
-    let query = target.splitn(2, |&b| b == b'?').nth(1)?;
-    let raw = query
-        .split(|&b| b == b'&')
-        .find_map(|pair| pair.strip_prefix(b"token="))?;
-    let mut out = Vec::with_capacity(raw.len());
-    let mut bytes = raw.iter();
-    while let Some(&b) = bytes.next() {
-        if b == b'%' {
-            let hex = [*bytes.next()?, *bytes.next()?];
-            let hex = std::str::from_utf8(&hex).ok()?;
-            out.push(u8::from_str_radix(hex, 16).ok()?);
-        } else {
-            out.push(b);
-        }
-    }
-    Some(out)
-}
-
-/// A `Twist` as a Foxglove client sends it in JSON; missing fields are 0.
-#[derive(Debug, Default, Deserialize)]
-struct JsonTwist {
-    #[serde(default)]
-    linear: JsonVector,
-}
-
-#[derive(Debug, Default, Deserialize)]
-struct JsonVector {
-    #[serde(default)]
-    x: f64,
-    #[serde(default)]
-    y: f64,
-}
-
-/// A `PointStamped` as a Foxglove client sends it in JSON; only `point.x`, `point.y` are read.
-#[derive(Debug, Deserialize)]
-struct JsonPointStamped {
-    point: JsonVector,
+/// A command a Foxglove client published, or why it is refused, with the topic it came on.
+#[derive(Debug)]
+struct Order {
+    topic: &'static str,
+    cmd: Result<Cmd, Rejection>,
 }
 
 /// Hands what Foxglove clients publish on the command topics to the view's task, never
 /// waiting.
-struct Commands {
+#[derive(Debug)]
+pub(super) struct Commands {
     /// `/<prefix>/`: the command topics' common start.
     prefix: String,
-    tx: mpsc::Sender<Result<Cmd, Rejection>>,
+    tx: mpsc::Sender<Order>,
     dropped: Arc<AtomicU64>,
 }
 
-impl ServerListener for Commands {
-    fn on_message_data(&self, _client: Client, channel: &ClientChannel, payload: &[u8]) {
-        let Some(topic) = channel.topic.strip_prefix(&self.prefix) else {
+impl Commands {
+    /// Takes `payload`, published in `encoding` on `topic`: a command on one of the command
+    /// topics, nothing on another.
+    pub(super) fn take(&self, topic: &str, encoding: &str, payload: &[u8]) {
+        let Some(topic) = topic.strip_prefix(&self.prefix) else {
             return;
         };
-        let encoding = &channel.encoding;
-        let cmd = match topic {
-            CMD_VEL => twist(encoding, payload).map(|v| Cmd::Velocity { v }),
-            GOAL => point(GOAL, encoding, payload).map(|target| Cmd::Goto {
-                target,
-                speed: None,
-            }),
-            REACH => point(REACH, encoding, payload).map(|target| Cmd::Reach { target }),
+        let order = match topic {
+            CMD_VEL => Order {
+                topic: CMD_VEL,
+                cmd: twist(encoding, payload).map(|v| Cmd::Velocity { v }),
+            },
+            GOAL => Order {
+                topic: GOAL,
+                cmd: point(GOAL, encoding, payload).map(|target| Cmd::Goto {
+                    target,
+                    speed: None,
+                }),
+            },
+            REACH => Order {
+                topic: REACH,
+                cmd: point(REACH, encoding, payload).map(|target| Cmd::Reach { target }),
+            },
             _ => return,
         };
-        if self.tx.try_send(cmd).is_err() {
+        if self.tx.try_send(order).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
         }
-    }
-
-    fn on_client_advertise(&self, _client: Client, channel: &ClientChannel) {
-        debug!(topic = %channel.topic, encoding = %channel.encoding, schema = %channel.schema_name, "a Foxglove client advertised");
     }
 }
 
 /// The planar velocity of a `Twist` in `encoding` (`json` or `cdr`): `linear.x`, `linear.y`.
+/// In JSON, `linear` is an object (its missing `x` or `y` is 0).
 fn twist(encoding: &str, payload: &[u8]) -> Result<[f64; 2], Rejection> {
     let v = planar(
         CMD_VEL,
         "geometry_msgs/msg/Twist",
+        "linear",
         encoding,
         payload,
-        |t: JsonTwist| [t.linear.x, t.linear.y],
         |t: ros::Twist| [t.linear.x, t.linear.y],
     )?;
     protocol::checked_point("v", v)
+        .map_err(|e| Rejection::new(e.code, format!("{CMD_VEL} {}", e.message)))
 }
 
 /// The target of a `PointStamped` on `topic` in `encoding` (`json` or `cdr`): `point.x`,
-/// `point.y`, m.
+/// `point.y`, m. In JSON, `point` is an object (its missing `x` or `y` is 0).
 fn point(topic: &str, encoding: &str, payload: &[u8]) -> Result<[f64; 2], Rejection> {
     let p = planar(
         topic,
         "geometry_msgs/msg/PointStamped",
+        "point",
         encoding,
         payload,
-        |p: JsonPointStamped| [p.point.x, p.point.y],
         |p: ros::PointStamped| [p.point.x, p.point.y],
     )?;
     protocol::checked_point("target", p)
         .map_err(|e| Rejection::new(e.code, format!("{topic} {}", e.message)))
 }
 
-/// The two numbers a message of type `schema` on `topic` carries, decoded from `encoding`:
-/// JSON as `J`, CDR as `C`; refused `bad_arg`, naming the topic and the type, when it is not
-/// one.
-fn planar<J: DeserializeOwned, C: DeserializeOwned>(
+/// The two numbers a message of type `schema` on `topic` carries, decoded from `encoding`: in
+/// JSON the `x` and `y` of its object `field`, in CDR as `C`; refused `bad_arg`, naming the
+/// topic and the type, when it is not one.
+fn planar<C: DeserializeOwned>(
     topic: &str,
     schema: &str,
+    field: &str,
     encoding: &str,
     payload: &[u8],
-    from_json: impl FnOnce(J) -> [f64; 2],
     from_cdr: impl FnOnce(C) -> [f64; 2],
 ) -> Result<[f64; 2], Rejection> {
     let bad = |e: &dyn std::fmt::Display| {
@@ -440,15 +260,32 @@ fn planar<J: DeserializeOwned, C: DeserializeOwned>(
         )
     };
     match encoding {
-        "json" => Ok(from_json(
-            serde_json::from_slice(payload).map_err(|e| bad(&e))?,
-        )),
+        "json" => {
+            let message: Value = serde_json::from_slice(payload).map_err(|e| bad(&e))?;
+            json_xy(&message, field).map_err(|e| bad(&e))
+        }
         "cdr" => Ok(from_cdr(ros::decode(payload).map_err(|e| bad(&e))?)),
         other => Err(Rejection::new(
             Code::BadArg,
             format!("{topic} in {other:?}: only json and cdr are taken"),
         )),
     }
+}
+
+/// The `x` and `y` of the object `field` of the JSON object `message`; a missing one is 0.
+fn json_xy(message: &Value, field: &str) -> Result<[f64; 2], String> {
+    let Some(vector) = message.get(field).and_then(Value::as_object) else {
+        return Err(format!("no `{field}` object"));
+    };
+    let mut xy = [0.0; 2];
+    for (slot, axis) in xy.iter_mut().zip(["x", "y"]) {
+        if let Some(v) = vector.get(axis) {
+            *slot = v
+                .as_f64()
+                .ok_or_else(|| format!("`{field}.{axis}` is not a number"))?;
+        }
+    }
+    Ok(xy)
 }
 
 /// Seconds since the Unix epoch now: the stamps of what the view sends.
@@ -480,45 +317,32 @@ fn view_thread(
         let context = Context::new();
         let (commands_tx, commands_rx) = mpsc::channel(COMMAND_QUEUE);
         let dropped = Arc::new(AtomicU64::new(0));
-        // The server listens on loopback, behind the gate on the address asked for.
-        let gate = match TcpListener::bind(settings.listen).await {
+        // The one socket the view listens on: the gate, on the address asked for.
+        let listener = match TcpListener::bind(settings.listen).await {
             Ok(listener) => listener,
             Err(e) => {
                 let _ = opened.send(Err(ViewError::listen(settings.listen, e)));
                 return;
             }
         };
-        let server_addr = SocketAddr::from(([127, 0, 0, 1], 0));
-        let mut server = WebSocketServer::new()
-            .name(settings.prefix.clone())
-            .bind(server_addr.ip().to_string(), server_addr.port())
-            .context(&context)
-            .message_backlog_size(CLIENT_BACKLOG);
-        if settings.accept_commands {
-            server = server
-                .capabilities([Capability::ClientPublish])
-                .supported_encodings(["json", "cdr"])
-                .listener(Arc::new(Commands {
-                    prefix: format!("/{}/", settings.prefix),
-                    tx: commands_tx,
-                    dropped: Arc::clone(&dropped),
-                }));
-        }
-        let handle = match server.start().await {
-            Ok(handle) => handle,
-            Err(e) => {
-                let _ = opened.send(Err(ViewError::listen(settings.listen, e)));
-                return;
-            }
+        let addr = listener.local_addr().unwrap_or(settings.listen);
+        // Every message logged on the context's channels reaches the clients through it.
+        let hub = Arc::new(Hub::new(&settings.prefix, settings.accept_commands));
+        context.add_sink(Arc::clone(&hub) as Arc<dyn foxglove::Sink>);
+        let commands = settings.accept_commands.then(|| {
+            Arc::new(Commands {
+                prefix: format!("/{}/", settings.prefix),
+                tx: commands_tx,
+                dropped: Arc::clone(&dropped),
+            })
+        });
+        let gate = Gate {
+            token: settings.token.clone(),
+            max_clients: settings.max_clients,
+            hub: Arc::clone(&hub),
+            commands,
         };
-        let inner = SocketAddr::new(server_addr.ip(), handle.port());
-        let addr = gate.local_addr().unwrap_or(settings.listen);
-        tokio::spawn(gatekeeper(
-            gate,
-            settings.token.clone(),
-            settings.max_clients,
-            inner,
-        ));
+        let gatekeeper = tokio::spawn(gate::keep(listener, gate));
         let _ = opened.send(Ok(addr));
         let door = tokio::select! {
             door = start => door.ok(),
@@ -546,13 +370,11 @@ fn view_thread(
                 Err(e) => warn!(error = %e, "the Foxglove channels could not be declared"),
             }
         }
-        // Each client is sent its close; one that reads nothing more (its connection full)
-        // would hold the stop, and the daemon's exit with it, for as long as it stays: it is
-        // given the socket's grace, then cut off with the runtime.
-        if time::timeout(FLUSH_GRACE, handle.stop().wait())
-            .await
-            .is_err()
-        {
+        // No one new comes in. Each client is sent its close; one that reads nothing more (its
+        // connection full) would hold the stop, and the daemon's exit with it, for as long as
+        // it stays: it is given the socket's grace, then cut off with the runtime.
+        gatekeeper.abort();
+        if !hub.close(FLUSH_GRACE).await {
             warn!(
                 grace_ms = FLUSH_GRACE.as_millis() as u64,
                 "a Foxglove client did not take its close in time: cut off"
@@ -607,11 +429,7 @@ struct Served<'a> {
 }
 
 impl Served<'_> {
-    async fn run(
-        mut self,
-        mut commands: mpsc::Receiver<Result<Cmd, Rejection>>,
-        stop: &mut oneshot::Receiver<()>,
-    ) {
+    async fn run(mut self, mut commands: mpsc::Receiver<Order>, stop: &mut oneshot::Receiver<()>) {
         let mut ticker = time::interval(self.settings.publish_period);
         ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
         let mut telemetry = self.door.telemetry();
@@ -619,8 +437,8 @@ impl Served<'_> {
         let mut events = self.door.events();
         let mut events_open = true;
         let mut last_command: Option<time::Instant> = None;
-        let mut last_refusal: Option<Code> = None;
-        let (refusals_tx, mut refusals) = mpsc::channel::<Rejection>(REFUSAL_QUEUE);
+        let mut refusals = Refusals::default();
+        let (outcomes_tx, mut outcomes) = mpsc::channel::<Outcome>(OUTCOME_QUEUE);
         // A publication is due: it goes out when the loop's next tick ends, in the idle rest
         // of the loop's period, so that encoding and sending it never overlap a tick's work.
         let mut due = false;
@@ -648,24 +466,29 @@ impl Served<'_> {
                     }
                     Err(broadcast::error::RecvError::Closed) => events_open = false,
                 },
-                Some(cmd) = commands.recv() => {
-                    let sent = cmd.and_then(|cmd| self.door.send(cmd));
-                    match sent {
+                Some(order) = commands.recv() => {
+                    let topic = order.topic;
+                    match order.cmd.and_then(|cmd| self.door.send(cmd)) {
                         Ok(answer) => {
                             last_command = Some(time::Instant::now());
-                            last_refusal = None;
-                            let refusals = refusals_tx.clone();
+                            let outcomes = outcomes_tx.clone();
                             tokio::spawn(async move {
-                                if let Ok(Err(why)) = answer.await {
-                                    // Full: this refusal is not logged; the next one is.
-                                    let _ = refusals.try_send(why);
+                                if let Ok(answer) = answer.await {
+                                    // Full: this outcome is not logged.
+                                    let _ = outcomes.try_send(Outcome {
+                                        topic,
+                                        refused: answer.err(),
+                                    });
                                 }
                             });
                         }
-                        Err(why) => refused(why, &mut last_refusal),
+                        Err(why) => refusals.refused(topic, &why),
                     }
                 }
-                Some(why) = refusals.recv() => refused(why, &mut last_refusal),
+                Some(outcome) = outcomes.recv() => match outcome.refused {
+                    Some(why) => refusals.refused(outcome.topic, &why),
+                    None => refusals.end_run(),
+                },
                 () = sleep_until(silence), if silence.is_some() => {
                     last_command = None;
                     if self.door.release() {
@@ -674,6 +497,7 @@ impl Served<'_> {
                 }
             }
         }
+        refusals.end_run();
         let dropped = self.dropped_commands.load(Ordering::Relaxed);
         if self.lost_events > 0 || dropped > 0 {
             warn!(
@@ -755,11 +579,49 @@ impl Served<'_> {
     }
 }
 
-/// Logs a refused Foxglove command, once per run of the same refusal.
-fn refused(why: Rejection, last: &mut Option<Code>) {
-    if *last != Some(why.code) {
-        warn!(code = ?why.code, reason = %why.message, "a Foxglove command was refused");
-        *last = Some(why.code);
+/// What the loop answered a Foxglove command on `topic`: `refused` it, or took it.
+#[derive(Debug)]
+struct Outcome {
+    topic: &'static str,
+    refused: Option<Rejection>,
+}
+
+/// The log of refused Foxglove commands: once per run of refusals with the same code on the
+/// same topic (a Teleop panel publishing during an estop is refused ten times a second); the
+/// run's end (a command taken, another refusal, the stop) says how many more there were.
+#[derive(Debug, Default)]
+struct Refusals {
+    /// The code and topic of the run, once its first refusal is logged.
+    run: Option<(Code, &'static str)>,
+    /// Refusals of the run not logged.
+    more: u64,
+}
+
+impl Refusals {
+    /// A command on `topic` was refused for `why`.
+    fn refused(&mut self, topic: &'static str, why: &Rejection) {
+        if self.run == Some((why.code, topic)) {
+            self.more += 1;
+            return;
+        }
+        self.end_run();
+        warn!(topic, code = why.code.as_str(), reason = %why.message, "a Foxglove command was refused");
+        self.run = Some((why.code, topic));
+    }
+
+    /// The run of refusals ends (a command was taken, or the view stops).
+    fn end_run(&mut self) {
+        if let Some((code, topic)) = self.run.take() {
+            if self.more > 0 {
+                warn!(
+                    topic,
+                    code = code.as_str(),
+                    count = self.more,
+                    "more Foxglove commands were refused alike"
+                );
+            }
+        }
+        self.more = 0;
     }
 }
 
@@ -777,59 +639,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_gate_reads_the_token_of_the_url_percent_decoded() {
-        let head = |target: &str| format!("GET {target} HTTP/1.1\r\nHost: x\r\n\r\n");
-        let token = |target: &str| url_token(head(target).as_bytes());
-        assert_eq!(token("/?token=s3cret"), Some(b"s3cret".to_vec()));
-        assert_eq!(
-            token("/?a=1&token=correct%20horse&b=2"),
-            Some(b"correct horse".to_vec())
-        );
-        assert_eq!(token("/"), None);
-        assert_eq!(token("/?tok=s3cret"), None);
-        assert_eq!(token("/?token=bad%2"), None, "a cut escape");
-        assert_eq!(token("/?token=bad%zz"), None, "not hex");
-    }
-
-    #[tokio::test]
-    async fn beyond_max_clients_a_client_is_refused_without_waiting_for_its_request() {
-        // The Foxglove server behind the gate, and the gate with one seat.
-        let server = TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let gate = TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = gate.local_addr().unwrap();
-        tokio::spawn(gatekeeper(gate, None, 1, server.local_addr().unwrap()));
-        // The seat taken by a client let through to the server.
-        let mut first = TcpStream::connect(addr).await.unwrap();
-        let request = b"GET / HTTP/1.1\r\nHost: x\r\n\r\n";
-        first.write_all(request).await.unwrap();
-        let (mut passed, _) = server.accept().await.unwrap();
-        let mut head = vec![0u8; request.len()];
-        passed.read_exact(&mut head).await.unwrap();
-        assert_eq!(head, request);
-        // From here no timer of the gate runs but one it starts for the next client: with time
-        // paused, its clock jumps to that timer as soon as nothing else is left to do.
-        time::pause();
-        let paused = time::Instant::now();
-        // A second client, which sends nothing.
-        let mut second = TcpStream::connect(addr).await.unwrap();
-        let mut answer = Vec::new();
-        tokio::select! {
-            read = second.read_to_end(&mut answer) => read.unwrap(),
-            _ = server.accept() => panic!("the second client was let through"),
-        };
-        let answer = String::from_utf8_lossy(&answer);
-        assert!(
-            answer.starts_with("HTTP/1.1 503 Service Unavailable\r\n")
-                && answer.ends_with("max_clients are connected already\n"),
-            "{answer}"
-        );
-        assert!(
-            time::Instant::now() - paused < GATE_WAIT,
-            "closed only when the wait for its request ran out"
-        );
-    }
-
-    #[test]
     fn a_twist_reads_from_json_and_cdr() {
         let json = br#"{"linear":{"x":0.1,"y":-0.2,"z":0},"angular":{"x":0,"y":0,"z":0.5}}"#;
         assert_eq!(twist("json", json).unwrap(), [0.1, -0.2]);
@@ -843,14 +652,26 @@ mod tests {
         })
         .unwrap();
         assert_eq!(twist("cdr", &cdr).unwrap(), [0.03, 0.04]);
+        // `linear` alone, or its x alone: the rest is 0.
+        assert_eq!(
+            twist("json", br#"{"linear":{"x":0.1}}"#).unwrap(),
+            [0.1, 0.0]
+        );
         for (encoding, payload) in [
             ("json", &b"{\"linear\": 3}"[..]),
             ("json", b"not json"),
+            // Not a Twist: no `linear` object, or not numbers in it.
+            ("json", b"[]"),
+            ("json", b"{}"),
+            ("json", br#"{"data":"hi"}"#),
+            ("json", br#"{"linear":[0.1,0.2]}"#),
+            ("json", br#"{"linear":{"x":"0.1"}}"#),
             ("cdr", b"\x00\x01"),
             ("protobuf", b""),
         ] {
             let e = twist(encoding, payload).unwrap_err();
             assert_eq!(e.code, Code::BadArg, "{encoding}: {}", e.message);
+            assert!(e.message.starts_with("cmd_vel "), "{}", e.message);
         }
         // Out of the protocol's range, refused as a socket client's would be.
         let huge = br#"{"linear":{"x":1e300,"y":0}}"#;
@@ -867,6 +688,7 @@ mod tests {
         assert_eq!(point(GOAL, "cdr", &cdr).unwrap(), [0.3, -0.2]);
         for (encoding, payload) in [
             ("json", &br#"{"linear":{"x":1,"y":2}}"#[..]),
+            ("json", br#"{"point":[1,2]}"#),
             ("json", br#"{"point":{"x":1e300,"y":0}}"#),
             ("cdr", b"\x00\x01"),
             ("protobuf", b""),
