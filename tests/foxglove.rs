@@ -825,6 +825,45 @@ fn a_daemon_with_a_token_listens_on_the_socket_and_the_view_only() {
     assert!(status.success(), "exit {status:?}; log:\n{log}");
 }
 
+/// `snakectl run` listening on `listen` with `config`; its exit status and log.
+fn run_to_exit(config: &Config, listen: &str) -> (std::process::ExitStatus, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("arm.toml");
+    std::fs::write(&path, config.text()).unwrap();
+    let sim =
+        snakectl::connect::spawn_sim(config, std::sync::Arc::new(snakectl_sim::RealClock)).unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["run", "--listen", listen, "--config"])
+        .arg(&path)
+        .arg("--port")
+        .arg(sim.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let status = daemon_support::child::wait_within(&mut child, "snakectl run");
+    let mut log = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut log).unwrap();
+    (status, log)
+}
+
+/// A `[foxglove] listen` address taken refuses start-up as a taken `[server] listen` does: exit
+/// code 2, naming the address. So does one equal to `[server] listen`.
+#[test]
+fn a_taken_foxglove_address_refuses_start_up_with_exit_code_2() {
+    let taken = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let (status, log) = run_to_exit(&config(port, false), "127.0.0.1:0");
+    assert_eq!(status.code(), Some(2), "log:\n{log}");
+    assert!(log.contains(&format!("127.0.0.1:{port}")), "{log}");
+    drop(taken);
+
+    let port = free_port();
+    let (status, log) = run_to_exit(&config(port, false), &format!("127.0.0.1:{port}"));
+    assert_eq!(status.code(), Some(2), "log:\n{log}");
+    assert!(log.contains("[foxglove]"), "{log}");
+}
+
 /// Publishes the JSON text `message` on client channel `id` (advertised already).
 fn publish_raw(fox: &mut Fox, id: u32, message: &str) {
     let mut frame = vec![1u8];

@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use snakectl::config::Config;
+use snakectl::daemon::view::ViewError;
 use snakectl::daemon::{self, DaemonError, RunOptions};
 use snakectl::record::RecordOptions;
 
@@ -100,7 +101,11 @@ fn failure(e: DaemonError) -> Failure {
         | DaemonError::Controller(_)
         | DaemonError::Access(_)
         | DaemonError::Record(_)
-        | DaemonError::ZenohNotBuilt { .. } => EXIT_REFUSED,
+        | DaemonError::ZenohNotBuilt { .. }
+        | DaemonError::Foxglove {
+            source: ViewError::Listen { .. },
+            ..
+        } => EXIT_REFUSED,
         DaemonError::ShutDown(_) => EXIT_UNREACHED,
         _ => EXIT_FAILED,
     };
