@@ -15,14 +15,17 @@
 //! - `bridge` (the `zenoh` feature): the daemon on a Zenoh network, in ROS 2's message formats.
 //! - [`control_loop`]: the loop's thread: start-up, the fixed-rate cycle, the shut-down guard.
 //! - [`embedded`]: the daemon started inside another program, on a loopback port.
+//! - `gate`: the Foxglove view's only way in: the token, `max_clients`, the handshake.
+//! - `hub`: the server side of the Foxglove WebSocket protocol, for the clients let in.
 //! - [`link`]: the seam between the loop's thread and the socket side (bounded command queue,
 //!   latest-wins telemetry, broadcast events).
-//! - `relay`: what the Foxglove gate forwards from the server to a client: whole WebSocket
-//!   frames in a bounded outbox, the oldest message data dropped for a client that falls behind.
+//! - `outbox`: what waits for one Foxglove client, bounded, the oldest message data dropped for
+//!   a client that falls behind.
 //! - [`server`]: the JSON-lines TCP server on the socket side.
 //! - [`side`]: a thread beside the loop serving another network (the view, the bridge).
 //! - [`stats`]: fixed-size histograms for the run summary.
-//! - [`view`]: the live Foxglove view (`[foxglove]`): a WebSocket server on its own thread.
+//! - [`view`]: the live Foxglove view (`[foxglove]`): the Foxglove WebSocket protocol on its
+//!   own thread.
 
 pub mod access;
 pub mod arbiter;
