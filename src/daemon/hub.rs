@@ -483,3 +483,86 @@ fn publish(
     commands.take(&channel.topic, &channel.encoding, payload);
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use foxglove::{Context, Schema};
+
+    use super::*;
+
+    /// What waits for client `id`, taken out.
+    fn waiting(hub: &Hub, id: u64) -> Vec<Message> {
+        let mut out = Vec::new();
+        while let Next::Write(message) = hub.next(id) {
+            out.push(message);
+        }
+        out
+    }
+
+    fn op(message: &Message) -> Value {
+        serde_json::from_str(message.to_text().unwrap()).unwrap()
+    }
+
+    #[test]
+    fn a_client_gets_the_info_the_channels_and_the_data_it_subscribed_to_until_it_unsubscribes() {
+        let hub = Hub::new("arm", false);
+        let peer = SocketAddr::from(([127, 0, 0, 1], 1));
+        let (id, _) = hub.join(peer);
+        let context = Context::new();
+        let schema = Schema::new("foxglove.Log", "protobuf", &b"\x01\x02\x03"[..]);
+        let channel = context
+            .channel_builder("/arm/log")
+            .message_encoding("protobuf")
+            .schema(schema)
+            .build_raw()
+            .unwrap();
+        hub.add_channels(&[&channel]);
+        let first = waiting(&hub, id);
+        assert_eq!(op(&first[0])["op"], "serverInfo");
+        assert_eq!(op(&first[0])["capabilities"], json!([]));
+        let advertised = &op(&first[1])["channels"][0];
+        assert_eq!(advertised["topic"], "/arm/log");
+        assert_eq!(advertised["schemaEncoding"], "protobuf");
+        assert_eq!(
+            advertised["schema"], "AQID",
+            "protobuf schemas go base64-encoded"
+        );
+
+        let channel_id = u64::from(channel.id());
+        let meta = Metadata { log_time: 7 };
+        hub.log(&channel, b"before", &meta).unwrap();
+        assert!(waiting(&hub, id).is_empty(), "not subscribed yet");
+        let subscribe =
+            json!({"op": "subscribe", "subscriptions": [{"id": 3, "channelId": channel_id}]});
+        let mut channels = BTreeMap::new();
+        control(&hub, id, &subscribe.to_string(), false, &mut channels).unwrap();
+        hub.log(&channel, b"after", &meta).unwrap();
+        let data = waiting(&hub, id);
+        let mut expected = vec![MESSAGE_DATA];
+        expected.extend_from_slice(&3u32.to_le_bytes());
+        expected.extend_from_slice(&7u64.to_le_bytes());
+        expected.extend_from_slice(b"after");
+        assert_eq!(data, [Message::binary(expected)]);
+
+        let unsubscribe = json!({"op": "unsubscribe", "subscriptionIds": [3]});
+        control(&hub, id, &unsubscribe.to_string(), false, &mut channels).unwrap();
+        hub.log(&channel, b"later", &meta).unwrap();
+        assert!(waiting(&hub, id).is_empty(), "unsubscribed");
+        // Refused: a channel that is not there, publishing without accept_commands, garbage.
+        let unknown = json!({"op": "subscribe", "subscriptions": [{"id": 4, "channelId": 999}]});
+        assert!(control(&hub, id, &unknown.to_string(), false, &mut channels).is_err());
+        let advertise = json!({"op": "advertise", "channels": [
+            {"id": 1, "topic": "/arm/cmd_vel", "encoding": "json", "schemaName": "x"}]});
+        assert!(control(&hub, id, &advertise.to_string(), false, &mut channels).is_err());
+        assert!(channels.is_empty());
+        assert!(control(&hub, id, "garbage", false, &mut channels).is_err());
+        assert!(publish(b"\xff garbage", None, &channels).is_err());
+        assert!(
+            publish(b"\x01\x01\x00", None, &channels).is_err(),
+            "cut short"
+        );
+        assert_eq!(hub.leave(id), 0);
+    }
+}
