@@ -979,22 +979,30 @@ fn a_client_sending_garbage_is_logged_once_with_a_count() {
     assert!(lines_with(&log, &["does not take"]).is_empty(), "{log}");
 }
 
-/// What is not a `Twist` on cmd_vel (no `linear` object) is refused, and does not take control
-/// from a socket client's running goto.
+/// What is not a `Twist` on cmd_vel (no `linear` object) is refused: it does not stop a
+/// `goto` the view's own click started, as a zero velocity would.
 #[test]
 fn json_that_is_not_a_twist_on_cmd_vel_does_not_preempt_a_goto() {
     let (daemon, port) = start_daemon(true);
     let mut client = daemon.client();
     let start = xy(&client.status()["tip_meas"]);
     let target = [start[0] - 0.05, start[1]];
-    client.ok(json!({"cmd": "goto", "target": target, "speed": 0.05}));
     let mut fox = Fox::connect(port);
     fox.next_op("serverInfo");
     fox.advertise_twist("/snakectl/cmd_vel");
+    let point = json!({"point": {"x": target[0], "y": target[1], "z": 0.0}});
+    publish_on(
+        &mut fox,
+        2,
+        "/snakectl/goal",
+        "geometry_msgs/msg/PointStamped",
+        &point,
+    );
+    client.wait_status("the goto", |s| s["command"]["kind"] == "goto");
     for message in ["[]", "{}", r#"{"data":"hi"}"#, r#"{"linear":[0.1,0]}"#] {
         publish_raw(&mut fox, 1, message);
     }
-    let s = client.wait_status("arrived", |s| s["command"]["outcome"] != "active");
+    let s = client.wait_status("the goto's end", |s| s["command"]["outcome"] != "active");
     assert_eq!(s["command"]["kind"], "goto", "{s}");
     assert_eq!(s["command"]["outcome"], "arrived", "{s}");
     assert!(dist(xy(&s["tip"]), target) < 1e-6, "{s}");
