@@ -240,3 +240,40 @@ fn sim_refuses_to_replace_a_file_that_is_not_a_symlink() {
     assert!(err.contains("notes.txt"), "{err}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
 }
+
+#[test]
+fn a_second_sim_is_refused_a_link_the_first_serves_and_a_sim_removes_only_its_own_link() {
+    let _one_at_a_time = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("snake-bus");
+    let (mut first, pty) = cli_support::spawn_sim("config/sim.toml", &link);
+    // The second is refused: the link still points at the first's pty, which still answers.
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["sim", "--config", "config/sim.toml", "--link"])
+        .arg(&link)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!("points at {pty}, a terminal still open")),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_link(&link).unwrap(), Path::new(&pty));
+    assert_eq!(pings(&link, &[12])[0].id, 12);
+    // Pointed elsewhere meanwhile, the link is not the first's to remove when it stops.
+    let elsewhere = dir.path().join("elsewhere");
+    std::fs::remove_file(&link).unwrap();
+    std::os::unix::fs::symlink(&elsewhere, &link).unwrap();
+    let status = Command::new("kill")
+        .args(["-TERM", &first.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    assert!(first.wait_exit().success());
+    assert_eq!(std::fs::read_link(&link).unwrap(), elsewhere);
+    // A link left dangling is replaced.
+    let (_second, pty) = cli_support::spawn_sim("config/sim.toml", &link);
+    assert_eq!(std::fs::read_link(&link).unwrap(), Path::new(&pty));
+}

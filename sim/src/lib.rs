@@ -101,6 +101,18 @@ pub enum SimError {
     /// A fault probability outside [0, 1].
     #[error("fault fraction {0} is outside [0, 1]")]
     Fraction(f64),
+    /// The link asked for points at a pseudo-terminal still served (another simulator's, most
+    /// likely): replacing it would strand that simulator's clients.
+    #[error(
+        "{} points at {}, a terminal still open (another `snakectl sim`?): stop that one, or \
+         remove the link if it is not a simulator's", link.display(), target.display()
+    )]
+    LinkInUse {
+        /// The link.
+        link: std::path::PathBuf,
+        /// Where it points.
+        target: std::path::PathBuf,
+    },
     /// Opening or configuring the pseudo-terminal failed.
     #[error("pseudo-terminal: {0}")]
     Pty(#[from] serialport::Error),

@@ -58,8 +58,9 @@ const PRIVATE_LINK_NAME: &str = "port";
 pub enum Link {
     /// No link: clients open the pseudo-terminal itself ([`SimHandle::path`]).
     None,
-    /// This path: created, or replaced when it is already a symlink (any other file there is
-    /// an error); removed when the handle stops.
+    /// This path: created, or replaced when it is already a symlink that points at no open
+    /// terminal (a symlink to one still served, or any other file, is an error); removed when
+    /// the handle stops if it still points at the handle's pseudo-terminal.
     At(PathBuf),
     /// `port` in a new directory of its own (mode 0700) under [`std::env::temp_dir`]; both are
     /// removed when the handle stops.
@@ -141,12 +142,13 @@ pub fn spawn_pty_linked(sim: Simulator, link: Link) -> Result<SimHandle, SimErro
     };
     if let Some(owned) = &owned {
         if let Err(e) = create_link(&owned.link, &line.path) {
-            remove_owned(owned);
-            return Err(e.into());
+            remove_owned(owned, Some(&line.path));
+            return Err(e);
         }
     }
     let link = owned.as_ref().map(|o| o.link.clone());
     let path = link.clone().unwrap_or_else(|| line.path.clone());
+    let line_path = line.path.clone();
     let pty = Arc::new(Mutex::new(Some(line.path.clone())));
     let sim = Arc::new(Mutex::new(sim));
     let stop = Arc::new(AtomicBool::new(false));
@@ -164,7 +166,7 @@ pub fn spawn_pty_linked(sim: Simulator, link: Link) -> Result<SimHandle, SimErro
         Ok(t) => t,
         Err(e) => {
             if let Some(owned) = &owned {
-                remove_owned(owned);
+                remove_owned(owned, Some(&line_path));
             }
             return Err(e.into());
         }
@@ -202,14 +204,31 @@ fn is_symlink(path: &Path) -> bool {
         .is_ok_and(|m| m.file_type().is_symlink())
 }
 
-/// Make `link` a symlink to `target`, replacing an old symlink but no other file.
-fn create_link(link: &Path, target: &Path) -> std::io::Result<()> {
+/// Where the symlink `link` points, when that is a terminal still open (a pseudo-terminal
+/// exists while its master end is: another simulator serves it).
+fn live_target(link: &Path) -> Option<PathBuf> {
+    use std::os::unix::fs::FileTypeExt;
+    let target = std::fs::read_link(link).ok()?;
+    let live = std::fs::metadata(link).is_ok_and(|m| m.file_type().is_char_device());
+    live.then_some(target)
+}
+
+/// Make `link` a symlink to `target`, replacing an old symlink (one left dangling) but no
+/// other file, nor a symlink to a terminal still served.
+fn create_link(link: &Path, target: &Path) -> Result<(), SimError> {
     let named =
         |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", link.display()));
     if is_symlink(link) {
+        if let Some(live) = live_target(link) {
+            return Err(SimError::LinkInUse {
+                link: link.to_path_buf(),
+                target: live,
+            });
+        }
         std::fs::remove_file(link).map_err(named)?;
     }
-    std::os::unix::fs::symlink(target, link).map_err(named)
+    std::os::unix::fs::symlink(target, link).map_err(named)?;
+    Ok(())
 }
 
 /// Point the existing (or absent) symlink `link` at `target` in one step: clients never find
@@ -228,17 +247,19 @@ fn repoint_link(link: &Path, target: &Path) -> std::io::Result<()> {
     })
 }
 
-/// Remove `link` if it is a symlink.
-fn remove_link(link: &Path) {
-    if is_symlink(link) {
+/// Remove the symlink `link` if it still points at `ours` (none: the link was removed already);
+/// one pointing elsewhere is another simulator's now, and kept.
+fn remove_link(link: &Path, ours: Option<&Path>) {
+    let Some(ours) = ours else { return };
+    if std::fs::read_link(link).is_ok_and(|t| t == ours) {
         if let Err(e) = std::fs::remove_file(link) {
             tracing::warn!(link = %link.display(), error = %e, "cannot remove the link");
         }
     }
 }
 
-fn remove_owned(owned: &Owned) {
-    remove_link(&owned.link);
+fn remove_owned(owned: &Owned, ours: Option<&Path>) {
+    remove_link(&owned.link, ours);
     if let Some(dir) = &owned.dir {
         if let Err(e) = std::fs::remove_dir(dir) {
             tracing::warn!(dir = %dir.display(), error = %e, "cannot remove the link's directory");
@@ -299,7 +320,9 @@ impl SimHandle {
             None => Ok(()),
         };
         if let Some(owned) = self.owned.take() {
-            remove_owned(&owned);
+            // The pseudo-terminal served last; none while unplugged (the link went with it).
+            let ours = lock(&self.pty).clone();
+            remove_owned(&owned, ours.as_deref());
         }
         ended
     }
@@ -364,14 +387,16 @@ fn serve(
             if down {
                 // Opened before the old one closes, so it gets another number.
                 spare = Some(Line::open()?);
-                if let Some(old) = line.take() {
+                let old = line.take();
+                if let Some(old) = &old {
                     tracing::info!(pty = %old.path.display(), "fault: the line is unplugged");
                 }
                 pending.clear();
                 lock(sim).line_lost();
                 if let Some(link) = link {
-                    remove_link(link);
+                    remove_link(link, old.as_ref().map(|l| l.path.as_path()));
                 }
+                drop(old);
                 *lock(pty) = None;
             } else {
                 let new = match spare.take() {
@@ -379,7 +404,10 @@ fn serve(
                     None => Line::open()?,
                 };
                 if let Some(link) = link {
-                    if let Err(e) = repoint_link(link, &new.path) {
+                    if let Some(other) = live_target(link) {
+                        // Taken by another simulator while this line was unplugged: theirs now.
+                        tracing::warn!(link = %link.display(), other = %other.display(), "the link points at another terminal now: left as it is");
+                    } else if let Err(e) = repoint_link(link, &new.path) {
                         tracing::warn!(link = %link.display(), error = %e, "cannot point the link at the new pseudo-terminal");
                     }
                 }
