@@ -27,7 +27,7 @@ enum Command {
     Sim(cli::sim::SimArgs),
     /// Run a flexible-object scenario: figures (SVG, PNG) and the metrics table.
     Simulate(cli::simulate::SimulateArgs),
-    /// List the servos on a port: id, model, firmware (tries the common baud rates).
+    /// List the servos on a port: id, model, firmware (tries every baud rate without `--baud`).
     Scan(cli::servo::ScanArgs),
     /// List serial ports with their USB vendor:product (a U2D2 is named as such).
     Ports(cli::servo::PortsArgs),

@@ -50,7 +50,7 @@ fn sim_elapsed(sim: &SimHandle) -> Duration {
 #[test]
 fn set_id_moves_the_servo_to_its_new_id() {
     let mut rig = sim_rig(xl430(&[1, 2, 3]));
-    assert!(admin::set_id(&mut rig.bus, 3, 20, TIMEOUT).unwrap());
+    assert!(admin::set_id(&mut rig.bus, 3, 20, TIMEOUT).unwrap().value);
     assert!(answers(&mut rig, 20));
     assert!(!answers(&mut rig, 3));
     assert_eq!(held(&rig, 20, addr::ID), 20);
@@ -75,7 +75,7 @@ fn set_id_refuses_an_id_another_servo_has() {
 #[test]
 fn set_id_to_the_same_id_or_out_of_range_changes_nothing() {
     let mut rig = sim_rig(xl430(&[1, 2]));
-    assert!(!admin::set_id(&mut rig.bus, 2, 2, TIMEOUT).unwrap());
+    assert!(!admin::set_id(&mut rig.bus, 2, 2, TIMEOUT).unwrap().value);
     assert!(answers(&mut rig, 2));
     assert!(matches!(
         admin::set_id(&mut rig.bus, 2, 253, TIMEOUT),
@@ -104,6 +104,51 @@ fn set_baud_leaves_the_servo_answering_only_at_the_new_rate() {
 }
 
 #[test]
+fn set_baud_refuses_a_rate_where_its_id_answers_already() {
+    let mut rig = sim_rig(xl430(&[1, 2]));
+    // Servo 2 at 57600 as id 1: back at 1 Mbps it would share id 1 with servo 1.
+    rig.sim().with_servo(2, |s| {
+        s.poke(addr::BAUD_RATE, 1);
+        s.poke(addr::ID, 1);
+    });
+    rig.bus.set_baud(57_600).unwrap();
+    let clock = ManualClock::new();
+    match admin::set_baud(&mut rig.bus, 1, 1_000_000, TIMEOUT, &clock) {
+        Err(AdminError::IdTaken { id: 1, baud }) => assert_eq!(baud, 1_000_000),
+        other => panic!("expected IdTaken, got {other:?}"),
+    }
+    // Nothing written; the port back at the servo's rate.
+    assert_eq!(rig.bus.baud(), 57_600);
+    assert!(answers(&mut rig, 1));
+    rig.bus.set_baud(1_000_000).unwrap();
+    assert_eq!(rig.bus.ping_counted(1, TIMEOUT).unwrap().1, 1);
+}
+
+#[test]
+fn set_id_and_set_baud_refuse_an_id_servos_share() {
+    let mut rig = sim_rig(xl430(&[1, 2, 3]));
+    rig.sim().with_servo(2, |s| s.poke(addr::ID, 1));
+    let (p, replies) = rig.bus.ping_counted(1, TIMEOUT).unwrap();
+    assert_eq!((p.id, replies), (1, 2));
+    assert_eq!(rig.bus.ping_counted(3, TIMEOUT).unwrap().1, 1);
+    match admin::set_id(&mut rig.bus, 1, 9, TIMEOUT) {
+        Err(AdminError::Shared {
+            id: 1, answers: 2, ..
+        }) => {}
+        other => panic!("expected Shared, got {other:?}"),
+    }
+    let clock = ManualClock::new();
+    match admin::set_baud(&mut rig.bus, 1, 57_600, TIMEOUT, &clock) {
+        Err(AdminError::Shared {
+            id: 1, answers: 2, ..
+        }) => {}
+        other => panic!("expected Shared, got {other:?}"),
+    }
+    assert!(!answers(&mut rig, 9));
+    assert_eq!(held(&rig, 1, addr::BAUD_RATE), 3);
+}
+
+#[test]
 fn set_baud_refuses_a_rate_the_servos_do_not_have() {
     let mut rig = sim_rig(xl430(&[1]));
     let clock = ManualClock::new();
@@ -119,17 +164,23 @@ fn set_baud_refuses_a_rate_the_servos_do_not_have() {
 fn set_return_delay_writes_two_microsecond_units_and_refuses_what_does_not_fit() {
     let mut rig = sim_rig(xl430(&[1]));
     assert_eq!(
-        admin::set_return_delay(&mut rig.bus, 1, 100, TIMEOUT).unwrap(),
+        admin::set_return_delay(&mut rig.bus, 1, 100, TIMEOUT)
+            .unwrap()
+            .value,
         100
     );
     assert_eq!(held(&rig, 1, addr::RETURN_DELAY_TIME), 50);
     assert_eq!(
-        admin::set_return_delay(&mut rig.bus, 1, 508, TIMEOUT).unwrap(),
+        admin::set_return_delay(&mut rig.bus, 1, 508, TIMEOUT)
+            .unwrap()
+            .value,
         508
     );
     assert_eq!(held(&rig, 1, addr::RETURN_DELAY_TIME), 254);
     assert_eq!(
-        admin::set_return_delay(&mut rig.bus, 1, 0, TIMEOUT).unwrap(),
+        admin::set_return_delay(&mut rig.bus, 1, 0, TIMEOUT)
+            .unwrap()
+            .value,
         0
     );
     assert_eq!(held(&rig, 1, addr::RETURN_DELAY_TIME), 0);
@@ -154,7 +205,10 @@ fn clear_calibration_zeroes_the_offset_and_only_the_reverse_bit() {
     });
     assert_eq!(
         admin::clear_calibration(&mut rig.bus, 1, TIMEOUT).unwrap(),
-        (-300, 0b101)
+        admin::Written {
+            value: (-300, 0b101),
+            torque_was_on: true
+        }
     );
     assert_eq!(held(&rig, 1, addr::HOMING_OFFSET), 0);
     assert_eq!(held(&rig, 1, addr::DRIVE_MODE), 0b100);
@@ -164,7 +218,10 @@ fn clear_calibration_zeroes_the_offset_and_only_the_reverse_bit() {
     // Cleared already: reported as found, nothing changes.
     assert_eq!(
         admin::clear_calibration(&mut rig.bus, 1, TIMEOUT).unwrap(),
-        (0, 0b100)
+        admin::Written {
+            value: (0, 0b100),
+            torque_was_on: false
+        }
     );
     assert_eq!(held(&rig, 1, addr::DRIVE_MODE), 0b100);
 }
@@ -174,7 +231,9 @@ fn clear_calibration_with_only_the_reverse_bit_set_keeps_the_offset_register_at_
     let mut rig = sim_rig(xl430(&[1]));
     rig.sim().with_servo(1, |s| s.poke(addr::DRIVE_MODE, 0b001));
     assert_eq!(
-        admin::clear_calibration(&mut rig.bus, 1, TIMEOUT).unwrap(),
+        admin::clear_calibration(&mut rig.bus, 1, TIMEOUT)
+            .unwrap()
+            .value,
         (0, 1)
     );
     assert_eq!(held(&rig, 1, addr::DRIVE_MODE), 0);

@@ -88,7 +88,8 @@ fn set_baud_moves_one_servo_to_the_new_rate() {
     );
     assert_eq!(
         stdout(&out).trim(),
-        "servo 3: now at 57600 baud (set [bus] baud = 57600)"
+        "servo 3: now at 57600 baud; servos still at 1000000 baud no longer hear it: move each \
+         to 57600 too, then set [bus] baud = 57600"
     );
     // Baud Rate register 1 selects 57600.
     assert_eq!(sim.with_servo(3, |s| s.baud_index()), Some(1));

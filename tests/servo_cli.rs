@@ -231,3 +231,224 @@ fn ports_runs_without_libudev() {
     let out = snakectl(&["ports"]);
     assert!(out.status.success(), "{:?}", text(&out));
 }
+
+/// Runs `snakectl servo` on `port` at `baud` with `extra` after the common flags.
+fn servo_at(port: &str, baud: &str, extra: &[&str]) -> Output {
+    let base = [
+        "servo",
+        "--port",
+        port,
+        "--baud",
+        baud,
+        "--timeout-ms",
+        "300",
+    ];
+    snakectl(&[&base[..], extra].concat())
+}
+
+/// The ids a `scan --baud` lists, one per reply.
+fn scanned(port: &str, baud: &str) -> (Vec<u8>, Output) {
+    let out = snakectl(&[
+        "scan",
+        "--port",
+        port,
+        "--baud",
+        baud,
+        "--timeout-ms",
+        "300",
+    ]);
+    let ids = text(&out)
+        .0
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("id "))
+        .filter_map(|l| l.split_whitespace().next())
+        .map(|id| id.parse().unwrap())
+        .collect();
+    (ids, out)
+}
+
+#[test]
+fn set_baud_refuses_a_rate_where_its_id_is_taken() {
+    let sim = serve(vec![]);
+    let port = sim.path().to_str().unwrap().to_string();
+    // Servo 2 moved to 57600, where id 1 is free: it becomes 1 there.
+    let out = servo_at(&port, "1000000", &["--id", "2", "set-baud", "57600"]);
+    assert!(out.status.success(), "{:?}", text(&out));
+    let out = servo_at(&port, "57600", &["--id", "2", "set-id", "1"]);
+    assert!(out.status.success(), "{:?}", text(&out));
+    // Back to 1 Mbps would make it a second id 1 there: refused, nothing written.
+    let out = servo_at(&port, "57600", &["--id", "1", "set-baud", "1000000"]);
+    let (_, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("id 1 is already taken on this bus at 1000000 baud"),
+        "{stderr}"
+    );
+    assert_eq!(scanned(&port, "57600").0, [1]);
+    assert_eq!(scanned(&port, "1000000").0, [1, 3, 4, 7]);
+    // A rate where the id is free is taken.
+    let out = servo_at(&port, "57600", &["--id", "1", "set-baud", "115200"]);
+    assert!(out.status.success(), "{:?}", text(&out));
+    assert_eq!(scanned(&port, "115200").0, [1]);
+}
+
+#[test]
+fn scan_reports_an_id_two_servos_answer_and_set_id_refuses_it() {
+    let sim = serve(vec![]);
+    let port = sim.path().to_str().unwrap().to_string();
+    sim.with_servo(2, |s| s.poke(addr::ID, 1));
+    let (ids, out) = scanned(&port, "1000000");
+    let (_, stderr) = text(&out);
+    assert_eq!(ids, [1, 1, 3, 4, 7]);
+    assert!(
+        stderr.contains("warning: id 1 answered 2 times at 1000000 baud"),
+        "{stderr}"
+    );
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    // Renaming id 1 would rename both: refused, both keep it.
+    let out = servo_at(&port, "1000000", &["--id", "1", "set-id", "9"]);
+    let (_, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("id 1 answered 2 times"), "{stderr}");
+    assert!(sim.with_servo(9, |_| ()).is_none());
+    assert_eq!(scanned(&port, "1000000").0, [1, 1, 3, 4, 7]);
+}
+
+#[test]
+fn servos_at_9600_and_4500000_are_found_without_baud() {
+    let sim = serve(vec![]);
+    let port = sim.path().to_str().unwrap().to_string();
+    // Baud Rate 0 selects 9600, 7 selects 4.5 Mbps.
+    sim.with_servo(3, |s| s.poke(addr::BAUD_RATE, 0));
+    sim.with_servo(4, |s| s.poke(addr::BAUD_RATE, 7));
+    for (id, rate) in [("3", "9600"), ("4", "4500000")] {
+        let out = snakectl(&[
+            "servo",
+            "--port",
+            &port,
+            "--timeout-ms",
+            "300",
+            "--id",
+            id,
+            "info",
+        ]);
+        let (stdout, stderr) = text(&out);
+        assert!(out.status.success(), "{stderr}");
+        assert!(stdout.contains(&format!("baud rate {rate}\n")), "{stdout}");
+    }
+    let out = snakectl(&["scan", "--port", &port, "--timeout-ms", "50"]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stdout.contains("4500000 baud: 1 servo(s)\n"), "{stdout}");
+    assert!(stdout.contains("9600 baud: 1 servo(s)\n"), "{stdout}");
+    assert!(
+        stdout.ends_with(
+            "baud rates tried: 57600, 1000000, 115200, 2000000, 3000000, 4000000, 4500000, 9600\n"
+        ),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn eeprom_writes_tell_when_they_switched_torque_off() {
+    let sim = serve(vec![]);
+    let port = sim.path().to_str().unwrap().to_string();
+    sim.with_servo(2, |s| s.poke(addr::TORQUE_ENABLE, 1));
+    let out = servo_at(&port, "1000000", &["--id", "2", "set-return-delay", "0"]);
+    let (_, stderr) = text(&out);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("servo 2: torque was on: switched off to write its EEPROM"),
+        "{stderr}"
+    );
+    assert_eq!(sim.with_servo(2, |s| s.torque_enabled()), Some(false));
+    // Off already: nothing to tell.
+    let out = servo_at(&port, "1000000", &["--id", "2", "set-return-delay", "0"]);
+    let (_, stderr) = text(&out);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("torque was on"), "{stderr}");
+    for action in [&["set-id", "20"][..], &["set-baud", "57600"][..]] {
+        sim.with_servo(3, |s| s.poke(addr::TORQUE_ENABLE, 1));
+        let out = servo_at(&port, "1000000", &[&["--id", "3"][..], action].concat());
+        let (_, stderr) = text(&out);
+        assert!(out.status.success(), "{stderr}");
+        assert!(
+            stderr.contains("servo 3: torque was on: switched off"),
+            "{action:?}: {stderr}"
+        );
+        if action[0] == "set-id" {
+            sim.with_servo(20, |s| s.poke(addr::ID, 3));
+        }
+    }
+}
+
+#[test]
+fn timeouts_and_ids_out_of_range_are_refused_with_one_message() {
+    for args in [
+        &["servo", "--port", "/dev/does-not-exist", "--id", "1"][..],
+        &["scan", "--port", "/dev/does-not-exist"][..],
+    ] {
+        let mut args = args.to_vec();
+        args.extend(["--timeout-ms", "99999999999"]);
+        if args[0] == "servo" {
+            args.push("info");
+        }
+        let out = snakectl(&args);
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.contains("--timeout-ms 99999999999 is out of range 0..=10000"),
+            "{stderr}"
+        );
+    }
+    for id in ["253", "256", "1000"] {
+        let out = snakectl(&[
+            "servo",
+            "--port",
+            "/dev/does-not-exist",
+            "--id",
+            "1",
+            "set-id",
+            id,
+        ]);
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.contains(&format!("new id {id} is out of range 0..=252")),
+            "{stderr}"
+        );
+        let out = snakectl(&["servo", "--port", "/dev/does-not-exist", "--id", id, "info"]);
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.contains(&format!("--id {id} is out of range 0..=252")),
+            "{stderr}"
+        );
+    }
+}
+
+#[test]
+fn a_port_lost_mid_scan_is_named() {
+    // A simulator of its own process: one served in this process would have its pseudo-
+    // terminal inherited by the command run, and never hang up.
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("sim.toml");
+    let shipped = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"));
+    std::fs::write(
+        &config,
+        shipped.unwrap() + "\n[[sim.fault]]\nkind = \"disconnect\"\nat_s = 1.0\n",
+    )
+    .unwrap();
+    let link = dir.path().join("snake-bus");
+    let (_sim, _pty) = cli_support::spawn_sim(config.to_str().unwrap(), &link);
+    let port = link.to_str().unwrap();
+    let out = snakectl(&["scan", "--port", port, "--timeout-ms", "50"]);
+    let (_, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "{port} failed (the adapter may have been unplugged)"
+        )),
+        "{stderr}"
+    );
+}

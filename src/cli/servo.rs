@@ -15,23 +15,31 @@ use snakectl::servo::clock::RealClock;
 use snakectl::servo::dynamixel::DynamixelBus;
 use snakectl::servo::sysfs::Sysfs;
 use snakectl::servo::units;
-use snakectl::servo::{baud_index, model_name, PingInfo, Register, ServoBus, BAUD_RATES, MAX_ID};
+use snakectl::servo::{
+    baud_index, model_name, PingInfo, Register, ServoBus, ServoError, BAUD_RATES, MAX_ID,
+};
 
 use super::{outln, Failure};
 
-/// Baud rates tried, in this order, when none is given: the factory rate first, then the ones
-/// chains are usually set to (9600 and 4.5M only on request: a scan at 9600 takes 4 s).
-const COMMON_BAUDS: [u32; 6] = [57_600, 1_000_000, 115_200, 2_000_000, 3_000_000, 4_000_000];
+/// Baud rates tried, in this order, when none is given: every rate `set-baud` accepts, so no
+/// servo is lost at one; the factory rate first, then the ones chains are usually set to, 9600
+/// last (a scan there takes 4.4 s, more than the others together).
+const SEARCH_BAUDS: [u32; 8] = [
+    57_600, 1_000_000, 115_200, 2_000_000, 3_000_000, 4_000_000, 4_500_000, 9_600,
+];
+
+/// Longest `--timeout-ms`: a wait beyond it only hangs the command.
+const MAX_TIMEOUT_MS: u64 = 10_000;
 
 #[derive(Debug, Args)]
 pub struct ScanArgs {
     /// Serial port, e.g. /dev/ttyUSB0.
     #[arg(long)]
     port: PathBuf,
-    /// Baud rate; when absent, the common ones are tried in turn.
+    /// Baud rate; when absent, every Dynamixel rate is tried in turn.
     #[arg(long)]
     baud: Option<u32>,
-    /// Wait for replies beyond every id's slot (3 ms) and reply time, ms.
+    /// Wait for replies beyond every id's slot (3 ms) and reply time, ms (at most 10000).
     #[arg(long, default_value_t = 50)]
     timeout_ms: u64,
 }
@@ -44,13 +52,13 @@ pub struct ServoArgs {
     /// Serial port, e.g. /dev/ttyUSB0.
     #[arg(long)]
     port: PathBuf,
-    /// Baud rate the servo listens at now; when absent, the common ones are tried.
+    /// Baud rate the servo listens at now; when absent, every Dynamixel rate is tried.
     #[arg(long)]
     baud: Option<u32>,
     /// The servo's present id, 0..=252.
     #[arg(long)]
-    id: u8,
-    /// Wait for a reply beyond its wire time, ms.
+    id: u64,
+    /// Wait for a reply beyond its wire time, ms (at most 10000).
     #[arg(long, default_value_t = 50)]
     timeout_ms: u64,
     #[command(subcommand)]
@@ -62,7 +70,7 @@ enum ServoAction {
     /// Give the servo a new id (refused if another servo has it).
     SetId {
         /// The new id, 0..=252.
-        new_id: u8,
+        new_id: u64,
     },
     /// Set the servo's baud rate (the port must then use it too).
     SetBaud {
@@ -104,18 +112,63 @@ fn check_baud(baud: u32) -> Result<(), Failure> {
     Ok(())
 }
 
+/// `--timeout-ms` as a wait, refused (exit 2) beyond [`MAX_TIMEOUT_MS`].
+fn timeout(ms: u64) -> Result<Duration, Failure> {
+    if ms > MAX_TIMEOUT_MS {
+        return Err(Failure::bad_input(anyhow!(
+            "--timeout-ms {ms} is out of range 0..={MAX_TIMEOUT_MS}"
+        )));
+    }
+    Ok(Duration::from_millis(ms))
+}
+
+/// An id argument as a servo id, refused (exit 2) outside 0..=252 with one message whatever
+/// the number.
+fn servo_id(what: &str, id: u64) -> Result<u8, Failure> {
+    match u8::try_from(id) {
+        Ok(id) if id <= MAX_ID => Ok(id),
+        _ => Err(Failure::bad_input(anyhow!(
+            "{what} {id} is out of range 0..=252 (253 is reserved, 254 is the broadcast id)"
+        ))),
+    }
+}
+
 fn open(port: &Path, baud: u32) -> Result<DynamixelBus, Failure> {
     connect::open_port(port, baud).map_err(|e: ConnectError| Failure::other(e))
 }
 
-/// A procedure's error: bad arguments are the user's, the rest the bus's.
-fn admin_failure(e: AdminError) -> Failure {
+/// A bus error on `port`, naming it; a failing port most likely lost its adapter.
+fn port_failure(port: &Path, e: ServoError) -> Failure {
+    let context = if matches!(e, ServoError::Io(_)) {
+        format!(
+            "{} failed (the adapter may have been unplugged)",
+            port.display()
+        )
+    } else {
+        port.display().to_string()
+    };
+    Failure::other(anyhow::Error::new(e).context(context))
+}
+
+/// A procedure's error: bad arguments and a bus that would end up with two servos on one id
+/// are the user's, the rest the bus's (named with its port).
+fn admin_failure(port: &Path, e: AdminError) -> Failure {
     match e {
-        AdminError::BadId(_) | AdminError::BadReturnDelay(_) | AdminError::IdTaken { .. } => {
-            Failure::bad_input(e)
-        }
+        AdminError::BadId(_)
+        | AdminError::BadReturnDelay(_)
+        | AdminError::IdTaken { .. }
+        | AdminError::Shared { .. } => Failure::bad_input(e),
+        AdminError::Servo(e) => port_failure(port, e),
         other => Failure::other(other),
     }
+}
+
+/// Tells that a procedure found torque on and switched it off: the joint went limp.
+fn told_torque<T>(id: u8, written: admin::Written<T>) -> T {
+    if written.torque_was_on {
+        eprintln!("servo {id}: torque was on: switched off to write its EEPROM");
+    }
+    written.value
 }
 
 fn describe(p: &PingInfo) -> String {
@@ -139,17 +192,18 @@ pub fn scan(args: ScanArgs) -> Result<(), Failure> {
             check_baud(b)?;
             vec![b]
         }
-        None => COMMON_BAUDS.to_vec(),
+        None => SEARCH_BAUDS.to_vec(),
     };
-    let timeout = Duration::from_millis(args.timeout_ms);
+    let timeout = timeout(args.timeout_ms)?;
     let mut bus = open(&args.port, bauds[0])?;
     let mut total = 0;
+    // (id, baud, replies) of every id answered more than once.
+    let mut shared: Vec<(u8, u32, usize)> = Vec::new();
     for &baud in &bauds {
-        bus.set_baud(baud).map_err(Failure::other)?;
         let found = bus
-            .scan(timeout)
-            .with_context(|| format!("scanning {} at {baud}", args.port.display()))
-            .map_err(Failure::other)?;
+            .set_baud(baud)
+            .and_then(|()| bus.scan(timeout))
+            .map_err(|e| port_failure(&args.port, e))?;
         if found.is_empty() {
             if args.baud.is_some() {
                 outln!("{baud} baud: no servo")?;
@@ -160,20 +214,50 @@ pub fn scan(args: ScanArgs) -> Result<(), Failure> {
         for p in &found {
             outln!("{}", describe(p))?;
         }
+        // The scan lists replies in id order: equal ids are neighbours.
+        for group in found.chunk_by(|a, b| a.id == b.id) {
+            if let [first, _, ..] = group {
+                eprintln!(
+                    "warning: id {} answered {} times at {baud} baud: servos share it",
+                    first.id,
+                    group.len()
+                );
+                shared.push((first.id, baud, group.len()));
+            }
+        }
         total += found.len();
+    }
+    if args.baud.is_none() && total > 0 {
+        outln!("baud rates tried: {}", join(&bauds))?;
+    }
+    if !shared.is_empty() {
+        let ids: Vec<String> = shared
+            .iter()
+            .map(|(id, baud, n)| format!("id {id} ({n} servos at {baud} baud)"))
+            .collect();
+        return Err(Failure::other(anyhow!(
+            "servos share an id on {}: {}; connect one at a time and give each its own id \
+             (snakectl servo ... set-id)",
+            args.port.display(),
+            ids.join(", ")
+        )));
     }
     if total == 0 {
         return Err(Failure::other(anyhow!(
             "no servo answered on {} at {} baud (check power, wiring and the baud rate)",
             args.port.display(),
-            bauds
-                .iter()
-                .map(u32::to_string)
-                .collect::<Vec<_>>()
-                .join(", ")
+            join(&bauds)
         )));
     }
     Ok(())
+}
+
+fn join(bauds: &[u32]) -> String {
+    bauds
+        .iter()
+        .map(u32::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Runs `snakectl ports`.
@@ -222,55 +306,46 @@ pub fn ports(_args: PortsArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-/// Opens the port at the servo's baud rate (given, or found by pinging it at each common one).
-fn find(args: &ServoArgs, timeout: Duration) -> Result<(DynamixelBus, PingInfo), Failure> {
-    if args.id > MAX_ID {
-        return Err(Failure::bad_input(AdminError::BadId(args.id)));
-    }
+/// Opens the port at servo `id`'s baud rate (given, or found by pinging it at each one).
+fn find(args: &ServoArgs, id: u8, timeout: Duration) -> Result<(DynamixelBus, PingInfo), Failure> {
     let bauds: Vec<u32> = match args.baud {
         Some(b) => {
             check_baud(b)?;
             vec![b]
         }
-        None => COMMON_BAUDS.to_vec(),
+        None => SEARCH_BAUDS.to_vec(),
     };
     let mut bus = open(&args.port, bauds[0])?;
-    match admin::find(&mut bus, args.id, &bauds, timeout) {
+    match admin::find(&mut bus, id, &bauds, timeout) {
         Ok(info) => Ok((bus, info)),
         Err(e @ AdminError::NotFound { .. }) => Err(Failure::other(anyhow!(
             "{e} on {} (`snakectl scan --port {}` lists what does)",
             args.port.display(),
             args.port.display()
         ))),
-        Err(e) => Err(admin_failure(e)),
+        Err(e) => Err(admin_failure(&args.port, e)),
     }
 }
 
 /// Runs `snakectl servo`.
 pub fn run(args: ServoArgs) -> Result<(), Failure> {
     init_logging();
-    let timeout = Duration::from_millis(args.timeout_ms);
     // Check the arguments before touching the bus.
-    if args.id > MAX_ID {
-        return Err(Failure::bad_input(anyhow!(
-            "--id {} is out of range 0..=252 (253 is reserved, 254 is the broadcast id)",
-            args.id
-        )));
-    }
+    let id = servo_id("--id", args.id)?;
+    let timeout = timeout(args.timeout_ms)?;
+    let new_id = match args.action {
+        ServoAction::SetId { new_id } => Some(servo_id("new id", new_id)?),
+        _ => None,
+    };
     match args.action {
-        ServoAction::SetId { new_id } if new_id > MAX_ID => {
-            return Err(Failure::bad_input(anyhow!(
-                "new id {new_id} is out of range 0..=252"
-            )))
-        }
         ServoAction::SetBaud { new_baud } => check_baud(new_baud)?,
         ServoAction::SetReturnDelay { us } if us > 508 || us % 2 != 0 => {
             return Err(Failure::bad_input(AdminError::BadReturnDelay(us)))
         }
         _ => {}
     }
-    let (mut bus, info) = find(&args, timeout)?;
-    let id = args.id;
+    let (mut bus, info) = find(&args, id, timeout)?;
+    let path = args.port.as_path();
     let port = args.port.display();
     let baud = bus.baud();
     eprintln!(
@@ -278,24 +353,39 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
         model_name(info.model).unwrap_or("unknown model")
     );
     match args.action {
-        ServoAction::SetId { new_id } => {
-            if admin::set_id(&mut bus, id, new_id, timeout).map_err(admin_failure)? {
+        ServoAction::SetId { .. } => {
+            let new_id = new_id.unwrap_or(id);
+            let written =
+                admin::set_id(&mut bus, id, new_id, timeout).map_err(|e| admin_failure(path, e))?;
+            if told_torque(id, written) {
                 outln!("servo {id}: now id {new_id}")?;
             } else {
                 outln!("servo {id}: already id {id}")?;
             }
         }
         ServoAction::SetBaud { new_baud } => {
-            admin::set_baud(&mut bus, id, new_baud, timeout, &RealClock).map_err(admin_failure)?;
-            outln!("servo {id}: now at {new_baud} baud (set [bus] baud = {new_baud})")?;
+            let written = admin::set_baud(&mut bus, id, new_baud, timeout, &RealClock)
+                .map_err(|e| admin_failure(path, e))?;
+            told_torque(id, written);
+            if new_baud == baud {
+                outln!("servo {id}: already at {baud} baud")?;
+            } else {
+                outln!(
+                    "servo {id}: now at {new_baud} baud; servos still at {baud} baud no longer \
+                     hear it: move each to {new_baud} too, then set [bus] baud = {new_baud}"
+                )?;
+            }
         }
         ServoAction::SetReturnDelay { us } => {
-            let back = admin::set_return_delay(&mut bus, id, us, timeout).map_err(admin_failure)?;
+            let written = admin::set_return_delay(&mut bus, id, us, timeout)
+                .map_err(|e| admin_failure(path, e))?;
+            let back = told_torque(id, written);
             outln!("servo {id}: Return Delay Time {back} µs")?;
         }
         ServoAction::ClearCalibration => {
-            let (offset, drive) =
-                admin::clear_calibration(&mut bus, id, timeout).map_err(admin_failure)?;
+            let written = admin::clear_calibration(&mut bus, id, timeout)
+                .map_err(|e| admin_failure(path, e))?;
+            let (offset, drive) = told_torque(id, written);
             // What the servo holds now, read back.
             let mut read = |r| bus.read(id, r, timeout).map(|v| v.value);
             let now = (read(Register::HomingOffset), read(Register::DriveMode));
@@ -309,7 +399,7 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
             )?;
         }
         ServoAction::Info => {
-            let i = admin::info(&mut bus, id, timeout).map_err(admin_failure)?;
+            let i = admin::info(&mut bus, id, timeout).map_err(|e| admin_failure(path, e))?;
             let baud_text = usize::try_from(i.baud_register)
                 .ok()
                 .and_then(|r| BAUD_RATES.get(r))
@@ -338,14 +428,31 @@ pub fn run(args: ServoArgs) -> Result<(), Failure> {
         }
         ServoAction::Reboot => {
             reboot_and_wait(&mut bus, id, timeout, &RealClock, &mut Retry::default())
-                .map_err(Failure::other)?;
-            let errors = bus.hardware_errors(id, timeout).map_err(Failure::other)?;
+                .map_err(|e| port_failure(path, e))?;
+            let errors = bus
+                .hardware_errors(id, timeout)
+                .map_err(|e| port_failure(path, e))?;
             outln!("servo {id}: rebooted; hardware errors: {errors}")?;
         }
         ServoAction::TorqueOff => {
-            bus.set_torque(id, false, timeout).map_err(Failure::other)?;
+            bus.set_torque(id, false, timeout)
+                .map_err(|e| port_failure(path, e))?;
             outln!("servo {id}: torque off")?;
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_rates_searched_are_every_rate_set_baud_accepts() {
+        let mut searched = SEARCH_BAUDS.to_vec();
+        searched.sort_unstable();
+        let mut all = BAUD_RATES.to_vec();
+        all.sort_unstable();
+        assert_eq!(searched, all);
+    }
 }

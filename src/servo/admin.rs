@@ -25,6 +25,19 @@ pub enum AdminError {
         /// The baud rate.
         baud: u32,
     },
+    /// Servos share the id the procedure would change: it would change every one of them.
+    #[error(
+        "id {id} answered {answers} times at {baud} baud: servos share it; connect one at a time \
+         to give each its own id"
+    )]
+    Shared {
+        /// The id.
+        id: u8,
+        /// How many replies one ping got.
+        answers: usize,
+        /// The baud rate.
+        baud: u32,
+    },
     /// An id outside 0..=252.
     #[error("id {0} is out of range 0..=252")]
     BadId(u8),
@@ -87,37 +100,70 @@ pub fn find<B: ServoBus>(
     })
 }
 
-/// Torque off, so EEPROM items can be written.
-fn torque_off<B: ServoBus>(bus: &mut B, id: u8, timeout: Duration) -> Result<(), AdminError> {
-    bus.set_torque(id, false, timeout)?;
+/// What a procedure that writes EEPROM returns: its own result, and whether it found torque on
+/// and switched it off (the joint went limp), which the user must be told.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Written<T> {
+    /// The procedure's result.
+    pub value: T,
+    /// Torque was on and was switched off to write EEPROM.
+    pub torque_was_on: bool,
+}
+
+/// Torque off, so EEPROM items can be written; returns whether it was on.
+fn torque_off<B: ServoBus>(bus: &mut B, id: u8, timeout: Duration) -> Result<bool, AdminError> {
+    let on = bus.read(id, Register::TorqueEnable, timeout)?.value != 0;
+    if on {
+        bus.set_torque(id, false, timeout)?;
+    }
+    Ok(on)
+}
+
+/// Refuses to change servo `id` when more than one servo answers to it.
+fn only_one<B: ServoBus>(bus: &mut B, id: u8, timeout: Duration) -> Result<(), AdminError> {
+    let (_, answers) = bus.ping_counted(id, timeout)?;
+    if answers > 1 {
+        return Err(AdminError::Shared {
+            id,
+            answers,
+            baud: bus.baud(),
+        });
+    }
     Ok(())
 }
 
-/// Give servo `id` the id `new_id` (refused if another servo answers to it); confirmed by a
-/// ping at the new id. Returns whether anything changed.
+/// Refuses id `id` when anything answers to it at the bus's present rate.
+fn free<B: ServoBus>(bus: &mut B, id: u8, timeout: Duration) -> Result<(), AdminError> {
+    match bus.ping(id, timeout) {
+        Err(e) if e.is_timeout() => Ok(()),
+        Ok(_) => Err(AdminError::IdTaken {
+            id,
+            baud: bus.baud(),
+        }),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Give servo `id` the id `new_id` (refused if another servo answers to it, or if servos share
+/// `id`); confirmed by a ping at the new id. Returns whether anything changed.
 pub fn set_id<B: ServoBus>(
     bus: &mut B,
     id: u8,
     new_id: u8,
     timeout: Duration,
-) -> Result<bool, AdminError> {
+) -> Result<Written<bool>, AdminError> {
     if new_id > MAX_ID {
         return Err(AdminError::BadId(new_id));
     }
     if new_id == id {
-        return Ok(false);
+        return Ok(Written {
+            value: false,
+            torque_was_on: false,
+        });
     }
-    match bus.ping(new_id, timeout) {
-        Err(e) if e.is_timeout() => {}
-        Ok(_) => {
-            return Err(AdminError::IdTaken {
-                id: new_id,
-                baud: bus.baud(),
-            })
-        }
-        Err(e) => return Err(e.into()),
-    }
-    torque_off(bus, id, timeout)?;
+    free(bus, new_id, timeout)?;
+    only_one(bus, id, timeout)?;
+    let torque_was_on = torque_off(bus, id, timeout)?;
     match bus.write(id, Register::Id, i64::from(new_id), timeout) {
         Ok(_) => {}
         // The acknowledgement may already carry the new id: skipped as another servo's.
@@ -131,20 +177,32 @@ pub fn set_id<B: ServoBus>(
             what: format!("does not answer as {new_id}"),
             source,
         })?;
-    Ok(true)
+    Ok(Written {
+        value: true,
+        torque_was_on,
+    })
 }
 
 /// Set servo `id`'s baud rate to `new_baud`, then the port's, and confirm with a ping (after
-/// the servo's switch-over time, waited on `clock`).
+/// the servo's switch-over time, waited on `clock`). Refused if servos share `id`, or if
+/// anything answers to `id` at the new rate already (two servos would then share it there).
 pub fn set_baud<B: ServoBus>(
     bus: &mut B,
     id: u8,
     new_baud: u32,
     timeout: Duration,
     clock: &dyn Clock,
-) -> Result<(), AdminError> {
+) -> Result<Written<()>, AdminError> {
     let index = baud_index(new_baud).ok_or(ServoError::Baud(new_baud))?;
-    torque_off(bus, id, timeout)?;
+    only_one(bus, id, timeout)?;
+    let old_baud = bus.baud();
+    if new_baud != old_baud {
+        bus.set_baud(new_baud)?;
+        let there = free(bus, id, timeout);
+        bus.set_baud(old_baud)?;
+        there?;
+    }
+    let torque_was_on = torque_off(bus, id, timeout)?;
     // The servo may answer at either rate, or not at all, as it switches.
     match bus.write(id, Register::BaudRate, i64::from(index), timeout) {
         Ok(_) | Err(ServoError::Timeout { .. }) | Err(ServoError::Checksum { .. }) => {}
@@ -158,7 +216,10 @@ pub fn set_baud<B: ServoBus>(
             what: format!("does not answer at {new_baud} baud"),
             source,
         })?;
-    Ok(())
+    Ok(Written {
+        value: (),
+        torque_was_on,
+    })
 }
 
 /// Set servo `id`'s Return Delay Time to `us` µs (even, at most 508); returns the value read
@@ -168,11 +229,11 @@ pub fn set_return_delay<B: ServoBus>(
     id: u8,
     us: u32,
     timeout: Duration,
-) -> Result<u32, AdminError> {
+) -> Result<Written<u32>, AdminError> {
     if us > 508 || us % 2 != 0 {
         return Err(AdminError::BadReturnDelay(us));
     }
-    torque_off(bus, id, timeout)?;
+    let torque_was_on = torque_off(bus, id, timeout)?;
     bus.write(
         id,
         Register::ReturnDelayTime,
@@ -180,20 +241,25 @@ pub fn set_return_delay<B: ServoBus>(
         timeout,
     )?;
     let back = bus.read(id, Register::ReturnDelayTime, timeout)?.value;
-    Ok(u32::try_from(back).unwrap_or_default() * 2)
+    Ok(Written {
+        value: u32::try_from(back).unwrap_or_default() * 2,
+        torque_was_on,
+    })
 }
 
 /// Zero servo `id`'s Homing Offset and clear Drive Mode's reverse bit (keeping its other
-/// bits), as bring-up requires. Returns the values found before (offset, drive mode).
+/// bits), as bring-up requires. Returns the values found before (offset, drive mode); torque
+/// is only switched off when there is something to clear.
 pub fn clear_calibration<B: ServoBus>(
     bus: &mut B,
     id: u8,
     timeout: Duration,
-) -> Result<(i64, i64), AdminError> {
+) -> Result<Written<(i64, i64)>, AdminError> {
     let offset = bus.read(id, Register::HomingOffset, timeout)?.value;
     let drive = bus.read(id, Register::DriveMode, timeout)?.value;
+    let mut torque_was_on = false;
     if offset != 0 || drive & DRIVE_MODE_REVERSE != 0 {
-        torque_off(bus, id, timeout)?;
+        torque_was_on = torque_off(bus, id, timeout)?;
         if offset != 0 {
             bus.write(id, Register::HomingOffset, 0, timeout)?;
         }
@@ -206,7 +272,10 @@ pub fn clear_calibration<B: ServoBus>(
             )?;
         }
     }
-    Ok((offset, drive))
+    Ok(Written {
+        value: (offset, drive),
+        torque_was_on,
+    })
 }
 
 /// A servo's settings and state, as `snakectl servo info` prints them.

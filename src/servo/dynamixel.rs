@@ -1201,6 +1201,55 @@ impl ServoBus for DynamixelBus {
         })
     }
 
+    fn ping_counted(&mut self, id: u8, timeout: Duration) -> Result<(PingInfo, usize), ServoError> {
+        check_id(id)?;
+        self.send(id, ins::PING, 0, |_| {})?;
+        // A second servo with the id answers after the first (or over it, damaging both):
+        // listen for two replies' time, not stopping at the first.
+        let waited = wire_time(INSTRUCTION_OVERHEAD, self.baud)
+            + wire_time(STATUS_OVERHEAD + 3, self.baud)
+            + self.reply_wait(3, timeout);
+        let deadline = Instant::now() + waited;
+        let mut first: Option<PingInfo> = None;
+        let mut first_error = None;
+        let mut count = 0;
+        loop {
+            match self.read_status(poll_deadline(deadline))? {
+                Got::Packet { id: from, error } if from == id => {
+                    count += 1;
+                    let d = self.rx.params();
+                    match status_error(id, error) {
+                        Ok(alert) if d.len() == 3 && first.is_none() => {
+                            first = Some(PingInfo {
+                                id,
+                                model: u16::from_le_bytes([d[0], d[1]]),
+                                firmware: d[2],
+                                alert,
+                            });
+                        }
+                        Ok(_) => {}
+                        Err(e) => {
+                            first_error.get_or_insert(e);
+                        }
+                    }
+                }
+                Got::Packet { id: from, .. } => {
+                    tracing::debug!(id, from, "skipping a reply of another servo");
+                }
+                Got::Damaged { damage, .. } => {
+                    count += 1;
+                    first_error.get_or_insert(damage.of(id));
+                }
+                Got::Nothing => break,
+            }
+        }
+        match (first, first_error) {
+            (Some(p), _) => Ok((p, count)),
+            (None, Some(e)) => Err(e),
+            (None, None) => Err(ServoError::Timeout { id, waited }),
+        }
+    }
+
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
         self.send(BROADCAST_ID, ins::PING, 0, |_| {})?;
         // Replies come in id order, but one from a higher id may follow any of them: listen for
@@ -1211,9 +1260,10 @@ impl ServoBus for DynamixelBus {
             match self.read_status(poll_deadline(deadline))? {
                 Got::Packet { id, error } => {
                     let d = self.rx.params();
-                    let fresh = !found.iter().any(|f| f.id == id);
+                    // Every reply is listed, an id answered twice twice: servos sharing an id
+                    // are what a scan must show.
                     match status_error(id, error) {
-                        Ok(alert) if d.len() == 3 && fresh => found.push(PingInfo {
+                        Ok(alert) if d.len() == 3 => found.push(PingInfo {
                             id,
                             model: u16::from_le_bytes([d[0], d[1]]),
                             firmware: d[2],

@@ -198,6 +198,10 @@ impl<B: ServoBus> ServoBus for Limited<B> {
         self.inner.ping(id, timeout)
     }
 
+    fn ping_counted(&mut self, id: u8, timeout: Duration) -> Result<(PingInfo, usize), ServoError> {
+        self.inner.ping_counted(id, timeout)
+    }
+
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
         self.inner.scan(timeout)
     }

@@ -680,7 +680,15 @@ pub trait ServoBus {
     /// Ping one servo: model number and firmware.
     fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError>;
 
-    /// Broadcast ping: every servo that answers, in id order. Listens for every id's slot and
+    /// Ping one servo and listen on for a second reply: the first good reply, and how many
+    /// replies (damaged ones included) `id` got. More than one means servos share the id, which
+    /// a plain [`ServoBus::ping`] cannot tell. A bus that cannot tell counts one.
+    fn ping_counted(&mut self, id: u8, timeout: Duration) -> Result<(PingInfo, usize), ServoError> {
+        self.ping(id, timeout).map(|p| (p, 1))
+    }
+
+    /// Broadcast ping: every reply, in id order; an id listed twice was answered twice (servos
+    /// sharing it). Listens for every id's slot and
     /// reply, up to id 252, plus `timeout` (see [`dynamixel::scan_window`]): under a second
     /// at 1 Mbps, whatever the ids.
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError>;
@@ -889,6 +897,9 @@ impl<B: ServoBus + ?Sized> ServoBus for &mut B {
     }
     fn ping(&mut self, id: u8, timeout: Duration) -> Result<PingInfo, ServoError> {
         (**self).ping(id, timeout)
+    }
+    fn ping_counted(&mut self, id: u8, timeout: Duration) -> Result<(PingInfo, usize), ServoError> {
+        (**self).ping_counted(id, timeout)
     }
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
         (**self).scan(timeout)

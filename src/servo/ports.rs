@@ -565,6 +565,10 @@ impl<B: ServoBus + Send + 'static> ServoBus for Ports<B> {
         self.on(id, move |bus| bus.ping(id, timeout))
     }
 
+    fn ping_counted(&mut self, id: u8, timeout: Duration) -> Result<(PingInfo, usize), ServoError> {
+        self.on(id, move |bus| bus.ping_counted(id, timeout))
+    }
+
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
         let mut found: Vec<PingInfo> = self
             .every(move |bus| bus.scan(timeout))?

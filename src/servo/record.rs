@@ -83,6 +83,10 @@ impl<B: ServoBus> ServoBus for Recording<B> {
         self.log.push(Instruction::Ping(id));
         self.inner.ping(id, timeout)
     }
+    fn ping_counted(&mut self, id: u8, timeout: Duration) -> Result<(PingInfo, usize), ServoError> {
+        self.log.push(Instruction::Ping(id));
+        self.inner.ping_counted(id, timeout)
+    }
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
         self.log.push(Instruction::Scan);
         self.inner.scan(timeout)
