@@ -228,7 +228,7 @@ pub fn scan(args: ScanArgs) -> Result<(), Failure> {
         total += found.len();
     }
     if args.baud.is_none() && total > 0 {
-        outln!("baud rates tried: {}", join(&bauds))?;
+        outln!("baud rates tried: {}", admin::list_bauds(&bauds))?;
     }
     if !shared.is_empty() {
         let ids: Vec<String> = shared
@@ -246,18 +246,10 @@ pub fn scan(args: ScanArgs) -> Result<(), Failure> {
         return Err(Failure::other(anyhow!(
             "no servo answered on {} at {} baud (check power, wiring and the baud rate)",
             args.port.display(),
-            join(&bauds)
+            admin::list_bauds(&bauds)
         )));
     }
     Ok(())
-}
-
-fn join(bauds: &[u32]) -> String {
-    bauds
-        .iter()
-        .map(u32::to_string)
-        .collect::<Vec<_>>()
-        .join(", ")
 }
 
 /// Runs `snakectl ports`.

@@ -45,7 +45,7 @@ pub enum AdminError {
     #[error("return delay {0} µs: must be even and at most 508")]
     BadReturnDelay(u32),
     /// The servo answers at none of the baud rates tried.
-    #[error("servo {id} does not answer at {} baud", join(bauds))]
+    #[error("servo {id} does not answer at {} baud", list_bauds(bauds))]
     NotFound {
         /// The servo.
         id: u8,
@@ -67,7 +67,8 @@ pub enum AdminError {
     Servo(#[from] ServoError),
 }
 
-fn join(bauds: &[u32]) -> String {
+/// Baud rates as a message lists them: "57600, 1000000".
+pub fn list_bauds(bauds: &[u32]) -> String {
     bauds
         .iter()
         .map(u32::to_string)
