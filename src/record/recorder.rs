@@ -235,14 +235,13 @@ impl Recorder {
     /// A start-up that was refused leaves no recording behind: the thread ends and the file
     /// it created (header and channels, not a message) is removed.
     pub fn discard(mut self) {
-        if let Some(thread) = self.thread.take() {
-            self.closer.close();
-            let _ = thread.join();
-        }
-        if let Some(file) = &self.file {
-            match std::fs::remove_file(file) {
-                Ok(()) => tracing::info!("start-up refused: the recording {} removed", self.what),
-                Err(e) => tracing::warn!("removing the recording {}: {e}", self.what),
+        let (file, what) = (self.file.take(), std::mem::take(&mut self.what));
+        // Dropped, its thread ends, as for any recorder not closed.
+        drop(self);
+        if let Some(file) = file {
+            match std::fs::remove_file(&file) {
+                Ok(()) => tracing::info!("start-up refused: the recording {what} removed"),
+                Err(e) => tracing::warn!("removing the recording {what}: {e}"),
             }
         }
     }

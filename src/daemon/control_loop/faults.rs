@@ -583,16 +583,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// The serial port failed: hold, report, reopen every [`RETRY_EVERY`].
     pub(super) fn lose_port(&mut self, e: &ServoError) {
-        let info = self.port.lose(self.tick, self.clock.now(), e.port(), e);
+        // A port already lost fails every tick it is written: only a port newly lost is news.
+        let Some(info) = self.port.lose(self.tick, self.clock.now(), e.port(), e) else {
+            return;
+        };
         if self.port.several() {
-            // The servos on the ports still open go on being read (another port may have
-            // failed since the first).
+            // The servos on the ports still open go on being read.
             let (ids, joints) = read_set(None, self.rebooting.as_ref(), &self.ids);
             self.reachable.fill(self.port.bus(), ids, joints);
         }
-        let Some(info) = info else {
-            return;
-        };
         self.sync_faulted();
         tracing::error!("{}", info.detail);
         self.announce(FaultChange::Raised, info);
