@@ -11,7 +11,12 @@ use clap::{Parser, Subcommand};
 /// Controller and simulator for planar snake arms and flexible ropes. With no subcommand:
 /// `snakectl demo`.
 #[derive(Debug, Parser)]
-#[command(name = "snakectl", version, about)]
+#[command(
+    name = "snakectl",
+    version,
+    about,
+    after_help = "With no subcommand: `snakectl demo` (the daemon on the simulated arm, driven through its socket, figures at the end)."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,

@@ -225,3 +225,74 @@ fn a_bad_config_fails_naming_the_file() {
     }
     assert!(!out.join("summary.json").exists());
 }
+
+/// Ctrl-C stops the run as a failure does: the arm brought to rest, the recording closed whole
+/// (it plots without a word of being cut short), exit status 130 with the reason; the last
+/// run's outputs are gone rather than left beside this run's partial one.
+#[test]
+fn an_interrupted_demo_stops_cleanly_and_leaves_no_stale_outputs() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    for stale in ["summary.json", "motion.png", "joints.svg"] {
+        std::fs::write(out.join(stale), "from the last run").unwrap();
+    }
+    let shipped =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    let config = dir.path().join("sim.toml");
+    std::fs::write(
+        &config,
+        shipped.replace("\n[control]\n", "\n[control]\nmax_silence_ms = 300\n"),
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["demo", "--seconds", "3", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut seen = String::new();
+    // Interrupted during the first figure eight.
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        seen.push_str(&line);
+        seen.push('\n');
+        if line.contains("figure eight") {
+            break;
+        }
+    }
+    assert!(
+        seen.contains("figure eight"),
+        "the demo ended early:\n{seen}"
+    );
+    let pid = rustix::process::Pid::from_raw(i32::try_from(child.id()).unwrap()).unwrap();
+    rustix::process::kill_process(pid, rustix::process::Signal::INT).unwrap();
+    for line in lines {
+        seen.push_str(&line.unwrap());
+        seen.push('\n');
+    }
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{seen}");
+    assert!(
+        seen.contains("the demo was interrupted") && seen.contains("stopped by SIGINT"),
+        "{seen}"
+    );
+    for stale in ["summary.json", "motion.png", "joints.svg"] {
+        assert!(!out.join(stale).exists(), "{stale} of the last run is left");
+    }
+    let plotted = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .arg("plot")
+        .arg(out.join("run.mcap"))
+        .arg("--out")
+        .arg(dir.path().join("replot"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&plotted.stderr);
+    assert!(plotted.status.success(), "{stderr}");
+    assert!(!stderr.contains("ends in the middle"), "{stderr}");
+}

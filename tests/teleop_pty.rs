@@ -892,6 +892,151 @@ fn sighup_stops_the_arm_and_gives_the_terminal_back() {
     a_signal_stops_the_arm_and_gives_the_terminal_back(rustix::process::Signal::HUP);
 }
 
+/// A paste drives nothing (it comes as one event, said on screen), and a flood of keys from a
+/// terminal that does not mark pastes is read through to its end: the estop typed after it is
+/// carried out.
+#[test]
+fn a_paste_moves_nothing_and_keys_after_a_flood_still_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    let mut ui = Ui::start(&["--sim".as_ref(), config.as_os_str()]);
+    let text = ui.wait_for("the arm at rest, in control", |t| {
+        field(t, "state") == Some("holding") && field(t, "control") == Some("you")
+    });
+    let start = tip(&text).unwrap();
+    // A marked paste of motion keys.
+    ui.send(b"\x1b[200~dddddddd\x1b[201~");
+    ui.wait_for("the paste's notice", |t| {
+        t.contains("a paste of 8 characters ignored")
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    let tip_now = tip(&ui.contents()).unwrap();
+    assert!(
+        (tip_now[0] - start[0]).abs() < 1e-3,
+        "a paste moved the tip: {start:?} -> {tip_now:?}"
+    );
+    // 3000 unmarked bytes (each a key that stops), then `e`.
+    ui.send(&[b'x'; 3000]);
+    ui.send(b"e");
+    ui.wait_for("the estop after the flood", |t| {
+        field(t, "state") == Some("estop")
+    });
+    ui.send(b"q");
+    ui.quits_giving_the_terminal_back("q");
+}
+
+/// A terminal closed under teleop ends it as a SIGHUP does, even where none comes (teleop here
+/// is not in the terminal's session): exit status 129, the daemon it started stopped, within
+/// moments rather than spinning on a terminal that reads nothing.
+#[test]
+fn a_terminal_closed_under_it_ends_teleop_without_a_signal() {
+    use rustix::pty::{grantpt, openpt, ptsname, unlockpt, OpenptFlags};
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    // Close-on-exec: a master left open in teleop would keep its own terminal from hanging up.
+    let master = openpt(OpenptFlags::RDWR | OpenptFlags::NOCTTY | OpenptFlags::CLOEXEC).unwrap();
+    grantpt(&master).unwrap();
+    unlockpt(&master).unwrap();
+    let name = ptsname(&master, Vec::new()).unwrap();
+    let size = rustix::termios::Winsize {
+        ws_row: ROWS,
+        ws_col: COLS,
+        ws_xpixel: 0,
+        ws_ypixel: 0,
+    };
+    rustix::termios::tcsetwinsize(&master, size).unwrap();
+    let slave = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(<std::ffi::OsStr as std::os::unix::ffi::OsStrExt>::from_bytes(name.to_bytes()))
+        .unwrap();
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["teleop", "--sim"])
+        .arg(&config)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("TERM", "xterm-256color")
+        .stdin(slave.try_clone().unwrap())
+        .stdout(slave)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut child = Reaped(child);
+    let child = &mut child.0;
+    let flags = rustix::fs::fcntl_getfl(&master).unwrap();
+    rustix::fs::fcntl_setfl(&master, flags | rustix::fs::OFlags::NONBLOCK).unwrap();
+    let mut master = std::fs::File::from(master);
+    let mut screen = vt100::Parser::new(ROWS, COLS, 0);
+    let deadline = Instant::now() + DEADLINE;
+    // Up to the arm at rest under this UI's control (answering the terminal query a VT100
+    // answers).
+    let text = loop {
+        let text = screen.screen().contents();
+        if field(&text, "state") == Some("holding") && field(&text, "control") == Some("you") {
+            break text;
+        }
+        let mut buf = [0u8; 8192];
+        match master.read(&mut buf) {
+            Ok(n) => {
+                if contains(&buf[..n], b"\x1b[c") {
+                    master.write_all(b"\x1b[?62;22c").unwrap();
+                }
+                screen.process(&buf[..n]);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            Err(e) => panic!("reading the terminal: {e}"),
+        }
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("teleop exited ({status:?}) before the arm showed");
+        }
+        assert!(Instant::now() < deadline, "the arm never showed:\n{text}");
+    };
+    let addr = field(&text, "daemon").unwrap().to_owned();
+    drop(master);
+    let closed = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            closed.elapsed() < DEADLINE,
+            "teleop still runs after its terminal closed"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert_eq!(status.code(), Some(129), "{status:?}: {err}");
+    assert!(err.contains("the terminal hung up"), "{err}");
+    // The daemon teleop started has stopped with it.
+    assert!(
+        TcpStream::connect(&addr).is_err(),
+        "the daemon at {addr} still listens"
+    );
+}
+
+/// A child process killed if the test fails before it ends.
+struct Reaped(std::process::Child);
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+fn contains(haystack: &[u8], needle: &[u8]) -> bool {
+    haystack.windows(needle.len()).any(|w| w == needle)
+}
+
 /// A daemon played by the test: it answers every request at once (`describe` with a 12-link
 /// arm, an empty `world`, control granted, any other with an ok) and sends telemetry only when
 /// the test says, so the test decides when it falls silent.

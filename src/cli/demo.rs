@@ -34,6 +34,7 @@ use snakectl::resolve::Strategy;
 use snakectl::world::{Obstacle, Shape, World};
 use snakectl_sim::RealClock;
 
+use super::signals::Signals;
 use super::{outln, Failure};
 
 /// The shipped simulator config, compiled in so the demo runs from any directory.
@@ -42,6 +43,16 @@ const SHIPPED_PATH: &str = "config/sim.toml";
 const DEFAULT_OUT: &str = "snakectl-demo";
 /// The recording of the run, in the output directory; the figures are drawn from it.
 const RECORDING: &str = "run.mcap";
+
+/// Every file a run writes into its directory (the figures by [`super::plot::figures`]).
+const OUTPUTS: [&str; 6] = [
+    "summary.json",
+    "motion.svg",
+    "motion.png",
+    "joints.svg",
+    "joints.png",
+    RECORDING,
+];
 /// Each figure eight's duration unless `--seconds` says otherwise, s.
 const DEFAULT_SECONDS: f64 = 15.0;
 const MIN_SECONDS: f64 = 2.0;
@@ -104,8 +115,33 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     } else {
         args.out
     };
+    if out.exists() && !out.is_dir() {
+        return Err(Failure::bad_input(anyhow!(
+            "{} is not a directory: the demo writes its outputs there (--out names another)",
+            out.display()
+        )));
+    }
     std::fs::create_dir_all(&out)
         .with_context(|| format!("creating {}", out.display()))
+        .map_err(Failure::other)?;
+    // The last run's outputs go first, so that a run that fails leaves none of them beside
+    // its own partial recording.
+    for name in OUTPUTS {
+        let path = out.join(name);
+        match std::fs::remove_file(&path) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(Failure::other(
+                    anyhow::Error::new(e).context(format!("removing {}", path.display())),
+                ))
+            }
+        }
+    }
+    // A signal (Ctrl-C) stops the run as a failure does: the daemon brings the arm to rest
+    // and closes the recording.
+    let signals = Signals::catch()
+        .context("installing the signal handlers")
         .map_err(Failure::other)?;
 
     let mut progress = Progress::new();
@@ -130,7 +166,7 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         daemon.addr(),
         sim.path().display()
     ));
-    let driven = drive(&config, daemon.addr(), seconds, &mut progress);
+    let driven = drive(&config, daemon.addr(), seconds, &mut progress, &signals);
     progress.clear();
     if let Ok(demo) = &driven {
         // The phases go into the recording, which the figures are drawn from.
@@ -140,6 +176,14 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     }
     let stopped = daemon.stop();
     drop(sim);
+    if let Some(signal) = signals.received() {
+        let mut failure = super::signals::stopped_by(signal);
+        failure.error = failure.error.context(format!(
+            "the demo was interrupted: the arm is at rest, and {} holds the run so far",
+            recording.display()
+        ));
+        return Err(failure);
+    }
     let demo = match (driven, stopped) {
         (Ok(demo), Ok(_)) => demo,
         // The daemon's own failure (a bring-up refused, say) is the cause; the client only saw
@@ -503,6 +547,8 @@ struct Session<'p> {
 struct Recorder<'p> {
     arm: ArmInfo,
     progress: &'p mut Progress,
+    /// A signal ends the run at the next thing seen.
+    signals: &'p Signals,
     recs: Vec<Rec>,
     latest: Option<Snapshot>,
     phases: Vec<Phase>,
@@ -518,6 +564,7 @@ fn drive(
     addr: SocketAddr,
     seconds: f64,
     progress: &mut Progress,
+    signals: &Signals,
 ) -> anyhow::Result<Demo> {
     let control = config.control();
     let token = config.server().token_file.as_deref();
@@ -533,6 +580,7 @@ fn drive(
         rec: Recorder {
             arm,
             progress,
+            signals,
             recs: Vec::new(),
             latest: None,
             phases: Vec::new(),
@@ -585,6 +633,9 @@ impl Recorder<'_> {
     /// Takes what the client shows: a telemetry line is recorded; a refused request or a
     /// fault raised fails the run.
     fn take(&mut self, seen: Seen<'_>) -> anyhow::Result<()> {
+        if let Some(signal) = self.signals.received() {
+            bail!("interrupted by signal {signal}");
+        }
         match seen {
             Seen::Telemetry(t) => self.record(&t.status),
             Seen::Reply(reply) => {

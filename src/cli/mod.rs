@@ -6,6 +6,7 @@ pub mod fleet;
 pub mod plot;
 pub mod run;
 pub mod servo;
+pub mod signals;
 pub mod sim;
 pub mod simulate;
 pub mod solve;

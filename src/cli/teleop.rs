@@ -5,9 +5,11 @@
 //! and redraws from the latest telemetry at most ~30 times a second. Connecting happens on a
 //! thread of its own, so the screen stays alive (and `q` quits) while the daemon is away.
 
-use std::io::Stdout;
+use std::fs::File;
+use std::io::{IsTerminal as _, Write};
+use std::os::fd::AsFd as _;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -15,9 +17,9 @@ use std::time::{Duration, Instant};
 use anyhow::Context as _;
 use clap::Args;
 use crossterm::event::{
-    self, DisableMouseCapture, EnableMouseCapture, Event, KeyCode, KeyEvent, KeyEventKind,
-    KeyModifiers, KeyboardEnhancementFlags, MouseButton, MouseEventKind,
-    PopKeyboardEnhancementFlags, PushKeyboardEnhancementFlags,
+    self, DisableBracketedPaste, DisableMouseCapture, EnableBracketedPaste, EnableMouseCapture,
+    Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers, KeyboardEnhancementFlags, MouseButton,
+    MouseEventKind, PopKeyboardEnhancementFlags, PushKeyboardEnhancementFlags,
 };
 use crossterm::terminal::{self, EnterAlternateScreen, LeaveAlternateScreen};
 use ratatui::backend::CrosstermBackend;
@@ -28,7 +30,7 @@ use snakectl::client::{self, ArmInfo, Client, ClientError, Incoming, Replied, St
 use snakectl::config::Config;
 use snakectl::connect;
 use snakectl::daemon::{Embedded, RunOptions};
-use snakectl::protocol::{Cmd, CmdName, Reply, What};
+use snakectl::protocol::{Cmd, CmdName, Reply, State, What};
 use snakectl::record::RecordOptions;
 use snakectl::resolve::Strategy;
 use snakectl::teleop::input::{Action, Key, KeyKind, Keyboard, DEFAULT_SPEED_M_S};
@@ -37,6 +39,7 @@ use snakectl::teleop::ui::{self, Contact, Panel, Trail, View};
 use snakectl::world::World;
 use snakectl_sim::RealClock;
 
+use super::signals::Signals;
 use super::Failure;
 
 #[derive(Debug, Args)]
@@ -76,6 +79,16 @@ const FRAME: Duration = Duration::from_millis(33);
 /// The longest wait for input: the loop looks at telemetry and replies at least this often.
 const MAX_POLL: Duration = Duration::from_millis(50);
 
+/// Terminal events handled in one wait at most, so that a flood of input (a paste into a
+/// terminal that does not mark pastes) cannot keep the loop from the daemon and the screen.
+const EVENTS_PER_WAIT: usize = 64;
+
+/// A `stop` this soon after one sent with nothing between is not sent again.
+const STOP_AGAIN: Duration = Duration::from_millis(100);
+
+/// The wait that takes the terminal's input already come, without waiting for more.
+const DRAIN_WAIT: Duration = Duration::from_micros(1);
+
 /// How often a lost daemon is tried again.
 const RETRY: Duration = Duration::from_secs(1);
 
@@ -99,6 +112,8 @@ const DRAIN: usize = 1024;
 /// the signal's number then.
 pub fn run(args: TeleopArgs) -> Result<(), Failure> {
     // Nothing is logged: a log line would garble the screen.
+    // Before anything starts: without a terminal there is nothing to steer from.
+    let tty = Tty::open().map_err(Failure::bad_input)?;
     let signals = Signals::catch()
         .context("installing the signal handlers")
         .map_err(Failure::other)?;
@@ -159,7 +174,7 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
     };
     let outcome = {
         let embedded = local.as_ref().map(|(embedded, _)| embedded);
-        let mut app = App::new(addr, token_file, args.deadman_button, stick, signals);
+        let mut app = App::new(addr, token_file, args.deadman_button, stick, signals, tty);
         match Screen::enter() {
             Ok(mut screen) => {
                 app.keyboard.set_releases_reported(screen.releases_reported);
@@ -194,53 +209,12 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
     }
     match outcome {
         Ok(Quit::Asked) => Ok(()),
-        Ok(Quit::Signal(signal)) => Err(Failure {
-            code: u8::try_from(128 + signal).unwrap_or(1),
-            error: anyhow::anyhow!(
-                "stopped by {}",
-                signal_hook::low_level::signal_name(signal).unwrap_or("a signal")
-            ),
+        Ok(Quit::Signal(signal)) => Err(super::signals::stopped_by(signal)),
+        Ok(Quit::HungUp) => Err(Failure {
+            code: u8::try_from(128 + signal_hook::consts::SIGHUP).unwrap_or(1),
+            error: anyhow::anyhow!("stopped: the terminal hung up"),
         }),
         Err(e) => Err(Failure::other(e)),
-    }
-}
-
-/// The signals that end teleop as `q` does: `kill`, a terminal hung up, and an interrupt sent
-/// from elsewhere (in raw mode Ctrl-C is a key).
-const QUIT_SIGNALS: [i32; 3] = [
-    signal_hook::consts::SIGTERM,
-    signal_hook::consts::SIGHUP,
-    signal_hook::consts::SIGINT,
-];
-
-/// Which of [`QUIT_SIGNALS`] came, for the loop to end on.
-struct Signals(Arc<AtomicUsize>);
-
-impl Signals {
-    /// Catches [`QUIT_SIGNALS`]. A second one ends the process at once (exit status 128 plus
-    /// its number), should the first one's way out be stuck.
-    fn catch() -> std::io::Result<Signals> {
-        let which = Arc::new(AtomicUsize::new(0));
-        let armed = Arc::new(AtomicBool::new(false));
-        for signal in QUIT_SIGNALS {
-            // Registered first, so the first signal finds it disarmed.
-            signal_hook::flag::register_conditional_shutdown(
-                signal,
-                128 + signal,
-                Arc::clone(&armed),
-            )?;
-            signal_hook::flag::register(signal, Arc::clone(&armed))?;
-            signal_hook::flag::register_usize(signal, Arc::clone(&which), signal as usize)?;
-        }
-        Ok(Signals(which))
-    }
-
-    /// The signal that came, if one did.
-    fn received(&self) -> Option<i32> {
-        match self.0.load(Ordering::SeqCst) {
-            0 => None,
-            n => i32::try_from(n).ok(),
-        }
     }
 }
 
@@ -249,8 +223,52 @@ impl Signals {
 enum Quit {
     /// `q` or Ctrl-C.
     Asked,
-    /// One of [`QUIT_SIGNALS`].
+    /// One of [`super::signals::QUIT_SIGNALS`].
     Signal(i32),
+    /// The terminal hung up without a SIGHUP reaching this process: ends as one does.
+    HungUp,
+}
+
+/// The terminal the UI reads (standard input, or `/dev/tty` when that is not a terminal, as
+/// the terminal library chooses), watched for a hang-up: a terminal closed without a SIGHUP
+/// reaching this process (it is not in the terminal's foreground) ends the UI all the same.
+struct Tty {
+    dev_tty: Option<File>,
+}
+
+impl Tty {
+    fn open() -> anyhow::Result<Self> {
+        if std::io::stdin().is_terminal() {
+            return Ok(Self { dev_tty: None });
+        }
+        let dev_tty = File::options()
+            .read(true)
+            .write(true)
+            .open("/dev/tty")
+            .context("teleop needs a terminal: standard input is not one, nor is there /dev/tty")?;
+        Ok(Self {
+            dev_tty: Some(dev_tty),
+        })
+    }
+
+    /// Whether the terminal has hung up (its other side closed).
+    fn hung_up(&self) -> bool {
+        use rustix::event::{poll, PollFd, PollFlags, Timespec};
+        let stdin = std::io::stdin();
+        let fd = match &self.dev_tty {
+            Some(file) => file.as_fd(),
+            None => stdin.as_fd(),
+        };
+        let mut fds = [PollFd::from_borrowed_fd(fd, PollFlags::IN)];
+        let now = Timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        poll(&mut fds, Some(&now)).is_ok()
+            && fds[0]
+                .revents()
+                .intersects(PollFlags::HUP | PollFlags::ERR | PollFlags::NVAL)
+    }
 }
 
 /// Whether the terminal is in the UI's modes, for the panic hook and the guard.
@@ -270,6 +288,7 @@ fn restore_terminal() {
     }
     let _ = crossterm::execute!(
         out,
+        DisableBracketedPaste,
         DisableMouseCapture,
         LeaveAlternateScreen,
         crossterm::cursor::Show
@@ -277,10 +296,36 @@ fn restore_terminal() {
     let _ = terminal::disable_raw_mode();
 }
 
+/// Standard output for the screen, except that a hung-up terminal takes whatever is written
+/// (`EIO`, the error a write to one gets, counts as written): the screen's library prints to
+/// standard error, and so panics, when it cannot show the cursor again as it is dropped.
+struct ScreenOut;
+
+impl Write for ScreenOut {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        match std::io::stdout().write(buf) {
+            Err(e) if hung_up_error(&e) => Ok(buf.len()),
+            other => other,
+        }
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        match std::io::stdout().flush() {
+            Err(e) if hung_up_error(&e) => Ok(()),
+            other => other,
+        }
+    }
+}
+
+/// Whether `e` is what a hung-up terminal answers a write with.
+fn hung_up_error(e: &std::io::Error) -> bool {
+    e.raw_os_error() == Some(rustix::io::Errno::IO.raw_os_error())
+}
+
 /// The terminal in the UI's modes; restored when dropped (also on an error return), and by
 /// the panic hook before a panic's message is printed.
 struct Screen {
-    terminal: Terminal<CrosstermBackend<Stdout>>,
+    terminal: Terminal<CrosstermBackend<ScreenOut>>,
     releases_reported: bool,
 }
 
@@ -295,7 +340,7 @@ impl Screen {
         ACTIVE.store(true, Ordering::SeqCst);
         // From here on an early return drops the screen, which restores the terminal.
         let mut screen = Screen {
-            terminal: Terminal::new(CrosstermBackend::new(std::io::stdout()))
+            terminal: Terminal::new(CrosstermBackend::new(ScreenOut))
                 .context("opening the terminal")?,
             releases_reported: false,
         };
@@ -303,6 +348,8 @@ impl Screen {
             std::io::stdout(),
             EnterAlternateScreen,
             EnableMouseCapture,
+            // A paste comes as one event, not as keys (it would drive the arm).
+            EnableBracketedPaste,
             crossterm::cursor::Hide
         )
         .context("setting up the terminal")?;
@@ -399,6 +446,12 @@ struct App {
     last_frame: Option<Instant>,
     actions: Vec<Action>,
     signals: Signals,
+    tty: Tty,
+    /// When a `stop` was the last request sent, its time.
+    last_stop: Option<Instant>,
+    /// The notice is the estop's (`Some`), and whether telemetry has shown the latch since:
+    /// it goes once the arm is out of it (another client may reset it).
+    estop_notice: Option<bool>,
 }
 
 impl App {
@@ -408,6 +461,7 @@ impl App {
         deadman_button: u8,
         stick_events: Option<(String, Receiver<StickEvent>)>,
         signals: Signals,
+        tty: Tty,
     ) -> Self {
         let joystick = stick_events
             .as_ref()
@@ -444,6 +498,9 @@ impl App {
             last_frame: None,
             actions: Vec::new(),
             signals,
+            tty,
+            last_stop: None,
+            estop_notice: None,
         }
     }
 
@@ -457,6 +514,7 @@ impl App {
     }
 
     fn notice(&mut self, text: String) {
+        self.estop_notice = None;
         self.status.notice = Some(text);
         self.notice_until = Some(Instant::now() + NOTICE_FOR);
         self.dirty = true;
@@ -474,6 +532,7 @@ impl App {
         // A hung-up terminal may fail a read before its signal is seen: the signal is the news.
         match self.signals.received() {
             Some(signal) => Ok(Quit::Signal(signal)),
+            None if self.tty.hung_up() => Ok(Quit::HungUp),
             None => ended,
         }
     }
@@ -482,6 +541,10 @@ impl App {
         loop {
             if let Some(signal) = self.signals.received() {
                 return Ok(Quit::Signal(signal));
+            }
+            // A terminal closed under a process its SIGHUP does not reach: the same news.
+            if self.tty.hung_up() {
+                return Ok(Quit::HungUp);
             }
             if embedded.is_some_and(|e| !e.is_running()) {
                 anyhow::bail!("the daemon this UI started has stopped");
@@ -566,9 +629,14 @@ impl App {
                 timeout = timeout.min(FRAME.saturating_sub(last.elapsed()));
             }
         }
-        let mut wait = timeout;
-        while event::poll(wait).context("reading the terminal")? {
-            wait = Duration::ZERO;
+        // The terminal's input is read only in a wait that is not zero; after the first
+        // event, a microsecond takes what has come already.
+        let mut wait = timeout.max(DRAIN_WAIT);
+        for _ in 0..EVENTS_PER_WAIT {
+            if !event::poll(wait).context("reading the terminal")? {
+                break;
+            }
+            wait = DRAIN_WAIT;
             let event = event::read().context("reading the terminal")?;
             if self.handle(event, screen) {
                 return Ok(true);
@@ -591,6 +659,13 @@ impl App {
                     }
                     _ => {}
                 }
+                false
+            }
+            Event::Paste(text) => {
+                self.notice(format!(
+                    "a paste of {} characters ignored: keys steer one at a time",
+                    text.chars().count()
+                ));
                 false
             }
             Event::Resize(cols, rows) => {
@@ -620,6 +695,7 @@ impl App {
                 KeyCode::Right | KeyCode::Char('d') => Key::Right,
                 KeyCode::Char(' ') => Key::Space,
                 KeyCode::Tab => Key::Tab,
+                KeyCode::Esc => Key::Esc,
                 KeyCode::Char(c) => Key::Char(c),
                 // A modifier on its own is no key.
                 KeyCode::Modifier(_) => return false,
@@ -717,13 +793,28 @@ impl App {
         next.copied()
     }
 
-    /// Sends `cmd` without waiting for its reply.
+    /// Sends `cmd` without waiting for its reply. A `stop` within [`STOP_AGAIN`] of one sent
+    /// with nothing between is not sent again: every key without a meaning stops, and a
+    /// flood of them (a paste into a terminal that does not mark pastes) would otherwise pile
+    /// up more replies than the daemon keeps for a client, which it disconnects.
     fn send(&mut self, cmd: &Cmd) {
+        let now = Instant::now();
+        let is_stop = matches!(cmd, Cmd::Stop);
+        if is_stop && self.last_stop.is_some_and(|at| now - at < STOP_AGAIN) {
+            return;
+        }
         let Some(client) = self.client.as_mut() else {
+            if matches!(cmd, Cmd::Estop) {
+                self.notice("estop not sent: no daemon connected".to_owned());
+            }
             return;
         };
+        self.last_stop = is_stop.then_some(now);
         if client.send(cmd).is_err() {
             self.lost();
+            if matches!(cmd, Cmd::Estop) {
+                self.notice("estop not sent: the daemon is gone".to_owned());
+            }
         }
     }
 
@@ -890,7 +981,10 @@ impl App {
                         self.notice(text);
                     }
                 }
-                What::Estop { .. } => self.notice("estop: press r to reset".to_owned()),
+                What::Estop { .. } => {
+                    self.notice("estop: press r to reset".to_owned());
+                    self.estop_notice = Some(false);
+                }
                 What::World { world, .. } => {
                     self.status.set_world(world.to_world().unwrap_or_default());
                     self.dirty = true;
@@ -966,7 +1060,17 @@ impl App {
     }
 
     fn expire_notice(&mut self) {
-        if self.notice_until.is_some_and(|t| Instant::now() >= t) {
+        let latched = self.snapshot.as_ref().map(|s| s.state == State::Estop);
+        let unlatched = match (self.estop_notice, latched) {
+            (Some(false), Some(true)) => {
+                self.estop_notice = Some(true);
+                false
+            }
+            (Some(true), Some(false)) => true,
+            _ => false,
+        };
+        if unlatched || self.notice_until.is_some_and(|t| Instant::now() >= t) {
+            self.estop_notice = None;
             self.status.notice = None;
             self.notice_until = None;
             self.dirty = true;

@@ -18,6 +18,8 @@ pub enum Key {
     Tab,
     /// A character key.
     Char(char),
+    /// Escape.
+    Esc,
     /// Any other key.
     Other,
 }
@@ -84,6 +86,12 @@ pub const MAX_SPEED_M_S: f64 = 0.5;
 /// The factor one `+` multiplies the speed by (and one `-` divides it by).
 pub const SPEED_STEP: f64 = 1.25;
 
+/// The pieces of an arrow key's escape sequence (ESC `[` or `O`, then the letter) that come in
+/// separate reads (over a slow link) are taken together when each follows the one before within
+/// this long, s. The terminal library reports such pieces as Esc, `[` and a capital letter, and
+/// the letter alone would mean something else: `D` (left) would move the tip right.
+pub const ESCAPE_JOIN_S: f64 = 0.25;
+
 /// The four motion directions, as indices into [`Hold::held`].
 const UP: usize = 0;
 const DOWN: usize = 1;
@@ -123,8 +131,19 @@ fn meaning(key: Key) -> Meaning {
             'q' => Meaning::Command(Action::Quit),
             _ => Meaning::Command(Action::Stop),
         },
-        Key::Other => Meaning::Command(Action::Stop),
+        Key::Esc | Key::Other => Meaning::Command(Action::Stop),
     }
+}
+
+/// Where a split escape sequence stands (see [`ESCAPE_JOIN_S`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Escape {
+    /// No sequence under way.
+    None,
+    /// Esc came at this time, s.
+    Esc(f64),
+    /// Esc and `[` (or `O`) came, the last piece at this time, s.
+    Intro(f64),
 }
 
 /// Whether `action` goes out without control of the arm.
@@ -222,6 +241,8 @@ pub struct Keyboard {
     last_now_s: f64,
     /// Counts motion-key presses, to order them.
     presses: u64,
+    /// A split escape sequence under way.
+    escape: Escape,
 }
 
 impl Keyboard {
@@ -234,6 +255,7 @@ impl Keyboard {
             pending_zero: false,
             last_now_s: f64::NEG_INFINITY,
             presses: 0,
+            escape: Escape::None,
         }
     }
 
@@ -266,6 +288,9 @@ impl Keyboard {
     ) {
         // A hold whose time is up ends before this key counts; renewals wait for `tick`.
         self.expire(now_s, in_control, out);
+        let Some(key) = self.rejoin(key, kind, now_s) else {
+            return;
+        };
         match meaning(key) {
             Meaning::Move(dir) => {
                 if self.releases_reported {
@@ -302,6 +327,38 @@ impl Keyboard {
                     out.push(action);
                 }
             }
+        }
+    }
+
+    /// `key` as part of a split escape sequence: the arrow its letter ends, `None` for a piece
+    /// to swallow (`[`, `O`, parameters), [`Key::Other`] for a sequence of another key (Home
+    /// is ESC `[` `H`, which alone would send the arm home), else `key` itself.
+    fn rejoin(&mut self, key: Key, kind: KeyKind, now_s: f64) -> Option<Key> {
+        if kind == KeyKind::Release {
+            return Some(key);
+        }
+        let within = |t: f64| now_s - t <= ESCAPE_JOIN_S;
+        match (std::mem::replace(&mut self.escape, Escape::None), key) {
+            (_, Key::Esc) => {
+                self.escape = Escape::Esc(now_s);
+                Some(key)
+            }
+            (Escape::Esc(t), Key::Char('[' | 'O')) if within(t) => {
+                self.escape = Escape::Intro(now_s);
+                None
+            }
+            (Escape::Intro(t), Key::Char(c)) if within(t) => match c {
+                '0'..='9' | ';' => {
+                    self.escape = Escape::Intro(now_s);
+                    None
+                }
+                'A' => Some(Key::Up),
+                'B' => Some(Key::Down),
+                'C' => Some(Key::Right),
+                'D' => Some(Key::Left),
+                _ => Some(Key::Other),
+            },
+            _ => Some(key),
         }
     }
 
@@ -606,6 +663,71 @@ mod tests {
         assert_eq!(got.len(), 12);
         assert_eq!(kb.held_velocity(), None);
         assert_eq!(kb.next_deadline(), None);
+    }
+
+    #[test]
+    fn an_arrow_split_over_three_reads_moves_its_own_way() {
+        // ESC, `[`, the letter: left, up, right, down, each piece 30 ms after the one before.
+        for (letter, velocity) in [
+            ('D', [-0.05, 0.0]),
+            ('A', [0.0, 0.05]),
+            ('C', [0.05, 0.0]),
+            ('B', [0.0, -0.05]),
+        ] {
+            let mut kb = Keyboard::new(0.05);
+            let mut got = press(&mut kb, Key::Esc, 10.0);
+            got.extend(press(&mut kb, Key::Char('['), 10.03));
+            got.extend(press(&mut kb, Key::Char(letter), 10.06));
+            assert_eq!(
+                got,
+                [Action::Stop, Action::Velocity(velocity)],
+                "ESC [ {letter}"
+            );
+        }
+        // SS3 arrows (ESC O D) and a modified one (ESC [ 1 ; 5 D) too.
+        let mut kb = Keyboard::new(0.05);
+        let mut got = Vec::new();
+        for (i, key) in [Key::Esc, Key::Char('O'), Key::Char('D')]
+            .into_iter()
+            .enumerate()
+        {
+            got.extend(press(&mut kb, key, 1.0 + 0.01 * i as f64));
+        }
+        assert_eq!(got, [Action::Stop, Action::Velocity([-0.05, 0.0])]);
+        let mut kb = Keyboard::new(0.05);
+        let mut got = Vec::new();
+        for (i, c) in "[1;5D".chars().enumerate() {
+            if i == 0 {
+                got.extend(press(&mut kb, Key::Esc, 1.0));
+            }
+            got.extend(press(&mut kb, Key::Char(c), 1.01 + 0.01 * i as f64));
+        }
+        assert_eq!(got, [Action::Stop, Action::Velocity([-0.05, 0.0])]);
+    }
+
+    #[test]
+    fn a_split_home_key_does_not_send_the_arm_home_and_late_pieces_are_keys_again() {
+        // ESC [ H is the Home key; `H` alone is `h`, home.
+        let mut kb = Keyboard::new(0.05);
+        let mut got = press(&mut kb, Key::Esc, 0.0);
+        got.extend(press(&mut kb, Key::Char('['), 0.01));
+        got.extend(press(&mut kb, Key::Char('H'), 0.02));
+        assert_eq!(got, [Action::Stop, Action::Stop]);
+        // Keys typed after the join's time are what they are.
+        let mut kb = Keyboard::new(0.05);
+        let late = ESCAPE_JOIN_S + 0.05;
+        let mut got = press(&mut kb, Key::Esc, 0.0);
+        got.extend(press(&mut kb, Key::Char('['), late));
+        got.extend(press(&mut kb, Key::Char('D'), 2.0 * late));
+        assert_eq!(
+            got,
+            [Action::Stop, Action::Stop, Action::Velocity([0.05, 0.0])]
+        );
+        // A `d` after Esc alone is `d`.
+        let mut kb = Keyboard::new(0.05);
+        let mut got = press(&mut kb, Key::Esc, 0.0);
+        got.extend(press(&mut kb, Key::Char('d'), 0.01));
+        assert_eq!(got, [Action::Stop, Action::Velocity([0.05, 0.0])]);
     }
 
     #[test]

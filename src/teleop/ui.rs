@@ -261,7 +261,8 @@ pub struct Areas {
 
 /// Splits the screen `area` into canvas, panel and help line.
 pub fn areas(area: Rect) -> Areas {
-    let [main, help] = Layout::vertical([Constraint::Min(3), Constraint::Length(1)]).areas(area);
+    let rows = u16::try_from(help_lines(area.width).len()).unwrap_or(HELP_ROWS);
+    let [main, help] = Layout::vertical([Constraint::Min(3), Constraint::Length(rows)]).areas(area);
     let panel_width = PANEL_WIDTH.min(main.width / 2);
     let [canvas, panel] =
         Layout::horizontal([Constraint::Min(3), Constraint::Length(panel_width)]).areas(main);
@@ -329,6 +330,27 @@ pub fn near_limit(arm: &ArmInfo, i: usize, theta: f64) -> bool {
     theta - limit.lo < margin || limit.hi - theta < margin
 }
 
+/// The most rows the key help takes.
+pub const HELP_ROWS: u16 = 3;
+
+/// [`HELP`] in lines of at most `width` columns, broken between its entries (two spaces
+/// apart), in at most [`HELP_ROWS`] lines (the last cut when even they are too few).
+pub fn help_lines(width: u16) -> Vec<String> {
+    let width = usize::from(width.max(1));
+    let mut lines: Vec<String> = Vec::new();
+    for entry in HELP.split("  ") {
+        let full = usize::from(HELP_ROWS) <= lines.len();
+        match lines.last_mut() {
+            Some(line) if full || line.chars().count() + 2 + entry.chars().count() <= width => {
+                line.push_str("  ");
+                line.push_str(entry);
+            }
+            _ => lines.push(entry.to_owned()),
+        }
+    }
+    lines
+}
+
 /// Who is in control, as the panel says it.
 pub fn controller_text(snapshot: &Snapshot) -> String {
     match (snapshot.in_control, snapshot.controller) {
@@ -357,13 +379,12 @@ pub fn draw(frame: &mut Frame<'_>, view: &View<'_>) {
     let parts = areas(frame.area());
     draw_canvas(frame, parts.canvas, view);
     draw_panel(frame, parts.panel, view);
-    frame.render_widget(
-        Paragraph::new(Line::from(Span::styled(
-            HELP,
-            Style::default().fg(Color::DarkGray),
-        ))),
-        parts.help,
-    );
+    let style = Style::default().fg(Color::DarkGray);
+    let lines: Vec<Line<'_>> = help_lines(parts.help.width)
+        .into_iter()
+        .map(|line| Line::from(Span::styled(line, style)))
+        .collect();
+    frame.render_widget(Paragraph::new(lines), parts.help);
 }
 
 fn draw_canvas(frame: &mut Frame<'_>, area: Rect, view: &View<'_>) {

@@ -208,6 +208,27 @@ fn the_panel_shows_address_state_control_and_the_measured_tip() {
 }
 
 #[test]
+fn the_key_help_is_whole_on_a_hundred_columns_and_kept_to_three_rows() {
+    let entries: Vec<&str> = HELP.split("  ").collect();
+    for width in [100u16, 80, 60] {
+        let lines = help_lines(width);
+        assert!(lines.len() <= usize::from(HELP_ROWS), "{width}: {lines:?}");
+        assert!(
+            lines
+                .iter()
+                .all(|l| l.chars().count() <= usize::from(width)),
+            "{width}: {lines:?}"
+        );
+        assert_eq!(lines.join("  ").split("  ").collect::<Vec<_>>(), entries);
+    }
+    assert_eq!(help_lines(200), [HELP]);
+    // The canvas gives up the rows the help takes.
+    let screen = Rect::new(0, 0, 100, 32);
+    assert_eq!(areas(screen).help.height, 2);
+    assert_eq!(areas(screen).canvas.height, 30);
+}
+
+#[test]
 fn a_fault_is_named_by_its_servo() {
     let arm = sim_arm();
     let mut snapshot = snapshot_at(&arm, &arm.home_rad);
