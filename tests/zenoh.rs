@@ -487,6 +487,81 @@ fn start_up_stops_before_the_arm_moves_when_the_zenoh_endpoint_is_taken() {
     drop(taken);
 }
 
+/// Starts an embedded daemon on `config` against a simulator, expects start-up to be refused
+/// with a Zenoh error, and checks that nothing was asked of the servos; returns the message.
+fn refused_at_start_up(config: Config) -> String {
+    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
+        .unwrap();
+    let options = RunOptions::port(sim.path().to_path_buf());
+    let daemon = Embedded::start(config, SocketAddr::from(([127, 0, 0, 1], 0)), options).unwrap();
+    let e = daemon.stop().unwrap_err();
+    assert!(matches!(e, DaemonError::Zenoh { .. }), "{e}");
+    let torques: Vec<bool> =
+        sim.with_sim(|s| s.servos().iter().map(|s| s.torque_enabled()).collect());
+    assert!(torques.iter().all(|on| !on), "{torques:?}");
+    e.to_string()
+}
+
+/// Zenoh's access control: denied by default, everything allowed on the loopback interface.
+const LOOPBACK_ACL: &str = r#"{
+  access_control: {
+    enabled: true,
+    default_permission: "deny",
+    rules: [{
+      id: "all",
+      messages: ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
+                 "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"],
+      flows: ["ingress", "egress"],
+      permission: "allow",
+      key_exprs: ["**"],
+    }],
+    subjects: [{ id: "loopback", interfaces: ["lo"] }],
+    policies: [{ rules: ["all"], subjects: ["loopback"] }],
+  },
+}"#;
+
+#[test]
+fn a_token_file_refuses_zenoh_commands_without_access_control() {
+    let dir = tempfile::tempdir().unwrap();
+    let token = dir.path().join("token");
+    std::fs::write(&token, "s3cret\n").unwrap();
+    let server = format!(
+        "max_clients = 4\ntoken_file = {:?}",
+        token.to_str().unwrap()
+    );
+    let table = zenoh_table("snakectl", free_port(), true);
+    let config = sim_config(&[("max_clients = 4", &format!("{server}\n\n{table}"))]);
+    let message = refused_at_start_up(config);
+    assert!(message.contains("config/sim.toml: [zenoh]"), "{message}");
+    assert!(message.contains("accept_commands"), "{message}");
+    assert!(message.contains(token.to_str().unwrap()), "{message}");
+
+    // Zenoh's access control, denying by default, is what may stand in for the token.
+    let acl = dir.path().join("zenoh.json5");
+    std::fs::write(&acl, LOOPBACK_ACL).unwrap();
+    let table = format!("{table}config_file = {:?}\n", acl.to_str().unwrap());
+    let config = sim_config(&[("max_clients = 4", &format!("{server}\n\n{table}"))]);
+    let daemon = Daemon::start(config);
+    let mut client = daemon.client();
+    client.ok(json!({"cmd": "auth", "token": "s3cret"}));
+    client.status();
+    daemon.stop().unwrap();
+}
+
+#[test]
+fn a_config_file_that_leaves_listen_open_refuses_commands() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("zenoh.json5");
+    std::fs::write(&file, r#"{ listen: { endpoints: ["tcp/0.0.0.0:0"] } }"#).unwrap();
+    let table = format!(
+        "[zenoh]\nenabled = true\naccept_commands = true\nconfig_file = {:?}\n",
+        file.to_str().unwrap()
+    );
+    let message = refused_at_start_up(config_with(&table));
+    assert!(message.contains("tcp/0.0.0.0:0"), "{message}");
+    assert!(message.contains("accept_commands"), "{message}");
+}
+
 /// A subscriber as rmw_zenoh's: a sample whose attachment is not rmw_zenoh's is dropped.
 /// Returns the next kept sample's payload and attachment, and how many were dropped before it.
 fn next_ros_sample(sub: &Subscription, what: &str) -> (Vec<u8>, Attachment, usize) {

@@ -84,6 +84,31 @@ pub enum NetError {
     /// The session could not be opened (an endpoint taken, no router to reach, ...).
     #[error("opening the Zenoh session: {0}")]
     Open(String),
+    /// Commands would be taken from a network other hosts can reach, and the session's config
+    /// sets up no access control.
+    #[error(
+        "accept_commands = true, but {exposure}: any host that reaches the arm could move it; \
+         enable Zenoh's access control (access_control.enabled = true, default_permission = \
+         \"deny\") in the file named by config_file, or keep every endpoint on loopback with \
+         multicast = false"
+    )]
+    CommandsExposed {
+        /// What opens the session to other hosts, as in effect once `config_file` is read.
+        exposure: String,
+    },
+    /// Commands would be taken from Zenoh, which never asks for the `[server] token_file`
+    /// token, and the session's config sets up no access control instead.
+    #[error(
+        "accept_commands = true, but [server] token_file ({}) is set and Zenoh never asks for \
+         it: any program that reaches the Zenoh session, on this host too, could move the arm; \
+         enable Zenoh's access control (access_control.enabled = true, default_permission = \
+         \"deny\") in the file named by config_file, or set accept_commands = false",
+        token_file.display()
+    )]
+    TokenNotAsked {
+        /// The token file.
+        token_file: PathBuf,
+    },
     /// A publisher, subscriber, queryable or token could not be declared.
     #[error("declaring `{key}` on Zenoh: {message}")]
     Declare {
@@ -109,7 +134,8 @@ pub enum NetError {
 /// control, timeouts), then the table's `mode` and `multicast`, and its endpoint lists.
 /// A list is set even when empty, so that the session never falls back to Zenoh's default of
 /// listening on every interface; only with `file_endpoints` and a `config_file` does an empty
-/// list leave the file's (the daemon's rule: endpoints may live in that file).
+/// list leave the file's (the daemon's rule: endpoints may live in that file), and a file that
+/// leaves `listen` at Zenoh's default listens nowhere all the same.
 fn session_config(table: &Zenoh, file_endpoints: bool) -> Result<zenoh::Config, NetError> {
     let mut config = match &table.config_file {
         Some(path) => zenoh::Config::from_file(path).map_err(|e| NetError::ConfigFile {
@@ -118,27 +144,115 @@ fn session_config(table: &Zenoh, file_endpoints: bool) -> Result<zenoh::Config, 
         })?,
         None => zenoh::Config::default(),
     };
-    let mode = match table.mode {
-        ZenohMode::Peer => "peer",
-        ZenohMode::Client => "client",
-    };
-    set(&mut config, "mode", &Value::from(mode))?;
+    set(&mut config, "mode", &Value::from(mode_name(table.mode)))?;
     set(
         &mut config,
         "scouting/multicast/enabled",
         &Value::from(table.multicast),
     )?;
     let from_file = file_endpoints && table.config_file.is_some();
+    let default_listen = get(&zenoh::Config::default(), "listen/endpoints")?;
     for (key, list) in [
         ("connect/endpoints", &table.connect),
         ("listen/endpoints", &table.listen),
     ] {
-        if !(from_file && list.is_empty()) {
+        let file_has_them = from_file
+            && list.is_empty()
+            && !(key == "listen/endpoints" && get(&config, key)? == default_listen);
+        if !file_has_them {
             let list: Vec<Value> = list.iter().map(|e| e.to_string().into()).collect();
             set(&mut config, key, &Value::from(list))?;
         }
     }
     Ok(config)
+}
+
+/// The value of `key` in `config`, as JSON.
+fn get(config: &zenoh::Config, key: &'static str) -> Result<Value, NetError> {
+    let setting = |message: String| NetError::Setting { key, message };
+    let text = config.get_json(key).map_err(|e| setting(e.to_string()))?;
+    serde_json::from_str(&text).map_err(|e| setting(e.to_string()))
+}
+
+/// The endpoints of `key` (`listen/endpoints`, `connect/endpoints`) in effect for `mode`: a
+/// list for every mode, or one per mode.
+fn endpoints_in_effect(
+    config: &zenoh::Config,
+    key: &'static str,
+    mode: ZenohMode,
+) -> Result<Vec<String>, NetError> {
+    fn strings(value: &Value, out: &mut Vec<String>) {
+        match value {
+            Value::String(s) => out.push(s.clone()),
+            Value::Array(items) => items.iter().for_each(|v| strings(v, out)),
+            _ => {}
+        }
+    }
+    let value = get(config, key)?;
+    let value = match &value {
+        Value::Object(modes) => modes.get(mode_name(mode)).unwrap_or(&Value::Null),
+        other => other,
+    };
+    let mut out = Vec::new();
+    strings(value, &mut out);
+    Ok(out)
+}
+
+/// Whether an endpoint as Zenoh takes it (metadata and options after `?` or `#`) is on
+/// loopback; one that is not a TCP endpoint snakectl can read is taken as not.
+fn loopback_endpoint(text: &str) -> bool {
+    let address = text.split(['?', '#']).next().unwrap_or(text);
+    Endpoint::parse(address).is_ok_and(|e| e.is_loopback())
+}
+
+/// Whether `config` sets up Zenoh's access control so that only what its rules allow gets
+/// through: enabled, with `default_permission` "deny". (Zenoh's user/password and public-key
+/// authentication are not built into snakectl, so they do not count.)
+fn access_controlled(config: &zenoh::Config) -> Result<bool, NetError> {
+    Ok(get(config, "access_control/enabled")? == Value::Bool(true)
+        && get(config, "access_control/default_permission")? == "deny")
+}
+
+/// Refuses to take commands from Zenoh when the session `config` (as it will be opened, the
+/// file merged) lets other hosts reach it, or when a `[server] token_file` is set, unless
+/// Zenoh's access control guards the session.
+fn check_commands(
+    table: &Zenoh,
+    config: &zenoh::Config,
+    token_file: Option<&std::path::Path>,
+) -> Result<(), NetError> {
+    if !table.accept_commands || access_controlled(config)? {
+        return Ok(());
+    }
+    if let Some(token_file) = token_file {
+        return Err(NetError::TokenNotAsked {
+            token_file: token_file.to_path_buf(),
+        });
+    }
+    if get(config, "scouting/multicast/enabled")? == Value::Bool(true) {
+        return Err(NetError::CommandsExposed {
+            exposure: "multicast scouting is on".to_owned(),
+        });
+    }
+    for key in ["listen/endpoints", "connect/endpoints"] {
+        if let Some(open) = endpoints_in_effect(config, key, table.mode)?
+            .into_iter()
+            .find(|e| !loopback_endpoint(e))
+        {
+            return Err(NetError::CommandsExposed {
+                exposure: format!("the session's {key} has {open:?}, which is not loopback"),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Zenoh's name of `mode`.
+fn mode_name(mode: ZenohMode) -> &'static str {
+    match mode {
+        ZenohMode::Peer => "peer",
+        ZenohMode::Client => "client",
+    }
 }
 
 fn set(config: &mut zenoh::Config, key: &'static str, value: &Value) -> Result<(), NetError> {
@@ -196,6 +310,7 @@ impl Bridge {
     pub async fn open(config: &Config) -> Result<Bridge, NetError> {
         let table = config.zenoh();
         let zenoh_config = session_config(table, true)?;
+        check_commands(table, &zenoh_config, config.server().token_file.as_deref())?;
         let settings = Settings {
             prefix: table.prefix.clone(),
             publish_period: Duration::try_from_secs_f64(1.0 / table.publish_hz)
@@ -1030,4 +1145,99 @@ pub fn fleet(peer: &Peer, wait: Duration) -> Result<Vec<ArmSeen>, NetError> {
         }
     }
     Ok(arms)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used)]
+mod tests {
+    use super::*;
+
+    /// A table that accepts commands, listening on `listen`, with `file` as its
+    /// `config_file` (written to a temporary directory, kept alive by the returned guard).
+    fn table(listen: &[&str], file: Option<&str>) -> (Zenoh, Option<tempfile::TempDir>) {
+        let listen = listen.iter().map(|e| Endpoint::parse(e).unwrap()).collect();
+        let mut table = Zenoh::peer(Vec::new(), listen);
+        table.accept_commands = true;
+        let dir = file.map(|text| {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("zenoh.json5");
+            std::fs::write(&path, text).unwrap();
+            table.config_file = Some(path);
+            dir
+        });
+        (table, dir)
+    }
+
+    fn checked(table: &Zenoh, token_file: Option<&str>) -> Result<(), NetError> {
+        let config = session_config(table, true).unwrap();
+        check_commands(table, &config, token_file.map(std::path::Path::new))
+    }
+
+    const DENY: &str = r#"{ access_control: { enabled: true, default_permission: "deny" } }"#;
+
+    #[test]
+    fn a_config_file_without_access_control_lifts_nothing() {
+        let (t, _dir) = table(
+            &[],
+            Some(r#"{ listen: { endpoints: ["tcp/0.0.0.0:7447"] } }"#),
+        );
+        let e = checked(&t, None).unwrap_err();
+        assert!(matches!(e, NetError::CommandsExposed { .. }), "{e}");
+        assert!(e.to_string().contains("tcp/0.0.0.0:7447"), "{e}");
+        // Access control that lets everything through is no guard either.
+        let (t, _dir) = table(
+            &[],
+            Some(
+                r#"{ access_control: { enabled: true, default_permission: "allow" },
+                     listen: { endpoints: ["tcp/0.0.0.0:7447"] } }"#,
+            ),
+        );
+        assert!(checked(&t, None).is_err());
+        let (t, _dir) = table(&["tcp/0.0.0.0:7447"], Some(DENY));
+        checked(&t, None).unwrap();
+    }
+
+    #[test]
+    fn a_config_file_without_endpoints_listens_nowhere() {
+        // Zenoh's own default would be tcp/[::]:0, every interface.
+        let (t, _dir) = table(&[], Some("{}"));
+        let config = session_config(&t, true).unwrap();
+        let listen = endpoints_in_effect(&config, "listen/endpoints", ZenohMode::Peer).unwrap();
+        assert!(listen.is_empty(), "{listen:?}");
+        checked(&t, None).unwrap();
+        // Endpoints the file lists are kept, and checked.
+        let (t, _dir) = table(
+            &[],
+            Some(r#"{ listen: { endpoints: { peer: ["tcp/[::]:0"] } } }"#),
+        );
+        let config = session_config(&t, true).unwrap();
+        let listen = endpoints_in_effect(&config, "listen/endpoints", ZenohMode::Peer).unwrap();
+        assert_eq!(listen, ["tcp/[::]:0"]);
+        assert!(checked(&t, None).is_err());
+        let (t, _dir) = table(
+            &[],
+            Some(
+                r#"{ connect: { endpoints: ["tcp/127.0.0.1:7447#iface=lo", "tcp/10.0.0.1:7447"] } }"#,
+            ),
+        );
+        let e = checked(&t, None).unwrap_err();
+        assert!(e.to_string().contains("tcp/10.0.0.1:7447"), "{e}");
+    }
+
+    #[test]
+    fn a_token_file_needs_access_control_for_zenoh_commands() {
+        let (t, _dir) = table(&["tcp/127.0.0.1:7447"], None);
+        checked(&t, None).unwrap();
+        let e = checked(&t, Some("/etc/snakectl/token")).unwrap_err();
+        assert!(matches!(e, NetError::TokenNotAsked { .. }), "{e}");
+        let message = e.to_string();
+        assert!(message.contains("/etc/snakectl/token"), "{message}");
+        assert!(message.contains("accept_commands"), "{message}");
+        let (t, _dir) = table(&["tcp/127.0.0.1:7447"], Some(DENY));
+        checked(&t, Some("/etc/snakectl/token")).unwrap();
+        // Watching only: the token is not bypassed.
+        let (mut t, _dir) = table(&["tcp/127.0.0.1:7447"], None);
+        t.accept_commands = false;
+        checked(&t, Some("/etc/snakectl/token")).unwrap();
+    }
 }
