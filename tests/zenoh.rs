@@ -562,6 +562,49 @@ fn a_config_file_that_leaves_listen_open_refuses_commands() {
     assert!(message.contains("accept_commands"), "{message}");
 }
 
+/// `snakectl run` on the shipped simulator config with `table` added, in `dir`: its exit
+/// status and standard error, once it has ended by itself.
+fn run_to_end(dir: &std::path::Path, table: &str) -> (Option<i32>, String) {
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    let path = dir.join("arm.toml");
+    std::fs::write(&path, format!("{text}\n{table}")).unwrap();
+    let config = Config::load(&path).unwrap();
+    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
+        .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["run", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&path)
+        .arg("--port")
+        .arg(sim.path())
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_zenoh_session_that_cannot_open_refuses_start_up_with_exit_code_2() {
+    let dir = tempfile::tempdir().unwrap();
+    // A taken listen endpoint.
+    let taken = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let (code, stderr) = run_to_end(dir.path(), &zenoh_table("snakectl", port, false));
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("opening the Zenoh session"), "{stderr}");
+    // A client with no router to reach.
+    let table = format!(
+        "[zenoh]\nenabled = true\nmode = \"client\"\nconnect = [\"tcp/127.0.0.1:{}\"]\n",
+        free_port()
+    );
+    let (code, stderr) = run_to_end(dir.path(), &table);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("opening the Zenoh session"), "{stderr}");
+    drop(taken);
+}
+
 /// A subscriber as rmw_zenoh's: a sample whose attachment is not rmw_zenoh's is dropped.
 /// Returns the next kept sample's payload and attachment, and how many were dropped before it.
 fn next_ros_sample(sub: &Subscription, what: &str) -> (Vec<u8>, Attachment, usize) {

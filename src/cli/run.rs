@@ -106,6 +106,10 @@ fn failure(e: DaemonError) -> Failure {
             source: ViewError::Listen { .. },
             ..
         } => EXIT_REFUSED,
+        // Only start-up returns it: a session that cannot open (an endpoint taken, no router)
+        // or a config that would expose the arm's commands.
+        #[cfg(feature = "zenoh")]
+        DaemonError::Zenoh { .. } => EXIT_REFUSED,
         DaemonError::ShutDown(_) => EXIT_UNREACHED,
         _ => EXIT_FAILED,
     };

@@ -250,6 +250,16 @@ pub enum FieldProblem {
         /// What is wrong with it.
         reason: String,
     },
+    /// A Zenoh endpoint listed twice in one list.
+    #[error("\"{value}\" is already zenoh.{list}[{other}]")]
+    DuplicateEndpoint {
+        /// The endpoint.
+        value: String,
+        /// The list: `listen` or `connect`.
+        list: &'static str,
+        /// 1-based entry that has it first.
+        other: usize,
+    },
     /// A key prefix that is not a plain Zenoh key expression.
     #[error("\"{value}\" is not a key prefix such as snakectl or lab/arm_1 ({reason})")]
     BadPrefix {

@@ -1063,6 +1063,27 @@ fn zenoh_endpoints_must_be_tcp_host_port() {
 }
 
 #[test]
+fn zenoh_endpoints_are_listed_once() {
+    refused(
+        &with_zenoh(r#"listen = ["tcp/127.0.0.1:7447", "tcp/[::1]:7447", "tcp/127.0.0.1:7447"]"#),
+        &[
+            "zenoh.listen[3]",
+            "\"tcp/127.0.0.1:7447\" is already zenoh.listen[1]",
+        ],
+    );
+    refused(
+        &with_zenoh(r#"connect = ["tcp/10.0.0.1:7447", "tcp/10.0.0.1:7447"]"#),
+        &["zenoh.connect[2]", "is already zenoh.connect[1]"],
+    );
+    // Port 0 is a new port each time.
+    let c = load(&with_zenoh(
+        r#"listen = ["tcp/127.0.0.1:0", "tcp/127.0.0.1:0"]"#,
+    ))
+    .unwrap();
+    assert_eq!(c.zenoh().listen.len(), 2);
+}
+
+#[test]
 fn zenoh_endpoints_know_loopback() {
     let loopback = |text: &str| Endpoint::parse(text).unwrap().is_loopback();
     assert!(loopback("tcp/127.0.0.1:7447"));

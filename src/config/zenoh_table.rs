@@ -204,8 +204,9 @@ fn prefix_problem(prefix: &str) -> Option<&'static str> {
 impl Checker<'_> {
     /// Checks `[zenoh]`; `rate_hz` is the validated loop rate.
     pub(super) fn zenoh(&self, raw: RawZenoh, rate_hz: f64) -> Result<Zenoh, ConfigError> {
-        let endpoints = |name: &str, list: &[String]| {
-            list.iter()
+        let endpoints = |name: &'static str, list: &[String]| {
+            let parsed = list
+                .iter()
                 .enumerate()
                 .map(|(i, text)| {
                     let field = format!("zenoh.{name}[{}]", i + 1);
@@ -224,7 +225,23 @@ impl Checker<'_> {
                     }
                     .map_err(bad)
                 })
-                .collect::<Result<Vec<_>, _>>()
+                .collect::<Result<Vec<_>, _>>()?;
+            // Listening twice on one endpoint would fail as the session opens; connecting
+            // twice says nothing more. Port 0 picks a new port each time.
+            for (i, endpoint) in parsed.iter().enumerate() {
+                let twice = parsed[..i].iter().position(|e| e == endpoint);
+                if let Some(other) = twice.filter(|_| endpoint.port != 0) {
+                    return Err(self.invalid(
+                        format!("zenoh.{name}[{}]", i + 1),
+                        FieldProblem::DuplicateEndpoint {
+                            value: endpoint.to_string(),
+                            list: name,
+                            other: other + 1,
+                        },
+                    ));
+                }
+            }
+            Ok(parsed)
         };
         let connect = endpoints("connect", &raw.connect)?;
         let listen = endpoints("listen", &raw.listen)?;
