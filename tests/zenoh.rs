@@ -605,6 +605,27 @@ fn a_zenoh_session_that_cannot_open_refuses_start_up_with_exit_code_2() {
     drop(taken);
 }
 
+#[test]
+fn a_second_daemon_on_a_live_prefix_refuses_start_up() {
+    let (first, port) = daemon("twin", true);
+    // Reaching the first: a peer that connects to it.
+    let table = format!(
+        "[zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\nprefix = \"twin\"\n"
+    );
+    let message = refused_at_start_up(config_with(&table));
+    assert!(message.contains("\"twin\""), "{message}");
+    assert!(message.contains("holds the prefix"), "{message}");
+    // Commanding or not: two publishers on one prefix mix their telemetry as well.
+    let message = refused_at_start_up(config_with(&format!("{table}accept_commands = true\n")));
+    assert!(message.contains("holds the prefix"), "{message}");
+    // Another prefix on the same network is another arm.
+    let table = table.replace("\"twin\"", "\"twin_b\"");
+    let second = Daemon::start(config_with(&table));
+    second.client().status();
+    second.stop().unwrap();
+    first.stop().unwrap();
+}
+
 /// A subscriber as rmw_zenoh's: a sample whose attachment is not rmw_zenoh's is dropped.
 /// Returns the next kept sample's payload and attachment, and how many were dropped before it.
 fn next_ros_sample(sub: &Subscription, what: &str) -> (Vec<u8>, Attachment, usize) {

@@ -58,6 +58,10 @@ const QUERY_QUEUE: usize = 64;
 /// A queryable whose queries wait in a bounded channel.
 type Queryable = zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>;
 
+/// How long start-up looks for another daemon's liveliness token on the prefix: those already
+/// known, and those of sessions whose connections come up meanwhile.
+pub const PREFIX_WAIT: Duration = Duration::from_millis(500);
+
 /// Samples a [`Subscription`] keeps for a reader that is behind; older ones are dropped.
 pub const SUBSCRIPTION_RING: usize = 256;
 
@@ -124,6 +128,16 @@ pub enum NetError {
         key: String,
         /// Zenoh's reason.
         message: String,
+    },
+    /// Another daemon holds the liveliness token of the prefix on this network.
+    #[error(
+        "another daemon on this Zenoh network holds the prefix {prefix:?} (its liveliness \
+         token): two daemons on one prefix would both obey its commands and mix their \
+         telemetry; give each arm its own [zenoh] prefix, or stop the other daemon"
+    )]
+    PrefixTaken {
+        /// The prefix.
+        prefix: String,
     },
     /// The bridge's thread could not be started, or ended before it said why.
     #[error("the Zenoh thread: {0}")]
@@ -365,6 +379,13 @@ fn bridge_thread(
                 return;
             }
         };
+        if let Err(e) = prefix_free(&session, &settings.prefix).await {
+            let _ = opened.send(Err(e));
+            if let Err(e) = session.close().await {
+                debug!(error = %e, "closing the Zenoh session");
+            }
+            return;
+        }
         let _ = opened.send(Ok(()));
         let door = tokio::select! {
             door = start => door.ok(),
@@ -382,6 +403,30 @@ fn bridge_thread(
             debug!(error = %e, "closing the Zenoh session");
         }
     });
+}
+
+/// Refuses a prefix whose liveliness token another session holds, seen within
+/// [`PREFIX_WAIT`]: two daemons on one prefix would both obey one command stream.
+async fn prefix_free(session: &Session, prefix: &str) -> Result<(), NetError> {
+    let tokens = session
+        .liveliness()
+        .declare_subscriber(prefix.to_owned())
+        .history(true)
+        .with(RingChannel::new(SUBSCRIPTION_RING))
+        .await
+        .map_err(|e| NetError::Declare {
+            key: prefix.to_owned(),
+            message: e.to_string(),
+        })?;
+    let deadline = time::Instant::now() + PREFIX_WAIT;
+    while let Ok(Ok(sample)) = time::timeout_at(deadline, tokens.recv_async()).await {
+        if sample.kind() == SampleKind::Put {
+            return Err(NetError::PrefixTaken {
+                prefix: prefix.to_owned(),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The bridge's declarations, while it serves.
