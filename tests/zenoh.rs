@@ -356,6 +356,67 @@ fn network_commands_meet_the_arbiter_and_the_estop() {
 }
 
 #[test]
+fn a_flood_of_garbage_is_told_in_few_events_and_telemetry_keeps_its_pace() {
+    let (daemon, mut client, peer) = on_network("flooded", true);
+    let start = at_rest(&mut client);
+    let events = peer.subscribe("flooded/events").unwrap();
+    let telemetry = peer.subscribe("flooded/telemetry").unwrap();
+    let began = Instant::now();
+    let mut sent = 0u64;
+    while began.elapsed() < Duration::from_secs(2) {
+        peer.put("flooded/cmd_vel", b"x".to_vec()).unwrap();
+        sent += 1;
+    }
+    let flooded = began.elapsed();
+    // What arrived while the flood lasted.
+    let mut ticks = Vec::new();
+    while let Some(sample) = telemetry.recv_timeout(Duration::ZERO) {
+        let t: Value = serde_json::from_slice(&sample.payload).unwrap();
+        ticks.push(t["tick"].as_u64().unwrap());
+    }
+    // Every tick's end is seen: a publication every rate_hz / publish_hz = 2 ticks.
+    let span = ticks.last().unwrap() - ticks.first().unwrap();
+    let expected = span as f64 / 2.0;
+    println!(
+        "{sent} garbage samples in {flooded:?}: {} telemetry samples over {span} ticks",
+        ticks.len()
+    );
+    assert!(
+        ticks.len() as f64 >= 0.5 * expected,
+        "{} telemetry samples over {span} ticks",
+        ticks.len()
+    );
+    // Refusals: at most one event per 100 ms, the last with the count of those folded in.
+    // (The daemon may still be working through samples queued when the flood stopped.)
+    let mut told = Vec::new();
+    let mut last = began;
+    while let Some(sample) = events.recv_timeout(Duration::from_millis(500)) {
+        let e: Value = serde_json::from_slice(&sample.payload).unwrap();
+        if e["ok"] == json!(false) {
+            told.push(e["error"]["message"].as_str().unwrap().to_owned());
+            last = Instant::now();
+        }
+    }
+    let bound = (last - began).as_secs_f64() / 0.1 + 3.0;
+    assert!(
+        !told.is_empty() && told.len() as f64 <= bound,
+        "{} events",
+        told.len()
+    );
+    assert!(
+        told.iter()
+            .any(|m| m.contains("refusals: at most one is told per 100 ms")),
+        "{told:?}"
+    );
+    assert_eq!(
+        client.status()["tip_ref"],
+        start["tip_ref"],
+        "the arm moved"
+    );
+    daemon.stop().unwrap();
+}
+
+#[test]
 fn fleet_lists_two_arms_by_prefix() {
     let (a, port_a) = daemon("lab/arm_a", false);
     let (b, port_b) = daemon("lab/arm_b", false);

@@ -28,9 +28,11 @@
 
 use std::cell::Cell;
 use std::path::PathBuf;
+use std::pin::Pin;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde_json::Value;
+use tokio::sync::futures::Notified;
 use tokio::sync::{broadcast, oneshot};
 use tokio::time::{self, MissedTickBehavior};
 use tracing::{debug, info, warn};
@@ -51,6 +53,13 @@ use crate::ros::{self, rmw};
 /// Network commands held for the bridge between two of its turns; the newest win (a newer
 /// `cmd_vel` replaces an older one anyway).
 const COMMAND_RING: usize = 8;
+
+/// At most one refusal of a network command is published per this gap; those in between are
+/// folded into the next one told, with their count.
+const REFUSAL_EVENT_GAP: Duration = Duration::from_millis(100);
+
+/// The log tells a run of the same refusal once, and again after this long, with the count.
+const REFUSAL_LOG_GAP: Duration = Duration::from_secs(10);
 
 /// Queries held before the bridge answers them; more wait in Zenoh.
 const QUERY_QUEUE: usize = 64;
@@ -670,6 +679,8 @@ impl<'a> Served<'a> {
         })
     }
 
+    /// Serves until `stop`: publishing first (a tick's end is never missed, however busy the
+    /// rest), then the loop's events, then commands (one sample per turn), then queries.
     async fn run(self, stop: &mut oneshot::Receiver<()>) {
         let mut ticker = time::interval(self.settings.publish_period);
         ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
@@ -679,22 +690,31 @@ impl<'a> Served<'a> {
         let mut events_open = true;
         // When the last network command was taken, while this door may hold control.
         let mut last_command: Option<time::Instant> = None;
-        let mut refusals = Refusals::default();
+        let mut refusals = Refusals::new(time::Instant::now());
         let (answers_tx, mut answers) = tokio::sync::mpsc::channel::<Rejection>(QUERY_QUEUE);
         // A publication is due: it goes out when the loop's next tick ends, in the idle rest
         // of the loop's period, so that encoding and sending it never overlap a tick's work.
-        let mut due = false;
+        // The wait is registered as soon as it is due, so that a tick that ends while the
+        // bridge is busy elsewhere still wakes it.
+        let mut tick_end: Option<Pin<Box<Notified<'_>>>> = None;
         loop {
             let silence = last_command.map(|t| t + self.settings.deadman);
             tokio::select! {
+                biased;
                 _ = &mut *stop => break,
-                _ = ticker.tick() => due = true,
-                () = tick_done.notified(), if due => {
-                    due = false;
+                () = ended(&mut tick_end) => {
+                    tick_end = None;
                     if telemetry.has_changed().unwrap_or(false) {
                         // Cloned, then the snapshot is let go: encoding never holds the loop.
                         let t = telemetry.borrow_and_update().clone();
                         self.publish(&t).await;
+                    }
+                }
+                _ = ticker.tick() => {
+                    if tick_end.is_none() {
+                        let mut wait = Box::pin(tick_done.notified());
+                        wait.as_mut().enable();
+                        tick_end = Some(wait);
                     }
                 }
                 event = events.recv(), if events_open => match event {
@@ -708,13 +728,21 @@ impl<'a> Served<'a> {
                     }
                     Err(broadcast::error::RecvError::Closed) => events_open = false,
                 },
-                query = next_query(&self.status) => {
-                    let t = telemetry.borrow().clone();
-                    self.answer(&query, "status", self.door.status_line(&t)).await;
+                () = sleep_until(silence), if silence.is_some() => {
+                    last_command = None;
+                    if self.door.release() {
+                        info!(
+                            deadman_ms = self.settings.deadman.as_millis() as u64,
+                            "no Zenoh command for the deadman: control released"
+                        );
+                    }
                 }
-                query = next_query(&self.describe) => {
-                    self.answer(&query, "describe", self.door.describe_line()).await;
+                () = sleep_until(refusals.due()) => {
+                    if let Some(why) = refusals.flush(time::Instant::now()) {
+                        self.put_event(protocol::error_line(None, &why)).await;
+                    }
                 }
+                Some(why) = answers.recv() => self.refused(why, &mut refusals).await,
                 sample = recv(self.cmd_vel.as_ref()) => {
                     let cmd = velocity(&sample);
                     if self.command(cmd, &answers_tx, &mut refusals).await {
@@ -754,15 +782,12 @@ impl<'a> Served<'a> {
                         last_command = Some(time::Instant::now());
                     }
                 }
-                Some(why) = answers.recv() => self.refused(why, &mut refusals).await,
-                () = sleep_until(silence), if silence.is_some() => {
-                    last_command = None;
-                    if self.door.release() {
-                        info!(
-                            deadman_ms = self.settings.deadman.as_millis() as u64,
-                            "no Zenoh command for the deadman: control released"
-                        );
-                    }
+                query = next_query(&self.status) => {
+                    let t = telemetry.borrow().clone();
+                    self.answer(&query, "status", self.door.status_line(&t)).await;
+                }
+                query = next_query(&self.describe) => {
+                    self.answer(&query, "describe", self.door.describe_line()).await;
                 }
             }
         }
@@ -872,7 +897,6 @@ impl<'a> Served<'a> {
         let sent = cmd.and_then(|cmd| self.door.send(cmd));
         match sent {
             Ok(answer) => {
-                refusals.last = None;
                 let answers = answers.clone();
                 tokio::spawn(async move {
                     if let Ok(Err(why)) = answer.await {
@@ -889,21 +913,106 @@ impl<'a> Served<'a> {
         }
     }
 
-    /// Tells the network why a command was refused, on `<prefix>/events`, and the log once per
-    /// run of the same refusal.
+    /// Tells the network why a command was refused, on `<prefix>/events` (at most one per
+    /// [`REFUSAL_EVENT_GAP`], the rest folded in), and the log once per run of the same refusal
+    /// (again after [`REFUSAL_LOG_GAP`]).
     async fn refused(&self, why: Rejection, refusals: &mut Refusals) {
-        if refusals.last != Some(why.code) {
-            warn!(code = ?why.code, reason = %why.message, "a Zenoh command was refused");
-            refusals.last = Some(why.code);
+        let now = time::Instant::now();
+        if let Some(since) = refusals.log(why.code, now) {
+            warn!(
+                code = ?why.code,
+                reason = %why.message,
+                refused_since = since,
+                "a Zenoh command was refused"
+            );
         }
-        self.put_event(protocol::error_line(None, &why)).await;
+        if let Some(why) = refusals.event(why, now) {
+            self.put_event(protocol::error_line(None, &why)).await;
+        }
     }
 }
 
-/// The last refusal logged, so that a stream of refused `cmd_vel`s logs once.
-#[derive(Default)]
+/// Refusals of network commands, told without flooding the log or the network: a stream of
+/// garbage is one log line and at most one event per [`REFUSAL_EVENT_GAP`].
 struct Refusals {
-    last: Option<Code>,
+    /// The refusal the log told last, and when.
+    logged: Option<(Code, time::Instant)>,
+    /// Refusals since the log told one.
+    unlogged: u64,
+    /// When the next refusal may be published.
+    next_event: time::Instant,
+    /// The latest refusal held back, and how many refusals it stands for.
+    held: Option<(Rejection, u64)>,
+}
+
+impl Refusals {
+    fn new(now: time::Instant) -> Refusals {
+        Refusals {
+            logged: None,
+            unlogged: 0,
+            next_event: now,
+            held: None,
+        }
+    }
+
+    /// Whether a refusal with `code` is to be logged at `now` (another refusal than the last
+    /// told, or the same after [`REFUSAL_LOG_GAP`]): then how many went unlogged before it.
+    fn log(&mut self, code: Code, now: time::Instant) -> Option<u64> {
+        let tell = match self.logged {
+            Some((last, at)) => last != code || now >= at + REFUSAL_LOG_GAP,
+            None => true,
+        };
+        if tell {
+            self.logged = Some((code, now));
+            Some(std::mem::take(&mut self.unlogged))
+        } else {
+            self.unlogged = self.unlogged.saturating_add(1);
+            None
+        }
+    }
+
+    /// The refusal to publish at `now`: `why`, with those held back folded in, when none was
+    /// published within [`REFUSAL_EVENT_GAP`]; otherwise `why` is held back.
+    fn event(&mut self, why: Rejection, now: time::Instant) -> Option<Rejection> {
+        let count = self.held.take().map_or(0, |(_, n)| n).saturating_add(1);
+        if now >= self.next_event {
+            self.next_event = now + REFUSAL_EVENT_GAP;
+            Some(folded(why, count))
+        } else {
+            self.held = Some((why, count));
+            None
+        }
+    }
+
+    /// When the refusal held back is to be published; `None` without one.
+    fn due(&self) -> Option<time::Instant> {
+        self.held.as_ref().map(|_| self.next_event)
+    }
+
+    /// The refusal held back, with its count, once it is due at `now`.
+    fn flush(&mut self, now: time::Instant) -> Option<Rejection> {
+        if now < self.next_event {
+            return None;
+        }
+        let (why, count) = self.held.take()?;
+        self.next_event = now + REFUSAL_EVENT_GAP;
+        Some(folded(why, count))
+    }
+}
+
+/// `why`, the last of `count` refusals: the count said in its message when more than one.
+fn folded(why: Rejection, count: u64) -> Rejection {
+    match count {
+        0 | 1 => why,
+        _ => Rejection::new(
+            why.code,
+            format!(
+                "{} (the last of {count} refusals: at most one is told per {} ms)",
+                why.message,
+                REFUSAL_EVENT_GAP.as_millis()
+            ),
+        ),
+    }
 }
 
 /// The next sample of `subscriber`; never, without one.
@@ -922,6 +1031,14 @@ async fn next_query(queryable: &Queryable) -> zenoh::query::Query {
     match queryable.recv_async().await {
         Ok(query) => query,
         Err(_) => std::future::pending().await,
+    }
+}
+
+/// The end of the tick `wait` waits for; never, without one.
+async fn ended(wait: &mut Option<Pin<Box<Notified<'_>>>>) {
+    match wait {
+        Some(wait) => wait.as_mut().await,
+        None => std::future::pending().await,
     }
 }
 
@@ -1284,5 +1401,58 @@ mod tests {
         let (mut t, _dir) = table(&["tcp/127.0.0.1:7447"], None);
         t.accept_commands = false;
         checked(&t, Some("/etc/snakectl/token")).unwrap();
+    }
+
+    #[test]
+    fn accepted_commands_between_refusals_do_not_start_a_new_run_in_the_log() {
+        let t0 = time::Instant::now();
+        let mut refusals = Refusals::new(t0);
+        assert_eq!(refusals.log(Code::NotInControl, t0), Some(0));
+        // Accepted commands in between change nothing: the same refusal is not told again...
+        for i in 1..100 {
+            let at = t0 + Duration::from_millis(i);
+            assert_eq!(refusals.log(Code::NotInControl, at), None);
+        }
+        // ...until another one comes, or the gap has passed, with the count since.
+        assert_eq!(
+            refusals.log(Code::BadArg, t0 + Duration::from_millis(200)),
+            Some(99)
+        );
+        assert_eq!(
+            refusals.log(Code::BadArg, t0 + Duration::from_millis(300)),
+            None
+        );
+        let later = t0 + Duration::from_millis(200) + REFUSAL_LOG_GAP;
+        assert_eq!(refusals.log(Code::BadArg, later), Some(1));
+    }
+
+    #[test]
+    fn a_flood_of_refusals_is_one_event_per_gap_with_the_count() {
+        let t0 = time::Instant::now();
+        let mut refusals = Refusals::new(t0);
+        let why = |n: u32| Rejection::new(Code::BadArg, format!("garbage {n}"));
+        let first = refusals.event(why(0), t0).unwrap();
+        assert_eq!(first.message, "garbage 0");
+        // 1000 within the gap: none published, the last held with the count.
+        for n in 1..=1000 {
+            assert!(refusals
+                .event(why(n), t0 + Duration::from_micros(n.into()))
+                .is_none());
+        }
+        assert_eq!(refusals.due(), Some(t0 + REFUSAL_EVENT_GAP));
+        assert!(refusals.flush(t0 + REFUSAL_EVENT_GAP / 2).is_none());
+        let told = refusals.flush(t0 + REFUSAL_EVENT_GAP).unwrap();
+        assert_eq!(told.code, Code::BadArg);
+        assert!(
+            told.message
+                .starts_with("garbage 1000 (the last of 1000 refusals"),
+            "{}",
+            told.message
+        );
+        assert_eq!(refusals.due(), None);
+        assert!(refusals.flush(t0 + REFUSAL_EVENT_GAP * 3).is_none());
+        // After a quiet gap, the next refusal goes out at once, as it is.
+        let next = refusals.event(why(7), t0 + REFUSAL_EVENT_GAP * 3).unwrap();
+        assert_eq!(next.message, "garbage 7");
     }
 }
