@@ -11,6 +11,7 @@ use std::net::{SocketAddr, TcpListener};
 use std::process::Command;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use daemon_support::child::DaemonChild;
 use daemon_support::{dist, floats, sim_config, xy, Client, Daemon, DEADLINE};
 use serde_json::{json, Value};
 use snakectl::config::{Config, Endpoint};
@@ -685,6 +686,39 @@ fn a_second_daemon_on_a_live_prefix_refuses_start_up() {
     second.client().status();
     second.stop().unwrap();
     first.stop().unwrap();
+}
+
+#[test]
+fn commands_through_a_connect_endpoint_are_warned_of() {
+    let dir = tempfile::tempdir().unwrap();
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    let path = dir.path().join("arm.toml");
+    // A router on loopback, as ROS2.md's recipe has it: it may listen on every interface.
+    let table = format!(
+        "[zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{}\"]\naccept_commands = true\n",
+        free_port()
+    );
+    std::fs::write(&path, format!("{text}\n{table}")).unwrap();
+    let config = Config::load(&path).unwrap();
+    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
+        .unwrap();
+    let daemon = DaemonChild::spawn(&path, sim.path());
+    let line = daemon.logged(
+        "accept_commands through a Zenoh session the daemon connects to",
+        DEADLINE,
+    );
+    let line = line.expect("no warning of the commands' way in");
+    assert!(line.contains("WARN"), "{line}");
+    drop(daemon);
+    // Without commands, nothing to warn of.
+    let path = dir.path().join("watch.toml");
+    let table = table.replace("accept_commands = true", "accept_commands = false");
+    std::fs::write(&path, format!("{text}\n{table}")).unwrap();
+    let watcher = DaemonChild::spawn(&path, sim.path());
+    assert!(watcher
+        .logged("accept_commands through", Duration::from_secs(2))
+        .is_none());
 }
 
 /// A subscriber as rmw_zenoh's: a sample whose attachment is not rmw_zenoh's is dropped.

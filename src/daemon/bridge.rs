@@ -270,6 +270,27 @@ fn check_commands(
     Ok(())
 }
 
+/// Warns, when commands are taken, that they may come through a session the daemon connects
+/// to: the daemon cannot see how exposed that router or peer is (rmw_zenohd listens on every
+/// interface by default), nor the peers it tells of.
+fn warn_routed(table: &Zenoh, config: &zenoh::Config) -> Result<(), NetError> {
+    if !table.accept_commands {
+        return Ok(());
+    }
+    let connect = endpoints_in_effect(config, "connect/endpoints", table.mode)?;
+    if table.mode == ZenohMode::Client || !connect.is_empty() {
+        warn!(
+            mode = mode_name(table.mode),
+            connect = ?connect,
+            "accept_commands through a Zenoh session the daemon connects to: the arm takes \
+             commands from anything that reaches that router or peer, on every interface it \
+             listens on (rmw_zenohd's default is tcp/[::]:7447); keep the router on loopback \
+             or behind Zenoh's access control (docs/ROS2.md)"
+        );
+    }
+    Ok(())
+}
+
 /// Zenoh's name of `mode`.
 fn mode_name(mode: ZenohMode) -> &'static str {
     match mode {
@@ -334,6 +355,7 @@ impl Bridge {
         let table = config.zenoh();
         let zenoh_config = session_config(table, true)?;
         check_commands(table, &zenoh_config, config.server().token_file.as_deref())?;
+        warn_routed(table, &zenoh_config)?;
         let settings = Settings {
             prefix: table.prefix.clone(),
             publish_period: Duration::try_from_secs_f64(1.0 / table.publish_hz)
