@@ -261,7 +261,7 @@ pub enum FieldProblem {
         other: usize,
     },
     /// A key prefix that is not a plain Zenoh key expression.
-    #[error("\"{value}\" is not a key prefix such as snakectl or lab/arm_1 ({reason})")]
+    #[error("{value:?} is not a key prefix such as snakectl or lab/arm_1 ({reason})")]
     BadPrefix {
         /// The text given.
         value: String,

@@ -1124,6 +1124,29 @@ fn zenoh_prefix_is_a_plain_key_expression() {
 }
 
 #[test]
+fn zenoh_prefix_is_printable_ascii_without_spaces() {
+    // TOML escapes in, Rust's escapes in the message: the field is named, the value shown.
+    for (toml, shown) in [
+        (r"arm\n1", r#""arm\n1""#),
+        (r"arm\u0000", r#""arm\0""#),
+        ("arm 1", r#""arm 1""#),
+        (r"arm\t1", r#""arm\t1""#),
+        ("bras_é", r#""bras_é""#),
+        (r"arm\u202e1", r#""arm\u{202e}1""#),
+    ] {
+        let table = format!("prefix = \"{toml}\"");
+        refused(
+            &with_zenoh(&table),
+            &["zenoh.prefix", shown, "only printable ASCII"],
+        );
+    }
+    refused(
+        &with_zenoh(r#"prefix = 'lab\arm'"#),
+        &["zenoh.prefix", r#""lab\\arm""#, "no \\"],
+    );
+}
+
+#[test]
 fn zenoh_ros2_needs_a_ros_namespace_and_a_domain_id_in_range() {
     let c = load(&with_zenoh("")).unwrap();
     assert!(!c.zenoh().ros2);

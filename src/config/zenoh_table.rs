@@ -27,9 +27,9 @@ pub struct Zenoh {
     pub listen: Vec<Endpoint>,
     /// Multicast scouting on.
     pub multicast: bool,
-    /// The arm's namespace, the start of every key: one or more `/`-separated chunks, none
-    /// empty, with no wildcard or special character (`*`, `$`, `?`, `#`) and none starting
-    /// with `@`.
+    /// The arm's namespace, the start of every key: one or more `/`-separated chunks of
+    /// printable ASCII, none empty, with no wildcard or special character (`*`, `$`, `?`, `#`,
+    /// `\`) and none starting with `@`.
     pub prefix: String,
     /// Publishing rate, Hz, positive and at most `control.rate_hz`.
     pub publish_hz: f64,
@@ -188,6 +188,10 @@ fn parse_host(host: &str) -> Result<Host, String> {
 fn prefix_problem(prefix: &str) -> Option<&'static str> {
     if prefix.is_empty() {
         Some("empty")
+    } else if !prefix.bytes().all(|b| b.is_ascii_graphic()) {
+        Some("only printable ASCII: no space, control character or other character")
+    } else if prefix.contains('\\') {
+        Some("no \\: shells, logs and other tools read it as an escape")
     } else if prefix.contains(['*', '$', '?', '#']) {
         Some("*, $, ? and # are Zenoh's wildcards and separators")
     } else if prefix.starts_with('/') || prefix.ends_with('/') {
