@@ -481,6 +481,16 @@ struct Served<'a> {
     ros: Option<RosNode>,
 }
 
+/// What the bridge takes from the network in one turn.
+enum Work {
+    /// A command sample, read (or why it cannot be one).
+    Command(Result<Cmd, Rejection>),
+    /// A `status` query.
+    Status(zenoh::query::Query),
+    /// A `describe` query.
+    Describe(zenoh::query::Query),
+}
+
 /// A subscriber whose samples wait in a ring: the newest are kept.
 type Subscriber = zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>;
 
@@ -702,7 +712,8 @@ impl<'a> Served<'a> {
     }
 
     /// Serves until `stop`: publishing first (a tick's end is never missed, however busy the
-    /// rest), then the loop's events, then commands (one sample per turn), then queries.
+    /// rest), then the loop's events, the deadman and refusals, then one command sample or
+    /// query per turn.
     async fn run(self, stop: &mut oneshot::Receiver<()>) {
         let mut ticker = time::interval(self.settings.publish_period);
         ticker.set_missed_tick_behavior(MissedTickBehavior::Skip);
@@ -765,53 +776,43 @@ impl<'a> Served<'a> {
                     }
                 }
                 Some(why) = answers.recv() => self.refused(why, &mut refusals).await,
-                sample = recv(self.cmd_vel.as_ref()) => {
-                    let cmd = velocity(&sample);
-                    if self.command(cmd, &answers_tx, &mut refusals).await {
-                        last_command = Some(time::Instant::now());
+                work = self.next_work() => match work {
+                    Work::Command(cmd) => {
+                        if self.command(cmd, &answers_tx, &mut refusals).await {
+                            last_command = Some(time::Instant::now());
+                        }
                     }
-                }
-                sample = recv(self.goal.as_ref()) => {
-                    let cmd = goto(&sample);
-                    if self.command(cmd, &answers_tx, &mut refusals).await {
-                        last_command = Some(time::Instant::now());
+                    Work::Status(query) => {
+                        let t = telemetry.borrow().clone();
+                        self.answer(&query, "status", self.door.status_line(&t)).await;
                     }
-                }
-                sample = recv(self.reach.as_ref()) => {
-                    let cmd = reach(&sample);
-                    if self.command(cmd, &answers_tx, &mut refusals).await {
-                        last_command = Some(time::Instant::now());
+                    Work::Describe(query) => {
+                        self.answer(&query, "describe", self.door.describe_line()).await;
                     }
-                }
-                sample = recv(self.ros.as_ref().and_then(|r| r.cmd_vel.as_ref())) => {
-                    let cmd = from_ros(&sample, &self.settings.key("cmd_vel"))
-                        .and_then(|()| velocity(&sample));
-                    if self.command(cmd, &answers_tx, &mut refusals).await {
-                        last_command = Some(time::Instant::now());
-                    }
-                }
-                sample = recv(self.ros.as_ref().and_then(|r| r.goal.as_ref())) => {
-                    let cmd = from_ros(&sample, &self.settings.key("goal"))
-                        .and_then(|()| goto(&sample));
-                    if self.command(cmd, &answers_tx, &mut refusals).await {
-                        last_command = Some(time::Instant::now());
-                    }
-                }
-                sample = recv(self.ros.as_ref().and_then(|r| r.reach.as_ref())) => {
-                    let cmd = from_ros(&sample, &self.settings.key("reach"))
-                        .and_then(|()| reach(&sample));
-                    if self.command(cmd, &answers_tx, &mut refusals).await {
-                        last_command = Some(time::Instant::now());
-                    }
-                }
-                query = next_query(&self.status) => {
-                    let t = telemetry.borrow().clone();
-                    self.answer(&query, "status", self.door.status_line(&t)).await;
-                }
-                query = next_query(&self.describe) => {
-                    self.answer(&query, "describe", self.door.describe_line()).await;
-                }
+                },
             }
+        }
+    }
+
+    /// The next command sample (read) or query, whichever comes first: one per turn, taken
+    /// fairly among them, so that a flood of one kind does not starve the others.
+    async fn next_work(&self) -> Work {
+        let ros = self.ros.as_ref();
+        tokio::select! {
+            sample = recv(self.cmd_vel.as_ref()) => Work::Command(velocity(&sample)),
+            sample = recv(self.goal.as_ref()) => Work::Command(goto(&sample)),
+            sample = recv(self.reach.as_ref()) => Work::Command(reach(&sample)),
+            sample = recv(ros.and_then(|r| r.cmd_vel.as_ref())) => Work::Command(
+                from_ros(&sample, &self.settings.key("cmd_vel")).and_then(|()| velocity(&sample)),
+            ),
+            sample = recv(ros.and_then(|r| r.goal.as_ref())) => Work::Command(
+                from_ros(&sample, &self.settings.key("goal")).and_then(|()| goto(&sample)),
+            ),
+            sample = recv(ros.and_then(|r| r.reach.as_ref())) => Work::Command(
+                from_ros(&sample, &self.settings.key("reach")).and_then(|()| reach(&sample)),
+            ),
+            query = next_query(&self.status) => Work::Status(query),
+            query = next_query(&self.describe) => Work::Describe(query),
         }
     }
 
