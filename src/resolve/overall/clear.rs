@@ -155,6 +155,8 @@ pub(super) struct ClearWork {
     trial: Vec<f64>,
     fd_theta: Vec<f64>,
     qp_x: Vec<f64>,
+    /// The rows of the SQP subproblem (see `Qp::rows`).
+    qp_rows: Vec<f64>,
     all: Vec<Pair>,
     order: Vec<usize>,
     /// Candidate pairs (see `Candidates`), kept across iterations and ticks.
@@ -254,9 +256,8 @@ impl At {
 struct Qp<'a> {
     n: usize,
     k2: usize,
-    jx: &'a [f64],
-    jy: &'a [f64],
-    grad: &'a [f64],
+    /// The rows, `n` each: the two of `J`, then the pairs' gradients.
+    rows: &'a [f64],
     theta0: &'a [f64],
     theta: &'a [f64],
     lo: &'a [f64],
@@ -267,11 +268,7 @@ struct Qp<'a> {
 
 impl Qp<'_> {
     fn row(&self, i: usize) -> &[f64] {
-        match i {
-            0 => self.jx,
-            1 => self.jy,
-            _ => &self.grad[(i - 2) * self.n..(i - 1) * self.n],
-        }
+        &self.rows[i * self.n..(i + 1) * self.n]
     }
 }
 
@@ -510,6 +507,7 @@ impl ClearWork {
         self.clr = vec![0.0; MAX_PAIRS];
         self.contact = vec![Vec2::zeros(); MAX_PAIRS];
         self.grad = vec![0.0; MAX_PAIRS * n];
+        self.qp_rows = vec![0.0; (MAX_PAIRS + 2) * n];
         self.nu = vec![0.0; MAX_PAIRS];
         self.prev_nu = vec![0.0; MAX_PAIRS];
         self.backup_key = vec![(0, 0); MAX_PAIRS];
@@ -564,6 +562,20 @@ impl ClearWork {
     /// Whether some pair carried a positive multiplier out of the last solve.
     fn leaning(&self) -> bool {
         self.prev_nu[..self.prev_k].iter().any(|&v| v > 0.0)
+    }
+
+    /// The selected pairs whose multiplier is not zero (the first of the count): the others
+    /// add nothing to `theta0 + A^T lambda`, and most pairs near contact do not lean.
+    fn nonzero_nu(&self) -> ([usize; MAX_PAIRS], usize) {
+        let mut leaning = [0; MAX_PAIRS];
+        let mut count = 0;
+        for j in 0..self.k {
+            if self.nu[j] != 0.0 {
+                leaning[count] = j;
+                count += 1;
+            }
+        }
+        (leaning, count)
     }
 
     /// Keeps the selected pairs' multipliers `nu[..k]` for the next selection.
@@ -632,9 +644,10 @@ impl ClearWork {
                 .map_or(0.0, |i| self.prev_nu[i]);
         }
         let mut s: f64 = 0.0;
+        let (leaning, count) = self.nonzero_nu();
         for a in 0..n {
             let mut u = p.theta0[a] + self.jx[a] * mu[0] + self.jy[a] * mu[1];
-            for j in 0..self.k {
+            for &j in &leaning[..count] {
                 u += self.nu[j] * self.grad[j * n + a];
             }
             s = s.max((theta[a] - u.clamp(lo[a], hi[a])).abs());
@@ -809,6 +822,10 @@ impl ClearWork {
             self.r[2 + j] = cm - self.clr[j];
         }
         let qp_tol = (super::QP_TOLERANCE * tol).max(super::QP_TOLERANCE_FLOOR * p.scale);
+        // The subproblem's rows in one block (read row by row in its inner loops).
+        self.qp_rows[..n].copy_from_slice(&self.jx);
+        self.qp_rows[n..2 * n].copy_from_slice(&self.jy);
+        self.qp_rows[2 * n..k2 * n].copy_from_slice(&self.grad[..self.k * n]);
         let mut elastic = false;
         let mut solved = false;
         for (attempt, rho) in [0.0]
@@ -829,9 +846,7 @@ impl ClearWork {
             let qp = Qp {
                 n,
                 k2,
-                jx: &self.jx,
-                jy: &self.jy,
-                grad: &self.grad,
+                rows: &self.qp_rows,
                 theta0: p.theta0,
                 theta,
                 lo,
@@ -958,9 +973,10 @@ impl ClearWork {
         let cm = world.clearance_m();
         // Active set: joints held at bounds, pairs leaning or not clear.
         self.free.clear();
+        let (leaning, count) = self.nonzero_nu();
         for a in 0..n {
             let mut u = p.theta0[a] + self.jx[a] * mu[0] + self.jy[a] * mu[1];
-            for j in 0..self.k {
+            for &j in &leaning[..count] {
                 u += self.nu[j] * self.grad[j * n + a];
             }
             self.held_move[a] = if u <= lo[a] {

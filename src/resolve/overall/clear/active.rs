@@ -64,6 +64,8 @@ pub(super) struct ActiveScratch {
     norm: Vec<f64>,
     k2: usize,
     cap: usize,
+    /// Some bound of the subproblem under way is finite.
+    bounded: bool,
 }
 
 impl ActiveScratch {
@@ -87,6 +89,7 @@ impl ActiveScratch {
             norm: vec![0.0; k2],
             k2,
             cap,
+            bounded: true,
         }
     }
 }
@@ -178,6 +181,9 @@ impl Qp<'_> {
             }
             consider(i, self.row_value(i, s, sigma), s.norm[i], tol);
         }
+        if !s.bounded {
+            return pick;
+        }
         for k in 0..n {
             if !s.taken[k2 + k] {
                 let limit = BOUND_TOL * (1.0 + self.lo[k].abs());
@@ -252,6 +258,11 @@ impl Qp<'_> {
         s.x.copy_from_slice(&self.theta0[..n]);
         s.t[..k2].iter_mut().for_each(|t| *t = 0.0);
         s.gram[..s.k2 * s.k2].iter_mut().for_each(|g| *g = f64::NAN);
+        // An infinite bound is never violated: with none finite, the bounds are not searched.
+        s.bounded = self.lo[..n]
+            .iter()
+            .chain(&self.hi[..n])
+            .any(|b| b.is_finite());
         for i in 0..k2 {
             s.norm[i] = (self.dot(&mut s.gram, s.k2, i, 1.0, i, 1.0)).sqrt();
         }
