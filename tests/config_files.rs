@@ -221,3 +221,67 @@ fn commented_foxglove_tables_serve_on_loopback() {
         );
     }
 }
+
+/// Runs `snakectl ARGS`, killed after 20 s: its exit status and stderr, or `None` if it had to
+/// be killed.
+fn snakectl_within(args: &[&str]) -> Option<(bool, String)> {
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > std::time::Duration::from_secs(20) {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().unwrap();
+    Some((
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    ))
+}
+
+#[test]
+fn a_device_or_fifo_named_as_an_input_file_is_refused_at_once_by_every_command() {
+    let dir = std::env::temp_dir().join(format!("snakectl-config-files-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fifo = dir.join("input.fifo");
+    let _ = std::fs::remove_file(&fifo);
+    rustix::fs::mknodat(
+        rustix::fs::CWD,
+        &fifo,
+        rustix::fs::FileType::Fifo,
+        rustix::fs::Mode::from_raw_mode(0o600),
+        0,
+    )
+    .unwrap();
+    let fifo = fifo.to_str().unwrap().to_owned();
+    for (file, what) in [
+        ("/dev/zero", "a character device, not a regular file"),
+        (fifo.as_str(), "a FIFO (named pipe), not a regular file"),
+    ] {
+        for args in [
+            vec!["urdf", "--config", file],
+            vec!["solve", file],
+            vec!["world", "set", file],
+            vec!["path", file],
+        ] {
+            let (ok, stderr) = snakectl_within(&args)
+                .unwrap_or_else(|| panic!("`snakectl {}` did not end", args.join(" ")));
+            assert!(!ok, "snakectl {}: {stderr}", args.join(" "));
+            assert!(
+                stderr.contains(file) && stderr.contains(what),
+                "snakectl {}: {stderr}",
+                args.join(" ")
+            );
+        }
+    }
+}

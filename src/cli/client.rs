@@ -20,6 +20,7 @@ use snakectl::client::{Client, ClientError, CmdName, Ending, Fields};
 use snakectl::protocol::{
     strategy_named, Cmd, Code, FaultKind, Reply, MAX_PATH_POINTS, STRATEGIES,
 };
+use snakectl::textfile::{read_text, MAX_TEXT_BYTES};
 
 use super::{outln, Failure};
 
@@ -179,7 +180,7 @@ pub fn reach(args: ReachArgs) -> Result<(), Failure> {
 /// `snakectl path`.
 pub fn path(args: PathArgs) -> Result<(), Failure> {
     let speed = check_speed(args.speed)?;
-    let text = std::fs::read_to_string(&args.file)
+    let text = read_text(&args.file, MAX_TEXT_BYTES)
         .map_err(|e| Failure::bad_input(anyhow!("{}: cannot read it: {e}", args.file.display())))?;
     let points = parse_points(&text)
         .map_err(|e| Failure::bad_input(anyhow!("{}:{e}", args.file.display())))?;

@@ -1,12 +1,12 @@
 //! `snakectl solve`: one tip move from a JSON problem or a config file, answered as JSON.
 
-use std::io::Read;
 use std::path::PathBuf;
 
 use clap::Args;
 
 use snakectl::config::Config;
 use snakectl::problem::{self, Problem, ProblemError};
+use snakectl::textfile::{read_capped, read_text, MAX_TEXT_BYTES};
 
 use super::{outln, Failure};
 
@@ -64,15 +64,12 @@ pub fn run(args: SolveArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-fn problem_from_file(path: &PathBuf) -> Result<Problem, Failure> {
+fn problem_from_file(path: &std::path::Path) -> Result<Problem, Failure> {
     let text = if path.as_os_str() == "-" {
-        let mut s = String::new();
-        std::io::stdin()
-            .read_to_string(&mut s)
-            .map_err(|e| Failure::bad_input(anyhow::anyhow!("stdin: {e}")))?;
-        s
+        read_capped(std::io::stdin().lock(), MAX_TEXT_BYTES)
+            .map_err(|e| Failure::bad_input(anyhow::anyhow!("stdin: {e}")))?
     } else {
-        std::fs::read_to_string(path)
+        read_text(path, MAX_TEXT_BYTES)
             .map_err(|e| Failure::bad_input(anyhow::anyhow!("{}: {e}", path.display())))?
     };
     Problem::from_json(&text).map_err(|e| {

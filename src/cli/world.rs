@@ -24,6 +24,7 @@ use snakectl::config::{world_field, world_problem};
 use snakectl::protocol::{
     parse_obstacles, strict_json, world_rejection, Cmd, Code, Reply, Wire, WorldChanged,
 };
+use snakectl::textfile::{read_text, MAX_TEXT_BYTES};
 use snakectl::world::{CheckedObstacle, Obstacle, Obstacles, Shape, World};
 
 use super::client::{connect, refused, ConnectArgs};
@@ -210,7 +211,7 @@ fn table(world: &WorldInfo) -> Vec<String> {
 /// `world set FILE`.
 fn set(args: SetArgs, connect_args: &ConnectArgs) -> Result<(), Failure> {
     let file = &args.file;
-    let text = std::fs::read_to_string(file)
+    let text = read_text(file, MAX_TEXT_BYTES)
         .map_err(|e| Failure::bad_input(anyhow!("{}: cannot read it: {e}", file.display())))?;
     let read = read_file(file, &text)
         .map_err(|e| Failure::bad_input(anyhow!("{}: {e}", file.display())))?;

@@ -86,8 +86,8 @@ pub enum ClientError {
     TokenFile {
         /// The file.
         path: PathBuf,
-        /// What the operating system said.
-        source: std::io::Error,
+        /// Why: what the operating system said, or not a regular file, or too large.
+        source: crate::textfile::TextFileError,
     },
     /// The token file's first line is empty.
     #[error("{}: the token file is empty: its first line is the token", path.display())]
@@ -219,10 +219,13 @@ impl fmt::Display for Shown<'_> {
 
 /// The token in `path`: its first line, trimmed (as the daemon reads its own).
 pub fn read_token(path: &Path) -> Result<String, ClientError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ClientError::TokenFile {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let text =
+        crate::textfile::read_text(path, crate::textfile::MAX_TEXT_BYTES).map_err(|source| {
+            ClientError::TokenFile {
+                path: path.to_path_buf(),
+                source,
+            }
+        })?;
     let token = text.lines().next().unwrap_or("").trim();
     if token.is_empty() {
         return Err(ClientError::EmptyToken {

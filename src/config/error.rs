@@ -18,8 +18,9 @@ pub enum ConfigError {
     Read {
         /// The file.
         path: PathBuf,
-        /// What the operating system said.
-        source: std::io::Error,
+        /// Why: what the operating system said, or not a regular file, or larger than
+        /// [`crate::textfile::MAX_TEXT_BYTES`].
+        source: crate::textfile::TextFileError,
     },
     /// Not valid TOML, or a key or value of the wrong shape (unknown key, missing key, wrong
     /// type, unknown enumeration value).

@@ -40,6 +40,7 @@ use crate::servo::wire::{Adapter, ReadKind, Wire};
 use crate::servo::{
     model::model_names, Fields, Layout, ReadChoice, ServoModel, BAUD_RATES, MAX_ID,
 };
+use crate::textfile::{read_text, MAX_TEXT_BYTES};
 use crate::world::{Obstacle, Shape, World, WorldError};
 use raw::{
     ContactLoad, RawArm, RawBus, RawConfig, RawControl, RawJoint, RawObstacle, RawServer, RawSim,
@@ -243,7 +244,7 @@ impl Config {
     /// Reads and checks the file at `path`.
     pub fn load(path: impl AsRef<Path>) -> Result<Config, ConfigError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = read_text(path, MAX_TEXT_BYTES).map_err(|source| ConfigError::Read {
             path: path.to_path_buf(),
             source,
         })?;

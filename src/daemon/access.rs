@@ -10,6 +10,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 use crate::config::Server;
+use crate::textfile::{read_text, MAX_TEXT_BYTES};
 
 /// Why the daemon refuses to serve.
 #[derive(Debug, thiserror::Error)]
@@ -20,8 +21,8 @@ pub enum AccessError {
     Read {
         /// The file.
         path: PathBuf,
-        /// What the operating system said.
-        source: std::io::Error,
+        /// Why: what the operating system said, or not a regular file, or too large.
+        source: crate::textfile::TextFileError,
     },
     /// The token file's first line is empty.
     #[error(
@@ -66,7 +67,7 @@ impl Token {
 
     /// The token in `path`: its first line, leading and trailing whitespace trimmed.
     pub fn read(path: &Path) -> Result<Token, AccessError> {
-        let text = std::fs::read_to_string(path).map_err(|source| AccessError::Read {
+        let text = read_text(path, MAX_TEXT_BYTES).map_err(|source| AccessError::Read {
             path: path.to_path_buf(),
             source,
         })?;

@@ -41,7 +41,7 @@ pub mod curve;
 pub mod expr;
 pub mod table;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::Deserialize;
 
@@ -50,6 +50,7 @@ use crate::metrics::{self, Metrics};
 use crate::resolve::sequential::pull_free;
 use crate::resolve::tractrix::Propagation;
 use crate::rope::{Objective, RopeOptimizer};
+use crate::textfile::{read_text, MAX_TEXT_BYTES};
 
 use curve::Curve;
 use expr::Expr;
@@ -323,7 +324,7 @@ impl Scenario {
     /// Reads and validates a scenario file.
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ScenarioError {
+        let text = read_text(path, MAX_TEXT_BYTES).map_err(|e| ScenarioError {
             file: file.clone(),
             field: "input".into(),
             message: format!("cannot read the file: {e}"),
@@ -655,14 +656,14 @@ fn curve_of(cx: &Ctx, c: &RawCurve, dir: &Path) -> Result<(Curve, bool), Scenari
 
 /// Reads a CSV of `x,y` rows (an optional non-numeric header; blank lines and `#` comments
 /// skipped). Errors name the CSV file and the line.
-pub fn read_polyline(path: &PathBuf) -> Result<Vec<Vec2>, ScenarioError> {
+pub fn read_polyline(path: &Path) -> Result<Vec<Vec2>, ScenarioError> {
     let file = path.display().to_string();
     let err = |field: String, message: String| ScenarioError {
         file: file.clone(),
         field,
         message,
     };
-    let text = std::fs::read_to_string(path).map_err(|e| err("input".into(), e.to_string()))?;
+    let text = read_text(path, MAX_TEXT_BYTES).map_err(|e| err("input".into(), e.to_string()))?;
     let mut pts = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();

@@ -1,0 +1,172 @@
+//! Reading a text file a user named (a config, a token, a world, a path, a problem, a
+//! scenario): a regular file only, and of bounded size.
+//!
+//! `std::fs::read_to_string` reads whatever the path opens: `/dev/urandom` until memory runs
+//! out, a FIFO with no writer never (opening it blocks). [`read_text`] looks at the path
+//! before opening it (a device is never opened: opening some, a serial port, has effects),
+//! opens it without blocking, checks again what was opened (the path may have changed in
+//! between), and reads at most `cap + 1` bytes, so a file that grows while it is read cannot
+//! beat the limit.
+
+use std::fs::{FileType, OpenOptions};
+use std::io::Read;
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::path::Path;
+
+/// The most bytes a text file may hold: 1 MiB, far more than any config, token, world, path
+/// or problem file needs.
+pub const MAX_TEXT_BYTES: u64 = 1 << 20;
+
+/// Why a text file was not read.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TextFileError {
+    /// The operating system refused to open or read it.
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    /// Not a regular file: a directory, a device, a FIFO or a socket.
+    #[error("{what}, not a regular file")]
+    NotRegular {
+        /// What it is, e.g. "a character device".
+        what: &'static str,
+    },
+    /// Longer than the limit.
+    #[error("larger than {cap} bytes, the most such a file may hold")]
+    TooLarge {
+        /// The limit, bytes.
+        cap: u64,
+    },
+    /// Not UTF-8 text.
+    #[error("not UTF-8 text (the first bad byte is at offset {valid_up_to})")]
+    NotUtf8 {
+        /// How many bytes from the start are valid UTF-8.
+        valid_up_to: usize,
+    },
+}
+
+/// What a file that is not a regular one is, in words.
+fn what(t: FileType) -> &'static str {
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        "something else"
+    }
+}
+
+/// The text of the regular file at `path`, at most `cap` bytes (see the module's
+/// description): [`TextFileError::NotRegular`] for anything else, checked before it is opened
+/// and again once it is; [`TextFileError::TooLarge`] beyond `cap`.
+pub fn read_text(path: &Path, cap: u64) -> Result<String, TextFileError> {
+    let regular = |t: FileType| {
+        if t.is_file() {
+            Ok(())
+        } else {
+            Err(TextFileError::NotRegular { what: what(t) })
+        }
+    };
+    regular(std::fs::metadata(path)?.file_type())?;
+    // Not blocking: a FIFO put in the file's place since would block the open. No
+    // controlling terminal either, should it be a terminal by then.
+    let flags = rustix::fs::OFlags::NONBLOCK | rustix::fs::OFlags::NOCTTY;
+    let file = OpenOptions::new()
+        .read(true)
+        .custom_flags(flags.bits() as i32)
+        .open(path)?;
+    regular(file.metadata()?.file_type())?;
+    read_capped(file, cap)
+}
+
+/// At most `cap` bytes of UTF-8 text from `reader` (standard input, say), read through
+/// `take(cap + 1)`.
+pub fn read_capped(reader: impl Read, cap: u64) -> Result<String, TextFileError> {
+    let mut bytes = Vec::new();
+    reader.take(cap.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > cap {
+        return Err(TextFileError::TooLarge { cap });
+    }
+    String::from_utf8(bytes).map_err(|e| TextFileError::NotUtf8 {
+        valid_up_to: e.utf8_error().valid_up_to(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use super::*;
+
+    fn dir() -> std::path::PathBuf {
+        let d = std::env::temp_dir().join(format!("snakectl-textfile-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn a_regular_file_is_read() {
+        let f = dir().join("ok.txt");
+        std::fs::write(&f, "hello\n").unwrap();
+        assert_eq!(read_text(&f, MAX_TEXT_BYTES).unwrap(), "hello\n");
+    }
+
+    #[test]
+    fn devices_and_directories_are_refused_unopened() {
+        let e = read_text(Path::new("/dev/zero"), MAX_TEXT_BYTES).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                TextFileError::NotRegular {
+                    what: "a character device"
+                }
+            ),
+            "{e}"
+        );
+        let e = read_text(&dir(), MAX_TEXT_BYTES).unwrap_err();
+        assert_eq!(e.to_string(), "a directory, not a regular file");
+    }
+
+    #[test]
+    fn a_fifo_is_refused_without_blocking() {
+        let f = dir().join("fifo");
+        let _ = std::fs::remove_file(&f);
+        rustix::fs::mknodat(
+            rustix::fs::CWD,
+            &f,
+            rustix::fs::FileType::Fifo,
+            rustix::fs::Mode::from_raw_mode(0o600),
+            0,
+        )
+        .unwrap();
+        let e = read_text(&f, MAX_TEXT_BYTES).unwrap_err();
+        assert_eq!(e.to_string(), "a FIFO (named pipe), not a regular file");
+    }
+
+    #[test]
+    fn the_cap_holds_and_is_said() {
+        let f = dir().join("big.txt");
+        std::fs::write(&f, "x".repeat(11)).unwrap();
+        assert_eq!(read_text(&f, 11).unwrap().len(), 11);
+        let e = read_text(&f, 10).unwrap_err();
+        assert!(matches!(e, TextFileError::TooLarge { cap: 10 }), "{e}");
+        assert!(e.to_string().contains("10 bytes"), "{e}");
+        // A source without end stops at the cap.
+        let e = read_capped(std::io::repeat(b'x'), 1000).unwrap_err();
+        assert!(matches!(e, TextFileError::TooLarge { cap: 1000 }), "{e}");
+    }
+
+    #[test]
+    fn non_utf8_is_refused() {
+        let e = read_capped(&b"ab\xffcd"[..], 100).unwrap_err();
+        assert!(
+            matches!(e, TextFileError::NotUtf8 { valid_up_to: 2 }),
+            "{e}"
+        );
+    }
+}
