@@ -425,18 +425,12 @@ struct TomlObstacle {
     polygon: Option<TomlPolygon>,
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct TomlCircle {
-    center_m: [f64; 2],
-    radius_m: f64,
-}
+/// `circle = { center_m = [x, y], radius_m = r }`, read as the config reads it: a point is
+/// exactly two numbers.
+type TomlCircle = snakectl::config::raw::RawCircle;
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct TomlPolygon {
-    points_m: Vec<[f64; 2]>,
-}
+/// `polygon = { points_m = [[x, y], ...] }`, read as the config reads it.
+type TomlPolygon = snakectl::config::raw::RawPolygon;
 
 /// `[[world.obstacle]]` tables, as the config writes them.
 fn read_toml(text: &str) -> Result<FileWorld, String> {
@@ -598,6 +592,28 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.starts_with("world.obstacle[2]: missing its shape"), "{e}");
+    }
+
+    #[test]
+    fn a_point_of_three_numbers_is_refused_as_the_config_refuses_it_not_cut() {
+        let shipped = include_str!("../../config/world.toml");
+        for (from, to) in [
+            ("center_m = [0.15, 0.60]", "center_m = [0.15, 0.60, 99.0]"),
+            ("[-0.6, 0.34]]", "[-0.6, 0.34, 1.0]]"),
+            ("center_m = [0.15, 0.60]", "center_m = [0.15]"),
+        ] {
+            assert!(shipped.contains(from), "{from}");
+            let text = shipped.replacen(from, to, 1);
+            let e = toml_of(&text).unwrap_err();
+            assert!(e.contains("expected a point [x, y] in metres"), "{e}");
+            let loaded = snakectl::config::Config::from_str(&text, "w.toml")
+                .unwrap_err()
+                .to_string();
+            // The same words as loading the config, after where it is.
+            let (_, said) = e.split_once(": ").unwrap();
+            let (_, said) = said.split_once(": ").unwrap();
+            assert!(loaded.ends_with(said), "{loaded} / {e}");
+        }
     }
 
     #[test]

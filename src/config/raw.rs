@@ -528,12 +528,12 @@ pub struct RawPolygon {
 }
 
 /// Exactly two numbers `[x, y]` (a longer or shorter array is refused, not cut).
-fn pair<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+pub fn pair<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
     to_pair::<D::Error>(Vec::<f64>::deserialize(d)?)
 }
 
 /// A list of `[x, y]` pairs, each exactly two numbers.
-fn pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<[f64; 2]>, D::Error> {
+pub fn pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<[f64; 2]>, D::Error> {
     Vec::<Vec<f64>>::deserialize(d)?
         .into_iter()
         .map(to_pair::<D::Error>)
