@@ -494,11 +494,11 @@ impl Row {
             ));
         }
         let control = match self.realtime {
-            Some(p) => format!("substeps = 1\nrealtime_priority = {p}\n"),
-            None => "substeps = 1\n".to_owned(),
+            Some(p) => format!("max_joint_speed_rad_s = 2.0\nrealtime_priority = {p}\n"),
+            None => "max_joint_speed_rad_s = 2.0\n".to_owned(),
         };
         let mut text = text
-            .replace("substeps = 1\n", &control)
+            .replace("max_joint_speed_rad_s = 2.0\n", &control)
             .replace("baud = 1000000", &format!("baud = {}", self.baud))
             .replace("read = \"auto\"", &read)
             .replace("rate_hz = 100.0", &format!("rate_hz = {rate_hz:.1}"))

@@ -106,13 +106,16 @@ fn config() -> Result<Config> {
     // so that the run's budget does not depend on a default.
     let text = text
         .replace("rate_hz = 100.0", &format!("rate_hz = {RATE_HZ:.1}"))
-        .replace("substeps = 1\n", "substeps = 1\nmax_silence_ms = 50\n");
+        .replace(
+            "max_joint_speed_rad_s = 2.0\n",
+            "max_joint_speed_rad_s = 2.0\nmax_silence_ms = 50\n",
+        );
     if !text.contains(&format!("rate_hz = {RATE_HZ:.1}"))
         || !text.contains("wire_timing = false")
         || !text.contains("max_silence_ms = 50")
     {
         bail!(
-            "{path} no longer has `rate_hz = 100.0`, `substeps = 1` and `wire_timing = false` \
+            "{path} no longer has `rate_hz = 100.0`, `max_joint_speed_rad_s = 2.0` and `wire_timing = false` \
              to start from"
         );
     }

@@ -582,7 +582,10 @@ fn a_latency_spike_beyond_the_tick_costs_replies_never_a_burst_of_writes() {
     // A spike of 150 ms, every reply 20 ms late (two ticks): a budget of 300 ms (30 reads at
     // 100 Hz) rides it out whatever share of the replies it costs.
     let d = Daemon::start(sim_config_with(
-        &[("substeps = 1", "substeps = 1\nmax_silence_ms = 300")],
+        &[(
+            "max_joint_speed_rad_s = 2.0\n",
+            "max_joint_speed_rad_s = 2.0\nmax_silence_ms = 300\n",
+        )],
         "[[sim.fault]]\nkind = \"latency\"\nextra_us = 20000\nat_s = 2.5\nuntil_s = 2.65\n",
     ));
     let (mut c, (lo, hi), start) = watching(&d);

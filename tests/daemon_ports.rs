@@ -111,7 +111,10 @@ fn threads() -> Vec<(String, u32, u32)> {
 fn with_a_realtime_priority_the_loop_its_ports_and_simulators_run_fifo_and_nothing_else() {
     const SCHED_FIFO: u32 = 1;
     let config = sim_config_with(
-        &[("substeps = 1\n", "substeps = 1\nrealtime_priority = 20\n")],
+        &[(
+            "max_joint_speed_rad_s = 2.0\n",
+            "max_joint_speed_rad_s = 2.0\nrealtime_priority = 20\n",
+        )],
         TWO_PORTS,
     );
     assert_eq!(config.control().realtime_priority, Some(20));

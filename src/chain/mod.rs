@@ -33,7 +33,8 @@ pub struct Num(pub f64);
 
 impl std::fmt::Display for Num {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        if self.0.abs() < 1e15 || !self.0.is_finite() {
+        let tiny = self.0 != 0.0 && self.0.abs() < 1e-6;
+        if (self.0.abs() < 1e15 && !tiny) || !self.0.is_finite() {
             write!(f, "{}", self.0)
         } else {
             write!(f, "{:e}", self.0)

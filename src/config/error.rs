@@ -32,7 +32,8 @@ pub enum ConfigError {
         line: usize,
         /// 1-based column, in characters.
         column: usize,
-        /// The parser's message, which names the key where it applies.
+        /// The parser's message, which names the key where it applies, after the field's path
+        /// where the error concerns one (`sim.fault[2].fraction: invalid type: ...`).
         message: String,
     },
     /// Well-formed, but a value is not acceptable.
@@ -279,6 +280,122 @@ pub enum FieldProblem {
         value: f64,
         /// The loop's rate, Hz.
         rate_hz: f64,
+    },
+    /// A Bus Watchdog that does not cover two ticks of the loop, which renews it once a tick
+    /// (its goals' Sync Write), at any point of the tick.
+    #[error(
+        "{watchdog_ms} ms{} does not cover two ticks of control.rate_hz = {} Hz \
+         ({two_ticks_ms:.1} ms): the loop renews the servos' Bus Watchdog once a tick, and a late write \
+         would let it fire and stop the servos every tick; give at least {min_ms} ms (a \
+         multiple of 20, at most 2540), 0 (off), or a faster rate_hz",
+        if *.given { "" } else { " (the default)" },
+        Num(*.rate_hz)
+    )]
+    WatchdogShort {
+        /// `bus.watchdog_ms`.
+        watchdog_ms: u32,
+        /// Whether the file gives it (else it is the default).
+        given: bool,
+        /// `control.rate_hz`.
+        rate_hz: f64,
+        /// Two periods of the loop, ms.
+        two_ticks_ms: f64,
+        /// The least watchdog that covers them, a multiple of 20 ms.
+        min_ms: u32,
+    },
+    /// A silence budget no longer than the time between two reads: one missed reply would
+    /// declare the servo silent.
+    #[error(
+        "{max_silence_ms} ms{} is not longer than the time between two reads, \
+         control.read_every = {read_every} tick(s) at control.rate_hz = {} Hz \
+         ({interval_ms:.1} ms): a single missed reply would declare a servo silent and fault \
+         the arm; give a max_silence_ms above that, or read more often",
+        if *.given { "" } else { " (the default)" },
+        Num(*.rate_hz)
+    )]
+    SilenceWithinRead {
+        /// `control.max_silence_ms`.
+        max_silence_ms: u128,
+        /// Whether the file gives it (else it is the default).
+        given: bool,
+        /// `control.read_every`.
+        read_every: u32,
+        /// `control.rate_hz`.
+        rate_hz: f64,
+        /// Time between two reads, ms.
+        interval_ms: f64,
+    },
+    /// A profile speed or acceleration the servo's register cannot hold: below one of its
+    /// units (it would be written as one) or beyond its largest.
+    #[error(
+        "{} {unit} must be 0 (no profile) or lie in [{lo}, {hi}] {unit}: the register holds \
+         1 to 32767 of the servo's units of {step} {unit}, and a value beyond them would be \
+         changed, not written",
+        Num(*.value)
+    )]
+    ProfileOutside {
+        /// The value given.
+        value: f64,
+        /// The least accepted (one unit, rounded up to the digits shown).
+        lo: f64,
+        /// The largest accepted (rounded down to the digits shown).
+        hi: f64,
+        /// One register unit.
+        step: f64,
+        /// "rad/s" or "rad/s²".
+        unit: &'static str,
+    },
+    /// A `[[sim.fault]]` key its kind does not take.
+    #[error("not a key of a kind = \"{kind}\" fault, which takes {takes}")]
+    NotOfKind {
+        /// The fault's kind.
+        kind: &'static str,
+        /// The keys it takes.
+        takes: String,
+    },
+    /// A `[[sim.fault]]` key its kind needs, absent.
+    #[error("missing: a kind = \"{kind}\" fault needs it (it takes {takes})")]
+    KindNeeds {
+        /// The fault's kind.
+        kind: &'static str,
+        /// The keys it takes.
+        takes: String,
+    },
+    /// A servo id key spelt other than in plain digits (`03`, `+3`, ` 3 `): two spellings
+    /// could name one servo twice.
+    #[error("\"{key}\" is servo id {id} spelt otherwise: write it {id}")]
+    NonCanonicalId {
+        /// The key given.
+        key: String,
+        /// The id it reads as.
+        id: u8,
+    },
+    /// A contact threshold that is not above 0, or above what the servo's load can read.
+    #[error(
+        "{} {unit} must be above 0 and at most {} {unit}: the |load| above which joint {joint} \
+         is in contact, in the unit its servo reports (percent of the maximum torque for a \
+         Present Load, amperes for a Present Current)",
+        Num(*.value),
+        Num(*.hi)
+    )]
+    ContactLoad {
+        /// The value given.
+        value: f64,
+        /// 1-based joint.
+        joint: usize,
+        /// "%" or "A".
+        unit: &'static str,
+        /// The largest accepted.
+        hi: f64,
+    },
+    /// A file name given empty.
+    #[error("an empty file name: name the file, or leave the key out")]
+    EmptyFileName,
+    /// A key this version no longer reads.
+    #[error("removed: {why}; delete the line")]
+    Removed {
+        /// Why, and what holds instead.
+        why: &'static str,
     },
     /// Two keys that say the same thing, given together.
     #[error("given together with {other}, which it replaces: keep only {other}")]

@@ -49,6 +49,9 @@ use raw::{
 
 /// Lowest servo id a joint may use (0 is reserved by convention).
 pub const MIN_SERVO_ID: u8 = 1;
+/// Shortest link accepted, m (a micrometre): a shorter one is a typo, and the geometry's
+/// tolerances are far coarser.
+pub const MIN_LINK_M: f64 = 1e-6;
 /// Largest software offset, ticks: one full turn of an X-series servo.
 pub const MAX_OFFSET_TICKS: i32 = 4095;
 
@@ -173,8 +176,6 @@ pub struct Control {
     pub max_tip_speed_m_s: f64,
     /// Fastest joint speed, rad/s, positive.
     pub max_joint_speed_rad_s: f64,
-    /// Straight sub-steps per tick, at least 1.
-    pub substeps: u32,
     /// Fastest change of the commanded tip velocity, m/s², positive.
     pub max_tip_accel_m_s2: f64,
     /// How long a `velocity` or `jog` command lasts after its last renewal.
@@ -256,7 +257,8 @@ impl Config {
     #[allow(clippy::should_implement_trait)]
     pub fn from_str(text: &str, path: impl AsRef<Path>) -> Result<Config, ConfigError> {
         let path = path.as_ref();
-        let raw: RawConfig = toml::from_str(text).map_err(|e| syntax_error(text, path, &e))?;
+        let raw: RawConfig = serde_path_to_error::deserialize(toml::Deserializer::new(text))
+            .map_err(|e| syntax_error(text, path, &e))?;
         let mut config = Checker { path }.config(raw)?;
         config.text = text.to_owned();
         Ok(config)
@@ -481,15 +483,45 @@ pub fn world_field(field: &str) -> String {
     format!("{at}{rest}")
 }
 
-/// Turns a TOML error into one naming the file, line and column.
-fn syntax_error(text: &str, path: &Path, e: &toml::de::Error) -> ConfigError {
-    let (line, column, message) = toml_where(text, e);
+/// Turns a TOML error into one naming the file, line and column, and the field where the
+/// error is about one (`sim.fault[2].fraction: invalid type: ...`).
+fn syntax_error(
+    text: &str,
+    path: &Path,
+    e: &serde_path_to_error::Error<toml::de::Error>,
+) -> ConfigError {
+    let (line, column, message) = toml_where(text, e.inner());
+    let field = toml_field(e.path());
     ConfigError::Syntax {
         path: path.to_path_buf(),
         line,
         column,
-        message,
+        message: if field.is_empty() {
+            message
+        } else {
+            format!("{field}: {message}")
+        },
     }
+}
+
+/// A field path as the config's errors name fields: dotted keys, tables of an array counted
+/// from 1 (`joint[3].link_m`, `sim.fault[2].fraction`); empty where serde could not tell.
+fn toml_field(path: &serde_path_to_error::Path) -> String {
+    use serde_path_to_error::Segment;
+    let mut out = String::new();
+    for segment in path.iter() {
+        match segment {
+            Segment::Seq { index } => out.push_str(&format!("[{}]", index + 1)),
+            Segment::Map { key } | Segment::Enum { variant: key } => {
+                if !out.is_empty() {
+                    out.push('.');
+                }
+                out.push_str(key);
+            }
+            Segment::Unknown => break,
+        }
+    }
+    out
 }
 
 /// Where in `text` a TOML error is (line and column from 1; 0 when it does not say) and its
@@ -586,9 +618,10 @@ impl Checker<'_> {
             path: self.path.to_path_buf(),
             source,
         })?;
-        let (bus, arm) = match raw.bus {
+        let raw_bus = raw.bus;
+        let (bus, arm) = match &raw_bus {
             Some(b) => {
-                let (bus, arm) = self.bus(&b, &joints)?;
+                let (bus, arm) = self.bus(b, &joints)?;
                 (Some(bus), Some(arm))
             }
             None => (None, None),
@@ -596,6 +629,9 @@ impl Checker<'_> {
         let ports = bus.as_ref().map_or(1, |b: &Bus| b.ports.len());
         let sim = raw.sim.map(|s| self.sim(s, &joints, ports)).transpose()?;
         let control = self.control(&raw.control.unwrap_or_default())?;
+        if let (Some(b), Some(arm)) = (&raw_bus, &arm) {
+            self.watchdog_covers_ticks(arm.settings().watchdog_ms, b, control.rate_hz)?;
+        }
         let server = self.server(raw.server.unwrap_or_default())?;
         let zenoh = self.zenoh(raw.zenoh.unwrap_or_default(), control.rate_hz)?;
         let foxglove = self.foxglove(raw.foxglove.unwrap_or_default(), control.rate_hz, &server)?;
@@ -624,6 +660,16 @@ impl Checker<'_> {
     fn joint(&self, n: usize, raw: &RawJoint) -> Result<Joint, ConfigError> {
         let field = |name: &str| format!("joint[{n}].{name}");
         let link_m = self.positive(field("link_m"), raw.link_m)?;
+        if link_m < MIN_LINK_M {
+            return Err(self.invalid(
+                field("link_m"),
+                FieldProblem::Outside {
+                    value: link_m,
+                    lo: MIN_LINK_M,
+                    hi: MAX_MAGNITUDE,
+                },
+            ));
+        }
         let min_rad = self.finite(field("min_rad"), raw.min_rad)?;
         let max_rad = self.finite(field("max_rad"), raw.max_rad)?;
         if min_rad >= max_rad {
@@ -793,19 +839,26 @@ impl Checker<'_> {
                 },
             ));
         }
-        let profile_velocity_rad_s =
-            self.non_negative("bus.profile_velocity_rad_s", raw.profile_velocity_rad_s)?;
-        let profile_acceleration_rad_s2 = self.non_negative(
+        let profile_velocity_rad_s = self.profile(
+            "bus.profile_velocity_rad_s",
+            raw.profile_velocity_rad_s,
+            units::VELOCITY_UNIT_RAD_S,
+            "rad/s",
+        )?;
+        let profile_acceleration_rad_s2 = self.profile(
             "bus.profile_acceleration_rad_s2",
             raw.profile_acceleration_rad_s2,
+            units::ACCELERATION_UNIT_RAD_S2,
+            "rad/s²",
         )?;
-        if raw.watchdog_ms % units::WATCHDOG_UNIT_MS != 0
-            || raw.watchdog_ms > units::WATCHDOG_UNIT_MS * units::WATCHDOG_MAX_UNITS
+        let watchdog_ms = raw.watchdog_ms.unwrap_or_else(raw::default_watchdog_ms);
+        if watchdog_ms % units::WATCHDOG_UNIT_MS != 0
+            || watchdog_ms > units::WATCHDOG_UNIT_MS * units::WATCHDOG_MAX_UNITS
         {
             return Err(self.invalid(
                 "bus.watchdog_ms",
                 FieldProblem::OutOfRange {
-                    value: raw.watchdog_ms.into(),
+                    value: watchdog_ms.into(),
                     expected: "must be 0 (off) or a multiple of 20 up to 2540",
                 },
             ));
@@ -823,7 +876,7 @@ impl Checker<'_> {
             return_delay_us: raw.return_delay_us,
             profile_velocity_rad_s,
             profile_acceleration_rad_s2,
-            watchdog_ms: raw.watchdog_ms,
+            watchdog_ms,
             on_exit: match raw.on_exit {
                 raw::OnExit::TorqueOff => OnExit::TorqueOff,
                 raw::OnExit::Hold => OnExit::Hold,
@@ -843,10 +896,82 @@ impl Checker<'_> {
         Ok((bus, Arm::new(servos, settings)))
     }
 
+    /// A profile value: 0 (none) or what its register holds, 1 to [`units::PROFILE_MAX`] units
+    /// of `step` (rounded to the nearest), never clamped into it.
+    fn profile(
+        &self,
+        field: &str,
+        value: f64,
+        step: f64,
+        unit: &'static str,
+    ) -> Result<f64, ConfigError> {
+        let value = self.non_negative(field, value)?;
+        // One unit and the largest, as the message shows them: the lower rounded up, the
+        // upper down, so that both are accepted and the check is what the message says.
+        let lo = (step * 1e5).ceil() / 1e5;
+        let hi = (step * units::PROFILE_MAX as f64 * 1e2).floor() / 1e2;
+        if value == 0.0 || (lo..=hi).contains(&value) {
+            return Ok(value);
+        }
+        Err(self.invalid(
+            field,
+            FieldProblem::ProfileOutside {
+                value,
+                lo,
+                hi,
+                step: (step * 1e6).round() / 1e6,
+                unit,
+            },
+        ))
+    }
+
+    /// `bus.watchdog_ms` (0: off) covers two ticks at `rate_hz`: the loop renews the Bus
+    /// Watchdog with each tick's Sync Write of the goals, which may come early in one tick and
+    /// late in the next, and it takes a gap as long as the watchdog for a stall.
+    fn watchdog_covers_ticks(
+        &self,
+        watchdog_ms: u32,
+        raw: &RawBus,
+        rate_hz: f64,
+    ) -> Result<(), ConfigError> {
+        let two_ticks_ms = 2e3 / rate_hz;
+        if watchdog_ms == 0 || f64::from(watchdog_ms) >= two_ticks_ms {
+            return Ok(());
+        }
+        let unit = f64::from(units::WATCHDOG_UNIT_MS);
+        let min_ms = ((two_ticks_ms / unit).ceil() * unit) as u32;
+        Err(self.invalid(
+            "bus.watchdog_ms",
+            FieldProblem::WatchdogShort {
+                watchdog_ms,
+                given: raw.watchdog_ms.is_some(),
+                rate_hz,
+                two_ticks_ms,
+                min_ms,
+            },
+        ))
+    }
+
     /// The bus's ports: `[[bus.ports]]`, each path given once (for real servos), each joint's
     /// servo on exactly one port, no port empty; absent, one port of every joint's servo.
     fn ports(&self, raw: &RawBus, servos: &[JointServo]) -> Result<Vec<BusPort>, ConfigError> {
         const NEEDS_PATH: &str = "kind = \"dynamixel\" needs the serial device, e.g. /dev/ttyUSB0";
+        if raw.kind == BusKind::Sim {
+            let named = raw.port.iter().map(|p| ("bus.port".to_owned(), p)).chain(
+                raw.ports.iter().enumerate().filter_map(|(k, p)| {
+                    p.port
+                        .as_ref()
+                        .map(|q| (format!("bus.ports[{}].port", k + 1), q))
+                }),
+            );
+            for (field, path) in named {
+                tracing::warn!(
+                    "{}: {field} = {path:?} is not opened: kind = \"sim\" serves its own \
+                     pseudo-terminal (give --port, or kind = \"dynamixel\", to drive a device)",
+                    self.path.display()
+                );
+            }
+        }
         if raw.ports.is_empty() {
             if raw.kind == BusKind::Dynamixel && raw.port.is_none() {
                 return Err(self.invalid("bus.port", FieldProblem::Missing { why: NEEDS_PATH }));
@@ -997,8 +1122,29 @@ impl Checker<'_> {
         };
         let mut firmware_by_id = Vec::with_capacity(raw.firmware_by_id.len());
         for (key, &version) in &raw.firmware_by_id {
-            let field = format!("sim.firmware_by_id.{key}");
-            let id = match key.trim().parse::<u8>() {
+            let id = key.trim().parse::<u8>();
+            // The key as TOML writes it: bare where it may be, else quoted.
+            let bare = !key.is_empty()
+                && key
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+            let field = if bare {
+                format!("sim.firmware_by_id.{key}")
+            } else {
+                format!("sim.firmware_by_id.{key:?}")
+            };
+            let id = match id {
+                // `03`, `+3` and ` 3 ` would be servo 3 as well as `3`: one spelling only, so
+                // that no servo is given twice.
+                Ok(id) if id.to_string() != *key => {
+                    return Err(self.invalid(
+                        field,
+                        FieldProblem::NonCanonicalId {
+                            key: key.clone(),
+                            id,
+                        },
+                    ))
+                }
                 Ok(id) if joints.iter().any(|j| j.id == Some(id)) => id,
                 Ok(id) => return Err(self.invalid(field, FieldProblem::UnknownId { id })),
                 Err(_) => {
@@ -1052,38 +1198,80 @@ impl Checker<'_> {
         joints: &[Joint],
         ports: usize,
     ) -> Result<Fault, ConfigError> {
-        use raw::Fault as F;
+        use raw::FaultKindName as K;
         let field = |name: &str| format!("sim.fault[{n}].{name}");
-        let (kind, id, at_s, until_s) = match *fault {
-            F::Drop {
-                fraction,
-                id,
-                at_s,
-                until_s,
-            } => (FaultKind::Drop(fraction), id, at_s, until_s),
-            F::Corrupt {
-                fraction,
-                id,
-                at_s,
-                until_s,
-            } => (FaultKind::Corrupt(fraction), id, at_s, until_s),
-            F::Latency {
-                extra_us,
-                id,
-                at_s,
-                until_s,
-            } => (
-                FaultKind::Latency(Duration::from_micros(u64::from(extra_us))),
-                id,
-                at_s,
-                until_s,
-            ),
-            F::Silent { id, at_s, until_s } => (FaultKind::Silent, Some(id), at_s, until_s),
-            F::HardwareError { id, at_s, error } => {
-                (FaultKind::HardwareError(error), Some(id), at_s, None)
+        let name = fault.kind.name();
+        // The keys each kind takes, `!` marking a required one.
+        let takes: &'static [&'static str] = match fault.kind {
+            K::Drop | K::Corrupt => &["fraction!", "id", "at_s", "until_s"],
+            K::Latency => &["extra_us!", "id", "at_s", "until_s"],
+            K::Silent => &["id!", "at_s!", "until_s"],
+            K::HardwareError => &["id!", "at_s!", "error!"],
+            K::Blocked => &["id!", "at_s", "until_s"],
+            K::Disconnect => &["port", "at_s!", "until_s"],
+        };
+        let given = [
+            ("fraction", fault.fraction.is_some()),
+            ("extra_us", fault.extra_us.is_some()),
+            ("id", fault.id.is_some()),
+            ("port", fault.port.is_some()),
+            ("at_s", fault.at_s.is_some()),
+            ("until_s", fault.until_s.is_some()),
+            ("error", fault.error.is_some()),
+        ];
+        let listed = |key: &str| {
+            takes
+                .iter()
+                .find(|t| t.trim_end_matches('!') == key)
+                .map(|t| t.ends_with('!'))
+        };
+        let keys = || {
+            takes
+                .iter()
+                .map(|t| t.trim_end_matches('!'))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        for (key, is_given) in given {
+            match listed(key) {
+                None if is_given => {
+                    return Err(self.invalid(
+                        field(key),
+                        FieldProblem::NotOfKind {
+                            kind: name,
+                            takes: keys(),
+                        },
+                    ))
+                }
+                Some(true) if !is_given => {
+                    return Err(self.invalid(
+                        field(key),
+                        FieldProblem::KindNeeds {
+                            kind: name,
+                            takes: keys(),
+                        },
+                    ))
+                }
+                _ => {}
             }
-            F::Disconnect { at_s, until_s, .. } => (FaultKind::Disconnect, None, at_s, until_s),
-            F::Blocked { id, at_s, until_s } => (FaultKind::Blocked, Some(id), at_s, until_s),
+        }
+        // Every required key is given (checked above): the defaults below are never used for
+        // those.
+        let at_s = fault.at_s.unwrap_or(0.0);
+        let until_s = fault.until_s;
+        let id = fault.id;
+        let kind = match fault.kind {
+            K::Drop => FaultKind::Drop(fault.fraction.unwrap_or(0.0)),
+            K::Corrupt => FaultKind::Corrupt(fault.fraction.unwrap_or(0.0)),
+            K::Latency => FaultKind::Latency(Duration::from_micros(u64::from(
+                fault.extra_us.unwrap_or(0),
+            ))),
+            K::Silent => FaultKind::Silent,
+            K::HardwareError => {
+                FaultKind::HardwareError(fault.error.unwrap_or(HardwareError::Overload))
+            }
+            K::Blocked => FaultKind::Blocked,
+            K::Disconnect => FaultKind::Disconnect,
         };
         let id = match id {
             None => None,
@@ -1118,10 +1306,8 @@ impl Checker<'_> {
                 ));
             }
         }
-        let port = match *fault {
-            F::Disconnect {
-                port: Some(wide), ..
-            } => match usize::try_from(wide) {
+        let port = match fault.port {
+            Some(wide) => match usize::try_from(wide) {
                 Ok(n @ 1..) if n <= ports => Some(n - 1),
                 _ => {
                     return Err(self.invalid(
@@ -1243,10 +1429,7 @@ impl Checker<'_> {
                 ))
             }
             None => return Ok(None),
-            Some(ContactLoad::All(v)) => {
-                let v = self.positive("world.contact_load", *v)?;
-                vec![v; joints.len()]
-            }
+            Some(ContactLoad::All(v)) => vec![*v; joints.len()],
             Some(ContactLoad::PerJoint(list)) => {
                 if list.len() != joints.len() {
                     return Err(self.invalid(
@@ -1257,33 +1440,44 @@ impl Checker<'_> {
                         },
                     ));
                 }
-                list.iter()
-                    .enumerate()
-                    .map(|(i, &v)| self.positive(format!("world.contact_load[{}]", i + 1), v))
-                    .collect::<Result<Vec<_>, _>>()?
+                list.clone()
             }
         };
-        // A Present Load reads at most 100 %: a threshold above it would never fire.
-        for (i, (&v, j)) in load.iter().zip(joints).enumerate() {
-            let percent = j
-                .model
-                .is_some_and(|m| m.current_unit() == CurrentUnit::LoadPermille);
-            if percent && v > 100.0 {
+        // Above 0, in the unit of the joint's servo; a Present Load reads at most 100 %: a
+        // threshold above it would never fire.
+        for (i, (&value, j)) in load.iter().zip(joints).enumerate() {
+            let (unit, hi) = match j.model.map(|m| m.current_unit()) {
+                Some(CurrentUnit::LoadPermille) => ("%", 100.0),
+                Some(CurrentUnit::MilliAmps(_)) => ("A", MAX_MAGNITUDE),
+                None => ("(the unit of the joint's servo)", MAX_MAGNITUDE),
+            };
+            if !(finite_within(value) && value > 0.0 && value <= hi) {
                 let field = match raw.contact_load {
                     Some(ContactLoad::PerJoint(_)) => format!("world.contact_load[{}]", i + 1),
                     _ => "world.contact_load".to_owned(),
                 };
                 return Err(self.invalid(
                     field,
-                    FieldProblem::Outside {
-                        value: v,
-                        lo: 0.0,
-                        hi: 100.0,
+                    FieldProblem::ContactLoad {
+                        value,
+                        joint: i + 1,
+                        unit,
+                        hi,
                     },
                 ));
             }
         }
         let ms = raw.contact_ms.unwrap_or(DEFAULT_CONTACT_MS);
+        if ms == 0 {
+            return Err(self.invalid(
+                "world.contact_ms",
+                FieldProblem::OutOfRange {
+                    value: 0,
+                    expected: "must be at least 1: a load above its threshold for no time at all \
+                               would stop the arm on every health read's noise",
+                },
+            ));
+        }
         Ok(Some(Contact {
             load,
             hold: Duration::from_millis(ms.into()),
@@ -1331,16 +1525,33 @@ impl Checker<'_> {
             self.positive("control.max_tip_speed_m_s", raw.max_tip_speed_m_s)?;
         let max_joint_speed_rad_s =
             self.positive("control.max_joint_speed_rad_s", raw.max_joint_speed_rad_s)?;
-        if raw.substeps == 0 {
+        if raw.substeps.is_some() {
             return Err(self.invalid(
                 "control.substeps",
-                FieldProblem::OutOfRange {
-                    value: 0,
-                    expected: "must be at least 1",
+                FieldProblem::Removed {
+                    why: "every tick resolves its step in one straight step (the controller \
+                          never read this key)",
                 },
             ));
         }
         let max_silence = self.max_silence(raw, rate_hz)?;
+        if raw.max_missed_reads.is_none() {
+            // A missed read counts as silent since the read before it (`silence()` in the
+            // daemon's health): a budget within one read interval is spent by one miss.
+            let interval = Duration::from_secs_f64(1.0 / rate_hz).checked_mul(raw.read_every);
+            if interval.is_none_or(|i| i >= max_silence) {
+                return Err(self.invalid(
+                    "control.max_silence_ms",
+                    FieldProblem::SilenceWithinRead {
+                        max_silence_ms: max_silence.as_millis(),
+                        given: raw.max_silence_ms.is_some(),
+                        read_every: raw.read_every,
+                        rate_hz,
+                        interval_ms: f64::from(raw.read_every) * 1e3 / rate_hz,
+                    },
+                ));
+            }
+        }
         let realtime_priority = match raw.realtime_priority {
             None => None,
             Some(p) => match u8::try_from(p) {
@@ -1364,7 +1575,6 @@ impl Checker<'_> {
             },
             max_tip_speed_m_s,
             max_joint_speed_rad_s,
-            substeps: raw.substeps,
             max_tip_accel_m_s2,
             deadman: Duration::from_millis(raw.deadman_ms.into()),
             read_every: raw.read_every,
@@ -1446,6 +1656,13 @@ impl Checker<'_> {
                     expected: "must be at least 1",
                 },
             ));
+        }
+        if raw
+            .token_file
+            .as_ref()
+            .is_some_and(|f| f.as_os_str().to_string_lossy().trim().is_empty())
+        {
+            return Err(self.invalid("server.token_file", FieldProblem::EmptyFileName));
         }
         let token_file = raw.token_file.map(|f| self.relative_to_file(f));
         Ok(Server {

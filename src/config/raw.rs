@@ -116,7 +116,8 @@ pub enum OnExit {
 pub struct RawBus {
     /// `"sim"` or `"dynamixel"`.
     pub kind: BusKind,
-    /// Serial device; required for `"dynamixel"`, ignored for `"sim"` (it makes its own pty).
+    /// Serial device; required for `"dynamixel"`; not opened for `"sim"` (it makes its own
+    /// pty), with a warning.
     #[serde(default)]
     pub port: Option<String>,
     /// Baud rate, bits/s.
@@ -125,19 +126,21 @@ pub struct RawBus {
     /// Return Delay Time written to each servo, microseconds (even, 0..=508).
     #[serde(default)]
     pub return_delay_us: u32,
-    /// Profile Velocity written to each servo, rad/s; 0 = no profile (fastest).
+    /// Profile Velocity written to each servo, rad/s; 0 = no profile (fastest), else 1 to 32767
+    /// register units (checked, never clamped).
     #[serde(default)]
     pub profile_velocity_rad_s: f64,
-    /// Profile Acceleration written to each servo, rad/s²; 0 = no profile.
+    /// Profile Acceleration written to each servo, rad/s²; 0 = no profile, else 1 to 32767
+    /// register units (checked, never clamped).
     #[serde(default)]
     pub profile_acceleration_rad_s2: f64,
     /// What the servos do when the daemon exits.
     #[serde(default = "default_on_exit")]
     pub on_exit: OnExit,
     /// Bus Watchdog: servos stop if the bus is silent this long, milliseconds (multiple of 20,
-    /// 20..=2540); 0 disables it.
-    #[serde(default = "default_watchdog_ms")]
-    pub watchdog_ms: u32,
+    /// 20..=2540); 0 disables it; [`default_watchdog_ms`] when absent.
+    #[serde(default)]
+    pub watchdog_ms: Option<u32>,
     /// How long to wait for one status reply before counting it missing, milliseconds.
     #[serde(default = "default_reply_timeout_ms")]
     pub reply_timeout_ms: u32,
@@ -239,96 +242,84 @@ pub enum HardwareError {
     Overload,
 }
 
-/// `[[sim.fault]]`: one injected fault, tagged by `kind`. Times are seconds since the simulator
-/// started; an absent `until_s` means "until the end". An absent `id` means every servo.
+/// `[[sim.fault]]`: one injected fault: its `kind`, and the keys that kind takes. Times are
+/// seconds since the simulator started; an absent `until_s` means "until the end". An absent
+/// `id` means every servo (for the kinds where it may be absent).
+///
+/// One struct for every kind (not a serde enum tagged by `kind`, whose errors lose the line
+/// and the key): a key no kind takes, or a value of the wrong type, is refused here at its
+/// line; which keys a kind needs or refuses is checked by [`super::Config`], which names the
+/// field (`sim.fault[2].fraction`). The kinds and their keys:
+/// - `drop`, `corrupt`: `fraction` (0..=1, required), `id`, `at_s` (default 0), `until_s`;
+/// - `latency`: `extra_us` (required), `id`, `at_s` (default 0), `until_s`;
+/// - `silent`: `id` and `at_s` (required), `until_s`;
+/// - `hardware_error`: `id`, `at_s` and `error` (required);
+/// - `blocked`: `id` (required), `at_s` (default 0), `until_s`;
+/// - `disconnect`: `port` (from 1; every port when absent), `at_s` (required), `until_s`.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum Fault {
+#[serde(deny_unknown_fields)]
+pub struct Fault {
+    /// What goes wrong.
+    pub kind: FaultKindName,
+    /// Fraction of replies dropped or corrupted, 0..=1 (`drop`, `corrupt`).
+    #[serde(default)]
+    pub fraction: Option<f64>,
+    /// Extra delay per reply, microseconds (`latency`).
+    #[serde(default)]
+    pub extra_us: Option<u32>,
+    /// Servo affected; read wide so a bad value can be quoted.
+    #[serde(default)]
+    pub id: Option<i64>,
+    /// Which of `[[bus.ports]]` is unplugged, from 1 (`disconnect`).
+    #[serde(default)]
+    pub port: Option<i64>,
+    /// Start, seconds.
+    #[serde(default)]
+    pub at_s: Option<f64>,
+    /// End, seconds.
+    #[serde(default)]
+    pub until_s: Option<f64>,
+    /// Which hardware error (`hardware_error`).
+    #[serde(default)]
+    pub error: Option<HardwareError>,
+}
+
+/// `[[sim.fault]] kind`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FaultKindName {
     /// Drop a fraction of status replies.
-    Drop {
-        /// Fraction of replies lost, 0..=1.
-        fraction: f64,
-        /// Servo affected; all when absent. Read wide so a bad value can be quoted.
-        #[serde(default)]
-        id: Option<i64>,
-        /// Start, seconds.
-        #[serde(default)]
-        at_s: f64,
-        /// End, seconds.
-        #[serde(default)]
-        until_s: Option<f64>,
-    },
+    Drop,
     /// Flip a bit in a fraction of status replies (a CRC failure for the reader).
-    Corrupt {
-        /// Fraction of replies corrupted, 0..=1.
-        fraction: f64,
-        /// Servo affected; all when absent. Read wide so a bad value can be quoted.
-        #[serde(default)]
-        id: Option<i64>,
-        /// Start, seconds.
-        #[serde(default)]
-        at_s: f64,
-        /// End, seconds.
-        #[serde(default)]
-        until_s: Option<f64>,
-    },
+    Corrupt,
     /// Delay every status reply by an extra amount.
-    Latency {
-        /// Extra delay per reply, microseconds.
-        extra_us: u32,
-        /// Servo affected; all when absent. Read wide so a bad value can be quoted.
-        #[serde(default)]
-        id: Option<i64>,
-        /// Start, seconds.
-        #[serde(default)]
-        at_s: f64,
-        /// End, seconds.
-        #[serde(default)]
-        until_s: Option<f64>,
-    },
+    Latency,
     /// One servo stops answering (unplugged, or its id changed).
-    Silent {
-        /// Servo affected; read wide so a bad value can be quoted.
-        id: i64,
-        /// Start, seconds.
-        at_s: f64,
-        /// End, seconds.
-        #[serde(default)]
-        until_s: Option<f64>,
-    },
+    Silent,
     /// One servo raises a hardware error and, like a real one, drops torque until rebooted.
-    HardwareError {
-        /// Servo affected; read wide so a bad value can be quoted.
-        id: i64,
-        /// When, seconds.
-        at_s: f64,
-        /// Which error.
-        error: HardwareError,
-    },
-    /// One servo's shaft is blocked (something in its way): it stays where it was when the block
-    /// began while the servo pushes toward its goal, its load rising as a stalled servo's.
-    Blocked {
-        /// Servo affected; read wide so a bad value can be quoted.
-        id: i64,
-        /// Start, seconds.
-        #[serde(default)]
-        at_s: f64,
-        /// End, seconds.
-        #[serde(default)]
-        until_s: Option<f64>,
-    },
+    HardwareError,
+    /// One servo's shaft is blocked (something in its way): it stays where it was when the
+    /// block began while the servo pushes toward its goal, its load rising as a stalled
+    /// servo's.
+    Blocked,
     /// The serial adapter is unplugged: the port goes away for the window and comes back as a
     /// new device behind the simulator's link. Concerns a whole port, so it takes no `id`.
-    Disconnect {
-        /// Which of `[[bus.ports]]` is unplugged (from 1); every port when absent.
-        #[serde(default)]
-        port: Option<i64>,
-        /// Start, seconds.
-        at_s: f64,
-        /// End, seconds; the bus never comes back when absent.
-        #[serde(default)]
-        until_s: Option<f64>,
-    },
+    Disconnect,
+}
+
+impl FaultKindName {
+    /// The name as the file writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            FaultKindName::Drop => "drop",
+            FaultKindName::Corrupt => "corrupt",
+            FaultKindName::Latency => "latency",
+            FaultKindName::Silent => "silent",
+            FaultKindName::HardwareError => "hardware_error",
+            FaultKindName::Blocked => "blocked",
+            FaultKindName::Disconnect => "disconnect",
+        }
+    }
 }
 
 /// How the redundancy is resolved, as written in the file.
@@ -357,9 +348,10 @@ pub struct RawControl {
     /// Fastest joint speed, rad/s; faster resolved steps are scaled down.
     #[serde(default = "default_max_joint_speed_rad_s")]
     pub max_joint_speed_rad_s: f64,
-    /// Straight sub-steps per tick (the paper's multi-step `K`).
-    #[serde(default = "default_substeps")]
-    pub substeps: u32,
+    /// Removed (it was read, never used): refused with a message saying so, whatever its
+    /// value.
+    #[serde(default)]
+    pub substeps: Option<toml::Value>,
     /// Fastest change of the commanded tip velocity, m/s².
     #[serde(default = "default_max_tip_accel_m_s2")]
     pub max_tip_accel_m_s2: f64,
@@ -390,7 +382,7 @@ pub struct RawControl {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawServer {
-    /// Address to listen on, `host:port`.
+    /// Address to listen on: an IP address and port, `127.0.0.1:7878` (no host name).
     #[serde(default = "default_listen")]
     pub listen: String,
     /// File holding the client token; relative to the config file's directory. No token
@@ -643,11 +635,6 @@ pub fn default_max_joint_speed_rad_s() -> f64 {
     2.0
 }
 
-/// Sub-steps per tick.
-pub fn default_substeps() -> u32 {
-    1
-}
-
 /// Tip acceleration, m/s².
 pub fn default_max_tip_accel_m_s2() -> f64 {
     0.5
@@ -715,7 +702,7 @@ impl Default for RawControl {
             strategy: default_strategy(),
             max_tip_speed_m_s: default_max_tip_speed_m_s(),
             max_joint_speed_rad_s: default_max_joint_speed_rad_s(),
-            substeps: default_substeps(),
+            substeps: None,
             max_tip_accel_m_s2: default_max_tip_accel_m_s2(),
             deadman_ms: default_deadman_ms(),
             read_every: default_read_every(),

@@ -91,11 +91,19 @@ fn contact_settings_are_checked() {
     );
     refused(
         &with_world("[world]\ncontact_load = [50.0, 0.0, 1.0]"),
-        &["world.contact_load[2]", "0 must be finite and positive"],
+        &[
+            "world.contact_load[2]: 0 A must be above 0",
+            "joint 2",
+            "amperes for a Present Current",
+        ],
     );
     refused(
         &with_world("[world]\ncontact_load = -5"),
-        &["world.contact_load", "-5"],
+        // Joint 1's servo, an XL430, reports percent.
+        &[
+            "world.contact_load: -5 % must be above 0 and at most 100 %",
+            "joint 1",
+        ],
     );
     refused(
         &with_world("[world]\ncontact_load = nan"),
@@ -104,7 +112,10 @@ fn contact_settings_are_checked() {
     // A Present Load never reads above 100 %: joint 1's servo is an XL430.
     refused(
         &with_world("[world]\ncontact_load = [120.0, 1.0, 1.0]"),
-        &["world.contact_load[1]", "120", "[0, 100]"],
+        &[
+            "world.contact_load[1]",
+            "120 % must be above 0 and at most 100 %",
+        ],
     );
     refused(
         &with_world("[world]\ncontact_load = 150"),
@@ -113,6 +124,10 @@ fn contact_settings_are_checked() {
     refused(
         &with_world("[world]\ncontact_ms = 200"),
         &["world.contact_load", "missing", "contact_ms is given"],
+    );
+    refused(
+        &with_world("[world]\ncontact_load = 50\ncontact_ms = 0"),
+        &["world.contact_ms", "0 must be at least 1"],
     );
     refused(
         &with_world("[world]\ncontact_load = 50\ncontact_ms = -1"),
@@ -455,13 +470,16 @@ fn a_blocked_fault_parses_and_names_a_servo_of_the_arm() {
         &with_fault("kind = \"blocked\"\nid = 7"),
         &["sim.fault[1].id", "7 is not the id of any [[joint]]"],
     );
-    refused(&with_fault("kind = \"blocked\""), &["missing field `id`"]);
+    refused(
+        &with_fault("kind = \"blocked\""),
+        &["sim.fault[1].id: missing: a kind = \"blocked\" fault needs it"],
+    );
     refused(
         &with_fault("kind = \"blocked\"\nid = 1\nat_s = 2.0\nuntil_s = 1.0"),
         &["sim.fault[1].until_s"],
     );
     refused(
         &with_fault("kind = \"blocked\"\nid = 1\nfraction = 0.5"),
-        &["fraction", "unknown field"],
+        &["sim.fault[1].fraction: not a key of a kind = \"blocked\" fault"],
     );
 }
