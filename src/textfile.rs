@@ -97,6 +97,22 @@ pub fn read_capped(reader: impl Read, cap: u64) -> Result<String, TextFileError>
     })
 }
 
+/// Makes a FIFO at `path` (replacing what is there), for the tests of readers that must refuse
+/// one without blocking.
+#[cfg(test)]
+pub(crate) fn make_fifo(path: &Path) {
+    let _ = std::fs::remove_file(path);
+    if let Err(e) = rustix::fs::mknodat(
+        rustix::fs::CWD,
+        path,
+        rustix::fs::FileType::Fifo,
+        rustix::fs::Mode::from_raw_mode(0o600),
+        0,
+    ) {
+        panic!("making a FIFO at {}: {e}", path.display());
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -135,15 +151,7 @@ mod tests {
     #[test]
     fn a_fifo_is_refused_without_blocking() {
         let f = dir().join("fifo");
-        let _ = std::fs::remove_file(&f);
-        rustix::fs::mknodat(
-            rustix::fs::CWD,
-            &f,
-            rustix::fs::FileType::Fifo,
-            rustix::fs::Mode::from_raw_mode(0o600),
-            0,
-        )
-        .unwrap();
+        make_fifo(&f);
         let e = read_text(&f, MAX_TEXT_BYTES).unwrap_err();
         assert_eq!(e.to_string(), "a FIFO (named pipe), not a regular file");
     }

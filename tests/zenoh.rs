@@ -549,19 +549,10 @@ fn start_up_stops_before_the_arm_moves_when_the_zenoh_endpoint_is_taken() {
     let taken = TcpListener::bind("127.0.0.1:0").unwrap();
     let port = taken.local_addr().unwrap().port();
     let config = config_with(&zenoh_table("snakectl", port, false));
-    let sim = snakectl::connect::spawn_sim(&config, std::sync::Arc::new(snakectl_sim::RealClock))
-        .unwrap();
-    let options = RunOptions::port(sim.path().to_path_buf());
-    let daemon = Embedded::start(config, SocketAddr::from(([127, 0, 0, 1], 0)), options).unwrap();
-    let e = daemon.stop().unwrap_err();
-    assert!(matches!(e, DaemonError::Zenoh { .. }), "{e}");
-    let message = e.to_string();
+    // Nothing is asked of the servos: every torque stays as the simulator started.
+    let message = refused_at_start_up(config);
     assert!(message.contains("config/sim.toml: [zenoh]"), "{message}");
     assert!(message.contains("opening the Zenoh session"), "{message}");
-    // Nothing was asked of the servos: every torque is as the simulator started.
-    let torques: Vec<bool> =
-        sim.with_sim(|s| s.servos().iter().map(|s| s.torque_enabled()).collect());
-    assert!(torques.iter().all(|on| !on), "{torques:?}");
     drop(taken);
 }
 

@@ -27,15 +27,7 @@ fn a_device_is_refused_unread_naming_the_path_and_what_it_is() {
 #[test]
 fn a_fifo_is_refused_without_blocking() {
     let fifo = dir().join("config.toml");
-    let _ = std::fs::remove_file(&fifo);
-    rustix::fs::mknodat(
-        rustix::fs::CWD,
-        &fifo,
-        rustix::fs::FileType::Fifo,
-        rustix::fs::Mode::from_raw_mode(0o600),
-        0,
-    )
-    .unwrap();
+    crate::textfile::make_fifo(&fifo);
     // On a thread, so that a load that blocks fails the test instead of hanging it.
     let (tx, rx) = std::sync::mpsc::channel();
     let path = fifo.clone();
