@@ -108,7 +108,7 @@ impl Objective {
                     weight: w,
                 })
             }
-            (true, Some(w)) if !(w.is_finite() && w > 0.0 && w <= 1e12) => {
+            (true, Some(w)) if !(MIN_COMPANION_WEIGHT..=MAX_COMPANION_WEIGHT).contains(&w) => {
                 return Err(ObjectiveError::BadWeight { weight: w })
             }
             (_, w) => w.unwrap_or(0.0),
@@ -139,6 +139,12 @@ impl Objective {
     }
 }
 
+/// The smallest companion weight: below it M1 is lost in the round-off of M3 or M5 and the
+/// objective is as degenerate as without a companion.
+pub const MIN_COMPANION_WEIGHT: f64 = 1e-6;
+/// The largest companion weight: above it M3 or M5 is lost in the round-off of M1.
+pub const MAX_COMPANION_WEIGHT: f64 = 1e6;
+
 /// A refused objective specification.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -166,8 +172,11 @@ pub enum ObjectiveError {
         /// The weight given.
         weight: f64,
     },
-    /// A weight that is not finite and positive (at most 1e12).
-    #[error("companion weight {weight} must be finite, positive and at most 1e12")]
+    /// A weight outside [`MIN_COMPANION_WEIGHT`, `MAX_COMPANION_WEIGHT`].
+    #[error(
+        "companion weight {weight} must be from {MIN_COMPANION_WEIGHT:e} to \
+         {MAX_COMPANION_WEIGHT:e}"
+    )]
     BadWeight {
         /// The weight given.
         weight: f64,

@@ -83,3 +83,53 @@ fn bad_scenarios_exit_two_naming_file_and_field() {
     let o = snakectl(&["simulate", "--scenario", "nowhere.toml", "--out", "x"]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// An `--out` that cannot be made is refused before the scenario is computed, naming `--out`.
+#[test]
+fn an_unwritable_out_fails_before_the_computation() {
+    let dir = tempfile::tempdir().unwrap();
+    let blocker = dir.path().join("a-file");
+    std::fs::write(&blocker, b"").unwrap();
+    let out = blocker.join("o");
+    let o = snakectl(&[
+        "simulate",
+        "--scenario",
+        "scenarios/straight_sideways.toml",
+        "--out",
+        out.to_str().unwrap(),
+        "--no-png",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--out"), "{err}");
+    assert!(o.stdout.is_empty());
+}
+
+/// A scenario that would keep too many configurations exits 2 naming the fields and the cap.
+#[test]
+fn an_oversized_scenario_exits_two_naming_the_cap() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("big.toml");
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/straight_sideways.toml"),
+    )
+    .unwrap()
+    .replace("links = 20", "links = 4000")
+    .replace("steps = [1, 20]", "steps = [20000]");
+    std::fs::write(&file, text).unwrap();
+    let o = snakectl(&[
+        "simulate",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--out",
+        dir.path().join("o").to_str().unwrap(),
+        "--no-png",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("links, pull.steps") && err.contains("2000000"),
+        "{err}"
+    );
+    assert!(!dir.path().join("o").exists());
+}

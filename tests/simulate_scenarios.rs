@@ -130,7 +130,8 @@ fn shipped_scenarios_run_exactly_and_concentrate_near_the_pulled_end() {
 }
 
 /// The largest link count a scenario allows, 100000, splits every shipped curve (the straight
-/// line among them) into that many equal chords from end to end.
+/// line among them) into that many equal chords from end to end (with a single step, which keeps
+/// the stored configurations under the cap).
 #[test]
 fn shipped_curves_split_at_the_largest_link_count() {
     for file in shipped() {
@@ -139,6 +140,9 @@ fn shipped_curves_split_at_the_largest_link_count() {
         let at = text.find("\nlinks = ").expect("a links line") + 1;
         let eol = at + text[at..].find('\n').unwrap();
         let text = format!("{}links = 100000{}", &text[..at], &text[eol..]);
+        let at = text.find("\nsteps = ").expect("a steps line") + 1;
+        let eol = at + text[at..].find('\n').unwrap();
+        let text = format!("{}steps = [1]{}", &text[..at], &text[eol..]);
         let s = Scenario::from_toml(&text, &name.to_string(), file.parent().unwrap())
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(s.links.len(), 100_000, "{name}");
@@ -308,4 +312,68 @@ fn parametric_and_polyline_curves_report_their_errors() {
     let missing = polyline.replace("shape.csv", "nowhere.csv");
     let e = Scenario::from_toml(&missing, "p.toml", dir.path()).unwrap_err();
     assert!(e.file.ends_with("nowhere.csv"), "{e}");
+}
+
+/// What a scenario may ask is bounded: the configurations it keeps (links × steps × strategies,
+/// which grew to an allocation failure), repeated step counts and strategies, the companion
+/// weight; a file that is no scenario says so under its own table's name.
+#[test]
+fn scenario_bounds_refuse_by_field_with_the_numbers() {
+    use snakectl::scenario::{stored_points, MAX_STORED_POINTS};
+    let big = GOOD
+        .replace("links = 10", "links = 4000")
+        .replace("steps = [1, 5]", "steps = [20000]");
+    let e = Scenario::from_toml(&big, "bad.toml", Path::new(".")).unwrap_err();
+    assert_eq!(e.field, "links, pull.steps", "{e}");
+    let kept = stored_points(4000, &[20000], 2).to_string();
+    assert!(e.message.contains(&kept), "{e}");
+    assert!(e.message.contains(&MAX_STORED_POINTS.to_string()), "{e}");
+    // At the bounds of each field alone: 100000 links with one step, 100000 steps with few links.
+    let wide = GOOD
+        .replace("links = 10", "links = 100000")
+        .replace("steps = [1, 5]", "steps = [1]");
+    let s = Scenario::from_toml(&wide, "ok.toml", Path::new(".")).unwrap();
+    assert_eq!(s.links.len(), 100_000);
+    let long = GOOD
+        .replace("links = 10", "links = 4")
+        .replace("steps = [1, 5]", "steps = [100000]");
+    assert!(Scenario::from_toml(&long, "ok.toml", Path::new(".")).is_ok());
+    assert_eq!(stored_points(usize::MAX, &[usize::MAX], 3), usize::MAX);
+
+    let cases: Vec<(String, &str)> = vec![
+        (
+            GOOD.replace("steps = [1, 5]", "steps = [3, 3]"),
+            "pull.steps[1]",
+        ),
+        (
+            GOOD.replace(
+                "objective = \"m2\"",
+                "objective = \"m2\"\n[[strategy]]\nkind = \"tractrix\"",
+            ),
+            "strategy[2]",
+        ),
+        (
+            GOOD.replace(
+                "objective = \"m2\"",
+                "objective = \"m3\"\ncompanion_weight = 1e-300",
+            ),
+            "strategy[1].companion_weight",
+        ),
+        (
+            GOOD.replace(
+                "objective = \"m2\"",
+                "objective = \"m3\"\ncompanion_weight = 1e9",
+            ),
+            "strategy[1].companion_weight",
+        ),
+        ("[arm]\nname = \"x\"\n".to_string(), "arm"),
+        (format!("{GOOD}[arm]\nname = \"x\"\n"), "arm"),
+    ];
+    for (text, field) in cases {
+        let e = Scenario::from_toml(&text, "bad.toml", Path::new(".")).unwrap_err();
+        assert_eq!(e.field, field, "{e}");
+        assert!(!e.to_string().contains('\n'), "one line: {e}");
+    }
+    let e = Scenario::from_toml("[arm]\nname = \"x\"\n", "arm.toml", Path::new(".")).unwrap_err();
+    assert!(e.message.contains("is this a scenario file?"), "{e}");
 }

@@ -66,10 +66,17 @@ fn write(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
 
 fn one(file: &Path, out: &Path, png: bool) -> Result<(), Failure> {
     let scenario = Scenario::load(file).map_err(Failure::bad_input)?;
-    let runs = scenario.run();
+    // The output directory is made (and a file written there) before the computation, which can
+    // take long, so an unwritable `--out` fails at once.
     std::fs::create_dir_all(out)
-        .with_context(|| format!("creating {}", out.display()))
+        .with_context(|| format!("--out: creating {}", out.display()))
         .map_err(Failure::other)?;
+    let probe = out.join(".snakectl-write-test");
+    std::fs::write(&probe, b"")
+        .and_then(|()| std::fs::remove_file(&probe))
+        .with_context(|| format!("--out: {} is not writable", out.display()))
+        .map_err(Failure::other)?;
+    let runs = scenario.run();
     let table = Table::new(&scenario.title, &runs);
     write(&out.join("metrics.csv"), table.csv().as_bytes())?;
     write(&out.join("metrics.md"), table.markdown().as_bytes())?;

@@ -263,6 +263,21 @@ pub fn rotations(old: &[Vec2], new: &[Vec2]) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The most points a scenario may keep: every run (strategy × step count) keeps its `steps + 1`
+/// configurations of `links + 1` points each, for the figures (16 bytes a point: 32 MB).
+pub const MAX_STORED_POINTS: usize = 2_000_000;
+
+/// The points a scenario of `links` links keeps over its runs: `strategies` times the sum over
+/// the step counts `K` of `(K + 1) (links + 1)`. Saturates rather than overflows.
+pub fn stored_points(links: usize, steps: &[usize], strategies: usize) -> usize {
+    steps
+        .iter()
+        .fold(0usize, |acc, &k| {
+            acc.saturating_add(k.saturating_add(1).saturating_mul(links.saturating_add(1)))
+        })
+        .saturating_mul(strategies)
+}
+
 struct Ctx<'a> {
     file: &'a str,
 }
@@ -347,11 +362,26 @@ impl Scenario {
                 .span()
                 .and_then(|s| key_at(text, s.start))
                 .filter(|_| unknown_field(&message).is_none());
+            // An unknown table's span is its own `[header]`, which `table_at` already counts.
+            let on_header = e.span().is_some_and(|s| {
+                let at = s.start.min(text.len());
+                let start = text[..at].rfind('\n').map_or(0, |i| i + 1);
+                text[start..].trim_start().starts_with('[')
+            });
             let field = match (unknown_field(&message).or(key), table.is_empty()) {
+                (Some(f), false) if on_header && table.split('.').next_back() == Some(&*f) => table,
                 (Some(f), true) => f,
                 (Some(f), false) => format!("{table}.{f}"),
                 (None, false) => table,
                 (None, true) => "input".into(),
+            };
+            let message = if message.starts_with("unknown field") && !field.contains(['.', '[']) {
+                format!(
+                    "{message}: a top-level key or table no scenario has; is this a scenario \
+                     file?"
+                )
+            } else {
+                message
             };
             cx.err(field, message)
         })?;
@@ -381,14 +411,42 @@ impl Scenario {
                         format!("{k} must be 1..=100000"),
                     )
                 })?;
+            if let Some(j) = steps.iter().position(|&s| s == k) {
+                return Err(cx.err(
+                    format!("pull.steps[{i}]"),
+                    format!("{k} repeats pull.steps[{j}]: each step count once"),
+                ));
+            }
             steps.push(k);
         }
         if raw.strategy.is_empty() {
             return Err(cx.err("strategy", "give at least one [[strategy]]"));
         }
-        let mut strategies = Vec::new();
+        let mut strategies: Vec<StrategySpec> = Vec::new();
         for (i, s) in raw.strategy.iter().enumerate() {
-            strategies.push(strategy_of(&cx, i, s)?);
+            let spec = strategy_of(&cx, i, s)?;
+            if let Some(j) = strategies.iter().position(|&t| t == spec) {
+                return Err(cx.err(
+                    format!("strategy[{i}]"),
+                    format!(
+                        "repeats strategy[{j}] ({}): each strategy once",
+                        spec.label()
+                    ),
+                ));
+            }
+            strategies.push(spec);
+        }
+        let stored = stored_points(n, &steps, strategies.len());
+        if stored > MAX_STORED_POINTS {
+            return Err(cx.err(
+                "links, pull.steps",
+                format!(
+                    "links = {n} with pull.steps = {steps:?} and {} strategies keeps {stored} \
+                     points (every configuration of every run, for the figures); at most \
+                     {MAX_STORED_POINTS}: lower links, pull.steps or the number of strategies",
+                    strategies.len()
+                ),
+            ));
         }
         let plot = match &raw.plot {
             None => PlotSpec {
