@@ -110,6 +110,15 @@ fn bad_input_exits_two_with_one_line_naming_the_field() {
             "strategy",
         ),
         (&*ARM.replacen('{', r#"{"steps":0,"#, 1), "steps"),
+        (&*ARM.replacen('{', r#"{"steps":1000000,"#, 1), "steps"),
+        (
+            &*ARM.replacen(
+                '{',
+                r#"{"base_mode":"free","limits":[[-1,1],null,null,null],"#,
+                1,
+            ),
+            "limits[0]",
+        ),
         (
             &*ARM.replacen(
                 '{',

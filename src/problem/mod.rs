@@ -226,15 +226,19 @@ pub fn parse_base_mode(name: &str) -> Result<BaseMode, ProblemError> {
     }
 }
 
-/// Checks a step count: at least one.
+/// The most sub-moves a problem may ask: each is a full solve, so the time grows with them (a
+/// million took minutes); far more than a path needs.
+pub const MAX_STEPS: usize = 10_000;
+
+/// Checks a step count: 1 to [`MAX_STEPS`].
 pub fn parse_steps(steps: u64) -> Result<usize, ProblemError> {
     if steps == 0 {
         return Err(ProblemError::new("steps", "must be at least 1"));
     }
     usize::try_from(steps)
         .ok()
-        .filter(|&s| s <= 1_000_000)
-        .ok_or_else(|| ProblemError::new("steps", format!("{steps} exceeds 1000000")))
+        .filter(|&s| s <= MAX_STEPS)
+        .ok_or_else(|| ProblemError::new("steps", format!("{steps} exceeds {MAX_STEPS}")))
 }
 
 /// Refuses combinations the strategies do not offer: a propagation with the overall strategy.
@@ -490,6 +494,15 @@ impl Problem {
         let chain = Chain::new(raw.links, base, raw.base[2], limits).map_err(chain_error)?;
         check_pose(&chain, "theta0", &raw.theta0)?;
         let base_mode = parse_base_mode(raw.base_mode.as_deref().unwrap_or("fixed"))?;
+        if base_mode == BaseMode::Free {
+            if let Some(i) = chain.limits().iter().position(Option::is_some) {
+                return Err(ProblemError::new(
+                    format!("limits[{i}]"),
+                    "applies to base_mode \"fixed\" only: a free base (a rope) is pulled with \
+                     no joint limits, by either strategy; give null or leave limits out",
+                ));
+            }
+        }
         let strategy = parse_strategy(raw.strategy.as_deref().unwrap_or("overall"))?;
         let propagation = parse_propagation(raw.propagation.as_deref().unwrap_or("tractrix"))?;
         check_combination(strategy, base_mode, raw.propagation.is_some())?;
@@ -745,7 +758,10 @@ impl From<RopeReport> for OptimizerOut {
 pub struct Answer {
     /// The strategy that produced it.
     pub strategy: &'static str,
-    /// Relative joint angles, each the representative nearest its start value, rad.
+    /// Relative joint angles, rad. Fixed base: each sub-move's answer is the representative
+    /// nearest the joint's angle before it, so over several sub-moves the joint's path is
+    /// followed (unwrapped; it may end more than pi from `theta0`). Free base: the final pose's
+    /// representative nearest `theta0`.
     pub theta: Vec<f64>,
     /// `p_0..p_n`, base (or free end) first, m.
     pub points: Vec<[f64; 2]>,
@@ -891,6 +907,16 @@ mod tests {
             (with(r#""base_mode":"floating""#), "base_mode"),
             (with(r#""propagation":"magic""#), "propagation"),
             (with(r#""steps":0"#), "steps"),
+            (
+                with(r#""base_mode":"free","limits":[null,[-3,3],null]"#),
+                "limits[1]",
+            ),
+            (
+                with(r#""base_mode":"free","strategy":"sequential","limits":[[-3,3],null,null]"#),
+                "limits[0]",
+            ),
+            (with(r#""steps":10001"#), "steps"),
+            (with(r#""steps":1000000"#), "steps"),
             (with(r#""base_mode":"free","objective":"m7""#), "objective"),
             (
                 with(r#""base_mode":"free","objective":"m3""#),
@@ -1154,6 +1180,16 @@ mod tests {
         assert!(a.tip_error < 1e-9, "{}", a.tip_error);
         let (least, _) = disc_clearance(&a.points, post, 0.1, 0.02);
         assert!(least >= 0.01 - CLEAR_SLACK, "{least}");
+    }
+
+    /// A free base is pulled with no joint limits: limits given with it are refused (above),
+    /// all-null limits say nothing and are accepted.
+    #[test]
+    fn free_base_accepts_only_null_limits() {
+        let p = Problem::from_json(&with(r#""base_mode":"free","limits":[null,null,null]"#));
+        assert!(p.unwrap().solve().within_limits);
+        let e = err(&with(r#""base_mode":"free","limits":[null,null,[-3,3]]"#));
+        assert!(e.to_string().contains("fixed"), "{e}");
     }
 
     #[test]
