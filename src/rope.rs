@@ -165,7 +165,7 @@ pub enum ObjectiveError {
         objective: String,
     },
     /// A companion weight given to an objective that takes none.
-    #[error("{objective} takes no companion weight (got {weight})")]
+    #[error("{objective} takes no companion weight (got {weight:?})")]
     UnexpectedWeight {
         /// The objective.
         objective: String,
@@ -174,7 +174,7 @@ pub enum ObjectiveError {
     },
     /// A weight outside [`MIN_COMPANION_WEIGHT`, `MAX_COMPANION_WEIGHT`].
     #[error(
-        "companion weight {weight} must be from {MIN_COMPANION_WEIGHT:e} to \
+        "companion weight {weight:?} must be from {MIN_COMPANION_WEIGHT:e} to \
          {MAX_COMPANION_WEIGHT:e}"
     )]
     BadWeight {

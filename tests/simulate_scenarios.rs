@@ -376,4 +376,10 @@ fn scenario_bounds_refuse_by_field_with_the_numbers() {
     }
     let e = Scenario::from_toml("[arm]\nname = \"x\"\n", "arm.toml", Path::new(".")).unwrap_err();
     assert!(e.message.contains("is this a scenario file?"), "{e}");
+    let tiny = GOOD.replace(
+        "objective = \"m2\"",
+        "objective = \"m3\"\ncompanion_weight = 1e-300",
+    );
+    let e = Scenario::from_toml(&tiny, "bad.toml", Path::new(".")).unwrap_err();
+    assert!(e.message.contains("1e-300") && e.message.len() < 80, "{e}");
 }
