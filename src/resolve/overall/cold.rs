@@ -24,6 +24,8 @@ const SAME_OPTIMUM_METRIC: f64 = 1e-9;
 const SAME_OPTIMUM_POSE: f64 = 1e-6;
 /// Times a cold start's optimum is turned back toward `theta0` by whole turns and solved again.
 const MAX_TURN_BACKS: usize = 3;
+/// Bisections of the scaled start's factor: 2^-60 is below its round-off.
+const SCALED_BISECTIONS: usize = 60;
 /// Half-width of the range of a random start's unlimited joint around `theta0`, rad: half a
 /// turn either way covers every angle once (a quarter turn left the other elbow of a joint bent
 /// the wrong way out of reach when a limited joint had to swing across).
@@ -104,6 +106,9 @@ pub(super) enum Start {
     /// Last, when no start has reached the target: the mirror image of the answer that came
     /// closest (it often ends on a limit, on the side of the elbow the limits rule out).
     MirrorMiss,
+    /// When no start of the first round has reached the target: the pose on target shaped
+    /// like `theta0` ([`Overall::start_scaled`]), for targets near the outer edge.
+    Scaled,
 }
 
 impl Start {
@@ -126,8 +131,8 @@ impl Start {
 }
 
 /// The sequence of starts of one cold solve: the fixed and mirrored starts, the random ones
-/// (the first decides whether they are needed), one more round of random starts when no start so far has reached
-/// the target, and last the mirror image of the best optimum when a random start found it (the
+/// (the first decides whether they are needed), when no start so far has reached the target
+/// the scaled start and then one more round of random starts, and last the mirror image of the best optimum when a random start found it (the
 /// mirrored starts came before it, often before any optimum was known), or, when no start has
 /// reached the target, of the closest miss.
 pub(super) struct Schedule {
@@ -140,6 +145,8 @@ pub(super) struct Schedule {
     mirror_again: bool,
     /// The closest miss has been mirrored.
     mirrored_miss: bool,
+    /// The scaled start has been tried.
+    scaled: bool,
 }
 
 impl Schedule {
@@ -153,6 +160,7 @@ impl Schedule {
             second_round: false,
             mirror_again: false,
             mirrored_miss: false,
+            scaled: false,
         }
     }
 
@@ -165,6 +173,10 @@ impl Schedule {
     /// target so far.
     pub(super) fn next(&mut self, reached: bool) -> Option<Start> {
         if self.next >= self.end {
+            if !reached && !self.scaled {
+                self.scaled = true;
+                return Some(Start::Scaled);
+            }
             if reached || self.second_round || self.random == 0 {
                 if reached && self.mirror_again {
                     self.mirror_again = false;
@@ -326,8 +338,10 @@ impl Overall {
     ///    found). They are skipped when no limit comes within `r` of `theta0` (the limits cannot
     ///    touch a better pose) and `r` is below a quarter turn (the other starts find the
     ///    optimum of that problem; with larger turns they miss some, on the other side of a
-    ///    joint's turn). When no start so far has reached the target, the same number again,
-    ///    uniform inside the limits (an unlimited joint: `theta0 +- pi`). A random start stops
+    ///    joint's turn). When no start so far has reached the target, the pose on target
+    ///    shaped like `theta0` ([`Overall::start_scaled`]: near the outer edge of the
+    ///    workspace the other starts crawl), and if that does not reach it either, the same
+    ///    number of random starts again, uniform inside the limits (an unlimited joint: `theta0 +- pi`). A random start stops
     ///    as soon as its iterate is on target within 1e-6 of the scale and within 1e-4 rad of
     ///    the best optimum so far (it would converge to that optimum);
     /// 7. when a random start found the best optimum, its mirror image as in 5; when no start
@@ -479,6 +493,11 @@ impl Overall {
                 let src = if rank == 0 { &w.best } else { &w.second };
                 mirror_pose(p, src, &w.lo, &w.hi, &mut w.theta);
             }
+            Start::Scaled => {
+                if !self.start_scaled(p) {
+                    return Loaded::Skip;
+                }
+            }
             Start::MirrorMiss => {
                 if podium.best.is_none() {
                     return Loaded::Skip;
@@ -541,6 +560,45 @@ impl Overall {
         let to = bearing(p.target - base);
         let turn = wrap_angle(to - from);
         self.w.theta[0] = (self.w.theta[0] + turn).clamp(self.w.lo[0], self.w.hi[0]);
+    }
+
+    /// Loads a pose on target shaped like `theta0`: every joint after the base scaled by the
+    /// one factor `s` in `[0, 1]` that puts the tip at the target's distance from the base
+    /// (found by bisection: `s = 0` is the straight arm, at the full reach, `s = 1` is `theta0`
+    /// clipped), then the base joint turned to point the tip at the target. Near the outer edge
+    /// of the workspace the local path from `theta0` crawls (the tip constraint is nearly
+    /// singular there); this start lies on the thin set of poses that reach the target. False,
+    /// with `w.theta` unspecified, when the target is not between the two distances, or the
+    /// base joint's limits keep the tip off the target's bearing.
+    pub(super) fn start_scaled(&mut self, p: &Problem) -> bool {
+        let base = p.chain.base();
+        let want = (p.target - base).norm();
+        let at = |s: f64, w: &mut super::Work| {
+            w.theta[0] = p.theta0[0].clamp(w.lo[0], w.hi[0]);
+            for a in 1..p.theta0.len() {
+                w.theta[a] = (s * p.theta0[a]).clamp(w.lo[a], w.hi[a]);
+            }
+            (p.chain.tip(&w.theta) - base).norm()
+        };
+        let (mut lo_s, mut hi_s) = (0.0, 1.0);
+        let (d_lo, d_hi) = (at(lo_s, &mut self.w), at(hi_s, &mut self.w));
+        if !(d_hi <= want && want <= d_lo) {
+            return false;
+        }
+        for _ in 0..SCALED_BISECTIONS {
+            let mid = 0.5 * (lo_s + hi_s);
+            if at(mid, &mut self.w) >= want {
+                lo_s = mid;
+            } else {
+                hi_s = mid;
+            }
+        }
+        at(lo_s, &mut self.w);
+        let from = bearing(p.chain.tip(&self.w.theta) - base);
+        let turned = self.w.theta[0] + wrap_angle(bearing(p.target - base) - from);
+        let t = representative_within(turned, p.theta0[0], self.w.lo[0], self.w.hi[0]);
+        self.w.theta[0] = t;
+        wrap_angle(t - turned).abs() < 1e-12
     }
 
     /// A continuation start from the pose in `w.theta`: solves

@@ -114,6 +114,14 @@ const JOIN_BEST_POSE: f64 = 1e-4;
 /// A Newton step is kept when the optimality residual at least shrinks by this factor: a step
 /// that does less is no better than the SQP step it replaces.
 const NEWTON_CONTRACTION: f64 = 0.5;
+/// A Newton step that does not contract so is tried at this many halvings of its length (in
+/// the pose and the multiplier both)...
+const NEWTON_HALVINGS: usize = 5;
+/// ...and a fraction `alpha` of it kept when the optimality residual falls by at least
+/// `this * alpha` of itself. Near the outer edge of the workspace the tip multiplier is
+/// large and the optimality conditions bend sharply, so the whole Newton step overshoots while
+/// a fraction of it still makes the fast progress an SQP step there does not.
+const NEWTON_DAMPED_DECREASE: f64 = 0.25;
 /// Newton is tried after an exact SQP step taken whole, or once the tip is within this fraction
 /// of the scale (the active set has settled there).
 const NEWTON_RANGE: f64 = 1e-3;
@@ -268,6 +276,8 @@ struct Work {
     theta: Vec<f64>,
     /// A candidate pose: line-search trial, Newton or Levenberg-Marquardt step, mirror image.
     trial: Vec<f64>,
+    /// The whole Newton step's pose while fractions of it are tried.
+    newton_end: Vec<f64>,
     /// Solution of the linearized subproblem (the SQP step's end point).
     qp_x: Vec<f64>,
     /// Clipping state of each joint in the subproblem's dual.
@@ -329,6 +339,7 @@ impl Work {
             &mut self.hi,
             &mut self.theta,
             &mut self.trial,
+            &mut self.newton_end,
             &mut self.qp_x,
             &mut self.g_free,
             &mut self.piv,
@@ -746,13 +757,40 @@ impl Overall {
         let mut iterations = local.iterations;
         let mut converged = local.converged;
         if !local.converged {
+            let (its, scaled) = self.from_scaled(&p);
+            iterations += its;
+            if let Some(scaled_mu) = scaled {
+                mu = scaled_mu;
+                converged = true;
+            }
+        }
+        if converged {
+            iterations += self.try_mirror(&p, &mut mu);
+        } else {
             let (its, conv) = self.closest(&p, &mut mu);
             iterations += its;
             converged = conv;
-        } else {
-            iterations += self.try_mirror(&p, &mut mu);
         }
         self.finish(&p, mu, iterations, converged, out)
+    }
+
+    /// After a local solve that failed, with its answer in `w.theta`: a local solve from the
+    /// scaled start ([`Overall::start_scaled`], for targets near the outer edge of the
+    /// workspace), kept when it converges (with its multiplier); else `w.theta` is restored.
+    /// Returns the iterations spent.
+    fn from_scaled(&mut self, p: &Problem) -> (usize, Option<[f64; 2]>) {
+        self.w.best.copy_from_slice(&self.w.theta);
+        if !self.start_scaled(p) {
+            self.w.theta.copy_from_slice(&self.w.best);
+            return (0, None);
+        }
+        let mut mu = [0.0; 2];
+        let l = self.local(p, &mut mu, p.tol);
+        if l.converged && l.tip_error <= p.tol {
+            return (l.iterations, Some(mu));
+        }
+        self.w.theta.copy_from_slice(&self.w.best);
+        (l.iterations, None)
     }
 
     /// After a converged local solve: the answer's mirror image across the base-target line
@@ -990,9 +1028,10 @@ impl Overall {
     }
 
     /// Takes the Newton step from the evaluated iterate `at` when it is trusted and the
-    /// optimality residual at least halves (or the solve converges there); true when taken, with
-    /// `w.theta` and `mu` updated. When not taken, the evaluation at `w.theta` is restored for
-    /// the SQP step.
+    /// optimality residual at least halves (or the solve converges there), else the longest of
+    /// [`NEWTON_HALVINGS`] halvings of it that cuts the residual enough
+    /// ([`NEWTON_DAMPED_DECREASE`]); true when taken, with `w.theta` and `mu` updated. When not
+    /// taken, the evaluation at `w.theta` is restored for the SQP step.
     fn try_newton(&mut self, p: &Problem, mu: &mut [f64; 2], at: &Iterate, tol: f64) -> bool {
         let residual = at.cn / p.scale + at.s;
         let Some(mu_n) = self.newton(p, *mu, at.c) else {
@@ -1004,6 +1043,25 @@ impl Overall {
         if cn2 / p.scale + s2 <= NEWTON_CONTRACTION * residual || (cn2 <= tol && s2 <= p.stol) {
             *mu = mu_n;
             return true;
+        }
+        // `w.trial` holds the pose the step started from.
+        std::mem::swap(&mut self.w.theta, &mut self.w.newton_end);
+        let mut alpha = 1.0;
+        for _ in 0..NEWTON_HALVINGS {
+            alpha *= 0.5;
+            let w = &mut self.w;
+            for ((t, &from), &to) in w.theta.iter_mut().zip(&w.trial).zip(&w.newton_end) {
+                *t = from + alpha * (to - from);
+            }
+            let mu_a = [
+                mu[0] + alpha * (mu_n[0] - mu[0]),
+                mu[1] + alpha * (mu_n[1] - mu[1]),
+            ];
+            let (c3, s3) = self.eval(p, mu_a);
+            if c3.norm() / p.scale + s3 <= (1.0 - NEWTON_DAMPED_DECREASE * alpha) * residual {
+                *mu = mu_a;
+                return true;
+            }
         }
         std::mem::swap(&mut self.w.theta, &mut self.w.trial);
         self.eval(p, *mu);

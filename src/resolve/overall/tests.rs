@@ -416,8 +416,8 @@ fn cold_starts_come_in_the_documented_order() {
     ];
     let first = Start::Random { first: true };
     let later = Start::Random { first: false };
-    // The random starts follow (the first decides whether they run); a second round only while
-    // nothing is on target, and then the closest miss mirrored.
+    // The random starts follow (the first decides whether they run); while nothing is on
+    // target, the scaled start, a second round, and then the closest miss mirrored.
     let mut s = Schedule::new(&opts);
     let got: Vec<Start> = std::iter::from_fn(|| s.next(true)).collect();
     let mut want = fixed.to_vec();
@@ -425,7 +425,7 @@ fn cold_starts_come_in_the_documented_order() {
     assert_eq!(got, want);
     let mut s = Schedule::new(&opts);
     let got: Vec<Start> = std::iter::from_fn(|| s.next(false)).collect();
-    want.extend([later, later, later, Start::MirrorMiss]);
+    want.extend([Start::Scaled, later, later, later, Start::MirrorMiss]);
     assert_eq!(got, want);
     // Without mirrored starts, no mirrored miss either.
     let mut s = Schedule::new(&OverallOptions {
@@ -433,7 +433,7 @@ fn cold_starts_come_in_the_documented_order() {
         ..opts
     });
     let got = std::iter::from_fn(|| s.next(false)).count();
-    assert_eq!(got, 4 + 3 + 3);
+    assert_eq!(got, 4 + 3 + 1 + 3);
     // A best optimum found by a random start is mirrored once at the end.
     let mut s = Schedule::new(&opts);
     let mut got = Vec::new();
@@ -546,6 +546,42 @@ fn one_link_chain_out_of_reach_stops_at_the_nearer_limit() {
             let o = solver.solve(&chain, &[0.0], target, &mut out);
             assert!(!o.converged && !o.reachable, "{angle} {mode:?}: {o:?}");
             assert!((out[0] - expect).abs() < 1e-9, "{angle} {mode:?}: {out:?}");
+        }
+    }
+}
+
+/// Targets just inside the outer edge of the workspace (the arm nearly straight), from a bent
+/// pose: the tip constraint is nearly singular there and the multiplier large, and the whole
+/// Newton step overshoots. Both solves reach the target, and satisfy the optimality conditions.
+#[test]
+fn targets_at_the_outer_edge_are_reached_from_a_bent_pose() {
+    for (n, fraction) in [
+        (12, 0.999_999),
+        (24, 0.999_9),
+        (24, 0.999_99),
+        (40, 0.999_99),
+    ] {
+        let links = vec![1.0 / n as f64; n];
+        let chain = Chain::unlimited(links, Vec2::new(0.1, -0.2), 0.3).unwrap();
+        let theta0: Vec<f64> = (0..n)
+            .map(|a| 0.6 * (1.7 * a as f64 + 0.4).sin() / (n as f64).sqrt())
+            .collect();
+        let bearing = 0.7_f64;
+        let target =
+            chain.base() + Vec2::new(bearing.cos(), bearing.sin()) * (fraction * chain.reach());
+        for cold in [false, true] {
+            let mut solver = Overall::new(OverallOptions::default());
+            let mut out = vec![0.0; n];
+            let o = if cold {
+                solver.solve_cold(&chain, &theta0, target, &mut out)
+            } else {
+                solver.solve_local(&chain, &theta0, target, &mut out)
+            };
+            let at = format!("n = {n}, {fraction} of the reach, cold: {cold}: {o:?}");
+            assert!(o.converged && o.reachable, "{at}");
+            assert!((chain.tip(&out) - target).norm() <= 1e-9, "{at}");
+            let s = stationarity(&chain, &theta0, &out, solver.multiplier());
+            assert!(s <= 1e-6, "{at}: stationarity {s}");
         }
     }
 }
