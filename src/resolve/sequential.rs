@@ -42,7 +42,10 @@ impl Correction {
     }
 }
 
-/// Sweeps one Newton phase may spend before a published round restarts it.
+/// Sweeps one Newton phase may spend without halving its residual before a published round
+/// restarts it. A phase that keeps halving it goes on (up to the solve's cap): near the edge of
+/// the workspace the goal must run several link lengths away to straighten the chain, which
+/// takes many steps that each cut the residual by a constant factor.
 const NEWTON_BUDGET: usize = 12;
 
 /// Tuning of the sequential strategy.
@@ -141,6 +144,7 @@ pub struct Sequential {
     start: Vec<Vec2>,
     swept: Vec<Vec2>,
     trial: Vec<Vec2>,
+    kept: Vec<Vec2>,
     best: Vec<f64>,
 }
 
@@ -159,7 +163,12 @@ impl Sequential {
     }
 
     fn size(&mut self, n: usize) {
-        for v in [&mut self.start, &mut self.swept, &mut self.trial] {
+        for v in [
+            &mut self.start,
+            &mut self.swept,
+            &mut self.trial,
+            &mut self.kept,
+        ] {
             v.resize(n + 1, Vec2::zeros());
         }
     }
@@ -170,9 +179,10 @@ impl Sequential {
         self.options.tolerance_m.max(16.0 * f64::EPSILON * scale)
     }
 
-    /// Trust-region (dogleg) Newton on the virtual tip goal, sweeping from `self.start`. On
+    /// Trust-region (dogleg) Newton on the virtual tip goal, sweeping from `self.start`, for at
+    /// most `cap` sweeps, and `budget` sweeps in a row that do not halve the residual. On
     /// return `self.swept` holds the best sweep found, translated onto the base. Returns
-    /// (sweeps, tip residual).
+    /// (sweeps, tip residual, whether it stopped at a saddle).
     ///
     /// Near a straight arm the residual map is nearly singular along the arm (a pushed chain
     /// translates rigidly) and wiggles on the scale of a link length, where a plain Newton step
@@ -183,6 +193,7 @@ impl Sequential {
         target: Vec2,
         tol: f64,
         budget: usize,
+        cap: usize,
     ) -> (usize, f64, bool) {
         let links = chain.links();
         let prop = self.options.propagation;
@@ -194,7 +205,10 @@ impl Sequential {
         let mut g = w - self.swept[0] + b - target;
         let mut radius = (target - self.start[n]).norm().max(links[n - 1]);
         let saddle = g.norm() > tol && at_saddle(&(Matrix2::identity() - jac), &g);
-        while g.norm() > tol && rounds < budget && !saddle {
+        // Sweeps since the residual last fell to half of `mark`.
+        let mut stalled = 1;
+        let mut mark = g.norm();
+        while g.norm() > tol && rounds < cap && stalled < budget && !saddle {
             // Jacobian of the residual: I - d p_0 / d w.
             let jg = Matrix2::identity() - jac;
             let step = dogleg(&jg, &g, radius);
@@ -202,6 +216,7 @@ impl Sequential {
             let trial_w = w + step;
             let trial_jac = sweep_with_jacobian(&self.start, links, trial_w, prop, &mut self.trial);
             rounds += 1;
+            stalled += 1;
             let trial_g = trial_w - self.trial[0] + b - target;
             let actual = g.norm_squared() - trial_g.norm_squared();
             let ratio = if predicted > 0.0 {
@@ -220,6 +235,10 @@ impl Sequential {
                 g = trial_g;
                 jac = trial_jac;
                 std::mem::swap(&mut self.swept, &mut self.trial);
+                if g.norm() <= 0.5 * mark {
+                    mark = g.norm();
+                    stalled = 0;
+                }
             } else if radius < tol {
                 break;
             }
@@ -233,7 +252,34 @@ impl Sequential {
 
     /// The hybrid correction: Newton from the start pose; when it stalls (large moves fold the
     /// residual map), one published round moves the start closer and Newton resumes from there.
+    /// On return `self.swept` holds the best chain of every phase and round (by tip residual).
     fn correct_newton(&mut self, chain: &Chain, target: Vec2, tol: f64) -> (usize, f64) {
+        let mut best = f64::INFINITY;
+        let (rounds, residual) = self.newton_rounds(chain, target, tol, &mut best);
+        if best < residual {
+            self.swept.copy_from_slice(&self.kept);
+            return (rounds, best);
+        }
+        (rounds, residual)
+    }
+
+    /// Keeps a copy of `chain` in `self.kept` when its tip `residual` beats `best`.
+    fn keep(kept: &mut [Vec2], best: &mut f64, chain: &[Vec2], residual: f64) {
+        if residual < *best {
+            *best = residual;
+            kept.copy_from_slice(chain);
+        }
+    }
+
+    /// [`Self::correct_newton`] without the choice of the best: `self.swept` holds the last
+    /// chain, `self.kept` the best (of tip residual `best`).
+    fn newton_rounds(
+        &mut self,
+        chain: &Chain,
+        target: Vec2,
+        tol: f64,
+        best: &mut f64,
+    ) -> (usize, f64) {
         let links = chain.links();
         let prop = self.options.propagation;
         let b = chain.base();
@@ -241,9 +287,10 @@ impl Sequential {
         let mut rounds = 0;
         let mut published = 1;
         loop {
-            let budget = NEWTON_BUDGET.min(max - rounds);
-            let (r, residual, saddle) = self.newton_phase(chain, target, tol, budget);
+            let (r, residual, saddle) =
+                self.newton_phase(chain, target, tol, NEWTON_BUDGET, max - rounds);
             rounds += r;
+            Self::keep(&mut self.kept, best, &self.swept, residual);
             if residual <= tol || rounds + 2 > max {
                 return (rounds, residual);
             }
@@ -273,6 +320,7 @@ impl Sequential {
                 for (s, p) in self.start.iter_mut().zip(&self.swept) {
                     *s = p - delta;
                 }
+                Self::keep(&mut self.kept, best, &self.start, delta.norm());
                 if delta.norm() <= tol || rounds + 2 > max {
                     self.swept.copy_from_slice(&self.start);
                     return (rounds, delta.norm());
@@ -328,14 +376,42 @@ impl Sequential {
         (1, (p - target).norm())
     }
 
-    /// The published correction. On return `self.swept` holds the last chain translated onto the
-    /// base (its tip off by the last base error). Returns (rounds, tip residual).
+    /// When the propagation has not reached a target inside the ring: a target at the edge of
+    /// the workspace is met (nearly) by the extreme pose there, the straight arm pointing at it
+    /// (outer edge) or the folded arm (inner edge), which the sweeps only approach. Each is
+    /// taken when its tip misses by less than `residual`; returns the sweeps counted (0 or 1).
+    fn try_edge_poses(&mut self, chain: &Chain, target: Vec2, residual: f64) -> (usize, f64) {
+        let mut best = residual;
+        self.kept.copy_from_slice(&self.swept);
+        let mut taken = 0;
+        let (_, straight) = self.correct_beyond_reach(chain, target);
+        if straight < best {
+            best = straight;
+            taken = 1;
+            self.kept.copy_from_slice(&self.swept);
+        }
+        if chain.ring().r_min > 0.0 {
+            let (_, folded) = self.correct_inside_hole(chain, target);
+            if folded < best {
+                best = folded;
+                taken = 1;
+                self.kept.copy_from_slice(&self.swept);
+            }
+        }
+        self.swept.copy_from_slice(&self.kept);
+        (taken, best)
+    }
+
+    /// The published correction. On return `self.swept` holds the best chain of every round
+    /// (by tip residual), translated onto the base (its tip off by that round's base error).
+    /// Returns (rounds, tip residual).
     fn correct_translate(&mut self, chain: &Chain, target: Vec2, tol: f64) -> (usize, f64) {
         let links = chain.links();
         let prop = self.options.propagation;
         let b = chain.base();
         let mut rounds = 0;
         let mut residual = f64::INFINITY;
+        let mut best = f64::INFINITY;
         self.trial.copy_from_slice(&self.start);
         while rounds < self.options.max_rounds {
             sweep(&self.trial, links, target, prop, &mut self.swept);
@@ -345,10 +421,15 @@ impl Sequential {
                 *p -= delta;
             }
             residual = delta.norm();
+            Self::keep(&mut self.kept, &mut best, &self.swept, residual);
             if residual <= tol {
                 break;
             }
             self.trial.copy_from_slice(&self.swept);
+        }
+        if best < residual {
+            self.swept.copy_from_slice(&self.kept);
+            return (rounds, best);
         }
         (rounds, residual)
     }
@@ -409,12 +490,16 @@ impl Resolver for Sequential {
         let from_base = (target - chain.base()).norm();
         let beyond = from_base > chain.reach();
         let inside_hole = from_base < chain.ring().r_min;
-        let (rounds, _) = match self.options.correction {
+        let (mut rounds, residual) = match self.options.correction {
             _ if beyond => self.correct_beyond_reach(chain, target),
             _ if inside_hole => self.correct_inside_hole(chain, target),
             Correction::Newton => self.correct_newton(chain, target, tol),
             Correction::Translate => self.correct_translate(chain, target, tol),
         };
+        if !beyond && !inside_hole && residual > tol {
+            let (r, _) = self.try_edge_poses(chain, target, residual);
+            rounds += r;
+        }
         Chain::angles_from_points(chain.heading(), &self.swept, theta0, out);
         let tip_error = (chain.tip(out) - target).norm();
         // The propagation ignores limits: reachability is that of the unlimited chain.
@@ -629,6 +714,45 @@ mod tests {
                 );
                 check_lengths(&chain, &chain.points(&out));
             }
+        }
+    }
+
+    #[test]
+    fn targets_at_the_edges_of_the_workspace_are_met() {
+        // At the outer edge the chain must end nearly straight, which the sweeps reach only with
+        // a goal several links away: a Newton phase cut off after 12 sweeps, then published
+        // rounds, left the tip 3.2e-4 m off after 499 sweeps (and the last iterate, not the
+        // best). At the inner edge the arm must end folded.
+        let chain = Chain::unlimited(vec![0.3, 0.3, 0.2, 0.2], Vec2::zeros(), 0.0).unwrap();
+        for x in [1.0, 1.0 - 1e-9, 1.0 - 1e-6, 1.0 - 1e-5, 1.0 - 1e-3] {
+            for propagation in [Propagation::Tractrix, Propagation::Distance] {
+                let mut s = Sequential::new(SequentialOptions {
+                    propagation,
+                    ..SequentialOptions::default()
+                });
+                let mut out = vec![0.0; 4];
+                let o = s.solve(&chain, &[0.2; 4], Vec2::new(x, 0.0), &mut out);
+                assert!(o.reachable, "{x}: {o:?}");
+                assert!(
+                    o.converged && o.tip_error <= 1e-9,
+                    "{propagation:?} target {x}: {o:?}"
+                );
+                check_lengths(&chain, &chain.points(&out));
+            }
+        }
+        let chain = Chain::unlimited(vec![1.0, 0.3, 0.2], Vec2::zeros(), 0.0).unwrap();
+        for x in [0.5, 0.5 + 1e-9, 0.5 + 1e-6, 0.5 + 1e-3, 0.51, 0.6] {
+            let mut out = vec![0.0; 3];
+            let o = Sequential::default().solve(&chain, &[0.2; 3], Vec2::new(x, 0.0), &mut out);
+            assert!(o.reachable, "{x}: {o:?}");
+            // Within 1e-6 of the inner edge the sweeps do not converge; the folded arm, which
+            // misses by the target's distance from the edge, is the answer then (it was 8.8e-4
+            // m off at the edge itself).
+            let edge = x - 0.5;
+            assert!(o.tip_error <= edge.max(1e-11) + 1e-15, "target {x}: {o:?}");
+            assert!(!o.converged || o.tip_error <= 1e-10, "{x}: {o:?}");
+            assert!(o.converged || edge < 1e-3, "{x}: {o:?}");
+            check_lengths(&chain, &chain.points(&out));
         }
     }
 
