@@ -334,8 +334,8 @@ struct Guard {
     sent: Vec<Vec2>,
     /// A pose rounded to the joints' resolutions.
     rounded: Vec<f64>,
-    /// Per pair, what the overall solver is asked to keep from a pose not clear
-    /// ([`Guard::solve_floors`]).
+    /// Per pair, what the overall solver is asked to keep from a pose within the clearance it
+    /// plans with ([`Guard::solve_floors`]).
     solve: Vec<f64>,
 }
 
@@ -397,11 +397,21 @@ impl Guard {
 
     /// Per pair, the least clearance the overall solver must keep in a tick from the commanded
     /// pose against `plan` (the world planned in, the same obstacles): nothing (empty) from a
-    /// clear pose, else `plan`'s clearance, or for a pair below it where the pair is now (no
-    /// closer), never below its floor. Allocation-free once sized.
+    /// pose that keeps `plan`'s clearance, else `plan`'s clearance, or for a pair below it where
+    /// the pair is now (no closer), never below its floor. A clear pose can lie within the
+    /// margin `plan` adds for rounding (a tip a few millimetres from an obstacle): asked for
+    /// the whole of `plan`'s clearance, every solve from there failed and the arm froze, even
+    /// moving away. Allocation-free once sized.
     fn solve_floors(&mut self, plan: &World) -> &[f64] {
         self.solve.clear();
-        if self.clear || plan.obstacles().is_empty() {
+        if plan.obstacles().is_empty() {
+            return &self.solve;
+        }
+        let keeps_plan = || {
+            plan.clearance(&self.now)
+                .is_none_or(|p| p.clearance_m >= plan.clearance_m())
+        };
+        if self.clear && keeps_plan() {
             return &self.solve;
         }
         self.solve.resize(self.best.len(), 0.0);

@@ -1317,3 +1317,43 @@ fn a_floor_short_of_the_clearance_by_round_off_is_not_told_apart() {
         "{deeper}"
     );
 }
+
+/// A clear arm whose tip is a few millimetres from a disc moves away from it, under both
+/// strategies: a goto back along the last link arrives, and a velocity away moves the tip.
+#[test]
+fn a_clear_arm_with_its_tip_next_to_a_disc_moves_away() {
+    let home = vec![0.1; N];
+    for gap in [0.0055, 0.007, 0.009] {
+        for strategy in [Strategy::Overall, Strategy::Sequential] {
+            let mut ctl =
+                Controller::new(chain(), limits(), strategy, home.clone(), &home).unwrap();
+            at_servo_resolution(&mut ctl);
+            let p = chain().points(&home);
+            let u = (p[N] - p[N - 1]).normalize();
+            let disc = circle_obstacle("disc", p[N] + u * (gap + 0.02), 0.02);
+            let w = crate::world::World::new(0.0, 0.005, vec![disc]).unwrap();
+            assert!(ctl.set_world(w).is_none(), "{gap} {strategy:?}: not clear");
+            let from = ctl.tip();
+            ctl.command(Command::Velocity { v: -u * 0.05 }).unwrap();
+            for _ in 0..20 {
+                ctl.tick(0.01);
+            }
+            let moved = (ctl.tip() - from).norm();
+            assert!(moved > 0.005, "{gap} {strategy:?}: velocity moved {moved}");
+            ctl.command(Command::Stop).unwrap();
+            run(&mut ctl, 0.01, 100);
+            let target = ctl.tip() - u * 0.05;
+            ctl.command(Command::Goto {
+                target,
+                speed: None,
+            })
+            .unwrap();
+            let (finish, k) = run(&mut ctl, 0.01, 300);
+            assert_eq!(
+                finish,
+                Some(Finish::Arrived),
+                "{gap} {strategy:?} after {k}"
+            );
+        }
+    }
+}
