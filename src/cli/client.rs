@@ -18,7 +18,7 @@ use clap::Args;
 use serde_json::Value;
 use snakectl::client::{Client, ClientError, CmdName, Ending, Fields};
 use snakectl::protocol::{
-    strategy_named, Cmd, Code, FaultKind, Reply, MAX_PATH_POINTS, STRATEGIES,
+    strategy_named, Cmd, Code, FaultKind, Reply, MAX_PATH_POINTS, MIN_SPEED_M_S, STRATEGIES,
 };
 use snakectl::textfile::{read_text, MAX_TEXT_BYTES};
 
@@ -372,11 +372,14 @@ fn print_object(fields: &Fields) -> Result<(), Failure> {
     outln!("{}", Value::Object(fields.to_map()))
 }
 
-/// `--speed`, which must be positive when given.
+/// `--speed`, which must be positive (at least the daemon's least) when given.
 fn check_speed(speed: Option<f64>) -> Result<Option<f64>, Failure> {
     match speed {
         Some(v) if !(v.is_finite() && v > 0.0) => Err(Failure::bad_input(anyhow!(
             "--speed must be a positive number of m/s, not {v}"
+        ))),
+        Some(v) if v < MIN_SPEED_M_S => Err(Failure::bad_input(anyhow!(
+            "--speed {v:e} m/s is below the least, {MIN_SPEED_M_S:e} m/s"
         ))),
         speed => Ok(speed),
     }

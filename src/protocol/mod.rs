@@ -33,7 +33,9 @@ use serde_json::Value;
 
 pub use cmd::{Cmd, CmdName, LoopCmd, Motion, Need, Request, Route, SessionCmd, COMMANDS};
 pub use event::{Event, EventKind, FaultChange, StopReason, What};
-pub use parse::{checked_point, parse, parse_obstacles, strict_json, MAX_PATH_POINTS};
+pub use parse::{
+    checked_point, parse, parse_obstacles, strict_json, MAX_PATH_POINTS, MIN_SPEED_M_S,
+};
 pub use read::{read_line, ReadError, ServerLine};
 pub use reply::{
     Admitted, Answer, Applied, Fields, PoseNotClear, Rebooted, Released, Reply, ReplyLine,

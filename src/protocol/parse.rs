@@ -20,6 +20,12 @@ mod strict;
 /// The most corner points one `path` may have.
 pub const MAX_PATH_POINTS: usize = 10_000;
 
+/// The slowest `speed` of a `goto` or `path`, m/s (a micrometre a second). Slower moves are
+/// no one's intent, and among obstacles their progress is below what the headway rule can
+/// tell from a tip held back: at 1e-12 m/s a goto in free space ended `blocked` at once,
+/// naming an obstacle a quarter of a metre away.
+pub const MIN_SPEED_M_S: f64 = 1e-6;
+
 /// The most servo ids one `reboot` may name: every id a servo may have (0 to
 /// [`MAX_SERVO_ID`]).
 const MAX_REBOOT_IDS: usize = MAX_SERVO_ID as usize + 1;
@@ -237,11 +243,19 @@ impl Args {
         self.map.remove(key).filter(|value| !value.is_null())
     }
 
-    /// The optional `speed`, positive when given.
+    /// The optional `speed`, at least [`MIN_SPEED_M_S`] when given.
     fn speed(&mut self) -> Result<Option<f64>, Rejection> {
         match self.map.remove("speed") {
             None | Some(Value::Null) => Ok(None),
-            Some(value) => positive(Field::new("speed"), &value).map(Some),
+            Some(value) => {
+                let speed = positive(Field::new("speed"), &value)?;
+                if speed < MIN_SPEED_M_S {
+                    return Err(bad(format_args!(
+                        "`speed`: {speed:e} m/s is below the least, {MIN_SPEED_M_S:e} m/s"
+                    )));
+                }
+                Ok(Some(speed))
+            }
         }
     }
 }

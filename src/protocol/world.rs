@@ -160,6 +160,13 @@ pub fn world_rejection(err: &WorldError, added: Option<usize>) -> Rejection {
     let (field, rest) = text
         .split_once(": ")
         .unwrap_or(("obstacles", text.as_str()));
+    if added.is_some() && field == "obstacles" {
+        // No room for the one added: that is the request's `obstacle`.
+        return Rejection::new(
+            Code::BadArg,
+            format!("`obstacle`: adding it would make {rest}"),
+        );
+    }
     let mut field = field
         .replace(".circle.radius_m", ".circle.radius")
         .replace(".circle.center.x", ".circle.center[0]")

@@ -646,12 +646,12 @@ impl Obstacles {
         }
     }
 
-    /// These and `more` after them, when a world has room for it and its id is free; a
-    /// refusal names it `obstacles[k]`, `k` the place it would have taken.
+    /// These and `more` after them, when its id is free and a world has room for it (in that
+    /// order: an id in use is the fault to tell whatever the room); a refusal names it
+    /// `obstacles[k]`, `k` the place it would have taken.
     pub fn with(&self, more: &CheckedObstacle) -> Result<Self, WorldError> {
         let o = &more.0;
         let k = self.list.len();
-        check_room(k + 1, polygon_points(self.list.iter().chain([o])))?;
         if let Some(first) = self.list.iter().position(|p| p.id == o.id) {
             return Err(WorldError::DuplicateId {
                 field: format!("obstacles[{k}].id"),
@@ -659,6 +659,7 @@ impl Obstacles {
                 first,
             });
         }
+        check_room(k + 1, polygon_points(self.list.iter().chain([o])))?;
         let mut bounds = self.bounds.to_vec();
         bounds.push(o.shape.bounds());
         Ok(Self {

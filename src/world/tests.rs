@@ -297,6 +297,11 @@ fn an_obstacle_is_checked_alone_then_added_or_removed_as_a_world_would_be() {
             v(a.cos(), a.sin())
         })
         .collect();
+    // An id in use is told before the lack of room.
+    assert!(matches!(
+        full.with(&CheckedObstacle::new(circle("c3", -5.0, 0.0, 1.0)).unwrap()),
+        Err(WorldError::DuplicateId { first: 3, .. })
+    ));
     let ring = Obstacles::new(vec![polygon("ring", many_points)]).unwrap();
     assert_eq!(
         ring.with(&CheckedObstacle::new(polygon("tri", square()[..3].to_vec())).unwrap()),

@@ -266,7 +266,8 @@ fn the_longest_path_fits_in_one_line() {
         .collect();
     let cmd = Cmd::Path {
         points: points.clone(),
-        speed: Some(-widest[0]),
+        // The widest speed allowed (at least MIN_SPEED_M_S).
+        speed: Some(-widest[1]),
     };
     let compact = crate::protocol::request_line(Some(&json!(u64::MAX)), &cmd);
     let spaced = compact.replace(',', ", ").replace(':', ": ");
@@ -349,6 +350,10 @@ fn bad_arg_names_the_field_and_the_value() {
         (
             r#"{"cmd":"goto","target":[0,0],"speed":-2}"#,
             &["`speed`", "-2"],
+        ),
+        (
+            r#"{"cmd":"path","points":[[0,0]],"speed":1e-12}"#,
+            &["`speed`", "1e-12 m/s is below the least, 1e-6 m/s"],
         ),
         (
             r#"{"cmd":"goto","target":[0,0],"speed":true}"#,
@@ -1099,6 +1104,11 @@ mod world {
                 (0..65).map(|i| circle(&format!("c{i}"), 0.1)).collect(),
                 None,
                 "`obstacles`: 65 obstacles, at most 64 allowed",
+            ),
+            (
+                (0..65).map(|i| circle(&format!("c{i}"), 0.1)).collect(),
+                Some(64),
+                "`obstacle`: adding it would make 65 obstacles, at most 64 allowed",
             ),
             (
                 vec![polygon(
