@@ -339,8 +339,8 @@ impl Overall {
     ///    touch a better pose) and `r` is below a quarter turn (the other starts find the
     ///    optimum of that problem; with larger turns they miss some, on the other side of a
     ///    joint's turn). When no start so far has reached the target, the pose on target
-    ///    shaped like `theta0` ([`Overall::start_scaled`]: near the outer edge of the
-    ///    workspace the other starts crawl), and if that does not reach it either, the same
+    ///    shaped like `theta0` (every joint after the base scaled by one factor, the base
+    ///    turned onto the target: near the outer edge of the workspace the other starts crawl), and if that does not reach it either, the same
     ///    number of random starts again, uniform inside the limits (an unlimited joint: `theta0 +- pi`). A random start stops
     ///    as soon as its iterate is on target within 1e-6 of the scale and within 1e-4 rad of
     ///    the best optimum so far (it would converge to that optimum);

@@ -757,7 +757,7 @@ impl Overall {
         let mut iterations = local.iterations;
         let mut converged = local.converged;
         if !local.converged {
-            let (its, scaled) = self.from_scaled(&p);
+            let (its, scaled) = self.solve_from_scaled(&p);
             iterations += its;
             if let Some(scaled_mu) = scaled {
                 mu = scaled_mu;
@@ -778,7 +778,7 @@ impl Overall {
     /// scaled start ([`Overall::start_scaled`], for targets near the outer edge of the
     /// workspace), kept when it converges (with its multiplier); else `w.theta` is restored.
     /// Returns the iterations spent.
-    fn from_scaled(&mut self, p: &Problem) -> (usize, Option<[f64; 2]>) {
+    fn solve_from_scaled(&mut self, p: &Problem) -> (usize, Option<[f64; 2]>) {
         self.w.best.copy_from_slice(&self.w.theta);
         if !self.start_scaled(p) {
             self.w.theta.copy_from_slice(&self.w.best);
