@@ -57,8 +57,24 @@
 //!   no step decreases the merit, when elastic steps stall (as without obstacles), or when
 //!   the optimality residual has not fallen by 1% in [`TICK_STALL_STEPS`] iterations of a
 //!   local solve (a control tick), [`STALL_STEPS`] of a cold solve's fixed start, or
-//!   [`SEARCH_STALL_STEPS`] of a random one or of a continuation start's intermediate target
-//!   (a body caught on an obstacle, whose exact and elastic steps alternate, each tiny).
+//!   [`SEARCH_STALL_STEPS`] of a flip or random one or of a continuation start's intermediate
+//!   target (a body caught on an obstacle, whose exact and elastic steps alternate, each tiny).
+//!
+//! **Cold solve** (`Overall::cold_with`; the list is [`Overall::solve_cold`]'s): when the
+//! optimum without obstacles is not clear, one local solve from each start, in order:
+//! 1. the fixed starts: `clip(theta0)`, that optimum, the two continuations, the mirror images
+//!    of the two best clear optima and of that optimum;
+//! 2. the flip starts (module `flip`; `Overall::flip_starts`). The distinct clear optima
+//!    differ mainly in which side of each obstacle each part of the body passes, and a local
+//!    solve keeps the side it starts on; a flip start carries the point of the body nearest
+//!    one obstacle to its far side, the tip kept on target and the rest of the pose close.
+//!    First across each obstacle the optimum without obstacles collides with, then across each
+//!    obstacle the best clear optimum touches, again from each better one found, at most
+//!    [`FLIP_CAP`] in all. They come before the random starts, which then draw from the
+//!    smaller ball of poses no worse than the better optimum they may have found;
+//! 3. the random starts, within that ball.
+//!
+//! A flip or random start stops as soon as it runs into the best optimum so far.
 //!
 //! **Floors.** A control tick from a pose an obstacle was put onto may let a pair keep less than
 //! `clearance_m` ([`Overall::set_floors`]: a link not clear need only come no closer). The solve
@@ -123,7 +139,7 @@ pub const STALL_STEPS: usize = 10;
 /// benchmark's walks as many ticks converge with 4 as with 10, and a cold start with 4 was
 /// seen to give up on a case it solves with 10).
 pub const TICK_STALL_STEPS: usize = 4;
-/// The same for a cold solve's random start, and for the intermediate targets of a
+/// The same for a cold solve's random and flip starts, and for the intermediate targets of a
 /// continuation start (whose answers only lead to the next). With 16 obstacles near the arm, 69
 /// to 77% of the random starts end without reaching the target clear, most of them after
 /// making no progress for ten iterations, and they took 72% of a cold solve's time. Fewer than
@@ -142,6 +158,15 @@ const NEGATIVE_NU: f64 = 1e-9;
 const REUSE_MOVE: f64 = 1e-4;
 /// Cold solves: random starts among obstacles, in multiples of `random_starts`.
 const RANDOM_FACTOR: usize = 3;
+/// Most flip starts of one cold solve: as many as its random starts by default. Bounds their
+/// cost in a crowded world, where the optimum without obstacles may collide with many
+/// obstacles and each better optimum found starts a round of its own (the figures in
+/// docs/BENCHMARKS.md were measured with this cap).
+const FLIP_CAP: usize = 24;
+/// The best clear optimum touches an obstacle whose clearance is within this fraction of the
+/// scale of `clearance_m`: it leans on it (its clearance is `clearance_m` up to the solve's
+/// tolerance, far below this), and a flip across it may find a better optimum.
+const FLIP_TOUCH: f64 = 1e-6;
 
 /// Scratch and warm state of the solver among obstacles, sized once per joint count and world.
 #[derive(Debug, Default)]
@@ -219,6 +244,10 @@ pub(super) struct ClearWork {
     pub best: Vec<f64>,
     pub second: Vec<f64>,
     pub free_opt: Vec<f64>,
+    /// Flip starts: the pose they start from, its points, the obstacles to carry it across.
+    flip_src: Vec<f64>,
+    flip_pts: Vec<Vec2>,
+    flip_mark: Vec<bool>,
     /// The last answer leaned on an obstacle (some pair's multiplier positive): the next local
     /// solve goes straight to the constrained form.
     pub engaged: bool,
@@ -488,6 +517,7 @@ impl ClearWork {
             &mut self.best,
             &mut self.second,
             &mut self.free_opt,
+            &mut self.flip_src,
         ] {
             *v = vec![0.0; n];
         }
@@ -526,6 +556,8 @@ impl ClearWork {
         self.fact_free = Vec::with_capacity(n);
         self.fact_keys = Vec::with_capacity(MAX_PAIRS);
         self.fact_pts = vec![Vec2::zeros(); n + 1];
+        self.flip_pts = vec![Vec2::zeros(); n + 1];
+        self.flip_mark = vec![false; obstacles];
         self.eval_pts = vec![Vec2::zeros(); n + 1];
         self.evaluated = false;
         self.eval_theta = vec![0.0; n];
@@ -1150,6 +1182,8 @@ enum ClearStart {
     PolarPath,
     Mirror(usize),
     MirrorFree,
+    /// The flip starts (`Overall::flip_starts`), all at this place in the order.
+    Flips,
     Random,
 }
 
@@ -1163,9 +1197,11 @@ impl ClearStart {
             4 => Self::Mirror(0),
             5 => Self::Mirror(1),
             6 => Self::MirrorFree,
+            7 => Self::Flips,
             _ => Self::Random,
         }
     }
+    /// The fixed starts, before the flips.
     const FIXED: usize = 7;
 }
 
@@ -1402,7 +1438,7 @@ impl Overall {
         let mut podium = Podium::default();
         let mut rng = SplitMix(self.opts.seed);
         let randoms = RANDOM_FACTOR * self.opts.random_starts;
-        for index in 0..ClearStart::FIXED + randoms {
+        for index in 0..ClearStart::FIXED + 1 + randoms {
             let start = ClearStart::at(index);
             let mut mu = [0.0; 2];
             self.clear.forget();
@@ -1450,35 +1486,17 @@ impl Overall {
                         &mut self.w.theta,
                     );
                 }
+                ClearStart::Flips => {
+                    total += self.flip_starts(&p, world, &mut podium, free_on_target);
+                    continue;
+                }
                 ClearStart::Random => match podium.best.filter(|b| b.on_target) {
                     Some(b) => self.start_in_ball(&p, (2.0 * b.half_metric).sqrt(), &mut rng),
                     None => self.start_in_box(&p, &mut rng),
                 },
             }
-            self.clear.watch_best = start == ClearStart::Random && podium.reached();
-            let stall = if start == ClearStart::Random {
-                SEARCH_STALL_STEPS
-            } else {
-                STALL_STEPS
-            };
-            let l = self.clear_local(&p, world, &mut mu, stall);
-            self.clear.watch_best = false;
-            total += l.iterations;
-            if l.joined_best {
-                continue;
-            }
-            let theta = std::mem::take(&mut self.w.theta);
-            let least = self.least_clearance(world, chain, &theta);
-            self.w.theta = theta;
-            let clear_enough = least >= world.clearance_m() - CLEAR_SLACK;
-            let found = Candidate {
-                half_metric: half_metric(&self.w.theta, p.theta0),
-                miss: l.tip_error + (world.clearance_m() - least).max(0.0),
-                on_target: l.converged && l.tip_error <= p.tol && clear_enough,
-                mu,
-            };
-            let clear = &mut self.clear;
-            podium.offer(&self.w.theta, &mut clear.best, &mut clear.second, found);
+            let search = start == ClearStart::Random;
+            total += self.run_start(&p, world, &mut podium, mu, search);
         }
         self.clear.forget();
         let Some(b) = podium.best else {
@@ -1502,6 +1520,126 @@ impl Overall {
         }
         let o = self.finish(&p, mu, total, b.on_target, out);
         self.judge(world, chain, out, o)
+    }
+
+    /// Runs one start of a cold solve from `w.theta` (with the pairs' multipliers `mu`) and
+    /// offers its answer to `podium`; `search` for a random or flip start, which stops when it
+    /// runs into the best optimum so far and gives up sooner ([`SEARCH_STALL_STEPS`]). Returns
+    /// the iterations spent.
+    fn run_start(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        podium: &mut Podium,
+        mut mu: [f64; 2],
+        search: bool,
+    ) -> usize {
+        self.clear.watch_best = search && podium.reached();
+        let stall = if search {
+            SEARCH_STALL_STEPS
+        } else {
+            STALL_STEPS
+        };
+        let l = self.clear_local(p, world, &mut mu, stall);
+        self.clear.watch_best = false;
+        if l.joined_best {
+            return l.iterations;
+        }
+        let theta = std::mem::take(&mut self.w.theta);
+        let least = self.least_clearance(world, p.chain, &theta);
+        self.w.theta = theta;
+        let clear_enough = least >= world.clearance_m() - CLEAR_SLACK;
+        let found = Candidate {
+            half_metric: half_metric(&self.w.theta, p.theta0),
+            miss: l.tip_error + (world.clearance_m() - least).max(0.0),
+            on_target: l.converged && l.tip_error <= p.tol && clear_enough,
+            mu,
+        };
+        let clear = &mut self.clear;
+        podium.offer(&self.w.theta, &mut clear.best, &mut clear.second, found);
+        l.iterations
+    }
+
+    /// The flip starts of a cold solve ([`flip::flip_pose`]): the optimum without obstacles
+    /// (when on target) carried across each obstacle it collides with, in turn; then the best
+    /// clear optimum so far carried across each obstacle it touches (clearance within
+    /// [`FLIP_TOUCH`] of the scale of `clearance_m`), a round that starts again from the new
+    /// best as soon as one finds a better optimum; at most [`FLIP_CAP`] starts in all. Each is
+    /// a search start (see `run_start`). Returns the iterations spent.
+    fn flip_starts(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        podium: &mut Podium,
+        free_on_target: bool,
+    ) -> usize {
+        let mut total = 0;
+        let mut starts = 0;
+        if free_on_target {
+            self.clear.flip_src.copy_from_slice(&self.clear.free_opt);
+            total += self.flip_round(p, world, podium, world.clearance_m(), None, &mut starts);
+        }
+        let touch = world.clearance_m() + FLIP_TOUCH * p.scale;
+        let mut last = None;
+        while starts < FLIP_CAP {
+            let Some(b) = podium.best.filter(|b| b.on_target) else {
+                break;
+            };
+            if last == Some(b.half_metric) {
+                break;
+            }
+            last = Some(b.half_metric);
+            self.clear.flip_src.copy_from_slice(&self.clear.best);
+            total += self.flip_round(p, world, podium, touch, last, &mut starts);
+        }
+        total
+    }
+
+    /// One round of flip starts from `clear.flip_src`: across each obstacle whose clearance
+    /// from it is below `below`, while `starts` (counted up) is under [`FLIP_CAP`]; when `best`
+    /// (half metric 3 of the best optimum the round starts from) is given, the round ends as
+    /// soon as a start finds a better one. Returns the iterations spent.
+    fn flip_round(
+        &mut self,
+        p: &Problem,
+        world: &World,
+        podium: &mut Podium,
+        below: f64,
+        best: Option<f64>,
+        starts: &mut usize,
+    ) -> usize {
+        let c = &mut self.clear;
+        p.chain.points_into(&c.flip_src, &mut c.flip_pts);
+        for k in 0..c.flip_mark.len() {
+            c.flip_mark[k] = flip::nearest_link(world, &c.flip_pts, k).1 < below;
+        }
+        let mut total = 0;
+        for k in 0..self.clear.flip_mark.len() {
+            if *starts >= FLIP_CAP {
+                break;
+            }
+            if !self.clear.flip_mark[k] {
+                continue;
+            }
+            *starts += 1;
+            let c = &mut self.clear;
+            flip::flip_pose(
+                world,
+                p,
+                &c.flip_src,
+                k,
+                &self.w.lo,
+                &self.w.hi,
+                &mut c.flip_pts,
+                &mut self.w.theta,
+            );
+            c.forget();
+            total += self.run_start(p, world, podium, [0.0; 2], true);
+            if best.is_some_and(|m| podium.best.is_some_and(|b| b.half_metric < m)) {
+                break;
+            }
+        }
+        total
     }
 
     /// A continuation start among obstacles from `w.theta` (see the cold solve without
@@ -1549,6 +1687,7 @@ impl Overall {
 }
 
 mod active;
+mod flip;
 mod newton;
 #[cfg(test)]
 mod tests;

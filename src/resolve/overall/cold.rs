@@ -354,11 +354,21 @@ impl Overall {
     ///
     /// Among obstacles ([`Overall::set_world`]): the best optimum without them, when it is
     /// clear, is the answer (the clear poses are a part of all poses). Otherwise the best clear
-    /// optimum over the starts `clip(theta0)`, the optimum without obstacles (which the solve
-    /// pushes out of the obstacles to the nearer side), the two continuations, the mirror images
-    /// of the two best clear optima and of the optimum without obstacles, and three times
-    /// [`OverallOptions::random_starts`] seeded random poses (within `sqrt(metric 3)` of
-    /// `theta0` of the best so far, which they stop at when they run into it, as above).
+    /// optimum over, in order:
+    /// 1. the starts `clip(theta0)`, the optimum without obstacles (which the solve pushes out
+    ///    of the obstacles to the nearer side), the two continuations, the mirror images of the
+    ///    two best clear optima and of the optimum without obstacles;
+    /// 2. the flip starts: the optimum without obstacles with the point of its body nearest an
+    ///    obstacle it collides with carried to that obstacle's far side (the tip kept on
+    ///    target, the rest of the pose close), one start per such obstacle; then the same from
+    ///    the best clear optimum so far, across each obstacle it touches, and again from each
+    ///    better optimum one of them finds; at most 24 in all (the clear optima differ mainly
+    ///    in which side of each obstacle the body passes, which a local solve keeps);
+    /// 3. three times [`OverallOptions::random_starts`] seeded random poses (within
+    ///    `sqrt(metric 3)` of `theta0` of the best so far).
+    ///
+    /// The flip and random starts stop when they run into the best optimum so far, as above,
+    /// and give up sooner than the fixed ones when they make no progress.
     pub fn solve_cold(
         &mut self,
         chain: &Chain,
