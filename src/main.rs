@@ -84,6 +84,11 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // A file-size limit makes a write fail (EFBIG), never kills the process (SIGXFSZ).
+    if let Err(e) = cli::signals::survive_file_size_limit() {
+        let _ = writeln!(std::io::stderr(), "snakectl: catching SIGXFSZ: {e}");
+        return ExitCode::from(1);
+    }
     let result = match cli
         .command
         .unwrap_or(Command::Demo(cli::demo::DemoArgs::default()))

@@ -375,3 +375,75 @@ fn a_refused_start_up_leaves_no_recording_behind() {
         "a recording left behind by a refused start-up"
     );
 }
+
+/// Messages per topic in an MCAP file, read up to where it breaks off (a file without its
+/// summary, or cut in a chunk).
+fn messages_in(bytes: &[u8]) -> BTreeMap<String, u64> {
+    let mut counts = BTreeMap::new();
+    let stream =
+        mcap::MessageStream::new_with_options(bytes, mcap::read::Options::IgnoreEndMagic.into())
+            .unwrap();
+    for message in stream.map_while(Result::ok) {
+        *counts.entry(message.channel.topic.clone()).or_insert(0) += 1;
+    }
+    counts
+}
+
+/// `written=N` in a log line.
+fn written_in(line: &str) -> u64 {
+    let at = line.find("written=").unwrap() + "written=".len();
+    let digits: String = line[at..]
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect();
+    digits.parse().unwrap()
+}
+
+/// Under a file-size limit (`ulimit -f`) the write past it fails (EFBIG) instead of SIGXFSZ
+/// killing the daemon: the recording stops, says so, and holds what it counted written; the
+/// arm goes on and the daemon stops cleanly on SIGTERM.
+#[test]
+fn a_file_size_limit_stops_the_recording_not_the_daemon() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("arm.toml");
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml")).unwrap();
+    // Faster ticks fill the limit sooner.
+    let text = text.replace("rate_hz = 100.0", "rate_hz = 250.0");
+    std::fs::write(&config, text).unwrap();
+    let path = dir.path().join("run.mcap");
+    // 1536 KiB (bash counts `ulimit -f` in KiB): one chunk of about 1.3 MB fits, the next
+    // does not.
+    let child = Command::new("bash")
+        .arg("-c")
+        .arg("ulimit -f 1536 && exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["run", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&config)
+        .arg("--record")
+        .arg(&path)
+        .env("RUST_LOG", "info")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut d = daemon_support::child::DaemonChild::from_child(child);
+    let addr = d.address();
+    let stopped = d.logged("recording stopped", daemon_support::DEADLINE);
+    assert!(stopped.is_some(), "the recording never stopped");
+    // The arm goes on: the daemon still answers.
+    let mut c = daemon_support::Client::connect(addr);
+    assert_eq!(c.status()["state"], "holding");
+    drop(c);
+    d.signal("-TERM");
+    let (status, log) = d.wait();
+    assert_eq!(status.code(), Some(0), "{status:?}\n{log}");
+    let line = log
+        .lines()
+        .find(|l| l.contains("recording stopped early"))
+        .unwrap_or_else(|| panic!("no account of the stopped recording in\n{log}"));
+    assert!(line.contains("File too large"), "{line}");
+    let in_file: u64 = messages_in(&std::fs::read(&path).unwrap()).values().sum();
+    assert!(written_in(line) > 0, "{line}");
+    assert_eq!(written_in(line), in_file, "{line}");
+}

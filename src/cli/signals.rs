@@ -54,3 +54,15 @@ pub(crate) fn stopped_by(signal: i32) -> super::Failure {
         ),
     }
 }
+
+/// Lets a write past the file-size limit (`ulimit -f`, RLIMIT_FSIZE) fail with EFBIG instead
+/// of SIGXFSZ ending the process: a recording then stops as on a full disk, and the arm goes
+/// on. A handler, not an ignore: signal-hook installs one without unsafe code, and a program
+/// this one starts gets the default back.
+pub(crate) fn survive_file_size_limit() -> std::io::Result<()> {
+    signal_hook::flag::register(
+        signal_hook::consts::SIGXFSZ,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .map(drop)
+}

@@ -24,7 +24,7 @@ impl DaemonChild {
 
     /// [`DaemonChild::spawn`] with more arguments (`--record FILE`, say).
     pub fn spawn_with(config: &Path, port: &Path, more: &[&std::ffi::OsStr]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        let child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
             .args(["run", "--listen", "127.0.0.1:0", "--config"])
             .arg(config)
             .arg("--port")
@@ -35,6 +35,11 @@ impl DaemonChild {
             .stderr(Stdio::piped())
             .spawn()
             .unwrap();
+        Self::from_child(child)
+    }
+
+    /// A `snakectl run` spawned otherwise (under a shell's `ulimit`, say), its stderr piped.
+    pub fn from_child(mut child: Child) -> Self {
         let stderr = child.stderr.take().unwrap();
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
