@@ -447,3 +447,36 @@ fn a_file_size_limit_stops_the_recording_not_the_daemon() {
     assert!(written_in(line) > 0, "{line}");
     assert_eq!(written_in(line), in_file, "{line}");
 }
+
+/// A FIFO given as the recording is refused before it is opened (opening it would wait for a
+/// reader, deaf to signals), with `--overwrite` or not: exit 2 at once, the path named.
+#[test]
+fn a_recording_that_is_not_a_regular_file_is_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("rec.fifo");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    for overwrite in [false, true] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+            .args(["run", "--listen", "127.0.0.1:0", "--config"])
+            .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml"))
+            .arg("--record")
+            .arg(&fifo)
+            .args(overwrite.then_some("--overwrite"))
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let status = daemon_support::child::wait_within(&mut child, "snakectl run --record FIFO");
+        let mut stderr = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+        assert_eq!(status.code(), Some(2), "--overwrite {overwrite}: {stderr}");
+        assert!(
+            stderr.contains("rec.fifo is not a regular file"),
+            "--overwrite {overwrite}: {stderr}"
+        );
+    }
+}

@@ -128,12 +128,15 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
                 .token_file
                 .clone()
                 .or_else(|| config.server().token_file.clone());
-            if let Some(path) = &args.record {
-                // Said here, before the screen takes the terminal; the daemon then writes
-                // over the file made here.
-                snakectl::record::McapSink::create(path, args.overwrite)
-                    .map_err(Failure::bad_input)?;
-            }
+            // Said here, before the screen takes the terminal; the daemon then writes over
+            // the file made here.
+            let made = match &args.record {
+                Some(path) => snakectl::record::McapSink::create(path, args.overwrite)
+                    .map_err(Failure::bad_input)?
+                    .made_file()
+                    .then_some(path),
+                None => None,
+            };
             let options = RunOptions::port(sim.path().to_path_buf()).recorded(
                 args.record
                     .clone()
@@ -141,7 +144,13 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
             );
             let embedded = Embedded::start(config, listen, options)
                 .with_context(|| format!("starting the daemon on {listen}"))
-                .map_err(Failure::other)?;
+                .map_err(|e| {
+                    // The daemon leaves a file that was there before it: this one was not.
+                    if let Some(path) = made {
+                        let _ = std::fs::remove_file(path);
+                    }
+                    Failure::other(e)
+                })?;
             let addr = embedded.addr().to_string();
             local = Some((embedded, sim));
             (addr, token_file)

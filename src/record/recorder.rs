@@ -217,7 +217,7 @@ pub struct Recorder {
     notes: Notes,
     thread: Option<JoinHandle<RecordSummary>>,
     what: String,
-    /// The file it writes, when it is one ([`Recorder::create`]).
+    /// The file it writes, when [`Recorder::create`] made it (it did not exist before).
     file: Option<PathBuf>,
 }
 
@@ -226,14 +226,16 @@ impl Recorder {
     /// it; the loop's end of the hand-over.
     pub fn create(options: &RecordOptions, setup: Setup) -> Result<(Recorder, Tap), RecordError> {
         let sink = McapSink::create(&options.path, options.overwrite)?;
+        let made = sink.made_file();
         let what = options.path.display().to_string();
         let (mut recorder, tap) = Self::start(Box::new(sink), setup, options.notes.clone(), what)?;
-        recorder.file = Some(options.path.clone());
+        recorder.file = made.then(|| options.path.clone());
         Ok((recorder, tap))
     }
 
     /// A start-up that was refused leaves no recording behind: the thread ends and the file
-    /// it created (header and channels, not a message) is removed.
+    /// it created (header and channels, not a message) is removed; a file that was there
+    /// before (`--overwrite`) is left.
     pub fn discard(mut self) {
         let (file, what) = (self.file.take(), std::mem::take(&mut self.what));
         // Dropped, its thread ends, as for any recorder not closed.

@@ -36,6 +36,16 @@ pub enum RecordError {
         /// The file.
         path: PathBuf,
     },
+    /// The path is not a regular file (a FIFO, a device, a directory), symbolic links followed.
+    #[error(
+        "the recording {} is not a regular file: give the path of a file to create (or, with \
+         `--overwrite`, of one to replace)",
+        path.display()
+    )]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+    },
     /// Another recording (of this process or another) is being written to the file.
     #[error("the recording {} is being written by another process", path.display())]
     Busy {
@@ -102,6 +112,8 @@ pub struct McapSink<W: Write + Seek> {
     error: Arc<OnceLock<String>>,
     /// Each channel's next sequence number, by channel id.
     sequences: BTreeMap<u16, u32>,
+    /// [`McapSink::create`] made the file: it did not exist before.
+    made: bool,
 }
 
 /// The file under the `mcap` writer: it keeps the first I/O error and from then on takes every
@@ -188,6 +200,9 @@ impl<W: Write + Seek> std::fmt::Debug for McapSink<W> {
     }
 }
 
+/// `O_NONBLOCK`, for `open(2)`: a FIFO without a reader fails at once instead of waiting.
+const NONBLOCK: i32 = rustix::fs::OFlags::NONBLOCK.bits() as i32;
+
 /// The library string in the file's header.
 const LIBRARY: &str = concat!("snakectl ", env!("CARGO_PKG_VERSION"));
 
@@ -196,28 +211,58 @@ impl McapSink<BufWriter<File>> {
     /// full disk) is refused here, before anything is recorded, not found out at the first
     /// chunk. A file that exists is refused unless `overwrite`; one that another recording is
     /// being written to is refused even then (an exclusive `flock`, held while this sink
-    /// lives), and left as it was.
+    /// lives), and left as it was. Anything but a regular file (a FIFO, a device), symbolic
+    /// links followed, is refused either way, before it is opened: opening a FIFO waits for a
+    /// reader, deaf to signals. A file this call made and then could not start is removed.
     pub fn create(path: &Path, overwrite: bool) -> Result<Self, RecordError> {
+        Self::create_over(path, overwrite, BufWriter::new)
+    }
+}
+
+impl<W: Write + Seek> McapSink<W> {
+    /// [`McapSink::create`], the file written through `over(file)`.
+    fn create_over(
+        path: &Path,
+        overwrite: bool,
+        over: impl FnOnce(File) -> W,
+    ) -> Result<Self, RecordError> {
+        let not_a_file = || RecordError::NotAFile {
+            path: path.to_path_buf(),
+        };
         let created = |source| RecordError::Create {
             path: path.to_path_buf(),
             source,
         };
-        let file = match File::options()
-            .write(true)
-            .create(overwrite)
-            .create_new(!overwrite)
-            .open(path)
-        {
-            Ok(file) => file,
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+        if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+            return Err(not_a_file());
+        }
+        // Without blocking, should the path have become a FIFO since: no reader, it fails.
+        let open = |new: bool| {
+            use std::os::unix::fs::OpenOptionsExt as _;
+            File::options()
+                .write(true)
+                .create_new(new)
+                .custom_flags(NONBLOCK)
+                .open(path)
+        };
+        let (file, made) = match open(true) {
+            Ok(file) => (file, true),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && !overwrite => {
                 return Err(RecordError::Exists {
                     path: path.to_path_buf(),
                 })
             }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                (open(false).map_err(created)?, false)
+            }
             Err(e) => return Err(created(e)),
         };
+        if !file.metadata().map_err(created)?.is_file() {
+            return Err(not_a_file());
+        }
         match rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
             Ok(()) => {}
+            // Another recording's file: never removed, even if this call made it.
             Err(rustix::io::Errno::WOULDBLOCK) => {
                 return Err(RecordError::Busy {
                     path: path.to_path_buf(),
@@ -225,10 +270,31 @@ impl McapSink<BufWriter<File>> {
             }
             Err(e) => return Err(created(e.into())),
         }
-        // Emptied only once it is this sink's alone (a device, `/dev/null` say, has no length).
-        if file.metadata().map_err(created)?.is_file() {
-            file.set_len(0).map_err(created)?;
+        let started = Self::start_file(path, file, over);
+        if started.is_err() && made {
+            // No empty recording left behind to block the next run; never a file that was
+            // there before.
+            if let Err(e) = std::fs::remove_file(path) {
+                tracing::warn!("removing the recording {}: {e}", path.display());
+            }
         }
+        let mut sink = started?;
+        sink.made = made;
+        Ok(sink)
+    }
+
+    /// The locked `file` emptied, its header written and flushed through `over(file)`.
+    fn start_file(
+        path: &Path,
+        file: File,
+        over: impl FnOnce(File) -> W,
+    ) -> Result<Self, RecordError> {
+        let created = |source| RecordError::Create {
+            path: path.to_path_buf(),
+            source,
+        };
+        // Emptied only once it is this sink's alone.
+        file.set_len(0).map_err(created)?;
         let named = |e| match e {
             RecordError::Write(why) => RecordError::Create {
                 path: path.to_path_buf(),
@@ -236,13 +302,16 @@ impl McapSink<BufWriter<File>> {
             },
             other => other,
         };
-        let mut sink = McapSink::new(BufWriter::new(file)).map_err(named)?;
-        sink.flush().map_err(named)?;
+        let mut sink = McapSink::new(over(file)).map_err(named)?;
+        sink.with_writer(mcap::Writer::flush).map_err(named)?;
         Ok(sink)
     }
-}
 
-impl<W: Write + Seek> McapSink<W> {
+    /// Whether [`McapSink::create`] made the file (it did not exist before).
+    pub fn made_file(&self) -> bool {
+        self.made
+    }
+
     /// A recording written to `w`.
     pub fn new(mut w: W) -> Result<Self, RecordError> {
         let at = w
@@ -266,6 +335,7 @@ impl<W: Write + Seek> McapSink<W> {
             writer: Some(writer),
             error,
             sequences: BTreeMap::new(),
+            made: false,
         };
         sink.failed()?;
         Ok(sink)
@@ -384,17 +454,76 @@ mod tests {
         );
     }
 
-    /// A file that opens but takes no byte (Linux's full device) is refused at creation,
-    /// behind the buffer that would have hidden it until the first chunk.
-    #[cfg(target_os = "linux")]
+    /// A file that opens but takes no byte: every write fails as on a full disk.
+    struct Full(#[allow(dead_code)] File);
+
+    impl Write for Full {
+        fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+            Err(std::io::Error::from_raw_os_error(28))
+        }
+
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Seek for Full {
+        fn seek(&mut self, _: SeekFrom) -> std::io::Result<u64> {
+            Ok(0)
+        }
+    }
+
+    /// A disk full from the start refuses the recording at creation, behind the buffer that
+    /// would have hidden it until the first chunk, and leaves no file behind to block the
+    /// next run.
     #[test]
-    fn a_recording_on_a_full_disk_is_refused_when_created() {
-        let Err(e) = McapSink::create(Path::new("/dev/full"), true) else {
-            panic!("/dev/full was taken for a recording");
-        };
+    fn a_recording_on_a_full_disk_is_refused_when_created_and_leaves_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let e = McapSink::create_over(&path, false, |f| BufWriter::new(Full(f))).unwrap_err();
         assert_eq!(
             e.to_string(),
-            "creating the recording /dev/full: No space left on device (os error 28)"
+            format!(
+                "creating the recording {}: No space left on device (os error 28)",
+                path.display()
+            )
         );
+        assert!(!path.exists(), "an empty recording left behind");
+    }
+
+    /// With `overwrite`, a file that was there before is never removed, start-up failing or
+    /// not.
+    #[test]
+    fn a_failed_creation_over_a_file_that_was_there_leaves_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        std::fs::write(&path, "before").unwrap();
+        McapSink::create_over(&path, true, |f| BufWriter::new(Full(f))).unwrap_err();
+        assert!(path.is_file());
+        let made = McapSink::create(&path, true).unwrap();
+        assert!(!made.made_file());
+        let fresh = dir.path().join("fresh.mcap");
+        assert!(McapSink::create(&fresh, true).unwrap().made_file());
+    }
+
+    /// Anything but a regular file is refused before it is opened, with `overwrite` or not:
+    /// a character device (Linux's full device), a directory.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_recording_that_is_not_a_regular_file_is_refused() {
+        for overwrite in [false, true] {
+            let Err(e) = McapSink::create(Path::new("/dev/full"), overwrite) else {
+                panic!("/dev/full was taken for a recording");
+            };
+            assert!(matches!(e, RecordError::NotAFile { .. }), "{e}");
+            assert!(
+                e.to_string()
+                    .starts_with("the recording /dev/full is not a regular file"),
+                "{e}"
+            );
+            let dir = tempfile::tempdir().unwrap();
+            let e = McapSink::create(dir.path(), overwrite).unwrap_err();
+            assert!(matches!(e, RecordError::NotAFile { .. }), "{e}");
+        }
     }
 }
