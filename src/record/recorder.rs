@@ -20,6 +20,7 @@
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -46,6 +47,11 @@ pub const FRAME_ID: &str = "base";
 /// after them has succeeded; what a failed write or flush leaves unflushed counts as dropped,
 /// even if part of it reached the file, so the count never claims a message the file lacks.
 pub const FLUSH_BYTES: usize = 1 << 20;
+
+/// The longest a recording's close waits for its thread (the rest of the queue, the account,
+/// the summary): a disk that does not answer (a stalled network file system, say) must not
+/// keep the daemon from exiting. Past it the thread is left to the process's exit.
+pub const CLOSE_WAIT: Duration = Duration::from_secs(1);
 
 /// What a recording needs to know of the run.
 #[derive(Debug, Clone)]
@@ -215,7 +221,9 @@ impl RecordSummary {
 pub struct Recorder {
     closer: Closer,
     notes: Notes,
-    thread: Option<JoinHandle<RecordSummary>>,
+    thread: Option<JoinHandle<()>>,
+    /// The thread's account, sent as it ends.
+    done: mpsc::Receiver<RecordSummary>,
     what: String,
     /// The file it writes, when [`Recorder::create`] made it (it did not exist before).
     file: Option<PathBuf>,
@@ -258,11 +266,12 @@ impl Recorder {
         let (tap, drain) = tap::channel(setup.queue, setup.joints);
         let closer = drain.closer();
         let thread_notes = notes.clone();
+        let (done_tx, done) = mpsc::sync_channel(1);
         let thread = std::thread::Builder::new()
             .name("snakectl-record".into())
             .spawn(move || {
                 crate::beside::step_aside();
-                record(sink, &drain, &setup, &thread_notes)
+                let _ = done_tx.send(record(sink, &drain, &setup, &thread_notes));
             })
             .map_err(|e| RecordError::Thread(e.to_string()))?;
         Ok((
@@ -270,6 +279,7 @@ impl Recorder {
                 closer,
                 notes,
                 thread: Some(thread),
+                done,
                 what,
                 file: None,
             },
@@ -284,16 +294,19 @@ impl Recorder {
 
     /// Writes what is still queued, the notes and the account, ends the file, and says in the
     /// log what was written and dropped. Call it once the loop offers nothing more.
-    pub fn close(mut self) -> RecordSummary {
-        self.closer.close();
-        let summary = match self.thread.take().map(JoinHandle::join) {
-            Some(Ok(summary)) => summary,
-            _ => RecordSummary {
-                channels: Vec::new(),
-                error: Some(RecordError::Thread("it panicked".into())),
-            },
-        };
+    /// Waits at most [`CLOSE_WAIT`] for a disk that does not answer: then the recording is
+    /// left unfinished ([`RecordError::Stalled`], logged as a warning).
+    pub fn close(self) -> RecordSummary {
+        self.close_within(CLOSE_WAIT)
+    }
+
+    /// [`Recorder::close`], waiting at most `wait` for the thread.
+    fn close_within(mut self, wait: Duration) -> RecordSummary {
+        let summary = self.finish(wait);
         match &summary.error {
+            Some(e @ RecordError::Stalled { .. }) => {
+                tracing::warn!(file = %self.what, "the recording could not be finished: {e}")
+            }
             None => tracing::info!(
                 file = %self.what,
                 written = summary.written(),
@@ -311,13 +324,38 @@ impl Recorder {
         }
         summary
     }
+
+    /// Ends the thread, waiting at most `wait` for it; its account.
+    fn finish(&mut self, wait: Duration) -> RecordSummary {
+        self.closer.close();
+        let failed = |error| RecordSummary {
+            channels: Vec::new(),
+            error: Some(error),
+        };
+        let Some(thread) = self.thread.take() else {
+            return failed(RecordError::Thread("it was ended already".into()));
+        };
+        match self.done.recv_timeout(wait) {
+            Ok(summary) => {
+                let _ = thread.join();
+                summary
+            }
+            // Left blocked in the disk: the process's exit ends it.
+            Err(RecvTimeoutError::Timeout) => failed(RecordError::Stalled {
+                waited_ms: u64::try_from(wait.as_millis()).unwrap_or(u64::MAX),
+            }),
+            Err(RecvTimeoutError::Disconnected) => {
+                let _ = thread.join();
+                failed(RecordError::Thread("it panicked".into()))
+            }
+        }
+    }
 }
 
 impl Drop for Recorder {
     fn drop(&mut self) {
-        if let Some(thread) = self.thread.take() {
-            self.closer.close();
-            let _ = thread.join();
+        if self.thread.is_some() {
+            let _ = self.finish(CLOSE_WAIT);
         }
     }
 }
@@ -969,6 +1007,74 @@ mod tests {
                 t.saturating_sub(after) / 1_000_000
             );
         }
+    }
+
+    /// A disk that stops answering: every write blocks until `release` is sent to or dropped.
+    struct Stalled {
+        release: Arc<Mutex<std::sync::mpsc::Receiver<()>>>,
+    }
+
+    impl Sink for Stalled {
+        fn add_channel(&mut self, _: &ChannelSpec) -> Result<u16, RecordError> {
+            Ok(0)
+        }
+
+        fn write(&mut self, _: u16, _: u64, _: &[u8]) -> Result<(), RecordError> {
+            let _ = self.release.lock().unwrap().recv();
+            Ok(())
+        }
+
+        fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), RecordError> {
+            Ok(())
+        }
+
+        fn flush(&mut self) -> Result<(), RecordError> {
+            Ok(())
+        }
+
+        fn finish(&mut self) -> Result<(), RecordError> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_close_waits_for_a_stalled_disk_only_so_long_and_says_so() {
+        let (release, held) = std::sync::mpsc::channel();
+        let sink = Stalled {
+            release: Arc::new(Mutex::new(held)),
+        };
+        let (recorder, tap) =
+            Recorder::start(Box::new(sink), setup(), Notes::new(), "stalled".into()).unwrap();
+        for tick in 0..100 {
+            tap.offer_tick(&Telemetry {
+                tick,
+                theta_meas: vec![0.1, 0.2],
+                ..Telemetry::default()
+            });
+        }
+        // Closed on a thread of its own: a close that waited for the disk would never return,
+        // and the test fails instead of hanging.
+        let (closed_tx, closed) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = closed_tx.send(recorder.close_within(Duration::from_millis(50)));
+        });
+        let summary = closed
+            .recv_timeout(Duration::from_secs(20))
+            .unwrap_or_else(|_| panic!("the close waited for a disk that never answered"));
+        assert!(
+            matches!(summary.error, Some(RecordError::Stalled { waited_ms: 50 })),
+            "{:?}",
+            summary.error
+        );
+        assert_eq!(
+            summary.error.map(|e| e.to_string()).as_deref(),
+            Some(
+                "the disk did not answer within 50 ms; the file may lack its summary \
+                 (`mcap recover` rebuilds it)"
+            )
+        );
+        // The disk answers again: the thread left behind ends.
+        drop(release);
     }
 
     #[test]

@@ -55,6 +55,16 @@ pub enum RecordError {
     /// Writing failed (the disk full, the file system gone, ...).
     #[error("writing the recording: {0}")]
     Write(String),
+    /// The recorder's thread did not end within the time allowed at close: the disk did not
+    /// answer. The file may lack its summary (`mcap recover` rebuilds it).
+    #[error(
+        "the disk did not answer within {waited_ms} ms; the file may lack its summary \
+         (`mcap recover` rebuilds it)"
+    )]
+    Stalled {
+        /// How long the close waited, ms.
+        waited_ms: u64,
+    },
     /// Written to after it was finished.
     #[error("the recording is finished")]
     Finished,
