@@ -634,3 +634,81 @@ fn a_daemon_with_a_token_admits_token_file_and_refuses_without_it() {
         run.stderr
     );
 }
+
+/// A fake daemon on a loopback port: it reads a request line, sends `reply`, then holds the
+/// connection until the client closes it.
+fn fake_daemon(reply: Vec<u8>) -> String {
+    use std::io::Write as _;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        let (stream, _) = listener.accept().unwrap();
+        let mut lines = BufReader::new(stream.try_clone().unwrap());
+        let mut line = String::new();
+        let _ = lines.read_line(&mut line);
+        let mut out = stream;
+        // The client may close the connection before it has all of it.
+        let _ = out.write_all(&reply);
+        let _ = std::io::copy(&mut lines, &mut std::io::sink());
+    });
+    addr
+}
+
+/// `snakectl status` against a fake daemon sending `reply`: its exit code and stderr's bytes.
+fn status_against(reply: Vec<u8>) -> (Option<i32>, Vec<u8>) {
+    let addr = fake_daemon(reply);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["status", "--connect", &addr])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = child.stderr.take().unwrap();
+    let err = std::thread::spawn(move || {
+        let mut bytes = Vec::new();
+        err.read_to_end(&mut bytes).unwrap();
+        bytes
+    });
+    let status = daemon_support::child::wait_within(&mut child, "snakectl status");
+    (status.code(), err.join().unwrap())
+}
+
+/// A reply line past the client's cap fails the command with a clear message, the line not
+/// held whole.
+#[test]
+fn a_reply_line_over_the_cap_fails_with_a_clear_message() {
+    let _one = one_at_a_time();
+    let mut reply = vec![b'A'; snakectl::client::MAX_REPLY_LINE + 1];
+    reply.push(b'\n');
+    let (code, stderr) = status_against(reply);
+    let stderr = String::from_utf8_lossy(&stderr);
+    assert_ne!(code, Some(0), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "sent a line over {} bytes (it begins: AAAA",
+            snakectl::client::MAX_REPLY_LINE
+        )),
+        "{stderr}"
+    );
+    assert!(
+        stderr.len() < 1000,
+        "the message holds the whole line: {stderr}"
+    );
+}
+
+/// Garbage from the daemon is quoted in the error with its control bytes escaped: nothing but
+/// printable text reaches the terminal.
+#[test]
+fn garbage_from_the_daemon_is_quoted_escaped() {
+    let _one = one_at_a_time();
+    let (code, stderr) = status_against(b"\x00\xff\x1b[2J garbage not json }{\n".to_vec());
+    assert_ne!(code, Some(0));
+    assert!(
+        !stderr.iter().any(|&b| b == 0 || b == 0x1b || b == 0xff),
+        "raw bytes in {stderr:?}"
+    );
+    let stderr = String::from_utf8(stderr).unwrap();
+    assert!(stderr.contains(r"\0"), "{stderr}");
+    assert!(stderr.contains(r"\u{1b}[2J garbage not json"), "{stderr}");
+}

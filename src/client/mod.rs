@@ -60,6 +60,13 @@ const QUEUE: usize = 1024;
 /// The most of a line an error message shows (the error itself carries all of it).
 const SHOWN: usize = 200;
 
+/// The longest line read from the daemon, bytes: past it the connection is closed
+/// ([`ClientError::LineTooLong`]), so a daemon gone wrong cannot make the client hold without
+/// end. Generous: the largest reply, `world`'s with [`crate::world::MAX_OBSTACLES`] obstacles
+/// and [`crate::world::MAX_POLYGON_POINTS`] points, is some 100 kB, and the daemon reads
+/// requests of at most [`protocol::MAX_LINE`] bytes.
+pub const MAX_REPLY_LINE: usize = 4 * protocol::MAX_LINE;
+
 /// Why a client could not talk to the daemon.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -96,7 +103,7 @@ pub enum ClientError {
         path: PathBuf,
     },
     /// The daemon closed the connection (it stopped, or it refused this client).
-    #[error("the daemon at {addr} closed the connection{}", reason.as_ref().map(|r| format!(": {r}")).unwrap_or_default())]
+    #[error("the daemon at {addr} closed the connection{}", reason.as_ref().map(|r| format!(": {}", Escaped(&r.to_string()))).unwrap_or_default())]
     Closed {
         /// Its address.
         addr: String,
@@ -104,7 +111,7 @@ pub enum ClientError {
         reason: Option<Rejection>,
     },
     /// The daemon refused a request.
-    #[error("`{cmd}` refused: {rejection}")]
+    #[error("`{cmd}` refused: {}", Escaped(&rejection.to_string()))]
     Refused {
         /// The request's command.
         cmd: CmdName,
@@ -136,6 +143,20 @@ pub enum ClientError {
         line: String,
         /// Why it does not read.
         source: ReadError,
+    },
+    /// The daemon sent a line longer than [`MAX_REPLY_LINE`]: the connection was closed.
+    #[error(
+        "the daemon at {addr} sent a line over {max} bytes (it begins: {}); the connection is \
+         closed",
+        Shown(start)
+    )]
+    LineTooLong {
+        /// Its address.
+        addr: String,
+        /// The most a line may hold, bytes.
+        max: usize,
+        /// The line's first bytes.
+        start: String,
     },
     /// An ok reply whose id names no request of this client's.
     #[error("a reply to no request of this client: {}", Shown(line))]
@@ -201,19 +222,36 @@ impl ClientError {
     }
 }
 
-/// A line in a message: its first [`SHOWN`] bytes.
+/// A line in a message: its first [`SHOWN`] bytes, escaped as [`Escaped`].
 struct Shown<'a>(&'a str);
 
 impl fmt::Display for Shown<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         if self.0.len() <= SHOWN {
-            return f.write_str(self.0);
+            return Escaped(self.0).fmt(f);
         }
         let mut end = SHOWN;
         while !self.0.is_char_boundary(end) {
             end -= 1;
         }
-        write!(f, "{}...", &self.0[..end])
+        write!(f, "{}...", Escaped(self.0.get(..end).unwrap_or_default()))
+    }
+}
+
+/// Text the daemon sent, in a message: control characters escaped (`\0`, `\u{1b}`), so that
+/// what reaches a terminal is only printable.
+struct Escaped<'a>(&'a str);
+
+impl fmt::Display for Escaped<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for c in self.0.chars() {
+            if c.is_control() {
+                write!(f, "{}", c.escape_debug())?;
+            } else {
+                fmt::Write::write_char(f, c)?;
+            }
+        }
+        Ok(())
     }
 }
 
@@ -527,6 +565,8 @@ struct Inbox {
     waiting: bool,
     /// The client is gone: the reading thread stops waiting for room.
     dropped: bool,
+    /// The first bytes of a line over [`MAX_REPLY_LINE`], which closed the connection.
+    overlong: Option<String>,
 }
 
 /// The inbox and its two conditions.
@@ -1087,6 +1127,13 @@ impl Client {
     }
 
     fn closed(&self) -> ClientError {
+        if let Some(start) = self.shared.inbox().overlong.clone() {
+            return ClientError::LineTooLong {
+                addr: self.addr.clone(),
+                max: MAX_REPLY_LINE,
+                start,
+            };
+        }
         ClientError::Closed {
             addr: self.addr.clone(),
             reason: self.shared.inbox().refusal.clone(),
@@ -1118,11 +1165,21 @@ fn time_left(deadline: Option<Instant>) -> Duration {
 fn read_loop(stream: TcpStream, shared: &Shared) {
     let mut reader = BufReader::new(stream);
     let mut bytes = Vec::new();
+    // A line of MAX_REPLY_LINE bytes and its newline.
+    let most = u64::try_from(MAX_REPLY_LINE)
+        .unwrap_or(u64::MAX)
+        .saturating_add(1);
     loop {
         bytes.clear();
-        match reader.read_until(b'\n', &mut bytes) {
+        match std::io::Read::take(&mut reader, most).read_until(b'\n', &mut bytes) {
             Ok(0) | Err(_) => break,
             Ok(_) => {}
+        }
+        if bytes.len() > MAX_REPLY_LINE && bytes.last() != Some(&b'\n') {
+            let start = bytes.get(..SHOWN).unwrap_or_default();
+            shared.inbox().overlong = Some(String::from_utf8_lossy(start).into_owned());
+            let _ = reader.get_ref().shutdown(std::net::Shutdown::Both);
+            break;
         }
         let text = String::from_utf8_lossy(&bytes);
         let text = text.trim_end();
