@@ -568,7 +568,13 @@ fn the_indirect_block_reads_the_registers_and_a_reboot_unmaps_it() {
         .collect();
     let arm = Arm::new(joints, Settings::default());
     let layout = arm.layout();
-    assert_eq!(layout, Layout::Indirect { data: 224 });
+    assert_eq!(
+        layout,
+        Layout::Indirect {
+            data: 224,
+            watchdog: false
+        }
+    );
     let wait = rig.wait_clock();
     let bus = &mut rig.bus;
     let mut retry = Retry::default();

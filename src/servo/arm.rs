@@ -51,7 +51,7 @@ use super::units::{self, Calibration};
 use super::{
     Block, ErrorClass, Fields, Goal, HardwareErrors, Layout, PingInfo, ReadChoice, ReadKind,
     Reading, Register, ServoBus, ServoError, States, DRIVE_MODE_REVERSE, INDIRECT_ADDRESS_1,
-    INDIRECT_BYTES,
+    INDIRECT_WATCHDOG,
 };
 
 /// How far past a joint's limit, ticks, a servo may read at bring-up and still be brought up
@@ -525,7 +525,10 @@ impl Arm {
     pub fn layout(&self) -> Layout {
         let mut data = self.joints.iter().map(|j| j.model.indirect_data());
         match data.next().flatten() {
-            Some(first) if data.all(|d| d == Some(first)) => Layout::Indirect { data: first },
+            Some(first) if data.all(|d| d == Some(first)) => Layout::Indirect {
+                data: first,
+                watchdog: false,
+            },
             _ => Layout::Direct(Fields::ALL),
         }
     }
@@ -549,8 +552,14 @@ impl Arm {
             let values: Vec<(u8, i64)> = ids.iter().map(|&id| (id, i64::from(target))).collect();
             bus.sync_write(Register::IndirectAddress(n), &values)?;
         }
-        let blocks =
-            retry.run(|| bus.sync_read(ids, INDIRECT_ADDRESS_1, 2 * INDIRECT_BYTES, timeout))?;
+        let blocks = retry.run(|| {
+            bus.sync_read(
+                ids,
+                INDIRECT_ADDRESS_1,
+                2 * u16::from(INDIRECT_WATCHDOG),
+                timeout,
+            )
+        })?;
         for (&id, block) in ids.iter().zip(blocks) {
             if block.is_ok_and(|b| mapped(&b.data)) {
                 continue;
@@ -1399,7 +1408,7 @@ impl Arm {
         if torque && read(Register::TorqueEnable)? == 0 {
             reset.push("Torque Enable 0".into());
         }
-        if let (Layout::Indirect { data }, Some(&(n, target))) =
+        if let (Layout::Indirect { data, .. }, Some(&(n, target))) =
             (self.layout(), indirect_slots().first())
         {
             let value = read(Register::IndirectAddress(n))?;
@@ -1442,7 +1451,7 @@ impl Arm {
             for (n, target) in indirect_slots() {
                 bus.sync_write(Register::IndirectAddress(n), &[(id, i64::from(target))])?;
             }
-            let len = 2 * INDIRECT_BYTES;
+            let len = 2 * u16::from(INDIRECT_WATCHDOG);
             let read = retry.within(within, id, |w| {
                 bus.sync_read(&[id], INDIRECT_ADDRESS_1, len, w)
             })?;
@@ -1716,9 +1725,10 @@ impl JointServo {
 /// How long a rebooted servo may take to answer again.
 pub const REBOOT_WAIT: Duration = Duration::from_secs(3);
 
-/// The Indirect Addresses of [`Layout::Indirect`]: (slot from 1, the address it maps).
+/// The Indirect Addresses of [`Layout::Indirect`]: (slot from 1, the address it maps), the
+/// block's and Bus Watchdog's past it ([`INDIRECT_WATCHDOG`]).
 fn indirect_slots() -> Vec<(u8, u16)> {
-    (1..=u8::try_from(INDIRECT_BYTES).unwrap_or(u8::MAX))
+    (1..=INDIRECT_WATCHDOG)
         .filter_map(|n| Layout::indirect_target(n).map(|t| (n, t)))
         .collect()
 }

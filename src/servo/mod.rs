@@ -408,6 +408,11 @@ pub const INDIRECT_REGISTERS: [Register; 5] = [
 /// temperature 1.
 pub const INDIRECT_BYTES: u16 = 13;
 
+/// The Indirect Address just past the block, mapped to Bus Watchdog (98): a read of
+/// [`INDIRECT_BYTES`] + 1 bytes (`Layout::Indirect { watchdog: true, .. }`) brings it too,
+/// one byte a servo more than the ordinary read.
+pub const INDIRECT_WATCHDOG: u8 = 14;
+
 /// Where a read finds a servo's present values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Layout {
@@ -421,6 +426,9 @@ pub enum Layout {
     Indirect {
         /// Indirect Data 1's address.
         data: u16,
+        /// The read extends one byte, to Bus Watchdog (98) mapped through Indirect Address
+        /// [`INDIRECT_WATCHDOG`] ([`ServoState::watchdog`]).
+        watchdog: bool,
     },
 }
 
@@ -429,7 +437,16 @@ impl Layout {
     pub fn span(self) -> (u16, u16) {
         match self {
             Layout::Direct(fields) => fields.span(),
-            Layout::Indirect { data } => (data, INDIRECT_BYTES),
+            Layout::Indirect { data, watchdog } => (data, INDIRECT_BYTES + u16::from(watchdog)),
+        }
+    }
+
+    /// This layout, its read extended to Bus Watchdog (`watchdog`) or not; a
+    /// [`Layout::Direct`] has no such extension and is returned as it is.
+    pub fn with_watchdog(self, watchdog: bool) -> Layout {
+        match self {
+            Layout::Indirect { data, .. } => Layout::Indirect { data, watchdog },
+            direct => direct,
         }
     }
 
@@ -442,8 +459,12 @@ impl Layout {
     }
 
     /// The value of Indirect Address `n` (1-based) in the indirect layout: the control-table
-    /// address of the block's `n`-th byte. `None` past the block.
+    /// address of the block's `n`-th byte, Bus Watchdog's for [`INDIRECT_WATCHDOG`]. `None`
+    /// past that.
     pub fn indirect_target(n: u8) -> Option<u16> {
+        if n == INDIRECT_WATCHDOG {
+            return Some(Register::BusWatchdog.address());
+        }
         let mut k = u16::from(n).checked_sub(1)?;
         for r in INDIRECT_REGISTERS {
             if k < r.size() {
@@ -459,10 +480,11 @@ impl Layout {
         match self {
             Layout::Direct(fields) => ServoState::decode(id, data, alert, fields),
             Layout::Indirect { .. } => {
-                if data.len() != usize::from(INDIRECT_BYTES) {
+                let (_, len) = self.span();
+                if data.len() != usize::from(len) {
                     return Err(ServoError::Malformed {
                         id,
-                        what: format!("{} data bytes, expected {INDIRECT_BYTES}", data.len()),
+                        what: format!("{} data bytes, expected {len}", data.len()),
                     });
                 }
                 let mut at = 0;
@@ -488,6 +510,10 @@ impl Layout {
                     current: i16::try_from(current).ok(),
                     voltage_dv: u16::try_from(voltage).ok(),
                     temperature_c: u8::try_from(temperature).ok(),
+                    // The byte past the block, signed (-1: fired).
+                    watchdog: data
+                        .get(usize::from(INDIRECT_BYTES))
+                        .map(|&b| i8::from_le_bytes([b])),
                     alert,
                 })
             }
@@ -516,6 +542,10 @@ pub struct ServoState {
     pub voltage_dv: Option<u16>,
     /// Present Temperature, °C.
     pub temperature_c: Option<u8>,
+    /// Bus Watchdog (98), when the read brought it: -1 once it fired (the servo stopped and
+    /// refuses goals until 0 is written there), else the period it is armed with (20 ms units;
+    /// 0: off).
+    pub watchdog: Option<i8>,
     /// The alert flag: a hardware error is latched.
     pub alert: bool,
 }
@@ -553,6 +583,7 @@ impl ServoState {
                 .and_then(|v| u16::try_from(v).ok()),
             temperature_c: want(fields.temperature, Register::PresentTemperature)
                 .and_then(|v| u8::try_from(v).ok()),
+            watchdog: None,
             alert,
         })
     }
@@ -1037,10 +1068,14 @@ mod tests {
             [126, 127, 128, 129, 130, 131, 132, 133, 134, 135, 144, 145, 146]
         );
         assert_eq!(Layout::indirect_target(0), None);
-        assert_eq!(Layout::indirect_target(14), None);
+        assert_eq!(Layout::indirect_target(INDIRECT_WATCHDOG), Some(98));
+        assert_eq!(Layout::indirect_target(15), None);
         assert_eq!(Register::IndirectAddress(1).address(), 168);
         assert_eq!(Register::IndirectAddress(13).address(), 192);
-        let layout = Layout::Indirect { data: 224 };
+        let layout = Layout::Indirect {
+            data: 224,
+            watchdog: false,
+        };
         assert_eq!(layout.span(), (224, 13));
         assert_eq!(layout.fields(), Fields::ALL);
         // Load -5, velocity 300, position -7, 12.0 V, 41 °C.
@@ -1058,9 +1093,22 @@ mod tests {
             (Some(-5), Some(300), -7)
         );
         assert_eq!(
-            (s.voltage_dv, s.temperature_c, s.alert),
-            (Some(120), Some(41), true)
+            (s.voltage_dv, s.temperature_c, s.watchdog, s.alert),
+            (Some(120), Some(41), None, true)
         );
+        // Extended by one byte, the read brings Bus Watchdog: -1 once it fired.
+        let extended = layout.with_watchdog(true);
+        assert_eq!(extended.span(), (224, 14));
+        data.push(0xFF);
+        let s = extended
+            .decode(3, &data, false)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((s.watchdog, s.position_ticks), (Some(-1), -7));
+        assert!(matches!(
+            layout.decode(3, &data, false),
+            Err(ServoError::Malformed { id: 3, .. })
+        ));
+        data.pop();
         // A servo whose RAM was reset reads its Indirect Data as 0: not a pose at -180°.
         assert!(matches!(
             layout.decode(3, &[0; 13], false),

@@ -338,7 +338,10 @@ mod tests {
         bus.read_states_into(&[1], Fields::POSITION, t, &mut crate::servo::States::new())
             .unwrap();
         bus.read_states(&[1], Fields::POSITION, t).unwrap();
-        let layout = crate::servo::Layout::Indirect { data: 224 };
+        let layout = crate::servo::Layout::Indirect {
+            data: 224,
+            watchdog: false,
+        };
         bus.read_block_into(&[1], layout, t, &mut crate::servo::States::new())
             .unwrap();
         bus.set_torque(1, true, t).unwrap();

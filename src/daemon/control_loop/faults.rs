@@ -34,8 +34,15 @@ pub(super) const RECOVERY_WIRE_TICKS: f64 = 10.0;
 impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The read of the tick scheduled at `scheduled`, its wait capped short of `deadline`;
     /// with `health` (always, through Indirect Address), Present Current/Load, Input Voltage
-    /// and Temperature too.
-    pub(super) fn read(&mut self, scheduled: Instant, deadline: Instant, health: bool) {
+    /// and Temperature too; with `watchdog`, the Bus Watchdog (through Indirect Address every
+    /// servo's, in the same read; else one servo's in turn, in the tick's time left).
+    pub(super) fn read(
+        &mut self,
+        scheduled: Instant,
+        deadline: Instant,
+        health: bool,
+        watchdog: bool,
+    ) {
         let mut left = deadline
             .saturating_duration_since(self.clock.now())
             .saturating_sub(READ_TAIL);
@@ -50,7 +57,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         // Through Indirect Address every read is a health read.
         let health = health || matches!(self.layout, Layout::Indirect { .. });
         let layout = match self.layout {
-            Layout::Indirect { .. } => self.layout,
+            Layout::Indirect { .. } => self.layout.with_watchdog(watchdog),
             Layout::Direct(_) if health => Layout::Direct(Fields::ALL),
             Layout::Direct(_) => Layout::Direct(Fields {
                 velocity: true,
@@ -94,6 +101,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                     }
                 }
                 self.retry_torque_off();
+                if watchdog && matches!(self.layout, Layout::Direct(_)) {
+                    self.watch_one();
+                }
             }
         }
         if health {
@@ -124,7 +134,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         match self.states.readings().get(slot) {
             Some(Ok(s)) => {
                 self.measured.record(i, s);
-                self.health.answered(i, s.alert)
+                let (id, alert) = (s.id, s.alert);
+                if s.watchdog.is_some_and(|w| w < 0) {
+                    self.watchdog_fired(id);
+                }
+                self.health.answered(i, alert)
             }
             Some(Err(ServoError::Unmapped { .. })) => {
                 // It answers, with its RAM reset: the fault path looks at it as at a servo
@@ -143,6 +157,37 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 }
                 self.health.missed(i, self.tick, scheduled)
             }
+        }
+    }
+
+    /// Servo `id`'s Bus Watchdog read -1: it stopped and refuses goals. Recovered at the start
+    /// of the next tick ([`Cycle::check_fired`]).
+    fn watchdog_fired(&mut self, id: u8) {
+        if !self.fired.contains(&id) {
+            self.fired.push(id);
+        }
+    }
+
+    /// Without Indirect Address, a health read's Bus Watchdog: one servo's, in turn, within
+    /// what the tick has left (none while a `reboot` boots servos or a port of several is
+    /// lost). A servo that does not answer it is left to the next turn's.
+    fn watch_one(&mut self) {
+        if self.rebooting.is_some() || self.port.is_lost() {
+            return;
+        }
+        let Some(&id) = self.ids.get(self.watch_next) else {
+            self.watch_next = 0;
+            return;
+        };
+        self.watch_next = (self.watch_next + 1) % self.ids.len();
+        let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
+        let Some(wait) = within.wait() else {
+            return;
+        };
+        match self.port.bus().read(id, Register::BusWatchdog, wait) {
+            Ok(v) if v.value < 0 => self.watchdog_fired(id),
+            Ok(_) => {}
+            Err(e) => tracing::debug!(id, "reading the bus watchdog: {e}"),
         }
     }
 
@@ -174,6 +219,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// The fault path after a read: raise what the read showed, clear what it cleared, recover
     /// once nothing holds any more.
     fn review_faults(&mut self, scheduled: Instant) {
+        self.raise_alerts();
+        for (i, since, detail) in self.health.exhausted(scheduled) {
+            self.raise(i, JointFault::Silent, since, detail);
+        }
+        self.review_back();
+    }
+
+    /// Each servo whose alert flag came up (and is not held for it yet): its Hardware Error
+    /// Status read, within this tick, and a `hardware_error` fault raised naming it.
+    fn raise_alerts(&mut self) {
         let tick = self.tick;
         for i in self.health.take_alerts() {
             let id = self.ids.get(i).copied().unwrap_or_default();
@@ -197,9 +252,11 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             };
             self.raise(i, JointFault::Hardware(bits), tick, detail);
         }
-        for (i, since, detail) in self.health.exhausted(scheduled) {
-            self.raise(i, JointFault::Silent, since, detail);
-        }
+    }
+
+    /// The servos back from silence: looked at for a power loss, cleared, and the arm
+    /// recovered once nothing else holds it.
+    fn review_back(&mut self) {
         let mut back = self.health.back_from_silence();
         let power_lost = self.health.power_lost();
         for i in std::mem::take(&mut self.unmapped) {
@@ -398,8 +455,14 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn recover_now(&mut self) -> Result<Vec<u8>, String> {
         self.clear_watchdogs().map_err(|e| e.to_string())?;
         self.measure_pose()?;
+        // A servo that latched a hardware error while it was not read (the port lost) shows
+        // its alert flag here: held for it, it is left out of the torque on.
+        self.raise_alerts();
         if self.supervisor.torque() {
-            let skip = self.health.power_lost();
+            // A servo held for a power loss gets torque only on `reset`; one in a hardware
+            // error refuses it until `reboot` (its fault holds the arm meanwhile).
+            let mut skip = self.health.power_lost();
+            skip.extend(self.health.hardware_faulted());
             let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
             self.arm
                 .keep_torque_on(self.port.bus(), &skip, &within)
@@ -413,6 +476,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             .map_err(|r| r.to_string())?;
         self.port.contact(self.clock.now());
         self.recover_after = None;
+        // Every fired watchdog was cleared with the others.
+        self.fired.clear();
         self.health.forgive();
         tracing::info!("recovered: holding the measured pose");
         Ok(std::mem::take(&mut self.rearmed).into_iter().collect())
@@ -474,6 +539,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 match reading {
                     Ok(s) => {
                         self.measured.record_position(i, s.position_ticks);
+                        if s.alert {
+                            self.health.alerted(i);
+                        }
                         heard[i] = true;
                     }
                     Err(_) if heard[i] => {}
@@ -514,6 +582,50 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             self.retry_port();
         } else {
             self.check_stall();
+            self.check_fired();
+        }
+    }
+
+    /// A read found Bus Watchdogs fired (-1) that no stall the loop measured explains (the
+    /// servos saw a longer gap between goals than the loop did: a starved thread, a USB
+    /// hiccup): those servos stopped and refuse goals. The same recovery as after a stall:
+    /// the watchdogs cleared and re-armed, goals := the measured pose, the active command
+    /// ended `fault`, a `recovered` event per servo. Left to their own recovery while a servo
+    /// is held silent or a `reboot` boots servos.
+    fn check_fired(&mut self) {
+        if self.fired.is_empty() || self.rebooting.is_some() || !self.health.silent().is_empty() {
+            return;
+        }
+        let fired = self.fired.clone();
+        let watchdog_ms = self.arm.settings().watchdog_ms;
+        tracing::warn!(
+            "the Bus Watchdog of servos {fired:?} fired ({watchdog_ms} ms) though the loop              measured no stall that long: they stopped and refuse goals; recovering"
+        );
+        let detail = format!(
+            "the Bus Watchdog read -1 (watchdog {watchdog_ms} ms) with no stall of the loop              that long: the servo saw a longer gap between goals; cleared, goal := present              position, re-armed"
+        );
+        let tick = self.tick;
+        let ended = self.ledger.interrupt(StopReason::Fault);
+        self.owe(ended);
+        match self.recover() {
+            Ok(watchdogs) => self.announce_watchdogs(&watchdogs, tick, &detail),
+            Err(e) => {
+                // Tried again next tick: the fired watchdogs are still listed.
+                tracing::warn!("watchdog recovery failed: {e}");
+                self.controller.freeze();
+            }
+        }
+    }
+
+    /// A `recovered` event (kind `watchdog`) for each servo in `watchdogs`.
+    fn announce_watchdogs(&mut self, watchdogs: &[u8], tick: u64, detail: &str) {
+        for &id in watchdogs {
+            if let Some(i) = self.ids.iter().position(|&x| x == id) {
+                let info = self
+                    .health
+                    .info(i, FaultKind::Watchdog, tick, detail.to_owned());
+                self.announce(FaultChange::Recovered, info);
+            }
         }
     }
 
@@ -563,14 +675,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         match self.recover() {
             Ok(watchdogs) => {
                 self.port.stall_handled();
-                for id in watchdogs {
-                    if let Some(i) = self.ids.iter().position(|&x| x == id) {
-                        let info = self
-                            .health
-                            .info(i, FaultKind::Watchdog, tick, detail.clone());
-                        self.announce(FaultChange::Recovered, info);
-                    }
-                }
+                self.announce_watchdogs(&watchdogs, tick, &detail);
             }
             Err(e) => {
                 // Next tick's stall check (the gap is measured again) tries once more.
@@ -624,7 +729,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 self.sync_faulted();
             }
             Err(e) => {
-                tracing::debug!("{}", ReopenError::Recover(e));
+                let e = ReopenError::Recover(e);
+                // Tried every tick: the first failure after the port was lost is worth a line,
+                // the rest are the same story.
+                if self.port.first_recovery_failure() {
+                    tracing::warn!(
+                        "{e} (tried again every tick; the port opened afresh every second)"
+                    );
+                } else {
+                    tracing::debug!("{e}");
+                }
                 self.port.recovery_failed(self.clock.now());
             }
         }

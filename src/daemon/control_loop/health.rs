@@ -304,6 +304,22 @@ impl Health {
         attention
     }
 
+    /// Joint `i`'s reply outside the loop's read (a recovery's) carried the alert flag: taken
+    /// by the next [`Health::take_alerts`] unless a hardware error holds it already.
+    pub fn alerted(&mut self, i: usize) {
+        if let Some(j) = self.joints.get_mut(i) {
+            if !matches!(
+                j.fault,
+                Some(Held {
+                    fault: JointFault::Hardware(_),
+                    ..
+                })
+            ) {
+                j.alert = true;
+            }
+        }
+    }
+
     /// Joint `i` missed its reply to the read of `tick`, scheduled at `at`; true when that
     /// exhausts its budget. The silence counts from one read interval before the first read
     /// of the run that missed (when the servo last answered, on schedule), so a stall of the

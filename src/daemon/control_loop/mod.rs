@@ -41,7 +41,10 @@
 //! - the serial port failing (an error of class `Bus`): `port`, reopened once a second;
 //! - a stall of the loop longer than the Bus Watchdog (the process stopped): the watchdogs
 //!   that fired are cleared, goals := the measured pose, re-armed (`watchdog`, recovered at
-//!   once);
+//!   once); the same for a watchdog found fired (-1) by the health rotation's read of it
+//!   with no stall the loop measured (the servos saw a longer gap than the loop did);
+//! - a recovery leaves a servo in hardware error out of its torque on (it refuses it until
+//!   `reboot`), so the other faults clear as they would alone;
 //! - a servo back from silence with its RAM at the defaults (it lost power): `power_loss`, the
 //!   arm latched as by an estop, its RAM written again, torque only on `reset`;
 //! - a joint's load above its `[world] contact_load` on every health read for `contact_ms`:
@@ -349,6 +352,13 @@ pub(crate) struct Cycle<B: ServoBus, C: Clock> {
     fault_until: Instant,
     /// Servos a torque off did not reach: switched off once they answer a read.
     torque_off_pending: Vec<u8>,
+    /// `[bus] watchdog_ms` arms the servos' Bus Watchdog: the health rotation reads it.
+    watching: bool,
+    /// Servos whose Bus Watchdog a read found fired (-1), the loop having measured no stall
+    /// past it: recovered at the start of the next tick (see [`Cycle::check_fired`]).
+    fired: Vec<u8>,
+    /// Without Indirect Address, the servo whose Bus Watchdog the next health turn reads.
+    watch_next: usize,
     /// While a port of several is lost, the servos on the others, read every tick.
     reachable: commands::Reachable,
     /// The commanded pose was not clear of an obstacle when last looked at (a `not_clear`
@@ -439,7 +449,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let n_servos = ids.len();
         let layout = arm.layout();
         match layout {
-            Layout::Indirect { data } => tracing::info!(
+            Layout::Indirect { data, .. } => tracing::info!(
                 indirect_data = data,
                 "every read carries load, voltage and temperature (Indirect Address)"
             ),
@@ -535,6 +545,9 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             rearmed: BTreeSet::new(),
             fault_until: now,
             torque_off_pending: Vec::new(),
+            watching: watchdog.is_some(),
+            fired: Vec::with_capacity(n_servos),
+            watch_next: 0,
             reachable: commands::Reachable::with_capacity(n_servos),
             not_clear: false,
             behind: false,
@@ -686,7 +699,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     }
 
     /// This tick's read, if it has one: the pose every `read_every` ticks, the health registers
-    /// every `health_every` (or with every read, through Indirect Address).
+    /// every `health_every` (or with every read, through Indirect Address), and with those
+    /// every `health_every`-th time the Bus Watchdog ([`Cycle::watchdog_due`]).
     fn read_if_due(&mut self, scheduled: Instant, deadline: Instant) {
         let s = self.schedule;
         let read = self.tick % s.read_every == 0;
@@ -696,8 +710,21 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             Layout::Direct(_) => self.tick % s.health_every == 0,
         };
         if health || read {
-            self.read(scheduled, deadline, health);
+            let watchdog = health && self.watchdog_due();
+            self.read(scheduled, deadline, health, watchdog);
         }
+    }
+
+    /// Whether this tick's health read brings the Bus Watchdog too (when `[bus] watchdog_ms`
+    /// arms it): every `health_every`-th read through Indirect Address (one byte a servo more
+    /// on that read alone), every health read otherwise (one servo's, in turn).
+    fn watchdog_due(&self) -> bool {
+        let s = self.schedule;
+        self.watching
+            && match self.layout {
+                Layout::Indirect { .. } => (self.tick / s.read_every) % s.health_every == 0,
+                Layout::Direct(_) => true,
+            }
     }
 
     /// Motion -> resolve -> joint-speed limit; frozen while the supervisor holds the arm.
@@ -772,7 +799,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     fn read_everything(&mut self) {
         let now = self.clock.now();
         self.set_fault_until(now + self.schedule.period);
-        self.read(now, now + self.schedule.period, true);
+        self.read(now, now + self.schedule.period, true, self.watching);
         self.publish();
     }
 

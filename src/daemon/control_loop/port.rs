@@ -47,6 +47,8 @@ struct Lost {
     reopened: Option<Instant>,
     /// Other ports of the bus that failed since, each with its own fault (the tick and why).
     also: Vec<(String, u64, String)>,
+    /// A recovery on the reopened port failed already (logged once at WARN).
+    recovery_failed: bool,
 }
 
 /// The bus and what keeps it.
@@ -150,6 +152,7 @@ impl<B: ServoBus> Port<B> {
             detail,
             reopened: None,
             also: Vec::new(),
+            recovery_failed: false,
         });
         self.faults().into_iter().next()
     }
@@ -209,6 +212,14 @@ impl<B: ServoBus> Port<B> {
                 lost.reopened = None;
             }
         }
+    }
+
+    /// Whether this is the first recovery on a reopened port that failed since the port was
+    /// lost (the cycle logs that one at WARN, the others at DEBUG). Marks it.
+    pub fn first_recovery_failure(&mut self) -> bool {
+        self.lost
+            .as_mut()
+            .is_some_and(|l| !std::mem::replace(&mut l.recovery_failed, true))
     }
 
     /// The ports are back: each fault's clearing to report.

@@ -49,6 +49,20 @@ impl Servo {
     fn alert(&self) -> bool {
         self.get(Register::HardwareErrorStatus) != 0
     }
+    /// A write as the servo takes it: Torque Enable 1 is refused while a hardware error is
+    /// latched (only a reboot clears it), a goal while its Bus Watchdog has fired (until 0 is
+    /// written there). The motor reaches a goal it takes at once.
+    fn take(&mut self, r: Register, v: i64) {
+        if (r == Register::TorqueEnable && v == 1 && self.alert())
+            || (r == Register::GoalPosition && self.get(Register::BusWatchdog) < 0)
+        {
+            return;
+        }
+        self.set(r, v);
+        if r == Register::GoalPosition {
+            self.set(Register::PresentPosition, v);
+        }
+    }
     /// The byte at `address`, Indirect Data read through its Indirect Address (0, the reset
     /// value here, stands for the Indirect Data itself, which reads 0).
     fn byte(&self, address: usize) -> u8 {
@@ -240,10 +254,7 @@ impl ServoBus for MemoryBus {
         self.answering(id, timeout)?;
         let mut w = self.wire();
         let s = w.servos.get_mut(&id).unwrap();
-        s.set(r, v);
-        if r == Register::GoalPosition {
-            s.set(Register::PresentPosition, v);
-        }
+        s.take(r, v);
         Ok(Ack {
             id,
             alert: s.alert(),
@@ -293,7 +304,7 @@ impl ServoBus for MemoryBus {
         let mute_on = w.mute_on;
         for &(id, v) in values {
             if let Some(s) = w.servos.get_mut(&id).filter(|s| !s.silent) {
-                s.set(r, v);
+                s.take(r, v);
                 if let Some((_, _, _, muted)) = mute_on.filter(|m| (m.0, m.1, m.2) == (r, v, id)) {
                     if let Some(m) = w.servos.get_mut(&muted) {
                         m.silent = true;
@@ -309,8 +320,7 @@ impl ServoBus for MemoryBus {
         w.wake();
         for g in goals {
             if let Some(s) = w.servos.get_mut(&g.id).filter(|s| !s.silent) {
-                s.set(Register::GoalPosition, g.ticks.into());
-                s.set(Register::PresentPosition, g.ticks.into());
+                s.take(Register::GoalPosition, g.ticks.into());
             }
         }
         Ok(())
@@ -707,6 +717,85 @@ fn a_hardware_error_holds_until_reboot_which_brings_torque_back() {
     rig.slow_goto();
 }
 
+/// A servo in hardware error (torque off by its own Shutdown, refusing torque on), then the
+/// port lost and back: the faults the trial left stuck.
+fn hardware_error_then_port_lost(rig: &mut Rig, id: u8) {
+    rig.bus.wire().port_gone = true;
+    rig.ticks(1);
+    let kinds: Vec<FaultKind> = rig.status().faults.iter().map(|f| f.kind).collect();
+    assert!(kinds.contains(&FaultKind::Port), "{kinds:?}");
+    // Unplugged long enough for every Bus Watchdog to fire.
+    for s in rig.bus.wire().servos.values_mut() {
+        s.set(Register::BusWatchdog, -1);
+    }
+    rig.bus.servo(id, |s| {
+        s.set(Register::HardwareErrorStatus, 0x20);
+        s.set(Register::TorqueEnable, 0);
+    });
+    rig.bus.wire().port_gone = false;
+    // Reopened a second after the loss, recovered on the tick after.
+    rig.ticks(105);
+}
+
+/// After the port came back: only the hardware error holds, and `reboot` clears it.
+fn only_the_hardware_error_holds_then_reboot_clears_it(rig: &mut Rig, id: u8) {
+    let s = rig.status();
+    let faults: Vec<(FaultKind, Option<u8>)> = s.faults.iter().map(|f| (f.kind, f.id)).collect();
+    assert_eq!(
+        faults,
+        vec![(FaultKind::HardwareError, Some(id))],
+        "the port fault clears once the port is back; the hardware error stays"
+    );
+    assert_eq!(s.state, State::Fault);
+    for (&other, servo) in &rig.bus.wire().servos {
+        if other != id {
+            assert_eq!(servo.get(Register::TorqueEnable), 1, "servo {other} holds");
+            assert!(
+                servo.get(Register::BusWatchdog) > 0,
+                "servo {other} re-armed"
+            );
+        }
+    }
+    let answer = rig.command(LoopCmd::Reboot { ids: None }).unwrap();
+    match answer.reply {
+        Reply::Rebooted(r) => assert_eq!(r.rebooted, vec![id]),
+        other => panic!("not a reboot's reply: {other:?}"),
+    }
+    let s = rig.status();
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    assert_eq!(s.state, State::Holding);
+    assert!(s.torque);
+    assert_eq!(rig.bus.torque(id), 1, "brought up again with torque on");
+    rig.slow_goto();
+}
+
+#[test]
+fn a_hardware_error_then_a_lost_port_clears_the_port_fault_once_back_and_reboot_clears_the_rest() {
+    let mut rig = Rig::new(100.0, "");
+    rig.bus.servo(9, |s| {
+        s.set(Register::HardwareErrorStatus, 0x20);
+        s.set(Register::TorqueEnable, 0);
+    });
+    rig.ticks(1);
+    assert_eq!(rig.status().faults[0].kind, FaultKind::HardwareError);
+    hardware_error_then_port_lost(&mut rig, 9);
+    only_the_hardware_error_holds_then_reboot_clears_it(&mut rig, 9);
+}
+
+#[test]
+fn a_hardware_error_latched_while_the_port_was_lost_is_found_on_its_recovery() {
+    let mut rig = Rig::new(100.0, "");
+    hardware_error_then_port_lost(&mut rig, 4);
+    let raised = fault_events(&rig.events(), FaultChange::Raised);
+    assert!(
+        raised
+            .iter()
+            .any(|r| (r.0, r.1) == (Some(4), FaultKind::HardwareError)),
+        "{raised:?}"
+    );
+    only_the_hardware_error_holds_then_reboot_clears_it(&mut rig, 4);
+}
+
 #[test]
 fn an_estop_while_the_port_is_lost_stays_latched_when_the_port_comes_back() {
     let mut rig = Rig::new(100.0, "");
@@ -838,6 +927,78 @@ fn a_stall_past_the_bus_watchdog_recovers_the_servos_whose_watchdog_fired() {
     rig.ticks(1);
     let s = rig.status();
     assert_eq!(s.overruns, 30, "the stall's periods count as overruns");
+}
+
+#[test]
+fn a_bus_watchdog_that_fired_without_a_stall_the_loop_measured_is_found_and_recovered() {
+    let mut rig = Rig::new(100.0, "");
+    rig.slow_goto();
+    rig.ticks(2);
+    rig.events();
+    rig.bus.wire().reads.clear();
+    // The servos saw a longer gap between goals than the loop measured (their view, a starved
+    // simulator thread, a USB hiccup): servos 2 and 7 stopped and refuse goals. The loop
+    // itself ran on schedule.
+    for id in [2, 7] {
+        rig.bus.servo(id, |s| s.set(Register::BusWatchdog, -1));
+    }
+    let stuck: Vec<i64> = [2, 7]
+        .iter()
+        .map(|id| rig.bus.wire().servos[id].get(Register::PresentPosition))
+        .collect();
+    let mut recovered = Vec::new();
+    let mut events = Vec::new();
+    // Found by the next read of the health rotation (every `health_every` = 10 reads).
+    for _ in 0..11 {
+        rig.ticks(1);
+        events.extend(rig.events());
+        recovered = fault_events(&events, FaultChange::Recovered);
+        if !recovered.is_empty() {
+            break;
+        }
+    }
+    assert_eq!(
+        recovered.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(),
+        vec![
+            (Some(2), FaultKind::Watchdog),
+            (Some(7), FaultKind::Watchdog)
+        ],
+        "{events:?}"
+    );
+    assert!(events.iter().any(stopped_for_fault), "{events:?}");
+    for id in [2, 7] {
+        assert!(
+            rig.bus.wire().servos[&id].get(Register::BusWatchdog) > 0,
+            "re-armed"
+        );
+    }
+    let s = rig.status();
+    assert_eq!(s.state, State::Holding);
+    assert_eq!(s.overruns, 0, "no stall");
+    // The servos follow goals again.
+    rig.slow_goto();
+    rig.ticks(100);
+    let now: Vec<i64> = [2, 7]
+        .iter()
+        .map(|id| rig.bus.wire().servos[id].get(Register::PresentPosition))
+        .collect();
+    assert!(
+        now.iter().zip(&stuck).all(|(a, b)| a != b),
+        "{stuck:?} -> {now:?}"
+    );
+}
+
+#[test]
+fn the_bus_watchdog_costs_one_byte_a_servo_on_one_read_in_health_every() {
+    let mut rig = Rig::new(100.0, "");
+    rig.ticks(5);
+    rig.bus.wire().reads.clear();
+    rig.ticks(100);
+    let reads = rig.bus.wire().reads.clone();
+    assert_eq!(reads.len(), 100, "one read a tick, nothing else");
+    let extended = reads.iter().filter(|r| **r == (224, 14)).count();
+    let ordinary = reads.iter().filter(|r| **r == (224, 13)).count();
+    assert_eq!((extended, ordinary), (10, 90), "{reads:?}");
 }
 
 #[test]
@@ -1618,15 +1779,16 @@ fn a_world_change_with_an_obstacle_at_the_base_is_refused_naming_it() {
 #[test]
 fn every_read_carries_the_health_registers_through_indirect_address() {
     let mut rig = Rig::new(100.0, "");
-    // Bring-up mapped Indirect Address 1..13 onto Present Load/Current .. Temperature.
+    // Bring-up mapped Indirect Address 1..13 onto Present Load/Current .. Temperature, and 14
+    // onto Bus Watchdog.
     for id in 1..=12 {
         let s = &rig.bus.wire().servos[&id];
-        let mapped: Vec<i64> = (1..=13)
+        let mapped: Vec<i64> = (1..=14)
             .map(|n| s.get(Register::IndirectAddress(n)))
             .collect();
         assert_eq!(
             mapped,
-            [126, 127, 128, 129, 130, 131, 132, 133, 134, 135, 144, 145, 146],
+            [126, 127, 128, 129, 130, 131, 132, 133, 134, 135, 144, 145, 146, 98],
             "servo {id}"
         );
     }
@@ -1640,10 +1802,14 @@ fn every_read_carries_the_health_registers_through_indirect_address() {
         let s = rig.status();
         assert_eq!(s.health_tick, s.tick, "a read without the health registers");
     }
-    // Every tick's read is the same: 13 bytes of Indirect Data from 224 (the XL430's), never
-    // a longer one every `health_every` ticks.
+    // Every tick's read is 13 bytes of Indirect Data from 224 (the XL430's); one in
+    // `health_every` one byte longer, for the Bus Watchdog.
     let reads = std::mem::take(&mut rig.bus.wire().reads);
-    assert_eq!(reads, vec![(224, 13); 25]);
+    assert!(
+        reads.iter().all(|&(a, n)| a == 224 && (n == 13 || n == 14)),
+        "{reads:?}"
+    );
+    assert_eq!(reads.iter().filter(|r| r.1 == 14).count(), 2, "{reads:?}");
     let s = rig.status();
     assert!((s.voltage_v[3] - 11.5).abs() < 1e-9, "{:?}", s.voltage_v);
     assert!(
