@@ -599,10 +599,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let fired = self.fired.clone();
         let watchdog_ms = self.arm.settings().watchdog_ms;
         tracing::warn!(
-            "the Bus Watchdog of servos {fired:?} fired ({watchdog_ms} ms) though the loop              measured no stall that long: they stopped and refuse goals; recovering"
+            "the Bus Watchdog of servos {fired:?} fired ({watchdog_ms} ms) though the loop measured no stall that long: they stopped and refuse goals; recovering"
         );
         let detail = format!(
-            "the Bus Watchdog read -1 (watchdog {watchdog_ms} ms) with no stall of the loop              that long: the servo saw a longer gap between goals; cleared, goal := present              position, re-armed"
+            "the Bus Watchdog read -1 (watchdog {watchdog_ms} ms) with no stall of the loop that long: the servo saw a longer gap between goals; cleared, goal := present position, re-armed"
         );
         let tick = self.tick;
         let ended = self.ledger.interrupt(StopReason::Fault);
