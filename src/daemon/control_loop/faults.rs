@@ -50,8 +50,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             // Back to back, the work is longer than the period: the read waits for its replies
             // as long as any exchange does. Cut short, it would send the next instruction while
             // servos still answer the last (a collision on a real bus), and take their late
-            // replies for the next exchange's.
-            left = self.schedule.reply_timeout;
+            // replies for the next exchange's. Never so long that the watchdogs fire.
+            left = self.schedule.late_wait;
         }
         let timeout = self.schedule.reply_timeout.min(left).max(MIN_READ_WAIT);
         // Through Indirect Address every read is a health read.

@@ -248,6 +248,11 @@ struct Schedule {
     read_every: u64,
     health_every: u64,
     reply_timeout: Duration,
+    /// How long the read of a tick that starts late waits for its replies: `reply_timeout`,
+    /// but at most half the Bus Watchdog's period. A lost reply with a longer wait kept the
+    /// bus silent past the watchdog (a reply timeout of 100 ms and a watchdog of 100 ms: every
+    /// servo's fired after two dropped replies in a row).
+    late_wait: Duration,
     /// A `velocity` that waited longer than this is not applied.
     deadman: Duration,
 }
@@ -443,6 +448,10 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             read_every: u64::from(c.read_every.max(1)),
             health_every: u64::from(c.health_every.max(1)),
             reply_timeout: arm.settings().reply_timeout,
+            late_wait: units::watchdog_period(arm.settings().watchdog_ms)
+                .map_or(arm.settings().reply_timeout, |w| {
+                    arm.settings().reply_timeout.min(w / 2)
+                }),
             deadman: c.deadman,
         };
         let ids = arm.ids();
