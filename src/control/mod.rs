@@ -337,6 +337,9 @@ struct Guard {
     /// Per pair, what the overall solver is asked to keep from a pose within the clearance it
     /// plans with ([`Guard::solve_floors`]).
     solve: Vec<f64>,
+    /// The least clearance of the commanded pose, m (`None` without obstacles): measured once
+    /// a commit, read by telemetry and by the next tick's [`Guard::solve_floors`].
+    least_m: Option<f64>,
 }
 
 impl Guard {
@@ -352,6 +355,7 @@ impl Guard {
             sent: vec![Vec2::zeros(); n + 1],
             rounded: vec![0.0; n],
             solve: Vec::new(),
+            least_m: None,
         };
         g.anchor(chain, &World::default(), &[], theta);
         g
@@ -374,6 +378,7 @@ impl Guard {
     fn commit(&mut self, chain: &Chain, world: &World, quanta: &[f64], theta: &[f64]) -> Vec2 {
         chain.points_into(theta, &mut self.now);
         self.tangled = Chain::self_intersects(&self.now).is_some();
+        self.least_m = world.clearance(&self.now).map(|p| p.clearance_m);
         if world.obstacles().is_empty() {
             self.clear = true;
         } else {
@@ -407,11 +412,9 @@ impl Guard {
         if plan.obstacles().is_empty() {
             return &self.solve;
         }
-        let keeps_plan = || {
-            plan.clearance(&self.now)
-                .is_none_or(|p| p.clearance_m >= plan.clearance_m())
-        };
-        if self.clear && keeps_plan() {
+        // `plan` has the world's obstacles and link radius: the same clearances.
+        let keeps_plan = self.least_m.is_none_or(|c| c >= plan.clearance_m());
+        if self.clear && keeps_plan {
             return &self.solve;
         }
         self.solve.resize(self.best.len(), 0.0);
@@ -1094,7 +1097,7 @@ impl Controller {
     /// The clearance of the commanded pose, m (from its points, kept by the controller);
     /// `None` when the world has no obstacles. Allocation-free.
     pub fn min_clearance(&self) -> Option<f64> {
-        self.world.clearance(&self.guard.now).map(|p| p.clearance_m)
+        self.guard.least_m
     }
 
     /// The link and obstacle of least clearance when the commanded pose is not clear, or else
