@@ -1284,17 +1284,7 @@ fn an_obstacle_between_the_pose_and_its_goal_as_sent_is_on_the_arm() {
         assert!(!ctl.is_clear());
         // Away from the disc: the tip moves along the disc's normal, away from it.
         let target = ctl.tip() - normal * 0.05 * found.signum();
-        ctl.command(Command::Goto {
-            target,
-            speed: None,
-        })
-        .unwrap();
-        let (finish, k) = run(&mut ctl, 0.01, 300);
-        assert_eq!(
-            finish,
-            Some(Finish::Arrived),
-            "{strategy:?} after {k} ticks"
-        );
+        goto_arrives(&mut ctl, target, &format!("{strategy:?}"));
         assert!(ctl.is_clear() && ctl.not_clear().is_none(), "{strategy:?}");
     }
 }
@@ -1343,17 +1333,18 @@ fn a_clear_arm_with_its_tip_next_to_a_disc_moves_away() {
             ctl.command(Command::Stop).unwrap();
             run(&mut ctl, 0.01, 100);
             let target = ctl.tip() - u * 0.05;
-            ctl.command(Command::Goto {
-                target,
-                speed: None,
-            })
-            .unwrap();
-            let (finish, k) = run(&mut ctl, 0.01, 300);
-            assert_eq!(
-                finish,
-                Some(Finish::Arrived),
-                "{gap} {strategy:?} after {k}"
-            );
+            goto_arrives(&mut ctl, target, &format!("{gap} {strategy:?}"));
         }
     }
+}
+
+/// Sends a `goto` to `target` and runs it: it must arrive within 3 s.
+fn goto_arrives(ctl: &mut Controller, target: Vec2, case: &str) {
+    ctl.command(Command::Goto {
+        target,
+        speed: None,
+    })
+    .unwrap();
+    let (finish, k) = run(ctl, 0.01, 300);
+    assert_eq!(finish, Some(Finish::Arrived), "{case} after {k} ticks");
 }

@@ -26,6 +26,22 @@ fn random_chain(rng: &mut StdRng, n: usize, limit: Option<f64>) -> (Chain, Vec<f
     (Chain::new(links, base, heading, limits).unwrap(), theta0)
 }
 
+/// A cold solve or a local one, as `cold` says.
+fn solve(
+    solver: &mut Overall,
+    cold: bool,
+    chain: &Chain,
+    theta0: &[f64],
+    target: Vec2,
+    out: &mut [f64],
+) -> Outcome {
+    if cold {
+        solver.solve_cold(chain, theta0, target, out)
+    } else {
+        solver.solve_local(chain, theta0, target, out)
+    }
+}
+
 fn metric3(a: &[f64], b: &[f64]) -> f64 {
     2.0 * half_metric(a, b)
 }
@@ -124,11 +140,7 @@ proptest! {
             + Vec2::new(bearing.cos(), bearing.sin()) * (radius * chain.reach());
         let mut solver = Overall::new(OverallOptions::default());
         let mut out = vec![0.0; n];
-        let o = if cold {
-            solver.solve_cold(&chain, &theta0, target, &mut out)
-        } else {
-            solver.solve_local(&chain, &theta0, target, &mut out)
-        };
+        let o = solve(&mut solver, cold, &chain, &theta0, target, &mut out);
         prop_assert!(out.iter().all(|t| t.is_finite()));
         prop_assert!(chain.check_limits(&out).is_ok(), "{:?}", chain.check_limits(&out));
         prop_assert!(o.tip_error.is_finite());
@@ -162,11 +174,7 @@ fn inside_the_hole_gives_the_folded_arm() {
     let mut out = [0.0; 3];
     let mut solver = Overall::new(OverallOptions::default());
     for cold in [false, true] {
-        let o = if cold {
-            solver.solve_cold(&chain, &theta0, target, &mut out)
-        } else {
-            solver.solve_local(&chain, &theta0, target, &mut out)
-        };
+        let o = solve(&mut solver, cold, &chain, &theta0, target, &mut out);
         assert!(!o.reachable && out.iter().all(|t| t.is_finite()));
         assert!((o.tip_error - 0.75).abs() < 1e-12, "{}", o.tip_error);
         let tip = chain.tip(&out);
@@ -197,11 +205,7 @@ fn unreachable_with_limits_gives_the_closest_tip() {
         }
         for cold in [false, true] {
             let mut out = [0.0; 2];
-            let o = if cold {
-                solver.solve_cold(&chain, &theta0, target, &mut out)
-            } else {
-                solver.solve_local(&chain, &theta0, target, &mut out)
-            };
+            let o = solve(&mut solver, cold, &chain, &theta0, target, &mut out);
             assert!(!o.reachable, "{target:?}");
             assert!(out.iter().all(|t| t.is_finite()));
             chain.check_limits(&out).unwrap();
@@ -572,11 +576,7 @@ fn targets_at_the_outer_edge_are_reached_from_a_bent_pose() {
         for cold in [false, true] {
             let mut solver = Overall::new(OverallOptions::default());
             let mut out = vec![0.0; n];
-            let o = if cold {
-                solver.solve_cold(&chain, &theta0, target, &mut out)
-            } else {
-                solver.solve_local(&chain, &theta0, target, &mut out)
-            };
+            let o = solve(&mut solver, cold, &chain, &theta0, target, &mut out);
             let at = format!("n = {n}, {fraction} of the reach, cold: {cold}: {o:?}");
             assert!(o.converged && o.reachable, "{at}");
             assert!((chain.tip(&out) - target).norm() <= 1e-9, "{at}");
