@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::chain::{Chain, ChainError, JointLimit, Num, Vec2, MAX_MAGNITUDE};
+use crate::chain::{wrap_angle, Chain, ChainError, JointLimit, Num, Vec2, MAX_MAGNITUDE};
 use crate::metrics::{self, Metrics};
 use crate::resolve::overall::CLEAR_SLACK;
 use crate::resolve::overall::{Overall, OverallMode, OverallOptions};
@@ -491,7 +491,10 @@ impl Problem {
             }
         }
         let base = Vec2::new(raw.base[0], raw.base[1]);
-        let chain = Chain::new(raw.links, base, raw.base[2], limits).map_err(chain_error)?;
+        // The heading's representative in (-pi, pi]: the same arm, and the joints' trigonometry
+        // keeps its precision (at 3e5 rad an angle's last bit is 6e-11 rad).
+        let heading = wrap_angle(raw.base[2]);
+        let chain = Chain::new(raw.links, base, heading, limits).map_err(chain_error)?;
         check_pose(&chain, "theta0", &raw.theta0)?;
         let base_mode = parse_base_mode(raw.base_mode.as_deref().unwrap_or("fixed"))?;
         if base_mode == BaseMode::Free {
@@ -1205,6 +1208,33 @@ mod tests {
             assert!(a.base_displacement.unwrap() > 0.0, "{extra}");
             assert_eq!(a.tip, [1.5, 1.0]);
             assert!(a.converged && a.reachable, "{extra}");
+        }
+    }
+
+    /// A heading of many turns is the same arm as its representative, and is solved as
+    /// precisely: both strategies converge on the target, with the same joint angles.
+    #[test]
+    fn a_heading_of_many_turns_is_solved_as_its_representative() {
+        let tau = 2.0 * std::f64::consts::PI;
+        let turns = 3e5 / tau;
+        let far = format!("{}", 0.2 + turns.round() * tau);
+        for strategy in ["overall", "sequential"] {
+            let problem = |heading: &str| {
+                GOOD.replace("[0,0,0]", &format!("[0,0,{heading}]"))
+                    .replace("}", &format!(r#","strategy":"{strategy}"}}"#))
+            };
+            let near = Problem::from_json(&problem("0.2")).unwrap().solve();
+            let a = Problem::from_json(&problem(&far)).unwrap().solve();
+            assert!(a.converged && a.reachable, "{strategy}: {a:?}");
+            assert!(a.tip_error <= 1e-11, "{strategy}: {}", a.tip_error);
+            for (x, y) in a.theta.iter().zip(&near.theta) {
+                assert!(
+                    (x - y).abs() <= 1e-9,
+                    "{strategy}: {:?} {:?}",
+                    a.theta,
+                    near.theta
+                );
+            }
         }
     }
 

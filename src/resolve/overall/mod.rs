@@ -884,21 +884,30 @@ impl Overall {
     /// The closest pose for an unlimited chain whose target lies outside its ring: straight
     /// toward the target (beyond the reach) or folded back along the longest link (inside the
     /// hole). Angles are the representatives nearest `theta0`. `None` when not applicable.
+    ///
+    /// A target on the ring's edge (within the tip tolerance of the reach, or of the hole's
+    /// radius when there is a hole) is answered the same way, limited chain or not, when that
+    /// pose is within the limits: it is the only pose that reaches such a target, and the
+    /// iteration, whose Jacobian loses rank there, would crawl toward it (the tip error falls
+    /// with the square of the angles' error) and stop short of its tolerance.
     fn closed_form_outside(&mut self, p: &Problem, out: &mut [f64]) -> Option<Outcome> {
         let chain = p.chain;
-        if chain.is_limited() || chain.classify(p.target) != Reachability::Outside {
+        let d = p.target - chain.base();
+        let dist = d.norm();
+        let ws = chain.workspace();
+        let on_edge = dist >= ws.r_max - p.tol || (ws.r_min > 0.0 && dist <= ws.r_min + p.tol);
+        let outside = !chain.is_limited() && chain.classify(p.target) == Reachability::Outside;
+        if !outside && !on_edge {
             return None;
         }
         let n = chain.len();
-        let d = p.target - chain.base();
-        let dist = d.norm();
         let bearing = if dist > 0.0 {
             d.y.atan2(d.x)
         } else {
             chain.heading() + p.theta0[0]
         };
         let h = chain.heading();
-        if dist > chain.reach() {
+        if 2.0 * dist > ws.r_max + ws.r_min {
             self.w.theta[0] = nearest_representative(bearing - h, p.theta0[0]);
             for a in 1..n {
                 self.w.theta[a] = nearest_representative(0.0, p.theta0[a]);
@@ -920,7 +929,21 @@ impl Overall {
                 prev = phi;
             }
         }
-        Some(self.finish(p, [0.0; 2], 0, false, out))
+        if outside {
+            return Some(self.finish(p, [0.0; 2], 0, false, out));
+        }
+        // On the edge: the pose must be within the limits and reach the target, else the
+        // iteration (or the closest-tip search) answers.
+        let fits = self
+            .w
+            .theta
+            .iter()
+            .enumerate()
+            .all(|(a, &t)| (self.w.lo[a]..=self.w.hi[a]).contains(&t));
+        if !fits || (chain.tip(&self.w.theta) - p.target).norm() > p.tol {
+            return None;
+        }
+        Some(self.finish(p, [0.0; 2], 0, true, out))
     }
 
     /// A one-link chain has no redundancy: its tip is on target only at the angle pointing at

@@ -585,3 +585,58 @@ fn targets_at_the_outer_edge_are_reached_from_a_bent_pose() {
         }
     }
 }
+
+/// A target on the edge of the ring (at the reach, or at the hole's radius) is reached only by
+/// one pose, straight or folded round the longest link: both solves answer it on target and
+/// converged, within limits that hold it, and not on target within limits that do not.
+#[test]
+fn targets_on_the_rings_edge_are_reached_by_the_one_pose_there() {
+    let theta0 = [0.2, 0.2];
+    let cases = [
+        (vec![1.0, 1.0], Vec2::new(2.0, 0.0), [0.0, 0.0]),
+        (
+            vec![1.0, 0.5],
+            Vec2::new(0.5, 0.0),
+            [0.0, std::f64::consts::PI],
+        ),
+        (
+            vec![0.5, 1.0],
+            Vec2::new(0.0, 0.5),
+            [-std::f64::consts::FRAC_PI_2, std::f64::consts::PI],
+        ),
+    ];
+    for (links, target, pose) in cases {
+        let unlimited = Chain::unlimited(links.clone(), Vec2::zeros(), 0.0).unwrap();
+        let wide = JointLimit { lo: -4.0, hi: 4.0 };
+        let limited = Chain::new(links.clone(), Vec2::zeros(), 0.0, vec![Some(wide); 2]).unwrap();
+        for chain in [&unlimited, &limited] {
+            for cold in [false, true] {
+                let mut solver = Overall::new(OverallOptions::default());
+                let mut out = [0.0; 2];
+                let o = solve(&mut solver, cold, chain, &theta0, target, &mut out);
+                let at = format!("{links:?} to {target:?}, cold {cold}: {o:?} {out:?}");
+                assert!(o.reachable && o.converged, "{at}");
+                assert!(o.tip_error <= 1e-12 * chain.reach(), "{at}");
+                for (t, p) in out.iter().zip(pose) {
+                    assert!((wrap_angle(t - p)).abs() <= 1e-6, "{at}");
+                }
+            }
+        }
+        // Limits that keep the last joint away from that pose: not on target.
+        let (lo, hi) = if pose[1] == 0.0 {
+            (0.3, 1.0)
+        } else {
+            (-1.0, 1.0)
+        };
+        let narrow = [None, Some(JointLimit { lo, hi })];
+        let chain = Chain::new(links.clone(), Vec2::zeros(), 0.0, narrow.to_vec()).unwrap();
+        let mut solver = Overall::new(OverallOptions::default());
+        let mut out = [0.0; 2];
+        let theta0 = [0.2, 0.5];
+        let o = solve(&mut solver, true, &chain, &theta0, target, &mut out);
+        assert!(
+            !o.reachable && chain.check_limits(&out).is_ok(),
+            "{links:?}: {o:?}"
+        );
+    }
+}
