@@ -22,8 +22,8 @@ use crate::servo::arm::Arm;
 use crate::servo::clock::{Clock, ManualClock};
 use crate::servo::limits::{LimitPolicy, Limited};
 use crate::servo::{
-    Ack, Goal, PingInfo, ReadKind, Register, ServoBus, ServoError, ServoModel, SyncReadBuf, Value,
-    INDIRECT_ADDRESS_1,
+    Ack, Goal, Layout, PingInfo, ReadKind, Register, ServoBus, ServoError, ServoModel, SyncReadBuf,
+    Value, INDIRECT_ADDRESS_1,
 };
 use crate::world::{CheckedObstacle, Obstacles};
 
@@ -369,8 +369,19 @@ impl Rig {
 
     /// [`Rig::new`] with `tables` (such as a `[world]`) added at the end of the file.
     fn with_tables(rate_hz: f64, control: &str, tables: &str) -> Rig {
+        Self::edited(rate_hz, control, tables, &[])
+    }
+
+    /// [`Rig::with_tables`] with `edits` (`(old, new)`, each replacing its first occurrence,
+    /// which must exist) applied to the shipped config first.
+    fn edited(rate_hz: f64, control: &str, tables: &str, edits: &[(&str, &str)]) -> Rig {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim.toml");
-        let text = std::fs::read_to_string(path).unwrap().replace(
+        let mut text = std::fs::read_to_string(path).unwrap();
+        for (old, new) in edits {
+            assert!(text.contains(old), "config/sim.toml has no `{old}`");
+            text = text.replacen(old, new, 1);
+        }
+        let text = text.replace(
             "rate_hz = 100.0",
             &format!("rate_hz = {rate_hz:?}\n{control}"),
         ) + tables;
@@ -999,6 +1010,137 @@ fn the_bus_watchdog_costs_one_byte_a_servo_on_one_read_in_health_every() {
     let extended = reads.iter().filter(|r| **r == (224, 14)).count();
     let ordinary = reads.iter().filter(|r| **r == (224, 13)).count();
     assert_eq!((extended, ordinary), (10, 90), "{reads:?}");
+}
+
+#[test]
+fn after_every_servo_went_silent_and_came_back_goals_jump_only_onto_the_servos_positions() {
+    let mut rig = Rig::new(100.0, "");
+    let bound = rig.cycle.controller.limits().max_joint_speed_rad_s * rig.cycle.schedule.dt;
+    let ids = rig.cycle.ids.clone();
+    // A joint move at the joint-speed limit: the servos, deaf while silent, fall behind the
+    // goals the loop commands before it declares them silent.
+    let mut theta = rig.status().theta_cmd;
+    theta[2] += 1.5;
+    rig.command(LoopCmd::Motion(Motion::GotoJoints { theta }))
+        .unwrap();
+    rig.ticks(2);
+    let mut before = rig.status().theta_cmd;
+    let mut faulted = false;
+    let mut recovered = false;
+    for tick in 0..200 {
+        match tick {
+            5 => ids
+                .iter()
+                .for_each(|&id| rig.bus.servo(id, |s| s.silent = true)),
+            40 => ids
+                .iter()
+                .for_each(|&id| rig.bus.servo(id, |s| s.silent = false)),
+            _ => {}
+        }
+        rig.ticks(1);
+        let s = rig.status();
+        faulted |= s.state == State::Fault;
+        let step = before
+            .iter()
+            .zip(&s.theta_cmd)
+            .map(|(a, b)| (b - a).abs())
+            .fold(0.0, f64::max);
+        let recovered_now = faulted && !recovered && s.state != State::Fault;
+        if step > bound + 1e-9 || recovered_now {
+            // Only a recovery moves goals faster, and only onto where the servos stand.
+            assert!(recovered_now, "tick {}: goals stepped {step}", s.tick);
+            let arm = rig.cycle.arm.clone();
+            for (i, id) in ids.iter().enumerate() {
+                let ticks = rig.bus.wire().servos[id].get(Register::PresentPosition);
+                let at = arm.angle(i, ticks as i32).unwrap();
+                assert!(
+                    (s.theta_cmd[i] - at).abs() < 1e-9,
+                    "tick {}: joint {} goal {} but the servo stands at {at}",
+                    s.tick,
+                    i + 1,
+                    s.theta_cmd[i]
+                );
+            }
+            recovered = true;
+        }
+        before = s.theta_cmd;
+    }
+    assert!(faulted, "the silence was never held");
+    assert!(recovered, "never recovered");
+    assert_eq!(rig.status().state, State::Holding);
+}
+
+/// The last joint an XL330, whose Indirect Data lies elsewhere than the XL430s': no common
+/// Indirect Address block, so the loop reads the registers where they are.
+fn rig_without_indirect_address() -> Rig {
+    let rig = Rig::edited(
+        100.0,
+        "",
+        "",
+        &[(
+            "id = 12\nmodel = \"XL430-W250\"",
+            "id = 12\nmodel = \"XL330-M288\"",
+        )],
+    );
+    assert!(
+        matches!(rig.cycle.layout, Layout::Direct(_)),
+        "{:?}",
+        rig.cycle.layout
+    );
+    rig
+}
+
+#[test]
+fn without_indirect_address_a_fired_bus_watchdog_is_found_by_the_rotation_and_recovered() {
+    let mut rig = rig_without_indirect_address();
+    let health_every = rig.cycle.schedule.health_every;
+    let servos = rig.cycle.ids.len() as u64;
+    rig.slow_goto();
+    rig.ticks(2);
+    rig.events();
+    // The worst case: the servo whose watchdog the rotation read last fires right after, so
+    // the loop comes back to it only once every other servo's has been read.
+    rig.ticks(health_every as usize);
+    let last =
+        rig.cycle.ids[(rig.cycle.watch_next + rig.cycle.ids.len() - 1) % rig.cycle.ids.len()];
+    rig.bus.servo(last, |s| s.set(Register::BusWatchdog, -1));
+    let stuck = rig.bus.wire().servos[&last].get(Register::PresentPosition);
+    let fired_at = rig.status().tick;
+    let mut events = Vec::new();
+    let mut recovered = Vec::new();
+    // One servo's watchdog a health read (every `health_every` ticks): each servo's within
+    // `servos` health reads, and the one found fired recovered at the start of the next tick.
+    for _ in 0..servos * health_every + 1 {
+        rig.ticks(1);
+        events.extend(rig.events());
+        recovered = fault_events(&events, FaultChange::Recovered);
+        if !recovered.is_empty() {
+            break;
+        }
+    }
+    let took = rig.status().tick - fired_at;
+    assert_eq!(
+        recovered.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(),
+        vec![(Some(last), FaultKind::Watchdog)],
+        "not recovered within {took} ticks: {events:?}"
+    );
+    assert!(
+        took > (servos - 1) * health_every,
+        "found after {took} ticks: before the rotation came back to it"
+    );
+    assert!(events.iter().any(stopped_for_fault), "{events:?}");
+    assert!(
+        rig.bus.wire().servos[&last].get(Register::BusWatchdog) > 0,
+        "re-armed"
+    );
+    let s = rig.status();
+    assert_eq!(s.state, State::Holding);
+    assert_eq!(s.overruns, 0, "no stall");
+    // The servo follows goals again.
+    rig.slow_goto();
+    rig.ticks(100);
+    let now = rig.bus.wire().servos[&last].get(Register::PresentPosition);
+    assert_ne!(now, stuck, "servo {last} still refuses goals");
 }
 
 #[test]
