@@ -14,9 +14,11 @@
 //! start. On close the recorder writes the notes it was given (such as the arm's description,
 //! `snakectl.describe`), then `snakectl.recording`: per channel, what the loop offered, what
 //! was written and what was dropped; and it says the same in a log line. A message counts as
-//! written once a flush of the sink after it has succeeded (one every [`FLUSH_BYTES`] of
-//! messages, and one at the close). A write that fails stops the recording, never the loop:
-//! what was not flushed yet, and the rest, count as dropped.
+//! written once a flush of the sink after it has succeeded: one every [`FLUSH_BYTES`] of
+//! messages, or sooner once they span [`FLUSH_AGE`] of log time; one when the loop has offered
+//! nothing for [`tap::DRAIN_AT_LEAST_EVERY`] (it stalled); and one at the close. A write that
+//! fails stops the recording, never the loop: what was not flushed yet, and the rest, count as
+//! dropped.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -42,11 +44,21 @@ pub const SCENE_HZ: f64 = 30.0;
 /// The frame the tips and the target are in: the arm's base frame.
 pub const FRAME_ID: &str = "base";
 
-/// Bytes of messages the recorder writes between two flushes of its sink: an MCAP file's
-/// chunk (about 2 s at 100 Hz with 12 joints). Messages count as written only once a flush
-/// after them has succeeded; what a failed write or flush leaves unflushed counts as dropped,
-/// even if part of it reached the file, so the count never claims a message the file lacks.
+/// Most bytes of messages the recorder writes between two flushes of its sink: an MCAP file's
+/// chunk at the most (about 2 s at 100 Hz with 12 joints; [`FLUSH_AGE`] ends most chunks
+/// before). Messages count as written only once a flush after them has succeeded; what a
+/// failed write or flush leaves unflushed counts as dropped, even if part of it reached the
+/// file, so the count never claims a message the file lacks.
 pub const FLUSH_BYTES: usize = 1 << 20;
+
+/// The longest span of log time the messages written since the last flush cover: once the
+/// newest is this much younger than the oldest unflushed one, the sink is flushed. A process
+/// killed (or a power loss) loses what was not flushed, and readers stop at the last whole
+/// chunk, so without it a slow loop (10 Hz, a few joints) would take tens of seconds to fill
+/// [`FLUSH_BYTES`] and a kill in that time would lose the whole recording. It is measured in
+/// the recording's own time (the ticks'), not the wall clock's, so that the chunks follow the
+/// loop whatever the recorder's thread is given of the processor.
+pub const FLUSH_AGE: Duration = Duration::from_secs(1);
 
 /// The longest a recording's close waits for its thread (the rest of the queue, the account,
 /// the summary): a disk that does not answer (a stalled network file system, say) must not
@@ -263,6 +275,17 @@ impl Recorder {
         notes: Notes,
         what: String,
     ) -> Result<(Recorder, Tap), RecordError> {
+        Self::start_draining(sink, setup, notes, what, tap::DRAIN_AT_LEAST_EVERY)
+    }
+
+    /// [`Recorder::start`], the thread waiting at most `every` for the loop's items.
+    fn start_draining(
+        sink: Box<dyn Sink>,
+        setup: Setup,
+        notes: Notes,
+        what: String,
+        every: Duration,
+    ) -> Result<(Recorder, Tap), RecordError> {
         let (tap, drain) = tap::channel(setup.queue, setup.joints);
         let closer = drain.closer();
         let thread_notes = notes.clone();
@@ -271,7 +294,7 @@ impl Recorder {
             .name("snakectl-record".into())
             .spawn(move || {
                 crate::beside::step_aside();
-                let _ = done_tx.send(record(sink, &drain, &setup, &thread_notes));
+                let _ = done_tx.send(record(sink, &drain, &setup, &thread_notes, every));
             })
             .map_err(|e| RecordError::Thread(e.to_string()))?;
         Ok((
@@ -425,6 +448,8 @@ struct Out {
     unflushed: PerChannel,
     /// Their bytes.
     unflushed_bytes: usize,
+    /// The log time of the oldest of them, and of the newest, ns; `None` when there are none.
+    unflushed_span: Option<(u64, u64)>,
 }
 
 impl Out {
@@ -434,6 +459,7 @@ impl Out {
             flushed: [0; 7],
             unflushed: [0; 7],
             unflushed_bytes: 0,
+            unflushed_span: None,
         }
     }
 
@@ -442,12 +468,24 @@ impl Out {
         self.sink.write(channel, ns, data)?;
         self.unflushed[k] += 1;
         self.unflushed_bytes = self.unflushed_bytes.saturating_add(data.len());
+        let (oldest, newest) = self.unflushed_span.get_or_insert((ns, ns));
+        (*oldest, *newest) = ((*oldest).min(ns), (*newest).max(ns));
         Ok(())
     }
 
-    /// Flushes the sink once [`FLUSH_BYTES`] wait.
+    /// Whether messages were written since the last flush.
+    fn has_unflushed(&self) -> bool {
+        self.unflushed_span.is_some()
+    }
+
+    /// Flushes the sink once [`FLUSH_BYTES`] wait, or once they span [`FLUSH_AGE`] of log
+    /// time.
     fn flush_when_due(&mut self) -> Result<(), RecordError> {
-        if self.unflushed_bytes >= FLUSH_BYTES {
+        let age = u64::try_from(FLUSH_AGE.as_nanos()).unwrap_or(u64::MAX);
+        let aged = self
+            .unflushed_span
+            .is_some_and(|(oldest, newest)| newest.saturating_sub(oldest) >= age);
+        if aged || self.unflushed_bytes >= FLUSH_BYTES {
             self.flush()?;
         }
         Ok(())
@@ -460,6 +498,7 @@ impl Out {
             *flushed += std::mem::take(unflushed);
         }
         self.unflushed_bytes = 0;
+        self.unflushed_span = None;
         Ok(())
     }
 
@@ -469,11 +508,28 @@ impl Out {
             *lost += std::mem::take(unflushed);
         }
         self.unflushed_bytes = 0;
+        self.unflushed_span = None;
     }
 }
 
-/// The recorder's thread: set up, write until closed, account.
-fn record(sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> RecordSummary {
+/// After a failed write or flush: says so, counts what was not flushed as lost, and takes
+/// nothing more from the loop; the error.
+fn stop(out: &mut Out, lost: &mut PerChannel, drain: &Drain, e: RecordError) -> RecordError {
+    tracing::error!("recording stopped: {e}; the arm goes on, the rest is dropped");
+    out.lose_unflushed(lost);
+    drain.stop();
+    e
+}
+
+/// The recorder's thread: set up, write until closed, account. It waits at most `every` for
+/// the loop's items ([`tap::DRAIN_AT_LEAST_EVERY`]).
+fn record(
+    sink: Box<dyn Sink>,
+    drain: &Drain,
+    setup: &Setup,
+    notes: &Notes,
+    every: Duration,
+) -> RecordSummary {
     let specs = channel_specs(&setup.prefix);
     let mut out = Out::new(sink);
     // Messages taken but not in the file: their write failed, or a failure came before their
@@ -496,7 +552,15 @@ fn record(sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> R
         }
     };
     while !drain.is_done() {
-        let Some(item) = drain.next(tap::DRAIN_AT_LEAST_EVERY) else {
+        let Some(item) = drain.next(every) else {
+            // Nothing offered for `every`: the loop has stalled. What was taken goes to the
+            // file now, not whenever the loop goes on (the log-time rule waits for a next
+            // message).
+            if error.is_none() && out.has_unflushed() {
+                if let Err(e) = out.flush() {
+                    error = Some(stop(&mut out, &mut lost, drain, e));
+                }
+            }
             continue;
         };
         let Some(ch) = channels.as_ref().filter(|_| error.is_none()) else {
@@ -541,10 +605,7 @@ fn record(sink: Box<dyn Sink>, drain: &Drain, setup: &Setup, notes: &Notes) -> R
             }
         };
         if let Err(e) = result.and_then(|()| out.flush_when_due()) {
-            tracing::error!("recording stopped: {e}; the arm goes on, the rest is dropped");
-            out.lose_unflushed(&mut lost);
-            error = Some(e);
-            drain.stop();
+            error = Some(stop(&mut out, &mut lost, drain, e));
         }
     }
     if error.is_none() {
@@ -711,6 +772,7 @@ fn end(sink: &mut dyn Sink, notes: &Notes, channels: &[ChannelCount]) -> Result<
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+    use crate::record::read::Recording;
 
     /// A disk that fills up: writes fail after `room` messages.
     struct Filling {
@@ -778,8 +840,16 @@ mod tests {
             room: 4 * 100 + 2,
             channels: 0,
         };
-        let (recorder, tap) =
-            Recorder::start(Box::new(sink), setup(), Notes::new(), "full".into()).unwrap();
+        // The thread takes the items only when woken, here by the close: a pause of the test
+        // between two offers cannot pass for a loop that stalled, and flush.
+        let (recorder, tap) = Recorder::start_draining(
+            Box::new(sink),
+            setup(),
+            Notes::new(),
+            "full".into(),
+            Duration::from_secs(3600),
+        )
+        .unwrap();
         for tick in 0..1000 {
             let t = Telemetry {
                 tick,
@@ -793,8 +863,9 @@ mod tests {
         let joint_states = &summary.channels[0];
         assert_eq!(joint_states.topic, "/arm7/joint_states");
         assert_eq!(joint_states.offered, 1000);
-        // 100 whole ticks, then one whose tip_meas found the disk full: far less than a flush's
-        // worth, so none of them counts as written.
+        // 100 whole ticks, then one that found the disk full: less than a flush's worth (they
+        // span 0.99 s of log time, under FLUSH_AGE, and far less than FLUSH_BYTES), so none of
+        // them counts as written.
         assert_eq!(joint_states.written, 0, "{joint_states:?}");
         assert_eq!(joint_states.dropped, 1000, "{joint_states:?}");
         for c in &summary.channels {
@@ -864,8 +935,8 @@ mod tests {
 
     #[test]
     fn after_a_full_disk_the_messages_counted_written_are_those_in_the_file() {
-        // Two chunks fit (about 1.3 MB each: a flush's worth of messages, their records and
-        // index), and a third is cut short in its messages.
+        // Whole chunks fit (a second of ticks each, FLUSH_AGE, with their records and index),
+        // then one is cut short in its messages.
         let bytes = Arc::new(Mutex::new(Vec::new()));
         let disk = Disk {
             bytes: Arc::clone(&bytes),
@@ -1090,5 +1161,184 @@ mod tests {
                 nanosec: 123_456_789
             }
         );
+    }
+
+    /// What a kill left: the log time of the last tick written whole, and the file's bytes.
+    type Kill = (u64, Vec<u8>);
+
+    /// A recording file that the test "kills" before each tick: before the first message of
+    /// each new log time it keeps what the file on disk holds, as a process killed there would
+    /// leave it (what sits in the writer's buffer is lost).
+    struct Killed {
+        inner: McapSink<std::io::BufWriter<std::fs::File>>,
+        path: PathBuf,
+        last: Option<u64>,
+        kills: Arc<Mutex<Vec<Kill>>>,
+    }
+
+    impl Sink for Killed {
+        fn add_channel(&mut self, spec: &ChannelSpec) -> Result<u16, RecordError> {
+            self.inner.add_channel(spec)
+        }
+
+        fn write(&mut self, channel: u16, ns: u64, data: &[u8]) -> Result<(), RecordError> {
+            if let Some(last) = self.last.filter(|&last| last != ns) {
+                let on_disk = std::fs::read(&self.path).unwrap();
+                self.kills.lock().unwrap().push((last, on_disk));
+            }
+            self.last = Some(ns);
+            self.inner.write(channel, ns, data)
+        }
+
+        fn metadata(
+            &mut self,
+            name: &str,
+            entries: &BTreeMap<String, String>,
+        ) -> Result<(), RecordError> {
+            self.inner.metadata(name, entries)
+        }
+
+        fn flush(&mut self) -> Result<(), RecordError> {
+            self.inner.flush()
+        }
+
+        fn finish(&mut self) -> Result<(), RecordError> {
+            self.inner.finish()
+        }
+    }
+
+    /// A loop at 10 Hz with two joints writes far less than a chunk's [`FLUSH_BYTES`] in the
+    /// 10 s of this run: a kill at any tick from the first second on still leaves a file that
+    /// reads back every tick up to [`FLUSH_AGE`] before the last one written.
+    #[test]
+    fn at_10_hz_a_kill_loses_at_most_the_last_second_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let kills = Arc::new(Mutex::new(Vec::new()));
+        let sink = Killed {
+            inner: McapSink::create(&path, false).unwrap(),
+            path: path.clone(),
+            last: None,
+            kills: Arc::clone(&kills),
+        };
+        let period = Duration::from_millis(100);
+        const TICKS: u64 = 100;
+        let setup = Setup {
+            period,
+            queue: TICKS as usize,
+            // Below 30 Hz every tick draws the scene.
+            scene_every: 1,
+            ..setup()
+        };
+        let (recorder, tap) =
+            Recorder::start(Box::new(sink), setup, Notes::new(), "killed".into()).unwrap();
+        for tick in 0..TICKS {
+            tap.offer_tick(&Telemetry {
+                tick,
+                theta_meas: vec![0.1, 0.2],
+                ..Telemetry::default()
+            });
+        }
+        let summary = recorder.close();
+        assert!(summary.error.is_none(), "{:?}", summary.error);
+        let whole = Recording::open(&path).unwrap();
+        let t0 = whole.channels["/arm7/joint_states"].messages[0].log_time_ns;
+        let kills = kills.lock().unwrap();
+        assert_eq!(kills.len() as u64, TICKS - 1);
+        let (age, period) = (FLUSH_AGE.as_nanos() as u64, period.as_nanos() as u64);
+        let cut = dir.path().join("cut.mcap");
+        for (last, on_disk) in kills.iter().filter(|(last, _)| last - t0 >= age) {
+            let ticks = (last - t0) / period + 1;
+            std::fs::write(&cut, on_disk).unwrap();
+            let r =
+                Recording::open(&cut).unwrap_or_else(|e| panic!("killed after {ticks} ticks: {e}"));
+            let times: Vec<u64> = r
+                .channels
+                .get("/arm7/joint_states")
+                .map(|c| c.messages.iter().map(|m| m.log_time_ns).collect())
+                .unwrap_or_default();
+            let kept = times.len() as u64;
+            // Every tick from the first, in order, none missing.
+            assert_eq!(
+                times,
+                (0..kept).map(|n| t0 + n * period).collect::<Vec<_>>()
+            );
+            assert!(
+                times.last().is_some_and(|&t| last - t <= age),
+                "killed after {ticks} ticks: the file holds {kept}, not up to FLUSH_AGE before"
+            );
+        }
+    }
+
+    /// A sink that says on `flushes` how many messages were written before each flush.
+    struct Flushes {
+        written: usize,
+        flushes: std::sync::mpsc::Sender<usize>,
+    }
+
+    impl Sink for Flushes {
+        fn add_channel(&mut self, _: &ChannelSpec) -> Result<u16, RecordError> {
+            Ok(0)
+        }
+
+        fn write(&mut self, _: u16, _: u64, _: &[u8]) -> Result<(), RecordError> {
+            self.written += 1;
+            Ok(())
+        }
+
+        fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), RecordError> {
+            Ok(())
+        }
+
+        fn flush(&mut self) -> Result<(), RecordError> {
+            let _ = self.flushes.send(self.written);
+            Ok(())
+        }
+
+        fn finish(&mut self) -> Result<(), RecordError> {
+            Ok(())
+        }
+    }
+
+    /// A loop that stops offering (stalled) has what the recorder took flushed after one wait
+    /// for more, though those messages span far less than [`FLUSH_AGE`] and [`FLUSH_BYTES`].
+    #[test]
+    fn what_was_taken_is_flushed_when_the_loop_stops_offering() {
+        let (flushes_tx, flushes) = std::sync::mpsc::channel();
+        let sink = Flushes {
+            written: 0,
+            flushes: flushes_tx,
+        };
+        // The thread waits 10 ms for items, not a second, to keep the test short.
+        let (recorder, tap) = Recorder::start_draining(
+            Box::new(sink),
+            setup(),
+            Notes::new(),
+            "stalled loop".into(),
+            Duration::from_millis(10),
+        )
+        .unwrap();
+        // Three ticks (fewer than a batch: the recorder is not woken for them), then nothing.
+        for tick in 0..3 {
+            tap.offer_tick(&Telemetry {
+                tick,
+                theta_meas: vec![0.1, 0.2],
+                ..Telemetry::default()
+            });
+        }
+        // Each tick's four messages and tick 0's scene.
+        let written = 3 * 4 + 1;
+        // A guard against hanging, not a measure of speed: it takes two waits of 10 ms.
+        let deadline = std::time::Instant::now() + Duration::from_secs(30);
+        let flushed = loop {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match flushes.recv_timeout(left) {
+                Ok(n) if n == written => break true,
+                Ok(_) => {}
+                Err(_) => break false,
+            }
+        };
+        let _ = recorder.close();
+        assert!(flushed, "the three ticks were not flushed before the close");
     }
 }
