@@ -123,8 +123,12 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
             if f.code != 0 {
-                // Not `eprintln!`: a terminal hung up would make it panic.
-                let _ = writeln!(std::io::stderr(), "snakectl: {}", with_causes(&f.error));
+                // Not `eprintln!`: a terminal hung up would make it panic. Ended by a signal, the
+                // process does not wait long for a terminal that takes no output.
+                let line = format!("snakectl: {}\n", with_causes(&f.error));
+                let wait =
+                    cli::signals::ending_on_signal().then_some(cli::term_out::LAST_LINE_WAIT);
+                let _ = cli::term_out::to_stderr(line.as_bytes(), wait);
             }
             ExitCode::from(f.code)
         }

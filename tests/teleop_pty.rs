@@ -4,13 +4,15 @@
 //! back as it was; on a terminal with the kitty keyboard protocol a held arrow moves the tip
 //! until its release; with `--connect` it names another
 //! client in control, takes control back on `c`, outlives its daemon and finds a new one; a
-//! SIGTERM or SIGHUP stops the arm and gives the terminal back, as `q` does; a daemon fallen
+//! SIGTERM or SIGHUP stops the arm and gives the terminal back, as `q` does, the first SIGTERM
+//! ending it even while its terminal takes no output; a daemon fallen
 //! silent (played by the test) shows as such until its telemetry comes again; after a
 //! reconnection it claims no control until the new daemon's telemetry grants it.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::os::unix::fs::OpenOptionsExt as _;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
@@ -930,26 +932,9 @@ fn a_paste_moves_nothing_and_keys_after_a_flood_still_count() {
 /// moments rather than spinning on a terminal that reads nothing.
 #[test]
 fn a_terminal_closed_under_it_ends_teleop_without_a_signal() {
-    use rustix::pty::{grantpt, openpt, ptsname, unlockpt, OpenptFlags};
     let dir = tempfile::tempdir().unwrap();
     let config = config(dir.path());
-    // Close-on-exec: a master left open in teleop would keep its own terminal from hanging up.
-    let master = openpt(OpenptFlags::RDWR | OpenptFlags::NOCTTY | OpenptFlags::CLOEXEC).unwrap();
-    grantpt(&master).unwrap();
-    unlockpt(&master).unwrap();
-    let name = ptsname(&master, Vec::new()).unwrap();
-    let size = rustix::termios::Winsize {
-        ws_row: ROWS,
-        ws_col: COLS,
-        ws_xpixel: 0,
-        ws_ypixel: 0,
-    };
-    rustix::termios::tcsetwinsize(&master, size).unwrap();
-    let slave = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .open(<std::ffi::OsStr as std::os::unix::ffi::OsStrExt>::from_bytes(name.to_bytes()))
-        .unwrap();
+    let (master, _, slave) = open_pty();
     let child = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
         .args(["teleop", "--sim"])
         .arg(&config)
@@ -962,36 +947,8 @@ fn a_terminal_closed_under_it_ends_teleop_without_a_signal() {
         .unwrap();
     let mut child = Reaped(child);
     let child = &mut child.0;
-    let flags = rustix::fs::fcntl_getfl(&master).unwrap();
-    rustix::fs::fcntl_setfl(&master, flags | rustix::fs::OFlags::NONBLOCK).unwrap();
     let mut master = std::fs::File::from(master);
-    let mut screen = vt100::Parser::new(ROWS, COLS, 0);
-    let deadline = Instant::now() + DEADLINE;
-    // Up to the arm at rest under this UI's control (answering the terminal query a VT100
-    // answers).
-    let text = loop {
-        let text = screen.screen().contents();
-        if field(&text, "state") == Some("holding") && field(&text, "control") == Some("you") {
-            break text;
-        }
-        let mut buf = [0u8; 8192];
-        match master.read(&mut buf) {
-            Ok(n) => {
-                if contains(&buf[..n], b"\x1b[c") {
-                    master.write_all(b"\x1b[?62;22c").unwrap();
-                }
-                screen.process(&buf[..n]);
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                std::thread::sleep(Duration::from_millis(10));
-            }
-            Err(e) => panic!("reading the terminal: {e}"),
-        }
-        if let Some(status) = child.try_wait().unwrap() {
-            panic!("teleop exited ({status:?}) before the arm showed");
-        }
-        assert!(Instant::now() < deadline, "the arm never showed:\n{text}");
-    };
+    let text = read_until_in_control(&mut master, child);
     let addr = field(&text, "daemon").unwrap().to_owned();
     drop(master);
     let closed = Instant::now();
@@ -1018,6 +975,146 @@ fn a_terminal_closed_under_it_ends_teleop_without_a_signal() {
     assert!(
         TcpStream::connect(&addr).is_err(),
         "the daemon at {addr} still listens"
+    );
+}
+
+/// A pseudo-terminal of [`ROWS`] by [`COLS`], made no process's controlling terminal: its
+/// master (non-blocking, close-on-exec: a master left open in teleop would keep its own
+/// terminal from hanging up), its slave's path, and the slave opened.
+fn open_pty() -> (rustix::fd::OwnedFd, PathBuf, std::fs::File) {
+    use rustix::pty::{grantpt, openpt, ptsname, unlockpt, OpenptFlags};
+    let master = openpt(OpenptFlags::RDWR | OpenptFlags::NOCTTY | OpenptFlags::CLOEXEC).unwrap();
+    grantpt(&master).unwrap();
+    unlockpt(&master).unwrap();
+    let name = ptsname(&master, Vec::new()).unwrap();
+    let size = rustix::termios::Winsize {
+        ws_row: ROWS,
+        ws_col: COLS,
+        ws_xpixel: 0,
+        ws_ypixel: 0,
+    };
+    rustix::termios::tcsetwinsize(&master, size).unwrap();
+    let path = PathBuf::from(
+        <std::ffi::OsStr as std::os::unix::ffi::OsStrExt>::from_bytes(name.to_bytes()),
+    );
+    let slave = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&path)
+        .unwrap();
+    let flags = rustix::fs::fcntl_getfl(&master).unwrap();
+    rustix::fs::fcntl_setfl(&master, flags | rustix::fs::OFlags::NONBLOCK).unwrap();
+    (master, path, slave)
+}
+
+/// Reads teleop's screen from `master` up to the arm at rest under its control (answering the
+/// terminal query a VT100 answers); the screen's text then.
+fn read_until_in_control(master: &mut std::fs::File, child: &mut std::process::Child) -> String {
+    let mut screen = vt100::Parser::new(ROWS, COLS, 0);
+    let deadline = Instant::now() + DEADLINE;
+    loop {
+        let text = screen.screen().contents();
+        if field(&text, "state") == Some("holding") && field(&text, "control") == Some("you") {
+            return text;
+        }
+        let mut buf = [0u8; 8192];
+        match master.read(&mut buf) {
+            Ok(n) => {
+                if contains(&buf[..n], b"\x1b[c") {
+                    master.write_all(b"\x1b[?62;22c").unwrap();
+                }
+                screen.process(&buf[..n]);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            Err(e) => panic!("reading the terminal: {e}"),
+        }
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("teleop exited ({status:?}) before the arm showed");
+        }
+        assert!(Instant::now() < deadline, "the arm never showed:\n{text}");
+    }
+}
+
+/// A terminal that takes no more output (the program on its other side stopped reading it)
+/// blocks teleop's writes to it. The first SIGTERM ends teleop all the same, with status 143,
+/// raw mode given back, though the terminal takes none of the escape sequences nor the last
+/// line: teleop waits for them only so long.
+#[test]
+fn the_first_sigterm_ends_teleop_while_its_terminal_takes_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path());
+    let (master, path, slave) = open_pty();
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["teleop", "--sim"])
+        .arg(&config)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("TERM", "xterm-256color")
+        .stdin(slave.try_clone().unwrap())
+        .stdout(slave.try_clone().unwrap())
+        .stderr(slave.try_clone().unwrap())
+        .spawn()
+        .unwrap();
+    let mut child = Reaped(child);
+    let child = &mut child.0;
+    let mut master = std::fs::File::from(master);
+    read_until_in_control(&mut master, child);
+
+    // The master is read no more: the terminal's buffers fill until a write to it blocks.
+    // The test fills them itself, through a description of the slave of its own that does not
+    // block, up to where it takes nothing more: until, a moment after it was full (the kernel
+    // moves what the terminal holds between its buffers on its own time), not a byte more
+    // goes in.
+    let filler = std::fs::OpenOptions::new()
+        .write(true)
+        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
+        .open(&path)
+        .unwrap();
+    let mut filled = 0usize;
+    loop {
+        let before = filled;
+        loop {
+            match (&filler).write(&[b'.'; 4096]) {
+                Ok(n) => filled += n,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+                Err(e) => panic!("filling the terminal: {e}"),
+            }
+            assert!(
+                filled < 64 << 20,
+                "the terminal took {filled} bytes and more"
+            );
+        }
+        if filled == before {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // A key that changes the screen (the speed shown), should the telemetry not: teleop draws
+    // a frame (within 33 ms), which the terminal cannot take. The pause only lets the frame
+    // begin, so that the signal finds the write under way; were it to come first, teleop would
+    // still have to give the terminal back through that full buffer.
+    master.write_all(b"+").unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+
+    let pid = rustix::process::Pid::from_raw(i32::try_from(child.id()).unwrap()).unwrap();
+    rustix::process::kill_process(pid, rustix::process::Signal::TERM).unwrap();
+    let sent = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            sent.elapsed() < DEADLINE,
+            "teleop still runs {DEADLINE:?} after one SIGTERM, its terminal taking no output"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(status.code(), Some(143), "{status:?}");
+    let local = rustix::termios::tcgetattr(&master).unwrap().local_modes;
+    assert!(
+        local.contains(rustix::termios::LocalModes::ICANON | rustix::termios::LocalModes::ECHO),
+        "raw mode not left: {local:?}"
     );
 }
 

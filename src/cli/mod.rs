@@ -11,6 +11,7 @@ pub mod sim;
 pub mod simulate;
 pub mod solve;
 pub mod teleop;
+pub(crate) mod term_out;
 pub mod urdf;
 pub mod world;
 

@@ -13,8 +13,12 @@ pub(crate) const QUIT_SIGNALS: [i32; 3] = [
     signal_hook::consts::SIGINT,
 ];
 
-/// Which of [`QUIT_SIGNALS`] came, for a loop to end on.
+/// Which of [`QUIT_SIGNALS`] came, for a loop to end on (clones see the same).
+#[derive(Clone)]
 pub(crate) struct Signals(Arc<AtomicUsize>);
+
+/// The process ends on a signal ([`stopped_by`] made its failure).
+static ENDING_ON_SIGNAL: AtomicBool = AtomicBool::new(false);
 
 impl Signals {
     /// Catches [`QUIT_SIGNALS`]. A second one ends the process at once (exit status 128 plus
@@ -46,6 +50,7 @@ impl Signals {
 
 /// What a command ended by `signal` exits with: 128 plus its number, and its name.
 pub(crate) fn stopped_by(signal: i32) -> super::Failure {
+    ENDING_ON_SIGNAL.store(true, Ordering::SeqCst);
     super::Failure {
         code: u8::try_from(128 + signal).unwrap_or(1),
         error: anyhow::anyhow!(
@@ -53,6 +58,12 @@ pub(crate) fn stopped_by(signal: i32) -> super::Failure {
             signal_hook::low_level::signal_name(signal).unwrap_or("a signal")
         ),
     }
+}
+
+/// Whether the process ends on a signal: its last line then waits only so long for a terminal
+/// that takes no output ([`super::term_out::LAST_LINE_WAIT`]), since the signal asked it to end.
+pub(crate) fn ending_on_signal() -> bool {
+    ENDING_ON_SIGNAL.load(Ordering::SeqCst)
 }
 
 /// Lets a write past the file-size limit (`ulimit -f`, RLIMIT_FSIZE) fail with EFBIG instead

@@ -40,6 +40,7 @@ use snakectl::world::World;
 use snakectl_sim::RealClock;
 
 use super::signals::Signals;
+use super::term_out::TermOut;
 use super::Failure;
 
 #[derive(Debug, Args)]
@@ -98,6 +99,10 @@ const SEND_WAIT: Duration = Duration::from_millis(500);
 
 /// How long a notice stays on screen.
 const NOTICE_FOR: Duration = Duration::from_secs(5);
+
+/// The longest the terminal's modes wait to be given back to a terminal that takes no output:
+/// past it the UI ends all the same (raw mode is left in any case: that needs no output).
+const RESTORE_WAIT: Duration = Duration::from_millis(500);
 
 /// Measured tips kept for the trail.
 const TRAIL_POINTS: usize = 2000;
@@ -183,8 +188,9 @@ pub fn run(args: TeleopArgs) -> Result<(), Failure> {
     };
     let outcome = {
         let embedded = local.as_ref().map(|(embedded, _)| embedded);
+        let screen_out = ScreenOut::new(signals.clone());
         let mut app = App::new(addr, token_file, args.deadman_button, stick, signals, tty);
-        match Screen::enter() {
+        match Screen::enter(screen_out) {
             Ok(mut screen) => {
                 app.keyboard.set_releases_reported(screen.releases_reported);
                 app.run(&mut screen, embedded)
@@ -286,41 +292,88 @@ static ACTIVE: AtomicBool = AtomicBool::new(false);
 static ENHANCED: AtomicBool = AtomicBool::new(false);
 
 /// Leaves raw mode, the alternate screen, mouse capture and the kitty flags, and shows the
-/// cursor; once, however often it is called.
+/// cursor; once, however often it is called. Raw mode goes first: it takes no output, so the
+/// terminal gets it back even when it takes none of the rest, which is given up on after
+/// [`RESTORE_WAIT`].
 fn restore_terminal() {
     if !ACTIVE.swap(false, Ordering::SeqCst) {
         return;
     }
-    let mut out = std::io::stdout();
+    let _ = terminal::disable_raw_mode();
+    let mut bytes = Vec::new();
     if ENHANCED.swap(false, Ordering::SeqCst) {
-        let _ = crossterm::execute!(out, PopKeyboardEnhancementFlags);
+        let _ = crossterm::queue!(bytes, PopKeyboardEnhancementFlags);
     }
-    let _ = crossterm::execute!(
-        out,
+    let _ = crossterm::queue!(
+        bytes,
         DisableBracketedPaste,
         DisableMouseCapture,
         LeaveAlternateScreen,
         crossterm::cursor::Show
     );
-    let _ = terminal::disable_raw_mode();
+    match TermOut::reopen(std::io::stdout()) {
+        Some(term) => {
+            let _ = term.write_all_by(&bytes, Instant::now() + RESTORE_WAIT);
+        }
+        None => {
+            let mut out = std::io::stdout().lock();
+            let _ = out.write_all(&bytes).and_then(|()| out.flush());
+        }
+    }
 }
 
-/// Standard output for the screen, except that a hung-up terminal takes whatever is written
-/// (`EIO`, the error a write to one gets, counts as written): the screen's library prints to
-/// standard error, and so panics, when it cannot show the cursor again as it is dropped.
-struct ScreenOut;
+/// The screen's output. What a frame writes is kept, and written at its end
+/// ([`Write::flush`]) through [`TermOut`], so that a terminal that takes no output (the
+/// program on its other side stopped reading, or flow control) holds the UI only until a
+/// signal comes: what is left of the frame is then dropped, and the UI ends on the signal at
+/// its next turn. A hung-up terminal takes whatever is written (`EIO`, the error a write to one
+/// gets, counts as written). Neither is an error: the screen's library prints to standard
+/// error (which may be that terminal), and so panics or blocks, when it cannot show the cursor
+/// again as it is dropped.
+struct ScreenOut {
+    pending: Vec<u8>,
+    /// The terminal opened again without blocking; `None` (standard output not a terminal, or
+    /// not to be opened again): standard output itself.
+    term: Option<TermOut>,
+    signals: Signals,
+}
+
+impl ScreenOut {
+    fn new(signals: Signals) -> Self {
+        Self {
+            pending: Vec::new(),
+            term: TermOut::reopen(std::io::stdout()),
+            signals,
+        }
+    }
+}
 
 impl Write for ScreenOut {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        match std::io::stdout().write(buf) {
-            Err(e) if hung_up_error(&e) => Ok(buf.len()),
-            other => other,
-        }
+        self.pending.extend_from_slice(buf);
+        Ok(buf.len())
     }
 
     fn flush(&mut self) -> std::io::Result<()> {
-        match std::io::stdout().flush() {
-            Err(e) if hung_up_error(&e) => Ok(()),
+        let mut pending = std::mem::take(&mut self.pending);
+        let signals = &self.signals;
+        let written = match &self.term {
+            Some(term) => term.write_all(&pending, || {
+                signals.received().map(|signal| {
+                    std::io::Error::other(format!(
+                        "signal {signal} came while the terminal took no output"
+                    ))
+                })
+            }),
+            None => {
+                let mut out = std::io::stdout().lock();
+                out.write_all(&pending).and_then(|()| out.flush())
+            }
+        };
+        pending.clear();
+        self.pending = pending;
+        match written {
+            Err(e) if hung_up_error(&e) || self.signals.received().is_some() => Ok(()),
             other => other,
         }
     }
@@ -339,7 +392,8 @@ struct Screen {
 }
 
 impl Screen {
-    fn enter() -> anyhow::Result<Self> {
+    /// The terminal in the UI's modes, the screen written through `out`.
+    fn enter(out: ScreenOut) -> anyhow::Result<Self> {
         let previous = std::panic::take_hook();
         std::panic::set_hook(Box::new(move |info| {
             restore_terminal();
@@ -349,12 +403,11 @@ impl Screen {
         ACTIVE.store(true, Ordering::SeqCst);
         // From here on an early return drops the screen, which restores the terminal.
         let mut screen = Screen {
-            terminal: Terminal::new(CrosstermBackend::new(ScreenOut))
-                .context("opening the terminal")?,
+            terminal: Terminal::new(CrosstermBackend::new(out)).context("opening the terminal")?,
             releases_reported: false,
         };
         crossterm::execute!(
-            std::io::stdout(),
+            screen.terminal.backend_mut(),
             EnterAlternateScreen,
             EnableMouseCapture,
             // A paste comes as one event, not as keys (it would drive the arm).
@@ -365,7 +418,7 @@ impl Screen {
         // No answer within its wait (2 s) counts as no.
         if terminal::supports_keyboard_enhancement().unwrap_or(false) {
             crossterm::execute!(
-                std::io::stdout(),
+                screen.terminal.backend_mut(),
                 PushKeyboardEnhancementFlags(KeyboardEnhancementFlags::REPORT_EVENT_TYPES)
             )
             .context("setting up the terminal")?;
