@@ -8,7 +8,7 @@
 //! between), and reads at most `cap + 1` bytes, so a file that grows while it is read cannot
 //! beat the limit.
 
-use std::fs::{FileType, OpenOptions};
+use std::fs::{File, FileType, OpenOptions};
 use std::io::Read;
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::Path;
@@ -65,6 +65,13 @@ fn what(t: FileType) -> &'static str {
 /// description): [`TextFileError::NotRegular`] for anything else, checked before it is opened
 /// and again once it is; [`TextFileError::TooLarge`] beyond `cap`.
 pub fn read_text(path: &Path, cap: u64) -> Result<String, TextFileError> {
+    read_capped(open_regular(path)?, cap)
+}
+
+/// The regular file at `path`, opened for reading: [`TextFileError::NotRegular`] for anything
+/// else, checked before it is opened (a device is never opened) and again once it is (the
+/// path may have changed in between); opening never blocks.
+pub fn open_regular(path: &Path) -> Result<File, TextFileError> {
     let regular = |t: FileType| {
         if t.is_file() {
             Ok(())
@@ -81,7 +88,7 @@ pub fn read_text(path: &Path, cap: u64) -> Result<String, TextFileError> {
         .custom_flags(flags.bits() as i32)
         .open(path)?;
     regular(file.metadata()?.file_type())?;
-    read_capped(file, cap)
+    Ok(file)
 }
 
 /// At most `cap` bytes of UTF-8 text from `reader` (standard input, say), read through

@@ -480,3 +480,109 @@ fn a_recording_that_is_not_a_regular_file_is_refused_at_once() {
         );
     }
 }
+
+/// Runs `snakectl plot FILE --out OUT`, killed if it has not ended within a minute (a bound on
+/// a test that would otherwise never end, not a speed asked for): its exit code and stderr.
+fn plot_ending(file: &std::path::Path, out: &std::path::Path) -> (Option<i32>, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .arg("plot")
+        .arg(file)
+        .arg("--out")
+        .arg(out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while child.try_wait().unwrap().is_none() {
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!("`snakectl plot {}` did not end", file.display());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let output = child.wait_with_output().unwrap();
+    (
+        output.status.code(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+/// A closed recording of 50 telemetry snapshots of a still three-joint arm, each changed by
+/// `spoil`.
+fn telemetry_recording(path: &std::path::Path, spoil: fn(&mut snakectl::protocol::Telemetry)) {
+    use snakectl::protocol::{telemetry_line, Status, Telemetry};
+    use snakectl::record::{schema, McapSink, Sink};
+    let mut sink = McapSink::create(path, false).unwrap();
+    let channel = sink.add_channel(&schema::telemetry("snakectl")).unwrap();
+    for tick in 0..50u64 {
+        let mut t = Telemetry {
+            tick,
+            t_s: tick as f64 * 0.01,
+            theta_meas: vec![0.1, 0.2, 0.3],
+            tip_meas: [0.3, 0.2],
+            ..Telemetry::default()
+        };
+        spoil(&mut t);
+        let line = telemetry_line(&Status::of(&t));
+        sink.write(channel, tick * 10_000_000, line.trim_end().as_bytes())
+            .unwrap();
+    }
+    sink.finish().unwrap();
+}
+
+/// What `plot` cannot draw it refuses, exit 2, saying why, and writes nothing: a record length
+/// of `u64::MAX` (which once panicked in the `mcap` crate), values no run records (which once
+/// made the drawing run without end), a device and a FIFO (read without end, or never opened).
+#[test]
+fn plot_refuses_what_it_cannot_draw_with_exit_2_and_always_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("figures");
+
+    let tiny = dir.path().join("tiny.mcap");
+    std::fs::write(&tiny, b"\x89MCAP0\r\n\x01\xff\xff\xff\xff\xff\xff\xff\xff").unwrap();
+    let (code, said) = plot_ending(&tiny, &out);
+    assert_eq!(code, Some(2), "{said}");
+    assert!(said.contains("claims 18446744073709551615 bytes"), "{said}");
+    assert!(!said.contains("panicked"), "{said}");
+
+    type Spoil = fn(&mut snakectl::protocol::Telemetry);
+    let cases: [(&str, Spoil); 2] = [
+        ("tip_meas", |t| t.tip_meas = [1e308, 1e308]),
+        ("tracking_error_m", |t| t.tracking_error_m = 1e307),
+    ];
+    for (field, spoil) in cases {
+        let path = dir.path().join(format!("{field}.mcap"));
+        telemetry_recording(&path, spoil);
+        let (code, said) = plot_ending(&path, &out);
+        assert_eq!(code, Some(2), "{said}");
+        assert!(
+            said.contains(&format!("{field} is ")) && said.contains("the recording is damaged"),
+            "{said}"
+        );
+    }
+    // The same recording unspoilt draws.
+    let fine = dir.path().join("fine.mcap");
+    telemetry_recording(&fine, |_| {});
+    let (code, said) = plot_ending(&fine, &out);
+    assert_eq!(code, Some(0), "{said}");
+    std::fs::remove_dir_all(&out).unwrap();
+
+    let (code, said) = plot_ending(std::path::Path::new("/dev/zero"), &out);
+    assert_eq!(code, Some(2), "{said}");
+    assert!(
+        said.contains("a character device, not a regular file"),
+        "{said}"
+    );
+    let fifo = dir.path().join("fifo.mcap");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let (code, said) = plot_ending(&fifo, &out);
+    assert_eq!(code, Some(2), "{said}");
+    assert!(
+        said.contains("a FIFO (named pipe), not a regular file"),
+        "{said}"
+    );
+    assert!(!out.exists(), "figures written from what was refused");
+}

@@ -1,5 +1,6 @@
 //! `snakectl plot FILE.mcap --out DIR`: the demo's figures (the arm's motion; joint angles and
-//! tracking error against time) drawn from any recording, as SVG and PNG.
+//! tracking error against time) drawn from a recording (uncompressed, as snakectl writes it), as
+//! SVG and PNG.
 
 use std::path::{Path, PathBuf};
 

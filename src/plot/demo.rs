@@ -16,8 +16,8 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::outline;
-use super::{axis_label, draw_err, PlotError};
-use crate::chain::{Chain, Vec2};
+use super::{axis, axis_label, draw_err, PlotError};
+use crate::chain::{Chain, Vec2, MAX_MAGNITUDE};
 use crate::world::World;
 
 /// One telemetry sample.
@@ -95,6 +95,53 @@ impl Record {
         self.chain
             .as_ref()
             .map_or((0.0, 0.0), |chain| (chain.base().x, chain.base().y))
+    }
+
+    /// The first value to draw that no run records, if any: a time that is not finite, or an
+    /// angle, a position or an error that is not finite or beyond [`MAX_MAGNITUDE`]. The
+    /// figures' ranges are found from these values; such a value would make them infinite, or
+    /// too wide for their ticks to be placed.
+    fn check(&self) -> Result<(), PlotError> {
+        let fault = |field: &'static str, at: &dyn Fn() -> String, value: f64, bound: f64| {
+            if value.is_finite() && value.abs() <= bound {
+                Ok(())
+            } else {
+                Err(PlotError::Unusable {
+                    field,
+                    at: at(),
+                    value,
+                    bound,
+                })
+            }
+        };
+        let (m, t) = (MAX_MAGNITUDE, f64::MAX);
+        for (i, s) in self.samples.iter().enumerate() {
+            let at = || format!("sample {i} of the telemetry");
+            fault("t_s", &at, s.t_s, t)?;
+            for &a in &s.theta {
+                fault("theta_meas", &at, a, m)?;
+            }
+            for &x in &s.tip_meas {
+                fault("tip_meas", &at, x, m)?;
+            }
+            fault("tracking_error_m", &at, s.tracking_error_m, m)?;
+        }
+        for p in &self.phases {
+            let at = || format!("the phase \"{}\"", p.label);
+            fault("its start (t0_s)", &at, p.t0, t)?;
+            fault("its end (t1_s)", &at, p.t1, t)?;
+            for &x in p.reference.iter().flatten() {
+                fault("its reference", &at, x, m)?;
+            }
+        }
+        for e in &self.events {
+            let at = || format!("the event \"{}\"", e.label);
+            fault("its time", &at, e.t_s, t)?;
+            for &x in &e.tip {
+                fault("its tip", &at, x, m)?;
+            }
+        }
+        Ok(())
     }
 
     fn samples_in(&self, phase: &Phase) -> Vec<&Sample> {
@@ -176,6 +223,7 @@ pub fn motion(record: &Record, title: &str) -> Result<String, PlotError> {
     if phases.is_empty() || record.samples.is_empty() {
         return Err(PlotError::Empty);
     }
+    record.check()?;
     let per_phase: Vec<Vec<&Sample>> = phases.iter().map(|p| record.samples_in(p)).collect();
     // One view of the whole arm, the same in every column: the base and every pose drawn.
     let mut arm_points = vec![record.base()];
@@ -264,6 +312,10 @@ fn arm_panel(
     colour: RGBColor,
     (xr, yr): (std::ops::Range<f64>, std::ops::Range<f64>),
 ) -> Result<(), PlotError> {
+    let (xr, yr) = (
+        axis("arm's x", xr.start, xr.end)?,
+        axis("arm's y", yr.start, yr.end)?,
+    );
     let (xr_view, yr_view) = (xr.clone(), yr.clone());
     let mut chart = ChartBuilder::on(area)
         .caption(format!("{}: the arm", phase.label), (FONT, 17))
@@ -395,6 +447,10 @@ fn zoom_panel(
         f64::from(COL_W - CHART_EXTRA.0),
         f64::from(ZOOM_H - CHART_EXTRA.1),
         0.12,
+    );
+    let view = (
+        axis("tip's x", view.0.start, view.0.end)?,
+        axis("tip's y", view.1.start, view.1.end)?,
     );
     let mut chart = ChartBuilder::on(area)
         .caption(format!("{}: the tip", phase.label), (FONT, 17))
@@ -555,15 +611,16 @@ const LEGEND_W: u32 = 120;
 pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
     let first = record.samples.first().ok_or(PlotError::Empty)?;
     let last = record.samples.last().ok_or(PlotError::Empty)?;
+    record.check()?;
     let n = first.theta.len();
     let (t0, t1) = (first.t_s, last.t_s.max(first.t_s + 1e-3));
-    let (mut lo, mut hi) = (f64::MAX, f64::MIN);
-    for s in &record.samples {
-        for &a in &s.theta {
-            lo = lo.min(a);
-            hi = hi.max(a);
-        }
-    }
+    let angles = record.samples.iter().flat_map(|s| s.theta.iter().copied());
+    let (lo, hi) = angles
+        .fold(None, |b: Option<(f64, f64)>, a| {
+            Some(b.map_or((a, a), |(lo, hi)| (lo.min(a), hi.max(a))))
+        })
+        // No angle in any sample: an empty chart, one radian each side of zero.
+        .unwrap_or((-1.0, 1.0));
     let pad = 0.08 * (hi - lo).max(0.05);
     let (lo, hi) = (lo - pad, hi + 2.5 * pad);
     let err_max = record
@@ -573,6 +630,11 @@ pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
         .fold(0.0, f64::max)
         .max(0.1)
         * 1.15;
+    let (time, angle, error) = (
+        axis("time", t0, t1)?,
+        axis("angle", lo, hi)?,
+        axis("error", 0.0, err_max)?,
+    );
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (TIME_W, TITLE_H + ANGLES_H + ERROR_H))
@@ -588,7 +650,7 @@ pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d(t0..t1, lo..hi)
+            .build_cartesian_2d(time.clone(), angle)
             .map_err(draw_err)?;
         chart
             .configure_mesh()
@@ -621,7 +683,7 @@ pub fn joints(record: &Record, title: &str) -> Result<String, PlotError> {
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d(t0..t1, 0.0..err_max)
+            .build_cartesian_2d(time, error)
             .map_err(draw_err)?;
         chart
             .configure_mesh()
@@ -982,6 +1044,69 @@ mod tests {
             .collect();
         assert!(labels.contains(&"0.0"), "no label at zero: {labels:?}");
         assert!(!labels.contains(&"-0.0"), "{labels:?}");
+    }
+
+    /// `f()`, run on a thread of its own and waited for at most a minute: a bound on a test
+    /// that would otherwise never end, not a speed asked for.
+    fn ends<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(f());
+        });
+        rx.recv_timeout(std::time::Duration::from_secs(60))
+            .expect("drawing did not end")
+    }
+
+    #[test]
+    fn an_axis_must_be_finite_and_wide_enough_for_its_ticks() {
+        assert_eq!(axis("x", -0.5, 2.0), Ok(-0.5..2.0));
+        assert_eq!(axis("x", 1e6, 1e6 + 1e-3), Ok(1e6..1e6 + 1e-3));
+        assert_eq!(axis("x", 0.0, 1e300), Ok(0.0..1e300));
+        for (lo, hi) in [
+            (0.0, f64::INFINITY),
+            (f64::NAN, 1.0),
+            // Finite ends, an infinite span.
+            (-1e308, 1e308),
+            // Ends that round to one value, or nearly.
+            (1e308, 1e308),
+            (1e16, 1e16 + 2.0),
+            (1.0, 0.0),
+        ] {
+            assert!(
+                matches!(axis("x", lo, hi), Err(PlotError::Axis { axis: "x", .. })),
+                "{lo}..{hi}"
+            );
+        }
+    }
+
+    /// Values no run records (a tip at 1e308 m, a tracking error of 1e307 m, a time without
+    /// end) are refused naming the field; a run without joint angles draws. None of them
+    /// makes a figure's drawing run without end.
+    #[test]
+    fn values_no_run_records_are_refused_and_drawing_always_ends() {
+        type Spoil = fn(&mut Sample);
+        let cases: [(&str, Spoil); 4] = [
+            ("tip_meas", |s| s.tip_meas = [1e308, 1e308]),
+            ("tip_meas", |s| s.tip_meas = [-1e308, 1e308]),
+            ("tracking_error_m", |s| s.tracking_error_m = 1e307),
+            ("t_s", |s| s.t_s = f64::INFINITY),
+        ];
+        for (field, spoil) in cases {
+            let mut record = swing(None);
+            record.samples.iter_mut().for_each(spoil);
+            let (m, j) = ends(move || (motion(&record, "t"), joints(&record, "t")));
+            for e in [m.unwrap_err(), j.unwrap_err()] {
+                assert!(
+                    matches!(&e, PlotError::Unusable { field: f, .. } if *f == field),
+                    "{e}"
+                );
+                assert!(e.to_string().contains("the recording is damaged"), "{e}");
+            }
+        }
+        let mut record = swing(None);
+        record.samples.iter_mut().for_each(|s| s.theta.clear());
+        let (m, j) = ends(move || (motion(&record, "t"), joints(&record, "t")));
+        assert!(m.is_ok() && j.is_ok(), "{m:?} {j:?}");
     }
 
     #[test]

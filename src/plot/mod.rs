@@ -15,7 +15,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::chain::Vec2;
+use crate::chain::{Num, Vec2};
 use crate::scenario::{rotations as joint_rotations, Run, Scenario};
 
 pub mod demo;
@@ -37,6 +37,57 @@ pub enum PlotError {
     /// Nothing to draw.
     #[error("no runs to draw")]
     Empty,
+    /// A value to draw that no run records: not finite, or beyond the largest magnitude drawn
+    /// (the recording is damaged).
+    #[error(
+        "{field} is {} in {at}: not a finite value within +-{}, as every run records; the \
+         recording is damaged",
+        Num(*value),
+        Num(*bound)
+    )]
+    Unusable {
+        /// The value's name, as the telemetry or the recording names it.
+        field: &'static str,
+        /// Where: which sample, phase or event.
+        at: String,
+        /// The value.
+        value: f64,
+        /// The largest magnitude drawn.
+        bound: f64,
+    },
+    /// An axis whose ends are not finite, or too close together for their magnitude to be
+    /// marked with ticks.
+    #[error("the {axis} axis cannot be drawn from {} to {}", Num(*lo), Num(*hi))]
+    Axis {
+        /// Which axis.
+        axis: &'static str,
+        /// Its lower end.
+        lo: f64,
+        /// Its upper end.
+        hi: f64,
+    },
+}
+
+/// Ranges narrower than this fraction of their ends' magnitude are refused: below it the
+/// spacing of `f64` values is too coarse for the ticks plotters searches for (its search would
+/// not end).
+const LEAST_RELATIVE_SPAN: f64 = 1e-12;
+
+/// `lo..hi` as an axis range, once both ends are finite, their span too, and wide enough for
+/// their magnitude ([`LEAST_RELATIVE_SPAN`]): what plotters needs to place its ticks in a
+/// bounded number of steps.
+pub(crate) fn axis(
+    axis: &'static str,
+    lo: f64,
+    hi: f64,
+) -> Result<std::ops::Range<f64>, PlotError> {
+    let span = hi - lo;
+    let magnitude = lo.abs().max(hi.abs());
+    if span.is_finite() && span > 0.0 && span >= LEAST_RELATIVE_SPAN * magnitude {
+        Ok(lo..hi)
+    } else {
+        Err(PlotError::Axis { axis, lo, hi })
+    }
 }
 
 /// An axis label as plotters writes an `f64` key point, except that a key point at zero up to

@@ -10,7 +10,7 @@
 //!   the target and the telemetry per tick, each event, the config, and on close the account of
 //!   what was offered, written and dropped.
 //! - [`read`]: a recording read back: messages, metadata, telemetry, events, and the demo's
-//!   figures drawn from any recording.
+//!   figures drawn from any recording with uncompressed chunks (as snakectl writes them).
 //!
 //! The recording rate is the loop's: every tick is offered, so "messages written = ticks run
 //! minus the counted drops" holds per channel.

@@ -11,6 +11,13 @@
 //!
 //! A file whose writer did not close it (the process killed) ends in the middle of a record:
 //! what it holds up to there is read ([`Recording::cut`] says so), the rest is lost.
+//!
+//! Only a regular file is read (a device or a FIFO is refused unopened), and at most the bytes
+//! it holds when opened. Its records' framing (an opcode byte and a little-endian `u64` length
+//! each, and inside an uncompressed chunk the same) is walked before the `mcap` crate sees the
+//! file (`framing`), so that a length the file cannot hold is a cut or damaged file, never a
+//! length the crate computes with. Chunks must be uncompressed, as snakectl writes them: this
+//! build has no zstd or lz4.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -85,6 +92,225 @@ fn ends_early(e: &mcap::McapError, file_len: usize) -> bool {
     }
 }
 
+/// The 8 bytes an MCAP file begins and ends with.
+const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+/// Opcode and length before each record, bytes.
+const RECORD_HEAD: usize = 9;
+/// The chunk record's opcode.
+const OP_CHUNK: u8 = 0x06;
+/// The footer record's opcode: the last record of a file.
+const OP_FOOTER: u8 = 0x02;
+/// A chunk's header up to its compression's name: start and end times, uncompressed size and
+/// CRC, the name's length; then, after the name, the size of its records (`u64`).
+const CHUNK_HEAD: usize = 8 + 8 + 8 + 4 + 4;
+
+/// What walking the records of a file found ([`framing`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Framing {
+    /// Every record lies within the file, up to its footer.
+    Whole,
+    /// The file ends before its records do, at the record that begins at byte `at`: the bytes
+    /// before it are whole records.
+    EndsEarly {
+        /// Where the first incomplete record begins.
+        at: usize,
+        /// What is missing.
+        reason: String,
+    },
+    /// A whole record whose own lengths contradict each other, or not an MCAP file.
+    Damaged(String),
+    /// A chunk compressed (zstd, lz4): not readable by this build.
+    Compressed {
+        /// Where the chunk begins.
+        at: usize,
+        /// Its compression, as the file names it.
+        compression: String,
+    },
+}
+
+/// A little-endian `u64` at `at` in `bytes` (`None` past their end).
+fn u64_at(bytes: &[u8], at: usize) -> Option<u64> {
+    let b = bytes.get(at..at.checked_add(8)?)?;
+    Some(u64::from_le_bytes(b.try_into().ok()?))
+}
+
+/// A little-endian `u32` at `at` in `bytes` (`None` past their end).
+fn u32_at(bytes: &[u8], at: usize) -> Option<u32> {
+    let b = bytes.get(at..at.checked_add(4)?)?;
+    Some(u32::from_le_bytes(b.try_into().ok()?))
+}
+
+/// Walks the records of an MCAP file (`bytes`, whole) from its magic to its footer, checking
+/// that each record's length fits in what remains of the file and, in an uncompressed chunk,
+/// that its records fill it exactly. The `mcap` crate is then given only bytes whose framing
+/// holds (it would compute with any length, `u64::MAX` included).
+fn framing(bytes: &[u8]) -> Framing {
+    if bytes.len() < MAGIC.len() {
+        return if MAGIC.starts_with(bytes) {
+            Framing::EndsEarly {
+                at: 0,
+                reason: format!("the file ends within its first 8 bytes ({})", bytes.len()),
+            }
+        } else {
+            Framing::Damaged("not an MCAP file (it does not begin with the MCAP magic)".into())
+        };
+    }
+    if !bytes.starts_with(MAGIC) {
+        return Framing::Damaged("not an MCAP file (it does not begin with the MCAP magic)".into());
+    }
+    let mut at = MAGIC.len();
+    loop {
+        let rest = bytes.len() - at;
+        if rest == 0 {
+            return Framing::EndsEarly {
+                at,
+                reason: format!("the file ends after its record at byte {at} without its footer"),
+            };
+        }
+        let (Some(&opcode), Some(len)) = (bytes.get(at), u64_at(bytes, at + 1)) else {
+            return Framing::EndsEarly {
+                at,
+                reason: format!("the record at byte {at} is cut in its opcode and length"),
+            };
+        };
+        let room = (rest - RECORD_HEAD) as u64;
+        if len > room {
+            // A chunk cut short is read up to its last whole record.
+            let whole = match opcode {
+                OP_CHUNK => match cut_chunk(&bytes[at + RECORD_HEAD..], at) {
+                    Ok(end) => end,
+                    Err(fault) => return fault,
+                },
+                _ => at,
+            };
+            return Framing::EndsEarly {
+                at: whole,
+                reason: format!(
+                    "the record at byte {at} (opcode 0x{opcode:02x}) claims {len} bytes, \
+                     {room} remain in the file"
+                ),
+            };
+        }
+        // `len <= room`, which is a `usize`.
+        let body = &bytes[at + RECORD_HEAD..at + RECORD_HEAD + len as usize];
+        match opcode {
+            OP_FOOTER => return Framing::Whole,
+            OP_CHUNK => {
+                if let Some(fault) = chunk_framing(body, at) {
+                    return fault;
+                }
+            }
+            _ => {}
+        }
+        at += RECORD_HEAD + body.len();
+    }
+}
+
+/// The fault in the framing of the chunk whose record begins at byte `at` and whose body is
+/// `body`, if any: its header longer than its body, its records' size beyond what follows the
+/// header, a record in it that runs past the chunk's records.
+fn chunk_framing(body: &[u8], at: usize) -> Option<Framing> {
+    let damaged = |what: String| Some(Framing::Damaged(format!("the chunk at byte {at}: {what}")));
+    let Some(name_len) = u32_at(body, CHUNK_HEAD - 4) else {
+        return damaged(format!(
+            "{} bytes, too short for a chunk's header",
+            body.len()
+        ));
+    };
+    let name_end = CHUNK_HEAD.saturating_add(name_len as usize);
+    let (Some(name), Some(size)) = (body.get(CHUNK_HEAD..name_end), u64_at(body, name_end)) else {
+        return damaged(format!(
+            "its compression's name of {name_len} bytes runs past its {} bytes",
+            body.len()
+        ));
+    };
+    let records_at = name_end + 8;
+    let room = (body.len() - records_at) as u64;
+    if size > room {
+        return damaged(format!(
+            "its records claim {size} bytes, {room} follow its header"
+        ));
+    }
+    if !name.is_empty() {
+        return Some(Framing::Compressed {
+            at,
+            compression: String::from_utf8_lossy(name).into_owned(),
+        });
+    }
+    // `size <= room`, which is a `usize`.
+    let records = &body[records_at..records_at + size as usize];
+    let mut k = 0;
+    while k < records.len() {
+        let rest = records.len() - k;
+        let Some(len) = u64_at(records, k + 1) else {
+            return damaged(format!(
+                "a record {k} bytes into its records is cut in its opcode and length"
+            ));
+        };
+        let room = (rest - RECORD_HEAD) as u64;
+        if len > room {
+            return damaged(format!(
+                "a record {k} bytes into its records claims {len} bytes, {room} remain in the \
+                 chunk"
+            ));
+        }
+        k += RECORD_HEAD + len as usize;
+    }
+    None
+}
+
+/// Where the whole records of the chunk at byte `at`, cut short by the end of the file, end
+/// (`body`: the part of its body the file holds): the chunk's own start when not even its
+/// header is there, or when it is compressed; a record that runs past the chunk's own size of
+/// records is damage.
+fn cut_chunk(body: &[u8], at: usize) -> Result<usize, Framing> {
+    let records_at = match u32_at(body, CHUNK_HEAD - 4) {
+        Some(0) => CHUNK_HEAD + 8,
+        _ => return Ok(at),
+    };
+    let Some(size) = u64_at(body, CHUNK_HEAD) else {
+        return Ok(at);
+    };
+    let present = &body[records_at.min(body.len())..];
+    let start = at + RECORD_HEAD + records_at;
+    let mut k = 0usize;
+    loop {
+        if k as u64 >= size {
+            return Ok(start + k);
+        }
+        let Some(len) = u64_at(present, k + 1) else {
+            return Ok(start + k);
+        };
+        let declared = size - k as u64;
+        if declared < RECORD_HEAD as u64 || len > declared - RECORD_HEAD as u64 {
+            return Err(Framing::Damaged(format!(
+                "the chunk at byte {at}: a record {k} bytes into its records claims {len} \
+                 bytes, {} remain in the chunk",
+                declared.saturating_sub(RECORD_HEAD as u64)
+            )));
+        }
+        if len > (present.len() - k - RECORD_HEAD) as u64 {
+            return Ok(start + k);
+        }
+        k += RECORD_HEAD + len as usize;
+    }
+}
+
+/// The bytes of the regular file at `path`, at most as many as it holds when opened (a file
+/// still growing is read up to there).
+fn read_regular(path: &Path) -> Result<Vec<u8>, String> {
+    let file = crate::textfile::open_regular(path).map_err(|e| e.to_string())?;
+    let len = file.metadata().map_err(|e| e.to_string())?.len();
+    let mut bytes = Vec::new();
+    usize::try_from(len)
+        .ok()
+        .and_then(|n| bytes.try_reserve_exact(n).ok())
+        .ok_or_else(|| format!("{len} bytes, more than can be held in memory here"))?;
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, len), &mut bytes)
+        .map_err(|e| e.to_string())?;
+    Ok(bytes)
+}
+
 impl Recording {
     /// Reads the MCAP file at `path`. A file that ends in the middle of a record (its writer
     /// did not close it) is read up to there, [`Recording::cut`] saying so, unless nothing at
@@ -94,10 +320,32 @@ impl Recording {
             path: path.to_path_buf(),
             message,
         };
-        let bytes = std::fs::read(path).map_err(|e| failed(e.to_string()))?;
+        let bytes = read_regular(path).map_err(failed)?;
         // A file its writer closed ends with a footer: one that ends early in spite of it is
         // damaged, not cut short.
         let closed = mcap::read::footer(&bytes).is_ok();
+        // The crate reads only the whole records, up to where a file cut short ends early.
+        let (readable, mut cut) = match framing(&bytes) {
+            Framing::Whole => (&bytes[..], None),
+            Framing::EndsEarly { at, reason } if !closed => (&bytes[..at], Some(reason)),
+            Framing::EndsEarly { reason, .. } => {
+                return Err(failed(format!(
+                    "{reason}, in a file its writer closed (it has its footer): the file is \
+                     damaged"
+                )))
+            }
+            Framing::Damaged(reason) => {
+                return Err(failed(format!("{reason}: the file is damaged")))
+            }
+            Framing::Compressed { at, compression } => {
+                return Err(failed(format!(
+                    "its chunk at byte {at} is compressed ({compression}): only uncompressed \
+                     recordings are read, as snakectl writes them (`mcap compress \
+                     --compression none` makes one)"
+                )))
+            }
+        };
+        let bytes = readable;
         // An error that ends the reading where the file ends early: why, to keep reading what
         // came before it; any other, or one in a file its writer closed, refuses the file.
         let cut_short = |e: mcap::McapError| -> Result<String, RecordError> {
@@ -110,13 +358,13 @@ impl Recording {
             }
         };
         let mut channels: BTreeMap<String, Channel> = BTreeMap::new();
-        let mut cut = None;
-        let stream = mcap::MessageStream::new(&bytes).map_err(|e| failed(e.to_string()))?;
+        let stream = mcap::MessageStream::new(bytes).map_err(|e| failed(e.to_string()))?;
         for message in stream {
             let message = match message {
                 Ok(m) => m,
                 Err(e) => {
-                    cut = Some(cut_short(e)?);
+                    let reason = cut_short(e)?;
+                    cut.get_or_insert(reason);
                     break;
                 }
             };
@@ -142,7 +390,7 @@ impl Recording {
             });
         }
         let mut metadata = Vec::new();
-        let reader = mcap::read::LinearReader::new(&bytes).map_err(|e| failed(e.to_string()))?;
+        let reader = mcap::read::LinearReader::new(bytes).map_err(|e| failed(e.to_string()))?;
         for record in reader {
             match record {
                 Ok(mcap::records::Record::Metadata(m)) => metadata.push((m.name, m.metadata)),
@@ -156,8 +404,9 @@ impl Recording {
         }
         if let (Some(reason), true) = (&cut, channels.is_empty() && metadata.is_empty()) {
             return Err(failed(format!(
-                "{reason}, before any message: the writer did not close the file (killed?); \
-                 `mcap recover` (the MCAP command-line tool) may rebuild it"
+                "{reason}, before any message: the file is damaged, or the writer did not \
+                 close the file (killed?); `mcap recover` (the MCAP command-line tool) may \
+                 rebuild it"
             )));
         }
         Ok(Recording {
@@ -435,7 +684,7 @@ fn widened((t_a, t_b): (f64, f64), (lo, hi): (f64, f64)) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
-    #![allow(clippy::unwrap_used)]
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
     use crate::record::schema::ChannelSpec;
 
@@ -578,6 +827,173 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
         let e = Recording::open(&path).unwrap_err().to_string();
         assert!(e.contains("the file is damaged"), "{e}");
+    }
+
+    /// The offsets of the chunk records of an MCAP file, in order.
+    fn chunks_of(bytes: &[u8]) -> Vec<usize> {
+        let (mut at, mut found) = (8, Vec::new());
+        while bytes[at] != OP_FOOTER {
+            if bytes[at] == OP_CHUNK {
+                found.push(at);
+            }
+            at += 9 + u64_at(bytes, at + 1).unwrap() as usize;
+        }
+        found
+    }
+
+    /// A closed recording of three chunks of ten messages each.
+    fn three_chunks(path: &Path) -> Vec<u8> {
+        let mut sink = McapSink::create(path, true).unwrap();
+        let channel = sink.add_channel(&spec()).unwrap();
+        for i in 0..30 {
+            sink.write(channel, i, b"{}").unwrap();
+            if i % 10 == 9 {
+                sink.flush().unwrap();
+            }
+        }
+        sink.finish().unwrap();
+        std::fs::read(path).unwrap()
+    }
+
+    /// A record length of `u64::MAX` (the `mcap` crate adds the 9 bytes of opcode and length
+    /// to it, wrapping round) in a file of 17 bytes, in a closed recording, and inside a chunk
+    /// whose CRC is 0 (not checked): each refused with the record named, no panic.
+    #[test]
+    fn a_record_length_beyond_the_file_is_refused_not_wrapped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.mcap");
+        let mut tiny = MAGIC.to_vec();
+        tiny.push(0x01);
+        tiny.extend_from_slice(&u64::MAX.to_le_bytes());
+        std::fs::write(&path, &tiny).unwrap();
+        let e = Recording::open(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("the record at byte 8 (opcode 0x01) claims 18446744073709551615 bytes"),
+            "{e}"
+        );
+
+        let whole = three_chunks(&path);
+        // The second record (a schema or a channel, after the header) made endless.
+        let mut bytes = whole.clone();
+        let second = 8 + 9 + u64_at(&bytes, 9).unwrap() as usize;
+        bytes[second + 1..second + 9].copy_from_slice(&u64::MAX.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let e = Recording::open(&path).unwrap_err().to_string();
+        assert!(e.contains("claims 18446744073709551615 bytes"), "{e}");
+        assert!(e.contains("the file is damaged"), "{e}");
+
+        // Inside the second chunk: its CRC 0, its first record endless.
+        let mut bytes = whole.clone();
+        let chunk = chunks_of(&bytes)[1];
+        let body = chunk + 9;
+        bytes[body + 24..body + 28].copy_from_slice(&0u32.to_le_bytes());
+        let name_len = u32_at(&bytes, body + 28).unwrap() as usize;
+        let first = body + CHUNK_HEAD + name_len + 8;
+        bytes[first + 1..first + 9].copy_from_slice(&u64::MAX.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let e = Recording::open(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("the chunk at byte {chunk}")) && e.contains("the file is damaged"),
+            "{e}"
+        );
+        assert!(e.contains("claims 18446744073709551615 bytes"), "{e}");
+    }
+
+    #[test]
+    fn framing_tells_a_cut_file_from_a_damaged_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let whole = three_chunks(&dir.path().join("f.mcap"));
+        assert_eq!(framing(&whole), Framing::Whole);
+        // Cut in the third chunk's header: whole records up to its start; in its records:
+        // up to the last whole one.
+        let third = chunks_of(&whole)[2];
+        match framing(&whole[..third + 20]) {
+            Framing::EndsEarly { at, .. } => assert_eq!(at, third),
+            other => panic!("{other:?}"),
+        }
+        let records = third + 9 + CHUNK_HEAD + 8;
+        let first_len = u64_at(&whole, records + 1).unwrap() as usize;
+        let second = records + 9 + first_len;
+        match framing(&whole[..second + 5]) {
+            Framing::EndsEarly { at, .. } => assert_eq!(at, second),
+            other => panic!("{other:?}"),
+        }
+        // Cut in a record's opcode and length, and at a record's end without a footer.
+        assert!(matches!(
+            framing(&whole[..third + 4]),
+            Framing::EndsEarly { at, .. } if at == third
+        ));
+        assert!(matches!(
+            framing(&whole[..third]),
+            Framing::EndsEarly { at, .. } if at == third
+        ));
+        assert!(matches!(
+            framing(&MAGIC[..5]),
+            Framing::EndsEarly { at: 0, .. }
+        ));
+        assert!(matches!(framing(b"PK\x03\x04 a zip"), Framing::Damaged(_)));
+        // A chunk whose records claim more than the chunk holds.
+        let mut bytes = whole.clone();
+        let body = chunks_of(&bytes)[0] + 9;
+        let name_len = u32_at(&bytes, body + 28).unwrap() as usize;
+        let size_at = body + CHUNK_HEAD + name_len;
+        bytes[size_at..size_at + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        assert!(matches!(framing(&bytes), Framing::Damaged(_)));
+    }
+
+    /// A chunk compressed (zstd, the default of other writers) is refused naming its
+    /// compression and how to make an uncompressed copy.
+    #[test]
+    fn a_compressed_chunk_is_refused_saying_how_to_read_it() {
+        let record = |op: u8, body: &[u8]| {
+            let mut r = vec![op];
+            r.extend_from_slice(&(body.len() as u64).to_le_bytes());
+            r.extend_from_slice(body);
+            r
+        };
+        let mut chunk = vec![0u8; 28];
+        chunk.extend_from_slice(&4u32.to_le_bytes());
+        chunk.extend_from_slice(b"zstd");
+        chunk.extend_from_slice(&3u64.to_le_bytes());
+        chunk.extend_from_slice(b"xyz");
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend(record(0x01, &[0; 8]));
+        bytes.extend(record(OP_CHUNK, &chunk));
+        bytes.extend(record(OP_FOOTER, &[0; 20]));
+        bytes.extend_from_slice(MAGIC);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("z.mcap");
+        std::fs::write(&path, &bytes).unwrap();
+        let e = Recording::open(&path).unwrap_err().to_string();
+        assert!(e.contains("chunk at byte 25 is compressed (zstd)"), "{e}");
+        assert!(e.contains("mcap compress"), "{e}");
+    }
+
+    /// What is not a regular file is refused unopened, or opened without blocking: a device
+    /// (read whole before, `/dev/zero` without end), a FIFO (opening one blocked for ever).
+    #[test]
+    fn only_a_regular_file_is_read() {
+        let e = Recording::open(Path::new("/dev/null"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a character device, not a regular file"), "{e}");
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("fifo.mcap");
+        crate::textfile::make_fifo(&fifo);
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(
+                Recording::open(&fifo)
+                    .map(|_| ())
+                    .map_err(|e| e.to_string()),
+            );
+        });
+        // A bound on a test that would otherwise never end, not a speed asked for.
+        let e = rx
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("opening a FIFO blocked")
+            .unwrap_err();
+        assert!(e.contains("a FIFO (named pipe), not a regular file"), "{e}");
     }
 
     #[test]
