@@ -128,6 +128,40 @@ fn a_goto_behind_a_post_goes_round_it_and_every_goal_is_clear() {
     }
 }
 
+/// An obstacle from a micrometre down to a nanometre across on the tip's straight way is gone
+/// round, a square as a disc of its size is: accepted, and the move arrives clear. (A square of
+/// 1e-9 m sides was refused as closed off: its corners read as reflex, so its route had nowhere
+/// to turn.) It sits 2 mm left of the way, so that the shorter way round is the right, where
+/// the last link trails; round the other side that link has to sweep over it, and the move may
+/// be caught, a square or a disc.
+#[test]
+fn a_goto_past_a_tiny_obstacle_goes_round_it_a_square_as_a_disc() {
+    let tip = chain().tip(&home());
+    let target = tip + Vec2::new(0.0, -0.2);
+    let (x, y) = (tip.x - 2e-3, tip.y - 0.1);
+    for side in [1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3] {
+        let h = side / 2.0;
+        for o in [
+            rect("speck", x - h, y - h, x + h, y + h),
+            circle("speck", x, y, h),
+        ] {
+            for strategy in [Strategy::Sequential, Strategy::Overall] {
+                let mut c = controller(strategy, &home());
+                assert!(c.set_world(world(vec![o.clone()])).is_none());
+                let taken = c.command(Command::Goto {
+                    target,
+                    speed: Some(0.05),
+                });
+                assert!(taken.is_ok(), "{side} m {o:?} {strategy:?}: {taken:?}");
+                let (finish, least) = run_clear(&mut c, 3000);
+                assert_eq!(finish, Some(Finish::Arrived), "{side} m {o:?} {strategy:?}");
+                assert!((c.tip() - target).norm() < 1e-9, "{:?}", c.tip());
+                assert!(least >= KEEP - TOL);
+            }
+        }
+    }
+}
+
 #[test]
 fn a_target_where_the_tip_can_never_be_clear_is_refused_naming_the_obstacle() {
     let tip = chain().tip(&home());

@@ -132,9 +132,16 @@ pub fn point_polygon(p: Vec2, points: &[Vec2]) -> f64 {
 }
 
 /// Twice the polygon's signed area: positive when its points turn counter-clockwise.
+///
+/// Summed about the first point, not the origin, so that the round-off scales with the
+/// polygon's size rather than with its distance from the origin: about the origin, the terms
+/// of a square of 1e-9 m sides 0.5 m away are 1e9 times its area, and their sum's sign is
+/// noise (which turned the polygon inside out for whatever asks which way it turns).
 pub fn twice_area(points: &[Vec2]) -> f64 {
-    let n = points.len();
-    (0..n).map(|k| cross(points[k], points[(k + 1) % n])).sum()
+    let Some(&o) = points.first() else {
+        return 0.0;
+    };
+    points.windows(2).map(|w| cross(w[0] - o, w[1] - o)).sum()
 }
 
 /// The unit normal of edge `k` pointing out of the polygon.
@@ -461,6 +468,57 @@ mod tests {
         let c = segment_polygon(v(-1.0, 0.5), v(0.0, 0.5), &cw);
         assert_eq!(c.distance_m, 0.0);
         assert!((c.normal - v(-1.0, 0.0)).norm() < 1e-15);
+    }
+
+    /// A square of side `side` centred on `c`, counter-clockwise (or clockwise, reversed).
+    fn tiny_square(c: Vec2, side: f64, ccw: bool) -> Vec<Vec2> {
+        let h = side / 2.0;
+        let mut sq = vec![c + v(-h, -h), c + v(h, -h), c + v(h, h), c + v(-h, h)];
+        if !ccw {
+            sq.reverse();
+        }
+        sq
+    }
+
+    /// Places a tiny obstacle is put, near the arm and far out (where a 1e-9 m side spans a
+    /// few hundred units of the last place).
+    const TINY_PLACES: [(f64, f64); 5] = [
+        (0.2, 0.1),
+        (0.31, -0.17),
+        (-0.547, 0.62),
+        (0.7, -0.71),
+        (123.456, -78.9),
+    ];
+
+    #[test]
+    fn a_tiny_polygon_turns_its_own_way_and_pushes_out() {
+        // About the origin the terms of the area of a square of 1e-9 m sides 0.2 m away are
+        // 1e9 times its area: their sum's sign was noise, and a segment touching the square
+        // was pushed in.
+        for side in [1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3] {
+            for (x, y) in TINY_PLACES {
+                let c = v(x, y);
+                for ccw in [true, false] {
+                    let sq = tiny_square(c, side, ccw);
+                    let a = twice_area(&sq);
+                    // Far out the points themselves round by up to 1e-5 of the side.
+                    let want = if ccw { 2.0 } else { -2.0 } * side * side;
+                    assert!(
+                        (a - want).abs() < 1e-3 * side * side,
+                        "side {side} at {c:?}: {a} against {want}"
+                    );
+                    // Ending on the top edge's middle, from above: touching, pushed up.
+                    let top = c + v(0.0, side / 2.0);
+                    let t = segment_polygon(top + v(0.0, 0.05), top, &sq);
+                    assert_eq!(t.distance_m, 0.0, "side {side} at {c:?}");
+                    assert!(
+                        (t.normal - v(0.0, 1.0)).norm() < 1e-9,
+                        "side {side} at {c:?} ccw {ccw}: {:?}",
+                        t.normal
+                    );
+                }
+            }
+        }
     }
 
     fn arb_point() -> impl Strategy<Value = Vec2> {

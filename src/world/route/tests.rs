@@ -161,6 +161,50 @@ fn a_post_between_is_passed_on_its_tangents() {
     assert!(r.length_m <= length(&over));
 }
 
+/// The length of the shortest way from `(0, -d)` to `(0, d)` round a disc of radius `rho` at the
+/// origin: two tangents and the arc between.
+fn round_a_disc(d: f64, rho: f64) -> f64 {
+    2.0 * (d * d - rho * rho).sqrt() + rho * (PI - 2.0 * (rho / d).acos())
+}
+
+#[test]
+fn a_tiny_polygon_on_the_way_is_routed_round_as_a_disc_of_its_size_is() {
+    // A polygon of 1e-9 m sides on the straight line once made its route "closed off": the
+    // sign of its area, summed about the origin, was noise, and its corners read as reflex.
+    for side in [1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3] {
+        for (x, y) in [(0.2, 0.1), (0.31, -0.17), (-0.547, 0.62), (123.456, -78.9)] {
+            let h = side / 2.0;
+            let square = [
+                (x - h, y - h),
+                (x + h, y - h),
+                (x + h, y + h),
+                (x - h, y + h),
+            ];
+            let mut clockwise = square;
+            clockwise.reverse();
+            let shapes = [
+                polygon("tiny", &square),
+                polygon("tiny", &clockwise),
+                circle("tiny", x, y, h),
+            ];
+            for o in shapes {
+                let w = World::new(0.01, 0.005, vec![o.clone()]).unwrap();
+                let (a, b) = (v(x, y - 0.1), v(x, y + 0.1));
+                let r = check(&w, a, b);
+                let g = w.route_radius_m() + w.route_margin_m();
+                // No shorter than round the disc of radius g, no longer than round the disc
+                // that holds the grown square, with the chord tolerance on the way round.
+                let (least, most) = (round_a_disc(0.1, g), round_a_disc(0.1, g + side));
+                assert!(
+                    r.length_m >= least - 1e-9 && r.length_m <= most + 4.0 * w.route_margin_m(),
+                    "{o:?}: {} not within {least} .. {most}",
+                    r.length_m
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn a_wall_with_a_gap_is_crossed_through_the_gap() {
     // A wall along y = 0 from x = -2 to 2, 0.1 thick, with a 0.3 m gap at x = 0.5..0.8.
