@@ -483,6 +483,13 @@ pub enum FieldProblem {
         /// Where, y m.
         y: f64,
     },
+    /// A polygon whose area computes to zero: its points too close together to tell which
+    /// way it turns.
+    #[error(
+        "the polygon's area is zero as computed: its points are too close together to tell its \
+         inside from its outside"
+    )]
+    ZeroArea,
     /// More of something than the world may hold.
     #[error("{count} {what}, at most {max} allowed")]
     TooMany {

@@ -434,6 +434,7 @@ pub fn world_problem(e: WorldError) -> (String, FieldProblem) {
                 y,
             },
         ),
+        WorldError::ZeroArea { field } => (field, FieldProblem::ZeroArea),
         WorldError::TooManyObstacles { count, max } => (
             "obstacles".to_owned(),
             FieldProblem::TooMany {

@@ -309,7 +309,8 @@ fn world_error(e: WorldError) -> ProblemError {
         | WorldError::DuplicateId { field, .. }
         | WorldError::TooFewPoints { field, .. }
         | WorldError::RepeatedPoint { field, .. }
-        | WorldError::SelfIntersecting { field, .. } => field.clone(),
+        | WorldError::SelfIntersecting { field, .. }
+        | WorldError::ZeroArea { field } => field.clone(),
         _ => "obstacles".to_string(),
     };
     let message = text

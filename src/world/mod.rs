@@ -319,6 +319,17 @@ pub enum WorldError {
         /// Where, y m.
         y: f64,
     },
+    /// A polygon whose area is zero as computed: points so close together (a hair apart near
+    /// the origin) that the products of their distances underflow, so which way it turns, and
+    /// so which side is outside, cannot be told.
+    #[error(
+        "{field}: the polygon's area is zero as computed: its points are too close together \
+         to tell its inside from its outside"
+    )]
+    ZeroArea {
+        /// Path of the point list.
+        field: String,
+    },
     /// More obstacles than [`MAX_OBSTACLES`].
     #[error("obstacles: {count} obstacles, at most {max} allowed")]
     TooManyObstacles {
@@ -385,7 +396,7 @@ fn non_negative(field: &str, value: f64) -> Result<(), WorldError> {
     Ok(())
 }
 
-/// Checks one polygon's points: count, finiteness, repeats, edges that touch or cross.
+/// Checks one polygon's points: count, finiteness, repeats, edges that touch or cross, an area.
 ///
 /// The first fault in the order of a plain scan is reported (the lowest point repeating an
 /// earlier one; the lowest pair of edges, an edge folding back onto the next counted with
@@ -421,6 +432,11 @@ fn check_polygon(at: &str, points: &[Vec2]) -> Result<(), WorldError> {
             x: p.x,
             y: p.y,
         });
+    }
+    // A simple polygon has an area; one that computes to none has underflowed, and its turning
+    // sense, which the route and the outward normals take, would be a guess.
+    if geometry::twice_area(points) == 0.0 {
+        return Err(WorldError::ZeroArea { field });
     }
     Ok(())
 }

@@ -188,6 +188,24 @@ fn bad_polygons_name_the_point_or_edges() {
         refused(vec![polygon("l", pts)]),
         WorldError::SelfIntersecting { .. }
     ));
+    // A triangle of 1e-165 m legs at the origin: its area underflows to none, so which way it
+    // turns cannot be told. One of 1e-160 m still has an area (subnormal), and is taken.
+    let speck = |s: f64| vec![v(0.0, 0.0), v(s, 0.0), v(0.0, s)];
+    let e = refused(vec![
+        circle("c", 5.0, 5.0, 1.0),
+        polygon("dust", speck(1e-165)),
+    ]);
+    assert_eq!(
+        e,
+        WorldError::ZeroArea {
+            field: "obstacles[1].polygon.points".into()
+        }
+    );
+    assert!(
+        e.to_string().starts_with("obstacles[1].polygon.points: "),
+        "{e}"
+    );
+    assert!(World::new(0.0, 0.0, vec![polygon("speck", speck(1e-160))]).is_ok());
 }
 
 #[test]
