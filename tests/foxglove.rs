@@ -103,6 +103,14 @@ impl Fox {
         Fox::try_connect(port, "foxglove.sdk.v1").unwrap()
     }
 
+    /// Its end of the connection: the peer the daemon names in its log.
+    fn local_addr(&self) -> std::net::SocketAddr {
+        match self.ws.get_ref() {
+            MaybeTlsStream::Plain(stream) => stream.local_addr().unwrap(),
+            _ => unreachable!("no TLS here"),
+        }
+    }
+
     /// The next frame within the deadline.
     fn next(&mut self, deadline: Instant) -> Message {
         let left = deadline.saturating_duration_since(Instant::now());
@@ -1008,4 +1016,53 @@ fn json_that_is_not_a_twist_on_cmd_vel_does_not_preempt_a_goto() {
     assert!(dist(xy(&s["tip"]), target) < 1e-6, "{s}");
     drop(fox);
     daemon.stop().unwrap();
+}
+
+/// A message over the view's limit (64 KiB) ends that client's connection alone: it is sent a
+/// close with code 1009 (Message Too Big) that names the limit, and the daemon logs one warning
+/// naming it; another client connected meanwhile is served all along.
+#[test]
+fn a_message_over_the_limit_is_closed_with_1009_and_other_clients_are_served() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let (_sim, mut daemon) = spawn_daemon(&dir, &config(port, false), &[]);
+    daemon_support::Client::connect(daemon.address()).status();
+    let joints = "/snakectl/joint_states";
+    let mut other = Fox::connect(port);
+    other.next_op("serverInfo");
+    other.advertised(&[joints]);
+    other.subscribe(&[joints]);
+    assert_eq!(other.data().subscription, 1);
+
+    let mut big = Fox::connect(port);
+    big.next_op("serverInfo");
+    let peer = big.local_addr();
+    big.send(Message::text("x".repeat(70 * 1024)));
+    let deadline = Instant::now() + DEADLINE;
+    let close = loop {
+        if let Message::Close(close) = big.next(deadline) {
+            break close.expect("a close with a code");
+        }
+    };
+    assert_eq!(u16::from(close.code), 1009, "{close}");
+    assert!(close.reason.contains("65536 bytes"), "{close}");
+
+    // The other client reads what the view logs after the close.
+    let closed = now_ns();
+    while other.data().log_time < closed {}
+    let warned = daemon
+        .logged("over the size limit", DEADLINE)
+        .expect("the closed client logged");
+    assert!(
+        warned.contains("WARN")
+            && warned.contains(&peer.to_string())
+            && warned.contains("limit=65536"),
+        "{warned}"
+    );
+    drop((big, other));
+    daemon.signal("-TERM");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+    let again = lines_with(&log, &["over the size limit"]);
+    assert!(again.is_empty(), "logged more than once: {again:?}");
 }

@@ -38,7 +38,8 @@ const GATE_RETRY: Duration = Duration::from_millis(100);
 /// How long a client has to send its request head.
 pub(super) const GATE_WAIT: Duration = Duration::from_secs(5);
 
-/// The largest message a client may send (what it publishes is a few hundred bytes).
+/// The largest message a client may send, bytes (what it publishes is a few hundred): a larger
+/// one ends its connection with a close of code 1009 (`hub::serve`).
 const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
 
 /// Who may come in and what they are served.

@@ -8,20 +8,26 @@
 //! a client. Each client's [`serve`] writes its outbox out and reads what it sends: subscriptions,
 //! and, with `accept_commands`, the channels it advertises and the messages it publishes on them,
 //! handed to [`Commands`]. What it sends that the view does not take is answered with one status
-//! message and counted, and logged once, with the count, when it leaves.
+//! message and counted, and logged once, with the count, when it leaves. A message over the
+//! gate's size limit ends that client's connection alone: it is sent a close with code 1009
+//! (Message Too Big) naming the limit, and logged once.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
 
 use base64::Engine;
 use foxglove::{ChannelId, FoxgloveError, Metadata, RawChannel, Sink, SinkId};
 use futures_util::{SinkExt, StreamExt};
 use serde::Deserialize;
 use serde_json::{json, Value};
-use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::Notify;
-use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::error::CapacityError;
+use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode;
+use tokio_tungstenite::tungstenite::protocol::CloseFrame;
+use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 use tokio_tungstenite::WebSocketStream;
 use tracing::{debug, info, warn};
 
@@ -36,6 +42,10 @@ const MESSAGE_DATA: u8 = 1;
 
 /// The level of a status message that says something was refused.
 const STATUS_ERROR: u8 = 2;
+
+/// How long a client sent a message over the limit has to take its close and hang up, before
+/// its connection is dropped anyway.
+const TOO_BIG_WAIT: Duration = Duration::from_secs(2);
 
 /// Every client's state, shared by the view's logging (through [`Sink`]) and the clients'
 /// tasks, all on the view's thread.
@@ -380,7 +390,15 @@ pub(super) async fn serve<S>(
     let mut channels: BTreeMap<u32, ClientChannel> = BTreeMap::new();
     let read = async {
         while let Some(message) = rx.next().await {
-            let taken = match message? {
+            let message = match message {
+                // A message over the gate's limit, not read: the connection ends (its size as
+                // the client gave it, and the limit).
+                Err(WsError::Capacity(CapacityError::MessageTooLong { size, max_size })) => {
+                    return Ok(Some((size, max_size)));
+                }
+                other => other?,
+            };
+            let taken = match message {
                 Message::Text(text) => control(&hub, id, &text, commands.is_some(), &mut channels),
                 Message::Binary(bytes) => publish(&bytes, commands.as_deref(), &channels),
                 Message::Close(_) => break,
@@ -395,21 +413,55 @@ pub(super) async fn serve<S>(
                 }
             }
         }
-        Ok::<_, tokio_tungstenite::tungstenite::Error>(())
+        Ok::<_, WsError>(None)
     };
     let ended = tokio::select! {
-        written = write => written,
+        written = write => written.map(|()| None),
         read = read => read,
     };
     let dropped = hub.leave(id);
-    if let Err(e) = ended {
-        debug!(%peer, error = %e, "a Foxglove connection ended");
+    match ended {
+        Ok(None) => {}
+        Ok(Some((size, limit))) => {
+            warn!(%peer, size, limit, "a Foxglove client sent a message over the size limit: closed with 1009 (Message Too Big)");
+            if let Ok(ws) = rx.reunite(tx) {
+                close_too_big(ws, peer, limit).await;
+            }
+        }
+        Err(e) => debug!(%peer, error = %e, "a Foxglove connection ended"),
     }
     if dropped > 0 {
         debug!(%peer, dropped, "a Foxglove client that fell behind left");
     }
     if let Some(first) = untaken.first {
         warn!(%peer, count = untaken.count, first = %first, "a Foxglove client sent messages the view does not take");
+    }
+}
+
+/// Closes `ws`, whose client sent a message over `limit` bytes: a close frame with code 1009
+/// (Message Too Big) and the limit, then the end of what the server sends. What the client
+/// still sends is read and dropped until it hangs up (within [`TOO_BIG_WAIT`]), so that
+/// closing a socket with unread data in it does not reset the connection under the close.
+async fn close_too_big<S>(mut ws: WebSocketStream<S>, peer: SocketAddr, limit: usize)
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    let close = CloseFrame {
+        code: CloseCode::Size,
+        reason: format!("a message over the limit of {limit} bytes").into(),
+    };
+    let hang_up = async {
+        ws.close(Some(close)).await.map_err(std::io::Error::other)?;
+        // The rest is read from the socket itself: the WebSocket's reader would gather the
+        // oversized message.
+        let socket = ws.get_mut();
+        socket.shutdown().await?;
+        let mut unread = [0u8; 4096];
+        while socket.read(&mut unread).await? > 0 {}
+        Ok::<_, std::io::Error>(())
+    };
+    if let Ok(Err(e)) = tokio::time::timeout(TOO_BIG_WAIT, hang_up).await {
+        debug!(%peer, error = %e, "a Foxglove client sent a message over the size limit hung up");
     }
 }
 
