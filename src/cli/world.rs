@@ -26,6 +26,7 @@ use snakectl::protocol::{
 };
 use snakectl::textfile::{read_text, MAX_TEXT_BYTES};
 use snakectl::world::{CheckedObstacle, Obstacle, Obstacles, Shape, World};
+use unicode_width::UnicodeWidthStr;
 
 use super::client::{connect, refused, ConnectArgs};
 use super::{outln, Failure};
@@ -175,14 +176,20 @@ fn table(world: &WorldInfo) -> Vec<String> {
     if n == 0 {
         return lines;
     }
+    // Ids are padded by the columns they take on a terminal, not by their chars: a CJK
+    // character or an emoji takes two, a combining mark none.
     let width = world
         .obstacles
         .iter()
-        .map(|o| o.id.chars().count())
+        .map(|o| o.id.width())
         .max()
         .unwrap_or(0)
         .max(2);
-    lines.push(format!("{:<width$}  {:<7}  where (m)", "id", "shape"));
+    lines.push(format!(
+        "{}  {:<7}  where (m)",
+        padded("id", width),
+        "shape"
+    ));
     for o in &world.obstacles {
         let (shape, at) = match &o.shape {
             Shape::Circle { center, radius_m } => (
@@ -203,9 +210,15 @@ fn table(world: &WorldInfo) -> Vec<String> {
                 )
             }
         };
-        lines.push(format!("{:<width$}  {shape:<7}  {at}", o.id));
+        lines.push(format!("{}  {shape:<7}  {at}", padded(&o.id, width)));
     }
     lines
+}
+
+/// `text` followed by spaces up to `columns` columns on a terminal.
+fn padded(text: &str, columns: usize) -> String {
+    let pad = columns.saturating_sub(text.width());
+    format!("{text}{:pad$}", "")
 }
 
 /// `world set FILE`.
@@ -711,5 +724,39 @@ mod tests {
         assert!(lines[2].starts_with("post  circle "), "{}", lines[2]);
         assert!(lines[2].contains("center (0.1500, 0.6000), radius 0.0400"));
         assert!(lines[3].contains("3 points: (0.0000, 0.0000) (1.0000, 0.0000) (0.0000, 1.0000)"));
+    }
+
+    #[test]
+    fn the_table_lines_up_ids_of_wide_characters_and_combining_marks() {
+        let circle = |id: &str| Obstacle {
+            id: id.into(),
+            shape: Shape::Circle {
+                center: Vec2::new(0.15, 0.6),
+                radius_m: 0.04,
+            },
+        };
+        let world = WorldInfo {
+            link_radius_m: 0.012,
+            clearance_m: 0.005,
+            // Two columns for 柱 and for 🚧, none for the combining acute accent.
+            obstacles: ["post", "柱", "🚧 post", "e\u{301}"]
+                .into_iter()
+                .map(circle)
+                .collect(),
+        };
+        let lines = table(&world);
+        // "🚧 post" is the widest id: 7 columns, then two spaces.
+        let (shape_at, where_at) = (9, 9 + 7 + 2);
+        for line in &lines[1..] {
+            let (shape, place) = if line.starts_with("id ") {
+                ("shape", "where (m)")
+            } else {
+                ("circle", "center (")
+            };
+            let columns = |word: &str| line[..line.find(word).unwrap()].width();
+            assert_eq!(columns(shape), shape_at, "{line:?}");
+            assert_eq!(columns(place), where_at, "{line:?}");
+        }
+        assert_eq!(lines.len(), 2 + 4);
     }
 }
