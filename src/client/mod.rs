@@ -11,9 +11,12 @@
 //! ([`ClientError::Unreadable`]), never dropped.
 //!
 //! One thread per connection reads the socket into one inbox: replies, events and unreadable
-//! lines queue in arrival order (bounded: the reading thread waits for the caller), telemetry
-//! goes into a latest-wins slot, so a reader that falls behind sees the newest snapshot, never
-//! a backlog.
+//! lines queue in arrival order, telemetry goes into a latest-wins slot, so a reader that falls
+//! behind sees the newest snapshot, never a backlog. The queue is bounded by count (1024) and by
+//! bytes ([`QUEUE_BYTES`]): past either the reading thread waits for the caller. A request
+//! waiting for its reply lets it grow past them, to find the reply behind what waits, up to
+//! [`MAX_QUEUE_BYTES`] in all; past that the connection is closed
+//! ([`ClientError::Backlog`]). Nothing queued is dropped.
 
 use std::collections::{HashMap, VecDeque};
 use std::fmt;
@@ -56,6 +59,16 @@ const MIN_WRITE_WAIT: Duration = Duration::from_millis(1);
 /// Replies, events and unreadable lines held for the caller before the reading thread waits
 /// for it (unless a request is waiting for its reply behind them).
 const QUEUE: usize = 1024;
+
+/// Bytes of lines (as they came) held for the caller before the reading thread waits for it,
+/// beside the count of 1024 lines, which alone would let lines of up to [`MAX_REPLY_LINE`]
+/// hold 4 GiB.
+pub const QUEUE_BYTES: usize = 8 << 20;
+
+/// The most the queue holds while a request waits for its reply behind it, bytes of lines:
+/// past it the connection is closed ([`ClientError::Backlog`]). Twice [`QUEUE_BYTES`], so that
+/// a request sent with the queue full still has room to find its reply.
+pub const MAX_QUEUE_BYTES: usize = 2 * QUEUE_BYTES;
 
 /// The most of a line an error message shows (the error itself carries all of it).
 const SHOWN: usize = 200;
@@ -158,6 +171,19 @@ pub enum ClientError {
         /// The line's first bytes.
         start: String,
     },
+    /// Replies and events left unread filled the queue ([`MAX_QUEUE_BYTES`]) while a request
+    /// waited for its reply behind them: the connection was closed. What was queued is still
+    /// read, in order, before this error.
+    #[error(
+        "the daemon at {addr} sent over {max} bytes of replies and events left unread while a \
+         request waited for its reply; the connection is closed"
+    )]
+    Backlog {
+        /// Its address.
+        addr: String,
+        /// The most the queue holds, bytes.
+        max: usize,
+    },
     /// An ok reply whose id names no request of this client's.
     #[error("a reply to no request of this client: {}", Shown(line))]
     Stray {
@@ -217,7 +243,9 @@ impl ClientError {
     pub fn is_closed(&self) -> bool {
         matches!(
             self,
-            ClientError::Closed { .. } | ClientError::WriteTimeout { .. }
+            ClientError::Closed { .. }
+                | ClientError::WriteTimeout { .. }
+                | ClientError::Backlog { .. }
         )
     }
 }
@@ -549,11 +577,50 @@ enum Arrival {
     Unreadable { line: String, error: ReadError },
 }
 
+/// Arrivals in order, each with the length of its line, and their sum.
+#[derive(Debug, Default)]
+struct Queue {
+    arrivals: VecDeque<(usize, Arrival)>,
+    bytes: usize,
+}
+
+impl Queue {
+    fn len(&self) -> usize {
+        self.arrivals.len()
+    }
+
+    fn is_empty(&self) -> bool {
+        self.arrivals.is_empty()
+    }
+
+    /// Queues `arrival`, whose line was `bytes` long.
+    fn push_back(&mut self, bytes: usize, arrival: Arrival) {
+        self.bytes = self.bytes.saturating_add(bytes);
+        self.arrivals.push_back((bytes, arrival));
+    }
+
+    fn pop_front(&mut self) -> Option<Arrival> {
+        self.remove(0)
+    }
+
+    /// Takes out the arrival at `at`.
+    fn remove(&mut self, at: usize) -> Option<Arrival> {
+        let (bytes, arrival) = self.arrivals.remove(at)?;
+        self.bytes = self.bytes.saturating_sub(bytes);
+        Some(arrival)
+    }
+
+    /// Where the first arrival that `found` picks is.
+    fn position(&self, mut found: impl FnMut(&Arrival) -> bool) -> Option<usize> {
+        self.arrivals.iter().position(|(_, arrival)| found(arrival))
+    }
+}
+
 /// What the reading thread hands the caller.
 #[derive(Debug, Default)]
 struct Inbox {
     /// Replies, events and unreadable lines, in arrival order.
-    queue: VecDeque<Arrival>,
+    queue: Queue,
     /// Telemetry lines seen so far, and the newest.
     telemetry_count: u64,
     telemetry: Option<Arc<TelemetryLine>>,
@@ -561,12 +628,16 @@ struct Inbox {
     closed: bool,
     /// The last refusal the daemon sent (why it closed, if it did).
     refusal: Option<Rejection>,
-    /// A request waits for its reply: the queue may grow past [`QUEUE`] meanwhile.
+    /// A request waits for its reply: the queue may grow past [`QUEUE`] and [`QUEUE_BYTES`]
+    /// meanwhile, up to [`MAX_QUEUE_BYTES`].
     waiting: bool,
     /// The client is gone: the reading thread stops waiting for room.
     dropped: bool,
     /// The first bytes of a line over [`MAX_REPLY_LINE`], which closed the connection.
     overlong: Option<String>,
+    /// The queue overflowed [`MAX_QUEUE_BYTES`] while a request waited: the connection was
+    /// closed.
+    backlog: bool,
 }
 
 /// The inbox and its two conditions.
@@ -1082,7 +1153,7 @@ impl Client {
         let mut inbox = shared.inbox();
         inbox.waiting = true;
         let found = loop {
-            let at = inbox.queue.iter().position(|arrival| match arrival {
+            let at = inbox.queue.position(|arrival| match arrival {
                 Arrival::Reply { reply, .. } => match reply.id.as_deref() {
                     Some(got) => got.as_u64() == Some(id),
                     None => reply.result.is_err(),
@@ -1132,6 +1203,12 @@ impl Client {
                 addr: self.addr.clone(),
                 max: MAX_REPLY_LINE,
                 start,
+            };
+        }
+        if self.shared.inbox().backlog {
+            return ClientError::Backlog {
+                addr: self.addr.clone(),
+                max: MAX_QUEUE_BYTES,
             };
         }
         ClientError::Closed {
@@ -1217,14 +1294,30 @@ fn read_loop(stream: TcpStream, shared: &Shared) {
         }
         // Bounded: a caller that stops reading makes this thread wait (and the daemon's queue
         // for this client fill), never grow without end; a request waiting for its reply
-        // behind the queue lets it grow meanwhile.
-        while inbox.queue.len() >= QUEUE && !inbox.waiting && !inbox.dropped {
+        // behind the queue lets it grow meanwhile, to a bound of bytes of its own. An empty
+        // queue takes any line (one is at most MAX_REPLY_LINE).
+        let bytes = text.len();
+        let fits = |queue: &Queue, most: usize| {
+            queue.is_empty() || queue.bytes.saturating_add(bytes) <= most
+        };
+        while (inbox.queue.len() >= QUEUE || !fits(&inbox.queue, QUEUE_BYTES))
+            && !inbox.waiting
+            && !inbox.dropped
+        {
             inbox = shared.room.wait(inbox).unwrap_or_else(|e| e.into_inner());
         }
         if inbox.dropped {
             return;
         }
-        inbox.queue.push_back(arrival);
+        if !fits(&inbox.queue, MAX_QUEUE_BYTES) {
+            // The reply waited for is behind more than the client holds: the connection is
+            // done (nothing queued is dropped; the caller reads it, then this).
+            inbox.backlog = true;
+            drop(inbox);
+            let _ = reader.get_ref().shutdown(std::net::Shutdown::Both);
+            break;
+        }
+        inbox.queue.push_back(bytes, arrival);
         drop(inbox);
         shared.changed.notify_all();
     }

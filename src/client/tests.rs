@@ -1,6 +1,7 @@
 //! The client against a scripted daemon on a loopback socket: typed replies, events and
 //! telemetry; lines it cannot read surfaced with the line; unknown fields and events tolerated;
-//! how a motion command ends; a daemon that stops reading times a request's write out.
+//! how a motion command ends; a daemon that stops reading times a request's write out; the
+//! queue of arrivals bounded by bytes, nothing in it lost.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -589,4 +590,156 @@ fn an_ending_on_an_axis_shows_no_negative_zero() {
         tip: [-0.00006, -0.0],
     };
     assert_eq!(e.to_string(), "arrived at (-0.0001, 0.0000) m, tick 7");
+}
+
+/// An event line of a little over 1 MiB (a field this client does not know pads it), with its
+/// newline: ticks of two digits give every such line the same length.
+fn big_event(tick: usize) -> String {
+    let pad = "x".repeat(1 << 20);
+    format!(
+        "{}\n",
+        json!({"type": "event", "event": "sparkle", "tick": tick, "pad": pad})
+    )
+}
+
+/// The ticks of the events read with `next` until it errs, and the error.
+fn events_until_error(client: &mut Client) -> (Vec<u64>, ClientError) {
+    let mut ticks = Vec::new();
+    loop {
+        match client.next(WAIT) {
+            Ok(Some(Incoming::Event(event))) => ticks.push(event.tick),
+            Err(e) => return (ticks, e),
+            other => panic!("{other:?}"),
+        }
+    }
+}
+
+#[test]
+fn a_caller_that_reads_nothing_holds_at_most_queue_bytes_of_lines_and_loses_none() {
+    let (mut client, daemon) = Scripted::start();
+    const LINES: usize = 40;
+    let len = big_event(10).len();
+    let (told, blocked) = std::sync::mpsc::channel();
+    let writer = std::thread::spawn(move || {
+        let mut out = daemon.out;
+        let all: String = (10..10 + LINES).map(big_event).collect();
+        let all = all.as_bytes();
+        // A write that takes nothing for a second: the client has stopped reading.
+        out.set_write_timeout(Some(Duration::from_secs(1))).unwrap();
+        let (mut sent, mut waited) = (0, false);
+        while sent < all.len() {
+            match out.write(&all[sent..]) {
+                Ok(n) => sent += n,
+                Err(e)
+                    if !waited
+                        && matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        ) =>
+                {
+                    waited = true;
+                    told.send(Some(sent)).unwrap();
+                    out.set_write_timeout(None).unwrap();
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        if !waited {
+            told.send(None).unwrap();
+        }
+        out
+    });
+    // Some 40 MiB sent at a caller that reads nothing: the client holds some, the socket's
+    // buffers some, and the daemon's writes wait.
+    let sent = blocked.recv().unwrap();
+    assert!(
+        sent.is_some(),
+        "the client took all {LINES} lines of {len} bytes while its caller read none"
+    );
+    let queued = client.shared.inbox().queue.len();
+    assert!(
+        queued > 0 && queued * len <= QUEUE_BYTES,
+        "{queued} lines of {len} bytes queued"
+    );
+    // Nothing is lost: every line comes, in order.
+    for tick in 10..10 + LINES {
+        match client.next(WAIT).unwrap() {
+            Some(Incoming::Event(event)) => assert_eq!(event.tick, tick as u64),
+            other => panic!("{other:?}"),
+        }
+    }
+    let _out = writer.join().unwrap();
+}
+
+#[test]
+fn a_request_behind_a_queue_full_of_bytes_gets_its_reply() {
+    let (mut client, mut daemon) = Scripted::start();
+    // 12 MiB of events, more than the queue holds for a caller that reads nothing, then the
+    // reply: the request lets the queue grow to find it.
+    let worker = std::thread::spawn(move || {
+        let r = daemon.request();
+        for tick in 10..22 {
+            daemon.send(&big_event(tick));
+        }
+        let id = r.id.as_deref().unwrap().clone();
+        daemon.send(&json!({"id": id, "ok": true, "tick": 5}).to_string());
+        daemon
+    });
+    let fields = client.request(&Cmd::Stop).unwrap();
+    assert_eq!(fields.reply.tick(), Some(5));
+    let _daemon = worker.join().unwrap();
+    for tick in 10..22 {
+        match client.next(WAIT).unwrap() {
+            Some(Incoming::Event(event)) => assert_eq!(event.tick, tick),
+            other => panic!("{other:?}"),
+        }
+    }
+}
+
+#[test]
+fn a_request_behind_more_than_max_queue_bytes_closes_the_connection_and_keeps_what_came() {
+    let (mut client, mut daemon) = Scripted::start();
+    let len = big_event(10).len();
+    // 40 MiB of events before the reply: more than the client holds for a request.
+    let worker = std::thread::spawn(move || {
+        let r = daemon.request();
+        for tick in 10..50 {
+            if daemon.out.write_all(big_event(tick).as_bytes()).is_err() {
+                return;
+            }
+        }
+        let id = r.id.as_deref().unwrap().clone();
+        let reply = json!({"id": id, "ok": true, "tick": 5}).to_string() + "\n";
+        let _ = daemon.out.write_all(reply.as_bytes());
+    });
+    let err = client.request(&Cmd::Stop).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            ClientError::Backlog {
+                max: MAX_QUEUE_BYTES,
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    assert!(err.is_closed());
+    assert!(
+        err.to_string().contains(&format!(
+            "sent over {MAX_QUEUE_BYTES} bytes of replies and events"
+        )),
+        "{err}"
+    );
+    // What came before the bound is read, in order, then the same error.
+    let (ticks, after) = events_until_error(&mut client);
+    assert!(matches!(after, ClientError::Backlog { .. }), "{after:?}");
+    assert_eq!(ticks, (10..10 + ticks.len() as u64).collect::<Vec<_>>());
+    assert!(
+        ticks.len() * len > QUEUE_BYTES && ticks.len() * len <= MAX_QUEUE_BYTES,
+        "{} lines of {len} bytes",
+        ticks.len()
+    );
+    // Gone, the client's socket no longer takes the daemon's writes.
+    drop(client);
+    worker.join().unwrap();
 }
