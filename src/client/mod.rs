@@ -245,6 +245,7 @@ impl ClientError {
             self,
             ClientError::Closed { .. }
                 | ClientError::WriteTimeout { .. }
+                | ClientError::LineTooLong { .. }
                 | ClientError::Backlog { .. }
         )
     }

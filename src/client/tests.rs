@@ -743,3 +743,17 @@ fn a_request_behind_more_than_max_queue_bytes_closes_the_connection_and_keeps_wh
     drop(client);
     worker.join().unwrap();
 }
+
+/// A line over the cap closes the connection: every read after it says so, as a closed
+/// connection, so that a loop that reads on past errors that leave it open (`watch`) stops.
+#[test]
+fn a_line_over_the_cap_is_a_closed_connection() {
+    let (mut client, mut daemon) = Scripted::start();
+    daemon.send(&"A".repeat(MAX_REPLY_LINE + 1));
+    for _ in 0..2 {
+        let err = client.next(WAIT).unwrap_err();
+        assert!(matches!(err, ClientError::LineTooLong { .. }), "{err:?}");
+        assert!(err.is_closed(), "{err}");
+    }
+    assert!(client.wait_telemetry(WAIT).unwrap_err().is_closed());
+}
