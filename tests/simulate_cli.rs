@@ -133,3 +133,65 @@ fn an_oversized_scenario_exits_two_naming_the_cap() {
     );
     assert!(!dir.path().join("o").exists());
 }
+
+/// A title the figures cannot show is refused before anything is written, naming `title`: a
+/// control character (not allowed in the SVG's XML) or more than 200 characters (laying out a
+/// long title takes minutes). A title of 200 characters is fine.
+#[test]
+fn a_bad_title_exits_two_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/straight_sideways.toml"),
+    )
+    .unwrap()
+    .replace("links = 20", "links = 4")
+    .replace("steps = [1, 20]", "steps = [1]");
+    let given = "title = \"Straight rope pulled sideways\"";
+    assert!(base.contains(given), "{base}");
+    let titled = |title: &str| base.replace(given, &format!("title = {title}"));
+    let long = "t".repeat(201);
+    for (title, says) in [
+        ("\"x\\u0001y\"", "control character '\\u{1}'"),
+        ("\"tab\\there\"", "control character '\\t'"),
+        (
+            &format!("\"{long}\"") as &str,
+            "201 characters, at most 200",
+        ),
+    ] {
+        let file = dir.path().join("bad.toml");
+        std::fs::write(&file, titled(title)).unwrap();
+        let out = dir.path().join("o");
+        let o = snakectl(&[
+            "simulate",
+            "--scenario",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--no-png",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{title}: {err}");
+        assert!(
+            err.contains(&format!("{}: title: ", file.display())) && err.contains(says),
+            "{title}: {err}"
+        );
+        assert!(!out.exists(), "{title}");
+    }
+    let file = dir.path().join("ok.toml");
+    std::fs::write(&file, titled(&format!("\"{}\"", "t".repeat(200)))).unwrap();
+    let out = dir.path().join("ok");
+    let o = snakectl(&[
+        "simulate",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--no-png",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

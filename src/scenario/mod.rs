@@ -51,6 +51,7 @@ use crate::resolve::sequential::pull_free;
 use crate::resolve::tractrix::Propagation;
 use crate::rope::{Objective, RopeOptimizer};
 use crate::textfile::{read_text, MAX_TEXT_BYTES};
+use crate::world::label_fault;
 
 use curve::Curve;
 use expr::Expr;
@@ -263,6 +264,10 @@ pub fn rotations(old: &[Vec2], new: &[Vec2]) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The longest title a scenario may have, in characters: it heads every figure (the time to
+/// lay out a title's text grows faster than its length) and the tables.
+pub const MAX_TITLE_CHARS: usize = 200;
+
 /// The most points a scenario may keep: every run (strategy × step count) keeps its `steps + 1`
 /// configurations of `links + 1` points each, for the figures (16 bytes a point: 32 MB).
 pub const MAX_STORED_POINTS: usize = 2_000_000;
@@ -385,6 +390,13 @@ impl Scenario {
             };
             cx.err(field, message)
         })?;
+        if let Some(why) = raw
+            .title
+            .as_deref()
+            .and_then(|t| label_fault("title", t, MAX_TITLE_CHARS))
+        {
+            return Err(cx.err("title", why));
+        }
         let n = usize::try_from(raw.links)
             .ok()
             .filter(|&n| (1..=100_000).contains(&n))
@@ -467,7 +479,7 @@ impl Scenario {
             },
         };
         Ok(Self {
-            title: raw.title.unwrap_or_else(|| file.to_string()),
+            title: raw.title.unwrap_or_else(|| default_title(file)),
             points,
             links,
             pull,
@@ -531,6 +543,15 @@ impl Scenario {
             length_residual,
         }
     }
+}
+
+/// The title of a scenario that gives none: its file's name, control characters shown as
+/// U+FFFD and cut to [`MAX_TITLE_CHARS`], as a given title must be.
+fn default_title(file: &str) -> String {
+    file.chars()
+        .map(|c| if c.is_control() { '\u{fffd}' } else { c })
+        .take(MAX_TITLE_CHARS)
+        .collect()
 }
 
 /// The field a serde "unknown field" or "missing field" message names.

@@ -569,20 +569,34 @@ fn check_id(at: &str, o: &Obstacle) -> Result<(), WorldError> {
             field: format!("{at}.id"),
         });
     }
-    let chars = o.id.chars().count();
-    if chars > MAX_ID_CHARS {
-        return Err(WorldError::BadId {
+    match label_fault("id", &o.id, MAX_ID_CHARS) {
+        Some(why) => Err(WorldError::BadId {
             field: format!("{at}.id"),
-            why: format!("an id of {chars} characters, at most {MAX_ID_CHARS} allowed"),
-        });
+            why,
+        }),
+        None => Ok(()),
     }
-    if let Some(c) = o.id.chars().find(|c| c.is_control()) {
-        return Err(WorldError::BadId {
-            field: format!("{at}.id"),
-            why: format!("id {:?} holds the control character {c:?}", o.id),
-        });
+}
+
+/// What is wrong with `text`, a one-line label a user gave (an obstacle id, a scenario's
+/// title) that is called `noun` in the message: more than `max_chars` characters, or a control
+/// character (a line break, a tab, an escape), which garbles the messages, screens and
+/// figures that show it (and is not allowed in XML at all). `None` when it is fine.
+pub fn label_fault(noun: &str, text: &str, max_chars: usize) -> Option<String> {
+    let chars = text.chars().count();
+    if chars > max_chars {
+        let article = if noun.starts_with(['a', 'e', 'i', 'o', 'u']) {
+            "an"
+        } else {
+            "a"
+        };
+        return Some(format!(
+            "{article} {noun} of {chars} characters, at most {max_chars} allowed"
+        ));
     }
-    Ok(())
+    text.chars()
+        .find(|c| c.is_control())
+        .map(|c| format!("{noun} {text:?} holds the control character {c:?}"))
 }
 
 /// Checks an obstacle's shape at `at`.
