@@ -50,7 +50,8 @@
 //! - [`ros`]: the ROS 2 messages the arm speaks on a Zenoh network (`JointState`,
 //!   `PointStamped`, `Twist`, ...) and their CDR encoding; built from telemetry, time passed in;
 //!   and rmw_zenoh's keys, graph tokens and attachments ([`ros::rmw`]), as pure formatting.
-//! - [`textfile`]: reading a text file a user named: a regular file only, at most 1 MiB.
+//! - [`textfile`]: reading a text file a user named: a regular file only, at most 1 MiB; the
+//!   points CSV a tip's path and a scenario's polyline share.
 //! - [`urdf`]: the configured arm as a URDF robot description (`snakectl urdf`).
 //! - [`view`]: the channels a Foxglove view and a recording share (topics, schemas, the
 //!   messages) and the arm as a Foxglove 3-D scene; pure, time passed in.

@@ -1,5 +1,6 @@
 //! Reading a text file a user named (a config, a token, a world, a path, a problem, a
-//! scenario): a regular file only, and of bounded size.
+//! scenario): a regular file only, and of bounded size; and the points CSV that a tip's path
+//! and a scenario's polyline share ([`parse_points`]).
 //!
 //! `std::fs::read_to_string` reads whatever the path opens: `/dev/urandom` until memory runs
 //! out, a FIFO with no writer never (opening it blocks). [`read_text`] looks at the path
@@ -104,6 +105,95 @@ pub fn read_capped(reader: impl Read, cap: u64) -> Result<String, TextFileError>
     })
 }
 
+/// Why a line of a points CSV is not a point.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RowError {
+    /// Not two comma-separated fields.
+    #[error("expected two fields `x,y`, got {0}")]
+    Fields(usize),
+    /// A field that is no number.
+    #[error("`{0}` is not a number")]
+    NotNumber(String),
+    /// A number that is not finite.
+    #[error("`{0}` is not a finite number")]
+    NotFinite(String),
+}
+
+/// Why a points CSV was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PointsError {
+    /// A line that is not a point.
+    #[error("line {line}: {row}")]
+    Row {
+        /// The line, from 1.
+        line: usize,
+        /// What is wrong with it.
+        row: RowError,
+    },
+    /// No point at all.
+    #[error("no points: expected lines `x,y` in metres")]
+    Empty,
+}
+
+impl PointsError {
+    /// The error after the file's name, as compilers place it: `corners.csv:3: what`, or
+    /// `corners.csv: what` for the file as a whole.
+    pub fn in_file(&self, file: impl std::fmt::Display) -> String {
+        match self {
+            Self::Row { line, row } => format!("{file}:{line}: {row}"),
+            Self::Empty => format!("{file}: {self}"),
+        }
+    }
+}
+
+/// A point of a points CSV and the line it is on (from 1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CsvPoint {
+    /// The line, from 1.
+    pub line: usize,
+    /// `x, y`, finite.
+    pub xy: [f64; 2],
+}
+
+/// One row `x,y`.
+fn parse_row(line: &str) -> Result<[f64; 2], RowError> {
+    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+    let [x, y] = fields[..] else {
+        return Err(RowError::Fields(fields.len()));
+    };
+    let number = |s: &str| match s.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err(RowError::NotFinite(s.to_owned())),
+        Err(_) => Err(RowError::NotNumber(s.to_owned())),
+    };
+    Ok([number(x)?, number(y)?])
+}
+
+/// The points of a CSV of `x,y` rows (a tip's path, a scenario's polyline), in order: blank
+/// lines and lines starting with `#` skipped, the first other line a header when none of its
+/// fields is a number; every other line must be a point, or the file is refused naming it.
+pub fn parse_points(text: &str) -> Result<Vec<CsvPoint>, PointsError> {
+    let mut points = Vec::new();
+    let mut first = true;
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim_start_matches('\u{feff}').trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let header = first && line.split(',').all(|f| f.trim().parse::<f64>().is_err());
+        first = false;
+        if header {
+            continue;
+        }
+        let xy = parse_row(line).map_err(|row| PointsError::Row { line: i + 1, row })?;
+        points.push(CsvPoint { line: i + 1, xy });
+    }
+    if points.is_empty() {
+        return Err(PointsError::Empty);
+    }
+    Ok(points)
+}
+
 /// Makes a FIFO at `path` (replacing what is there), for the tests of readers that must refuse
 /// one without blocking.
 #[cfg(test)]
@@ -174,6 +264,23 @@ mod tests {
         // A source without end stops at the cap.
         let e = read_capped(std::io::repeat(b'x'), 1000).unwrap_err();
         assert!(matches!(e, TextFileError::TooLarge { cap: 1000 }), "{e}");
+    }
+
+    #[test]
+    fn only_the_first_line_may_be_a_header() {
+        let xy = |p: &[CsvPoint]| p.iter().map(|p| (p.line, p.xy)).collect::<Vec<_>>();
+        let p = parse_points("\u{feff}x,y\n# a comment\n\n1,2\n 3 , 4 \n").unwrap();
+        assert_eq!(xy(&p), [(4, [1.0, 2.0]), (5, [3.0, 4.0])]);
+        // A second line in the wrong format is an error naming it, not another header.
+        let e = parse_points("0;0\n0.2;0.1\n0.5,0.3\n1,0\n").unwrap_err();
+        assert_eq!(
+            e.in_file("a.csv"),
+            "a.csv:2: expected two fields `x,y`, got 1"
+        );
+        assert_eq!(
+            parse_points("x,y\n\n").unwrap_err().in_file("a.csv"),
+            "a.csv: no points: expected lines `x,y` in metres"
+        );
     }
 
     #[test]

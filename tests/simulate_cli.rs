@@ -195,3 +195,60 @@ fn a_bad_title_exits_two_naming_the_field() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// A polyline CSV is read by the rule of a path file: only its first line may be a header, so
+/// rows in the wrong format are an error naming the scenario, `curve.file`, the CSV and the
+/// line, never silently dropped from the curve's start.
+#[test]
+fn a_polyline_row_in_the_wrong_format_is_refused_by_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("pm.toml");
+    std::fs::write(
+        &scenario,
+        "title = \"t\"\nlinks = 10\n[curve]\nkind = \"polyline\"\nfile = \"lead.csv\"\n\
+         [pull]\nkind = \"straight\"\ndisplacement_m = [0.0, 0.5]\nsteps = [1]\n\
+         [[strategy]]\nkind = \"tractrix\"\n",
+    )
+    .unwrap();
+    let csv = dir.path().join("lead.csv");
+    let run = |rows: &str| {
+        std::fs::write(&csv, rows).unwrap();
+        snakectl(&[
+            "simulate",
+            "--scenario",
+            scenario.to_str().unwrap(),
+            "--out",
+            dir.path().join("o").to_str().unwrap(),
+            "--no-png",
+        ])
+    };
+    for (rows, says) in [
+        (
+            "0;0\n0.2;0.1\n0.5,0.3\n1,0\n",
+            ":2: expected two fields `x,y`, got 1",
+        ),
+        (
+            "0;0\n0.5;0.3\n1;0\n",
+            ":2: expected two fields `x,y`, got 1",
+        ),
+        ("x,y\n0,0\n1,oops\n", ":3: `oops` is not a number"),
+    ] {
+        let o = run(rows);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{rows:?}: {err}");
+        let want = format!(
+            "{}: curve.file: {}{says}",
+            scenario.display(),
+            csv.display()
+        );
+        assert!(err.contains(&want), "{rows:?}: {err}\nwanted {want}");
+    }
+    // A header, a comment and the rows: the curve starts at the first row.
+    let o = run("x,y\n# the shape\n0,0\n0.5,0.3\n1,0\n");
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

@@ -303,15 +303,19 @@ fn parametric_and_polyline_curves_report_their_errors() {
     );
     std::fs::write(dir.path().join("shape.csv"), "x,y\n0,0\n1,0\n1,oops\n").unwrap();
     let e = Scenario::from_toml(&polyline, "p.toml", dir.path()).unwrap_err();
-    assert!(e.file.ends_with("shape.csv"), "{e}");
-    assert_eq!(e.field, "line 4", "{e}");
+    assert_eq!((&*e.file, &*e.field), ("p.toml", "curve.file"), "{e}");
+    assert!(
+        e.message.ends_with("shape.csv:4: `oops` is not a number"),
+        "{e}"
+    );
     std::fs::write(dir.path().join("shape.csv"), "x,y\n0,0\n1,0\n1,1\n").unwrap();
     let s = Scenario::from_toml(&polyline, "p.toml", dir.path()).unwrap();
     assert_eq!(s.points.len(), 11);
     assert_eq!(s.points[10], snakectl::chain::Vec2::new(1.0, 1.0));
     let missing = polyline.replace("shape.csv", "nowhere.csv");
     let e = Scenario::from_toml(&missing, "p.toml", dir.path()).unwrap_err();
-    assert!(e.file.ends_with("nowhere.csv"), "{e}");
+    assert_eq!((&*e.file, &*e.field), ("p.toml", "curve.file"), "{e}");
+    assert!(e.message.contains("nowhere.csv: cannot read it"), "{e}");
 }
 
 /// What a scenario may ask is bounded: the configurations it keeps (links × steps × strategies,

@@ -20,7 +20,7 @@ use snakectl::client::{Client, ClientError, CmdName, Ending, Fields};
 use snakectl::protocol::{
     strategy_named, Cmd, Code, FaultKind, Reply, MAX_PATH_POINTS, MIN_SPEED_M_S, STRATEGIES,
 };
-use snakectl::textfile::{read_text, MAX_TEXT_BYTES};
+use snakectl::textfile::{parse_points, read_text, MAX_TEXT_BYTES};
 
 use super::{outln, Failure};
 
@@ -88,7 +88,7 @@ pub struct ReachArgs {
 /// `path FILE.csv`.
 #[derive(Debug, Args)]
 pub struct PathArgs {
-    /// CSV file, two columns `x,y` in metres, an optional header line.
+    /// CSV file, two columns `x,y` in metres, an optional header line (`#` lines skipped).
     pub file: PathBuf,
     /// Tip speed, m/s (default: the daemon's tip speed limit).
     #[arg(long)]
@@ -182,8 +182,11 @@ pub fn path(args: PathArgs) -> Result<(), Failure> {
     let speed = check_speed(args.speed)?;
     let text = read_text(&args.file, MAX_TEXT_BYTES)
         .map_err(|e| Failure::bad_input(anyhow!("{}: cannot read it: {e}", args.file.display())))?;
-    let points = parse_points(&text)
-        .map_err(|e| Failure::bad_input(anyhow!("{}:{e}", args.file.display())))?;
+    let points: Vec<[f64; 2]> = parse_points(&text)
+        .map_err(|e| Failure::bad_input(anyhow!("{}", e.in_file(args.file.display()))))?
+        .iter()
+        .map(|p| p.xy)
+        .collect();
     // Refused here rather than by the daemon: every path up to the limit fits in one request
     // line, so this is the only size check a path needs.
     if points.len() > MAX_PATH_POINTS {
@@ -421,62 +424,4 @@ fn motion(client: &mut Client, cmd: &Cmd, no_wait: bool) -> Result<(), Failure> 
         Some(other) => Err(Failure::other(anyhow!("{other}"))),
         None => Err(Failure::other(anyhow!("`{name}` did not finish"))),
     }
-}
-
-/// Why a CSV line is not a point.
-#[derive(Debug, PartialEq)]
-enum RowError {
-    /// Not two comma-separated fields.
-    Fields(usize),
-    /// A field that is no number.
-    NotNumber(String),
-    /// A number that is not finite.
-    NotFinite(String),
-}
-
-impl std::fmt::Display for RowError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            RowError::Fields(n) => write!(f, "expected two fields `x,y`, got {n}"),
-            RowError::NotNumber(s) => write!(f, "`{s}` is not a number"),
-            RowError::NotFinite(s) => write!(f, "`{s}` is not a finite number"),
-        }
-    }
-}
-
-/// One row `x,y`.
-fn parse_row(line: &str) -> Result<[f64; 2], RowError> {
-    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-    let [x, y] = fields[..] else {
-        return Err(RowError::Fields(fields.len()));
-    };
-    let number = |s: &str| match s.parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
-        Ok(_) => Err(RowError::NotFinite(s.to_owned())),
-        Err(_) => Err(RowError::NotNumber(s.to_owned())),
-    };
-    Ok([number(x)?, number(y)?])
-}
-
-/// The points of a path CSV: blank lines skipped, the first line a header when none of its
-/// fields is a number. Errors read `LINE: what` (or `: what` for the file as a whole).
-fn parse_points(text: &str) -> Result<Vec<[f64; 2]>, String> {
-    let mut points = Vec::new();
-    let mut first = true;
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim_start_matches('\u{feff}').trim();
-        if line.is_empty() {
-            continue;
-        }
-        let header = first && line.split(',').all(|f| f.trim().parse::<f64>().is_err());
-        first = false;
-        if header {
-            continue;
-        }
-        points.push(parse_row(line).map_err(|e| format!("{}: {e}", i + 1))?);
-    }
-    if points.is_empty() {
-        return Err(" no points: expected lines `x,y` in metres".to_owned());
-    }
-    Ok(points)
 }

@@ -32,7 +32,7 @@
 //! `wavelength_m`, `phase_rad` (default 0); `parabola`: `x_range_m`, `coefficient_per_m`
 //! (`y = c x^2`); `arc`: `center_m`, `radius_m`, `from_deg`, `to_deg`; `parametric`: `x`, `y`
 //! (expressions in `t`, see [`expr`]), `t_range`; `polyline`: `file` (CSV of `x,y` rows, an
-//! optional header, relative to the scenario file). Pull fields: `straight`: `displacement_m`;
+//! optional header line, relative to the scenario file; read as a tip's path file is). Pull fields: `straight`: `displacement_m`;
 //! `sine`: `displacement_m` (the overall advance), `amplitude_m` (sideways, to the left of the
 //! advance), `periods`; both: `steps`. A sine path is split into `K` straight pieces of equal
 //! parameter.
@@ -50,7 +50,7 @@ use crate::metrics::{self, Metrics};
 use crate::resolve::sequential::pull_free;
 use crate::resolve::tractrix::Propagation;
 use crate::rope::{Objective, RopeOptimizer};
-use crate::textfile::{read_text, MAX_TEXT_BYTES};
+use crate::textfile::{parse_points, read_text, MAX_TEXT_BYTES};
 use crate::world::label_fault;
 
 use curve::Curve;
@@ -60,7 +60,7 @@ use expr::Expr;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{file}: {field}: {message}")]
 pub struct ScenarioError {
-    /// The scenario file (or the CSV it names).
+    /// The scenario file.
     pub file: String,
     /// The field (`curve.amplitude_m`, `strategy[1].objective`, ...), or `input` for the whole.
     pub field: String,
@@ -727,57 +727,40 @@ fn curve_of(cx: &Ctx, c: &RawCurve, dir: &Path) -> Result<(Curve, bool), Scenari
         _ => {
             let name = cx.required(&f("file"), &c.file)?;
             let path = dir.join(&name);
-            Curve::Polyline(read_polyline(&path)?)
+            Curve::Polyline(read_polyline(cx, &path)?)
         }
     };
     Ok((curve, reverse))
 }
 
-/// Reads a CSV of `x,y` rows (an optional non-numeric header; blank lines and `#` comments
-/// skipped). Errors name the CSV file and the line.
-pub fn read_polyline(path: &Path) -> Result<Vec<Vec2>, ScenarioError> {
-    let file = path.display().to_string();
-    let err = |field: String, message: String| ScenarioError {
-        file: file.clone(),
-        field,
-        message,
-    };
-    let text = read_text(path, MAX_TEXT_BYTES).map_err(|e| err("input".into(), e.to_string()))?;
-    let mut pts = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
+/// Reads the CSV of `x,y` rows a polyline curve names, by the rules of a tip's path file
+/// ([`parse_points`]: only the first line may be a header). Errors name the scenario file and
+/// `curve.file`, then the CSV and its line.
+fn read_polyline(cx: &Ctx, path: &Path) -> Result<Vec<Vec2>, ScenarioError> {
+    let csv = path.display();
+    let err = |message: String| cx.err("curve.file", message);
+    let text =
+        read_text(path, MAX_TEXT_BYTES).map_err(|e| err(format!("{csv}: cannot read it: {e}")))?;
+    let rows = parse_points(&text).map_err(|e| err(e.in_file(&csv)))?;
+    let mut pts: Vec<Vec2> = Vec::new();
+    for row in rows {
+        let [x, y] = row.xy;
+        if x.abs() > MAX_MAGNITUDE || y.abs() > MAX_MAGNITUDE {
+            return Err(err(format!(
+                "{csv}:{}: a coordinate beyond {MAX_MAGNITUDE:e} in magnitude",
+                row.line
+            )));
         }
-        let cells: Vec<&str> = line.split(',').map(str::trim).collect();
-        let parsed: Vec<Option<f64>> = cells.iter().map(|c| c.parse::<f64>().ok()).collect();
-        if pts.is_empty() && parsed.iter().all(Option::is_none) {
-            continue; // header
-        }
-        let field = format!("line {}", i + 1);
-        match parsed.as_slice() {
-            [Some(x), Some(y)] if x.is_finite() && y.is_finite() => {
-                if x.abs() > MAX_MAGNITUDE || y.abs() > MAX_MAGNITUDE {
-                    return Err(err(field, "coordinate too large".into()));
-                }
-                let p = Vec2::new(*x, *y);
-                if pts.last() != Some(&p) {
-                    pts.push(p);
-                }
-            }
-            _ => {
-                return Err(err(
-                    field,
-                    format!("expected two finite numbers x,y: {line:?}"),
-                ))
-            }
+        let p = Vec2::new(x, y);
+        if pts.last() != Some(&p) {
+            pts.push(p);
         }
     }
     if pts.len() < 2 {
-        return Err(err(
-            "input".into(),
-            format!("{} distinct points; a polyline needs at least 2", pts.len()),
-        ));
+        return Err(err(format!(
+            "{csv}: {} distinct points; a polyline needs at least 2",
+            pts.len()
+        )));
     }
     Ok(pts)
 }
