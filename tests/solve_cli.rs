@@ -376,3 +376,64 @@ fn a_target_the_body_cannot_get_to_clear_is_reachable_but_neither_converged_nor_
     );
     assert!(a["min_clearance_m"].as_f64().unwrap() < 0.0, "{a}");
 }
+
+/// `n` links of `link` m along x with one circle off to the side, as a problem file.
+fn long_problem(n: usize, link: f64, obstacle: bool) -> String {
+    let links = vec![format!("{link:e}"); n].join(",");
+    let zeros = vec!["0"; n].join(",");
+    let world = if obstacle {
+        r#","obstacles":[{"circle":{"center":[0.5,0.5],"radius":0.1}}]"#
+    } else {
+        ""
+    };
+    format!(r#"{{"links":[{links}],"base":[0,0,0],"theta0":[{zeros}],"target":[0.3,0.4]{world}}}"#)
+}
+
+/// Keeping clear of obstacles takes memory growing as the square of the links (60,000 links
+/// asked for 29 GB and aborted): among obstacles a chain may have at most 2048 links, refused
+/// by name beyond, in a problem file and in a config alike. Without obstacles there is no cap.
+#[test]
+fn a_chain_too_long_to_keep_clear_is_refused_naming_links() {
+    use snakectl::problem::Problem;
+    use snakectl::resolve::overall::MAX_LINKS_AMONG_OBSTACLES;
+    assert_eq!(MAX_LINKS_AMONG_OBSTACLES, 2048);
+    let out = snakectl(&["solve", "-"], &long_problem(60_000, 1e-5, true));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("links: 60000 links among obstacles, at most 2048"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(out.stdout.is_empty());
+    // The cap itself is fine, and so is any length without obstacles.
+    Problem::from_json(&long_problem(2048, 1e-4, true)).unwrap();
+    Problem::from_json(&long_problem(2049, 1e-4, false)).unwrap();
+    let e = Problem::from_json(&long_problem(2049, 1e-4, true)).unwrap_err();
+    assert_eq!(e.field, "links", "{e}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("long.toml");
+    let joints = "[[joint]]\nlink_m = 1e-4\nmin_rad = -1\nmax_rad = 1\n".repeat(2049);
+    std::fs::write(
+        &config,
+        format!("[arm]\n{joints}[world]\n[[world.obstacle]]\nid = \"post\"\ncircle = {{ center_m = [0.5, 0.5], radius_m = 0.1 }}\n"),
+    )
+    .unwrap();
+    let out = snakectl(
+        &[
+            "solve",
+            "--config",
+            config.to_str().unwrap(),
+            "--target",
+            "0.1,0.1",
+        ],
+        "",
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("long.toml: joint: 2049 joints with [world] obstacles, at most 2048"),
+        "{err}"
+    );
+}

@@ -490,6 +490,17 @@ pub enum FieldProblem {
          inside from its outside"
     )]
     ZeroArea,
+    /// More joints than an arm among obstacles may have.
+    #[error(
+        "{count} joints with [world] obstacles, at most {max}: keeping clear of obstacles takes \
+         memory growing as the square of the joints (without obstacles, any number)"
+    )]
+    TooManyJointsAmongObstacles {
+        /// The joints given.
+        count: usize,
+        /// The limit, [`crate::resolve::overall::MAX_LINKS_AMONG_OBSTACLES`].
+        max: usize,
+    },
     /// More of something than the world may hold.
     #[error("{count} {what}, at most {max} allowed")]
     TooMany {

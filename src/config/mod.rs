@@ -32,6 +32,7 @@ pub use zenoh_table::{Endpoint, Host, Zenoh, ZenohMode};
 use std::time::Duration;
 
 use crate::chain::{Chain, JointLimit, Vec2, MAX_MAGNITUDE};
+use crate::resolve::overall::MAX_LINKS_AMONG_OBSTACLES;
 use crate::resolve::Strategy;
 use crate::servo::arm::{Arm, JointServo, OnExit, Settings};
 use crate::servo::units::CurrentUnit;
@@ -1350,6 +1351,15 @@ impl Checker<'_> {
             .collect::<Result<Vec<_>, _>>()?;
         let world = World::new(raw.link_radius_m, raw.clearance_m, obstacles)
             .map_err(|e| self.world_error(e))?;
+        if joints.len() > MAX_LINKS_AMONG_OBSTACLES && !world.obstacles().is_empty() {
+            return Err(self.invalid(
+                "joint",
+                FieldProblem::TooManyJointsAmongObstacles {
+                    count: joints.len(),
+                    max: MAX_LINKS_AMONG_OBSTACLES,
+                },
+            ));
+        }
         let keep_m = world.link_radius_m() + world.clearance_m();
         if let Some((distance_m, k)) = world.point_distance(chain.base()) {
             if distance_m < keep_m {

@@ -19,8 +19,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::chain::{wrap_angle, Chain, ChainError, JointLimit, Num, Vec2, MAX_MAGNITUDE};
 use crate::metrics::{self, Metrics};
-use crate::resolve::overall::CLEAR_SLACK;
 use crate::resolve::overall::{Overall, OverallMode, OverallOptions};
+use crate::resolve::overall::{CLEAR_SLACK, MAX_LINKS_AMONG_OBSTACLES};
 use crate::resolve::sequential::{pull_free, Sequential, SequentialOptions};
 use crate::resolve::tractrix::Propagation;
 use crate::resolve::{solve_steps, Resolver, Strategy};
@@ -296,6 +296,23 @@ pub fn parse_objective(
     })
 }
 
+/// Refuses a chain of more than [`MAX_LINKS_AMONG_OBSTACLES`] links in a world with
+/// obstacles: the clear solve's scratch grows as the square of the links.
+pub fn check_links_among(chain: &Chain, world: &World) -> Result<(), ProblemError> {
+    let n = chain.len();
+    if n > MAX_LINKS_AMONG_OBSTACLES && !world.obstacles().is_empty() {
+        return Err(ProblemError::new(
+            "links",
+            format!(
+                "{n} links among obstacles, at most {MAX_LINKS_AMONG_OBSTACLES}: keeping clear \
+                 of obstacles takes memory growing as the square of the links (without \
+                 obstacles, any number)"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Maps a world's refusal onto the problem's field names (`obstacles[0].circle.radius`,
 /// `obstacles[1].polygon.points[3]`, `link_radius_m`, ...).
 fn world_error(e: WorldError) -> ProblemError {
@@ -518,6 +535,7 @@ impl Problem {
             base_mode,
         )?;
         let world = parse_world(&raw.obstacles, raw.link_radius_m, raw.clearance_m)?;
+        check_links_among(&chain, &world)?;
         Ok(Self {
             chain,
             theta0: raw.theta0,

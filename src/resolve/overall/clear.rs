@@ -111,6 +111,11 @@ type WorldSolve = fn(&mut Overall, &World, &Chain, &[f64], Vec2, &mut [f64]) -> 
 pub const MAX_PAIRS: usize = 32;
 /// Largest chain for the dense Newton phase; longer chains finish with SQP steps alone.
 pub const NEWTON_MAX_JOINTS: usize = 96;
+/// Most links a chain may have to be solved among obstacles: each clear solve factors the
+/// subproblem's active constraints in a dense square of `(links + MAX_PAIRS + 2)²` numbers,
+/// 34 MiB at this count (at 60,000 links it would be 29 GB). Problems and configs with
+/// obstacles and more links are refused where they are read.
+pub const MAX_LINKS_AMONG_OBSTACLES: usize = 2048;
 /// An answer counts as clear when its least clearance is at least `clearance_m` less this, m:
 /// the round-off of an exact distance on an arm of some metres.
 pub const CLEAR_SLACK: f64 = 1e-9;

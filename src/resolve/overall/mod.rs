@@ -92,7 +92,7 @@ use crate::chain::{nearest_representative, wrap_angle, Chain, Reachability, Vec2
 use crate::resolve::{check_input, Outcome, Resolver, Strategy};
 use crate::world::World;
 
-pub use clear::{CLEAR_SLACK, MAX_PAIRS, NEWTON_MAX_JOINTS};
+pub use clear::{CLEAR_SLACK, MAX_LINKS_AMONG_OBSTACLES, MAX_PAIRS, NEWTON_MAX_JOINTS};
 
 use cold::mirror_pose;
 pub(crate) use cold::SplitMix;
