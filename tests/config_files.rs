@@ -285,3 +285,33 @@ fn a_device_or_fifo_named_as_an_input_file_is_refused_at_once_by_every_command()
         }
     }
 }
+
+/// What CONFIG.md says of a few keys holds: `[arm]`, every key of which has a default, may be
+/// left out; `[control] rate_hz` outside 1 to 2000 is refused with that range whatever the
+/// value (0, NaN, negative, too high); `[bus] ports = []` is refused rather than taken for
+/// one port.
+#[test]
+fn arm_rate_and_ports_are_as_documented() {
+    let joint = "[[joint]]\nlink_m = 0.5\nmin_rad = -1\nmax_rad = 1\n";
+    let c = Config::from_str(joint, "a.toml").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(c.home(), [0.0]);
+    for rate in ["0.0", "nan", "-5.0", "0.5", "2001.0"] {
+        let e = Config::from_str(&format!("{joint}[control]\nrate_hz = {rate}\n"), "a.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("control.rate_hz: ") && e.ends_with("must lie in [1, 2000]"),
+            "{rate}: {e}"
+        );
+    }
+    let bus = format!("{joint}id = 1\nmodel = \"XL430-W250\"\n[bus]\nkind = \"sim\"\n");
+    let c = Config::from_str(&bus, "a.toml").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(c.bus().unwrap().ports.len(), 1);
+    let e = Config::from_str(&format!("{bus}ports = []\n"), "a.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("a.toml: bus.ports: an empty list: give at least one [[bus.ports]]"),
+        "{e}"
+    );
+}

@@ -179,6 +179,12 @@ pub enum FieldProblem {
         /// The id.
         id: u8,
     },
+    /// `[bus] ports = []`: a list of no ports.
+    #[error(
+        "an empty list: give at least one [[bus.ports]] table, or leave `ports` out for one \
+         port of every joint's servo"
+    )]
+    NoPorts,
     /// A `[[bus.ports]]` without servos.
     #[error("no servo ids: a port carries at least one servo")]
     EmptyPort,

@@ -958,9 +958,13 @@ impl Checker<'_> {
     /// servo on exactly one port, no port empty; absent, one port of every joint's servo.
     fn ports(&self, raw: &RawBus, servos: &[JointServo]) -> Result<Vec<BusPort>, ConfigError> {
         const NEEDS_PATH: &str = "kind = \"dynamixel\" needs the serial device, e.g. /dev/ttyUSB0";
+        if raw.ports.as_ref().is_some_and(Vec::is_empty) {
+            return Err(self.invalid("bus.ports", FieldProblem::NoPorts));
+        }
+        let listed = raw.ports.as_deref().unwrap_or_default();
         if raw.kind == BusKind::Sim {
             let named = raw.port.iter().map(|p| ("bus.port".to_owned(), p)).chain(
-                raw.ports.iter().enumerate().filter_map(|(k, p)| {
+                listed.iter().enumerate().filter_map(|(k, p)| {
                     p.port
                         .as_ref()
                         .map(|q| (format!("bus.ports[{}].port", k + 1), q))
@@ -974,7 +978,7 @@ impl Checker<'_> {
                 );
             }
         }
-        if raw.ports.is_empty() {
+        if listed.is_empty() {
             if raw.kind == BusKind::Dynamixel && raw.port.is_none() {
                 return Err(self.invalid("bus.port", FieldProblem::Missing { why: NEEDS_PATH }));
             }
@@ -997,8 +1001,8 @@ impl Checker<'_> {
         // Which port (1-based) each id is on, and which port each path names.
         let mut on_port: std::collections::BTreeMap<u8, usize> = Default::default();
         let mut paths: Vec<&str> = Vec::new();
-        let mut ports = Vec::with_capacity(raw.ports.len());
-        for (k, p) in raw.ports.iter().enumerate() {
+        let mut ports = Vec::with_capacity(listed.len());
+        for (k, p) in listed.iter().enumerate() {
             let n = k + 1;
             if p.ids.is_empty() {
                 return Err(self.invalid(format!("bus.ports[{n}].ids"), FieldProblem::EmptyPort));
@@ -1496,7 +1500,8 @@ impl Checker<'_> {
     }
 
     fn control(&self, raw: &RawControl) -> Result<Control, ConfigError> {
-        let rate_hz = self.positive("control.rate_hz", raw.rate_hz)?;
+        // One message for every value outside the documented range, NaN and 0 included.
+        let rate_hz = raw.rate_hz;
         if !(MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz) {
             return Err(self.invalid(
                 "control.rate_hz",

@@ -19,7 +19,8 @@ use serde::Deserialize;
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawConfig {
-    /// `[arm]`: base pose and home pose.
+    /// `[arm]`: base pose and home pose; every key has a default, and so has the table.
+    #[serde(default)]
     pub arm: RawArm,
     /// `[[joint]]`: one table per joint, base to tip.
     #[serde(default, rename = "joint")]
@@ -49,7 +50,7 @@ pub struct RawConfig {
 }
 
 /// `[arm]`: where the chain is mounted and where it starts.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawArm {
     /// Base point x, metres.
@@ -148,9 +149,9 @@ pub struct RawBus {
     #[serde(default = "default_read")]
     pub read: ReadChoice,
     /// `[[bus.ports]]`: several serial ports, each with its servos; absent, one port
-    /// (`port`) carries every joint's servo.
+    /// (`port`) carries every joint's servo. Given empty (`ports = []`), refused.
     #[serde(default)]
-    pub ports: Vec<RawPort>,
+    pub ports: Option<Vec<RawPort>>,
 }
 
 /// `[bus] read`: how the loop reads every servo in one exchange.
