@@ -236,9 +236,31 @@ fn sim_refuses_to_replace_a_file_that_is_not_a_symlink() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{err}");
-    assert!(err.contains("notes.txt"), "{err}");
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}: a regular file, not a symlink",
+            file.display()
+        )),
+        "{err}"
+    );
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
+    // Nor a directory, empty or not.
+    let sub = dir.path().join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["sim", "--config", "config/sim.toml", "--link"])
+        .arg(&sub)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!("{}: a directory, not a symlink", sub.display())),
+        "{err}"
+    );
+    assert!(sub.is_dir());
 }
 
 #[test]

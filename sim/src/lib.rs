@@ -113,6 +113,18 @@ pub enum SimError {
         /// Where it points.
         target: std::path::PathBuf,
     },
+    /// The link's path holds something that is not a symlink (a file, a directory): it is
+    /// made only where there is nothing or an old symlink, never in place of anything else.
+    #[error(
+        "{}: {what}, not a symlink: the link is made only where there is nothing or an old \
+         symlink; give another path", link.display()
+    )]
+    LinkTaken {
+        /// The link.
+        link: std::path::PathBuf,
+        /// What is there, e.g. "a regular file".
+        what: &'static str,
+    },
     /// Opening or configuring the pseudo-terminal failed.
     #[error("pseudo-terminal: {0}")]
     Pty(#[from] serialport::Error),

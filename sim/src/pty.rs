@@ -204,6 +204,29 @@ fn is_symlink(path: &Path) -> bool {
         .is_ok_and(|m| m.file_type().is_symlink())
 }
 
+/// What is at `path` when something other than a symlink is: "a regular file", "a directory",
+/// ... (`None` when nothing is there, or a symlink).
+fn not_a_symlink(path: &Path) -> Option<&'static str> {
+    use std::os::unix::fs::FileTypeExt;
+    let t = path.symlink_metadata().ok()?.file_type();
+    if t.is_symlink() {
+        return None;
+    }
+    Some(if t.is_file() {
+        "a regular file"
+    } else if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_char_device() || t.is_block_device() {
+        "a device"
+    } else {
+        "something else"
+    })
+}
+
 /// Where the symlink `link` points, when that is a terminal still open (a pseudo-terminal
 /// exists while its master end is: another simulator serves it).
 fn live_target(link: &Path) -> Option<PathBuf> {
@@ -218,6 +241,12 @@ fn live_target(link: &Path) -> Option<PathBuf> {
 fn create_link(link: &Path, target: &Path) -> Result<(), SimError> {
     let named =
         |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", link.display()));
+    if let Some(what) = not_a_symlink(link) {
+        return Err(SimError::LinkTaken {
+            link: link.to_path_buf(),
+            what,
+        });
+    }
     if is_symlink(link) {
         if let Some(live) = live_target(link) {
             return Err(SimError::LinkInUse {
