@@ -252,3 +252,33 @@ fn a_polyline_row_in_the_wrong_format_is_refused_by_line() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// An `--out` that is not a directory (`/dev/null`, a file) is refused as bad input, as
+/// `plot` refuses it, before the scenario is read or run.
+#[test]
+fn an_out_that_is_not_a_directory_exits_two() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, b"keep").unwrap();
+    for (out, what) in [
+        ("/dev/null", "a device or other special file"),
+        (file.to_str().unwrap(), "a file"),
+    ] {
+        let o = snakectl(&[
+            "simulate",
+            "--scenario",
+            "scenarios/straight_sideways.toml",
+            "--out",
+            out,
+            "--no-png",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{out}: {err}");
+        assert!(
+            err.contains(&format!("--out {out}: not a directory (it is {what}")),
+            "{err}"
+        );
+        assert!(o.stdout.is_empty());
+    }
+    assert_eq!(std::fs::read(&file).unwrap(), b"keep");
+}

@@ -77,3 +77,20 @@ impl Failure {
         }
     }
 }
+
+/// Refuses an `--out` that exists and is not a directory (a file, `/dev/null`), before any
+/// work: the figures and tables go into a directory, made when missing.
+pub fn check_out_dir(out: &std::path::Path) -> Result<(), Failure> {
+    match std::fs::metadata(out) {
+        Ok(m) if !m.is_dir() => Err(Failure::bad_input(anyhow::anyhow!(
+            "--out {}: not a directory (it is {}; name a directory, new or existing)",
+            out.display(),
+            if m.is_file() {
+                "a file"
+            } else {
+                "a device or other special file"
+            }
+        ))),
+        _ => Ok(()),
+    }
+}

@@ -27,12 +27,7 @@ pub struct PlotArgs {
 /// Reads the recording and writes the figures. The figures are drawn before `--out` is created,
 /// so that a recording that cannot be drawn leaves nothing behind.
 pub fn run(args: PlotArgs) -> Result<(), Failure> {
-    if args.out.exists() && !args.out.is_dir() {
-        return Err(Failure::bad_input(anyhow!(
-            "--out {}: not a directory (it is a file; name a directory, new or existing)",
-            args.out.display()
-        )));
-    }
+    super::check_out_dir(&args.out)?;
     let recording = Recording::open(&args.file).map_err(Failure::bad_input)?;
     if let Some(reason) = &recording.cut {
         let telemetry = recording.telemetry();

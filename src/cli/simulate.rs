@@ -30,6 +30,7 @@ pub struct SimulateArgs {
 
 /// Runs `snakectl simulate`.
 pub fn run(args: SimulateArgs) -> Result<(), Failure> {
+    super::check_out_dir(&args.out)?;
     match (&args.scenario, &args.all) {
         (Some(file), _) => one(file, &args.out, !args.no_png),
         (None, Some(dir)) => {
