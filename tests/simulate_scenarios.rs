@@ -296,6 +296,11 @@ fn parametric_and_polyline_curves_report_their_errors() {
     let e = Scenario::from_toml(&parametric, "p.toml", dir.path()).unwrap_err();
     assert_eq!(e.field, "curve.y", "{e}");
     assert!(e.message.contains("character"), "{e}");
+    // A character beyond ASCII is shown as itself, not as its first byte.
+    let greek = parametric.replace("0.2*sin(t", "\u{3c0}*t");
+    let e = Scenario::from_toml(&greek, "p.toml", dir.path()).unwrap_err();
+    assert_eq!(e.field, "curve.y", "{e}");
+    assert!(e.message.contains("unexpected '\u{3c0}'"), "{e}");
 
     let polyline = GOOD.replace(
         "kind = \"sine\"\nx_range_m = [0.0, 1.0]\namplitude_m = 0.1\nwavelength_m = 0.5",

@@ -204,7 +204,15 @@ impl Parser<'_> {
                     }
                 }
             }
-            Some(c) => self.error(format!("unexpected {:?}", c as char)),
+            Some(_) => {
+                // The character, not its first byte: the parser moves over ASCII only, so the
+                // rest of the text starts at a character's boundary.
+                let c = std::str::from_utf8(&self.text[self.pos..])
+                    .ok()
+                    .and_then(|rest| rest.chars().next())
+                    .unwrap_or(char::REPLACEMENT_CHARACTER);
+                self.error(format!("unexpected {c:?}"))
+            }
             None => self.error("unexpected end of expression"),
         }
     }
