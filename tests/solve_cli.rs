@@ -437,3 +437,17 @@ fn a_chain_too_long_to_keep_clear_is_refused_naming_links() {
         "{err}"
     );
 }
+
+/// A problem file that starts with a byte order mark, as some editors write, is read as
+/// without it (a config's TOML takes one too).
+#[test]
+fn a_byte_order_mark_is_skipped() {
+    let out = snakectl(&["solve", "-"], &format!("\u{feff}{ARM}"));
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(json(&out)["theta"].as_array().unwrap().len(), 4);
+}

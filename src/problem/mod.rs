@@ -440,6 +440,8 @@ pub fn check_pose(chain: &Chain, field: &str, theta: &[f64]) -> Result<(), Probl
 impl Problem {
     /// Parses and validates a problem from JSON text.
     pub fn from_json(text: &str) -> Result<Self, ProblemError> {
+        // A byte order mark, as some editors write, is skipped (a config's TOML takes it too).
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         // Serde would read an array as the fields in order, and name its elements.
         if text.trim_start().starts_with('[') {
             return Err(ProblemError::new(
