@@ -229,37 +229,22 @@ fn sim_refuses_to_replace_a_file_that_is_not_a_symlink() {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("notes.txt");
     std::fs::write(&file, "keep me").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
-        .args(["sim", "--config", "config/sim.toml", "--link"])
-        .arg(&file)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(
-        err.contains(&format!(
-            "{}: a regular file, not a symlink",
-            file.display()
-        )),
-        "{err}"
-    );
-    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
-    // Nor a directory, empty or not.
     let sub = dir.path().join("sub");
     std::fs::create_dir(&sub).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
-        .args(["sim", "--config", "config/sim.toml", "--link"])
-        .arg(&sub)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(
-        err.contains(&format!("{}: a directory, not a symlink", sub.display())),
-        "{err}"
-    );
+    // A file, kept as it was; nor a directory, empty or not.
+    for (path, what) in [(&file, "a regular file"), (&sub, "a directory")] {
+        let out = Command::new(env!("CARGO_BIN_EXE_snakectl"))
+            .args(["sim", "--config", "config/sim.toml", "--link"])
+            .arg(path)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        let says = format!("{}: {what}, not a symlink", path.display());
+        assert!(err.contains(&says), "{err}");
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
     assert!(sub.is_dir());
 }
 

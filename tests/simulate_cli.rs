@@ -12,6 +12,12 @@ fn snakectl(args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// Asserts that a run exited 0, showing its error output if not.
+fn succeeded(o: &Output) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+}
+
 #[test]
 fn a_scenario_writes_figures_and_tables() {
     let dir = tempfile::tempdir().unwrap();
@@ -23,12 +29,7 @@ fn a_scenario_writes_figures_and_tables() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    succeeded(&o);
     for name in [
         "motion.svg",
         "motion.png",
@@ -188,12 +189,7 @@ fn a_bad_title_exits_two_naming_the_field() {
         out.to_str().unwrap(),
         "--no-png",
     ]);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    succeeded(&o);
 }
 
 /// A polyline CSV is read by the rule of a path file: only its first line may be a header, so
@@ -245,12 +241,7 @@ fn a_polyline_row_in_the_wrong_format_is_refused_by_line() {
     }
     // A header, a comment and the rows: the curve starts at the first row.
     let o = run("x,y\n# the shape\n0,0\n0.5,0.3\n1,0\n");
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    succeeded(&o);
 }
 
 /// An `--out` that is not a directory (`/dev/null`, a file) is refused as bad input, as

@@ -951,17 +951,7 @@ fn a_terminal_closed_under_it_ends_teleop_without_a_signal() {
     let text = read_until_in_control(&mut master, child);
     let addr = field(&text, "daemon").unwrap().to_owned();
     drop(master);
-    let closed = Instant::now();
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        assert!(
-            closed.elapsed() < DEADLINE,
-            "teleop still runs after its terminal closed"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = exit_within_deadline(child, "after its terminal closed");
     let mut err = String::new();
     child
         .stderr
@@ -1099,17 +1089,7 @@ fn the_first_sigterm_ends_teleop_while_its_terminal_takes_no_output() {
 
     let pid = rustix::process::Pid::from_raw(i32::try_from(child.id()).unwrap()).unwrap();
     rustix::process::kill_process(pid, rustix::process::Signal::TERM).unwrap();
-    let sent = Instant::now();
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        assert!(
-            sent.elapsed() < DEADLINE,
-            "teleop still runs {DEADLINE:?} after one SIGTERM, its terminal taking no output"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = exit_within_deadline(child, "after one SIGTERM, its terminal taking no output");
     assert_eq!(status.code(), Some(143), "{status:?}");
     let local = rustix::termios::tcgetattr(&master).unwrap().local_modes;
     assert!(
@@ -1380,4 +1360,19 @@ fn a_right_click_reaches_for_the_point_and_a_blocked_goto_says_so() {
     );
     ui.send(b"q");
     ui.quits_giving_the_terminal_back("q");
+}
+
+/// Waits for `child` to exit, at most [`DEADLINE`]; `what` says what should have ended it.
+fn exit_within_deadline(child: &mut std::process::Child, what: &str) -> std::process::ExitStatus {
+    let from = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        assert!(
+            from.elapsed() < DEADLINE,
+            "teleop still runs {DEADLINE:?} {what}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
