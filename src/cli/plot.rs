@@ -65,11 +65,19 @@ pub fn run(args: PlotArgs) -> Result<(), Failure> {
         .with_context(|| format!("creating {}", args.out.display()))
         .map_err(Failure::other)?;
     let written = write_all(&args.out, &drawn)?;
+    let (pictured, all) = (
+        record.pictured().count(),
+        record.phases.iter().filter(|p| p.pictured).count(),
+    );
+    let of = if all > pictured {
+        format!(" (the first {pictured} of {all})")
+    } else {
+        String::new()
+    };
     outln!(
-        "{}: {} samples, {} phase(s) pictured; written to {}:",
+        "{}: {} samples, {pictured} phase(s) pictured{of}; written to {}:",
         args.file.display(),
         record.samples.len(),
-        record.phases.iter().filter(|p| p.pictured).count(),
         args.out.display()
     )?;
     for path in written {

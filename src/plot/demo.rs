@@ -217,9 +217,21 @@ fn xy(p: [f64; 2]) -> (f64, f64) {
     (p[0], p[1])
 }
 
+/// Most phases [`motion`] gives a column: the figure widens with each, and a recording of
+/// many moves (or a crafted one) would otherwise ask for an image too wide to draw. The
+/// first ones are pictured.
+pub const MAX_PICTURED: usize = 12;
+
+impl Record {
+    /// The phases [`motion`] gives a column: the first [`MAX_PICTURED`] pictured ones.
+    pub fn pictured(&self) -> impl Iterator<Item = &Phase> {
+        self.phases.iter().filter(|p| p.pictured).take(MAX_PICTURED)
+    }
+}
+
 /// The motion figure as SVG text.
 pub fn motion(record: &Record, title: &str) -> Result<String, PlotError> {
-    let phases: Vec<&Phase> = record.phases.iter().filter(|p| p.pictured).collect();
+    let phases: Vec<&Phase> = record.pictured().collect();
     if phases.is_empty() || record.samples.is_empty() {
         return Err(PlotError::Empty);
     }
@@ -771,7 +783,7 @@ fn shade_phases(
     (lo, hi): (f64, f64),
     labels: bool,
 ) -> Result<(), PlotError> {
-    for (i, phase) in record.phases.iter().filter(|p| p.pictured).enumerate() {
+    for (i, phase) in record.pictured().enumerate() {
         let colour = PHASE_COLOURS[i % PHASE_COLOURS.len()];
         chart
             .draw_series(std::iter::once(Rectangle::new(
@@ -949,6 +961,26 @@ mod tests {
                     .collect()
             })
             .collect()
+    }
+
+    /// A recording of thousands of pictured phases draws the first [`MAX_PICTURED`], as wide
+    /// as a recording of only those.
+    #[test]
+    fn only_the_first_phases_get_a_column() {
+        let mut many = swing(None);
+        let one = many.phases[0].clone();
+        many.phases = (0..5000)
+            .map(|k| Phase {
+                label: format!("phase {k}"),
+                t0: k as f64 * 1e-4,
+                t1: 2.0,
+                ..one.clone()
+            })
+            .collect();
+        let mut first = many.clone();
+        first.phases.truncate(MAX_PICTURED);
+        assert_eq!(motion(&many, "t").unwrap(), motion(&first, "t").unwrap());
+        assert_eq!(many.pictured().count(), MAX_PICTURED);
     }
 
     #[test]
