@@ -12,6 +12,18 @@ fn snakectl(args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// `snakectl simulate` of `scenario` into `out`, SVG figures only.
+fn simulate_svg(scenario: &std::path::Path, out: &std::path::Path) -> Output {
+    snakectl(&[
+        "simulate",
+        "--scenario",
+        scenario.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--no-png",
+    ])
+}
+
 /// Asserts that a run exited 0, showing its error output if not.
 fn succeeded(o: &Output) {
     let err = String::from_utf8_lossy(&o.stderr);
@@ -69,14 +81,7 @@ fn bad_scenarios_exit_two_naming_file_and_field() {
     .unwrap()
     .replace("amplitude_m = 0.1", "amplitude_m = \"big\"");
     std::fs::write(&file, text).unwrap();
-    let o = snakectl(&[
-        "simulate",
-        "--scenario",
-        file.to_str().unwrap(),
-        "--out",
-        dir.path().join("o").to_str().unwrap(),
-        "--no-png",
-    ]);
+    let o = simulate_svg(&file, &dir.path().join("o"));
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("bad.toml") && err.contains("curve"), "{err}");
@@ -118,14 +123,7 @@ fn an_oversized_scenario_exits_two_naming_the_cap() {
     .replace("links = 20", "links = 4000")
     .replace("steps = [1, 20]", "steps = [20000]");
     std::fs::write(&file, text).unwrap();
-    let o = snakectl(&[
-        "simulate",
-        "--scenario",
-        file.to_str().unwrap(),
-        "--out",
-        dir.path().join("o").to_str().unwrap(),
-        "--no-png",
-    ]);
+    let o = simulate_svg(&file, &dir.path().join("o"));
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
@@ -162,14 +160,7 @@ fn a_bad_title_exits_two_naming_the_field() {
         let file = dir.path().join("bad.toml");
         std::fs::write(&file, titled(title)).unwrap();
         let out = dir.path().join("o");
-        let o = snakectl(&[
-            "simulate",
-            "--scenario",
-            file.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--no-png",
-        ]);
+        let o = simulate_svg(&file, &out);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "{title}: {err}");
         assert!(
@@ -181,14 +172,7 @@ fn a_bad_title_exits_two_naming_the_field() {
     let file = dir.path().join("ok.toml");
     std::fs::write(&file, titled(&format!("\"{}\"", "t".repeat(200)))).unwrap();
     let out = dir.path().join("ok");
-    let o = snakectl(&[
-        "simulate",
-        "--scenario",
-        file.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--no-png",
-    ]);
+    let o = simulate_svg(&file, &out);
     succeeded(&o);
 }
 
@@ -209,14 +193,7 @@ fn a_polyline_row_in_the_wrong_format_is_refused_by_line() {
     let csv = dir.path().join("lead.csv");
     let run = |rows: &str| {
         std::fs::write(&csv, rows).unwrap();
-        snakectl(&[
-            "simulate",
-            "--scenario",
-            scenario.to_str().unwrap(),
-            "--out",
-            dir.path().join("o").to_str().unwrap(),
-            "--no-png",
-        ])
+        simulate_svg(&scenario, &dir.path().join("o"))
     };
     for (rows, says) in [
         (

@@ -488,6 +488,25 @@ impl Rig {
         std::iter::from_fn(|| self.events.try_recv().ok()).collect()
     }
 
+    /// After a recovery from fired Bus Watchdogs: those of `ids` are armed again, the arm
+    /// holds with no overrun, and each of `ids` moves away from where it stood (`stuck`) under
+    /// a goto.
+    fn obeys_again_after_its_watchdog(&mut self, ids: &[u8], stuck: &[i64]) {
+        for id in ids {
+            let armed = self.bus.wire().servos[id].get(Register::BusWatchdog);
+            assert!(armed > 0, "servo {id}: not re-armed");
+        }
+        let s = self.status();
+        assert_eq!(s.state, State::Holding);
+        assert_eq!(s.overruns, 0, "no stall");
+        self.slow_goto();
+        self.ticks(100);
+        for (id, &from) in ids.iter().zip(stuck) {
+            let now = self.bus.wire().servos[id].get(Register::PresentPosition);
+            assert_ne!(now, from, "servo {id} still refuses goals");
+        }
+    }
+
     /// A goto 5 cm to the side of the present tip, slow enough to still be moving a second on.
     fn slow_goto(&mut self) {
         let tip = self.status().tip;
@@ -977,26 +996,7 @@ fn a_bus_watchdog_that_fired_without_a_stall_the_loop_measured_is_found_and_reco
         "{events:?}"
     );
     assert!(events.iter().any(stopped_for_fault), "{events:?}");
-    for id in [2, 7] {
-        assert!(
-            rig.bus.wire().servos[&id].get(Register::BusWatchdog) > 0,
-            "re-armed"
-        );
-    }
-    let s = rig.status();
-    assert_eq!(s.state, State::Holding);
-    assert_eq!(s.overruns, 0, "no stall");
-    // The servos follow goals again.
-    rig.slow_goto();
-    rig.ticks(100);
-    let now: Vec<i64> = [2, 7]
-        .iter()
-        .map(|id| rig.bus.wire().servos[id].get(Register::PresentPosition))
-        .collect();
-    assert!(
-        now.iter().zip(&stuck).all(|(a, b)| a != b),
-        "{stuck:?} -> {now:?}"
-    );
+    rig.obeys_again_after_its_watchdog(&[2, 7], &stuck);
 }
 
 #[test]
@@ -1129,18 +1129,7 @@ fn without_indirect_address_a_fired_bus_watchdog_is_found_by_the_rotation_and_re
         "found after {took} ticks: before the rotation came back to it"
     );
     assert!(events.iter().any(stopped_for_fault), "{events:?}");
-    assert!(
-        rig.bus.wire().servos[&last].get(Register::BusWatchdog) > 0,
-        "re-armed"
-    );
-    let s = rig.status();
-    assert_eq!(s.state, State::Holding);
-    assert_eq!(s.overruns, 0, "no stall");
-    // The servo follows goals again.
-    rig.slow_goto();
-    rig.ticks(100);
-    let now = rig.bus.wire().servos[&last].get(Register::PresentPosition);
-    assert_ne!(now, stuck, "servo {last} still refuses goals");
+    rig.obeys_again_after_its_watchdog(&[last], &[stuck]);
 }
 
 #[test]
