@@ -512,6 +512,59 @@ fn torque_off_and_on_holds_the_measured_pose() {
     stop_torque_off(d);
 }
 
+/// A joint turned past its limit by hand while the arm is limp: `torque` on and `reset` refuse
+/// to hold there (the goal, clamped into the limits, would drive it to the limit at full
+/// speed), naming the joint, as bring-up does; once turned back inside, torque comes on.
+#[test]
+fn torque_on_and_reset_refuse_a_joint_turned_past_its_limit_by_hand() {
+    let d = Daemon::start(sim_config_with(&[], ""));
+    let mut c = d.client();
+    let (_, hi) = limits(&mut c);
+    let joint = d.config.arm().unwrap().joints()[2].clone();
+    let turn = |rad: f64| {
+        let ticks = joint.calibration.ticks(rad);
+        d.sim_of(joint.id)
+            .with_servo(joint.id, |s| s.turn_by_hand(ticks))
+            .unwrap();
+    };
+    let message = |reply: &Value| reply["error"]["message"].as_str().unwrap().to_owned();
+    c.ok(json!({"cmd": "torque", "on": false}));
+    turn(hi[2] + 0.3);
+    let refused = c.request(json!({"cmd": "torque", "on": true}));
+    assert_eq!(refused["error"]["code"], json!("fault"), "{refused}");
+    let why = message(&refused);
+    assert!(
+        why.contains("joint 3") && why.contains("outside its limits") && why.contains("by hand"),
+        "{why}"
+    );
+    assert!((1..=12).all(|id| !d.torque(id)), "torque stays off");
+    assert_eq!(c.status()["torque"], json!(false));
+
+    // Under the estop latch, `reset` refuses the same and the latch stays.
+    c.ok(json!({"cmd": "estop"}));
+    let refused = c.request(json!({"cmd": "reset"}));
+    assert_eq!(refused["error"]["code"], json!("fault"), "{refused}");
+    let why = message(&refused);
+    assert!(
+        why.contains("joint 3") && why.contains("the latch stays"),
+        "{why}"
+    );
+    assert_eq!(c.status()["state"], json!("estop"));
+    assert!((1..=12).all(|id| !d.torque(id)), "torque stays off");
+
+    // Back inside, on the limit itself: held there, no jump.
+    turn(hi[2]);
+    c.ok(json!({"cmd": "reset"}));
+    let s = c.status();
+    assert_eq!(s["torque"], json!(true), "{s}");
+    assert!((1..=12).all(|id| d.torque(id)));
+    assert!(
+        (floats(&s["theta_cmd"])[2] - hi[2]).abs() <= TICK_RAD,
+        "{s}"
+    );
+    stop_torque_off(d);
+}
+
 #[test]
 fn health_rides_along_every_read_and_warns_before_the_servo_limits() {
     let d = Daemon::start(sim_config_with(&[], ""));

@@ -883,6 +883,15 @@ impl Servo {
         self.refresh(self.last_update);
     }
 
+    /// Turn the shaft to `ticks` as a hand would, at rest there (for tests: a servo moved
+    /// while its torque is off; one with torque on drives back to its goal from there).
+    pub fn turn_by_hand(&mut self, ticks: f64) {
+        self.pos = ticks;
+        self.vel = 0.0;
+        self.acc = 0.0;
+        self.refresh(self.last_update);
+    }
+
     /// Physical shaft position in ticks (unrounded), for tests.
     pub fn shaft_position(&self) -> f64 {
         self.pos

@@ -507,6 +507,28 @@ impl Arm {
         &self.joints
     }
 
+    /// The joints whose present position (`present_ticks`, one per joint in order) lies past
+    /// a limit by more than [`LIMIT_ROUNDING_TICKS`]: a goal of that pose clamped into the
+    /// limits would drive each to its limit at full speed. A servo set exactly on a limit may
+    /// read one tick past it, which passes.
+    pub fn outside_limits(&self, present_ticks: &[i32]) -> Vec<Refusal> {
+        self.joints
+            .iter()
+            .zip(present_ticks)
+            .filter(|(j, &ticks)| {
+                ticks < j.ticks.min - LIMIT_ROUNDING_TICKS
+                    || ticks > j.ticks.max + LIMIT_ROUNDING_TICKS
+            })
+            .map(|(j, &ticks)| Refusal::OutsideLimits {
+                joint: j.joint,
+                id: j.id,
+                angle_rad: j.calibration.radians(f64::from(ticks)),
+                lo: j.limit.lo,
+                hi: j.limit.hi,
+            })
+            .collect()
+    }
+
     /// The settings.
     pub fn settings(&self) -> &Settings {
         &self.settings
@@ -695,23 +717,10 @@ impl Arm {
         // The present pose, before anything moves. A servo set exactly on a limit may read one
         // tick past it: that pose is held on the limit itself.
         let mut present = self.read_present(bus, &mut retry)?;
+        let refusals = self.outside_limits(&present);
         let mut pose = Vec::with_capacity(self.joints.len());
-        let mut refusals = Vec::new();
         for (j, ticks) in self.joints.iter().zip(&mut present) {
             let angle = j.calibration.radians(f64::from(*ticks));
-            let (min, max) = (
-                j.ticks.min - LIMIT_ROUNDING_TICKS,
-                j.ticks.max + LIMIT_ROUNDING_TICKS,
-            );
-            if *ticks < min || *ticks > max {
-                refusals.push(Refusal::OutsideLimits {
-                    joint: j.joint,
-                    id: j.id,
-                    angle_rad: angle,
-                    lo: j.limit.lo,
-                    hi: j.limit.hi,
-                });
-            }
             *ticks = (*ticks).clamp(j.ticks.min, j.ticks.max);
             pose.push(j.limit.clamp(angle));
         }

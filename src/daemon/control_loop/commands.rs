@@ -488,7 +488,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if let Err(err) = self.clear_watchdogs() {
             return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
         }
-        if let Err(err) = self.measure_pose() {
+        if let Err(err) = self.measure_pose(true) {
             return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
         }
         if let Err(r) = self.controller.reseed(&self.measured.theta) {

@@ -454,7 +454,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     fn recover_now(&mut self) -> Result<Vec<u8>, String> {
         self.clear_watchdogs().map_err(|e| e.to_string())?;
-        self.measure_pose()?;
+        self.measure_pose(self.supervisor.torque())?;
         // A servo that latched a hardware error while it was not read (the port lost) shows
         // its alert flag here: held for it, it is left out of the torque on.
         self.raise_alerts();
@@ -520,10 +520,13 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// The measured pose (one Sync Read of every position, its wait within this tick), each
     /// angle clamped into its joint's limits (a servo may rest a tick past one). The error names
-    /// every servo that did not answer.
-    pub(super) fn measure_pose(&mut self) -> Result<(), String> {
+    /// every servo that did not answer; with `held` (the pose is to be held with torque on), also
+    /// every joint past a limit by more than a tick (moved there by hand while torque was off),
+    /// as bring-up refuses it: its goal, clamped, would drive it to the limit at full speed.
+    pub(super) fn measure_pose(&mut self, held: bool) -> Result<(), String> {
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         let mut heard = vec![false; self.ids.len()];
+        let mut ticks = vec![0; self.ids.len()];
         let mut missing = Vec::new();
         // A lost or damaged reply is asked for again while the tick allows.
         for _ in 0..=arm::RETRIES {
@@ -539,6 +542,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 match reading {
                     Ok(s) => {
                         self.measured.record_position(i, s.position_ticks);
+                        ticks[i] = s.position_ticks;
                         if s.alert {
                             self.health.alerted(i);
                         }
@@ -557,6 +561,15 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
                 missing.push("no time left in this tick".into());
             }
             return Err(format!("the pose cannot be read: {}", missing.join("; ")));
+        }
+        let outside = if held {
+            self.arm.outside_limits(&ticks)
+        } else {
+            Vec::new()
+        };
+        if !outside.is_empty() {
+            let named: Vec<String> = outside.iter().map(ToString::to_string).collect();
+            return Err(named.join("; "));
         }
         let limits = self.controller.chain().limits();
         for (t, l) in self.measured.theta.iter_mut().zip(limits) {
