@@ -137,8 +137,17 @@ fn bounds(scenario: &Scenario, runs: &[Run]) -> (f64, f64, f64, f64) {
     (b.0 - pad, b.1 + pad, b.2 - pad, b.3 + pad)
 }
 
-/// Splits a polyline into the pieces of a chain line (long dash, gap, dot, gap).
+/// The most dash patterns a chain line is split into: a longer path gets longer dashes.
+const MAX_DASH_PATTERNS: f64 = 2000.0;
+
+/// Splits a polyline into the pieces of a chain line (long dash, gap, dot, gap), at most
+/// [`MAX_DASH_PATTERNS`] patterns of them; a path of no finite length is one piece.
 fn chain_line(path: &[Vec2], unit: f64) -> Vec<Vec<(f64, f64)>> {
+    let total: f64 = path.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+    if !total.is_finite() || !unit.is_finite() || unit <= 0.0 {
+        return vec![path.iter().map(xy).collect()];
+    }
+    let unit = unit.max(total / (11.0 * MAX_DASH_PATTERNS));
     let pattern = [
         (true, 6.0 * unit),
         (false, 2.0 * unit),
@@ -497,6 +506,16 @@ mod tests {
         // 6 on, 2 off, 1 on, 2 off, 6 on, 2 off, 1 on, 2 off: four pieces in 22 units.
         let lengths: Vec<f64> = pieces.iter().map(|p| p[p.len() - 1].0 - p[0].0).collect();
         assert_eq!(lengths, vec![6.0, 1.0, 6.0, 1.0]);
+    }
+
+    #[test]
+    fn a_long_or_endless_path_gets_a_bounded_number_of_dashes() {
+        let long = [Vec2::zeros(), Vec2::new(1e12, 0.0)];
+        let pieces = chain_line(&long, 1.0);
+        assert!(pieces.len() <= 2 * MAX_DASH_PATTERNS as usize, "{}", pieces.len());
+        assert!(pieces.len() >= MAX_DASH_PATTERNS as usize, "{}", pieces.len());
+        let endless = [Vec2::zeros(), Vec2::new(f64::INFINITY, 0.0)];
+        assert_eq!(chain_line(&endless, 1.0).len(), 1);
     }
 
     #[test]
