@@ -228,16 +228,23 @@ fn not_a_symlink(path: &Path) -> Option<&'static str> {
 }
 
 /// Where the symlink `link` points, when that is a terminal still open (a pseudo-terminal
-/// exists while its master end is: another simulator serves it).
-fn live_target(link: &Path) -> Option<PathBuf> {
-    use std::os::unix::fs::FileTypeExt;
+/// exists while its master end is: another simulator serves it) and not `ours`, the one this
+/// simulator has just opened. The kernel hands out the lowest free number, so a simulator
+/// started again after one was killed usually gets the very `/dev/pts/N` its old link names:
+/// that terminal is this one, and the link is stale.
+fn live_target(link: &Path, ours: &Path) -> Option<PathBuf> {
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
     let target = std::fs::read_link(link).ok()?;
-    let live = std::fs::metadata(link).is_ok_and(|m| m.file_type().is_char_device());
-    live.then_some(target)
+    let meta = std::fs::metadata(link).ok()?;
+    if !meta.file_type().is_char_device() {
+        return None;
+    }
+    let is_ours = std::fs::metadata(ours).is_ok_and(|m| m.rdev() == meta.rdev());
+    (!is_ours).then_some(target)
 }
 
-/// Make `link` a symlink to `target`, replacing an old symlink (one left dangling) but no
-/// other file, nor a symlink to a terminal still served.
+/// Make `link` a symlink to `target`, replacing an old symlink (one left dangling, or naming
+/// `target` itself) but no other file, nor a symlink to a terminal still served.
 fn create_link(link: &Path, target: &Path) -> Result<(), SimError> {
     let named =
         |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", link.display()));
@@ -248,7 +255,7 @@ fn create_link(link: &Path, target: &Path) -> Result<(), SimError> {
         });
     }
     if is_symlink(link) {
-        if let Some(live) = live_target(link) {
+        if let Some(live) = live_target(link, target) {
             return Err(SimError::LinkInUse {
                 link: link.to_path_buf(),
                 target: live,
@@ -433,7 +440,7 @@ fn serve(
                     None => Line::open()?,
                 };
                 if let Some(link) = link {
-                    if let Some(other) = live_target(link) {
+                    if let Some(other) = live_target(link, &new.path) {
                         // Taken by another simulator while this line was unplugged: theirs now.
                         tracing::warn!(link = %link.display(), other = %other.display(), "the link points at another terminal now: left as it is");
                     } else if let Err(e) = repoint_link(link, &new.path) {
@@ -574,5 +581,35 @@ fn send(port: &mut TTYPort, id: u8, bytes: &[u8]) {
     if let Err(e) = port.write_all(bytes) {
         // Nobody reads (the pty buffer is full): the reply is lost, as on a dead bus.
         tracing::debug!(id, error = %e, "reply not written");
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_link_left_naming_the_terminal_just_opened_is_replaced() {
+        // A simulator killed with its link in place, then started again: the kernel gives the
+        // new one the freed `/dev/pts/N`, so the old link names the new simulator's own terminal.
+        let dir = tempfile::tempdir().unwrap();
+        let link = dir.path().join("bus");
+        let line = Line::open().unwrap();
+        std::os::unix::fs::symlink(&line.path, &link).unwrap();
+        create_link(&link, &line.path).unwrap();
+        assert_eq!(std::fs::read_link(&link).unwrap(), line.path);
+    }
+
+    #[test]
+    fn a_link_to_a_terminal_another_simulator_serves_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let link = dir.path().join("bus");
+        let other = Line::open().unwrap();
+        let ours = Line::open().unwrap();
+        std::os::unix::fs::symlink(&other.path, &link).unwrap();
+        let err = create_link(&link, &ours.path).unwrap_err();
+        assert!(matches!(err, SimError::LinkInUse { .. }), "{err}");
+        assert_eq!(std::fs::read_link(&link).unwrap(), other.path);
     }
 }
