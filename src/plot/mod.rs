@@ -512,8 +512,16 @@ mod tests {
     fn a_long_or_endless_path_gets_a_bounded_number_of_dashes() {
         let long = [Vec2::zeros(), Vec2::new(1e12, 0.0)];
         let pieces = chain_line(&long, 1.0);
-        assert!(pieces.len() <= 2 * MAX_DASH_PATTERNS as usize, "{}", pieces.len());
-        assert!(pieces.len() >= MAX_DASH_PATTERNS as usize, "{}", pieces.len());
+        assert!(
+            pieces.len() <= 2 * MAX_DASH_PATTERNS as usize,
+            "{}",
+            pieces.len()
+        );
+        assert!(
+            pieces.len() >= MAX_DASH_PATTERNS as usize,
+            "{}",
+            pieces.len()
+        );
         let endless = [Vec2::zeros(), Vec2::new(f64::INFINITY, 0.0)];
         assert_eq!(chain_line(&endless, 1.0).len(), 1);
     }
