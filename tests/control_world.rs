@@ -128,6 +128,44 @@ fn a_goto_behind_a_post_goes_round_it_and_every_goal_is_clear() {
     }
 }
 
+/// A post centred on the tip's straight way, in sixteen directions from home: both ways round are
+/// equally short, and the route takes the side the body trails (the last link points back
+/// along it). Round the other side the last link has to swing across the post, and the move
+/// is caught: without the side rule most of these ended `blocked`.
+#[test]
+fn a_post_on_the_straight_way_is_gone_round_on_the_side_the_body_trails() {
+    let tip = chain().tip(&home());
+    let (mut caught, mut tried) = (Vec::new(), 0);
+    for k in 0..16 {
+        let a = PI / 8.0 * f64::from(k) + 0.1;
+        let way = Vec2::new(a.cos(), a.sin());
+        let target = tip + way * 0.2;
+        if target.norm() > 0.9 {
+            continue; // out near the reach, where the arm is nearly straight
+        }
+        let post = tip + way * 0.1;
+        let w = world(vec![circle("post", post.x, post.y, 0.025)]);
+        if clearance(&w, &home()) < KEEP + 0.01 {
+            continue; // the way back along the body: the post would be on the arm
+        }
+        tried += 1;
+        let mut c = controller(Strategy::Overall, &home());
+        assert!(c.set_world(w).is_none());
+        c.command(Command::Goto {
+            target,
+            speed: Some(0.05),
+        })
+        .unwrap();
+        let (finish, least) = run_clear(&mut c, 3000);
+        assert!(least >= KEEP - TOL);
+        if finish != Some(Finish::Arrived) {
+            caught.push((k, finish));
+        }
+    }
+    assert!(tried >= 5, "{tried}");
+    assert!(caught.is_empty(), "{caught:?}");
+}
+
 /// An obstacle from a micrometre down to a nanometre across on the tip's straight way is gone
 /// round, a square as a disc of its size is: accepted, and the move arrives clear. (A square of
 /// 1e-9 m sides was refused as closed off: its corners read as reflex, so its route had nowhere

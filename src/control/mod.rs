@@ -755,6 +755,7 @@ impl Controller {
     ) -> Result<Accepted, Refused> {
         let request = RouteRequest {
             from: self.tip,
+            trailing: self.trailing(),
             points,
             what,
             speed,
@@ -862,11 +863,18 @@ impl Controller {
         }))
     }
 
+    /// The direction from the commanded tip back along the last link: how the body trails.
+    fn trailing(&self) -> Vec2 {
+        let phi = self.chain.heading() + self.theta.iter().sum::<f64>();
+        -Vec2::new(phi.cos(), phi.sin())
+    }
+
     /// A route request for the same points from where the tip is now, in the world in force:
     /// what [`Controller::start_route`] takes after it asked for a [`Replan`].
     pub fn replan(&self, request: &RouteRequest) -> RouteRequest {
         RouteRequest {
             from: self.tip,
+            trailing: self.trailing(),
             points: request.points.clone(),
             what: request.what,
             speed: request.speed,

@@ -91,6 +91,10 @@ pub fn plan(request: &PlanRequest, route_work: u64) -> Result<Planned, Refused> 
 pub struct RouteRequest {
     /// Where the tip was, m.
     pub from: Vec2,
+    /// The way the body trails from the tip there: the direction from the tip to the last
+    /// joint (zero: none). The first leg prefers to round its first obstacle on that side
+    /// ([`World::route_trailed`]).
+    pub trailing: Vec2,
     /// The command's points (a `goto`'s one target), m.
     pub points: Vec<Vec2>,
     /// What they are, for messages ("target", "path point").
@@ -136,8 +140,10 @@ pub struct Replan;
 
 /// The routes of `request` with at most `work` (checks of a segment against an edge or a
 /// circle; a `path`'s legs share it): each leg the shortest that keeps the tip clear
-/// ([`World::route`]), at rest at each point. Pure: the daemon runs it beside its loop for a
-/// command whose routes take longer than a tick can spare.
+/// ([`World::route`]), at rest at each point; the first round its first obstacle on the side
+/// the body trails when that is at most a little longer ([`World::route_trailed`]). Pure: the
+/// daemon runs it beside its loop for a command whose routes take longer than a tick can
+/// spare.
 ///
 /// A point inside a grown obstacle is refused; so is one closed off. From a start already
 /// too near an obstacle (a world changed under the tip) the first leg is the straight line,
@@ -150,8 +156,12 @@ pub fn plan_route(request: &RouteRequest, work: u64) -> Result<PlannedRoute, Ref
     let mut rest = vec![true];
     let mut from = request.from;
     let mut left = work;
+    let mut trailing = request.trailing;
     for &p in &request.points {
-        match request.world.route_within(from, p, &mut left) {
+        // Only the first leg knows how the body lies when it sets out.
+        let leg = request.world.route_trailed(from, p, trailing, &mut left);
+        trailing = Vec2::zeros();
+        match leg {
             Ok(r) => {
                 let n = r.waypoints.len();
                 for (k, w) in r.waypoints.into_iter().enumerate().skip(1) {

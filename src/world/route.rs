@@ -19,6 +19,11 @@
 //! every obstacle with the exact segment distance, so the guarantee does not rest on the
 //! construction. Dijkstra runs over at most [`MAX_ROUTE_NODES`] arc nodes (the tolerance
 //! doubles until they fit), adjacency computed as nodes are settled.
+//!
+//! Where the body's way of trailing the tip is known ([`World::route_trailed`]), a route that
+//! rounds its first obstacle on the body's side is taken over the shortest when it is at most
+//! [`TRAILING_SIDE_SLACK`] longer: with a post on the straight way, both ways round are about
+//! as short, and only the one on the body's side lets the last link follow.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -50,6 +55,10 @@ pub const MAX_ROUTE_NODES: usize = 2048;
 /// a tick can spare beside its loop). Threading a grid of sixteen 64-gons (1024 points) takes
 /// 9 million; a 512-point star, 5.6 million; post and shelf, a few thousand.
 pub const MAX_ROUTE_WORK: u64 = 10_000_000;
+
+/// How much longer than the shortest route (as a fraction of it) one that sets out on the side
+/// the body trails may be and still be taken ([`World::route_trailed`]).
+pub const TRAILING_SIDE_SLACK: f64 = 0.05;
 
 /// Nodes sit this fraction further out than the circumscribing radius, so round-off never
 /// brings a chord inside.
@@ -310,11 +319,49 @@ impl World {
         goal: Vec2,
         left: &mut u64,
     ) -> Result<Route, RouteError> {
+        self.route_trailed(start, goal, Vec2::zeros(), left)
+    }
+
+    /// [`World::route_within`] for a tip whose body trails it in direction `trailing` (from the
+    /// tip toward the joint behind it; zero: no preference). When the shortest route bends
+    /// round its first obstacle on the other side of the straight line than the body, and a
+    /// route that sets out on the body's side is at most [`TRAILING_SIDE_SLACK`] longer, that
+    /// one is taken: a body dragged round an obstacle from the far side is caught on it (its
+    /// last link swings across), one led round its own side follows. The work counts both
+    /// searches.
+    pub fn route_trailed(
+        &self,
+        start: Vec2,
+        goal: Vec2,
+        trailing: Vec2,
+        left: &mut u64,
+    ) -> Result<Route, RouteError> {
         let mut work = Work {
             limit: *left,
             spent: 0,
         };
-        let found = self.search(start, goal, &mut work);
+        let found = self
+            .search(start, goal, 0.0, &mut work)
+            .and_then(|shortest| {
+                let ahead = goal - start;
+                let body = cross(ahead, trailing).signum();
+                let first = match shortest.waypoints.get(1) {
+                    Some(&w) if shortest.waypoints.len() > 2 && cross(ahead, trailing) != 0.0 => w,
+                    _ => return Ok(shortest),
+                };
+                if cross(ahead, first - start) * body > 0.0 {
+                    return Ok(shortest);
+                }
+                match self.search(start, goal, body, &mut work) {
+                    Ok(side)
+                        if side.length_m <= shortest.length_m * (1.0 + TRAILING_SIDE_SLACK) =>
+                    {
+                        Ok(side)
+                    }
+                    Ok(_) | Err(RouteError::NoRoute { .. }) => Ok(shortest),
+                    Err(e) => Err(e),
+                }
+            });
         *left = left.saturating_sub(work.spent);
         if work.over() {
             return Err(RouteError::TooMuchWork { limit: work.limit });
@@ -322,7 +369,15 @@ impl World {
         found
     }
 
-    fn search(&self, start: Vec2, goal: Vec2, work: &mut Work) -> Result<Route, RouteError> {
+    /// The shortest route; with `side` +1 or -1, the shortest whose first leg ends on that side
+    /// of the line from `start` to `goal` (left, right of it).
+    fn search(
+        &self,
+        start: Vec2,
+        goal: Vec2,
+        side: f64,
+        work: &mut Work,
+    ) -> Result<Route, RouteError> {
         let r = self.route_radius_m();
         let g = r + self.route_margin_m();
         let mut ends = [0.0; 2];
@@ -400,6 +455,9 @@ impl World {
                     continue;
                 }
                 let pw = point(w);
+                if u == 0 && w > 1 && side * cross(goal - start, pw - start) < 0.0 {
+                    continue;
+                }
                 let len = (pw - pu).norm();
                 if c + len >= cost[w] || !leaves(u, w, pw) || !leaves(w, u, pu) {
                     continue;
