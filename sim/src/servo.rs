@@ -673,8 +673,12 @@ impl Servo {
                     self.last_update = deadline;
                 }
                 // Fired: stop where it is and refuse goals until 0 is written. The goal
-                // becomes "here" in a position mode, "still" in velocity mode.
+                // becomes "here" in a position mode, "still" in velocity mode, and the
+                // profiles 0 (the e-manual's Bus Watchdog example: "When it stops, the Profile
+                // Acceleration(108) and Profile Velocity(112) are set to '0'").
                 self.put(addr::BUS_WATCHDOG, -1);
+                self.put(addr::PROFILE_ACCELERATION, 0);
+                self.put(addr::PROFILE_VELOCITY, 0);
                 let present = self.pos.round() as i64;
                 self.put(addr::GOAL_POSITION, present);
                 if self.get(addr::OPERATING_MODE) == 1 {

@@ -759,3 +759,34 @@ fn indirect_addresses_take_ram_targets_with_torque_on_and_reset_on_reboot() {
     assert_eq!(read(&mut s, 1, slot, 2), (0, 208));
     assert_eq!(read(&mut s, 1, 208, 4), (0, 0));
 }
+
+#[test]
+fn a_bus_watchdog_that_fires_zeroes_the_profiles() {
+    // The e-manual's Bus Watchdog example: "When it stops, the Profile Acceleration(108) and
+    // Profile Velocity(112) are set to '0'". A client that clears the watchdog and sends the next
+    // goal without writing its profiles again gets a move as fast as the servo can make it.
+    let (mut s, clock) = sim(xl430(&[1]));
+    let four = |v: i32| v.to_le_bytes();
+    assert_eq!(write(&mut s, 1, addr::PROFILE_ACCELERATION, &four(20)), 0);
+    assert_eq!(write(&mut s, 1, addr::PROFILE_VELOCITY, &four(30)), 0);
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0); // 100 ms
+    clock.advance(Duration::from_millis(80));
+    // Not fired yet: the profiles stand.
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 30));
+    clock.advance(Duration::from_millis(150));
+    assert_eq!(read(&mut s, 1, addr::BUS_WATCHDOG, 1), (0, -1));
+    assert_eq!(read(&mut s, 1, addr::PROFILE_ACCELERATION, 4), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
+    // Cleared, the next goal runs unprofiled: the shaft covers 1000 ticks in 400 ms, where the
+    // profile of 30 units (about 470 ticks/s) would have taken over 2 s.
+    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[0]), 0);
+    let start = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
+    let goal = i32::try_from(start + 1000).unwrap();
+    assert_eq!(write(&mut s, 1, addr::GOAL_POSITION, &four(goal)), 0);
+    clock.advance(Duration::from_millis(400));
+    assert_eq!(
+        read(&mut s, 1, addr::PRESENT_POSITION, 4).1,
+        i64::from(goal)
+    );
+}
