@@ -539,8 +539,8 @@ impl Simulator {
     }
 
     /// Servo `id` (current id) gets its power back at the clock's now: it answers again with its
-    /// RAM at the initial values, its EEPROM (id, baud rate, limits, ...) kept. False when there
-    /// is no such servo.
+    /// RAM at the initial values (then as its Startup Configuration says), its EEPROM (id, baud
+    /// rate, limits, ...) kept. False when there is no such servo.
     pub fn restore_power(&mut self, id: u8) -> bool {
         self.advance();
         let now = self.clock.now();
@@ -1038,6 +1038,21 @@ impl Simulator {
                     Box::new(move |s: &mut Servo, t| s.factory_reset(option, t, boot_time)),
                 )
             }
+            ins::CONTROL_TABLE_BACKUP if servo.knows_backup() => match params.as_slice() {
+                [0x01, 0x43, 0x54, 0x52, 0x4C] => {
+                    (ok_or(servo.store_backup()), Vec::new(), nothing)
+                }
+                [0x02, 0x43, 0x54, 0x52, 0x4C] => match servo.check_restore_backup() {
+                    Err(code) => (code, Vec::new(), nothing),
+                    // Answered first, then the EEPROM comes back and the servo reboots.
+                    Ok(()) => (
+                        error::NONE,
+                        Vec::new(),
+                        Box::new(move |s: &mut Servo, t| s.restore_backup(t, boot_time)),
+                    ),
+                },
+                _ => return Some((error::DATA_RANGE, Vec::new(), nothing)),
+            },
             ins::CLEAR if servo.table().has_clear => {
                 if params.as_slice() != [0x01, 0x44, 0x58, 0x4C, 0x22] {
                     return Some((error::DATA_RANGE, Vec::new(), nothing));

@@ -38,6 +38,9 @@ pub mod instruction {
     pub const REBOOT: u8 = 0x08;
     /// Clear the multi-turn revolution count.
     pub const CLEAR: u8 = 0x10;
+    /// Store the control table to the servo's backup, or restore the EEPROM area from it
+    /// (X430/X540 firmware 45 and later, X330 46 and later).
+    pub const CONTROL_TABLE_BACKUP: u8 = 0x20;
     /// Read the same block from several servos.
     pub const SYNC_READ: u8 = 0x82;
     /// Read the same block from several servos, all answering in one status packet (X430/X540

@@ -30,6 +30,10 @@ const PHYSICAL_RISE_S: f64 = 0.05;
 const FULL_PWM: f64 = 885.0;
 /// Multi-turn range of Goal Position in extended position modes.
 const MULTI_TURN_LIMIT: i64 = 1_048_575;
+/// Startup Configuration (60) bit 0: torque on at power-on.
+const STARTUP_TORQUE_ON: i64 = 1 << 0;
+/// Startup Configuration (60) bit 1: the backed-up RAM items restored at power-on.
+const STARTUP_RAM_RESTORE: i64 = 1 << 1;
 
 /// Initial settings of one servo, from the simulator's configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -95,6 +99,9 @@ pub struct Servo {
     firmware: u8,
     /// Booting after REBOOT or a factory reset until this instant: it neither hears nor answers.
     booting_until: Option<Instant>,
+    /// The control table as the last Control Table Backup stored it (the servo's flash: it
+    /// survives reboots, power cycles and factory resets).
+    backup: Option<Vec<u8>>,
 }
 
 fn encode_le(value: i64, size: u8) -> [u8; 4] {
@@ -141,6 +148,7 @@ impl Servo {
             shut_down: false,
             firmware,
             booting_until: None,
+            backup: None,
         };
         servo.load_defaults(true, true);
         servo.put(addr::ID, i64::from(spec.id));
@@ -173,9 +181,20 @@ impl Servo {
         self.put(addr::FIRMWARE_VERSION, i64::from(self.firmware));
     }
 
-    /// RAM to initial values, as after power-on or reboot.
+    /// RAM to initial values, as after power-on or reboot; then Startup Configuration (60) applies:
+    /// bit 1 restores the backed-up RAM items, if there is a backup, and bit 0 turns torque on.
     fn power_on(&mut self, now: Instant) {
         self.load_defaults(false, false);
+        let startup = self.get(addr::STARTUP_CONFIGURATION);
+        if let Some(backup) = self.backup.take() {
+            self.put(addr::BACKUP_READY, 1);
+            if startup & STARTUP_RAM_RESTORE != 0 {
+                for (address, size) in self.backed_up_ram_items() {
+                    self.copy_from(&backup, address, size);
+                }
+            }
+            self.backup = Some(backup);
+        }
         self.wrap_to_one_turn();
         self.vel = 0.0;
         self.acc = 0.0;
@@ -188,7 +207,96 @@ impl Servo {
         self.last_rx = now;
         let present = self.pos.round() as i64;
         self.put(addr::GOAL_POSITION, present);
+        if startup & STARTUP_TORQUE_ON != 0 {
+            self.put(addr::TORQUE_ENABLE, 1);
+        }
         self.refresh(now);
+    }
+
+    /// The RAM items a Control Table Backup keeps, as (address, size): the velocity and position
+    /// gains, the feedforward gains, the profiles and every Indirect Address.
+    fn backed_up_ram_items(&self) -> Vec<(u16, u8)> {
+        self.table
+            .items
+            .iter()
+            .filter(|item| {
+                matches!(
+                    item.address,
+                    addr::VELOCITY_I_GAIN
+                        | addr::VELOCITY_P_GAIN
+                        | addr::POSITION_D_GAIN
+                        | addr::POSITION_I_GAIN
+                        | addr::POSITION_P_GAIN
+                        | addr::FEEDFORWARD_2ND_GAIN
+                        | addr::FEEDFORWARD_1ST_GAIN
+                        | addr::PROFILE_ACCELERATION
+                        | addr::PROFILE_VELOCITY
+                ) || self
+                    .table
+                    .indirect_blocks
+                    .iter()
+                    .any(|&(first, _, count)| (first..first + 2 * count).contains(&item.address))
+            })
+            .map(|item| (item.address, item.size))
+            .collect()
+    }
+
+    /// Copy the item at `address` of `size` bytes from a memory image.
+    fn copy_from(&mut self, image: &[u8], address: u16, size: u8) {
+        let range = usize::from(address)..usize::from(address) + usize::from(size);
+        if let (Some(src), Some(dst)) = (image.get(range.clone()), self.mem.get_mut(range)) {
+            dst.copy_from_slice(src);
+        }
+    }
+
+    /// Whether this servo's firmware knows the Control Table Backup instruction (the e-manual:
+    /// X430/X540 from 45, X330 from 46, the versions that bring Fast Sync Read).
+    pub fn knows_backup(&self) -> bool {
+        self.knows_fast_read()
+    }
+
+    /// Control Table Backup, option 0x01: store the control table (the EEPROM area, and in RAM
+    /// the gains, the profiles and the Indirect Addresses) and set Backup Ready (147). Refused
+    /// with result fail while torque is on, as the e-manual says.
+    pub fn store_backup(&mut self) -> Result<(), u8> {
+        if self.torque_enabled() {
+            return Err(error::RESULT_FAIL);
+        }
+        self.backup = Some(self.mem.clone());
+        self.put(addr::BACKUP_READY, 1);
+        Ok(())
+    }
+
+    /// Whether Control Table Backup, option 0x02, may restore now: result fail while torque is
+    /// on (the e-manual) or without a backup to restore (the e-manual does not say; a servo
+    /// cannot carry it out).
+    pub fn check_restore_backup(&self) -> Result<(), u8> {
+        if self.torque_enabled() || self.backup.is_none() {
+            return Err(error::RESULT_FAIL);
+        }
+        Ok(())
+    }
+
+    /// Control Table Backup, option 0x02: the EEPROM area back from the backup (id and baud rate
+    /// included), then the servo reboots and boots for `boot_time`, as after REBOOT. Nothing
+    /// happens without a backup.
+    pub fn restore_backup(&mut self, now: Instant, boot_time: Duration) {
+        let Some(backup) = self.backup.clone() else {
+            return;
+        };
+        self.update(now);
+        let eeprom: Vec<(u16, u8)> = self
+            .table
+            .items
+            .iter()
+            .filter(|item| item.is_eeprom() && item.access == Access::Rw)
+            .map(|item| (item.address, item.size))
+            .collect();
+        for (address, size) in eeprom {
+            self.copy_from(&backup, address, size);
+        }
+        self.power_on(now);
+        self.boot(now, boot_time);
     }
 
     /// The model's control table.
@@ -341,7 +449,8 @@ impl Servo {
 
     /// Power comes back at `now`: the servo boots as at power-on, its RAM at the initial values
     /// (Torque Enable 0, Bus Watchdog 0, profiles 0, Status Return Level 2, no hardware error,
-    /// Goal Position := present position), its EEPROM kept, and it is back on the bus.
+    /// Goal Position := present position) unless Startup Configuration (60) asks for torque on
+    /// or the backed-up RAM items, its EEPROM kept, and it is back on the bus.
     pub fn restore_power(&mut self, now: Instant) {
         self.power_on(now);
         self.silent = false;

@@ -790,3 +790,114 @@ fn a_bus_watchdog_that_fires_zeroes_the_profiles() {
         i64::from(goal)
     );
 }
+
+#[test]
+fn control_table_backup_stores_and_restores_the_eeprom() {
+    // The e-manual's Control Table Backup (0x20, X430 from firmware 45): 0x01 stores the
+    // control table and sets Backup Ready (147); 0x02 brings the EEPROM area back and reboots.
+    // Both are refused with result fail while torque is on.
+    let (mut s, clock) = sim(xl430(&[1]));
+    let store = [0x01, 0x43, 0x54, 0x52, 0x4C];
+    let restore = [0x02, 0x43, 0x54, 0x52, 0x4C];
+    let backup = |s: &mut snakectl_sim::Simulator, params: &[u8]| {
+        one(s, 1, ins::CONTROL_TABLE_BACKUP, params).error
+    };
+    assert_eq!(read(&mut s, 1, addr::BACKUP_READY, 1), (0, 0));
+    assert_eq!(
+        backup(&mut s, &restore),
+        error::RESULT_FAIL,
+        "nothing stored"
+    );
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    assert_eq!(backup(&mut s, &store), error::RESULT_FAIL, "torque on");
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
+    assert_eq!(backup(&mut s, &[0x01, 0, 0, 0, 0]), error::DATA_RANGE);
+    assert_eq!(
+        write(&mut s, 1, addr::VELOCITY_LIMIT, &100i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::PROFILE_VELOCITY, &77i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(backup(&mut s, &store), 0);
+    assert_eq!(read(&mut s, 1, addr::BACKUP_READY, 1), (0, 1));
+    // Changed since, then restored: the EEPROM comes back, after a reboot.
+    assert_eq!(
+        write(&mut s, 1, addr::VELOCITY_LIMIT, &200i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::RETURN_DELAY_TIME, &[9]), 0);
+    assert_eq!(backup(&mut s, &restore), 0);
+    assert!(send(&mut s, 1, ins::PING, &[]).is_empty(), "rebooting");
+    clock.advance(DEFAULT_BOOT_TIME);
+    assert_eq!(read(&mut s, 1, addr::VELOCITY_LIMIT, 4), (0, 100));
+    assert_eq!(read(&mut s, 1, addr::RETURN_DELAY_TIME, 1), (0, 0));
+    // RAM is as after any reboot; the backup stays.
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
+    assert_eq!(read(&mut s, 1, addr::BACKUP_READY, 1), (0, 1));
+}
+
+#[test]
+fn startup_configuration_restores_ram_and_turns_torque_on_at_power_on() {
+    // Startup Configuration (60): bit 1 restores the backed-up RAM items (gains, profiles,
+    // Indirect Addresses) at start-up, bit 0 turns torque on.
+    let (mut s, clock) = sim(xl430(&[1]));
+    assert_eq!(
+        write(&mut s, 1, addr::PROFILE_VELOCITY, &77i32.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::POSITION_P_GAIN, &900u16.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::INDIRECT_ADDRESS_1, &65u16.to_le_bytes()),
+        0
+    );
+    assert_eq!(
+        one(
+            &mut s,
+            1,
+            ins::CONTROL_TABLE_BACKUP,
+            &[0x01, 0x43, 0x54, 0x52, 0x4C]
+        )
+        .error,
+        0
+    );
+    assert_eq!(write(&mut s, 1, addr::STARTUP_CONFIGURATION, &[0b11]), 0);
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
+    clock.advance(DEFAULT_BOOT_TIME);
+    assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (0, 1));
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 77));
+    assert_eq!(read(&mut s, 1, addr::POSITION_P_GAIN, 2), (0, 900));
+    assert_eq!(read(&mut s, 1, addr::INDIRECT_ADDRESS_1, 2), (0, 65));
+    // Holding where it stands, not jumping to an old goal.
+    assert_eq!(
+        read(&mut s, 1, addr::GOAL_POSITION, 4),
+        read(&mut s, 1, addr::PRESENT_POSITION, 4)
+    );
+    // Torque on only: RAM at its initial values.
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
+    assert_eq!(write(&mut s, 1, addr::STARTUP_CONFIGURATION, &[0b01]), 0);
+    assert!(s.restore_power(1));
+    assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (0, 1));
+    assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
+}
+
+#[test]
+fn a_firmware_without_control_table_backup_answers_an_instruction_error() {
+    let mut spec = ServoSpec::new(1, Model::Xl430W250);
+    spec.firmware = Some(44);
+    let (mut s, _clock) = sim(vec![spec]);
+    assert_eq!(
+        one(
+            &mut s,
+            1,
+            ins::CONTROL_TABLE_BACKUP,
+            &[0x01, 0x43, 0x54, 0x52, 0x4C]
+        )
+        .error,
+        error::INSTRUCTION
+    );
+}
