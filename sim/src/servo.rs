@@ -211,6 +211,7 @@ impl Servo {
             self.put(addr::TORQUE_ENABLE, 1);
         }
         self.refresh(now);
+        self.monitor(now);
     }
 
     /// The RAM items a Control Table Backup keeps, as (address, size): the velocity and position
@@ -621,6 +622,7 @@ impl Servo {
             }
             self.after_write(start, bytes.len(), mode_before, now);
         }
+        self.monitor(now);
         Ok(())
     }
 
@@ -749,6 +751,13 @@ impl Servo {
         if bits & hw::INPUT_VOLTAGE != 0 {
             self.voltage_dv = (self.get(addr::MIN_VOLTAGE_LIMIT) - 5).max(0) as f64;
         }
+        self.latch(bits);
+        self.refresh(now);
+    }
+
+    /// Set `bits` in Hardware Error Status; when Shutdown selects one of the latched errors,
+    /// torque goes off until a reboot.
+    fn latch(&mut self, bits: u8) {
         let status = self.hardware_error_status() | bits;
         self.put(addr::HARDWARE_ERROR_STATUS, i64::from(status));
         if self.shutdown_latched() {
@@ -757,7 +766,25 @@ impl Servo {
             self.vel = 0.0;
             self.acc = 0.0;
         }
-        self.refresh(now);
+    }
+
+    /// The servo's own monitoring (the e-manual's Temperature Limit and Min/Max Voltage Limit):
+    /// Present Temperature above Temperature Limit latches an overheating error, Present Input
+    /// Voltage outside the voltage limits an input voltage error. Checked whenever a reading or
+    /// a limit changes (a write of the limits, a fault, power-on).
+    fn monitor(&mut self, now: Instant) {
+        let mut bits = 0;
+        if self.get(addr::PRESENT_TEMPERATURE) > self.get(addr::TEMPERATURE_LIMIT) {
+            bits |= hw::OVERHEATING;
+        }
+        let volts = self.get(addr::PRESENT_INPUT_VOLTAGE);
+        if volts < self.get(addr::MIN_VOLTAGE_LIMIT) || volts > self.get(addr::MAX_VOLTAGE_LIMIT) {
+            bits |= hw::INPUT_VOLTAGE;
+        }
+        if bits & !self.hardware_error_status() != 0 {
+            self.latch(bits);
+            self.refresh(now);
+        }
     }
 
     /// When the armed watchdog fires if nothing arrives before.
@@ -984,16 +1011,20 @@ impl Servo {
         pwm.clamp(-cap, cap) / FULL_PWM
     }
 
-    /// Set the supply voltage the servo measures (0.1 V units), e.g. a sagging supply.
+    /// Set the supply voltage the servo measures (0.1 V units), e.g. a sagging supply; outside
+    /// the voltage limits it latches an input voltage error.
     pub fn set_input_voltage(&mut self, decivolts: f64) {
         self.voltage_dv = decivolts;
         self.refresh(self.last_update);
+        self.monitor(self.last_update);
     }
 
-    /// Set the internal temperature the servo measures (°C).
+    /// Set the internal temperature the servo measures (°C); above Temperature Limit it latches
+    /// an overheating error.
     pub fn set_temperature(&mut self, celsius: f64) {
         self.temperature_c = celsius;
         self.refresh(self.last_update);
+        self.monitor(self.last_update);
     }
 
     /// Turn the shaft to `ticks` as a hand would, at rest there (for tests: a servo moved

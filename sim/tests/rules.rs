@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use common::*;
 use snakectl_sim::protocol::{error, instruction as ins, BROADCAST_ID};
-use snakectl_sim::table::addr;
+use snakectl_sim::table::{addr, hw};
 use snakectl_sim::{Fault, HardwareErrorKind, Model, ServoSpec, SimConfig, DEFAULT_BOOT_TIME};
 
 const ACCESS: u8 = error::ACCESS;
@@ -900,4 +900,50 @@ fn a_firmware_without_control_table_backup_answers_an_instruction_error() {
         .error,
         error::INSTRUCTION
     );
+}
+
+#[test]
+fn limits_written_below_the_readings_latch_hardware_errors() {
+    // The e-manual's Temperature Limit: Present Temperature above it sets the overheating bit
+    // (in the default Shutdown: torque off until a reboot); Min/Max Voltage Limit: Present Input
+    // Voltage outside them sets the input voltage bit (an alert only on an XL430, whose default
+    // Shutdown leaves it out).
+    let (mut s, clock) = sim(xl430(&[1, 2]));
+    assert_eq!(read(&mut s, 1, addr::PRESENT_TEMPERATURE, 1), (0, 30));
+    assert_eq!(write(&mut s, 1, addr::TEMPERATURE_LIMIT, &[25]) & 0x7F, 0);
+    assert_eq!(
+        read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1),
+        (error::ALERT, i64::from(hw::OVERHEATING))
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::TORQUE_ENABLE, &[1]),
+        error::ALERT | error::RESULT_FAIL
+    );
+    // Rebooted with the limit still below the reading, it latches again; with a sane limit it
+    // comes back clean.
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error & 0x7F, 0);
+    clock.advance(DEFAULT_BOOT_TIME);
+    assert_eq!(
+        read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1).1,
+        i64::from(hw::OVERHEATING)
+    );
+    assert_eq!(
+        write(&mut s, 1, addr::TEMPERATURE_LIMIT, &[72]),
+        error::ALERT
+    );
+    assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error & 0x7F, 0);
+    clock.advance(DEFAULT_BOOT_TIME);
+    assert_eq!(read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1), (0, 0));
+    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+
+    // 11.1 V above a 10.0 V Max Voltage Limit.
+    assert_eq!(
+        write(&mut s, 2, addr::MAX_VOLTAGE_LIMIT, &100u16.to_le_bytes()) & 0x7F,
+        0
+    );
+    assert_eq!(
+        read(&mut s, 2, addr::HARDWARE_ERROR_STATUS, 1),
+        (error::ALERT, i64::from(hw::INPUT_VOLTAGE))
+    );
+    assert_eq!(write(&mut s, 2, addr::TORQUE_ENABLE, &[1]), error::ALERT);
 }
