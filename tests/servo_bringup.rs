@@ -422,11 +422,25 @@ fn a_tripped_watchdog_is_found_and_recovered_without_a_jump() {
         .tripped_watchdogs(&mut rig.bus, &within())
         .unwrap()
         .is_empty());
+    let profiles = |rig: &mut Rig, id: u8| {
+        [Register::ProfileAcceleration, Register::ProfileVelocity]
+            .map(|r| rig.bus.read(id, r, TIMEOUT).unwrap().value)
+    };
+    let written = profiles(&mut rig, 1);
+    assert!(written.iter().all(|&v| v > 0), "{written:?}");
     go_quiet(&mut rig);
     assert_eq!(
         arm.tripped_watchdogs(&mut rig.bus, &within()).unwrap(),
         arm.ids()
     );
+    // The watchdog that fired set the profiles to 0; that is not taken for a power loss.
+    for &id in &arm.ids() {
+        assert_eq!(profiles(&mut rig, id), [0, 0], "servo {id}");
+        let lost = arm
+            .ram_reset(&mut rig.bus, id, true, &Default::default(), &within())
+            .unwrap();
+        assert_eq!(lost, None, "servo {id}");
+    }
     // A goal is refused by the servo while its watchdog reads -1.
     let goals = arm.goals(&[0.0, 0.0, 0.0, 0.0]).unwrap();
     let refused = rig
@@ -464,6 +478,14 @@ fn a_tripped_watchdog_is_found_and_recovered_without_a_jump() {
     for (&id, present) in arm.ids().iter().zip(&before) {
         let mut read = |r| rig.bus.read(id, r, TIMEOUT).unwrap().value;
         assert_eq!(read(Register::BusWatchdog), 5, "servo {id}: armed again");
+        assert_eq!(
+            [
+                read(Register::ProfileAcceleration),
+                read(Register::ProfileVelocity)
+            ],
+            written,
+            "servo {id}: its profiles written again"
+        );
         assert_eq!(
             read(Register::GoalPosition),
             *present,

@@ -1273,9 +1273,10 @@ impl Arm {
     }
 
     /// Recover every servo whose Bus Watchdog fired (after a long stall of the bus): clear
-    /// it, set the goal to the present position (so the servo does not jump to a stale
-    /// goal), arm it again, each step one Sync Write to all of them; one Sync Read of the
-    /// watchdog and the goal confirms it, and the servos it does not confirm go through it
+    /// it, write the profiles again (a watchdog that fires sets them to 0, no limit at all),
+    /// set the goal to the present position (so the servo does not jump to a stale goal), arm
+    /// it again, each step one Sync Write to all of them; one Sync Read of the watchdog, the
+    /// profiles and the goal confirms it, and the servos it does not confirm go through it
     /// again while `within` allows. Returns the servos recovered.
     ///
     /// `unarmed` keeps, across calls, the servos whose watchdog this cleared and has not yet
@@ -1290,9 +1291,20 @@ impl Arm {
         let tripped = self.tripped_watchdogs(bus, within)?;
         unarmed.retain(|id| tripped.contains(id));
         let armed = units::watchdog_units(self.settings.watchdog_ms);
-        // Bus Watchdog (98) to Goal Position (116..119) in one read.
-        let (first, goal_at) = (Register::BusWatchdog.address(), 18usize);
+        // Bus Watchdog (98) to Goal Position (116..119) in one read, the profiles between.
+        let first = Register::BusWatchdog.address();
+        let offset = |r: Register| usize::from(r.address() - first);
         let len = Register::GoalPosition.address() + Register::GoalPosition.size() - first;
+        let profiles = [
+            (
+                Register::ProfileAcceleration,
+                units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
+            ),
+            (
+                Register::ProfileVelocity,
+                units::profile_velocity(self.settings.profile_velocity_rad_s),
+            ),
+        ];
         let mut pending = tripped.clone();
         let mut last: Option<ServoError> = None;
         for _ in 0..=RETRIES {
@@ -1303,6 +1315,11 @@ impl Arm {
             unarmed.extend(&pending);
             bus.sync_write(Register::BusWatchdog, &zeros)
                 .map_err(step("clearing the bus watchdog"))?;
+            for (register, value) in profiles {
+                let each: Vec<(u8, i64)> = pending.iter().map(|&id| (id, value)).collect();
+                bus.sync_write(register, &each)
+                    .map_err(step("writing the profiles"))?;
+            }
             let present = self
                 .sync_read_within(bus, &pending, Register::PresentPosition, within)
                 .map_err(step("reading the present position"))?;
@@ -1328,9 +1345,15 @@ impl Arm {
             for ((&id, goal), block) in pending.iter().zip(&goals).zip(blocks) {
                 let held = block.map(|b| {
                     let watchdog = b.data.first().map(|&w| i64::from(w as i8));
-                    let at = b.data.get(goal_at..goal_at + 4);
-                    let goal_now = at.and_then(|g| Register::GoalPosition.decode(g));
-                    watchdog == Some(armed) && goal_now == Some(goal.1)
+                    let value = |r: Register| {
+                        let at = offset(r);
+                        b.data
+                            .get(at..at + usize::from(r.size()))
+                            .and_then(|v| r.decode(v))
+                    };
+                    watchdog == Some(armed)
+                        && value(Register::GoalPosition) == Some(goal.1)
+                        && profiles.iter().all(|&(r, v)| value(r) == Some(v))
                 });
                 match held {
                     Ok(true) => {
@@ -1339,7 +1362,9 @@ impl Arm {
                     Ok(false) => {
                         last = Some(ServoError::Malformed {
                             id,
-                            what: "the watchdog or the goal did not take its new value".into(),
+                            what:
+                                "the watchdog, the profiles or the goal did not take its new value"
+                                    .into(),
                         });
                         still.push(id);
                     }
@@ -1394,9 +1419,16 @@ impl Arm {
         };
         let mut reset = Vec::new();
         let armed = units::watchdog_units(self.settings.watchdog_ms);
-        if armed > 0 && !unarmed.contains(&id) && read(Register::BusWatchdog)? == 0 {
+        let watchdog = if armed > 0 {
+            Some(read(Register::BusWatchdog)?)
+        } else {
+            None
+        };
+        if watchdog == Some(0) && !unarmed.contains(&id) {
             reset.push(format!("Bus Watchdog 0 (armed at {armed})"));
         }
+        // A watchdog that fired set the profiles to 0 itself (its recovery writes them again).
+        let fired = watchdog.is_some_and(|w| w < 0);
         for (register, expected) in [
             (
                 Register::ProfileAcceleration,
@@ -1407,7 +1439,7 @@ impl Arm {
                 units::profile_velocity(self.settings.profile_velocity_rad_s),
             ),
         ] {
-            if expected != 0 {
+            if expected != 0 && !fired {
                 let value = read(register)?;
                 if value != expected {
                     reset.push(format!("{register:?} {value} (written {expected})"));
