@@ -309,6 +309,32 @@ fn goto_out_of_reach_fails_saying_saturated() {
 }
 
 #[test]
+fn a_goto_held_by_a_joint_limit_is_not_called_out_of_reach() {
+    let _one = one_at_a_time();
+    let d = Daemon::start(sim_config(&[(
+        "strategy = \"overall\"",
+        "strategy = \"sequential\"",
+    )]));
+    // 0.78 m from the base, well inside the 0.96 m the arm reaches; the sequential tractrix
+    // swinging the tip this way from home folds the last joint onto its limit, 2 rad.
+    let run = at(&d, &["goto", "0.2", "0.75"]);
+    assert_fails(&run, 1, "saturated");
+    assert!(
+        run.stderr.contains("a joint at its limit"),
+        "{:?}",
+        run.stderr
+    );
+    assert!(
+        !run.stderr.contains("the target is out of reach;"),
+        "{:?}",
+        run.stderr
+    );
+    let s = d.client().status();
+    let last = s["theta_cmd"][11].as_f64().unwrap();
+    assert!((last - 2.0).abs() < 0.01, "joint 12 at {last} rad: {s}");
+}
+
+#[test]
 fn bad_goto_numbers_are_refused_before_connecting() {
     let addr = closed_port();
     let run = snakectl(&["goto", "nan", "0.7", "--connect", &addr]);

@@ -464,7 +464,8 @@ pub enum Ending {
         /// The commanded tip, m.
         tip: [f64; 2],
     },
-    /// Its target was out of reach; the tip stopped short.
+    /// It stopped short of its target: out of reach, or held by a joint at its limit or by
+    /// the arm's own links (the event does not tell which).
     Saturated {
         /// The tick.
         tick: u64,
@@ -555,7 +556,8 @@ impl fmt::Display for Ending {
             Ending::Arrived { .. } => write!(f, "arrived at {at}"),
             Ending::Saturated { .. } => write!(
                 f,
-                "saturated: the target is out of reach; the tip stopped short at {at}"
+                "saturated: the tip stopped short at {at}: the target is out of reach, or a \
+                 joint at its limit or the arm's own links held it"
             ),
             Ending::Preempted { by, .. } => write!(f, "preempted by `{by}` at {at}"),
             Ending::Stopped { reason, .. } => write!(f, "stopped ({reason}) at {at}"),

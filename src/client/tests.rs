@@ -329,7 +329,10 @@ fn a_motion_ends_by_its_own_events_and_by_estops_and_faults_after_it() {
         (event(None, 150, What::Arrived { tip }), None),
         (
             event(Some(7), 120, What::Saturated { tip }),
-            Some("saturated: the target is out of reach; the tip stopped short at (0.1000, 0.2000) m, tick 120"),
+            Some(
+                "saturated: the tip stopped short at (0.1000, 0.2000) m, tick 120: the target is out \
+                 of reach, or a joint at its limit or the arm's own links held it",
+            ),
         ),
         (
             event(Some(7), 120, What::Preempted { tip, reason: CmdName::Stop }),

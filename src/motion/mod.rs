@@ -76,8 +76,10 @@ pub struct MotionLimits {
 pub enum Finish {
     /// Goto, path, goto_joints or home: on the target, at rest.
     Arrived,
-    /// Goto or path: the target is out of reach; the tip stopped short of it. Joint move: a
-    /// pose on the way could not be sent (it would self-intersect); the arm stopped short.
+    /// Goto or path: the tip stopped short of the target, out of reach or held by a joint at
+    /// its limit (the sequential strategy's tractrix can fold a joint onto its limit well
+    /// inside the workspace) or by the arm's own links. Joint move: a pose on the way could not
+    /// be sent (it would self-intersect); the arm stopped short.
     Saturated,
     /// Goto or path: the body could not follow the tip without losing its clearance from an
     /// obstacle, or the tip made no headway; the arm holds, clear.

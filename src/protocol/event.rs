@@ -20,7 +20,8 @@ use super::{ClientId, CmdName, FaultInfo, RequestId, WorldInfo};
 pub enum EventKind {
     /// A goto, path, goto_joints or home reached its target.
     Arrived,
-    /// A goto or path ended short of a target out of reach.
+    /// A goto or path ended short of its target: out of reach, or held by a joint at its limit
+    /// or by the arm's own links.
     Saturated,
     /// A motion command was replaced by another before it finished.
     Preempted,
@@ -181,7 +182,8 @@ pub enum What {
         #[serde(deserialize_with = "values::point::deserialize")]
         tip: [f64; 2],
     },
-    /// The command ended short of a target out of reach.
+    /// The command ended short of its target: out of reach, or held by a joint at its limit or
+    /// by the arm's own links.
     Saturated {
         /// The commanded tip, m.
         #[serde(deserialize_with = "values::point::deserialize")]

@@ -77,7 +77,7 @@ pub enum Outcome {
     Active,
     /// It reached its target.
     Arrived,
-    /// It ended short of a target out of reach.
+    /// It ended short of its target: out of reach, or held by a joint limit or its own links.
     Saturated,
     /// Another command replaced it.
     Preempted,
@@ -307,7 +307,8 @@ pub struct Telemetry {
     /// `|tip_ref - tip_meas|`, m.
     #[serde(deserialize_with = "values::number::deserialize")]
     pub tracking_error_m: f64,
-    /// Whether this tick's reference was out of reach and the tip stopped short.
+    /// Whether this tick's reference could not be resolved (out of reach, past a joint limit, or
+    /// folding the arm onto itself) and the tip stopped short.
     pub saturated: bool,
     /// Whether this tick's step was cut short because the links would have crossed.
     pub self_collision: bool,
