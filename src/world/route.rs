@@ -324,11 +324,11 @@ impl World {
 
     /// [`World::route_within`] for a tip whose body trails it in direction `trailing` (from the
     /// tip toward the joint behind it; zero: no preference). When the shortest route bends
-    /// round its first obstacle on the other side of the straight line than the body, and a
-    /// route that sets out on the body's side is at most [`TRAILING_SIDE_SLACK`] longer, that
-    /// one is taken: a body dragged round an obstacle from the far side is caught on it (its
-    /// last link swings across), one led round its own side follows. The work counts both
-    /// searches.
+    /// round its first obstacle on the other side of the straight line than the body, and the
+    /// shortest route that keeps to the body's side of that line is at most
+    /// [`TRAILING_SIDE_SLACK`] longer, that one is taken: a body dragged round an obstacle from
+    /// the far side is caught on it (its last link swings across), one led round its own side
+    /// follows. The work counts both searches.
     pub fn route_trailed(
         &self,
         start: Vec2,
@@ -369,8 +369,8 @@ impl World {
         found
     }
 
-    /// The shortest route; with `side` +1 or -1, the shortest whose first leg ends on that side
-    /// of the line from `start` to `goal` (left, right of it).
+    /// The shortest route; with `side` +1 or -1, the shortest that keeps to that side of the
+    /// line from `start` to `goal` (left, right of it): every corner on it or beyond.
     fn search(
         &self,
         start: Vec2,
@@ -455,7 +455,7 @@ impl World {
                     continue;
                 }
                 let pw = point(w);
-                if u == 0 && w > 1 && side * cross(goal - start, pw - start) < 0.0 {
+                if w > 1 && side * cross(goal - start, pw - start) < 0.0 {
                     continue;
                 }
                 let len = (pw - pu).norm();

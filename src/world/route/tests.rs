@@ -572,3 +572,56 @@ fn a_route_past_its_work_is_refused_and_legs_share_the_work() {
     );
     assert_eq!(left, 0);
 }
+
+/// Which side of the line from `a` to `b` the route's corners lie on: +1 left, -1 right.
+fn side_of(route: &Route, a: Vec2, b: Vec2) -> f64 {
+    let c = route.waypoints[1..route.waypoints.len() - 1]
+        .iter()
+        .map(|&w| cross(b - a, w - a))
+        .sum::<f64>();
+    c.signum()
+}
+
+#[test]
+fn a_post_on_the_straight_way_is_rounded_on_the_side_the_body_trails() {
+    let (a, b) = (v(0.0, 0.0), v(0.4, 0.0));
+    let world = World::new(0.01, 0.005, vec![circle("post", 0.2, 0.0, 0.03)]).unwrap();
+    let shortest = world.route(a, b).unwrap();
+    for (trailing, side) in [(v(-0.5, 1.0), 1.0), (v(-0.5, -1.0), -1.0)] {
+        let mut left = MAX_ROUTE_WORK;
+        let r = world.route_trailed(a, b, trailing, &mut left).unwrap();
+        assert_eq!(side_of(&r, a, b), side, "{:?}", r.waypoints);
+        assert!((r.length_m - shortest.length_m).abs() < 1e-3 * shortest.length_m);
+    }
+    // No preference: the shortest as it is.
+    let mut left = MAX_ROUTE_WORK;
+    assert_eq!(
+        world.route_trailed(a, b, v(0.0, 0.0), &mut left).unwrap(),
+        shortest
+    );
+    let mut left = MAX_ROUTE_WORK;
+    assert_eq!(
+        world.route_trailed(a, b, v(-1.0, 0.0), &mut left).unwrap(),
+        shortest
+    );
+}
+
+#[test]
+fn the_body_side_is_not_taken_when_much_longer() {
+    // The post 35 mm below the way: round its top is short, round its bottom 8% longer.
+    let (a, b) = (v(0.0, 0.0), v(0.4, 0.0));
+    let world = World::new(0.01, 0.005, vec![circle("post", 0.2, -0.035, 0.03)]).unwrap();
+    let shortest = world.route(a, b).unwrap();
+    assert_eq!(side_of(&shortest, a, b), 1.0);
+    let mut left = MAX_ROUTE_WORK;
+    let r = world.route_trailed(a, b, v(-0.5, -1.0), &mut left).unwrap();
+    assert_eq!(r, shortest, "the way below is {} m", r.length_m);
+    // Slightly off the way, the body's side costs little more and is taken.
+    let world = World::new(0.01, 0.005, vec![circle("post", 0.2, 0.002, 0.03)]).unwrap();
+    let shortest = world.route(a, b).unwrap();
+    assert_eq!(side_of(&shortest, a, b), -1.0);
+    let mut left = MAX_ROUTE_WORK;
+    let r = world.route_trailed(a, b, v(-0.5, 1.0), &mut left).unwrap();
+    assert_eq!(side_of(&r, a, b), 1.0);
+    assert!(r.length_m <= shortest.length_m * (1.0 + TRAILING_SIDE_SLACK));
+}
