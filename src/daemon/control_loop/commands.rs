@@ -488,7 +488,8 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if let Err(err) = self.clear_watchdogs() {
             return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
         }
-        if let Err(err) = self.measure_pose(true) {
+        // Torque kept on under the latch (`on_exit = "hold"`, a contact): the servos held.
+        if let Err(err) = self.measure_pose(!self.supervisor.torque()) {
             return refuse(Code::Fault, format!("reset: {err}; the latch stays"));
         }
         if let Err(r) = self.controller.reseed(&self.measured.theta) {
@@ -571,7 +572,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             let before = self.supervisor;
             self.supervisor.set_torque(true);
-            if let Err(err) = self.recover() {
+            if let Err(err) = self.recover(!before.torque()) {
                 self.supervisor = before;
                 // Torque was off: the servos a torque on that half happened reached go off
                 // again, as they were.

@@ -293,7 +293,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         if self.recover_after.is_some_and(|t| self.clock.now() < t) {
             return;
         }
-        match self.recover() {
+        match self.recover(false) {
             Ok(watchdogs) => {
                 let detail = recovered_detail(&watchdogs);
                 for i in back {
@@ -448,13 +448,16 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
     /// measured pose, torque on again where it should be (never for a servo held for a power
     /// loss) or off where it should be off. Returns the servos whose watchdog had fired since
     /// the last recovery that completed. Every exchange within this tick.
-    pub(super) fn recover(&mut self) -> Result<Vec<u8>, String> {
-        self.stretched(Self::recover_now)
+    ///
+    /// `limp`: the servos had torque off until now (a `torque` on), so a joint may have been
+    /// turned past its limits by hand; such a joint refuses the recovery ([`Cycle::measure_pose`]).
+    pub(super) fn recover(&mut self, limp: bool) -> Result<Vec<u8>, String> {
+        self.stretched(|cycle| cycle.recover_now(limp))
     }
 
-    fn recover_now(&mut self) -> Result<Vec<u8>, String> {
+    fn recover_now(&mut self, limp: bool) -> Result<Vec<u8>, String> {
         self.clear_watchdogs().map_err(|e| e.to_string())?;
-        self.measure_pose(self.supervisor.torque())?;
+        self.measure_pose(limp && self.supervisor.torque())?;
         // A servo that latched a hardware error while it was not read (the port lost) shows
         // its alert flag here: held for it, it is left out of the torque on.
         self.raise_alerts();
@@ -520,10 +523,12 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
 
     /// The measured pose (one Sync Read of every position, its wait within this tick), each
     /// angle clamped into its joint's limits (a servo may rest a tick past one). The error names
-    /// every servo that did not answer; with `held` (the pose is to be held with torque on), also
-    /// every joint past a limit by more than a tick (moved there by hand while torque was off),
-    /// as bring-up refuses it: its goal, clamped, would drive it to the limit at full speed.
-    pub(super) fn measure_pose(&mut self, held: bool) -> Result<(), String> {
+    /// every servo that did not answer; with `from_limp` (the pose of servos that had torque off
+    /// is to be held with torque on), also every joint past a limit by more than a tick (turned
+    /// there by hand), as bring-up refuses it: its goal, clamped, would drive it to the limit at
+    /// full speed. (A joint held with torque on may sag past its limit under a load; that is
+    /// not refused.)
+    pub(super) fn measure_pose(&mut self, from_limp: bool) -> Result<(), String> {
         let within = Self::within(&self.clock, self.fault_until, self.schedule.reply_timeout);
         let mut heard = vec![false; self.ids.len()];
         let mut ticks = vec![0; self.ids.len()];
@@ -562,7 +567,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             return Err(format!("the pose cannot be read: {}", missing.join("; ")));
         }
-        let outside = if held {
+        let outside = if from_limp {
             self.arm.outside_limits(&ticks)
         } else {
             Vec::new()
@@ -620,7 +625,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         let tick = self.tick;
         let ended = self.ledger.interrupt(StopReason::Fault);
         self.owe(ended);
-        match self.recover() {
+        match self.recover(false) {
             Ok(watchdogs) => self.announce_watchdogs(&watchdogs, tick, &detail),
             Err(e) => {
                 // Tried again next tick: the fired watchdogs are still listed.
@@ -685,7 +690,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
         );
         let ended = self.ledger.interrupt(StopReason::Fault);
         self.owe(ended);
-        match self.recover() {
+        match self.recover(false) {
             Ok(watchdogs) => {
                 self.port.stall_handled();
                 self.announce_watchdogs(&watchdogs, tick, &detail);
@@ -732,7 +737,7 @@ impl<B: ServoBus, C: Clock> Cycle<B, C> {
             }
             return;
         }
-        match self.recover() {
+        match self.recover(false) {
             Ok(_) => {
                 tracing::info!("port reopened");
                 for info in self.port.found() {
