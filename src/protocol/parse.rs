@@ -418,7 +418,8 @@ fn points(field: Field, value: &Value) -> Result<Vec<[f64; 2]>, Rejection> {
         .collect()
 }
 
-/// A joint number, an integer from 1 to `joints`.
+/// A joint number, an integer from 1 to `joints` (written as a whole number such as `4.0` too,
+/// as encoders that hold every number as a double write it).
 fn joint(field: Field, value: &Value, joints: usize) -> Result<usize, Rejection> {
     let Value::Number(n) = value else {
         return Err(bad(format_args!(
@@ -426,12 +427,21 @@ fn joint(field: Field, value: &Value, joints: usize) -> Result<usize, Rejection>
             Shown(value)
         )));
     };
-    if n.is_f64() {
-        return Err(bad(format_args!(
-            "`{field}`: expected an integer joint number, got {n}"
-        )));
-    }
-    match n.as_u64().and_then(|k| usize::try_from(k).ok()) {
+    let whole = if n.is_f64() {
+        match n.as_f64() {
+            Some(x) if x.fract() == 0.0 => {
+                (0.0..=f64::from(u32::MAX)).contains(&x).then_some(x as u64)
+            }
+            _ => {
+                return Err(bad(format_args!(
+                    "`{field}`: expected an integer joint number, got {n}"
+                )))
+            }
+        }
+    } else {
+        n.as_u64()
+    };
+    match whole.and_then(|k| usize::try_from(k).ok()) {
         Some(k) if (1..=joints).contains(&k) => Ok(k),
         _ => Err(bad(format_args!(
             "`{field}`: {n} is out of range 1..={joints}"

@@ -94,6 +94,14 @@ fn every_command_parses() {
                 rad_s: -0.3,
             },
         ),
+        // As an encoder that holds every number as a double writes it.
+        (
+            r#"{"cmd":"jog","joint":4.0,"rad_s":-0.3}"#,
+            Cmd::Jog {
+                joint: 4,
+                rad_s: -0.3,
+            },
+        ),
         (r#"{"cmd":"stop"}"#, Cmd::Stop),
         (r#"{"cmd":"estop"}"#, Cmd::Estop),
         (r#"{"cmd":"reset"}"#, Cmd::Reset),
@@ -395,6 +403,18 @@ fn bad_arg_names_the_field_and_the_value() {
             &["`joint`", "5", "1..=4"],
         ),
         (r#"{"cmd":"jog","joint":-1,"rad_s":1}"#, &["`joint`", "-1"]),
+        (
+            r#"{"cmd":"jog","joint":5.0,"rad_s":1}"#,
+            &["`joint`", "5.0", "1..=4"],
+        ),
+        (
+            r#"{"cmd":"jog","joint":-1.0,"rad_s":1}"#,
+            &["`joint`", "-1.0"],
+        ),
+        (
+            r#"{"cmd":"jog","joint":1e300,"rad_s":1}"#,
+            &["`joint`", "out of range 1..=4"],
+        ),
         (
             r#"{"cmd":"jog","joint":1.5,"rad_s":1}"#,
             &["`joint`", "1.5", "integer"],
