@@ -935,17 +935,9 @@ fn a_terminal_closed_under_it_ends_teleop_without_a_signal() {
     let dir = tempfile::tempdir().unwrap();
     let config = config(dir.path());
     let (master, _, slave) = open_pty();
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
-        .args(["teleop", "--sim"])
-        .arg(&config)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("TERM", "xterm-256color")
-        .stdin(slave.try_clone().unwrap())
-        .stdout(slave)
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut child = Reaped(child);
+    let mut child = teleop_on(&config, &slave, std::process::Stdio::piped());
+    // The terminal is the child's alone: closing the master closes it.
+    drop(slave);
     let child = &mut child.0;
     let mut master = std::fs::File::from(master);
     let text = read_until_in_control(&mut master, child);
@@ -1036,17 +1028,7 @@ fn the_first_sigterm_ends_teleop_while_its_terminal_takes_no_output() {
     let dir = tempfile::tempdir().unwrap();
     let config = config(dir.path());
     let (master, path, slave) = open_pty();
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
-        .args(["teleop", "--sim"])
-        .arg(&config)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("TERM", "xterm-256color")
-        .stdin(slave.try_clone().unwrap())
-        .stdout(slave.try_clone().unwrap())
-        .stderr(slave.try_clone().unwrap())
-        .spawn()
-        .unwrap();
-    let mut child = Reaped(child);
+    let mut child = teleop_on(&config, &slave, slave.try_clone().unwrap().into());
     let child = &mut child.0;
     let mut master = std::fs::File::from(master);
     read_until_in_control(&mut master, child);
@@ -1099,6 +1081,22 @@ fn the_first_sigterm_ends_teleop_while_its_terminal_takes_no_output() {
 }
 
 /// A child process killed if the test fails before it ends.
+/// `snakectl teleop --sim CONFIG` with the terminal `slave` as its input and output, its
+/// standard error as given.
+fn teleop_on(config: &Path, slave: &std::fs::File, stderr: std::process::Stdio) -> Reaped {
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_snakectl"))
+        .args(["teleop", "--sim"])
+        .arg(config)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("TERM", "xterm-256color")
+        .stdin(slave.try_clone().unwrap())
+        .stdout(slave.try_clone().unwrap())
+        .stderr(stderr)
+        .spawn()
+        .unwrap();
+    Reaped(child)
+}
+
 struct Reaped(std::process::Child);
 
 impl Drop for Reaped {

@@ -13,27 +13,30 @@ use snakectl_sim::protocol::{error, instruction as ins, BROADCAST_ID};
 use snakectl_sim::table::{addr, hw};
 use snakectl_sim::{Fault, HardwareErrorKind, Model, ServoSpec, SimConfig, DEFAULT_BOOT_TIME};
 
+/// A write that must be taken (no error in the status).
+fn set(s: &mut snakectl_sim::Simulator, id: u8, address: u16, data: &[u8]) {
+    assert_eq!(
+        write(s, id, address, data),
+        0,
+        "write of {data:?} to {address} on {id}"
+    );
+}
+
 const ACCESS: u8 = error::ACCESS;
 
 #[test]
 fn eeprom_is_writable_only_with_torque_off() {
     let (mut s, _) = sim(xl430(&[1]));
-    assert_eq!(
-        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3000u32.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::MAX_POSITION_LIMIT, &3000u32.to_le_bytes());
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     assert_eq!(
         write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3500u32.to_le_bytes()),
         ACCESS
     );
     assert_eq!(write(&mut s, 1, addr::ID, &[9]), ACCESS);
     assert_eq!(read(&mut s, 1, addr::MAX_POSITION_LIMIT, 4), (0, 3000));
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3500u32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[0]);
+    set(&mut s, 1, addr::MAX_POSITION_LIMIT, &3500u32.to_le_bytes());
     // A new id takes effect at once, the status of that write already carries it.
     assert_eq!(
         one(&mut s, 1, ins::WRITE, &write_params(addr::ID, &[9])).id,
@@ -63,7 +66,7 @@ fn out_of_range_values_are_data_range_errors() {
         write(&mut s, 1, addr::OPERATING_MODE, &[5]),
         error::DATA_RANGE
     );
-    assert_eq!(write(&mut s, 2, addr::OPERATING_MODE, &[5]), 0);
+    set(&mut s, 2, addr::OPERATING_MODE, &[5]);
     assert_eq!(
         write(&mut s, 1, addr::PROFILE_VELOCITY, &40000u32.to_le_bytes()),
         error::DATA_RANGE
@@ -94,29 +97,20 @@ fn goals_beyond_limit_items_are_data_limit_errors() {
         write(&mut s, 1, addr::GOAL_POSITION, &999i32.to_le_bytes()),
         error::DATA_LIMIT
     );
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes());
     // Goal velocity beyond Velocity Limit (200 on the XM430), goal current beyond Current Limit.
     assert_eq!(
         write(&mut s, 1, addr::GOAL_VELOCITY, &201i32.to_le_bytes()),
         error::DATA_LIMIT
     );
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_VELOCITY, &(-200i32).to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::GOAL_VELOCITY, &(-200i32).to_le_bytes());
     assert_eq!(
         write(&mut s, 1, addr::GOAL_CURRENT, &(-1194i16).to_le_bytes()),
         error::DATA_LIMIT
     );
     // Extended position mode: the multi-turn range applies instead of the limits.
-    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::OPERATING_MODE, &[4]);
+    set(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes());
     assert_eq!(
         write(&mut s, 1, addr::GOAL_POSITION, &2_000_000i32.to_le_bytes()),
         error::DATA_RANGE
@@ -148,7 +142,7 @@ fn read_only_undefined_and_short_writes() {
     // One write may span several items: Profile Velocity then Goal Position.
     let mut block = 100u32.to_le_bytes().to_vec();
     block.extend_from_slice(&1500i32.to_le_bytes());
-    assert_eq!(write(&mut s, 1, addr::PROFILE_VELOCITY, &block), 0);
+    set(&mut s, 1, addr::PROFILE_VELOCITY, &block);
     assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4), (0, 1500));
     // Malformed instructions.
     assert_eq!(
@@ -173,11 +167,8 @@ fn shutdown_error_switches_torque_off_until_reboot() {
         }],
         ..SimConfig::default()
     });
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &4095i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::GOAL_POSITION, &4095i32.to_le_bytes());
     clock.advance(Duration::from_millis(500));
     // The alert bit flags every reply; the error itself is in Hardware Error Status.
     let (e, hw) = read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1);
@@ -197,7 +188,7 @@ fn shutdown_error_switches_torque_off_until_reboot() {
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, error::ALERT);
     clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1), (0, 0));
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
 }
 
 #[test]
@@ -211,7 +202,7 @@ fn clearing_shutdown_after_the_error_does_not_bring_torque_back_before_a_reboot(
         }],
         ..SimConfig::default()
     });
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     clock.advance(Duration::from_millis(200));
     assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 0));
     // Shutdown (EEPROM, torque off) no longer selects the error: the shutdown still holds.
@@ -223,7 +214,7 @@ fn clearing_shutdown_after_the_error_does_not_bring_torque_back_before_a_reboot(
     assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 0));
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, error::ALERT);
     clock.advance(DEFAULT_BOOT_TIME);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
 }
 
 #[test]
@@ -237,7 +228,7 @@ fn errors_outside_shutdown_only_raise_the_alert() {
         }],
         ..SimConfig::default()
     });
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     clock.advance(Duration::from_millis(200));
     // Input voltage is not in the XL430's default Shutdown (52): torque stays on.
     assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (error::ALERT, 1));
@@ -266,12 +257,9 @@ fn overheating_shows_in_the_temperature() {
 #[test]
 fn bus_watchdog_fires_refuses_goals_and_clears() {
     let (mut s, clock) = sim(xl430(&[1]));
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0); // 100 ms
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &4000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::BUS_WATCHDOG, &[5]); // 100 ms
+    set(&mut s, 1, addr::GOAL_POSITION, &4000i32.to_le_bytes());
     // Traffic every 80 ms keeps it quiet.
     for _ in 0..5 {
         clock.advance(Duration::from_millis(80));
@@ -295,11 +283,8 @@ fn bus_watchdog_fires_refuses_goals_and_clears() {
         write(&mut s, 1, addr::GOAL_VELOCITY, &0i32.to_le_bytes()),
         error::DATA_RANGE
     );
-    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[0]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &1000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::BUS_WATCHDOG, &[0]);
+    set(&mut s, 1, addr::GOAL_POSITION, &1000i32.to_le_bytes());
     // Disarmed: no more firing.
     clock.advance(Duration::from_secs(5));
     assert_eq!(read(&mut s, 1, addr::BUS_WATCHDOG, 1), (0, 0));
@@ -309,13 +294,10 @@ fn bus_watchdog_fires_refuses_goals_and_clears() {
 #[test]
 fn bus_watchdog_stops_a_servo_turning_in_velocity_mode() {
     let (mut s, clock) = sim(xl430(&[1]));
-    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[1]), 0);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_VELOCITY, &50i32.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0); // 100 ms
+    set(&mut s, 1, addr::OPERATING_MODE, &[1]);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::GOAL_VELOCITY, &50i32.to_le_bytes());
+    set(&mut s, 1, addr::BUS_WATCHDOG, &[5]); // 100 ms
     clock.advance(Duration::from_millis(80));
     assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4), (0, 50));
     // Silent for 300 ms: it fires 100 ms after the last packet and the servo stops turning.
@@ -328,13 +310,10 @@ fn bus_watchdog_stops_a_servo_turning_in_velocity_mode() {
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, stopped);
     assert_eq!(read(&mut s, 1, addr::MOVING, 1).1, 0);
     // Cleared, it stays stopped until a new goal comes.
-    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[0]), 0);
+    set(&mut s, 1, addr::BUS_WATCHDOG, &[0]);
     clock.advance(Duration::from_millis(500));
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, stopped);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_VELOCITY, &(-30i32).to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::GOAL_VELOCITY, &(-30i32).to_le_bytes());
     clock.advance(Duration::from_millis(500));
     assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4), (0, -30));
 }
@@ -343,22 +322,13 @@ fn bus_watchdog_stops_a_servo_turning_in_velocity_mode() {
 fn motion_follows_the_profile() {
     let (mut s, clock) = sim(vec![ServoSpec::new(1, Model::Xm430W350)]);
     // 100 units = 22.9 rev/min = 1563 ticks/s; acceleration 50 units = 12207 ticks/s^2.
-    assert_eq!(
-        write(&mut s, 1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::PROFILE_ACCELERATION, &50u32.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &3048i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes());
+    set(&mut s, 1, addr::PROFILE_ACCELERATION, &50u32.to_le_bytes());
+    set(&mut s, 1, addr::GOAL_POSITION, &3048i32.to_le_bytes());
     // Torque off: nothing moves.
     clock.advance(Duration::from_millis(200));
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 2048);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     clock.advance(Duration::from_millis(300));
     let (_, v) = read(&mut s, 1, addr::PRESENT_VELOCITY, 4);
     assert_eq!(v, 100, "cruising at the profile velocity");
@@ -386,16 +356,10 @@ fn motion_follows_the_profile() {
 #[test]
 fn position_mode_stays_within_the_position_limits_whatever_the_goal_register_holds() {
     let (mut s, clock) = sim(xl430(&[1]));
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes());
     // Limits narrowed afterwards (torque off): the goal register keeps 3000.
-    assert_eq!(
-        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &2500u32.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::MAX_POSITION_LIMIT, &2500u32.to_le_bytes());
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     clock.advance(Duration::from_secs(2));
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 2500);
     assert_eq!(read(&mut s, 1, addr::MOVING, 1).1, 0);
@@ -406,15 +370,9 @@ fn velocity_limit_caps_an_unprofiled_move() {
     let (mut s, clock) = sim(xl430(&[1]));
     // Velocity Limit 265 units (60.7 rev/min) is above the XL430's 57 rev/min no-load speed:
     // lower it to 50 units, profile velocity 0 (= as fast as allowed).
-    assert_eq!(
-        write(&mut s, 1, addr::VELOCITY_LIMIT, &50u32.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &0i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::VELOCITY_LIMIT, &50u32.to_le_bytes());
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::GOAL_POSITION, &0i32.to_le_bytes());
     clock.advance(Duration::from_millis(500));
     assert_eq!(read(&mut s, 1, addr::PRESENT_VELOCITY, 4).1, -50);
 }
@@ -423,26 +381,17 @@ fn velocity_limit_caps_an_unprofiled_move() {
 fn goal_pwm_limits_the_output_in_position_and_velocity_modes() {
     let (mut s, clock) = sim(xl430(&[1, 2]));
     // Servo 1 may not drive its motor at all: it stays where it is.
-    assert_eq!(write(&mut s, 1, addr::GOAL_PWM, &0i16.to_le_bytes()), 0);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::GOAL_PWM, &0i16.to_le_bytes());
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::GOAL_POSITION, &3000i32.to_le_bytes());
     clock.advance(Duration::from_secs(1));
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 2048);
     assert_eq!(read(&mut s, 1, addr::PRESENT_PWM, 2).1, 0);
     // Servo 2 at half its PWM turns at about half its no-load speed (57 rev/min: 124 units).
-    assert_eq!(write(&mut s, 2, addr::OPERATING_MODE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 2, addr::GOAL_PWM, &(-442i16).to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 2, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 2, addr::GOAL_VELOCITY, &200i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 2, addr::OPERATING_MODE, &[1]);
+    set(&mut s, 2, addr::GOAL_PWM, &(-442i16).to_le_bytes());
+    set(&mut s, 2, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 2, addr::GOAL_VELOCITY, &200i32.to_le_bytes());
     clock.advance(Duration::from_secs(1));
     let (_, v) = read(&mut s, 2, addr::PRESENT_VELOCITY, 4);
     assert!((v - 124).abs() <= 1, "{v}");
@@ -452,7 +401,7 @@ fn goal_pwm_limits_the_output_in_position_and_velocity_modes() {
 fn status_return_level_selects_the_replies() {
     let (mut s, clock) = sim(xl430(&[1]));
     // The write that changes the level is still answered under the old one.
-    assert_eq!(write(&mut s, 1, addr::STATUS_RETURN_LEVEL, &[1]), 0);
+    set(&mut s, 1, addr::STATUS_RETURN_LEVEL, &[1]);
     assert!(send(&mut s, 1, ins::WRITE, &write_params(addr::LED, &[1])).is_empty());
     assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 1));
     assert!(send(
@@ -499,11 +448,8 @@ fn reboot_and_factory_reset() {
     let mut spec = ServoSpec::new(4, Model::Xl430W250);
     spec.max_position_ticks = Some(3000);
     let (mut s, clock) = sim(vec![spec]);
-    assert_eq!(write(&mut s, 4, addr::LED, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 4, addr::POSITION_P_GAIN, &900u16.to_le_bytes()),
-        0
-    );
+    set(&mut s, 4, addr::LED, &[1]);
+    set(&mut s, 4, addr::POSITION_P_GAIN, &900u16.to_le_bytes());
     assert_eq!(one(&mut s, 4, ins::REBOOT, &[]).error, 0);
     clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 4, addr::LED, 1), (0, 0));
@@ -533,7 +479,7 @@ fn reboot_and_factory_reset() {
 #[test]
 fn a_rebooted_servo_neither_hears_nor_answers_until_it_has_booted() {
     let (mut s, clock) = sim(xl430(&[1, 2, 3]));
-    assert_eq!(write(&mut s, 1, addr::LED, &[1]), 0);
+    set(&mut s, 1, addr::LED, &[1]);
     // The reboot itself is answered, then the servo boots.
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
     assert!(send(&mut s, 1, ins::PING, &[]).is_empty());
@@ -585,12 +531,9 @@ fn the_boot_time_is_configured_zero_for_none() {
 #[test]
 fn clear_multi_turn() {
     let (mut s, clock) = sim(xl430(&[1]));
-    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::OPERATING_MODE, &[4]);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes());
     clock.advance(Duration::from_millis(100));
     let clear = [0x01, 0x44, 0x58, 0x4C, 0x22];
     assert_eq!(one(&mut s, 1, ins::CLEAR, &clear).error, error::RESULT_FAIL);
@@ -603,33 +546,18 @@ fn clear_multi_turn() {
 #[test]
 fn a_new_operating_mode_resets_profiles_gains_and_goal_pwm() {
     let (mut s, _) = sim(vec![ServoSpec::new(1, Model::Xm430W350)]);
-    assert_eq!(
-        write(&mut s, 1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::PROFILE_ACCELERATION, &50u32.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::POSITION_P_GAIN, &1000u16.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::VELOCITY_I_GAIN, &1000u16.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::GOAL_PWM, &500i16.to_le_bytes()), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_CURRENT, &100i16.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes());
+    set(&mut s, 1, addr::PROFILE_ACCELERATION, &50u32.to_le_bytes());
+    set(&mut s, 1, addr::POSITION_P_GAIN, &1000u16.to_le_bytes());
+    set(&mut s, 1, addr::VELOCITY_I_GAIN, &1000u16.to_le_bytes());
+    set(&mut s, 1, addr::GOAL_PWM, &500i16.to_le_bytes());
+    set(&mut s, 1, addr::GOAL_CURRENT, &100i16.to_le_bytes());
     // The same mode written again changes nothing.
-    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[3]), 0);
+    set(&mut s, 1, addr::OPERATING_MODE, &[3]);
     assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 100));
     assert_eq!(read(&mut s, 1, addr::POSITION_P_GAIN, 2), (0, 1000));
     // Another mode: profiles 0, gains at their defaults, Goal PWM at PWM Limit.
-    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
+    set(&mut s, 1, addr::OPERATING_MODE, &[4]);
     assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
     assert_eq!(read(&mut s, 1, addr::PROFILE_ACCELERATION, 4), (0, 0));
     assert_eq!(read(&mut s, 1, addr::POSITION_P_GAIN, 2), (0, 800));
@@ -641,12 +569,9 @@ fn a_new_operating_mode_resets_profiles_gains_and_goal_pwm() {
 #[test]
 fn present_position_comes_back_within_one_turn_on_reboot_and_in_position_mode() {
     let (mut s, clock) = sim(xl430(&[1]));
-    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[4]), 0);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::OPERATING_MODE, &[4]);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::GOAL_POSITION, &9000i32.to_le_bytes());
     clock.advance(Duration::from_secs(10));
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000);
     // A reboot: the encoder's absolute position within one turn, the goal with it.
@@ -655,15 +580,12 @@ fn present_position_comes_back_within_one_turn_on_reboot_and_in_position_mode() 
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 9000 % 4096);
     assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4).1, 9000 % 4096);
     // Multi-turn again (still in extended position mode), then back to position mode.
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &(-3000i32).to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::GOAL_POSITION, &(-3000i32).to_le_bytes());
     clock.advance(Duration::from_secs(10));
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, -3000);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
-    assert_eq!(write(&mut s, 1, addr::OPERATING_MODE, &[3]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[0]);
+    set(&mut s, 1, addr::OPERATING_MODE, &[3]);
     assert_eq!(read(&mut s, 1, addr::PRESENT_POSITION, 4).1, 4096 - 3000);
 }
 
@@ -673,11 +595,11 @@ fn indirect_data_follows_indirect_address() {
     // Map Indirect Data 1..4 (224..227) onto Goal Position (116..119), Data 5 onto LED.
     for (k, target) in [116u16, 117, 118, 119, 65].iter().enumerate() {
         let slot = addr::INDIRECT_ADDRESS_1 + 2 * k as u16;
-        assert_eq!(write(&mut s, 1, slot, &target.to_le_bytes()), 0);
+        set(&mut s, 1, slot, &target.to_le_bytes());
     }
     let mut block = 1234i32.to_le_bytes().to_vec();
     block.push(1);
-    assert_eq!(write(&mut s, 1, 224, &block), 0);
+    set(&mut s, 1, 224, &block);
     assert_eq!(read(&mut s, 1, addr::GOAL_POSITION, 4), (0, 1234));
     assert_eq!(read(&mut s, 1, addr::LED, 1), (0, 1));
     assert_eq!(read(&mut s, 1, 224, 4), (0, 1234));
@@ -688,17 +610,11 @@ fn indirect_data_follows_indirect_address() {
 #[test]
 fn a_servo_that_loses_power_answers_again_with_its_ram_reset_and_its_eeprom_kept() {
     let (mut s, clock) = sim(xl430(&[1, 2]));
-    assert_eq!(
-        write(&mut s, 1, addr::MAX_POSITION_LIMIT, &3000i32.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::PROFILE_VELOCITY, &[50, 0, 0, 0]), 0);
-    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0);
-    assert_eq!(
-        write(&mut s, 1, addr::GOAL_POSITION, &2500i32.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::MAX_POSITION_LIMIT, &3000i32.to_le_bytes());
+    set(&mut s, 1, addr::PROFILE_VELOCITY, &[50, 0, 0, 0]);
+    set(&mut s, 1, addr::BUS_WATCHDOG, &[5]);
+    set(&mut s, 1, addr::GOAL_POSITION, &2500i32.to_le_bytes());
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     clock.advance(Duration::from_secs(2));
     let held = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
     assert!(s.lose_power(1));
@@ -730,7 +646,7 @@ fn indirect_addresses_take_ram_targets_with_torque_on_and_reset_on_reboot() {
         (0, 208),
         "the default: Data 1 itself"
     );
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     // RAM: written with torque on; an EEPROM target or one past the table is refused.
     assert_eq!(
         write(&mut s, 1, slot, &63u16.to_le_bytes()),
@@ -740,13 +656,10 @@ fn indirect_addresses_take_ram_targets_with_torque_on_and_reset_on_reboot() {
         write(&mut s, 1, slot, &228u16.to_le_bytes()),
         error::DATA_RANGE
     );
-    assert_eq!(write(&mut s, 1, slot, &227u16.to_le_bytes()), 0);
+    set(&mut s, 1, slot, &227u16.to_le_bytes());
     // Present Position (132..135) and Input Voltage (144, 145) read as one block of 6.
     for (k, target) in [132u16, 133, 134, 135, 144, 145].iter().enumerate() {
-        assert_eq!(
-            write(&mut s, 1, slot + 2 * k as u16, &target.to_le_bytes()),
-            0
-        );
+        set(&mut s, 1, slot + 2 * k as u16, &target.to_le_bytes());
     }
     let position = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
     assert_eq!(read(&mut s, 1, 208, 4), (0, position));
@@ -767,10 +680,10 @@ fn a_bus_watchdog_that_fires_zeroes_the_profiles() {
     // goal without writing its profiles again gets a move as fast as the servo can make it.
     let (mut s, clock) = sim(xl430(&[1]));
     let four = |v: i32| v.to_le_bytes();
-    assert_eq!(write(&mut s, 1, addr::PROFILE_ACCELERATION, &four(20)), 0);
-    assert_eq!(write(&mut s, 1, addr::PROFILE_VELOCITY, &four(30)), 0);
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
-    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[5]), 0); // 100 ms
+    set(&mut s, 1, addr::PROFILE_ACCELERATION, &four(20));
+    set(&mut s, 1, addr::PROFILE_VELOCITY, &four(30));
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
+    set(&mut s, 1, addr::BUS_WATCHDOG, &[5]); // 100 ms
     clock.advance(Duration::from_millis(80));
     // Not fired yet: the profiles stand.
     assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 30));
@@ -780,10 +693,10 @@ fn a_bus_watchdog_that_fires_zeroes_the_profiles() {
     assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
     // Cleared, the next goal runs unprofiled: the shaft covers 1000 ticks in 400 ms, where the
     // profile of 30 units (about 470 ticks/s) would have taken over 2 s.
-    assert_eq!(write(&mut s, 1, addr::BUS_WATCHDOG, &[0]), 0);
+    set(&mut s, 1, addr::BUS_WATCHDOG, &[0]);
     let start = read(&mut s, 1, addr::PRESENT_POSITION, 4).1;
     let goal = i32::try_from(start + 1000).unwrap();
-    assert_eq!(write(&mut s, 1, addr::GOAL_POSITION, &four(goal)), 0);
+    set(&mut s, 1, addr::GOAL_POSITION, &four(goal));
     clock.advance(Duration::from_millis(400));
     assert_eq!(
         read(&mut s, 1, addr::PRESENT_POSITION, 4).1,
@@ -808,26 +721,17 @@ fn control_table_backup_stores_and_restores_the_eeprom() {
         error::RESULT_FAIL,
         "nothing stored"
     );
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
     assert_eq!(backup(&mut s, &store), error::RESULT_FAIL, "torque on");
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[0]);
     assert_eq!(backup(&mut s, &[0x01, 0, 0, 0, 0]), error::DATA_RANGE);
-    assert_eq!(
-        write(&mut s, 1, addr::VELOCITY_LIMIT, &100i32.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::PROFILE_VELOCITY, &77i32.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::VELOCITY_LIMIT, &100i32.to_le_bytes());
+    set(&mut s, 1, addr::PROFILE_VELOCITY, &77i32.to_le_bytes());
     assert_eq!(backup(&mut s, &store), 0);
     assert_eq!(read(&mut s, 1, addr::BACKUP_READY, 1), (0, 1));
     // Changed since, then restored: the EEPROM comes back, after a reboot.
-    assert_eq!(
-        write(&mut s, 1, addr::VELOCITY_LIMIT, &200i32.to_le_bytes()),
-        0
-    );
-    assert_eq!(write(&mut s, 1, addr::RETURN_DELAY_TIME, &[9]), 0);
+    set(&mut s, 1, addr::VELOCITY_LIMIT, &200i32.to_le_bytes());
+    set(&mut s, 1, addr::RETURN_DELAY_TIME, &[9]);
     assert_eq!(backup(&mut s, &restore), 0);
     assert!(send(&mut s, 1, ins::PING, &[]).is_empty(), "rebooting");
     clock.advance(DEFAULT_BOOT_TIME);
@@ -843,18 +747,9 @@ fn startup_configuration_restores_ram_and_turns_torque_on_at_power_on() {
     // Startup Configuration (60): bit 1 restores the backed-up RAM items (gains, profiles,
     // Indirect Addresses) at start-up, bit 0 turns torque on.
     let (mut s, clock) = sim(xl430(&[1]));
-    assert_eq!(
-        write(&mut s, 1, addr::PROFILE_VELOCITY, &77i32.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::POSITION_P_GAIN, &900u16.to_le_bytes()),
-        0
-    );
-    assert_eq!(
-        write(&mut s, 1, addr::INDIRECT_ADDRESS_1, &65u16.to_le_bytes()),
-        0
-    );
+    set(&mut s, 1, addr::PROFILE_VELOCITY, &77i32.to_le_bytes());
+    set(&mut s, 1, addr::POSITION_P_GAIN, &900u16.to_le_bytes());
+    set(&mut s, 1, addr::INDIRECT_ADDRESS_1, &65u16.to_le_bytes());
     assert_eq!(
         one(
             &mut s,
@@ -865,7 +760,7 @@ fn startup_configuration_restores_ram_and_turns_torque_on_at_power_on() {
         .error,
         0
     );
-    assert_eq!(write(&mut s, 1, addr::STARTUP_CONFIGURATION, &[0b11]), 0);
+    set(&mut s, 1, addr::STARTUP_CONFIGURATION, &[0b11]);
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error, 0);
     clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (0, 1));
@@ -878,8 +773,8 @@ fn startup_configuration_restores_ram_and_turns_torque_on_at_power_on() {
         read(&mut s, 1, addr::PRESENT_POSITION, 4)
     );
     // Torque on only: RAM at its initial values.
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[0]), 0);
-    assert_eq!(write(&mut s, 1, addr::STARTUP_CONFIGURATION, &[0b01]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[0]);
+    set(&mut s, 1, addr::STARTUP_CONFIGURATION, &[0b01]);
     assert!(s.restore_power(1));
     assert_eq!(read(&mut s, 1, addr::TORQUE_ENABLE, 1), (0, 1));
     assert_eq!(read(&mut s, 1, addr::PROFILE_VELOCITY, 4), (0, 0));
@@ -934,7 +829,7 @@ fn limits_written_below_the_readings_latch_hardware_errors() {
     assert_eq!(one(&mut s, 1, ins::REBOOT, &[]).error & 0x7F, 0);
     clock.advance(DEFAULT_BOOT_TIME);
     assert_eq!(read(&mut s, 1, addr::HARDWARE_ERROR_STATUS, 1), (0, 0));
-    assert_eq!(write(&mut s, 1, addr::TORQUE_ENABLE, &[1]), 0);
+    set(&mut s, 1, addr::TORQUE_ENABLE, &[1]);
 
     // 11.1 V above a 10.0 V Max Voltage Limit.
     assert_eq!(

@@ -529,6 +529,20 @@ impl Arm {
             .collect()
     }
 
+    /// Profile Acceleration and Profile Velocity as bring-up writes them (0: no profile).
+    fn profiles(&self) -> [(Register, i64); 2] {
+        [
+            (
+                Register::ProfileAcceleration,
+                units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
+            ),
+            (
+                Register::ProfileVelocity,
+                units::profile_velocity(self.settings.profile_velocity_rad_s),
+            ),
+        ]
+    }
+
     /// The settings.
     pub fn settings(&self) -> &Settings {
         &self.settings
@@ -1067,10 +1081,9 @@ impl Arm {
                 retry.run(|| bus.configure(id, Setting::PositionLimits, t))?;
             }
         }
-        let acceleration = units::profile_acceleration(self.settings.profile_acceleration_rad_s2);
-        retry.run(|| bus.write(id, Register::ProfileAcceleration, acceleration, t))?;
-        let velocity = units::profile_velocity(self.settings.profile_velocity_rad_s);
-        retry.run(|| bus.write(id, Register::ProfileVelocity, velocity, t))?;
+        for (register, value) in self.profiles() {
+            retry.run(|| bus.write(id, register, value, t))?;
+        }
         Ok(())
     }
 
@@ -1295,16 +1308,7 @@ impl Arm {
         let first = Register::BusWatchdog.address();
         let offset = |r: Register| usize::from(r.address() - first);
         let len = Register::GoalPosition.address() + Register::GoalPosition.size() - first;
-        let profiles = [
-            (
-                Register::ProfileAcceleration,
-                units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
-            ),
-            (
-                Register::ProfileVelocity,
-                units::profile_velocity(self.settings.profile_velocity_rad_s),
-            ),
-        ];
+        let profiles = self.profiles();
         let mut pending = tripped.clone();
         let mut last: Option<ServoError> = None;
         for _ in 0..=RETRIES {
@@ -1429,16 +1433,7 @@ impl Arm {
         }
         // A watchdog that fired set the profiles to 0 itself (its recovery writes them again).
         let fired = watchdog.is_some_and(|w| w < 0);
-        for (register, expected) in [
-            (
-                Register::ProfileAcceleration,
-                units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
-            ),
-            (
-                Register::ProfileVelocity,
-                units::profile_velocity(self.settings.profile_velocity_rad_s),
-            ),
-        ] {
+        for (register, expected) in self.profiles() {
             if expected != 0 && !fired {
                 let value = read(register)?;
                 if value != expected {
@@ -1478,14 +1473,9 @@ impl Arm {
                 .map(|_| ())
         };
         write(Register::StatusReturnLevel, 2)?;
-        write(
-            Register::ProfileAcceleration,
-            units::profile_acceleration(self.settings.profile_acceleration_rad_s2),
-        )?;
-        write(
-            Register::ProfileVelocity,
-            units::profile_velocity(self.settings.profile_velocity_rad_s),
-        )?;
+        for (register, value) in self.profiles() {
+            write(register, value)?;
+        }
         write(Register::BusWatchdog, 0)?;
         if matches!(self.layout(), Layout::Indirect { .. }) {
             // Thirteen writes without replies, then one read to check them.

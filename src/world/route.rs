@@ -344,11 +344,12 @@ impl World {
             .search(start, goal, 0.0, &mut work)
             .and_then(|shortest| {
                 let ahead = goal - start;
-                let body = cross(ahead, trailing).signum();
+                let lean = cross(ahead, trailing);
                 let first = match shortest.waypoints.get(1) {
-                    Some(&w) if shortest.waypoints.len() > 2 && cross(ahead, trailing) != 0.0 => w,
+                    Some(&w) if shortest.waypoints.len() > 2 && lean != 0.0 => w,
                     _ => return Ok(shortest),
                 };
+                let body = lean.signum();
                 if cross(ahead, first - start) * body > 0.0 {
                     return Ok(shortest);
                 }
