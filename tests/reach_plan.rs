@@ -267,6 +267,17 @@ fn bad_requests_are_refused_in_words() {
         said.contains("out of the arm's reach: 1.3000 m from the base, where the tip can be from 0.0000 to 0.9600 m"),
         "{said}"
     );
+    // The tip on the base itself: the last link would meet the first, whatever the world.
+    let err = ask(&c, &world, &home(), c.base(), &[TAU / 4096.0; N]).unwrap_err();
+    assert!(
+        matches!(err, ReachError::GoalFolded { a: 1, b: 12 }),
+        "{err:?}"
+    );
+    let said = err.to_string();
+    assert!(
+        said.contains("folds the arm onto itself: links 1 and 12 touch"),
+        "{said}"
+    );
     // A target inside the post: no clear pose has the tip there.
     let said = refused(&home(), Vec2::new(tip.x - 0.1, tip.y - 0.2), &[]);
     assert!(said.starts_with("no pose found with the tip on"), "{said}");

@@ -197,12 +197,26 @@ pub enum ReachError {
         /// Solver iterations, over all its starts.
         iterations: usize,
     },
-    /// The goal is clear but not once each joint is rounded to its resolution, or its links
-    /// touch each other.
-    #[error("the best pose with the tip on the target is not clear as the servos take it: {what}")]
+    /// The goal is clear but not once each joint is rounded to its resolution.
+    #[error(
+        "the best pose with the tip on the target is not clear as the servos take it (each \
+         joint rounded to a whole tick): {what}"
+    )]
     GoalNotClear {
         /// What is wrong with it, in words.
         what: String,
+    },
+    /// The goal's links touch each other once each joint is rounded to its resolution: a
+    /// target at (or within a rounding of) the base, where the tip meets the first link.
+    #[error(
+        "the best pose with the tip on the target folds the arm onto itself: links {a} and {b} \
+         touch as the servos take it (each joint rounded to a whole tick)"
+    )]
+    GoalFolded {
+        /// The first link, 1-based.
+        a: usize,
+        /// The second link, 1-based.
+        b: usize,
     },
     /// The trees did not meet within the work allowed.
     #[error(
@@ -446,9 +460,7 @@ fn checked_as_sent(req: &ReachRequest, goal: Vec<f64>) -> Result<Vec<f64>, Reach
     round_to(&goal, req.quanta, &mut sent);
     let pts = req.chain.points(&sent);
     if let Some((a, b)) = Chain::self_intersects(&pts) {
-        return Err(ReachError::GoalNotClear {
-            what: format!("links {} and {} touch", a + 1, b + 1),
-        });
+        return Err(ReachError::GoalFolded { a: a + 1, b: b + 1 });
     }
     if let Some(p) = w
         .clearance(&pts)
