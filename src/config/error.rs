@@ -531,6 +531,19 @@ pub enum FieldProblem {
         /// `link_radius_m + clearance_m`, m.
         keep_m: f64,
     },
+    /// The home pose folds the arm onto itself: two links cross or come within
+    /// [`SELF_CLEARANCE_M`](crate::chain::SELF_CLEARANCE_M) of each other.
+    #[error(
+        "links {a} and {b} of the home pose cross or come within {} m of each other: the \
+         controller never sends such a pose, so the arm could not start or go home; unfold it",
+        crate::chain::SELF_CLEARANCE_M
+    )]
+    HomeSelfCollision {
+        /// The first link of the pair, from 1.
+        a: usize,
+        /// The second link, from 1, `b > a`.
+        b: usize,
+    },
     /// The home pose is not clear of an obstacle, as given or rounded to the servos' ticks.
     #[error(
         "link {link} of the home pose (arm.home_rad){} is {}, short of clearance_m = {keep_m} \

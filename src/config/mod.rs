@@ -628,6 +628,17 @@ impl Checker<'_> {
             }
             None => (None, None),
         };
+        // The daemon refuses a home pose that folds the arm onto itself (it could never go
+        // home). Checked with a `[bus]` only, whose servo ids (checked above) bound the joints
+        // to 252: the check is quadratic in them.
+        if bus.is_some() {
+            if let Some((a, b)) = Chain::self_intersects(&chain.points(&home)) {
+                return Err(self.invalid(
+                    "arm.home_rad",
+                    FieldProblem::HomeSelfCollision { a: a + 1, b: b + 1 },
+                ));
+            }
+        }
         let ports = bus.as_ref().map_or(1, |b: &Bus| b.ports.len());
         let sim = raw.sim.map(|s| self.sim(s, &joints, ports)).transpose()?;
         let control = self.control(&raw.control.unwrap_or_default())?;

@@ -296,6 +296,26 @@ fn home_outside_limits() {
     );
 }
 
+/// A home pose that folds the arm onto itself is refused with the file, naming the links: the
+/// daemon could never start from it or go home.
+#[test]
+fn home_folded_onto_itself() {
+    let folded = base_text()
+        .replacen(
+            "home_rad = [0.1, -0.2, 0.3]",
+            "home_rad = [0.0, 3.0, 3.0]",
+            1,
+        )
+        .replace(
+            "min_rad = -2.0\nmax_rad = 2.0",
+            "min_rad = -3.1\nmax_rad = 3.1",
+        );
+    refused(&folded, &["arm.home_rad", "links 1 and 3", "home pose"]);
+    // The same pose without a [bus] (geometry only, for `solve --config`) is a start like any.
+    let (head, _) = folded.split_once("[bus]").unwrap();
+    assert!(load(head).is_ok());
+}
+
 /// A home pose exactly on a limit is inside it, and so is the servo position it becomes:
 /// on the upper limit of joint 1, the lower of joint 2, and both limits of the reversed,
 /// offset joint 3 (the nearest tick of 2 rad lies past the limit rounded inward).
