@@ -85,6 +85,25 @@ fn sigterm_brings_the_arm_to_rest_then_torque_off_and_exits_0() {
     );
 }
 
+/// A hang-up (the terminal or SSH session the daemon ran in closed) stops it as SIGTERM does:
+/// the arm at rest, torque off, exit 0; not killed with the servos' torque left on.
+#[test]
+fn sighup_stops_the_daemon_as_sigterm_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, config) = config_file(dir.path(), &[]);
+    let sim = sim(&config);
+    let mut daemon = DaemonChild::spawn(&path, sim.path());
+    let mut client = Client::connect(daemon.address());
+    start_moving(&mut client);
+    daemon.signal("-HUP");
+    let (status, log) = daemon.wait();
+    assert!(status.success(), "exit {status:?}; log:\n{log}");
+    for id in config.arm().unwrap().ids() {
+        let torque = sim.with_servo(id, |s| s.torque_enabled()).unwrap();
+        assert!(!torque, "servo {id} left with torque on");
+    }
+}
+
 #[test]
 fn after_kill_9_the_bus_watchdog_stops_the_servos() {
     let dir = tempfile::tempdir().unwrap();

@@ -49,9 +49,9 @@ pub struct RunArgs {
     verbose: bool,
 }
 
-/// Runs the daemon until SIGINT or SIGTERM: the arm is brought to rest (at once when the estop
-/// latch or a fault already holds it), then left as `[bus] on_exit` says; the exit code says how
-/// that went.
+/// Runs the daemon until SIGINT, SIGTERM or SIGHUP: the arm is brought to rest (at once when the
+/// estop latch or a fault already holds it), then left as `[bus] on_exit` says; the exit code
+/// says how that went.
 pub fn run(args: RunArgs) -> Result<(), Failure> {
     super::init_logs(args.verbose);
     let config = Config::load(&args.config).map_err(Failure::bad_input)?;
@@ -119,15 +119,19 @@ fn failure(e: DaemonError) -> Failure {
     }
 }
 
-/// Installs the SIGINT and SIGTERM handlers; the future resolves on the first of them.
+/// Installs the SIGINT, SIGTERM and SIGHUP handlers; the future resolves on the first of them.
+/// A hang-up (the terminal or SSH session the daemon was started from closed) stops it as the
+/// others do, never by default, which would leave the servos as a `kill -9` does.
 fn signals() -> std::io::Result<impl std::future::Future<Output = ()>> {
     use tokio::signal::unix::{signal, SignalKind};
     let mut int = signal(SignalKind::interrupt())?;
     let mut term = signal(SignalKind::terminate())?;
+    let mut hup = signal(SignalKind::hangup())?;
     Ok(async move {
         tokio::select! {
             _ = int.recv() => {}
             _ = term.recv() => {}
+            _ = hup.recv() => {}
         }
         tracing::info!("signal received: stopping");
     })
