@@ -343,6 +343,16 @@ fn bad_goto_numbers_are_refused_before_connecting() {
     assert_fails(&run, 2, "--speed");
 }
 
+/// A `--connect` that is no address (a socket path, a host without its port) is bad input,
+/// exit 2, saying what the flag takes.
+#[test]
+fn a_connect_that_is_no_address_exits_2_saying_host_port() {
+    for addr in ["/tmp/snakectl.sock", "127.0.0.1", "127.0.0.1:99999", ""] {
+        let run = snakectl(&["status", "--connect", addr]);
+        assert_fails(&run, 2, "give host:port");
+    }
+}
+
 #[test]
 fn goto_while_another_client_holds_control_is_refused_naming_it() {
     let _one = one_at_a_time();

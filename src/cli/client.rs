@@ -354,6 +354,17 @@ pub(super) fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
             (ClientError::TokenFile { .. } | ClientError::EmptyToken { .. }, _) => {
                 Failure::bad_input(e)
             }
+            // Not an address at all (a path, no port, a port past 65535): bad input too.
+            (ClientError::Connect { source, .. }, _)
+                if source.kind() == std::io::ErrorKind::InvalidInput =>
+            {
+                let connect = args.connect.clone();
+                Failure::bad_input(anyhow::Error::new(e).context(format!(
+                    "--connect {connect:?} is not the daemon's TCP address: give host:port, \
+                     e.g. {}",
+                    snakectl::client::DEFAULT_ADDR
+                )))
+            }
             _ => refused(e),
         }
     })
