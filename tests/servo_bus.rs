@@ -547,6 +547,50 @@ fn sixty_four_servos_fit_one_sync_write_and_one_sync_read() {
     }
 }
 
+/// Writes sent back to back queue in the port and go out at the baud rate: at 57600 baud a
+/// dozen Sync Writes of twelve goals are about 0.15 s of wire. A read after them waits for its
+/// reply from when its instruction is out, not from when it was handed to the port, so a
+/// short timeout still finds every servo.
+#[test]
+#[cfg_attr(feature = "hardware", ignore = "simulator only")]
+fn a_read_behind_a_burst_of_writes_waits_for_them_to_leave() {
+    let ids: Vec<u8> = (1..=12).collect();
+    let mut rig = servo_support::realtime_rig(SimConfig {
+        wire_timing: true,
+        baud: 57_600,
+        ..xl430(&ids)
+    });
+    let short = Duration::from_millis(5);
+    let goals = |k: i32| -> Vec<Goal> {
+        ids.iter()
+            .map(|&id| Goal {
+                id,
+                ticks: 1000 + 10 * k + i32::from(id),
+            })
+            .collect()
+    };
+    for k in 0..12 {
+        rig.bus.write_goals(&goals(k)).unwrap();
+    }
+    let last = goals(11);
+    let one = rig.bus.read(12, Register::GoalPosition, short).unwrap();
+    assert_eq!(one.value, i64::from(last[11].ticks));
+    for k in 0..12 {
+        rig.bus.write_goals(&goals(k)).unwrap();
+    }
+    let blocks = rig
+        .bus
+        .sync_read(&ids, Register::GoalPosition.address(), 4, short)
+        .unwrap();
+    for (b, g) in blocks.iter().zip(&last) {
+        let b = b.as_ref().unwrap();
+        assert_eq!(
+            Register::GoalPosition.decode(&b.data),
+            Some(i64::from(g.ticks))
+        );
+    }
+}
+
 /// Through Indirect Address one read of 13 bytes a servo brings what the registers themselves
 /// hold; a servo that lost its RAM (here, rebooted) reads unmapped until mapped again.
 #[test]

@@ -129,6 +129,11 @@ pub struct DynamixelBus {
     rest: SyncReadBuf,
     /// When the Fast Sync Read replies have been whole.
     arrival: Option<Arrival>,
+    /// When the bytes written so far will have left the port, at the baud rate: instructions
+    /// written back to back (a burst of Sync Writes) queue in the port and the adapter, and
+    /// the reply to the next one cannot begin before they are out. At 57600 baud a dozen
+    /// writes of an Indirect Address map are about 0.1 s of wire.
+    wire_free: Instant,
 }
 
 /// When a Fast Sync Read reply is whole after its instruction was sent, for one shape of read,
@@ -302,6 +307,7 @@ impl DynamixelBus {
             rx: StatusReader::new(),
             rest: SyncReadBuf::new(),
             arrival: None,
+            wire_free: Instant::now(),
         })
     }
 
@@ -343,19 +349,23 @@ impl DynamixelBus {
     }
 
     /// Sends one instruction (through the crate, which stuffs it and first throws away what
-    /// the port had received); the replies to earlier ones are forgotten with it.
+    /// the port had received); the replies to earlier ones are forgotten with it. Returns when
+    /// its last byte leaves the port: once the instructions written before it are out (see
+    /// `wire_free`), its own wire time later. Waits for its reply count from then.
     fn send(
         &mut self,
         id: u8,
         instruction: u8,
         params: usize,
         encode: impl FnOnce(&mut [u8]),
-    ) -> Result<(), ServoError> {
+    ) -> Result<Instant, ServoError> {
         self.wire()?
             .write_instruction(id, instruction, params, encode)
             .map_err(write_error)?;
         self.rx.clear();
-        Ok(())
+        let begins = self.wire_free.max(Instant::now());
+        self.wire_free = begins + wire_time(INSTRUCTION_OVERHEAD + params, self.baud);
+        Ok(self.wire_free)
     }
 
     /// The next status packet received by `deadline` (see [`StatusReader`]). A packet begun
@@ -412,12 +422,12 @@ impl DynamixelBus {
         timeout: Duration,
     ) -> Result<Reply, ServoError> {
         check_id(id)?;
-        self.send(id, instruction, params.len(), |buf| {
+        let asked = Instant::now();
+        let sent = self.send(id, instruction, params.len(), |buf| {
             buf.copy_from_slice(params)
         })?;
-        let waited = wire_time(INSTRUCTION_OVERHEAD + params.len(), self.baud)
-            + self.reply_wait(reply_params, timeout);
-        let deadline = Instant::now() + waited;
+        let deadline = sent + self.reply_wait(reply_params, timeout);
+        let waited = deadline.saturating_duration_since(asked);
         let mut skipped = None;
         let mut stale = None;
         loop {
@@ -499,7 +509,8 @@ impl DynamixelBus {
                 chunk[0] = id;
                 chunk[1..].copy_from_slice(&register.encode(value)[..size]);
             }
-        })
+        })?;
+        Ok(())
     }
 }
 
@@ -559,19 +570,21 @@ impl DynamixelBus {
         }
         check_read_ids(ids)?;
         let n = ids.len();
-        self.send(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
+        let sent = self.send(BROADCAST_ID, ins::SYNC_READ, 4 + n, |buf| {
             buf[..2].copy_from_slice(&address.to_le_bytes());
             buf[2..4].copy_from_slice(&len.to_le_bytes());
             buf[4..].copy_from_slice(ids);
         })?;
         // Replies come in the order of `ids`: `next` is the first servo not heard from yet.
         let mut next = 0;
-        let mut wait = wire_time(INSTRUCTION_OVERHEAD + 4 + n, self.baud) + per_reply;
+        // The first reply is due a reply's wait after the instruction is out; each later one a
+        // reply's wait after the packet before it.
+        let mut first = Some(sent + per_reply);
         // Bounds the loop if stray packets keep arriving.
         let mut budget = 2 * n + 8;
         while next < n && budget > 0 {
             budget -= 1;
-            let deadline = Instant::now() + wait;
+            let deadline = first.take().unwrap_or_else(|| Instant::now() + per_reply);
             match self.read_status(poll_deadline(deadline))? {
                 Got::Packet { id, error } => {
                     let Some(k) = ids[next..].iter().position(|&x| x == id) else {
@@ -599,7 +612,6 @@ impl DynamixelBus {
                 }
                 Got::Nothing => break,
             }
-            wait = per_reply;
         }
         Ok(())
     }
@@ -638,7 +650,7 @@ impl DynamixelBus {
                 have: READ_BUFFER,
             });
         }
-        self.send(BROADCAST_ID, FAST_SYNC_READ, 4 + n, |buf| {
+        let out_at = self.send(BROADCAST_ID, FAST_SYNC_READ, 4 + n, |buf| {
             buf[..2].copy_from_slice(&address.to_le_bytes());
             buf[2..4].copy_from_slice(&len.to_le_bytes());
             buf[4..].copy_from_slice(ids);
@@ -658,8 +670,7 @@ impl DynamixelBus {
         if !asleep.is_zero() {
             std::thread::sleep(asleep);
         }
-        let wire = wire_time(INSTRUCTION_OVERHEAD + 4 + n + total, baud);
-        let mut end = poll_deadline(sent + wire + timeout);
+        let mut end = poll_deadline(out_at + wire_time(total, baud) + timeout);
         let Some(open) = self.open.as_mut() else {
             return Err(closed());
         };
@@ -1203,13 +1214,13 @@ impl ServoBus for DynamixelBus {
 
     fn ping_counted(&mut self, id: u8, timeout: Duration) -> Result<(PingInfo, usize), ServoError> {
         check_id(id)?;
-        self.send(id, ins::PING, 0, |_| {})?;
+        let asked = Instant::now();
+        let sent = self.send(id, ins::PING, 0, |_| {})?;
         // A second servo with the id answers after the first (or over it, damaging both):
         // listen for two replies' time, not stopping at the first.
-        let waited = wire_time(INSTRUCTION_OVERHEAD, self.baud)
-            + wire_time(STATUS_OVERHEAD + 3, self.baud)
-            + self.reply_wait(3, timeout);
-        let deadline = Instant::now() + waited;
+        let deadline =
+            sent + wire_time(STATUS_OVERHEAD + 3, self.baud) + self.reply_wait(3, timeout);
+        let waited = deadline.saturating_duration_since(asked);
         let mut first: Option<PingInfo> = None;
         let mut first_error = None;
         let mut count = 0;
@@ -1251,10 +1262,11 @@ impl ServoBus for DynamixelBus {
     }
 
     fn scan(&mut self, timeout: Duration) -> Result<Vec<PingInfo>, ServoError> {
-        self.send(BROADCAST_ID, ins::PING, 0, |_| {})?;
+        let sent = self.send(BROADCAST_ID, ins::PING, 0, |_| {})?;
         // Replies come in id order, but one from a higher id may follow any of them: listen for
         // the whole window, never stopping at a lull.
-        let deadline = Instant::now() + scan_window(self.baud, timeout);
+        let deadline = sent - wire_time(INSTRUCTION_OVERHEAD, self.baud)
+            + scan_window(self.baud, timeout);
         let mut found: Vec<PingInfo> = Vec::new();
         loop {
             match self.read_status(poll_deadline(deadline))? {
