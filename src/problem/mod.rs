@@ -1206,6 +1206,48 @@ mod tests {
         assert!(least >= 0.01 - CLEAR_SLACK, "{least}");
     }
 
+    /// Among obstacles, an overall answer that stops short of its target is still given as
+    /// each angle's representative nearest `theta0`, as every fixed-base answer of one step is.
+    #[test]
+    fn an_answer_short_of_its_target_among_obstacles_stays_within_pi_of_the_start() {
+        let text = r#"{"links": [0.44348092498976616, 0.2009056707700177, 0.31810893703394494,
+            0.2477183857452233, 0.45240352765372494],
+          "base": [0.7898459431468499, -0.6749988123740032, 3.107614643679282],
+          "theta0": [0.0445374751780026, 0.6259109146117867, -0.5785104654255017,
+            -0.3649942686907977, -0.5900106771802387],
+          "target": [2.937070446904192, -1.2687730672511583],
+          "limits": [null, [0.26884403431864656, 1.5805863130776836], null, null, null],
+          "obstacles": [
+            {"polygon": {"points": [[0.6945594443585652, -0.6993796649047612],
+              [0.7452711351026411, -0.6489265132229916], [0.8200069775154937, -0.6929378838978271],
+              [0.8103656693398216, -0.7480519135937216], [0.7784207895899732, -0.8187755222089821],
+              [0.7031380889709349, -0.8129460276053749], [0.6578658066281141, -0.7432256331101853]]}},
+            {"circle": {"center": [2.251067963706579, -1.1335724581898896], "radius": 0.1273871994949151}},
+            {"circle": {"center": [0.15810420419708787, -0.6448379325199328], "radius": 0.030913462261369616}},
+            {"circle": {"center": [0.5860237509092744, -0.8465843777103518], "radius": 0.060595274049024046}}],
+          "link_radius_m": 0.012, "clearance_m": 0.005}"#;
+        let p = Problem::from_json(text).unwrap();
+        let a = p.solve();
+        assert!(!a.reachable && !a.converged);
+        for (i, (t, t0)) in a.theta.iter().zip(&p.theta0).enumerate() {
+            assert!(
+                (t - t0).abs() <= std::f64::consts::PI,
+                "joint {i}: {t} from {t0}"
+            );
+        }
+        let m3: f64 = a
+            .theta
+            .iter()
+            .zip(&p.theta0)
+            .map(|(t, t0)| (t - t0).powi(2))
+            .sum();
+        assert!(
+            (a.metrics.m3 - m3).abs() < 1e-12,
+            "{} vs {m3}",
+            a.metrics.m3
+        );
+    }
+
     /// A free base is pulled with no joint limits: limits given with it are refused (above),
     /// all-null limits say nothing and are accepted.
     #[test]

@@ -1511,6 +1511,11 @@ impl Overall {
         };
         self.w.theta.copy_from_slice(&self.clear.best);
         let mut mu = b.mu;
+        if !b.on_target {
+            // A pose short of the target keeps its tip and its clearance when turned back by
+            // whole turns: only its metric 3 drops (the answer within pi of theta0).
+            self.nearest_turns(&p);
+        }
         if b.on_target {
             // Once more from the answer (a step or two): its pairs' multipliers, which the
             // next local solve continues from.
