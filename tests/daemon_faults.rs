@@ -10,7 +10,9 @@ mod daemon_support;
 
 use std::time::{Duration, Instant};
 
-use daemon_support::{dist, floats, sim_config_with, xy, Client, Daemon, DEADLINE, TWO_PORTS};
+use daemon_support::{
+    dist, floats, sim_config, sim_config_with, xy, Client, Daemon, DEADLINE, TWO_PORTS,
+};
 use serde_json::{json, Value};
 
 const MAX_JOINT_SPEED: f64 = 2.0;
@@ -294,6 +296,31 @@ fn a_silent_servo_on_a_timed_wire_is_recovered_not_taken_for_a_power_loss() {
         ],
         TWO_PORTS,
     );
+}
+
+/// The servos' factory baud rate, 57600, on a timed wire: a dozen servos bring up and hold
+/// with a 140 ms Bus Watchdog that never fires (the loop runs back to back, a tick about 60 ms). Bring-up's writes queue on the slow wire ahead
+/// of its reads, and the health thresholds read after the watchdogs are armed once took a
+/// servo at a time, leaving the first one unaddressed for 0.18 s.
+#[test]
+fn twelve_servos_at_57600_baud_come_up_and_hold_without_a_watchdog_firing() {
+    let d = Daemon::start(sim_config(&[
+        ("baud = 1000000", "baud = 57600"),
+        ("wire_timing = false", "wire_timing = true"),
+        ("watchdog_ms = 100", "watchdog_ms = 140"),
+    ]));
+    let mut c = d.client();
+    let start = c.status()["tick"].as_u64().unwrap();
+    let s = c.wait_status("ten more ticks", |s| {
+        s["tick"].as_u64().unwrap() >= start + 10
+    });
+    assert_eq!(s["state"], "holding", "{s}");
+    assert_eq!(s["faults"], json!([]), "{s}");
+    for id in 1..=12 {
+        let fires = d.sim_of(id).with_servo(id, |s| s.watchdog_fires()).unwrap();
+        assert_eq!(fires, 0, "servo {id}'s Bus Watchdog fired");
+    }
+    stop_torque_off(d);
 }
 
 /// Servo 5 silent from 2.5 s to 4 s, read with `read`, on the bus `ports` (`[[bus.ports]]`

@@ -92,6 +92,8 @@ pub struct Servo {
     silent: bool,
     /// Held by an obstacle (a blocked fault): the shaft stays where it is whatever the goal.
     blocked: bool,
+    /// How often the Bus Watchdog has fired since the simulator started.
+    watchdog_fires: u32,
     /// A hardware error selected by Shutdown switched torque off: it stays off until a reboot,
     /// whatever Shutdown says since.
     shut_down: bool,
@@ -142,6 +144,7 @@ impl Servo {
             registered: None,
             last_update: now,
             last_rx: now,
+            watchdog_fires: 0,
             boot: now,
             silent: false,
             blocked: false,
@@ -383,6 +386,12 @@ impl Servo {
     /// Bus Watchdog register (-1 once it fired).
     pub fn watchdog(&self) -> i8 {
         self.get(addr::BUS_WATCHDOG) as i8
+    }
+
+    /// How often the Bus Watchdog has fired since the simulator started: each time the arm
+    /// stopped for it, as seen on the bench, whether or not the register still reads -1.
+    pub fn watchdog_fires(&self) -> u32 {
+        self.watchdog_fires
     }
 
     /// Moving flag.
@@ -813,6 +822,7 @@ impl Servo {
                 // profiles 0 (the e-manual's Bus Watchdog example: "When it stops, the Profile
                 // Acceleration(108) and Profile Velocity(112) are set to '0'").
                 self.put(addr::BUS_WATCHDOG, -1);
+                self.watchdog_fires += 1;
                 self.put(addr::PROFILE_ACCELERATION, 0);
                 self.put(addr::PROFILE_VELOCITY, 0);
                 let present = self.pos.round() as i64;

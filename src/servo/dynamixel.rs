@@ -1265,8 +1265,8 @@ impl ServoBus for DynamixelBus {
         let sent = self.send(BROADCAST_ID, ins::PING, 0, |_| {})?;
         // Replies come in id order, but one from a higher id may follow any of them: listen for
         // the whole window, never stopping at a lull.
-        let deadline = sent - wire_time(INSTRUCTION_OVERHEAD, self.baud)
-            + scan_window(self.baud, timeout);
+        let deadline =
+            sent - wire_time(INSTRUCTION_OVERHEAD, self.baud) + scan_window(self.baud, timeout);
         let mut found: Vec<PingInfo> = Vec::new();
         loop {
             match self.read_status(poll_deadline(deadline))? {
