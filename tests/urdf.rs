@@ -295,6 +295,25 @@ fn a_shifted_base_and_capsule_links() {
     assert!((tip[0] - expected.x).hypot(tip[1] - expected.y) < 1e-12);
 }
 
+/// A config whose path has runs of hyphens still gives well-formed XML: a comment may not hold
+/// `--`, and a run of three is no pair replaced once.
+#[test]
+fn a_path_with_runs_of_hyphens_keeps_the_header_a_comment() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("arm---v2--x----.toml");
+    std::fs::copy(shipped("sim.toml"), &path).unwrap();
+    let text = snakectl_urdf(path.to_str().unwrap());
+    let doc = roxmltree::Document::parse(&text).unwrap_or_else(|e| panic!("{e}\n{text}"));
+    let comment = doc
+        .root()
+        .children()
+        .find(|n| n.is_comment())
+        .and_then(|n| n.text())
+        .unwrap();
+    assert!(comment.contains("arm- - -v2- -x- - - -.toml"), "{comment}");
+    assert_eq!(parse(&text).joints.len(), 14);
+}
+
 /// Without `--config`, the built-in copy of the shipped arm, named so in the header, even where
 /// the current directory holds a config/sim.toml of its own.
 #[test]
