@@ -146,6 +146,11 @@ fn a_recorded_run_reads_back_whole_and_plots() {
     let scene = SceneUpdate::decode(&last_scene[..]).unwrap();
     let arm = scene.entities.iter().find(|e| e.id == "arm_meas").unwrap();
     let end = arm.lines[0].points.last().unwrap();
+    // Every entity is stamped with its message's log time, to the nanosecond.
+    for e in &scene.entities {
+        let stamp = e.timestamp.unwrap();
+        assert_eq!(stamp.total_nanos(), *at, "{}", e.id);
+    }
     let (_, same_tick) = messages["/snakectl/telemetry"]
         .iter()
         .find(|(t, _)| t == at)

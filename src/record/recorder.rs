@@ -704,7 +704,7 @@ fn write_scene(
     if t.tick % setup.scene_every != 0 {
         return Ok(());
     }
-    let stamp = view::timestamp(ns as f64 * 1e-9);
+    let stamp = view::timestamp_ns(ns);
     let update = view::scene(&setup.chain, &scene.world, t, &scene.trail, stamp);
     let bytes = view::encode(&update).map_err(|e| RecordError::Write(format!("the scene: {e}")))?;
     out.write(SCENE, ch.scene, ns, &bytes)

@@ -228,10 +228,21 @@ pub fn encode<T: Encode>(message: &T) -> Result<Vec<u8>, T::Error> {
     Ok(buf)
 }
 
-/// `t_s` seconds since the Unix epoch as Foxglove's timestamp (saturating; before the epoch
-/// is the epoch).
+/// `t_s` seconds since the Unix epoch as Foxglove's timestamp, the same nanosecond as
+/// [`nanos`] gives the message's log time (before the epoch is the epoch; saturating).
 pub fn timestamp(t_s: f64) -> Timestamp {
-    Timestamp::saturating_from_epoch_secs_f64(t_s)
+    timestamp_ns(nanos(t_s))
+}
+
+/// `ns` nanoseconds since the Unix epoch as Foxglove's timestamp, exactly (saturating beyond
+/// its range, in 2106).
+pub fn timestamp_ns(ns: u64) -> Timestamp {
+    const NS: u64 = 1_000_000_000;
+    u32::try_from(ns / NS)
+        .ok()
+        // The remainder is below 1e9: it fits, and carries nothing.
+        .and_then(|sec| Timestamp::new_checked(sec, (ns % NS) as u32))
+        .unwrap_or(Timestamp::MAX)
 }
 
 /// `t_s` seconds since the Unix epoch in nanoseconds, as log times are written (0 before the

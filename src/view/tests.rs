@@ -133,6 +133,26 @@ fn messages_decode_to_what_they_were_made_of() {
 }
 
 #[test]
+fn a_scene_or_log_stamp_is_its_message_log_time_to_the_nanosecond() {
+    // Wall-clock seconds, where an f64 holds a time to about 240 ns: the stamp and the log
+    // time are the same nanosecond, and that of the ROS headers.
+    for t_s in [1_796_684_472.355_119_6, 1_796_684_461.515_119_6, 1.5, 0.0] {
+        let stamp = timestamp(t_s);
+        assert_eq!(stamp.total_nanos(), nanos(t_s), "{t_s}");
+        let ros = ros::Time::from_secs_f64(t_s);
+        assert_eq!(
+            (i64::from(stamp.sec()), stamp.nsec()),
+            (i64::from(ros.sec), ros.nanosec),
+            "{t_s}"
+        );
+    }
+    let ns = 1_796_684_472_355_119_604;
+    assert_eq!(timestamp_ns(ns).total_nanos(), ns);
+    assert_eq!(timestamp(-1.0).total_nanos(), 0);
+    assert_eq!(timestamp_ns(u64::MAX), Timestamp::MAX);
+}
+
+#[test]
 fn events_go_to_the_log_at_their_level() {
     let event = |what| Event {
         owner: None,
