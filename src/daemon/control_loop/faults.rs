@@ -839,7 +839,7 @@ pub(super) fn health_limits<B: ServoBus>(arm: &Arm, bus: &mut Limited<B>) -> Vec
     let start = REGISTERS.iter().map(|r| r.address()).min().unwrap_or(0);
     let end = REGISTERS
         .iter()
-        .map(|r| r.address() + u16::from(r.size()))
+        .map(|r| r.address() + r.size())
         .max()
         .unwrap_or(0);
     let ids = arm.ids();
