@@ -315,3 +315,62 @@ fn arm_rate_and_ports_are_as_documented() {
         "{e}"
     );
 }
+
+/// `snakectl run --config` on `text` (a `[bus] kind = "dynamixel"` on a device that does not
+/// exist, so that it stops once the file is read): its stderr, the log of that start-up.
+/// `more` follows on the command line.
+fn start_up_log(name: &str, text: &str, more: &[&str]) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    std::fs::write(&path, text).unwrap();
+    let path = path.to_str().unwrap();
+    let mut args = vec!["run", "--config", path, "--listen", "127.0.0.1:0"];
+    args.extend(more);
+    let (ok, stderr) = snakectl_within(&args)
+        .unwrap_or_else(|| panic!("`snakectl run --config {name}` did not end"));
+    assert!(!ok, "{name}: started on a missing device: {stderr}");
+    stderr
+}
+
+/// A serial device that is not there.
+const MISSING: &str = "/nonexistent-snakectl-test/ttyUSB0";
+
+/// A real arm's file: two joints on a device that is not there.
+fn real_arm(port: &str, bus_extra: &str) -> String {
+    format!(
+        "[[joint]]\nlink_m = 0.1\nmin_rad = -1\nmax_rad = 1\nid = 1\nmodel = \"XL430-W250\"\n\
+         [[joint]]\nlink_m = 0.1\nmin_rad = -1\nmax_rad = 1\nid = 2\nmodel = \"XL430-W250\"\n\
+         [bus]\nkind = \"dynamixel\"\nport = \"{port}\"\n{bus_extra}"
+    )
+}
+
+/// A Profile Velocity below `[control] max_joint_speed_rad_s` is accepted (a gentle profile on
+/// purpose), with a start-up warning naming both keys and values: the servos lag behind the
+/// goals the daemon sends.
+#[test]
+fn a_profile_slower_than_the_joint_speed_limit_is_warned_of() {
+    let slow = real_arm(
+        MISSING,
+        "profile_velocity_rad_s = 0.5\n[control]\nmax_joint_speed_rad_s = 2.0\n",
+    );
+    Config::from_str(&slow, "slow.toml").unwrap_or_else(|e| panic!("{e}"));
+    let log = start_up_log("slow.toml", &slow, &[]);
+    assert!(
+        log.contains("bus.profile_velocity_rad_s = 0.5")
+            && log.contains("control.max_joint_speed_rad_s = 2")
+            && log.contains("slow.toml"),
+        "{log}"
+    );
+    // A profile as fast as the limit, or none, says nothing of it.
+    for bus in [
+        "profile_velocity_rad_s = 2.0\n",
+        "profile_velocity_rad_s = 0\n",
+    ] {
+        let text = real_arm(
+            MISSING,
+            &format!("{bus}[control]\nmax_joint_speed_rad_s = 2.0\n"),
+        );
+        let log = start_up_log("fast.toml", &text, &[]);
+        assert!(!log.contains("profile_velocity_rad_s"), "{bus}: {log}");
+    }
+}

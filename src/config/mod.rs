@@ -644,6 +644,7 @@ impl Checker<'_> {
         let control = self.control(&raw.control.unwrap_or_default())?;
         if let (Some(b), Some(arm)) = (&raw_bus, &arm) {
             self.watchdog_covers_ticks(arm.settings().watchdog_ms, b, control.rate_hz)?;
+            self.profile_keeps_up(arm.settings().profile_velocity_rad_s, &control);
         }
         let server = self.server(raw.server.unwrap_or_default())?;
         let zenoh = self.zenoh(raw.zenoh.unwrap_or_default(), control.rate_hz)?;
@@ -936,6 +937,23 @@ impl Checker<'_> {
                 unit,
             },
         ))
+    }
+
+    /// Warns when the servos' Profile Velocity (0: none) is below the speed the daemon commands
+    /// joints at: they then lag behind their goals, and a motion is told done before they
+    /// arrive. Accepted all the same, for a gentle profile on purpose.
+    fn profile_keeps_up(&self, profile_velocity_rad_s: f64, control: &Control) {
+        if profile_velocity_rad_s > 0.0 && profile_velocity_rad_s < control.max_joint_speed_rad_s {
+            tracing::warn!(
+                "{}: bus.profile_velocity_rad_s = {profile_velocity_rad_s} is below \
+                 control.max_joint_speed_rad_s = {}: the servos move no faster than their \
+                 profile, so they lag behind the goals the daemon sends and a motion is told \
+                 done before they arrive; raise the profile (or 0 for none), or lower \
+                 max_joint_speed_rad_s to it",
+                self.path.display(),
+                control.max_joint_speed_rad_s
+            );
+        }
     }
 
     /// `bus.watchdog_ms` (0: off) covers two ticks at `rate_hz`: the loop renews the Bus
