@@ -90,6 +90,31 @@ fn bad_scenarios_exit_two_naming_file_and_field() {
     assert_eq!(o.status.code(), Some(2));
 }
 
+/// A scenario that is not valid TOML is refused on one line naming the file, line and column,
+/// as a config file is.
+#[test]
+fn a_syntax_error_names_its_line_and_column_on_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.toml");
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/sine.toml"),
+    )
+    .unwrap();
+    let line = 1 + text.lines().position(|l| l == "amplitude_m = 0.1").unwrap();
+    std::fs::write(
+        &file,
+        text.replace("amplitude_m = 0.1", "amplitude_m = [0.1,, 0.2]"),
+    )
+    .unwrap();
+    let o = simulate_svg(&file, &dir.path().join("o"));
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    // The second comma, after `amplitude_m = [0.1,`.
+    let at = format!("bad.toml:{line}:20: curve.amplitude_m: invalid array");
+    assert!(err.contains(&at), "not `{at}`: {err}");
+}
+
 /// An `--out` that cannot be made is refused before the scenario is computed, naming `--out`.
 #[test]
 fn an_unwritable_out_fails_before_the_computation() {

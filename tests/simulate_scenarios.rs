@@ -281,7 +281,7 @@ fn scenario_errors_name_the_file_and_the_field() {
         let e = Scenario::from_toml(&text, "bad.toml", Path::new(".")).unwrap_err();
         assert_eq!(e.field, field, "{e}");
         let shown = e.to_string();
-        assert!(shown.starts_with("bad.toml: "), "{shown}");
+        assert!(shown.starts_with("bad.toml:"), "{shown}");
         assert!(!shown.contains('\n'), "one line: {shown}");
     }
 }

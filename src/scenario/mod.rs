@@ -56,16 +56,26 @@ use crate::world::label_fault;
 use curve::Curve;
 use expr::Expr;
 
-/// A refused scenario: the file, the field and what is wrong. Displays on one line.
+/// A refused scenario: the file, where in it for text that is not valid TOML or not of the
+/// right type (`file:line:column`, as the config's errors), the field and what is wrong.
+/// Displays on one line.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{file}: {field}: {message}")]
+#[error("{file}{}: {field}: {message}", at_text(*.at))]
 pub struct ScenarioError {
     /// The scenario file.
     pub file: String,
+    /// Line and column (from 1) of a TOML error, where the parser gave them.
+    pub at: Option<(usize, usize)>,
     /// The field (`curve.amplitude_m`, `strategy[1].objective`, ...), or `input` for the whole.
     pub field: String,
     /// What is wrong, with the value.
     pub message: String,
+}
+
+/// `:line:column`, or nothing.
+fn at_text(at: Option<(usize, usize)>) -> String {
+    at.map(|(line, column)| format!(":{line}:{column}"))
+        .unwrap_or_default()
 }
 
 #[derive(Debug, Deserialize)]
@@ -291,6 +301,7 @@ impl Ctx<'_> {
     fn err(&self, field: impl Into<String>, message: impl Into<String>) -> ScenarioError {
         ScenarioError {
             file: self.file.to_string(),
+            at: None,
             field: field.into(),
             message: message.into(),
         }
@@ -346,6 +357,7 @@ impl Scenario {
         let file = path.display().to_string();
         let text = read_text(path, MAX_TEXT_BYTES).map_err(|e| ScenarioError {
             file: file.clone(),
+            at: None,
             field: "input".into(),
             message: format!("cannot read the file: {e}"),
         })?;
@@ -358,7 +370,7 @@ impl Scenario {
     pub fn from_toml(text: &str, file: &str, dir: &Path) -> Result<Self, ScenarioError> {
         let cx = Ctx { file };
         let raw: RawScenario = toml::from_str(text).map_err(|e| {
-            let message = e.message().to_string();
+            let (line, column, message) = crate::config::toml_where(text, &e);
             let table = e
                 .span()
                 .map(|s| table_at(text, s.start))
@@ -388,7 +400,10 @@ impl Scenario {
             } else {
                 message
             };
-            cx.err(field, message)
+            ScenarioError {
+                at: (line > 0).then_some((line, column)),
+                ..cx.err(field, message)
+            }
         })?;
         if let Some(why) = raw
             .title
