@@ -374,3 +374,44 @@ fn a_profile_slower_than_the_joint_speed_limit_is_warned_of() {
         assert!(!log.contains("profile_velocity_rad_s"), "{bus}: {log}");
     }
 }
+
+/// `[sim]` and its faults in a file of real servos are not used, and the start-up log says so
+/// (as it does of a `port` given to `kind = "sim"`); with `kind = "sim"` they are, and it says
+/// nothing.
+#[test]
+fn a_sim_table_beside_real_servos_is_warned_of() {
+    let sim = "[sim]\nwire_timing = true\n[[sim.fault]]\nkind = \"drop\"\nfraction = 0.1\n\
+               [[sim.fault]]\nkind = \"corrupt\"\nfraction = 0.1\n";
+    let real = format!("{}{sim}", real_arm(MISSING, ""));
+    let log = start_up_log("real.toml", &real, &[]);
+    assert!(
+        log.contains("real.toml: [sim] is not used, nor its 2 [[sim.fault]] tables")
+            && log.contains("kind = \"dynamixel\""),
+        "{log}"
+    );
+    let simulated = real.replace(
+        &format!("kind = \"dynamixel\"\nport = \"{MISSING}\""),
+        "kind = \"sim\"",
+    );
+    let log = start_up_log("simulated.toml", &simulated, &["--port", MISSING]);
+    assert!(!log.contains("[sim]"), "{log}");
+}
+
+/// `[foxglove] accept_commands = true` without `listen` serves nothing that could take a
+/// command: accepted, with a warning saying so; with `listen`, no warning.
+#[test]
+fn foxglove_commands_without_a_view_are_warned_of() {
+    let none = format!(
+        "{}[foxglove]\naccept_commands = true\n",
+        real_arm(MISSING, "")
+    );
+    let log = start_up_log("none.toml", &none, &[]);
+    assert!(
+        log.contains("none.toml: foxglove.accept_commands = true has no effect")
+            && log.contains("foxglove.listen"),
+        "{log}"
+    );
+    let served = format!("{none}listen = \"127.0.0.1:0\"\n");
+    let log = start_up_log("served.toml", &served, &[]);
+    assert!(!log.contains("accept_commands"), "{log}");
+}

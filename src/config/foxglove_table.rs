@@ -73,6 +73,14 @@ impl Checker<'_> {
                 },
             ));
         }
+        if raw.accept_commands && listen.is_none() {
+            tracing::warn!(
+                "{}: foxglove.accept_commands = true has no effect: without foxglove.listen no \
+                 live view is served, so no Foxglove client can connect (set listen, e.g. \
+                 \"127.0.0.1:8765\", to take commands from one)",
+                self.path.display()
+            );
+        }
         Ok(Foxglove {
             listen,
             publish_hz,

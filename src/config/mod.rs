@@ -641,6 +641,9 @@ impl Checker<'_> {
         }
         let ports = bus.as_ref().map_or(1, |b: &Bus| b.ports.len());
         let sim = raw.sim.map(|s| self.sim(s, &joints, ports)).transpose()?;
+        if let (Some(sim), Some(BusKind::Dynamixel)) = (&sim, bus.as_ref().map(|b| b.kind)) {
+            self.sim_unused(sim);
+        }
         let control = self.control(&raw.control.unwrap_or_default())?;
         if let (Some(b), Some(arm)) = (&raw_bus, &arm) {
             self.watchdog_covers_ticks(arm.settings().watchdog_ms, b, control.rate_hz)?;
@@ -937,6 +940,22 @@ impl Checker<'_> {
                 unit,
             },
         ))
+    }
+
+    /// Warns that `[sim]` (and its faults) is not used by a bus of real servos, as a `port`
+    /// given to `kind = "sim"` is warned of: only a simulator serves it.
+    fn sim_unused(&self, sim: &Sim) {
+        let faults = match sim.faults.len() {
+            0 => String::new(),
+            1 => ", nor its [[sim.fault]]".to_owned(),
+            n => format!(", nor its {n} [[sim.fault]] tables"),
+        };
+        tracing::warn!(
+            "{}: [sim] is not used{faults}: kind = \"dynamixel\" drives the servos on the \
+             serial devices, not a simulator (only kind = \"sim\", or `snakectl sim` on this \
+             file, serves it)",
+            self.path.display()
+        );
     }
 
     /// Warns when the servos' Profile Velocity (0: none) is below the speed the daemon commands
