@@ -106,6 +106,44 @@ fn a_missing_serial_port_is_named_with_a_hint() {
     );
 }
 
+/// Two `[[bus.ports]]` on one device are refused naming the file and the fields, as the
+/// config's own errors do; two `--port` flags on one, naming the ports by number.
+#[test]
+fn one_device_named_twice_is_refused_naming_where() {
+    let joints = "[[joint]]\nlink_m = 0.1\nmin_rad = -1\nmax_rad = 1\nid = 1\nmodel = \"XL430-W250\"\n\
+                  [[joint]]\nlink_m = 0.1\nmin_rad = -1\nmax_rad = 1\nid = 2\nmodel = \"XL430-W250\"\n";
+    let text = format!(
+        "{joints}[bus]\nkind = \"dynamixel\"\n[[bus.ports]]\nids = [1]\nport = \"/dev/null\"\n\
+         [[bus.ports]]\nids = [2]\nport = \"/dev/../dev/null\"\n"
+    );
+    let config = Config::from_str(&text, "two.toml").unwrap();
+    let err = connect::check_ports(&config, &[]).unwrap_err().to_string();
+    assert_eq!(
+        err,
+        "two.toml: bus.ports[2].port: \"/dev/../dev/null\" is the same device as \
+         bus.ports[1].port (\"/dev/null\")"
+    );
+    let given = [PathBuf::from("/dev/null"), PathBuf::from("/dev/./null")];
+    let err = connect::check_ports(&config, &given)
+        .unwrap_err()
+        .to_string();
+    assert_eq!(err, "port 2 (/dev/./null) is the same device as port 1");
+}
+
+/// Ports given for a bus of one are counted in the singular.
+#[test]
+fn ports_given_for_a_bus_of_one_are_counted_in_words_that_agree() {
+    let config = sim_config();
+    let given = [PathBuf::from("/dev/null"), PathBuf::from("/dev/zero")];
+    let err = connect::check_ports(&config, &given)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.ends_with("2 --port given for the 1 port of [bus]: give one per port, in order"),
+        "{err}"
+    );
+}
+
 #[test]
 fn a_model_the_simulator_lacks_is_named_with_its_joint() {
     let text = std::fs::read_to_string(shipped("sim.toml")).unwrap();

@@ -387,7 +387,12 @@ fn one_device_given_as_two_ports_is_refused_before_the_socket_is_bound() {
     ];
     let (status, _, stderr) = snakectl(&args);
     assert_eq!(status.code(), Some(2), "{stderr}");
-    expect(&stderr, &dotted);
+    // Named as the config's errors name its fields.
+    let says = format!(
+        "{}: bus.ports[2].port: {dotted:?} is the same device as bus.ports[1].port ({link:?})",
+        file.display()
+    );
+    assert!(stderr.contains(&says), "not `{says}`:\n{stderr}");
     // One `--port` for two ports: refused the same way, before it says it listens.
     let args = [
         "run", "--config", flags, "--listen", &listen, "--port", &link,

@@ -97,7 +97,11 @@ pub enum ConnectError {
         ports: usize,
     },
     /// Explicit ports given, but not one per port of the file.
-    #[error("{}: {given} {flag} given for the {expected} ports of [bus]: give one per port, in order", path.display())]
+    #[error(
+        "{}: {given} {flag} given for the {expected} {} of [bus]: give one per port, in order",
+        path.display(),
+        if *expected == 1 { "port" } else { "ports" }
+    )]
     PortCount {
         /// The config file.
         path: PathBuf,
@@ -112,8 +116,8 @@ pub enum ConnectError {
     /// process that holds it): nothing was written to it.
     #[error(transparent)]
     InUse(ServoError),
-    /// Two ports of the bus are one device (the same path, or two paths to it): the second
-    /// would be refused as in use by this very process.
+    /// Two ports given with `--port` are one device (the same path, or two paths to it): the
+    /// second would be refused as in use by this very process.
     #[error("port {port} ({path}) is the same device as port {first}", path = path.display())]
     SameDevice {
         /// The later port, from 1 in order.
@@ -122,6 +126,25 @@ pub enum ConnectError {
         path: PathBuf,
         /// The earlier port on that device, from 1.
         first: usize,
+    },
+    /// [`ConnectError::SameDevice`] for two `[[bus.ports]]` of the file: named as the config's
+    /// errors name a field.
+    #[error(
+        "{}: bus.ports[{port}].port: {path:?} is the same device as bus.ports[{first}].port \
+         ({first_path:?})",
+        file.display()
+    )]
+    SameDeviceInFile {
+        /// The config file.
+        file: PathBuf,
+        /// The later port, from 1 in order.
+        port: usize,
+        /// Its path as written.
+        path: PathBuf,
+        /// The earlier port on that device, from 1.
+        first: usize,
+        /// Its path as written.
+        first_path: PathBuf,
     },
 }
 
@@ -274,36 +297,48 @@ pub fn check_ports(config: &Config, given: &[PathBuf]) -> Result<(), ConnectErro
             expected,
         });
     }
-    let paths: Vec<PathBuf> = if !given.is_empty() {
-        given.to_vec()
-    } else if bus.kind == BusKind::Dynamixel {
-        bus.ports
-            .iter()
-            .filter_map(|p| p.port.as_deref().map(PathBuf::from))
-            .collect()
-    } else {
+    if !given.is_empty() {
+        return match same_device(given) {
+            Some((k, first)) => Err(ConnectError::SameDevice {
+                port: k + 1,
+                path: given[k].clone(),
+                first: first + 1,
+            }),
+            None => Ok(()),
+        };
+    }
+    if bus.kind != BusKind::Dynamixel {
         return Ok(());
-    };
-    distinct_devices(&paths)
+    }
+    // Every port of a real bus has its path (the config checked it).
+    let paths: Vec<PathBuf> = bus
+        .ports
+        .iter()
+        .filter_map(|p| p.port.as_deref().map(PathBuf::from))
+        .collect();
+    match same_device(&paths) {
+        Some((k, first)) => Err(ConnectError::SameDeviceInFile {
+            file: config.path().to_path_buf(),
+            port: k + 1,
+            path: paths[k].clone(),
+            first: first + 1,
+            first_path: paths[first].clone(),
+        }),
+        None => Ok(()),
+    }
 }
 
-/// [`ConnectError::SameDevice`] for the first path of `paths` that resolves to an earlier one's
-/// device.
-fn distinct_devices(paths: &[PathBuf]) -> Result<(), ConnectError> {
+/// The index of the first path of `paths` that resolves to an earlier one's device, and that
+/// earlier one's.
+fn same_device(paths: &[PathBuf]) -> Option<(usize, usize)> {
     let resolved: Vec<PathBuf> = paths
         .iter()
         .map(|p| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone()))
         .collect();
-    for (k, device) in resolved.iter().enumerate() {
-        if let Some(first) = resolved[..k].iter().position(|d| d == device) {
-            return Err(ConnectError::SameDevice {
-                port: k + 1,
-                path: paths[k].clone(),
-                first: first + 1,
-            });
-        }
-    }
-    Ok(())
+    resolved
+        .iter()
+        .enumerate()
+        .find_map(|(k, device)| Some((k, resolved[..k].iter().position(|d| d == device)?)))
 }
 
 /// Open every port of the bus `config` describes, as one bus: the explicit ports of `options`
