@@ -105,6 +105,14 @@ pub fn read_capped(reader: impl Read, cap: u64) -> Result<String, TextFileError>
     })
 }
 
+/// The first line of `text` (from 1) that holds more than whitespace, if any: what a token
+/// file whose first line is blank has further down.
+pub fn first_text_line(text: &str) -> Option<usize> {
+    text.lines()
+        .position(|l| !l.trim().is_empty())
+        .map(|i| i + 1)
+}
+
 /// Why a line of a points CSV is not a point.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RowError {

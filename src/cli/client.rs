@@ -351,9 +351,12 @@ pub(super) fn connect(args: &ConnectArgs) -> Result<Client, Failure> {
                 file.display()
             ))),
             // Found before connecting: bad input.
-            (ClientError::TokenFile { .. } | ClientError::EmptyToken { .. }, _) => {
-                Failure::bad_input(e)
-            }
+            (
+                ClientError::TokenFile { .. }
+                | ClientError::EmptyToken { .. }
+                | ClientError::BlankFirstLine { .. },
+                _,
+            ) => Failure::bad_input(e),
             // Not an address at all (a path, no port, a port past 65535): bad input too.
             (ClientError::Connect { source, .. }, _)
                 if source.kind() == std::io::ErrorKind::InvalidInput =>

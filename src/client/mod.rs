@@ -109,11 +109,23 @@ pub enum ClientError {
         /// Why: what the operating system said, or not a regular file, or too large.
         source: crate::textfile::TextFileError,
     },
-    /// The token file's first line is empty.
+    /// The token file holds nothing but blanks.
     #[error("{}: the token file is empty: its first line is the token", path.display())]
     EmptyToken {
         /// The file.
         path: PathBuf,
+    },
+    /// The token file's first line is blank, a later one not: only the first line is read.
+    #[error(
+        "{}: the first line of the token file is blank: the token is the first line, and line \
+         {line} is not read (move the token to line 1)",
+        path.display()
+    )]
+    BlankFirstLine {
+        /// The file.
+        path: PathBuf,
+        /// The first line that is not blank, from 1.
+        line: usize,
     },
     /// The daemon closed the connection (it stopped, or it refused this client).
     #[error("the daemon at {addr} closed the connection{}", reason.as_ref().map(|r| format!(": {}", Escaped(&r.to_string()))).unwrap_or_default())]
@@ -295,8 +307,10 @@ pub fn read_token(path: &Path) -> Result<String, ClientError> {
         })?;
     let token = text.lines().next().unwrap_or("").trim();
     if token.is_empty() {
-        return Err(ClientError::EmptyToken {
-            path: path.to_path_buf(),
+        let path = path.to_path_buf();
+        return Err(match crate::textfile::first_text_line(&text) {
+            Some(line) => ClientError::BlankFirstLine { path, line },
+            None => ClientError::EmptyToken { path },
         });
     }
     Ok(token.to_owned())

@@ -121,6 +121,17 @@ fn token_files_are_read_as_the_daemon_reads_them() {
         .map(|e| e.to_string())
         .unwrap_or_default();
     assert!(err.contains("the token file is empty"), "{err}");
+    // A token below a blank first line is not read, and the file is not called empty.
+    std::fs::write(&path, "\n s3cret\n").unwrap();
+    let err = read_token(&path)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(
+        err.contains("the first line of the token file is blank")
+            && err.contains("line 2 is not read"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -24,7 +24,7 @@ pub enum AccessError {
         /// Why: what the operating system said, or not a regular file, or too large.
         source: crate::textfile::TextFileError,
     },
-    /// The token file's first line is empty.
+    /// The token file holds nothing but blanks.
     #[error(
         "{}: the token file ([server] token_file) is empty: its first line is the token",
         path.display()
@@ -32,6 +32,18 @@ pub enum AccessError {
     Empty {
         /// The file.
         path: PathBuf,
+    },
+    /// The token file's first line is blank, a later one not: only the first line is read.
+    #[error(
+        "{}: the first line of the token file ([server] token_file) is blank: the token is the \
+         first line, and line {line} is not read (move the token to line 1)",
+        path.display()
+    )]
+    BlankFirstLine {
+        /// The file.
+        path: PathBuf,
+        /// The first line that is not blank, from 1.
+        line: usize,
     },
     /// A listener other hosts can reach, and no token.
     #[error(
@@ -72,8 +84,12 @@ impl Token {
             source,
         })?;
         let first = text.lines().next().unwrap_or("").trim();
-        Token::new(first).ok_or_else(|| AccessError::Empty {
-            path: path.to_path_buf(),
+        Token::new(first).ok_or_else(|| {
+            let path = path.to_path_buf();
+            match crate::textfile::first_text_line(&text) {
+                Some(line) => AccessError::BlankFirstLine { path, line },
+                None => AccessError::Empty { path },
+            }
         })
     }
 
@@ -122,7 +138,8 @@ impl Access {
     /// with it.
     ///
     /// # Errors
-    /// [`AccessError::Read`] or [`AccessError::Empty`] for a token file that cannot be used;
+    /// [`AccessError::Read`], [`AccessError::Empty`] or [`AccessError::BlankFirstLine`] for a
+    /// token file that cannot be used;
     /// [`AccessError::Exposed`] for a non-loopback `addr` without a token.
     pub fn prepare(server: &Server, addr: SocketAddr) -> Result<Access, AccessError> {
         let token = server.token_file.as_deref().map(Token::read).transpose()?;
@@ -179,12 +196,26 @@ mod tests {
         assert!(!token.matches(b"second line"));
         assert_eq!(format!("{token:?}"), "Token(..)", "Debug hides the token");
 
-        for empty in ["", "\n", "   \nnext\n"] {
+        for empty in ["", "\n", " \t\n  \n"] {
             std::fs::write(&file, empty).unwrap();
             let e = Token::read(&file).unwrap_err();
             assert!(matches!(e, AccessError::Empty { .. }), "{empty:?}: {e}");
             assert!(e.to_string().contains(&*file.to_string_lossy()), "{e}");
         }
+        // A token below a blank first line is not read, and not called empty either.
+        std::fs::write(&file, "   \n\nnext\n").unwrap();
+        let e = Token::read(&file).unwrap_err();
+        assert!(
+            matches!(e, AccessError::BlankFirstLine { line: 3, .. }),
+            "{e}"
+        );
+        let shown = e.to_string();
+        assert!(
+            shown.contains("first line of the token file ([server] token_file) is blank")
+                && shown.contains("line 3 is not read")
+                && !shown.contains("empty"),
+            "{shown}"
+        );
         let missing = dir.join("absent");
         let e = Token::read(&missing).unwrap_err();
         assert!(matches!(e, AccessError::Read { .. }), "{e}");
